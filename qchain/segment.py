@@ -1,0 +1,589 @@
+"""One soft pneumatic segment: the paper's per-segment blocks M_xi, C_xi, B.
+
+A segment is a braided soft cylinder of rest length ``l0`` and radius ``r_s`` that bends
+with constant curvature and stretches (no twist, no swelling), driven by three inner
+chambers at angles ``phi_i = 0, +2pi/3, -2pi/3`` about the root frame's z axis (chamber 1
+on the +x axis). It is the model of Olguin-Diaz, Trejo-Ramos, Parra-Vega and
+Navarro-Alarcon, "On the Modelling of Soft-robots as Quasi-Continuum Lagrangian
+Dynamical Systems with Well-posed Input Matrix"; DESIGN.md section 1 restates it.
+
+Conventions
+-----------
+* Deformation coordinates ``q_e`` (shape (3,)): ``coords="curvature"`` (default)
+  ``(l, ux, uy)`` [m, 1/m, 1/m] with ``(ux, uy) = kappa (cos psi, sin psi)``, analytic
+  everywhere; ``coords="paper"`` ``(l, psi, kappa)`` [m, rad, 1/m], the paper's own,
+  singular at ``kappa = 0``.
+* Quasi-velocities ``xi = (v, w, qdot_e)`` (shape (9,)): ``v, w`` the root frame's linear
+  and angular velocity in root coordinates (Pinocchio ``[linear; angular]``), ``qdot_e`` in
+  the segment's coordinates.
+* Equation of motion of a segment on a moving root frame (all terms on the left are
+  "generalised forces" in the sense of Pinocchio's ``rnea``/``computeGeneralizedGravity``)::
+
+      M_xi(q_e) xi_dot + C_xi(q_e, xi) xi + G(q_e) + [0; D qdot_e + dU_el/dq_e]
+          = [w_root; B(q_e) p]
+
+  where ``w_root`` is the wrench (root coordinates) the root frame exerts on the segment.
+* Mass: the paper's density field ``rho = rho0 l0 / (l (1 - kappa r cos(psi - phi)))``
+  makes every cross-section a rigid uniform disk of mass ``m dalpha``, so
+  ``M_xi = int_0^1 Phi^T I_disk Phi dalpha`` with ``Phi = [Ad(g)^-1, S(alpha)]``, computed
+  by Gauss-Legendre quadrature on ``nodes`` points.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import pinocchio as pin
+
+from .arc import ArcNodes, arc_nodes, strain_twist
+from .errors import (
+    DomainError,
+    SingularConfigurationError,
+    as_matrix,
+    as_vector,
+    check_positive,
+)
+from .spatial import ad_matrix, disk_inertia, force_cross, force_cross_bar, motion_cross
+
+__all__ = [
+    "Segment",
+    "CHAMBER_ANGLES",
+    "DEFAULT_NODES",
+    "PAPER_SINGULAR_ANGLE",
+    "paper_to_curvature",
+    "curvature_to_paper",
+    "paper_jacobian",
+    "paper_jacobian_dot",
+    "paper_velocity_to_curvature",
+    "curvature_velocity_to_paper",
+]
+
+#: Chamber angles phi_i about the root z axis (rad): chamber 1 on +x.
+CHAMBER_ANGLES = np.array([0.0, 2.0 * np.pi / 3.0, -2.0 * np.pi / 3.0])
+
+#: Default Gauss-Legendre node count along a segment. ``tests/test_segment.py`` checks
+#: that it gives M_xi to 1e-10 relative (in the Frobenius norm) against a 40-node
+#: reference for bending angles up to 2 rad.
+DEFAULT_NODES = 6
+
+#: In paper coordinates, bending angles ``kappa * l`` below this (rad) raise
+#: :class:`SingularConfigurationError`: the psi column of M_xi scales with kappa, so its
+#: condition number grows like ``1 / (kappa l)^2`` and exceeds 1e12 here.
+PAPER_SINGULAR_ANGLE = 1e-6
+
+COORDS = ("curvature", "paper")
+ACTUATIONS = ("volume", "paper")
+
+
+# ---------------------------------------------------------------------------------------
+# coordinate conversions (module level: they know no segment parameters)
+
+
+def paper_to_curvature(q_p: np.ndarray) -> np.ndarray:
+    """``(l, psi, kappa) -> (l, ux, uy) = (l, kappa cos psi, kappa sin psi)``."""
+    l, psi, kappa = q_p
+    return np.array([l, kappa * np.cos(psi), kappa * np.sin(psi)])
+
+
+def curvature_to_paper(q_c: np.ndarray) -> np.ndarray:
+    """``(l, ux, uy) -> (l, psi, kappa)`` with ``psi = atan2(uy, ux)`` in (-pi, pi].
+
+    At ``ux = uy = 0`` the azimuth is undefined; ``psi = 0`` is returned.
+    """
+    l, ux, uy = q_c
+    return np.array([l, np.arctan2(uy, ux), np.hypot(ux, uy)])
+
+
+def paper_jacobian(q_p: np.ndarray) -> np.ndarray:
+    """``J = d(l, ux, uy) / d(l, psi, kappa)``, shape (3, 3)."""
+    _, psi, kappa = q_p
+    c, s = np.cos(psi), np.sin(psi)
+    return np.array([[1.0, 0.0, 0.0], [0.0, -kappa * s, c], [0.0, kappa * c, s]])
+
+
+def paper_jacobian_dot(q_p: np.ndarray, qd_p: np.ndarray) -> np.ndarray:
+    """Time derivative of :func:`paper_jacobian` along ``qd_p``, shape (3, 3)."""
+    _, psi, kappa = q_p
+    _, psid, kappad = qd_p
+    c, s = np.cos(psi), np.sin(psi)
+    return np.array(
+        [
+            [0.0, 0.0, 0.0],
+            [0.0, -kappad * s - kappa * c * psid, -s * psid],
+            [0.0, kappad * c - kappa * s * psid, c * psid],
+        ]
+    )
+
+
+def paper_velocity_to_curvature(q_p: np.ndarray, qd_p: np.ndarray) -> np.ndarray:
+    """``(ldot, psidot, kappadot) -> (ldot, uxdot, uydot) = J qd_p``."""
+    return paper_jacobian(q_p) @ qd_p
+
+
+def curvature_velocity_to_paper(q_c: np.ndarray, qd_c: np.ndarray) -> np.ndarray:
+    """Inverse of :func:`paper_velocity_to_curvature`; needs ``kappa > 0``.
+
+    Raises
+    ------
+    SingularConfigurationError
+        where ``kappa`` is zero (``psidot`` is undefined there).
+    """
+    q_p = curvature_to_paper(q_c)
+    if q_p[2] == 0.0:
+        raise SingularConfigurationError(
+            "curvature_velocity_to_paper: kappa = 0, psidot is undefined in the paper's "
+            "(l, psi, kappa) coordinates; use coords='curvature'"
+        )
+    l, ux, uy = q_c
+    _, uxd, uyd = qd_c
+    k2 = ux * ux + uy * uy
+    return np.array([qd_c[0], (ux * uyd - uy * uxd) / k2, (ux * uxd + uy * uyd) / np.sqrt(k2)])
+
+
+def _paper_hessian_term(q_p: np.ndarray, grad_c: np.ndarray) -> np.ndarray:
+    """``sum_i grad_c[i] d^2 q_c[i] / dq_p^2``: the chain-rule term of a Hessian."""
+    _, psi, kappa = q_p
+    c, s = np.cos(psi), np.sin(psi)
+    gx, gy = grad_c[1], grad_c[2]
+    H = np.zeros((3, 3))
+    H[1, 1] = -kappa * (gx * c + gy * s)
+    H[1, 2] = H[2, 1] = -gx * s + gy * c
+    return H
+
+
+# ---------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class _Eval:
+    """One evaluation of a segment at ``q_e``: curvature coordinates and node kinematics."""
+
+    q_c: np.ndarray  # (3,) curvature coordinates
+    J: np.ndarray  # (3, 3) d q_c / d q_e (identity in curvature coordinates)
+    nodes: ArcNodes  # at the Gauss nodes
+
+
+@dataclass(frozen=True, kw_only=True, eq=False)
+class Segment:
+    """A constant-curvature, extensible soft segment with three pressure chambers.
+
+    Parameters
+    ----------
+    length : float
+        Rest length ``l0`` (m).
+    radius : float
+        Outer radius ``r_s`` (m).
+    mass : float
+        Mass ``m`` (kg), spread uniformly over every cross-section (the paper's density).
+    chamber_area : float
+        Cross-section area ``A_ch`` of each chamber (m^2).
+    chamber_radius : float
+        Distance ``r_ch`` of the chamber centres from the axis (m); the chamber must fit:
+        ``r_ch + sqrt(A_ch / pi) <= r_s``.
+    youngs_modulus : float
+        ``E`` (Pa); ``EI = E pi r_s^4 / 4``, ``EA = E pi r_s^2``.
+    damping : float, optional
+        Stiffness-proportional damping ``beta`` (s): ``D = beta K(q0)``, ``K(q0)`` the
+        elastic stiffness at rest in curvature coordinates, mapped to ``coords``.
+    coords : {"curvature", "paper"}
+        Deformation coordinates ``q_e``; see the module docstring.
+    actuation : {"volume", "paper"}
+        Input matrix model: chamber-volume virtual work (default) or the paper's
+        tip-plate forces.
+    nodes : int, optional
+        Gauss-Legendre nodes along the segment; ``None`` gives :data:`DEFAULT_NODES`.
+    stiffness_matrix : (3, 3) array, optional
+        The paper's literal linear elasticity ``K_e`` in the segment's coordinates:
+        ``U_el = 1/2 (q_e - rest_q_e)^T K_e (q_e - rest_q_e)`` replaces the material law.
+    damping_matrix : (3, 3) array, optional
+        The paper's literal ``D`` in the segment's coordinates, replacing ``beta K(q0)``.
+    rest_q_e : (3,) array, optional
+        ``q_e0`` of the linear law; default the straight rest pose ``(l0, 0, 0)``.
+    """
+
+    length: float
+    radius: float
+    mass: float
+    chamber_area: float
+    chamber_radius: float
+    youngs_modulus: float
+    damping: float = 0.0
+    coords: str = "curvature"
+    actuation: str = "volume"
+    nodes: int | None = None
+    stiffness_matrix: np.ndarray | None = None
+    damping_matrix: np.ndarray | None = None
+    rest_q_e: np.ndarray | None = None
+    # derived (set in __post_init__)
+    node_count: int = field(init=False)
+    bending_stiffness: float = field(init=False)
+    axial_stiffness: float = field(init=False)
+    alpha_nodes: np.ndarray = field(init=False, repr=False)
+    alpha_weights: np.ndarray = field(init=False, repr=False)
+    disk_inertia: np.ndarray = field(init=False, repr=False)
+
+    def __post_init__(self):
+        s = object.__setattr__
+        s(self, "length", check_positive("length", self.length, "m"))
+        s(self, "radius", check_positive("radius", self.radius, "m"))
+        s(self, "mass", check_positive("mass", self.mass, "kg"))
+        s(self, "chamber_area", check_positive("chamber_area", self.chamber_area, "m^2"))
+        s(self, "chamber_radius", check_positive("chamber_radius", self.chamber_radius, "m"))
+        s(self, "youngs_modulus", check_positive("youngs_modulus", self.youngs_modulus, "Pa"))
+        s(self, "damping", check_positive("damping", self.damping, "s", allow_zero=True))
+        outer = self.chamber_radius + np.sqrt(self.chamber_area / np.pi)
+        if outer > self.radius:
+            raise ValueError(
+                f"chambers do not fit: chamber_radius + sqrt(chamber_area/pi) = {outer:.6g} m "
+                f"must be <= radius = {self.radius:.6g} m"
+            )
+        if self.coords not in COORDS:
+            raise ValueError(f"coords must be one of {COORDS}, got {self.coords!r}")
+        if self.actuation not in ACTUATIONS:
+            raise ValueError(f"actuation must be one of {ACTUATIONS}, got {self.actuation!r}")
+        n = DEFAULT_NODES if self.nodes is None else self.nodes
+        if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
+            raise ValueError(f"nodes must be an integer >= 1 or None, got {self.nodes!r}")
+        s(self, "node_count", int(n))
+        if self.stiffness_matrix is not None:
+            K = as_matrix("stiffness_matrix", self.stiffness_matrix, (3, 3))
+            if not np.allclose(K, K.T, rtol=1e-12, atol=0.0):
+                raise ValueError("stiffness_matrix must be symmetric")
+            s(self, "stiffness_matrix", K)
+        if self.damping_matrix is not None:
+            D = as_matrix("damping_matrix", self.damping_matrix, (3, 3))
+            if not np.allclose(D, D.T, rtol=1e-12, atol=0.0):
+                raise ValueError("damping_matrix must be symmetric")
+            if np.linalg.eigvalsh(D).min() < -1e-12 * max(1.0, np.abs(D).max()):
+                raise ValueError("damping_matrix must be positive semi-definite")
+            s(self, "damping_matrix", D)
+        if self.rest_q_e is not None:
+            s(self, "rest_q_e", as_vector("rest_q_e", self.rest_q_e, 3))
+        s(self, "bending_stiffness", self.youngs_modulus * np.pi * self.radius**4 / 4.0)
+        s(self, "axial_stiffness", self.youngs_modulus * np.pi * self.radius**2)
+        x, w = np.polynomial.legendre.leggauss(self.node_count)
+        s(self, "alpha_nodes", 0.5 * (x + 1.0))
+        s(self, "alpha_weights", 0.5 * w)
+        s(self, "disk_inertia", disk_inertia(self.mass, self.radius))
+        for name in ("alpha_nodes", "alpha_weights", "disk_inertia"):
+            getattr(self, name).flags.writeable = False
+
+    # ----------------------------------------------------------------- configurations
+
+    def neutral(self) -> np.ndarray:
+        """The straight rest pose ``(l0, 0, 0)`` in the segment's coordinates (3,)."""
+        return np.array([self.length, 0.0, 0.0])
+
+    def check_configuration(self, q_e, name: str = "q_e") -> np.ndarray:
+        """Validate ``q_e`` (shape, finiteness, model domain); return it as an array.
+
+        Raises
+        ------
+        ValueError
+            wrong shape or non-finite entries.
+        DomainError
+            ``l <= 0``; ``|kappa| r_s >= 1`` (the inner fibre length vanishes and the
+            density field diverges); ``kappa < 0`` in paper coordinates.
+        """
+        q = as_vector(name, q_e, 3)
+        if q[0] <= 0.0:
+            raise DomainError(f"{name}: length l = {q[0]:.6g} m must be > 0")
+        if self.coords == "paper":
+            kappa = q[2]
+            if kappa < 0.0:
+                raise DomainError(f"{name}: curvature kappa = {kappa:.6g} 1/m must be >= 0 in paper coordinates")
+        else:
+            kappa = float(np.hypot(q[1], q[2]))
+        if abs(kappa) * self.radius >= 1.0:
+            raise DomainError(
+                f"{name}: |kappa| r_s = {abs(kappa) * self.radius:.6g} must be < 1 "
+                f"(kappa = {kappa:.6g} 1/m, radius = {self.radius:.6g} m): the inner fibre length vanishes"
+            )
+        return q
+
+    def to_curvature(self, q_e) -> np.ndarray:
+        """The configuration in curvature coordinates ``(l, ux, uy)`` (3,)."""
+        q = self.check_configuration(q_e)
+        return paper_to_curvature(q) if self.coords == "paper" else q
+
+    def from_curvature(self, q_c) -> np.ndarray:
+        """A curvature-coordinate configuration in the segment's coordinates (3,)."""
+        q = as_vector("q_c", q_c, 3)
+        return curvature_to_paper(q) if self.coords == "paper" else q.copy()
+
+    def coordinate_jacobian(self, q_e) -> np.ndarray:
+        """``d q_c / d q_e`` (3, 3): identity in curvature coordinates, :func:`paper_jacobian` else."""
+        q = self.check_configuration(q_e)
+        return paper_jacobian(q) if self.coords == "paper" else np.eye(3)
+
+    def _eval(self, q_e, second: bool = False, nonsingular: bool = False) -> _Eval:
+        q = self.check_configuration(q_e)
+        if self.coords == "paper":
+            if nonsingular and q[2] * q[0] < PAPER_SINGULAR_ANGLE:
+                raise SingularConfigurationError(
+                    f"q_e: bending angle kappa*l = {q[2] * q[0]:.3g} rad is below {PAPER_SINGULAR_ANGLE:g} rad: "
+                    "the paper's (l, psi, kappa) coordinates are singular at kappa = 0 (psi is undefined "
+                    "and M_xi loses rank); use coords='curvature', which is regular there"
+                )
+            q_c, J = paper_to_curvature(q), paper_jacobian(q)
+        else:
+            q_c, J = q, np.eye(3)
+        a = self.alpha_nodes
+        nodes = arc_nodes(a, np.broadcast_to(q_c, (a.size, 3)), second=second)
+        return _Eval(q_c=q_c, J=J, nodes=nodes)
+
+    # ------------------------------------------------------------------- kinematics
+
+    def slice_placement(self, q_e, alpha: float) -> pin.SE3:
+        """Placement ``g(alpha) = exp6(alpha X(q_e))`` of slice ``alpha`` in the root frame."""
+        a = float(alpha)
+        if not 0.0 <= a <= 1.0:
+            raise ValueError(f"alpha must be in [0, 1], got {alpha!r}")
+        q_c = self.to_curvature(q_e)
+        return pin.exp6(pin.Motion(a * q_c[0] * strain_twist(q_c)))
+
+    def tip_placement(self, q_e) -> pin.SE3:
+        """Placement of the tip frame (slice ``alpha = 1``) in the root frame."""
+        return self.slice_placement(q_e, 1.0)
+
+    def backbone(self, q_e, alpha) -> np.ndarray:
+        """Backbone points ``p(alpha)`` in the root frame (m), shape ``(P, 3)`` for ``alpha`` (P,)."""
+        a = np.atleast_1d(np.asarray(alpha, dtype=float))
+        if a.ndim != 1 or np.any((a < 0.0) | (a > 1.0)) or not np.all(np.isfinite(a)):
+            raise ValueError("alpha must be a 1-D array of values in [0, 1]")
+        q_c = self.to_curvature(q_e)
+        return arc_nodes(a, np.broadcast_to(q_c, (a.size, 3))).p
+
+    def center_of_mass(self, q_e) -> np.ndarray:
+        """Centre of mass ``r_cm`` in the root frame (m), shape (3,); off the backbone when bent."""
+        e = self._eval(q_e)
+        return self.alpha_weights @ e.nodes.p
+
+    def tip_jacobian(self, q_e) -> np.ndarray:
+        """Tip body twist per unit ``qdot_e``: ``S(1) J`` (6, 3), tip frame, ``[linear; angular]``."""
+        q_c = self.to_curvature(q_e)
+        J = self.coordinate_jacobian(q_e)
+        return arc_nodes(np.ones(1), q_c[None]).S[0] @ J
+
+    # ------------------------------------------------------------------- dynamics
+
+    def _phi(self, e: _Eval) -> np.ndarray:
+        """``Phi(alpha) = [Ad(g)^-1, S(alpha)]`` at the nodes, curvature coordinates, (N, 6, 9)."""
+        N = e.nodes.S.shape[0]
+        Phi = np.empty((N, 6, 9))
+        Phi[:, :, :6] = e.nodes.Ad_inv
+        Phi[:, :, 6:] = e.nodes.S
+        return Phi
+
+    def _to_segment_coords(self, e: _Eval, Mc: np.ndarray) -> np.ndarray:
+        """``T^T Mc T`` with ``T = blockdiag(I6, J)``."""
+        if self.coords == "curvature":
+            return Mc
+        T = np.eye(9)
+        T[6:, 6:] = e.J
+        return T.T @ Mc @ T
+
+    def _xi_curvature(self, e: _Eval, xi: np.ndarray) -> np.ndarray:
+        xi_c = xi.copy()
+        xi_c[6:] = e.J @ xi[6:]
+        return xi_c
+
+    def _mass_c(self, e: _Eval) -> np.ndarray:
+        """M_xi in curvature coordinates from an evaluation, (9, 9)."""
+        Phi = self._phi(e)
+        return np.einsum("n,nai,naj->ij", self.alpha_weights, Phi, self.disk_inertia @ Phi)
+
+    def mass_matrix(self, q_e) -> np.ndarray:
+        """``M_xi(q_e)`` (9, 9), kg / kg m / kg m^2, in ``xi = (v, w, qdot_e)``.
+
+        The paper's eq. for M_xi with its density field: ``int_0^1 Phi^T I_disk Phi dalpha``.
+        Its top-left 6x6 block is the rigid composite inertia seen from the root,
+        ``[[m I, -m [r_cm]], [m [r_cm], I(q_e)]]``.
+
+        Raises
+        ------
+        SingularConfigurationError
+            in paper coordinates at bending angles below :data:`PAPER_SINGULAR_ANGLE`.
+        """
+        e = self._eval(q_e, nonsingular=True)
+        return self._to_segment_coords(e, self._mass_c(e))
+
+    def _coriolis_c(self, e: _Eval, xi_c: np.ndarray, matrix: bool):
+        """C_xi (matrix) or C_xi xi (vector) in curvature coordinates."""
+        n = e.nodes
+        Phi = self._phi(e)
+        qd = xi_c[6:]
+        V = Phi @ xi_c  # (N, 6) slice body twists
+        Sqd = n.S @ qd  # (N, 6) slice twist relative to the root
+        Sdot = np.einsum("naij,j->nai", n.dS, qd)  # (N, 6, 3)
+        I = self.disk_inertia
+        h = V @ I.T  # (N, 6) slice momenta
+        w = self.alpha_weights
+        if matrix:
+            Phidot = np.empty_like(Phi)
+            Phidot[:, :, :6] = -ad_matrix(Sqd) @ n.Ad_inv
+            Phidot[:, :, 6:] = Sdot
+            inner = I @ Phidot + force_cross_bar(h) @ Phi
+            return np.einsum("n,nai,naj->ij", w, Phi, inner)
+        # velocity-product (bias) acceleration of each slice: Phidot xi
+        a_bias = -motion_cross(Sqd, n.Ad_inv @ xi_c[:6]) + Sdot @ qd
+        f = a_bias @ I.T + force_cross(V, h)
+        return np.einsum("n,nai,na->i", w, Phi, f)
+
+    def coriolis_matrix(self, q_e, xi) -> np.ndarray:
+        """``C_xi(q_e, xi)`` (9, 9) with ``C_xi + C_xi^T = dM_xi/dt``.
+
+        ``C_xi xi`` is the exact velocity-product force: per slice
+        ``Phi^T (I_disk Phidot xi + V x* I_disk V)``, factorised with the skew-symmetric
+        ``[I_disk V]x*-bar`` so that the passivity identity holds exactly. In paper
+        coordinates the coordinate change adds ``T^T M_c Tdot``.
+        """
+        e = self._eval(q_e, second=True, nonsingular=True)
+        xi = as_vector("xi", xi, 9)
+        Cc = self._coriolis_c(e, self._xi_curvature(e, xi), matrix=True)
+        if self.coords == "curvature":
+            return Cc
+        T = np.eye(9)
+        T[6:, 6:] = e.J
+        Td = np.zeros((9, 9))
+        Td[6:, 6:] = paper_jacobian_dot(self.check_configuration(q_e), xi[6:])
+        return T.T @ Cc @ T + T.T @ self._mass_c(e) @ Td
+
+    def velocity_product_force(self, q_e, xi) -> np.ndarray:
+        """``C_xi(q_e, xi) xi`` (9,) without forming the matrix (N, m)."""
+        e = self._eval(q_e, second=True, nonsingular=True)
+        xi = as_vector("xi", xi, 9)
+        fc = self._coriolis_c(e, self._xi_curvature(e, xi), matrix=False)
+        if self.coords == "curvature":
+            return fc
+        Jd = paper_jacobian_dot(self.check_configuration(q_e), xi[6:])
+        fc = fc + self._mass_c(e)[:, 6:] @ (Jd @ xi[6:])
+        return np.concatenate([fc[:6], e.J.T @ fc[6:]])
+
+    def generalized_gravity(self, q_e, gravity) -> np.ndarray:
+        """``G(q_e)`` (9,): gradient of ``U = -int g . p dm``, gravity ``g`` (3,) m/s^2 in root coordinates.
+
+        ``G[:3]`` is minus the weight and ``G[3:6]`` minus its moment about the root
+        origin (root coordinates); ``G[6:]`` is ``dU/dq_e``.
+        """
+        g = as_vector("gravity", gravity, 3)
+        e = self._eval(q_e)
+        Phi = self._phi(e)
+        f = np.zeros((Phi.shape[0], 6))
+        f[:, :3] = -self.mass * np.einsum("nba,b->na", e.nodes.R, g)  # R^T g per slice
+        Gc = np.einsum("n,nai,na->i", self.alpha_weights, Phi, f)
+        return np.concatenate([Gc[:6], e.J.T @ Gc[6:]])
+
+    def gravity_energy(self, q_e, gravity) -> float:
+        """``U_g = -m g . r_cm`` (J) relative to the root origin; ``g`` in root coordinates."""
+        g = as_vector("gravity", gravity, 3)
+        return -self.mass * float(g @ self.center_of_mass(q_e))
+
+    def kinetic_energy(self, q_e, xi) -> float:
+        """``T = 1/2 xi^T M_xi xi`` (J)."""
+        xi = as_vector("xi", xi, 9)
+        return 0.5 * float(xi @ self.mass_matrix(q_e) @ xi)
+
+    # ------------------------------------------------------------------- input matrix
+
+    def input_matrix(self, q_e) -> np.ndarray:
+        """``B(q_e)`` (3, 3): generalised force on ``q_e`` per chamber pressure (N/Pa, N m/Pa).
+
+        Column ``i`` belongs to chamber ``i`` (angle ``CHAMBER_ANGLES[i]``).
+        ``actuation="volume"``: ``B[:, i] = A_ch d l_i / d q_e`` with the chamber fibre length
+        ``l_i = l (1 - kappa r_ch cos(psi - phi_i))`` (virtual work of the chamber volume).
+        ``actuation="paper"``: ``B[:, i] = A_ch J_ci^T R k``, the force ``p_i A_ch`` along the
+        tip normal at the chamber's centre on the tip plate. The two share the ``l`` row.
+        """
+        q_c = self.to_curvature(q_e)
+        J = self.coordinate_jacobian(q_e)
+        l, ux, uy = q_c
+        c, s = np.cos(CHAMBER_ANGLES), np.sin(CHAMBER_ANGLES)
+        r = self.chamber_radius
+        if self.actuation == "volume":
+            Bc = np.stack([1.0 - r * (ux * c + uy * s), -l * r * c, -l * r * s])
+        else:
+            S1 = arc_nodes(np.ones(1), q_c[None]).S[0]  # tip body Jacobian (6, 3)
+            lever = np.stack([r * s, -r * c, np.zeros(3)])  # c_i x e_z in the tip frame, (3, 3)
+            Bc = S1[2, :][:, None] + S1[3:, :].T @ lever
+        return self.chamber_area * (J.T @ Bc)
+
+    # ------------------------------------------------------------------- elasticity
+
+    def _rest_stiffness_c(self) -> np.ndarray:
+        l0 = self.length
+        return np.diag([self.axial_stiffness / l0, self.bending_stiffness * l0, self.bending_stiffness * l0])
+
+    def _rest(self) -> np.ndarray:
+        return self.neutral() if self.rest_q_e is None else self.rest_q_e
+
+    def elastic_energy(self, q_e) -> float:
+        """``U_el`` (J): ``1/2 EI (kappa l)^2 / l0 + 1/2 EA (l - l0)^2 / l0``, or the linear law."""
+        q = self.check_configuration(q_e)
+        if self.stiffness_matrix is not None:
+            dq = q - self._rest()
+            return 0.5 * float(dq @ self.stiffness_matrix @ dq)
+        l0 = self.length
+        l = q[0]
+        k2 = q[2] ** 2 if self.coords == "paper" else q[1] ** 2 + q[2] ** 2
+        return 0.5 * self.bending_stiffness * k2 * l * l / l0 + 0.5 * self.axial_stiffness * (l - l0) ** 2 / l0
+
+    def _elastic_grad_c(self, q_c: np.ndarray) -> np.ndarray:
+        l, ux, uy = q_c
+        EI, EA, l0 = self.bending_stiffness, self.axial_stiffness, self.length
+        return np.array(
+            [EI * l * (ux * ux + uy * uy) / l0 + EA * (l - l0) / l0, EI * l * l * ux / l0, EI * l * l * uy / l0]
+        )
+
+    def elastic_force(self, q_e) -> np.ndarray:
+        """``dU_el/dq_e`` (3,), the elastic term on the left of the equation of motion."""
+        q = self.check_configuration(q_e)
+        if self.stiffness_matrix is not None:
+            return self.stiffness_matrix @ (q - self._rest())
+        if self.coords == "paper":
+            return paper_jacobian(q).T @ self._elastic_grad_c(paper_to_curvature(q))
+        return self._elastic_grad_c(q)
+
+    def elastic_stiffness(self, q_e) -> np.ndarray:
+        """``d^2 U_el / dq_e^2`` (3, 3), exact."""
+        q = self.check_configuration(q_e)
+        if self.stiffness_matrix is not None:
+            return self.stiffness_matrix.copy()
+        q_c = paper_to_curvature(q) if self.coords == "paper" else q
+        l, ux, uy = q_c
+        EI, EA, l0 = self.bending_stiffness, self.axial_stiffness, self.length
+        Hc = np.array(
+            [
+                [EI * (ux * ux + uy * uy) / l0 + EA / l0, 2 * EI * l * ux / l0, 2 * EI * l * uy / l0],
+                [2 * EI * l * ux / l0, EI * l * l / l0, 0.0],
+                [2 * EI * l * uy / l0, 0.0, EI * l * l / l0],
+            ]
+        )
+        if self.coords == "curvature":
+            return Hc
+        J = paper_jacobian(q)
+        return J.T @ Hc @ J + _paper_hessian_term(q, self._elastic_grad_c(q_c))
+
+    def dissipation_matrix(self, q_e) -> np.ndarray:
+        """Dissipation matrix ``D`` (3, 3) in the segment's coordinates (N s/m ...).
+
+        ``damping_matrix`` if given; else ``beta K(q0)`` (``K`` the stiffness at rest:
+        the linear ``K_e``, or the material law's in curvature coordinates mapped by
+        ``J^T D J`` to paper coordinates).
+        """
+        q = self.check_configuration(q_e)
+        if self.damping_matrix is not None:
+            return self.damping_matrix.copy()
+        if self.stiffness_matrix is not None:
+            return self.damping * self.stiffness_matrix
+        Dc = self.damping * self._rest_stiffness_c()
+        if self.coords == "curvature":
+            return Dc
+        J = paper_jacobian(q)
+        return J.T @ Dc @ J
+
+    def damping_force(self, q_e, qdot_e) -> np.ndarray:
+        """``D qdot_e`` (3,), the dissipative term on the left of the equation of motion."""
+        qd = as_vector("qdot_e", qdot_e, 3)
+        return self.dissipation_matrix(q_e) @ qd
