@@ -1,31 +1,33 @@
 """Closed-form kinematics of a constant-strain (constant-curvature, extensible) slice.
 
-This is the per-node kernel of the model (DESIGN.md section 1). A segment in
-curvature coordinates ``q = (l, ux, uy)`` has the constant strain twist
+This is the per-node kernel of the model (DESIGN.md section 1), compiled with numba
+because it runs at every quadrature node of every segment in every dynamics call.
+A segment in curvature coordinates ``q = (l, ux, uy)`` has the constant strain twist
 ``X = l * xi_u`` with the unit-length strain ``xi_u = (0, 0, 1, -uy, ux, 0)``
-(Pinocchio's ``[linear; angular]``). The slice ``alpha`` in [0, 1] sits at
-``g(alpha) = exp6(alpha X)``, i.e. arc length ``s = alpha l`` along the backbone.
+(Pinocchio's ``[linear; angular]``). Slice ``alpha`` in [0, 1] sits at
+``g(alpha) = exp6(alpha X)``, arc length ``s = alpha l`` along the backbone.
 
 Because ``xi_u`` has zero pitch, ``A = ad(xi_u)`` obeys ``A^3 = -kappa^2 A`` with
 ``kappa^2 = ux^2 + uy^2``, so every exponential is a quadratic polynomial in ``A``
 whose coefficients are the entire functions
 
-    f0(x) = sin(x)/x,   f1(x) = (1 - cos x)/x^2,   f2(x) = (x - sin x)/x^3,
+    f0(x) = sin(x)/x,   f1(x) = (1 - cos x)/x^2,   f2(x) = (x - sin x)/x^3
 
 of the bending angle ``x = s kappa``, and their derivatives ``g_n(x) = f_n'(x)/x``
-(also entire). They are evaluated by their Taylor series for small ``x`` and in closed
-form otherwise, so nothing divides by the curvature and the straight pose is a regular
-point. With ``a1 = s f0, a2 = s^2 f1, a3 = s^3 f2``:
+(also entire). They are evaluated by their Taylor series for ``x < 2`` and in closed form
+otherwise, so nothing divides by the curvature and the straight pose is a regular point.
+With ``a1 = s f0, a2 = s^2 f1, a3 = s^3 f2``:
 
-* ``R(s) = I + a1 [w] + a2 [w]^2`` with ``w = (-uy, ux, 0)``, ``p(s) = (a2 ux, a2 uy, a1)``;
-* ``Ad(g)^-1`` from ``(R, p)``;
-* the slice Jacobian ``S(alpha) = alpha Jexp6(alpha X) dX/dq`` (body frame of the slice),
-  with columns ``alpha xi_u`` and ``F(s) eta_j`` where ``F(s) = s I - a2 A + a3 A^2``
-  ``= int_0^s Ad(exp(-sigma xi_u)) dsigma`` and ``eta_j = d xi_u / d u_j``;
-* the exact second derivatives ``dS/dq`` (needed by the Coriolis matrix).
+* ``R(s) = I + a1 [w] + a2 [w]^2`` with ``w = (-uy, ux, 0)``; ``p(s) = (a2 ux, a2 uy, a1)``;
+* slice Jacobian ``S(alpha) = alpha Jexp6(alpha X) dX/dq`` (slice body frame), columns
+  ``alpha xi_u`` and ``F(s) eta_j`` with ``F(s) = s I - a2 A + a3 A^2
+  = int_0^s Ad(exp(-sigma xi_u)) dsigma`` and ``eta_j = d xi_u / d u_j``;
+* its exact time derivative ``Sdot = sum_j qdot_j dS/dq_j`` (what ``C_xi`` needs): the
+  ``l`` part is ``alpha ldot Ad(g)^-1 eta_j``, the ``u`` part differentiates ``a2, a3``
+  (``d a2 = s^4 g1 (u . udot)``, ``d a3 = s^5 g2 (u . udot)``) and ``A``.
 
-``tests/test_arc.py`` holds ``g``, ``Ad(g)^-1`` and ``S`` equal to Pinocchio's
-``exp6``, ``SE3.action`` and ``Jexp6`` to 1e-14, and ``dS/dq`` to finite differences.
+``tests/test_arc.py`` holds ``g``, ``Ad(g)^-1`` and ``S`` equal to Pinocchio's ``exp6``,
+``SE3.action`` and ``Jexp6`` to 1e-14, and ``Sdot`` to finite differences.
 """
 
 from __future__ import annotations
@@ -33,63 +35,163 @@ from __future__ import annotations
 from dataclasses import dataclass
 from math import factorial
 
+import numba
 import numpy as np
 
-from .spatial import inv_adjoint, motion_cross
+from .spatial import inv_adjoint
 
-__all__ = ["ArcNodes", "arc_nodes", "bend_functions", "strain_twist"]
+__all__ = ["ArcNodes", "arc_nodes", "bend_functions", "strain_twist", "arc_node"]
 
-# Taylor series are used below this bending angle (rad). At x = 2 the truncated series
-# (16 terms) is exact to 1e-25 and the closed forms have lost at most a few ulp.
-_SERIES_BELOW = 2.0
+_SERIES_BELOW = 2.0  # rad; at x = 2 the 16-term series is exact to 1e-25
 _NTERMS = 16
 _F_COEF = np.array([[(-1) ** k / factorial(2 * k + n + 1) for k in range(_NTERMS)] for n in range(3)])
 _G_COEF = np.array(
     [[(-1) ** k * 2 * k / factorial(2 * k + n + 1) for k in range(1, _NTERMS + 1)] for n in range(3)]
 )
 
-# unit-length strain directions: eta_x = d xi_u / d ux, eta_y = d xi_u / d uy
-ETA_X = np.array([0.0, 0.0, 0.0, 0.0, 1.0, 0.0])
-ETA_Y = np.array([0.0, 0.0, 0.0, -1.0, 0.0, 0.0])
+jit = numba.njit(cache=True, fastmath=False, error_model="numpy")
 
 
-def _horner(coef: np.ndarray, t: np.ndarray) -> np.ndarray:
-    out = np.full_like(t, coef[-1])
-    for c in coef[-2::-1]:
-        out = out * t + c
-    return out
-
-
-def bend_functions(x: np.ndarray, derivatives: bool = False):
-    """Entire functions of the bending angle ``x`` (rad), shape ``(N,)``.
-
-    Returns ``(f0, f1, f2)`` and, with ``derivatives``, also ``(g0, g1, g2)`` with
-    ``g_n = f_n'(x) / x``; all of shape ``(N,)``. Values at ``x = 0``:
-    ``f = (1, 1/2, 1/6)``, ``g = (-1/3, -1/12, -1/60)``.
-    """
-    x = np.asarray(x, dtype=float)
-    t = x * x
-    small = x < _SERIES_BELOW
-    f = np.empty((3,) + x.shape)
-    g = np.empty((3,) + x.shape) if derivatives else None
-    if np.any(small):
-        ts = t[small]
+@jit
+def _bend(x, out):
+    """``out[:] = (f0, f1, f2, g0, g1, g2)`` at bending angle ``x >= 0`` (rad)."""
+    if x < _SERIES_BELOW:
+        t = x * x
         for n in range(3):
-            f[n][small] = _horner(_F_COEF[n], ts)
-            if derivatives:
-                g[n][small] = _horner(_G_COEF[n], ts)
-    big = ~small
-    if np.any(big):
-        xb = x[big]
-        s, c = np.sin(xb), np.cos(xb)
-        f[0][big] = s / xb
-        f[1][big] = (1.0 - c) / xb**2
-        f[2][big] = (xb - s) / xb**3
-        if derivatives:
-            g[0][big] = (xb * c - s) / xb**3
-            g[1][big] = (xb * s - 2.0 * (1.0 - c)) / xb**4
-            g[2][big] = (xb * (1.0 - c) - 3.0 * (xb - s)) / xb**5
-    return (f, g) if derivatives else f
+            acc = _F_COEF[n, _NTERMS - 1]
+            for k in range(_NTERMS - 2, -1, -1):
+                acc = acc * t + _F_COEF[n, k]
+            out[n] = acc
+            acc = _G_COEF[n, _NTERMS - 1]
+            for k in range(_NTERMS - 2, -1, -1):
+                acc = acc * t + _G_COEF[n, k]
+            out[3 + n] = acc
+    else:
+        s = np.sin(x)
+        c = np.cos(x)
+        out[0] = s / x
+        out[1] = (1.0 - c) / (x * x)
+        out[2] = (x - s) / (x * x * x)
+        out[3] = (x * c - s) / (x * x * x)
+        out[4] = (x * s - 2.0 * (1.0 - c)) / (x * x * x * x)
+        out[5] = (x * (1.0 - c) - 3.0 * (x - s)) / (x * x * x * x * x)
+
+
+@jit
+def _mcross(a, b, out):
+    """Motion cross product ``a x b`` of 6-vectors ``[linear; angular]`` into ``out``."""
+    out[0] = a[4] * b[2] - a[5] * b[1] + a[1] * b[5] - a[2] * b[4]
+    out[1] = a[5] * b[0] - a[3] * b[2] + a[2] * b[3] - a[0] * b[5]
+    out[2] = a[3] * b[1] - a[4] * b[0] + a[0] * b[4] - a[1] * b[3]
+    out[3] = a[4] * b[5] - a[5] * b[4]
+    out[4] = a[5] * b[3] - a[3] * b[5]
+    out[5] = a[3] * b[4] - a[4] * b[3]
+
+
+@jit
+def arc_node(alpha, l, ux, uy, ld, uxd, uyd, R, p, S, Sd):
+    """Slice kinematics at one node (numba; also callable from Python).
+
+    Parameters
+    ----------
+    alpha : float            slice coordinate in [0, 1].
+    l, ux, uy : float        configuration (m, 1/m, 1/m).
+    ld, uxd, uyd : float     velocity for ``Sd`` (zeros if not wanted).
+    R : (3, 3) out           slice rotation in the root frame.
+    p : (3,) out             slice centre in the root frame (m).
+    S : (6, 3) out           slice Jacobian (slice body frame).
+    Sd : (6, 3) out          ``dS/dt`` along ``(ld, uxd, uyd)``.
+    """
+    s = alpha * l
+    x = s * np.sqrt(ux * ux + uy * uy)
+    fg = np.empty(6)
+    _bend(x, fg)
+    a1 = s * fg[0]
+    a2 = s * s * fg[1]
+    a3 = s * s * s * fg[2]
+    da2 = s * s * s * s * fg[4] * (ux * uxd + uy * uyd)
+    da3 = s * s * s * s * s * fg[5] * (ux * uxd + uy * uyd)
+    # R = I + a1 [w] + a2 [w]^2, w = (-uy, ux, 0): [w]^2 = w w^T - |w|^2 I
+    wx, wy = -uy, ux
+    k2 = ux * ux + uy * uy
+    R[0, 0] = 1.0 + a2 * (wx * wx - k2)
+    R[0, 1] = a2 * wx * wy
+    R[0, 2] = a1 * wy
+    R[1, 0] = a2 * wx * wy
+    R[1, 1] = 1.0 + a2 * (wy * wy - k2)
+    R[1, 2] = -a1 * wx
+    R[2, 0] = -a1 * wy
+    R[2, 1] = a1 * wx
+    R[2, 2] = 1.0 - a2 * k2
+    p[0] = a2 * ux
+    p[1] = a2 * uy
+    p[2] = a1
+    xi = np.zeros(6)
+    xi[2] = 1.0
+    xi[3] = -uy
+    xi[4] = ux
+    xid = np.zeros(6)
+    xid[3] = -uyd
+    xid[4] = uxd
+    for r in range(6):
+        S[r, 0] = alpha * xi[r]
+        Sd[r, 0] = alpha * xid[r]
+    eta = np.zeros(6)
+    Ae = np.empty(6)
+    AAe = np.empty(6)
+    t1 = np.empty(6)
+    t2 = np.empty(6)
+    t3 = np.empty(6)
+    for i in range(2):
+        eta[:] = 0.0
+        if i == 0:
+            eta[4] = 1.0
+        else:
+            eta[3] = -1.0
+        _mcross(xi, eta, Ae)
+        _mcross(xi, Ae, AAe)
+        _mcross(xid, eta, t1)  # xid x eta
+        _mcross(xid, Ae, t2)  # xid x (A eta)
+        _mcross(xi, t1, t3)  # xi x (xid x eta)
+        # Ad(g)^-1 eta = (-R^T (p x e), R^T e), e = eta[3:]
+        e0, e1, e2 = eta[3], eta[4], eta[5]
+        c0 = p[1] * e2 - p[2] * e1
+        c1 = p[2] * e0 - p[0] * e2
+        c2 = p[0] * e1 - p[1] * e0
+        for r in range(3):
+            lin = -(R[0, r] * c0 + R[1, r] * c1 + R[2, r] * c2)
+            ang = R[0, r] * e0 + R[1, r] * e1 + R[2, r] * e2
+            S[r, 1 + i] = s * eta[r] - a2 * Ae[r] + a3 * AAe[r]
+            S[3 + r, 1 + i] = s * eta[3 + r] - a2 * Ae[3 + r] + a3 * AAe[3 + r]
+            Sd[r, 1 + i] = alpha * ld * lin - da2 * Ae[r] - a2 * t1[r] + da3 * AAe[r] + a3 * (t2[r] + t3[r])
+            Sd[3 + r, 1 + i] = (
+                alpha * ld * ang - da2 * Ae[3 + r] - a2 * t1[3 + r] + da3 * AAe[3 + r] + a3 * (t2[3 + r] + t3[3 + r])
+            )
+
+
+@jit
+def _arc_nodes_kernel(alpha, q, qd, R, p, S, Sd):
+    for k in range(alpha.shape[0]):
+        arc_node(alpha[k], q[k, 0], q[k, 1], q[k, 2], qd[k, 0], qd[k, 1], qd[k, 2], R[k], p[k], S[k], Sd[k])
+
+
+@jit
+def _bend_kernel(x, out):
+    tmp = np.empty(6)
+    for k in range(x.shape[0]):
+        _bend(x[k], tmp)
+        out[:, k] = tmp
+
+
+def bend_functions(x, derivatives: bool = False):
+    """The entire functions ``(f0, f1, f2)`` (and ``(g0, g1, g2)`` with ``derivatives``) of
+    bending angles ``x >= 0`` (rad), each of the shape of ``x``. At ``x = 0``:
+    ``f = (1, 1/2, 1/6)``, ``g = (-1/3, -1/12, -1/60)``."""
+    xa = np.ascontiguousarray(np.atleast_1d(np.asarray(x, dtype=float)).ravel())
+    out = np.empty((6, xa.size))
+    _bend_kernel(xa, out)
+    out = out.reshape((6,) + np.shape(x))
+    return (out[:3], out[3:]) if derivatives else out[:3]
 
 
 def strain_twist(q: np.ndarray) -> np.ndarray:
@@ -104,82 +206,36 @@ def strain_twist(q: np.ndarray) -> np.ndarray:
 
 @dataclass(frozen=True)
 class ArcNodes:
-    """Slice kinematics at N nodes, all in curvature coordinates ``q = (l, ux, uy)``.
+    """Slice kinematics at N nodes, in curvature coordinates ``q = (l, ux, uy)``.
 
     Attributes
     ----------
-    R : (N, 3, 3)  rotation of slice frame in root frame.
-    p : (N, 3)     position of the slice centre in the root frame (m).
+    R : (N, 3, 3)  rotation of the slice frame in the root frame.
+    p : (N, 3)     slice centre in the root frame (m).
     Ad_inv : (N, 6, 6)  ``Ad(g)^-1``: root-frame twist -> slice-frame twist.
     S : (N, 6, 3)  slice Jacobian: slice body twist per unit ``qdot`` (columns l, ux, uy).
-    dS : (N, 6, 3, 3) or None  ``dS[n, :, i, j] = d S[n, :, i] / d q_j``.
+    Sdot : (N, 6, 3)  ``dS/dt`` along the given ``qdot`` (zeros without one).
     """
 
     R: np.ndarray
     p: np.ndarray
     Ad_inv: np.ndarray
     S: np.ndarray
-    dS: np.ndarray | None
+    Sdot: np.ndarray
 
 
-def arc_nodes(alpha: np.ndarray, q: np.ndarray, second: bool = False) -> ArcNodes:
-    """Evaluate the slice kinematics at nodes ``alpha`` (N,) for configurations ``q`` (N, 3).
+def arc_nodes(alpha, q, qdot=None) -> ArcNodes:
+    """Slice kinematics at nodes ``alpha`` (N,) for configurations ``q`` (N, 3) or (3,).
 
-    Each node carries its own segment configuration, so the nodes of all segments of
-    a chain are evaluated in one call. ``second`` adds the exact ``dS/dq``.
+    ``qdot`` ((N, 3) or (3,)) adds the exact time derivative ``Sdot`` of the Jacobian.
     """
-    alpha = np.asarray(alpha, dtype=float)
-    q = np.asarray(q, dtype=float)
+    alpha = np.ascontiguousarray(np.atleast_1d(np.asarray(alpha, dtype=float)))
     N = alpha.shape[0]
-    l, ux, uy = q[:, 0], q[:, 1], q[:, 2]
-    s = alpha * l
-    x = s * np.hypot(ux, uy)
-    if second:
-        (f0, f1, f2), (_, g1, g2) = bend_functions(x, derivatives=True)
-    else:
-        f0, f1, f2 = bend_functions(x)
-    a1 = s * f0
-    a2 = s * s * f1
-    a3 = s**3 * f2
-
-    xi = strain_twist(q)  # (N, 6)
-    W = np.zeros((N, 3, 3))
-    W[:, 0, 2] = ux  # [w] with w = (-uy, ux, 0)
-    W[:, 1, 2] = uy
-    W[:, 2, 0] = -ux
-    W[:, 2, 1] = -uy
-    R = np.eye(3) + a1[:, None, None] * W + a2[:, None, None] * (W @ W)
-    p = np.stack([a2 * ux, a2 * uy, a1], axis=-1)
-    Ad_inv = inv_adjoint(R, p)
-
-    etas = (np.broadcast_to(ETA_X, (N, 6)), np.broadcast_to(ETA_Y, (N, 6)))
+    q = np.ascontiguousarray(np.broadcast_to(np.asarray(q, dtype=float), (N, 3)))
+    qd = np.zeros((N, 3)) if qdot is None else np.ascontiguousarray(np.broadcast_to(np.asarray(qdot, float), (N, 3)))
+    R = np.empty((N, 3, 3))
+    p = np.empty((N, 3))
     S = np.empty((N, 6, 3))
-    S[:, :, 0] = alpha[:, None] * xi
-    A_eta = []
-    AA_eta = []
-    for i, eta in enumerate(etas):
-        Ae = motion_cross(xi, eta)
-        AAe = motion_cross(xi, Ae)
-        A_eta.append(Ae)
-        AA_eta.append(AAe)
-        S[:, :, 1 + i] = s[:, None] * eta - a2[:, None] * Ae + a3[:, None] * AAe
-
-    dS = None
-    if second:
-        dS = np.zeros((N, 6, 3, 3))
-        u = (ux, uy)
-        s4g1 = s**4 * g1
-        s5g2 = s**5 * g2
-        for j, eta_j in enumerate(etas):
-            dS[:, :, 0, 1 + j] = alpha[:, None] * eta_j
-        for i, eta_i in enumerate(etas):
-            dS[:, :, 1 + i, 0] = alpha[:, None] * np.einsum("nab,nb->na", Ad_inv, eta_i)
-            for j, eta_j in enumerate(etas):
-                eji = motion_cross(eta_j, eta_i)
-                dS[:, :, 1 + i, 1 + j] = (
-                    -(s4g1 * u[j])[:, None] * A_eta[i]
-                    - a2[:, None] * eji
-                    + (s5g2 * u[j])[:, None] * AA_eta[i]
-                    + a3[:, None] * (motion_cross(eta_j, A_eta[i]) + motion_cross(xi, eji))
-                )
-    return ArcNodes(R=R, p=p, Ad_inv=Ad_inv, S=S, dS=dS)
+    Sd = np.empty((N, 6, 3))
+    _arc_nodes_kernel(alpha, q, qd, R, p, S, Sd)
+    return ArcNodes(R=R, p=p, Ad_inv=inv_adjoint(R, p), S=S, Sdot=Sd)

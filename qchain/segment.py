@@ -36,7 +36,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import pinocchio as pin
 
-from .arc import ArcNodes, arc_nodes, strain_twist
+from .arc import arc_nodes, strain_twist
 from .errors import (
     DomainError,
     SingularConfigurationError,
@@ -44,7 +44,8 @@ from .errors import (
     as_vector,
     check_positive,
 )
-from .spatial import ad_matrix, disk_inertia, force_cross, force_cross_bar, motion_cross
+from .slices import segment_mass, segment_newton_euler
+from .spatial import ad_matrix, disk_inertia, force_cross_bar
 
 __all__ = [
     "Segment",
@@ -153,15 +154,6 @@ def _paper_hessian_term(q_p: np.ndarray, grad_c: np.ndarray) -> np.ndarray:
 
 
 # ---------------------------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class _Eval:
-    """One evaluation of a segment at ``q_e``: curvature coordinates and node kinematics."""
-
-    q_c: np.ndarray  # (3,) curvature coordinates
-    J: np.ndarray  # (3, 3) d q_c / d q_e (identity in curvature coordinates)
-    nodes: ArcNodes  # at the Gauss nodes
 
 
 @dataclass(frozen=True, kw_only=True, eq=False)
@@ -317,21 +309,28 @@ class Segment:
         q = self.check_configuration(q_e)
         return paper_jacobian(q) if self.coords == "paper" else np.eye(3)
 
-    def _eval(self, q_e, second: bool = False, nonsingular: bool = False) -> _Eval:
+    def _curvature(self, q_e, nonsingular: bool = False):
+        """``(q_c, J)``: the configuration in curvature coordinates and ``J = dq_c/dq_e``.
+
+        With ``nonsingular``, paper coordinates at bending angles below
+        :data:`PAPER_SINGULAR_ANGLE` raise :class:`SingularConfigurationError`.
+        """
         q = self.check_configuration(q_e)
-        if self.coords == "paper":
-            if nonsingular and q[2] * q[0] < PAPER_SINGULAR_ANGLE:
-                raise SingularConfigurationError(
-                    f"q_e: bending angle kappa*l = {q[2] * q[0]:.3g} rad is below {PAPER_SINGULAR_ANGLE:g} rad: "
-                    "the paper's (l, psi, kappa) coordinates are singular at kappa = 0 (psi is undefined "
-                    "and M_xi loses rank); use coords='curvature', which is regular there"
-                )
-            q_c, J = paper_to_curvature(q), paper_jacobian(q)
-        else:
-            q_c, J = q, np.eye(3)
-        a = self.alpha_nodes
-        nodes = arc_nodes(a, np.broadcast_to(q_c, (a.size, 3)), second=second)
-        return _Eval(q_c=q_c, J=J, nodes=nodes)
+        if self.coords == "curvature":
+            return q, np.eye(3)
+        if nonsingular and q[2] * q[0] < PAPER_SINGULAR_ANGLE:
+            raise SingularConfigurationError(
+                f"q_e: bending angle kappa*l = {q[2] * q[0]:.3g} rad is below {PAPER_SINGULAR_ANGLE:g} rad: "
+                "the paper's (l, psi, kappa) coordinates are singular at kappa = 0 (psi is undefined "
+                "and M_xi loses rank); use coords='curvature', which is regular there"
+            )
+        return paper_to_curvature(q), paper_jacobian(q)
+
+    def _lift(self, J: np.ndarray) -> np.ndarray:
+        """``T = blockdiag(I6, J)`` (9, 9)."""
+        T = np.eye(9)
+        T[6:, 6:] = J
+        return T
 
     # ------------------------------------------------------------------- kinematics
 
@@ -353,127 +352,100 @@ class Segment:
         if a.ndim != 1 or np.any((a < 0.0) | (a > 1.0)) or not np.all(np.isfinite(a)):
             raise ValueError("alpha must be a 1-D array of values in [0, 1]")
         q_c = self.to_curvature(q_e)
-        return arc_nodes(a, np.broadcast_to(q_c, (a.size, 3))).p
+        return arc_nodes(a, q_c).p
 
     def center_of_mass(self, q_e) -> np.ndarray:
         """Centre of mass ``r_cm`` in the root frame (m), shape (3,); off the backbone when bent."""
-        e = self._eval(q_e)
-        return self.alpha_weights @ e.nodes.p
+        q_c, _ = self._curvature(q_e)
+        return self.alpha_weights @ arc_nodes(self.alpha_nodes, q_c).p
 
     def tip_jacobian(self, q_e) -> np.ndarray:
         """Tip body twist per unit ``qdot_e``: ``S(1) J`` (6, 3), tip frame, ``[linear; angular]``."""
-        q_c = self.to_curvature(q_e)
-        J = self.coordinate_jacobian(q_e)
-        return arc_nodes(np.ones(1), q_c[None]).S[0] @ J
+        q_c, J = self._curvature(q_e)
+        return arc_nodes(1.0, q_c).S[0] @ J
 
     # ------------------------------------------------------------------- dynamics
 
-    def _phi(self, e: _Eval) -> np.ndarray:
-        """``Phi(alpha) = [Ad(g)^-1, S(alpha)]`` at the nodes, curvature coordinates, (N, 6, 9)."""
-        N = e.nodes.S.shape[0]
-        Phi = np.empty((N, 6, 9))
-        Phi[:, :, :6] = e.nodes.Ad_inv
-        Phi[:, :, 6:] = e.nodes.S
-        return Phi
+    def _mass_c(self, q_c: np.ndarray) -> np.ndarray:
+        M = np.empty((9, 9))
+        segment_mass(self.alpha_nodes, self.alpha_weights, self.mass, self.radius, q_c, M)
+        return M
 
-    def _to_segment_coords(self, e: _Eval, Mc: np.ndarray) -> np.ndarray:
-        """``T^T Mc T`` with ``T = blockdiag(I6, J)``."""
-        if self.coords == "curvature":
-            return Mc
-        T = np.eye(9)
-        T[6:, 6:] = e.J
-        return T.T @ Mc @ T
-
-    def _xi_curvature(self, e: _Eval, xi: np.ndarray) -> np.ndarray:
-        xi_c = xi.copy()
-        xi_c[6:] = e.J @ xi[6:]
-        return xi_c
-
-    def _mass_c(self, e: _Eval) -> np.ndarray:
-        """M_xi in curvature coordinates from an evaluation, (9, 9)."""
-        Phi = self._phi(e)
-        return np.einsum("n,nai,naj->ij", self.alpha_weights, Phi, self.disk_inertia @ Phi)
+    def _newton_euler_c(self, q_c: np.ndarray, xi_c: np.ndarray, xid_c: np.ndarray) -> np.ndarray:
+        Q = np.empty(9)
+        segment_newton_euler(self.alpha_nodes, self.alpha_weights, self.mass, self.radius, q_c, xi_c, xid_c, Q)
+        return Q
 
     def mass_matrix(self, q_e) -> np.ndarray:
         """``M_xi(q_e)`` (9, 9), kg / kg m / kg m^2, in ``xi = (v, w, qdot_e)``.
 
-        The paper's eq. for M_xi with its density field: ``int_0^1 Phi^T I_disk Phi dalpha``.
-        Its top-left 6x6 block is the rigid composite inertia seen from the root,
-        ``[[m I, -m [r_cm]], [m [r_cm], I(q_e)]]``.
+        The paper's eq. for M_xi with its density field: ``int_0^1 Phi^T I_disk Phi dalpha``
+        (:func:`qchain.slices.segment_mass`). Its top-left 6x6 block is the rigid composite
+        inertia seen from the root, ``[[m I, -m [r_cm]], [m [r_cm], I(q_e)]]``. In paper
+        coordinates ``T^T M_c T`` with ``T = blockdiag(I6, J)``.
 
         Raises
         ------
         SingularConfigurationError
             in paper coordinates at bending angles below :data:`PAPER_SINGULAR_ANGLE`.
         """
-        e = self._eval(q_e, nonsingular=True)
-        return self._to_segment_coords(e, self._mass_c(e))
-
-    def _coriolis_c(self, e: _Eval, xi_c: np.ndarray, matrix: bool):
-        """C_xi (matrix) or C_xi xi (vector) in curvature coordinates."""
-        n = e.nodes
-        Phi = self._phi(e)
-        qd = xi_c[6:]
-        V = Phi @ xi_c  # (N, 6) slice body twists
-        Sqd = n.S @ qd  # (N, 6) slice twist relative to the root
-        Sdot = np.einsum("naij,j->nai", n.dS, qd)  # (N, 6, 3)
-        I = self.disk_inertia
-        h = V @ I.T  # (N, 6) slice momenta
-        w = self.alpha_weights
-        if matrix:
-            Phidot = np.empty_like(Phi)
-            Phidot[:, :, :6] = -ad_matrix(Sqd) @ n.Ad_inv
-            Phidot[:, :, 6:] = Sdot
-            inner = I @ Phidot + force_cross_bar(h) @ Phi
-            return np.einsum("n,nai,naj->ij", w, Phi, inner)
-        # velocity-product (bias) acceleration of each slice: Phidot xi
-        a_bias = -motion_cross(Sqd, n.Ad_inv @ xi_c[:6]) + Sdot @ qd
-        f = a_bias @ I.T + force_cross(V, h)
-        return np.einsum("n,nai,na->i", w, Phi, f)
+        q_c, J = self._curvature(q_e, nonsingular=True)
+        T = self._lift(J)
+        return T.T @ self._mass_c(q_c) @ T
 
     def coriolis_matrix(self, q_e, xi) -> np.ndarray:
         """``C_xi(q_e, xi)`` (9, 9) with ``C_xi + C_xi^T = dM_xi/dt``.
 
-        ``C_xi xi`` is the exact velocity-product force: per slice
-        ``Phi^T (I_disk Phidot xi + V x* I_disk V)``, factorised with the skew-symmetric
-        ``[I_disk V]x*-bar`` so that the passivity identity holds exactly. In paper
-        coordinates the coordinate change adds ``T^T M_c Tdot``.
+        Per slice ``Phi^T (I_disk Phidot + [I_disk V]x*bar Phi)`` with the skew-symmetric
+        ``[h]x*bar`` (``a x* h = [h]x*bar a``), so ``C_xi xi`` is the exact velocity-product
+        force and the passivity identity holds exactly. ``Phidot = [-ad(S qdot) Ad(g)^-1,
+        Sdot]``. In paper coordinates ``T^T C_c T + T^T M_c Tdot``.
         """
-        e = self._eval(q_e, second=True, nonsingular=True)
+        q_c, J = self._curvature(q_e, nonsingular=True)
         xi = as_vector("xi", xi, 9)
-        Cc = self._coriolis_c(e, self._xi_curvature(e, xi), matrix=True)
+        T = self._lift(J)
+        xi_c = T @ xi
+        n = arc_nodes(self.alpha_nodes, q_c, xi_c[6:])
+        N = self.node_count
+        Phi = np.empty((N, 6, 9))
+        Phi[:, :, :6] = n.Ad_inv
+        Phi[:, :, 6:] = n.S
+        Phidot = np.empty_like(Phi)
+        Phidot[:, :, :6] = -ad_matrix(n.S @ xi_c[6:]) @ n.Ad_inv
+        Phidot[:, :, 6:] = n.Sdot
+        I = self.disk_inertia
+        V = Phi @ xi_c
+        inner = I @ Phidot + force_cross_bar(V @ I.T) @ Phi
+        Cc = np.einsum("n,nai,naj->ij", self.alpha_weights, Phi, inner)
         if self.coords == "curvature":
             return Cc
-        T = np.eye(9)
-        T[6:, 6:] = e.J
         Td = np.zeros((9, 9))
         Td[6:, 6:] = paper_jacobian_dot(self.check_configuration(q_e), xi[6:])
-        return T.T @ Cc @ T + T.T @ self._mass_c(e) @ Td
+        return T.T @ Cc @ T + T.T @ self._mass_c(q_c) @ Td
 
     def velocity_product_force(self, q_e, xi) -> np.ndarray:
-        """``C_xi(q_e, xi) xi`` (9,) without forming the matrix (N, m)."""
-        e = self._eval(q_e, second=True, nonsingular=True)
+        """``C_xi(q_e, xi) xi`` (9,) without forming the matrix: the slice Newton-Euler
+        integral (:func:`qchain.slices.segment_newton_euler`) at zero acceleration."""
+        q_c, J = self._curvature(q_e, nonsingular=True)
         xi = as_vector("xi", xi, 9)
-        fc = self._coriolis_c(e, self._xi_curvature(e, xi), matrix=False)
-        if self.coords == "curvature":
-            return fc
-        Jd = paper_jacobian_dot(self.check_configuration(q_e), xi[6:])
-        fc = fc + self._mass_c(e)[:, 6:] @ (Jd @ xi[6:])
-        return np.concatenate([fc[:6], e.J.T @ fc[6:]])
+        T = self._lift(J)
+        xid_c = np.zeros(9)
+        if self.coords == "paper":
+            xid_c[6:] = paper_jacobian_dot(self.check_configuration(q_e), xi[6:]) @ xi[6:]
+        return T.T @ self._newton_euler_c(q_c, T @ xi, xid_c)
 
     def generalized_gravity(self, q_e, gravity) -> np.ndarray:
         """``G(q_e)`` (9,): gradient of ``U = -int g . p dm``, gravity ``g`` (3,) m/s^2 in root coordinates.
 
         ``G[:3]`` is minus the weight and ``G[3:6]`` minus its moment about the root
-        origin (root coordinates); ``G[6:]`` is ``dU/dq_e``.
+        origin (root coordinates); ``G[6:]`` is ``dU/dq_e``. Computed as ``M_xi`` applied
+        to a root acceleration ``(-g, 0)`` (the disks' centres are their slice origins).
         """
         g = as_vector("gravity", gravity, 3)
-        e = self._eval(q_e)
-        Phi = self._phi(e)
-        f = np.zeros((Phi.shape[0], 6))
-        f[:, :3] = -self.mass * np.einsum("nba,b->na", e.nodes.R, g)  # R^T g per slice
-        Gc = np.einsum("n,nai,na->i", self.alpha_weights, Phi, f)
-        return np.concatenate([Gc[:6], e.J.T @ Gc[6:]])
+        q_c, J = self._curvature(q_e)
+        xid_c = np.zeros(9)
+        xid_c[:3] = -g
+        return self._lift(J).T @ self._newton_euler_c(q_c, np.zeros(9), xid_c)
 
     def gravity_energy(self, q_e, gravity) -> float:
         """``U_g = -m g . r_cm`` (J) relative to the root origin; ``g`` in root coordinates."""
@@ -504,7 +476,7 @@ class Segment:
         if self.actuation == "volume":
             Bc = np.stack([1.0 - r * (ux * c + uy * s), -l * r * c, -l * r * s])
         else:
-            S1 = arc_nodes(np.ones(1), q_c[None]).S[0]  # tip body Jacobian (6, 3)
+            S1 = arc_nodes(1.0, q_c).S[0]  # tip body Jacobian (6, 3)
             lever = np.stack([r * s, -r * c, np.zeros(3)])  # c_i x e_z in the tip frame, (3, 3)
             Bc = S1[2, :][:, None] + S1[3:, :].T @ lever
         return self.chamber_area * (J.T @ Bc)

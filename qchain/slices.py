@@ -1,0 +1,151 @@
+"""Integrals over the slices of one segment (numba): M_xi and the slice Newton-Euler force.
+
+A segment is a continuum of rigid uniform disks (DESIGN.md section 1). With
+``Phi(alpha) = [Ad(g(alpha))^-1, S(alpha)]`` (6 x 9) mapping the segment's quasi-velocity
+``xi = (V_root, qdot)`` to the body twist of slice ``alpha``, and the disk's spatial inertia
+``I = diag(m, m, m, m r^2/4, m r^2/4, m r^2/2)`` per unit ``alpha``:
+
+* ``M_xi = int_0^1 Phi^T I Phi dalpha``                     (:func:`segment_mass`)
+* ``Q = int_0^1 Phi^T (I a + V x* I V) dalpha`` with the slice twist ``V = Phi xi`` and
+  acceleration ``a = Phi xidot + Phidot xi``                (:func:`segment_newton_euler`)
+
+so ``Q = M_xi xidot + C_xi xi``; a root acceleration of ``(-g_root, 0)`` adds the
+generalised gravity ``G``. Everything is in curvature coordinates ``q = (l, ux, uy)``;
+integrals use the Gauss-Legendre nodes ``alpha`` with weights ``w`` (summing to 1).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .arc import arc_node, jit
+
+__all__ = ["segment_mass", "segment_newton_euler", "phi_transpose_force", "slice_twist"]
+
+
+@jit
+def slice_twist(R, p, S, V0, qd, out):
+    """``out = Ad(g)^-1 V0 + S qd``: the slice body twist (6,)."""
+    v0 = V0[0] - (p[1] * V0[5] - p[2] * V0[4])
+    v1 = V0[1] - (p[2] * V0[3] - p[0] * V0[5])
+    v2 = V0[2] - (p[0] * V0[4] - p[1] * V0[3])
+    for r in range(3):
+        out[r] = R[0, r] * v0 + R[1, r] * v1 + R[2, r] * v2
+        out[3 + r] = R[0, r] * V0[3] + R[1, r] * V0[4] + R[2, r] * V0[5]
+    for r in range(6):
+        out[r] += S[r, 0] * qd[0] + S[r, 1] * qd[1] + S[r, 2] * qd[2]
+
+
+@jit
+def phi_transpose_force(R, p, S, f, wgt, out):
+    """``out += wgt * Phi^T f``: ``(Ad(g)^-T f, S^T f)`` with ``Ad^-T (fl, fa) = (R fl, p x R fl + R fa)``."""
+    Rfl = np.empty(3)
+    Rfa = np.empty(3)
+    for r in range(3):
+        Rfl[r] = R[r, 0] * f[0] + R[r, 1] * f[1] + R[r, 2] * f[2]
+        Rfa[r] = R[r, 0] * f[3] + R[r, 1] * f[4] + R[r, 2] * f[5]
+    out[0] += wgt * Rfl[0]
+    out[1] += wgt * Rfl[1]
+    out[2] += wgt * Rfl[2]
+    out[3] += wgt * (p[1] * Rfl[2] - p[2] * Rfl[1] + Rfa[0])
+    out[4] += wgt * (p[2] * Rfl[0] - p[0] * Rfl[2] + Rfa[1])
+    out[5] += wgt * (p[0] * Rfl[1] - p[1] * Rfl[0] + Rfa[2])
+    for c in range(3):
+        acc = 0.0
+        for r in range(6):
+            acc += S[r, c] * f[r]
+        out[6 + c] += wgt * acc
+
+
+@jit
+def _phi_matrix(R, p, S, Phi):
+    """``Phi = [Ad(g)^-1, S]`` (6, 9)."""
+    for r in range(3):
+        for c in range(3):
+            Phi[r, c] = R[c, r]
+            Phi[3 + r, 3 + c] = R[c, r]
+            Phi[3 + r, c] = 0.0
+    # -R^T [p]
+    for r in range(3):
+        Phi[r, 3] = R[2, r] * p[1] - R[1, r] * p[2]
+        Phi[r, 4] = R[0, r] * p[2] - R[2, r] * p[0]
+        Phi[r, 5] = R[1, r] * p[0] - R[0, r] * p[1]
+    for r in range(6):
+        for c in range(3):
+            Phi[r, 6 + c] = S[r, c]
+
+
+@jit
+def segment_mass(alpha, w, mass, radius, q, M):
+    """``M[:] = M_xi(q)`` (9, 9) in curvature coordinates, by quadrature over the nodes."""
+    R = np.empty((3, 3))
+    p = np.empty(3)
+    S = np.empty((6, 3))
+    Sd = np.empty((6, 3))
+    Phi = np.empty((6, 9))
+    Id = np.empty(6)
+    Id[0] = Id[1] = Id[2] = mass
+    Id[3] = Id[4] = 0.25 * mass * radius * radius
+    Id[5] = 0.5 * mass * radius * radius
+    M[:, :] = 0.0
+    for k in range(alpha.shape[0]):
+        arc_node(alpha[k], q[0], q[1], q[2], 0.0, 0.0, 0.0, R, p, S, Sd)
+        _phi_matrix(R, p, S, Phi)
+        for i in range(9):
+            for j in range(i, 9):
+                acc = 0.0
+                for r in range(6):
+                    acc += Phi[r, i] * Id[r] * Phi[r, j]
+                M[i, j] += w[k] * acc
+    for i in range(9):
+        for j in range(i):
+            M[i, j] = M[j, i]
+
+
+@jit
+def segment_newton_euler(alpha, w, mass, radius, q, xi, xid, Q):
+    """``Q[:] = int Phi^T (I a + V x* I V)`` (9,) = ``M_xi xid + C_xi xi``, curvature coordinates."""
+    R = np.empty((3, 3))
+    p = np.empty(3)
+    S = np.empty((6, 3))
+    Sd = np.empty((6, 3))
+    V = np.empty(6)
+    V0 = xi[:6]
+    qd = xi[6:]
+    A0 = xid[:6]
+    qdd = xid[6:]
+    Vr = np.empty(6)  # Ad^-1 V0
+    a = np.empty(6)
+    rel = np.empty(6)
+    f = np.empty(6)
+    zero3 = np.zeros(3)
+    m = mass
+    ixx = 0.25 * mass * radius * radius
+    izz = 0.5 * mass * radius * radius
+    Q[:] = 0.0
+    for k in range(alpha.shape[0]):
+        arc_node(alpha[k], q[0], q[1], q[2], qd[0], qd[1], qd[2], R, p, S, Sd)
+        slice_twist(R, p, S, V0, zero3, Vr)
+        for r in range(6):
+            rel[r] = S[r, 0] * qd[0] + S[r, 1] * qd[1] + S[r, 2] * qd[2]
+            V[r] = Vr[r] + rel[r]
+        # a = Ad^-1 A0 + S qdd + Sd qd - rel x Vr
+        slice_twist(R, p, S, A0, qdd, a)
+        for r in range(6):
+            a[r] += Sd[r, 0] * qd[0] + Sd[r, 1] * qd[1] + Sd[r, 2] * qd[2]
+        a[0] -= rel[4] * Vr[2] - rel[5] * Vr[1] + rel[1] * Vr[5] - rel[2] * Vr[4]
+        a[1] -= rel[5] * Vr[0] - rel[3] * Vr[2] + rel[2] * Vr[3] - rel[0] * Vr[5]
+        a[2] -= rel[3] * Vr[1] - rel[4] * Vr[0] + rel[0] * Vr[4] - rel[1] * Vr[3]
+        a[3] -= rel[4] * Vr[5] - rel[5] * Vr[4]
+        a[4] -= rel[5] * Vr[3] - rel[3] * Vr[5]
+        a[5] -= rel[3] * Vr[4] - rel[4] * Vr[3]
+        # h = I V; f = I a + V x* h, V x* h = (w x hl, v x hl + w x ha)
+        hl0, hl1, hl2 = m * V[0], m * V[1], m * V[2]
+        ha0, ha1, ha2 = ixx * V[3], ixx * V[4], izz * V[5]
+        f[0] = m * a[0] + V[4] * hl2 - V[5] * hl1
+        f[1] = m * a[1] + V[5] * hl0 - V[3] * hl2
+        f[2] = m * a[2] + V[3] * hl1 - V[4] * hl0
+        f[3] = ixx * a[3] + V[1] * hl2 - V[2] * hl1 + V[4] * ha2 - V[5] * ha1
+        f[4] = ixx * a[4] + V[2] * hl0 - V[0] * hl2 + V[5] * ha0 - V[3] * ha2
+        f[5] = izz * a[5] + V[0] * hl1 - V[1] * hl0 + V[3] * ha1 - V[4] * ha0
+        phi_transpose_force(R, p, S, f, w[k], Q)
