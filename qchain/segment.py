@@ -44,7 +44,7 @@ from .errors import (
     as_vector,
     check_positive,
 )
-from .slices import segment_mass, segment_newton_euler
+from .slices import CHAMBER_ANGLES, elastic_gradient_c, input_matrix_c, segment_mass, segment_newton_euler
 from .spatial import ad_matrix, disk_inertia, force_cross_bar
 
 __all__ = [
@@ -59,9 +59,6 @@ __all__ = [
     "paper_velocity_to_curvature",
     "curvature_velocity_to_paper",
 ]
-
-#: Chamber angles phi_i about the root z axis (rad): chamber 1 on +x.
-CHAMBER_ANGLES = np.array([0.0, 2.0 * np.pi / 3.0, -2.0 * np.pi / 3.0])
 
 #: Default Gauss-Legendre node count along a segment. ``tests/test_segment.py`` checks
 #: that it gives M_xi to 1e-10 relative (in the Frobenius norm) against a 40-node
@@ -468,18 +465,10 @@ class Segment:
         ``actuation="paper"``: ``B[:, i] = A_ch J_ci^T R k``, the force ``p_i A_ch`` along the
         tip normal at the chamber's centre on the tip plate. The two share the ``l`` row.
         """
-        q_c = self.to_curvature(q_e)
-        J = self.coordinate_jacobian(q_e)
-        l, ux, uy = q_c
-        c, s = np.cos(CHAMBER_ANGLES), np.sin(CHAMBER_ANGLES)
-        r = self.chamber_radius
-        if self.actuation == "volume":
-            Bc = np.stack([1.0 - r * (ux * c + uy * s), -l * r * c, -l * r * s])
-        else:
-            S1 = arc_nodes(1.0, q_c).S[0]  # tip body Jacobian (6, 3)
-            lever = np.stack([r * s, -r * c, np.zeros(3)])  # c_i x e_z in the tip frame, (3, 3)
-            Bc = S1[2, :][:, None] + S1[3:, :].T @ lever
-        return self.chamber_area * (J.T @ Bc)
+        q_c, J = self._curvature(q_e)
+        Bc = np.empty((3, 3))
+        input_matrix_c(q_c, self.chamber_area, self.chamber_radius, self.actuation == "paper", Bc)
+        return J.T @ Bc
 
     # ------------------------------------------------------------------- elasticity
 
@@ -502,11 +491,9 @@ class Segment:
         return 0.5 * self.bending_stiffness * k2 * l * l / l0 + 0.5 * self.axial_stiffness * (l - l0) ** 2 / l0
 
     def _elastic_grad_c(self, q_c: np.ndarray) -> np.ndarray:
-        l, ux, uy = q_c
-        EI, EA, l0 = self.bending_stiffness, self.axial_stiffness, self.length
-        return np.array(
-            [EI * l * (ux * ux + uy * uy) / l0 + EA * (l - l0) / l0, EI * l * l * ux / l0, EI * l * l * uy / l0]
-        )
+        g = np.empty(3)
+        elastic_gradient_c(q_c, self.length, self.bending_stiffness, self.axial_stiffness, g)
+        return g
 
     def elastic_force(self, q_e) -> np.ndarray:
         """``dU_el/dq_e`` (3,), the elastic term on the left of the equation of motion."""

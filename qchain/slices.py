@@ -20,7 +20,7 @@ import numpy as np
 
 from .arc import arc_node, jit
 
-__all__ = ["segment_mass", "segment_newton_euler", "phi_transpose_force", "slice_twist"]
+__all__ = ["CHAMBER_ANGLES", "input_matrix_c", "elastic_gradient_c", "segment_slices", "segment_mass", "segment_newton_euler", "phi_transpose_force", "phi_matrix", "slice_twist"]
 
 
 @jit
@@ -58,7 +58,7 @@ def phi_transpose_force(R, p, S, f, wgt, out):
 
 
 @jit
-def _phi_matrix(R, p, S, Phi):
+def phi_matrix(R, p, S, Phi):
     """``Phi = [Ad(g)^-1, S]`` (6, 9)."""
     for r in range(3):
         for c in range(3):
@@ -76,39 +76,17 @@ def _phi_matrix(R, p, S, Phi):
 
 
 @jit
-def segment_mass(alpha, w, mass, radius, q, M):
-    """``M[:] = M_xi(q)`` (9, 9) in curvature coordinates, by quadrature over the nodes."""
+def segment_slices(alpha, w, mass, radius, q, xi, xid, want_mass, M, Q):
+    """One pass over the nodes of a segment (curvature coordinates).
+
+    ``Q[:] = int Phi^T (I a + V x* I V) dalpha`` (9,) ``= M_xi xid + C_xi xi``; with
+    ``want_mass`` also ``M[:] = M_xi`` (9, 9). ``xi = (V_root, qdot)``, ``xid = (A_root, qddot)``.
+    """
     R = np.empty((3, 3))
     p = np.empty(3)
     S = np.empty((6, 3))
     Sd = np.empty((6, 3))
     Phi = np.empty((6, 9))
-    Id = np.empty(6)
-    Id[0] = Id[1] = Id[2] = mass
-    Id[3] = Id[4] = 0.25 * mass * radius * radius
-    Id[5] = 0.5 * mass * radius * radius
-    M[:, :] = 0.0
-    for k in range(alpha.shape[0]):
-        arc_node(alpha[k], q[0], q[1], q[2], 0.0, 0.0, 0.0, R, p, S, Sd)
-        _phi_matrix(R, p, S, Phi)
-        for i in range(9):
-            for j in range(i, 9):
-                acc = 0.0
-                for r in range(6):
-                    acc += Phi[r, i] * Id[r] * Phi[r, j]
-                M[i, j] += w[k] * acc
-    for i in range(9):
-        for j in range(i):
-            M[i, j] = M[j, i]
-
-
-@jit
-def segment_newton_euler(alpha, w, mass, radius, q, xi, xid, Q):
-    """``Q[:] = int Phi^T (I a + V x* I V)`` (9,) = ``M_xi xid + C_xi xi``, curvature coordinates."""
-    R = np.empty((3, 3))
-    p = np.empty(3)
-    S = np.empty((6, 3))
-    Sd = np.empty((6, 3))
     V = np.empty(6)
     V0 = xi[:6]
     qd = xi[6:]
@@ -122,9 +100,23 @@ def segment_newton_euler(alpha, w, mass, radius, q, xi, xid, Q):
     m = mass
     ixx = 0.25 * mass * radius * radius
     izz = 0.5 * mass * radius * radius
+    Id = np.empty(6)
+    Id[0] = Id[1] = Id[2] = m
+    Id[3] = Id[4] = ixx
+    Id[5] = izz
     Q[:] = 0.0
+    if want_mass:
+        M[:, :] = 0.0
     for k in range(alpha.shape[0]):
         arc_node(alpha[k], q[0], q[1], q[2], qd[0], qd[1], qd[2], R, p, S, Sd)
+        if want_mass:
+            phi_matrix(R, p, S, Phi)
+            for i in range(9):
+                for j in range(i, 9):
+                    acc = 0.0
+                    for r in range(6):
+                        acc += Phi[r, i] * Id[r] * Phi[r, j]
+                    M[i, j] += w[k] * acc
         slice_twist(R, p, S, V0, zero3, Vr)
         for r in range(6):
             rel[r] = S[r, 0] * qd[0] + S[r, 1] * qd[1] + S[r, 2] * qd[2]
@@ -149,3 +141,63 @@ def segment_newton_euler(alpha, w, mass, radius, q, xi, xid, Q):
         f[4] = ixx * a[4] + V[2] * hl0 - V[0] * hl2 + V[5] * ha0 - V[3] * ha2
         f[5] = izz * a[5] + V[0] * hl1 - V[1] * hl0 + V[3] * ha1 - V[4] * ha0
         phi_transpose_force(R, p, S, f, w[k], Q)
+    if want_mass:
+        for i in range(9):
+            for j in range(i):
+                M[i, j] = M[j, i]
+
+
+@jit
+def segment_mass(alpha, w, mass, radius, q, M):
+    """``M[:] = M_xi(q)`` (9, 9) in curvature coordinates, by quadrature over the nodes."""
+    Q = np.empty(9)
+    z = np.zeros(9)
+    segment_slices(alpha, w, mass, radius, q, z, z, True, M, Q)
+
+
+@jit
+def segment_newton_euler(alpha, w, mass, radius, q, xi, xid, Q):
+    """``Q[:] = M_xi xid + C_xi xi`` (9,), curvature coordinates (see :func:`segment_slices`)."""
+    M = np.empty((1, 1))
+    segment_slices(alpha, w, mass, radius, q, xi, xid, False, M, Q)
+
+
+# --------------------------------------------------------------------------- segment forces
+#: Chamber angles phi_i about the root z axis (rad): chamber 1 on +x.
+CHAMBER_ANGLES = np.array([0.0, 2.0 * np.pi / 3.0, -2.0 * np.pi / 3.0])
+_COS_PHI = np.cos(CHAMBER_ANGLES)
+_SIN_PHI = np.sin(CHAMBER_ANGLES)
+
+
+@jit
+def input_matrix_c(q, A_ch, r_ch, paper_act, B):
+    """``B[:] =`` the input matrix (3, 3) in curvature coordinates, column i = chamber i.
+
+    Volume model: ``A_ch d l_i/dq`` with ``l_i = l (1 - r_ch (ux cos phi_i + uy sin phi_i))``.
+    Paper model (``paper_act``): ``A_ch (S_z(1) + S_w(1) . (r_ch sin phi_i, -r_ch cos phi_i, 0))``,
+    the tip-plate force at the chamber centre along the tip normal, through the tip Jacobian.
+    """
+    l, ux, uy = q[0], q[1], q[2]
+    if paper_act:
+        R = np.empty((3, 3))
+        pt = np.empty(3)
+        S = np.empty((6, 3))
+        Sd = np.empty((6, 3))
+        arc_node(1.0, l, ux, uy, 0.0, 0.0, 0.0, R, pt, S, Sd)
+        for i in range(3):
+            for a in range(3):
+                B[a, i] = A_ch * (S[2, a] + S[3, a] * r_ch * _SIN_PHI[i] - S[4, a] * r_ch * _COS_PHI[i])
+    else:
+        for i in range(3):
+            B[0, i] = A_ch * (1.0 - r_ch * (ux * _COS_PHI[i] + uy * _SIN_PHI[i]))
+            B[1, i] = -A_ch * l * r_ch * _COS_PHI[i]
+            B[2, i] = -A_ch * l * r_ch * _SIN_PHI[i]
+
+
+@jit
+def elastic_gradient_c(q, l0, EI, EA, g):
+    """``g[:] = dU_el/dq`` (3,), ``U_el = 1/2 EI l^2 |u|^2 / l0 + 1/2 EA (l - l0)^2 / l0``."""
+    l, ux, uy = q[0], q[1], q[2]
+    g[0] = EI * l * (ux * ux + uy * uy) / l0 + EA * (l - l0) / l0
+    g[1] = EI * l * l * ux / l0
+    g[2] = EI * l * l * uy / l0

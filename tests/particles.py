@@ -101,23 +101,41 @@ def paper_params(q, coords):
     return l, ux / kappa, uy / kappa, kappa
 
 
-def particle_position(q, coords, alpha, r, phi):
-    """World-free position (root frame) of particles as three jets. ``q``: three jets."""
+def _matmul(A, B):
+    return [[sum(A[i][k] * B[k][j] for k in range(3)) for j in range(3)] for i in range(3)]
+
+
+def _matvec(A, x):
+    return [sum(A[i][k] * x[k] for k in range(3)) for i in range(3)]
+
+
+def _transpose(A):
+    return [[A[j][i] for j in range(3)] for i in range(3)]
+
+
+def slice_frame(q, coords, alpha):
+    """``(R, d)`` of slice ``alpha`` in the segment's root frame from the paper's closed form:
+    ``R = Rz(psi) Ry(kappa s) Rz(psi)^T``, ``d = Rz(psi) ((1 - cos kappa s)/kappa, 0, sin(kappa s)/kappa)``;
+    R as 3x3 nested lists and d as a list of jets."""
     l, cp, sp, kappa = paper_params(q, coords)
-    s = l * alpha
-    ks = kappa * s
-    # d_xz and Ry(kappa s) applied to the in-slice offset rotated by -psi
-    dx = (1 - ks.cos()) / kappa
-    dz = ks.sin() / kappa
-    # offset in the frame rotated by psi: Rz(psi)^T (r cos phi, r sin phi, 0)
-    ox = cp * (r * np.cos(phi)) + sp * (r * np.sin(phi))
-    oy = -sp * (r * np.cos(phi)) + cp * (r * np.sin(phi))
-    # Ry(ks): (x, y, z) -> (cos x + sin z, y, -sin x + cos z), z = 0
-    bx = ks.cos() * ox + dx
-    by = oy
-    bz = -(ks.sin() * ox) + dz
-    # Rz(psi)
-    return [cp * bx - sp * by, sp * bx + cp * by, bz]
+    ks = kappa * (l * alpha)
+    C, S = ks.cos(), ks.sin()
+    Rz = [[cp, -sp, 0.0], [sp, cp, 0.0], [0.0, 0.0, 1.0]]
+    Ry = [[C, 0.0, S], [0.0, 1.0, 0.0], [-S, 0.0, C]]
+    R = _matmul(_matmul(Rz, Ry), _transpose(Rz))
+    d = _matvec(Rz, [(1 - C) / kappa, 0.0, S / kappa])
+    return R, d
+
+
+def particle_position(q, coords, alpha, r, phi, frame=None):
+    """Position of particles ``(alpha, r, phi)`` as three jets, in the segment's root frame, or in
+    the frame where the root sits at ``frame = (R0, p0)`` (jets)."""
+    R, d = slice_frame(q, coords, alpha)
+    x = [d[i] + R[i][0] * (r * np.cos(phi)) + R[i][1] * (r * np.sin(phi)) for i in range(3)]
+    if frame is None:
+        return x
+    R0, p0 = frame
+    return [p0[i] + sum(R0[i][k] * x[k] for k in range(3)) for i in range(3)]
 
 
 def particle_grid(seg, n_alpha=24, n_r=6, n_phi=24):
@@ -219,3 +237,67 @@ def tip_plate_force_matrix(seg, q):
             n = n / np.linalg.norm(n)
             B[j, i] = seg.chamber_area * dx @ n
     return B
+
+
+def _rows_J(x, dxdq, floating):
+    """Particle velocity Jacobians ``du/dv`` (P, 3, nv): ``[I, -[x], dx/dq]`` or ``dx/dq``."""
+    P = x.shape[0]
+    if not floating:
+        return dxdq
+    J = np.zeros((P, 3, 6 + dxdq.shape[2]))
+    J[:, :, :3] = np.eye(3)
+    J[:, 0, 4], J[:, 0, 5] = x[:, 2], -x[:, 1]
+    J[:, 1, 3], J[:, 1, 5] = -x[:, 2], x[:, 0]
+    J[:, 2, 3], J[:, 2, 4] = x[:, 1], -x[:, 0]
+    J[:, :, 6:] = dxdq
+    return J
+
+
+def _chain_positions(segments, q_e, direction):
+    """All particles of a chain in the base frame, as jets along ``q_e + t direction``."""
+    xs = []
+    R0 = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]
+    p0 = [0.0, 0.0, 0.0]
+    for j, seg in enumerate(segments):
+        qj = [Jet(q_e[j, i], direction[j, i]) for i in range(3)]
+        alpha, r, phi, _ = particle_grid(seg)
+        xs.append(particle_position(qj, seg.coords, alpha, r, phi, frame=(R0, p0)))
+        Rt, dt = slice_frame(qj, seg.coords, 1.0)
+        p0 = [p0[i] + sum(R0[i][k] * dt[k] for k in range(3)) for i in range(3)]
+        R0 = _matmul(R0, Rt)
+    return xs
+
+
+def brute_chain(segments, q_e, v, floating, g_B):
+    """Brute-force ``M`` (nv, nv) and ``C v + g`` (nv,) of a chain over material particles.
+
+    ``q_e`` (n, 3) segment coordinates; ``v`` (nv,) with the base twist first if ``floating``;
+    ``g_B`` (3,) gravity in the base frame. Particle velocities in base coordinates are
+    ``u = v_B + w_B x x + xdot`` (floating) or ``xdot`` (fixed base).
+    """
+    n = len(segments)
+    q_e = np.asarray(q_e, float)
+    off = 6 if floating else 0
+    v = np.asarray(v, float)
+    dm = np.concatenate([
+        particle_masses(seg, q_e[j], seg.coords, *particle_grid(seg)) for j, seg in enumerate(segments)
+    ])
+    cols = []
+    for k in range(3 * n):
+        d = np.zeros((n, 3))
+        d.flat[k] = 1.0
+        X = _chain_positions(segments, q_e, d)
+        cols.append(np.concatenate([np.stack([c.d1 * np.ones_like(c.val) for c in xj], -1) for xj in X]))
+        x = np.concatenate([np.stack([c.val for c in xj], -1) for xj in X])
+    dxdq = np.stack(cols, axis=-1)
+    J = _rows_J(x, dxdq, floating)
+    M = np.einsum("p,pai,paj->ij", dm, J, J)
+    X = _chain_positions(segments, q_e, v[off:].reshape(n, 3))
+    xdot = np.concatenate([np.stack([c.d1 * np.ones_like(c.val) for c in xj], -1) for xj in X])
+    xdd = np.concatenate([np.stack([c.dd * np.ones_like(c.val) for c in xj], -1) for xj in X])
+    acc = xdd.copy()
+    if floating:
+        vb, wb = v[:3], v[3:6]
+        acc += np.cross(wb, vb + np.cross(wb, x)) + 2 * np.cross(wb, xdot)
+    nle = np.einsum("p,pai,pa->i", dm, J, acc - g_B)
+    return M, nle

@@ -1,0 +1,601 @@
+"""An n-segment soft arm: segments stacked through non-inertial root frames.
+
+The root frame of segment ``j + 1`` is the tip frame of segment ``j`` (DESIGN.md section 2),
+so the arm has piecewise-constant (variable) curvature. :class:`Chain` is the model
+(parameters, never changed by algorithms) and its user-facing methods; the recursive
+passes live in :mod:`qchain.recursive`.
+
+Configuration layout (Pinocchio's conventions):
+
+* ``base="fixed"``: ``q = (q_e1, ..., q_en)`` (nq = 3n), ``v = (qdot_e1, ...)`` (nv = 3n);
+  the base sits at ``base_placement`` in the world.
+* ``base="floating"``: ``q = (x, y, z, qx, qy, qz, qw, q_e...)`` (nq = 7 + 3n),
+  ``v = (v_B, w_B, qdot_e...)`` (nv = 6 + 3n): the base's linear and angular velocity in
+  its own frame -- the paper's quasi-velocities ``xi`` for the base.
+* ``base="prescribed"``: as fixed, with the base placement, body twist and body
+  acceleration given functions of time (``base_motion(t) -> (X_WB, V_B, A_B)``).
+
+Equation of motion (every generalised force in the segments' own coordinates)::
+
+    M(q) a + C(q, v) v + g(q) + D v + dU_el/dq = B(q) p + tau
+
+with ``nonlinear_effects = C v + g`` (plus the base-motion forcing for a prescribed
+base). Pressures ``p`` (Pa) are ordered segment by segment, chambers 1..3.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import pinocchio as pin
+
+from . import recursive
+from .arc import arc_nodes
+from .errors import DomainError, QchainError, SingularConfigurationError, as_vector
+from .segment import PAPER_SINGULAR_ANGLE, Segment, paper_jacobian, paper_jacobian_dot, paper_to_curvature
+from .spatial import ad_matrix
+
+__all__ = ["Chain", "BASES"]
+
+BASES = ("fixed", "floating", "prescribed")
+QUATERNION_TOLERANCE = 1e-6
+
+
+@dataclass
+class _State:
+    """One evaluation's inputs, validated and in curvature coordinates."""
+
+    X_WB: pin.SE3
+    q_e: np.ndarray  # (n, 3) segment coordinates
+    q_c: np.ndarray  # (n, 3) curvature coordinates
+    J: np.ndarray | None  # (n, 3, 3) dq_c/dq_e, None if all segments use curvature coordinates
+    v_e: np.ndarray | None = None  # (n, 3)
+    v_c: np.ndarray | None = None  # (n, 3)
+    V0: np.ndarray | None = None  # (6,) base body twist
+    A_B: np.ndarray | None = None  # (6,) base body acceleration (prescribed)
+    g_B: np.ndarray | None = None  # (3,) gravity in the base frame
+
+
+class Chain:
+    """A soft arm of ``n`` segments.
+
+    Parameters
+    ----------
+    segments : sequence of Segment
+        From the base to the tip; they may differ in every parameter and coordinate choice.
+    base : {"fixed", "floating", "prescribed"}
+    gravity : (3,) m/s^2
+        World gravity.
+    base_placement : pinocchio.SE3, optional
+        World placement ``X_WB`` of a fixed base (default identity).
+    base_motion : callable, optional
+        For ``base="prescribed"``: ``t -> (X_WB, V_B, A_B)`` with ``X_WB`` a ``pinocchio.SE3``,
+        ``V_B`` (6,) the base's body twist and ``A_B`` (6,) its derivative (base frame,
+        ``[linear; angular]``, m/s, rad/s, m/s^2, rad/s^2).
+
+    Attributes
+    ----------
+    n, nq, nv, nu : int
+        Segments, configuration size, velocity size, pressure inputs (3 n).
+    """
+
+    def __init__(
+        self,
+        segments: Sequence[Segment],
+        base: str = "fixed",
+        gravity=(0.0, 0.0, -9.81),
+        base_placement: pin.SE3 | None = None,
+        base_motion: Callable | None = None,
+    ):
+        segs = tuple(segments)
+        if len(segs) == 0:
+            raise ValueError("segments must hold at least one Segment, got none")
+        for j, s in enumerate(segs):
+            if not isinstance(s, Segment):
+                raise TypeError(f"segments[{j}] must be a qchain.Segment, got {type(s).__name__}")
+        if base not in BASES:
+            raise ValueError(f"base must be one of {BASES}, got {base!r}")
+        if base == "prescribed" and not callable(base_motion):
+            raise ValueError("base='prescribed' needs base_motion, a callable t -> (X_WB, V_B, A_B)")
+        if base != "prescribed" and base_motion is not None:
+            raise ValueError(f"base_motion is only used with base='prescribed', got base={base!r}")
+        if base_placement is not None and base != "fixed":
+            raise ValueError(f"base_placement is only used with base='fixed', got base={base!r}")
+        if base_placement is not None and not isinstance(base_placement, pin.SE3):
+            raise TypeError(f"base_placement must be a pinocchio.SE3, got {type(base_placement).__name__}")
+        self.segments = segs
+        self.base = base
+        self.gravity = as_vector("gravity", gravity, 3)
+        self.base_placement = pin.SE3.Identity() if base_placement is None else pin.SE3(base_placement)
+        self.base_motion = base_motion
+        n = len(segs)
+        self.n = n
+        self.nu = 3 * n
+        self.floating = base == "floating"
+        self._qoff = 7 if self.floating else 0
+        self._voff = 6 if self.floating else 0
+        self.nq = self._qoff + 3 * n
+        self.nv = self._voff + 3 * n
+        # flat per-segment arrays for the compiled passes
+        counts = np.array([s.node_count for s in segs])
+        self._offs = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
+        self._alpha = np.concatenate([s.alpha_nodes for s in segs])
+        self._w = np.concatenate([s.alpha_weights for s in segs])
+        arr = lambda f: np.array([f(s) for s in segs], dtype=float)  # noqa: E731
+        self._mass = arr(lambda s: s.mass)
+        self._radius = arr(lambda s: s.radius)
+        self._l0 = arr(lambda s: s.length)
+        self._EI = arr(lambda s: s.bending_stiffness)
+        self._EA = arr(lambda s: s.axial_stiffness)
+        self._beta = arr(lambda s: s.damping)
+        self._A_ch = arr(lambda s: s.chamber_area)
+        self._r_ch = arr(lambda s: s.chamber_radius)
+        self._paper_act = np.array([s.actuation == "paper" for s in segs])
+        self._paper = np.array([s.coords == "paper" for s in segs])
+        self._any_paper = bool(self._paper.any())
+        # segments with the paper's literal linear law: their elastic/damping terms are
+        # evaluated by the Segment (in its own coordinates), the rest by the compiled kernel
+        self._linear = np.array([s.stiffness_matrix is not None or s.damping_matrix is not None for s in segs])
+        self._material = ~self._linear
+        if self.floating:
+            self._ff = pin.Model()
+            self._ff.addJoint(0, pin.JointModelFreeFlyer(), pin.SE3.Identity(), "base")
+
+    # ------------------------------------------------------------------ layout
+
+    def q_slice(self, j: int) -> slice:
+        """Indices of segment ``j``'s ``q_e`` in ``q``."""
+        return slice(self._qoff + 3 * j, self._qoff + 3 * j + 3)
+
+    def v_slice(self, j: int) -> slice:
+        """Indices of segment ``j``'s ``qdot_e`` in ``v``."""
+        return slice(self._voff + 3 * j, self._voff + 3 * j + 3)
+
+    def neutral(self) -> np.ndarray:
+        """The straight rest configuration (nq,), base at the origin for a floating base."""
+        q = np.zeros(self.nq)
+        if self.floating:
+            q[6] = 1.0
+        for j, s in enumerate(self.segments):
+            q[self.q_slice(j)] = s.neutral()
+        return q
+
+    def __repr__(self) -> str:
+        return f"Chain(n={self.n}, base={self.base!r}, nq={self.nq}, nv={self.nv})"
+
+    # ------------------------------------------------------------------ inputs
+
+    def _q(self, q, name="q") -> np.ndarray:
+        q = as_vector(name, q, self.nq)
+        if self.floating:
+            norm = np.linalg.norm(q[3:7])
+            if abs(norm - 1.0) > QUATERNION_TOLERANCE:
+                raise ValueError(
+                    f"{name}[3:7] quaternion (qx, qy, qz, qw) has norm {norm:.9g}; it must be within "
+                    f"{QUATERNION_TOLERANCE:g} of 1"
+                )
+            q = q.copy()
+            q[3:7] /= norm
+        return q
+
+    def _check_domain(self, q_e: np.ndarray) -> None:
+        l = q_e[:, 0]
+        k = np.where(self._paper, q_e[:, 2], np.hypot(q_e[:, 1], q_e[:, 2]))
+        bad = (l <= 0.0) | (np.abs(k) * self._radius >= 1.0) | (self._paper & (q_e[:, 2] < 0.0))
+        if bad.any():
+            j = int(np.flatnonzero(bad)[0])
+            sl = self.q_slice(j)
+            try:
+                self.segments[j].check_configuration(q_e[j], name=f"segment {j} (q[{sl.start}:{sl.stop}])")
+            except DomainError as err:
+                raise DomainError(str(err)) from None
+
+    def base_state(self, t: float = 0.0):
+        """``(X_WB, V_B, A_B)`` of a prescribed base at time ``t`` (validated)."""
+        if self.base != "prescribed":
+            raise ValueError(f"base_state is for base='prescribed', this chain has base={self.base!r}")
+        out = self.base_motion(float(t))
+        if not (isinstance(out, tuple) and len(out) == 3):
+            raise TypeError("base_motion(t) must return (X_WB: pinocchio.SE3, V_B: (6,), A_B: (6,))")
+        X, V, A = out
+        if not isinstance(X, pin.SE3):
+            raise TypeError(f"base_motion(t)[0] must be a pinocchio.SE3, got {type(X).__name__}")
+        if not np.all(np.isfinite(X.homogeneous)):
+            raise ValueError(f"base_motion({t}) gave a non-finite placement")
+        return X, as_vector("base_motion(t)[1] (V_B)", V, 6), as_vector("base_motion(t)[2] (A_B)", A, 6)
+
+    def _state(self, q, v=None, t: float = 0.0, nonsingular: bool = False) -> _State:
+        q = self._q(q)
+        q_e = q[self._qoff :].reshape(self.n, 3)
+        self._check_domain(q_e)
+        A_B = None
+        if self.base == "fixed":
+            X = self.base_placement
+            V0 = np.zeros(6)
+        elif self.base == "floating":
+            X = pin.XYZQUATToSE3(q[:7])
+            V0 = None
+        else:
+            X, V0, A_B = self.base_state(t)
+        J = None
+        q_c = q_e
+        if self._any_paper:
+            q_c = q_e.copy()
+            J = np.broadcast_to(np.eye(3), (self.n, 3, 3)).copy()
+            for j in np.flatnonzero(self._paper):
+                if nonsingular and q_e[j, 2] * q_e[j, 0] < PAPER_SINGULAR_ANGLE:
+                    sl = self.q_slice(j)
+                    raise SingularConfigurationError(
+                        f"segment {j} (q[{sl.start}:{sl.stop}]): bending angle kappa*l = {q_e[j, 2] * q_e[j, 0]:.3g} rad "
+                        f"is below {PAPER_SINGULAR_ANGLE:g} rad, where the paper's (l, psi, kappa) coordinates are "
+                        "singular; use coords='curvature' for this segment"
+                    )
+                q_c[j] = paper_to_curvature(q_e[j])
+                J[j] = paper_jacobian(q_e[j])
+        st = _State(X_WB=X, q_e=q_e, q_c=np.ascontiguousarray(q_c), J=J, A_B=A_B)
+        st.g_B = X.rotation.T @ self.gravity
+        if v is not None:
+            v = as_vector("v", v, self.nv)
+            st.v_e = v[self._voff :].reshape(self.n, 3)
+            st.v_c = st.v_e if J is None else np.einsum("nij,nj->ni", J, st.v_e)
+            st.V0 = v[:6].copy() if self.floating else V0
+        else:
+            st.V0 = np.zeros(6) if self.floating else V0
+        return st
+
+    def _acc_c(self, st: _State, a_e: np.ndarray) -> np.ndarray:
+        """Segment accelerations in curvature coordinates: ``J a_e + Jdot v_e``."""
+        if st.J is None:
+            return np.ascontiguousarray(a_e)
+        a_c = np.einsum("nij,nj->ni", st.J, a_e)
+        for j in np.flatnonzero(self._paper):
+            a_c[j] += paper_jacobian_dot(st.q_e[j], st.v_e[j]) @ st.v_e[j]
+        return a_c
+
+    def _force_e(self, st: _State, tau_c: np.ndarray) -> np.ndarray:
+        """Generalised forces from curvature to segment coordinates: ``J^T tau_c``."""
+        return tau_c if st.J is None else np.einsum("nji,nj->ni", st.J, tau_c)
+
+    def _lift(self, st: _State) -> np.ndarray | None:
+        """``T = blockdiag(I_base, J_1, ..., J_n)`` (nv, nv), or None if the identity."""
+        if st.J is None:
+            return None
+        T = np.eye(self.nv)
+        for j in range(self.n):
+            T[self.v_slice(j), self.v_slice(j)] = st.J[j]
+        return T
+
+    # ------------------------------------------------------------------ Lie group
+
+    def integrate(self, q, v, dt: float = 1.0) -> np.ndarray:
+        """``q (+) v dt`` on the configuration manifold (Pinocchio's free-flyer exp for the base)."""
+        q = self._q(q)
+        v = as_vector("v", v, self.nv)
+        out = q.copy()
+        if self.floating:
+            out[:7] = pin.integrate(self._ff, q[:7], v[:6] * dt)
+        out[self._qoff :] += v[self._voff :] * dt
+        return out
+
+    def difference(self, q0, q1) -> np.ndarray:
+        """The ``v`` (nv,) with ``integrate(q0, v, 1) == q1``."""
+        q0 = self._q(q0, "q0")
+        q1 = self._q(q1, "q1")
+        out = np.empty(self.nv)
+        if self.floating:
+            out[:6] = pin.difference(self._ff, q0[:7], q1[:7])
+        out[self._voff :] = q1[self._qoff :] - q0[self._qoff :]
+        return out
+
+    # ------------------------------------------------------------------ kinematics
+
+    def placements(self, q, t: float = 0.0) -> list[pin.SE3]:
+        """World placements of every segment root and of the tip: ``n + 1`` ``pinocchio.SE3``."""
+        st = self._state(q, t=t)
+        out = [st.X_WB]
+        for j, s in enumerate(self.segments):
+            out.append(out[-1] * pin.exp6(pin.Motion(st.q_c[j, 0] * np.array([0, 0, 1, -st.q_c[j, 2], st.q_c[j, 1], 0]))))
+        return out
+
+    def tip_placement(self, q, t: float = 0.0) -> pin.SE3:
+        """World placement of the tip frame."""
+        return self.placements(q, t)[-1]
+
+    def backbone(self, q, points_per_segment: int = 20, t: float = 0.0) -> np.ndarray:
+        """World points along each segment's axis (m), shape ``(n, P, 3)``, ``alpha`` from 0 to 1."""
+        P = int(points_per_segment)
+        if P < 2:
+            raise ValueError(f"points_per_segment must be >= 2, got {points_per_segment!r}")
+        X = self.placements(q, t)
+        st = self._state(q, t=t)
+        a = np.linspace(0.0, 1.0, P)
+        out = np.empty((self.n, P, 3))
+        for j in range(self.n):
+            p = arc_nodes(a, st.q_c[j]).p
+            out[j] = p @ X[j].rotation.T + X[j].translation
+        return out
+
+    def _tip_maps(self, st: _State):
+        """Per-segment tip maps in segment coordinates: ``Ad_j`` (n, 6, 6), ``S_j`` (n, 6, 3)."""
+        n = arc_nodes(np.ones(self.n), st.q_c)
+        S = n.S if st.J is None else n.S @ st.J
+        return n.Ad_inv, S
+
+    def tip_jacobian(self, q, reference: str = "local", t: float = 0.0) -> np.ndarray:
+        """Tip frame Jacobian (6, nv): ``V_tip = J v`` (+ the base's own motion if prescribed).
+
+        ``reference``: ``"local"`` (tip frame, Pinocchio LOCAL), ``"local_world_aligned"``
+        (tip origin, world axes) or ``"world"`` (spatial twist at the world origin).
+        """
+        st = self._state(q, t=t)
+        Ad, S = self._tip_maps(st)
+        Jt = np.zeros((6, self.nv))
+        if self.floating:
+            Jt[:, :6] = np.eye(6)
+        for j in range(self.n):
+            Jt = Ad[j] @ Jt
+            Jt[:, self.v_slice(j)] += S[j]
+        return self._express(Jt, self.placements(q, t)[-1], reference)
+
+    @staticmethod
+    def _express(J_local: np.ndarray, X: pin.SE3, reference: str) -> np.ndarray:
+        if reference == "local":
+            return J_local
+        if reference == "world":
+            return X.action @ J_local
+        if reference == "local_world_aligned":
+            R = X.rotation
+            out = np.empty_like(J_local)
+            out[:3] = R @ J_local[:3]
+            out[3:] = R @ J_local[3:]
+            return out
+        raise ValueError(f"reference must be 'local', 'local_world_aligned' or 'world', got {reference!r}")
+
+    def tip_velocity(self, q, v, reference: str = "local", t: float = 0.0) -> np.ndarray:
+        """Tip twist (6,) ``[linear; angular]`` in ``reference`` (see :meth:`tip_jacobian`)."""
+        st = self._state(q, v, t=t)
+        T = np.empty((self.n, 6, 9))
+        c = np.empty((self.n, 6))
+        V = np.empty((self.n + 1, 6))
+        recursive.tip_maps(st.q_c, np.ascontiguousarray(st.v_c), st.V0, T, c, V)
+        return self._express(V[-1][:, None], self.placements(q, t)[-1], reference)[:, 0]
+
+    def _root_twists(self, st: _State) -> np.ndarray:
+        T = np.empty((self.n, 6, 9))
+        c = np.empty((self.n, 6))
+        V = np.empty((self.n + 1, 6))
+        recursive.tip_maps(st.q_c, np.ascontiguousarray(st.v_c), st.V0, T, c, V)
+        return V
+
+    # ------------------------------------------------------------------ energies
+
+    def _segment_masses_c(self, st: _State) -> np.ndarray:
+        from .slices import segment_mass
+
+        M = np.empty((self.n, 9, 9))
+        for j in range(self.n):
+            o = slice(self._offs[j], self._offs[j + 1])
+            segment_mass(self._alpha[o], self._w[o], self._mass[j], self._radius[j], st.q_c[j], M[j])
+        return M
+
+    def kinetic_energy(self, q, v, t: float = 0.0) -> float:
+        """``T = sum_j 1/2 xi_j^T M_xi_j xi_j`` (J), the base's own motion included."""
+        st = self._state(q, v, t=t)
+        V = self._root_twists(st)
+        M = self._segment_masses_c(st)
+        xi = np.concatenate([V[:-1], st.v_c], axis=1)
+        return 0.5 * float(np.einsum("ni,nij,nj->", xi, M, xi))
+
+    def centers_of_mass(self, q, t: float = 0.0) -> np.ndarray:
+        """World centre of mass of each segment (n, 3), m."""
+        X = self.placements(q, t)
+        st = self._state(q, t=t)
+        out = np.empty((self.n, 3))
+        for j, s in enumerate(self.segments):
+            c = s.alpha_weights @ arc_nodes(s.alpha_nodes, st.q_c[j]).p
+            out[j] = X[j].act(c)
+        return out
+
+    def potential_energy(self, q, t: float = 0.0) -> float:
+        """Gravity (about the world origin) plus elastic energy (J)."""
+        st = self._state(q, t=t)
+        Ug = -float(self._mass @ (self.centers_of_mass(q, t) @ self.gravity))
+        Ue = sum(s.elastic_energy(st.q_e[j]) for j, s in enumerate(self.segments))
+        return Ug + Ue
+
+    def momentum(self, q, v, t: float = 0.0) -> np.ndarray:
+        """World momentum (6,): linear (kg m/s) and angular about the world origin (kg m^2/s)."""
+        st = self._state(q, v, t=t)
+        V = self._root_twists(st)
+        M = self._segment_masses_c(st)
+        X = self.placements(q, t)
+        h = np.zeros(6)
+        for j in range(self.n):
+            xi = np.concatenate([V[j], st.v_c[j]])
+            h += X[j].act(pin.Force(M[j, :6] @ xi)).vector
+        return h
+
+    # ------------------------------------------------------------------ dynamics
+
+    def _A0(self, st: _State, a_base=None) -> np.ndarray:
+        """Apparent base acceleration ``a_B - (g_B, 0)`` (6,)."""
+        A0 = np.zeros(6)
+        if a_base is not None:
+            A0 += a_base
+        elif st.A_B is not None:
+            A0 += st.A_B
+        A0[:3] -= st.g_B
+        return A0
+
+    def mass_matrix(self, q) -> np.ndarray:
+        """``M(q)`` (nv, nv) by composite-body assembly (:func:`qchain.recursive.crba`)."""
+        st = self._state(q, nonsingular=True)
+        H = np.empty((self.nv, self.nv))
+        recursive.crba(self._alpha, self._w, self._offs, self._mass, self._radius, st.q_c, self.floating, H)
+        T = self._lift(st)
+        return H if T is None else T.T @ H @ T
+
+    def _rnea(self, st: _State, a_e: np.ndarray, a_base=None) -> np.ndarray:
+        tau_c = np.empty((self.n, 3))
+        F0 = np.empty(6)
+        recursive.rnea(
+            self._alpha, self._w, self._offs, self._mass, self._radius, st.q_c, np.ascontiguousarray(st.v_c),
+            self._acc_c(st, a_e), st.V0, self._A0(st, a_base), tau_c, F0,
+        )
+        tau = self._force_e(st, tau_c).ravel()
+        return np.concatenate([F0, tau]) if self.floating else tau
+
+    def inverse_dynamics(self, q, v, a, t: float = 0.0) -> np.ndarray:
+        """``M a + C v + g`` (nv,) by recursive Newton-Euler over the slices (Pinocchio's ``rnea``).
+
+        No elastic, damping or pressure terms. For a floating base the first six entries
+        are the wrench on the base (base frame). For a prescribed base the base's own
+        motion at time ``t`` is included.
+        """
+        st = self._state(q, v, t=t, nonsingular=True)
+        a = as_vector("a", a, self.nv)
+        return self._rnea(st, a[self._voff :].reshape(self.n, 3), a[:6] if self.floating else None)
+
+    def nonlinear_effects(self, q, v, t: float = 0.0) -> np.ndarray:
+        """``C(q, v) v + g(q)`` (nv,) ``== inverse_dynamics(q, v, 0)`` (Pinocchio's ``nle``)."""
+        return self.inverse_dynamics(q, v, np.zeros(self.nv), t=t)
+
+    def generalized_gravity(self, q, t: float = 0.0) -> np.ndarray:
+        """``g(q)`` (nv,): gravity alone (a prescribed base held still at its placement at ``t``)."""
+        st = self._state(q, np.zeros(self.nv), t=t, nonsingular=True)
+        st.V0 = np.zeros(6)
+        st.A_B = None
+        return self._rnea(st, np.zeros((self.n, 3)), np.zeros(6) if self.floating else None)
+
+    def elastic_force(self, q) -> np.ndarray:
+        """``dU_el/dq`` (nv,), zero on the base."""
+        st = self._state(q)
+        out = np.zeros(self.nv)
+        for j, s in enumerate(self.segments):
+            out[self.v_slice(j)] = s.elastic_force(st.q_e[j])
+        return out
+
+    def damping_force(self, q, v) -> np.ndarray:
+        """``D v`` (nv,), zero on the base."""
+        st = self._state(q, v)
+        out = np.zeros(self.nv)
+        for j, s in enumerate(self.segments):
+            out[self.v_slice(j)] = s.damping_force(st.q_e[j], st.v_e[j])
+        return out
+
+    def input_matrix(self, q) -> np.ndarray:
+        """``B(q)`` (nv, 3 n): block-diagonal, pressures act only on their own segment's ``q_e``,
+        never as a net force on the base."""
+        st = self._state(q)
+        B = np.zeros((self.nv, self.nu))
+        for j, s in enumerate(self.segments):
+            B[self.v_slice(j), 3 * j : 3 * j + 3] = s.input_matrix(st.q_e[j])
+        return B
+
+    def _p(self, p) -> np.ndarray:
+        return np.zeros((self.n, 3)) if p is None else as_vector("p", p, self.nu).reshape(self.n, 3)
+
+    def internal_forces(self, q, v, p=None) -> np.ndarray:
+        """``B p - D v - dU_el/dq`` (nv,), the segments' own generalised forces, zero on the base."""
+        st = self._state(q, v)
+        f = self._internal_e(st, self._p(p))
+        out = np.zeros(self.nv)
+        out[self._voff :] = f.ravel()
+        return out
+
+    def _internal_e(self, st: _State, p: np.ndarray) -> np.ndarray:
+        """Internal forces in segment coordinates (n, 3)."""
+        f_c = np.empty((self.n, 3))
+        recursive.internal_forces(
+            st.q_c, np.ascontiguousarray(st.v_c), p, self._l0, self._EI, self._EA, self._beta, self._A_ch,
+            self._r_ch, self._paper_act, f_c,
+        )
+        f = self._force_e(st, f_c)
+        if self._linear.any():
+            f = f.copy()
+            for j in np.flatnonzero(self._linear):
+                s = self.segments[j]
+                f[j] = s.input_matrix(st.q_e[j]) @ p[j] - s.damping_force(st.q_e[j], st.v_e[j]) - s.elastic_force(st.q_e[j])
+        return f
+
+    def forward_dynamics(self, q, v, p=None, tau=None, t: float = 0.0) -> np.ndarray:
+        """Accelerations ``a`` (nv,) of ``M a + C v + g + D v + dU_el/dq = B p + tau``.
+
+        Articulated-body recursion on the segment blocks (:func:`qchain.recursive.aba`),
+        O(n). ``p`` (3 n,) Pa, default zero; ``tau`` (nv,) external generalised forces
+        (for a floating base, ``tau[:6]`` is a wrench on the base in the base frame).
+        """
+        st = self._state(q, v, t=t, nonsingular=True)
+        f = self._internal_e(st, self._p(p))
+        F0 = np.zeros(6)
+        if tau is not None:
+            tau = as_vector("tau", tau, self.nv)
+            f = f + tau[self._voff :].reshape(self.n, 3)
+            if self.floating:
+                F0 = tau[:6].copy()
+        f_c = f if st.J is None else np.linalg.solve(np.swapaxes(st.J, 1, 2), f[..., None])[..., 0]
+        qdd_c = np.empty((self.n, 3))
+        A0 = np.empty(6)
+        ok = recursive.aba(
+            self._alpha, self._w, self._offs, self._mass, self._radius, st.q_c, np.ascontiguousarray(st.v_c),
+            np.ascontiguousarray(f_c), st.V0, self._A0(st), self.floating, F0, qdd_c, A0,
+        )
+        if not ok:
+            raise QchainError("forward_dynamics: an articulated inertia block is not positive definite")
+        a = np.empty(self.nv)
+        if self.floating:
+            a[:6] = A0
+            a[:3] += st.g_B
+        if st.J is None:
+            a[self._voff :] = qdd_c.ravel()
+        else:
+            a_e = np.empty((self.n, 3))
+            for j in range(self.n):
+                rhs = qdd_c[j]
+                if self._paper[j]:
+                    rhs = rhs - paper_jacobian_dot(st.q_e[j], st.v_e[j]) @ st.v_e[j]
+                a_e[j] = np.linalg.solve(st.J[j], rhs)
+            a[self._voff :] = a_e.ravel()
+        if not np.all(np.isfinite(a)):
+            raise QchainError(f"forward_dynamics produced non-finite accelerations at t = {t}")
+        return a
+
+    def coriolis_matrix(self, q, v) -> np.ndarray:
+        """``C(q, v)`` (nv, nv) with ``C v = nonlinear_effects - g`` and ``dM/dt - 2C`` skew.
+
+        ``C = sum_j A_j^T (C_xi_j A_j + M_xi_j Adot_j)`` with ``xi_j = A_j v``, from the
+        segments' own ``C_xi`` (fixed and floating bases; a prescribed base adds a forcing
+        that is not of the form ``C v``).
+        """
+        if self.base == "prescribed":
+            raise ValueError("coriolis_matrix is defined for base='fixed' or 'floating' (a prescribed base "
+                             "adds a time-dependent forcing, included in nonlinear_effects)")
+        st = self._state(q, v, nonsingular=True)
+        v = as_vector("v", v, self.nv)
+        Ad, S = self._tip_maps(st)
+        nodes = arc_nodes(np.ones(self.n), st.q_c, st.v_c)
+        Vmap = np.zeros((6, self.nv))  # root twist of segment j per unit v
+        Vdot = np.zeros((6, self.nv))  # its time derivative
+        if self.floating:
+            Vmap[:, :6] = np.eye(6)
+        C = np.zeros((self.nv, self.nv))
+        for j, s in enumerate(self.segments):
+            sl = self.v_slice(j)
+            A = np.zeros((9, self.nv))
+            A[:6] = Vmap
+            A[6:, sl] = np.eye(3)
+            Adot = np.zeros((9, self.nv))
+            Adot[:6] = Vdot
+            xi = A @ v
+            C += A.T @ (s.coriolis_matrix(st.q_e[j], xi) @ A + s.mass_matrix(st.q_e[j]) @ Adot)
+            Sdot = nodes.Sdot[j]
+            if self._paper[j]:
+                Sdot = Sdot @ st.J[j] + nodes.S[j] @ paper_jacobian_dot(st.q_e[j], st.v_e[j])
+            Ad_dot = -ad_matrix(S[j] @ st.v_e[j]) @ Ad[j]
+            Vdot = Ad_dot @ Vmap + Ad[j] @ Vdot
+            Vdot[:, sl] += Sdot
+            Vmap = Ad[j] @ Vmap
+            Vmap[:, sl] += S[j]
+        return C

@@ -1,0 +1,367 @@
+"""Recursive passes over a chain of segments (numba), in the manner of Pinocchio's algorithms.
+
+The passes work on per-segment blocks and plain arrays, never on the ``Chain`` facade:
+
+* ``alpha, w`` (N,), ``offs`` (n + 1,): the Gauss nodes and weights of all segments,
+  segment ``j`` owning ``alpha[offs[j]:offs[j+1]]``;
+* ``mass, radius`` (n,): kg, m;
+* ``q, qd, qdd`` (n, 3): segment configurations and their derivatives in curvature
+  coordinates ``(l, ux, uy)`` (the ``Chain`` maps paper coordinates in and out);
+* ``V0, A0`` (6,): the first root's body twist and "apparent" acceleration in its own
+  frame, ``A0 = a_root - (R^T g, 0)``: gravity enters as an upward acceleration of the base
+  (Featherstone's device), so every pass includes it at no cost.
+
+Root ``j + 1`` is the tip of segment ``j``: its twist is ``T_j xi_j`` with the tip map
+``T_j = Phi_j(1) = [Ad(g_j(1))^-1, S_j(1)]`` (6 x 9), and its acceleration
+``T_j xidot_j + c_j`` with the tip bias acceleration ``c_j = Phidot_j(1) xi_j``.
+
+* :func:`rnea` -- recursive Newton-Euler over the slices, O(n * nodes);
+* :func:`crba` -- composite-body assembly of ``M = sum_j A_j^T M_xi_j A_j``, O(n^2);
+* :func:`aba` -- articulated-body forward dynamics on the 9 x 9 segment blocks, O(n).
+
+``tests/test_chain.py`` holds them to particle brute force, to each other
+(``nle == rnea(q, v, 0)``, ``aba == solve(crba, tau - nle)``) and to ``pinocchio.crba``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .arc import arc_node, jit
+from .slices import elastic_gradient_c, input_matrix_c, phi_matrix, segment_slices, slice_twist
+
+__all__ = ["rnea", "crba", "aba", "tip_maps", "internal_forces"]
+
+
+@jit
+def _tip(q, qd, xi, T, c):
+    """Tip map ``T = Phi(1)`` (6, 9) and tip bias acceleration ``c = Phidot(1) xi`` (6,)."""
+    R = np.empty((3, 3))
+    p = np.empty(3)
+    S = np.empty((6, 3))
+    Sd = np.empty((6, 3))
+    arc_node(1.0, q[0], q[1], q[2], qd[0], qd[1], qd[2], R, p, S, Sd)
+    phi_matrix(R, p, S, T)
+    Vr = np.empty(6)
+    zero3 = np.zeros(3)
+    slice_twist(R, p, S, xi[:6], zero3, Vr)
+    rel = np.empty(6)
+    for r in range(6):
+        rel[r] = S[r, 0] * qd[0] + S[r, 1] * qd[1] + S[r, 2] * qd[2]
+        c[r] = Sd[r, 0] * qd[0] + Sd[r, 1] * qd[1] + Sd[r, 2] * qd[2]
+    c[0] -= rel[4] * Vr[2] - rel[5] * Vr[1] + rel[1] * Vr[5] - rel[2] * Vr[4]
+    c[1] -= rel[5] * Vr[0] - rel[3] * Vr[2] + rel[2] * Vr[3] - rel[0] * Vr[5]
+    c[2] -= rel[3] * Vr[1] - rel[4] * Vr[0] + rel[0] * Vr[4] - rel[1] * Vr[3]
+    c[3] -= rel[4] * Vr[5] - rel[5] * Vr[4]
+    c[4] -= rel[5] * Vr[3] - rel[3] * Vr[5]
+    c[5] -= rel[3] * Vr[4] - rel[4] * Vr[3]
+
+
+@jit
+def _matvec(T, x, out):
+    for r in range(T.shape[0]):
+        acc = 0.0
+        for k in range(T.shape[1]):
+            acc += T[r, k] * x[k]
+        out[r] = acc
+
+
+@jit
+def tip_maps(q, qd, V0, T, c, V):
+    """Forward velocity pass: tip maps ``T`` (n, 6, 9), tip biases ``c`` (n, 6) and root
+    twists ``V`` (n + 1, 6), ``V[0] = V0``, ``V[j + 1] = T_j xi_j``."""
+    n = q.shape[0]
+    xi = np.empty(9)
+    V[0, :] = V0
+    for j in range(n):
+        xi[:6] = V[j]
+        xi[6:] = qd[j]
+        _tip(q[j], qd[j], xi, T[j], c[j])
+        _matvec(T[j], xi, V[j + 1])
+
+
+@jit
+def rnea(alpha, w, offs, mass, radius, q, qd, qdd, V0, A0, tau, F0):
+    """Inverse dynamics ``tau = M qdd + C qd + g`` (n, 3) and the base wrench ``F0`` (6,).
+
+    ``F0`` is the wrench (first root frame) the base exerts on the chain: the generalised
+    force of a floating base, the mount's reaction for a fixed or prescribed one.
+    """
+    n = q.shape[0]
+    T = np.empty((n, 6, 9))
+    c = np.empty((n, 6))
+    Q = np.empty((n, 9))
+    xi = np.empty(9)
+    xid = np.empty(9)
+    V = V0.copy()
+    A = A0.copy()
+    Mdummy = np.empty((1, 1))
+    for j in range(n):
+        xi[:6] = V
+        xi[6:] = qd[j]
+        xid[:6] = A
+        xid[6:] = qdd[j]
+        segment_slices(alpha[offs[j] : offs[j + 1]], w[offs[j] : offs[j + 1]], mass[j], radius[j], q[j], xi, xid,
+                       False, Mdummy, Q[j])
+        _tip(q[j], qd[j], xi, T[j], c[j])
+        _matvec(T[j], xi, V)
+        _matvec(T[j], xid, A)
+        for r in range(6):
+            A[r] += c[j, r]
+    F = np.zeros(6)
+    out = np.empty(9)
+    for j in range(n - 1, -1, -1):
+        out[:] = 0.0
+        for r in range(6):  # T^T F
+            for k in range(9):
+                out[k] += T[j, r, k] * F[r]
+        for r in range(6):
+            F[r] = Q[j, r] + out[r]
+        for r in range(3):
+            tau[j, r] = Q[j, 6 + r] + out[6 + r]
+    F0[:] = F
+
+
+@jit
+def crba(alpha, w, offs, mass, radius, q, floating, H):
+    """Composite-body assembly of the joint-space inertia ``H`` (nv, nv), curvature coordinates.
+
+    Backwards from the tip: the composite inertia ``Ic`` of everything beyond root ``j + 1``
+    gives ``Mh = M_xi_j + T_j^T Ic T_j`` (9 x 9): its ``qq`` block is ``H_jj``, its ``Vq``
+    block the wrench at root ``j`` per unit ``qddot_j``, carried inwards by ``T_i^T`` to give
+    ``H_ij`` (and, for a floating base, ``H_base,j``); its ``VV`` block is the next ``Ic``.
+    """
+    n = q.shape[0]
+    off = 6 if floating else 0
+    T = np.empty((n, 6, 9))
+    c = np.empty(6)
+    Mj = np.empty((9, 9))
+    Q = np.empty(9)
+    z9 = np.zeros(9)
+    z3 = np.zeros(3)
+    for j in range(n):
+        _tip(q[j], z3, z9, T[j], c)
+    Ic = np.zeros((6, 6))
+    IcT = np.empty((6, 9))
+    Mh = np.empty((9, 9))
+    F = np.empty((6, 3))
+    Fn = np.empty((6, 3))
+    H[:, :] = 0.0
+    for j in range(n - 1, -1, -1):
+        segment_slices(alpha[offs[j] : offs[j + 1]], w[offs[j] : offs[j + 1]], mass[j], radius[j], q[j], z9, z9,
+                       True, Mj, Q)
+        for r in range(6):
+            for k in range(9):
+                acc = 0.0
+                for s in range(6):
+                    acc += Ic[r, s] * T[j, s, k]
+                IcT[r, k] = acc
+        for a in range(9):
+            for b in range(9):
+                acc = Mj[a, b]
+                for r in range(6):
+                    acc += T[j, r, a] * IcT[r, b]
+                Mh[a, b] = acc
+        i0 = off + 3 * j
+        for a in range(3):
+            for b in range(3):
+                H[i0 + a, i0 + b] = Mh[6 + a, 6 + b]
+        for r in range(6):
+            for b in range(3):
+                F[r, b] = Mh[r, 6 + b]
+        for i in range(j - 1, -1, -1):
+            k0 = off + 3 * i
+            for a in range(9):
+                for b in range(3):
+                    acc = 0.0
+                    for r in range(6):
+                        acc += T[i, r, a] * F[r, b]
+                    if a >= 6:
+                        H[k0 + a - 6, i0 + b] = acc
+                        H[i0 + b, k0 + a - 6] = acc
+                    else:
+                        Fn[a, b] = acc
+            F[:, :] = Fn
+        if floating:
+            for r in range(6):
+                for b in range(3):
+                    H[r, i0 + b] = F[r, b]
+                    H[i0 + b, r] = F[r, b]
+        for r in range(6):
+            for s in range(6):
+                Ic[r, s] = Mh[r, s]
+    if floating:
+        for r in range(6):
+            for s in range(6):
+                H[r, s] = Ic[r, s]
+
+
+@jit
+def _chol(A, k):
+    """In-place Cholesky ``A = L L^T`` of the leading ``k x k`` block (lower triangle). False if not SPD."""
+    for j in range(k):
+        d = A[j, j]
+        for s in range(j):
+            d -= A[j, s] * A[j, s]
+        if not d > 0.0:
+            return False
+        d = np.sqrt(d)
+        A[j, j] = d
+        for i in range(j + 1, k):
+            acc = A[i, j]
+            for s in range(j):
+                acc -= A[i, s] * A[j, s]
+            A[i, j] = acc / d
+    return True
+
+
+@jit
+def _chol_solve(L, k, b):
+    """Solve ``L L^T x = b`` in place (``b`` of length k)."""
+    for i in range(k):
+        acc = b[i]
+        for s in range(i):
+            acc -= L[i, s] * b[s]
+        b[i] = acc / L[i, i]
+    for i in range(k - 1, -1, -1):
+        acc = b[i]
+        for s in range(i + 1, k):
+            acc -= L[s, i] * b[s]
+        b[i] = acc / L[i, i]
+
+
+@jit
+def aba(alpha, w, offs, mass, radius, q, qd, tau, V0, A0, floating, F0, qdd, A0_out):
+    """Articulated-body forward dynamics: ``qdd`` (n, 3) from ``M qdd + C qd + g = tau``.
+
+    ``tau`` (n, 3) is the total generalised force on the segment coordinates (pressure,
+    elastic, damping, external). For a fixed or prescribed base ``A0`` is the root's
+    apparent acceleration; for a floating base ``F0`` (6,) is the wrench applied to the base
+    and ``A0_out`` receives the solved apparent base acceleration. Returns False if an
+    articulated block is not positive definite (a singular configuration).
+    """
+    n = q.shape[0]
+    T = np.empty((n, 6, 9))
+    c = np.empty((n, 6))
+    b = np.empty((n, 9))
+    Mall = np.empty((n, 9, 9))
+    xi = np.empty(9)
+    z9 = np.zeros(9)
+    V = V0.copy()
+    # pass 1: velocities, segment blocks and biases
+    for j in range(n):
+        xi[:6] = V
+        xi[6:] = qd[j]
+        segment_slices(alpha[offs[j] : offs[j + 1]], w[offs[j] : offs[j + 1]], mass[j], radius[j], q[j], xi, z9,
+                       True, Mall[j], b[j])
+        _tip(q[j], qd[j], xi, T[j], c[j])
+        _matvec(T[j], xi, V)
+    # pass 2: articulated inertias, backwards
+    IA = np.zeros((6, 6))
+    pA = np.zeros(6)
+    Lq = np.empty((n, 3, 3))
+    U = np.empty((n, 6, 3))
+    u = np.empty((n, 3))
+    IAT = np.empty((6, 9))
+    Mh = np.empty((9, 9))
+    bh = np.empty(9)
+    pc = np.empty(6)
+    col = np.empty(3)
+    for j in range(n - 1, -1, -1):
+        for r in range(6):
+            acc = pA[r]
+            for s in range(6):
+                acc += IA[r, s] * c[j, s]
+            pc[r] = acc
+        for r in range(6):
+            for k in range(9):
+                acc = 0.0
+                for s in range(6):
+                    acc += IA[r, s] * T[j, s, k]
+                IAT[r, k] = acc
+        for a in range(9):
+            acc = b[j, a]
+            for r in range(6):
+                acc += T[j, r, a] * pc[r]
+            bh[a] = acc
+            for e in range(9):
+                acc = Mall[j, a, e]
+                for r in range(6):
+                    acc += T[j, r, a] * IAT[r, e]
+                Mh[a, e] = acc
+        for a in range(3):
+            for e in range(3):
+                Lq[j, a, e] = Mh[6 + a, 6 + e]
+            u[j, a] = tau[j, a] - bh[6 + a]
+        for r in range(6):
+            for a in range(3):
+                U[j, r, a] = Mh[r, 6 + a]
+        if not _chol(Lq[j], 3):
+            return False
+        # IA = Mh_VV - U D^-1 U^T ; pA = bh_V + U D^-1 u
+        DiUt = np.empty((3, 6))
+        for r in range(6):
+            for a in range(3):
+                col[a] = U[j, r, a]
+            _chol_solve(Lq[j], 3, col)
+            for a in range(3):
+                DiUt[a, r] = col[a]
+        for a in range(3):
+            col[a] = u[j, a]
+        _chol_solve(Lq[j], 3, col)
+        for r in range(6):
+            acc = bh[r]
+            for a in range(3):
+                acc += U[j, r, a] * col[a]
+            pA[r] = acc
+            for s in range(6):
+                acc = Mh[r, s]
+                for a in range(3):
+                    acc -= U[j, r, a] * DiUt[a, s]
+                IA[r, s] = acc
+    # pass 3: accelerations, forwards
+    A = np.empty(6)
+    if floating:
+        L6 = IA.copy()
+        if not _chol(L6, 6):
+            return False
+        for r in range(6):
+            A[r] = F0[r] - pA[r]
+        _chol_solve(L6, 6, A)
+    else:
+        A[:] = A0
+    A0_out[:] = A
+    xid = np.empty(9)
+    for j in range(n):
+        for a in range(3):
+            acc = u[j, a]
+            for r in range(6):
+                acc -= U[j, r, a] * A[r]
+            col[a] = acc
+        _chol_solve(Lq[j], 3, col)
+        qdd[j, :] = col
+        xid[:6] = A
+        xid[6:] = col
+        _matvec(T[j], xid, A)
+        for r in range(6):
+            A[r] += c[j, r]
+    return True
+
+
+@jit
+def internal_forces(q, qd, p, l0, EI, EA, beta, A_ch, r_ch, paper_act, out):
+    """``out = B p - D qd - dU_el/dq`` (n, 3), material law, curvature coordinates, with
+    ``D = beta diag(EA/l0, EI l0, EI l0)`` (:func:`qchain.slices.input_matrix_c`,
+    :func:`qchain.slices.elastic_gradient_c`). These terms are coordinate-free: paper
+    coordinates get ``J^T`` of them.
+    """
+    B = np.empty((3, 3))
+    g = np.empty(3)
+    for j in range(q.shape[0]):
+        input_matrix_c(q[j], A_ch[j], r_ch[j], paper_act[j], B)
+        elastic_gradient_c(q[j], l0[j], EI[j], EA[j], g)
+        out[j, 0] = -g[0] - beta[j] * EA[j] / l0[j] * qd[j, 0]
+        out[j, 1] = -g[1] - beta[j] * EI[j] * l0[j] * qd[j, 1]
+        out[j, 2] = -g[2] - beta[j] * EI[j] * l0[j] * qd[j, 2]
+        for a in range(3):
+            out[j, a] += B[a, 0] * p[j, 0] + B[a, 1] * p[j, 1] + B[a, 2] * p[j, 2]
