@@ -53,39 +53,48 @@ jit = numba.njit(cache=True, fastmath=False, error_model="numpy")
 
 
 @jit
-def _bend(x, out):
-    """``out[:] = (f0, f1, f2, g0, g1, g2)`` at bending angle ``x >= 0`` (rad)."""
+def _bend(x):
+    """``(f0, f1, f2, g0, g1, g2)`` at bending angle ``x >= 0`` (rad)."""
     if x < _SERIES_BELOW:
         t = x * x
-        for n in range(3):
-            acc = _F_COEF[n, _NTERMS - 1]
-            for k in range(_NTERMS - 2, -1, -1):
-                acc = acc * t + _F_COEF[n, k]
-            out[n] = acc
-            acc = _G_COEF[n, _NTERMS - 1]
-            for k in range(_NTERMS - 2, -1, -1):
-                acc = acc * t + _G_COEF[n, k]
-            out[3 + n] = acc
-    else:
-        s = np.sin(x)
-        c = np.cos(x)
-        out[0] = s / x
-        out[1] = (1.0 - c) / (x * x)
-        out[2] = (x - s) / (x * x * x)
-        out[3] = (x * c - s) / (x * x * x)
-        out[4] = (x * s - 2.0 * (1.0 - c)) / (x * x * x * x)
-        out[5] = (x * (1.0 - c) - 3.0 * (x - s)) / (x * x * x * x * x)
+        f0 = _F_COEF[0, _NTERMS - 1]
+        f1 = _F_COEF[1, _NTERMS - 1]
+        f2 = _F_COEF[2, _NTERMS - 1]
+        g0 = _G_COEF[0, _NTERMS - 1]
+        g1 = _G_COEF[1, _NTERMS - 1]
+        g2 = _G_COEF[2, _NTERMS - 1]
+        for k in range(_NTERMS - 2, -1, -1):
+            f0 = f0 * t + _F_COEF[0, k]
+            f1 = f1 * t + _F_COEF[1, k]
+            f2 = f2 * t + _F_COEF[2, k]
+            g0 = g0 * t + _G_COEF[0, k]
+            g1 = g1 * t + _G_COEF[1, k]
+            g2 = g2 * t + _G_COEF[2, k]
+        return f0, f1, f2, g0, g1, g2
+    s = np.sin(x)
+    c = np.cos(x)
+    x2 = x * x
+    return (
+        s / x,
+        (1.0 - c) / x2,
+        (x - s) / (x2 * x),
+        (x * c - s) / (x2 * x),
+        (x * s - 2.0 * (1.0 - c)) / (x2 * x2),
+        (x * (1.0 - c) - 3.0 * (x - s)) / (x2 * x2 * x),
+    )
 
 
 @jit
-def _mcross(a, b, out):
-    """Motion cross product ``a x b`` of 6-vectors ``[linear; angular]`` into ``out``."""
-    out[0] = a[4] * b[2] - a[5] * b[1] + a[1] * b[5] - a[2] * b[4]
-    out[1] = a[5] * b[0] - a[3] * b[2] + a[2] * b[3] - a[0] * b[5]
-    out[2] = a[3] * b[1] - a[4] * b[0] + a[0] * b[4] - a[1] * b[3]
-    out[3] = a[4] * b[5] - a[5] * b[4]
-    out[4] = a[5] * b[3] - a[3] * b[5]
-    out[5] = a[3] * b[4] - a[4] * b[3]
+def _mcross(a, b):
+    """Motion cross product ``a x b`` of 6-tuples ``[linear; angular]``."""
+    return (
+        a[4] * b[2] - a[5] * b[1] + a[1] * b[5] - a[2] * b[4],
+        a[5] * b[0] - a[3] * b[2] + a[2] * b[3] - a[0] * b[5],
+        a[3] * b[1] - a[4] * b[0] + a[0] * b[4] - a[1] * b[3],
+        a[4] * b[5] - a[5] * b[4],
+        a[5] * b[3] - a[3] * b[5],
+        a[3] * b[4] - a[4] * b[3],
+    )
 
 
 @jit
@@ -103,17 +112,17 @@ def arc_node(alpha, l, ux, uy, ld, uxd, uyd, R, p, S, Sd):
     Sd : (6, 3) out          ``dS/dt`` along ``(ld, uxd, uyd)``.
     """
     s = alpha * l
-    x = s * np.sqrt(ux * ux + uy * uy)
-    fg = np.empty(6)
-    _bend(x, fg)
-    a1 = s * fg[0]
-    a2 = s * s * fg[1]
-    a3 = s * s * s * fg[2]
-    da2 = s * s * s * s * fg[4] * (ux * uxd + uy * uyd)
-    da3 = s * s * s * s * s * fg[5] * (ux * uxd + uy * uyd)
+    k2 = ux * ux + uy * uy
+    f0, f1, f2, g0, g1, g2 = _bend(s * np.sqrt(k2))
+    s2 = s * s
+    a1 = s * f0
+    a2 = s2 * f1
+    a3 = s2 * s * f2
+    ud = ux * uxd + uy * uyd
+    da2 = s2 * s2 * g1 * ud
+    da3 = s2 * s2 * s * g2 * ud
     # R = I + a1 [w] + a2 [w]^2, w = (-uy, ux, 0): [w]^2 = w w^T - |w|^2 I
     wx, wy = -uy, ux
-    k2 = ux * ux + uy * uy
     R[0, 0] = 1.0 + a2 * (wx * wx - k2)
     R[0, 1] = a2 * wx * wy
     R[0, 2] = a1 * wy
@@ -126,33 +135,21 @@ def arc_node(alpha, l, ux, uy, ld, uxd, uyd, R, p, S, Sd):
     p[0] = a2 * ux
     p[1] = a2 * uy
     p[2] = a1
-    xi = np.zeros(6)
-    xi[2] = 1.0
-    xi[3] = -uy
-    xi[4] = ux
-    xid = np.zeros(6)
-    xid[3] = -uyd
-    xid[4] = uxd
+    xi = (0.0, 0.0, 1.0, -uy, ux, 0.0)
+    xid = (0.0, 0.0, 0.0, -uyd, uxd, 0.0)
     for r in range(6):
         S[r, 0] = alpha * xi[r]
         Sd[r, 0] = alpha * xid[r]
-    eta = np.zeros(6)
-    Ae = np.empty(6)
-    AAe = np.empty(6)
-    t1 = np.empty(6)
-    t2 = np.empty(6)
-    t3 = np.empty(6)
     for i in range(2):
-        eta[:] = 0.0
         if i == 0:
-            eta[4] = 1.0
+            eta = (0.0, 0.0, 0.0, 0.0, 1.0, 0.0)
         else:
-            eta[3] = -1.0
-        _mcross(xi, eta, Ae)
-        _mcross(xi, Ae, AAe)
-        _mcross(xid, eta, t1)  # xid x eta
-        _mcross(xid, Ae, t2)  # xid x (A eta)
-        _mcross(xi, t1, t3)  # xi x (xid x eta)
+            eta = (0.0, 0.0, 0.0, -1.0, 0.0, 0.0)
+        Ae = _mcross(xi, eta)
+        AAe = _mcross(xi, Ae)
+        t1 = _mcross(xid, eta)  # xid x eta
+        t2 = _mcross(xid, Ae)  # xid x (A eta)
+        t3 = _mcross(xi, t1)  # xi x (xid x eta)
         # Ad(g)^-1 eta = (-R^T (p x e), R^T e), e = eta[3:]
         e0, e1, e2 = eta[3], eta[4], eta[5]
         c0 = p[1] * e2 - p[2] * e1
@@ -177,10 +174,10 @@ def _arc_nodes_kernel(alpha, q, qd, R, p, S, Sd):
 
 @jit
 def _bend_kernel(x, out):
-    tmp = np.empty(6)
     for k in range(x.shape[0]):
-        _bend(x[k], tmp)
-        out[:, k] = tmp
+        r = _bend(x[k])
+        for n in range(6):
+            out[n, k] = r[n]
 
 
 def bend_functions(x, derivatives: bool = False):

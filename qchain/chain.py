@@ -139,6 +139,7 @@ class Chain:
         # evaluated by the Segment (in its own coordinates), the rest by the compiled kernel
         self._linear = np.array([s.stiffness_matrix is not None or s.damping_matrix is not None for s in segs])
         self._material = ~self._linear
+        self._g_B = self.base_placement.rotation.T @ self.gravity
         if self.floating:
             self._ff = pin.Model()
             self._ff.addJoint(0, pin.JointModelFreeFlyer(), pin.SE3.Identity(), "base")
@@ -167,30 +168,42 @@ class Chain:
 
     # ------------------------------------------------------------------ inputs
 
+    def _vec(self, name: str, x, size: int) -> np.ndarray:
+        """Fast shape check; finiteness is checked with the domain (:meth:`_state`)."""
+        x = np.asarray(x, dtype=float)
+        if x.shape != (size,):
+            as_vector(name, x, size)  # raises with the expected and actual shape
+        return x
+
     def _q(self, q, name="q") -> np.ndarray:
-        q = as_vector(name, q, self.nq)
+        q = self._vec(name, q, self.nq)
         if self.floating:
-            norm = np.linalg.norm(q[3:7])
-            if abs(norm - 1.0) > QUATERNION_TOLERANCE:
+            norm = np.sqrt(q[3] * q[3] + q[4] * q[4] + q[5] * q[5] + q[6] * q[6])
+            if not abs(norm - 1.0) <= QUATERNION_TOLERANCE:
+                as_vector(name, q, self.nq)  # non-finite entries are named first
                 raise ValueError(
                     f"{name}[3:7] quaternion (qx, qy, qz, qw) has norm {norm:.9g}; it must be within "
                     f"{QUATERNION_TOLERANCE:g} of 1"
                 )
-            q = q.copy()
-            q[3:7] /= norm
+            if norm != 1.0:
+                q = q.copy()
+                q[3:7] /= norm
         return q
 
-    def _check_domain(self, q_e: np.ndarray) -> None:
-        l = q_e[:, 0]
-        k = np.where(self._paper, q_e[:, 2], np.hypot(q_e[:, 1], q_e[:, 2]))
-        bad = (l <= 0.0) | (np.abs(k) * self._radius >= 1.0) | (self._paper & (q_e[:, 2] < 0.0))
-        if bad.any():
-            j = int(np.flatnonzero(bad)[0])
+    def _check_domain(self, q_e: np.ndarray, *checked: tuple[str, np.ndarray]) -> None:
+        """Raise for non-finite entries of the ``checked`` (name, array) pairs, or a segment
+        configuration outside the model (naming the segment and its indices in q)."""
+        for name, x in checked:
+            if recursive.first_invalid(x, q_e[:0], self._radius, self._paper) == -2:
+                as_vector(name, x, x.shape[0])
+        j = recursive.first_invalid(q_e[:0, 0], q_e, self._radius, self._paper)
+        if j >= 0:
             sl = self.q_slice(j)
             try:
                 self.segments[j].check_configuration(q_e[j], name=f"segment {j} (q[{sl.start}:{sl.stop}])")
             except DomainError as err:
                 raise DomainError(str(err)) from None
+            raise DomainError(f"segment {j} (q[{sl.start}:{sl.stop}]) is outside the model: {q_e[j]}")
 
     def base_state(self, t: float = 0.0):
         """``(X_WB, V_B, A_B)`` of a prescribed base at time ``t`` (validated)."""
@@ -209,7 +222,11 @@ class Chain:
     def _state(self, q, v=None, t: float = 0.0, nonsingular: bool = False) -> _State:
         q = self._q(q)
         q_e = q[self._qoff :].reshape(self.n, 3)
-        self._check_domain(q_e)
+        if v is not None:
+            v = self._vec("v", v, self.nv)
+            self._check_domain(q_e, ("q", q), ("v", v))
+        else:
+            self._check_domain(q_e, ("q", q))
         A_B = None
         if self.base == "fixed":
             X = self.base_placement
@@ -235,9 +252,8 @@ class Chain:
                 q_c[j] = paper_to_curvature(q_e[j])
                 J[j] = paper_jacobian(q_e[j])
         st = _State(X_WB=X, q_e=q_e, q_c=np.ascontiguousarray(q_c), J=J, A_B=A_B)
-        st.g_B = X.rotation.T @ self.gravity
+        st.g_B = self._g_B if self.base == "fixed" else X.rotation.T @ self.gravity
         if v is not None:
-            v = as_vector("v", v, self.nv)
             st.v_e = v[self._voff :].reshape(self.n, 3)
             st.v_c = st.v_e if J is None else np.einsum("nij,nj->ni", J, st.v_e)
             st.V0 = v[:6].copy() if self.floating else V0

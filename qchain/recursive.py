@@ -30,7 +30,7 @@ import numpy as np
 from .arc import arc_node, jit
 from .slices import elastic_gradient_c, input_matrix_c, phi_matrix, segment_slices, slice_twist
 
-__all__ = ["rnea", "crba", "aba", "tip_maps", "internal_forces"]
+__all__ = ["rnea", "crba", "aba", "tip_maps", "internal_forces", "first_invalid"]
 
 
 @jit
@@ -365,3 +365,26 @@ def internal_forces(q, qd, p, l0, EI, EA, beta, A_ch, r_ch, paper_act, out):
         out[j, 2] = -g[2] - beta[j] * EI[j] * l0[j] * qd[j, 2]
         for a in range(3):
             out[j, a] += B[a, 0] * p[j, 0] + B[a, 1] * p[j, 1] + B[a, 2] * p[j, 2]
+
+
+@jit
+def first_invalid(x, q, radius, paper):
+    """Index of the first segment whose configuration is outside the model, or -1.
+
+    Also -2 if ``x`` (any array checked alongside, e.g. the full q and v) has a
+    non-finite entry. ``q`` (n, 3) segment coordinates; ``paper`` (n,) bool.
+    """
+    for i in range(x.shape[0]):
+        if not np.isfinite(x[i]):
+            return -2
+    for j in range(q.shape[0]):
+        l = q[j, 0]
+        if paper[j]:
+            k = q[j, 2]
+            if k < 0.0:
+                return j
+        else:
+            k = np.sqrt(q[j, 1] * q[j, 1] + q[j, 2] * q[j, 2])
+        if not (l > 0.0) or abs(k) * radius[j] >= 1.0:
+            return j
+    return -1

@@ -39,17 +39,15 @@ def slice_twist(R, p, S, V0, qd, out):
 @jit
 def phi_transpose_force(R, p, S, f, wgt, out):
     """``out += wgt * Phi^T f``: ``(Ad(g)^-T f, S^T f)`` with ``Ad^-T (fl, fa) = (R fl, p x R fl + R fa)``."""
-    Rfl = np.empty(3)
-    Rfa = np.empty(3)
-    for r in range(3):
-        Rfl[r] = R[r, 0] * f[0] + R[r, 1] * f[1] + R[r, 2] * f[2]
-        Rfa[r] = R[r, 0] * f[3] + R[r, 1] * f[4] + R[r, 2] * f[5]
-    out[0] += wgt * Rfl[0]
-    out[1] += wgt * Rfl[1]
-    out[2] += wgt * Rfl[2]
-    out[3] += wgt * (p[1] * Rfl[2] - p[2] * Rfl[1] + Rfa[0])
-    out[4] += wgt * (p[2] * Rfl[0] - p[0] * Rfl[2] + Rfa[1])
-    out[5] += wgt * (p[0] * Rfl[1] - p[1] * Rfl[0] + Rfa[2])
+    l0 = R[0, 0] * f[0] + R[0, 1] * f[1] + R[0, 2] * f[2]
+    l1 = R[1, 0] * f[0] + R[1, 1] * f[1] + R[1, 2] * f[2]
+    l2 = R[2, 0] * f[0] + R[2, 1] * f[1] + R[2, 2] * f[2]
+    out[0] += wgt * l0
+    out[1] += wgt * l1
+    out[2] += wgt * l2
+    out[3] += wgt * (p[1] * l2 - p[2] * l1 + R[0, 0] * f[3] + R[0, 1] * f[4] + R[0, 2] * f[5])
+    out[4] += wgt * (p[2] * l0 - p[0] * l2 + R[1, 0] * f[3] + R[1, 1] * f[4] + R[1, 2] * f[5])
+    out[5] += wgt * (p[0] * l1 - p[1] * l0 + R[2, 0] * f[3] + R[2, 1] * f[4] + R[2, 2] * f[5])
     for c in range(3):
         acc = 0.0
         for r in range(6):
@@ -86,7 +84,6 @@ def segment_slices(alpha, w, mass, radius, q, xi, xid, want_mass, M, Q):
     p = np.empty(3)
     S = np.empty((6, 3))
     Sd = np.empty((6, 3))
-    Phi = np.empty((6, 9))
     V = np.empty(6)
     V0 = xi[:6]
     qd = xi[6:]
@@ -107,16 +104,27 @@ def segment_slices(alpha, w, mass, radius, q, xi, xid, want_mass, M, Q):
     Q[:] = 0.0
     if want_mass:
         M[:, :] = 0.0
+    wsum = 0.0
+    mp = np.zeros(3)  # sum w m p
+    Irot = np.zeros((3, 3))  # sum w (R I_d R^T - m [p]^2)
+    fc = np.empty(6)
     for k in range(alpha.shape[0]):
         arc_node(alpha[k], q[0], q[1], q[2], qd[0], qd[1], qd[2], R, p, S, Sd)
         if want_mass:
-            phi_matrix(R, p, S, Phi)
-            for i in range(9):
-                for j in range(i, 9):
-                    acc = 0.0
-                    for r in range(6):
-                        acc += Phi[r, i] * Id[r] * Phi[r, j]
-                    M[i, j] += w[k] * acc
+            # M_xi = int Phi^T I Phi: the root block is the disk's spatial inertia moved to the
+            # root ([[m, -m[p]], [m[p], R I_d R^T - m[p]^2]]); the q columns are Phi^T (I S_c).
+            wk = w[k]
+            wsum += wk
+            pp = p[0] * p[0] + p[1] * p[1] + p[2] * p[2]
+            for ia in range(3):
+                mp[ia] += wk * m * p[ia]
+                for ib in range(3):
+                    Irot[ia, ib] += wk * ((izz - ixx) * R[ia, 2] * R[ib, 2] - m * p[ia] * p[ib])
+                Irot[ia, ia] += wk * (ixx + m * pp)
+            for cc in range(3):
+                for r in range(6):
+                    fc[r] = Id[r] * S[r, cc]
+                phi_transpose_force(R, p, S, fc, wk, M[:, 6 + cc])
         slice_twist(R, p, S, V0, zero3, Vr)
         for r in range(6):
             rel[r] = S[r, 0] * qd[0] + S[r, 1] * qd[1] + S[r, 2] * qd[2]
@@ -142,9 +150,22 @@ def segment_slices(alpha, w, mass, radius, q, xi, xid, want_mass, M, Q):
         f[5] = izz * a[5] + V[0] * hl1 - V[1] * hl0 + V[3] * ha1 - V[4] * ha0
         phi_transpose_force(R, p, S, f, w[k], Q)
     if want_mass:
-        for i in range(9):
-            for j in range(i):
-                M[i, j] = M[j, i]
+        for ia in range(3):
+            M[ia, ia] = m * wsum
+            for ib in range(3):
+                M[3 + ia, 3 + ib] = Irot[ia, ib]
+        M[0, 4] = mp[2]  # -[m p]
+        M[0, 5] = -mp[1]
+        M[1, 3] = -mp[2]
+        M[1, 5] = mp[0]
+        M[2, 3] = mp[1]
+        M[2, 4] = -mp[0]
+        for ia in range(3):
+            for ib in range(3):
+                M[3 + ia, ib] = M[ib, 3 + ia]
+        for r in range(6):
+            for cc in range(3):
+                M[6 + cc, r] = M[r, 6 + cc]
 
 
 @jit

@@ -1,0 +1,122 @@
+"""Cost of the chain's dynamics against Pinocchio's ``aba`` on a rigid chain of equal nv.
+
+For n segments (fixed base, curvature coordinates, default nodes) this prints the median
+microseconds per call of ``mass_matrix``, ``nonlinear_effects`` and ``forward_dynamics``,
+the median of ``pinocchio.aba`` on a rigid chain with the same nv (RX, RY, PZ joints per
+segment carrying cylinder bodies of the same mass, radius and length), measured
+interleaved in one run, their ratio, and the accuracy bought: the relative difference of
+``forward_dynamics`` at the default node count from a 24-node reference.
+
+Run: ``python benchmarks/bench_chain.py [--n 1 3 8 10 30] [--repeats 15] [--csv out.csv]``
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import time
+
+import numpy as np
+import pinocchio as pin
+
+from qchain import Chain, Segment
+
+SEGMENT = dict(length=0.1, radius=0.015, mass=0.05, chamber_area=4.5e-5, chamber_radius=0.0085,
+               youngs_modulus=1e5, damping=0.01)
+
+
+def soft_chain(n: int, nodes=None) -> Chain:
+    return Chain([Segment(**SEGMENT, nodes=nodes) for _ in range(n)])
+
+
+def rigid_chain(n: int) -> pin.Model:
+    """RX, RY, PZ per segment; a cylinder body per segment on the PZ joint."""
+    m = pin.Model()
+    parent = 0
+    for j in range(n):
+        for k, joint in enumerate((pin.JointModelRX(), pin.JointModelRY(), pin.JointModelPZ())):
+            offset = pin.SE3(np.eye(3), np.array([0.0, 0.0, SEGMENT["length"] if (k == 0 and j > 0) else 0.0]))
+            parent = m.addJoint(parent, joint, offset, f"s{j}_{k}")
+        body = pin.Inertia.FromCylinder(SEGMENT["mass"], SEGMENT["radius"], SEGMENT["length"])
+        body = pin.SE3(np.eye(3), np.array([0.0, 0.0, SEGMENT["length"] / 2])).act(body)
+        m.appendBodyToJoint(parent, body, pin.SE3.Identity())
+    return m
+
+
+def state(ch: Chain, rng):
+    q = ch.neutral()
+    for j in range(ch.n):
+        q[ch.q_slice(j)] = [SEGMENT["length"] * 1.02, *rng.uniform(-8, 8, 2)]
+    v = rng.normal(size=ch.nv)
+    p = rng.uniform(0, 5e4, ch.nu)
+    return q, v, p
+
+
+def per_call_us(f, calls: int) -> float:
+    t0 = time.perf_counter()
+    for _ in range(calls):
+        f()
+    return (time.perf_counter() - t0) / calls * 1e6
+
+
+def run(ns, repeats: int, calls: int):
+    rng = np.random.default_rng(0)
+    rows = []
+    for n in ns:
+        ch = soft_chain(n)
+        ref = soft_chain(n, nodes=24)
+        q, v, p = state(ch, rng)
+        model = rigid_chain(n)
+        data = model.createData()
+        qr = pin.randomConfiguration(model, -np.ones(model.nq), np.ones(model.nq))
+        vr = rng.normal(size=model.nv)
+        tr = rng.normal(size=model.nv)
+        fns = {
+            "mass_matrix": lambda: ch.mass_matrix(q),
+            "nonlinear_effects": lambda: ch.nonlinear_effects(q, v),
+            "forward_dynamics": lambda: ch.forward_dynamics(q, v, p),
+            "pin.aba": lambda: pin.aba(model, data, qr, vr, tr),
+        }
+        for f in fns.values():  # warm up (and compile)
+            f()
+        times = {k: [] for k in fns}
+        for _ in range(repeats):  # interleaved
+            for k, f in fns.items():
+                times[k].append(per_call_us(f, calls))
+        med = {k: float(np.median(t)) for k, t in times.items()}
+        a = ch.forward_dynamics(q, v, p)
+        a_ref = ref.forward_dynamics(q, v, p)
+        err = float(np.linalg.norm(a - a_ref) / np.linalg.norm(a_ref))
+        rows.append(dict(n=n, nv=ch.nv, **{k + "_us": med[k] for k in fns},
+                         ratio_fd_aba=med["forward_dynamics"] / med["pin.aba"], fd_rel_err=err))
+    return rows
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--n", type=int, nargs="+", default=[1, 3, 8, 10, 30])
+    ap.add_argument("--repeats", type=int, default=15)
+    ap.add_argument("--calls", type=int, default=200)
+    ap.add_argument("--csv", default=None, help="also write the table as CSV")
+    args = ap.parse_args(argv)
+    rows = run(args.n, args.repeats, args.calls)
+    print(f"{'n':>3} {'nv':>4} {'mass_matrix':>12} {'nle':>9} {'fwd_dyn':>9} {'pin.aba':>9} {'fwd/aba':>8}"
+          f" {'fwd err':>9}   (median us per call; err vs 24 nodes)")
+    for r in rows:
+        print(f"{r['n']:>3} {r['nv']:>4} {r['mass_matrix_us']:>12.1f} {r['nonlinear_effects_us']:>9.1f}"
+              f" {r['forward_dynamics_us']:>9.1f} {r['pin.aba_us']:>9.2f} {r['ratio_fd_aba']:>8.2f}"
+              f" {r['fd_rel_err']:>9.1e}")
+    by_n = {r["n"]: r for r in rows}
+    if 10 in by_n and 30 in by_n:
+        g = by_n[30]["forward_dynamics_us"] / by_n[10]["forward_dynamics_us"]
+        print(f"forward_dynamics cost growth n=10 -> 30: x{g:.2f} (linear would be x3.00)")
+    if args.csv:
+        with open(args.csv, "w", newline="") as fh:
+            w = csv.DictWriter(fh, fieldnames=list(rows[0]))
+            w.writeheader()
+            w.writerows(rows)
+    return rows
+
+
+if __name__ == "__main__":
+    main()
