@@ -2,7 +2,8 @@
 
 For n segments (fixed base, curvature coordinates, default nodes) this prints the median
 microseconds per call of ``mass_matrix``, ``nonlinear_effects`` and ``forward_dynamics``,
-the median of ``pinocchio.aba`` on a rigid chain with the same nv (RX, RY, PZ joints per
+the same solved by ``crba`` + Cholesky (``M a = B p - D v - dU/dq - nle``), the median of
+``pinocchio.aba`` on a rigid chain with the same nv (RX, RY, PZ joints per
 segment carrying cylinder bodies of the same mass, radius and length), measured
 interleaved in one run, their ratio, and the accuracy bought: the relative difference of
 ``forward_dynamics`` at the default node count from a 24-node reference.
@@ -18,6 +19,7 @@ import time
 
 import numpy as np
 import pinocchio as pin
+from scipy.linalg import cho_factor, cho_solve
 
 from qchain import Chain, Segment
 
@@ -75,6 +77,9 @@ def run(ns, repeats: int, calls: int):
             "mass_matrix": lambda: ch.mass_matrix(q),
             "nonlinear_effects": lambda: ch.nonlinear_effects(q, v),
             "forward_dynamics": lambda: ch.forward_dynamics(q, v, p),
+            "crba+cholesky": lambda: cho_solve(
+                cho_factor(ch.mass_matrix(q)), ch.internal_forces(q, v, p) - ch.nonlinear_effects(q, v)
+            ),
             "pin.aba": lambda: pin.aba(model, data, qr, vr, tr),
         }
         for f in fns.values():  # warm up (and compile)
@@ -100,12 +105,12 @@ def main(argv=None):
     ap.add_argument("--csv", default=None, help="also write the table as CSV")
     args = ap.parse_args(argv)
     rows = run(args.n, args.repeats, args.calls)
-    print(f"{'n':>3} {'nv':>4} {'mass_matrix':>12} {'nle':>9} {'fwd_dyn':>9} {'pin.aba':>9} {'fwd/aba':>8}"
-          f" {'fwd err':>9}   (median us per call; err vs 24 nodes)")
+    print(f"{'n':>3} {'nv':>4} {'mass_matrix':>12} {'nle':>9} {'fwd_dyn':>9} {'crba+chol':>10} {'pin.aba':>9}"
+          f" {'fwd/aba':>8} {'fwd err':>9}   (median us per call; err vs 24 nodes)")
     for r in rows:
         print(f"{r['n']:>3} {r['nv']:>4} {r['mass_matrix_us']:>12.1f} {r['nonlinear_effects_us']:>9.1f}"
-              f" {r['forward_dynamics_us']:>9.1f} {r['pin.aba_us']:>9.2f} {r['ratio_fd_aba']:>8.2f}"
-              f" {r['fd_rel_err']:>9.1e}")
+              f" {r['forward_dynamics_us']:>9.1f} {r['crba+cholesky_us']:>10.1f} {r['pin.aba_us']:>9.2f}"
+              f" {r['ratio_fd_aba']:>8.2f} {r['fd_rel_err']:>9.1e}")
     by_n = {r["n"]: r for r in rows}
     if 10 in by_n and 30 in by_n:
         g = by_n[30]["forward_dynamics_us"] / by_n[10]["forward_dynamics_us"]
