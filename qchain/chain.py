@@ -74,11 +74,22 @@ class Chain:
         For ``base="prescribed"``: ``t -> (X_WB, V_B, A_B)`` with ``X_WB`` a ``pinocchio.SE3``,
         ``V_B`` (6,) the base's body twist and ``A_B`` (6,) its derivative (base frame,
         ``[linear; angular]``, m/s, rad/s, m/s^2, rad/s^2).
+    planar : bool
+        Hold ``uy = 0`` in every segment (curvature coordinates only): the arm moves in the
+        base's x-z plane. Exact for scenes symmetric about that plane.
+
+    Locked coordinates (``planar``, and ``l`` of segments with ``extensible=False``) keep
+    their place in ``q`` and ``v`` so layouts do not change: ``q`` must hold the locked
+    value (``l0``, or 0 for ``uy``), ``v`` zero there, and :meth:`forward_dynamics` returns
+    zero acceleration there (an ideal constraint). ``active`` marks the free velocity
+    coordinates.
 
     Attributes
     ----------
     n, nq, nv, nu : int
         Segments, configuration size, velocity size, pressure inputs (3 n).
+    active : (nv,) bool
+        Free (not locked) velocity coordinates; ``nv_active`` of them.
     """
 
     def __init__(
@@ -88,6 +99,7 @@ class Chain:
         gravity=(0.0, 0.0, -9.81),
         base_placement: pin.SE3 | None = None,
         base_motion: Callable | None = None,
+        planar: bool = False,
     ):
         segs = tuple(segments)
         if len(segs) == 0:
@@ -139,6 +151,22 @@ class Chain:
         # evaluated by the Segment (in its own coordinates), the rest by the compiled kernel
         self._linear = np.array([s.stiffness_matrix is not None or s.damping_matrix is not None for s in segs])
         self._material = ~self._linear
+        if not isinstance(planar, (bool, np.bool_)):
+            raise ValueError(f"planar must be True or False, got {planar!r}")
+        if planar and self._any_paper:
+            j = int(np.flatnonzero(self._paper)[0])
+            raise ValueError(f"planar=True needs curvature coordinates; segments[{j}] has coords='paper'")
+        self.planar = bool(planar)
+        self._locked = np.zeros((n, 3), dtype=bool)
+        self._locked[:, 0] = [not s.extensible for s in segs]
+        self._locked[:, 2] = self.planar
+        self._lock_values = np.zeros((n, 3))
+        self._lock_values[:, 0] = self._l0
+        self._any_locked = bool(self._locked.any())
+        self.active = np.ones(self.nv, dtype=bool)
+        self.active[self._voff :] = ~self._locked.ravel()
+        self.active.flags.writeable = False
+        self.nv_active = int(self.active.sum())
         self._g_B = self.base_placement.rotation.T @ self.gravity
         if self.floating:
             self._ff = pin.Model()
@@ -162,6 +190,20 @@ class Chain:
         for j, s in enumerate(self.segments):
             q[self.q_slice(j)] = s.neutral()
         return q
+
+    def _check_locks(self, q_e: np.ndarray, v_e: np.ndarray | None) -> None:
+        bad = self._locked & (np.abs(q_e - self._lock_values) > 1e-12 * np.maximum(1.0, np.abs(self._lock_values)))
+        if bad.any():
+            j, i = map(int, np.argwhere(bad)[0])
+            raise ValueError(
+                f"q[{self._qoff + 3 * j + i}] (segment {j}, {'l' if i == 0 else 'uy'}) is locked at "
+                f"{self._lock_values[j, i]:.9g}, got {q_e[j, i]:.9g}"
+            )
+        if v_e is not None:
+            bad = self._locked & (v_e != 0.0)
+            if bad.any():
+                j, i = map(int, np.argwhere(bad)[0])
+                raise ValueError(f"v[{self._voff + 3 * j + i}] (segment {j}) is locked and must be 0, got {v_e[j, i]:.9g}")
 
     def __repr__(self) -> str:
         return f"Chain(n={self.n}, base={self.base!r}, nq={self.nq}, nv={self.nv})"
@@ -540,10 +582,12 @@ class Chain:
         """Accelerations ``a`` (nv,) of ``M a + C v + g + D v + dU_el/dq = B p + tau``.
 
         Articulated-body recursion on the segment blocks (:func:`qchain.recursive.aba`),
-        O(n). ``p`` (3 n,) Pa, default zero; ``tau`` (nv,) external generalised forces
+        O(n); locked coordinates get zero acceleration. ``p`` (3 n,) Pa, default zero; ``tau`` (nv,) external generalised forces
         (for a floating base, ``tau[:6]`` is a wrench on the base in the base frame).
         """
         st = self._state(q, v, t=t, nonsingular=True)
+        if self._any_locked:
+            self._check_locks(st.q_e, st.v_e)
         f = self._internal_e(st, self._p(p))
         F0 = np.zeros(6)
         if tau is not None:
@@ -556,7 +600,7 @@ class Chain:
         A0 = np.empty(6)
         ok = recursive.aba(
             self._alpha, self._w, self._offs, self._mass, self._radius, st.q_c, np.ascontiguousarray(st.v_c),
-            np.ascontiguousarray(f_c), st.V0, self._A0(st), self.floating, F0, qdd_c, A0,
+            np.ascontiguousarray(f_c), st.V0, self._A0(st), self.floating, F0, qdd_c, A0, self._locked,
         )
         if not ok:
             raise QchainError("forward_dynamics: an articulated inertia block is not positive definite")

@@ -87,6 +87,7 @@ import threading
 import time
 import uuid
 import warnings
+import zlib
 import weakref
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -340,6 +341,8 @@ class RunInfo:
 # --------------------------------------------------------------------------------------
 
 _HEAD = struct.Struct("<dq")  # t, step
+_ENERGY = struct.Struct("<3d")  # kinetic, potential, total
+_F8 = np.dtype(np.float64)
 _FRAME = struct.Struct("<cI")  # kind, payload length
 _FRAME_RECORD, _FRAME_LAYOUT, _FRAME_END, _FRAME_CONFIG = b"R", b"L", b"E", b"C"
 
@@ -657,8 +660,197 @@ def _numbers(arr: np.ndarray, dumps, opt) -> list[bytes]:
     return dumps(arr.ravel(), option=opt)[1:-1].split(b",")
 
 
+_MCAP_MAGIC = b"\x89MCAP0\r\n"
+_MSG_HEAD = struct.Struct("<BQHIQQ")  # opcode, record length, channel, sequence, log time, publish time
+
+
+class _McapWriter:
+    """A small MCAP writer for many small messages.
+
+    The records are those of the ``mcap`` package (serialised with its ``RecordBuilder``),
+    except the messages, which are packed in bulk: per message one ``struct.pack`` instead
+    of the package's per-message record objects, which would cost the writer more than the
+    JSON encoding. Layout: magic, Header, Schema and Channel records and Metadata in the
+    data section (outside chunks, so a truncated file still names its channels), messages
+    in zstd chunks each followed by its MessageIndex records, DataEnd, then a summary
+    (schemas, channels, statistics, chunk and metadata indexes, summary offsets), Footer
+    and magic.
+    """
+
+    def __init__(self, stream: BinaryIO, library: str, level: int = 1):
+        import zstandard
+        from mcap import records
+
+        self._r = records
+        self._zstd = zstandard.ZstdCompressor(level=level)
+        self._s = stream
+        self._pos = 0
+        self._schemas: list = []
+        self._channels: list = []
+        self._chunk_indexes: list = []
+        self._metadata_indexes: list = []
+        self._counts: dict[int, int] = {}
+        self._n_messages = 0
+        self._t_start: int | None = None
+        self._t_end = 0
+        self._n_chunks = 0
+        self._reset_chunk()
+        self._write(_MCAP_MAGIC)
+        self._record(records.Header(profile="", library=library))
+
+    def _write(self, data: bytes) -> None:
+        self._s.write(data)
+        self._pos += len(data)
+
+    def _record(self, rec) -> int:
+        from mcap.data_stream import RecordBuilder
+
+        rb = RecordBuilder()
+        rec.write(rb)
+        data = rb.end()
+        self._write(data)
+        return len(data)
+
+    def _reset_chunk(self) -> None:
+        self.parts: list[bytes] = []
+        self.chunk_len = 0
+        self.index: dict[int, list] = {}
+        self.c_start: int | None = None
+        self.c_end = 0
+        self.c_count = 0
+
+    def add_schema(self, name: str, encoding: str, data: bytes) -> int:
+        sc = self._r.Schema(id=len(self._schemas) + 1, name=name, encoding=encoding, data=data)
+        self._schemas.append(sc)
+        self._record(sc)
+        return sc.id
+
+    def add_channel(self, topic: str, encoding: str, schema_id: int) -> int:
+        ch = self._r.Channel(
+            id=len(self._channels) + 1, topic=topic, message_encoding=encoding, metadata={}, schema_id=schema_id
+        )
+        self._channels.append(ch)
+        self._counts[ch.id] = 0
+        self.index[ch.id] = []
+        self._record(ch)
+        return ch.id
+
+    def add_metadata(self, name: str, data: dict[str, str]) -> None:
+        offset = self._pos
+        length = self._record(self._r.Metadata(name=name, metadata=data))
+        self._metadata_indexes.append(self._r.MetadataIndex(offset=offset, length=length, name=name))
+
+    def note_messages(self, channel_counts: dict[int, int], t_min: int, t_max: int) -> None:
+        """Account for messages packed into ``parts`` by the caller."""
+        n = 0
+        for cid, k in channel_counts.items():
+            self._counts[cid] += k
+            n += k
+        self._n_messages += n
+        self.c_count += n
+        if self.c_start is None or t_min < self.c_start:
+            self.c_start = t_min
+        if t_max > self.c_end:
+            self.c_end = t_max
+
+    def flush_chunk(self) -> None:
+        """Compress and write the open chunk and its message indexes; flush the stream."""
+        if self.c_count:
+            r = self._r
+            raw = b"".join(self.parts)
+            data = self._zstd.compress(raw)
+            chunk = r.Chunk(
+                message_start_time=self.c_start,
+                message_end_time=self.c_end,
+                uncompressed_size=len(raw),
+                uncompressed_crc=zlib.crc32(raw),
+                compression="zstd",
+                data=data,
+            )
+            chunk_start = self._pos
+            chunk_length = self._record(chunk)
+            offsets = {}
+            index_start = self._pos
+            for cid in sorted(self.index):
+                entries = self.index[cid]
+                if entries:  # MessageIndex record, packed in one go
+                    offsets[cid] = self._pos
+                    flat = [x for pair in entries for x in pair]
+                    body = struct.pack("<HI%dQ" % len(flat), cid, 8 * len(flat), *flat)
+                    self._write(struct.pack("<BQ", 0x07, len(body)) + body)
+            self._chunk_indexes.append(
+                r.ChunkIndex(
+                    message_start_time=self.c_start,
+                    message_end_time=self.c_end,
+                    chunk_start_offset=chunk_start,
+                    chunk_length=chunk_length,
+                    message_index_offsets=offsets,
+                    message_index_length=self._pos - index_start,
+                    compression="zstd",
+                    compressed_size=len(data),
+                    uncompressed_size=len(raw),
+                )
+            )
+            self._n_chunks += 1
+            if self._t_start is None or self.c_start < self._t_start:
+                self._t_start = self.c_start
+            self._t_end = max(self._t_end, self.c_end)
+            cids = list(self.index)
+            self._reset_chunk()
+            self.index = {cid: [] for cid in cids}
+        self._s.flush()
+
+    def finish(self) -> None:
+        from mcap.data_stream import RecordBuilder
+
+        r = self._r
+        self.flush_chunk()
+        self._record(r.DataEnd(data_section_crc=0))
+        summary_start = self._pos
+        rb = RecordBuilder()
+        offsets = []
+
+        def group(opcode, recs) -> None:
+            if not recs:
+                return
+            start = rb.count
+            for rec in recs:
+                rec.write(rb)
+            offsets.append(r.SummaryOffset(group_opcode=opcode, group_start=summary_start + start,
+                                           group_length=rb.count - start))
+
+        from mcap.opcode import Opcode
+
+        stats = r.Statistics(
+            message_count=self._n_messages,
+            schema_count=len(self._schemas),
+            channel_count=len(self._channels),
+            attachment_count=0,
+            metadata_count=len(self._metadata_indexes),
+            chunk_count=self._n_chunks,
+            message_start_time=self._t_start or 0,
+            message_end_time=self._t_end,
+            channel_message_counts=dict(self._counts),
+        )
+        group(Opcode.SCHEMA, self._schemas)
+        group(Opcode.CHANNEL, self._channels)
+        group(Opcode.STATISTICS, [stats])
+        group(Opcode.CHUNK_INDEX, self._chunk_indexes)
+        group(Opcode.METADATA_INDEX, self._metadata_indexes)
+        summary_offset_start = summary_start + rb.count
+        for off in offsets:
+            off.write(rb)
+        summary = rb.end()
+        crc = zlib.crc32(summary)
+        crc = zlib.crc32(struct.pack("<BQQQ", Opcode.FOOTER, 20, summary_start, summary_offset_start), crc)
+        self._write(summary)
+        self._record(r.Footer(summary_start=summary_start, summary_offset_start=summary_offset_start, summary_crc=crc))
+        self._write(_MCAP_MAGIC)
+        self._s.flush()
+
+
 class _McapSink:
-    """Writes batches of records into an MCAP file or binary stream."""
+    """Encodes batches of records as JSON messages into an MCAP file or binary stream."""
 
     def __init__(
         self,
@@ -671,7 +863,6 @@ class _McapSink:
         chunk_bytes: int = DEFAULT_CHUNK_BYTES,
     ):
         import orjson
-        from mcap.writer import CompressionType, Writer
 
         self._dumps = orjson.dumps
         self._opt = orjson.OPT_SERIALIZE_NUMPY
@@ -684,34 +875,33 @@ class _McapSink:
             self.path = None
             self._stream = out
             self._owns = False
-        self._w = Writer(self._stream, chunk_size=1 << 62, compression=CompressionType.ZSTD)
-        self._w.start(profile="", library=f"qchain {info.qchain_version}")
-        meta = {
-            "format": FORMAT_NAME,
-            "format_version": str(FORMAT_VERSION),
-            "qchain_version": info.qchain_version,
-            "scene": info.scene,
-            "scene_path": info.scene_path or "",
-            "params": json.dumps(info.params, sort_keys=True),
-            "n_segments": str(info.n_segments),
-            "radii": json.dumps(list(info.radii)),
-            "recording_id": recording_id,
-            "created_utc": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
-            "info": json.dumps(info.to_json(), sort_keys=True),
-        }
-        self._w.add_metadata("qchain", meta)
+        self._w = _McapWriter(self._stream, library=f"qchain {info.qchain_version}")
+        self._w.add_metadata(
+            "qchain",
+            {
+                "format": FORMAT_NAME,
+                "format_version": str(FORMAT_VERSION),
+                "qchain_version": info.qchain_version,
+                "scene": info.scene,
+                "scene_path": info.scene_path or "",
+                "params": json.dumps(info.params, sort_keys=True),
+                "n_segments": str(info.n_segments),
+                "radii": json.dumps(list(info.radii)),
+                "recording_id": recording_id,
+                "created_utc": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
+                "info": json.dumps(info.to_json(), sort_keys=True),
+            },
+        )
         self._ch: dict[str, int] = {}
         for key, (name, schema) in _schemas().items():
-            sid = self._w.register_schema(name, "jsonschema", json.dumps(schema).encode())
-            self._ch[key] = self._w.register_channel(TOPICS[key], "json", sid)
-        self._w.flush()
-        self._stream.flush()
+            sid = self._w.add_schema(name, "jsonschema", json.dumps(schema).encode())
+            self._ch[key] = self._w.add_channel(TOPICS[key], "json", sid)
+        self._w.flush_chunk()
         self.flush_interval = float(flush_interval)
         self.flush_wall_interval = float(flush_wall_interval)
         self.chunk_bytes = int(chunk_bytes)
         self._last_flush_t: float | None = None
         self._last_flush_wall = time.monotonic()
-        self._pending_bytes = 0
         self._tf_tmpl: _Template | None = None
         self._scene_tmpl: _Template | None = None
         self.n_records = 0
@@ -720,76 +910,88 @@ class _McapSink:
         self.finished = False
 
     def _flush(self) -> None:
-        self._w.flush()
+        self._w.flush_chunk()
         self._last_flush_wall = time.monotonic()
-        self._pending_bytes = 0
 
     def write_batch(self, b: _Batch) -> None:
+        K = len(b)
+        if K == 0:
+            return
         n, P = b.backbone.shape[1], b.backbone.shape[2]
         if self._tf_tmpl is None:
             self._tf_tmpl = _tf_template(n)
             self._scene_tmpl = _scene_template(n, P, self.info.radii)
-        dumps, opt, add = self._dumps, self._opt, self._w.add_message
+        dumps, opt, w = self._dumps, self._opt, self._w
         ch = self._ch
-        cq, cv, cp, ce, ct, cb = ch["q"], ch["v"], ch["p"], ch["energy"], ch["tip_frames"], ch["backbone"]
+        cids = (ch["q"], ch["v"], ch["p"], ch["energy"], ch["tip_frames"], ch["backbone"])
         tf_fill, sc_fill = self._tf_tmpl.fill, self._scene_tmpl.fill
+        pack = _MSG_HEAD.pack
         ts = b.t.tolist()
         steps = b.step.tolist()
-        ns = np.rint(b.t * 1e9).astype(np.int64).tolist()
+        ns = np.rint(b.t * 1e9).astype(np.int64)
+        if ns.size and ns.min() < 0:
+            raise ValueError("negative simulation time")
+        ns_list = ns.tolist()
         energies = b.energy.tolist()
-        tf_nums_all = [_numbers(b.tip_frames[k], dumps, opt) for k in range(len(ts))]
-        bb_nums_all = [_numbers(b.backbone[k], dumps, opt) for k in range(len(ts))]
+        w3 = 3 * P
         last_flush_t = self._last_flush_t
-        for k, t in enumerate(ts):
-            step, lt = steps[k], ns[k]
+        start = 0
+        for k in range(K):
+            t, step, lt = ts[k], steps[k], ns_list[k]
             seq = step & 0xFFFFFFFF
             sec = b"%d" % (lt // 1_000_000_000)
             nsec = b"%d" % (lt % 1_000_000_000)
             tb = dumps(t)
-            m_q = b'{"t":%b,"step":%d,"q":%b}' % (tb, step, dumps(b.q[k], option=opt))
-            m_v = b'{"t":%b,"step":%d,"v":%b}' % (tb, step, dumps(b.v[k], option=opt))
-            m_p = b'{"t":%b,"step":%d,"p":%b}' % (tb, step, dumps(b.p[k], option=opt))
             e = energies[k]
-            m_e = dumps({"t": t, "step": step, "kinetic": e[0], "potential": e[1], "total": e[2]})
-            nums = tf_nums_all[k]
+            tf_nums = _numbers(b.tip_frames[k], dumps, opt)
+            bb_nums = _numbers(b.backbone[k], dumps, opt)
             vals: list[bytes] = []
             for i in range(n):
                 vals += (sec, nsec)
-                vals += nums[7 * i : 7 * i + 7]
+                vals += tf_nums[7 * i : 7 * i + 7]
             m_t = tf_fill(vals)
-            nums = bb_nums_all[k]
             vals = []
-            w = 3 * P
             for i in range(n):
                 vals += (sec, nsec)
-                vals += nums[w * i : w * i + w]
-            m_b = sc_fill(vals)
-            add(cq, lt, m_q, lt, seq)
-            add(cv, lt, m_v, lt, seq)
-            add(cp, lt, m_p, lt, seq)
-            add(ce, lt, m_e, lt, seq)
-            add(ct, lt, m_t, lt, seq)
-            add(cb, lt, m_b, lt, seq)
-            self._pending_bytes += len(m_q) + len(m_v) + len(m_p) + len(m_e) + len(m_t) + len(m_b) + 6 * 31
+                vals += bb_nums[w3 * i : w3 * i + w3]
+            msgs = (
+                b'{"t":%b,"step":%d,"q":%b}' % (tb, step, dumps(b.q[k], option=opt)),
+                b'{"t":%b,"step":%d,"v":%b}' % (tb, step, dumps(b.v[k], option=opt)),
+                b'{"t":%b,"step":%d,"p":%b}' % (tb, step, dumps(b.p[k], option=opt)),
+                dumps({"t": t, "step": step, "kinetic": e[0], "potential": e[1], "total": e[2]}),
+                m_t,
+                sc_fill(vals),
+            )
+            parts, index, off = w.parts, w.index, w.chunk_len
+            for cid, m in zip(cids, msgs):
+                index[cid].append((lt, off))
+                parts.append(pack(5, 22 + len(m), cid, seq, lt, lt))
+                parts.append(m)
+                off += 31 + len(m)
+            w.chunk_len = off
             if last_flush_t is None:
                 last_flush_t = t
-            elif t - last_flush_t >= self.flush_interval or self._pending_bytes >= self.chunk_bytes:
-                self._flush()
-                last_flush_t = t
+            if t - last_flush_t >= self.flush_interval or off >= self.chunk_bytes or k == K - 1:
+                w.note_messages({cid: k + 1 - start for cid in cids}, min(ns_list[start : k + 1]),
+                                max(ns_list[start : k + 1]))
+                start = k + 1
+                if t - last_flush_t >= self.flush_interval or off >= self.chunk_bytes:
+                    self._flush()
+                    last_flush_t = t
         self._last_flush_t = last_flush_t
-        self.n_records += len(ts)
-        if ts:
-            self.last_t, self.last_step = ts[-1], steps[-1]
+        self.n_records += K
+        self.last_t, self.last_step = ts[-1], steps[-1]
         self.tick()
 
     def tick(self) -> None:
         """Flush the open chunk if it is older than the wall-time interval."""
-        if self._pending_bytes and time.monotonic() - self._last_flush_wall >= self.flush_wall_interval:
+        if self._w.c_count and time.monotonic() - self._last_flush_wall >= self.flush_wall_interval:
             self._flush()
 
     def finish(self, outcome: dict) -> None:
         if self.finished:
             return
+        self._w.flush_chunk()
         self._w.add_metadata(
             "qchain.outcome",
             {
@@ -802,7 +1004,6 @@ class _McapSink:
             },
         )
         self._w.finish()
-        self._stream.flush()
         if self._owns:
             self._stream.close()
         self.finished = True
@@ -1320,8 +1521,11 @@ def _worker_main() -> int:
     status = os.fdopen(status_fd, "w", buffering=1)
 
     def send(event: str, **kw) -> None:
-        status.write(json.dumps({"event": event, **kw}) + "\n")
-        status.flush()
+        try:
+            status.write(json.dumps({"event": event, **kw}) + "\n")
+            status.flush()
+        except OSError:  # nobody listens any more (the simulating process is gone)
+            pass
 
     def warn_live(msg: str) -> None:
         print(f"qchain.logging: warning: {msg}", file=sys.stderr, flush=True)
@@ -1548,8 +1752,8 @@ class RunLogger:
         self._warned_broken = False
         self._outcome: dict | None = None
         self._max_queue = int(max_queue)
-        self._q: queue.SimpleQueue = queue.SimpleQueue()
         self._summary: dict | None = None
+        self._final: dict | None = None
         cfg = {
             "info": info.to_json(),
             "mcap": None if mcap_path is None else str(mcap_path),
@@ -1583,8 +1787,17 @@ class RunLogger:
             warnings.warn(f"qchain.logging: {m}", LoggingWarning, stacklevel=4)
         self.viewer_url = self._sinks.viewer_url
         self.grpc_url = self._sinks.rerun.grpc_url if self._sinks.rerun else None
+        self._q: queue.SimpleQueue = queue.SimpleQueue()
         self._thread = threading.Thread(target=self._thread_loop, name="qchain-log-writer", daemon=True)
         self._thread.start()
+        self._put = self._put_thread
+
+    def _put_thread(self, payload: bytes, t: float) -> None:
+        q = self._q
+        if q.qsize() >= self._max_queue:  # bounded: wait for the writer rather than grow
+            while q.qsize() >= self._max_queue and self._thread.is_alive():
+                time.sleep(0.0005)
+        q.put(payload)
 
     def _thread_loop(self) -> None:
         q, sinks = self._q, self._sinks
@@ -1615,12 +1828,12 @@ class RunLogger:
                 sinks.write_payloads(payloads)
                 sinks.tick()
         except Exception as exc:
-            self._broken = f"{type(exc).__name__}: {exc}"
-            outcome = {"success": False, "status": -1, "message": f"log writer error: {self._broken}"}
+            self._broken = f"the log writer failed ({type(exc).__name__}: {exc})"
+            outcome = {"success": False, "status": -1, "message": self._broken}
         try:
             self._summary = sinks.finish(outcome)
         except Exception as exc:  # pragma: no cover - disk full and the like
-            self._broken = f"{type(exc).__name__}: {exc}"
+            self._broken = f"the log writer could not finish ({type(exc).__name__}: {exc})"
 
     def _start_process(self, cfg: dict, timeout: float) -> None:
         pkg_dir = str(Path(__file__).resolve().parent)
@@ -1640,9 +1853,15 @@ class RunLogger:
             fcntl.fcntl(self._wfd, 1031, 1 << 20)  # F_SETPIPE_SZ: a 1 MiB pipe
         except (ImportError, OSError):
             pass
+        os.set_blocking(self._wfd, False)
         self._status_buf = b""
+        self._wbuf: list[bytes] = []
+        self._wbuf_bytes = 0
+        self._wbuf_t0: float | None = None
+        self._wbuf_wall = 0.0
+        self._pipe_sim = 0.5 * cfg["flush_interval"]  # sim time a record may wait in this process
         payload = json.dumps(cfg).encode()
-        os.write(self._wfd, _FRAME.pack(_FRAME_CONFIG, len(payload)) + payload)
+        self._write_all(_FRAME.pack(_FRAME_CONFIG, len(payload)) + payload)
         msg = self._read_status(timeout)
         if msg is None or msg.get("event") != "ready":
             self._proc.kill()
@@ -1654,8 +1873,55 @@ class RunLogger:
         self.viewer_url = msg.get("viewer_url")
         self.grpc_url = msg.get("grpc_url")
         self.web_pid = msg.get("web_pid")
-        self._thread = threading.Thread(target=self._forward_loop, name="qchain-log-forwarder", daemon=True)
-        self._thread.start()
+        self._put = self._put_pipe
+
+    def _put_pipe(self, payload: bytes, t: float) -> None:
+        frame = _FRAME.pack(_FRAME_RECORD, len(payload)) + payload
+        self._wbuf.append(frame)
+        self._wbuf_bytes += len(frame)
+        if self._wbuf_t0 is None:
+            self._wbuf_t0 = t
+            self._wbuf_wall = time.monotonic()
+        if (
+            self._wbuf_bytes >= 65536
+            or t - self._wbuf_t0 >= self._pipe_sim
+            or time.monotonic() - self._wbuf_wall >= 0.05
+        ):
+            self._flush_pipe()
+
+    def _flush_pipe(self) -> None:
+        if not self._wbuf:
+            return
+        data = b"".join(self._wbuf)
+        self._wbuf.clear()
+        self._wbuf_bytes = 0
+        self._wbuf_t0 = None
+        try:
+            self._write_all(data)
+        except OSError as exc:
+            code = self._proc.poll()
+            self._broken = f"the log writer process exited (code {code}; {exc.strerror or exc})"
+
+    def _write_all(self, data: bytes) -> None:
+        """Write all of ``data`` to the writer's pipe, with SIGINT held back meanwhile so a
+        Ctrl-C never cuts a frame in half (it is delivered right after)."""
+        try:
+            old = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+        except (AttributeError, OSError, ValueError):  # pragma: no cover - not POSIX
+            old = None
+        try:
+            view = memoryview(data)
+            while view:
+                try:
+                    n = os.write(self._wfd, view)
+                    view = view[n:]
+                except BlockingIOError:  # pipe full: the writer is behind; wait for room
+                    select.select([], [self._wfd], [], 0.5)
+                    if self._proc.poll() is not None:
+                        raise BrokenPipeError(32, "the log writer process is gone") from None
+        finally:
+            if old is not None:
+                signal.pthread_sigmask(signal.SIG_SETMASK, old)
 
     def _read_status(self, timeout: float) -> dict | None:
         deadline = time.monotonic() + timeout
@@ -1674,43 +1940,6 @@ class RunLogger:
         line, _, self._status_buf = self._status_buf.partition(b"\n")
         return json.loads(line)
 
-    def _write_all(self, data: bytes) -> None:
-        view = memoryview(data)
-        while view:
-            n = os.write(self._wfd, view)
-            view = view[n:]
-
-    def _forward_loop(self) -> None:
-        q, pack = self._q, _FRAME.pack
-        rec_head = pack(_FRAME_RECORD, 0)[:1]
-        try:
-            while True:
-                items = [q.get()]
-                while len(items) < 4096:
-                    try:
-                        items.append(q.get_nowait())
-                    except queue.Empty:
-                        break
-                out = []
-                end = False
-                for item in items:
-                    if type(item) is bytes:
-                        out.append(rec_head + struct.pack("<I", len(item)))
-                        out.append(item)
-                    elif item[0] == "L":
-                        p = json.dumps(item[1].to_json()).encode()
-                        out += (pack(_FRAME_LAYOUT, len(p)), p)
-                    elif item[0] == "E":
-                        p = json.dumps(item[1]).encode()
-                        out += (pack(_FRAME_END, len(p)), p)
-                        end = True
-                        break
-                self._write_all(b"".join(out))
-                if end:
-                    return
-        except OSError as exc:  # the writer process is gone
-            self._broken = f"the log writer process exited ({exc.strerror or exc})"
-
     # -- logging -----------------------------------------------------------------------------
 
     def _init_layout(self, r: StepRecord) -> _Layout:
@@ -1727,7 +1956,13 @@ class RunLogger:
         lay = _Layout(shapes["q"][0], shapes["v"][0], shapes["p"][0], n, bb[1])
         self._shapes = shapes
         self._layout = lay
-        self._q.put(("L", lay))
+        self._payload_size = lay.dtype.itemsize
+        if self.worker == "thread":
+            self._q.put(("L", lay))
+        else:
+            p = json.dumps(lay.to_json()).encode()
+            self._wbuf.append(_FRAME.pack(_FRAME_LAYOUT, len(p)) + p)
+            self._wbuf_bytes += len(p)
         return lay
 
     def _shape_error(self, r: StepRecord) -> ValueError:
@@ -1738,13 +1973,15 @@ class RunLogger:
         return ValueError(f"record at step {r.step} does not match the first record's shapes {self._shapes}")
 
     def log(self, record: StepRecord) -> None:
-        """Queue one record (copied); waits only when the writer is ``max_queue`` behind.
+        """Queue one record (copied); waits only when the writer is far behind.
 
         Raises
         ------
         ValueError
             Shapes that differ from the first record's, or a time that is not finite and
             >= 0.
+        LoggingError
+            The logger is closed.
         """
         if self._closed:
             raise LoggingError("log() on a closed RunLogger")
@@ -1763,18 +2000,20 @@ class RunLogger:
         t = record.t
         if not (t >= 0.0 and t < math.inf):
             raise ValueError(f"record.t must be finite and >= 0 s, got {t!r} at step {record.step}")
-        row = np.concatenate(
-            (record.q, record.v, record.p, (record.kinetic, record.potential, record.total), record.backbone, record.tip_frames),
-            axis=None,
-            dtype=np.float64,
+        q, v, p, bb, tf = record.q, record.v, record.p, record.backbone, record.tip_frames
+        try:
+            fast = q.dtype is _F8 and v.dtype is _F8 and p.dtype is _F8 and bb.dtype is _F8 and tf.dtype is _F8
+        except AttributeError:
+            fast = False
+        if not fast:
+            q, v, p, bb, tf = (np.asarray(x, dtype=np.float64) for x in (q, v, p, bb, tf))
+        payload = b"".join(
+            (_HEAD.pack(t, record.step), q.tobytes(), v.tobytes(), p.tobytes(),
+             _ENERGY.pack(record.kinetic, record.potential, record.total), bb.tobytes(), tf.tobytes())
         )
-        if row.shape[0] != lay.width or record.backbone.shape[1] != lay.P:
+        if len(payload) != self._payload_size or bb.shape != self._shapes["backbone"] or tf.shape != self._shapes["tip_frames"]:
             raise self._shape_error(record)
-        q = self._q
-        if q.qsize() >= self._max_queue:
-            while q.qsize() >= self._max_queue and self._broken is None and self._thread.is_alive():
-                time.sleep(0.0005)
-        q.put(_HEAD.pack(t, record.step) + row.tobytes())
+        self._put(payload, t)
         self.n_logged += 1
 
     def set_outcome(self, success: bool = True, message: str = "", status: int | None = None, nfev: int = 0) -> None:
@@ -1800,10 +2039,11 @@ class RunLogger:
         """Finish the recording (MCAP summary written) and stop the writer.
 
         Parameters are as for :meth:`set_outcome` and override it when given. Returns a
-        summary dict: ``n_records``, ``last_t``, ``mcap``, ``rrd``, ``viewer_url``.
+        summary dict: ``n_records`` (written), ``last_t``, ``mcap``, ``rrd``,
+        ``viewer_url``. With ``linger`` and a served viewer, waits for Ctrl-C first.
         """
         if self._closed:
-            return self._final
+            return self._final or {}
         self._closed = True
         _OPEN_LOGGERS.discard(self)
         outcome = dict(self._outcome or {"success": True, "message": "finished", "status": 0, "nfev": 0})
@@ -1815,12 +2055,12 @@ class RunLogger:
         if message is not None:
             outcome["message"] = str(message)
         outcome["n_logged"] = self.n_logged
-        self._q.put(("E", outcome))
         if self.worker == "thread":
+            self._q.put(("E", outcome))
             self._join(self._thread)
             summary = self._summary or {}
         else:
-            summary = self._close_process()
+            summary = self._close_process(outcome)
         self._final = {
             "n_records": summary.get("n_records", 0),
             "last_t": summary.get("last_t"),
@@ -1833,24 +2073,25 @@ class RunLogger:
         return self._final
 
     @staticmethod
-    def _join(thread: threading.Thread, timeout: float | None = None) -> None:
-        deadline = None if timeout is None else time.monotonic() + timeout
+    def _join(thread: threading.Thread) -> None:
         while thread.is_alive():
             thread.join(0.2)
-            if deadline is not None and time.monotonic() > deadline:
-                return
 
-    def _close_process(self) -> dict:
+    def _close_process(self, outcome: dict) -> dict:
         proc = self._proc
-        self._join(self._thread, 120.0)
         summary: dict = {}
-        msg = self._read_status(120.0) if self._broken is None else None
-        if msg is not None and msg.get("event") == "finished":
-            summary = msg
-        elif self._broken is None:
-            self._broken = "the log writer did not confirm the end of the recording"
+        if self._broken is None:
+            p = json.dumps(outcome).encode()
+            self._wbuf.append(_FRAME.pack(_FRAME_END, len(p)) + p)
+            self._flush_pipe()
+        if self._broken is None:
+            msg = self._read_status(120.0)
+            if msg is not None and msg.get("event") == "finished":
+                summary = msg
+            else:
+                self._broken = "the log writer did not confirm the end of the recording"
         try:
-            if self.linger and self.viewer_url:
+            if self.linger and self.viewer_url and proc.poll() is None:
                 print(
                     f"qchain: the run is over; still serving the viewer at {self.viewer_url} - press Ctrl-C to stop",
                     file=sys.stderr,
@@ -1981,9 +2222,6 @@ class Recording:
                 "params": self.info.params,
             },
         )
-
-
-_MCAP_MAGIC = b"\x89MCAP0\r\n"
 
 
 def _floats(values: list) -> np.ndarray:
@@ -2364,6 +2602,9 @@ def default_mcap_path(scene_path: str | os.PathLike | None = None, runs_dir: str
     return path
 
 
+_default_mcap_path = default_mcap_path  # reachable where a parameter has the same name
+
+
 def add_logging_arguments(parser: argparse.ArgumentParser) -> argparse._ArgumentGroup:
     """Add ``--mcap OUT``, ``--serve``, ``--connect URL``, ``--rrd OUT`` (and ``--bind``)."""
     g = parser.add_argument_group(
@@ -2410,7 +2651,7 @@ def logger_from_args(
         raise ValueError("--serve and --connect exclude each other")
     path = getattr(args, "mcap", None)
     if path is None:
-        path = default_mcap_path if default_mcap_path is not None else globals()["default_mcap_path"](info.scene_path)
+        path = default_mcap_path if default_mcap_path is not None else _default_mcap_path(info.scene_path)
     kwargs.setdefault("linger", serve)
     return RunLogger(
         info,

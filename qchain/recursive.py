@@ -231,11 +231,13 @@ def _chol_solve(L, k, b):
 
 
 @jit
-def aba(alpha, w, offs, mass, radius, q, qd, tau, V0, A0, floating, F0, qdd, A0_out):
+def aba(alpha, w, offs, mass, radius, q, qd, tau, V0, A0, floating, F0, qdd, A0_out, locked):
     """Articulated-body forward dynamics: ``qdd`` (n, 3) from ``M qdd + C qd + g = tau``.
 
     ``tau`` (n, 3) is the total generalised force on the segment coordinates (pressure,
-    elastic, damping, external). For a fixed or prescribed base ``A0`` is the root's
+    elastic, damping, external). ``locked`` (n, 3) bool holds coordinates still (ideal
+    constraints: their ``qdd`` is zero, their constraint forces are not computed). For a
+    fixed or prescribed base ``A0`` is the root's
     apparent acceleration; for a floating base ``F0`` (6,) is the wrench applied to the base
     and ``A0_out`` receives the solved apparent base acceleration. Returns False if an
     articulated block is not positive definite (a singular configuration).
@@ -296,6 +298,15 @@ def aba(alpha, w, offs, mass, radius, q, qd, tau, V0, A0, floating, F0, qdd, A0_
         for r in range(6):
             for a in range(3):
                 U[j, r, a] = Mh[r, 6 + a]
+        for a in range(3):
+            if locked[j, a]:  # qdd_a = 0: decouple the row and column
+                for e in range(3):
+                    Lq[j, a, e] = 0.0
+                    Lq[j, e, a] = 0.0
+                Lq[j, a, a] = 1.0
+                u[j, a] = 0.0
+                for r in range(6):
+                    U[j, r, a] = 0.0
         if not _chol(Lq[j], 3):
             return False
         # IA = Mh_VV - U D^-1 U^T ; pA = bh_V + U D^-1 u

@@ -49,6 +49,7 @@ from .spatial import ad_matrix, disk_inertia, force_cross_bar
 
 __all__ = [
     "Segment",
+    "nodes_for_tolerance",
     "CHAMBER_ANGLES",
     "DEFAULT_NODES",
     "PAPER_SINGULAR_ANGLE",
@@ -189,6 +190,10 @@ class Segment:
         The paper's literal ``D`` in the segment's coordinates, replacing ``beta K(q0)``.
     rest_q_e : (3,) array, optional
         ``q_e0`` of the linear law; default the straight rest pose ``(l0, 0, 0)``.
+    extensible : bool
+        ``False`` holds the length at ``l0`` in a :class:`~qchain.Chain` (an ideal
+        constraint): the stiffest, axial mode is dropped so integrators can take larger
+        steps. The segment's own blocks keep all three coordinates.
     """
 
     length: float
@@ -204,6 +209,7 @@ class Segment:
     stiffness_matrix: np.ndarray | None = None
     damping_matrix: np.ndarray | None = None
     rest_q_e: np.ndarray | None = None
+    extensible: bool = True
     # derived (set in __post_init__)
     node_count: int = field(init=False)
     bending_stiffness: float = field(init=False)
@@ -227,6 +233,8 @@ class Segment:
                 f"chambers do not fit: chamber_radius + sqrt(chamber_area/pi) = {outer:.6g} m "
                 f"must be <= radius = {self.radius:.6g} m"
             )
+        if not isinstance(self.extensible, (bool, np.bool_)):
+            raise ValueError(f"extensible must be True or False, got {self.extensible!r}")
         if self.coords not in COORDS:
             raise ValueError(f"coords must be one of {COORDS}, got {self.coords!r}")
         if self.actuation not in ACTUATIONS:
@@ -470,6 +478,23 @@ class Segment:
         input_matrix_c(q_c, self.chamber_area, self.chamber_radius, self.actuation == "paper", Bc)
         return J.T @ Bc
 
+    def pressure_stiffness(self, q_e, p) -> np.ndarray | None:
+        """``d(B(q_e) p)/d q_e`` (3, 3) for ``actuation="volume"`` (exact), ``None`` for the
+        paper's tip-plate model (its second derivatives are not provided)."""
+        if self.actuation != "volume":
+            return None
+        p = as_vector("p", p, 3)
+        q_c, J = self._curvature(q_e)
+        A, r = self.chamber_area, self.chamber_radius
+        mx = A * r * float(np.cos(CHAMBER_ANGLES) @ p)
+        my = A * r * float(np.sin(CHAMBER_ANGLES) @ p)
+        Kc = np.array([[0.0, -mx, -my], [-mx, 0.0, 0.0], [-my, 0.0, 0.0]])
+        if self.coords == "curvature":
+            return Kc
+        Bp_c = np.empty((3, 3))
+        input_matrix_c(q_c, A, r, False, Bp_c)
+        return J.T @ Kc @ J + _paper_hessian_term(self.check_configuration(q_e), Bp_c @ p)
+
     # ------------------------------------------------------------------- elasticity
 
     def _rest_stiffness_c(self) -> np.ndarray:
@@ -546,3 +571,28 @@ class Segment:
         """``D qdot_e`` (3,), the dissipative term on the left of the equation of motion."""
         qd = as_vector("qdot_e", qdot_e, 3)
         return self.dissipation_matrix(q_e) @ qd
+
+
+def nodes_for_tolerance(segment: Segment, theta_max: float, tol: float, reference_nodes: int = 24) -> int:
+    """Smallest Gauss-Legendre node count whose ``M_xi`` is within ``tol`` (relative, Frobenius)
+    of a ``reference_nodes`` one at bending angle ``theta_max`` (rad) and rest length.
+
+    The quadrature error grows with the bending angle (DESIGN.md section 1: the node count
+    is a fidelity knob), so a scene that bends less needs fewer nodes.
+    """
+    theta = float(theta_max)
+    if not (np.isfinite(theta) and theta >= 0.0):
+        raise ValueError(f"theta_max must be a finite angle >= 0 rad, got {theta_max!r}")
+    if not (np.isfinite(tol) and tol > 0.0):
+        raise ValueError(f"tol must be > 0, got {tol!r}")
+    import dataclasses
+
+    base = dataclasses.replace(segment, coords="curvature", nodes=reference_nodes)
+    kappa = min(theta / base.length, 0.999 / base.radius)
+    q = np.array([base.length, kappa * np.cos(0.3), kappa * np.sin(0.3)])
+    ref = base.mass_matrix(q)
+    for n in range(1, reference_nodes):
+        M = dataclasses.replace(base, nodes=n).mass_matrix(q)
+        if np.linalg.norm(M - ref) <= tol * np.linalg.norm(ref):
+            return n
+    return reference_nodes

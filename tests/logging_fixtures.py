@@ -21,65 +21,70 @@ RADIUS = 0.015  # m
 POINTS = 12  # backbone points a segment
 
 
-def _quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Hamilton product of quaternions (x, y, z, w)."""
-    ax, ay, az, aw = a
-    bx, by, bz, bw = b
-    return np.array(
-        [
-            aw * bx + ax * bw + ay * bz - az * by,
-            aw * by - ax * bz + ay * bw + az * bx,
-            aw * bz + ax * by - ay * bx + az * bw,
-            aw * bw - ax * bx - ay * by - az * bz,
-        ]
-    )
+def _rot_to_quat(R: np.ndarray) -> np.ndarray:
+    """Unit quaternion (x, y, z, w) of a rotation matrix (Shepperd's method)."""
+    tr = R[0, 0] + R[1, 1] + R[2, 2]
+    if tr > 0.0:
+        s = 2.0 * math.sqrt(1.0 + tr)
+        return np.array([(R[2, 1] - R[1, 2]) / s, (R[0, 2] - R[2, 0]) / s, (R[1, 0] - R[0, 1]) / s, 0.25 * s])
+    i = int(np.argmax(np.diag(R)))
+    j, k = (i + 1) % 3, (i + 2) % 3
+    s = 2.0 * math.sqrt(1.0 + R[i, i] - R[j, j] - R[k, k])
+    q = np.empty(4)
+    q[i] = 0.25 * s
+    q[j] = (R[j, i] + R[i, j]) / s
+    q[k] = (R[k, i] + R[i, k]) / s
+    q[3] = (R[k, j] - R[j, k]) / s
+    return q
 
 
-def _quat_rotate(qt: np.ndarray, x: np.ndarray) -> np.ndarray:
-    """Rotate points x (..., 3) by the unit quaternion qt (x, y, z, w)."""
-    u, w = qt[:3], qt[3]
-    return x + 2.0 * np.cross(u, np.cross(u, x) + w * x)
-
-
-def arc_points(kappa: float, psi: float, length: float, s: np.ndarray) -> np.ndarray:
-    """Points (len(s), 3) of a constant-curvature arc in its root frame, bending in the plane
-    at angle psi; finite at kappa = 0."""
+def arc_points(kappa: float, psi: float, s: np.ndarray) -> np.ndarray:
+    """Points (len(s), 3) of a constant-curvature arc in its root frame (tangent z at the
+    root), bending in the plane at angle psi about z; finite at kappa = 0."""
     ks = kappa * s
-    # (1 - cos ks)/kappa and sin(ks)/kappa without dividing by a small kappa
-    a = np.where(abs(kappa) > 1e-9, (1.0 - np.cos(ks)) / np.where(kappa == 0, 1, kappa), 0.5 * kappa * s**2)
-    b = np.where(abs(kappa) > 1e-9, np.sin(ks) / np.where(kappa == 0, 1, kappa), s)
+    if abs(kappa) > 1e-9:
+        a = (1.0 - np.cos(ks)) / kappa
+        b = np.sin(ks) / kappa
+    else:
+        a = 0.5 * kappa * s * s
+        b = s.copy()
     return np.stack([a * math.cos(psi), a * math.sin(psi), b], axis=-1)
 
 
-def arc_tip_quat(kappa: float, psi: float, length: float) -> np.ndarray:
+def arc_tip_rotation(kappa: float, psi: float, length: float) -> np.ndarray:
     """Rotation of the arc's tip frame: angle kappa*length about (-sin psi, cos psi, 0)."""
     th = kappa * length
-    axis = np.array([-math.sin(psi), math.cos(psi), 0.0])
-    return np.r_[math.sin(th / 2) * axis, math.cos(th / 2)]
+    c, s = math.cos(th), math.sin(th)
+    ux, uy = -math.sin(psi), math.cos(psi)
+    K = np.array([[0.0, 0.0, uy], [0.0, 0.0, -ux], [-uy, ux, 0.0]])  # [u]x with u = (ux, uy, 0)
+    return np.eye(3) + s * K + (1.0 - c) * (K @ K)
 
 
 def arm_record(t: float, step: int, n: int = N_SEGMENTS, P: int = POINTS, freq: float = 1.0) -> StepRecord:
-    """The synthetic arm at time t: curvature kappa_i(t) = 12 sin(2 pi f t + i) 1/m."""
+    """The synthetic arm at time t: curvature kappa_i(t) = 12 sin(2 pi f t + i) 1/m, bending
+    plane at 2 pi i / n; the root frame is the world frame."""
     s = np.linspace(0.0, LENGTH, P)
     pos = np.zeros(3)
-    quat = np.array([0.0, 0.0, 0.0, 1.0])
+    R = np.eye(3)
     backbone = np.empty((n, P, 3))
     tips = np.empty((n, 7))
     q = np.empty(3 * n)
     v = np.empty(3 * n)
+    w = 2 * math.pi * freq
     for i in range(n):
-        kappa = 12.0 * math.sin(2 * math.pi * freq * t + i)
-        kdot = 12.0 * 2 * math.pi * freq * math.cos(2 * math.pi * freq * t + i)
+        kappa = 12.0 * math.sin(w * t + i)
+        kdot = 12.0 * w * math.cos(w * t + i)
         psi = 2.0 * math.pi * i / n
-        backbone[i] = pos + _quat_rotate(quat, arc_points(kappa, psi, LENGTH, s))
-        tip_local = arc_points(kappa, psi, LENGTH, np.array([LENGTH]))[0]
-        pos = pos + _quat_rotate(quat, tip_local)
-        quat = _quat_mul(quat, arc_tip_quat(kappa, psi, LENGTH))
+        local = arc_points(kappa, psi, s)
+        backbone[i] = pos + local @ R.T
+        pos = backbone[i, -1].copy()
+        R = R @ arc_tip_rotation(kappa, psi, LENGTH)
         tips[i, :3] = pos
-        tips[i, 3:] = quat
-        q[3 * i : 3 * i + 3] = (LENGTH, kappa * math.cos(psi), kappa * math.sin(psi))
-        v[3 * i : 3 * i + 3] = (0.0, kdot * math.cos(psi), kdot * math.sin(psi))
-    p = 4.0e4 * (1.0 + np.sin(2 * math.pi * freq * t + np.arange(3 * n)))
+        tips[i, 3:] = _rot_to_quat(R)
+        cp, sp = math.cos(psi), math.sin(psi)
+        q[3 * i : 3 * i + 3] = (LENGTH, kappa * cp, kappa * sp)
+        v[3 * i : 3 * i + 3] = (0.0, kdot * cp, kdot * sp)
+    p = 4.0e4 * (1.0 + np.sin(w * t + np.arange(3 * n)))
     kinetic = 0.5 * 1e-4 * float(v @ v)
     potential = 0.5 * 1e-3 * float(q @ q) + 0.01 * float(backbone[:, :, 2].mean())
     return StepRecord(
@@ -108,7 +113,7 @@ from qchain.logging import RunLogger
 
 path, n_max, pace = sys.argv[1], int(sys.argv[2]), float(sys.argv[3])
 with RunLogger(arm_info(), path, flush_interval={flush!r}) as log:
-    print("started", flush=True)
+    print("writer", log.worker_pid, flush=True)
     k = 0
     while k < n_max:
         t = k * 1e-3

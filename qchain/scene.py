@@ -1,0 +1,1413 @@
+"""Scene files: a soft arm, its inputs and a run, described in TOML.
+
+``load_scene(path) -> Scene`` reads and validates a file; ``Scene.build()`` makes the
+smallest model that represents the scene (and says what it dropped and why);
+``Scene.simulate()`` runs it. ``qchain run SCENE.toml`` and ``qchain info SCENE.toml``
+(:mod:`qchain.cli`) do the same from the command line. Units are SI throughout: m, kg,
+s, Pa, rad, Hz.
+
+File format
+-----------
+Every key is optional unless marked *required*. Vectors of pressures, coordinates and
+velocities hold one entry per segment and chamber/coordinate: write them either flat,
+``3 n`` numbers segment by segment, or nested, ``n`` lists of 3 numbers (``n`` = number of
+segments after ``count`` is expanded). An example::
+
+    name = "three-segment wave"         # free text, also "description"
+    gravity = [0.0, 0.0, -9.81]         # m/s^2, world frame (default)
+
+    [model]
+    reduce = true                       # automatic reductions on (default)
+    node_tolerance = 1e-8               # relative M_xi accuracy -> Gauss nodes a segment
+    max_bend = 1.2                      # rad; default: estimated (see "Model reduction")
+
+    [[segments]]                        # required: one table a segment, base to tip
+    count = 3                           # repeat this segment (default 1)
+    length = 0.1                        # m, rest length l0         (required, > 0)
+    radius = 0.015                      # m, outer radius r_s       (required, > 0)
+    mass = 0.05                         # kg                        (required, > 0)
+    chamber_area = 4.5e-5               # m^2, each chamber         (required, > 0)
+    chamber_radius = 0.0085             # m, chamber centres        (required, > 0)
+    youngs_modulus = 1e5                # Pa                        (required, > 0)
+    damping = 0.01                      # s, beta of D = beta K(q0) (>= 0, default 0)
+    coords = "curvature"                # or "paper": q_e = (l, ux, uy) or (l, psi, kappa)
+    actuation = "volume"                # or "paper"
+    extensible = true                   # false: l held at l0, the axial mode dropped
+    nodes = 6                           # Gauss nodes (>= 1); overrides node_tolerance
+
+    [base]
+    type = "fixed"                      # "fixed" (default), "floating" or "prescribed"
+    position = [0.0, 0.0, 0.0]          # m, world; fixed: the mount, floating: initial
+    rpy = [0.0, 0.0, 0.0]               # rad, roll-pitch-yaw, R = Rz(yaw) Ry(pitch) Rx(roll)
+    velocity = [0.0, 0.0, 0.0]          # floating only: initial linear velocity, m/s, base frame
+    angular_velocity = [0.0, 0.0, 0.0]  # floating only: initial angular velocity, rad/s, base frame
+
+    [base.motion]                       # prescribed only (required there)
+    type = "translation"                # or "rotation" (about an axis through the mount origin)
+    axis = [1.0, 0.0, 0.0]              # mount frame (position + rpy above), normalised
+    amplitude = 0.02                    # m or rad
+    frequency = 1.0                     # Hz (>= 0)
+    phase = 0.0                         # rad
+
+    [pressure]                          # chamber pressures, gauge, Pa (default: none)
+    type = "sine"                       # one of the five kinds below
+    amplitude = [20e3, 0, 0,  20e3, 0, 0,  20e3, 0, 0]
+    offset = [20e3, 0, 0,  20e3, 0, 0,  20e3, 0, 0]
+    frequency = 0.5                     # Hz, a number or one a chamber
+    phase = 0.0                         # rad, a number or one a chamber
+    segment_phase = -1.0                # rad, added j times to segment j's chambers
+
+    [initial]
+    q_e = [[0.1, 0.0, 0.0], [0.1, 0.0, 0.0], [0.1, 0.0, 0.0]]  # segment coordinates
+    v = [0.0, 0.0, 0.0,  0.0, 0.0, 0.0,  0.0, 0.0, 0.0]        # their rates
+
+    [simulation]
+    duration = 2.0                      # s                         (required, > 0)
+    method = "RK45"                     # rk4, midpoint, RK45, DOP853, Radau, BDF
+    rtol = 1e-6                         # adaptive methods
+    atol = 1e-8
+    dt = 1e-3                           # s, fixed-step methods (rk4, midpoint): required there
+    max_step = 0.01                     # s, adaptive methods: largest step (default unbounded)
+
+    [output]
+    sample_rate = 100.0                 # Hz, samples of the trajectory (default 100)
+    folder = "out/wave"                 # default out/<file stem>, relative to the working dir
+    plots = ["tip", "arm"]              # of tip, arm, energy, pressure, momentum (default tip)
+    save = true                         # write trajectory.npz (t, q, v, p, energies)
+
+Pressure kinds (every vector as above, ``3 n`` values; gauge pressures must stay at or
+above -101325 Pa, a vacuum):
+
+* ``type = "constant"``: ``value``.
+* ``type = "step"``: ``time`` (s), ``after``; ``before`` (default zeros).
+* ``type = "ramp"``: ``t0 < t1`` (s), ``end``; ``start`` (default zeros): ``start`` until
+  ``t0``, linear to ``end`` at ``t1``, held after.
+* ``type = "sine"``: ``offset + amplitude sin(2 pi frequency t + phase + j segment_phase)``
+  per chamber of segment ``j``; ``amplitude`` required, ``offset`` default zeros,
+  ``frequency`` (Hz) and ``phase`` (rad) a number or one a chamber.
+* ``type = "table"``: ``times`` (s, strictly increasing) and ``values``, one pressure
+  vector a time: piecewise linear, held constant outside the table.
+
+Initial state: ``q_e`` in each segment's own coordinates (default the straight rest pose;
+an inextensible segment must start at ``l = length``), ``v`` their rates (default zero).
+A floating base starts at ``base.position``/``base.rpy`` with ``base.velocity`` and
+``base.angular_velocity``.
+
+Errors
+------
+:func:`load_scene` checks the whole file and raises one :class:`SceneError` listing every
+problem, each as ``key: expected ..., found ...`` with the dotted key (``segments[1].radius``,
+``pressure.values[2]``): unknown keys (with the closest known one), wrong types, sizes
+that are not positive, vectors of the wrong length, decreasing table times, unknown
+methods and kinds, initial states outside the model (``l <= 0``, ``|kappa| r_s >= 1``), a
+fixed-step method without ``dt``.
+
+Model reduction
+---------------
+``Scene.build()`` builds the smallest model that represents the scene and lists, in
+``SceneModel.reductions``, what it dropped and why (``Scene.reductions`` for the scene's
+own setting); ``SceneModel.kept`` says which reductions did not apply and why not.
+
+* ``extensible = false`` (the file's choice, applied with or without ``reduce``): ``l`` is
+  held at ``l0`` and the axial mode, the stiffest, is dropped.
+* planar (automatic): ``uy`` is held at 0 in every segment when the scene is symmetric
+  about the base's x-z plane, where the reduction is exact: every segment in curvature
+  coordinates; gravity in that plane (expressed in the base frame at the start); chambers
+  2 and 3 of every segment given the same pressure at all times (equal schedule
+  parameters); ``uy = 0`` and ``uy' = 0`` at the start; a base motion in that plane (a
+  translation along an axis with no y component, a rotation about the y axis; a floating
+  base with no initial y velocity and no x or z angular velocity).
+* nodes (automatic, with ``model.node_tolerance``): each segment gets the fewest Gauss
+  nodes whose ``M_xi`` is within ``node_tolerance`` of a converged one
+  (:func:`qchain.segment.nodes_for_tolerance`) at the largest bend the scene reaches:
+  ``model.max_bend`` if given, else the estimate ``BEND_MARGIN`` (2) times the largest of
+  the initial bend and the static bends (:func:`qchain.statics.equilibrium`) under the
+  scene's peak pressures, plus ``sqrt(2 T0 l0 / EI)``, the bend that would store all the
+  initial kinetic energy ``T0`` of the deformation rates (base held still). The factor 2 is the overshoot of an undamped step
+  response. The static shapes are solved with the base held at its start placement, for
+  the pressures at the times where each segment's bending drive is largest (and
+  smallest), over 65 even samples of the run and the schedule's corner times; a floating
+  base is solved in zero gravity (a free-falling arm carries no gravity load); a
+  translating base adds its peak acceleration to gravity in both directions, a rotating
+  one is solved at both ends of its swing. Strongly driven scenes (resonance, fast base
+  motion) can bend more: give ``max_bend`` there. Without ``node_tolerance`` the segments
+  keep ``nodes`` or :data:`qchain.segment.DEFAULT_NODES`.
+
+``model.reduce = false`` (or ``Scene.build(reduce=False)``) turns the automatic reductions
+off: same layout, all coordinates free, the default node count, for comparison.
+"""
+
+from __future__ import annotations
+
+import difflib
+import functools
+import math
+import os
+import tomllib
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+import pinocchio as pin
+
+from .chain import Chain
+from .errors import QchainError
+from .inputs import Constant, Ramp, Schedule, Sine, Step, Table
+from .segment import CHAMBER_ANGLES, DEFAULT_NODES, Segment
+
+__all__ = [
+    "Scene",
+    "SceneModel",
+    "SceneError",
+    "Problem",
+    "SegmentSpec",
+    "BaseSpec",
+    "SineMotion",
+    "load_scene",
+    "parse_scene",
+    "METHODS",
+    "PLOTS",
+    "BEND_MARGIN",
+    "VACUUM_GAUGE",
+]
+
+#: Integration methods a scene may name (``qchain.simulate.METHODS``); matched without case.
+METHODS = ("rk4", "midpoint", "RK45", "DOP853", "Radau", "BDF")
+FIXED_STEP = ("rk4", "midpoint")
+#: Plots a scene may ask for.
+PLOTS = ("tip", "arm", "energy", "pressure", "momentum")
+#: Safety factor on the estimated static bend (the overshoot of an undamped step response).
+BEND_MARGIN = 2.0
+#: Lowest gauge pressure a chamber can hold (Pa): a vacuum.
+VACUUM_GAUGE = -101325.0
+#: Even samples of the run at which the pressure schedule is scanned for the bend estimate.
+BEND_SAMPLES = 65
+
+_SEGMENT_KEYS = {
+    "count": "number of copies of this segment (integer >= 1)",
+    "length": "rest length l0 (m)",
+    "radius": "outer radius (m)",
+    "mass": "mass (kg)",
+    "chamber_area": "chamber cross-section (m^2)",
+    "chamber_radius": "distance of the chamber centres from the axis (m)",
+    "youngs_modulus": "Young's modulus (Pa)",
+    "damping": "stiffness-proportional damping beta (s)",
+    "coords": "deformation coordinates",
+    "actuation": "input matrix model",
+    "extensible": "whether the length may change",
+    "nodes": "Gauss-Legendre nodes",
+}
+_TOP_KEYS = ("name", "description", "gravity", "model", "segments", "base", "pressure", "initial", "simulation",
+             "output")
+_MODEL_KEYS = ("reduce", "node_tolerance", "max_bend")
+_BASE_KEYS = ("type", "position", "rpy", "velocity", "angular_velocity", "motion")
+_MOTION_KEYS = ("type", "axis", "amplitude", "frequency", "phase")
+_PRESSURE_KEYS = {
+    "constant": ("type", "value"),
+    "step": ("type", "time", "after", "before"),
+    "ramp": ("type", "t0", "t1", "end", "start"),
+    "sine": ("type", "amplitude", "frequency", "phase", "offset", "segment_phase"),
+    "table": ("type", "times", "values"),
+}
+_INITIAL_KEYS = ("q_e", "v")
+_SIMULATION_KEYS = ("duration", "method", "rtol", "atol", "dt", "max_step")
+_OUTPUT_KEYS = ("sample_rate", "folder", "plots", "save")
+
+
+# --------------------------------------------------------------------------------------
+# errors
+
+
+@dataclass(frozen=True)
+class Problem:
+    """One problem of a scene file: the dotted ``key``, what was ``expected``, what was ``found``."""
+
+    key: str
+    expected: str
+    found: str
+
+    def __str__(self) -> str:
+        return f"{self.key}: expected {self.expected}, found {self.found}"
+
+
+class SceneError(QchainError, ValueError):
+    """A scene file that cannot be used; ``problems`` lists every problem found.
+
+    The message names the file and, for each problem, the key, what was expected and
+    what was found.
+    """
+
+    def __init__(self, path: str, problems: list[Problem]):
+        self.path = str(path)
+        self.problems = list(problems)
+        if len(self.problems) == 1:
+            msg = f"{self.path}: {self.problems[0]}"
+        else:
+            msg = f"{self.path}: {len(self.problems)} problems:\n" + "\n".join(f"  {p}" for p in self.problems)
+        super().__init__(msg)
+
+
+_MISSING = object()
+
+
+def _type_name(v) -> str:
+    if isinstance(v, bool):
+        return "a boolean"
+    if isinstance(v, int):
+        return "an integer"
+    if isinstance(v, float):
+        return "a float"
+    if isinstance(v, str):
+        return "a string"
+    if isinstance(v, list):
+        return "an array"
+    if isinstance(v, dict):
+        return "a table"
+    return f"a {type(v).__name__}"
+
+
+def _show(v, limit: int = 60) -> str:
+    """A TOML-like rendering of a value, cut at ``limit`` characters."""
+    if isinstance(v, bool):
+        s = "true" if v else "false"
+    elif isinstance(v, str):
+        s = '"' + v + '"'
+    elif isinstance(v, float):
+        s = repr(v)
+    elif isinstance(v, list):
+        s = "[" + ", ".join(_show(x, limit) for x in v) + "]"
+    elif isinstance(v, dict):
+        s = "{" + ", ".join(f"{k} = {_show(x, limit)}" for k, x in v.items()) + "}"
+    else:
+        s = str(v)
+    return s if len(s) <= limit else s[: limit - 3] + "..."
+
+
+def _is_number(v) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool)
+
+
+class _Checker:
+    """Walks the parsed TOML, collecting :class:`Problem` s instead of stopping at the first."""
+
+    def __init__(self):
+        self.problems: list[Problem] = []
+
+    def add(self, key: str, expected: str, found: str) -> None:
+        self.problems.append(Problem(key, expected, found))
+
+    def keys(self, d: dict, path: str, allowed) -> None:
+        allowed = list(allowed)
+        for k in d:
+            if k not in allowed:
+                close = difflib.get_close_matches(k, allowed, n=1, cutoff=0.7)
+                hint = f" (did you mean {close[0]!r}?)" if close else ""
+                self.add(f"{path}.{k}" if path else k, f"one of the keys {', '.join(allowed)}{hint}",
+                         f"the unknown key {k!r}")
+
+    def table(self, d: dict, key: str, path: str, required: bool = False) -> dict | None:
+        v = d.get(key, _MISSING)
+        if v is _MISSING:
+            if required:
+                self.add(path, "a table", "nothing")
+            return None
+        if not isinstance(v, dict):
+            self.add(path, "a table", f"{_type_name(v)} {_show(v)}")
+            return None
+        return v
+
+    def number(self, d: dict, key: str, path: str, unit: str = "", *, default=None, required: bool = False,
+               minimum: float | None = None, strict: bool = True, maximum: float | None = None):
+        """A finite real number, optionally bounded below (``> minimum`` if ``strict``, else ``>=``)."""
+        v = d.get(key, _MISSING)
+        u = f" ({unit})" if unit else ""
+        bound = ""
+        if minimum is not None:
+            bound = f" {'>' if strict else '>='} {minimum:g}"
+        if maximum is not None:
+            bound += f"{' and' if bound else ''} <= {maximum:g}"
+        if v is _MISSING:
+            if required:
+                self.add(path, f"a number{bound}{u}", "nothing (the key is required)")
+            return default
+        if not _is_number(v):
+            self.add(path, f"a number{bound}{u}", f"{_type_name(v)} {_show(v)}")
+            return default
+        x = float(v)
+        if not math.isfinite(x):
+            self.add(path, f"a finite number{bound}{u}", _show(v))
+            return default
+        if minimum is not None and (x <= minimum if strict else x < minimum):
+            self.add(path, f"a number{bound}{u}", _show(v))
+            return default
+        if maximum is not None and x > maximum:
+            self.add(path, f"a number{bound}{u}", _show(v))
+            return default
+        return x
+
+    def integer(self, d: dict, key: str, path: str, *, default=None, minimum: int = 1):
+        v = d.get(key, _MISSING)
+        if v is _MISSING:
+            return default
+        if not isinstance(v, int) or isinstance(v, bool):
+            self.add(path, f"an integer >= {minimum}", f"{_type_name(v)} {_show(v)}")
+            return default
+        if v < minimum:
+            self.add(path, f"an integer >= {minimum}", _show(v))
+            return default
+        return int(v)
+
+    def boolean(self, d: dict, key: str, path: str, default: bool) -> bool:
+        v = d.get(key, _MISSING)
+        if v is _MISSING:
+            return default
+        if not isinstance(v, bool):
+            self.add(path, "true or false", f"{_type_name(v)} {_show(v)}")
+            return default
+        return v
+
+    def string(self, d: dict, key: str, path: str, default: str | None = None) -> str | None:
+        v = d.get(key, _MISSING)
+        if v is _MISSING:
+            return default
+        if not isinstance(v, str):
+            self.add(path, "a string", f"{_type_name(v)} {_show(v)}")
+            return default
+        return v
+
+    def choice(self, d: dict, key: str, path: str, choices, default=None, required: bool = False,
+               ignore_case: bool = False):
+        v = d.get(key, _MISSING)
+        options = ", ".join(f'"{c}"' for c in choices)
+        if v is _MISSING:
+            if required:
+                self.add(path, f"one of {options}", "nothing (the key is required)")
+            return default
+        if isinstance(v, str):
+            for c in choices:
+                if v == c or (ignore_case and v.lower() == c.lower()):
+                    return c
+        close = difflib.get_close_matches(v, list(choices), n=1, cutoff=0.7) if isinstance(v, str) else []
+        hint = f" (did you mean {close[0]!r}?)" if close else ""
+        self.add(path, f"one of {options}{hint}", f"{_type_name(v)} {_show(v)}")
+        return default
+
+    def _numbers(self, v, path: str, what: str) -> np.ndarray | None:
+        """A flat list of finite numbers, or None (with a problem)."""
+        if not isinstance(v, list):
+            self.add(path, what, f"{_type_name(v)} {_show(v)}")
+            return None
+        for i, x in enumerate(v):
+            if not _is_number(x) or not math.isfinite(float(x)):
+                self.add(f"{path}[{i}]", "a finite number", f"{_type_name(x)} {_show(x)}")
+                return None
+        return np.array(v, dtype=float)
+
+    def vector(self, d: dict, key: str, path: str, size: int, unit: str = "", default=None):
+        v = d.get(key, _MISSING)
+        if v is _MISSING:
+            return None if default is None else np.array(default, dtype=float)
+        what = f"an array of {size} numbers{f' ({unit})' if unit else ''}"
+        arr = self._numbers(v, path, what)
+        if arr is None:
+            return None if default is None else np.array(default, dtype=float)
+        if arr.size != size:
+            self.add(path, what, f"{arr.size} numbers {_show(v)}")
+            return None if default is None else np.array(default, dtype=float)
+        return arr
+
+    def per_segment(self, v, path: str, n: int | None, unit: str = "", width: int = 3) -> np.ndarray | None:
+        """``n * width`` numbers, flat or as ``n`` lists of ``width``; shape (n, width)."""
+        what = (f"{width * n} numbers ({width} a segment x {n} segment{'s' if n != 1 else ''}), flat or as {n} "
+                f"arrays of {width}{f', {unit}' if unit else ''}") if n is not None else "numbers"
+        if not isinstance(v, list):
+            self.add(path, what, f"{_type_name(v)} {_show(v)}")
+            return None
+        if n is None:  # the segment count is unknown (bad segments): check the entries only
+            return None
+        if v and all(isinstance(x, list) for x in v):
+            if len(v) != n:
+                self.add(path, what, f"{len(v)} arrays {_show(v)}")
+                return None
+            out = np.empty((n, width))
+            for j, row in enumerate(v):
+                arr = self._numbers(row, f"{path}[{j}]", f"an array of {width} numbers")
+                if arr is None:
+                    return None
+                if arr.size != width:
+                    self.add(f"{path}[{j}]", f"an array of {width} numbers (segment {j})", f"{arr.size} numbers {_show(row)}")
+                    return None
+                out[j] = arr
+            return out
+        arr = self._numbers(v, path, what)
+        if arr is None:
+            return None
+        if arr.size != n * width:
+            self.add(path, what, f"{arr.size} numbers {_show(v)}")
+            return None
+        return arr.reshape(n, width)
+
+
+# --------------------------------------------------------------------------------------
+# parts of a scene
+
+
+@dataclass(frozen=True)
+class SegmentSpec:
+    """One segment of a scene (after ``count`` is expanded); ``source`` is its table's key."""
+
+    length: float
+    radius: float
+    mass: float
+    chamber_area: float
+    chamber_radius: float
+    youngs_modulus: float
+    damping: float = 0.0
+    coords: str = "curvature"
+    actuation: str = "volume"
+    extensible: bool = True
+    nodes: int | None = None
+    source: str = ""
+
+    def segment(self, nodes: int | None = None) -> Segment:
+        """The :class:`qchain.Segment` with ``nodes`` Gauss nodes (default: the spec's own)."""
+        return Segment(
+            length=self.length, radius=self.radius, mass=self.mass, chamber_area=self.chamber_area,
+            chamber_radius=self.chamber_radius, youngs_modulus=self.youngs_modulus, damping=self.damping,
+            coords=self.coords, actuation=self.actuation, extensible=self.extensible,
+            nodes=self.nodes if nodes is None else nodes,
+        )
+
+
+@dataclass(frozen=True, eq=False)
+class SineMotion:
+    """A mount swinging sinusoidally: ``X_WB(t) = X_0 * M(s(t))``, ``s = a sin(2 pi f t + phase)``.
+
+    ``kind = "translation"``: ``M(s) = (I, s axis)``, a shift along ``axis`` (mount frame);
+    ``kind = "rotation"``: ``M(s) = (exp3(s axis), 0)``, a turn about ``axis`` through the
+    mount origin. Velocities and accelerations are exact: ``V_B = s' (axis, 0)`` or
+    ``s' (0, axis)`` in the base frame, ``A_B = dV_B/dt`` likewise with ``s''``.
+
+    Calling it at ``t`` returns ``(X_WB: pinocchio.SE3, V_B (6,), A_B (6,))``, the form
+    :class:`qchain.Chain` takes as ``base_motion``.
+    """
+
+    kind: str
+    axis: np.ndarray
+    amplitude: float
+    frequency: float
+    phase: float
+    mount: pin.SE3
+
+    def offset(self, t: float) -> tuple[float, float, float]:
+        """``(s, s', s'')`` at ``t``: m or rad, per s, per s^2."""
+        w = 2.0 * math.pi * self.frequency
+        arg = w * t + self.phase
+        return (self.amplitude * math.sin(arg), self.amplitude * w * math.cos(arg),
+                -self.amplitude * w * w * math.sin(arg))
+
+    def placement_at(self, s: float) -> pin.SE3:
+        """``X_0 * M(s)``."""
+        if self.kind == "translation":
+            return self.mount * pin.SE3(np.eye(3), s * self.axis)
+        return self.mount * pin.SE3(pin.exp3(s * self.axis), np.zeros(3))
+
+    def peak_acceleration(self) -> float:
+        """``max |s''| = |a| (2 pi f)^2``."""
+        return abs(self.amplitude) * (2.0 * math.pi * self.frequency) ** 2
+
+    def __call__(self, t: float):
+        s, sd, sdd = self.offset(float(t))
+        V = np.zeros(6)
+        A = np.zeros(6)
+        k = 0 if self.kind == "translation" else 3
+        V[k : k + 3] = sd * self.axis
+        A[k : k + 3] = sdd * self.axis
+        return self.placement_at(s), V, A
+
+
+@dataclass(frozen=True, eq=False)
+class BaseSpec:
+    """The base of a scene: ``type`` and the placement, initial twist or motion it needs."""
+
+    type: str = "fixed"
+    position: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    rpy: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    velocity: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    angular_velocity: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    motion: SineMotion | None = None
+
+    @property
+    def placement(self) -> pin.SE3:
+        """The mount (fixed, prescribed) or initial (floating) placement ``X_WB`` in the world."""
+        return pin.SE3(pin.rpy.rpyToMatrix(*self.rpy), np.array(self.position, dtype=float))
+
+
+# --------------------------------------------------------------------------------------
+# the built model
+
+
+@dataclass(eq=False)
+class SceneModel:
+    """The model a scene needs, ready to simulate.
+
+    Attributes
+    ----------
+    chain : Chain
+    q0 : (nq,), v0 : (nv,)
+        Initial state in the chain's layout.
+    pressure : Schedule or None
+        Chamber pressures ``t -> (3 n,)`` Pa.
+    nodes : list of int
+        Gauss nodes of each segment.
+    max_bend : (n,) rad or None
+        Bend each segment was sized for (with ``node_tolerance``).
+    reductions : list of str
+        What was dropped and why.
+    kept : list of str
+        Reductions that did not apply, and why not.
+    reduced : bool
+        Whether the automatic reductions were on.
+    """
+
+    chain: Chain
+    q0: np.ndarray
+    v0: np.ndarray
+    pressure: Schedule | None
+    nodes: list[int]
+    max_bend: np.ndarray | None
+    reductions: list[str]
+    kept: list[str]
+    reduced: bool
+
+
+def _ranges(idx) -> str:
+    """``[0, 1, 2, 5]`` -> ``"segments 0-2, 5"``."""
+    idx = sorted(idx)
+    parts = []
+    start = prev = idx[0]
+    for i in idx[1:] + [None]:
+        if i is not None and i == prev + 1:
+            prev = i
+            continue
+        parts.append(f"{start}" if start == prev else f"{start}-{prev}")
+        if i is not None:
+            start = prev = i
+    word = "segment" if len(idx) == 1 else "segments"
+    return f"{word} {', '.join(parts)}"
+
+
+def _fmt(x: float) -> str:
+    return f"{x:.3g}"
+
+
+def _vec_str(v) -> str:
+    return "(" + ", ".join(f"{x:.6g}" for x in v) + ")"
+
+
+# --------------------------------------------------------------------------------------
+# the scene
+
+
+@dataclass(eq=False)
+class Scene:
+    """A validated scene file. Build the model with :meth:`build`, run it with :meth:`simulate`.
+
+    Attributes
+    ----------
+    path : Path or None
+        The file (None for a scene parsed from text).
+    text : str
+        The file's content.
+    name, description : str
+    segments : list of SegmentSpec
+        One entry per segment, base to tip (``count`` expanded).
+    base : BaseSpec
+    gravity : (3,) m/s^2, world frame
+    pressure : Schedule or None
+        Chamber pressures ``t -> (3 n,)`` Pa.
+    pressure_spec : dict
+        The pressure table as parsed (``type`` and arrays of shape (3 n,) or (K, 3 n)).
+    q_e0, v_e0 : (n, 3)
+        Initial segment coordinates and rates (segment coordinates).
+    duration : float, s
+    method : str
+        One of :data:`METHODS`.
+    rtol, atol : float
+    dt : float or None, s
+    max_step : float, s (``inf`` when not given)
+    reduce : bool
+    node_tolerance, max_bend : float or None
+    sample_rate : float, Hz
+    output_folder : Path
+    plots : tuple of str
+    save : bool
+    """
+
+    path: Path | None
+    text: str
+    name: str
+    description: str
+    segments: list[SegmentSpec]
+    base: BaseSpec
+    gravity: np.ndarray
+    pressure: Schedule | None
+    pressure_spec: dict
+    q_e0: np.ndarray
+    v_e0: np.ndarray
+    duration: float
+    method: str
+    rtol: float
+    atol: float
+    dt: float | None
+    max_step: float
+    reduce: bool
+    node_tolerance: float | None
+    max_bend: float | None
+    sample_rate: float
+    output_folder: Path
+    plots: tuple[str, ...]
+    save: bool
+
+    @property
+    def n(self) -> int:
+        """Number of segments."""
+        return len(self.segments)
+
+    # ------------------------------------------------------------------ model
+
+    def build(self, reduce: bool | None = None) -> SceneModel:
+        """Build the model; ``reduce`` (default: the file's ``model.reduce``) turns the
+        automatic reductions (planar, node count) on or off. See the module docstring."""
+        reduce = self.reduce if reduce is None else bool(reduce)
+        reductions: list[str] = []
+        kept: list[str] = []
+        locked = [j for j, s in enumerate(self.segments) if not s.extensible]
+        if locked:
+            reductions.append(f"{_ranges(locked)}: l locked at l0 (extensible = false): axial mode dropped")
+        if self.base.type == "fixed":
+            reductions.append("fixed base: no base coordinates")
+        planar = False
+        why_not = self.planar_obstacle()
+        if not reduce:
+            kept.append("planar: not tried (reduce = false)")
+        elif why_not is None:
+            planar = True
+            reductions.append(
+                "planar: uy locked at 0 in every segment: gravity, pressures (p2 == p3), initial state and base "
+                "motion symmetric about the base x-z plane"
+            )
+        else:
+            kept.append(f"planar: not applicable: {why_not}")
+        nodes, max_bend, note = self._nodes(reduce, planar)
+        (reductions if note.startswith("nodes: ") and reduce and self.node_tolerance is not None else kept).append(note)
+        segs = [s.segment(nodes=k) for s, k in zip(self.segments, nodes)]
+        chain = self._chain(segs, planar)
+        q0, v0 = self._initial_state(chain)
+        return SceneModel(chain=chain, q0=q0, v0=v0, pressure=self.pressure, nodes=nodes, max_bend=max_bend,
+                          reductions=reductions, kept=kept, reduced=reduce)
+
+    @functools.cached_property
+    def model(self) -> SceneModel:
+        """The model with the file's own ``reduce`` setting (built once)."""
+        return self.build()
+
+    @property
+    def reductions(self) -> list[str]:
+        """What :attr:`model` dropped and why (human-readable)."""
+        return self.model.reductions
+
+    def _chain(self, segs, planar: bool) -> Chain:
+        g = self.gravity
+        if self.base.type == "fixed":
+            return Chain(segs, base="fixed", gravity=g, base_placement=self.base.placement, planar=planar)
+        if self.base.type == "floating":
+            return Chain(segs, base="floating", gravity=g, planar=planar)
+        return Chain(segs, base="prescribed", gravity=g, base_motion=self.base.motion, planar=planar)
+
+    def _initial_state(self, chain: Chain) -> tuple[np.ndarray, np.ndarray]:
+        q = np.empty(chain.nq)
+        v = np.empty(chain.nv)
+        if chain.floating:
+            q[:7] = pin.SE3ToXYZQUAT(self.base.placement)
+            v[:3] = self.base.velocity
+            v[3:6] = self.base.angular_velocity
+        o, ov = (7, 6) if chain.floating else (0, 0)
+        q[o:] = self.q_e0.ravel()
+        v[ov:] = self.v_e0.ravel()
+        return q, v
+
+    def planar_obstacle(self) -> str | None:
+        """Why the scene is not symmetric about the base's x-z plane, or None if it is."""
+        paper = [j for j, s in enumerate(self.segments) if s.coords != "curvature"]
+        if paper:
+            return f"{_ranges(paper)} in paper coordinates (uy is not one of their coordinates)"
+        R0 = self.base.placement.rotation
+        g_B = R0.T @ self.gravity
+        if abs(g_B[1]) > 1e-12 * max(1.0, float(np.linalg.norm(self.gravity))):
+            return f"gravity has a component {g_B[1]:.6g} m/s^2 along the base y axis"
+        bad = [j for j in range(self.n) if self.q_e0[j, 2] != 0.0 or self.v_e0[j, 2] != 0.0]
+        if bad:
+            return f"{_ranges(bad)}: initial uy or its rate is not 0"
+        why = _chambers_2_3_differ(self.pressure_spec, self.n)
+        if why:
+            return why
+        b = self.base
+        if b.type == "floating" and (b.velocity[1] != 0.0 or b.angular_velocity[0] != 0.0 or b.angular_velocity[2] != 0.0):
+            return "the floating base's initial twist leaves the x-z plane (velocity y, or angular velocity x or z, not 0)"
+        if b.type == "prescribed" and b.motion is not None:
+            ax = b.motion.axis
+            if b.motion.kind == "translation" and ax[1] != 0.0 and b.motion.amplitude != 0.0:
+                return f"the base translates along {_vec_str(ax)}, out of the x-z plane"
+            if b.motion.kind == "rotation" and (ax[0] != 0.0 or ax[2] != 0.0) and b.motion.amplitude != 0.0:
+                return f"the base turns about {_vec_str(ax)}, not the y axis"
+        return None
+
+    def _nodes(self, reduce: bool, planar: bool):
+        """Node counts, the bends they were sized for, and a note saying how."""
+        explicit = [s.nodes for s in self.segments]
+        if not reduce or self.node_tolerance is None:
+            nodes = [DEFAULT_NODES if k is None else k for k in explicit]
+            why = "reduce = false" if (reduce is False and self.node_tolerance is not None) else "no node_tolerance"
+            return nodes, None, f"node count: {_list_or_one(nodes)} ({why}; default {DEFAULT_NODES})"
+        from .segment import nodes_for_tolerance
+
+        if self.max_bend is not None:
+            theta = np.full(self.n, self.max_bend)
+            how = f"max_bend = {_fmt(self.max_bend)} rad"
+        else:
+            theta, how = self.estimate_bend(planar)
+        nodes = []
+        for j, s in enumerate(self.segments):
+            if s.nodes is not None:
+                nodes.append(s.nodes)
+            else:
+                nodes.append(nodes_for_tolerance(s.segment(nodes=DEFAULT_NODES), float(theta[j]), self.node_tolerance))
+        fixed = [j for j, s in enumerate(self.segments) if s.nodes is not None]
+        extra = f"; {_ranges(fixed)} keep their own nodes" if fixed else ""
+        bend = _fmt(theta[0]) if np.all(theta == theta[0]) else ", ".join(_fmt(x) for x in theta)
+        note = (f"nodes: {_list_or_one(nodes)} from node_tolerance = {self.node_tolerance:g} at max bend {bend} rad "
+                f"({how}){extra}")
+        return nodes, theta, note
+
+    def estimate_bend(self, planar: bool = False) -> tuple[np.ndarray, str]:
+        """Largest bending angle of each segment the scene is expected to reach (rad, (n,)),
+        and how it was found. See "Model reduction" in the module docstring."""
+        from .statics import equilibrium
+
+        segs = [s.segment(nodes=DEFAULT_NODES) for s in self.segments]
+        conditions = self._static_conditions()
+        candidates = self._pressure_candidates()
+        static = np.zeros(self.n)
+        failed = None
+        for placement, g in conditions:
+            ch = Chain(segs, base="fixed", gravity=g, base_placement=placement, planar=planar)
+            q_guess = None
+            for p in candidates:
+                res = equilibrium(ch, p, q0=q_guess)
+                if not res.success:
+                    res = equilibrium(ch, p)
+                if not res.success:
+                    failed = (p, res.message)
+                    break
+                q_guess = res.q
+                static = np.maximum(static, self._bends(ch, res.q))
+            if failed:
+                break
+        initial = self._bends(None, None)
+        ch0 = Chain(segs, base="fixed", gravity=np.zeros(3))  # deformation rates only: rigid motion bends nothing
+        T0 = ch0.kinetic_energy(self.q_e0.ravel(), self.v_e0.ravel())
+        EI = np.array([s.segment(nodes=1).bending_stiffness for s in self.segments])
+        l0 = np.array([s.length for s in self.segments])
+        kin = np.sqrt(2.0 * T0 * l0 / EI)
+        if failed:
+            r = np.array([s.radius for s in self.segments])
+            p, msg = failed
+            return l0 / r, (f"equilibrium failed at p = {_vec_str(p)} Pa ({msg}): sized for the largest bend the "
+                            f"model allows, l0/r_s")
+        theta = BEND_MARGIN * np.maximum(static, initial) + kin
+        parts = [f"{BEND_MARGIN:g} x the static bend under peak pressures"]
+        if np.any(initial > static):
+            parts = [f"{BEND_MARGIN:g} x the largest of the initial and the static bends under peak pressures"]
+        if T0 > 0:
+            parts.append(f"+ {_fmt(kin.max())} rad for the initial kinetic energy {T0:.3g} J")
+        return theta, " ".join(parts)
+
+    def _bends(self, chain, q) -> np.ndarray:
+        """Bending angle ``kappa l`` of each segment at ``q`` (or at the initial state)."""
+        out = np.empty(self.n)
+        for j, s in enumerate(self.segments):
+            qe = self.q_e0[j] if q is None else q[chain.q_slice(j)]
+            kappa = qe[2] if s.coords == "paper" else math.hypot(qe[1], qe[2])
+            out[j] = abs(kappa) * qe[0]
+        return out
+
+    def _static_conditions(self) -> list[tuple[pin.SE3, np.ndarray]]:
+        """(base placement, gravity) pairs the static bend is estimated under."""
+        b = self.base
+        if b.type == "fixed":
+            return [(b.placement, self.gravity)]
+        if b.type == "floating":
+            return [(b.placement, np.zeros(3))]
+        m = b.motion
+        if m.kind == "translation":
+            a = m.peak_acceleration() * (m.mount.rotation @ m.axis)
+            return [(m(0.0)[0], self.gravity), (m(0.0)[0], self.gravity + a), (m(0.0)[0], self.gravity - a)]
+        return [(m(0.0)[0], self.gravity), (m.placement_at(m.amplitude), self.gravity),
+                (m.placement_at(-m.amplitude), self.gravity)]
+
+    def _pressure_candidates(self) -> list[np.ndarray]:
+        """Pressure vectors at which the static bend is solved (see the module docstring)."""
+        n = self.n
+        if self.pressure is None:
+            return [np.zeros(3 * n)]
+        T = self.duration
+        times = list(np.linspace(0.0, T, BEND_SAMPLES))
+        spec = self.pressure_spec
+        if spec["type"] == "step" and 0.0 <= spec["time"] <= T:
+            times.append(spec["time"])
+        elif spec["type"] == "ramp":
+            times += [t for t in (spec["t0"], spec["t1"]) if 0.0 <= t <= T]
+        elif spec["type"] == "table":
+            times += [t for t in spec["times"] if 0.0 <= t <= T]
+        elif spec["type"] == "sine":  # the extremes of every chamber's sine inside the run
+            f = spec["frequency"]
+            ph = spec["phase"]
+            for k in range(3 * n):
+                if f[k] > 0:
+                    period = 1.0 / f[k]
+                    for target in (0.25, 0.75):
+                        t0 = ((target - ph[k] / (2 * math.pi)) % 1.0) * period
+                        times += list(np.arange(t0, T, period)[:64])
+        P = np.array([self.pressure(t) for t in sorted(set(times))])
+        c = np.exp(1j * np.asarray(CHAMBER_ANGLES))
+        drive = np.abs(P.reshape(len(P), n, 3) @ c)  # (K, n): bending drive per segment (arbitrary units)
+        pick = set(int(k) for k in np.argmax(drive, axis=0))
+        pick.add(int(np.argmax(drive.sum(axis=1))))
+        pick.add(int(np.argmin(drive.sum(axis=1))))
+        return [P[k] for k in sorted(pick)]
+
+    # ------------------------------------------------------------------ run
+
+    def sample_times(self, duration: float | None = None) -> np.ndarray:
+        """Output times ``k / sample_rate`` from 0 up to the run's end (included), s."""
+        T = self.duration if duration is None else float(duration)
+        k = np.arange(0, int(math.floor(T * self.sample_rate * (1 + 1e-12))) + 1)
+        t = k / self.sample_rate
+        t = t[t < T - 1e-9 * max(1.0, T)]
+        return np.append(t, T)
+
+    def simulate(self, *, reduce: bool | None = None, model: SceneModel | None = None,
+                 duration: float | None = None, on_sample=None, progress: bool = False):
+        """Run the scene; returns a :class:`qchain.trajectory.Trajectory` sampled at
+        :meth:`sample_times`.
+
+        Parameters
+        ----------
+        reduce : bool, optional
+            Build with or without the automatic reductions (ignored if ``model`` is given).
+        model : SceneModel, optional
+            A model built before (:meth:`build`); default :attr:`model` or a new build.
+        duration : float, s, optional
+            Override the file's duration.
+        on_sample : callable ``(t, q, v, p)``, optional
+            Called at every output sample.
+        progress : bool
+            Progress bar on stderr.
+        """
+        from .simulate import simulate
+
+        if model is None:
+            model = self.model if reduce is None or reduce == self.reduce else self.build(reduce)
+        T = self.duration if duration is None else float(duration)
+        if not (math.isfinite(T) and T > 0):
+            raise ValueError(f"duration must be > 0 s, got {duration!r}")
+        return simulate(
+            model.chain, model.q0, model.v0, (0.0, T), pressure=model.pressure, method=self.method, dt=self.dt,
+            rtol=self.rtol, atol=self.atol, t_eval=self.sample_times(T), on_sample=on_sample, progress=progress,
+            max_step=self.max_step,
+        )
+
+    # ------------------------------------------------------------------ report
+
+    def describe(self, model: SceneModel | None = None) -> list[str]:
+        """Lines describing the scene and the model it builds (``qchain info``)."""
+        m = self.model if model is None else model
+        ch = m.chain
+        lines = [f"scene: {self.path if self.path else '<text>'}" + (f" ({self.name})" if self.name else "")]
+        if self.description:
+            lines.append(f"  {self.description}")
+        kinds = sorted({(s.coords, s.actuation) for s in self.segments})
+        lines.append(f"segments: {self.n} ({'; '.join(f'{c} coordinates, {a} actuation' for c, a in kinds)})")
+        b = self.base
+        if b.type == "fixed":
+            lines.append(f"base: fixed at {_vec_str(b.position)} m, rpy {_vec_str(b.rpy)} rad")
+        elif b.type == "floating":
+            lines.append(f"base: floating, starts at {_vec_str(b.position)} m, rpy {_vec_str(b.rpy)} rad, "
+                         f"velocity {_vec_str(b.velocity)} m/s, angular velocity {_vec_str(b.angular_velocity)} rad/s")
+        else:
+            mo = b.motion
+            unit = "m" if mo.kind == "translation" else "rad"
+            lines.append(f"base: prescribed {mo.kind} along/about {_vec_str(mo.axis)} (mount frame), amplitude "
+                         f"{mo.amplitude:g} {unit}, {mo.frequency:g} Hz, phase {mo.phase:g} rad; mount at "
+                         f"{_vec_str(b.position)} m, rpy {_vec_str(b.rpy)} rad")
+        lines.append(f"gravity: {_vec_str(self.gravity)} m/s^2")
+        lines.append(f"model: nq = {ch.nq}, nv = {ch.nv}, free dofs = {ch.nv_active}, pressure inputs = {ch.nu}, "
+                     f"nodes = {_list_or_one(m.nodes)}")
+        lines.append(f"reductions ({'on' if m.reduced else 'off'}):")
+        lines += [f"  - {r}" for r in m.reductions] or ["  - none"]
+        if m.kept:
+            lines.append("not reduced:")
+            lines += [f"  - {k}" for k in m.kept]
+        lines.append(f"pressure: {_pressure_summary(self.pressure_spec)}")
+        meth = f"{self.method}, dt = {self.dt:g} s" if self.method in FIXED_STEP else \
+            f"{self.method}, rtol = {self.rtol:g}, atol = {self.atol:g}" + \
+            (f", max_step = {self.max_step:g} s" if math.isfinite(self.max_step) else "")
+        lines.append(f"simulation: {self.duration:g} s, {meth}")
+        lines.append(f"output: {self.sample_rate:g} Hz to {self.output_folder}, plots: "
+                     f"{', '.join(self.plots) if self.plots else 'none'}{', trajectory.npz' if self.save else ''}")
+        return lines
+
+
+def _list_or_one(xs) -> str:
+    xs = list(xs)
+    return f"{xs[0]} per segment" if all(x == xs[0] for x in xs) else ", ".join(str(x) for x in xs)
+
+
+def _pressure_summary(spec: dict) -> str:
+    t = spec.get("type")
+    if t is None:
+        return "none (all chambers at 0 Pa)"
+    if t == "constant":
+        return f"constant, peak {np.max(np.abs(spec['value'])):.4g} Pa"
+    if t == "step":
+        return f"step at {spec['time']:g} s, to peak {np.max(np.abs(spec['after'])):.4g} Pa"
+    if t == "ramp":
+        return f"ramp {spec['t0']:g} s -> {spec['t1']:g} s, to peak {np.max(np.abs(spec['end'])):.4g} Pa"
+    if t == "sine":
+        f = spec["frequency"]
+        fs = f"{f[0]:g} Hz" if np.all(f == f[0]) else f"{f.min():g}-{f.max():g} Hz"
+        return (f"sine, {fs}, amplitude up to {np.max(np.abs(spec['amplitude'])):.4g} Pa, segment phase "
+                f"{spec['segment_phase']:g} rad")
+    return f"table of {len(spec['times'])} times, {spec['times'][0]:g} s -> {spec['times'][-1]:g} s"
+
+
+def _chambers_2_3_differ(spec: dict, n: int) -> str | None:
+    """Why chambers 2 and 3 of some segment do not get the same pressure at all times, or None."""
+    t = spec.get("type")
+    if t is None:
+        return None
+    i2 = np.arange(n) * 3 + 1
+    i3 = i2 + 1
+
+    def differ(name):
+        a = np.atleast_2d(spec[name])
+        bad = np.flatnonzero(np.any(a[:, i2] != a[:, i3], axis=0))
+        return None if bad.size == 0 else f"pressure.{name}: chambers 2 and 3 differ in {_ranges(bad.tolist())}"
+
+    names = {"constant": ["value"], "step": ["before", "after"], "ramp": ["start", "end"], "table": ["values"]}
+    if t in names:
+        for name in names[t]:
+            why = differ(name)
+            if why:
+                return why
+        return None
+    # sine: equal offsets, and equal sine terms (both zero, or equal amplitude, frequency, phase)
+    why = differ("offset")
+    if why:
+        return why
+    A, f, ph = spec["amplitude"], spec["frequency"], spec["phase"]
+    bad = []
+    for j in range(n):
+        a, b = i2[j], i3[j]
+        zero = lambda k: A[k] == 0.0 or (f[k] == 0.0 and math.sin(ph[k]) == 0.0)  # noqa: E731
+        if zero(a) and zero(b):
+            continue
+        same_phase = abs(math.remainder(ph[a] - ph[b], 2 * math.pi)) <= 1e-12
+        if not (A[a] == A[b] and f[a] == f[b] and same_phase):
+            bad.append(j)
+    return None if not bad else f"pressure: the sines of chambers 2 and 3 differ in {_ranges(bad)}"
+
+
+# --------------------------------------------------------------------------------------
+# reading
+
+
+def load_scene(path: str | os.PathLike) -> Scene:
+    """Read and validate a scene file (TOML); see the module docstring for the format.
+
+    Raises
+    ------
+    SceneError
+        listing every problem (file, dotted key, what was expected, what was found), for
+        a file that cannot be read, is not valid TOML, or does not describe a scene.
+    """
+    p = Path(path)
+    try:
+        text = p.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise SceneError(str(p), [Problem("(file)", "an existing scene file", "no such file")]) from None
+    except IsADirectoryError:
+        raise SceneError(str(p), [Problem("(file)", "a scene file", "a folder")]) from None
+    except (OSError, UnicodeDecodeError) as err:
+        raise SceneError(str(p), [Problem("(file)", "a readable UTF-8 text file", str(err))]) from None
+    return parse_scene(text, p)
+
+
+def parse_scene(text: str, path: str | os.PathLike | None = None) -> Scene:
+    """Validate the TOML ``text`` of a scene; ``path`` names it in errors and sets the
+    default output folder (``out/<stem>``)."""
+    where = str(path) if path is not None else "<scene>"
+    try:
+        raw = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as err:
+        raise SceneError(where, [Problem("(file)", "valid TOML", f"a syntax error: {err}")]) from None
+    ck = _Checker()
+    ck.keys(raw, "", _TOP_KEYS)
+    name = ck.string(raw, "name", "name", "") or ""
+    description = ck.string(raw, "description", "description", "") or ""
+    gravity = ck.vector(raw, "gravity", "gravity", 3, "m/s^2", default=(0.0, 0.0, -9.81))
+    if gravity is None:
+        gravity = np.array([0.0, 0.0, -9.81])
+
+    # model
+    mt = ck.table(raw, "model", "model") or {}
+    ck.keys(mt, "model", _MODEL_KEYS)
+    reduce = ck.boolean(mt, "reduce", "model.reduce", True)
+    node_tol = ck.number(mt, "node_tolerance", "model.node_tolerance", minimum=0.0)
+    if node_tol is not None and node_tol >= 1.0:
+        ck.add("model.node_tolerance", "a relative tolerance > 0 and < 1", _show(mt["node_tolerance"]))
+        node_tol = None
+    max_bend = ck.number(mt, "max_bend", "model.max_bend", "rad", minimum=0.0, strict=False)
+    if "max_bend" in mt and "node_tolerance" not in mt:
+        ck.add("model.max_bend", "model.node_tolerance beside it (max_bend only sizes the node count)",
+               "max_bend without node_tolerance")
+
+    # segments
+    segments = _segments(ck, raw)
+    n = len(segments) if segments is not None else None
+
+    # base
+    base = _base(ck, raw)
+
+    # simulation
+    st = ck.table(raw, "simulation", "simulation", required=True)
+    have_sim = st is not None
+    st = st or {}
+    ck.keys(st, "simulation", _SIMULATION_KEYS)
+    duration = ck.number(st, "duration", "simulation.duration", "s", minimum=0.0, required=have_sim)
+    method = ck.choice(st, "method", "simulation.method", METHODS, default="RK45", ignore_case=True)
+    rtol = ck.number(st, "rtol", "simulation.rtol", minimum=0.0, default=1e-6)
+    atol = ck.number(st, "atol", "simulation.atol", minimum=0.0, default=1e-8)
+    dt = ck.number(st, "dt", "simulation.dt", "s", minimum=0.0)
+    max_step = ck.number(st, "max_step", "simulation.max_step", "s", minimum=0.0, default=math.inf)
+    if method in FIXED_STEP and "dt" not in st:
+        ck.add("simulation.dt", f"a step > 0 (s): method {method!r} takes fixed steps", "nothing")
+    if method not in FIXED_STEP and "dt" in st:
+        ck.add("simulation.dt", f"no dt: method {method!r} chooses its own steps (use max_step to bound them, or "
+               "method rk4/midpoint for fixed steps)", _show(st["dt"]))
+    if method in FIXED_STEP and "max_step" in st:
+        ck.add("simulation.max_step", f"no max_step: method {method!r} takes fixed steps of dt", _show(st["max_step"]))
+    if dt is not None and duration is not None and dt > duration:
+        ck.add("simulation.dt", f"a step <= duration = {duration:g} s", _show(st["dt"]))
+
+    # pressure
+    pressure, pspec = _pressure(ck, raw, n)
+
+    # initial state
+    q_e0, v_e0 = _initial(ck, raw, segments)
+
+    # output
+    ot = ck.table(raw, "output", "output") or {}
+    ck.keys(ot, "output", _OUTPUT_KEYS)
+    rate = ck.number(ot, "sample_rate", "output.sample_rate", "Hz", minimum=0.0, default=100.0)
+    stem = Path(path).stem if path is not None else "scene"
+    folder = ck.string(ot, "folder", "output.folder", f"out/{stem}")
+    if folder is not None and not folder.strip():
+        ck.add("output.folder", "a folder path", '""')
+    plots = ot.get("plots", ["tip"])
+    if not isinstance(plots, list) or not all(isinstance(x, str) for x in plots):
+        ck.add("output.plots", f"an array of names from {', '.join(PLOTS)}", f"{_type_name(plots)} {_show(plots)}")
+        plots = []
+    else:
+        for i, x in enumerate(plots):
+            if x not in PLOTS:
+                close = difflib.get_close_matches(x, PLOTS, n=1, cutoff=0.7)
+                hint = f" (did you mean {close[0]!r}?)" if close else ""
+                ck.add(f"output.plots[{i}]", f"one of {', '.join(PLOTS)}{hint}", _show(x))
+        if "momentum" in plots and base is not None and base.type != "floating":
+            ck.add("output.plots", "'momentum' only with a floating base (a fixed or moving mount exchanges momentum)",
+                   f"base.type = {base.type!r}")
+    save = ck.boolean(ot, "save", "output.save", True)
+
+    if ck.problems:
+        raise SceneError(where, ck.problems)
+    return Scene(
+        path=Path(path) if path is not None else None, text=text, name=name, description=description,
+        segments=segments, base=base, gravity=gravity, pressure=pressure, pressure_spec=pspec, q_e0=q_e0,
+        v_e0=v_e0, duration=duration, method=method, rtol=rtol, atol=atol, dt=dt, max_step=max_step,
+        reduce=reduce, node_tolerance=node_tol, max_bend=max_bend, sample_rate=rate, output_folder=Path(folder),
+        plots=tuple(dict.fromkeys(plots)), save=save,
+    )
+
+
+def _segments(ck: _Checker, raw: dict) -> list[SegmentSpec] | None:
+    segs = raw.get("segments", _MISSING)
+    if segs is _MISSING:
+        ck.add("segments", "an array of tables [[segments]], base to tip", "nothing (the key is required)")
+        return None
+    if not isinstance(segs, list) or not segs or not all(isinstance(s, dict) for s in segs):
+        ck.add("segments", "a non-empty array of tables [[segments]]", f"{_type_name(segs)} {_show(segs)}")
+        return None
+    out: list[SegmentSpec] = []
+    ok = True
+    start = len(ck.problems)
+    for i, s in enumerate(segs):
+        path = f"segments[{i}]"
+        ck.keys(s, path, _SEGMENT_KEYS)
+        count = ck.integer(s, "count", f"{path}.count", default=1, minimum=1)
+        vals = {}
+        for k, unit in (("length", "m"), ("radius", "m"), ("mass", "kg"), ("chamber_area", "m^2"),
+                        ("chamber_radius", "m"), ("youngs_modulus", "Pa")):
+            vals[k] = ck.number(s, k, f"{path}.{k}", unit, minimum=0.0, required=True)
+        vals["damping"] = ck.number(s, "damping", f"{path}.damping", "s", minimum=0.0, strict=False, default=0.0)
+        vals["coords"] = ck.choice(s, "coords", f"{path}.coords", ("curvature", "paper"), default="curvature")
+        vals["actuation"] = ck.choice(s, "actuation", f"{path}.actuation", ("volume", "paper"), default="volume")
+        vals["extensible"] = ck.boolean(s, "extensible", f"{path}.extensible", True)
+        vals["nodes"] = ck.integer(s, "nodes", f"{path}.nodes", default=None, minimum=1)
+        if len(ck.problems) > start:
+            ok = False
+            start = len(ck.problems)
+            continue
+        r, rc, A = vals["radius"], vals["chamber_radius"], vals["chamber_area"]
+        outer = rc + math.sqrt(A / math.pi)
+        if outer > r:
+            ck.add(f"{path}.chamber_radius", f"chambers inside the segment: chamber_radius + sqrt(chamber_area/pi) "
+                   f"<= radius = {r:g} m", f"{rc:g} + {math.sqrt(A / math.pi):.6g} = {outer:.6g} m")
+            ok = False
+            start = len(ck.problems)
+            continue
+        spec = SegmentSpec(**vals, source=path)
+        try:
+            spec.segment(nodes=spec.nodes)
+        except ValueError as err:  # anything the constructor checks beyond the above
+            ck.add(path, "a valid segment", str(err))
+            ok = False
+            start = len(ck.problems)
+            continue
+        for c in range(count or 1):
+            out.append(replace(spec, source=path if count == 1 else f"{path} (copy {c + 1} of {count})"))
+    return out if ok else None
+
+
+def _base(ck: _Checker, raw: dict) -> BaseSpec | None:
+    bt = ck.table(raw, "base", "base")
+    if bt is None:
+        return BaseSpec() if "base" not in raw else None
+    kind = ck.choice(bt, "type", "base.type", ("fixed", "floating", "prescribed"), default="fixed")
+    allowed = {"fixed": ("type", "position", "rpy"), "floating": ("type", "position", "rpy", "velocity", "angular_velocity"),
+               "prescribed": ("type", "position", "rpy", "motion")}.get(kind, _BASE_KEYS)
+    for k in bt:
+        if k in _BASE_KEYS and k not in allowed:
+            ck.add(f"base.{k}", f"only the keys {', '.join(allowed)} with base.type = {kind!r}", f"the key {k!r}")
+    ck.keys(bt, "base", _BASE_KEYS)
+    start = len(ck.problems)
+    pos = ck.vector(bt, "position", "base.position", 3, "m", default=(0.0, 0.0, 0.0))
+    rpy = ck.vector(bt, "rpy", "base.rpy", 3, "rad", default=(0.0, 0.0, 0.0))
+    vel = ck.vector(bt, "velocity", "base.velocity", 3, "m/s", default=(0.0, 0.0, 0.0))
+    ang = ck.vector(bt, "angular_velocity", "base.angular_velocity", 3, "rad/s", default=(0.0, 0.0, 0.0))
+    motion = None
+    mount = pin.SE3(pin.rpy.rpyToMatrix(*rpy), pos) if rpy is not None and pos is not None else pin.SE3.Identity()
+    if kind == "prescribed":
+        mt = ck.table(bt, "motion", "base.motion", required=True)
+        if mt is not None:
+            ck.keys(mt, "base.motion", _MOTION_KEYS)
+            mkind = ck.choice(mt, "type", "base.motion.type", ("translation", "rotation"), required=True)
+            axis = ck.vector(mt, "axis", "base.motion.axis", 3)
+            if "axis" not in mt:
+                ck.add("base.motion.axis", "an array of 3 numbers (mount frame)", "nothing (the key is required)")
+            elif axis is not None and float(np.linalg.norm(axis)) == 0.0:
+                ck.add("base.motion.axis", "a non-zero direction", _show(mt["axis"]))
+                axis = None
+            unit = "m" if mkind == "translation" else "rad"
+            amp = ck.number(mt, "amplitude", "base.motion.amplitude", unit, required=True)
+            freq = ck.number(mt, "frequency", "base.motion.frequency", "Hz", minimum=0.0, strict=False, required=True)
+            phase = ck.number(mt, "phase", "base.motion.phase", "rad", default=0.0)
+            if len(ck.problems) == start and mkind is not None:
+                motion = SineMotion(kind=mkind, axis=axis / np.linalg.norm(axis), amplitude=amp, frequency=freq,
+                                    phase=phase, mount=mount)
+    if len(ck.problems) > start or kind is None:
+        return None
+    return BaseSpec(type=kind, position=pos, rpy=rpy, velocity=vel, angular_velocity=ang, motion=motion)
+
+
+def _pressure(ck: _Checker, raw: dict, n: int | None) -> tuple[Schedule | None, dict]:
+    pt = ck.table(raw, "pressure", "pressure")
+    if pt is None:
+        return None, {}
+    kind = ck.choice(pt, "type", "pressure.type", tuple(_PRESSURE_KEYS), required=True)
+    if kind is None:
+        return None, {}
+    ck.keys(pt, "pressure", _PRESSURE_KEYS[kind])
+    start = len(ck.problems)
+
+    def vec(key, required=False):
+        if key not in pt:
+            if required:
+                ck.add(f"pressure.{key}", "a pressure vector (Pa), one value a chamber", "nothing (the key is required)")
+            return None if required or n is None else np.zeros(3 * n)
+        arr = ck.per_segment(pt[key], f"pressure.{key}", n, "Pa")
+        return None if arr is None else arr.ravel()
+
+    def scalar_or_vec(key, default, unit, minimum=None):
+        if key not in pt:
+            return None if n is None else np.full(3 * n, default)
+        v = pt[key]
+        if _is_number(v):
+            x = ck.number(pt, key, f"pressure.{key}", unit, minimum=minimum, strict=False)
+            return None if x is None or n is None else np.full(3 * n, x)
+        arr = ck.per_segment(v, f"pressure.{key}", n, unit)
+        if arr is None:
+            return None
+        if minimum is not None and np.any(arr < minimum):
+            k = int(np.flatnonzero(arr.ravel() < minimum)[0])
+            ck.add(f"pressure.{key}", f"values >= {minimum:g} ({unit})", f"{arr.ravel()[k]:g} at index {k}")
+            return None
+        return arr.ravel()
+
+    def floor(key, arr):
+        if arr is not None and np.any(arr < VACUUM_GAUGE):
+            k = int(np.flatnonzero(arr < VACUUM_GAUGE)[0])
+            ck.add(f"pressure.{key}", f"gauge pressures >= {VACUUM_GAUGE:g} Pa (a vacuum)",
+                   f"{arr[k]:g} Pa at index {k} (segment {k // 3}, chamber {k % 3 + 1})")
+
+    spec: dict = {"type": kind}
+    sched = None
+    if kind == "constant":
+        spec["value"] = vec("value", required=True)
+        floor("value", spec["value"])
+    elif kind == "step":
+        spec["time"] = ck.number(pt, "time", "pressure.time", "s", required=True)
+        spec["after"] = vec("after", required=True)
+        spec["before"] = vec("before")
+        floor("after", spec["after"])
+        floor("before", spec["before"])
+    elif kind == "ramp":
+        spec["t0"] = ck.number(pt, "t0", "pressure.t0", "s", required=True)
+        spec["t1"] = ck.number(pt, "t1", "pressure.t1", "s", required=True)
+        if spec["t0"] is not None and spec["t1"] is not None and not spec["t1"] > spec["t0"]:
+            ck.add("pressure.t1", f"a time > t0 = {spec['t0']:g} s", _show(pt["t1"]))
+        spec["end"] = vec("end", required=True)
+        spec["start"] = vec("start")
+        floor("end", spec["end"])
+        floor("start", spec["start"])
+    elif kind == "sine":
+        spec["amplitude"] = vec("amplitude", required=True)
+        spec["offset"] = vec("offset")
+        spec["frequency"] = scalar_or_vec("frequency", 0.0, "Hz", minimum=0.0)
+        if "frequency" not in pt:
+            ck.add("pressure.frequency", "a frequency (Hz), a number or one a chamber", "nothing (the key is required)")
+        phase = scalar_or_vec("phase", 0.0, "rad")
+        spec["segment_phase"] = ck.number(pt, "segment_phase", "pressure.segment_phase", "rad", default=0.0)
+        if phase is not None and spec["segment_phase"] is not None and n is not None:
+            phase = phase + np.repeat(np.arange(n), 3) * spec["segment_phase"]
+        spec["phase"] = phase
+        if spec["amplitude"] is not None and spec["offset"] is not None and spec["frequency"] is not None \
+                and phase is not None:
+            A, off, f = spec["amplitude"], spec["offset"], spec["frequency"]
+            low = np.where(f > 0, off - np.abs(A), off + A * np.sin(phase))
+            if np.any(low < VACUUM_GAUGE):
+                k = int(np.flatnonzero(low < VACUUM_GAUGE)[0])
+                ck.add("pressure.offset", f"offset - |amplitude| >= {VACUUM_GAUGE:g} Pa (a vacuum) in every chamber",
+                       f"{low[k]:g} Pa at index {k} (segment {k // 3}, chamber {k % 3 + 1})")
+    else:  # table
+        times = pt.get("times", _MISSING)
+        values = pt.get("values", _MISSING)
+        t_arr = None
+        if times is _MISSING:
+            ck.add("pressure.times", "an array of times (s), strictly increasing", "nothing (the key is required)")
+        else:
+            t_arr = ck._numbers(times, "pressure.times", "an array of times (s), strictly increasing")
+            if t_arr is not None:
+                if t_arr.size < 1:
+                    ck.add("pressure.times", "at least one time (s)", "an empty array")
+                    t_arr = None
+                else:
+                    d = np.diff(t_arr)
+                    if np.any(d <= 0):
+                        k = int(np.flatnonzero(d <= 0)[0])
+                        ck.add(f"pressure.times[{k + 1}]", f"a time > times[{k}] = {t_arr[k]:g} s (strictly increasing)",
+                               f"{t_arr[k + 1]:g}")
+                        t_arr = None
+        rows = None
+        if values is _MISSING:
+            ck.add("pressure.values", "an array of pressure vectors (Pa), one a time", "nothing (the key is required)")
+        elif not isinstance(values, list):
+            ck.add("pressure.values", "an array of pressure vectors (Pa), one a time", f"{_type_name(values)} {_show(values)}")
+        else:
+            if isinstance(times, list) and len(values) != len(times):
+                ck.add("pressure.values", f"{len(times)} pressure vectors, one for each of the {len(times)} times",
+                       f"{len(values)}")
+            rows = []
+            for k, row in enumerate(values):
+                arr = ck.per_segment(row, f"pressure.values[{k}]", n, "Pa")
+                if arr is None:
+                    rows = None
+                    break
+                rows.append(arr.ravel())
+                floor(f"values[{k}]", arr.ravel())
+        spec["times"] = t_arr
+        spec["values"] = None if rows is None or not rows else np.array(rows)
+    if len(ck.problems) > start or n is None:
+        return None, {}
+    try:
+        if kind == "constant":
+            sched = Constant(spec["value"])
+        elif kind == "step":
+            sched = Step(spec["time"], spec["after"], spec["before"])
+        elif kind == "ramp":
+            sched = Ramp(spec["t0"], spec["t1"], spec["end"], spec["start"])
+        elif kind == "sine":
+            sched = Sine(spec["amplitude"], spec["frequency"], spec["phase"], spec["offset"])
+        else:
+            sched = Table(spec["times"], spec["values"])
+    except ValueError as err:  # pragma: no cover - the checks above cover the schedules' own
+        ck.add("pressure", "a valid schedule", str(err))
+        return None, {}
+    return sched, spec
+
+
+def _initial(ck: _Checker, raw: dict, segments: list[SegmentSpec] | None):
+    it = ck.table(raw, "initial", "initial") or {}
+    ck.keys(it, "initial", _INITIAL_KEYS)
+    n = None if segments is None else len(segments)
+    q = v = None
+    if "q_e" in it:
+        q = ck.per_segment(it["q_e"], "initial.q_e", n)
+    if "v" in it:
+        v = ck.per_segment(it["v"], "initial.v", n)
+    if segments is None:
+        return None, None
+    if q is None:
+        if "q_e" in it:
+            return None, None
+        q = np.array([[s.length, 0.0, 0.0] for s in segments])
+    if v is None:
+        if "v" in it:
+            return None, None
+        v = np.zeros((n, 3))
+    for j, s in enumerate(segments):
+        seg = s.segment(nodes=1)
+        try:
+            seg.check_configuration(q[j], name=f"segment {j}")
+        except ValueError as err:
+            ck.add(f"initial.q_e[{j}]", "a configuration inside the model (l > 0, |kappa| r_s < 1"
+                   f"{', kappa >= 0' if s.coords == 'paper' else ''})", f"{_vec_str(q[j])}: {err}")
+            continue
+        if not s.extensible:
+            if abs(q[j, 0] - s.length) > 1e-12 * s.length:
+                ck.add(f"initial.q_e[{j}][0]", f"l = length = {s.length:g} m (segment {j} is inextensible)",
+                       f"{q[j, 0]:g}")
+            if v[j, 0] != 0.0:
+                ck.add(f"initial.v[{j}][0]", f"0 (segment {j} is inextensible)", f"{v[j, 0]:g}")
+    return q, v

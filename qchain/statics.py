@@ -1,0 +1,141 @@
+"""Static equilibrium of a chain under constant pressures, gravity and a tip load.
+
+``equilibrium(chain, p)`` solves ``B(q) p + J_tip(q)^T w - dU_el/dq - g(q) = 0`` for the
+free (not locked) segment coordinates of a fixed or prescribed-base chain by Newton's
+method. The Newton matrix is the exact elastic stiffness ``d^2 U_el/dq^2`` minus the exact
+pressure stiffness ``d(B p)/dq`` (volume actuation); the gravity and tip-load stiffness
+are not available in closed form, so Broyden updates learn them from the iterates, and a
+backtracking line search on the residual keeps the iteration monotone.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .chain import Chain
+from .errors import QchainError, as_vector
+
+__all__ = ["equilibrium", "EquilibriumResult"]
+
+
+@dataclass
+class EquilibriumResult:
+    """Result of :func:`equilibrium`.
+
+    Attributes
+    ----------
+    q : (nq,)  the equilibrium configuration (the last iterate if not converged).
+    success : bool
+    message : str
+    iterations : int
+    residual : float  ``|F(q)|_inf`` in the generalised-force units of each coordinate (N, N m^2).
+    nfev : int        residual evaluations.
+    """
+
+    q: np.ndarray
+    success: bool
+    message: str
+    iterations: int
+    residual: float
+    nfev: int
+
+
+def _stiffness(chain: Chain, q: np.ndarray, p: np.ndarray) -> np.ndarray:
+    K = np.zeros((chain.nv, chain.nv))
+    for j, s in enumerate(chain.segments):
+        sl = chain.v_slice(j)
+        qe = q[chain.q_slice(j)]
+        K[sl, sl] = s.elastic_stiffness(qe)
+        Kp = s.pressure_stiffness(qe, p[3 * j : 3 * j + 3])
+        if Kp is not None:
+            K[sl, sl] -= Kp
+    return K
+
+
+def equilibrium(chain: Chain, p=None, q0=None, tip_wrench=None, *, t: float = 0.0, tol: float = 1e-10,
+                max_iter: int = 200) -> EquilibriumResult:
+    """Static shape of ``chain`` under pressures ``p`` (3 n,) Pa and gravity.
+
+    Parameters
+    ----------
+    chain : Chain
+        Fixed or prescribed base (a prescribed base is held at its placement at ``t``).
+    p : (3 n,) Pa, optional
+    q0 : (nq,), optional
+        Starting guess (default ``chain.neutral()``).
+    tip_wrench : (6,), optional
+        ``[force (N); torque (N m)]`` on the tip, world axes, applied at the tip origin.
+    tol : float
+        Converged when every residual entry is below ``tol`` times the scale of the
+        generalised forces (the largest of the elastic, pressure and gravity terms at q0).
+    """
+    if chain.floating:
+        raise ValueError("equilibrium needs a fixed or prescribed base: a floating arm has no static shape")
+    p = np.zeros(chain.nu) if p is None else as_vector("p", p, chain.nu)
+    q = chain.neutral() if q0 is None else chain._q(q0, "q0").copy()
+    w = None if tip_wrench is None else as_vector("tip_wrench", tip_wrench, 6)
+    idx = np.flatnonzero(chain.active)
+    zero_v = np.zeros(chain.nv)
+    nfev = 0
+
+    def F(q):
+        nonlocal nfev
+        nfev += 1
+        f = chain.internal_forces(q, zero_v, p) - chain.generalized_gravity(q, t=t)
+        if w is not None:
+            f += chain.tip_jacobian(q, "local_world_aligned", t=t).T @ w
+        return f[idx]
+
+    def with_step(q, dx):
+        d = np.zeros(chain.nv)
+        d[idx] = dx
+        return chain.integrate(q, d)
+
+    try:
+        r = F(q)
+    except QchainError as err:
+        raise QchainError(f"equilibrium: the starting guess is not a valid configuration: {err}") from None
+    scale = max(np.max(np.abs(r)), np.max(np.abs(chain.elastic_force(q)[idx])), 1e-12)
+    scale = max(scale, np.max(np.abs(chain.input_matrix(q)[idx] @ p)) if p.any() else 0.0)
+    W = _stiffness(chain, q, p)[np.ix_(idx, idx)]  # of -F
+    col = np.sqrt(np.abs(np.diag(W))) + 1e-300  # residual scaling: N vs N m^2 per coordinate
+    fresh = True
+    it = 0
+    for it in range(1, max_iter + 1):
+        if np.max(np.abs(r)) <= tol * scale:
+            return EquilibriumResult(q, True, "converged", it - 1, float(np.max(np.abs(r))), nfev)
+        try:
+            dx = np.linalg.solve(W, r)
+        except np.linalg.LinAlgError:
+            W = _stiffness(chain, q, p)[np.ix_(idx, idx)]
+            dx = np.linalg.lstsq(W, r, rcond=None)[0]
+        step = 1.0
+        while True:
+            try:
+                q_new = with_step(q, step * dx)
+                r_new = F(q_new)
+                if np.linalg.norm(r_new / col) < np.linalg.norm(r / col):
+                    break
+            except QchainError:
+                pass
+            step *= 0.5
+            if step < 1e-4:
+                break
+        if step < 1e-4:
+            if fresh:
+                return EquilibriumResult(q, False, "line search failed: no decrease along the Newton step",
+                                         it, float(np.max(np.abs(r))), nfev)
+            W = _stiffness(chain, q, p)[np.ix_(idx, idx)]  # drop the Broyden history and retry
+            fresh = True
+            continue
+        fresh = False
+        s_ = step * dx
+        y_ = -(r_new - r)  # change of -F
+        W = W + np.outer(y_ - W @ s_, s_) / (s_ @ s_)  # good Broyden update
+        if it % 10 == 0:  # refresh the exact part now and then
+            W = _stiffness(chain, q_new, p)[np.ix_(idx, idx)]
+        q, r = q_new, r_new
+    return EquilibriumResult(q, False, f"no convergence in {max_iter} iterations", it,
+                             float(np.max(np.abs(r))), nfev)

@@ -1,0 +1,185 @@
+"""The live viewer in a real browser: a logging run serves the Rerun web viewer on loopback,
+headless Chromium opens it (driven over the DevTools protocol), and the arm must be drawn.
+
+Needs Debian's ``chromium`` (``apt-get install chromium``) and the ``websocket-client``
+package; without them the test fails with a message saying so (it is not skipped). The
+screenshots are kept in ``test-artifacts/`` at the repository root.
+"""
+
+from __future__ import annotations
+
+import base64
+import io
+import json
+import os
+import shutil
+import signal
+import subprocess
+import tempfile
+import time
+import urllib.request
+from pathlib import Path
+
+import numpy as np
+from logging_fixtures import arm_info, arm_record
+
+from qchain.logging import SEGMENT_COLORS, RunLogger
+
+ROOT = Path(__file__).resolve().parent.parent
+ARTIFACTS = ROOT / "test-artifacts"
+WIDTH, HEIGHT = 1280, 800
+TIME_LIMIT = 50.0  # s, for the whole test
+MIN_ARM_PIXELS = 1500  # the arm covers ~5000-8000 pixels of the 3D view when drawn
+
+CHROMIUM_FLAGS = [
+    "--headless",
+    "--no-sandbox",
+    "--disable-gpu",
+    "--enable-unsafe-swiftshader",  # WebGL on the CPU: the viewer renders with it
+    "--disable-quic",
+    "--no-first-run",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+    "--disable-extensions",
+    "--disable-default-apps",
+    "--disable-breakpad",
+    "--disable-crash-reporter",
+    f"--window-size={WIDTH},{HEIGHT}",
+    "--remote-debugging-address=127.0.0.1",
+    "--remote-debugging-port=0",
+]
+
+
+def _chromium() -> str:
+    for name in ("chromium", "chromium-browser", "google-chrome"):
+        path = shutil.which(name)
+        if path:
+            return path
+    raise AssertionError("no Chromium found: install Debian's package (apt-get install -y chromium)")
+
+
+class DevTools:
+    """A minimal Chrome DevTools Protocol client for one page target."""
+
+    def __init__(self, ws_url: str):
+        import websocket  # websocket-client
+
+        self.ws = websocket.create_connection(ws_url, timeout=30, suppress_origin=True)
+        self._id = 0
+
+    def call(self, method: str, **params):
+        self._id += 1
+        self.ws.send(json.dumps({"id": self._id, "method": method, "params": params}))
+        while True:
+            msg = json.loads(self.ws.recv())
+            if msg.get("id") == self._id:
+                if "error" in msg:
+                    raise AssertionError(f"{method}: {msg['error']}")
+                return msg.get("result", {})
+
+    def close(self):
+        self.ws.close()
+
+
+def _start_chromium(profile: Path) -> tuple[subprocess.Popen, DevTools]:
+    proc = subprocess.Popen(
+        [_chromium(), *CHROMIUM_FLAGS, f"--user-data-dir={profile}", "about:blank"],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+        start_new_session=True,  # its own process group, ended as a whole at the end
+    )
+    port_file = profile / "DevToolsActivePort"
+    deadline = time.monotonic() + 20
+    while not (port_file.exists() and port_file.read_text().strip()):
+        assert proc.poll() is None, "chromium exited at start"
+        assert time.monotonic() < deadline, "chromium did not open its DevTools port"
+        time.sleep(0.1)
+    port = int(port_file.read_text().split()[0])
+    with urllib.request.urlopen(f"http://127.0.0.1:{port}/json", timeout=10) as resp:
+        targets = json.load(resp)
+    page = next(t for t in targets if t["type"] == "page")
+    return proc, DevTools(page["webSocketDebuggerUrl"])
+
+
+def _arm_pixels(png: bytes) -> int:
+    """Pixels of the arm's colours in the 3D view (the left part of the viewer)."""
+    from PIL import Image  # Pillow comes with matplotlib
+
+    img = np.asarray(Image.open(io.BytesIO(png)).convert("RGB"), dtype=np.int16)
+    h, w, _ = img.shape
+    view = img[int(0.06 * h) : int(0.92 * h), : int(0.55 * w)]
+    near = np.zeros(view.shape[:2], dtype=bool)
+    for c in SEGMENT_COLORS:
+        near |= np.abs(view - np.array(c, dtype=np.int16)).max(axis=2) <= 24
+    return int(near.sum())
+
+
+def test_live_viewer_draws_the_arm(tmp_path):
+    t_start = time.monotonic()
+    ARTIFACTS.mkdir(exist_ok=True)
+    shots = ARTIFACTS / "browser"
+    shots.mkdir(exist_ok=True)
+    for old in shots.glob("viewer-*.png"):
+        old.unlink()
+
+    log = RunLogger(arm_info(), tmp_path / "run.mcap", serve=True, quiet=True)
+    browser = None
+    devtools = None
+    try:
+        assert log.viewer_url and log.viewer_url.startswith("http://127.0.0.1:")
+        for k in range(600):  # 0.6 s of the bending arm
+            log.log(arm_record(k * 1e-3, k))
+
+        profile = Path(tempfile.mkdtemp(prefix="chromium-profile-", dir=tmp_path))
+        browser, devtools = _start_chromium(profile)
+        devtools.call("Page.enable")
+        devtools.call("Emulation.setDeviceMetricsOverride", width=WIDTH, height=HEIGHT, deviceScaleFactor=1,
+                      mobile=False)
+        devtools.call("Page.navigate", url=log.viewer_url)
+
+        counts = []
+        best = None
+        i = 0
+        def screenshot() -> bytes | None:
+            try:
+                return base64.b64decode(devtools.call("Page.captureScreenshot", format="png")["data"])
+            except AssertionError:  # e.g. "Not attached to an active page" while the page loads
+                return None
+
+        while time.monotonic() - t_start < TIME_LIMIT:
+            time.sleep(1.0)
+            png = screenshot()
+            if png is None:
+                continue
+            (shots / f"viewer-{i:02d}.png").write_bytes(png)
+            counts.append(_arm_pixels(png))
+            i += 1
+            if counts[-1] >= MIN_ARM_PIXELS:  # the arm is drawn; one more frame to let it settle
+                time.sleep(1.0)
+                png = screenshot() or png
+                if _arm_pixels(png) >= MIN_ARM_PIXELS:
+                    best = png
+                    (ARTIFACTS / "viewer.png").write_bytes(png)
+                    break
+        assert best is not None, (
+            f"the arm never appeared in the viewer within {TIME_LIMIT:.0f} s; arm-coloured pixels per "
+            f"screenshot: {counts} (screenshots in {shots})"
+        )
+        # the web viewer and its data server listen on loopback only
+        assert log.grpc_url.startswith("rerun+http://127.0.0.1:")
+    finally:
+        if devtools is not None:
+            devtools.close()
+        if browser is not None:
+            try:
+                os.killpg(browser.pid, signal.SIGTERM)
+            except ProcessLookupError:
+                pass
+            try:
+                browser.wait(10)
+            except subprocess.TimeoutExpired:
+                os.killpg(browser.pid, signal.SIGKILL)
+                browser.wait()
+        log.close()
+    assert time.monotonic() - t_start < 60.0

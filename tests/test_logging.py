@@ -1,0 +1,634 @@
+"""qchain.logging: MCAP and Rerun recording of a run, replay, crash safety, loopback serving."""
+
+from __future__ import annotations
+
+import argparse
+import io
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+import urllib.request
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pytest
+from logging_fixtures import arm_info, arm_record, arm_records, write_driver
+from mcap.reader import make_reader
+from mcap.writer import Writer
+
+import qchain
+from qchain.logging import (
+    TOPICS,
+    LoggingError,
+    LoggingWarning,
+    RecordingFormatError,
+    RunInfo,
+    RunLogger,
+    StepRecord,
+    add_logging_arguments,
+    default_mcap_path,
+    logger_from_args,
+    read_mcap,
+    read_recording,
+    replay,
+    replay_main,
+)
+from qchain.trajectory import Trajectory
+
+TESTS = Path(__file__).resolve().parent
+
+
+def _stack(records, field):
+    return np.array([getattr(r, field) for r in records])
+
+
+def _assert_records_equal(rec, records):
+    """Every field of the read recording equals the logged records, bit for bit (NaN = NaN)."""
+    assert len(rec) == len(records)
+    np.testing.assert_array_equal(rec.t, _stack(records, "t"))
+    np.testing.assert_array_equal(rec.step, _stack(records, "step"))
+    for f in ("q", "v", "p", "backbone", "tip_frames"):
+        np.testing.assert_array_equal(getattr(rec, f), _stack(records, f), err_msg=f)
+    np.testing.assert_array_equal(rec.energy[:, 0], _stack(records, "kinetic"))
+    np.testing.assert_array_equal(rec.energy[:, 1], _stack(records, "potential"))
+    np.testing.assert_array_equal(rec.energy[:, 2], _stack(records, "total"))
+
+
+def _check_json_schema(value, schema, path="$"):
+    """A small JSON-schema check (type, properties, required, items): enough to show each
+    message has the documented form of its schema."""
+    types = schema.get("type")
+    if types is not None:
+        types = [types] if isinstance(types, str) else types
+        kinds = {
+            "object": dict, "array": list, "string": str, "boolean": bool, "null": type(None),
+            "integer": int, "number": (int, float),
+        }
+        ok = any(isinstance(value, kinds[t]) and not (t in ("integer", "number") and isinstance(value, bool))
+                 for t in types)
+        assert ok, f"{path}: {value!r} is not of type {types}"
+    if isinstance(value, dict):
+        for key in schema.get("required", []):
+            assert key in value, f"{path}: required key {key!r} missing"
+        for key, sub in schema.get("properties", {}).items():
+            if key in value:
+                _check_json_schema(value[key], sub, f"{path}.{key}")
+    if isinstance(value, list) and "items" in schema:
+        for i, item in enumerate(value):
+            _check_json_schema(item, schema["items"], f"{path}[{i}]")
+
+
+def _log_all(records, info=None, mcap=None, **kw):
+    with RunLogger(info or arm_info(), mcap, quiet=True, **kw) as log:
+        for r in records:
+            log.log(r)
+    return log
+
+
+# --------------------------------------------------------------------------------------
+# MCAP round trip
+# --------------------------------------------------------------------------------------
+
+
+def test_mcap_round_trip_in_memory_is_exact():
+    records = arm_records(300, dt=1e-3)
+    records[7].v[2] = np.nan  # a non-finite value travels as JSON null and comes back NaN
+    records[8].p[0] = np.inf  # ... every non-finite value comes back as NaN
+    base = 2**32 - 150  # step numbers past the MCAP sequence range wrap there, not in the data
+    for r in records:
+        r.step += base
+    info = arm_info()
+    buf = io.BytesIO()
+    summary = _log_all(records, info, buf).close()
+    assert summary["n_records"] == 300 and summary["last_t"] == records[-1].t
+
+    buf.seek(0)
+    rec = read_recording(buf)
+    expected = [r for r in records]
+    exp_p8 = records[8].p.copy()
+    records[8].p[0] = np.nan
+    _assert_records_equal(rec, expected)
+    records[8].p[:] = exp_p8
+    assert not rec.truncated and rec.stop_reason == ""
+    assert rec.outcome["success"] == "true" and rec.outcome["message"] == "finished"
+    assert rec.outcome["n_records"] == "300"
+    # metadata: scene, model parameters, qchain version, segment radii
+    assert rec.info.scene == info.scene and rec.info.params == info.params
+    assert rec.info.qchain_version == qchain.__version__
+    assert rec.info.radii == info.radii and rec.info.n_segments == 3
+    assert rec.metadata["scene"] == info.scene
+    assert json.loads(rec.metadata["params"]) == info.params
+
+    # the file as the mcap package sees it: summary, counts, times, sequences, schemas
+    buf.seek(0)
+    reader = make_reader(buf)
+    stats = reader.get_summary().statistics
+    assert stats.message_count == 6 * 300
+    assert sorted(stats.channel_message_counts.values()) == [300] * 6
+    topics = {ch.topic: ch for ch in reader.get_summary().channels.values()}
+    assert set(topics) == set(TOPICS.values())
+    assert stats.message_start_time == 0 and stats.message_end_time == round(records[-1].t * 1e9)
+    schema_names = {s.name for s in reader.get_summary().schemas.values()}
+    assert {"foxglove.FrameTransforms", "foxglove.SceneUpdate", "qchain.Coordinates"} <= schema_names
+    seen = {k: 0 for k in TOPICS.values()}
+    for schema, channel, msg in reader.iter_messages():
+        k = seen[channel.topic]
+        r = records[k]
+        assert msg.log_time == msg.publish_time == round(r.t * 1e9)
+        assert msg.sequence == r.step & 0xFFFFFFFF
+        assert schema.encoding == "jsonschema" and channel.message_encoding == "json"
+        if k in (0, 7, 299):
+            _check_json_schema(json.loads(msg.data), json.loads(schema.data))
+        seen[channel.topic] += 1
+    assert set(seen.values()) == {300}
+    assert [m.name for m in reader.iter_metadata()] == ["qchain", "qchain.outcome"]
+
+
+def test_mcap_round_trip_through_writer_process(tmp_path):
+    records = arm_records(400, dt=2e-3)
+    path = tmp_path / "deep" / "run.mcap"
+    log = _log_all(records, mcap=path)
+    assert log.worker == "process" and log.worker_pid is not None
+    rec = read_recording(path)
+    _assert_records_equal(rec, records)
+    assert not rec.truncated
+    traj = read_mcap(path)
+    assert isinstance(traj, Trajectory)
+    assert traj.success and traj.status == 0 and traj.message == "finished"
+    np.testing.assert_array_equal(traj.t, rec.t)
+    np.testing.assert_array_equal(traj.q, rec.q)
+    np.testing.assert_array_equal(traj.total_energy, rec.energy[:, 0] + rec.energy[:, 1])
+    np.testing.assert_array_equal(traj.meta["total_energy"], _stack(records, "total"))
+    assert traj.meta["backbone"].shape == (400, 3, records[0].backbone.shape[1], 3)
+    assert traj.meta["scene"] == arm_info().scene and traj.meta["truncated"] is False
+    # chunks are flushed every 0.1 s of simulation time by default: 0.8 s -> about 8 chunks
+    with open(path, "rb") as fh:
+        assert 6 <= make_reader(fh).get_summary().statistics.chunk_count <= 12
+    # an independent MCAP reader (Rerun's, in Rust) accepts the file and its summary
+    import rerun as rr
+
+    about = rr.chunk.McapReader(path, timeline_type="duration_ns").info()
+    assert about.statistics_present and about.message_count == 6 * 400 and about.metadata_count == 2
+    assert {c.topic: c.message_count for c in about.channels} == {t: 400 for t in TOPICS.values()}
+    assert about.message_end_time_ns == round(records[-1].t * 1e9)
+
+
+def test_exception_in_simulation_finishes_the_log():
+    buf = io.BytesIO()
+    with pytest.raises(RuntimeError, match="integrator blew up"):
+        with RunLogger(arm_info(), buf) as log:
+            for r in arm_records(50):
+                log.log(r)
+            raise RuntimeError("integrator blew up")
+    buf.seek(0)
+    rec = read_recording(buf)
+    assert len(rec) == 50 and not rec.truncated
+    traj = rec.to_trajectory()
+    assert not traj.success and traj.status == -1 and "integrator blew up" in traj.message
+    buf.seek(0)
+    assert make_reader(buf).get_summary() is not None
+
+
+def test_outcome_set_by_the_simulation_is_recorded():
+    buf = io.BytesIO()
+    with RunLogger(arm_info(), buf) as log:
+        for r in arm_records(5):
+            log.log(r)
+        log.set_outcome(success=False, message="left the domain: |kappa| r >= 1", status=1, nfev=1234)
+    buf.seek(0)
+    traj = read_mcap(buf)
+    assert (traj.success, traj.status, traj.nfev) == (False, 1, 1234)
+    assert traj.message == "left the domain: |kappa| r >= 1"
+
+
+def test_bounded_queue_waits_for_a_slow_writer(monkeypatch):
+    """Memory stays flat: with a writer slower than the simulation, log() waits."""
+    from qchain import logging as qlog
+
+    slow = qlog._SinkSet.write_payloads
+
+    def write_slowly(self, payloads):
+        time.sleep(0.002 * len(payloads))
+        slow(self, payloads)
+
+    monkeypatch.setattr(qlog._SinkSet, "write_payloads", write_slowly)
+    buf = io.BytesIO()
+    peak = 0
+    records = arm_records(120)
+    with RunLogger(arm_info(), buf, max_queue=8) as log:
+        for r in records:
+            log.log(r)
+            peak = max(peak, log._q.qsize())
+    assert peak <= 8 + 1  # the layout marker may ride along once
+    buf.seek(0)
+    assert len(read_recording(buf)) == 120
+
+
+def test_record_and_info_validation():
+    info = arm_info()
+    with pytest.raises(ValueError, match="radii must have shape \\(3,\\)"):
+        RunInfo(n_segments=3, radii=[0.01, 0.01])
+    with pytest.raises(ValueError, match="radii must be finite and > 0"):
+        RunInfo(n_segments=2, radii=[0.01, -0.01])
+    with pytest.raises(ValueError, match=r"params\['solver'\]"):
+        RunInfo(n_segments=1, radii=[0.01], params={"solver": object()})
+    with pytest.raises(ValueError, match="n_segments must be >= 1"):
+        RunInfo(n_segments=0, radii=[])
+    assert RunInfo(n_segments=1, radii=[0.01], params={"K": np.eye(2)}).params == {"K": [[1.0, 0.0], [0.0, 1.0]]}
+
+    buf = io.BytesIO()
+    with RunLogger(info, buf) as log:
+        good = arm_record(0.0, 0)
+        first_bad = arm_record(0.0, 0)
+        first_bad.backbone = first_bad.backbone[:2]
+        with pytest.raises(ValueError, match=r"record.backbone must have shape \(3, P, 3\)"):
+            log.log(first_bad)
+        first_bad.backbone, first_bad.tip_frames = good.backbone, good.tip_frames[:, :3]
+        with pytest.raises(ValueError, match=r"record.tip_frames must have shape \(3, 7\)"):
+            log.log(first_bad)
+        log.log(good)
+        bad = arm_record(0.001, 1)
+        bad.backbone = bad.backbone[:, :5]
+        with pytest.raises(ValueError, match="record.backbone has shape \\(3, 5, 3\\) at step 1"):
+            log.log(bad)
+        wrong_q = arm_record(0.002, 2)
+        wrong_q.q = wrong_q.q[:4]
+        with pytest.raises(ValueError, match="record.q has shape \\(4,\\)"):
+            log.log(wrong_q)
+        with pytest.raises(ValueError, match="record.t must be finite and >= 0"):
+            log.log(arm_record(0.0, 3).__class__(**{**arm_record(0.0, 3).__dict__, "t": -1.0}))
+        lists = arm_record(0.003, 3)  # plain lists and float32 are converted
+        lists.q = lists.q.tolist()
+        lists.backbone = lists.backbone.astype(np.float32)
+        log.log(lists)
+    with pytest.raises(LoggingError, match="closed"):
+        log.log(good)
+    buf.seek(0)
+    rec = read_recording(buf)
+    assert len(rec) == 2
+    np.testing.assert_array_equal(rec.q[1], np.asarray(lists.q))
+    np.testing.assert_array_equal(rec.backbone[1], lists.backbone.astype(np.float64))
+    with pytest.raises(ValueError, match="serve and connect exclude each other"):
+        RunLogger(info, None, serve=True, connect="rerun+http://127.0.0.1:9/proxy")
+    with pytest.raises(ValueError, match="flush_interval"):
+        RunLogger(info, io.BytesIO(), flush_interval=0)
+
+
+# --------------------------------------------------------------------------------------
+# Rerun
+# --------------------------------------------------------------------------------------
+
+
+def _rrd_columns(path):
+    """entity path -> {"t": sim_time ns, "step": ..., component: values} of its temporal rows,
+    in step order."""
+    import pyarrow as pa
+    import rerun as rr
+
+    reader = rr.chunk.RrdReader(path)
+    out: dict[str, dict] = {}
+    for chunk in reader.stream():
+        if chunk.is_static:
+            continue
+        rb = chunk.to_record_batch()
+        cols = out.setdefault(chunk.entity_path, {})
+        for name in rb.schema.names:
+            col = rb.column(rb.schema.names.index(name))
+            if name == "sim_time":
+                cols.setdefault("t", []).extend(col.cast(pa.int64()).to_pylist())
+            elif name == "step" or ":" in name:
+                cols.setdefault(name.split(":")[-1], []).extend(col.to_pylist())
+    for cols in out.values():
+        order = np.argsort(cols["step"], kind="stable")
+        for k in cols:
+            cols[k] = [cols[k][i] for i in order]
+    return out, reader
+
+
+def test_rrd_round_trip(tmp_path):
+    records = arm_records(250, dt=1e-3)
+    rrd = tmp_path / "run.rrd"
+    _log_all(records, mcap=io.BytesIO(), rrd=rrd)
+    cols, reader = _rrd_columns(rrd)
+    assert len(reader.blueprints()) == 1
+    assert {"/plots/q", "/plots/v", "/plots/pressure", "/plots/energy", "/arm/backbone", "/arm/tip_axes",
+            "/arm/pressure"} <= set(cols)
+    t_ns = [round(r.t * 1e9) for r in records]
+    steps = [r.step for r in records]
+    for entity, field in (("/plots/q", "q"), ("/plots/v", "v"), ("/plots/pressure", "p")):
+        c = cols[entity]
+        assert c["step"] == steps and c["t"] == t_ns
+        np.testing.assert_array_equal(np.array(c["scalars"]), _stack(records, field))
+    energy = np.array(cols["/plots/energy"]["scalars"])
+    np.testing.assert_array_equal(energy, np.c_[_stack(records, "kinetic"), _stack(records, "potential"),
+                                                _stack(records, "total")])
+    strips = cols["/arm/backbone"]["strips"]
+    assert len(strips) == 250 and cols["/arm/backbone"]["t"] == t_ns
+    np.testing.assert_array_equal(np.array(strips[100]), records[100].backbone.astype(np.float32))
+    # tip axes: 3 a tip, from the tip position, of length 2.5 radii along the tip frame's axes
+    arrows = cols["/arm/tip_axes"]
+    origins, vectors = np.array(arrows["origins"][40]), np.array(arrows["vectors"][40])
+    assert origins.shape == vectors.shape == (9, 3)
+    np.testing.assert_allclose(origins[::3], records[40].tip_frames[:, :3], rtol=1e-6)
+    radius = arm_info().radii[0]
+    np.testing.assert_allclose(np.linalg.norm(vectors, axis=1), 2.5 * radius, rtol=1e-5)
+    # the z axes point along the end of each arc
+    ends = records[40].backbone[:, -1] - records[40].backbone[:, -2]
+    cos = np.sum(vectors[2::3] * ends, axis=1) / np.linalg.norm(vectors[2::3], axis=1) / np.linalg.norm(ends, axis=1)
+    assert np.all(cos > 0.99)
+    # pressure arrows: 3 a tip plate, length by pressure (half a segment at pressure_ref)
+    pv = np.array(cols["/arm/pressure"]["vectors"][40])
+    lengths = np.linalg.norm(pv, axis=1)
+    seg_len = np.linalg.norm(np.diff(records[0].backbone, axis=1), axis=2).sum(axis=1)  # at the first record
+    expected = 0.5 * np.repeat(seg_len, 3) * records[40].p / arm_info().pressure_ref
+    np.testing.assert_allclose(lengths, expected, rtol=1e-5)
+
+
+def test_replay_to_rrd_keeps_original_times(tmp_path):
+    records = arm_records(120, dt=5e-3)
+    path = tmp_path / "run.mcap"
+    with open(path, "wb") as fh:
+        _log_all(records, mcap=fh)
+    out = tmp_path / "replay.rrd"
+    session = replay(path, rrd=out, batch=50)
+    assert session.viewer_url is None and len(session.recording) == 120
+    cols, _ = _rrd_columns(out)
+    c = cols["/plots/energy"]
+    assert c["step"] == [r.step for r in records]
+    assert c["t"] == [round(r.t * 1e9) for r in records]
+    np.testing.assert_array_equal(np.array(c["scalars"])[:, 2], _stack(records, "total"))
+    with pytest.raises(ValueError, match="needs a target"):
+        replay(path)
+
+
+def test_unreachable_viewer_does_not_stop_the_run(tmp_path):
+    import socket
+
+    with socket.socket() as s:  # a loopback port nobody listens on
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    url = f"rerun+http://127.0.0.1:{port}/proxy"
+    path = tmp_path / "run.mcap"
+    records = arm_records(200)
+    with pytest.warns(LoggingWarning) as caught:
+        log = _log_all(records, mcap=path, connect=url)
+    ours = [w for w in caught if issubclass(w.category, LoggingWarning)]
+    assert len(ours) == 1
+    text = str(ours[0].message)
+    assert url in text and "no Rerun viewer can be reached" in text and "MCAP" in text
+    assert log.close()["n_records"] == 200
+    _assert_records_equal(read_recording(path), records)
+
+
+def _listening_sockets(pid):
+    """(address, port) of the TCP sockets process ``pid`` listens on (from /proc)."""
+    inodes = set()
+    for fd in os.listdir(f"/proc/{pid}/fd"):
+        try:
+            link = os.readlink(f"/proc/{pid}/fd/{fd}")
+        except OSError:
+            continue
+        if link.startswith("socket:["):
+            inodes.add(link[8:-1])
+    found = []
+    for table, v6 in (("/proc/net/tcp", False), ("/proc/net/tcp6", True)):
+        if not os.path.exists(table):
+            continue
+        for line in open(table).read().splitlines()[1:]:
+            cols = line.split()
+            local, state, inode = cols[1], cols[3], cols[9]
+            if state != "0A" or inode not in inodes:  # 0A = LISTEN
+                continue
+            hexaddr, hexport = local.split(":")
+            if v6:
+                raw = bytes.fromhex(hexaddr)
+                words = [raw[i : i + 4][::-1] for i in range(0, 16, 4)]
+                import ipaddress
+
+                addr = str(ipaddress.IPv6Address(b"".join(words)))
+            else:
+                addr = ".".join(str(b) for b in bytes.fromhex(hexaddr)[::-1])
+            found.append((addr, int(hexport, 16)))
+    return found
+
+
+def test_serving_binds_only_loopback(tmp_path):
+    from urllib.parse import parse_qs, urlsplit
+
+    path = tmp_path / "run.mcap"
+    log = RunLogger(arm_info(), path, serve=True, quiet=True)
+    try:
+        for r in arm_records(20):
+            log.log(r)
+        assert log.viewer_url.startswith("http://127.0.0.1:")
+        web_port = urlsplit(log.viewer_url).port
+        grpc_url = parse_qs(urlsplit(log.viewer_url).query)["url"][0]
+        assert grpc_url == log.grpc_url and urlsplit(grpc_url).hostname == "127.0.0.1"
+        grpc_port = urlsplit(grpc_url).port
+        sockets = _listening_sockets(log.worker_pid) + _listening_sockets(log.web_pid)
+        assert ("127.0.0.1", grpc_port) in sockets and ("127.0.0.1", web_port) in sockets
+        assert all(addr == "127.0.0.1" for addr, _ in sockets), sockets
+        with urllib.request.urlopen(log.viewer_url, timeout=10) as resp:  # the viewer page is served
+            assert resp.status == 200 and b"<html" in resp.read(4096).lower()
+    finally:
+        log.close()
+    _assert_records_equal(read_recording(path), arm_records(20))
+
+
+# --------------------------------------------------------------------------------------
+# Truncated and foreign files
+# --------------------------------------------------------------------------------------
+
+
+def test_file_cut_at_half_replays_its_first_part(tmp_path, capsys):
+    records = arm_records(600, dt=1e-3)
+    path = tmp_path / "run.mcap"
+    with open(path, "wb") as fh:
+        _log_all(records, mcap=fh)
+    data = path.read_bytes()
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(data[: len(data) // 2])
+
+    rec = read_recording(cut)
+    assert rec.truncated and rec.stop_reason
+    assert 0 < len(rec) < 600
+    _assert_records_equal(rec, records[: len(rec)])
+    # at most one chunk (0.1 s of simulation time) of the first half is lost
+    assert rec.t[-1] >= records[299].t - 0.1 - 1e-9
+    traj = read_mcap(cut)
+    assert not traj.success and "truncated" in traj.message and f"{rec.t[-1]:.6g}" in traj.message
+    assert traj.meta["stopped_at"] == rec.t[-1]
+
+    out = tmp_path / "cut.rrd"
+    with pytest.warns(LoggingWarning, match="truncated; replaying up to its last complete chunk"):
+        replay(cut, rrd=out)
+    cols, _ = _rrd_columns(out)
+    assert cols["/plots/q"]["step"] == rec.step.tolist()
+
+    assert replay_main([str(cut), "--rrd", str(tmp_path / "cut2.rrd")]) == 0
+    printed = capsys.readouterr().out
+    assert f"replayed {len(rec)} steps" in printed and f"stops at t = {rec.t[-1]:.6g} s" in printed
+
+
+def test_not_a_qchain_mcap_gets_a_clear_error(tmp_path, capsys):
+    junk = tmp_path / "notes.mcap"
+    junk.write_bytes(b"just some text, not a recording\n" * 10)
+    with pytest.raises(RecordingFormatError, match=r"notes\.mcap: not an MCAP file"):
+        read_mcap(junk)
+    empty = tmp_path / "empty.mcap"
+    empty.write_bytes(b"")
+    with pytest.raises(RecordingFormatError, match=r"empty\.mcap: the file is empty"):
+        read_mcap(empty)
+    other = tmp_path / "other.mcap"  # a valid MCAP written by another program
+    with open(other, "wb") as fh:
+        w = Writer(fh)
+        w.start()
+        sid = w.register_schema("x", "jsonschema", b"{}")
+        cid = w.register_channel("/imu", "json", sid)
+        w.add_message(cid, 0, b"{}", 0)
+        w.finish()
+    with pytest.raises(RecordingFormatError, match=r"other\.mcap: an MCAP file, but not a qchain recording"):
+        read_mcap(other)
+    assert issubclass(RecordingFormatError, qchain.QchainError) and issubclass(RecordingFormatError, ValueError)
+    assert replay_main([str(other), "--rrd", str(tmp_path / "x.rrd")]) == 2
+    assert "not a qchain recording" in capsys.readouterr().err
+
+
+# --------------------------------------------------------------------------------------
+# Crash safety with real processes
+# --------------------------------------------------------------------------------------
+
+
+def _start_driver(tmp_path, pace=0.02, n_max=10**7):
+    driver = tmp_path / "driver.py"
+    write_driver(driver, TESTS)
+    path = tmp_path / "run.mcap"
+    proc = subprocess.Popen(
+        [sys.executable, str(driver), str(path), str(n_max), str(pace)],
+        stdout=subprocess.PIPE,
+        text=True,
+        start_new_session=True,
+    )
+    return proc, path
+
+
+def _wait_for_sim_time(proc, t_min, timeout=20.0):
+    """Read the driver's progress lines until it reports sim time >= t_min; returns
+    (the last reported time, the writer's pid)."""
+    deadline = time.monotonic() + timeout
+    t_seen, writer = -1.0, None
+    while time.monotonic() < deadline:
+        line = proc.stdout.readline()
+        assert line, "the driver ended early"
+        if line.startswith("writer"):
+            writer = int(line.split()[1])
+        elif line.startswith("t "):
+            t_seen = float(line.split()[1])
+            if t_seen >= t_min:
+                return t_seen, writer
+    raise AssertionError("the driver did not get far enough in time")
+
+
+def test_sigkill_mid_run_leaves_a_readable_log(tmp_path):
+    # the simulation and its writer process both killed: the file ends mid-stream
+    proc, path = _start_driver(tmp_path)
+    try:
+        t_seen, writer = _wait_for_sim_time(proc, 0.6)
+        os.kill(writer, signal.SIGKILL)
+        os.kill(proc.pid, signal.SIGKILL)
+    finally:
+        proc.wait(10)
+        proc.stdout.close()
+    rec = read_recording(path)
+    assert rec.truncated and rec.outcome is None
+    assert len(rec) > 0 and np.all(np.diff(rec.t) > 0)
+    # at most a fraction of a second of simulation time lost (chunks close every 0.1 s)
+    assert rec.t[-1] >= t_seen - 0.3
+    _assert_records_equal(rec, [arm_record(k * 1e-3, k) for k in range(len(rec))])
+
+
+def test_sigkill_of_the_simulation_alone_still_finishes_the_file(tmp_path):
+    proc, path = _start_driver(tmp_path)
+    try:
+        t_seen, writer = _wait_for_sim_time(proc, 0.3)
+        os.kill(proc.pid, signal.SIGKILL)
+    finally:
+        proc.wait(10)
+        proc.stdout.close()
+    deadline = time.monotonic() + 20
+    rec = read_recording(path)
+    while rec.truncated and time.monotonic() < deadline:  # the writer sees its pipe close and finishes
+        time.sleep(0.05)
+        rec = read_recording(path)
+    assert not rec.truncated
+    assert rec.outcome["success"] == "false" and "without closing its log" in rec.outcome["message"]
+    assert rec.t[-1] >= t_seen - 0.06
+
+
+def test_sigint_leaves_a_complete_log(tmp_path):
+    proc, path = _start_driver(tmp_path)
+    try:
+        t_seen, _ = _wait_for_sim_time(proc, 0.3)
+        os.kill(proc.pid, signal.SIGINT)
+        proc.wait(30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        proc.stdout.close()
+    assert proc.returncode != 0  # the KeyboardInterrupt went on after the log was closed
+    with open(path, "rb") as fh:
+        summary = make_reader(fh).get_summary()
+    assert summary is not None and summary.statistics.message_count > 0
+    rec = read_recording(path)
+    assert not rec.truncated and rec.t[-1] >= t_seen
+    assert rec.outcome["success"] == "false" and rec.outcome["message"] == "interrupted (KeyboardInterrupt)"
+    assert rec.outcome["n_records"] == str(len(rec))
+
+
+# --------------------------------------------------------------------------------------
+# Command line support
+# --------------------------------------------------------------------------------------
+
+
+def test_command_line_helpers(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    parser = argparse.ArgumentParser(prog="qchain run")
+    parser.add_argument("scene")
+    add_logging_arguments(parser)
+    args = parser.parse_args(["arm.toml"])
+    assert (args.mcap, args.serve, args.connect, args.rrd, args.bind) == (None, False, None, None, "127.0.0.1")
+    info = arm_info(scene_path="scenes/arm.toml")
+    default = default_mcap_path(info.scene_path)
+    assert default.parent == Path("runs") and default.name.startswith("arm-") and default.suffix == ".mcap"
+    with logger_from_args(args, info, quiet=True) as log:
+        for r in arm_records(10):
+            log.log(r)
+    made = sorted(Path("runs").glob("arm-*.mcap"))
+    assert len(made) == 1 and len(read_recording(made[0])) == 10
+    assert default_mcap_path(info.scene_path, now=None) != made[0] or len(made) == 1
+    args = parser.parse_args(["arm.toml", "--mcap", "out/x.mcap", "--rrd", "out/x.rrd"])
+    with logger_from_args(args, info, "ignored.mcap", quiet=True) as log:
+        log.log(arm_record(0.0, 0))
+    assert Path("out/x.mcap").exists() and Path("out/x.rrd").exists() and not Path("ignored.mcap").exists()
+    args = parser.parse_args(["arm.toml", "--serve", "--connect", "rerun+http://127.0.0.1:9876/proxy"])
+    with pytest.raises(ValueError, match="--serve and --connect"):
+        logger_from_args(args, info)
+    stamp = __import__("datetime").datetime(2026, 1, 2, 3, 4, 5)
+    Path("runs/arm-20260102-030405.mcap").touch()
+    assert default_mcap_path("arm.toml", now=stamp) == Path("runs/arm-20260102-030405-1.mcap")
+
+
+def test_step_record_is_a_plain_dataclass():
+    r = arm_record(0.25, 250)
+    assert isinstance(r, StepRecord)
+    assert r.q.shape == (9,) and r.backbone.shape == (3, 12, 3) and r.tip_frames.shape == (3, 7)
+    np.testing.assert_allclose(np.linalg.norm(r.tip_frames[:, 3:], axis=1), 1.0)
+    np.testing.assert_allclose(r.tip_frames[:, :3], r.backbone[:, -1])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        RunInfo(n_segments=3, radii=(0.01, 0.01, 0.01))
