@@ -5,11 +5,14 @@ free (not locked) segment coordinates of a fixed or prescribed-base chain by New
 method. The Newton matrix is the exact elastic stiffness ``d^2 U_el/dq^2`` minus the exact
 pressure stiffness ``d(B p)/dq`` (volume actuation); the gravity and tip-load stiffness
 are not available in closed form, so Broyden updates learn them from the iterates, and a
-backtracking line search on the residual keeps the iteration monotone.
+backtracking line search on the residual keeps the iteration monotone. Segments in the
+paper's coordinates are solved in curvature coordinates (the balance is the same, and
+regular through the straight pose) and the result is mapped back.
 """
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -73,6 +76,20 @@ def equilibrium(chain: Chain, p=None, q0=None, tip_wrench=None, *, t: float = 0.
     """
     if chain.floating:
         raise ValueError("equilibrium needs a fixed or prescribed base: a floating arm has no static shape")
+    if chain._any_paper and not chain._linear[chain._paper].any():
+        # the balance is coordinate-free: solve it where it is regular and map the result back
+        twin = Chain([dataclasses.replace(s, coords="curvature") for s in chain.segments], base=chain.base,
+                     gravity=chain.gravity, base_placement=chain.base_placement if chain.base == "fixed" else None,
+                     base_motion=chain.base_motion, planar=chain.planar)
+        q0c = None
+        if q0 is not None:
+            q0c = chain._q(q0, "q0").copy()
+            for j, s in enumerate(chain.segments):
+                q0c[chain.q_slice(j)] = s.to_curvature(q0c[chain.q_slice(j)])
+        res = equilibrium(twin, p, q0c, tip_wrench, t=t, tol=tol, max_iter=max_iter)
+        for j, s in enumerate(chain.segments):
+            res.q[chain.q_slice(j)] = s.from_curvature(res.q[chain.q_slice(j)])
+        return res
     p = np.zeros(chain.nu) if p is None else as_vector("p", p, chain.nu)
     q = chain.neutral() if q0 is None else chain._q(q0, "q0").copy()
     w = None if tip_wrench is None else as_vector("tip_wrench", tip_wrench, 6)
