@@ -58,7 +58,7 @@ def _stiffness(chain: Chain, q: np.ndarray, p: np.ndarray) -> np.ndarray:
 
 
 def equilibrium(chain: Chain, p=None, q0=None, tip_wrench=None, *, t: float = 0.0, tol: float = 1e-10,
-                max_iter: int = 200) -> EquilibriumResult:
+                max_iter: int = 200, continuation: bool = True) -> EquilibriumResult:
     """Static shape of ``chain`` under pressures ``p`` (3 n,) Pa and gravity.
 
     Parameters
@@ -73,6 +73,9 @@ def equilibrium(chain: Chain, p=None, q0=None, tip_wrench=None, *, t: float = 0.
     tol : float
         Converged when every residual entry is below ``tol`` times the scale of the
         generalised forces (the largest of the elastic, pressure and gravity terms at q0).
+    continuation : bool
+        If Newton fails from ``q0``, follow the solution from the unloaded shape as
+        gravity, pressures and tip load grow from zero (steps halved on failure).
     """
     if chain.floating:
         raise ValueError("equilibrium needs a fixed or prescribed base: a floating arm has no static shape")
@@ -86,10 +89,40 @@ def equilibrium(chain: Chain, p=None, q0=None, tip_wrench=None, *, t: float = 0.
             q0c = chain._q(q0, "q0").copy()
             for j, s in enumerate(chain.segments):
                 q0c[chain.q_slice(j)] = s.to_curvature(q0c[chain.q_slice(j)])
-        res = equilibrium(twin, p, q0c, tip_wrench, t=t, tol=tol, max_iter=max_iter)
+        res = equilibrium(twin, p, q0c, tip_wrench, t=t, tol=tol, max_iter=max_iter, continuation=continuation)
         for j, s in enumerate(chain.segments):
             res.q[chain.q_slice(j)] = s.from_curvature(res.q[chain.q_slice(j)])
         return res
+    res = _solve(chain, p, q0, tip_wrench, t, tol, max_iter)
+    if res.success or not continuation:
+        return res
+    p = np.zeros(chain.nu) if p is None else as_vector("p", p, chain.nu)
+    w = np.zeros(6) if tip_wrench is None else as_vector("tip_wrench", tip_wrench, 6)
+    lam, step, q, total = 0.0, 0.25, (chain.neutral() if q0 is None else q0), res.nfev
+    while lam < 1.0:
+        trial = min(1.0, lam + step)
+        scaled = _scaled(chain, trial)
+        r = _solve(scaled, trial * p, q, trial * w, t, tol, max_iter)
+        total += r.nfev
+        if r.success:
+            lam, q = trial, r.q
+            step = min(2 * step, 0.5)
+        else:
+            step /= 2
+            if step < 1e-4:
+                return EquilibriumResult(r.q, False, f"continuation stalled at load factor {lam:.4g}: {r.message}",
+                                         r.iterations, r.residual, total)
+    return EquilibriumResult(q, True, "converged (load continuation)", r.iterations, r.residual, total)
+
+
+def _scaled(chain: Chain, lam: float) -> Chain:
+    """The same chain with gravity scaled by ``lam``."""
+    return Chain(chain.segments, base=chain.base, gravity=lam * chain.gravity,
+                 base_placement=chain.base_placement if chain.base == "fixed" else None,
+                 base_motion=chain.base_motion, planar=chain.planar)
+
+
+def _solve(chain, p, q0, tip_wrench, t, tol, max_iter) -> EquilibriumResult:
     p = np.zeros(chain.nu) if p is None else as_vector("p", p, chain.nu)
     q = chain.neutral() if q0 is None else chain._q(q0, "q0").copy()
     w = None if tip_wrench is None else as_vector("tip_wrench", tip_wrench, 6)
