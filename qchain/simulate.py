@@ -392,7 +392,7 @@ def _midpoint_step(sysm: _System, t, q, v, h, tol=1e-10, max_iter=50):
     if B is not None and B[1] != h:
         B = None
     B = None if B is None else B[0]
-    R_old = None
+    R_old = dx = None
     for it in range(max_iter):
         vmf = sysm.full(vm)
         qm = ch.integrate(q, 0.5 * h * vmf)
