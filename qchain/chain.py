@@ -287,7 +287,7 @@ class Chain:
                 if nonsingular and q_e[j, 2] * q_e[j, 0] < PAPER_SINGULAR_ANGLE:
                     sl = self.q_slice(j)
                     raise SingularConfigurationError(
-                        f"segment {j} (q[{sl.start}:{sl.stop}]): bending angle kappa*l = {q_e[j, 2] * q_e[j, 0]:.3g} rad "
+                        f"segment {j} (q[{sl.start}:{sl.stop}]): bending angle kappa*l = {q_e[j, 2] * q_e[j, 0]:.3e} rad "
                         f"is below {PAPER_SINGULAR_ANGLE:g} rad, where the paper's (l, psi, kappa) coordinates are "
                         "singular; use coords='curvature' for this segment"
                     )

@@ -325,7 +325,7 @@ class Segment:
             return q, np.eye(3)
         if nonsingular and q[2] * q[0] < PAPER_SINGULAR_ANGLE:
             raise SingularConfigurationError(
-                f"q_e: bending angle kappa*l = {q[2] * q[0]:.3g} rad is below {PAPER_SINGULAR_ANGLE:g} rad: "
+                f"q_e: bending angle kappa*l = {q[2] * q[0]:.3e} rad is below {PAPER_SINGULAR_ANGLE:g} rad: "
                 "the paper's (l, psi, kappa) coordinates are singular at kappa = 0 (psi is undefined "
                 "and M_xi loses rank); use coords='curvature', which is regular there"
             )

@@ -66,6 +66,10 @@ class _DomainExit(Exception):
     pass
 
 
+class _WallLimit(Exception):
+    pass
+
+
 class _Progress:
     def __init__(self, t0, t1, enabled):
         self.t0, self.t1, self.enabled = t0, t1, enabled
@@ -124,7 +128,11 @@ class _System:
                 dd[:6] = np.linalg.solve(pin.Jexp6(pin.Motion(d)), v[:6])
         return dd[self.idx]
 
+    deadline = None
+
     def accel(self, t, q, v) -> np.ndarray:
+        if self.deadline is not None and _time.perf_counter() > self.deadline:
+            raise _WallLimit(f"wall-clock limit reached at t = {t:.6g} s")
         p = self.P(t, q, v)
         tau = self.Tq(t, q, v)
         self.nfev += 1
@@ -202,6 +210,7 @@ def simulate(
     max_step: float = np.inf,
     first_step: float | None = None,
     energies: bool = True,
+    wall_limit: float | None = None,
 ) -> Trajectory:
     """Integrate ``M a + C v + g + D v + dU/dq = B p + tau`` from ``(q0, v0)`` over ``t_span``.
 
@@ -226,9 +235,11 @@ def simulate(
     on_sample : callable ``(t, q, v, p)``, optional
         Called at every output sample as it is produced (e.g. to log it).
     max_step, first_step : float, s
-        Passed to the adaptive solvers.
+        Passed to the adaptive solvers (``first_step`` defaults to ``min(1e-4 s, span / 10)``).
     energies : bool
         Compute kinetic and potential energy at every sample.
+    wall_limit : float, s, optional
+        Stop (``success = False``) when the run has taken this much wall-clock time.
 
     Returns
     -------
@@ -264,6 +275,8 @@ def simulate(
             raise TypeError("events must be qchain.simulate.Event objects")
 
     sysm = _System(chain, as_input("pressure", pressure, chain.nu), as_input("tau", tau, chain.nv))
+    if wall_limit is not None:
+        sysm.deadline = _time.perf_counter() + float(wall_limit)
     rec = _Recorder(chain, sysm, t_eval, on_sample, energies)
     bar = _Progress(t0, t1, progress)
     status, message = 0, "The end of the time span was reached."
@@ -328,6 +341,8 @@ def simulate(
             t, q, v, status, message, nsteps = _run_adaptive(
                 ADAPTIVE[method], sysm, rec, bar, check_events, t0, t1, q, v, rtol, atol, max_step, first_step, method
             )
+    except _WallLimit as err:
+        status, message = -1, str(err)
     except KeyboardInterrupt:
         status, message = -1, f"interrupted by the user at t = {t:.6g} s"
         bar.close(t)
@@ -440,7 +455,10 @@ def _run_adaptive(cls, sysm, rec, bar, check_events, t0, t1, q, v, rtol, atol, m
             kw["jac"] = sysm.stiffness_jacobian
         return cls(sysm.rhs, t_start, y0, t1, **kw)
 
-    solver = new_solver(t, q, v, first_step)
+    # scipy's own first-step guess probes y0 + h f(y0), which can leave the model's domain
+    # (or the paper coordinates' regular set) and return NaN; start small instead: the
+    # controllers grow the step by up to 10x per step.
+    solver = new_solver(t, q, v, first_step if first_step is not None else min(1e-4, (t1 - t0) / 10))
     while True:
         msg = solver.step()
         if solver.status == "failed":
