@@ -150,7 +150,7 @@ class Chain:
         # segments with the paper's literal linear law: their elastic/damping terms are
         # evaluated by the Segment (in its own coordinates), the rest by the compiled kernel
         self._linear = np.array([s.stiffness_matrix is not None or s.damping_matrix is not None for s in segs])
-        self._material = ~self._linear
+        self._has_linear = bool(self._linear.any())
         if not isinstance(planar, (bool, np.bool_)):
             raise ValueError(f"planar must be True or False, got {planar!r}")
         if planar and self._any_paper:
@@ -261,14 +261,16 @@ class Chain:
             raise ValueError(f"base_motion({t}) gave a non-finite placement")
         return X, as_vector("base_motion(t)[1] (V_B)", V, 6), as_vector("base_motion(t)[2] (A_B)", A, 6)
 
-    def _state(self, q, v=None, t: float = 0.0, nonsingular: bool = False) -> _State:
+    def _state(self, q, v=None, t: float = 0.0, nonsingular: bool = False, extra=()) -> _State:
+        """Validate and convert ``q`` (and ``v``); ``extra`` (name, array) pairs are checked
+        for non-finite entries too."""
         q = self._q(q)
         q_e = q[self._qoff :].reshape(self.n, 3)
         if v is not None:
             v = self._vec("v", v, self.nv)
-            self._check_domain(q_e, ("q", q), ("v", v))
+            self._check_domain(q_e, ("q", q), ("v", v), *extra)
         else:
-            self._check_domain(q_e, ("q", q))
+            self._check_domain(q_e, ("q", q), *extra)
         A_B = None
         if self.base == "fixed":
             X = self.base_placement
@@ -555,6 +557,21 @@ class Chain:
     def _p(self, p) -> np.ndarray:
         return np.zeros((self.n, 3)) if p is None else as_vector("p", p, self.nu).reshape(self.n, 3)
 
+    def _pt(self, p, tau):
+        """Shape-checked ``p`` (n, 3) and ``tau`` (nv,) or None, and their (name, array) pairs
+        for the finiteness check of :meth:`_state`."""
+        extra = []
+        if p is None:
+            p3 = np.zeros((self.n, 3))
+        else:
+            pv = self._vec("p", p, self.nu)
+            extra.append(("p", pv))
+            p3 = pv.reshape(self.n, 3)
+        if tau is not None:
+            tau = self._vec("tau", tau, self.nv)
+            extra.append(("tau", tau))
+        return p3, tau, extra
+
     def internal_forces(self, q, v, p=None) -> np.ndarray:
         """``B p - D v - dU_el/dq`` (nv,), the segments' own generalised forces, zero on the base."""
         st = self._state(q, v)
@@ -571,7 +588,7 @@ class Chain:
             self._r_ch, self._paper_act, f_c,
         )
         f = self._force_e(st, f_c)
-        if self._linear.any():
+        if self._has_linear:
             f = f.copy()
             for j in np.flatnonzero(self._linear):
                 s = self.segments[j]
@@ -585,13 +602,13 @@ class Chain:
         O(n); locked coordinates get zero acceleration. ``p`` (3 n,) Pa, default zero; ``tau`` (nv,) external generalised forces
         (for a floating base, ``tau[:6]`` is a wrench on the base in the base frame).
         """
-        st = self._state(q, v, t=t, nonsingular=True)
+        p3, tau, extra = self._pt(p, tau)
+        st = self._state(q, v, t=t, nonsingular=True, extra=extra)
         if self._any_locked:
             self._check_locks(st.q_e, st.v_e)
-        f = self._internal_e(st, self._p(p))
+        f = self._internal_e(st, p3)
         F0 = np.zeros(6)
         if tau is not None:
-            tau = as_vector("tau", tau, self.nv)
             f = f + tau[self._voff :].reshape(self.n, 3)
             if self.floating:
                 F0 = tau[:6].copy()

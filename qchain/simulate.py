@@ -118,7 +118,12 @@ class _System:
         return x
 
     def q_of(self, yd: np.ndarray) -> np.ndarray:
-        return self.ch.integrate(self.q_chart, self.full(yd))
+        ch = self.ch
+        if ch.floating:
+            return ch.integrate(self.q_chart, self.full(yd))
+        q = self.q_chart.copy()  # additive for a fixed or prescribed base (no quaternion)
+        q[self.idx] += yd
+        return q
 
     def delta_dot(self, yd: np.ndarray, v: np.ndarray) -> np.ndarray:
         dd = v.copy()
