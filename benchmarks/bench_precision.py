@@ -135,7 +135,7 @@ def plot(rows, path, T):
         pts = [(r["wall_per_sim_s"], r["tip_error_m"]) for r in rows if r["curve"] == curve and r["success"]]
         if pts:
             x, y = zip(*pts)
-            ax.loglog(x, y, "o-", label=curve, ls="--" if curve in ("nodes (DOP853)", "inextensible") else "-")
+            ax.loglog(x, y, marker="o", label=curve, ls="--" if curve in ("nodes (DOP853)", "inextensible") else "-")
     for b, c in ((1e-3, "gray"), (1e-4, "lightgray")):
         ax.axhline(b, color=c, lw=0.8)
     ax.set_xlabel("wall time per simulated second (s/s)")
