@@ -28,7 +28,7 @@ from __future__ import annotations
 import numpy as np
 
 from .arc import arc_node, jit
-from .slices import elastic_gradient_c, input_matrix_c, phi_matrix, segment_slices, slice_twist
+from .slices import elastic_gradient_c, input_matrix_c, phi_matrix, segment_slices, slice_twist, sub_motion_cross
 
 __all__ = ["rnea", "crba", "aba", "tip_maps", "internal_forces", "first_invalid"]
 
@@ -49,12 +49,7 @@ def _tip(q, qd, xi, T, c):
     for r in range(6):
         rel[r] = S[r, 0] * qd[0] + S[r, 1] * qd[1] + S[r, 2] * qd[2]
         c[r] = Sd[r, 0] * qd[0] + Sd[r, 1] * qd[1] + Sd[r, 2] * qd[2]
-    c[0] -= rel[4] * Vr[2] - rel[5] * Vr[1] + rel[1] * Vr[5] - rel[2] * Vr[4]
-    c[1] -= rel[5] * Vr[0] - rel[3] * Vr[2] + rel[2] * Vr[3] - rel[0] * Vr[5]
-    c[2] -= rel[3] * Vr[1] - rel[4] * Vr[0] + rel[0] * Vr[4] - rel[1] * Vr[3]
-    c[3] -= rel[4] * Vr[5] - rel[5] * Vr[4]
-    c[4] -= rel[5] * Vr[3] - rel[3] * Vr[5]
-    c[5] -= rel[3] * Vr[4] - rel[4] * Vr[3]
+    sub_motion_cross(rel, Vr, c)
 
 
 @jit

@@ -24,6 +24,18 @@ __all__ = ["CHAMBER_ANGLES", "input_matrix_c", "elastic_gradient_c", "segment_sl
 
 
 @jit
+def sub_motion_cross(a, b, out):
+    """``out -= a x b`` (motion cross product, 6-vectors): the velocity-product part
+    ``-(S qdot) x (Ad^-1 V)`` of a slice's bias acceleration."""
+    out[0] -= a[4] * b[2] - a[5] * b[1] + a[1] * b[5] - a[2] * b[4]
+    out[1] -= a[5] * b[0] - a[3] * b[2] + a[2] * b[3] - a[0] * b[5]
+    out[2] -= a[3] * b[1] - a[4] * b[0] + a[0] * b[4] - a[1] * b[3]
+    out[3] -= a[4] * b[5] - a[5] * b[4]
+    out[4] -= a[5] * b[3] - a[3] * b[5]
+    out[5] -= a[3] * b[4] - a[4] * b[3]
+
+
+@jit
 def slice_twist(R, p, S, V0, qd, out):
     """``out = Ad(g)^-1 V0 + S qd``: the slice body twist (6,)."""
     v0 = V0[0] - (p[1] * V0[5] - p[2] * V0[4])
@@ -133,12 +145,7 @@ def segment_slices(alpha, w, mass, radius, q, xi, xid, want_mass, M, Q):
         slice_twist(R, p, S, A0, qdd, a)
         for r in range(6):
             a[r] += Sd[r, 0] * qd[0] + Sd[r, 1] * qd[1] + Sd[r, 2] * qd[2]
-        a[0] -= rel[4] * Vr[2] - rel[5] * Vr[1] + rel[1] * Vr[5] - rel[2] * Vr[4]
-        a[1] -= rel[5] * Vr[0] - rel[3] * Vr[2] + rel[2] * Vr[3] - rel[0] * Vr[5]
-        a[2] -= rel[3] * Vr[1] - rel[4] * Vr[0] + rel[0] * Vr[4] - rel[1] * Vr[3]
-        a[3] -= rel[4] * Vr[5] - rel[5] * Vr[4]
-        a[4] -= rel[5] * Vr[3] - rel[3] * Vr[5]
-        a[5] -= rel[3] * Vr[4] - rel[4] * Vr[3]
+        sub_motion_cross(rel, Vr, a)
         # h = I V; f = I a + V x* h, V x* h = (w x hl, v x hl + w x ha)
         hl0, hl1, hl2 = m * V[0], m * V[1], m * V[2]
         ha0, ha1, ha2 = ixx * V[3], ixx * V[4], izz * V[5]
