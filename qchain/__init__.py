@@ -2,8 +2,9 @@
 
 from .errors import DomainError, QchainError, SingularConfigurationError
 from .chain import Chain
+from .scene import Scene, SceneError, load_scene
 from .segment import Segment
 
 __version__ = "0.1.0"
 
-__all__ = ["Chain", "Segment", "QchainError", "DomainError", "SingularConfigurationError", "__version__"]
+__all__ = ["Chain", "Segment", "Scene", "SceneError", "load_scene", "QchainError", "DomainError", "SingularConfigurationError", "__version__"]

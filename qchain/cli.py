@@ -197,6 +197,16 @@ def summary_lines(scene: Scene, model: SceneModel, traj, wall: float) -> list[st
     lines.append(f"final tip (t = {t_end:.6g} s, world): position ({p[0]:.3f}, {p[1]:.3f}, {p[2]:.3f}) mm")
     lines.append(f"  orientation rpy ({rpy[0]:.3f}, {rpy[1]:.3f}, {rpy[2]:.3f}) deg, quaternion xyzw "
                  f"({quat[0]:.6f}, {quat[1]:.6f}, {quat[2]:.6f}, {quat[3]:.6f})")
+    reached = scene.bends(model.chain, traj)
+    line = f"largest bends reached (rad): {', '.join(f'{x:.3g}' for x in reached)}"
+    if model.max_bend is not None:
+        line += f"; nodes sized for {', '.join(sorted({f'{x:.3g}' for x in model.max_bend}))}"
+        over = np.flatnonzero(reached > model.max_bend)
+        if over.size:
+            j = int(over[0])
+            line += (f"\nwarning: segment {j} bent {reached[j]:.3g} rad, more than the {model.max_bend[j]:.3g} rad its "
+                     f"{model.nodes[j]} nodes were sized for: set model.max_bend in the scene")
+    lines.append(line)
     ke, pe = traj.kinetic_energy, traj.potential_energy
     lines.append(f"energies (J): kinetic {ke[-1]:.6g}, potential {pe[-1]:.6g} (gravity + elastic), total "
                  f"{ke[-1] + pe[-1]:.6g}; at the start total {ke[0] + pe[0]:.6g}")

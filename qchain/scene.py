@@ -121,17 +121,20 @@ own setting); ``SceneModel.kept`` says which reductions did not apply and why no
   nodes whose ``M_xi`` is within ``node_tolerance`` of a converged one
   (:func:`qchain.segment.nodes_for_tolerance`) at the largest bend the scene reaches:
   ``model.max_bend`` if given, else the estimate ``BEND_MARGIN`` (2) times the largest of
-  the initial bend and the static bends (:func:`qchain.statics.equilibrium`) under the
+  the initial bends and the static bends (:func:`qchain.statics.equilibrium`) under the
   scene's peak pressures, plus ``sqrt(2 T0 l0 / EI)``, the bend that would store all the
-  initial kinetic energy ``T0`` of the deformation rates (base held still). The factor 2 is the overshoot of an undamped step
-  response. The static shapes are solved with the base held at its start placement, for
+  initial kinetic energy ``T0`` of the deformation rates (base held still); one angle, the
+  largest over the segments, for all segments, since a moving arm carries its bends from
+  segment to segment. The factor 2 is the overshoot of an undamped step response. The static shapes are solved with the base held at its start placement, for
   the pressures at the times where each segment's bending drive is largest (and
   smallest), over 65 even samples of the run and the schedule's corner times; a floating
   base is solved in zero gravity (a free-falling arm carries no gravity load); a
   translating base adds its peak acceleration to gravity in both directions, a rotating
   one is solved at both ends of its swing. Strongly driven scenes (resonance, fast base
-  motion) can bend more: give ``max_bend`` there. Without ``node_tolerance`` the segments
-  keep ``nodes`` or :data:`qchain.segment.DEFAULT_NODES`.
+  motion) can bend more: give ``max_bend`` there. ``qchain run`` prints the bends a run
+  reached beside the one the nodes were sized for, and warns when a run went further.
+  Without ``node_tolerance`` the segments keep ``nodes`` or
+  :data:`qchain.segment.DEFAULT_NODES`.
 
 ``model.reduce = false`` (or ``Scene.build(reduce=False)``) turns the automatic reductions
 off: same layout, all coordinates free, the default node count, for comparison.
@@ -676,9 +679,18 @@ class Scene:
 
     # ------------------------------------------------------------------ model
 
-    def build(self, reduce: bool | None = None) -> SceneModel:
-        """Build the model; ``reduce`` (default: the file's ``model.reduce``) turns the
-        automatic reductions (planar, node count) on or off. See the module docstring."""
+    def build(self, reduce: bool | None = None, controlled: bool = False) -> SceneModel:
+        """Build the model; see "Model reduction" in the module docstring.
+
+        Parameters
+        ----------
+        reduce : bool, optional
+            Automatic reductions (planar, node count) on or off; default the file's
+            ``model.reduce``.
+        controlled : bool
+            The pressures will come from a controller, not from the file: the planar
+            reduction, which needs chambers 2 and 3 equal at all times, is not made.
+        """
         reduce = self.reduce if reduce is None else bool(reduce)
         reductions: list[str] = []
         kept: list[str] = []
@@ -688,7 +700,7 @@ class Scene:
         if self.base.type == "fixed":
             reductions.append("fixed base: no base coordinates")
         planar = False
-        why_not = self.planar_obstacle()
+        why_not = "the pressures come from a controller" if controlled else self.planar_obstacle()
         if not reduce:
             kept.append("planar: not tried (reduce = false)")
         elif why_not is None:
@@ -700,7 +712,7 @@ class Scene:
         else:
             kept.append(f"planar: not applicable: {why_not}")
         nodes, max_bend, note = self._nodes(reduce, planar)
-        (reductions if note.startswith("nodes: ") and reduce and self.node_tolerance is not None else kept).append(note)
+        (reductions if max_bend is not None else kept).append(note)  # sized from node_tolerance, or not
         segs = [s.segment(nodes=k) for s, k in zip(self.segments, nodes)]
         chain = self._chain(segs, planar)
         q0, v0 = self._initial_state(chain)
@@ -825,13 +837,20 @@ class Scene:
             p, msg = failed
             return l0 / r, (f"equilibrium failed at p = {_vec_str(p)} Pa ({msg}): sized for the largest bend the "
                             f"model allows, l0/r_s")
-        theta = BEND_MARGIN * np.maximum(static, initial) + kin
-        parts = [f"{BEND_MARGIN:g} x the static bend under peak pressures"]
-        if np.any(initial > static):
-            parts = [f"{BEND_MARGIN:g} x the largest of the initial and the static bends under peak pressures"]
+        theta = np.full(self.n, BEND_MARGIN * max(static.max(), initial.max()) + kin.max())
+        parts = [f"{BEND_MARGIN:g} x the largest static bend under peak pressures"]
+        if initial.max() > static.max():
+            parts = [f"{BEND_MARGIN:g} x the largest initial bend"]
         if T0 > 0:
             parts.append(f"+ {_fmt(kin.max())} rad for the initial kinetic energy {T0:.3g} J")
-        return theta, " ".join(parts)
+        return theta, " ".join(parts) + ", any segment"
+
+    def bends(self, chain: Chain, traj) -> np.ndarray:
+        """Largest bending angle ``|kappa| l`` (rad) each segment reached in a trajectory, (n,)."""
+        out = np.zeros(self.n)
+        for q in traj.q:
+            out = np.maximum(out, self._bends(chain, q))
+        return out
 
     def _bends(self, chain, q) -> np.ndarray:
         """Bending angle ``kappa l`` of each segment at ``q`` (or at the initial state)."""
@@ -898,7 +917,7 @@ class Scene:
         return np.append(t, T)
 
     def simulate(self, *, reduce: bool | None = None, model: SceneModel | None = None,
-                 duration: float | None = None, on_sample=None, progress: bool = False):
+                 duration: float | None = None, pressure=None, on_sample=None, progress: bool = False):
         """Run the scene; returns a :class:`qchain.trajectory.Trajectory` sampled at
         :meth:`sample_times`.
 
@@ -910,6 +929,9 @@ class Scene:
             A model built before (:meth:`build`); default :attr:`model` or a new build.
         duration : float, s, optional
             Override the file's duration.
+        pressure : callable ``(t, q, v) -> (3 n,)`` or Schedule, optional
+            Pressures instead of the file's (e.g. a controller; build the model with
+            ``controlled=True`` then).
         on_sample : callable ``(t, q, v, p)``, optional
             Called at every output sample.
         progress : bool
@@ -923,7 +945,8 @@ class Scene:
         if not (math.isfinite(T) and T > 0):
             raise ValueError(f"duration must be > 0 s, got {duration!r}")
         return simulate(
-            model.chain, model.q0, model.v0, (0.0, T), pressure=model.pressure, method=self.method, dt=self.dt,
+            model.chain, model.q0, model.v0, (0.0, T), pressure=model.pressure if pressure is None else pressure,
+            method=self.method, dt=self.dt,
             rtol=self.rtol, atol=self.atol, t_eval=self.sample_times(T), on_sample=on_sample, progress=progress,
             max_step=self.max_step,
         )

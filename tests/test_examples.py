@@ -1,0 +1,105 @@
+"""Every example runs (``--quick``) and produces its outputs, which say what they should."""
+
+import importlib
+import math
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+EXAMPLES = Path(__file__).parents[1] / "examples"
+PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
+
+
+@pytest.fixture(scope="module")
+def examples():
+    sys.path.insert(0, str(EXAMPLES))
+    try:
+        yield lambda name: importlib.import_module(name)
+    finally:
+        sys.path.remove(str(EXAMPLES))
+
+
+def is_png(path):
+    path = Path(path)
+    return path.is_file() and path.read_bytes()[:8] == PNG_MAGIC and path.stat().st_size > 10_000
+
+
+def test_step_response(examples, tmp_path, capsys):
+    out = examples("step_response").main(["--quick", "--out", str(tmp_path)])
+    traj = out["trajectory"]
+    assert traj.success and math.isclose(traj.t[-1], 0.25)
+    assert is_png(out["png"]) and out["png"].parent == tmp_path
+    from qchain.scene import load_scene
+
+    sc = load_scene(EXAMPLES / "scenes" / "step_response.toml")
+    ch = sc.build().chain
+    tip = np.array([ch.tip_placement(q).translation for q in traj.q])
+    before = traj.t < 0.05
+    assert np.all(tip[before, 0] == 0.0)  # nothing bends before the step (symmetric, planar)
+    assert tip[-1, 0] < -0.005  # chamber 1 on +x lengthens its side: the tip goes to -x
+    assert out["overshoot_percent"] > 0.0  # lightly damped: it overshoots the static shape
+    assert "overshoot" in capsys.readouterr().out
+
+
+def test_wave_arm(examples, tmp_path):
+    out = examples("wave_arm").main(["--quick", "--out", str(tmp_path)])
+    assert out["trajectory"].success and is_png(out["png"])
+    tip = out["tip"]
+    assert np.abs(tip[:, 1]).max() < 1e-9  # p2 == p3: the arm stays in the x-z plane
+    assert np.ptp(tip[:, 0]) > 0.005
+
+
+def test_floating_arm(examples, tmp_path, capsys):
+    out = examples("floating_arm").main(["--quick", "--out", str(tmp_path)])
+    assert out["trajectory"].success
+    assert all(is_png(p) for p in out["pngs"])
+    rel_lin, rel_ang = out["relative_drift"]
+    assert rel_lin < 1e-8 and rel_ang < 1e-8  # DOP853 at rtol 1e-10: the momentum stays put
+    assert "largest drift" in capsys.readouterr().out
+
+
+def test_moving_base(examples, tmp_path):
+    out = examples("moving_base").main(["--quick", "--out", str(tmp_path)])
+    traj = out["trajectory"]
+    assert traj.success and is_png(out["png"])
+    # the mount follows the scene's motion exactly (mount frame x = world x here)
+    assert np.allclose(out["mount"][:, 0], 0.02 * np.sin(2 * np.pi * 1.5 * traj.t), rtol=0, atol=1e-15)
+    assert np.ptp(out["tip"][:, 0]) > 0.005
+
+
+def test_equilibrium_gallery(examples, tmp_path):
+    out = examples("equilibrium_gallery").main(["--quick", "--out", str(tmp_path)])
+    assert is_png(out["png"]) and len(out["shapes"]) == 6
+    from qchain.scene import load_scene
+
+    ch = load_scene(EXAMPLES / "scenes" / "equilibrium_gallery.toml").build().chain
+    for label, q, tip in out["shapes"]:
+        bends = [math.hypot(*q[ch.q_slice(j)][1:]) for j in range(ch.n)]
+        if label in ("0,0,0 | 0,0,0", "60,60,60 | 60,60,60"):  # no pressure difference: no bend
+            assert max(bends) < 1e-9
+        else:
+            assert max(bends) > 1.0  # 1/m
+    # equal pressures stretch the arm
+    q_eq = out["shapes"][-1][1]
+    assert all(q_eq[ch.q_slice(j)][0] > 0.105 for j in range(ch.n))
+    assert out["trajectory"].success and np.isfinite(out["distance_to_static_mm"])
+
+
+def test_tip_control(examples, tmp_path, capsys):
+    out = examples("tip_control").main(["--quick", "--out", str(tmp_path)])
+    traj = out["trajectory"]
+    assert traj.success and is_png(out["png"])
+    err = out["error"]
+    assert err[0] > 0.05 and err[-1] < 0.5 * err[0]  # on its way to the target
+    assert np.all(traj.p >= 0.0) and np.all(traj.p <= 1e5)
+    assert "tip error" in capsys.readouterr().out
+
+
+def test_an_example_runs_as_a_script(tmp_path):
+    r = subprocess.run([sys.executable, str(EXAMPLES / "moving_base.py"), "--duration", "0.05", "--out", str(tmp_path)],
+                       capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    assert f"wrote {tmp_path / 'moving_base.png'}" in r.stdout and is_png(tmp_path / "moving_base.png")
