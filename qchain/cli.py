@@ -362,7 +362,22 @@ def _parser(qlog) -> argparse.ArgumentParser:
     info.add_argument("--full", action="store_true", help="the model without automatic reductions")
     if qlog is not None and hasattr(qlog, "replay_main"):
         sub.add_parser("replay", help="replay an MCAP recording in Rerun (qchain replay --help)", add_help=False)
+    sub.add_parser("bench", help="speed against accuracy: every benchmark chart (qchain bench --help)",
+                   add_help=False)
     return parser
+
+
+def _bench(argv) -> int:
+    """``qchain bench``: the scripts of the source tree's ``benchmarks/`` folder (not in a wheel)."""
+    folder = Path(__file__).resolve().parents[1] / "benchmarks"
+    if not (folder / "run_all.py").is_file():
+        print(f"qchain bench: error: the benchmarks folder is not here ({folder}); run it from a source checkout "
+              "(pip install -e .)", file=sys.stderr)
+        return EXIT_USAGE
+    sys.path.insert(0, str(folder))
+    import run_all
+
+    return int(run_all.main(argv) or 0)
 
 
 def main(argv=None) -> int:
@@ -373,6 +388,11 @@ def main(argv=None) -> int:
     if argv and argv[0] == "replay" and qlog is not None and hasattr(qlog, "replay_main"):
         try:
             return int(qlog.replay_main(argv[1:]) or 0)
+        except SystemExit as exc:
+            return _exit_code(exc)
+    if argv and argv[0] == "bench":
+        try:
+            return _bench(argv[1:])
         except SystemExit as exc:
             return _exit_code(exc)
     parser = _parser(qlog)
