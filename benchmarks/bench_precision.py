@@ -59,16 +59,16 @@ def measure(ch, T, t_eval, method, repeats, **kw):
 def series(quick: bool):
     s = {
         "rk4": [("rk4", dict(dt=dt)) for dt in ([2e-3, 1e-3, 5e-4] if quick else [4e-3, 2e-3, 1e-3, 5e-4, 2.5e-4])],
-        "midpoint": [("midpoint", dict(dt=dt)) for dt in ([4e-3, 2e-3, 1e-3] if quick else
-                                                           [8e-3, 4e-3, 2e-3, 1e-3, 5e-4])],
-        "RK45": [("RK45", dict(rtol=r, atol=r * 1e-2)) for r in ([1e-3, 1e-5, 1e-7] if quick else
-                                                                 [1e-3, 1e-4, 1e-5, 1e-6, 1e-7, 1e-8, 1e-9])],
+        "midpoint": [("midpoint", dict(dt=dt)) for dt in ([8e-3, 4e-3, 1e-3] if quick else
+                                                           [1.6e-2, 8e-3, 4e-3, 2e-3, 1e-3, 5e-4])],
+        "RK45": [("RK45", dict(rtol=r, atol=r * 1e-2)) for r in ([1e-2, 1e-4, 1e-7] if quick else
+                                                                 [1e-2, 1e-3, 1e-4, 1e-5, 1e-6, 1e-7, 1e-8, 1e-9])],
         "DOP853": [("DOP853", dict(rtol=r, atol=r * 1e-2)) for r in ([1e-4, 1e-7, 1e-10] if quick else
                                                                      [1e-4, 1e-5, 1e-6, 1e-7, 1e-8, 1e-9, 1e-10])],
-        "Radau": [("Radau", dict(rtol=r, atol=r * 1e-2)) for r in ([1e-3, 1e-5] if quick else
-                                                                   [1e-3, 1e-4, 1e-5, 1e-6, 1e-7])],
-        "BDF": [("BDF", dict(rtol=r, atol=r * 1e-2)) for r in ([1e-3, 1e-5] if quick else
-                                                               [1e-3, 1e-4, 1e-5, 1e-6, 1e-7])],
+        "Radau": [("Radau", dict(rtol=r, atol=r * 1e-2)) for r in ([1e-2, 1e-4] if quick else
+                                                                   [3e-2, 1e-2, 1e-3, 1e-4, 1e-5, 1e-6, 1e-7])],
+        "BDF": [("BDF", dict(rtol=r, atol=r * 1e-2)) for r in ([1e-2, 1e-4] if quick else
+                                                               [3e-2, 1e-2, 1e-3, 1e-4, 1e-5, 1e-6, 1e-7])],
     }
     return s
 
