@@ -1,12 +1,20 @@
 """Cost of logging a run, as a ratio to the same run without logging.
 
-    python benchmarks/bench_logging.py [--steps 5000] [--repeats 5] [--workload-us 200]
+    python benchmarks/bench_logging.py [--steps 20000] [--block 500] [--pad-us 0]
 
-Drives a simulation step function with logging off, MCAP on, Rerun (.rrd) on and both on,
-interleaved (the order rotates every repeat), and prints the median steps/s of each, the
-overhead ratios (time with logging / time without - 1; target <= 5 %), the time the writer
-needed after the last step to drain and finish the files, and the MCAP bytes per simulated
-second.
+Drives a simulation step function with logging off, MCAP on, Rerun (.rrd) on and both on.
+One logger a configuration stays open for the whole measurement; the steps go in blocks,
+the configurations interleaved block by block (the order rotates every round), and after
+each block the logger is flushed (``RunLogger.flush``: everything logged is in the files) so
+that no writer still works while another configuration is timed. Printed: median steps/s;
+the overhead = median over rounds of (block time with logging / block time without, same
+round) - 1 (target <= 5 %); the CPU time of the simulating process a step (its ``log()``
+calls included) and of the writer process (on the other core); the time a flush waited for
+the writer after a block; MCAP bytes a simulated second.
+
+The paired, block-interleaved design is there because a small virtual machine's speed
+drifts by up to 2x within seconds; comparing whole runs measured minutes apart would
+measure the drift, not the logging.
 
 To measure a real simulation, give :func:`measure_overhead` a function that advances it one
 step and returns a :class:`qchain.logging.StepRecord`, e.g.::
@@ -16,18 +24,18 @@ step and returns a :class:`qchain.logging.StepRecord`, e.g.::
     def step():
         sim.advance()                           # one integrator step
         return sim.step_record()                # a StepRecord of the new state
-    print_table(measure_overhead(step, 5000, info=sim.run_info()))
+    print_table(measure_overhead(step, 20000, info=sim.run_info()))
 
 Until then the synthetic workload stands in: the analytically bending three-segment arm of
-``tests/logging_fixtures.py`` (closed-form constant-curvature arcs, ~200-250 us a step in
-numpy), optionally padded with small dense solves to a chosen cost.
+``tests/logging_fixtures.py`` (closed-form constant-curvature arcs, 12 backbone points a
+segment, ~150-250 us a step in numpy on the CI machine), optionally padded with 27 x 27
+solves (``--pad-us``) to a chosen cost.
 """
 
 from __future__ import annotations
 
 import argparse
 import os
-import resource
 import statistics
 import sys
 import tempfile
@@ -54,8 +62,8 @@ def synthetic_step(dt: float = 1e-3, pad_us: float = 0.0, seed: int = 0):
     dt : float, s
         Time step.
     pad_us : float, us
-        Extra numpy work a step (27 x 27 solves, like a three-segment mass matrix), to make
-        a step cost about ``arm_record``'s cost + ``pad_us``.
+        Extra numpy work a step (27 x 27 solves, the size of a three-segment mass matrix
+        with a floating base), on top of the arm's own ~150-250 us.
     """
     rng = np.random.default_rng(seed)
     A = rng.standard_normal((27, 27))
@@ -79,60 +87,31 @@ def synthetic_step(dt: float = 1e-3, pad_us: float = 0.0, seed: int = 0):
     return step
 
 
-def _run(step_fn, n_steps: int, config: str, info: RunInfo, workdir: Path, tag: str) -> dict:
-    mcap = workdir / f"{tag}.mcap" if config in ("mcap", "both") else None
-    rrd = workdir / f"{tag}.rrd" if config in ("rrd", "both") else None
-    logger = None
-    if config != "off":
-        logger = RunLogger(info, mcap, rrd=rrd, worker="process", quiet=True)
-    t_first = t_last = None
-    children0 = resource.getrusage(resource.RUSAGE_CHILDREN)
-    c0 = time.process_time()
-    t0 = time.perf_counter()
-    if logger is None:
-        for _ in range(n_steps):
-            rec = step_fn()
-        t_first = t_last = rec.t
-    else:
-        log = logger.log
-        for i in range(n_steps):
-            rec = step_fn()
-            log(rec)
-            if i == 0:
-                t_first = rec.t
-        t_last = rec.t
-    t1 = time.perf_counter()
-    c1 = time.process_time()
-    if logger is not None:
-        logger.close()
-    t2 = time.perf_counter()
-    children1 = resource.getrusage(resource.RUSAGE_CHILDREN)
-    writer_cpu = (children1.ru_utime + children1.ru_stime) - (children0.ru_utime + children0.ru_stime)
-    out = {"loop": t1 - t0, "drain": t2 - t1, "cpu": c1 - c0, "writer_cpu": writer_cpu, "sim_span": None,
-           "mcap_bytes": None}
-    if mcap is not None:
-        out["mcap_bytes"] = mcap.stat().st_size
-        out["sim_span"] = (t_last - t_first) * n_steps / max(n_steps - 1, 1)
-    for f in (mcap, rrd):
-        if f is not None and f.exists():
-            f.unlink()
-    return out
+def _cpu_seconds(pid: int | None) -> float:
+    """User + system CPU time of a process (from /proc; 0 where unavailable)."""
+    if pid is None:
+        return 0.0
+    try:
+        fields = open(f"/proc/{pid}/stat").read().rsplit(")", 1)[1].split()
+        return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+    except (OSError, IndexError, ValueError):
+        return 0.0
 
 
-def measure_overhead(step_fn, n_steps: int, sinks=CONFIGS, repeats: int = 5, info: RunInfo | None = None,
-                     workdir: str | os.PathLike | None = None, warmup: bool = True) -> dict:
-    """Median cost of logging with each sink set, interleaved.
+def measure_overhead(step_fn, n_steps: int, sinks=CONFIGS, block: int = 500, info: RunInfo | None = None,
+                     workdir: str | os.PathLike | None = None) -> dict:
+    """Cost of logging with each sink set, in interleaved blocks of steps.
 
     Parameters
     ----------
     step_fn : callable () -> StepRecord
         Advances the simulation one step and returns its record.
     n_steps : int
-        Steps a run.
+        Steps a configuration in all (``n_steps // block`` rounds).
     sinks : sequence of {"off", "mcap", "rrd", "both"}
-        Configurations; "off" (no logger) is the reference and is always measured.
-    repeats : int
-        Runs a configuration; the median is reported.
+        Configurations; "off" (no logging) is the reference and always measured.
+    block : int
+        Steps a block.
     info : RunInfo or None
         Run information (default: the synthetic arm's).
     workdir : path or None
@@ -141,78 +120,130 @@ def measure_overhead(step_fn, n_steps: int, sinks=CONFIGS, repeats: int = 5, inf
     Returns
     -------
     dict
-        config -> {"steps_per_s", "loop_s", "drain_s", "overhead", "mcap_bytes_per_sim_s",
-        "loops" (all repeats)}.
+        config -> {"steps_per_s", "overhead", "overhead_q1", "overhead_q3",
+        "cpu_us_per_step", "writer_cpu_us_per_step", "flush_wait_ms",
+        "mcap_bytes_per_sim_s"}, and "_meta".
     """
     info = info or arm_info()
     configs = ["off"] + [c for c in sinks if c != "off"]
+    rounds = max(3, n_steps // block)
     with tempfile.TemporaryDirectory(dir=workdir) as tmp:
         tmp = Path(tmp)
-        fixed = {c: 0.0 for c in configs}  # writer CPU of a run without steps: start and finish
-        if warmup:
-            for c in configs:
-                _run(step_fn, min(n_steps, 300), c, info, tmp, f"warm-{c}")
-                if c != "off":
-                    fixed[c] = statistics.median(_run(step_fn, 1, c, info, tmp, f"fixed-{c}")["writer_cpu"]
-                                                 for _ in range(3))
-        results = {c: [] for c in configs}
-        for r in range(repeats):
-            order = configs[r % len(configs):] + configs[: r % len(configs)]
-            for c in order:
-                results[c].append(_run(step_fn, n_steps, c, info, tmp, f"{c}-{r}"))
-    ref = statistics.median(x["loop"] for x in results["off"])
+        loggers = {}
+        for c in configs[1:]:
+            mcap = tmp / f"{c}.mcap" if c in ("mcap", "both") else None
+            rrd = tmp / f"{c}.rrd" if c in ("rrd", "both") else None
+            loggers[c] = RunLogger(info, mcap, rrd=rrd, worker="process", quiet=True)
+        res = {c: {"loop": [], "cpu": [], "writer": [], "flush": [], "sim": 0.0, "log_cpu": []} for c in configs}
+        try:
+            for c in configs:  # warm-up block, not counted
+                log = loggers.get(c)
+                for _ in range(min(block, 200)):
+                    rec = step_fn()
+                    if log is not None:
+                        log.log(rec)
+                if log is not None:
+                    log.flush()
+            # the cost of log() itself, on records made beforehand: CPU time of this thread a call
+            records = [step_fn() for _ in range(block)]
+            for c in configs[1:]:
+                for _ in range(3):
+                    put = loggers[c].log
+                    c0 = time.thread_time()
+                    for rec in records:
+                        put(rec)
+                    res[c]["log_cpu"].append((time.thread_time() - c0) / block)
+                    res[c]["sim"] += (records[-1].t - records[0].t) * block / max(block - 1, 1)
+                    loggers[c].flush()
+            for r in range(rounds):
+                order = configs[r % len(configs):] + configs[: r % len(configs)]
+                for c in order:
+                    log = loggers.get(c)
+                    wpid = None if log is None else log.worker_pid
+                    w0 = _cpu_seconds(wpid)
+                    c0 = time.process_time()
+                    t0 = time.perf_counter()
+                    if log is None:
+                        for _ in range(block):
+                            rec = step_fn()
+                    else:
+                        put = log.log
+                        first = None
+                        for _ in range(block):
+                            rec = step_fn()
+                            put(rec)
+                            if first is None:
+                                first = rec.t
+                    t1 = time.perf_counter()
+                    c1 = time.process_time()
+                    if log is not None:
+                        log.flush()
+                        res[c]["sim"] += (rec.t - first) * block / max(block - 1, 1)
+                    t2 = time.perf_counter()
+                    res[c]["loop"].append(t1 - t0)
+                    res[c]["cpu"].append(c1 - c0)
+                    res[c]["flush"].append(t2 - t1)
+                    res[c]["writer"].append(_cpu_seconds(wpid) - w0)
+        finally:
+            for log in loggers.values():
+                log.close()
+        sizes = {c: (tmp / f"{c}.mcap").stat().st_size for c in configs if (tmp / f"{c}.mcap").exists()}
     table = {}
-    for c, runs in results.items():
-        loop = statistics.median(x["loop"] for x in runs)
-        row = {
-            "steps_per_s": n_steps / loop,
-            "loop_s": loop,
-            "drain_s": statistics.median(x["drain"] for x in runs),
-            "overhead": loop / ref - 1.0,
-            "loops": [x["loop"] for x in runs],
-            "cpu_us_per_step": statistics.median(x["cpu"] for x in runs) / n_steps * 1e6,
-            "writer_cpu_us_per_step": (statistics.median(x["writer_cpu"] for x in runs) - fixed[c]) / n_steps * 1e6,
-            "writer_fixed_cpu_s": fixed[c],
-            "mcap_bytes_per_sim_s": None,
+    off = res["off"]["loop"]
+    for c in configs:
+        x = res[c]
+        ratios = sorted(a / b - 1.0 for a, b in zip(x["loop"], off))
+        q = statistics.quantiles(ratios, n=4) if len(ratios) > 1 else [ratios[0]] * 3
+        table[c] = {
+            "steps_per_s": block / statistics.median(x["loop"]),
+            "overhead": statistics.median(ratios),
+            "overhead_q1": q[0],
+            "overhead_q3": q[2],
+            "cpu_us_per_step": statistics.median(x["cpu"]) / block * 1e6,
+            "writer_cpu_us_per_step": sum(x["writer"]) / (block * rounds) * 1e6,
+            "flush_wait_ms": statistics.median(x["flush"]) * 1e3,
+            "log_cpu_us": statistics.median(x["log_cpu"]) * 1e6 if x["log_cpu"] else 0.0,
+            "mcap_bytes_per_sim_s": sizes[c] / x["sim"] if c in sizes and x["sim"] > 0 else None,
         }
-        if runs[0]["mcap_bytes"] is not None:
-            row["mcap_bytes_per_sim_s"] = statistics.median(x["mcap_bytes"] / x["sim_span"] for x in runs)
-        table[c] = row
-    table["_meta"] = {"n_steps": n_steps, "repeats": repeats, "us_per_step_off": ref / n_steps * 1e6}
+    table["_meta"] = {"block": block, "rounds": rounds, "us_per_step_off": statistics.median(off) / block * 1e6,
+                      "load": os.getloadavg()[0]}
     return table
 
 
 def print_table(table: dict) -> None:
     meta = table["_meta"]
-    print(f"{meta['n_steps']} steps a run, median of {meta['repeats']} interleaved runs; "
-          f"a step without logging: {meta['us_per_step_off']:.0f} us wall; load average {os.getloadavg()[0]:.2f}")
+    print(f"{meta['rounds']} rounds of {meta['block']} steps a configuration, interleaved; a step without "
+          f"logging: {meta['us_per_step_off']:.0f} us (median); load average {meta['load']:.2f}")
+    print(f"{'logging':<8} {'steps/s':>8} {'overhead':>9} {'(quartiles)':>15} {'sim CPU/step':>13} "
+          f"{'log() CPU':>10} {'writer CPU/step':>16} {'flush wait':>11} {'MCAP/sim s':>11}")
     cpu_off = table["off"]["cpu_us_per_step"]
-    print(f"{'logging':<8} {'steps/s':>8} {'overhead':>9} {'sim CPU/step':>13} {'writer CPU/step':>16} "
-          f"{'drain':>7} {'MCAP/sim s':>11}")
     for c, row in table.items():
         if c.startswith("_"):
             continue
         mb = row["mcap_bytes_per_sim_s"]
+        quart = f"{100 * row['overhead_q1']:+.1f}..{100 * row['overhead_q3']:+.1f}%"
         extra = row["cpu_us_per_step"] - cpu_off
-        print(f"{c:<8} {row['steps_per_s']:>8.0f} {100 * row['overhead']:>8.1f}% "
-              f"{row['cpu_us_per_step']:>7.0f} us{'' if c == 'off' else f' (+{extra:.1f})':>4} "
-              f"{row['writer_cpu_us_per_step']:>13.0f} us {row['drain_s']:>6.2f}s "
+        cpu = f"{row['cpu_us_per_step']:.0f} us" + ("" if c == "off" else f" ({extra:+.1f})")
+        print(f"{c:<8} {row['steps_per_s']:>8.0f} {100 * row['overhead']:>8.1f}% {quart:>15} {cpu:>13} "
+              f"{row['log_cpu_us']:>7.1f} us {row['writer_cpu_us_per_step']:>13.0f} us {row['flush_wait_ms']:>8.1f} ms "
               f"{'' if mb is None else f'{mb / 1e6:.2f} MB':>11}")
-    print("overhead = median wall time of the run with logging / without - 1 (target <= 5 %); sim CPU = CPU "
-          "time of the simulating process (its log() calls included); writer CPU = the writer process's "
-          "(on the other core); drain = wait at close for the writer to finish the files.")
+    print("overhead: median over rounds of block time with logging / without - 1 (target <= 5 %). sim CPU: "
+          "CPU time of the simulating process a step, log() included. log() CPU: a call's own CPU time, on "
+          "records made beforehand. writer CPU: the writer process's a record, on the other core. flush "
+          "wait: how long the writer still needed after a block. With the second core busy elsewhere "
+          "(load average > 1), the writer takes time from the simulation and the overhead rises.")
 
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--steps", type=int, default=5000)
-    ap.add_argument("--repeats", type=int, default=5)
+    ap.add_argument("--steps", type=int, default=20000, help="steps a configuration in all")
+    ap.add_argument("--block", type=int, default=500, help="steps a block")
     ap.add_argument("--pad-us", type=float, default=0.0,
-                    help="extra numpy work a step on top of the synthetic arm's own (~200-250 us)")
-    ap.add_argument("--dt", type=float, default=1e-3)
+                    help="extra numpy work a step on top of the synthetic arm's own")
+    ap.add_argument("--dt", type=float, default=1e-3, help="time step of the synthetic arm, s")
     args = ap.parse_args(argv)
     step = synthetic_step(args.dt, args.pad_us)
-    print_table(measure_overhead(step, args.steps, repeats=args.repeats))
+    print_table(measure_overhead(step, args.steps, block=args.block))
     return 0
 
 

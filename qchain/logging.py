@@ -1,12 +1,14 @@
 """Run logging: one record a simulation step, to an MCAP file and to a Rerun viewer.
 
 The simulation hands :class:`RunLogger` one :class:`StepRecord` a step. ``log()`` only packs
-the record into one flat float64 row and queues it; the encoding and the I/O happen away
-from the simulation: by default in a separate writer process (the *process* worker, which
-has its own interpreter and so does not compete for the simulating process's GIL), or in a
-background thread (the *thread* worker, used when the MCAP goes to an in-memory stream).
-The queue is bounded, so memory stays flat on long runs: when the writer falls behind,
-``log()`` waits rather than dropping records.
+the record into one row of bytes (a few microseconds); the encoding and the I/O happen away
+from the simulation. By default that is a separate writer process (the *process* worker: its
+own interpreter, so it takes no time from the simulating process's GIL and runs on another
+core), fed through a pipe; with an in-memory stream as the MCAP target it is a background
+thread (the *thread* worker). Both queues are bounded (the pipe, 1 MiB, and a 64 KiB buffer
+in the simulating process; the thread's queue holds ``max_queue`` records), so memory stays
+flat on long runs: when the writer falls behind, ``log()`` waits rather than dropping
+records. ``flush()`` waits until everything logged so far is in the files.
 
 Sinks
 -----
@@ -36,8 +38,20 @@ MCAP (always on by default)
 
     Chunks are closed (compressed and written to the operating system) every
     ``flush_interval`` seconds of simulation time (default 0.1 s), every
-    ``flush_wall_interval`` seconds of wall time (default 0.5 s) and every 4 MiB, so a
-    process killed with SIGKILL leaves a file readable up to its last closed chunk.
+    ``flush_wall_interval`` seconds of wall time (default 0.5 s) and every 4 MiB.
+
+Crash safety
+    Leaving the ``with RunLogger(...)`` block normally, by an exception or by Ctrl-C
+    (KeyboardInterrupt) finishes the MCAP (summary and ``qchain.outcome`` written; the
+    exception's text is the outcome message). Ctrl-C in a terminal reaches only the
+    simulation: the writer runs in its own process group, and SIGINT is held back while a
+    frame is written to the pipe, so the stream is never cut mid-record. If the simulating
+    process is killed (SIGKILL), the writer sees its pipe close and still finishes the file,
+    with an outcome saying so. If the writer is killed too, the file is readable up to its
+    last closed chunk. A record waits at most ``flush_interval / 2`` of simulation time (or
+    50 ms) in the simulating process's buffer, as long again in the writer's batch, and
+    ``flush_interval`` in the open chunk, so while the writer keeps up at most about
+    ``2 * flush_interval`` = 0.2 s of simulation time is lost at default settings.
 
 Rerun (``serve``, ``connect``, ``rrd``)
     ``serve=True`` hosts a gRPC server with ``rr.GrpcServerSink`` bound to ``bind``
@@ -72,9 +86,9 @@ from __future__ import annotations
 import argparse
 import atexit
 import datetime as _dt
-import io
 import json
 import math
+import operator
 import os
 import queue
 import select
@@ -342,9 +356,10 @@ class RunInfo:
 
 _HEAD = struct.Struct("<dq")  # t, step
 _ENERGY = struct.Struct("<3d")  # kinetic, potential, total
+_T = struct.Struct("<d")  # t, at the start of a packed record
 _F8 = np.dtype(np.float64)
 _FRAME = struct.Struct("<cI")  # kind, payload length
-_FRAME_RECORD, _FRAME_LAYOUT, _FRAME_END, _FRAME_CONFIG = b"R", b"L", b"E", b"C"
+_FRAME_RECORD, _FRAME_LAYOUT, _FRAME_END, _FRAME_CONFIG, _FRAME_FLUSH = b"R", b"L", b"E", b"C", b"F"
 
 
 @dataclass(frozen=True)
@@ -419,7 +434,9 @@ class _Batch:
 
 
 def _num(description: str) -> dict:
-    return {"type": ["number", "null"], "description": description}
+    # a non-finite value is written as JSON null; the schema still says "number", the one
+    # form Foxglove's JSON-schema reader takes for a float field
+    return {"type": "number", "description": description}
 
 
 def _time_schema(description: str) -> dict:
@@ -456,7 +473,7 @@ def _qchain_vector_schema(title: str, key: str, description: str) -> dict:
         "properties": {
             "t": {"type": "number", "description": "simulation time, s"},
             "step": {"type": "integer", "description": "step counter"},
-            key: _array({"type": ["number", "null"]}, description),
+            key: _array({"type": "number"}, description),
         },
         "required": ["t", "step", key],
     }
@@ -497,7 +514,7 @@ def _schemas() -> dict[str, tuple[str, dict]]:
         },
         "required": ["type", "pose", "thickness", "scale_invariant", "points", "color", "colors", "indices"],
     }
-    empty_list = {"type": "array", "items": {"type": "object"}}
+    empty_list = {"type": "array", "items": {"type": "object", "properties": {}}, "description": "unused: empty"}
     entity = {
         "type": "object",
         "title": "foxglove.SceneEntity",
@@ -656,8 +673,16 @@ def _scene_template(n: int, P: int, radii: Sequence[float]) -> _Template:
 
 
 def _numbers(arr: np.ndarray, dumps, opt) -> list[bytes]:
-    """Shortest round-trip JSON forms of the entries of a C-contiguous float array."""
-    return dumps(arr.ravel(), option=opt)[1:-1].split(b",")
+    """Shortest round-trip JSON forms (``null`` if not finite) of the entries of a float
+    array, in C order."""
+    return dumps(np.ascontiguousarray(arr).ravel(), option=opt)[1:-1].split(b",")
+
+
+def _rows(arr: np.ndarray, dumps, opt) -> list[bytes]:
+    """The JSON texts of the rows of a 2-D float array, without their brackets."""
+    if arr.shape[1] == 0:
+        return [b""] * arr.shape[0]
+    return dumps(np.ascontiguousarray(arr), option=opt)[2:-2].split(b"],[")
 
 
 _MCAP_MAGIC = b"\x89MCAP0\r\n"
@@ -921,46 +946,47 @@ class _McapSink:
         if self._tf_tmpl is None:
             self._tf_tmpl = _tf_template(n)
             self._scene_tmpl = _scene_template(n, P, self.info.radii)
+            # value order of a template fill from the tokens [sec, nsec, number 0, number 1, ...]
+            self._tf_pick = operator.itemgetter(*[j for i in range(n) for j in (0, 1, *range(2 + 7 * i, 9 + 7 * i))])
+            w3 = 3 * P
+            self._sc_pick = operator.itemgetter(
+                *[j for i in range(n) for j in (0, 1, *range(2 + w3 * i, 2 + w3 * (i + 1)))]
+            )
         dumps, opt, w = self._dumps, self._opt, self._w
         ch = self._ch
         cids = (ch["q"], ch["v"], ch["p"], ch["energy"], ch["tip_frames"], ch["backbone"])
-        tf_fill, sc_fill = self._tf_tmpl.fill, self._scene_tmpl.fill
+        tf_fill, sc_fill, tf_pick, sc_pick = self._tf_tmpl.fill, self._scene_tmpl.fill, self._tf_pick, self._sc_pick
         pack = _MSG_HEAD.pack
+        # number texts of the whole batch at once (shortest round-trip forms, null if not finite)
+        t_tok = _numbers(b.t, dumps, opt)
+        q_rows = _rows(b.q, dumps, opt)
+        v_rows = _rows(b.v, dumps, opt)
+        p_rows = _rows(b.p, dumps, opt)
+        e_tok = _numbers(b.energy, dumps, opt)
+        tf_tok = _numbers(b.tip_frames, dumps, opt)
+        bb_tok = _numbers(b.backbone, dumps, opt)
+        ntf, nbb = 7 * n, 3 * P * n
         ts = b.t.tolist()
         steps = b.step.tolist()
         ns = np.rint(b.t * 1e9).astype(np.int64)
         if ns.size and ns.min() < 0:
             raise ValueError("negative simulation time")
         ns_list = ns.tolist()
-        energies = b.energy.tolist()
-        w3 = 3 * P
         last_flush_t = self._last_flush_t
         start = 0
         for k in range(K):
             t, step, lt = ts[k], steps[k], ns_list[k]
             seq = step & 0xFFFFFFFF
-            sec = b"%d" % (lt // 1_000_000_000)
-            nsec = b"%d" % (lt % 1_000_000_000)
-            tb = dumps(t)
-            e = energies[k]
-            tf_nums = _numbers(b.tip_frames[k], dumps, opt)
-            bb_nums = _numbers(b.backbone[k], dumps, opt)
-            vals: list[bytes] = []
-            for i in range(n):
-                vals += (sec, nsec)
-                vals += tf_nums[7 * i : 7 * i + 7]
-            m_t = tf_fill(vals)
-            vals = []
-            for i in range(n):
-                vals += (sec, nsec)
-                vals += bb_nums[w3 * i : w3 * i + w3]
+            tb = t_tok[k]
+            stamp = [b"%d" % (lt // 1_000_000_000), b"%d" % (lt % 1_000_000_000)]
             msgs = (
-                b'{"t":%b,"step":%d,"q":%b}' % (tb, step, dumps(b.q[k], option=opt)),
-                b'{"t":%b,"step":%d,"v":%b}' % (tb, step, dumps(b.v[k], option=opt)),
-                b'{"t":%b,"step":%d,"p":%b}' % (tb, step, dumps(b.p[k], option=opt)),
-                dumps({"t": t, "step": step, "kinetic": e[0], "potential": e[1], "total": e[2]}),
-                m_t,
-                sc_fill(vals),
+                b'{"t":%b,"step":%d,"q":[%b]}' % (tb, step, q_rows[k]),
+                b'{"t":%b,"step":%d,"v":[%b]}' % (tb, step, v_rows[k]),
+                b'{"t":%b,"step":%d,"p":[%b]}' % (tb, step, p_rows[k]),
+                b'{"t":%b,"step":%d,"kinetic":%b,"potential":%b,"total":%b}'
+                % (tb, step, e_tok[3 * k], e_tok[3 * k + 1], e_tok[3 * k + 2]),
+                tf_fill(tf_pick(stamp + tf_tok[ntf * k : ntf * (k + 1)])),
+                sc_fill(sc_pick(stamp + bb_tok[nbb * k : nbb * (k + 1)])),
             )
             parts, index, off = w.parts, w.index, w.chunk_len
             for cid, m in zip(cids, msgs):
@@ -971,11 +997,12 @@ class _McapSink:
             w.chunk_len = off
             if last_flush_t is None:
                 last_flush_t = t
-            if t - last_flush_t >= self.flush_interval or off >= self.chunk_bytes or k == K - 1:
+            cut = t - last_flush_t >= self.flush_interval or off >= self.chunk_bytes
+            if cut or k == K - 1:
                 w.note_messages({cid: k + 1 - start for cid in cids}, min(ns_list[start : k + 1]),
                                 max(ns_list[start : k + 1]))
                 start = k + 1
-                if t - last_flush_t >= self.flush_interval or off >= self.chunk_bytes:
+                if cut:
                     self._flush()
                     last_flush_t = t
         self._last_flush_t = last_flush_t
@@ -1272,7 +1299,8 @@ class _RerunSink:
         rec.log("plots/v", rr.SeriesLines(names=[f"v[{i}]" for i in range(b.v.shape[1])]), static=True)
         rec.log(
             "plots/energy",
-            rr.SeriesLines(names=["kinetic", "potential", "total"], colors=[(40, 120, 220), (60, 170, 60), (30, 30, 30)]),
+            rr.SeriesLines(names=["kinetic", "potential", "total"],
+                           colors=[(40, 120, 220), (60, 170, 60), (30, 30, 30)]),
             static=True,
         )
         text = f"# {info.name}\n\nqchain {info.qchain_version}, {n} segment(s)"
@@ -1284,8 +1312,11 @@ class _RerunSink:
             text += "\n\n## Model parameters\n\n```json\n" + json.dumps(info.params, indent=2, sort_keys=True) + "\n```"
         rec.log("scene", rr.TextDocument(text, media_type=rr.MediaType.MARKDOWN), static=True)
 
-        center = bb0.reshape(-1, 3).mean(axis=0) if bb0.size else np.zeros(3)
-        eye = center + extent * np.array([1.6, -1.9, 0.9])
+        # the camera sees the whole reach: a sphere of the arm's length about its root
+        reach = max(float(seg_len.sum()), 1e-3)
+        root = bb0[0, 0] if bb0.size else np.zeros(3)
+        center = root + np.array([0.0, 0.0, 0.4 * reach])
+        eye = center + 2.1 * reach * np.array([0.55, -0.7, 0.45])
         blueprint = rrb.Blueprint(
             rrb.Horizontal(
                 rrb.Spatial3DView(
@@ -1416,20 +1447,28 @@ class _SinkSet:
                 chunk_bytes=cfg["chunk_bytes"],
             )
         if cfg.get("serve") or cfg.get("connect") or cfg.get("rrd"):
-            self.rerun = _RerunSink(
-                self.info,
-                serve=bool(cfg.get("serve")),
-                connect=cfg.get("connect"),
-                rrd=cfg.get("rrd"),
-                bind=cfg.get("bind", DEFAULT_BIND),
-                grpc_port=cfg.get("grpc_port"),
-                web_port=cfg.get("web_port"),
-                recording_id=cfg["recording_id"],
-                server_memory_limit=cfg.get("server_memory_limit", "1GiB"),
-                warn=warn,
-            )
+            try:
+                self.rerun = _RerunSink(
+                    self.info,
+                    serve=bool(cfg.get("serve")),
+                    connect=cfg.get("connect"),
+                    rrd=cfg.get("rrd"),
+                    bind=cfg.get("bind", DEFAULT_BIND),
+                    grpc_port=cfg.get("grpc_port"),
+                    web_port=cfg.get("web_port"),
+                    recording_id=cfg["recording_id"],
+                    server_memory_limit=cfg.get("server_memory_limit", "1GiB"),
+                    warn=warn,
+                )
+            except Exception as exc:  # no viewer or .rrd: say so, keep the MCAP
+                warn(f"Rerun could not start ({type(exc).__name__}: {exc}); the run goes on and the MCAP "
+                     "log is still written")
+                self.rerun = None
         self.n_records = 0
         self.last_t: float | None = None
+        rate = cfg.get("rerun_rate")
+        self._rr_dt = 0.0 if not rate else 1.0 / float(rate)
+        self._rr_next = -math.inf
 
     @property
     def viewer_url(self) -> str | None:
@@ -1449,6 +1488,16 @@ class _SinkSet:
         if self.mcap is not None:
             self.mcap.write_batch(b)
         if self.rerun is not None and self.rerun.rec is not None:
+            if self._rr_dt > 0.0:  # a display rate: one record every rerun_rate-th of a second
+                keep = []
+                nxt, dt = self._rr_next, self._rr_dt
+                for i, t in enumerate(b.t.tolist()):
+                    if t >= nxt - 1e-6 * dt:  # (rounding of t = k dt must not skip a sample)
+                        keep.append(i)
+                        nxt = t + dt
+                self._rr_next = nxt
+                if len(keep) < len(b):
+                    b = _Batch(*(getattr(b, f)[keep] for f in _Batch.__dataclass_fields__))
             try:
                 self.rerun.write_batch(b)
             except Exception as exc:  # a viewer problem never stops the MCAP
@@ -1459,6 +1508,17 @@ class _SinkSet:
     def tick(self) -> None:
         if self.mcap is not None:
             self.mcap.tick()
+
+    def flush(self) -> dict:
+        """Everything so far into the files (MCAP chunk closed) and out to the viewer."""
+        if self.mcap is not None:
+            self.mcap._flush()
+        if self.rerun is not None and self.rerun.rec is not None:
+            try:
+                self.rerun.rec.flush(timeout_sec=10.0)
+            except Exception as exc:  # pragma: no cover - best effort
+                self.warn(f"Rerun flush failed ({type(exc).__name__}: {exc})")
+        return {"n_records": self.n_records, "last_t": self.last_t}
 
     def finish(self, outcome: dict) -> dict:
         if self.mcap is not None:
@@ -1516,6 +1576,10 @@ def _read_frame_blocking(fd: int, reader: _FrameReader):
 def _worker_main() -> int:
     """Entry point of the writer process: frames on stdin, JSON status lines on stdout."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the simulating process decides when to stop
+    try:
+        os.nice(5)  # where the CPUs are contended, the simulation goes first; the writer catches up
+    except (AttributeError, OSError):  # pragma: no cover - not POSIX
+        pass
     status_fd = os.dup(1)
     os.dup2(2, 1)  # anything a library prints goes to stderr, not into the status channel
     status = os.fdopen(status_fd, "w", buffering=1)
@@ -1554,20 +1618,37 @@ def _worker_main() -> int:
     backlog = first[1:]
     max_batch = int(cfg.get("max_batch", 1024))
     batch_wall = float(cfg.get("batch_wall", 0.05))
+    half_interval = 0.5 * float(cfg["flush_interval"])  # sim time a record may wait here
+    poll = float(cfg.get("poll", 0.01))  # s between reads of the pipe
+    last_read = 0.0
+    os.set_blocking(0, False)
     try:
         while outcome is None and not eof:
             frames = backlog
             backlog = []
             ready = True
             if not frames:
-                ready = bool(select.select([0], [], [], 0.05 if pending else 0.25)[0])
-                if ready:
-                    data = os.read(0, 1 << 20)
-                    if data:
-                        reader.feed(data)
-                        frames = reader.frames()
-                    else:
+                # Poll instead of waking on every write: the simulating process then writes
+                # into a pipe nobody reads at that moment, which costs it far less. No pause
+                # when the last round of work took longer than one (the writer is behind).
+                if time.monotonic() - last_read < poll:
+                    time.sleep(poll)
+                last_read = time.monotonic()
+                ready = False
+                got = 0
+                while got < (4 << 20):  # at most 4 MiB a round: memory stays bounded
+                    try:
+                        data = os.read(0, 1 << 20)
+                    except BlockingIOError:
+                        break
+                    if not data:
                         eof = True
+                        break
+                    reader.feed(data)
+                    got += len(data)
+                    ready = True
+                if ready:
+                    frames = reader.frames()
             for kind, payload in frames:
                 if kind == _FRAME_RECORD:
                     if not pending:
@@ -1580,10 +1661,20 @@ def _worker_main() -> int:
                     sinks.write_payloads(pending)
                     pending = []
                     sinks.layout = _Layout.from_json(json.loads(payload))
+                elif kind == _FRAME_FLUSH:
+                    sinks.write_payloads(pending)
+                    pending = []
+                    send("flushed", **sinks.flush())
                 elif kind == _FRAME_END:
                     outcome = json.loads(payload)
                     break
-            if pending and (not ready or eof or outcome is not None or time.monotonic() - first_pending >= batch_wall):
+            if pending and (
+                not ready
+                or eof
+                or outcome is not None
+                or time.monotonic() - first_pending >= batch_wall
+                or _T.unpack_from(pending[-1])[0] - _T.unpack_from(pending[0])[0] >= half_interval
+            ):
                 sinks.write_payloads(pending)
                 pending = []
             sinks.tick()
@@ -1601,6 +1692,7 @@ def _worker_main() -> int:
         }
     summary = sinks.finish(outcome)
     send("finished", **summary)
+    os.set_blocking(0, True)
     while not eof:  # a served viewer stays up until the simulating process lets go
         try:
             if not os.read(0, 1 << 16):
@@ -1631,6 +1723,7 @@ _OPEN_LOGGERS: weakref.WeakSet = weakref.WeakSet()
 def _close_open_loggers() -> None:  # pragma: no cover - interpreter shutdown
     for lg in list(_OPEN_LOGGERS):
         try:
+            lg.linger = False
             lg.close(success=False, status=-1, message="the process exited without closing its log")
         except Exception:
             pass
@@ -1666,11 +1759,18 @@ class RunLogger:
     flush_wall_interval : float, s
         Wall time between MCAP chunk flushes.
     max_queue : int
-        Records queued between ``log()`` and the writer before ``log()`` waits.
+        Records the thread worker's queue holds before ``log()`` waits (the process
+        worker's bound is its pipe, 1 MiB, plus a 64 KiB buffer).
     linger : bool
         When serving, keep the viewer served after the run until Ctrl-C (for the CLI).
     recording_id : str or None
         Rerun recording id (default: a new UUID), also stored in the MCAP.
+    server_memory_limit : str
+        What the served gRPC server keeps for viewers that connect late (oldest data go
+        first), e.g. ``"1GiB"``.
+    rerun_rate : float or None, 1/s
+        A display rate: send Rerun at most this many records a simulated second (None:
+        every record). The MCAP always gets every record.
     quiet : bool
         Do not print the viewer URL.
 
@@ -1679,7 +1779,22 @@ class RunLogger:
     Use it as a context manager. Leaving the block normally records success; an exception
     (KeyboardInterrupt included) records a failure with the exception's text, and the file
     is finished in every case. Call :meth:`set_outcome` before leaving to record a
-    simulation's own status and message.
+    simulation's own status and message. Call ``log()`` from one thread.
+
+    Starting the process worker takes about half a second (a fresh interpreter importing
+    numpy, mcap and, for Rerun targets, rerun-sdk); it happens in the constructor, before
+    the run, which then waits for nothing.
+
+    Examples
+    --------
+    ::
+
+        info = RunInfo(n_segments=3, radii=[0.015] * 3, scene=text, params=params)
+        with RunLogger(info, "runs/arm.mcap", serve=True) as log:
+            for k in range(n_steps):
+                ...  # advance the simulation
+                log.log(StepRecord(t=k * dt, step=k, q=q, v=v, p=p, kinetic=T, potential=U,
+                                   total=T + U, backbone=points, tip_frames=frames))
     """
 
     def __init__(
@@ -1701,6 +1816,7 @@ class RunLogger:
         linger: bool = False,
         recording_id: str | None = None,
         server_memory_limit: str = "1GiB",
+        rerun_rate: float | None = None,
         quiet: bool = False,
         startup_timeout: float = 60.0,
     ):
@@ -1711,6 +1827,8 @@ class RunLogger:
                 raise ValueError(f"{name} must be a finite number of seconds > 0, got {value!r}")
         if not (isinstance(max_queue, int) and max_queue >= 1):
             raise ValueError(f"max_queue must be an int >= 1, got {max_queue!r}")
+        if rerun_rate is not None and not (isinstance(rerun_rate, (int, float)) and rerun_rate > 0):
+            raise ValueError(f"rerun_rate must be None or > 0 records a simulated second, got {rerun_rate!r}")
         if worker not in ("auto", "process", "thread"):
             raise ValueError(f"worker must be 'auto', 'process' or 'thread', got {worker!r}")
         if serve and connect:
@@ -1768,13 +1886,15 @@ class RunLogger:
             "flush_wall_interval": float(flush_wall_interval),
             "chunk_bytes": int(chunk_bytes),
             "server_memory_limit": server_memory_limit,
+            "rerun_rate": rerun_rate,
         }
         if worker == "thread":
             self._start_thread(cfg, stream)
         else:
             self._start_process(cfg, startup_timeout)
         if self.viewer_url and not self.quiet:
-            print(f"qchain: live Rerun viewer at {self.viewer_url}  (open it in a browser)", file=sys.stderr, flush=True)
+            print(f"qchain: live Rerun viewer at {self.viewer_url}  (open it in a browser)",
+                  file=sys.stderr, flush=True)
         _OPEN_LOGGERS.add(self)
 
     # -- workers -----------------------------------------------------------------------------
@@ -1822,6 +1942,11 @@ class RunLogger:
                         sinks.write_payloads(payloads)
                         payloads = []
                         sinks.layout = item[1]
+                    elif item[0] == "F":
+                        sinks.write_payloads(payloads)
+                        payloads = []
+                        item[1].append(sinks.flush())
+                        item[2].set()
                     elif item[0] == "E":
                         outcome = item[1]
                         break
@@ -2011,7 +2136,8 @@ class RunLogger:
             (_HEAD.pack(t, record.step), q.tobytes(), v.tobytes(), p.tobytes(),
              _ENERGY.pack(record.kinetic, record.potential, record.total), bb.tobytes(), tf.tobytes())
         )
-        if len(payload) != self._payload_size or bb.shape != self._shapes["backbone"] or tf.shape != self._shapes["tip_frames"]:
+        shapes = self._shapes
+        if len(payload) != self._payload_size or bb.shape != shapes["backbone"] or tf.shape != shapes["tip_frames"]:
             raise self._shape_error(record)
         self._put(payload, t)
         self.n_logged += 1
@@ -2032,6 +2158,31 @@ class RunLogger:
         if status is None:
             status = 0 if success else -1
         self._outcome = {"success": bool(success), "message": str(message), "status": int(status), "nfev": int(nfev)}
+
+    def flush(self, timeout: float = 60.0) -> dict:
+        """Wait until every record logged so far is in the MCAP file (its chunk closed and
+        handed to the operating system) and sent to Rerun.
+
+        Returns ``{"n_records": written so far, "last_t": s}``; raises :class:`LoggingError`
+        if the writer does not answer within ``timeout`` seconds.
+        """
+        if self._closed:
+            raise LoggingError("flush() on a closed RunLogger")
+        if self._broken is not None:
+            raise LoggingError(self._broken)
+        if self.worker == "thread":
+            box: list = []
+            done = threading.Event()
+            self._q.put(("F", box, done))
+            if not done.wait(timeout):
+                raise LoggingError(f"the log writer did not flush within {timeout} s")
+            return box[0]
+        self._wbuf.append(_FRAME.pack(_FRAME_FLUSH, 0))
+        self._flush_pipe()
+        msg = self._read_status(timeout)
+        if msg is None or msg.get("event") != "flushed":
+            raise LoggingError(f"the log writer did not flush within {timeout} s ({self._broken or msg})")
+        return {"n_records": msg["n_records"], "last_t": msg["last_t"]}
 
     # -- closing -----------------------------------------------------------------------------
 
@@ -2059,6 +2210,11 @@ class RunLogger:
             self._q.put(("E", outcome))
             self._join(self._thread)
             summary = self._summary or {}
+            try:
+                if self.linger and self.viewer_url:
+                    self._wait_while_serving(lambda: True)
+            finally:
+                self._sinks.close()
         else:
             summary = self._close_process(outcome)
         self._final = {
@@ -2071,6 +2227,15 @@ class RunLogger:
         if self._broken is not None:
             warnings.warn(f"qchain.logging: {self._broken}", LoggingWarning, stacklevel=2)
         return self._final
+
+    def _wait_while_serving(self, alive) -> None:
+        print(f"qchain: the run is over; still serving the viewer at {self.viewer_url} - press Ctrl-C to stop",
+              file=sys.stderr, flush=True)
+        try:
+            while alive():
+                time.sleep(0.5)
+        except KeyboardInterrupt:
+            pass
 
     @staticmethod
     def _join(thread: threading.Thread) -> None:
@@ -2092,16 +2257,7 @@ class RunLogger:
                 self._broken = "the log writer did not confirm the end of the recording"
         try:
             if self.linger and self.viewer_url and proc.poll() is None:
-                print(
-                    f"qchain: the run is over; still serving the viewer at {self.viewer_url} - press Ctrl-C to stop",
-                    file=sys.stderr,
-                    flush=True,
-                )
-                try:
-                    while proc.poll() is None:
-                        time.sleep(0.5)
-                except KeyboardInterrupt:
-                    pass
+                self._wait_while_serving(lambda: proc.poll() is None)
         finally:
             try:
                 proc.stdin.close()
@@ -2274,6 +2430,8 @@ def read_recording(source: str | os.PathLike | BinaryIO) -> Recording:
         try:
             for rec in reader.records:
                 if isinstance(rec, Message):
+                    if meta is None:  # qchain writes its metadata before any message
+                        break
                     key = topics_by_channel.get(rec.channel_id)
                     if key is not None:
                         data[key].append(rec.data)
@@ -2289,13 +2447,14 @@ def read_recording(source: str | os.PathLike | BinaryIO) -> Recording:
                     complete = True
         except Exception as exc:  # a cut or damaged tail: keep what came before
             stop_reason = f"{type(exc).__name__}: {exc}" if str(exc) else type(exc).__name__
-        if not complete and not stop_reason:
+        if not complete and not stop_reason and meta is not None:
             stop_reason = "the file ends before its footer"
+        complete = complete and not stop_reason  # a damaged closing magic counts as a cut too
     finally:
         if owns:
             stream.close()
     if meta is None or meta.get("format") != FORMAT_NAME:
-        if not complete and meta is None and not any(data.values()):
+        if stop_reason:
             raise RecordingFormatError(
                 f"{name}: an MCAP file without a qchain header record (cut before it, or written by "
                 f"another program; reading stopped: {stop_reason})"
@@ -2533,7 +2692,8 @@ def replay_main(argv: Sequence[str] | None = None) -> int:
     target.add_argument("--serve", action="store_true", help="serve a web viewer on 127.0.0.1 (the default)")
     target.add_argument("--connect", metavar="URL", help="send to a running Rerun viewer (rerun+http://HOST:PORT/proxy)")
     target.add_argument("--rrd", metavar="OUT", type=Path, help="write a Rerun .rrd file")
-    parser.add_argument("--bind", default=DEFAULT_BIND, help="address to serve on (default 127.0.0.1: this machine only)")
+    parser.add_argument("--bind", default=DEFAULT_BIND,
+                        help="address to serve on (default 127.0.0.1: this machine only)")
     args = parser.parse_args(argv)
     serve = args.serve or not (args.connect or args.rrd)
     try:
@@ -2606,7 +2766,8 @@ _default_mcap_path = default_mcap_path  # reachable where a parameter has the sa
 
 
 def add_logging_arguments(parser: argparse.ArgumentParser) -> argparse._ArgumentGroup:
-    """Add ``--mcap OUT``, ``--serve``, ``--connect URL``, ``--rrd OUT`` (and ``--bind``)."""
+    """Add ``--mcap OUT``, ``--serve``, ``--connect URL``, ``--rrd OUT``, ``--bind HOST``
+    and ``--rerun-rate HZ`` to ``parser`` (as one argument group, which is returned)."""
     g = parser.add_argument_group(
         "recording and viewing",
         "Every run is recorded to an MCAP file (default runs/<scene>-<timestamp>.mcap); "
@@ -2621,6 +2782,9 @@ def add_logging_arguments(parser: argparse.ArgumentParser) -> argparse._Argument
     g.add_argument("--rrd", metavar="OUT", type=Path, default=None, help="also write a Rerun .rrd file")
     g.add_argument("--bind", default=DEFAULT_BIND,
                    help="address --serve listens on (default 127.0.0.1: this machine only)")
+    g.add_argument("--rerun-rate", metavar="HZ", type=float, default=None,
+                   help="send the viewer/.rrd at most HZ samples a simulated second (default: all; "
+                        "the MCAP always gets all)")
     return g
 
 
@@ -2653,6 +2817,7 @@ def logger_from_args(
     if path is None:
         path = default_mcap_path if default_mcap_path is not None else _default_mcap_path(info.scene_path)
     kwargs.setdefault("linger", serve)
+    kwargs.setdefault("rerun_rate", getattr(args, "rerun_rate", None))
     return RunLogger(
         info,
         path,

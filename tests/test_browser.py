@@ -27,9 +27,9 @@ from qchain.logging import SEGMENT_COLORS, RunLogger
 
 ROOT = Path(__file__).resolve().parent.parent
 ARTIFACTS = ROOT / "test-artifacts"
-WIDTH, HEIGHT = 1280, 800
+WIDTH, HEIGHT = 1024, 700
 TIME_LIMIT = 50.0  # s, for the whole test
-MIN_ARM_PIXELS = 1500  # the arm covers ~5000-8000 pixels of the 3D view when drawn
+MIN_ARM_PIXELS = 1500  # the arm covers ~8000-15000 pixels of the 3D view when drawn
 
 CHROMIUM_FLAGS = [
     "--headless",
@@ -128,7 +128,7 @@ def test_live_viewer_draws_the_arm(tmp_path):
     devtools = None
     try:
         assert log.viewer_url and log.viewer_url.startswith("http://127.0.0.1:")
-        for k in range(600):  # 0.6 s of the bending arm
+        for k in range(400):  # 0.4 s of the bending arm
             log.log(arm_record(k * 1e-3, k))
 
         profile = Path(tempfile.mkdtemp(prefix="chromium-profile-", dir=tmp_path))
@@ -141,6 +141,7 @@ def test_live_viewer_draws_the_arm(tmp_path):
         counts = []
         best = None
         i = 0
+
         def screenshot() -> bytes | None:
             try:
                 return base64.b64decode(devtools.call("Page.captureScreenshot", format="png")["data"])

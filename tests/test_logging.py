@@ -49,6 +49,8 @@ def _stack(records, field):
 def _assert_records_equal(rec, records):
     """Every field of the read recording equals the logged records, bit for bit (NaN = NaN)."""
     assert len(rec) == len(records)
+    if not records:
+        return
     np.testing.assert_array_equal(rec.t, _stack(records, "t"))
     np.testing.assert_array_equal(rec.step, _stack(records, "step"))
     for f in ("q", "v", "p", "backbone", "tip_frames"):
@@ -60,17 +62,13 @@ def _assert_records_equal(rec, records):
 
 def _check_json_schema(value, schema, path="$"):
     """A small JSON-schema check (type, properties, required, items): enough to show each
-    message has the documented form of its schema."""
-    types = schema.get("type")
-    if types is not None:
-        types = [types] if isinstance(types, str) else types
-        kinds = {
-            "object": dict, "array": list, "string": str, "boolean": bool, "null": type(None),
-            "integer": int, "number": (int, float),
-        }
-        ok = any(isinstance(value, kinds[t]) and not (t in ("integer", "number") and isinstance(value, bool))
-                 for t in types)
-        assert ok, f"{path}: {value!r} is not of type {types}"
+    message has the documented form of its schema. A number may be null (how a non-finite
+    value is written)."""
+    t = schema.get("type")
+    if t is not None:
+        kinds = {"object": dict, "array": list, "string": str, "boolean": bool, "integer": int, "number": (int, float)}
+        ok = isinstance(value, kinds[t]) and not (t in ("integer", "number") and isinstance(value, bool))
+        assert ok or (t == "number" and value is None), f"{path}: {value!r} is not of type {t}"
     if isinstance(value, dict):
         for key in schema.get("required", []):
             assert key in value, f"{path}: required key {key!r} missing"
@@ -80,6 +78,19 @@ def _check_json_schema(value, schema, path="$"):
     if isinstance(value, list) and "items" in schema:
         for i, item in enumerate(value):
             _check_json_schema(item, schema["items"], f"{path}[{i}]")
+
+
+def _check_foxglove_readable(schema, path="$"):
+    """The constraints of Foxglove's JSON-schema reader: every object has "properties", every
+    "type" is one string of object/array/string/number/integer/boolean, arrays say their items."""
+    assert isinstance(schema.get("type"), str), f"{path}: type must be a single string"
+    assert schema["type"] in ("object", "array", "string", "number", "integer", "boolean"), path
+    if schema["type"] == "object":
+        assert isinstance(schema.get("properties"), dict), f"{path}: an object needs properties"
+        for key, sub in schema["properties"].items():
+            _check_foxglove_readable(sub, f"{path}.{key}")
+    if schema["type"] == "array":
+        _check_foxglove_readable(schema["items"], f"{path}[]")
 
 
 def _log_all(records, info=None, mcap=None, **kw):
@@ -141,8 +152,10 @@ def test_mcap_round_trip_in_memory_is_exact():
         assert msg.log_time == msg.publish_time == round(r.t * 1e9)
         assert msg.sequence == r.step & 0xFFFFFFFF
         assert schema.encoding == "jsonschema" and channel.message_encoding == "json"
-        if k in (0, 7, 299):
+        if k in (0, 7, 8, 299):
             _check_json_schema(json.loads(msg.data), json.loads(schema.data))
+        if k == 0:
+            _check_foxglove_readable(json.loads(schema.data))
         seen[channel.topic] += 1
     assert set(seen.values()) == {300}
     assert [m.name for m in reader.iter_metadata()] == ["qchain", "qchain.outcome"]
@@ -175,6 +188,21 @@ def test_mcap_round_trip_through_writer_process(tmp_path):
     assert about.statistics_present and about.message_count == 6 * 400 and about.metadata_count == 2
     assert {c.topic: c.message_count for c in about.channels} == {t: 400 for t in TOPICS.values()}
     assert about.message_end_time_ns == round(records[-1].t * 1e9)
+
+
+def test_flush_makes_everything_logged_so_far_readable(tmp_path):
+    path = tmp_path / "live.mcap"
+    records = arm_records(150)
+    with RunLogger(arm_info(), path, quiet=True) as log:
+        for r in records[:100]:
+            log.log(r)
+        assert log.flush() == {"n_records": 100, "last_t": records[99].t}
+        live = read_recording(path)  # the file of a running simulation, read as it stands
+        assert live.truncated and live.outcome is None
+        _assert_records_equal(live, records[:100])
+        for r in records[100:]:
+            log.log(r)
+    _assert_records_equal(read_recording(path), records)
 
 
 def test_exception_in_simulation_finishes_the_log():
@@ -348,6 +376,19 @@ def test_rrd_round_trip(tmp_path):
     np.testing.assert_allclose(lengths, expected, rtol=1e-5)
 
 
+def test_rerun_display_rate_thins_only_the_viewer(tmp_path):
+    records = arm_records(200, dt=1e-3)
+    rrd = tmp_path / "thin.rrd"
+    buf = io.BytesIO()
+    _log_all(records, mcap=buf, rrd=rrd, rerun_rate=100.0)  # 100 records a simulated second
+    cols, _ = _rrd_columns(rrd)
+    assert cols["/plots/q"]["step"] == list(range(0, 200, 10))
+    buf.seek(0)
+    assert len(read_recording(buf)) == 200
+    with pytest.raises(ValueError, match="rerun_rate"):
+        RunLogger(arm_info(), io.BytesIO(), rerun_rate=0)
+
+
 def test_replay_to_rrd_keeps_original_times(tmp_path):
     records = arm_records(120, dt=5e-3)
     path = tmp_path / "run.mcap"
@@ -472,6 +513,29 @@ def test_file_cut_at_half_replays_its_first_part(tmp_path, capsys):
     assert replay_main([str(cut), "--rrd", str(tmp_path / "cut2.rrd")]) == 0
     printed = capsys.readouterr().out
     assert f"replayed {len(rec)} steps" in printed and f"stops at t = {rec.t[-1]:.6g} s" in printed
+
+
+def test_any_cut_reads_a_prefix_or_fails_clearly():
+    """Cut anywhere, a recording reads as a prefix of what was logged, or (cut inside its
+    first records) raises RecordingFormatError; nothing else escapes."""
+    records = arm_records(120, dt=1e-3)
+    buf = io.BytesIO()
+    _log_all(records, mcap=buf, flush_interval=0.01)
+    data = buf.getvalue()
+    sizes = sorted({*range(0, len(data), max(1, len(data) // 41)), len(data) - 1, len(data) - 9, len(data)})
+    prefixes = []
+    for size in sizes:
+        cut = io.BytesIO(data[:size])
+        try:
+            rec = read_recording(cut)
+        except RecordingFormatError as exc:
+            assert size < 4096, f"a cut at {size} of {len(data)} bytes failed: {exc}"
+            continue
+        _assert_records_equal(rec, records[: len(rec)])
+        assert rec.truncated == (size < len(data))
+        prefixes.append(len(rec))
+    assert prefixes == sorted(prefixes) and prefixes[-1] == 120
+    assert len(set(prefixes)) > 8  # one more chunk (0.01 s) readable every few cuts
 
 
 def test_not_a_qchain_mcap_gets_a_clear_error(tmp_path, capsys):
@@ -601,7 +665,8 @@ def test_command_line_helpers(tmp_path, monkeypatch):
     parser.add_argument("scene")
     add_logging_arguments(parser)
     args = parser.parse_args(["arm.toml"])
-    assert (args.mcap, args.serve, args.connect, args.rrd, args.bind) == (None, False, None, None, "127.0.0.1")
+    assert (args.mcap, args.serve, args.connect, args.rrd, args.bind, args.rerun_rate) == (
+        None, False, None, None, "127.0.0.1", None)
     info = arm_info(scene_path="scenes/arm.toml")
     default = default_mcap_path(info.scene_path)
     assert default.parent == Path("runs") and default.name.startswith("arm-") and default.suffix == ".mcap"

@@ -1,0 +1,15 @@
+#!/usr/bin/env bash
+# The whole test suite on a fresh machine: a venv with qchain and its test extra, and
+# Debian's Chromium for the real-browser test of the live viewer (tests/test_browser.py).
+set -euo pipefail
+cd "$(dirname "$0")/.."
+if ! command -v chromium >/dev/null 2>&1; then
+  if [ "$(id -u)" = 0 ]; then
+    apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium >/dev/null
+  else
+    echo "scripts/test.sh: tests/test_browser.py needs Debian's chromium (sudo apt-get install chromium)" >&2
+  fi
+fi
+python3 -m venv .venv
+.venv/bin/pip install -q -e ".[test]"
+exec .venv/bin/python -m pytest -q "$@"
