@@ -1,4 +1,4 @@
-"""The live viewer in a real browser: a logging run serves the Rerun web viewer on loopback,
+"""The live viewer in a real browser: ``qchain run --serve`` serves the Rerun web viewer on loopback,
 headless Chromium opens it (driven over the DevTools protocol), and the arm must be drawn.
 
 Needs Debian's ``chromium`` (``apt-get install chromium``) and the ``websocket-client``
@@ -21,9 +21,7 @@ import urllib.request
 from pathlib import Path
 
 import numpy as np
-from logging_fixtures import arm_info, arm_record
-
-from qchain.logging import SEGMENT_COLORS, RunLogger
+from qchain.logging import SEGMENT_COLORS
 
 ROOT = Path(__file__).resolve().parent.parent
 ARTIFACTS = ROOT / "test-artifacts"
@@ -116,6 +114,9 @@ def _arm_pixels(png: bytes) -> int:
 
 
 def test_live_viewer_draws_the_arm(tmp_path):
+    """``qchain run SCENE --serve`` prints the viewer URL; Chromium opens it and the arm is drawn."""
+    import sys
+
     t_start = time.monotonic()
     ARTIFACTS.mkdir(exist_ok=True)
     shots = ARTIFACTS / "browser"
@@ -123,20 +124,33 @@ def test_live_viewer_draws_the_arm(tmp_path):
     for old in shots.glob("viewer-*.png"):
         old.unlink()
 
-    log = RunLogger(arm_info(), tmp_path / "run.mcap", serve=True, quiet=True)
+    run = subprocess.Popen(
+        [sys.executable, "-m", "qchain.cli", "run", str(ROOT / "examples" / "scenes" / "wave_arm.toml"), "--serve",
+         "--duration", "2", "--no-progress", "--no-plots", "--out", str(tmp_path / "out"),
+         "--mcap", str(tmp_path / "run.mcap")],
+        cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True,
+        env={**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")]))},
+    )
     browser = None
     devtools = None
+    lines = []
     try:
-        assert log.viewer_url and log.viewer_url.startswith("http://127.0.0.1:")
-        for k in range(400):  # 0.4 s of the bending arm
-            log.log(arm_record(k * 1e-3, k))
+        url = None
+        while url is None and time.monotonic() - t_start < 30:
+            line = run.stdout.readline()
+            assert line or run.poll() is None, f"qchain run ended early: {''.join(lines)}"
+            lines.append(line)
+            if "live Rerun viewer at " in line:
+                url = line.split("live Rerun viewer at ")[1].split()[0]
+        assert url and url.startswith("http://127.0.0.1:"), "".join(lines)
+        assert "url=rerun%2Bhttp%3A%2F%2F127.0.0.1%3A" in url  # the data server is on loopback too
 
         profile = Path(tempfile.mkdtemp(prefix="chromium-profile-", dir=tmp_path))
         browser, devtools = _start_chromium(profile)
         devtools.call("Page.enable")
         devtools.call("Emulation.setDeviceMetricsOverride", width=WIDTH, height=HEIGHT, deviceScaleFactor=1,
                       mobile=False)
-        devtools.call("Page.navigate", url=log.viewer_url)
+        devtools.call("Page.navigate", url=url)
 
         counts = []
         best = None
@@ -167,8 +181,6 @@ def test_live_viewer_draws_the_arm(tmp_path):
             f"the arm never appeared in the viewer within {TIME_LIMIT:.0f} s; arm-coloured pixels per "
             f"screenshot: {counts} (screenshots in {shots})"
         )
-        # the web viewer and its data server listen on loopback only
-        assert log.grpc_url.startswith("rerun+http://127.0.0.1:")
     finally:
         if devtools is not None:
             devtools.close()
@@ -182,5 +194,13 @@ def test_live_viewer_draws_the_arm(tmp_path):
             except subprocess.TimeoutExpired:
                 os.killpg(browser.pid, signal.SIGKILL)
                 browser.wait()
-        log.close()
+        if run.poll() is None:  # the run keeps serving the viewer until Ctrl-C
+            run.send_signal(signal.SIGINT)
+            try:
+                run.wait(20)
+            except subprocess.TimeoutExpired:
+                os.killpg(run.pid, signal.SIGKILL)
+                run.wait()
+    assert run.returncode == 0, "".join(lines) + run.stdout.read()
+    assert (tmp_path / "run.mcap").stat().st_size > 1000
     assert time.monotonic() - t_start < 60.0
