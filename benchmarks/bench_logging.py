@@ -1,6 +1,7 @@
 """Cost of logging a run, as a ratio to the same run without logging.
 
     python benchmarks/bench_logging.py [--steps 20000] [--block 500] [--pad-us 0]
+    python benchmarks/bench_logging.py --example [--duration 4] [--repeats 5]
 
 Drives a simulation step function with logging off, MCAP on, Rerun (.rrd) on and both on.
 One logger a configuration stays open for the whole measurement; the steps go in blocks,
@@ -234,6 +235,51 @@ def print_table(table: dict) -> None:
           "(load average > 1), the writer takes time from the simulation and the overhead rises.")
 
 
+def example_overhead(duration: float = 4.0, repeats: int = 5, workdir=None) -> dict:
+    """The three-segment example (``examples/scenes/wave_arm.toml``) run as ``qchain run`` runs
+    it -- records built and logged at the scene's sample rate -- with logging off, MCAP on,
+    ``.rrd`` on and both, interleaved; wall time of the whole run (files finished) per config.
+
+    Returns config -> {"wall_s" (median), "overhead" (median of paired ratios - 1),
+    "mcap_bytes_per_sim_s", "samples"}.
+    """
+    from qchain import cli, load_scene
+
+    qlog = cli._logging_module()
+    scene = load_scene(HERE.parent / "examples" / "scenes" / "wave_arm.toml")
+    model = scene.build()
+    configs = {"off": [], "mcap": ["--mcap", "{d}/run.mcap"], "rrd": ["--rrd", "{d}/run.rrd", "--no-record"],
+               "both": ["--mcap", "{d}/run.mcap", "--rrd", "{d}/run.rrd"]}
+    walls = {c: [] for c in configs}
+    sizes, samples = {}, 0
+    with tempfile.TemporaryDirectory(dir=workdir) as tmp:
+        scene.simulate(model=model, duration=0.2)  # warm up (compile)
+        for r in range(repeats):
+            order = list(configs)[r % 4:] + list(configs)[: r % 4]
+            for c in order:
+                d = Path(tmp) / f"{c}-{r}"
+                d.mkdir()
+                t0 = time.perf_counter()
+                if c == "off":
+                    tr = scene.simulate(model=model, duration=duration)
+                else:
+                    argv = ["run", str(scene.path), *[a.format(d=d) for a in configs[c]], "--no-progress"]
+                    args = cli._parser(qlog).parse_args(argv)
+                    logger, on_sample = cli._make_logger(qlog, args, scene, model)
+                    with logger:
+                        tr = scene.simulate(model=model, duration=duration, on_sample=on_sample)
+                walls[c].append(time.perf_counter() - t0)
+                samples = len(tr.t)
+                if (d / "run.mcap").exists():
+                    sizes[c] = (d / "run.mcap").stat().st_size / duration
+    out = {}
+    for c, w in walls.items():
+        ratios = [a / b - 1.0 for a, b in zip(w, walls["off"])]
+        out[c] = {"wall_s": statistics.median(w), "overhead": statistics.median(ratios),
+                  "mcap_bytes_per_sim_s": sizes.get(c), "samples": samples}
+    return out
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--steps", type=int, default=20000, help="steps a configuration in all")
@@ -241,7 +287,20 @@ def main(argv=None) -> int:
     ap.add_argument("--pad-us", type=float, default=0.0,
                     help="extra numpy work a step on top of the synthetic arm's own")
     ap.add_argument("--dt", type=float, default=1e-3, help="time step of the synthetic arm, s")
+    ap.add_argument("--example", action="store_true",
+                    help="measure the three-segment example (qchain run of wave_arm.toml) instead")
+    ap.add_argument("--duration", type=float, default=4.0, help="--example: simulated time, s")
+    ap.add_argument("--repeats", type=int, default=5, help="--example: interleaved repeats")
     args = ap.parse_args(argv)
+    if args.example:
+        res = example_overhead(args.duration, args.repeats)
+        print(f"three-segment example, {args.duration:g} s simulated, {res['off']['samples']} samples logged, "
+              f"median of {args.repeats} interleaved runs")
+        for c, row in res.items():
+            mb = row["mcap_bytes_per_sim_s"]
+            print(f"{c:<5} wall {row['wall_s']:7.3f} s   overhead {100 * row['overhead']:+6.1f} %"
+                  f"   {'' if mb is None else f'MCAP {mb / 1e3:.1f} kB per simulated s'}")
+        return 0
     step = synthetic_step(args.dt, args.pad_us)
     print_table(measure_overhead(step, args.steps, block=args.block))
     return 0
