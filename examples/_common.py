@@ -62,5 +62,24 @@ def draw_arm(ax, chain, q, t, axes=(0, 2), color="C0", lw=3.0, label=None):
     return pts
 
 
+def run(doc: str, name: str, argv, quick: float):
+    """Parse the shared flags, build the scene's model, print it, run it and report.
+
+    Returns ``(args, scene, model, chain, traj, wall)`` with ``wall`` the run's wall time (s).
+    """
+    import time
+
+    args = parser(doc, name).parse_args(argv)
+    sc = scene(name)
+    model = sc.build()
+    T = duration(args, sc, quick=quick)
+    print("\n".join(sc.describe(model)))
+    t0 = time.perf_counter()
+    traj = sc.simulate(model=model, duration=T)
+    wall = time.perf_counter() - t0
+    report(traj)
+    return args, sc, model, model.chain, traj, wall
+
+
 def report(traj) -> None:
     print(f"run: {'success' if traj.success else 'FAILED'}: {traj.message} (nfev = {traj.nfev})")

@@ -12,8 +12,6 @@ Run: ``python examples/floating_arm.py [--duration S] [--out DIR] [--quick]``
 
 from __future__ import annotations
 
-import time
-
 import matplotlib.pyplot as plt
 import numpy as np
 
@@ -21,16 +19,7 @@ import _common
 
 
 def main(argv=None) -> dict:
-    args = _common.parser(__doc__, "floating_arm").parse_args(argv)
-    sc = _common.scene("floating_arm")
-    model = sc.build()
-    ch = model.chain
-    T = _common.duration(args, sc, quick=0.2)
-    print("\n".join(sc.describe(model)))
-    t0 = time.perf_counter()
-    traj = sc.simulate(model=model, duration=T)
-    wall = time.perf_counter() - t0
-    _common.report(traj)
+    args, sc, model, ch, traj, wall = _common.run(__doc__, "floating_arm", argv, quick=0.2)
     h = np.array([ch.momentum(q, v) for q, v in zip(traj.q, traj.v)])
     drift = h - h[0]
     lin = np.linalg.norm(drift[:, :3], axis=1)

@@ -10,8 +10,6 @@ Run: ``python examples/moving_base.py [--duration S] [--out DIR] [--quick]``
 
 from __future__ import annotations
 
-import time
-
 import matplotlib.pyplot as plt
 import numpy as np
 
@@ -19,16 +17,7 @@ import _common
 
 
 def main(argv=None) -> dict:
-    args = _common.parser(__doc__, "moving_base").parse_args(argv)
-    sc = _common.scene("moving_base")
-    model = sc.build()
-    ch = model.chain
-    T = _common.duration(args, sc, quick=0.3)
-    print("\n".join(sc.describe(model)))
-    t0 = time.perf_counter()
-    traj = sc.simulate(model=model, duration=T)
-    wall = time.perf_counter() - t0
-    _common.report(traj)
+    args, sc, model, ch, traj, wall = _common.run(__doc__, "moving_base", argv, quick=0.3)
     tip = _common.tips(ch, traj)
     mount = np.array([ch.base_state(t)[0].translation for t in traj.t])
     rel = tip - mount

@@ -11,7 +11,6 @@ Run: ``python examples/step_response.py [--duration S] [--out DIR] [--quick]``
 
 from __future__ import annotations
 
-import time
 
 import matplotlib.pyplot as plt
 import numpy as np
@@ -21,16 +20,7 @@ from qchain.statics import equilibrium
 
 
 def main(argv=None) -> dict:
-    args = _common.parser(__doc__, "step_response").parse_args(argv)
-    sc = _common.scene("step_response")
-    model = sc.build()
-    ch = model.chain
-    T = _common.duration(args, sc, quick=0.25)
-    print("\n".join(sc.describe(model)))
-    t0 = time.perf_counter()
-    traj = sc.simulate(model=model, duration=T)
-    wall = time.perf_counter() - t0
-    _common.report(traj)
+    args, sc, model, ch, traj, wall = _common.run(__doc__, "step_response", argv, quick=0.25)
     tip = _common.tips(ch, traj)
 
     p_after = sc.pressure_spec["after"]
@@ -44,7 +34,7 @@ def main(argv=None) -> dict:
     overshoot = 100.0 * (progress.max() - 1.0)
     left = float(np.linalg.norm(tip[-1] - tip_eq))
     print(f"static shape under {p_after / 1e3} kPa: tip ({', '.join(f'{x * 1e3:.2f}' for x in tip_eq)}) mm")
-    print(f"simulated {T:g} s in {wall:.2f} s wall; overshoot {overshoot:.1f} % of the {np.linalg.norm(travel) * 1e3:.2f} mm "
+    print(f"simulated {traj.t[-1]:g} s in {wall:.2f} s wall; overshoot {overshoot:.1f} % of the {np.linalg.norm(travel) * 1e3:.2f} mm "
           f"travel; {left * 1e3:.3f} mm from the static shape at t = {traj.t[-1]:g} s")
 
     fig, axes = plt.subplots(2, 1, figsize=(8, 6), sharex=True)

@@ -12,7 +12,6 @@ Run: ``python examples/wave_arm.py [--duration S] [--out DIR] [--quick]``
 
 from __future__ import annotations
 
-import time
 
 import matplotlib.pyplot as plt
 import numpy as np
@@ -21,16 +20,7 @@ import _common
 
 
 def main(argv=None) -> dict:
-    args = _common.parser(__doc__, "wave_arm").parse_args(argv)
-    sc = _common.scene("wave_arm")
-    model = sc.build()
-    ch = model.chain
-    T = _common.duration(args, sc, quick=0.3)
-    print("\n".join(sc.describe(model)))
-    t0 = time.perf_counter()
-    traj = sc.simulate(model=model, duration=T)
-    wall = time.perf_counter() - t0
-    _common.report(traj)
+    args, sc, model, ch, traj, wall = _common.run(__doc__, "wave_arm", argv, quick=0.3)
     tip = _common.tips(ch, traj)
     print(f"simulated {traj.t[-1]:g} s in {wall:.2f} s wall ({traj.t[-1] / wall:.2f} x real time)")
     print(f"tip sweep: x {np.ptp(tip[:, 0]) * 1e3:.1f} mm, z {np.ptp(tip[:, 2]) * 1e3:.1f} mm; "
