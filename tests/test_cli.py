@@ -57,7 +57,7 @@ def test_info(capsys):
     assert f"model: nq = 9, nv = 9, free dofs = {model.chain.nv_active}, pressure inputs = 9" in out
     assert "reductions (on):" in out and "  - planar: uy locked at 0 in every segment" in out
     assert f"nodes: {', '.join(map(str, model.nodes)) if len(set(model.nodes)) > 1 else f'{model.nodes[0]} per segment'}" in out
-    assert "simulation: 4 s, RK45, rtol = 1e-06, atol = 1e-08" in out
+    assert "simulation: 4 s, Radau, rtol = 0.0001, atol = 1e-06" in out
     assert main(["info", str(path), "--full"]) == 0
     out = capsys.readouterr().out
     assert "free dofs = 9" in out and "planar: not tried (reduce = false)" in out and "reductions (off):" in out
