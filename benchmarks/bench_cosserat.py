@@ -47,6 +47,7 @@ Run: ``python benchmarks/bench_cosserat.py [--quick] [--out DIR]``
 from __future__ import annotations
 
 import argparse
+import itertools
 import csv
 import time
 from pathlib import Path
@@ -441,9 +442,9 @@ def plot(rows: list[dict], path: Path, T: float, ref_note: str, floor: dict | No
 
     fig, ax = plt.subplots(figsize=(9, 6.5))
     series = list(dict.fromkeys(r["series"] for r in rows if r["role"] == "series"))
-    qmarks, pmarks = iter("os^D"), iter("vP<>Xh")
-    qcolors = iter(["tab:blue", "tab:cyan", "tab:purple", "tab:green"])
-    pcolors = iter(plt.cm.autumn(np.linspace(0.0, 0.8, 6)))
+    qmarks, pmarks = itertools.cycle("os^D*p"), itertools.cycle("vP<>Xh")
+    qcolors = itertools.cycle(["tab:blue", "tab:cyan", "tab:purple", "tab:green", "tab:olive", "tab:gray"])
+    pcolors = itertools.cycle(plt.cm.autumn(np.linspace(0.0, 0.8, 6)))
     for s in series:
         pts = sorted((r["n"], r["wall_per_sim_s"], r["tip_error_m"]) for r in rows if r["series"] == s
                      and r["role"] == "series" and np.isfinite(r["tip_error_m"]) and r["tip_error_m"] > 0)
@@ -471,6 +472,23 @@ def plot(rows: list[dict], path: Path, T: float, ref_note: str, floor: dict | No
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
+
+
+def replot(csv_path: Path, png_path: Path) -> None:
+    """Redraw the chart from a written ``cosserat_release.csv`` (no runs)."""
+    import csv as _csv
+
+    with open(csv_path) as fh:
+        rows = list(_csv.DictReader(fh))
+    for r in rows:
+        for k in ("n", "work", "repeats"):
+            r[k] = int(float(r[k]))
+        for k in ("T_s", "wall_per_sim_s", "tip_error_m", "tip_error_vs_qchain_m"):
+            r[k] = float(r[k]) if r[k] not in ("", "nan") else float("nan")
+    tight = f"qchain {TIGHT[0]} {_label(*TIGHT)}"
+    floor = max((r for r in rows if r["series"] == tight), key=lambda r: r["n"])
+    pe = any(r["code"] == "pyelastica" for r in rows)
+    plot(rows, png_path, rows[0]["T_s"], rows[0].get("reference", ""), floor if pe else None)
 
 
 def main(argv=None):
