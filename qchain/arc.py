@@ -33,6 +33,7 @@ With ``a1 = s f0, a2 = s^2 f1, a3 = s^3 f2``:
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 from math import factorial
 
 import numba
@@ -216,9 +217,13 @@ class ArcNodes:
 
     R: np.ndarray
     p: np.ndarray
-    Ad_inv: np.ndarray
     S: np.ndarray
     Sdot: np.ndarray
+
+    @cached_property
+    def Ad_inv(self) -> np.ndarray:
+        """``Ad(g)^-1`` (N, 6, 6), formed on first use."""
+        return inv_adjoint(self.R, self.p)
 
 
 def arc_nodes(alpha, q, qdot=None) -> ArcNodes:
@@ -235,4 +240,4 @@ def arc_nodes(alpha, q, qdot=None) -> ArcNodes:
     S = np.empty((N, 6, 3))
     Sd = np.empty((N, 6, 3))
     _arc_nodes_kernel(alpha, q, qd, R, p, S, Sd)
-    return ArcNodes(R=R, p=p, Ad_inv=inv_adjoint(R, p), S=S, Sdot=Sd)
+    return ArcNodes(R=R, p=p, S=S, Sdot=Sd)

@@ -353,10 +353,13 @@ class Chain:
 
     def placements(self, q, t: float = 0.0) -> list[pin.SE3]:
         """World placements of every segment root and of the tip: ``n + 1`` ``pinocchio.SE3``."""
-        st = self._state(q, t=t)
+        return self._placements(self._state(q, t=t))
+
+    def _placements(self, st: _State) -> list[pin.SE3]:
         out = [st.X_WB]
-        for j, s in enumerate(self.segments):
-            out.append(out[-1] * pin.exp6(pin.Motion(st.q_c[j, 0] * np.array([0, 0, 1, -st.q_c[j, 2], st.q_c[j, 1], 0]))))
+        for j in range(self.n):
+            l, ux, uy = st.q_c[j]
+            out.append(out[-1] * pin.exp6(pin.Motion(np.array([0.0, 0.0, l, -l * uy, l * ux, 0.0]))))
         return out
 
     def tip_placement(self, q, t: float = 0.0) -> pin.SE3:
@@ -368,14 +371,13 @@ class Chain:
         P = int(points_per_segment)
         if P < 2:
             raise ValueError(f"points_per_segment must be >= 2, got {points_per_segment!r}")
-        X = self.placements(q, t)
         st = self._state(q, t=t)
+        X = self._placements(st)
         a = np.linspace(0.0, 1.0, P)
-        out = np.empty((self.n, P, 3))
-        for j in range(self.n):
-            p = arc_nodes(a, st.q_c[j]).p
-            out[j] = p @ X[j].rotation.T + X[j].translation
-        return out
+        p = arc_nodes(np.tile(a, self.n), np.repeat(st.q_c, P, axis=0)).p.reshape(self.n, P, 3)
+        R = np.stack([x.rotation for x in X[:-1]])
+        o = np.stack([x.translation for x in X[:-1]])
+        return np.einsum("nij,npj->npi", R, p) + o[:, None, :]
 
     def _tip_maps(self, st: _State):
         """Per-segment tip maps in segment coordinates: ``Ad_j`` (n, 6, 6), ``S_j`` (n, 6, 3)."""
@@ -450,18 +452,20 @@ class Chain:
 
     def centers_of_mass(self, q, t: float = 0.0) -> np.ndarray:
         """World centre of mass of each segment (n, 3), m."""
-        X = self.placements(q, t)
-        st = self._state(q, t=t)
-        out = np.empty((self.n, 3))
-        for j, s in enumerate(self.segments):
-            c = s.alpha_weights @ arc_nodes(s.alpha_nodes, st.q_c[j]).p
-            out[j] = X[j].act(c)
-        return out
+        return self._centers_of_mass(self._state(q, t=t))
+
+    def _centers_of_mass(self, st: _State) -> np.ndarray:
+        X = self._placements(st)
+        p = arc_nodes(self._alpha, np.repeat(st.q_c, np.diff(self._offs), axis=0)).p
+        c = np.add.reduceat(self._w[:, None] * p, self._offs[:-1], axis=0)  # root frames
+        R = np.stack([x.rotation for x in X[:-1]])
+        o = np.stack([x.translation for x in X[:-1]])
+        return np.einsum("nij,nj->ni", R, c) + o
 
     def potential_energy(self, q, t: float = 0.0) -> float:
         """Gravity (about the world origin) plus elastic energy (J)."""
         st = self._state(q, t=t)
-        Ug = -float(self._mass @ (self.centers_of_mass(q, t) @ self.gravity))
+        Ug = -float(self._mass @ (self._centers_of_mass(st) @ self.gravity))
         Ue = sum(s.elastic_energy(st.q_e[j]) for j, s in enumerate(self.segments))
         return Ug + Ue
 

@@ -26,6 +26,7 @@ naming the segment, the coordinate and the time; the trajectory up to that point
 
 from __future__ import annotations
 
+import inspect
 import sys
 import time as _time
 from collections.abc import Callable, Sequence
@@ -238,7 +239,8 @@ def simulate(
     progress : bool
         Show a progress bar on stderr for runs longer than a second of wall time.
     on_sample : callable ``(t, q, v, p)``, optional
-        Called at every output sample as it is produced (e.g. to log it).
+        Called at every output sample as it is produced (e.g. to log it). If it takes a
+        keyword ``energies``, it also gets ``(kinetic, potential)`` (J) of the sample.
     max_step, first_step : float, s
         Passed to the adaptive solvers (``first_step`` defaults to ``min(1e-4 s, span / 10)``).
     energies : bool
@@ -511,6 +513,12 @@ class _Recorder:
         self.k = 0  # next t_eval index
         self.on_sample = on_sample
         self.energies = energies
+        self._pass_energies = False  # on_sample(..., energies=(kinetic, potential)) if it takes them
+        if on_sample is not None and energies:
+            try:
+                self._pass_energies = "energies" in inspect.signature(on_sample).parameters
+            except (TypeError, ValueError):
+                pass
         self.T, self.Q, self.V, self.Pp, self.KE, self.PE = [], [], [], [], [], []
 
     def _add(self, t, q, v):
@@ -523,7 +531,10 @@ class _Recorder:
             self.KE.append(self.ch.kinetic_energy(q, v, t=t))
             self.PE.append(self.ch.potential_energy(q, t=t))
         if self.on_sample is not None:
-            self.on_sample(t, q, v, self.Pp[-1])
+            if self._pass_energies:
+                self.on_sample(t, q, v, self.Pp[-1], energies=(self.KE[-1], self.PE[-1]))
+            else:
+                self.on_sample(t, q, v, self.Pp[-1])
 
     def start(self, t, q, v):
         if self.t_eval is None:
