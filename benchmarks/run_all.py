@@ -2,6 +2,7 @@
 
 Writes into ``--out`` (default ``out/bench``): ``work_precision.{csv,png}``,
 ``cosserat_release.{csv,png}`` (PyElastica part only with the ``bench`` extra installed),
+``static_cantilever.{csv,png}``,
 ``scaling.{csv,png}``, ``stability_map.{csv,png}``. ``--quick`` shortens every study.
 
 Run: ``python benchmarks/run_all.py [--quick] [--out DIR]`` or ``qchain bench [--quick]``.
@@ -22,12 +23,12 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="qchain bench", description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="short runs (under two minutes in all)")
     ap.add_argument("--out", type=Path, default=Path("out/bench"), help="folder for the CSV and PNG files")
-    ap.add_argument("--only", nargs="+", choices=["precision", "cosserat", "scaling", "stability"],
+    ap.add_argument("--only", nargs="+", choices=["precision", "cosserat", "static", "scaling", "stability"],
                     help="run only these studies")
     args = ap.parse_args(argv)
     sys.path.insert(0, str(HERE))
     args.out.mkdir(parents=True, exist_ok=True)
-    todo = args.only or ["precision", "cosserat", "scaling", "stability"]
+    todo = args.only or ["precision", "cosserat", "static", "scaling", "stability"]
     t_all = time.perf_counter()
     for name in todo:
         t0 = time.perf_counter()
@@ -41,6 +42,8 @@ def main(argv=None) -> int:
                 print(f"skipping the Cosserat comparison: {err}")
                 continue
             mod.run(quick=args.quick, out_dir=args.out)
+        elif name == "static":
+            importlib.import_module("bench_static").run(args.quick, args.out)
         elif name == "scaling":
             bc = importlib.import_module("bench_chain")
             ns = [1, 3, 10, 30] if args.quick else [1, 3, 8, 10, 30, 60]
