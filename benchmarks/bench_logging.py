@@ -235,7 +235,7 @@ def print_table(table: dict) -> None:
           "(load average > 1), the writer takes time from the simulation and the overhead rises.")
 
 
-def example_overhead(duration: float = 4.0, repeats: int = 5, workdir=None) -> dict:
+def example_overhead(duration: float = 4.0, repeats: int = 5, workdir=None, worker: str = "auto") -> dict:
     """The three-segment example (``examples/scenes/wave_arm.toml``) run as ``qchain run`` runs
     it -- records built and logged at the scene's sample rate -- with logging off, MCAP on,
     ``.rrd`` on and both, interleaved; wall time of the whole run (files finished) per config.
@@ -265,7 +265,7 @@ def example_overhead(duration: float = 4.0, repeats: int = 5, workdir=None) -> d
                 else:
                     argv = ["run", str(scene.path), *[a.format(d=d) for a in configs[c]], "--no-progress"]
                     args = cli._parser(qlog).parse_args(argv)
-                    logger, on_sample = cli._make_logger(qlog, args, scene, model)
+                    logger, on_sample = cli._make_logger(qlog, args, scene, model, worker=worker)
                     with logger:
                         tr = scene.simulate(model=model, duration=duration, on_sample=on_sample)
                 walls[c].append(time.perf_counter() - t0)
@@ -291,11 +291,13 @@ def main(argv=None) -> int:
                     help="measure the three-segment example (qchain run of wave_arm.toml) instead")
     ap.add_argument("--duration", type=float, default=4.0, help="--example: simulated time, s")
     ap.add_argument("--repeats", type=int, default=5, help="--example: interleaved repeats")
+    ap.add_argument("--worker", choices=["auto", "process", "thread"], default="auto",
+                    help="--example: where the logger writes (RunLogger's worker)")
     args = ap.parse_args(argv)
     if args.example:
-        res = example_overhead(args.duration, args.repeats)
+        res = example_overhead(args.duration, args.repeats, worker=args.worker)
         print(f"three-segment example, {args.duration:g} s simulated, {res['off']['samples']} samples logged, "
-              f"median of {args.repeats} interleaved runs")
+              f"median of {args.repeats} interleaved runs, {args.worker} writer")
         for c, row in res.items():
             mb = row["mcap_bytes_per_sim_s"]
             print(f"{c:<5} wall {row['wall_s']:7.3f} s   overhead {100 * row['overhead']:+6.1f} %"

@@ -286,8 +286,9 @@ def _run(args, parser) -> int:
     return EXIT_OK if traj.success and not interrupted else EXIT_FAILED
 
 
-def _make_logger(qlog, args, scene: Scene, model: SceneModel):
-    """The run logger and the ``on_sample`` callback that feeds it one record a sample."""
+def _make_logger(qlog, args, scene: Scene, model: SceneModel, **logger_kwargs):
+    """The run logger and the ``on_sample`` callback that feeds it one record a sample
+    (``logger_kwargs`` go to :class:`qchain.logging.RunLogger`)."""
     ch = model.chain
     info = qlog.RunInfo(
         n_segments=ch.n,
@@ -311,9 +312,9 @@ def _make_logger(qlog, args, scene: Scene, model: SceneModel):
     )
     if args.no_record and not args.mcap:
         logger = qlog.RunLogger(info, None, serve=args.serve, connect=args.connect, rrd=args.rrd,
-                                bind=args.bind, linger=args.serve)
+                                bind=args.bind, linger=args.serve, **logger_kwargs)
     else:
-        logger = qlog.logger_from_args(args, info)
+        logger = qlog.logger_from_args(args, info, **logger_kwargs)
     step = [0]
 
     def on_sample(t, q, v, p, energies=None):
