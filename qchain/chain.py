@@ -368,16 +368,27 @@ class Chain:
 
     def backbone(self, q, points_per_segment: int = 20, t: float = 0.0) -> np.ndarray:
         """World points along each segment's axis (m), shape ``(n, P, 3)``, ``alpha`` from 0 to 1."""
+        return self.frames(q, points_per_segment, t)[1]
+
+    def frames(self, q, points_per_segment: int = 20, t: float = 0.0) -> tuple[list[pin.SE3], np.ndarray]:
+        """:meth:`placements` and :meth:`backbone` in one pass (what a logged step record needs):
+        one batched slice-kernel call gives every backbone point and every segment tip."""
         P = int(points_per_segment)
         if P < 2:
             raise ValueError(f"points_per_segment must be >= 2, got {points_per_segment!r}")
         st = self._state(q, t=t)
-        X = self._placements(st)
-        a = np.linspace(0.0, 1.0, P)
-        p = arc_nodes(np.tile(a, self.n), np.repeat(st.q_c, P, axis=0)).p.reshape(self.n, P, 3)
-        R = np.stack([x.rotation for x in X[:-1]])
-        o = np.stack([x.translation for x in X[:-1]])
-        return np.einsum("nij,npj->npi", R, p) + o[:, None, :]
+        nodes = arc_nodes(np.tile(np.linspace(0.0, 1.0, P), self.n), np.repeat(st.q_c, P, axis=0))
+        p = nodes.p.reshape(self.n, P, 3)
+        R_tip = nodes.R.reshape(self.n, P, 3, 3)[:, -1]
+        R, o = st.X_WB.rotation, st.X_WB.translation
+        X = [st.X_WB]
+        out = np.empty((self.n, P, 3))
+        for j in range(self.n):
+            out[j] = p[j] @ R.T + o
+            o = out[j, -1]
+            R = R @ R_tip[j]
+            X.append(pin.SE3(R, o.copy()))
+        return X, out
 
     def _tip_maps(self, st: _State):
         """Per-segment tip maps in segment coordinates: ``Ad_j`` (n, 6, 6), ``S_j`` (n, 6, 3)."""

@@ -318,11 +318,11 @@ def _make_logger(qlog, args, scene: Scene, model: SceneModel, **logger_kwargs):
     step = [0]
 
     def on_sample(t, q, v, p, energies=None):
-        X = ch.placements(q, t=t)
+        X, backbone = ch.frames(q, BACKBONE_POINTS, t=t)
         tips = np.array([pin.SE3ToXYZQUAT(x) for x in X[1:]])
         ke, pe = energies if energies is not None else (ch.kinetic_energy(q, v, t=t), ch.potential_energy(q, t=t))
         logger.log(qlog.StepRecord(t=float(t), step=step[0], q=q, v=v, p=p, kinetic=ke, potential=pe, total=ke + pe,
-                                   backbone=ch.backbone(q, BACKBONE_POINTS, t=t), tip_frames=tips))
+                                   backbone=backbone, tip_frames=tips))
         step[0] += 1
 
     return logger, on_sample
