@@ -21,6 +21,7 @@ import numpy as np
 import pinocchio as pin
 from scipy.linalg import cho_factor, cho_solve
 
+import _study
 from qchain import Chain, Segment
 
 SEGMENT = dict(length=0.1, radius=0.015, mass=0.05, chamber_area=4.5e-5, chamber_radius=0.0085,
@@ -117,9 +118,7 @@ def plot(rows, path):
     ax.set_title("cost scaling of forward dynamics (labels: qchain / pinocchio.aba)")
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    _study.save(fig, path)
 
 
 def main(argv=None):

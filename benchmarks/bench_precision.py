@@ -16,13 +16,12 @@ Run: ``python benchmarks/bench_precision.py [--quick] [--out DIR]``
 
 from __future__ import annotations
 
-import argparse
-import csv
 import time
 from pathlib import Path
 
 import numpy as np
 
+import _study
 from qchain import Chain, Segment
 from qchain.inputs import Sine
 from qchain.simulate import simulate
@@ -104,11 +103,7 @@ def run(quick: bool = False, out_dir: Path = Path("out/bench")) -> list[dict]:
     red = arm(extensible=False)
     for r in ([1e-4] if quick else [1e-3, 1e-4, 1e-5, 1e-6, 1e-8]):
         add("inextensible", f"rtol={r:g}", red, "RK45", dict(rtol=r, atol=r * 1e-2))
-    out_dir.mkdir(parents=True, exist_ok=True)
-    with open(out_dir / "work_precision.csv", "w", newline="") as fh:
-        w = csv.DictWriter(fh, fieldnames=list(rows[0]))
-        w.writeheader()
-        w.writerows(rows)
+    _study.write_csv(rows, out_dir / "work_precision.csv")
     plot(rows, out_dir / "work_precision.png", T)
     for bound in (1e-3, 1e-4):
         best = fastest_within(rows, bound)
@@ -143,17 +138,11 @@ def plot(rows, path, T):
     ax.set_title(f"work-precision: 3-segment arm waving under gravity, {T:g} s")
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    _study.save(fig, path)
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--quick", action="store_true")
-    ap.add_argument("--out", type=Path, default=Path("out/bench"))
-    args = ap.parse_args(argv)
-    run(args.quick, args.out)
+    return _study.main(__doc__, run, argv)
 
 
 if __name__ == "__main__":

@@ -11,14 +11,13 @@ Run: ``python benchmarks/bench_static.py [--quick] [--out DIR]``
 
 from __future__ import annotations
 
-import argparse
-import csv
 import time
 from pathlib import Path
 
 import numpy as np
 import pinocchio as pin
 
+import _study
 from qchain import Chain, Segment
 from qchain.reference import elastica_cantilever
 from qchain.statics import equilibrium
@@ -52,11 +51,7 @@ def run(quick: bool = False, out_dir: Path = Path("out/bench")) -> list[dict]:
               f"({res.iterations} Newton iterations)", flush=True)
     errs = np.array([r["tip_error_m"] for r in rows])
     print("observed order: " + ", ".join(f"{x:.2f}" for x in np.log2(errs[:-1] / errs[1:])))
-    out_dir.mkdir(parents=True, exist_ok=True)
-    with open(out_dir / "static_cantilever.csv", "w", newline="") as fh:
-        w = csv.DictWriter(fh, fieldnames=list(rows[0]))
-        w.writeheader()
-        w.writerows(rows)
+    _study.write_csv(rows, out_dir / "static_cantilever.csv")
     import matplotlib
 
     matplotlib.use("Agg")
@@ -71,18 +66,12 @@ def run(quick: bool = False, out_dir: Path = Path("out/bench")) -> list[dict]:
     ax.set_title(f"static self-weight cantilever, L = {L} m, r = {R} m, E = {E:g} Pa: error ~ 1/n^2", fontsize=9)
     ax.grid(True, which="both", alpha=0.3)
     ax.legend()
-    fig.tight_layout()
-    fig.savefig(out_dir / "static_cantilever.png", dpi=110)
-    plt.close(fig)
+    _study.save(fig, out_dir / "static_cantilever.png")
     return rows
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--quick", action="store_true")
-    ap.add_argument("--out", type=Path, default=Path("out/bench"))
-    args = ap.parse_args(argv)
-    run(args.quick, args.out)
+    return _study.main(__doc__, run, argv)
 
 
 if __name__ == "__main__":

@@ -11,7 +11,6 @@ Run: ``python benchmarks/stability_map.py [--quick] [--out DIR]``
 
 from __future__ import annotations
 
-import argparse
 import csv
 import time
 from dataclasses import dataclass
@@ -19,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+import _study
 from qchain import Chain, Segment
 from qchain.inputs import Ramp, Sine
 from qchain.simulate import simulate
@@ -192,18 +192,12 @@ def plot(cells: list[Cell], path: Path) -> None:
     ax.set_xticks(range(len(scenes_)), scenes_, rotation=35, ha="right", fontsize=8)
     ax.set_yticks(range(len(rows)), rows, fontsize=8)
     ax.set_title("stability map: green passed (wall time), red failed (sim time reached); reasons in the CSV")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    _study.save(fig, path)
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--quick", action="store_true")
-    ap.add_argument("--out", type=Path, default=Path("out/bench"))
-    args = ap.parse_args(argv)
-    cells = run(args.quick, args.out)
-    print(f"{sum(c.passed for c in cells)} of {len(cells)} cells passed; wrote {args.out / 'stability_map.csv'}")
+    cells = _study.main(__doc__, run, argv)
+    print(f"{sum(c.passed for c in cells)} of {len(cells)} cells passed")
 
 
 if __name__ == "__main__":

@@ -8,6 +8,7 @@ controller into the ``(t, q, v) -> (m,)`` form the integrators use.
 from __future__ import annotations
 
 import inspect
+from abc import ABC, abstractmethod
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -25,13 +26,14 @@ def _vec(name, x, size=None) -> np.ndarray:
     return as_vector(name, x, x.size if size is None else size)
 
 
-class Schedule:
+class Schedule(ABC):
     """Base class of time schedules ``s(t) -> (size,)``."""
 
     size: int
 
-    def __call__(self, t: float) -> np.ndarray:  # pragma: no cover - abstract
-        raise NotImplementedError
+    @abstractmethod
+    def __call__(self, t: float) -> np.ndarray:
+        """The value at time ``t`` (s), shape ``(size,)``."""
 
 
 @dataclass(frozen=True)
