@@ -356,11 +356,20 @@ class Chain:
         return self._placements(self._state(q, t=t))
 
     def _placements(self, st: _State) -> list[pin.SE3]:
-        out = [st.X_WB]
+        tips = arc_nodes(np.ones(self.n), st.q_c)
+        return self._compose(st, tips.R, tips.p)[0]
+
+    def _compose(self, st: _State, R_tip: np.ndarray, p_tip: np.ndarray):
+        """World frames of the roots and the tip from each segment's tip placement in its root
+        (``R_tip`` (n, 3, 3), ``p_tip`` (n, 3)): the list of ``n + 1`` SE3 and their rotations
+        (n + 1, 3, 3) and origins (n + 1, 3)."""
+        R = np.empty((self.n + 1, 3, 3))
+        o = np.empty((self.n + 1, 3))
+        R[0], o[0] = st.X_WB.rotation, st.X_WB.translation
         for j in range(self.n):
-            l, ux, uy = st.q_c[j]
-            out.append(out[-1] * pin.exp6(pin.Motion(np.array([0.0, 0.0, l, -l * uy, l * ux, 0.0]))))
-        return out
+            o[j + 1] = o[j] + R[j] @ p_tip[j]
+            R[j + 1] = R[j] @ R_tip[j]
+        return [pin.SE3(R[k], o[k]) for k in range(self.n + 1)], R, o
 
     def tip_placement(self, q, t: float = 0.0) -> pin.SE3:
         """World placement of the tip frame."""
@@ -379,16 +388,8 @@ class Chain:
         st = self._state(q, t=t)
         nodes = arc_nodes(np.tile(np.linspace(0.0, 1.0, P), self.n), np.repeat(st.q_c, P, axis=0))
         p = nodes.p.reshape(self.n, P, 3)
-        R_tip = nodes.R.reshape(self.n, P, 3, 3)[:, -1]
-        R, o = st.X_WB.rotation, st.X_WB.translation
-        X = [st.X_WB]
-        out = np.empty((self.n, P, 3))
-        for j in range(self.n):
-            out[j] = p[j] @ R.T + o
-            o = out[j, -1]
-            R = R @ R_tip[j]
-            X.append(pin.SE3(R, o.copy()))
-        return X, out
+        X, R, o = self._compose(st, nodes.R.reshape(self.n, P, 3, 3)[:, -1], p[:, -1])
+        return X, np.einsum("nij,npj->npi", R[:-1], p) + o[:-1, None, :]
 
     def _tip_maps(self, st: _State):
         """Per-segment tip maps in segment coordinates: ``Ad_j`` (n, 6, 6), ``S_j`` (n, 6, 3)."""
@@ -466,12 +467,11 @@ class Chain:
         return self._centers_of_mass(self._state(q, t=t))
 
     def _centers_of_mass(self, st: _State) -> np.ndarray:
-        X = self._placements(st)
+        tips = arc_nodes(np.ones(self.n), st.q_c)
+        _, R, o = self._compose(st, tips.R, tips.p)
         p = arc_nodes(self._alpha, np.repeat(st.q_c, np.diff(self._offs), axis=0)).p
         c = np.add.reduceat(self._w[:, None] * p, self._offs[:-1], axis=0)  # root frames
-        R = np.stack([x.rotation for x in X[:-1]])
-        o = np.stack([x.translation for x in X[:-1]])
-        return np.einsum("nij,nj->ni", R, c) + o
+        return np.einsum("nij,nj->ni", R[:-1], c) + o[:-1]
 
     def potential_energy(self, q, t: float = 0.0) -> float:
         """Gravity (about the world origin) plus elastic energy (J)."""

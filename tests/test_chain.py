@@ -207,7 +207,15 @@ def test_placements_backbone_and_tip_jacobian(rng):
     ch = make_chain("paper", "floating")
     q, v = random_state(ch, rng)
     X = ch.placements(q)
+    X_pin = [pin.XYZQUATToSE3(q[:7])]  # composed with Pinocchio's exp6 segment by segment
+    for j, s in enumerate(ch.segments):
+        X_pin.append(X_pin[-1] * s.tip_placement(q[ch.q_slice(j)]))
+    for a, b in zip(X, X_pin):
+        assert np.abs(a.homogeneous - b.homogeneous).max() < 1e-14
+    Xf, bbf = ch.frames(q, 11)
+    assert all(np.abs(a.homogeneous - b.homogeneous).max() < 1e-15 for a, b in zip(Xf, X))
     bb = ch.backbone(q, 11)
+    assert np.array_equal(bb, bbf)
     assert bb.shape == (3, 11, 3)
     for j in range(3):
         assert np.allclose(bb[j, 0], X[j].translation, atol=1e-14)
