@@ -552,6 +552,34 @@ class Chain:
             out[self.v_slice(j)] = s.elastic_force(st.q_e[j])
         return out
 
+    def _segment_blocks(self, q, block) -> np.ndarray:
+        """Block-diagonal (nv, nv) of ``block(j, segment, q_e)`` (3, 3), zero on the base."""
+        st = self._state(q)
+        out = np.zeros((self.nv, self.nv))
+        for j, s in enumerate(self.segments):
+            sl = self.v_slice(j)
+            out[sl, sl] = block(j, s, st.q_e[j])
+        return out
+
+    def elastic_stiffness(self, q) -> np.ndarray:
+        """``d^2 U_el / dq^2`` (nv, nv), exact, block-diagonal, zero on the base."""
+        return self._segment_blocks(q, lambda j, s, qe: s.elastic_stiffness(qe))
+
+    def dissipation_matrix(self, q) -> np.ndarray:
+        """``D`` (nv, nv), block-diagonal, zero on the base."""
+        return self._segment_blocks(q, lambda j, s, qe: s.dissipation_matrix(qe))
+
+    def pressure_stiffness(self, q, p) -> np.ndarray:
+        """``d(B(q) p)/dq`` (nv, nv) where the segment provides it exactly (volume actuation),
+        zero elsewhere (the paper's tip-plate model)."""
+        p3 = self._p(p)
+
+        def block(j, s, qe):
+            Kp = s.pressure_stiffness(qe, p3[j])
+            return np.zeros((3, 3)) if Kp is None else Kp
+
+        return self._segment_blocks(q, block)
+
     def damping_force(self, q, v) -> np.ndarray:
         """``D v`` (nv,), zero on the base."""
         st = self._state(q, v)

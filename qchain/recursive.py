@@ -118,6 +118,25 @@ def rnea(alpha, w, offs, mass, radius, q, qd, qdd, V0, A0, tau, F0):
 
 
 @jit
+def _project(M, T, I, IT, out):
+    """``out = M + T^T I T`` (9, 9): a segment's 9x9 block with the inertia ``I`` (6, 6) of what
+    hangs beyond its tip carried to its root through the tip map ``T`` (6, 9); ``IT`` (6, 9)
+    receives ``I T``."""
+    for r in range(6):
+        for k in range(9):
+            acc = 0.0
+            for s in range(6):
+                acc += I[r, s] * T[s, k]
+            IT[r, k] = acc
+    for a in range(9):
+        for b in range(9):
+            acc = M[a, b]
+            for r in range(6):
+                acc += T[r, a] * IT[r, b]
+            out[a, b] = acc
+
+
+@jit
 def crba(alpha, w, offs, mass, radius, q, floating, H):
     """Composite-body assembly of the joint-space inertia ``H`` (nv, nv), curvature coordinates.
 
@@ -145,18 +164,7 @@ def crba(alpha, w, offs, mass, radius, q, floating, H):
     for j in range(n - 1, -1, -1):
         segment_slices(alpha[offs[j] : offs[j + 1]], w[offs[j] : offs[j + 1]], mass[j], radius[j], q[j], z9, z9,
                        True, Mj, Q)
-        for r in range(6):
-            for k in range(9):
-                acc = 0.0
-                for s in range(6):
-                    acc += Ic[r, s] * T[j, s, k]
-                IcT[r, k] = acc
-        for a in range(9):
-            for b in range(9):
-                acc = Mj[a, b]
-                for r in range(6):
-                    acc += T[j, r, a] * IcT[r, b]
-                Mh[a, b] = acc
+        _project(Mj, T[j], Ic, IcT, Mh)
         i0 = off + 3 * j
         for a in range(3):
             for b in range(3):
@@ -270,22 +278,12 @@ def aba(alpha, w, offs, mass, radius, q, qd, tau, V0, A0, floating, F0, qdd, A0_
             for s in range(6):
                 acc += IA[r, s] * c[j, s]
             pc[r] = acc
-        for r in range(6):
-            for k in range(9):
-                acc = 0.0
-                for s in range(6):
-                    acc += IA[r, s] * T[j, s, k]
-                IAT[r, k] = acc
+        _project(Mall[j], T[j], IA, IAT, Mh)
         for a in range(9):
             acc = b[j, a]
             for r in range(6):
                 acc += T[j, r, a] * pc[r]
             bh[a] = acc
-            for e in range(9):
-                acc = Mall[j, a, e]
-                for r in range(6):
-                    acc += T[j, r, a] * IAT[r, e]
-                Mh[a, e] = acc
         for a in range(3):
             for e in range(3):
                 Lq[j, a, e] = Mh[6 + a, 6 + e]

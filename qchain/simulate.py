@@ -178,16 +178,8 @@ class _System:
     def mkd(self, q, v):
         """Mass, elastic stiffness and damping matrices on the active coordinates."""
         ch = self.ch
-        M = ch.mass_matrix(q)
-        K = np.zeros((ch.nv, ch.nv))
-        D = np.zeros((ch.nv, ch.nv))
-        for j, s in enumerate(ch.segments):
-            sl = ch.v_slice(j)
-            qe = q[ch.q_slice(j)]
-            K[sl, sl] = s.elastic_stiffness(qe)
-            D[sl, sl] = s.dissipation_matrix(qe)
         ix = np.ix_(self.idx, self.idx)
-        return M[ix], K[ix], D[ix]
+        return ch.mass_matrix(q)[ix], ch.elastic_stiffness(q)[ix], ch.dissipation_matrix(q)[ix]
 
 
 def _check_span(t_span):

@@ -46,15 +46,8 @@ class EquilibriumResult:
 
 
 def _stiffness(chain: Chain, q: np.ndarray, p: np.ndarray) -> np.ndarray:
-    K = np.zeros((chain.nv, chain.nv))
-    for j, s in enumerate(chain.segments):
-        sl = chain.v_slice(j)
-        qe = q[chain.q_slice(j)]
-        K[sl, sl] = s.elastic_stiffness(qe)
-        Kp = s.pressure_stiffness(qe, p[3 * j : 3 * j + 3])
-        if Kp is not None:
-            K[sl, sl] -= Kp
-    return K
+    """Newton matrix of ``-F``: elastic minus pressure stiffness (both exact)."""
+    return chain.elastic_stiffness(q) - chain.pressure_stiffness(q, p)
 
 
 def equilibrium(chain: Chain, p=None, q0=None, tip_wrench=None, *, t: float = 0.0, tol: float = 1e-10,
