@@ -1,7 +1,14 @@
 """Cost of logging a run, as a ratio to the same run without logging.
 
     python benchmarks/bench_logging.py [--steps 20000] [--block 500] [--pad-us 0]
-    python benchmarks/bench_logging.py --example [--duration 4] [--repeats 5]
+    python benchmarks/bench_logging.py --example [--duration 20] [--repeats 10]
+
+``--example`` measures the three-segment example (``examples/scenes/wave_arm.toml``): first
+the whole ``qchain run`` command as a user runs it (fresh interpreter, model build,
+simulation, files finished), then the simulation phase in one process (logger created to
+files finished, the writer started ahead as ``qchain run`` does), each logged run against
+the mean of the unlogged runs either side of it; and the writer's start-up time. The rest of
+this docstring is about the default mode.
 
 Drives a simulation step function with logging off, MCAP on, Rerun (.rrd) on and both on.
 One logger a configuration stays open for the whole measurement; the steps go in blocks,
@@ -17,20 +24,12 @@ The paired, block-interleaved design is there because a small virtual machine's 
 drifts by up to 2x within seconds; comparing whole runs measured minutes apart would
 measure the drift, not the logging.
 
-To measure a real simulation, give :func:`measure_overhead` a function that advances it one
-step and returns a :class:`qchain.logging.StepRecord`, e.g.::
-
-    from bench_logging import measure_overhead, print_table
-    sim = make_three_segment_example()          # yours
-    def step():
-        sim.advance()                           # one integrator step
-        return sim.step_record()                # a StepRecord of the new state
-    print_table(measure_overhead(step, 20000, info=sim.run_info()))
-
-Until then the synthetic workload stands in: the analytically bending three-segment arm of
+The default mode's workload is the analytically bending three-segment arm of
 ``tests/logging_fixtures.py`` (closed-form constant-curvature arcs, 12 backbone points a
-segment, ~150-250 us a step in numpy on the CI machine), optionally padded with 27 x 27
-solves (``--pad-us``) to a chosen cost.
+segment, ~150-250 us a step in numpy), optionally padded with 27 x 27 solves (``--pad-us``)
+to a chosen cost: a record every step, the worst case for the logger.
+:func:`measure_overhead` takes any step function returning a
+:class:`qchain.logging.StepRecord`.
 """
 
 from __future__ import annotations
@@ -235,49 +234,155 @@ def print_table(table: dict) -> None:
           "(load average > 1), the writer takes time from the simulation and the overhead rises.")
 
 
-def example_overhead(duration: float = 4.0, repeats: int = 5, workdir=None, worker: str = "auto") -> dict:
-    """The three-segment example (``examples/scenes/wave_arm.toml``) run as ``qchain run`` runs
-    it -- records built and logged at the scene's sample rate -- with logging off, MCAP on,
-    ``.rrd`` on and both, interleaved; wall time of the whole run (files finished) per config.
+EXAMPLE_CONFIGS = {"mcap": ["--mcap", "{d}/run.mcap"], "rrd": ["--rrd", "{d}/run.rrd", "--no-record"],
+                   "both": ["--mcap", "{d}/run.mcap", "--rrd", "{d}/run.rrd"]}
 
-    Returns config -> {"wall_s" (median), "overhead" (median of paired ratios - 1),
-    "mcap_bytes_per_sim_s", "samples"}.
-    """
+
+def _flanked(run, configs, repeats: int) -> dict:
+    """Run ``off, c1, off, c2, off, c3, off, c1, ...`` (``repeats`` runs a config); each
+    logging run is compared with the mean of the two "off" runs either side of it, so that
+    the machine's drift over seconds cancels. ``run(config, index)`` returns a dict with
+    "wall" (s) and anything else to report. Returns config -> list of those dicts, each with
+    "ratio" (wall / flanking off walls) added; "off" -> the off runs."""
+    seq = ["off"]
+    for r in range(repeats):
+        for c in configs:
+            seq += [c, "off"]
+    res = [run(c, i) for i, c in enumerate(seq)]
+    out = {"off": [x for c, x in zip(seq, res) if c == "off"]}
+    for i, c in enumerate(seq):
+        if c != "off":
+            res[i]["ratio"] = res[i]["wall"] / (0.5 * (res[i - 1]["wall"] + res[i + 1]["wall"]))
+            out.setdefault(c, []).append(res[i])
+    return out
+
+
+def _summary(rows: list[dict], duration: float) -> dict:
+    ratios = [x["ratio"] - 1.0 for x in rows if "ratio" in x]
+    q = statistics.quantiles(ratios, n=4) if len(ratios) > 1 else [ratios[0]] * 3 if ratios else [0.0] * 3
+    out = {"wall_s": statistics.median(x["wall"] for x in rows), "overhead": statistics.median(ratios) if ratios else 0.0,
+           "overhead_q1": q[0], "overhead_q3": q[2]}
+    sizes = [x["mcap_bytes"] for x in rows if x.get("mcap_bytes")]
+    out["mcap_bytes_per_sim_s"] = statistics.median(sizes) / duration if sizes else None
+    for key in ("sample_us", "start_s", "close_s", "samples"):
+        vals = [x[key] for x in rows if key in x]
+        out[key] = statistics.median(vals) if vals else None
+    return out
+
+
+def example_command_overhead(duration: float | None = None, repeats: int = 10, workdir=None) -> dict:
+    """The three-segment example as a user runs it: the whole ``qchain run
+    examples/scenes/wave_arm.toml --no-plots`` command in a fresh interpreter (start-up,
+    model build, simulation, files finished), with ``--no-record`` (off) and with MCAP,
+    ``.rrd`` or both. Returns config -> summary (see :func:`_summary`)."""
+    import subprocess
+
+    scene = HERE.parent / "examples" / "scenes" / "wave_arm.toml"
+    extra = [] if duration is None else ["--duration", str(duration)]
+    env = dict(os.environ, PYTHONPATH=str(HERE.parent) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    with tempfile.TemporaryDirectory(dir=workdir) as tmp:
+        def run(c, i):
+            d = Path(tmp) / f"{c}-{i}"
+            d.mkdir()
+            flags = ["--no-record"] if c == "off" else [a.format(d=d) for a in EXAMPLE_CONFIGS[c]]
+            cmd = [sys.executable, "-m", "qchain.cli", "run", str(scene), "--no-plots", "--no-progress", *extra, *flags]
+            t0 = time.perf_counter()
+            subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL, env=env, cwd=tmp)
+            wall = time.perf_counter() - t0
+            m = d / "run.mcap"
+            return {"wall": wall, "mcap_bytes": m.stat().st_size if m.exists() else None}
+
+        run("off", -1)  # warm the file cache
+        res = _flanked(run, list(EXAMPLE_CONFIGS), repeats)
+    from qchain import load_scene
+
+    T = load_scene(scene).duration if duration is None else duration
+    return {c: _summary(rows, T) for c, rows in res.items()}
+
+
+def example_overhead(duration: float = 20.0, repeats: int = 10, workdir=None, worker: str = "auto",
+                     head_start: float = 1.5) -> dict:
+    """The simulation phase of ``qchain run``'s run of the three-segment example, in this
+    process with its model built once: from creating the logger to its files finished
+    (``with logger, recorder: scene.simulate(...)``) against the simulation unlogged. The
+    writer is started ``head_start`` seconds ahead, untimed (``qchain run`` starts it before
+    building the model, which takes ~1.1 s in a fresh process); every run, logged or not,
+    waits that long first. Returns config -> summary with also the mean cost of a sample in
+    the simulating process ("sample_us"), the wait in the logger's constructor ("start_s")
+    and the wait for the files at the end ("close_s")."""
     from qchain import cli, load_scene
 
     qlog = cli._logging_module()
     scene = load_scene(HERE.parent / "examples" / "scenes" / "wave_arm.toml")
     model = scene.build()
-    configs = {"off": [], "mcap": ["--mcap", "{d}/run.mcap"], "rrd": ["--rrd", "{d}/run.rrd", "--no-record"],
-               "both": ["--mcap", "{d}/run.mcap", "--rrd", "{d}/run.rrd"]}
-    walls = {c: [] for c in configs}
-    sizes, samples = {}, 0
+    scene.simulate(model=model, duration=0.2)  # warm up (compile)
     with tempfile.TemporaryDirectory(dir=workdir) as tmp:
-        scene.simulate(model=model, duration=0.2)  # warm up (compile)
-        for r in range(repeats):
-            order = list(configs)[r % 4:] + list(configs)[: r % 4]
-            for c in order:
-                d = Path(tmp) / f"{c}-{r}"
-                d.mkdir()
+        def run(c, i):
+            if c != "off":
+                qlog.prepare_writer(rerun=c != "mcap")
+            time.sleep(head_start)
+            if c == "off":
                 t0 = time.perf_counter()
-                if c == "off":
-                    tr = scene.simulate(model=model, duration=duration)
-                else:
-                    argv = ["run", str(scene.path), *[a.format(d=d) for a in configs[c]], "--no-progress"]
-                    args = cli._parser(qlog).parse_args(argv)
-                    logger, on_sample = cli._make_logger(qlog, args, scene, model, worker=worker)
-                    with logger:
-                        tr = scene.simulate(model=model, duration=duration, on_sample=on_sample)
-                walls[c].append(time.perf_counter() - t0)
-                samples = len(tr.t)
-                if (d / "run.mcap").exists():
-                    sizes[c] = (d / "run.mcap").stat().st_size / duration
+                scene.simulate(model=model, duration=duration)
+                return {"wall": time.perf_counter() - t0}
+            d = Path(tmp) / f"{c}-{i}"
+            d.mkdir()
+            argv = ["run", str(scene.path), *[a.format(d=d) for a in EXAMPLE_CONFIGS[c]], "--no-progress"]
+            args = cli._parser(qlog).parse_args(argv)
+            spent = [0.0, 0]
+            t0 = time.perf_counter()
+            logger, recorder = cli._make_logger(qlog, args, scene, model, worker=worker)
+
+            def on_sample(t, q, v, p, energies=None):
+                s = time.perf_counter()
+                recorder(t, q, v, p, energies=energies)
+                spent[0] += time.perf_counter() - s
+                spent[1] += 1
+
+            with logger, recorder:
+                t1 = time.perf_counter()
+                scene.simulate(model=model, duration=duration, on_sample=on_sample)
+                t2 = time.perf_counter()
+            t3 = time.perf_counter()
+            m = d / "run.mcap"
+            return {"wall": t3 - t0, "sample_us": spent[0] / max(spent[1], 1) * 1e6, "samples": spent[1],
+                    "start_s": t1 - t0, "close_s": t3 - t2, "mcap_bytes": m.stat().st_size if m.exists() else None}
+
+        res = _flanked(run, list(EXAMPLE_CONFIGS), repeats)
+    return {c: _summary(rows, duration) for c, rows in res.items()}
+
+
+def writer_startup(repeats: int = 5) -> dict:
+    """Wall time from launching a writer to its being ready, for an MCAP and for MCAP + .rrd
+    (median of ``repeats``): what :func:`qchain.logging.prepare_writer` hides."""
+    from qchain.logging import RunLogger
+
     out = {}
-    for c, w in walls.items():
-        ratios = [a / b - 1.0 for a, b in zip(w, walls["off"])]
-        out[c] = {"wall_s": statistics.median(w), "overhead": statistics.median(ratios),
-                  "mcap_bytes_per_sim_s": sizes.get(c), "samples": samples}
+    with tempfile.TemporaryDirectory() as tmp:
+        for name, kw in (("mcap", {}), ("mcap + rrd", {"rrd": Path(tmp) / "a.rrd"})):
+            walls = []
+            for i in range(repeats):
+                t0 = time.perf_counter()
+                log = RunLogger(arm_info(), Path(tmp) / f"{i}.mcap", quiet=True, **kw)
+                walls.append(time.perf_counter() - t0)
+                log.close()
+            out[name] = statistics.median(walls)
     return out
+
+
+def print_example(title: str, res: dict) -> None:
+    print(title)
+    print(f"{'logging':<8} {'wall':>8} {'overhead':>9} {'(quartiles)':>16} {'a sample':>9} {'start':>8} {'close':>8}"
+          f" {'MCAP/sim s':>11}")
+    for c, row in res.items():
+        quart = "" if c == "off" else f"{100 * row['overhead_q1']:+.1f}..{100 * row['overhead_q3']:+.1f}%"
+        over = "" if c == "off" else f"{100 * row['overhead']:+.1f}%"
+        us = "" if row["sample_us"] is None else f"{row['sample_us']:.0f} us"
+        st = "" if row["start_s"] is None else f"{row['start_s'] * 1e3:.1f} ms"
+        cl = "" if row["close_s"] is None else f"{row['close_s'] * 1e3:.1f} ms"
+        mb = row["mcap_bytes_per_sim_s"]
+        print(f"{c:<8} {row['wall_s']:>7.3f}s {over:>9} {quart:>16} {us:>9} {st:>8} {cl:>8} "
+              f"{'' if mb is None else f'{mb / 1e3:.1f} kB':>11}")
 
 
 def main(argv=None) -> int:
@@ -289,19 +394,32 @@ def main(argv=None) -> int:
     ap.add_argument("--dt", type=float, default=1e-3, help="time step of the synthetic arm, s")
     ap.add_argument("--example", action="store_true",
                     help="measure the three-segment example (qchain run of wave_arm.toml) instead")
-    ap.add_argument("--duration", type=float, default=4.0, help="--example: simulated time, s")
-    ap.add_argument("--repeats", type=int, default=5, help="--example: interleaved repeats")
+    ap.add_argument("--duration", type=float, default=20.0,
+                    help="--example: simulated time of the in-process measurement, s")
+    ap.add_argument("--repeats", type=int, default=10, help="--example: runs a config")
     ap.add_argument("--worker", choices=["auto", "process", "thread"], default="auto",
                     help="--example: where the logger writes (RunLogger's worker)")
     args = ap.parse_args(argv)
     if args.example:
-        res = example_overhead(args.duration, args.repeats, worker=args.worker)
-        print(f"three-segment example, {args.duration:g} s simulated, {res['off']['samples']} samples logged, "
-              f"median of {args.repeats} interleaved runs, {args.worker} writer")
-        for c, row in res.items():
-            mb = row["mcap_bytes_per_sim_s"]
-            print(f"{c:<5} wall {row['wall_s']:7.3f} s   overhead {100 * row['overhead']:+6.1f} %"
-                  f"   {'' if mb is None else f'MCAP {mb / 1e3:.1f} kB per simulated s'}")
+        n = args.repeats
+        res = example_command_overhead(None, n)
+        print_example(f"the three-segment example as a user runs it: `qchain run wave_arm.toml --no-plots` "
+                      f"(4 s simulated, 201 samples), whole command; {n} runs a config, each against the "
+                      f"unlogged runs either side of it", res)
+        print()
+        res = example_overhead(args.duration, n, worker=args.worker)
+        print_example(f"simulation phase, in one process: {args.duration:g} s simulated "
+                      f"({res['mcap']['samples']:.0f} samples), logger created to files finished, the writer "
+                      f"started 1.5 s ahead as qchain run does; {args.worker} writer; {n} runs a config", res)
+        print()
+        st = writer_startup()
+        print("writer start-up without prepare_writer (launch to ready, median of 5): "
+              + ", ".join(f"{k} {v * 1e3:.0f} ms" for k, v in st.items())
+              + " (an .rrd's Rerun comes up in the background after that)")
+        print("overhead: median over runs of wall / mean of the unlogged runs either side - 1 (target <= 5 %). "
+              "a sample: the recorder's cost in the simulating process (frames of a batch of samples in one "
+              "compiled call, one write to the writer). start: creating the logger; close: waiting for the "
+              "files at the end.")
         return 0
     step = synthetic_step(args.dt, args.pad_us)
     print_table(measure_overhead(step, args.steps, block=args.block))

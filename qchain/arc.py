@@ -41,7 +41,7 @@ import numpy as np
 
 from .spatial import inv_adjoint
 
-__all__ = ["ArcNodes", "arc_nodes", "bend_functions", "strain_twist", "arc_node"]
+__all__ = ["ArcNodes", "arc_nodes", "bend_functions", "strain_twist", "arc_node", "arc_pose"]
 
 _SERIES_BELOW = 2.0  # rad; at x = 2 the 16-term series is exact to 1e-25
 _NTERMS = 16
@@ -99,6 +99,35 @@ def _mcross(a, b):
 
 
 @jit
+def _write_pose(a1, a2, ux, uy, R, p):
+    """``R = I + a1 [w] + a2 [w]^2`` with ``w = (-uy, ux, 0)`` (``[w]^2 = w w^T - |w|^2 I``)
+    and ``p = (a2 ux, a2 uy, a1)``, into ``R`` (3, 3) and ``p`` (3,)."""
+    k2 = ux * ux + uy * uy
+    wx, wy = -uy, ux
+    R[0, 0] = 1.0 + a2 * (wx * wx - k2)
+    R[0, 1] = a2 * wx * wy
+    R[0, 2] = a1 * wy
+    R[1, 0] = a2 * wx * wy
+    R[1, 1] = 1.0 + a2 * (wy * wy - k2)
+    R[1, 2] = -a1 * wx
+    R[2, 0] = -a1 * wy
+    R[2, 1] = a1 * wx
+    R[2, 2] = 1.0 - a2 * k2
+    p[0] = a2 * ux
+    p[1] = a2 * uy
+    p[2] = a1
+
+
+@jit
+def arc_pose(alpha, l, ux, uy, R, p):
+    """Slice placement only (the ``R``, ``p`` of :func:`arc_node`), for drawing: slice
+    ``alpha`` of a segment at ``(l, ux, uy)`` (m, 1/m, 1/m) into ``R`` (3, 3) and ``p`` (3,) (m)."""
+    s = alpha * l
+    f0, f1, _, _, _, _ = _bend(s * np.sqrt(ux * ux + uy * uy))
+    _write_pose(s * f0, s * s * f1, ux, uy, R, p)
+
+
+@jit
 def arc_node(alpha, l, ux, uy, ld, uxd, uyd, R, p, S, Sd):
     """Slice kinematics at one node (numba; also callable from Python).
 
@@ -122,20 +151,7 @@ def arc_node(alpha, l, ux, uy, ld, uxd, uyd, R, p, S, Sd):
     ud = ux * uxd + uy * uyd
     da2 = s2 * s2 * g1 * ud
     da3 = s2 * s2 * s * g2 * ud
-    # R = I + a1 [w] + a2 [w]^2, w = (-uy, ux, 0): [w]^2 = w w^T - |w|^2 I
-    wx, wy = -uy, ux
-    R[0, 0] = 1.0 + a2 * (wx * wx - k2)
-    R[0, 1] = a2 * wx * wy
-    R[0, 2] = a1 * wy
-    R[1, 0] = a2 * wx * wy
-    R[1, 1] = 1.0 + a2 * (wy * wy - k2)
-    R[1, 2] = -a1 * wx
-    R[2, 0] = -a1 * wy
-    R[2, 1] = a1 * wx
-    R[2, 2] = 1.0 - a2 * k2
-    p[0] = a2 * ux
-    p[1] = a2 * uy
-    p[2] = a1
+    _write_pose(a1, a2, ux, uy, R, p)
     xi = (0.0, 0.0, 1.0, -uy, ux, 0.0)
     xid = (0.0, 0.0, 0.0, -uyd, uxd, 0.0)
     for r in range(6):

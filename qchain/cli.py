@@ -37,7 +37,6 @@ from .scene import Scene, SceneError, SceneModel, load_scene
 __all__ = ["main", "write_outputs", "tip_positions", "summary_lines"]
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE = 0, 1, 2
-BACKBONE_POINTS = 12  # points a segment in logged backbones
 
 
 def _logging_module():
@@ -224,14 +223,16 @@ def _run(args, parser) -> int:
         parser.error(f"--duration must be > 0 s, got {args.duration}")
     if scene.method in ("rk4", "midpoint") and scene.dt > duration:
         parser.error(f"--duration {duration:g} s is shorter than the scene's step dt = {scene.dt:g} s")
+    qlog = _logging_module()
+    record = qlog is not None and not (args.no_record and not (args.serve or args.connect or args.rrd))
+    if record:  # the log writer starts up on the other core while the model is built
+        qlog.prepare_writer(rerun=bool(args.serve or args.connect or args.rrd))
     model = scene.build(reduce=False if args.full else None)
     for line in scene.describe(model):
         print(line)
     sys.stdout.flush()
     progress = sys.stderr.isatty() if args.progress is None else args.progress
 
-    qlog = _logging_module()
-    record = qlog is not None and not (args.no_record and not (args.serve or args.connect or args.rrd))
     if qlog is None and (args.mcap or args.serve or args.connect or args.rrd):
         print("qchain run: error: recording needs qchain.logging, which is not available", file=sys.stderr)
         return EXIT_USAGE
@@ -252,7 +253,7 @@ def _run(args, parser) -> int:
     interrupted = False
     try:
         if logger is not None:
-            with logger:
+            with logger, on_sample:  # the recorder logs its last samples before the logger finishes
                 try:
                     traj = scene.simulate(model=model, duration=duration, on_sample=on_sample, progress=progress)
                 except KeyboardInterrupt as err:
@@ -287,8 +288,9 @@ def _run(args, parser) -> int:
 
 
 def _make_logger(qlog, args, scene: Scene, model: SceneModel, **logger_kwargs):
-    """The run logger and the ``on_sample`` callback that feeds it one record a sample
-    (``logger_kwargs`` go to :class:`qchain.logging.RunLogger`)."""
+    """The run logger and the ``on_sample`` callback that feeds it one record a sample, a
+    :class:`qchain.recorder.ChainRecorder` (``logger_kwargs`` go to
+    :class:`qchain.logging.RunLogger`). Enter both: ``with logger, recorder: ...``."""
     ch = model.chain
     info = qlog.RunInfo(
         n_segments=ch.n,
@@ -315,17 +317,9 @@ def _make_logger(qlog, args, scene: Scene, model: SceneModel, **logger_kwargs):
                                 bind=args.bind, linger=args.serve, **logger_kwargs)
     else:
         logger = qlog.logger_from_args(args, info, **logger_kwargs)
-    step = [0]
+    from .recorder import ChainRecorder  # with qchain.logging, which may be missing (_logging_module)
 
-    def on_sample(t, q, v, p, energies=None):
-        X, backbone = ch.frames(q, BACKBONE_POINTS, t=t)
-        tips = np.array([pin.SE3ToXYZQUAT(x) for x in X[1:]])
-        ke, pe = energies if energies is not None else (ch.kinetic_energy(q, v, t=t), ch.potential_energy(q, t=t))
-        logger.log(qlog.StepRecord(t=float(t), step=step[0], q=q, v=v, p=p, kinetic=ke, potential=pe, total=ke + pe,
-                                   backbone=backbone, tip_frames=tips))
-        step[0] += 1
-
-    return logger, on_sample
+    return logger, ChainRecorder(logger, ch)
 
 
 def _info(args) -> int:

@@ -1,8 +1,11 @@
 """Run logging: one record a simulation step, to an MCAP file and to a Rerun viewer.
 
-The simulation hands :class:`RunLogger` one :class:`StepRecord` a step. ``log()`` only packs
-the record into one row of bytes (a few microseconds); the encoding and the I/O happen away
-from the simulation. By default that is a separate writer process (the *process* worker: its
+The simulation hands :class:`RunLogger` one :class:`StepRecord` a step (``log()``), or many
+at once as columns (``log_columns()``) or as rows of float64 numbers (``log_rows()``, see
+:class:`RecordLayout`); :class:`qchain.recorder.ChainRecorder` does the latter for
+:func:`qchain.simulate`, computing the frames of a batch of samples in one compiled call.
+Logging only packs records into rows of bytes (microseconds); the encoding and the I/O
+happen away from the simulation. By default that is a separate writer process (the *process* worker: its
 own interpreter, so it takes no time from the simulating process's GIL and runs on another
 core), fed through a pipe; with an in-memory stream as the MCAP target it is a background
 thread (the *thread* worker). Both queues are bounded (the pipe, 1 MiB, and a 64 KiB buffer
@@ -48,10 +51,13 @@ Crash safety
     frame is written to the pipe, so the stream is never cut mid-record. If the simulating
     process is killed (SIGKILL), the writer sees its pipe close and still finishes the file,
     with an outcome saying so. If the writer is killed too, the file is readable up to its
-    last closed chunk. A record waits at most ``flush_interval / 2`` of simulation time (or
-    50 ms) in the simulating process's buffer, as long again in the writer's batch, and
-    ``flush_interval`` in the open chunk, so while the writer keeps up at most about
-    ``2 * flush_interval`` = 0.2 s of simulation time is lost at default settings.
+    last closed chunk. A record waits at most ``flush_interval`` of simulation time (or
+    50 ms of wall time) in the simulating process (the buffer of ``log()`` holds
+    ``flush_interval / 2``; :class:`~qchain.recorder.ChainRecorder` a batch of up to
+    ``flush_interval``), ``flush_interval / 2`` in the writer's batch and ``flush_interval``
+    in the open chunk. So at default settings a SIGKILL of the simulation loses at most
+    0.1 s of simulation time, and one of both processes at most about
+    ``2.5 * flush_interval`` = 0.25 s, while the writer keeps up.
 
 Rerun (``serve``, ``connect``, ``rrd``)
     ``serve=True`` hosts a gRPC server with ``rr.GrpcServerSink`` bound to ``bind``
@@ -62,7 +68,8 @@ Rerun (``serve``, ``connect``, ``rrd``)
     the segments' radii, tip axes, chamber pressures as arrows on the tip plates, length
     and colour by pressure) beside time series of the pressures, coordinates, velocities and
     energies. Per-step data go on the ``sim_time`` (duration) and ``step`` (sequence)
-    timelines in column batches (``send_columns``). If a viewer cannot be reached, one
+    timelines in column batches (``send_columns``), gathered for ``rerun_latency`` (0.2 s)
+    of wall time: a batch costs ~4 ms of the writer's time whatever its size. If a viewer cannot be reached, one
     :class:`LoggingWarning` says so and the run goes on; the MCAP is still written.
 
 Replay
@@ -93,6 +100,7 @@ import os
 import queue
 import select
 import signal
+import _signal
 import socket
 import struct
 import subprocess
@@ -113,10 +121,12 @@ import numpy as np
 
 from . import __version__
 from .errors import QchainError
+from .spatial import quaternion_to_rotation
 from .trajectory import Trajectory
 
 __all__ = [
     "StepRecord",
+    "RecordLayout",
     "RunInfo",
     "RunLogger",
     "LoggingError",
@@ -131,6 +141,7 @@ __all__ = [
     "add_logging_arguments",
     "logger_from_args",
     "default_mcap_path",
+    "prepare_writer",
     "TOPICS",
     "DEFAULT_FLUSH_INTERVAL",
     "DEFAULT_FLUSH_WALL_INTERVAL",
@@ -157,6 +168,8 @@ DEFAULT_FLUSH_WALL_INTERVAL = 0.5
 DEFAULT_CHUNK_BYTES = 4 << 20
 #: Records the queue between ``log()`` and the writer holds before ``log()`` waits.
 DEFAULT_MAX_QUEUE = 4096
+#: Wall time (s) records gather in the writer before they go to Rerun in one batch.
+DEFAULT_RERUN_LATENCY = 0.2
 
 DEFAULT_BIND = "127.0.0.1"
 DEFAULT_GRPC_PORT = 9876
@@ -354,35 +367,66 @@ class RunInfo:
 # Row layout: how a record is packed into one float64 row
 # --------------------------------------------------------------------------------------
 
-_HEAD = struct.Struct("<dq")  # t, step
+_HEAD = struct.Struct("<2d")  # t, step (as float64: a row is all float64)
 _ENERGY = struct.Struct("<3d")  # kinetic, potential, total
 _T = struct.Struct("<d")  # t, at the start of a packed record
 _F8 = np.dtype(np.float64)
+# _signal's pthread_sigmask: signal's converts its answer to enums, costing more than the write it guards
+_sigmask = getattr(_signal, "pthread_sigmask", None)  # None where not POSIX
+_SIGINT_SET = {int(signal.SIGINT)}
 _FRAME = struct.Struct("<cI")  # kind, payload length
+# frame kinds; a record frame holds one or more rows of a RecordLayout
 _FRAME_RECORD, _FRAME_LAYOUT, _FRAME_END, _FRAME_CONFIG, _FRAME_FLUSH = b"R", b"L", b"E", b"C", b"F"
+_COLUMNS = ("step", "q", "v", "p", "kinetic", "potential", "total", "backbone", "tip_frames")
 
 
 @dataclass(frozen=True)
-class _Layout:
+class RecordLayout:
+    """A step record as one row of float64 numbers, the form records travel in.
+
+    The row holds, in this order, ``t`` (s), ``step`` (an integer value), ``q`` (nq),
+    ``v`` (nv), ``p`` (n_p, Pa), ``kinetic``, ``potential``, ``total`` (J), the backbone
+    (n x P x 3, m, row-major) and the tip frames (n x 7: x, y, z, qx, qy, qz, qw): the fields
+    of :class:`StepRecord` flattened. :attr:`slices` says where each field is.
+
+    Attributes
+    ----------
+    nq, nv, n_p : int
+        Lengths of q, v and p.
+    n : int
+        Segments.
+    P : int
+        Backbone points a segment.
+    """
+
     nq: int
     nv: int
-    np_: int
+    n_p: int
     n: int
     P: int
 
     @property
-    def width(self) -> int:
-        return self.nq + self.nv + self.np_ + 3 + self.n * self.P * 3 + self.n * 7
+    def row_width(self) -> int:
+        """Numbers in a row."""
+        return 2 + self.nq + self.nv + self.n_p + 3 + self.n * self.P * 3 + self.n * 7
 
     @property
-    def dtype(self) -> np.dtype:
-        return np.dtype([("t", "<f8"), ("step", "<i8"), ("x", "<f8", (self.width,))])
+    def slices(self) -> dict[str, slice]:
+        """Field name -> its columns in a row (``t``, ``step``, ``q``, ``v``, ``p``,
+        ``energy`` (kinetic, potential, total), ``backbone``, ``tip_frames``)."""
+        sizes = (("t", 1), ("step", 1), ("q", self.nq), ("v", self.nv), ("p", self.n_p), ("energy", 3),
+                 ("backbone", self.n * self.P * 3), ("tip_frames", self.n * 7))
+        out, a = {}, 0
+        for name, size in sizes:
+            out[name] = slice(a, a + size)
+            a += size
+        return out
 
     def to_json(self) -> dict:
-        return {"nq": self.nq, "nv": self.nv, "np": self.np_, "n": self.n, "P": self.P}
+        return {"nq": self.nq, "nv": self.nv, "np": self.n_p, "n": self.n, "P": self.P}
 
     @classmethod
-    def from_json(cls, d: dict) -> _Layout:
+    def from_json(cls, d: dict) -> RecordLayout:
         return cls(int(d["nq"]), int(d["nv"]), int(d["np"]), int(d["n"]), int(d["P"]))
 
 
@@ -404,25 +448,30 @@ class _Batch:
         return int(self.t.shape[0])
 
     @classmethod
-    def from_rows(cls, rows: np.ndarray, lay: _Layout) -> _Batch:
-        x = rows["x"]
-        K = x.shape[0]
-        o = np.cumsum([0, lay.nq, lay.nv, lay.np_, 3, lay.n * lay.P * 3, lay.n * 7])
+    def from_rows(cls, rows: np.ndarray, lay: RecordLayout) -> _Batch:
+        """From rows (K, lay.row_width)."""
+        K = rows.shape[0]
+        sl = lay.slices
+        col = lambda name: np.ascontiguousarray(rows[:, sl[name]])  # noqa: E731
         return cls(
-            t=np.ascontiguousarray(rows["t"]),
-            step=np.ascontiguousarray(rows["step"]),
-            q=np.ascontiguousarray(x[:, o[0] : o[1]]),
-            v=np.ascontiguousarray(x[:, o[1] : o[2]]),
-            p=np.ascontiguousarray(x[:, o[2] : o[3]]),
-            energy=np.ascontiguousarray(x[:, o[3] : o[4]]),
-            backbone=np.ascontiguousarray(x[:, o[4] : o[5]]).reshape(K, lay.n, lay.P, 3),
-            tip_frames=np.ascontiguousarray(x[:, o[5] : o[6]]).reshape(K, lay.n, 7),
+            t=col("t")[:, 0],
+            step=col("step")[:, 0].astype(np.int64),
+            q=col("q"),
+            v=col("v"),
+            p=col("p"),
+            energy=col("energy"),
+            backbone=col("backbone").reshape(K, lay.n, lay.P, 3),
+            tip_frames=col("tip_frames").reshape(K, lay.n, 7),
         )
 
     @classmethod
-    def from_payloads(cls, payloads: list[bytes], lay: _Layout) -> _Batch:
-        rows = np.frombuffer(b"".join(payloads), dtype=lay.dtype)
+    def from_payloads(cls, payloads: list[bytes], lay: RecordLayout) -> _Batch:
+        rows = np.frombuffer(b"".join(payloads), dtype=np.float64).reshape(-1, lay.row_width)
         return cls.from_rows(rows, lay)
+
+    @classmethod
+    def concatenate(cls, batches: Sequence[_Batch]) -> _Batch:
+        return cls(*(np.concatenate([getattr(x, f) for x in batches]) for f in cls.__dataclass_fields__))
 
     def slice(self, a: int, b: int) -> _Batch:
         return _Batch(*(getattr(self, f)[a:b] for f in self.__dataclass_fields__))
@@ -1041,23 +1090,6 @@ class _McapSink:
 # --------------------------------------------------------------------------------------
 
 
-def _quat_to_rot(quat: np.ndarray) -> np.ndarray:
-    """(..., 4) quaternions (x, y, z, w), normalised here, to (..., 3, 3) rotations."""
-    q = quat / np.linalg.norm(quat, axis=-1, keepdims=True)
-    x, y, z, w = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
-    R = np.empty(q.shape[:-1] + (3, 3))
-    R[..., 0, 0] = 1 - 2 * (y * y + z * z)
-    R[..., 0, 1] = 2 * (x * y - z * w)
-    R[..., 0, 2] = 2 * (x * z + y * w)
-    R[..., 1, 0] = 2 * (x * y + z * w)
-    R[..., 1, 1] = 1 - 2 * (x * x + z * z)
-    R[..., 1, 2] = 2 * (y * z - x * w)
-    R[..., 2, 0] = 2 * (x * z - y * w)
-    R[..., 2, 1] = 2 * (y * z + x * w)
-    R[..., 2, 2] = 1 - 2 * (x * x + y * y)
-    return R
-
-
 def _pressure_colors(p_rel: np.ndarray) -> np.ndarray:
     """Colours (..., 3) uint8 for pressures relative to the reference, blue (0) to red (1)."""
     s = np.clip(np.nan_to_num(p_rel), 0.0, 1.0)[..., None]
@@ -1134,6 +1166,7 @@ _LIBC = None
 def _die_with_parent() -> None:  # runs in the forked child before exec
     if _LIBC is not None:
         _LIBC.prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
+    _normal_priority()  # the viewer serves at normal priority, not the writer's idle one
 
 
 def _load_libc() -> None:
@@ -1359,7 +1392,7 @@ class _RerunSink:
             columns=rr.LineStrips3D.columns(strips=b.backbone.reshape(K * n, P, 3)).partition(np.full(K, n)),
         )
         pos = b.tip_frames[..., :3]  # (K, n, 3)
-        R = _quat_to_rot(b.tip_frames[..., 3:])  # (K, n, 3, 3)
+        R = quaternion_to_rotation(b.tip_frames[..., 3:])  # (K, n, 3, 3)
         axes = np.swapaxes(R, -1, -2) * self._axis_len[None, :, None, None]  # rows = axis vectors
         rec.send_columns(
             "arm/tip_axes",
@@ -1432,7 +1465,7 @@ class _RerunSink:
 class _SinkSet:
     def __init__(self, cfg: dict, mcap_stream: BinaryIO | None, warn):
         self.info = RunInfo.from_json(cfg["info"])
-        self.layout: _Layout | None = None
+        self.layout: RecordLayout | None = None
         self.warn = warn
         self.mcap: _McapSink | None = None
         self.rerun: _RerunSink | None = None
@@ -1446,29 +1479,53 @@ class _SinkSet:
                 flush_wall_interval=cfg["flush_wall_interval"],
                 chunk_bytes=cfg["chunk_bytes"],
             )
-        if cfg.get("serve") or cfg.get("connect") or cfg.get("rrd"):
-            try:
-                self.rerun = _RerunSink(
-                    self.info,
-                    serve=bool(cfg.get("serve")),
-                    connect=cfg.get("connect"),
-                    rrd=cfg.get("rrd"),
-                    bind=cfg.get("bind", DEFAULT_BIND),
-                    grpc_port=cfg.get("grpc_port"),
-                    web_port=cfg.get("web_port"),
-                    recording_id=cfg["recording_id"],
-                    server_memory_limit=cfg.get("server_memory_limit", "1GiB"),
-                    warn=warn,
-                )
-            except Exception as exc:  # no viewer or .rrd: say so, keep the MCAP
-                warn(f"Rerun could not start ({type(exc).__name__}: {exc}); the run goes on and the MCAP "
-                     "log is still written")
-                self.rerun = None
+        self._rr_thread: threading.Thread | None = None
+        if cfg.get("serve") or cfg.get("connect"):  # before "ready": the URL, or a missing viewer, first
+            self._start_rerun(cfg)
+        elif cfg.get("rrd"):  # a .rrd file only: Rerun (a 0.7 s import) comes up while the MCAP is written
+            self._rr_thread = threading.Thread(target=self._start_rerun, args=(cfg,), name="qchain-rerun-start",
+                                               daemon=True)
+            self._rr_thread.start()
         self.n_records = 0
         self.last_t: float | None = None
         rate = cfg.get("rerun_rate")
         self._rr_dt = 0.0 if not rate else 1.0 / float(rate)
         self._rr_next = -math.inf
+        # Rerun costs ~4 ms a send_columns batch whatever its size, so its records gather
+        # here for up to rerun_latency s of wall time (the MCAP gets them at once)
+        self._rr_latency = float(cfg.get("rerun_latency", DEFAULT_RERUN_LATENCY))
+        self._rr_pending: list[_Batch] = []
+        self._rr_count = 0
+        self._rr_wall0 = 0.0
+
+    def _start_rerun(self, cfg: dict) -> None:
+        try:
+            self.rerun = _RerunSink(
+                self.info,
+                serve=bool(cfg.get("serve")),
+                connect=cfg.get("connect"),
+                rrd=cfg.get("rrd"),
+                bind=cfg.get("bind", DEFAULT_BIND),
+                grpc_port=cfg.get("grpc_port"),
+                web_port=cfg.get("web_port"),
+                recording_id=cfg["recording_id"],
+                server_memory_limit=cfg.get("server_memory_limit", "1GiB"),
+                warn=lambda m: self.warn(m),
+            )
+        except Exception as exc:  # no viewer or .rrd: say so, keep the MCAP
+            self.warn(f"Rerun could not start ({type(exc).__name__}: {exc}); the run goes on and the MCAP "
+                      "log is still written")
+            self.rerun = None
+
+    def _rerun_started(self, wait: bool) -> bool:
+        """Whether Rerun's start (in the background for a .rrd file) is over; ``wait`` for it."""
+        th = self._rr_thread
+        if th is not None:
+            if not wait and th.is_alive():
+                return False
+            th.join()
+            self._rr_thread = None
+        return True
 
     @property
     def viewer_url(self) -> str | None:
@@ -1487,7 +1544,7 @@ class _SinkSet:
         self.last_t = float(b.t[-1])
         if self.mcap is not None:
             self.mcap.write_batch(b)
-        if self.rerun is not None and self.rerun.rec is not None:
+        if self._rr_thread is not None or (self.rerun is not None and self.rerun.rec is not None):
             if self._rr_dt > 0.0:  # a display rate: one record every rerun_rate-th of a second
                 keep = []
                 nxt, dt = self._rr_next, self._rr_dt
@@ -1498,19 +1555,39 @@ class _SinkSet:
                 self._rr_next = nxt
                 if len(keep) < len(b):
                     b = _Batch(*(getattr(b, f)[keep] for f in _Batch.__dataclass_fields__))
-            try:
-                self.rerun.write_batch(b)
-            except Exception as exc:  # a viewer problem never stops the MCAP
-                self.warn(f"Rerun logging failed and is switched off ({type(exc).__name__}: {exc})")
-                self.rerun.close()
-                self.rerun = None
+            if len(b):
+                if not self._rr_pending:
+                    self._rr_wall0 = time.monotonic()
+                self._rr_pending.append(b)
+                self._rr_count += len(b)
+                if self._rr_count >= 4096:
+                    self._send_rerun()
+
+    def _send_rerun(self, wait: bool = False) -> None:
+        """Send the records gathered for Rerun as one batch (once Rerun has started, or
+        after waiting for it)."""
+        if not self._rerun_started(wait):
+            return
+        pending, self._rr_pending, self._rr_count = self._rr_pending, [], 0
+        if not pending or self.rerun is None or self.rerun.rec is None:
+            return
+        b = pending[0] if len(pending) == 1 else _Batch.concatenate(pending)
+        try:
+            self.rerun.write_batch(b)
+        except Exception as exc:  # a viewer problem never stops the MCAP
+            self.warn(f"Rerun logging failed and is switched off ({type(exc).__name__}: {exc})")
+            self.rerun.close()
+            self.rerun = None
 
     def tick(self) -> None:
         if self.mcap is not None:
             self.mcap.tick()
+        if self._rr_pending and time.monotonic() - self._rr_wall0 >= self._rr_latency:
+            self._send_rerun()
 
     def flush(self) -> dict:
         """Everything so far into the files (MCAP chunk closed) and out to the viewer."""
+        self._send_rerun(wait=True)
         if self.mcap is not None:
             self.mcap._flush()
         if self.rerun is not None and self.rerun.rec is not None:
@@ -1521,6 +1598,7 @@ class _SinkSet:
         return {"n_records": self.n_records, "last_t": self.last_t}
 
     def finish(self, outcome: dict) -> dict:
+        self._send_rerun(wait=True)
         if self.mcap is not None:
             self.mcap.finish(outcome)
         if self.rerun is not None:
@@ -1531,6 +1609,7 @@ class _SinkSet:
         return {"n_records": self.n_records, "last_t": self.last_t}
 
     def close(self) -> None:
+        self._rerun_started(wait=True)
         if self.rerun is not None:
             self.rerun.close()
 
@@ -1573,13 +1652,48 @@ def _read_frame_blocking(fd: int, reader: _FrameReader):
         reader.feed(data)
 
 
-def _worker_main() -> int:
-    """Entry point of the writer process: frames on stdin, JSON status lines on stdout."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the simulating process decides when to stop
+def _yield_to_the_simulation() -> None:
+    """Run this process (and the threads it starts: Rerun's too) only on CPU time nobody
+    else wants (Linux ``SCHED_IDLE``; elsewhere ``nice 5``): the simulation never waits for
+    the writer, which catches up on the other core or while the simulation waits for it."""
     try:
-        os.nice(5)  # where the CPUs are contended, the simulation goes first; the writer catches up
-    except (AttributeError, OSError):  # pragma: no cover - not POSIX
+        os.sched_setscheduler(0, os.SCHED_IDLE, os.sched_param(0))
+    except (AttributeError, OSError):  # pragma: no cover - not Linux
+        try:
+            os.nice(5)
+        except (AttributeError, OSError):
+            pass
+
+
+def _normal_priority() -> None:
+    """Undo :func:`_yield_to_the_simulation` (for the web viewer a writer starts)."""
+    try:
+        os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+    except (AttributeError, OSError):  # pragma: no cover - not Linux, or not allowed
         pass
+
+
+def _import_quietly(*names: str) -> None:
+    """Import modules ahead of their use (a missing one is reported where it is used)."""
+    import importlib
+
+    for name in names:
+        try:
+            importlib.import_module(name)
+        except ImportError:
+            pass
+
+
+def _worker_main(rerun: bool = False) -> int:
+    """Entry point of the writer process: frames on stdin, JSON status lines on stdout.
+    ``rerun``: import rerun-sdk at once, before the configuration comes."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the simulating process decides when to stop
+    _yield_to_the_simulation()
+    # the imports first: they take most of the start-up, and the configuration may come later;
+    # rerun-sdk's (0.7 s) on a thread, so that an MCAP can be ready before it is done
+    if rerun:
+        threading.Thread(target=_import_quietly, args=("rerun", "rerun.blueprint"), daemon=True).start()
+    _import_quietly("mcap.records", "orjson", "zstandard")
     status_fd = os.dup(1)
     os.dup2(2, 1)  # anything a library prints goes to stderr, not into the status channel
     status = os.fdopen(status_fd, "w", buffering=1)
@@ -1660,7 +1774,7 @@ def _worker_main() -> int:
                 elif kind == _FRAME_LAYOUT:
                     sinks.write_payloads(pending)
                     pending = []
-                    sinks.layout = _Layout.from_json(json.loads(payload))
+                    sinks.layout = RecordLayout.from_json(json.loads(payload))
                 elif kind == _FRAME_FLUSH:
                     sinks.write_payloads(pending)
                     pending = []
@@ -1708,8 +1822,68 @@ _WORKER_CODE = (
     "pkg = types.ModuleType('qchain'); pkg.__path__ = [sys.argv[1]]; pkg.__version__ = sys.argv[2]\n"
     "sys.modules['qchain'] = pkg\n"
     "from qchain.logging import _worker_main\n"
-    "sys.exit(_worker_main())\n"
+    "sys.exit(_worker_main(sys.argv[3] == 'rerun'))\n"
 )
+
+_SPARE_WRITERS: list[tuple[bool, subprocess.Popen]] = []
+
+
+def _launch_writer(rerun: bool) -> subprocess.Popen:
+    """A new writer process; it imports what it needs at once and then waits for its
+    configuration on stdin."""
+    pkg_dir = str(Path(__file__).resolve().parent)
+    # one BLAS thread: the writer does no linear algebra, and idle BLAS threads spinning at
+    # start-up would take CPU time from the simulation
+    env = dict(os.environ, OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1", MKL_NUM_THREADS="1")
+    # this module's bytecode is cached beside it (as numba's kernels are) rather than
+    # compiled again by every writer (60 ms)
+    env.pop("PYTHONDONTWRITEBYTECODE", None)
+    return subprocess.Popen(
+        [sys.executable, "-c", _WORKER_CODE, pkg_dir, __version__, "rerun" if rerun else "mcap"],
+        env=env,
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        bufsize=0,
+        process_group=0,  # Ctrl-C in a terminal reaches the simulation, not the writer
+        close_fds=True,
+    )
+
+
+def prepare_writer(rerun: bool = False) -> None:
+    """Start a writer process now, for the next :class:`RunLogger` of this process to use.
+
+    A writer takes 0.2 s (MCAP) to 1 s (with ``rerun``: rerun-sdk is a large import) of CPU
+    time to start. Called before the model is built (as ``qchain run`` does), that start-up
+    runs on the other core while the model is built, and the logger of a short run waits for
+    nothing. Without a later logger the process exits with this one.
+
+    Parameters
+    ----------
+    rerun : bool
+        The logger will have a Rerun target (``serve``, ``connect`` or ``rrd``).
+    """
+    if not any(r == bool(rerun) and p.poll() is None for r, p in _SPARE_WRITERS):
+        _SPARE_WRITERS.append((bool(rerun), _launch_writer(bool(rerun))))
+
+
+def _take_spare_writer(rerun: bool) -> subprocess.Popen | None:
+    """A prepared writer still waiting, preferably one that imported Rerun iff ``rerun``."""
+    alive = [(r, p) for r, p in _SPARE_WRITERS if p.poll() is None]
+    _SPARE_WRITERS[:] = alive
+    for r, p in sorted(alive, key=lambda rp: rp[0] != rerun):
+        _SPARE_WRITERS.remove((r, p))
+        return p
+    return None
+
+
+@atexit.register
+def _stop_spare_writers() -> None:  # pragma: no cover - interpreter shutdown
+    for _, p in _SPARE_WRITERS:
+        p.kill()
+        p.wait()
+        p.stdin.close()
+        p.stdout.close()
+    _SPARE_WRITERS.clear()
 
 
 # --------------------------------------------------------------------------------------
@@ -1771,6 +1945,10 @@ class RunLogger:
     rerun_rate : float or None, 1/s
         A display rate: send Rerun at most this many records a simulated second (None:
         every record). The MCAP always gets every record.
+    rerun_latency : float, s
+        Wall time records gather before they go to Rerun in one ``send_columns`` batch (a
+        batch costs ~4 ms whatever its size, so this bounds the viewer's cost; the live view
+        updates this often).
     quiet : bool
         Do not print the viewer URL.
 
@@ -1781,9 +1959,11 @@ class RunLogger:
     is finished in every case. Call :meth:`set_outcome` before leaving to record a
     simulation's own status and message. Call ``log()`` from one thread.
 
-    Starting the process worker takes about half a second (a fresh interpreter importing
-    numpy, mcap and, for Rerun targets, rerun-sdk); it happens in the constructor, before
-    the run, which then waits for nothing.
+    Starting the process worker takes 0.2 to 1 s (a fresh interpreter importing numpy,
+    mcap and, for Rerun targets, rerun-sdk), and the constructor waits for it, so that every
+    record is crash-safe from the first one. Call :func:`prepare_writer` earlier (before
+    building the model, as ``qchain run`` does) and that start-up runs on the other core
+    meanwhile: the constructor then waits for nothing.
 
     Examples
     --------
@@ -1817,12 +1997,14 @@ class RunLogger:
         recording_id: str | None = None,
         server_memory_limit: str = "1GiB",
         rerun_rate: float | None = None,
+        rerun_latency: float = DEFAULT_RERUN_LATENCY,
         quiet: bool = False,
         startup_timeout: float = 60.0,
     ):
         if not isinstance(info, RunInfo):
             raise TypeError(f"info must be a RunInfo, got {type(info).__name__}")
-        for name, value in (("flush_interval", flush_interval), ("flush_wall_interval", flush_wall_interval)):
+        for name, value in (("flush_interval", flush_interval), ("flush_wall_interval", flush_wall_interval),
+                            ("rerun_latency", rerun_latency)):
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
                 raise ValueError(f"{name} must be a finite number of seconds > 0, got {value!r}")
         if not (isinstance(max_queue, int) and max_queue >= 1):
@@ -1858,13 +2040,14 @@ class RunLogger:
         self.worker = worker
         self.linger = bool(linger)
         self.quiet = bool(quiet)
+        self.flush_interval = float(flush_interval)
         self.recording_id = recording_id or str(uuid.uuid4())
         self.viewer_url: str | None = None
         self.grpc_url: str | None = None
         self.worker_pid: int | None = None
         self.web_pid: int | None = None
         self.n_logged = 0
-        self._layout: _Layout | None = None
+        self._layout: RecordLayout | None = None
         self._closed = False
         self._broken: str | None = None
         self._warned_broken = False
@@ -1887,6 +2070,7 @@ class RunLogger:
             "chunk_bytes": int(chunk_bytes),
             "server_memory_limit": server_memory_limit,
             "rerun_rate": rerun_rate,
+            "rerun_latency": float(rerun_latency),
         }
         if worker == "thread":
             self._start_thread(cfg, stream)
@@ -1961,15 +2145,8 @@ class RunLogger:
             self._broken = f"the log writer could not finish ({type(exc).__name__}: {exc})"
 
     def _start_process(self, cfg: dict, timeout: float) -> None:
-        pkg_dir = str(Path(__file__).resolve().parent)
-        self._proc = subprocess.Popen(
-            [sys.executable, "-c", _WORKER_CODE, pkg_dir, __version__],
-            stdin=subprocess.PIPE,
-            stdout=subprocess.PIPE,
-            bufsize=0,
-            process_group=0,  # Ctrl-C in a terminal reaches the simulation, not the writer
-            close_fds=True,
-        )
+        rerun = bool(cfg["serve"] or cfg["connect"] or cfg["rrd"])
+        self._proc = _take_spare_writer(rerun) or _launch_writer(rerun)
         self.worker_pid = self._proc.pid
         self._wfd = self._proc.stdin.fileno()
         try:
@@ -2015,7 +2192,7 @@ class RunLogger:
             self._flush_pipe()
 
     def _flush_pipe(self) -> None:
-        if not self._wbuf:
+        if not self._wbuf or self._broken is not None:
             return
         data = b"".join(self._wbuf)
         self._wbuf.clear()
@@ -2030,10 +2207,7 @@ class RunLogger:
     def _write_all(self, data: bytes) -> None:
         """Write all of ``data`` to the writer's pipe, with SIGINT held back meanwhile so a
         Ctrl-C never cuts a frame in half (it is delivered right after)."""
-        try:
-            old = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
-        except (AttributeError, OSError, ValueError):  # pragma: no cover - not POSIX
-            old = None
+        old = None if _sigmask is None else _sigmask(signal.SIG_BLOCK, _SIGINT_SET)
         try:
             view = memoryview(data)
             while view:
@@ -2046,7 +2220,7 @@ class RunLogger:
                         raise BrokenPipeError(32, "the log writer process is gone") from None
         finally:
             if old is not None:
-                signal.pthread_sigmask(signal.SIG_SETMASK, old)
+                _sigmask(signal.SIG_SETMASK, old)
 
     def _read_status(self, timeout: float) -> dict | None:
         deadline = time.monotonic() + timeout
@@ -2067,7 +2241,7 @@ class RunLogger:
 
     # -- logging -----------------------------------------------------------------------------
 
-    def _init_layout(self, r: StepRecord) -> _Layout:
+    def _init_layout(self, r: StepRecord) -> RecordLayout:
         n = self.info.n_segments
         shapes = {f: np.shape(getattr(r, f)) for f in ("q", "v", "p", "backbone", "tip_frames")}
         for f in ("q", "v", "p"):
@@ -2078,10 +2252,14 @@ class RunLogger:
             raise ValueError(f"record.backbone must have shape ({n}, P, 3) with P >= 1, got {bb}")
         if shapes["tip_frames"] != (n, 7):
             raise ValueError(f"record.tip_frames must have shape ({n}, 7), got {shapes['tip_frames']}")
-        lay = _Layout(shapes["q"][0], shapes["v"][0], shapes["p"][0], n, bb[1])
-        self._shapes = shapes
+        return self._set_layout(RecordLayout(shapes["q"][0], shapes["v"][0], shapes["p"][0], n, bb[1]))
+
+    def _set_layout(self, lay: RecordLayout) -> RecordLayout:
+        """The run's record layout (fixed by its first record); sent to the writer."""
+        self._shapes = {"q": (lay.nq,), "v": (lay.nv,), "p": (lay.n_p,), "backbone": (lay.n, lay.P, 3),
+                        "tip_frames": (lay.n, 7)}
         self._layout = lay
-        self._payload_size = lay.dtype.itemsize
+        self._payload_size = 8 * lay.row_width
         if self.worker == "thread":
             self._q.put(("L", lay))
         else:
@@ -2097,6 +2275,12 @@ class RunLogger:
                 return ValueError(f"record.{f} has shape {got} at step {r.step}; the first record had {expected}")
         return ValueError(f"record at step {r.step} does not match the first record's shapes {self._shapes}")
 
+    def _warn_broken(self, step) -> None:
+        if not self._warned_broken:
+            self._warned_broken = True
+            warnings.warn(f"qchain.logging: {self._broken}; records from step {step} on are not logged",
+                          LoggingWarning, stacklevel=3)
+
     def log(self, record: StepRecord) -> None:
         """Queue one record (copied); waits only when the writer is far behind.
 
@@ -2111,13 +2295,7 @@ class RunLogger:
         if self._closed:
             raise LoggingError("log() on a closed RunLogger")
         if self._broken is not None:
-            if not self._warned_broken:
-                self._warned_broken = True
-                warnings.warn(
-                    f"qchain.logging: {self._broken}; records from step {record.step} on are not logged",
-                    LoggingWarning,
-                    stacklevel=2,
-                )
+            self._warn_broken(record.step)
             return
         lay = self._layout
         if lay is None:
@@ -2141,6 +2319,107 @@ class RunLogger:
             raise self._shape_error(record)
         self._put(payload, t)
         self.n_logged += 1
+
+    def log_rows(self, rows: np.ndarray, layout: RecordLayout) -> None:
+        """Queue ``K`` records given as rows of ``layout``: the cheapest way in (one copy and
+        one write to the writer for all of them, no further buffering here).
+
+        Parameters
+        ----------
+        rows : (K, layout.row_width) float64
+            One record a row (see :class:`RecordLayout`).
+        layout : RecordLayout
+            Must be the run's: that of its first record.
+
+        Raises
+        ------
+        ValueError
+            A layout or shape that differs from the run's, or a time that is not finite and
+            >= 0.
+        LoggingError
+            The logger is closed.
+        """
+        if self._closed:
+            raise LoggingError("log_rows() on a closed RunLogger")
+        if not isinstance(layout, RecordLayout):
+            raise TypeError(f"layout must be a RecordLayout, got {type(layout).__name__}")
+        if not (isinstance(rows, np.ndarray) and rows.dtype == np.float64 and rows.ndim == 2
+                and rows.shape[1] == layout.row_width):
+            raise ValueError(f"rows must be a float64 array of shape (K, {layout.row_width}), got "
+                             f"{getattr(rows, 'dtype', type(rows).__name__)} {np.shape(rows)}")
+        K = rows.shape[0]
+        if K == 0:
+            return
+        if self._broken is not None:
+            self._warn_broken(int(rows[0, 1]))
+            return
+        if self._layout is None:
+            if layout.n != self.info.n_segments:
+                raise ValueError(f"layout.n = {layout.n} segments, but the run's RunInfo has {self.info.n_segments}")
+            self._set_layout(layout)
+        elif layout != self._layout:
+            raise ValueError(f"layout {layout} differs from the run's {self._layout} (fixed by its first record)")
+        t = rows[:, 0]
+        if not ((t >= 0.0) & (t < math.inf)).all():
+            i = int(np.flatnonzero(~((t >= 0.0) & (t < math.inf)))[0])
+            raise ValueError(f"t must be finite and >= 0 s, got {float(t[i])!r} at step {int(rows[i, 1])}")
+        data = rows.tobytes()
+        if self.worker == "thread":
+            self._put_thread(data, float(t[-1]))
+        else:
+            self._wbuf.append(_FRAME.pack(_FRAME_RECORD, len(data)) + data)
+            self._wbuf_bytes += len(data)
+            self._flush_pipe()
+        self.n_logged += K
+
+    def log_columns(self, t, step, q, v, p, kinetic, potential, total, backbone, tip_frames) -> None:
+        """Queue ``K`` records given as columns: the batch form of :meth:`log`.
+
+        Parameters
+        ----------
+        t : (K,) s
+        step : (K,) int
+        q : (K, nq)
+        v : (K, nv)
+        p : (K, 3 n) Pa
+        kinetic, potential, total : (K,) J
+        backbone : (K, n, P, 3) m
+        tip_frames : (K, n, 7)
+            As the fields of :class:`StepRecord`, one row a record.
+
+        Raises
+        ------
+        ValueError
+            Columns of different lengths, shapes that differ from the first record's, or a time
+            that is not finite and >= 0.
+        LoggingError
+            The logger is closed.
+        """
+        if self._closed:
+            raise LoggingError("log_columns() on a closed RunLogger")
+        t = np.asarray(t, dtype=np.float64)
+        if t.ndim != 1:
+            raise ValueError(f"t must have shape (K,), got {t.shape}")
+        K = t.shape[0]
+        cols = [np.asarray(x, dtype=np.float64) for x in (step, q, v, p, kinetic, potential, total, backbone,
+                                                          tip_frames)]
+        for name, x in zip(_COLUMNS, cols):
+            if x.ndim < 1 or x.shape[0] != K:
+                raise ValueError(f"{name} must have a leading axis of K = {K} (the length of t), got shape {x.shape}")
+        if K == 0:
+            return
+        if self._layout is None:
+            self._init_layout(StepRecord(float(t[0]), int(cols[0][0]), *(x[0] for x in cols[1:])))
+        step, q, v, p, kinetic, potential, total, backbone, tip_frames = cols
+        for f, x in (("q", q), ("v", v), ("p", p), ("backbone", backbone), ("tip_frames", tip_frames)):
+            if x.shape[1:] != self._shapes[f]:
+                raise ValueError(f"{f} has rows of shape {x.shape[1:]}; the first record had {self._shapes[f]}")
+        rows = np.concatenate(
+            (t[:, None], step[:, None], q, v, p, kinetic[:, None], potential[:, None], total[:, None],
+             backbone.reshape(K, -1), tip_frames.reshape(K, -1)),
+            axis=1,
+        )
+        self.log_rows(rows, self._layout)
 
     def set_outcome(self, success: bool = True, message: str = "", status: int | None = None, nfev: int = 0) -> None:
         """Record how the run ended (written when the logger closes).
@@ -2263,13 +2542,22 @@ class RunLogger:
                 proc.stdin.close()
             except OSError:
                 pass
-            try:
-                proc.wait(30.0)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait()
             proc.stdout.close()
+            if summary:
+                # the files are complete; the writer's own exit (interpreter and Rerun
+                # teardown, 50-200 ms) need not hold up the caller: reap it in the background
+                threading.Thread(target=self._reap, args=(proc,), name="qchain-log-reaper", daemon=True).start()
+            else:
+                self._reap(proc)
         return summary
+
+    @staticmethod
+    def _reap(proc: subprocess.Popen) -> None:
+        try:
+            proc.wait(30.0)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
 
     def __enter__(self) -> RunLogger:
         return self

@@ -17,7 +17,9 @@ Root ``j + 1`` is the tip of segment ``j``: its twist is ``T_j xi_j`` with the t
 
 * :func:`rnea` -- recursive Newton-Euler over the slices, O(n * nodes);
 * :func:`crba` -- composite-body assembly of ``M = sum_j A_j^T M_xi_j A_j``, O(n^2);
-* :func:`aba` -- articulated-body forward dynamics on the 9 x 9 segment blocks, O(n).
+* :func:`aba` -- articulated-body forward dynamics on the 9 x 9 segment blocks, O(n);
+* :func:`frames` -- world frames of the roots and the tip and backbone points, for many
+  configurations in one call (drawing and logging).
 
 ``tests/test_chain.py`` holds them to particle brute force, to each other
 (``nle == rnea(q, v, 0)``, ``aba == solve(crba, tau - nle)``) and to ``pinocchio.crba``.
@@ -27,10 +29,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from .arc import arc_node, jit
+from .arc import arc_node, arc_pose, jit
 from .slices import elastic_gradient_c, input_matrix_c, phi_matrix, segment_slices, slice_twist, sub_motion_cross
 
-__all__ = ["rnea", "crba", "aba", "tip_maps", "internal_forces", "first_invalid"]
+__all__ = ["rnea", "crba", "aba", "tip_maps", "frames", "internal_forces", "first_invalid"]
 
 
 @jit
@@ -353,6 +355,91 @@ def aba(alpha, w, offs, mass, radius, q, qd, tau, V0, A0, floating, F0, qdd, A0_
 
 
 @jit
+def _quaternion(R, out):
+    """Unit quaternion ``(x, y, z, w)`` of the rotation ``R`` (3, 3) into ``out`` (4,), with
+    ``w >= 0`` (Pinocchio's ``Quaternion(R).coeffs()`` up to that sign); each entry from the
+    largest of ``1 + trace`` and ``1 + 2 R_ii - trace``, the well-conditioned branch."""
+    tr = R[0, 0] + R[1, 1] + R[2, 2]
+    k = 0
+    best = 1.0 + tr
+    for i in range(3):
+        c = 1.0 + 2.0 * R[i, i] - tr
+        if c > best:
+            best = c
+            k = i + 1
+    s = 2.0 * np.sqrt(best)  # 4 |component k|
+    a = R[2, 1] - R[1, 2]  # 4 w x
+    b = R[0, 2] - R[2, 0]  # 4 w y
+    c = R[1, 0] - R[0, 1]  # 4 w z
+    d = R[0, 1] + R[1, 0]  # 4 x y
+    e = R[0, 2] + R[2, 0]  # 4 x z
+    f = R[1, 2] + R[2, 1]  # 4 y z
+    h = 0.25 * s * s
+    if k == 0:
+        x, y, z, w = a, b, c, h
+    elif k == 1:
+        x, y, z, w = h, d, e, a
+    elif k == 2:
+        x, y, z, w = d, h, f, b
+    else:
+        x, y, z, w = e, f, h, c
+    sign = -1.0 if w < 0.0 else 1.0
+    out[0] = sign * x / s
+    out[1] = sign * y / s
+    out[2] = sign * z / s
+    out[3] = sign * w / s
+
+
+@jit
+def frames(q, paper, R0, o0, alpha, R, o, quat, points):
+    """World frames of ``K`` configurations of an ``n``-segment chain in one call.
+
+    Parameters
+    ----------
+    q : (K, n, 3)            segment configurations: ``(l, ux, uy)``, or the paper's
+                             ``(l, psi, kappa)`` where ``paper`` is set.
+    paper : (n,) bool        segments in the paper's coordinates.
+    R0 : (K, 3, 3)           rotation of the first root (the base) in the world (or
+                             (1, 3, 3): the same for all).
+    o0 : (K, 3)              origin of the first root in the world (m) (or (1, 3)).
+    alpha : (P,)             slice coordinates in [0, 1] of the backbone points (P may be 0).
+    R : (K, n + 1, 3, 3) out world rotations of roots ``0..n-1`` and of the tip (index ``n``).
+    o : (K, n + 1, 3) out    their world origins (m).
+    quat : (K, n + 1, 4) out their rotations as unit quaternions ``(x, y, z, w)``, ``w >= 0``.
+    points : (K, n, P, 3) out world backbone points of each segment at ``alpha`` (m).
+    """
+    K = q.shape[0]
+    n = q.shape[1]
+    P = alpha.shape[0]
+    Rs = np.empty((3, 3))
+    ps = np.empty(3)
+    for k in range(K):
+        R[k, 0] = R0[min(k, R0.shape[0] - 1)]
+        o[k, 0] = o0[min(k, o0.shape[0] - 1)]
+        for j in range(n):
+            l = q[k, j, 0]
+            if paper[j]:
+                ux = q[k, j, 2] * np.cos(q[k, j, 1])
+                uy = q[k, j, 2] * np.sin(q[k, j, 1])
+            else:
+                ux = q[k, j, 1]
+                uy = q[k, j, 2]
+            Rj = R[k, j]
+            oj = o[k, j]
+            for i in range(P):
+                arc_pose(alpha[i], l, ux, uy, Rs, ps)
+                for r in range(3):
+                    points[k, j, i, r] = oj[r] + Rj[r, 0] * ps[0] + Rj[r, 1] * ps[1] + Rj[r, 2] * ps[2]
+            arc_pose(1.0, l, ux, uy, Rs, ps)
+            for r in range(3):
+                o[k, j + 1, r] = oj[r] + Rj[r, 0] * ps[0] + Rj[r, 1] * ps[1] + Rj[r, 2] * ps[2]
+                for c in range(3):
+                    R[k, j + 1, r, c] = Rj[r, 0] * Rs[0, c] + Rj[r, 1] * Rs[1, c] + Rj[r, 2] * Rs[2, c]
+        for j in range(n + 1):
+            _quaternion(R[k, j], quat[k, j])
+
+
+@jit
 def internal_forces(q, qd, p, l0, EI, EA, beta, A_ch, r_ch, paper_act, out):
     """``out = B p - D qd - dU_el/dq`` (n, 3), material law, curvature coordinates, with
     ``D = beta diag(EA/l0, EI l0, EI l0)`` (:func:`qchain.slices.input_matrix_c`,
@@ -376,19 +463,22 @@ def first_invalid(x, q, radius, paper):
     """Index of the first segment whose configuration is outside the model, or -1.
 
     Also -2 if ``x`` (any array checked alongside, e.g. the full q and v) has a
-    non-finite entry. ``q`` (n, 3) segment coordinates; ``paper`` (n,) bool.
+    non-finite entry. ``q`` (n, 3) segment coordinates, or (K n, 3) for ``K``
+    configurations (row ``j`` is segment ``j % n``); ``radius`` (n,); ``paper`` (n,) bool.
     """
     for i in range(x.shape[0]):
         if not np.isfinite(x[i]):
             return -2
-    for j in range(q.shape[0]):
-        l = q[j, 0]
+    n = radius.shape[0]
+    for jk in range(q.shape[0]):
+        l = q[jk, 0]
+        j = jk % n
         if paper[j]:
-            k = q[j, 2]
+            k = q[jk, 2]
             if k < 0.0:
-                return j
+                return jk
         else:
-            k = np.sqrt(q[j, 1] * q[j, 1] + q[j, 2] * q[j, 2])
+            k = np.sqrt(q[jk, 1] * q[jk, 1] + q[jk, 2] * q[jk, 2])
         if not (l > 0.0) or abs(k) * radius[j] >= 1.0:
-            return j
+            return jk
     return -1

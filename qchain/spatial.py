@@ -19,6 +19,7 @@ __all__ = [
     "force_cross_bar",
     "inv_adjoint",
     "disk_inertia",
+    "quaternion_to_rotation",
 ]
 
 
@@ -108,3 +109,21 @@ def disk_inertia(mass: float, radius: float) -> np.ndarray:
     out[:3, :3] = mass * np.eye(3)
     out[3:, 3:] = np.diag([0.25, 0.25, 0.5]) * mass * radius**2
     return out
+
+
+def quaternion_to_rotation(quat: np.ndarray) -> np.ndarray:
+    """Rotation matrices ``(..., 3, 3)`` of quaternions ``(..., 4)`` as ``(x, y, z, w)``,
+    normalised here."""
+    q = quat / np.linalg.norm(quat, axis=-1, keepdims=True)
+    x, y, z, w = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    R = np.empty(q.shape[:-1] + (3, 3))
+    R[..., 0, 0] = 1 - 2 * (y * y + z * z)
+    R[..., 0, 1] = 2 * (x * y - z * w)
+    R[..., 0, 2] = 2 * (x * z + y * w)
+    R[..., 1, 0] = 2 * (x * y + z * w)
+    R[..., 1, 1] = 1 - 2 * (x * x + z * z)
+    R[..., 1, 2] = 2 * (y * z - x * w)
+    R[..., 2, 0] = 2 * (x * z - y * w)
+    R[..., 2, 1] = 2 * (y * z + x * w)
+    R[..., 2, 2] = 1 - 2 * (x * x + y * y)
+    return R

@@ -236,6 +236,75 @@ def test_placements_backbone_and_tip_jacobian(rng):
     assert rel(ch.difference(q, q1), 0.3 * v) < 1e-12
 
 
+def _quat_equal(q, R):
+    """``q`` (x, y, z, w), w >= 0, is Pinocchio's quaternion of ``R`` up to its sign."""
+    ref = pin.Quaternion(R).coeffs()
+    ref = ref if ref[3] >= 0 else -ref
+    return np.abs(np.asarray(q) - ref).max()
+
+
+@pytest.mark.parametrize("coords, base", [("curvature", "fixed"), ("paper", "floating"), ("curvature", "prescribed")])
+def test_frames_batch_equals_one_configuration_at_a_time(coords, base, rng):
+    """frames_batch (one compiled call for K configurations) == placements/frames of each,
+    quaternions == Pinocchio's, backbone ends == the frame origins."""
+    motion = lambda t: (pin.SE3(pin.exp3(np.array([0.2 * t, -0.5, 0.1])), np.array([t, 0.2, -0.1])),  # noqa: E731
+                        np.zeros(6), np.zeros(6))
+    kw = {"base_motion": motion} if base == "prescribed" else dict(BASES[0][1]) if base == "fixed" else {}
+    ch = make_chain(coords, base, **kw)
+    Q = np.array([random_state(ch, rng)[0] for _ in range(7)])
+    t = np.linspace(0.0, 0.6, 7)
+    f = ch.frames_batch(Q, 9, t=t)
+    assert f.rotation.shape == (7, 4, 3, 3) and f.translation.shape == (7, 4, 3)
+    assert f.quaternion.shape == (7, 4, 4) and f.backbone.shape == (7, 3, 9, 3)
+    for k in range(7):
+        X, bb = ch.frames(Q[k], 9, t=t[k])
+        np.testing.assert_array_equal(bb, f.backbone[k])
+        for j in range(4):
+            np.testing.assert_array_equal(X[j].rotation, f.rotation[k, j])
+            np.testing.assert_array_equal(X[j].translation, f.translation[k, j])
+            assert _quat_equal(f.quaternion[k, j], X[j].rotation) < 1e-15
+            assert f.quaternion[k, j, 3] >= 0.0
+        np.testing.assert_allclose(f.backbone[k, :, -1], f.translation[k, 1:], rtol=0, atol=1e-15)
+        np.testing.assert_allclose(f.backbone[k, :, 0], f.translation[k, :-1], rtol=0, atol=1e-15)
+
+
+def test_frames_batch_quaternions_on_every_branch():
+    """Rotations by ~pi about each axis (where 1 + trace -> 0) and the identity: every branch
+    of the rotation -> quaternion conversion against Pinocchio."""
+    seg = Segment(**{**SEGMENT_KW, "length": 0.2, "radius": 0.02})
+    for axis in np.eye(3):
+        for angle in (0.0, 1.0, np.pi - 1e-9, np.pi):
+            X = pin.SE3(pin.exp3(angle * axis), np.zeros(3))
+            ch = Chain([seg], base_placement=X)
+            q = ch.neutral()
+            f = ch.frames_batch(q[None], 2)
+            assert _quat_equal(f.quaternion[0, 0], X.rotation) < 1e-15
+            R = pin.Quaternion(f.quaternion[0, 0, 3], *f.quaternion[0, 0, :3]).toRotationMatrix()
+            assert np.abs(R - X.rotation).max() < 1e-15
+
+
+def test_frames_batch_errors_name_the_row(rng):
+    ch = make_chain("curvature", "floating")
+    Q = np.array([random_state(ch, rng)[0] for _ in range(5)])
+    bad = Q.copy()
+    bad[3, 9] = np.nan
+    with pytest.raises(ValueError, match=r"Q\[3\]: q has non-finite entries at indices \[9\]"):
+        ch.frames_batch(bad)
+    bad = Q.copy()
+    bad[2, 7] = -0.1  # segment 0's length
+    with pytest.raises(DomainError, match=r"Q\[2\]: segment 0"):
+        ch.frames_batch(bad)
+    bad = Q.copy()
+    bad[4, 3:7] *= 1.1
+    with pytest.raises(ValueError, match=r"Q\[4\]: .*quaternion"):
+        ch.frames_batch(bad)
+    with pytest.raises(ValueError, match=r"Q must have shape \(K, nq\) = \(K, 16\), got \(5, 15\)"):
+        ch.frames_batch(Q[:, :-1])
+    with pytest.raises(ValueError, match="points_per_segment must be an int >= 2, got 1"):
+        ch.frames_batch(Q, 1)
+    assert ch.frames_batch(Q[:0]).backbone.shape == (0, 3, 20, 3)
+
+
 # ------------------------------------------------------------------ errors
 
 

@@ -26,12 +26,14 @@ from qchain.logging import (
     LoggingError,
     LoggingWarning,
     RecordingFormatError,
+    RecordLayout,
     RunInfo,
     RunLogger,
     StepRecord,
     add_logging_arguments,
     default_mcap_path,
     logger_from_args,
+    prepare_writer,
     read_mcap,
     read_recording,
     replay,
@@ -304,6 +306,88 @@ def test_record_and_info_validation():
         RunLogger(info, None, serve=True, connect="rerun+http://127.0.0.1:9/proxy")
     with pytest.raises(ValueError, match="flush_interval"):
         RunLogger(info, io.BytesIO(), flush_interval=0)
+
+
+def _columns(records):
+    return dict(t=_stack(records, "t"), step=_stack(records, "step"), q=_stack(records, "q"), v=_stack(records, "v"),
+                p=_stack(records, "p"), kinetic=_stack(records, "kinetic"), potential=_stack(records, "potential"),
+                total=_stack(records, "total"), backbone=_stack(records, "backbone"),
+                tip_frames=_stack(records, "tip_frames"))
+
+
+@pytest.mark.parametrize("target", ["stream", "file"])
+def test_columns_and_rows_round_trip_like_single_records(target, tmp_path):
+    """log_columns and log_rows (the batch ways in) give the file log() gives, in both workers."""
+    records = arm_records(120, dt=5e-3)
+    lay = RecordLayout(9, 9, 9, 3, records[0].backbone.shape[1])
+    sl = lay.slices
+    rows = np.empty((40, lay.row_width))
+    for i, r in enumerate(records[80:]):
+        rows[i, sl["t"]], rows[i, sl["step"]], rows[i, sl["q"]], rows[i, sl["v"]] = r.t, r.step, r.q, r.v
+        rows[i, sl["p"]], rows[i, sl["energy"]] = r.p, (r.kinetic, r.potential, r.total)
+        rows[i, sl["backbone"]], rows[i, sl["tip_frames"]] = r.backbone.ravel(), r.tip_frames.ravel()
+    out = io.BytesIO() if target == "stream" else tmp_path / "batch.mcap"
+    with RunLogger(arm_info(), out, quiet=True) as log:
+        log.log_columns(**_columns(records[:50]))
+        for r in records[50:80]:
+            log.log(r)
+        log.log_rows(rows[:25], lay)
+        log.log_rows(rows[25:], lay)
+        assert log.n_logged == 120
+    if target == "stream":
+        out.seek(0)
+    _assert_records_equal(read_recording(out), records)
+
+
+def test_batch_validation():
+    records = arm_records(4)
+    lay = RecordLayout(9, 9, 9, 3, records[0].backbone.shape[1])
+    with RunLogger(arm_info(), io.BytesIO()) as log:
+        cols = _columns(records)
+        with pytest.raises(ValueError, match=r"q must have a leading axis of K = 4 \(the length of t\), got shape \(3, 9\)"):
+            log.log_columns(**{**cols, "q": cols["q"][:3]})
+        log.log_columns(**cols)
+        with pytest.raises(ValueError, match=r"backbone has rows of shape \(3, 5, 3\); the first record had \(3, 12, 3\)"):
+            log.log_columns(**{**cols, "backbone": cols["backbone"][:, :, :5]})
+        with pytest.raises(ValueError, match=r"t must be finite and >= 0 s, got nan at step 2"):
+            log.log_columns(**{**cols, "t": np.array([0.0, 0.1, np.nan, 0.3])})
+        rows = np.zeros((2, lay.row_width))
+        with pytest.raises(ValueError, match=r"rows must be a float64 array of shape \(K, %d\), got float32" % lay.row_width):
+            log.log_rows(rows.astype(np.float32), lay)
+        with pytest.raises(ValueError, match="differs from the run's"):
+            other = RecordLayout(9, 9, 9, 3, 13)
+            log.log_rows(np.zeros((2, other.row_width)), other)
+        with pytest.raises(TypeError, match="layout must be a RecordLayout"):
+            log.log_rows(rows, (9, 9, 9, 3, 12))
+        rows[1, 0] = -1.0
+        with pytest.raises(ValueError, match=r"t must be finite and >= 0 s, got -1.0 at step 0"):
+            log.log_rows(rows, lay)
+    with RunLogger(arm_info(), io.BytesIO()) as log:
+        with pytest.raises(ValueError, match="layout.n = 2 segments, but the run's RunInfo has 3"):
+            log.log_rows(np.zeros((1, RecordLayout(9, 9, 9, 2, 12).row_width)), RecordLayout(9, 9, 9, 2, 12))
+
+
+def test_prepared_writer_is_taken_by_the_next_logger(tmp_path):
+    """prepare_writer starts the writer process ahead (qchain run does it before building the
+    model); the next logger uses it, and its file is right."""
+    from qchain import logging as qlog
+
+    prepare_writer()
+    prepare_writer()  # one spare a kind is enough
+    spares = [p for r, p in qlog._SPARE_WRITERS if not r and p.poll() is None]
+    assert len(spares) == 1
+    records = arm_records(30)
+    log = _log_all(records, mcap=tmp_path / "pre.mcap")
+    assert log.worker_pid == spares[0].pid
+    assert not any(p is spares[0] for _, p in qlog._SPARE_WRITERS)
+    _assert_records_equal(read_recording(tmp_path / "pre.mcap"), records)
+
+
+def test_an_unwritable_output_fails_where_it_is_given(tmp_path):
+    blocker = tmp_path / "file"
+    blocker.write_text("x")
+    with pytest.raises(OSError, match="file"):
+        RunLogger(arm_info(), blocker / "run.mcap", quiet=True)
 
 
 # --------------------------------------------------------------------------------------

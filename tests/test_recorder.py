@@ -1,0 +1,122 @@
+"""ChainRecorder: a simulated chain's samples as step records, frames computed in batches."""
+
+from __future__ import annotations
+
+import io
+
+import numpy as np
+import pytest
+from test_chain import make_chain
+
+from qchain.logging import RecordLayout, RunInfo, RunLogger, read_recording
+from qchain.recorder import ChainRecorder
+from qchain.simulate import simulate
+
+
+def _info(ch):
+    return RunInfo(n_segments=ch.n, radii=[s.radius for s in ch.segments], scene="", params={})
+
+
+class _Rows:
+    """A stand-in logger that keeps what log_rows gets."""
+
+    flush_interval = 0.1
+
+    def __init__(self):
+        self.calls = []
+
+    def log_rows(self, rows, layout):
+        self.calls.append((rows.copy(), layout))
+
+
+def test_recorded_run_equals_the_trajectory_and_the_chain_frames():
+    """Every sample of a simulation, logged through the recorder and read back from the MCAP:
+    t, q, v, p and the energies as simulate returned them, step = sample index, and the
+    backbone and tip frames equal to Chain.frames of each sample, bit for bit."""
+    ch = make_chain("paper", "floating")
+    q0 = ch.neutral()
+    q0[ch.q_slice(0)] = [ch.segments[0].length, 0.3, 2.0]  # paper coordinates: bent away from kappa = 0
+    q0[ch.q_slice(2)] = [ch.segments[2].length, -1.0, 1.5]
+    buf = io.BytesIO()
+    with RunLogger(_info(ch), buf) as log, ChainRecorder(log, ch, points_per_segment=7) as rec:
+        traj = simulate(ch, q0, np.zeros(ch.nv), (0.0, 0.3), pressure=np.full(3 * ch.n, 2e4),
+                        t_eval=np.linspace(0.0, 0.3, 61), on_sample=rec)
+    assert traj.success and rec.n_samples == 61
+    buf.seek(0)
+    r = read_recording(buf)
+    assert len(r) == 61
+    np.testing.assert_array_equal(r.t, traj.t)
+    np.testing.assert_array_equal(r.step, np.arange(61))
+    for f in ("q", "v", "p"):
+        np.testing.assert_array_equal(getattr(r, f), getattr(traj, f))
+    np.testing.assert_array_equal(r.energy[:, 0], traj.kinetic_energy)
+    np.testing.assert_array_equal(r.energy[:, 1], traj.potential_energy)
+    np.testing.assert_array_equal(r.energy[:, 2], traj.kinetic_energy + traj.potential_energy)
+    for k in (0, 17, 60):
+        X, bb = ch.frames(traj.q[k], 7, t=traj.t[k])
+        np.testing.assert_array_equal(r.backbone[k], bb)
+        np.testing.assert_array_equal(r.tip_frames[k, :, :3], [x.translation for x in X[1:]])
+        for j, x in enumerate(X[1:]):  # quaternion (x, y, z, w) of the tip rotation
+            qx, qy, qz, qw = r.tip_frames[k, j, 3:]
+            w2 = np.array([[1 - 2 * (qy * qy + qz * qz), 2 * (qx * qy - qz * qw), 2 * (qx * qz + qy * qw)],
+                           [2 * (qx * qy + qz * qw), 1 - 2 * (qx * qx + qz * qz), 2 * (qy * qz - qx * qw)],
+                           [2 * (qx * qz - qy * qw), 2 * (qy * qz + qx * qw), 1 - 2 * (qx * qx + qy * qy)]])
+            assert np.abs(w2 - x.rotation).max() < 1e-15
+
+
+def test_batches_are_bounded_in_count_and_simulation_time():
+    ch = make_chain()
+    log = _Rows()
+    rec = ChainRecorder(log, ch, max_batch=8, max_wall=1e9)
+    q = ch.neutral()
+    v, p = np.zeros(ch.nv), np.zeros(3 * ch.n)
+    ts = np.concatenate([np.arange(0.0, 0.5, 0.01), np.arange(0.5, 2.0, 0.05)])  # 100 Hz, then 20 Hz
+    for t in ts:
+        rec(t, q, v, p, energies=(1.0, 2.0))
+    rec.flush()
+    rows = np.concatenate([c[0] for c in log.calls])
+    np.testing.assert_array_equal(rows[:, 0], ts)
+    np.testing.assert_array_equal(rows[:, 1], np.arange(len(ts)))
+    for batch, layout in log.calls:
+        assert layout == RecordLayout(ch.nq, ch.nv, 3 * ch.n, ch.n, 12)
+        assert 1 <= len(batch) <= 8
+        assert batch[-1, 0] - batch[0, 0] < 0.1  # the logger's flush_interval
+    assert max(len(b) for b, _ in log.calls) == 8  # 100 Hz: the count bound
+    assert [len(b) for b, _ in log.calls][-14:] == [2] * 14  # 20 Hz: the time bound (t, t + 0.05)
+    e = rows[:, layout.slices["energy"]]
+    np.testing.assert_array_equal(e, np.tile([1.0, 2.0, 3.0], (len(ts), 1)))
+
+
+def test_waiting_samples_are_logged_when_the_simulation_raises():
+    ch = make_chain()
+    log = _Rows()
+    q, v, p = ch.neutral(), np.zeros(ch.nv), np.zeros(3 * ch.n)
+    with pytest.raises(RuntimeError, match="boom"):
+        with ChainRecorder(log, ch) as rec:
+            rec(0.0, q, v, p, energies=(0.0, 0.0))
+            rec(0.01, q, v, p, energies=(0.0, 0.0))
+            raise RuntimeError("boom")
+    assert len(log.calls) == 1 and len(log.calls[0][0]) == 2
+
+
+def test_energies_are_computed_when_simulate_does_not_pass_them(rng):
+    ch = make_chain()
+    log = _Rows()
+    q = ch.neutral()
+    q[ch.q_slice(1)] = [ch.segments[1].length, 1.0, -2.0]
+    v = rng.normal(size=ch.nv) * 0.1
+    with ChainRecorder(log, ch) as rec:
+        rec(0.0, q, v, np.zeros(3 * ch.n))
+    e = log.calls[0][0][0, log.calls[0][1].slices["energy"]]
+    assert e[0] == ch.kinetic_energy(q, v) and e[1] == ch.potential_energy(q) and e[2] == e[0] + e[1]
+
+
+def test_recorder_arguments_are_checked():
+    ch = make_chain()
+    log = _Rows()
+    with pytest.raises(ValueError, match="points_per_segment must be an int >= 2, got 1"):
+        ChainRecorder(log, ch, points_per_segment=1)
+    with pytest.raises(ValueError, match="max_batch must be an int >= 1, got 0"):
+        ChainRecorder(log, ch, max_batch=0)
+    with pytest.raises(ValueError, match="max_wall must be > 0 s, got -1"):
+        ChainRecorder(log, ch, max_wall=-1)
