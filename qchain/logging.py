@@ -1868,12 +1868,12 @@ def prepare_writer(rerun: bool = False) -> None:
 
 def _take_spare_writer(rerun: bool) -> subprocess.Popen | None:
     """A prepared writer still waiting, preferably one that imported Rerun iff ``rerun``."""
-    alive = [(r, p) for r, p in _SPARE_WRITERS if p.poll() is None]
-    _SPARE_WRITERS[:] = alive
-    for r, p in sorted(alive, key=lambda rp: rp[0] != rerun):
-        _SPARE_WRITERS.remove((r, p))
-        return p
-    return None
+    _SPARE_WRITERS[:] = [(r, p) for r, p in _SPARE_WRITERS if p.poll() is None]
+    if not _SPARE_WRITERS:
+        return None
+    best = min(_SPARE_WRITERS, key=lambda rp: rp[0] != rerun)
+    _SPARE_WRITERS.remove(best)
+    return best[1]
 
 
 @atexit.register
