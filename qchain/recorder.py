@@ -104,7 +104,8 @@ class ChainRecorder:
         rows = self._rows[:K]
         f = self.chain.frames_batch(rows[:, self._sq], self.points_per_segment, t=rows[:, 0])
         rows[:, self._sbb] = f.backbone.reshape(K, -1)
-        tips = np.concatenate([f.translation[:, 1:], f.quaternion[:, 1:]], axis=-1)  # (K, n, 7): x, y, z, qx, qy, qz, qw
+        # tip frames (K, n, 7): x, y, z, qx, qy, qz, qw
+        tips = np.concatenate([f.translation[:, 1:], f.quaternion[:, 1:]], axis=-1)
         rows[:, self._stf] = tips.reshape(K, -1)
         self.logger.log_rows(rows, self.layout)
         self.n_samples += K
