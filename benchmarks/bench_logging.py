@@ -1,7 +1,8 @@
 """Cost of logging a run, as a ratio to the same run without logging.
 
     python benchmarks/bench_logging.py [--steps 20000] [--block 500] [--pad-us 0]
-    python benchmarks/bench_logging.py --example [--duration 20] [--repeats 10]
+    python benchmarks/bench_logging.py --example [--duration 20] [--repeats 10] [--only command|process]
+        [--configs mcap,rrd,both]
 
 ``--example`` measures the three-segment example (``examples/scenes/wave_arm.toml``): first
 the whole ``qchain run`` command as a user runs it (fresh interpreter, model build,
@@ -257,20 +258,33 @@ def _flanked(run, configs, repeats: int) -> dict:
     return out
 
 
+def median_ci(values, level: float = 0.95, resamples: int = 4000, seed: int = 0) -> tuple[float, float]:
+    """Percentile-bootstrap confidence interval of the median of ``values``."""
+    x = np.asarray(values, dtype=float)
+    if x.size < 2:
+        return (float(x[0]), float(x[0])) if x.size else (0.0, 0.0)
+    rng = np.random.default_rng(seed)
+    med = np.median(x[rng.integers(0, x.size, (resamples, x.size))], axis=1)
+    a = (1.0 - level) / 2
+    return float(np.quantile(med, a)), float(np.quantile(med, 1.0 - a))
+
+
 def _summary(rows: list[dict], duration: float) -> dict:
     ratios = [x["ratio"] - 1.0 for x in rows if "ratio" in x]
     q = statistics.quantiles(ratios, n=4) if len(ratios) > 1 else [ratios[0]] * 3 if ratios else [0.0] * 3
+    lo, hi = median_ci(ratios) if ratios else (0.0, 0.0)
     out = {"wall_s": statistics.median(x["wall"] for x in rows), "overhead": statistics.median(ratios) if ratios else 0.0,
-           "overhead_q1": q[0], "overhead_q3": q[2]}
+           "overhead_q1": q[0], "overhead_q3": q[2], "overhead_ci": (lo, hi), "n": len(ratios)}
     sizes = [x["mcap_bytes"] for x in rows if x.get("mcap_bytes")]
     out["mcap_bytes_per_sim_s"] = statistics.median(sizes) / duration if sizes else None
-    for key in ("sample_us", "start_s", "close_s", "samples"):
+    for key in ("sample_us", "start_s", "close_s", "samples", "direct"):
         vals = [x[key] for x in rows if key in x]
         out[key] = statistics.median(vals) if vals else None
     return out
 
 
-def example_command_overhead(duration: float | None = None, repeats: int = 10, workdir=None) -> dict:
+def example_command_overhead(duration: float | None = None, repeats: int = 10, workdir=None,
+                             configs=tuple(EXAMPLE_CONFIGS)) -> dict:
     """The three-segment example as a user runs it: the whole ``qchain run
     examples/scenes/wave_arm.toml --no-plots`` command in a fresh interpreter (start-up,
     model build, simulation, files finished), with ``--no-record`` (off) and with MCAP,
@@ -293,7 +307,7 @@ def example_command_overhead(duration: float | None = None, repeats: int = 10, w
             return {"wall": wall, "mcap_bytes": m.stat().st_size if m.exists() else None}
 
         run("off", -1)  # warm the file cache
-        res = _flanked(run, list(EXAMPLE_CONFIGS), repeats)
+        res = _flanked(run, list(configs), repeats)
     from qchain import load_scene
 
     T = load_scene(scene).duration if duration is None else duration
@@ -301,7 +315,7 @@ def example_command_overhead(duration: float | None = None, repeats: int = 10, w
 
 
 def example_overhead(duration: float = 20.0, repeats: int = 10, workdir=None, worker: str = "auto",
-                     head_start: float = 1.5) -> dict:
+                     head_start: float = 1.5, configs=tuple(EXAMPLE_CONFIGS)) -> dict:
     """The simulation phase of ``qchain run``'s run of the three-segment example, in this
     process with its model built once: from creating the logger to its files finished
     (``with logger, recorder: scene.simulate(...)``) against the simulation unlogged. The
@@ -346,9 +360,10 @@ def example_overhead(duration: float = 20.0, repeats: int = 10, workdir=None, wo
             t3 = time.perf_counter()
             m = d / "run.mcap"
             return {"wall": t3 - t0, "sample_us": spent[0] / max(spent[1], 1) * 1e6, "samples": spent[1],
-                    "start_s": t1 - t0, "close_s": t3 - t2, "mcap_bytes": m.stat().st_size if m.exists() else None}
+                    "start_s": t1 - t0, "close_s": t3 - t2, "mcap_bytes": m.stat().st_size if m.exists() else None,
+                    "direct": (spent[0] + (t1 - t0) + (t3 - t2)) / (t3 - t0)}
 
-        res = _flanked(run, list(EXAMPLE_CONFIGS), repeats)
+        res = _flanked(run, list(configs), repeats)
     return {c: _summary(rows, duration) for c, rows in res.items()}
 
 
@@ -372,16 +387,18 @@ def writer_startup(repeats: int = 5) -> dict:
 
 def print_example(title: str, res: dict) -> None:
     print(title)
-    print(f"{'logging':<8} {'wall':>8} {'overhead':>9} {'(quartiles)':>16} {'a sample':>9} {'start':>8} {'close':>8}"
-          f" {'MCAP/sim s':>11}")
+    print(f"{'logging':<8} {'wall':>8} {'overhead':>9} {'(95 % CI)':>16} {'(quartiles)':>16} {'a sample':>9} "
+          f"{'start':>8} {'close':>8} {'direct':>7} {'MCAP/sim s':>11}")
     for c, row in res.items():
         quart = "" if c == "off" else f"{100 * row['overhead_q1']:+.1f}..{100 * row['overhead_q3']:+.1f}%"
+        ci = "" if c == "off" else f"{100 * row['overhead_ci'][0]:+.1f}..{100 * row['overhead_ci'][1]:+.1f}%"
         over = "" if c == "off" else f"{100 * row['overhead']:+.1f}%"
         us = "" if row["sample_us"] is None else f"{row['sample_us']:.0f} us"
         st = "" if row["start_s"] is None else f"{row['start_s'] * 1e3:.1f} ms"
         cl = "" if row["close_s"] is None else f"{row['close_s'] * 1e3:.1f} ms"
+        di = "" if row["direct"] is None else f"{100 * row['direct']:.1f}%"
         mb = row["mcap_bytes_per_sim_s"]
-        print(f"{c:<8} {row['wall_s']:>7.3f}s {over:>9} {quart:>16} {us:>9} {st:>8} {cl:>8} "
+        print(f"{c:<8} {row['wall_s']:>7.3f}s {over:>9} {ci:>16} {quart:>16} {us:>9} {st:>8} {cl:>8} {di:>7} "
               f"{'' if mb is None else f'{mb / 1e3:.1f} kB':>11}")
 
 
@@ -399,27 +416,39 @@ def main(argv=None) -> int:
     ap.add_argument("--repeats", type=int, default=10, help="--example: runs a config")
     ap.add_argument("--worker", choices=["auto", "process", "thread"], default="auto",
                     help="--example: where the logger writes (RunLogger's worker)")
+    ap.add_argument("--only", choices=["command", "process"], default=None,
+                    help="--example: only the whole command, or only the simulation phase in one process")
+    ap.add_argument("--configs", default="mcap,rrd,both",
+                    help="--example: logging configurations, comma-separated from mcap, rrd, both")
     args = ap.parse_args(argv)
     if args.example:
         n = args.repeats
-        res = example_command_overhead(None, n)
-        print_example(f"the three-segment example as a user runs it: `qchain run wave_arm.toml --no-plots` "
-                      f"(4 s simulated, 201 samples), whole command; {n} runs a config, each against the "
-                      f"unlogged runs either side of it", res)
-        print()
-        res = example_overhead(args.duration, n, worker=args.worker)
-        print_example(f"simulation phase, in one process: {args.duration:g} s simulated "
-                      f"({res['mcap']['samples']:.0f} samples), logger created to files finished, the writer "
-                      f"started 1.5 s ahead as qchain run does; {args.worker} writer; {n} runs a config", res)
-        print()
+        configs = args.configs.split(",")
+        if not set(configs) <= set(EXAMPLE_CONFIGS):
+            ap.error(f"--configs: choose from {', '.join(EXAMPLE_CONFIGS)}, got {args.configs!r}")
+        if args.only != "process":
+            res = example_command_overhead(None, n, configs=configs)
+            print_example(f"the three-segment example as a user runs it: `qchain run wave_arm.toml --no-plots` "
+                          f"(4 s simulated, 201 samples), whole command; {n} runs a config, each against the "
+                          f"unlogged runs either side of it; load average {os.getloadavg()[0]:.2f}", res)
+            print()
+        if args.only != "command":
+            res = example_overhead(args.duration, n, worker=args.worker, configs=configs)
+            print_example(f"simulation phase, in one process: {args.duration:g} s simulated "
+                          f"({res[configs[0]]['samples']:.0f} samples), logger created to files finished, the "
+                          f"writer started 1.5 s ahead as qchain run does; {args.worker} writer; {n} runs a "
+                          f"config; load average {os.getloadavg()[0]:.2f}", res)
+            print()
         st = writer_startup()
         print("writer start-up without prepare_writer (launch to ready, median of 5): "
               + ", ".join(f"{k} {v * 1e3:.0f} ms" for k, v in st.items())
               + " (an .rrd's Rerun comes up in the background after that)")
-        print("overhead: median over runs of wall / mean of the unlogged runs either side - 1 (target <= 5 %). "
-              "a sample: the recorder's cost in the simulating process (frames of a batch of samples in one "
-              "compiled call, one write to the writer). start: creating the logger; close: waiting for the "
-              "files at the end.")
+        print("overhead: median over runs of wall / mean of the unlogged runs either side - 1 (target <= 5 %), "
+              "with a bootstrap 95 % confidence interval of that median. a sample: the recorder's cost in the "
+              "simulating process (frames of a batch of samples in one compiled call, one write to the "
+              "writer). start: creating the logger; close: waiting for the files at the end. direct: "
+              "(samples + start + close) / wall of the same run, the share of the run the simulating "
+              "process spent logging (a ratio within one run: the machine's drift cancels).")
         return 0
     step = synthetic_step(args.dt, args.pad_us)
     print_table(measure_overhead(step, args.steps, block=args.block))
