@@ -171,6 +171,9 @@ DEFAULT_MAX_QUEUE = 4096
 #: Wall time (s) records gather in the writer before they go to Rerun in one batch.
 DEFAULT_RERUN_LATENCY = 0.2
 
+# s the writer process pauses between two reads of its pipe when it is idle: a record's
+# write does not wake it; a flush or the end does (its doorbell, _launch_writer)
+_WRITER_POLL = 0.01
 DEFAULT_BIND = "127.0.0.1"
 DEFAULT_GRPC_PORT = 9876
 DEFAULT_WEB_PORT = 9090
@@ -1684,9 +1687,11 @@ def _import_quietly(*names: str) -> None:
             pass
 
 
-def _worker_main(rerun: bool = False) -> int:
+def _worker_main(rerun: bool = False, bell: int | None = None) -> int:
     """Entry point of the writer process: frames on stdin, JSON status lines on stdout.
-    ``rerun``: import rerun-sdk at once, before the configuration comes."""
+    ``rerun``: import rerun-sdk at once, before the configuration comes. ``bell``: the
+    read end of the doorbell pipe (:func:`_launch_writer`): a byte on it ends the pause
+    between two reads of stdin, so that a flush or the end of the run is served at once."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the simulating process decides when to stop
     _yield_to_the_simulation()
     # the imports first: they take most of the start-up, and the configuration may come later;
@@ -1733,9 +1738,11 @@ def _worker_main(rerun: bool = False) -> int:
     max_batch = int(cfg.get("max_batch", 1024))
     batch_wall = float(cfg.get("batch_wall", 0.05))
     half_interval = 0.5 * float(cfg["flush_interval"])  # sim time a record may wait here
-    poll = float(cfg.get("poll", 0.01))  # s between reads of the pipe
+    poll = float(cfg.get("poll", _WRITER_POLL))  # s between reads of the pipe
     last_read = 0.0
     os.set_blocking(0, False)
+    if bell is not None:
+        os.set_blocking(bell, False)
     try:
         while outcome is None and not eof:
             frames = backlog
@@ -1745,8 +1752,17 @@ def _worker_main(rerun: bool = False) -> int:
                 # Poll instead of waking on every write: the simulating process then writes
                 # into a pipe nobody reads at that moment, which costs it far less. No pause
                 # when the last round of work took longer than one (the writer is behind).
+                # A flush or the end rings the bell (bell), which ends the pause at once.
                 if time.monotonic() - last_read < poll:
-                    time.sleep(poll)
+                    if bell is None:
+                        time.sleep(poll)
+                    elif select.select([bell], [], [], poll)[0]:
+                        try:
+                            if not os.read(bell, 4096):  # the simulating process is gone
+                                os.close(bell)
+                                bell = None
+                        except BlockingIOError:
+                            pass
                 last_read = time.monotonic()
                 ready = False
                 got = 0
@@ -1822,7 +1838,7 @@ _WORKER_CODE = (
     "pkg = types.ModuleType('qchain'); pkg.__path__ = [sys.argv[1]]; pkg.__version__ = sys.argv[2]\n"
     "sys.modules['qchain'] = pkg\n"
     "from qchain.logging import _worker_main\n"
-    "sys.exit(_worker_main(sys.argv[3] == 'rerun'))\n"
+    "sys.exit(_worker_main(sys.argv[3] == 'rerun', int(sys.argv[4])))\n"
 )
 
 _SPARE_WRITERS: list[tuple[bool, subprocess.Popen]] = []
@@ -1830,7 +1846,9 @@ _SPARE_WRITERS: list[tuple[bool, subprocess.Popen]] = []
 
 def _launch_writer(rerun: bool) -> subprocess.Popen:
     """A new writer process; it imports what it needs at once and then waits for its
-    configuration on stdin."""
+    configuration on stdin. Records go to its stdin, which it reads every ``poll`` seconds
+    (so a write does not wake it); ``proc.bell`` is the write end of a second pipe, rung
+    with one byte (:meth:`RunLogger._ring`) after a frame that needs an answer at once."""
     pkg_dir = str(Path(__file__).resolve().parent)
     # one BLAS thread: the writer does no linear algebra, and idle BLAS threads spinning at
     # start-up would take CPU time from the simulation
@@ -1838,15 +1856,33 @@ def _launch_writer(rerun: bool) -> subprocess.Popen:
     # this module's bytecode is cached beside it (as numba's kernels are) rather than
     # compiled again by every writer (60 ms)
     env.pop("PYTHONDONTWRITEBYTECODE", None)
-    return subprocess.Popen(
-        [sys.executable, "-c", _WORKER_CODE, pkg_dir, __version__, "rerun" if rerun else "mcap"],
-        env=env,
-        stdin=subprocess.PIPE,
-        stdout=subprocess.PIPE,
-        bufsize=0,
-        process_group=0,  # Ctrl-C in a terminal reaches the simulation, not the writer
-        close_fds=True,
-    )
+    bell_r, bell_w = os.pipe()
+    try:
+        proc = subprocess.Popen(
+            [sys.executable, "-c", _WORKER_CODE, pkg_dir, __version__, "rerun" if rerun else "mcap", str(bell_r)],
+            env=env,
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            bufsize=0,
+            process_group=0,  # Ctrl-C in a terminal reaches the simulation, not the writer
+            close_fds=True,
+            pass_fds=(bell_r,),
+        )
+    except BaseException:
+        os.close(bell_w)
+        raise
+    finally:
+        os.close(bell_r)
+    os.set_blocking(bell_w, False)
+    proc.bell = bell_w
+    return proc
+
+
+def _close_bell(proc: subprocess.Popen) -> None:
+    fd = getattr(proc, "bell", None)
+    if fd is not None:
+        proc.bell = None
+        os.close(fd)
 
 
 def prepare_writer(rerun: bool = False) -> None:
@@ -1883,6 +1919,7 @@ def _stop_spare_writers() -> None:  # pragma: no cover - interpreter shutdown
         p.wait()
         p.stdin.close()
         p.stdout.close()
+        _close_bell(p)
     _SPARE_WRITERS.clear()
 
 
@@ -2071,6 +2108,7 @@ class RunLogger:
             "server_memory_limit": server_memory_limit,
             "rerun_rate": rerun_rate,
             "rerun_latency": float(rerun_latency),
+            "poll": _WRITER_POLL,
         }
         if worker == "thread":
             self._start_thread(cfg, stream)
@@ -2168,6 +2206,7 @@ class RunLogger:
         if msg is None or msg.get("event") != "ready":
             self._proc.kill()
             self._proc.wait()
+            _close_bell(self._proc)
             why = (msg or {}).get("message", "it did not answer in time or exited")
             raise LoggingError(f"the log writer could not start ({why}); MCAP path: {self.mcap_path}")
         for m in msg.get("warnings", []):
@@ -2221,6 +2260,13 @@ class RunLogger:
         finally:
             if old is not None:
                 _sigmask(signal.SIG_SETMASK, old)
+
+    def _ring(self) -> None:
+        """Wake the writer from its pause between reads (a frame waits that needs an answer)."""
+        try:
+            os.write(self._proc.bell, b"!")
+        except (BlockingIOError, BrokenPipeError):  # already rung / the writer is gone
+            pass
 
     def _read_status(self, timeout: float) -> dict | None:
         deadline = time.monotonic() + timeout
@@ -2458,6 +2504,7 @@ class RunLogger:
             return box[0]
         self._wbuf.append(_FRAME.pack(_FRAME_FLUSH, 0))
         self._flush_pipe()
+        self._ring()
         msg = self._read_status(timeout)
         if msg is None or msg.get("event") != "flushed":
             raise LoggingError(f"the log writer did not flush within {timeout} s ({self._broken or msg})")
@@ -2528,6 +2575,7 @@ class RunLogger:
             p = json.dumps(outcome).encode()
             self._wbuf.append(_FRAME.pack(_FRAME_END, len(p)) + p)
             self._flush_pipe()
+            self._ring()
         if self._broken is None:
             msg = self._read_status(120.0)
             if msg is not None and msg.get("event") == "finished":
@@ -2543,6 +2591,7 @@ class RunLogger:
             except OSError:
                 pass
             proc.stdout.close()
+            _close_bell(proc)
             if summary:
                 # the files are complete; the writer's own exit (interpreter and Rerun
                 # teardown, 50-200 ms) need not hold up the caller: reap it in the background

@@ -207,6 +207,28 @@ def test_flush_makes_everything_logged_so_far_readable(tmp_path):
     _assert_records_equal(read_recording(path), records)
 
 
+def test_flush_and_end_wake_a_pausing_writer(tmp_path, monkeypatch):
+    """The writer reads its pipe only every _WRITER_POLL seconds (records do not wake it); a
+    flush and the end ring its doorbell. With a 60 s pause, both are still answered within
+    the 20 s allowed here: only the bell can have woken it."""
+    from qchain import logging as qlog
+
+    monkeypatch.setattr(qlog, "_WRITER_POLL", 60.0)
+    path = tmp_path / "bell.mcap"
+    records = arm_records(40)
+    log = RunLogger(arm_info(), path, quiet=True, worker="process")
+    time.sleep(0.2)  # the writer is in its pause
+    for r in records[:20]:
+        log.log(r)
+    assert log.flush(timeout=20.0) == {"n_records": 20, "last_t": records[19].t}
+    for r in records[20:]:
+        log.log(r)
+    t0 = time.monotonic()
+    assert log.close()["n_records"] == 40
+    assert time.monotonic() - t0 < 20.0
+    _assert_records_equal(read_recording(path), records)
+
+
 def test_exception_in_simulation_finishes_the_log():
     buf = io.BytesIO()
     with pytest.raises(RuntimeError, match="integrator blew up"):
