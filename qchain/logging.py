@@ -1687,7 +1687,7 @@ def _import_quietly(*names: str) -> None:
             pass
 
 
-def _worker_main(rerun: bool = False, bell: int | None = None) -> int:
+def _worker_main(rerun: bool, bell: int) -> int:
     """Entry point of the writer process: frames on stdin, JSON status lines on stdout.
     ``rerun``: import rerun-sdk at once, before the configuration comes. ``bell``: the
     read end of the doorbell pipe (:func:`_launch_writer`): a byte on it ends the pause
@@ -1741,8 +1741,7 @@ def _worker_main(rerun: bool = False, bell: int | None = None) -> int:
     poll = float(cfg.get("poll", _WRITER_POLL))  # s between reads of the pipe
     last_read = 0.0
     os.set_blocking(0, False)
-    if bell is not None:
-        os.set_blocking(bell, False)
+    os.set_blocking(bell, False)
     try:
         while outcome is None and not eof:
             frames = backlog
