@@ -37,6 +37,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import resource
 import statistics
 import sys
 import tempfile
@@ -244,7 +245,8 @@ def _flanked(run, configs, repeats: int) -> dict:
     logging run is compared with the mean of the two "off" runs either side of it, so that
     the machine's drift over seconds cancels. ``run(config, index)`` returns a dict with
     "wall" (s) and anything else to report. Returns config -> list of those dicts, each with
-    "ratio" (wall / flanking off walls) added; "off" -> the off runs."""
+    "ratio" (wall / flanking off walls) added, and "cpu_ratio" the same of "cpu" if the runs
+    report it; "off" -> the off runs."""
     seq = ["off"]
     for r in range(repeats):
         for c in configs:
@@ -253,7 +255,9 @@ def _flanked(run, configs, repeats: int) -> dict:
     out = {"off": [x for c, x in zip(seq, res) if c == "off"]}
     for i, c in enumerate(seq):
         if c != "off":
-            res[i]["ratio"] = res[i]["wall"] / (0.5 * (res[i - 1]["wall"] + res[i + 1]["wall"]))
+            for key, name in (("wall", "ratio"), ("cpu", "cpu_ratio")):
+                if key in res[i]:
+                    res[i][name] = res[i][key] / (0.5 * (res[i - 1][key] + res[i + 1][key]))
             out.setdefault(c, []).append(res[i])
     return out
 
@@ -269,12 +273,27 @@ def median_ci(values, level: float = 0.95, resamples: int = 4000, seed: int = 0)
     return float(np.quantile(med, a)), float(np.quantile(med, 1.0 - a))
 
 
+def _steal_s() -> float:
+    """CPU time the hypervisor has taken from this virtual machine so far, all CPUs (the
+    "steal" column of /proc/stat), s; 0 where there is none."""
+    try:
+        with open("/proc/stat") as fh:
+            fields = fh.readline().split()
+        return int(fields[8]) / os.sysconf("SC_CLK_TCK")
+    except (OSError, IndexError, ValueError):
+        return 0.0
+
+
 def _summary(rows: list[dict], duration: float) -> dict:
     ratios = [x["ratio"] - 1.0 for x in rows if "ratio" in x]
     q = statistics.quantiles(ratios, n=4) if len(ratios) > 1 else [ratios[0]] * 3 if ratios else [0.0] * 3
     lo, hi = median_ci(ratios) if ratios else (0.0, 0.0)
     out = {"wall_s": statistics.median(x["wall"] for x in rows), "overhead": statistics.median(ratios) if ratios else 0.0,
            "overhead_q1": q[0], "overhead_q3": q[2], "overhead_ci": (lo, hi), "n": len(ratios)}
+    cpu = [x["cpu_ratio"] - 1.0 for x in rows if "cpu_ratio" in x]
+    out["cpu_overhead"] = statistics.median(cpu) if cpu else None
+    out["cpu_ci"] = median_ci(cpu) if cpu else None
+    out["steal_ms"] = statistics.median(x["steal"] for x in rows) * 1e3
     sizes = [x["mcap_bytes"] for x in rows if x.get("mcap_bytes")]
     out["mcap_bytes_per_sim_s"] = statistics.median(sizes) / duration if sizes else None
     for key in ("sample_us", "start_s", "close_s", "samples", "direct"):
@@ -300,11 +319,14 @@ def example_command_overhead(duration: float | None = None, repeats: int = 10, w
             d.mkdir()
             flags = ["--no-record"] if c == "off" else [a.format(d=d) for a in EXAMPLE_CONFIGS[c]]
             cmd = [sys.executable, "-m", "qchain.cli", "run", str(scene), "--no-plots", "--no-progress", *extra, *flags]
+            s0, r0 = _steal_s(), resource.getrusage(resource.RUSAGE_CHILDREN)
             t0 = time.perf_counter()
             subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL, env=env, cwd=tmp)
             wall = time.perf_counter() - t0
+            r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
             m = d / "run.mcap"
-            return {"wall": wall, "mcap_bytes": m.stat().st_size if m.exists() else None}
+            return {"wall": wall, "mcap_bytes": m.stat().st_size if m.exists() else None, "steal": _steal_s() - s0,
+                    "cpu": r1.ru_utime + r1.ru_stime - r0.ru_utime - r0.ru_stime}
 
         run("off", -1)  # warm the file cache
         res = _flanked(run, list(configs), repeats)
@@ -336,14 +358,16 @@ def example_overhead(duration: float = 20.0, repeats: int = 10, workdir=None, wo
                 qlog.prepare_writer(rerun=c != "mcap")
             time.sleep(head_start)
             if c == "off":
+                s0, c0 = _steal_s(), time.process_time()
                 t0 = time.perf_counter()
                 scene.simulate(model=model, duration=duration)
-                return {"wall": time.perf_counter() - t0}
+                return {"wall": time.perf_counter() - t0, "cpu": time.process_time() - c0, "steal": _steal_s() - s0}
             d = Path(tmp) / f"{c}-{i}"
             d.mkdir()
             argv = ["run", str(scene.path), *[a.format(d=d) for a in EXAMPLE_CONFIGS[c]], "--no-progress"]
             args = cli._parser(qlog).parse_args(argv)
             spent = [0.0, 0]
+            s0, c0 = _steal_s(), time.process_time()
             t0 = time.perf_counter()
             logger, recorder = cli._make_logger(qlog, args, scene, model, worker=worker)
 
@@ -359,7 +383,8 @@ def example_overhead(duration: float = 20.0, repeats: int = 10, workdir=None, wo
                 t2 = time.perf_counter()
             t3 = time.perf_counter()
             m = d / "run.mcap"
-            return {"wall": t3 - t0, "sample_us": spent[0] / max(spent[1], 1) * 1e6, "samples": spent[1],
+            return {"wall": t3 - t0, "cpu": time.process_time() - c0, "steal": _steal_s() - s0,
+                    "sample_us": spent[0] / max(spent[1], 1) * 1e6, "samples": spent[1],
                     "start_s": t1 - t0, "close_s": t3 - t2, "mcap_bytes": m.stat().st_size if m.exists() else None,
                     "direct": (spent[0] + (t1 - t0) + (t3 - t2)) / (t3 - t0)}
 
@@ -385,10 +410,10 @@ def writer_startup(repeats: int = 5) -> dict:
     return out
 
 
-def print_example(title: str, res: dict) -> None:
+def print_example(title: str, res: dict, cpu_label: str) -> None:
     print(title)
     print(f"{'logging':<8} {'wall':>8} {'overhead':>9} {'(95 % CI)':>16} {'(quartiles)':>16} {'a sample':>9} "
-          f"{'start':>8} {'close':>8} {'direct':>7} {'MCAP/sim s':>11}")
+          f"{'start':>8} {'close':>8} {'direct':>7} {cpu_label:>10} {'(95 % CI)':>16} {'steal':>8} {'MCAP/sim s':>11}")
     for c, row in res.items():
         quart = "" if c == "off" else f"{100 * row['overhead_q1']:+.1f}..{100 * row['overhead_q3']:+.1f}%"
         ci = "" if c == "off" else f"{100 * row['overhead_ci'][0]:+.1f}..{100 * row['overhead_ci'][1]:+.1f}%"
@@ -398,8 +423,10 @@ def print_example(title: str, res: dict) -> None:
         cl = "" if row["close_s"] is None else f"{row['close_s'] * 1e3:.1f} ms"
         di = "" if row["direct"] is None else f"{100 * row['direct']:.1f}%"
         mb = row["mcap_bytes_per_sim_s"]
+        co = "" if row["cpu_overhead"] is None else f"{100 * row['cpu_overhead']:+.1f}%"
+        cci = "" if row["cpu_ci"] is None else f"{100 * row['cpu_ci'][0]:+.1f}..{100 * row['cpu_ci'][1]:+.1f}%"
         print(f"{c:<8} {row['wall_s']:>7.3f}s {over:>9} {ci:>16} {quart:>16} {us:>9} {st:>8} {cl:>8} {di:>7} "
-              f"{'' if mb is None else f'{mb / 1e3:.1f} kB':>11}")
+              f"{co:>10} {cci:>16} {row['steal_ms']:>5.1f} ms {'' if mb is None else f'{mb / 1e3:.1f} kB':>11}")
 
 
 def main(argv=None) -> int:
@@ -430,14 +457,15 @@ def main(argv=None) -> int:
             res = example_command_overhead(None, n, configs=configs)
             print_example(f"the three-segment example as a user runs it: `qchain run wave_arm.toml --no-plots` "
                           f"(4 s simulated, 201 samples), whole command; {n} runs a config, each against the "
-                          f"unlogged runs either side of it; load average {os.getloadavg()[0]:.2f}", res)
+                          f"unlogged runs either side of it; load average {os.getloadavg()[0]:.2f}", res,
+                          "CPU, all")
             print()
         if args.only != "command":
             res = example_overhead(args.duration, n, worker=args.worker, configs=configs)
             print_example(f"simulation phase, in one process: {args.duration:g} s simulated "
                           f"({res[configs[0]]['samples']:.0f} samples), logger created to files finished, the "
                           f"writer started 1.5 s ahead as qchain run does; {args.worker} writer; {n} runs a "
-                          f"config; load average {os.getloadavg()[0]:.2f}", res)
+                          f"config; load average {os.getloadavg()[0]:.2f}", res, "sim CPU")
             print()
         st = writer_startup()
         print("writer start-up without prepare_writer (launch to ready, median of 5): "
@@ -448,7 +476,10 @@ def main(argv=None) -> int:
               "simulating process (frames of a batch of samples in one compiled call, one write to the "
               "writer). start: creating the logger; close: waiting for the files at the end. direct: "
               "(samples + start + close) / wall of the same run, the share of the run the simulating "
-              "process spent logging (a ratio within one run: the machine's drift cancels).")
+              "process spent logging (a ratio within one run: the machine's drift cancels). CPU, all: the "
+              "CPU time of the command's processes (the writer's included), as an overhead like the wall's; "
+              "sim CPU: the simulating process's CPU time (it leaves out time the hypervisor took: steal). "
+              "steal: CPU time the hypervisor took from this virtual machine during a run, median.")
         return 0
     step = synthetic_step(args.dt, args.pad_us)
     print_table(measure_overhead(step, args.steps, block=args.block))

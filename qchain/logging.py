@@ -1655,15 +1655,15 @@ def _read_frame_blocking(fd: int, reader: _FrameReader):
         reader.feed(data)
 
 
-def _yield_to_the_simulation() -> None:
-    """Run this process (and the threads it starts: Rerun's too) only on CPU time nobody
+def _yield_to_the_simulation(pid: int) -> None:
+    """Run process ``pid`` (and the threads it starts: Rerun's too) only on CPU time nobody
     else wants (Linux ``SCHED_IDLE``; elsewhere ``nice 5``): the simulation never waits for
     the writer, which catches up on the other core or while the simulation waits for it."""
     try:
-        os.sched_setscheduler(0, os.SCHED_IDLE, os.sched_param(0))
+        os.sched_setscheduler(pid, os.SCHED_IDLE, os.sched_param(0))
     except (AttributeError, OSError):  # pragma: no cover - not Linux
         try:
-            os.nice(5)
+            os.setpriority(os.PRIO_PROCESS, pid, 5)
         except (AttributeError, OSError):
             pass
 
@@ -1693,7 +1693,6 @@ def _worker_main(rerun: bool, bell: int) -> int:
     read end of the doorbell pipe (:func:`_launch_writer`): a byte on it ends the pause
     between two reads of stdin, so that a flush or the end of the run is served at once."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the simulating process decides when to stop
-    _yield_to_the_simulation()
     # the imports first: they take most of the start-up, and the configuration may come later;
     # rerun-sdk's (0.7 s) on a thread, so that an MCAP can be ready before it is done
     if rerun:
@@ -1872,6 +1871,11 @@ def _launch_writer(rerun: bool) -> subprocess.Popen:
         raise
     finally:
         os.close(bell_r)
+    # idle priority from its start on (Popen returns once the exec is done; the writer's
+    # first thread, OpenBLAS's, comes with numpy 30+ ms later and inherits it), not once the
+    # writer has imported numpy: its 0.2 s start-up runs while the model is built, and the
+    # simulating process's own threads (OpenBLAS's) must keep the other core then
+    _yield_to_the_simulation(proc.pid)
     os.set_blocking(bell_w, False)
     proc.bell = bell_w
     return proc
