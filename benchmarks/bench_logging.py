@@ -37,7 +37,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import resource
 import statistics
 import sys
 import tempfile
@@ -319,14 +318,12 @@ def example_command_overhead(duration: float | None = None, repeats: int = 10, w
             d.mkdir()
             flags = ["--no-record"] if c == "off" else [a.format(d=d) for a in EXAMPLE_CONFIGS[c]]
             cmd = [sys.executable, "-m", "qchain.cli", "run", str(scene), "--no-plots", "--no-progress", *extra, *flags]
-            s0, r0 = _steal_s(), resource.getrusage(resource.RUSAGE_CHILDREN)
+            s0 = _steal_s()
             t0 = time.perf_counter()
             subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL, env=env, cwd=tmp)
             wall = time.perf_counter() - t0
-            r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
             m = d / "run.mcap"
-            return {"wall": wall, "mcap_bytes": m.stat().st_size if m.exists() else None, "steal": _steal_s() - s0,
-                    "cpu": r1.ru_utime + r1.ru_stime - r0.ru_utime - r0.ru_stime}
+            return {"wall": wall, "mcap_bytes": m.stat().st_size if m.exists() else None, "steal": _steal_s() - s0}
 
         run("off", -1)  # warm the file cache
         res = _flanked(run, list(configs), repeats)
@@ -410,10 +407,10 @@ def writer_startup(repeats: int = 5) -> dict:
     return out
 
 
-def print_example(title: str, res: dict, cpu_label: str) -> None:
+def print_example(title: str, res: dict) -> None:
     print(title)
     print(f"{'logging':<8} {'wall':>8} {'overhead':>9} {'(95 % CI)':>16} {'(quartiles)':>16} {'a sample':>9} "
-          f"{'start':>8} {'close':>8} {'direct':>7} {cpu_label:>10} {'(95 % CI)':>16} {'steal':>8} {'MCAP/sim s':>11}")
+          f"{'start':>8} {'close':>8} {'direct':>7} {'sim CPU':>10} {'(95 % CI)':>16} {'steal':>8} {'MCAP/sim s':>11}")
     for c, row in res.items():
         quart = "" if c == "off" else f"{100 * row['overhead_q1']:+.1f}..{100 * row['overhead_q3']:+.1f}%"
         ci = "" if c == "off" else f"{100 * row['overhead_ci'][0]:+.1f}..{100 * row['overhead_ci'][1]:+.1f}%"
@@ -457,15 +454,14 @@ def main(argv=None) -> int:
             res = example_command_overhead(None, n, configs=configs)
             print_example(f"the three-segment example as a user runs it: `qchain run wave_arm.toml --no-plots` "
                           f"(4 s simulated, 201 samples), whole command; {n} runs a config, each against the "
-                          f"unlogged runs either side of it; load average {os.getloadavg()[0]:.2f}", res,
-                          "CPU, all")
+                          f"unlogged runs either side of it; load average {os.getloadavg()[0]:.2f}", res)
             print()
         if args.only != "command":
             res = example_overhead(args.duration, n, worker=args.worker, configs=configs)
             print_example(f"simulation phase, in one process: {args.duration:g} s simulated "
                           f"({res[configs[0]]['samples']:.0f} samples), logger created to files finished, the "
                           f"writer started 1.5 s ahead as qchain run does; {args.worker} writer; {n} runs a "
-                          f"config; load average {os.getloadavg()[0]:.2f}", res, "sim CPU")
+                          f"config; load average {os.getloadavg()[0]:.2f}", res)
             print()
         st = writer_startup()
         print("writer start-up without prepare_writer (launch to ready, median of 5): "
@@ -476,8 +472,7 @@ def main(argv=None) -> int:
               "simulating process (frames of a batch of samples in one compiled call, one write to the "
               "writer). start: creating the logger; close: waiting for the files at the end. direct: "
               "(samples + start + close) / wall of the same run, the share of the run the simulating "
-              "process spent logging (a ratio within one run: the machine's drift cancels). CPU, all: the "
-              "CPU time of the command's processes (the writer's included), as an overhead like the wall's; "
+              "process spent logging (a ratio within one run: the machine's drift cancels). "
               "sim CPU: the simulating process's CPU time (it leaves out time the hypervisor took: steal). "
               "steal: CPU time the hypervisor took from this virtual machine during a run, median.")
         return 0
