@@ -36,6 +36,7 @@ to a chosen cost: a record every step, the worst case for the logger.
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import statistics
 import sys
@@ -244,8 +245,9 @@ def _flanked(run, configs, repeats: int) -> dict:
     logging run is compared with the mean of the two "off" runs either side of it, so that
     the machine's drift over seconds cancels. ``run(config, index)`` returns a dict with
     "wall" (s) and anything else to report. Returns config -> list of those dicts, each with
-    "ratio" (wall / flanking off walls) added, and "cpu_ratio" the same of "cpu" if the runs
-    report it; "off" -> the off runs."""
+    "ratio" (wall / flanking off walls) added, "cpu_ratio" the same of "cpu" and
+    "phase_extra" (phase -> s more than the flanking off runs' mean) of "phases" if the runs
+    report them; "off" -> the off runs."""
     seq = ["off"]
     for r in range(repeats):
         for c in configs:
@@ -257,6 +259,9 @@ def _flanked(run, configs, repeats: int) -> dict:
             for key, name in (("wall", "ratio"), ("cpu", "cpu_ratio")):
                 if key in res[i]:
                     res[i][name] = res[i][key] / (0.5 * (res[i - 1][key] + res[i + 1][key]))
+            if "phases" in res[i]:
+                res[i]["phase_extra"] = {k: v - 0.5 * (res[i - 1]["phases"][k] + res[i + 1]["phases"][k])
+                                         for k, v in res[i]["phases"].items()}
             out.setdefault(c, []).append(res[i])
     return out
 
@@ -298,7 +303,16 @@ def _summary(rows: list[dict], duration: float) -> dict:
     for key in ("sample_us", "start_s", "close_s", "samples", "direct"):
         vals = [x[key] for x in rows if key in x]
         out[key] = statistics.median(vals) if vals else None
+    if rows and "phases" in rows[0]:
+        key = "phase_extra" if "phase_extra" in rows[0] else "phases"
+        out[key] = {k: statistics.median(x[key][k] for x in rows) for k in rows[0][key]}
     return out
+
+
+# phases of the whole command, from the marks of benchmarks/_timed_command.py
+COMMAND_PHASES = {"start-up": ("launch", "start"), "imports, scene": ("start", "build0"), "model build": ("build0", "build1"),
+                  "logger start": ("build1", "sim0"), "simulation": ("sim0", "sim1"), "files, summary": ("sim1", "main"),
+                  "exit": ("main", "done")}
 
 
 def example_command_overhead(duration: float | None = None, repeats: int = 10, workdir=None,
@@ -306,7 +320,10 @@ def example_command_overhead(duration: float | None = None, repeats: int = 10, w
     """The three-segment example as a user runs it: the whole ``qchain run
     examples/scenes/wave_arm.toml --no-plots`` command in a fresh interpreter (start-up,
     model build, simulation, files finished), with ``--no-record`` (off) and with MCAP,
-    ``.rrd`` or both. Returns config -> summary (see :func:`_summary`)."""
+    ``.rrd`` or both, run through ``benchmarks/_timed_command.py`` for the times of its
+    phases (:data:`COMMAND_PHASES`). Returns config -> summary (see :func:`_summary`), with
+    "phases" (off: median s a phase) or "phase_extra" (a logged config: median s more than
+    the flanking off runs)."""
     import subprocess
 
     scene = HERE.parent / "examples" / "scenes" / "wave_arm.toml"
@@ -317,13 +334,18 @@ def example_command_overhead(duration: float | None = None, repeats: int = 10, w
             d = Path(tmp) / f"{c}-{i}"
             d.mkdir()
             flags = ["--no-record"] if c == "off" else [a.format(d=d) for a in EXAMPLE_CONFIGS[c]]
-            cmd = [sys.executable, "-m", "qchain.cli", "run", str(scene), "--no-plots", "--no-progress", *extra, *flags]
+            marks = d / "marks.json"
+            cmd = [sys.executable, str(HERE / "_timed_command.py"), str(marks), "run", str(scene), "--no-plots",
+                   "--no-progress", *extra, *flags]
             s0 = _steal_s()
+            launch = time.monotonic()
             t0 = time.perf_counter()
             subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL, env=env, cwd=tmp)
             wall = time.perf_counter() - t0
+            mk = dict(json.loads(marks.read_text()), launch=launch, done=time.monotonic())
             m = d / "run.mcap"
-            return {"wall": wall, "mcap_bytes": m.stat().st_size if m.exists() else None, "steal": _steal_s() - s0}
+            return {"wall": wall, "mcap_bytes": m.stat().st_size if m.exists() else None, "steal": _steal_s() - s0,
+                    "phases": {k: mk[b] - mk[a] for k, (a, b) in COMMAND_PHASES.items()}}
 
         run("off", -1)  # warm the file cache
         res = _flanked(run, list(configs), repeats)
@@ -407,6 +429,23 @@ def writer_startup(repeats: int = 5) -> dict:
     return out
 
 
+def print_phases(res: dict) -> None:
+    """Where the whole command's extra time goes: a phase's median in the unlogged runs and
+    what a logged run spends more in it (median over runs, against the unlogged runs either
+    side)."""
+    names = list(COMMAND_PHASES)
+    print(f"{'phase (ms)':<16}" + "".join(f"{c:>10}" for c in res))
+    for k in names:
+        cells = []
+        for c, row in res.items():
+            cells.append(f"{row['phases'][k] * 1e3:>10.1f}" if c == "off" else f"{row['phase_extra'][k] * 1e3:>+10.1f}")
+        print(f"{k:<16}" + "".join(cells))
+    print("off: median ms of a phase without logging; the others: median ms more than the unlogged runs "
+          "either side. start-up: launch to the first line of Python; logger start: from the model built to "
+          "the simulation's start (the logger is created there); files, summary: from the simulation's end "
+          "to the command's return (the logger finishes its files there); exit: exit handlers and teardown.")
+
+
 def print_example(title: str, res: dict) -> None:
     print(title)
     print(f"{'logging':<8} {'wall':>8} {'overhead':>9} {'(95 % CI)':>16} {'(quartiles)':>16} {'a sample':>9} "
@@ -455,6 +494,7 @@ def main(argv=None) -> int:
             print_example(f"the three-segment example as a user runs it: `qchain run wave_arm.toml --no-plots` "
                           f"(4 s simulated, 201 samples), whole command; {n} runs a config, each against the "
                           f"unlogged runs either side of it; load average {os.getloadavg()[0]:.2f}", res)
+            print_phases(res)
             print()
         if args.only != "command":
             res = example_overhead(args.duration, n, worker=args.worker, configs=configs)
