@@ -1,15 +1,16 @@
 """Cost of logging a run, as a ratio to the same run without logging.
 
     python benchmarks/bench_logging.py [--steps 20000] [--block 500] [--pad-us 0]
-    python benchmarks/bench_logging.py --example [--duration 20] [--repeats 10] [--only command|process]
-        [--configs mcap,rrd,both]
+    python benchmarks/bench_logging.py --example [--duration 20] [--repeats 10]
+        [--only command|process|corun] [--configs mcap,rrd,both]
 
 ``--example`` measures the three-segment example (``examples/scenes/wave_arm.toml``): first
 the whole ``qchain run`` command as a user runs it (fresh interpreter, model build,
-simulation, files finished), then the simulation phase in one process (logger created to
-files finished, the writer started ahead as ``qchain run`` does), each logged run against
-the mean of the unlogged runs either side of it; and the writer's start-up time. The rest of
-this docstring is about the default mode.
+simulation, files finished), with the time of each of its phases, then the simulation phase
+in one process (logger created to files finished, the writer started ahead as ``qchain
+run`` does), each logged run against the mean of the unlogged runs either side of it; what
+a busy process on the other core costs the simulation on this machine (no logging); and the
+writer's start-up time. The rest of this docstring is about the default mode.
 
 Drives a simulation step function with logging off, MCAP on, Rerun (.rrd) on and both on.
 One logger a configuration stays open for the whole measurement; the steps go in blocks,
@@ -411,6 +412,62 @@ def example_overhead(duration: float = 20.0, repeats: int = 10, workdir=None, wo
     return {c: _summary(rows, duration) for c, rows in res.items()}
 
 
+_BUSY_LOOP = "x = 0\nwhile True:\n    x = (x * 1103515245 + 12345) & 0xffffffff\n"
+
+
+def co_running(duration: float = 4.0, repeats: int = 20) -> dict:
+    """What a busy process on the other core costs the simulation, with no logging at all:
+    the example's simulation phase (``duration`` s simulated) timed with the other core idle
+    and with a Python busy loop there, at normal priority and at the writer's idle priority
+    (``SCHED_IDLE``), interleaved. On a machine with cores of their own this is ~0; where
+    the virtual CPUs share a physical core or a power budget, it is what the writer's work
+    on the other core costs the simulation beyond the simulating process's own logging.
+    Returns "normal"/"idle" -> {"overhead", "overhead_ci", "steal_ms"} (median of time /
+    time of the idle runs either side - 1; median CPU time the hypervisor took during a run),
+    "off_s" and "off_steal_ms" (the same of the runs with the other core idle)."""
+    import subprocess
+
+    from qchain import load_scene
+
+    scene = load_scene(HERE.parent / "examples" / "scenes" / "wave_arm.toml")
+    model = scene.build()
+    scene.simulate(model=model, duration=0.2)  # warm up (compile)
+    here = os.sched_getaffinity(0) if hasattr(os, "sched_getaffinity") else None
+    if here is None or len(here) < 2:
+        return {}
+    sim_cpu, other = sorted(here)[:2]
+    os.sched_setaffinity(0, {sim_cpu})
+    try:
+        def run(c, i):
+            proc = None
+            if c != "off":
+                code = f"import os\nos.sched_setaffinity(0, {{{other}}})\n" + _BUSY_LOOP
+                proc = subprocess.Popen([sys.executable, "-c", code])
+                if c == "idle":
+                    os.sched_setscheduler(proc.pid, os.SCHED_IDLE, os.sched_param(0))
+                time.sleep(0.2)  # the loop is running
+            s0 = _steal_s()
+            t0 = time.perf_counter()
+            scene.simulate(model=model, duration=duration)
+            wall = time.perf_counter() - t0
+            steal = _steal_s() - s0
+            if proc is not None:
+                proc.kill()
+                proc.wait()
+            return {"wall": wall, "steal": steal}
+
+        res = _flanked(run, ["normal", "idle"], repeats)
+    finally:
+        os.sched_setaffinity(0, here)
+    out = {"off_s": statistics.median(x["wall"] for x in res["off"]),
+           "off_steal_ms": statistics.median(x["steal"] for x in res["off"]) * 1e3}
+    for c in ("normal", "idle"):
+        ratios = [x["ratio"] - 1.0 for x in res[c]]
+        out[c] = {"overhead": statistics.median(ratios), "overhead_ci": median_ci(ratios),
+                  "steal_ms": statistics.median(x["steal"] for x in res[c]) * 1e3}
+    return out
+
+
 def writer_startup(repeats: int = 5) -> dict:
     """Wall time from launching a writer to its being ready, for an MCAP and for MCAP + .rrd
     (median of ``repeats``): what :func:`qchain.logging.prepare_writer` hides."""
@@ -479,8 +536,9 @@ def main(argv=None) -> int:
     ap.add_argument("--repeats", type=int, default=10, help="--example: runs a config")
     ap.add_argument("--worker", choices=["auto", "process", "thread"], default="auto",
                     help="--example: where the logger writes (RunLogger's worker)")
-    ap.add_argument("--only", choices=["command", "process"], default=None,
-                    help="--example: only the whole command, or only the simulation phase in one process")
+    ap.add_argument("--only", choices=["command", "process", "corun"], default=None,
+                    help="--example: only the whole command, only the simulation phase in one process, or "
+                         "only the cost of a busy other core")
     ap.add_argument("--configs", default="mcap,rrd,both",
                     help="--example: logging configurations, comma-separated from mcap, rrd, both")
     args = ap.parse_args(argv)
@@ -489,24 +547,33 @@ def main(argv=None) -> int:
         configs = args.configs.split(",")
         if not set(configs) <= set(EXAMPLE_CONFIGS):
             ap.error(f"--configs: choose from {', '.join(EXAMPLE_CONFIGS)}, got {args.configs!r}")
-        if args.only != "process":
+        if args.only in (None, "command"):
             res = example_command_overhead(None, n, configs=configs)
             print_example(f"the three-segment example as a user runs it: `qchain run wave_arm.toml --no-plots` "
                           f"(4 s simulated, 201 samples), whole command; {n} runs a config, each against the "
                           f"unlogged runs either side of it; load average {os.getloadavg()[0]:.2f}", res)
             print_phases(res)
             print()
-        if args.only != "command":
+        if args.only in (None, "process"):
             res = example_overhead(args.duration, n, worker=args.worker, configs=configs)
             print_example(f"simulation phase, in one process: {args.duration:g} s simulated "
                           f"({res[configs[0]]['samples']:.0f} samples), logger created to files finished, the "
                           f"writer started 1.5 s ahead as qchain run does; {args.worker} writer; {n} runs a "
                           f"config; load average {os.getloadavg()[0]:.2f}", res)
             print()
-        st = writer_startup()
-        print("writer start-up without prepare_writer (launch to ready, median of 5): "
-              + ", ".join(f"{k} {v * 1e3:.0f} ms" for k, v in st.items())
-              + " (an .rrd's Rerun comes up in the background after that)")
+        co = co_running() if args.only in (None, "corun") else {}
+        if co:
+            print(f"a busy loop on the other core, no logging ({co['off_s']:.3f} s a 4 s simulation with the "
+                  f"other core idle, steal {co['off_steal_ms']:.0f} ms; 20 runs each): "
+                  + ", ".join(f"{c} priority {100 * co[c]['overhead']:+.1f}% ({100 * co[c]['overhead_ci'][0]:+.1f}.."
+                              f"{100 * co[c]['overhead_ci'][1]:+.1f}%), steal {co[c]['steal_ms']:.0f} ms"
+                              for c in ("normal", "idle"))
+                  + ": what any work of the writer's on the other core costs the simulation on this machine")
+        if args.only != "corun":
+            st = writer_startup()
+            print("writer start-up without prepare_writer (launch to ready, median of 5): "
+                  + ", ".join(f"{k} {v * 1e3:.0f} ms" for k, v in st.items())
+                  + " (an .rrd's Rerun comes up in the background after that)")
         print("overhead: median over runs of wall / mean of the unlogged runs either side - 1 (target <= 5 %), "
               "with a bootstrap 95 % confidence interval of that median. a sample: the recorder's cost in the "
               "simulating process (frames of a batch of samples in one compiled call, one write to the "
