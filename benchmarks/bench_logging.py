@@ -237,6 +237,19 @@ def print_table(table: dict) -> None:
           "(load average > 1), the writer takes time from the simulation and the overhead rises.")
 
 
+EXAMPLE_SCENE = HERE.parent / "examples" / "scenes" / "wave_arm.toml"
+
+
+def _example_model():
+    """The three-segment example's scene and model, the simulation compiled (warmed up)."""
+    from qchain import load_scene
+
+    scene = load_scene(EXAMPLE_SCENE)
+    model = scene.build()
+    scene.simulate(model=model, duration=0.2)
+    return scene, model
+
+
 EXAMPLE_CONFIGS = {"mcap": ["--mcap", "{d}/run.mcap"], "rrd": ["--rrd", "{d}/run.rrd", "--no-record"],
                    "both": ["--mcap", "{d}/run.mcap", "--rrd", "{d}/run.rrd"]}
 
@@ -327,7 +340,7 @@ def example_command_overhead(duration: float | None = None, repeats: int = 10, w
     the flanking off runs)."""
     import subprocess
 
-    scene = HERE.parent / "examples" / "scenes" / "wave_arm.toml"
+    scene = EXAMPLE_SCENE
     extra = [] if duration is None else ["--duration", str(duration)]
     env = dict(os.environ, PYTHONPATH=str(HERE.parent) + os.pathsep + os.environ.get("PYTHONPATH", ""))
     with tempfile.TemporaryDirectory(dir=workdir) as tmp:
@@ -366,12 +379,10 @@ def example_overhead(duration: float = 20.0, repeats: int = 10, workdir=None, wo
     waits that long first. Returns config -> summary with also the mean cost of a sample in
     the simulating process ("sample_us"), the wait in the logger's constructor ("start_s")
     and the wait for the files at the end ("close_s")."""
-    from qchain import cli, load_scene
+    from qchain import cli
 
     qlog = cli._logging_module()
-    scene = load_scene(HERE.parent / "examples" / "scenes" / "wave_arm.toml")
-    model = scene.build()
-    scene.simulate(model=model, duration=0.2)  # warm up (compile)
+    scene, model = _example_model()
     with tempfile.TemporaryDirectory(dir=workdir) as tmp:
         def run(c, i):
             if c != "off":
@@ -422,16 +433,10 @@ def co_running(duration: float = 4.0, repeats: int = 20) -> dict:
     (``SCHED_IDLE``), interleaved. On a machine with cores of their own this is ~0; where
     the virtual CPUs share a physical core or a power budget, it is what the writer's work
     on the other core costs the simulation beyond the simulating process's own logging.
-    Returns "normal"/"idle" -> {"overhead", "overhead_ci", "steal_ms"} (median of time /
-    time of the idle runs either side - 1; median CPU time the hypervisor took during a run),
-    "off_s" and "off_steal_ms" (the same of the runs with the other core idle)."""
+    Returns "off" (other core idle), "normal" and "idle" -> summary (see :func:`_summary`)."""
     import subprocess
 
-    from qchain import load_scene
-
-    scene = load_scene(HERE.parent / "examples" / "scenes" / "wave_arm.toml")
-    model = scene.build()
-    scene.simulate(model=model, duration=0.2)  # warm up (compile)
+    scene, model = _example_model()
     here = os.sched_getaffinity(0) if hasattr(os, "sched_getaffinity") else None
     if here is None or len(here) < 2:
         return {}
@@ -459,13 +464,7 @@ def co_running(duration: float = 4.0, repeats: int = 20) -> dict:
         res = _flanked(run, ["normal", "idle"], repeats)
     finally:
         os.sched_setaffinity(0, here)
-    out = {"off_s": statistics.median(x["wall"] for x in res["off"]),
-           "off_steal_ms": statistics.median(x["steal"] for x in res["off"]) * 1e3}
-    for c in ("normal", "idle"):
-        ratios = [x["ratio"] - 1.0 for x in res[c]]
-        out[c] = {"overhead": statistics.median(ratios), "overhead_ci": median_ci(ratios),
-                  "steal_ms": statistics.median(x["steal"] for x in res[c]) * 1e3}
-    return out
+    return {c: _summary(rows, duration) for c, rows in res.items()}
 
 
 def writer_startup(repeats: int = 5) -> dict:
@@ -563,8 +562,8 @@ def main(argv=None) -> int:
             print()
         co = co_running() if args.only in (None, "corun") else {}
         if co:
-            print(f"a busy loop on the other core, no logging ({co['off_s']:.3f} s a 4 s simulation with the "
-                  f"other core idle, steal {co['off_steal_ms']:.0f} ms; 20 runs each): "
+            print(f"a busy loop on the other core, no logging ({co['off']['wall_s']:.3f} s a 4 s simulation with "
+                  f"the other core idle, steal {co['off']['steal_ms']:.0f} ms; 20 runs each): "
                   + ", ".join(f"{c} priority {100 * co[c]['overhead']:+.1f}% ({100 * co[c]['overhead_ci'][0]:+.1f}.."
                               f"{100 * co[c]['overhead_ci'][1]:+.1f}%), steal {co[c]['steal_ms']:.0f} ms"
                               for c in ("normal", "idle"))

@@ -1737,7 +1737,7 @@ def _worker_main(rerun: bool, bell: int) -> int:
     max_batch = int(cfg.get("max_batch", 1024))
     batch_wall = float(cfg.get("batch_wall", 0.05))
     half_interval = 0.5 * float(cfg["flush_interval"])  # sim time a record may wait here
-    poll = float(cfg.get("poll", _WRITER_POLL))  # s between reads of the pipe
+    poll = float(cfg["poll"])  # s between reads of the pipe (RunLogger sends _WRITER_POLL)
     last_read = 0.0
     os.set_blocking(0, False)
     os.set_blocking(bell, False)
