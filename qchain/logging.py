@@ -1999,11 +1999,13 @@ class RunLogger:
     is finished in every case. Call :meth:`set_outcome` before leaving to record a
     simulation's own status and message. Call ``log()`` from one thread.
 
-    Starting the process worker takes 0.2 to 1 s (a fresh interpreter importing numpy,
-    mcap and, for Rerun targets, rerun-sdk), and the constructor waits for it, so that every
-    record is crash-safe from the first one. Call :func:`prepare_writer` earlier (before
-    building the model, as ``qchain run`` does) and that start-up runs on the other core
-    meanwhile: the constructor then waits for nothing.
+    Starting the process worker takes 0.2 to 1 s of CPU time (a fresh interpreter importing
+    numpy, mcap and, for Rerun targets, rerun-sdk). The constructor waits only for the
+    process to exist (every record is then crash-safe: the writer drains its pipe even
+    after a SIGKILL of this process) and, when serving or connecting to a viewer, for the
+    viewer's URL; for files only the writer's answer is read at the next :meth:`flush` or
+    at :meth:`close`. Call :func:`prepare_writer` earlier (before building the model, as
+    ``qchain run`` does) and that start-up runs on the other core meanwhile.
 
     Examples
     --------
@@ -2063,6 +2065,7 @@ class RunLogger:
                 if mcap_path.is_dir():
                     raise ValueError(f"mcap must be a file path, got the folder {mcap_path}")
                 mcap_path.parent.mkdir(parents=True, exist_ok=True)
+                open(mcap_path, "wb").close()  # can it be written? Here, where the path comes in
             elif hasattr(mcap, "write"):
                 stream = mcap
             else:
@@ -2091,6 +2094,7 @@ class RunLogger:
         self._closed = False
         self._broken: str | None = None
         self._warned_broken = False
+        self._ready_pending = False  # the writer's answer to its configuration not read yet
         self._outcome: dict | None = None
         self._max_queue = int(max_queue)
         self._summary: dict | None = None
@@ -2205,19 +2209,39 @@ class RunLogger:
         self._pipe_sim = 0.5 * cfg["flush_interval"]  # sim time a record may wait in this process
         payload = json.dumps(cfg).encode()
         self._write_all(_FRAME.pack(_FRAME_CONFIG, len(payload)) + payload)
+        self._put = self._put_pipe
+        self._ready_pending = True
+        if cfg["serve"] or cfg["connect"]:  # the viewer's URL, or that it is missing, comes first
+            self._take_ready(timeout, starting=True)
+        # Files only: the writer's answer is read at the next flush or at close. Records are
+        # crash-safe already (the writer process exists and drains its pipe even after a
+        # SIGKILL of this one), the MCAP path was checked in __init__, and a writer still
+        # importing rerun-sdk (prepare_writer shortly before) answers only after 10-30 ms.
+
+    def _take_ready(self, timeout: float, starting: bool = False) -> None:
+        """Read the writer's answer to its configuration ("ready", with the viewer's URL and
+        start-up warnings) if not read yet. A writer that could not start raises
+        :class:`LoggingError` when ``starting`` (the constructor waits), else it leaves the
+        logger broken with the reason."""
+        if not self._ready_pending:
+            return
+        self._ready_pending = False
         msg = self._read_status(timeout)
         if msg is None or msg.get("event") != "ready":
-            self._proc.kill()
-            self._proc.wait()
-            _close_bell(self._proc)
             why = (msg or {}).get("message", "it did not answer in time or exited")
-            raise LoggingError(f"the log writer could not start ({why}); MCAP path: {self.mcap_path}")
+            why = f"the log writer could not start ({why}); MCAP path: {self.mcap_path}"
+            if starting:
+                self._proc.kill()
+                self._proc.wait()
+                _close_bell(self._proc)
+                raise LoggingError(why)
+            self._broken = self._broken or why
+            return
         for m in msg.get("warnings", []):
-            warnings.warn(f"qchain.logging: {m}", LoggingWarning, stacklevel=4)
+            warnings.warn(f"qchain.logging: {m}", LoggingWarning, stacklevel=5 if starting else 4)
         self.viewer_url = msg.get("viewer_url")
         self.grpc_url = msg.get("grpc_url")
         self.web_pid = msg.get("web_pid")
-        self._put = self._put_pipe
 
     def _put_pipe(self, payload: bytes, t: float) -> None:
         frame = _FRAME.pack(_FRAME_RECORD, len(payload)) + payload
@@ -2508,6 +2532,9 @@ class RunLogger:
         self._wbuf.append(_FRAME.pack(_FRAME_FLUSH, 0))
         self._flush_pipe()
         self._ring()
+        self._take_ready(timeout)
+        if self._broken is not None:
+            raise LoggingError(self._broken)
         msg = self._read_status(timeout)
         if msg is None or msg.get("event") != "flushed":
             raise LoggingError(f"the log writer did not flush within {timeout} s ({self._broken or msg})")
@@ -2579,6 +2606,7 @@ class RunLogger:
             self._wbuf.append(_FRAME.pack(_FRAME_END, len(p)) + p)
             self._flush_pipe()
             self._ring()
+        self._take_ready(120.0)
         if self._broken is None:
             msg = self._read_status(120.0)
             if msg is not None and msg.get("event") == "finished":
