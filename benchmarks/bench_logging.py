@@ -39,6 +39,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import signal
 import statistics
 import sys
 import tempfile
@@ -303,11 +304,13 @@ def _steal_s() -> float:
 
 
 def _summary(rows: list[dict], duration: float) -> dict:
+    """Medians (and bootstrap CIs) of a configuration's runs; "runs" keeps the runs
+    themselves (for ``--save`` and ``--pool``)."""
     ratios = [x["ratio"] - 1.0 for x in rows if "ratio" in x]
     q = statistics.quantiles(ratios, n=4) if len(ratios) > 1 else [ratios[0]] * 3 if ratios else [0.0] * 3
     lo, hi = median_ci(ratios) if ratios else (0.0, 0.0)
     out = {"wall_s": statistics.median(x["wall"] for x in rows), "overhead": statistics.median(ratios) if ratios else 0.0,
-           "overhead_q1": q[0], "overhead_q3": q[2], "overhead_ci": (lo, hi), "n": len(ratios)}
+           "overhead_q1": q[0], "overhead_q3": q[2], "overhead_ci": (lo, hi), "n": len(ratios), "runs": rows}
     cpu = [x["cpu_ratio"] - 1.0 for x in rows if "cpu_ratio" in x]
     out["cpu_overhead"] = statistics.median(cpu) if cpu else None
     out["cpu_ci"] = median_ci(cpu) if cpu else None
@@ -424,16 +427,21 @@ def example_overhead(duration: float = 20.0, repeats: int = 10, workdir=None, wo
 
 
 _BUSY_LOOP = "x = 0\nwhile True:\n    x = (x * 1103515245 + 12345) & 0xffffffff\n"
+# what a writer's start-up does: fresh interpreters importing rerun-sdk, one after another
+_IMPORT_LOOP = ("import subprocess, sys\nwhile True:\n"
+                "    subprocess.run([sys.executable, '-c', 'import rerun, rerun.blueprint'])\n")
 
 
 def co_running(duration: float = 4.0, repeats: int = 20) -> dict:
     """What a busy process on the other core costs the simulation, with no logging at all:
     the example's simulation phase (``duration`` s simulated) timed with the other core idle
     and with a Python busy loop there, at normal priority and at the writer's idle priority
-    (``SCHED_IDLE``), interleaved. On a machine with cores of their own this is ~0; where
-    the virtual CPUs share a physical core or a power budget, it is what the writer's work
-    on the other core costs the simulation beyond the simulating process's own logging.
-    Returns "off" (other core idle), "normal" and "idle" -> summary (see :func:`_summary`)."""
+    (``SCHED_IDLE``), and with a loop of fresh interpreters importing rerun-sdk (a writer's
+    start-up, memory-heavy) at idle priority, interleaved. On a machine with cores of their
+    own this is ~0; where the virtual CPUs share a physical core, caches or a power budget,
+    it is what the writer's work on the other core costs the simulation beyond the
+    simulating process's own logging. Returns "off" (other core idle), "normal", "idle" and
+    "import" -> summary (see :func:`_summary`)."""
     import subprocess
 
     scene, model = _example_model()
@@ -446,9 +454,10 @@ def co_running(duration: float = 4.0, repeats: int = 20) -> dict:
         def run(c, i):
             proc = None
             if c != "off":
-                code = f"import os\nos.sched_setaffinity(0, {{{other}}})\n" + _BUSY_LOOP
-                proc = subprocess.Popen([sys.executable, "-c", code])
-                if c == "idle":
+                code = f"import os\nos.sched_setaffinity(0, {{{other}}})\n" + (
+                    _IMPORT_LOOP if c == "import" else _BUSY_LOOP)
+                proc = subprocess.Popen([sys.executable, "-c", code], start_new_session=True)
+                if c != "normal":  # inherited by the importing interpreters
                     os.sched_setscheduler(proc.pid, os.SCHED_IDLE, os.sched_param(0))
                 time.sleep(0.2)  # the loop is running
             s0 = _steal_s()
@@ -457,19 +466,20 @@ def co_running(duration: float = 4.0, repeats: int = 20) -> dict:
             wall = time.perf_counter() - t0
             steal = _steal_s() - s0
             if proc is not None:
-                proc.kill()
+                os.killpg(proc.pid, signal.SIGKILL)
                 proc.wait()
             return {"wall": wall, "steal": steal}
 
-        res = _flanked(run, ["normal", "idle"], repeats)
+        res = _flanked(run, ["normal", "idle", "import"], repeats)
     finally:
         os.sched_setaffinity(0, here)
     return {c: _summary(rows, duration) for c, rows in res.items()}
 
 
 def writer_startup(repeats: int = 5) -> dict:
-    """Wall time from launching a writer to its being ready, for an MCAP and for MCAP + .rrd
-    (median of ``repeats``): what :func:`qchain.logging.prepare_writer` hides."""
+    """Wall time from launching a writer to its first answer (the logger's constructor and a
+    first ``flush()``), for an MCAP and for MCAP + .rrd (median of ``repeats``): what
+    :func:`qchain.logging.prepare_writer` hides."""
     from qchain.logging import RunLogger
 
     out = {}
@@ -479,6 +489,7 @@ def writer_startup(repeats: int = 5) -> dict:
             for i in range(repeats):
                 t0 = time.perf_counter()
                 log = RunLogger(arm_info(), Path(tmp) / f"{i}.mcap", quiet=True, **kw)
+                log.flush()
                 walls.append(time.perf_counter() - t0)
                 log.close()
             out[name] = statistics.median(walls)
@@ -521,6 +532,40 @@ def print_example(title: str, res: dict) -> None:
               f"{co:>10} {cci:>16} {row['steal_ms']:>5.1f} ms {'' if mb is None else f'{mb / 1e3:.1f} kB':>11}")
 
 
+def _save(prefix: str | None, kind: str, res: dict, duration: float | None = None) -> None:
+    """Write the runs of one measurement (``kind``: "command" or "process") to
+    ``PREFIX-kind.json``, for :func:`print_pooled`."""
+    if not prefix:
+        return
+    if duration is None:
+        from qchain import load_scene
+
+        duration = load_scene(EXAMPLE_SCENE).duration
+    data = {"kind": kind, "duration": duration, "date": time.strftime("%Y-%m-%d %H:%M"),
+            "load": os.getloadavg()[0], "runs": {c: row["runs"] for c, row in res.items()}}
+    Path(f"{prefix}-{kind}.json").write_text(json.dumps(data))
+
+
+def print_pooled(files: list[str]) -> int:
+    """The tables of ``--example`` over the runs of several saved sets of one kind: each
+    logged run keeps its ratio to its own flanking unlogged runs, and the ratios of all sets
+    are pooled."""
+    sets = [json.loads(Path(f).read_text()) for f in files]
+    kinds = {d["kind"] for d in sets}
+    if len(kinds) != 1:
+        raise SystemExit(f"--pool: the files mix kinds {sorted(kinds)}; pool one kind at a time")
+    runs: dict[str, list] = {}
+    for d in sets:
+        for c, rows in d["runs"].items():
+            runs.setdefault(c, []).extend(rows)
+    res = {c: _summary(rows, sets[0]["duration"]) for c, rows in runs.items()}
+    print_example(f"{kinds.pop()}: {len(sets)} sets pooled ({', '.join(d['date'] for d in sets)}), "
+                  + ", ".join(f"{c} {row['n']} runs" for c, row in res.items() if c != "off"), res)
+    if "phases" in res.get("off", {}):
+        print_phases(res)
+    return 0
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--steps", type=int, default=20000, help="steps a configuration in all")
@@ -540,7 +585,13 @@ def main(argv=None) -> int:
                          "only the cost of a busy other core")
     ap.add_argument("--configs", default="mcap,rrd,both",
                     help="--example: logging configurations, comma-separated from mcap, rrd, both")
+    ap.add_argument("--save", metavar="PREFIX",
+                    help="--example: also write every run to PREFIX-command.json / PREFIX-process.json")
+    ap.add_argument("--pool", nargs="+", metavar="FILE",
+                    help="summarise runs saved with --save (several sets of one kind pooled) and exit")
     args = ap.parse_args(argv)
+    if args.pool:
+        return print_pooled(args.pool)
     if args.example:
         n = args.repeats
         configs = args.configs.split(",")
@@ -548,6 +599,7 @@ def main(argv=None) -> int:
             ap.error(f"--configs: choose from {', '.join(EXAMPLE_CONFIGS)}, got {args.configs!r}")
         if args.only in (None, "command"):
             res = example_command_overhead(None, n, configs=configs)
+            _save(args.save, "command", res)
             print_example(f"the three-segment example as a user runs it: `qchain run wave_arm.toml --no-plots` "
                           f"(4 s simulated, 201 samples), whole command; {n} runs a config, each against the "
                           f"unlogged runs either side of it; load average {os.getloadavg()[0]:.2f}", res)
@@ -555,6 +607,7 @@ def main(argv=None) -> int:
             print()
         if args.only in (None, "process"):
             res = example_overhead(args.duration, n, worker=args.worker, configs=configs)
+            _save(args.save, "process", res, args.duration)
             print_example(f"simulation phase, in one process: {args.duration:g} s simulated "
                           f"({res[configs[0]]['samples']:.0f} samples), logger created to files finished, the "
                           f"writer started 1.5 s ahead as qchain run does; {args.worker} writer; {n} runs a "
@@ -562,17 +615,18 @@ def main(argv=None) -> int:
             print()
         co = co_running() if args.only in (None, "corun") else {}
         if co:
-            print(f"a busy loop on the other core, no logging ({co['off']['wall_s']:.3f} s a 4 s simulation with "
+            print(f"work on the other core, no logging ({co['off']['wall_s']:.3f} s a 4 s simulation with "
                   f"the other core idle, steal {co['off']['steal_ms']:.0f} ms; 20 runs each): "
-                  + ", ".join(f"{c} priority {100 * co[c]['overhead']:+.1f}% ({100 * co[c]['overhead_ci'][0]:+.1f}.."
+                  + ", ".join(f"{label} {100 * co[c]['overhead']:+.1f}% ({100 * co[c]['overhead_ci'][0]:+.1f}.."
                               f"{100 * co[c]['overhead_ci'][1]:+.1f}%), steal {co[c]['steal_ms']:.0f} ms"
-                              for c in ("normal", "idle"))
+                              for c, label in (("normal", "normal priority"), ("idle", "idle priority"),
+                                               ("import", "rerun-sdk imports at idle priority")))
                   + ": what any work of the writer's on the other core costs the simulation on this machine")
         if args.only != "corun":
             st = writer_startup()
-            print("writer start-up without prepare_writer (launch to ready, median of 5): "
+            print("writer start-up without prepare_writer (launch to its first answer, median of 5): "
                   + ", ".join(f"{k} {v * 1e3:.0f} ms" for k, v in st.items())
-                  + " (an .rrd's Rerun comes up in the background after that)")
+                  + " (with the .rrd: Rerun imported and started, which otherwise happens in the background)")
         print("overhead: median over runs of wall / mean of the unlogged runs either side - 1 (target <= 5 %), "
               "with a bootstrap 95 % confidence interval of that median. a sample: the recorder's cost in the "
               "simulating process (frames of a batch of samples in one compiled call, one write to the "
