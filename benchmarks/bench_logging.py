@@ -304,13 +304,14 @@ def _steal_s() -> float:
 
 
 def _summary(rows: list[dict], duration: float) -> dict:
-    """Medians (and bootstrap CIs) of a configuration's runs; "runs" keeps the runs
-    themselves (for ``--save`` and ``--pool``)."""
+    """Medians (and bootstrap CIs) of a configuration's runs of ``duration`` s simulated;
+    "runs" and "duration" keep what they came from (for ``--save`` and ``--pool``)."""
     ratios = [x["ratio"] - 1.0 for x in rows if "ratio" in x]
     q = statistics.quantiles(ratios, n=4) if len(ratios) > 1 else [ratios[0]] * 3 if ratios else [0.0] * 3
     lo, hi = median_ci(ratios) if ratios else (0.0, 0.0)
     out = {"wall_s": statistics.median(x["wall"] for x in rows), "overhead": statistics.median(ratios) if ratios else 0.0,
-           "overhead_q1": q[0], "overhead_q3": q[2], "overhead_ci": (lo, hi), "n": len(ratios), "runs": rows}
+           "overhead_q1": q[0], "overhead_q3": q[2], "overhead_ci": (lo, hi), "n": len(ratios), "runs": rows,
+           "duration": duration}
     cpu = [x["cpu_ratio"] - 1.0 for x in rows if "cpu_ratio" in x]
     out["cpu_overhead"] = statistics.median(cpu) if cpu else None
     out["cpu_ci"] = median_ci(cpu) if cpu else None
@@ -532,16 +533,12 @@ def print_example(title: str, res: dict) -> None:
               f"{co:>10} {cci:>16} {row['steal_ms']:>5.1f} ms {'' if mb is None else f'{mb / 1e3:.1f} kB':>11}")
 
 
-def _save(prefix: str | None, kind: str, res: dict, duration: float | None = None) -> None:
+def _save(prefix: str | None, kind: str, res: dict) -> None:
     """Write the runs of one measurement (``kind``: "command" or "process") to
     ``PREFIX-kind.json``, for :func:`print_pooled`."""
     if not prefix:
         return
-    if duration is None:
-        from qchain import load_scene
-
-        duration = load_scene(EXAMPLE_SCENE).duration
-    data = {"kind": kind, "duration": duration, "date": time.strftime("%Y-%m-%d %H:%M"),
+    data = {"kind": kind, "duration": next(iter(res.values()))["duration"], "date": time.strftime("%Y-%m-%d %H:%M"),
             "load": os.getloadavg()[0], "runs": {c: row["runs"] for c, row in res.items()}}
     Path(f"{prefix}-{kind}.json").write_text(json.dumps(data))
 
@@ -607,7 +604,7 @@ def main(argv=None) -> int:
             print()
         if args.only in (None, "process"):
             res = example_overhead(args.duration, n, worker=args.worker, configs=configs)
-            _save(args.save, "process", res, args.duration)
+            _save(args.save, "process", res)
             print_example(f"simulation phase, in one process: {args.duration:g} s simulated "
                           f"({res[configs[0]]['samples']:.0f} samples), logger created to files finished, the "
                           f"writer started 1.5 s ahead as qchain run does; {args.worker} writer; {n} runs a "
