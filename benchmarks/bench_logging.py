@@ -2,15 +2,20 @@
 
     python benchmarks/bench_logging.py [--steps 20000] [--block 500] [--pad-us 0]
     python benchmarks/bench_logging.py --example [--duration 20] [--repeats 10]
-        [--only command|process|corun] [--configs mcap,rrd,both]
+        [--only command|process|steady|corun] [--configs mcap,rrd,both] [--save PREFIX]
+    python benchmarks/bench_logging.py --example --only steady [--rounds 40] [--block-s 20]
+    python benchmarks/bench_logging.py --pool PREFIX-kind.json ...
 
 ``--example`` measures the three-segment example (``examples/scenes/wave_arm.toml``): first
 the whole ``qchain run`` command as a user runs it (fresh interpreter, model build,
 simulation, files finished), with the time of each of its phases, then the simulation phase
 in one process (logger created to files finished, the writer started ahead as ``qchain
-run`` does), each logged run against the mean of the unlogged runs either side of it; what
-a busy process on the other core costs the simulation on this machine (no logging); and the
-writer's start-up time. The rest of this docstring is about the default mode.
+run`` does), each logged run against the mean of the unlogged runs either side of it; the
+simulation's steady state, what a long run pays per simulated second (blocks of the
+configurations interleaved, each logger open throughout: :func:`example_steady`); what a busy
+process on the other core costs the simulation on this machine (no logging); and the
+writer's start-up time. ``--save`` keeps every run, ``--pool`` summarises several saved sets
+of one kind as one. The rest of this docstring is about the default mode.
 
 Drives a simulation step function with logging off, MCAP on, Rerun (.rrd) on and both on.
 One logger a configuration stays open for the whole measurement; the steps go in blocks,
@@ -427,6 +432,149 @@ def example_overhead(duration: float = 20.0, repeats: int = 10, workdir=None, wo
     return {c: _summary(rows, duration) for c, rows in res.items()}
 
 
+def example_steady(block: float = 20.0, rounds: int = 40, workdir=None, configs=tuple(EXAMPLE_CONFIGS)) -> dict:
+    """The example's simulation as in a long run, the configurations interleaved block by
+    block: what logging costs per simulated second once its fixed costs have faded.
+
+    One logger a configuration, created as ``qchain run`` creates it (its writer process,
+    ``ChainRecorder``), stays open the whole time. A block is ``scene.simulate`` of
+    ``block`` s from the scene's initial state (the same work in every block), unlogged or
+    logged to one configuration (the times shifted block after block, so each logger sees
+    one growing run). A round runs one block of each configuration, back to back, in an
+    order that rotates round by round; a logged block is timed up to its records in the
+    files (``RunLogger.flush``: the writer's last work, done while the simulation waits,
+    is counted in full, so the figure errs high). The ratio of a block to the unlogged
+    block of the same round (seconds apart) cancels the machine's drift. Round 0 warms up
+    and is not counted. Returns config -> {"wall_s", "overhead", "overhead_ci", "overhead_q1",
+    "overhead_q3", "cpu_overhead", "cpu_ci", "sample_us", "direct", "flush_ms",
+    "writer_cpu", "steal_ms", "ratios", "cpu_ratios"} ("off": "wall_s", "steal_ms")."""
+    from qchain import cli
+
+    qlog = cli._logging_module()
+    scene, model = _example_model()
+    configs = ["off", *configs]
+    res = {c: {"wall": [], "cpu": [], "spent": [], "samples": [], "flush": [], "writer": [], "steal": []}
+           for c in configs}
+    with tempfile.TemporaryDirectory(dir=workdir) as tmp:
+        loggers, recorders = {}, {}
+        try:
+            for c in configs[1:]:
+                d = Path(tmp) / c
+                d.mkdir()
+                args = cli._parser(qlog).parse_args(["run", str(scene.path), *[a.format(d=d) for a in EXAMPLE_CONFIGS[c]],
+                                                     "--no-progress"])
+                loggers[c], recorders[c] = cli._make_logger(qlog, args, scene, model)
+            for log in loggers.values():
+                log.flush()  # the writers are up (Rerun imported and started)
+            offset = {c: 0.0 for c in configs}
+            for r in range(rounds + 1):
+                order = configs[r % len(configs):] + configs[: r % len(configs)]
+                for c in order:
+                    rec, log = recorders.get(c), loggers.get(c)
+                    spent = [0.0, 0]
+                    if rec is not None:
+                        off = offset[c]
+
+                        def on_sample(t, q, v, p, energies=None, rec=rec, off=off):
+                            s0 = time.perf_counter()
+                            rec(t + off, q, v, p, energies=energies)
+                            spent[0] += time.perf_counter() - s0
+                            spent[1] += 1
+                    else:
+                        on_sample = None
+                    w0 = _cpu_seconds(None if log is None else log.worker_pid)
+                    s0, c0 = _steal_s(), time.process_time()
+                    t0 = time.perf_counter()
+                    scene.simulate(model=model, duration=block, on_sample=on_sample)
+                    t1 = time.perf_counter()
+                    if rec is not None:
+                        f0 = time.perf_counter()
+                        rec.flush()
+                        spent[0] += time.perf_counter() - f0
+                        log.flush()
+                        offset[c] += block + 1.0
+                    t2 = time.perf_counter()
+                    if r == 0:
+                        continue
+                    x = res[c]
+                    x["wall"].append(t2 - t0)
+                    x["cpu"].append(time.process_time() - c0)
+                    x["steal"].append(_steal_s() - s0)
+                    x["spent"].append(spent[0])
+                    x["samples"].append(spent[1])
+                    x["flush"].append(t2 - t1)
+                    x["writer"].append(_cpu_seconds(None if log is None else log.worker_pid) - w0)
+        finally:
+            for log in loggers.values():
+                log.close()
+    out = {}
+    off = res["off"]
+    for c in configs:
+        x = res[c]
+        row = {"wall_s": statistics.median(x["wall"]), "steal_ms": statistics.median(x["steal"]) * 1e3,
+               "rounds": rounds, "block": block}
+        if c != "off":
+            ratios = [a / b - 1.0 for a, b in zip(x["wall"], off["wall"])]
+            cpu = [a / b - 1.0 for a, b in zip(x["cpu"], off["cpu"])]
+            q = statistics.quantiles(ratios, n=4)
+            row.update(overhead=statistics.median(ratios), overhead_ci=median_ci(ratios), overhead_q1=q[0],
+                       overhead_q3=q[2], cpu_overhead=statistics.median(cpu), cpu_ci=median_ci(cpu),
+                       sample_us=sum(x["spent"]) / max(sum(x["samples"]), 1) * 1e6,
+                       direct=statistics.median((s + f) / w for s, f, w in zip(x["spent"], x["flush"], x["wall"])),
+                       flush_ms=statistics.median(x["flush"]) * 1e3,
+                       writer_cpu=statistics.median(w / (a - f) for w, a, f in zip(x["writer"], x["wall"], x["flush"])),
+                       ratios=ratios, cpu_ratios=cpu)
+        out[c] = row
+    return out
+
+
+def _pool_steady(results: list[dict]) -> dict:
+    """Several saved results of :func:`example_steady` as one: the rounds' ratios pooled;
+    the other figures are medians over the sets."""
+    out = {}
+    for c in results[0]:
+        rows = [r[c] for r in results if c in r]
+        row = {k: statistics.median(x[k] for x in rows) for k in ("wall_s", "steal_ms")}
+        row.update(rounds=sum(x["rounds"] for x in rows), block=rows[0]["block"])
+        if c != "off":
+            ratios = [v for x in rows for v in x["ratios"]]
+            cpu = [v for x in rows for v in x["cpu_ratios"]]
+            q = statistics.quantiles(ratios, n=4)
+            row.update(overhead=statistics.median(ratios), overhead_ci=median_ci(ratios), overhead_q1=q[0],
+                       overhead_q3=q[2], cpu_overhead=statistics.median(cpu), cpu_ci=median_ci(cpu),
+                       ratios=ratios, cpu_ratios=cpu,
+                       **{k: statistics.median(x[k] for x in rows)
+                          for k in ("sample_us", "direct", "flush_ms", "writer_cpu")})
+        out[c] = row
+    return out
+
+
+def print_steady(res: dict, sets: str = "") -> None:
+    off = res["off"]
+    print(f"steady state, the example's simulation: {off['rounds']} rounds of one {off['block']:g} s block a "
+          f"configuration, interleaved (order rotating), each against the unlogged block of its round; "
+          + (sets or f"load average {os.getloadavg()[0]:.2f}"))
+    print(f"{'logging':<8} {'block':>8} {'overhead':>9} {'(95 % CI)':>16} {'(quartiles)':>16} {'a sample':>9} "
+          f"{'flush':>8} {'direct':>7} {'sim CPU':>8} {'(95 % CI)':>16} {'writer':>7} {'steal':>8}")
+    for c, row in res.items():
+        if c == "off":
+            print(f"{c:<8} {row['wall_s']:>7.3f}s {'':>9} {'':>16} {'':>16} {'':>9} {'':>8} {'':>7} {'':>8} {'':>16} "
+                  f"{'':>7} {row['steal_ms']:>5.1f} ms")
+            continue
+        ci = "{:+.1f}..{:+.1f}%".format(*(100 * x for x in row["overhead_ci"]))
+        quart = f"{100 * row['overhead_q1']:+.1f}..{100 * row['overhead_q3']:+.1f}%"
+        cci = "{:+.1f}..{:+.1f}%".format(*(100 * x for x in row["cpu_ci"]))
+        print(f"{c:<8} {row['wall_s']:>7.3f}s {100 * row['overhead']:>+8.1f}% {ci:>16} {quart:>16} "
+              f"{row['sample_us']:>6.0f} us {row['flush_ms']:>5.1f} ms {100 * row['direct']:>6.1f}% "
+              f"{100 * row['cpu_overhead']:>+7.1f}% {cci:>16} {100 * row['writer_cpu']:>6.1f}% {row['steal_ms']:>5.1f} ms")
+    print("block: median wall time of a block (a logged one up to its records in the files). overhead: median over "
+          "rounds of block / unlogged block of the same round - 1, with a bootstrap 95 % CI of that median. a "
+          "sample: the recorder's cost in the simulating process. flush: the wait at a block's end for the writer "
+          "(counted in the block). direct: (the recorder's time + flush) / block, within one block. sim CPU: the "
+          "same ratio of the simulating process's CPU time. writer: the writer's CPU time / the block's simulation "
+          "time, its load on the other core.")
+
+
 _BUSY_LOOP = "x = 0\nwhile True:\n    x = (x * 1103515245 + 12345) & 0xffffffff\n"
 # what a writer's start-up does: fresh interpreters importing rerun-sdk, one after another
 _IMPORT_LOOP = ("import subprocess, sys\nwhile True:\n"
@@ -551,6 +699,10 @@ def print_pooled(files: list[str]) -> int:
     kinds = {d["kind"] for d in sets}
     if len(kinds) != 1:
         raise SystemExit(f"--pool: the files mix kinds {sorted(kinds)}; pool one kind at a time")
+    if kinds == {"steady"}:
+        print_steady(_pool_steady([d["result"] for d in sets]),
+                     f"{len(sets)} sets pooled ({', '.join(d['date'] for d in sets)})")
+        return 0
     runs: dict[str, list] = {}
     for d in sets:
         for c, rows in d["runs"].items():
@@ -577,9 +729,12 @@ def main(argv=None) -> int:
     ap.add_argument("--repeats", type=int, default=10, help="--example: runs a config")
     ap.add_argument("--worker", choices=["auto", "process", "thread"], default="auto",
                     help="--example: where the logger writes (RunLogger's worker)")
-    ap.add_argument("--only", choices=["command", "process", "corun"], default=None,
-                    help="--example: only the whole command, only the simulation phase in one process, or "
-                         "only the cost of a busy other core")
+    ap.add_argument("--only", choices=["command", "process", "steady", "corun"], default=None,
+                    help="--example: only the whole command, only the simulation phase in one process, only "
+                         "the simulation's steady state (blocks interleaved), or only the cost of a busy other "
+                         "core")
+    ap.add_argument("--rounds", type=int, default=40, help="--example --only steady: rounds of blocks")
+    ap.add_argument("--block-s", type=float, default=20.0, help="--example --only steady: simulated s a block")
     ap.add_argument("--configs", default="mcap,rrd,both",
                     help="--example: logging configurations, comma-separated from mcap, rrd, both")
     ap.add_argument("--save", metavar="PREFIX",
@@ -610,6 +765,14 @@ def main(argv=None) -> int:
                           f"writer started 1.5 s ahead as qchain run does; {args.worker} writer; {n} runs a "
                           f"config; load average {os.getloadavg()[0]:.2f}", res)
             print()
+        if args.only in (None, "steady"):
+            res = example_steady(args.block_s, args.rounds, configs=configs)
+            if args.save:
+                Path(f"{args.save}-steady.json").write_text(json.dumps(
+                    {"kind": "steady", "date": time.strftime("%Y-%m-%d %H:%M"), "load": os.getloadavg()[0],
+                     "result": res}))
+            print_steady(res)
+            print()
         co = co_running() if args.only in (None, "corun") else {}
         if co:
             print(f"work on the other core, no logging ({co['off']['wall_s']:.3f} s a 4 s simulation with "
@@ -619,7 +782,7 @@ def main(argv=None) -> int:
                               for c, label in (("normal", "normal priority"), ("idle", "idle priority"),
                                                ("import", "rerun-sdk imports at idle priority")))
                   + ": what any work of the writer's on the other core costs the simulation on this machine")
-        if args.only != "corun":
+        if args.only not in ("corun", "steady"):
             st = writer_startup()
             print("writer start-up without prepare_writer (launch to its first answer, median of 5): "
                   + ", ".join(f"{k} {v * 1e3:.0f} ms" for k, v in st.items())

@@ -40,7 +40,7 @@ MCAP (always on by default)
     run ended. Foxglove shows the arm from ``/qchain/backbone`` and the tip frames.
 
     Chunks are closed (compressed and written to the operating system) every
-    ``flush_interval`` seconds of simulation time (default 0.1 s), every
+    ``flush_interval`` seconds of simulation time (default 0.25 s), every
     ``flush_wall_interval`` seconds of wall time (default 0.5 s) and every 4 MiB.
 
 Crash safety
@@ -56,8 +56,10 @@ Crash safety
     ``flush_interval / 2``; :class:`~qchain.recorder.ChainRecorder` a batch of up to
     ``flush_interval``), ``flush_interval / 2`` in the writer's batch and ``flush_interval``
     in the open chunk. So at default settings a SIGKILL of the simulation loses at most
-    0.1 s of simulation time, and one of both processes at most about
-    ``2.5 * flush_interval`` = 0.25 s, while the writer keeps up.
+    0.25 s of simulation time, and one of both processes at most about
+    ``2.5 * flush_interval`` = 0.6 s, while the writer keeps up. A smaller
+    ``flush_interval`` loses less and costs more: each batch of the recorder costs the
+    simulating process a fixed ~0.15-0.2 ms, and each chunk the writer ~0.1-0.3 ms.
 
 Rerun (``serve``, ``connect``, ``rrd``)
     ``serve=True`` hosts a gRPC server with ``rr.GrpcServerSink`` bound to ``bind``
@@ -68,8 +70,9 @@ Rerun (``serve``, ``connect``, ``rrd``)
     the segments' radii, tip axes, chamber pressures as arrows on the tip plates, length
     and colour by pressure) beside time series of the pressures, coordinates, velocities and
     energies. Per-step data go on the ``sim_time`` (duration) and ``step`` (sequence)
-    timelines in column batches (``send_columns``), gathered for ``rerun_latency`` (0.2 s)
-    of wall time: a batch costs ~4 ms of the writer's time whatever its size. If a viewer cannot be reached, one
+    timelines in column batches (``send_columns``), gathered for ``rerun_latency`` of wall
+    time (0.2 s for a live viewer, 1 s for a ``.rrd`` file alone): a batch costs the writer
+    ~2-4 ms whatever its size, and a record ~10 us more. If a viewer cannot be reached, one
     :class:`LoggingWarning` says so and the run goes on; the MCAP is still written.
 
 Replay
@@ -160,16 +163,19 @@ TOPICS = {
     "backbone": "/qchain/backbone",
 }
 
-#: Seconds of simulation time between forced MCAP chunk flushes.
-DEFAULT_FLUSH_INTERVAL = 0.1
+#: Seconds of simulation time between forced MCAP chunk flushes (and the longest a
+#: ChainRecorder's batch spans): what a SIGKILL of the simulating process loses at most.
+DEFAULT_FLUSH_INTERVAL = 0.25
 #: Seconds of wall time between forced MCAP chunk flushes.
 DEFAULT_FLUSH_WALL_INTERVAL = 0.5
 #: Uncompressed bytes after which a chunk is flushed regardless of time.
 DEFAULT_CHUNK_BYTES = 4 << 20
 #: Records the queue between ``log()`` and the writer holds before ``log()`` waits.
 DEFAULT_MAX_QUEUE = 4096
-#: Wall time (s) records gather in the writer before they go to Rerun in one batch.
+#: Wall time (s) records gather in the writer before they go to a live Rerun viewer in one batch.
 DEFAULT_RERUN_LATENCY = 0.2
+#: The same for a ``.rrd`` file with no viewer: nobody watches, so larger (cheaper) batches.
+DEFAULT_RERUN_FILE_LATENCY = 1.0
 
 # s the writer process pauses between two reads of its pipe when it is idle: a record's
 # write does not wake it; a flush or the end does (its doorbell, _launch_writer)
@@ -1985,10 +1991,12 @@ class RunLogger:
     rerun_rate : float or None, 1/s
         A display rate: send Rerun at most this many records a simulated second (None:
         every record). The MCAP always gets every record.
-    rerun_latency : float, s
+    rerun_latency : float or None, s
         Wall time records gather before they go to Rerun in one ``send_columns`` batch (a
-        batch costs ~4 ms whatever its size, so this bounds the viewer's cost; the live view
-        updates this often).
+        batch costs the writer ~2-4 ms whatever its size, so this bounds the viewer's cost;
+        the live view updates this often). None: :data:`DEFAULT_RERUN_LATENCY` (0.2 s) when
+        serving or connecting, :data:`DEFAULT_RERUN_FILE_LATENCY` (1 s) for a ``.rrd`` file
+        alone (records a SIGKILL of the writer itself can take from the ``.rrd``).
     quiet : bool
         Do not print the viewer URL.
 
@@ -2039,12 +2047,14 @@ class RunLogger:
         recording_id: str | None = None,
         server_memory_limit: str = "1GiB",
         rerun_rate: float | None = None,
-        rerun_latency: float = DEFAULT_RERUN_LATENCY,
+        rerun_latency: float | None = None,
         quiet: bool = False,
         startup_timeout: float = 60.0,
     ):
         if not isinstance(info, RunInfo):
             raise TypeError(f"info must be a RunInfo, got {type(info).__name__}")
+        if rerun_latency is None:
+            rerun_latency = DEFAULT_RERUN_LATENCY if (serve or connect) else DEFAULT_RERUN_FILE_LATENCY
         for name, value in (("flush_interval", flush_interval), ("flush_wall_interval", flush_wall_interval),
                             ("rerun_latency", rerun_latency)):
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
@@ -2084,6 +2094,7 @@ class RunLogger:
         self.linger = bool(linger)
         self.quiet = bool(quiet)
         self.flush_interval = float(flush_interval)
+        self.rerun_latency = float(rerun_latency)
         self.recording_id = recording_id or str(uuid.uuid4())
         self.viewer_url: str | None = None
         self.grpc_url: str | None = None

@@ -6,9 +6,14 @@ frames) for a :class:`qchain.logging.RunLogger`. A sample only costs a copy of t
 the frames of a batch of samples come from one compiled call
 (:meth:`qchain.Chain.frames_batch`) and the batch goes to the logger in one
 :meth:`~qchain.logging.RunLogger.log_rows` call. A sample waits here at most the logger's
-``flush_interval`` of simulation time (0.1 s by default) and ``max_wall`` seconds of wall
-time: that is what a SIGKILL of the simulating process can lose (the writer process then
-finishes the file with what it has).
+``flush_interval`` of simulation time (0.25 s by default) and ``max_wall`` seconds of wall
+time (50 ms): that is what a SIGKILL of the simulating process can lose (the writer process
+then finishes the file with what it has).
+
+The bound trades speed against what a crash loses: a batch costs the simulating process a
+fixed ~0.15-0.2 ms (its caches are cold from the simulation), which for the three-segment
+example (50 samples and ~0.1 s of wall time a simulated second) is ~1.5 % of the run time
+with batches of 0.1 s of simulation time and ~0.8 % with 0.25 s.
 """
 
 from __future__ import annotations
@@ -68,40 +73,54 @@ class ChainRecorder:
         self.n_samples = 0
         self.layout = RecordLayout(chain.nq, chain.nv, chain.nu, chain.n, self.points_per_segment)
         sl = self.layout.slices
-        self._sq, self._sv, self._sp, self._se = sl["q"], sl["v"], sl["p"], sl["energy"]
+        assert sl["q"].stop == sl["v"].start and sl["v"].stop == sl["p"].start  # q, v, p side by side
+        self._sq, self._sx, self._se = sl["q"], slice(sl["q"].start, sl["p"].stop), sl["energy"]
+        self._nx = sl["p"].stop - sl["q"].start
         self._sbb, self._stf = sl["backbone"], sl["tip_frames"]
-        self._rows = np.empty((self.max_batch, self.layout.row_width))  # the next records, filled in place
-        self._k = 0  # samples waiting
+        self._rows = np.empty((self.max_batch, self.layout.row_width))  # the records of a batch
+        # the samples waiting: times, (q, v, p) copied into one array each, (kinetic, potential)
+        self._t: list[float] = []
+        self._x: list[np.ndarray] = []
+        self._e: list[tuple] = []
         self._wall0 = 0.0
 
     def __call__(self, t, q, v, p, energies=None) -> None:
+        # A sample is copied into lists, not into the rows: three list appends and one
+        # concatenate cost the simulation ~4x less than filling a numpy row field by field
+        # (a call comes every few ms, with the caches cold from the simulation).
         if energies is None:
             energies = (self.chain.kinetic_energy(q, v, t=t), self.chain.potential_energy(q, t=t))
-        k = self._k
-        if k and t - self._rows[0, 0] >= self.max_sim:  # a batch spans less than max_sim
+        ts = self._t
+        if ts and t - ts[0] >= self.max_sim:  # a batch spans less than max_sim
             self.flush()
-            k = 0
-        if k == 0:
+            ts = self._t
+        if not ts:
             self._wall0 = time.monotonic()
-        row = self._rows[k]
-        row[0] = t
-        row[1] = self.n_samples + k
-        row[self._sq] = q
-        row[self._sv] = v
-        row[self._sp] = p
-        ke, pe = energies
-        row[self._se] = (ke, pe, ke + pe)
-        self._k = k = k + 1
-        if k >= self.max_batch or time.monotonic() - self._wall0 >= self.max_wall:
+        x = np.concatenate((q, v, p))  # a copy: the caller may reuse its arrays
+        if x.shape != (self._nx,):
+            lay = self.layout
+            raise ValueError(f"q, v, p must have shapes ({lay.nq},), ({lay.nv},), ({lay.n_p},), got "
+                             f"{np.shape(q)}, {np.shape(v)}, {np.shape(p)}")
+        ts.append(t)
+        self._x.append(x)
+        self._e.append(energies)
+        if len(ts) >= self.max_batch or time.monotonic() - self._wall0 >= self.max_wall:
             self.flush()
 
     def flush(self) -> None:
         """Compute the frames of the samples still waiting and log them."""
-        K = self._k
+        K = len(self._t)
         if K == 0:
             return
-        self._k = 0
+        ts, xs, es = self._t, self._x, self._e
+        self._t, self._x, self._e = [], [], []
         rows = self._rows[:K]
+        rows[:, 0] = ts
+        rows[:, 1] = np.arange(self.n_samples, self.n_samples + K)
+        rows[:, self._sx] = xs
+        e = self._se.start
+        rows[:, e : e + 2] = es
+        rows[:, e + 2] = rows[:, e] + rows[:, e + 1]  # total = kinetic + potential
         f = self.chain.frames_batch(rows[:, self._sq], self.points_per_segment, t=rows[:, 0])
         rows[:, self._sbb] = f.backbone.reshape(K, -1)
         # tip frames (K, n, 7): x, y, z, qx, qy, qz, qw

@@ -120,3 +120,24 @@ def test_recorder_arguments_are_checked():
         ChainRecorder(log, ch, max_batch=0)
     with pytest.raises(ValueError, match="max_wall must be > 0 s, got -1"):
         ChainRecorder(log, ch, max_wall=-1)
+
+
+def test_samples_are_copied_and_their_shapes_checked():
+    """A caller that reuses its arrays in place (a solver's state buffers) logs the values
+    each call saw; a sample of the wrong size is refused at the call, naming the shapes."""
+    ch = make_chain()
+    log = _Rows()
+    q, v, p = ch.neutral(), np.zeros(ch.nv), np.zeros(3 * ch.n)
+    with ChainRecorder(log, ch) as rec:
+        for k in range(3):
+            v[:] = k
+            p[:] = 10.0 * k
+            rec(0.01 * k, q, v, p, energies=(float(k), 0.0))
+        with pytest.raises(ValueError, match=r"q, v, p must have shapes .*got .*\(%d,\)" % (3 * ch.n - 1)):
+            rec(0.03, q, v, p[:-1], energies=(0.0, 0.0))
+    rows, layout = log.calls[0]
+    assert len(log.calls) == 1 and len(rows) == 3
+    sl = layout.slices
+    np.testing.assert_array_equal(rows[:, sl["v"]], np.repeat([[0.0], [1.0], [2.0]], ch.nv, axis=1))
+    np.testing.assert_array_equal(rows[:, sl["p"]], np.repeat([[0.0], [10.0], [20.0]], 3 * ch.n, axis=1))
+    np.testing.assert_array_equal(rows[:, sl["energy"]], [[0.0, 0.0, 0.0], [1.0, 0.0, 1.0], [2.0, 0.0, 2.0]])
