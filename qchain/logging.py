@@ -1591,8 +1591,17 @@ class _SinkSet:
     def tick(self) -> None:
         if self.mcap is not None:
             self.mcap.tick()
-        if self._rr_pending and time.monotonic() - self._rr_wall0 >= self._rr_latency:
+        if self._rr_pending and (time.monotonic() - self._rr_wall0 >= self._rr_latency or self._rerun_fresh()):
             self._send_rerun()
+
+    def _rerun_fresh(self) -> bool:
+        """Rerun is up but has had no batch yet. Its first batch goes at once, not after
+        ``rerun_latency``: it carries Rerun's start (blueprint, static geometry, ~40 ms of
+        the writer's time), which then overlaps the simulation instead of delaying the end
+        of a short run, and a live viewer shows the arm as soon as it can."""
+        th = self._rr_thread
+        return ((th is None or not th.is_alive()) and self.rerun is not None and self.rerun.rec is not None
+                and not self.rerun._started)
 
     def flush(self) -> dict:
         """Everything so far into the files (MCAP chunk closed) and out to the viewer."""

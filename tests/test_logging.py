@@ -488,6 +488,28 @@ def _rrd_columns(path):
     return out, reader
 
 
+def test_rerun_gets_its_first_batch_at_once(tmp_path):
+    """Rerun's first batch (its start: blueprint, static geometry) does not wait for
+    rerun_latency, so it overlaps the run instead of delaying its end; the later records
+    gather for rerun_latency as before."""
+    records = arm_records(40, dt=1e-3)
+    rrd = tmp_path / "run.rrd"
+    with RunLogger(arm_info(), io.BytesIO(), rrd=rrd, worker="thread", rerun_latency=60.0, quiet=True) as log:
+        for r in records[:20]:
+            log.log(r)
+        sinks = log._sinks
+        deadline = time.monotonic() + 30.0
+        while not (sinks.rerun is not None and sinks.rerun._started) and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert sinks.rerun is not None and sinks.rerun._started  # long before the 60 s latency
+        for r in records[20:]:
+            log.log(r)
+        time.sleep(0.6)  # the thread's idle ticks: the records now wait for the latency
+        assert 20 <= sinks._rr_count < 40 and sinks.n_records == 40
+    cols, _ = _rrd_columns(rrd)
+    assert cols["/plots/q"]["step"] == [r.step for r in records]
+
+
 def test_rrd_round_trip(tmp_path):
     records = arm_records(250, dt=1e-3)
     rrd = tmp_path / "run.rrd"
