@@ -70,10 +70,11 @@ Rerun (``serve``, ``connect``, ``rrd``)
     the segments' radii, tip axes, chamber pressures as arrows on the tip plates, length
     and colour by pressure) beside time series of the pressures, coordinates, velocities and
     energies. Per-step data go on the ``sim_time`` (duration) and ``step`` (sequence)
-    timelines in column batches (``send_columns``), gathered for ``rerun_latency`` of wall
-    time (0.2 s for a live viewer, 1 s for a ``.rrd`` file alone): a batch costs the writer
-    ~2-4 ms whatever its size, and a record ~10 us more. If a viewer cannot be reached, one
-    :class:`LoggingWarning` says so and the run goes on; the MCAP is still written.
+    timelines in column batches (``send_columns``), gathered for ``rerun_latency`` (0.2 s)
+    of wall time: a batch costs the writer ~2-4 ms whatever its size, and a record ~10 us
+    more. The first batch goes at once: it starts Rerun's recording. If a viewer cannot be
+    reached, one :class:`LoggingWarning` says so and the run goes on; the MCAP is still
+    written.
 
 Replay
 ------
@@ -172,10 +173,8 @@ DEFAULT_FLUSH_WALL_INTERVAL = 0.5
 DEFAULT_CHUNK_BYTES = 4 << 20
 #: Records the queue between ``log()`` and the writer holds before ``log()`` waits.
 DEFAULT_MAX_QUEUE = 4096
-#: Wall time (s) records gather in the writer before they go to a live Rerun viewer in one batch.
+#: Wall time (s) records gather in the writer before they go to Rerun in one batch.
 DEFAULT_RERUN_LATENCY = 0.2
-#: The same for a ``.rrd`` file with no viewer: nobody watches, so larger (cheaper) batches.
-DEFAULT_RERUN_FILE_LATENCY = 1.0
 
 # s the writer process pauses between two reads of its pipe when it is idle: a record's
 # write does not wake it; a flush or the end does (its doorbell, _launch_writer)
@@ -2000,12 +1999,10 @@ class RunLogger:
     rerun_rate : float or None, 1/s
         A display rate: send Rerun at most this many records a simulated second (None:
         every record). The MCAP always gets every record.
-    rerun_latency : float or None, s
+    rerun_latency : float, s
         Wall time records gather before they go to Rerun in one ``send_columns`` batch (a
         batch costs the writer ~2-4 ms whatever its size, so this bounds the viewer's cost;
-        the live view updates this often). None: :data:`DEFAULT_RERUN_LATENCY` (0.2 s) when
-        serving or connecting, :data:`DEFAULT_RERUN_FILE_LATENCY` (1 s) for a ``.rrd`` file
-        alone (records a SIGKILL of the writer itself can take from the ``.rrd``).
+        the live view updates this often). The first batch goes at once.
     quiet : bool
         Do not print the viewer URL.
 
@@ -2056,14 +2053,12 @@ class RunLogger:
         recording_id: str | None = None,
         server_memory_limit: str = "1GiB",
         rerun_rate: float | None = None,
-        rerun_latency: float | None = None,
+        rerun_latency: float = DEFAULT_RERUN_LATENCY,
         quiet: bool = False,
         startup_timeout: float = 60.0,
     ):
         if not isinstance(info, RunInfo):
             raise TypeError(f"info must be a RunInfo, got {type(info).__name__}")
-        if rerun_latency is None:
-            rerun_latency = DEFAULT_RERUN_LATENCY if (serve or connect) else DEFAULT_RERUN_FILE_LATENCY
         for name, value in (("flush_interval", flush_interval), ("flush_wall_interval", flush_wall_interval),
                             ("rerun_latency", rerun_latency)):
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
