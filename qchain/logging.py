@@ -2098,7 +2098,6 @@ class RunLogger:
         self.linger = bool(linger)
         self.quiet = bool(quiet)
         self.flush_interval = float(flush_interval)
-        self.rerun_latency = float(rerun_latency)
         self.recording_id = recording_id or str(uuid.uuid4())
         self.viewer_url: str | None = None
         self.grpc_url: str | None = None

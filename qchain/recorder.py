@@ -86,8 +86,8 @@ class ChainRecorder:
 
     def __call__(self, t, q, v, p, energies=None) -> None:
         # A sample is copied into lists, not into the rows: three list appends and one
-        # concatenate cost the simulation ~4x less than filling a numpy row field by field
-        # (a call comes every few ms, with the caches cold from the simulation).
+        # concatenate cost the simulation 7-10 us a call in the example, against 12-13 us for
+        # filling a numpy row field by field (the caches are cold from the simulation).
         if energies is None:
             energies = (self.chain.kinetic_energy(q, v, t=t), self.chain.potential_energy(q, t=t))
         ts = self._t
