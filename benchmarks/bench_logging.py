@@ -308,18 +308,23 @@ def _steal_s() -> float:
         return 0.0
 
 
+def _overheads(ratios: list[float], cpu: list[float]) -> dict:
+    """The overheads of a configuration's runs or blocks (time / unlogged time - 1): median,
+    quartiles and bootstrap 95 % CI of the median ("overhead", "overhead_q1", "overhead_q3",
+    "overhead_ci"), and the median and CI of the same ratios of CPU time ("cpu_overhead",
+    "cpu_ci"; None without them)."""
+    q = statistics.quantiles(ratios, n=4) if len(ratios) > 1 else [ratios[0]] * 3 if ratios else [0.0] * 3
+    return {"overhead": statistics.median(ratios) if ratios else 0.0, "overhead_q1": q[0], "overhead_q3": q[2],
+            "overhead_ci": median_ci(ratios) if ratios else (0.0, 0.0),
+            "cpu_overhead": statistics.median(cpu) if cpu else None, "cpu_ci": median_ci(cpu) if cpu else None}
+
+
 def _summary(rows: list[dict], duration: float) -> dict:
     """Medians (and bootstrap CIs) of a configuration's runs of ``duration`` s simulated;
     "runs" and "duration" keep what they came from (for ``--save`` and ``--pool``)."""
     ratios = [x["ratio"] - 1.0 for x in rows if "ratio" in x]
-    q = statistics.quantiles(ratios, n=4) if len(ratios) > 1 else [ratios[0]] * 3 if ratios else [0.0] * 3
-    lo, hi = median_ci(ratios) if ratios else (0.0, 0.0)
-    out = {"wall_s": statistics.median(x["wall"] for x in rows), "overhead": statistics.median(ratios) if ratios else 0.0,
-           "overhead_q1": q[0], "overhead_q3": q[2], "overhead_ci": (lo, hi), "n": len(ratios), "runs": rows,
-           "duration": duration}
-    cpu = [x["cpu_ratio"] - 1.0 for x in rows if "cpu_ratio" in x]
-    out["cpu_overhead"] = statistics.median(cpu) if cpu else None
-    out["cpu_ci"] = median_ci(cpu) if cpu else None
+    out = {"wall_s": statistics.median(x["wall"] for x in rows), "n": len(ratios), "runs": rows, "duration": duration,
+           **_overheads(ratios, [x["cpu_ratio"] - 1.0 for x in rows if "cpu_ratio" in x])}
     out["steal_ms"] = statistics.median(x["steal"] for x in rows) * 1e3
     sizes = [x["mcap_bytes"] for x in rows if x.get("mcap_bytes")]
     out["mcap_bytes_per_sim_s"] = statistics.median(sizes) / duration if sizes else None
@@ -516,9 +521,7 @@ def example_steady(block: float = 20.0, rounds: int = 40, workdir=None, configs=
         if c != "off":
             ratios = [a / b - 1.0 for a, b in zip(x["wall"], off["wall"])]
             cpu = [a / b - 1.0 for a, b in zip(x["cpu"], off["cpu"])]
-            q = statistics.quantiles(ratios, n=4)
-            row.update(overhead=statistics.median(ratios), overhead_ci=median_ci(ratios), overhead_q1=q[0],
-                       overhead_q3=q[2], cpu_overhead=statistics.median(cpu), cpu_ci=median_ci(cpu),
+            row.update(_overheads(ratios, cpu),
                        sample_us=sum(x["spent"]) / max(sum(x["samples"]), 1) * 1e6,
                        direct=statistics.median((s + f) / w for s, f, w in zip(x["spent"], x["flush"], x["wall"])),
                        flush_ms=statistics.median(x["flush"]) * 1e3,
@@ -539,10 +542,7 @@ def _pool_steady(results: list[dict]) -> dict:
         if c != "off":
             ratios = [v for x in rows for v in x["ratios"]]
             cpu = [v for x in rows for v in x["cpu_ratios"]]
-            q = statistics.quantiles(ratios, n=4)
-            row.update(overhead=statistics.median(ratios), overhead_ci=median_ci(ratios), overhead_q1=q[0],
-                       overhead_q3=q[2], cpu_overhead=statistics.median(cpu), cpu_ci=median_ci(cpu),
-                       ratios=ratios, cpu_ratios=cpu,
+            row.update(_overheads(ratios, cpu), ratios=ratios, cpu_ratios=cpu,
                        **{k: statistics.median(x[k] for x in rows)
                           for k in ("sample_us", "direct", "flush_ms", "writer_cpu")})
         out[c] = row
