@@ -1,0 +1,511 @@
+"""Exact derivatives of the chain's inverse dynamics (numba), in the manner of Carpentier and
+Mansard's RNEA derivatives, extended to the slices of a segment.
+
+Everything is in curvature coordinates ``(l, ux, uy)`` and uses the layout of
+:mod:`qchain.recursive` (nodes ``alpha, w, offs``; ``q, qd, qdd`` (n, 3); the first root's
+twist ``V0`` and apparent acceleration ``A0 = a_root - (g_root, 0)``).
+
+Per segment (root frame ``j``), one pass over the slices gives the generalised force
+``Q_j = int Phi^T (I a + V x* I V)`` of :mod:`qchain.slices` and its derivatives at fixed root
+twist ``V_j`` and acceleration ``A_j``: ``dQ/dq_j`` (the slices move: ``dV = -S_c x V_r + dS_c
+qdot``, ``da = -S_c x A_r + dS_c qddot + K_c - (dS_c qdot) x V_r + (S qdot) x (S_c x V_r)``,
+with ``dS`` and ``K`` from :mod:`qchain.arc_derivatives`) and ``dQ/dxi_j`` (``dV = Phi``,
+``da = [-(S qdot) x Ad^-1, 2 Sd - S_c x V]``); the tip (slice ``alpha = 1``) gives the same
+variations of the next root's twist and acceleration.
+
+The chain then needs no per-column sweep. Backwards from the tip, the subtree beyond root
+``j`` has wrench/force sensitivities ``d(F_j, tau_j)/dA_j = Mh_j[:, :6]`` (the composite
+block of the mass matrix) and ``W_j = d(F_j, tau_j)/dV_j``. A variation of segment ``m``'s
+coordinates moves everything beyond tip ``m`` rigidly; in the first root's frame it is a pair
+of twists ``(sigma1, sigma2)`` shared by all that hangs there, so for ``i > m``
+
+    dtau_i = Y_i Ad(X_i)^-1 sigma2 + (W_i - Y_i ad(V_i)) Ad(X_i)^-1 sigma1,   Y_i = Mh_i[6:, :6],
+
+and for ``i < m`` ``dtau_i = J_i^T G_m`` with ``J_i`` the tip Jacobian and ``G_m`` the variation
+of the wrench at root ``m`` (first root's frame). The work is O(n * nodes) in the slices and
+O(n^2) small products in the assembly. A floating base adds its twist (``sigma1 = I``,
+``sigma2 = ad(V0)``) and attitude (gravity turns: ``sigma2 = (e_k x g_B, 0)``) columns and the
+rows of its wrench ``F0``.
+
+Arrays named ``...T`` hold derivatives by their first index: ``QqT[c]`` is ``dQ/dq_c``.
+``tests/test_derivatives.py`` holds every output to central differences of the model.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .arc import arc_node, jit
+from .arc_derivatives import arc_node_derivatives
+from .slices import phi_matrix, phi_transpose_force, segment_slices, slice_twist
+
+__all__ = ["segment_derivatives", "tip_derivatives", "rnea_derivatives"]
+
+
+@jit
+def _cross(a, b, out):
+    """``out = a x b`` (motion cross product, 6-vectors ``[linear; angular]``)."""
+    out[0] = a[4] * b[2] - a[5] * b[1] + a[1] * b[5] - a[2] * b[4]
+    out[1] = a[5] * b[0] - a[3] * b[2] + a[2] * b[3] - a[0] * b[5]
+    out[2] = a[3] * b[1] - a[4] * b[0] + a[0] * b[4] - a[1] * b[3]
+    out[3] = a[4] * b[5] - a[5] * b[4]
+    out[4] = a[5] * b[3] - a[3] * b[5]
+    out[5] = a[3] * b[4] - a[4] * b[3]
+
+
+@jit
+def _fcross(a, h, out):
+    """``out = a x* h`` (force cross product: ``(w x f, v x f + w x n)``)."""
+    out[0] = a[4] * h[2] - a[5] * h[1]
+    out[1] = a[5] * h[0] - a[3] * h[2]
+    out[2] = a[3] * h[1] - a[4] * h[0]
+    out[3] = a[1] * h[2] - a[2] * h[1] + a[4] * h[5] - a[5] * h[4]
+    out[4] = a[2] * h[0] - a[0] * h[2] + a[5] * h[3] - a[3] * h[5]
+    out[5] = a[0] * h[1] - a[1] * h[0] + a[3] * h[4] - a[4] * h[3]
+
+
+@jit
+def _ad_twist(R, p, v, out):
+    """``out = Ad(X) v`` for ``X = (R, p)``: ``(R v_l + p x R v_a, R v_a)``."""
+    for r in range(3):
+        out[3 + r] = R[r, 0] * v[3] + R[r, 1] * v[4] + R[r, 2] * v[5]
+        out[r] = R[r, 0] * v[0] + R[r, 1] * v[1] + R[r, 2] * v[2]
+    w0, w1, w2 = out[3], out[4], out[5]
+    out[0] += p[1] * w2 - p[2] * w1
+    out[1] += p[2] * w0 - p[0] * w2
+    out[2] += p[0] * w1 - p[1] * w0
+
+
+@jit
+def _ad_force(R, p, f, out):
+    """``out = Ad(X)^-T f``: a wrench in X's frame expressed in its parent, ``(R f_l, p x R f_l + R f_a)``."""
+    for r in range(3):
+        out[r] = R[r, 0] * f[0] + R[r, 1] * f[1] + R[r, 2] * f[2]
+        out[3 + r] = R[r, 0] * f[3] + R[r, 1] * f[4] + R[r, 2] * f[5]
+    l0, l1, l2 = out[0], out[1], out[2]
+    out[3] += p[1] * l2 - p[2] * l1
+    out[4] += p[2] * l0 - p[0] * l2
+    out[5] += p[0] * l1 - p[1] * l0
+
+
+@jit
+def _force_variation(Id, V, hV, dV, da, t, df):
+    """``df = I da + dV x* (I V) + V x* (I dV)``: the slice force's variation (``I = diag(Id)``,
+    ``hV = I V``); ``t`` (6,) is scratch."""
+    _fcross(dV, hV, df)
+    for r in range(6):
+        t[r] = Id[r] * dV[r]
+        df[r] += Id[r] * da[r]
+    h = np.empty(6)
+    _fcross(V, t, h)
+    for r in range(6):
+        df[r] += h[r]
+
+
+@jit
+def _node_state(R, p, S, Sd, V0, A0, qd, qdd, Vr, Ar, rel, V, a):
+    """Slice twist ``V`` and acceleration ``a`` (and ``Vr = Ad^-1 V0``, ``Ar = Ad^-1 A0``,
+    ``rel = S qdot``) at a node whose kinematics ``R, p, S, Sd`` are known."""
+    z3 = np.zeros(3)
+    slice_twist(R, p, S, V0, z3, Vr)
+    slice_twist(R, p, S, A0, qdd, Ar)  # Ad^-1 A0 + S qdd
+    t = np.empty(6)
+    for r in range(6):
+        rel[r] = S[r, 0] * qd[0] + S[r, 1] * qd[1] + S[r, 2] * qd[2]
+        V[r] = Vr[r] + rel[r]
+    _cross(rel, Vr, t)
+    for r in range(6):
+        a[r] = Ar[r] + Sd[r, 0] * qd[0] + Sd[r, 1] * qd[1] + Sd[r, 2] * qd[2] - t[r]
+    # Ar without the S qdd part, for the variations
+    for r in range(6):
+        Ar[r] -= S[r, 0] * qdd[0] + S[r, 1] * qdd[1] + S[r, 2] * qdd[2]
+
+
+@jit
+def _q_variation(c, S, dS, K, qd, qdd, Vr, Ar, rel, dV, da, t1, t2):
+    """``dV, da`` of a slice for a unit change of ``q_c`` (fixed root twist and acceleration)."""
+    for r in range(6):
+        t2[r] = dS[c, r, 0] * qd[0] + dS[c, r, 1] * qd[1] + dS[c, r, 2] * qd[2]  # dS_c qd
+    Sc = S[:, c]
+    _cross(Sc, Vr, t1)  # S_c x Vr
+    for r in range(6):
+        dV[r] = -t1[r] + t2[r]
+    h = np.empty(6)
+    _cross(rel, t1, h)  # rel x (S_c x Vr)
+    for r in range(6):
+        da[r] = h[r] + K[c, r] + dS[c, r, 0] * qdd[0] + dS[c, r, 1] * qdd[1] + dS[c, r, 2] * qdd[2]
+    _cross(t2, Vr, h)
+    for r in range(6):
+        da[r] -= h[r]
+    _cross(Sc, Ar, h)
+    for r in range(6):
+        da[r] -= h[r]
+
+
+@jit
+def _qd_variation(c, S, Sd, V, dV, da):
+    """``dV, da`` of a slice for a unit change of ``qdot_c``: ``S_c`` and ``2 Sd_c - S_c x V``."""
+    for r in range(6):
+        dV[r] = S[r, c]
+    h = np.empty(6)
+    _cross(dV, V, h)
+    for r in range(6):
+        da[r] = 2.0 * Sd[r, c] - h[r]
+
+
+@jit
+def segment_derivatives(alpha, w, mass, radius, q, xi, xid, QqT, QxT):
+    """Derivatives of ``Q = int Phi^T (I a + V x* I V) dalpha`` (9,) of one segment.
+
+    ``QqT[c]`` (3, 9) ``= dQ/dq_c`` at fixed ``xi = (V_root, qdot)`` and ``xid = (A_root,
+    qddot)``; ``QxT[k]`` (9, 9) ``= dQ/dxi_k`` at fixed ``xid`` (``dQ/dxid = M_xi``).
+    """
+    R = np.empty((3, 3))
+    p = np.empty(3)
+    S = np.empty((6, 3))
+    Sd = np.empty((6, 3))
+    dS = np.empty((3, 6, 3))
+    K = np.empty((3, 6))
+    Vr = np.empty(6)
+    Ar = np.empty(6)
+    rel = np.empty(6)
+    V = np.empty(6)
+    a = np.empty(6)
+    hV = np.empty(6)
+    f = np.empty(6)
+    dV = np.empty(6)
+    da = np.empty(6)
+    df = np.empty(6)
+    t1 = np.empty(6)
+    t2 = np.empty(6)
+    e = np.zeros(6)
+    z3 = np.zeros(3)
+    ixx = 0.25 * mass * radius * radius
+    Id = np.array([mass, mass, mass, ixx, ixx, 2.0 * ixx])
+    V0 = xi[:6]
+    qd = xi[6:]
+    A0 = xid[:6]
+    qdd = xid[6:]
+    QqT[:, :] = 0.0
+    QxT[:, :] = 0.0
+    for k in range(alpha.shape[0]):
+        wk = w[k]
+        arc_node(alpha[k], q[0], q[1], q[2], qd[0], qd[1], qd[2], R, p, S, Sd)
+        arc_node_derivatives(alpha[k], q[0], q[1], q[2], qd[0], qd[1], qd[2], dS, K)
+        _node_state(R, p, S, Sd, V0, A0, qd, qdd, Vr, Ar, rel, V, a)
+        for r in range(6):
+            hV[r] = Id[r] * V[r]
+        _fcross(V, hV, f)
+        for r in range(6):
+            f[r] += Id[r] * a[r]
+        for c in range(3):
+            _q_variation(c, S, dS, K, qd, qdd, Vr, Ar, rel, dV, da, t1, t2)
+            _force_variation(Id, V, hV, dV, da, t1, df)
+            # d(Phi^T f) = Phi^T df + [Ad^-T (S_c x* f); dS_c^T f]
+            _fcross(S[:, c], f, t2)
+            for r in range(6):
+                df[r] += t2[r]
+            phi_transpose_force(R, p, S, df, wk, QqT[c])
+            _fcross(S[:, c], f, t2)
+            for cc in range(3):
+                acc = 0.0
+                for r in range(6):
+                    acc += dS[c, r, cc] * f[r] - S[r, cc] * t2[r]
+                QqT[c, 6 + cc] += wk * acc
+        for c in range(3):
+            _qd_variation(c, S, Sd, V, dV, da)
+            _force_variation(Id, V, hV, dV, da, t1, df)
+            phi_transpose_force(R, p, S, df, wk, QxT[6 + c])
+        for kk in range(6):
+            e[:] = 0.0
+            e[kk] = 1.0
+            slice_twist(R, p, S, e, z3, dV)  # Ad^-1 e_k
+            _cross(rel, dV, da)
+            for r in range(6):
+                da[r] = -da[r]
+            _force_variation(Id, V, hV, dV, da, t1, df)
+            phi_transpose_force(R, p, S, df, wk, QxT[kk])
+
+
+@jit
+def tip_derivatives(q, qd, qdd, V0, A0, T, R1, p1, V1, A1, rel1, tipV, tipA, dS1):
+    """The tip (slice ``alpha = 1``) of one segment and its variations.
+
+    Outputs: tip map ``T = Phi(1)`` (6, 9); tip placement ``R1`` (3, 3), ``p1`` (3,) in the
+    root frame; the next root's twist ``V1`` and acceleration ``A1`` (6,); ``rel1 = S(1) qdot``;
+    ``tipV[k], tipA[k]`` (6, 6): their variations for ``k < 3`` a unit ``q_k``, ``k >= 3`` a unit
+    ``qdot_(k-3)`` (fixed root twist and acceleration); ``dS1`` (3, 6, 3) ``= dS(1)/dq``.
+    """
+    S = np.empty((6, 3))
+    Sd = np.empty((6, 3))
+    K = np.empty((3, 6))
+    Vr = np.empty(6)
+    Ar = np.empty(6)
+    t1 = np.empty(6)
+    t2 = np.empty(6)
+    arc_node(1.0, q[0], q[1], q[2], qd[0], qd[1], qd[2], R1, p1, S, Sd)
+    arc_node_derivatives(1.0, q[0], q[1], q[2], qd[0], qd[1], qd[2], dS1, K)
+    phi_matrix(R1, p1, S, T)
+    _node_state(R1, p1, S, Sd, V0, A0, qd, qdd, Vr, Ar, rel1, V1, A1)
+    for c in range(3):
+        _q_variation(c, S, dS1, K, qd, qdd, Vr, Ar, rel1, tipV[c], tipA[c], t1, t2)
+        _qd_variation(c, S, Sd, V1, tipV[3 + c], tipA[3 + c])
+
+
+@jit
+def rnea_derivatives(alpha, w, offs, mass, radius, q, qd, qdd, V0, A0, floating, g_B, tau, F0, dq, dv, M):
+    """Inverse dynamics and its exact derivatives, curvature coordinates.
+
+    Writes ``tau`` (n, 3) and ``F0`` (6,) as :func:`qchain.recursive.rnea` does, ``dq`` and
+    ``dv`` (nv, nv): ``d(F0, tau)/d(q, v)`` (rows: the base wrench for a floating base, then the
+    segments; columns: the base's tangent ``(translation, rotation)`` / twist, then the
+    segments), and ``M`` (nv, nv) ``= d(F0, tau)/da``. ``g_B`` (3,) is gravity in the first
+    root's frame (it turns with a floating base).
+    """
+    n = q.shape[0]
+    off = 6 if floating else 0
+    # ---------------------------------------------------------------- forward
+    V = np.empty((n + 1, 6))
+    A = np.empty((n + 1, 6))
+    Rw = np.empty((n + 1, 3, 3))
+    pw = np.empty((n + 1, 3))
+    Q = np.empty((n, 9))
+    Mxi = np.empty((n, 9, 9))
+    QqT = np.empty((n, 3, 9))
+    QxT = np.empty((n, 9, 9))
+    T = np.empty((n, 6, 9))
+    rel1 = np.empty((n, 6))
+    tipV = np.empty((n, 6, 6))
+    tipA = np.empty((n, 6, 6))
+    dS1 = np.empty((n, 3, 6, 3))
+    R1 = np.empty((3, 3))
+    p1 = np.empty(3)
+    xi = np.empty(9)
+    xid = np.empty(9)
+    V[0] = V0
+    A[0] = A0
+    Rw[0] = np.eye(3)
+    pw[0] = 0.0
+    for j in range(n):
+        xi[:6] = V[j]
+        xi[6:] = qd[j]
+        xid[:6] = A[j]
+        xid[6:] = qdd[j]
+        a0, a1 = offs[j], offs[j + 1]
+        segment_slices(alpha[a0:a1], w[a0:a1], mass[j], radius[j], q[j], xi, xid, True, Mxi[j], Q[j])
+        segment_derivatives(alpha[a0:a1], w[a0:a1], mass[j], radius[j], q[j], xi, xid, QqT[j], QxT[j])
+        tip_derivatives(q[j], qd[j], qdd[j], V[j], A[j], T[j], R1, p1, V[j + 1], A[j + 1], rel1[j], tipV[j],
+                        tipA[j], dS1[j])
+        for r in range(3):
+            acc = pw[j, r]
+            for s in range(3):
+                acc += Rw[j, r, s] * p1[s]
+                Rw[j + 1, r, s] = Rw[j, r, 0] * R1[0, s] + Rw[j, r, 1] * R1[1, s] + Rw[j, r, 2] * R1[2, s]
+            pw[j + 1, r] = acc
+    # ---------------------------------------------------------------- backward
+    F = np.zeros(6)
+    Ic = np.zeros((6, 6))
+    WF = np.zeros((6, 6))
+    Mh = np.empty((9, 9))
+    Wj = np.empty((9, 6))
+    E = np.empty((6, 6))
+    ET = np.empty((6, 6))
+    IcT = np.empty((6, 9))
+    D = np.empty((6, 9))  # D[col] = d(F_j, tau_j)/d col, cols q_j then qd_j
+    dF = np.empty(6)
+    G = np.empty((n, 6, 6))  # G[m, col] = world wrench variation at root m
+    Ya = np.empty((n, 3, 6))
+    Yv = np.empty((n, 3, 6))
+    Ms = np.empty((n, 3, 6))  # Ms[j, b] = world wrench at root j per unit qdd_j,b
+    Jw = np.empty((n, 3, 6))  # Jw[i, b] = world twist of tip i per unit qd_i,b
+    sig1 = np.empty((n, 6, 6))
+    sig2 = np.empty((n, 6, 6))
+    t1 = np.empty(6)
+    t2 = np.empty(6)
+    vW = np.empty(6)
+    TF = np.empty(9)
+    dq[:, :] = 0.0
+    dv[:, :] = 0.0
+    M[:, :] = 0.0
+    for j in range(n - 1, -1, -1):
+        Tj = T[j]
+        i0 = off + 3 * j
+        # inverse dynamics: (F_j, tau_j) = Q_j + T^T F_{j+1}
+        for k in range(9):
+            acc = 0.0
+            for r in range(6):
+                acc += Tj[r, k] * F[r]
+            TF[k] = acc
+        # composite inertia Mh = M_xi + T^T Ic T and W_j = dQ/dV + T^T (WF - Ic ad(rel1)) T_V
+        for r in range(6):
+            for s in range(6):
+                acc = WF[r, s]
+                # - (Ic ad(rel1))[r, s] = - sum_k Ic[r, k] ad(rel1)[k, s]
+                E[r, s] = acc
+        for r in range(6):
+            for s in range(6):
+                t1[:] = 0.0
+                t1[s] = 1.0
+                _cross(rel1[j], t1, t2)  # ad(rel1) e_s
+                acc = 0.0
+                for k in range(6):
+                    acc += Ic[r, k] * t2[k]
+                E[r, s] -= acc
+        for r in range(6):
+            for s in range(6):
+                acc = 0.0
+                for k in range(6):
+                    acc += E[r, k] * Tj[k, s]
+                ET[r, s] = acc
+            for s in range(9):
+                acc = 0.0
+                for k in range(6):
+                    acc += Ic[r, k] * Tj[k, s]
+                IcT[r, s] = acc
+        for a in range(9):
+            for b in range(9):
+                acc = Mxi[j, a, b]
+                for r in range(6):
+                    acc += Tj[r, a] * IcT[r, b]
+                Mh[a, b] = acc
+            for b in range(6):
+                acc = QxT[j, b, a]
+                for r in range(6):
+                    acc += Tj[r, a] * ET[r, b]
+                Wj[a, b] = acc
+        # columns of this segment: D[col] = intrinsic + T^T (WF dV1 + Ic dA1) (+ dT^T F for q)
+        for col in range(6):
+            if col < 3:
+                for k in range(9):
+                    D[col, k] = QqT[j, col, k]
+                _fcross(Tj[:, 6 + col], F, t1)  # S1_c x* F
+                for r in range(6):
+                    acc = 0.0
+                    for k in range(6):
+                        acc += Tj[k, r] * t1[k]
+                    D[col, r] += acc
+                for b in range(3):
+                    acc = 0.0
+                    for r in range(6):
+                        acc += dS1[j, col, r, b] * F[r]
+                    D[col, 6 + b] += acc
+            else:
+                for k in range(9):
+                    D[col, k] = QxT[j, 6 + col - 3, k]
+            for r in range(6):
+                acc = 0.0
+                for k in range(6):
+                    acc += WF[r, k] * tipV[j, col, k] + Ic[r, k] * tipA[j, col, k]
+                dF[r] = acc
+            for k in range(9):
+                acc = 0.0
+                for r in range(6):
+                    acc += Tj[r, k] * dF[r]
+                D[col, k] += acc
+            for b in range(3):
+                if col < 3:
+                    dq[i0 + b, i0 + col] = D[col, 6 + b]
+                else:
+                    dv[i0 + b, i0 + col - 3] = D[col, 6 + b]
+            _ad_force(Rw[j], pw[j], D[col, :6], G[j, col])
+        # world-frame rows of the subtree sensitivities and the composite columns of M
+        for b in range(3):
+            for r in range(6):
+                t1[r] = Mh[6 + b, r]
+            _ad_force(Rw[j], pw[j], t1, Ya[j, b])
+            _fcross(V[j], t1, t2)
+            for r in range(6):
+                t2[r] += Wj[6 + b, r]
+            _ad_force(Rw[j], pw[j], t2, Yv[j, b])
+            for r in range(6):
+                t1[r] = Mh[r, 6 + b]
+            _ad_force(Rw[j], pw[j], t1, Ms[j, b])
+            for a in range(3):
+                M[i0 + a, i0 + b] = Mh[6 + a, 6 + b]
+            _ad_twist(Rw[j + 1], pw[j + 1], Tj[:, 6 + b], Jw[j, b])
+        _ad_twist(Rw[j + 1], pw[j + 1], V[j + 1], vW)
+        for col in range(6):
+            _ad_twist(Rw[j + 1], pw[j + 1], tipV[j, col], sig1[j, col])
+            _ad_twist(Rw[j + 1], pw[j + 1], tipA[j, col], sig2[j, col])
+            _cross(sig1[j, col], vW, t1)
+            for r in range(6):
+                sig2[j, col, r] -= t1[r]
+        # move one root inwards
+        for r in range(6):
+            F[r] = Q[j, r] + TF[r]
+            for s in range(6):
+                Ic[r, s] = Mh[r, s]
+                WF[r, s] = Wj[r, s]
+        for b in range(3):
+            tau[j, b] = Q[j, 6 + b] + TF[6 + b]
+    F0[:] = F
+    # ---------------------------------------------------------------- assembly, O(n^2)
+    for i in range(n):
+        ri = off + 3 * i
+        for m in range(n):
+            cm = off + 3 * m
+            if m == i:
+                continue
+            for b in range(3):
+                for col in range(6):
+                    acc = 0.0
+                    if m < i:
+                        for r in range(6):
+                            acc += Ya[i, b, r] * sig2[m, col, r] + Yv[i, b, r] * sig1[m, col, r]
+                    else:
+                        for r in range(6):
+                            acc += Jw[i, b, r] * G[m, col, r]
+                    if col < 3:
+                        dq[ri + b, cm + col] = acc
+                    else:
+                        dv[ri + b, cm + col - 3] = acc
+            if m > i:
+                for a in range(3):
+                    for b in range(3):
+                        acc = 0.0
+                        for r in range(6):
+                            acc += Jw[i, a, r] * Ms[m, b, r]
+                        M[ri + a, cm + b] = acc
+                        M[cm + b, ri + a] = acc
+    if floating:
+        for m in range(n):
+            cm = off + 3 * m
+            for col in range(6):
+                for r in range(6):
+                    if col < 3:
+                        dq[r, cm + col] = G[m, col, r]
+                    else:
+                        dv[r, cm + col - 3] = G[m, col, r]
+            for b in range(3):
+                for r in range(6):
+                    M[r, cm + b] = Ms[m, b, r]
+                    M[cm + b, r] = Ms[m, b, r]
+        for r in range(6):
+            for s in range(6):
+                M[r, s] = Ic[r, s]
+                dv[r, s] = WF[r, s]
+        # attitude: gravity in the base frame turns, dA0 = (e_k x g_B, 0)
+        sg = np.empty((3, 6))
+        for k in range(3):
+            t1[:] = 0.0
+            t1[k] = 1.0
+            sg[k, :] = 0.0
+            sg[k, 0] = t1[1] * g_B[2] - t1[2] * g_B[1]
+            sg[k, 1] = t1[2] * g_B[0] - t1[0] * g_B[2]
+            sg[k, 2] = t1[0] * g_B[1] - t1[1] * g_B[0]
+            for r in range(6):
+                acc = 0.0
+                for s in range(3):
+                    acc += Ic[r, s] * sg[k, s]
+                dq[r, 3 + k] = acc
+        for i in range(n):
+            ri = off + 3 * i
+            for b in range(3):
+                _fcross(V0, Ya[i, b], t2)  # twist columns: Ya ad(V0) + Yv
+                for k in range(6):
+                    dv[ri + b, k] = Yv[i, b, k] - t2[k]
+                for k in range(3):
+                    acc = 0.0
+                    for s in range(3):
+                        acc += Ya[i, b, s] * sg[k, s]
+                    dq[ri + b, 3 + k] = acc
