@@ -32,8 +32,10 @@ from typing import NamedTuple
 import numpy as np
 import pinocchio as pin
 
+from . import dynamics_derivatives as _derivs
 from . import recursive
 from .arc import arc_nodes
+from .dynamics_derivatives import ForwardDynamicsDerivatives, InverseDynamicsDerivatives
 from .errors import DomainError, QchainError, SingularConfigurationError, as_vector
 from .segment import PAPER_SINGULAR_ANGLE, Segment, paper_jacobian, paper_jacobian_dot, paper_to_curvature
 from .spatial import ad_matrix, quaternion_to_rotation
@@ -657,15 +659,9 @@ class Chain:
         return self._segment_blocks(q, lambda j, s, qe: s.dissipation_matrix(qe))
 
     def pressure_stiffness(self, q, p) -> np.ndarray:
-        """``d(B(q) p)/dq`` (nv, nv) where the segment provides it exactly (volume actuation),
-        zero elsewhere (the paper's tip-plate model)."""
+        """``d(B(q) p)/dq`` (nv, nv), exact for both actuation models, zero on the base."""
         p3 = self._p(p)
-
-        def block(j, s, qe):
-            Kp = s.pressure_stiffness(qe, p3[j])
-            return np.zeros((3, 3)) if Kp is None else Kp
-
-        return self._segment_blocks(q, block)
+        return self._segment_blocks(q, lambda j, s, qe: s.pressure_stiffness(qe, p3[j]))
 
     def damping_force(self, q, v) -> np.ndarray:
         """``D v`` (nv,), zero on the base."""
@@ -736,6 +732,10 @@ class Chain:
         st = self._state(q, v, t=t, nonsingular=True, extra=extra)
         if self._any_locked:
             self._check_locks(st.q_e, st.v_e)
+        return self._forward_dynamics(st, p3, tau, t)
+
+    def _forward_dynamics(self, st: _State, p3: np.ndarray, tau: np.ndarray | None, t: float) -> np.ndarray:
+        """:meth:`forward_dynamics` on a validated state."""
         f = self._internal_e(st, p3)
         F0 = np.zeros(6)
         if tau is not None:
@@ -768,6 +768,38 @@ class Chain:
         if not np.all(np.isfinite(a)):
             raise QchainError(f"forward_dynamics produced non-finite accelerations at t = {t}")
         return a
+
+    # ------------------------------------------------------------------ derivatives
+
+    def inverse_dynamics_derivatives(self, q, v, a, t: float = 0.0) -> InverseDynamicsDerivatives:
+        """Exact derivatives of :meth:`inverse_dynamics` (Pinocchio's ``computeRNEADerivatives``).
+
+        Returns ``tau`` (nv,), ``dtau_dq``, ``dtau_dv`` and ``dtau_da`` (``= M``), each (nv, nv);
+        the q-derivative is taken along :meth:`integrate` (a floating base's tangent space).
+        Compiled analytic passes over the segments and their slices
+        (:mod:`qchain.derivatives`), no finite differences.
+        """
+        a = self._vec("a", a, self.nv)
+        st = self._state(q, v, t=t, nonsingular=True, extra=(("a", a),))
+        return _derivs.inverse_dynamics_derivatives(self, st, a)
+
+    def forward_dynamics_derivatives(self, q, v, p=None, tau=None, t: float = 0.0) -> ForwardDynamicsDerivatives:
+        """Exact derivatives of :meth:`forward_dynamics` (Pinocchio's ``computeABADerivatives``).
+
+        Returns ``a`` (nv,), ``da_dq``, ``da_dv`` (nv, nv) (q along :meth:`integrate`),
+        ``da_dp`` (nv, 3 n) (1/Pa) and ``da_dtau`` (nv, nv) ``= M^-1``, of the whole equation of
+        motion (elastic, damping and pressure terms included). Locked coordinates have zero
+        rows and columns (:mod:`qchain.dynamics_derivatives`).
+        """
+        p3, tau, extra = self._pt(p, tau)
+        st = self._state(q, v, t=t, nonsingular=True, extra=extra)
+        if self._any_locked:
+            self._check_locks(st.q_e, st.v_e)
+        return _derivs.forward_dynamics_derivatives(self, st, p3, tau, t)
+
+    def mass_matrix_derivative(self, q) -> np.ndarray:
+        """``dM[:, :, k] = dM/dq_k`` (nv, nv, nv) along :meth:`integrate`, exact."""
+        return _derivs.mass_matrix_derivative(self, self._state(q, nonsingular=True))
 
     def coriolis_matrix(self, q, v) -> np.ndarray:
         """``C(q, v)`` (nv, nv) with ``C v = nonlinear_effects - g`` and ``dM/dt - 2C`` skew.

@@ -37,9 +37,18 @@ import numpy as np
 
 from .arc import arc_node, jit
 from .arc_derivatives import arc_node_derivatives
-from .slices import phi_matrix, phi_transpose_force, segment_slices, slice_twist
+from .slices import (
+    elastic_hessian_c,
+    input_matrix_c,
+    phi_matrix,
+    phi_transpose_force,
+    pressure_jacobian_c,
+    rest_damping_c,
+    segment_slices,
+    slice_twist,
+)
 
-__all__ = ["segment_derivatives", "tip_derivatives", "rnea_derivatives"]
+__all__ = ["segment_derivatives", "tip_derivatives", "rnea_derivatives", "internal_forces_derivatives", "input_matrices"]
 
 
 @jit
@@ -509,3 +518,28 @@ def rnea_derivatives(alpha, w, offs, mass, radius, q, qd, qdd, V0, A0, floating,
                     for s in range(3):
                         acc += Ya[i, b, s] * sg[k, s]
                     dq[ri + b, 3 + k] = acc
+
+
+@jit
+def internal_forces_derivatives(q, p, l0, EI, EA, beta, A_ch, r_ch, paper_act, dfq, dfv):
+    """Derivatives of the internal forces ``f = B p - D qd - dU_el/dq`` of
+    :func:`qchain.recursive.internal_forces` (material law, curvature coordinates):
+    ``dfq[j] = d(B p)/dq - d^2 U_el/dq^2`` and ``dfv[j] = -D`` (n, 3, 3)."""
+    Kp = np.empty((3, 3))
+    H = np.empty((3, 3))
+    D = np.empty((3, 3))
+    for j in range(q.shape[0]):
+        pressure_jacobian_c(q[j], p[j], A_ch[j], r_ch[j], paper_act[j], Kp)
+        elastic_hessian_c(q[j], l0[j], EI[j], EA[j], H)
+        rest_damping_c(l0[j], EI[j], EA[j], beta[j], D)
+        for a in range(3):
+            for b in range(3):
+                dfq[j, a, b] = Kp[a, b] - H[a, b]
+                dfv[j, a, b] = -D[a, b]
+
+
+@jit
+def input_matrices(q, A_ch, r_ch, paper_act, B):
+    """``B[j]`` (3, 3) the input matrix of every segment (:func:`qchain.slices.input_matrix_c`)."""
+    for j in range(q.shape[0]):
+        input_matrix_c(q[j], A_ch[j], r_ch[j], paper_act[j], B[j])

@@ -30,7 +30,7 @@ from __future__ import annotations
 import numpy as np
 
 from .arc import arc_node, arc_pose, jit
-from .slices import elastic_gradient_c, input_matrix_c, phi_matrix, segment_slices, slice_twist, sub_motion_cross
+from .slices import elastic_gradient_c, input_matrix_c, rest_damping_c, phi_matrix, segment_slices, slice_twist, sub_motion_cross
 
 __all__ = ["rnea", "crba", "aba", "tip_maps", "frames", "internal_forces", "first_invalid"]
 
@@ -442,19 +442,19 @@ def frames(q, paper, R0, o0, alpha, R, o, quat, points):
 @jit
 def internal_forces(q, qd, p, l0, EI, EA, beta, A_ch, r_ch, paper_act, out):
     """``out = B p - D qd - dU_el/dq`` (n, 3), material law, curvature coordinates, with
-    ``D = beta diag(EA/l0, EI l0, EI l0)`` (:func:`qchain.slices.input_matrix_c`,
+    ``D`` of :func:`qchain.slices.rest_damping_c` (:func:`qchain.slices.input_matrix_c`,
     :func:`qchain.slices.elastic_gradient_c`). These terms are coordinate-free: paper
     coordinates get ``J^T`` of them.
     """
     B = np.empty((3, 3))
     g = np.empty(3)
+    D = np.empty((3, 3))
     for j in range(q.shape[0]):
         input_matrix_c(q[j], A_ch[j], r_ch[j], paper_act[j], B)
         elastic_gradient_c(q[j], l0[j], EI[j], EA[j], g)
-        out[j, 0] = -g[0] - beta[j] * EA[j] / l0[j] * qd[j, 0]
-        out[j, 1] = -g[1] - beta[j] * EI[j] * l0[j] * qd[j, 1]
-        out[j, 2] = -g[2] - beta[j] * EI[j] * l0[j] * qd[j, 2]
+        rest_damping_c(l0[j], EI[j], EA[j], beta[j], D)
         for a in range(3):
+            out[j, a] = -g[a] - D[a, 0] * qd[j, 0] - D[a, 1] * qd[j, 1] - D[a, 2] * qd[j, 2]
             out[j, a] += B[a, 0] * p[j, 0] + B[a, 1] * p[j, 1] + B[a, 2] * p[j, 2]
 
 

@@ -44,7 +44,16 @@ from .errors import (
     as_vector,
     check_positive,
 )
-from .slices import CHAMBER_ANGLES, elastic_gradient_c, input_matrix_c, segment_mass, segment_newton_euler
+from .slices import (
+    CHAMBER_ANGLES,
+    elastic_gradient_c,
+    elastic_hessian_c,
+    input_matrix_c,
+    pressure_jacobian_c,
+    rest_damping_c,
+    segment_mass,
+    segment_newton_euler,
+)
 from .spatial import ad_matrix, disk_inertia, force_cross_bar
 
 __all__ = [
@@ -57,6 +66,8 @@ __all__ = [
     "curvature_to_paper",
     "paper_jacobian",
     "paper_jacobian_dot",
+    "paper_jacobian_derivative",
+    "paper_bias_derivative",
     "paper_velocity_to_curvature",
     "curvature_velocity_to_paper",
 ]
@@ -113,6 +124,30 @@ def paper_jacobian_dot(q_p: np.ndarray, qd_p: np.ndarray) -> np.ndarray:
             [0.0, kappad * c - kappa * s * psid, c * psid],
         ]
     )
+
+
+def paper_jacobian_derivative(q_p: np.ndarray) -> np.ndarray:
+    """``dJ[c] = d paper_jacobian / d q_p[c]`` (3, 3, 3), ``c`` over ``(l, psi, kappa)``."""
+    _, psi, kappa = q_p
+    c, s = np.cos(psi), np.sin(psi)
+    dJ = np.zeros((3, 3, 3))
+    dJ[1, 1:, 1:] = [[-kappa * c, -s], [-kappa * s, c]]
+    dJ[2, 1:, 1] = [-s, c]
+    return dJ
+
+
+def paper_bias_derivative(q_p: np.ndarray, qd_p: np.ndarray) -> np.ndarray:
+    """``d(Jdot qd_p)/d q_p`` (3, 3) at fixed ``qd_p``: the configuration derivative of the
+    velocity-product term of ``qdd_c = J qdd_p + Jdot qd_p``."""
+    _, psi, kappa = q_p
+    _, psid, kappad = qd_p
+    c, s = np.cos(psi), np.sin(psi)
+    out = np.zeros((3, 3))
+    out[1, 1] = -2.0 * c * psid * kappad + kappa * s * psid * psid
+    out[2, 1] = -2.0 * s * psid * kappad - kappa * c * psid * psid
+    out[1, 2] = -c * psid * psid
+    out[2, 2] = -s * psid * psid
+    return out
 
 
 def paper_velocity_to_curvature(q_p: np.ndarray, qd_p: np.ndarray) -> np.ndarray:
@@ -478,28 +513,26 @@ class Segment:
         input_matrix_c(q_c, self.chamber_area, self.chamber_radius, self.actuation == "paper", Bc)
         return J.T @ Bc
 
-    def pressure_stiffness(self, q_e, p) -> np.ndarray | None:
-        """``d(B(q_e) p)/d q_e`` (3, 3) for ``actuation="volume"`` (exact), ``None`` for the
-        paper's tip-plate model (its second derivatives are not provided)."""
-        if self.actuation != "volume":
-            return None
+    def pressure_stiffness(self, q_e, p) -> np.ndarray:
+        """``d(B(q_e) p)/d q_e`` (3, 3), exact, both actuation models
+        (:func:`qchain.slices.pressure_jacobian_c`)."""
         p = as_vector("p", p, 3)
         q_c, J = self._curvature(q_e)
-        A, r = self.chamber_area, self.chamber_radius
-        mx = A * r * float(np.cos(CHAMBER_ANGLES) @ p)
-        my = A * r * float(np.sin(CHAMBER_ANGLES) @ p)
-        Kc = np.array([[0.0, -mx, -my], [-mx, 0.0, 0.0], [-my, 0.0, 0.0]])
+        paper_act = self.actuation == "paper"
+        Kc = np.empty((3, 3))
+        pressure_jacobian_c(q_c, p, self.chamber_area, self.chamber_radius, paper_act, Kc)
         if self.coords == "curvature":
             return Kc
-        Bp_c = np.empty((3, 3))
-        input_matrix_c(q_c, A, r, False, Bp_c)
-        return J.T @ Kc @ J + _paper_hessian_term(self.check_configuration(q_e), Bp_c @ p)
+        Bc = np.empty((3, 3))
+        input_matrix_c(q_c, self.chamber_area, self.chamber_radius, paper_act, Bc)
+        return J.T @ Kc @ J + _paper_hessian_term(self.check_configuration(q_e), Bc @ p)
 
     # ------------------------------------------------------------------- elasticity
 
-    def _rest_stiffness_c(self) -> np.ndarray:
-        l0 = self.length
-        return np.diag([self.axial_stiffness / l0, self.bending_stiffness * l0, self.bending_stiffness * l0])
+    def _rest_damping_c(self) -> np.ndarray:
+        D = np.empty((3, 3))
+        rest_damping_c(self.length, self.bending_stiffness, self.axial_stiffness, self.damping, D)
+        return D
 
     def _rest(self) -> np.ndarray:
         return self.neutral() if self.rest_q_e is None else self.rest_q_e
@@ -535,15 +568,8 @@ class Segment:
         if self.stiffness_matrix is not None:
             return self.stiffness_matrix.copy()
         q_c = paper_to_curvature(q) if self.coords == "paper" else q
-        l, ux, uy = q_c
-        EI, EA, l0 = self.bending_stiffness, self.axial_stiffness, self.length
-        Hc = np.array(
-            [
-                [EI * (ux * ux + uy * uy) / l0 + EA / l0, 2 * EI * l * ux / l0, 2 * EI * l * uy / l0],
-                [2 * EI * l * ux / l0, EI * l * l / l0, 0.0],
-                [2 * EI * l * uy / l0, 0.0, EI * l * l / l0],
-            ]
-        )
+        Hc = np.empty((3, 3))
+        elastic_hessian_c(q_c, self.length, self.bending_stiffness, self.axial_stiffness, Hc)
         if self.coords == "curvature":
             return Hc
         J = paper_jacobian(q)
@@ -561,7 +587,7 @@ class Segment:
             return self.damping_matrix.copy()
         if self.stiffness_matrix is not None:
             return self.damping * self.stiffness_matrix
-        Dc = self.damping * self._rest_stiffness_c()
+        Dc = self._rest_damping_c()
         if self.coords == "curvature":
             return Dc
         J = paper_jacobian(q)

@@ -19,8 +19,10 @@ from __future__ import annotations
 import numpy as np
 
 from .arc import arc_node, jit
+from .arc_derivatives import arc_node_derivatives
 
-__all__ = ["CHAMBER_ANGLES", "input_matrix_c", "elastic_gradient_c", "segment_slices", "segment_mass", "segment_newton_euler", "phi_transpose_force", "phi_matrix", "slice_twist"]
+__all__ = ["CHAMBER_ANGLES", "input_matrix_c", "pressure_jacobian_c", "elastic_gradient_c", "elastic_hessian_c",
+           "rest_damping_c", "segment_slices", "segment_mass", "segment_newton_euler", "phi_transpose_force", "phi_matrix", "slice_twist"]
 
 
 @jit
@@ -229,3 +231,51 @@ def elastic_gradient_c(q, l0, EI, EA, g):
     g[0] = EI * l * (ux * ux + uy * uy) / l0 + EA * (l - l0) / l0
     g[1] = EI * l * l * ux / l0
     g[2] = EI * l * l * uy / l0
+
+
+@jit
+def elastic_hessian_c(q, l0, EI, EA, H):
+    """``H[:] = d^2 U_el/dq^2`` (3, 3) of the material law of :func:`elastic_gradient_c`."""
+    l, ux, uy = q[0], q[1], q[2]
+    H[0, 0] = EI * (ux * ux + uy * uy) / l0 + EA / l0
+    H[0, 1] = H[1, 0] = 2.0 * EI * l * ux / l0
+    H[0, 2] = H[2, 0] = 2.0 * EI * l * uy / l0
+    H[1, 1] = H[2, 2] = EI * l * l / l0
+    H[1, 2] = H[2, 1] = 0.0
+
+
+@jit
+def rest_damping_c(l0, EI, EA, beta, D):
+    """``D[:] = beta K(q0)`` (3, 3): stiffness-proportional damping, ``K(q0) = diag(EA/l0, EI l0,
+    EI l0)`` the material law's stiffness at the straight rest pose."""
+    D[:, :] = 0.0
+    D[0, 0] = beta * EA / l0
+    D[1, 1] = beta * EI * l0
+    D[2, 2] = beta * EI * l0
+
+
+@jit
+def pressure_jacobian_c(q, p, A_ch, r_ch, paper_act, Kp):
+    """``Kp[:] = d(B(q) p)/dq`` (3, 3), curvature coordinates, both actuation models of
+    :func:`input_matrix_c` (the paper's through the tip Jacobian's exact derivative)."""
+    Pc = 0.0
+    Ps = 0.0
+    P = 0.0
+    for i in range(3):
+        Pc += _COS_PHI[i] * p[i]
+        Ps += _SIN_PHI[i] * p[i]
+        P += p[i]
+    if paper_act:
+        dS = np.empty((3, 6, 3))
+        K = np.empty((3, 6))
+        arc_node_derivatives(1.0, q[0], q[1], q[2], 0.0, 0.0, 0.0, dS, K)
+        for a in range(3):
+            for c in range(3):
+                Kp[a, c] = A_ch * (P * dS[c, 2, a] + r_ch * Ps * dS[c, 3, a] - r_ch * Pc * dS[c, 4, a])
+    else:
+        mx = A_ch * r_ch * Pc
+        my = A_ch * r_ch * Ps
+        Kp[0, 0] = 0.0
+        Kp[0, 1] = Kp[1, 0] = -mx
+        Kp[0, 2] = Kp[2, 0] = -my
+        Kp[1, 1] = Kp[1, 2] = Kp[2, 1] = Kp[2, 2] = 0.0
