@@ -36,6 +36,7 @@ from . import dynamics_derivatives as _derivs
 from . import recursive
 from .arc import arc_nodes
 from .dynamics_derivatives import ForwardDynamicsDerivatives, InverseDynamicsDerivatives
+from .data import Data
 from .errors import DomainError, QchainError, SingularConfigurationError, as_vector
 from .segment import PAPER_SINGULAR_ANGLE, Segment, paper_jacobian, paper_jacobian_dot, paper_to_curvature
 from .spatial import ad_matrix, quaternion_to_rotation
@@ -48,6 +49,12 @@ QUATERNION_TOLERANCE = 1e-6
 
 _NO_POINTS = np.empty(0)  # recursive.frames without backbone points
 _NO_POINTS.flags.writeable = False
+_ZERO6 = np.zeros(6)
+_ZERO6.flags.writeable = False
+
+
+def _ZERO_P(n: int) -> np.ndarray:
+    return np.zeros((n, 3))
 
 
 class Frames(NamedTuple):
@@ -593,11 +600,20 @@ class Chain:
         A0[:3] -= st.g_B
         return A0
 
-    def mass_matrix(self, q) -> np.ndarray:
+    def create_data(self) -> Data:
+        """A per-evaluation workspace for this chain (Pinocchio's ``model.createData()``): pass it
+        as ``data=`` to the dynamics methods so a loop of calls allocates no arrays."""
+        return Data(self.n, self.nv)
+
+    def _ws(self, data: Data | None) -> tuple:
+        return recursive.aba_workspace(self.n, self.nv) if data is None else data.aba_workspace()
+
+    def mass_matrix(self, q, data: Data | None = None) -> np.ndarray:
         """``M(q)`` (nv, nv) by composite-body assembly (:func:`qchain.recursive.crba`)."""
         st = self._state(q, nonsingular=True)
-        H = np.empty((self.nv, self.nv))
-        recursive.crba(self._alpha, self._w, self._offs, self._mass, self._radius, st.q_c, self.floating, H)
+        H = np.empty((self.nv, self.nv)) if data is None else data.M
+        recursive.crba(self._alpha, self._w, self._offs, self._mass, self._radius, st.q_c, self.floating, H,
+                       self._ws(data))
         T = self._lift(st)
         return H if T is None else T.T @ H @ T
 
@@ -606,7 +622,7 @@ class Chain:
         F0 = np.empty(6)
         recursive.rnea(
             self._alpha, self._w, self._offs, self._mass, self._radius, st.q_c, np.ascontiguousarray(st.v_c),
-            self._acc_c(st, a_e), st.V0, self._A0(st, a_base), tau_c, F0,
+            self._acc_c(st, a_e), st.V0, self._A0(st, a_base), tau_c, F0, self._ws(None),
         )
         tau = self._force_e(st, tau_c).ravel()
         return np.concatenate([F0, tau]) if self.floating else tau
@@ -721,20 +737,22 @@ class Chain:
                 f[j] = s.input_matrix(st.q_e[j]) @ p[j] - s.damping_force(st.q_e[j], st.v_e[j]) - s.elastic_force(st.q_e[j])
         return f
 
-    def forward_dynamics(self, q, v, p=None, tau=None, t: float = 0.0) -> np.ndarray:
+    def forward_dynamics(self, q, v, p=None, tau=None, t: float = 0.0, data: Data | None = None) -> np.ndarray:
         """Accelerations ``a`` (nv,) of ``M a + C v + g + D v + dU_el/dq = B p + tau``.
 
         Articulated-body recursion on the segment blocks (:func:`qchain.recursive.aba`),
         O(n); locked coordinates get zero acceleration. ``p`` (3 n,) Pa, default zero; ``tau`` (nv,) external generalised forces
         (for a floating base, ``tau[:6]`` is a wrench on the base in the base frame).
+        ``data`` (:meth:`create_data`) is the workspace the pass writes in.
         """
         p3, tau, extra = self._pt(p, tau)
         st = self._state(q, v, t=t, nonsingular=True, extra=extra)
         if self._any_locked:
             self._check_locks(st.q_e, st.v_e)
-        return self._forward_dynamics(st, p3, tau, t)
+        return self._forward_dynamics(st, p3, tau, t, data)
 
-    def _forward_dynamics(self, st: _State, p3: np.ndarray, tau: np.ndarray | None, t: float) -> np.ndarray:
+    def _forward_dynamics(self, st: _State, p3: np.ndarray, tau: np.ndarray | None, t: float,
+                          data: Data | None = None) -> np.ndarray:
         """:meth:`forward_dynamics` on a validated state."""
         f = self._internal_e(st, p3)
         F0 = np.zeros(6)
@@ -748,6 +766,7 @@ class Chain:
         ok = recursive.aba(
             self._alpha, self._w, self._offs, self._mass, self._radius, st.q_c, np.ascontiguousarray(st.v_c),
             np.ascontiguousarray(f_c), st.V0, self._A0(st), self.floating, F0, qdd_c, A0, self._locked,
+            self._ws(data),
         )
         if not ok:
             raise QchainError("forward_dynamics: an articulated inertia block is not positive definite")
@@ -771,35 +790,70 @@ class Chain:
 
     # ------------------------------------------------------------------ derivatives
 
-    def inverse_dynamics_derivatives(self, q, v, a, t: float = 0.0) -> InverseDynamicsDerivatives:
+    def inverse_dynamics_derivatives(self, q, v, a, t: float = 0.0,
+                                     data: Data | None = None) -> InverseDynamicsDerivatives:
         """Exact derivatives of :meth:`inverse_dynamics` (Pinocchio's ``computeRNEADerivatives``).
 
         Returns ``tau`` (nv,), ``dtau_dq``, ``dtau_dv`` and ``dtau_da`` (``= M``), each (nv, nv);
         the q-derivative is taken along :meth:`integrate` (a floating base's tangent space).
         Compiled analytic passes over the segments and their slices
-        (:mod:`qchain.derivatives`), no finite differences.
+        (:mod:`qchain.derivatives`), no finite differences. With ``data``
+        (:meth:`create_data`) the pass writes in it and, in curvature coordinates, the
+        returned matrices are its arrays (overwritten by the next call).
         """
         a = self._vec("a", a, self.nv)
         st = self._state(q, v, t=t, nonsingular=True, extra=(("a", a),))
-        return _derivs.inverse_dynamics_derivatives(self, st, a)
+        return _derivs.inverse_dynamics_derivatives(self, st, a, self.create_data() if data is None else data)
 
-    def forward_dynamics_derivatives(self, q, v, p=None, tau=None, t: float = 0.0) -> ForwardDynamicsDerivatives:
+    def forward_dynamics_derivatives(self, q, v, p=None, tau=None, t: float = 0.0, data: Data | None = None,
+                                     skip_checks: bool = False) -> ForwardDynamicsDerivatives:
         """Exact derivatives of :meth:`forward_dynamics` (Pinocchio's ``computeABADerivatives``).
 
         Returns ``a`` (nv,), ``da_dq``, ``da_dv`` (nv, nv) (q along :meth:`integrate`),
         ``da_dp`` (nv, 3 n) (1/Pa) and ``da_dtau`` (nv, nv) ``= M^-1``, of the whole equation of
         motion (elastic, damping and pressure terms included). Locked coordinates have zero
         rows and columns (:mod:`qchain.dynamics_derivatives`).
+
+        ``data`` (:meth:`create_data`): the workspace the passes write in; where the chain is
+        in curvature coordinates with the material law the result's arrays are its arrays
+        (overwritten by the next call with it). ``skip_checks=True`` is the unchecked fast path
+        of integrators and batches (MuJoCo's ``skip_checks``): the inputs are taken as valid
+        -- shapes, finiteness, the model's domain, a unit quaternion, locked values are not
+        checked -- and the result is not checked for non-finite entries. It needs ``data``
+        and a chain in curvature coordinates with the material law.
         """
+        if skip_checks:
+            return self._forward_dynamics_derivatives_unchecked(q, v, p, tau, t, data)
         p3, tau, extra = self._pt(p, tau)
         st = self._state(q, v, t=t, nonsingular=True, extra=extra)
         if self._any_locked:
             self._check_locks(st.q_e, st.v_e)
-        return _derivs.forward_dynamics_derivatives(self, st, p3, tau, t)
+        return _derivs.forward_dynamics_derivatives(self, st, p3, tau, t, self.create_data() if data is None else data)
 
-    def mass_matrix_derivative(self, q) -> np.ndarray:
+    def _forward_dynamics_derivatives_unchecked(self, q, v, p, tau, t, data):
+        if data is None or self._any_paper or self._has_linear:
+            raise ValueError("skip_checks=True needs data=chain.create_data() and a chain in curvature coordinates "
+                             "with the material law (no stiffness_matrix/damping_matrix)")
+        n = self.n
+        q_c = q[self._qoff :].reshape(n, 3)
+        v_c = v[self._voff :].reshape(n, 3)
+        p3 = _ZERO_P(n) if p is None else p.reshape(n, 3)
+        A_B = None
+        if self.base == "fixed":
+            V0, g_B = _ZERO6, self._g_B
+        elif self.floating:
+            V0 = v[:6]
+            g_B = quaternion_to_rotation(q[3:7]).T @ self.gravity
+        else:
+            X, V0, A_B = self.base_motion(float(t))
+            g_B = X.rotation.T @ self.gravity
+        return _derivs.compiled_forward_dynamics_derivatives(self, q_c, v_c, p3, tau, V0, A_B, g_B, t, data,
+                                                             check=False)
+
+    def mass_matrix_derivative(self, q, data: Data | None = None) -> np.ndarray:
         """``dM[:, :, k] = dM/dq_k`` (nv, nv, nv) along :meth:`integrate`, exact."""
-        return _derivs.mass_matrix_derivative(self, self._state(q, nonsingular=True))
+        return _derivs.mass_matrix_derivative(self, self._state(q, nonsingular=True),
+                                              self.create_data() if data is None else data)
 
     def coriolis_matrix(self, q, v) -> np.ndarray:
         """``C(q, v)`` (nv, nv) with ``C v = nonlinear_effects - g`` and ``dM/dt - 2C`` skew.

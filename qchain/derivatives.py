@@ -36,6 +36,9 @@ from __future__ import annotations
 import numpy as np
 
 from .arc import arc_node, jit
+from .recursive import _chol as recursive_chol
+from .recursive import aba as recursive_aba
+from .recursive import internal_forces as recursive_internal_forces
 from .arc_derivatives import arc_node_derivatives
 from .slices import (
     elastic_hessian_c,
@@ -48,7 +51,8 @@ from .slices import (
     slice_twist,
 )
 
-__all__ = ["segment_derivatives", "tip_derivatives", "rnea_derivatives", "internal_forces_derivatives", "input_matrices"]
+__all__ = ["segment_derivatives", "tip_derivatives", "rnea_derivatives", "rnea_workspace", "aba_derivatives",
+           "aba_derivatives_workspace", "internal_forces_derivatives", "input_matrices"]
 
 
 @jit
@@ -98,27 +102,25 @@ def _ad_force(R, p, f, out):
 
 
 @jit
-def _force_variation(Id, V, hV, dV, da, t, df):
+def _force_variation(Id, V, hV, dV, da, t, h, df):
     """``df = I da + dV x* (I V) + V x* (I dV)``: the slice force's variation (``I = diag(Id)``,
-    ``hV = I V``); ``t`` (6,) is scratch."""
+    ``hV = I V``); ``t``, ``h`` (6,) are scratch."""
     _fcross(dV, hV, df)
     for r in range(6):
         t[r] = Id[r] * dV[r]
         df[r] += Id[r] * da[r]
-    h = np.empty(6)
     _fcross(V, t, h)
     for r in range(6):
         df[r] += h[r]
 
 
 @jit
-def _node_state(R, p, S, Sd, V0, A0, qd, qdd, Vr, Ar, rel, V, a):
+def _node_state(R, p, S, Sd, V0, A0, qd, qdd, Vr, Ar, rel, V, a, z3, t):
     """Slice twist ``V`` and acceleration ``a`` (and ``Vr = Ad^-1 V0``, ``Ar = Ad^-1 A0``,
-    ``rel = S qdot``) at a node whose kinematics ``R, p, S, Sd`` are known."""
-    z3 = np.zeros(3)
+    ``rel = S qdot``) at a node whose kinematics ``R, p, S, Sd`` are known; ``z3`` (3,) zeros,
+    ``t`` (6,) scratch."""
     slice_twist(R, p, S, V0, z3, Vr)
     slice_twist(R, p, S, A0, qdd, Ar)  # Ad^-1 A0 + S qdd
-    t = np.empty(6)
     for r in range(6):
         rel[r] = S[r, 0] * qd[0] + S[r, 1] * qd[1] + S[r, 2] * qd[2]
         V[r] = Vr[r] + rel[r]
@@ -131,15 +133,15 @@ def _node_state(R, p, S, Sd, V0, A0, qd, qdd, Vr, Ar, rel, V, a):
 
 
 @jit
-def _q_variation(c, S, dS, K, qd, qdd, Vr, Ar, rel, dV, da, t1, t2):
-    """``dV, da`` of a slice for a unit change of ``q_c`` (fixed root twist and acceleration)."""
+def _q_variation(c, S, dS, K, qd, qdd, Vr, Ar, rel, dV, da, t1, t2, h):
+    """``dV, da`` of a slice for a unit change of ``q_c`` (fixed root twist and acceleration);
+    ``t1, t2, h`` (6,) scratch."""
     for r in range(6):
         t2[r] = dS[c, r, 0] * qd[0] + dS[c, r, 1] * qd[1] + dS[c, r, 2] * qd[2]  # dS_c qd
     Sc = S[:, c]
     _cross(Sc, Vr, t1)  # S_c x Vr
     for r in range(6):
         dV[r] = -t1[r] + t2[r]
-    h = np.empty(6)
     _cross(rel, t1, h)  # rel x (S_c x Vr)
     for r in range(6):
         da[r] = h[r] + K[c, r] + dS[c, r, 0] * qdd[0] + dS[c, r, 1] * qdd[1] + dS[c, r, 2] * qdd[2]
@@ -152,11 +154,10 @@ def _q_variation(c, S, dS, K, qd, qdd, Vr, Ar, rel, dV, da, t1, t2):
 
 
 @jit
-def _qd_variation(c, S, Sd, V, dV, da):
+def _qd_variation(c, S, Sd, V, dV, da, h):
     """``dV, da`` of a slice for a unit change of ``qdot_c``: ``S_c`` and ``2 Sd_c - S_c x V``."""
     for r in range(6):
         dV[r] = S[r, c]
-    h = np.empty(6)
     _cross(dV, V, h)
     for r in range(6):
         da[r] = 2.0 * Sd[r, c] - h[r]
@@ -187,7 +188,10 @@ def segment_derivatives(alpha, w, mass, radius, q, xi, xid, QqT, QxT):
     df = np.empty(6)
     t1 = np.empty(6)
     t2 = np.empty(6)
-    e = np.zeros(6)
+    t3 = np.empty(6)
+    Sc = np.empty(6)
+    E = np.empty((6, 6))
+    EA = np.empty((6, 6))
     z3 = np.zeros(3)
     ixx = 0.25 * mass * radius * radius
     Id = np.array([mass, mass, mass, ixx, ixx, 2.0 * ixx])
@@ -201,39 +205,110 @@ def segment_derivatives(alpha, w, mass, radius, q, xi, xid, QqT, QxT):
         wk = w[k]
         arc_node(alpha[k], q[0], q[1], q[2], qd[0], qd[1], qd[2], R, p, S, Sd)
         arc_node_derivatives(alpha[k], q[0], q[1], q[2], qd[0], qd[1], qd[2], dS, K)
-        _node_state(R, p, S, Sd, V0, A0, qd, qdd, Vr, Ar, rel, V, a)
+        _node_state(R, p, S, Sd, V0, A0, qd, qdd, Vr, Ar, rel, V, a, z3, t1)
         for r in range(6):
             hV[r] = Id[r] * V[r]
         _fcross(V, hV, f)
         for r in range(6):
             f[r] += Id[r] * a[r]
         for c in range(3):
-            _q_variation(c, S, dS, K, qd, qdd, Vr, Ar, rel, dV, da, t1, t2)
-            _force_variation(Id, V, hV, dV, da, t1, df)
+            _q_variation(c, S, dS, K, qd, qdd, Vr, Ar, rel, dV, da, t1, t2, t3)
+            _force_variation(Id, V, hV, dV, da, t1, t3, df)
             # d(Phi^T f) = Phi^T df + [Ad^-T (S_c x* f); dS_c^T f]
-            _fcross(S[:, c], f, t2)
+            for r in range(6):
+                Sc[r] = S[r, c]
+            _fcross(Sc, f, t2)
             for r in range(6):
                 df[r] += t2[r]
             phi_transpose_force(R, p, S, df, wk, QqT[c])
-            _fcross(S[:, c], f, t2)
             for cc in range(3):
                 acc = 0.0
                 for r in range(6):
                     acc += dS[c, r, cc] * f[r] - S[r, cc] * t2[r]
                 QqT[c, 6 + cc] += wk * acc
+        # velocity columns through E = d f / d V_slice at fixed root acceleration:
+        # E = (I V) x*bar + (V x*) I - I ad(rel); root twist: df = E Ad^-1; qdot_c: df = E S_c +
+        # I (2 Sd_c - S_c x (V + rel))
+        _velocity_force_matrix(Id, V, hV, rel, E)
         for c in range(3):
-            _qd_variation(c, S, Sd, V, dV, da)
-            _force_variation(Id, V, hV, dV, da, t1, df)
-            phi_transpose_force(R, p, S, df, wk, QxT[6 + c])
-        for kk in range(6):
-            e[:] = 0.0
-            e[kk] = 1.0
-            slice_twist(R, p, S, e, z3, dV)  # Ad^-1 e_k
-            _cross(rel, dV, da)
             for r in range(6):
-                da[r] = -da[r]
-            _force_variation(Id, V, hV, dV, da, t1, df)
+                Sc[r] = S[r, c]
+                t2[r] = V[r] + rel[r]
+            _cross(Sc, t2, t1)
+            for r in range(6):
+                acc = Id[r] * (2.0 * Sd[r, c] - t1[r])
+                for s_ in range(6):
+                    acc += E[r, s_] * Sc[s_]
+                df[r] = acc
+            phi_transpose_force(R, p, S, df, wk, QxT[6 + c])
+        for r in range(6):  # E Ad^-1, Ad^-1 = [[R^T, -R^T [p]], [0, R^T]]
+            for c in range(3):
+                EA[r, c] = E[r, 0] * R[c, 0] + E[r, 1] * R[c, 1] + E[r, 2] * R[c, 2]
+                EA[r, 3 + c] = E[r, 3] * R[c, 0] + E[r, 4] * R[c, 1] + E[r, 5] * R[c, 2]
+            x0, x1, x2 = EA[r, 0], EA[r, 1], EA[r, 2]
+            # - (E R^T [p])[r, :] = - x [p] = p x x, x = (E R^T)[r, :3]
+            EA[r, 3] += p[1] * x2 - p[2] * x1
+            EA[r, 4] += p[2] * x0 - p[0] * x2
+            EA[r, 5] += p[0] * x1 - p[1] * x0
+        for kk in range(6):
+            for r in range(6):
+                df[r] = EA[r, kk]
             phi_transpose_force(R, p, S, df, wk, QxT[kk])
+
+
+@jit
+def _velocity_force_matrix(Id, V, hV, rel, E):
+    """``E = d f / d V`` (6, 6) of a slice force ``f = I a + V x* I V`` whose acceleration moves
+    with its twist as ``da = -rel x dV``: ``[I V] x*bar + [V x*] I - I ad(rel)``."""
+    for r in range(6):
+        for c in range(6):
+            E[r, c] = 0.0
+    # [h] x*bar: a -> a x* h = [[0, -[f]], [-[f], -[n]]] a
+    f0, f1, f2, n0, n1, n2 = hV[0], hV[1], hV[2], hV[3], hV[4], hV[5]
+    _add_skew(E, 0, 3, f0, f1, f2, -1.0)
+    _add_skew(E, 3, 0, f0, f1, f2, -1.0)
+    _add_skew(E, 3, 3, n0, n1, n2, -1.0)
+    # [V x*] I = [[w^, 0], [v^, w^]] diag(Id)
+    _add_skew_cols(E, 0, 0, V[3], V[4], V[5], Id, 0)
+    _add_skew_cols(E, 3, 3, V[3], V[4], V[5], Id, 3)
+    _add_skew_cols(E, 3, 0, V[0], V[1], V[2], Id, 0)
+    # - I ad(rel) = - diag(Id) [[wr^, vr^], [0, wr^]]
+    _add_skew_rows(E, 0, 0, rel[3], rel[4], rel[5], Id, 0)
+    _add_skew_rows(E, 0, 3, rel[0], rel[1], rel[2], Id, 0)
+    _add_skew_rows(E, 3, 3, rel[3], rel[4], rel[5], Id, 3)
+
+
+@jit
+def _add_skew(E, r0, c0, x, y, z, scale):
+    """``E[r0:r0+3, c0:c0+3] += scale [(x, y, z)]x``."""
+    E[r0, c0 + 1] -= scale * z
+    E[r0, c0 + 2] += scale * y
+    E[r0 + 1, c0] += scale * z
+    E[r0 + 1, c0 + 2] -= scale * x
+    E[r0 + 2, c0] -= scale * y
+    E[r0 + 2, c0 + 1] += scale * x
+
+
+@jit
+def _add_skew_cols(E, r0, c0, x, y, z, Id, i0):
+    """``E[r0:r0+3, c0:c0+3] += [(x, y, z)]x diag(Id[i0:i0+3])``."""
+    E[r0, c0 + 1] -= z * Id[i0 + 1]
+    E[r0, c0 + 2] += y * Id[i0 + 2]
+    E[r0 + 1, c0] += z * Id[i0]
+    E[r0 + 1, c0 + 2] -= x * Id[i0 + 2]
+    E[r0 + 2, c0] -= y * Id[i0]
+    E[r0 + 2, c0 + 1] += x * Id[i0 + 1]
+
+
+@jit
+def _add_skew_rows(E, r0, c0, x, y, z, Id, i0):
+    """``E[r0:r0+3, c0:c0+3] -= diag(Id[i0:i0+3]) [(x, y, z)]x``."""
+    E[r0, c0 + 1] += z * Id[i0]
+    E[r0, c0 + 2] -= y * Id[i0]
+    E[r0 + 1, c0] -= z * Id[i0 + 1]
+    E[r0 + 1, c0 + 2] += x * Id[i0 + 1]
+    E[r0 + 2, c0] += y * Id[i0 + 2]
+    E[r0 + 2, c0 + 1] -= x * Id[i0 + 2]
 
 
 @jit
@@ -252,41 +327,49 @@ def tip_derivatives(q, qd, qdd, V0, A0, T, R1, p1, V1, A1, rel1, tipV, tipA, dS1
     Ar = np.empty(6)
     t1 = np.empty(6)
     t2 = np.empty(6)
+    t3 = np.empty(6)
+    z3 = np.zeros(3)
     arc_node(1.0, q[0], q[1], q[2], qd[0], qd[1], qd[2], R1, p1, S, Sd)
     arc_node_derivatives(1.0, q[0], q[1], q[2], qd[0], qd[1], qd[2], dS1, K)
     phi_matrix(R1, p1, S, T)
-    _node_state(R1, p1, S, Sd, V0, A0, qd, qdd, Vr, Ar, rel1, V1, A1)
+    _node_state(R1, p1, S, Sd, V0, A0, qd, qdd, Vr, Ar, rel1, V1, A1, z3, t1)
     for c in range(3):
-        _q_variation(c, S, dS1, K, qd, qdd, Vr, Ar, rel1, tipV[c], tipA[c], t1, t2)
-        _qd_variation(c, S, Sd, V1, tipV[3 + c], tipA[3 + c])
+        _q_variation(c, S, dS1, K, qd, qdd, Vr, Ar, rel1, tipV[c], tipA[c], t1, t2, t3)
+        _qd_variation(c, S, Sd, V1, tipV[3 + c], tipA[3 + c], t3)
+
+
+#: Names of :func:`rnea_workspace`'s arrays (``Data`` attributes), in order.
+RNEA_WORKSPACE = ("A", "R_0j", "p_0j", "QqT", "QxT", "rel1", "tipV", "tipA", "dS1", "G", "Ya", "Yv", "Ms", "Jw",
+                  "sig1", "sig2", "tau_c", "F0", "M", "dtau_dq", "dtau_dv")
 
 
 @jit
-def rnea_derivatives(alpha, w, offs, mass, radius, q, qd, qdd, V0, A0, floating, g_B, tau, F0, dq, dv, M):
+def rnea_workspace(n, nv):
+    """Fresh arrays for :func:`rnea_derivatives` (shapes in :mod:`qchain.data`), then its
+    outputs ``tau_c`` (n, 3), ``F0`` (6,), ``M``, ``dtau_dq``, ``dtau_dv`` (nv, nv)."""
+    return (np.zeros((n + 1, 6)), np.zeros((n + 1, 3, 3)), np.zeros((n + 1, 3)), np.zeros((n, 3, 9)),
+            np.zeros((n, 9, 9)), np.zeros((n, 6)), np.zeros((n, 6, 6)), np.zeros((n, 6, 6)), np.zeros((n, 3, 6, 3)),
+            np.zeros((n, 6, 6)), np.zeros((n, 3, 6)), np.zeros((n, 3, 6)), np.zeros((n, 3, 6)), np.zeros((n, 3, 6)),
+            np.zeros((n, 6, 6)), np.zeros((n, 6, 6)), np.zeros((n, 3)), np.zeros(6), np.zeros((nv, nv)),
+            np.zeros((nv, nv)), np.zeros((nv, nv)))
+
+
+@jit
+def rnea_derivatives(alpha, w, offs, mass, radius, q, qd, qdd, V0, A0, floating, g_B, ws, wd):
     """Inverse dynamics and its exact derivatives, curvature coordinates.
 
-    Writes ``tau`` (n, 3) and ``F0`` (6,) as :func:`qchain.recursive.rnea` does, ``dq`` and
-    ``dv`` (nv, nv): ``d(F0, tau)/d(q, v)`` (rows: the base wrench for a floating base, then the
-    segments; columns: the base's tangent ``(translation, rotation)`` / twist, then the
-    segments), and ``M`` (nv, nv) ``= d(F0, tau)/da``. ``g_B`` (3,) is gravity in the first
-    root's frame (it turns with a floating base).
+    ``ws`` is :meth:`qchain.data.Data.aba_workspace`, ``wd`` :meth:`~qchain.data.Data.rnea_workspace`.
+    Writes its ``tau_c`` (n, 3) and ``F0`` (6,) as :func:`qchain.recursive.rnea` does,
+    ``dtau_dq`` and ``dtau_dv`` (nv, nv): ``d(F0, tau)/d(q, v)`` (rows: the base wrench for a
+    floating base, then the segments; columns: the base's tangent ``(translation, rotation)``
+    / twist, then the segments), and ``M`` (nv, nv) ``= d(F0, tau)/da``. ``g_B`` (3,) is gravity
+    in the first root's frame (it turns with a floating base).
     """
     n = q.shape[0]
     off = 6 if floating else 0
+    V, T, _, Q, Mxi, _, _, _ = ws
+    (A, Rw, pw, QqT, QxT, rel1, tipV, tipA, dS1, G, Ya, Yv, Ms, Jw, sig1, sig2, tau, F0, M, dq, dv) = wd
     # ---------------------------------------------------------------- forward
-    V = np.empty((n + 1, 6))
-    A = np.empty((n + 1, 6))
-    Rw = np.empty((n + 1, 3, 3))
-    pw = np.empty((n + 1, 3))
-    Q = np.empty((n, 9))
-    Mxi = np.empty((n, 9, 9))
-    QqT = np.empty((n, 3, 9))
-    QxT = np.empty((n, 9, 9))
-    T = np.empty((n, 6, 9))
-    rel1 = np.empty((n, 6))
-    tipV = np.empty((n, 6, 6))
-    tipA = np.empty((n, 6, 6))
-    dS1 = np.empty((n, 3, 6, 3))
     R1 = np.empty((3, 3))
     p1 = np.empty(3)
     xi = np.empty(9)
@@ -322,13 +405,8 @@ def rnea_derivatives(alpha, w, offs, mass, radius, q, qd, qdd, V0, A0, floating,
     IcT = np.empty((6, 9))
     D = np.empty((6, 9))  # D[col] = d(F_j, tau_j)/d col, cols q_j then qd_j
     dF = np.empty(6)
-    G = np.empty((n, 6, 6))  # G[m, col] = world wrench variation at root m
-    Ya = np.empty((n, 3, 6))
-    Yv = np.empty((n, 3, 6))
-    Ms = np.empty((n, 3, 6))  # Ms[j, b] = world wrench at root j per unit qdd_j,b
-    Jw = np.empty((n, 3, 6))  # Jw[i, b] = world twist of tip i per unit qd_i,b
-    sig1 = np.empty((n, 6, 6))
-    sig2 = np.empty((n, 6, 6))
+    # G[m, col]: wrench variation at root m; Ya, Yv: subtree sensitivities; Ms[j, b]: wrench at
+    # root j per unit qdd_j,b; Jw[i, b]: twist of tip i per unit qd_i,b; all in root 0
     t1 = np.empty(6)
     t2 = np.empty(6)
     vW = np.empty(6)
@@ -543,3 +621,143 @@ def input_matrices(q, A_ch, r_ch, paper_act, B):
     """``B[j]`` (3, 3) the input matrix of every segment (:func:`qchain.slices.input_matrix_c`)."""
     for j in range(q.shape[0]):
         input_matrix_c(q[j], A_ch[j], r_ch[j], paper_act[j], B[j])
+
+
+#: Names of :func:`aba_derivatives_workspace`'s arrays (``Data`` attributes), in order.
+ABA_DERIVATIVES_WORKSPACE = ("f", "a_c", "A0", "a", "L", "rhs", "da_dq", "da_dv", "da_dtau", "da_dp", "dfq", "dfv",
+                             "B")
+
+
+@jit
+def aba_derivatives_workspace(n, nv):
+    """Fresh arrays for :func:`aba_derivatives` (shapes in :mod:`qchain.data`)."""
+    return (np.zeros((n, 3)), np.zeros((n, 3)), np.zeros(6), np.zeros(nv), np.zeros((nv, nv)), np.zeros((nv, nv)),
+            np.zeros((nv, nv)), np.zeros((nv, nv)), np.zeros((nv, nv)), np.zeros((nv, 3 * n)), np.zeros((n, 3, 3)),
+            np.zeros((n, 3, 3)), np.zeros((n, 3, 3)))
+
+
+@jit
+def _chol_inverse(L, k, Minv):
+    """``Minv = (L L^T)^-1`` (k, k) from the lower Cholesky factor ``L``, which is overwritten
+    by its own inverse (lower)."""
+    for j in range(k):
+        L[j, j] = 1.0 / L[j, j]
+        for i in range(j + 1, k):
+            acc = 0.0
+            for s in range(j, i):
+                acc -= L[i, s] * L[s, j]
+            L[i, j] = acc / L[i, i]
+        for i in range(j):
+            L[i, j] = 0.0
+    for i in range(k):
+        for j in range(i + 1):
+            acc = 0.0
+            for s in range(i, k):
+                acc += L[s, i] * L[s, j]
+            Minv[i, j] = acc
+            Minv[j, i] = acc
+
+
+@jit
+def aba_derivatives(alpha, w, offs, mass, radius, l0, EI, EA, beta, A_ch, r_ch, paper_act, locked, floating,
+                    q, qd, p, tau_ext, V0, A_B, g_B, ws, wd, wa):
+    """Forward dynamics and its exact derivatives in one compiled call (curvature coordinates,
+    the material law).
+
+    ``a`` solves ``M a + C v + g + D v + dU_el/dq = B p + tau_ext`` (:func:`qchain.recursive.aba`);
+    then ``da/dq = M^-1 (df/dq - dID/dq)``, ``da/dv = M^-1 (df/dv - dID/dv)``, ``da/dtau = M^-1``,
+    ``da/dp = M^-1 B`` with the inverse-dynamics derivatives of :func:`rnea_derivatives` at the
+    solved ``a``. ``locked`` (n, 3) coordinates get zero rows and columns. ``q, qd, p`` (n, 3);
+    ``tau_ext`` (nv,); ``V0`` (6,) the base twist, ``A_B`` (6,) the base's own acceleration
+    (a prescribed base; zeros otherwise), ``g_B`` (3,) gravity in the base frame. ``ws``, ``wd``,
+    ``wa``: :class:`qchain.data.Data`'s aba, rnea-derivative and aba-derivative workspaces.
+    Returns 0, or 1 where an articulated block is not positive definite, 2 where ``M`` is not,
+    3 where ``a`` or a derivative is not finite.
+    """
+    n = q.shape[0]
+    off = 6 if floating else 0
+    nv = off + 3 * n
+    f, qdd, A0, a, L, rhs, da_dq, da_dv, da_dtau, da_dp, dfq, dfv, B = wa
+    M, dq, dv = wd[18], wd[19], wd[20]
+    recursive_internal_forces(q, qd, p, l0, EI, EA, beta, A_ch, r_ch, paper_act, f)
+    for j in range(n):
+        for b in range(3):
+            f[j, b] += tau_ext[off + 3 * j + b]
+    F0 = np.zeros(6)
+    Aa = np.empty(6)
+    for r in range(6):
+        Aa[r] = A_B[r]
+        if floating:
+            F0[r] = tau_ext[r]
+    for r in range(3):
+        Aa[r] -= g_B[r]
+    if not recursive_aba(alpha, w, offs, mass, radius, q, qd, f, V0, Aa, floating, F0, qdd, A0, locked, ws):
+        return 1
+    if floating:
+        for r in range(6):
+            a[r] = A0[r]
+        for r in range(3):
+            a[r] += g_B[r]
+    for j in range(n):
+        for b in range(3):
+            a[off + 3 * j + b] = qdd[j, b]
+    rnea_derivatives(alpha, w, offs, mass, radius, q, qd, qdd, V0, A0, floating, g_B, ws, wd)
+    internal_forces_derivatives(q, p, l0, EI, EA, beta, A_ch, r_ch, paper_act, dfq, dfv)
+    input_matrices(q, A_ch, r_ch, paper_act, B)
+    # right-hand sides df - dID, the free block of M with locked coordinates decoupled
+    for r in range(nv):
+        for c in range(nv):
+            da_dq[r, c] = -dq[r, c]
+            da_dv[r, c] = -dv[r, c]
+            L[r, c] = M[r, c]
+    for j in range(n):
+        i0 = off + 3 * j
+        for a_ in range(3):
+            for b in range(3):
+                da_dq[i0 + a_, i0 + b] += dfq[j, a_, b]
+                da_dv[i0 + a_, i0 + b] += dfv[j, a_, b]
+    for j in range(n):
+        for b in range(3):
+            if locked[j, b]:
+                k = off + 3 * j + b
+                for r in range(nv):
+                    L[r, k] = 0.0
+                    L[k, r] = 0.0
+                L[k, k] = 1.0
+    if not recursive_chol(L, nv):
+        return 2
+    _chol_inverse(L, nv, da_dtau)
+    for j in range(n):
+        for b in range(3):
+            if locked[j, b]:
+                k = off + 3 * j + b
+                for r in range(nv):
+                    da_dtau[k, r] = 0.0
+                    da_dtau[r, k] = 0.0
+    rhs[:, :] = da_dq
+    np.dot(da_dtau, rhs, da_dq)
+    rhs[:, :] = da_dv
+    np.dot(da_dtau, rhs, da_dv)
+    for j in range(n):
+        for b in range(3):
+            if locked[j, b]:
+                k = off + 3 * j + b
+                for r in range(nv):
+                    da_dq[r, k] = 0.0
+                    da_dv[r, k] = 0.0
+    for r in range(nv):
+        for j in range(n):
+            i0 = off + 3 * j
+            for i in range(3):
+                acc = 0.0
+                for b in range(3):
+                    acc += da_dtau[r, i0 + b] * B[j, b, i]
+                da_dp[r, 3 * j + i] = acc
+    # a non-finite entry anywhere (a blow-up) is reported, never returned silently
+    for r in range(nv):
+        if not np.isfinite(a[r]):
+            return 3
+        for c in range(nv):
+            if not (np.isfinite(da_dq[r, c]) and np.isfinite(da_dv[r, c])):
+                return 3
+    return 0

@@ -30,6 +30,7 @@ from .segment import paper_bias_derivative, paper_jacobian_derivative, paper_jac
 
 if TYPE_CHECKING:
     from .chain import Chain, _State
+    from .data import Data
 
 __all__ = ["InverseDynamicsDerivatives", "ForwardDynamicsDerivatives"]
 
@@ -73,21 +74,19 @@ class ForwardDynamicsDerivatives(NamedTuple):
 # ---------------------------------------------------------------------------- inverse
 
 
-def _curvature_id_derivatives(ch: Chain, st: _State, qdd_c: np.ndarray, A0: np.ndarray, g_B: np.ndarray):
-    """The compiled pass: ``(tau_c (nv,), dq_c, dv_c, M_c)`` in curvature coordinates."""
-    n, nv = ch.n, ch.nv
-    tau = np.empty((n, 3))
-    F0 = np.empty(6)
-    dq = np.empty((nv, nv))
-    dv = np.empty((nv, nv))
-    M = np.empty((nv, nv))
+def _curvature_id_derivatives(ch: Chain, st: _State, qdd_c: np.ndarray, A0: np.ndarray, g_B: np.ndarray,
+                              data: Data):
+    """The compiled pass: ``(tau_c (nv,), dq_c, dv_c, M_c)`` in curvature coordinates (views
+    into ``data``, except ``tau_c``)."""
     V0 = np.zeros(6) if st.V0 is None else st.V0
+    wd = data.rnea_workspace()
     derivatives.rnea_derivatives(
         ch._alpha, ch._w, ch._offs, ch._mass, ch._radius, st.q_c, np.ascontiguousarray(st.v_c),
-        np.ascontiguousarray(qdd_c), V0, A0, ch.floating, g_B, tau, F0, dq, dv, M,
+        np.ascontiguousarray(qdd_c), V0, A0, ch.floating, g_B, data.aba_workspace(), wd,
     )
-    full = np.concatenate([F0, tau.ravel()]) if ch.floating else tau.ravel()
-    return full, dq, dv, M
+    tau = data.tau_c.ravel()
+    full = np.concatenate([data.F0, tau]) if ch.floating else tau.copy()
+    return full, data.dtau_dq, data.dtau_dv, data.M
 
 
 def _paper_blocks(ch: Chain, st: _State, fn) -> np.ndarray:
@@ -110,11 +109,11 @@ def _dT(ch: Chain, st: _State, x: np.ndarray, transpose: bool = False) -> np.nda
     return _paper_blocks(ch, st, block)
 
 
-def inverse_dynamics_derivatives(ch: Chain, st: _State, a: np.ndarray) -> InverseDynamicsDerivatives:
+def inverse_dynamics_derivatives(ch: Chain, st: _State, a: np.ndarray, data: Data) -> InverseDynamicsDerivatives:
     """On a validated state; ``a`` (nv,) in the chain's coordinates."""
     a_e = a[ch._voff :].reshape(ch.n, 3)
     A0 = ch._A0(st, a[:6] if ch.floating else None)
-    tau_c, dq_c, dv_c, M_c = _curvature_id_derivatives(ch, st, ch._acc_c(st, a_e), A0, st.g_B)
+    tau_c, dq_c, dv_c, M_c = _curvature_id_derivatives(ch, st, ch._acc_c(st, a_e), A0, st.g_B, data)
     if st.J is None:
         return InverseDynamicsDerivatives(tau_c, dq_c, dv_c, M_c)
     T = ch._lift(st)
@@ -177,47 +176,66 @@ def _internal_derivatives(ch: Chain, st: _State, p3: np.ndarray):
 # ---------------------------------------------------------------------------- forward
 
 
-def forward_dynamics_derivatives(ch: Chain, st: _State, p3: np.ndarray, tau, t: float) -> ForwardDynamicsDerivatives:
+def forward_dynamics_derivatives(ch: Chain, st: _State, p3: np.ndarray, tau, t: float,
+                                 data: Data) -> ForwardDynamicsDerivatives:
     """On a validated state (locks checked)."""
-    a = ch._forward_dynamics(st, p3, tau, t)
-    idd = inverse_dynamics_derivatives(ch, st, a)
+    if not (ch._any_paper or ch._has_linear):
+        return compiled_forward_dynamics_derivatives(ch, st.q_c, np.ascontiguousarray(st.v_c), p3, tau, st.V0,
+                                                     st.A_B, st.g_B, t, data)
+    a = ch._forward_dynamics(st, p3, tau, t, data)
+    idd = inverse_dynamics_derivatives(ch, st, a, data)
     dfq, dfv, B = _internal_derivatives(ch, st, p3)
     nv = ch.nv
     free = ch.active
-    if ch._any_locked:
-        ix = np.ix_(free, free)
-        Mf = idd.dtau_da[ix]
-    else:
-        Mf = idd.dtau_da
+    ix = np.ix_(free, free)
     try:
-        c = cho_factor(Mf, lower=True, check_finite=False)
+        c = cho_factor(idd.dtau_da[ix], lower=True, check_finite=False)
     except np.linalg.LinAlgError:
         raise QchainError("forward_dynamics_derivatives: the mass matrix is not positive definite") from None
-    Minv = cho_solve(c, np.eye(Mf.shape[0]), check_finite=False)
-    rhs_q = dfq - idd.dtau_dq
-    rhs_v = dfv - idd.dtau_dv
-    if ch._any_locked:
-        da_dq = np.zeros((nv, nv))
-        da_dv = np.zeros((nv, nv))
-        da_dtau = np.zeros((nv, nv))
-        da_dq[ix] = Minv @ rhs_q[ix]
-        da_dv[ix] = Minv @ rhs_v[ix]
-        da_dtau[ix] = Minv
-    else:
-        da_dq = Minv @ rhs_q
-        da_dv = Minv @ rhs_v
-        da_dtau = Minv
-    out = ForwardDynamicsDerivatives(a, da_dq, da_dv, da_dtau @ B, da_dtau)
-    for name, x in zip(out._fields[1:], out[1:]):
+    Minv = cho_solve(c, np.eye(int(free.sum())), check_finite=False)
+    da_dq = np.zeros((nv, nv))
+    da_dv = np.zeros((nv, nv))
+    da_dtau = np.zeros((nv, nv))
+    da_dq[ix] = Minv @ (dfq - idd.dtau_dq)[ix]
+    da_dv[ix] = Minv @ (dfv - idd.dtau_dv)[ix]
+    da_dtau[ix] = Minv
+    return _checked(ForwardDynamicsDerivatives(a, da_dq, da_dv, da_dtau @ B, da_dtau), t)
+
+
+def _checked(out: ForwardDynamicsDerivatives, t: float) -> ForwardDynamicsDerivatives:
+    for name, x in zip(out._fields, out):
         if not np.all(np.isfinite(x)):
             raise QchainError(f"forward_dynamics_derivatives produced non-finite entries in {name} at t = {t}")
     return out
 
 
+def compiled_forward_dynamics_derivatives(ch: Chain, q_c, v_c, p3, tau, V0, A_B, g_B, t, data: Data,
+                                          check: bool = True) -> ForwardDynamicsDerivatives:
+    """The one compiled call (:func:`qchain.derivatives.aba_derivatives`) for chains in
+    curvature coordinates with the material law; the result's arrays are ``data``'s."""
+    tau_ext = np.zeros(ch.nv) if tau is None else tau
+    A_B = _ZERO6 if A_B is None else A_B
+    status = derivatives.aba_derivatives(
+        ch._alpha, ch._w, ch._offs, ch._mass, ch._radius, ch._l0, ch._EI, ch._EA, ch._beta, ch._A_ch, ch._r_ch,
+        ch._paper_act, ch._locked, ch.floating, q_c, v_c, p3, tau_ext, V0, A_B, g_B, data.aba_workspace(),
+        data.rnea_workspace(), data.aba_derivatives_workspace(),
+    )
+    if status and check:
+        what = {1: "an articulated inertia block is not positive definite",
+                2: "the mass matrix is not positive definite",
+                3: "non-finite accelerations or derivatives"}[status]
+        raise QchainError(f"forward_dynamics_derivatives: {what} at t = {t}")
+    return ForwardDynamicsDerivatives(data.a, data.da_dq, data.da_dv, data.da_dp, data.da_dtau)
+
+
+_ZERO6 = np.zeros(6)
+_ZERO6.flags.writeable = False
+
+
 # ---------------------------------------------------------------------------- mass matrix
 
 
-def mass_matrix_derivative(ch: Chain, st: _State) -> np.ndarray:
+def mass_matrix_derivative(ch: Chain, st: _State, data: Data) -> np.ndarray:
     """``dM[:, :, k] = dM/dq_k`` (nv, nv, nv) along ``integrate``: column ``i`` of ``dM/dq`` is the
     configuration derivative of ``M e_i``, the inverse dynamics of a unit acceleration with no
     velocity and no gravity (one compiled pass per column)."""
@@ -225,6 +243,7 @@ def mass_matrix_derivative(ch: Chain, st: _State) -> np.ndarray:
     st0 = type(st)(X_WB=st.X_WB, q_e=st.q_e, q_c=st.q_c, J=st.J, v_e=np.zeros((n, 3)), v_c=np.zeros((n, 3)),
                    V0=np.zeros(6), A_B=None, g_B=np.zeros(3))
     T = ch._lift(st)
+    M_c = None
     dMc = np.empty((nv, nv, nv))
     z = np.zeros(3)
     for i in range(nv):
@@ -232,7 +251,7 @@ def mass_matrix_derivative(ch: Chain, st: _State) -> np.ndarray:
         e[i] = 1.0
         qdd_c = e[ch._voff :].reshape(n, 3)
         A0 = e[:6].copy() if ch.floating else np.zeros(6)
-        _, dq_c, _, M_c = _curvature_id_derivatives(ch, st0, qdd_c, A0, z)
+        _, dq_c, _, M_c = _curvature_id_derivatives(ch, st0, qdd_c, A0, z, data)
         dMc[:, i, :] = dq_c
     if T is None:
         return dMc
@@ -244,7 +263,7 @@ def mass_matrix_derivative(ch: Chain, st: _State) -> np.ndarray:
         for c in range(3):
             dT[sl, sl, sl.start + c] = dJ[c]
     dMc_e = np.einsum("abl,lk->abk", dMc, T)
-    MT = M_c @ T
+    MT = M_c.copy() @ T
     out = np.einsum("ai,abk,bj->ijk", T, dMc_e, T)
     out += np.einsum("aik,aj->ijk", dT, MT) + np.einsum("ai,ajk->ijk", MT, dT)
     return out

@@ -78,16 +78,15 @@ def tip_maps(q, qd, V0, T, c, V):
 
 
 @jit
-def rnea(alpha, w, offs, mass, radius, q, qd, qdd, V0, A0, tau, F0):
+def rnea(alpha, w, offs, mass, radius, q, qd, qdd, V0, A0, tau, F0, ws):
     """Inverse dynamics ``tau = M qdd + C qd + g`` (n, 3) and the base wrench ``F0`` (6,).
 
     ``F0`` is the wrench (first root frame) the base exerts on the chain: the generalised
-    force of a floating base, the mount's reaction for a fixed or prescribed one.
+    force of a floating base, the mount's reaction for a fixed or prescribed one. ``ws`` is
+    :meth:`qchain.data.Data.aba_workspace`.
     """
     n = q.shape[0]
-    T = np.empty((n, 6, 9))
-    c = np.empty((n, 6))
-    Q = np.empty((n, 9))
+    _, T, c, Q, _, _, _, _ = ws
     xi = np.empty(9)
     xid = np.empty(9)
     V = V0.copy()
@@ -139,17 +138,18 @@ def _project(M, T, I, IT, out):
 
 
 @jit
-def crba(alpha, w, offs, mass, radius, q, floating, H):
+def crba(alpha, w, offs, mass, radius, q, floating, H, ws):
     """Composite-body assembly of the joint-space inertia ``H`` (nv, nv), curvature coordinates.
 
     Backwards from the tip: the composite inertia ``Ic`` of everything beyond root ``j + 1``
     gives ``Mh = M_xi_j + T_j^T Ic T_j`` (9 x 9): its ``qq`` block is ``H_jj``, its ``Vq``
     block the wrench at root ``j`` per unit ``qddot_j``, carried inwards by ``T_i^T`` to give
     ``H_ij`` (and, for a floating base, ``H_base,j``); its ``VV`` block is the next ``Ic``.
+    ``ws`` is :meth:`qchain.data.Data.aba_workspace`.
     """
     n = q.shape[0]
     off = 6 if floating else 0
-    T = np.empty((n, 6, 9))
+    T = ws[1]
     c = np.empty(6)
     Mj = np.empty((9, 9))
     Q = np.empty(9)
@@ -236,7 +236,7 @@ def _chol_solve(L, k, b):
 
 
 @jit
-def aba(alpha, w, offs, mass, radius, q, qd, tau, V0, A0, floating, F0, qdd, A0_out, locked):
+def aba(alpha, w, offs, mass, radius, q, qd, tau, V0, A0, floating, F0, qdd, A0_out, locked, ws):
     """Articulated-body forward dynamics: ``qdd`` (n, 3) from ``M qdd + C qd + g = tau``.
 
     ``tau`` (n, 3) is the total generalised force on the segment coordinates (pressure,
@@ -245,13 +245,11 @@ def aba(alpha, w, offs, mass, radius, q, qd, tau, V0, A0, floating, F0, qdd, A0_
     fixed or prescribed base ``A0`` is the root's
     apparent acceleration; for a floating base ``F0`` (6,) is the wrench applied to the base
     and ``A0_out`` receives the solved apparent base acceleration. Returns False if an
-    articulated block is not positive definite (a singular configuration).
+    articulated block is not positive definite (a singular configuration). ``ws`` is
+    :meth:`qchain.data.Data.aba_workspace`.
     """
     n = q.shape[0]
-    T = np.empty((n, 6, 9))
-    c = np.empty((n, 6))
-    b = np.empty((n, 9))
-    Mall = np.empty((n, 9, 9))
+    _, T, c, b, Mall, Lq, U, u = ws
     xi = np.empty(9)
     z9 = np.zeros(9)
     V = V0.copy()
@@ -266,9 +264,7 @@ def aba(alpha, w, offs, mass, radius, q, qd, tau, V0, A0, floating, F0, qdd, A0_
     # pass 2: articulated inertias, backwards
     IA = np.zeros((6, 6))
     pA = np.zeros(6)
-    Lq = np.empty((n, 3, 3))
-    U = np.empty((n, 6, 3))
-    u = np.empty((n, 3))
+    DiUt = np.empty((3, 6))
     IAT = np.empty((6, 9))
     Mh = np.empty((9, 9))
     bh = np.empty(9)
@@ -305,7 +301,6 @@ def aba(alpha, w, offs, mass, radius, q, qd, tau, V0, A0, floating, F0, qdd, A0_
         if not _chol(Lq[j], 3):
             return False
         # IA = Mh_VV - U D^-1 U^T ; pA = bh_V + U D^-1 u
-        DiUt = np.empty((3, 6))
         for r in range(6):
             for a in range(3):
                 col[a] = U[j, r, a]
@@ -482,3 +477,12 @@ def first_invalid(x, q, radius, paper):
         if not (l > 0.0) or abs(k) * radius[j] >= 1.0:
             return jk
     return -1
+
+
+@jit
+def aba_workspace(n, nv):
+    """Fresh arrays for :func:`aba`, :func:`rnea` and :func:`crba` (``Data.aba_workspace``):
+    root twists (n + 1, 6), tip maps (n, 6, 9), tip biases (n, 6), segment forces (n, 9),
+    segment blocks (n, 9, 9) and the articulated factors (n, 3, 3), (n, 6, 3), (n, 3)."""
+    return (np.zeros((n + 1, 6)), np.zeros((n, 6, 9)), np.zeros((n, 6)), np.zeros((n, 9)), np.zeros((n, 9, 9)),
+            np.zeros((n, 3, 3)), np.zeros((n, 6, 3)), np.zeros((n, 3)))
