@@ -803,7 +803,7 @@ class Chain:
         """
         a = self._vec("a", a, self.nv)
         st = self._state(q, v, t=t, nonsingular=True, extra=(("a", a),))
-        return _derivs.inverse_dynamics_derivatives(self, st, a, self.create_data() if data is None else data)
+        return _derivs.inverse_dynamics_derivatives(self, st, a, data)
 
     def forward_dynamics_derivatives(self, q, v, p=None, tau=None, t: float = 0.0, data: Data | None = None,
                                      skip_checks: bool = False) -> ForwardDynamicsDerivatives:
@@ -828,7 +828,7 @@ class Chain:
         st = self._state(q, v, t=t, nonsingular=True, extra=extra)
         if self._any_locked:
             self._check_locks(st.q_e, st.v_e)
-        return _derivs.forward_dynamics_derivatives(self, st, p3, tau, t, self.create_data() if data is None else data)
+        return _derivs.forward_dynamics_derivatives(self, st, p3, tau, t, data)
 
     def _forward_dynamics_derivatives_unchecked(self, q, v, p, tau, t, data):
         if data is None or self._any_paper or self._has_linear:
@@ -852,8 +852,7 @@ class Chain:
 
     def mass_matrix_derivative(self, q, data: Data | None = None) -> np.ndarray:
         """``dM[:, :, k] = dM/dq_k`` (nv, nv, nv) along :meth:`integrate`, exact."""
-        return _derivs.mass_matrix_derivative(self, self._state(q, nonsingular=True),
-                                              self.create_data() if data is None else data)
+        return _derivs.mass_matrix_derivative(self, self._state(q, nonsingular=True), data)
 
     def coriolis_matrix(self, q, v) -> np.ndarray:
         """``C(q, v)`` (nv, nv) with ``C v = nonlinear_effects - g`` and ``dM/dt - 2C`` skew.

@@ -38,6 +38,7 @@ import numpy as np
 from .arc import arc_node, jit
 from .recursive import _chol as recursive_chol
 from .recursive import aba as recursive_aba
+from .recursive import aba_workspace as recursive_aba_workspace
 from .recursive import internal_forces as recursive_internal_forces
 from .arc_derivatives import arc_node_derivatives
 from .slices import (
@@ -47,7 +48,8 @@ from .slices import (
     phi_transpose_force,
     pressure_jacobian_c,
     rest_damping_c,
-    segment_slices,
+    mass_finish,
+    mass_node,
     slice_twist,
 )
 
@@ -164,8 +166,9 @@ def _qd_variation(c, S, Sd, V, dV, da, h):
 
 
 @jit
-def segment_derivatives(alpha, w, mass, radius, q, xi, xid, QqT, QxT):
-    """Derivatives of ``Q = int Phi^T (I a + V x* I V) dalpha`` (9,) of one segment.
+def segment_derivatives(alpha, w, mass, radius, q, xi, xid, M, Q, QqT, QxT):
+    """``Q = int Phi^T (I a + V x* I V) dalpha`` (9,) of one segment, ``M = M_xi`` (9, 9) and
+    the derivatives of ``Q``, in one pass over the nodes (as :func:`qchain.slices.segment_slices`).
 
     ``QqT[c]`` (3, 9) ``= dQ/dq_c`` at fixed ``xi = (V_root, qdot)`` and ``xid = (A_root,
     qddot)``; ``QxT[k]`` (9, 9) ``= dQ/dxi_k`` at fixed ``xid`` (``dQ/dxid = M_xi``).
@@ -201,8 +204,14 @@ def segment_derivatives(alpha, w, mass, radius, q, xi, xid, QqT, QxT):
     qdd = xid[6:]
     QqT[:, :] = 0.0
     QxT[:, :] = 0.0
+    M[:, :] = 0.0
+    Q[:] = 0.0
+    mp = np.zeros(3)
+    Irot = np.zeros((3, 3))
+    wsum = 0.0
     for k in range(alpha.shape[0]):
         wk = w[k]
+        wsum += wk
         arc_node(alpha[k], q[0], q[1], q[2], qd[0], qd[1], qd[2], R, p, S, Sd)
         arc_node_derivatives(alpha[k], q[0], q[1], q[2], qd[0], qd[1], qd[2], dS, K)
         _node_state(R, p, S, Sd, V0, A0, qd, qdd, Vr, Ar, rel, V, a, z3, t1)
@@ -211,6 +220,8 @@ def segment_derivatives(alpha, w, mass, radius, q, xi, xid, QqT, QxT):
         _fcross(V, hV, f)
         for r in range(6):
             f[r] += Id[r] * a[r]
+        phi_transpose_force(R, p, S, f, wk, Q)
+        mass_node(R, p, S, Id, wk, M, mp, Irot, t1)
         for c in range(3):
             _q_variation(c, S, dS, K, qd, qdd, Vr, Ar, rel, dV, da, t1, t2, t3)
             _force_variation(Id, V, hV, dV, da, t1, t3, df)
@@ -254,6 +265,7 @@ def segment_derivatives(alpha, w, mass, radius, q, xi, xid, QqT, QxT):
             for r in range(6):
                 df[r] = EA[r, kk]
             phi_transpose_force(R, p, S, df, wk, QxT[kk])
+    mass_finish(M, mp, Irot, mass * wsum)
 
 
 @jit
@@ -384,8 +396,7 @@ def rnea_derivatives(alpha, w, offs, mass, radius, q, qd, qdd, V0, A0, floating,
         xid[:6] = A[j]
         xid[6:] = qdd[j]
         a0, a1 = offs[j], offs[j + 1]
-        segment_slices(alpha[a0:a1], w[a0:a1], mass[j], radius[j], q[j], xi, xid, True, Mxi[j], Q[j])
-        segment_derivatives(alpha[a0:a1], w[a0:a1], mass[j], radius[j], q[j], xi, xid, QqT[j], QxT[j])
+        segment_derivatives(alpha[a0:a1], w[a0:a1], mass[j], radius[j], q[j], xi, xid, Mxi[j], Q[j], QqT[j], QxT[j])
         tip_derivatives(q[j], qd[j], qdd[j], V[j], A[j], T[j], R1, p1, V[j + 1], A[j + 1], rel1[j], tipV[j],
                         tipA[j], dS1[j])
         for r in range(3):
@@ -761,3 +772,30 @@ def aba_derivatives(alpha, w, offs, mass, radius, l0, EI, EA, beta, A_ch, r_ch, 
             if not (np.isfinite(da_dq[r, c]) and np.isfinite(da_dv[r, c])):
                 return 3
     return 0
+
+
+@jit
+def aba_derivatives_fresh(alpha, w, offs, mass, radius, l0, EI, EA, beta, A_ch, r_ch, paper_act, locked, floating,
+                          q, qd, p, tau_ext, V0, A_B, g_B):
+    """:func:`aba_derivatives` in a workspace made here (no ``Data`` given): returns
+    ``(status, a, da_dq, da_dv, da_dp, da_dtau)`` and boxes only those."""
+    n = q.shape[0]
+    nv = (6 if floating else 0) + 3 * n
+    ws = recursive_aba_workspace(n, nv)
+    wd = rnea_workspace(n, nv)
+    wa = aba_derivatives_workspace(n, nv)
+    status = aba_derivatives(alpha, w, offs, mass, radius, l0, EI, EA, beta, A_ch, r_ch, paper_act, locked, floating,
+                             q, qd, p, tau_ext, V0, A_B, g_B, ws, wd, wa)
+    return status, wa[3], wa[6], wa[7], wa[9], wa[8]
+
+
+@jit
+def rnea_derivatives_fresh(alpha, w, offs, mass, radius, q, qd, qdd, V0, A0, floating, g_B):
+    """:func:`rnea_derivatives` in a workspace made here: returns ``(tau_c, F0, dtau_dq,
+    dtau_dv, M)``."""
+    n = q.shape[0]
+    nv = (6 if floating else 0) + 3 * n
+    ws = recursive_aba_workspace(n, nv)
+    wd = rnea_workspace(n, nv)
+    rnea_derivatives(alpha, w, offs, mass, radius, q, qd, qdd, V0, A0, floating, g_B, ws, wd)
+    return wd[16], wd[17], wd[19], wd[20], wd[18]

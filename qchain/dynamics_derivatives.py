@@ -75,18 +75,20 @@ class ForwardDynamicsDerivatives(NamedTuple):
 
 
 def _curvature_id_derivatives(ch: Chain, st: _State, qdd_c: np.ndarray, A0: np.ndarray, g_B: np.ndarray,
-                              data: Data):
+                              data: Data | None):
     """The compiled pass: ``(tau_c (nv,), dq_c, dv_c, M_c)`` in curvature coordinates (views
-    into ``data``, except ``tau_c``)."""
-    V0 = np.zeros(6) if st.V0 is None else st.V0
-    wd = data.rnea_workspace()
-    derivatives.rnea_derivatives(
-        ch._alpha, ch._w, ch._offs, ch._mass, ch._radius, st.q_c, np.ascontiguousarray(st.v_c),
-        np.ascontiguousarray(qdd_c), V0, A0, ch.floating, g_B, data.aba_workspace(), wd,
-    )
-    tau = data.tau_c.ravel()
-    full = np.concatenate([data.F0, tau]) if ch.floating else tau.copy()
-    return full, data.dtau_dq, data.dtau_dv, data.M
+    into ``data`` where given, except ``tau_c``)."""
+    V0 = _ZERO6 if st.V0 is None else st.V0
+    args = (ch._alpha, ch._w, ch._offs, ch._mass, ch._radius, st.q_c, np.ascontiguousarray(st.v_c),
+            np.ascontiguousarray(qdd_c), V0, A0, ch.floating, g_B)
+    if data is None:
+        tau, F0, dq, dv, M = derivatives.rnea_derivatives_fresh(*args)
+    else:
+        derivatives.rnea_derivatives(*args, data.aba_workspace(), data.rnea_workspace())
+        tau, F0, dq, dv, M = data.tau_c, data.F0, data.dtau_dq, data.dtau_dv, data.M
+    tau = tau.ravel()
+    full = np.concatenate([F0, tau]) if ch.floating else tau.copy()
+    return full, dq, dv, M
 
 
 def _paper_blocks(ch: Chain, st: _State, fn) -> np.ndarray:
@@ -109,7 +111,8 @@ def _dT(ch: Chain, st: _State, x: np.ndarray, transpose: bool = False) -> np.nda
     return _paper_blocks(ch, st, block)
 
 
-def inverse_dynamics_derivatives(ch: Chain, st: _State, a: np.ndarray, data: Data) -> InverseDynamicsDerivatives:
+def inverse_dynamics_derivatives(ch: Chain, st: _State, a: np.ndarray,
+                                 data: Data | None) -> InverseDynamicsDerivatives:
     """On a validated state; ``a`` (nv,) in the chain's coordinates."""
     a_e = a[ch._voff :].reshape(ch.n, 3)
     A0 = ch._A0(st, a[:6] if ch.floating else None)
@@ -177,7 +180,7 @@ def _internal_derivatives(ch: Chain, st: _State, p3: np.ndarray):
 
 
 def forward_dynamics_derivatives(ch: Chain, st: _State, p3: np.ndarray, tau, t: float,
-                                 data: Data) -> ForwardDynamicsDerivatives:
+                                 data: Data | None) -> ForwardDynamicsDerivatives:
     """On a validated state (locks checked)."""
     if not (ch._any_paper or ch._has_linear):
         return compiled_forward_dynamics_derivatives(ch, st.q_c, np.ascontiguousarray(st.v_c), p3, tau, st.V0,
@@ -209,23 +212,27 @@ def _checked(out: ForwardDynamicsDerivatives, t: float) -> ForwardDynamicsDeriva
     return out
 
 
-def compiled_forward_dynamics_derivatives(ch: Chain, q_c, v_c, p3, tau, V0, A_B, g_B, t, data: Data,
+def compiled_forward_dynamics_derivatives(ch: Chain, q_c, v_c, p3, tau, V0, A_B, g_B, t, data: Data | None,
                                           check: bool = True) -> ForwardDynamicsDerivatives:
     """The one compiled call (:func:`qchain.derivatives.aba_derivatives`) for chains in
-    curvature coordinates with the material law; the result's arrays are ``data``'s."""
+    curvature coordinates with the material law; the result's arrays are ``data``'s where it
+    is given."""
     tau_ext = np.zeros(ch.nv) if tau is None else tau
     A_B = _ZERO6 if A_B is None else A_B
-    status = derivatives.aba_derivatives(
-        ch._alpha, ch._w, ch._offs, ch._mass, ch._radius, ch._l0, ch._EI, ch._EA, ch._beta, ch._A_ch, ch._r_ch,
-        ch._paper_act, ch._locked, ch.floating, q_c, v_c, p3, tau_ext, V0, A_B, g_B, data.aba_workspace(),
-        data.rnea_workspace(), data.aba_derivatives_workspace(),
-    )
+    args = (ch._alpha, ch._w, ch._offs, ch._mass, ch._radius, ch._l0, ch._EI, ch._EA, ch._beta, ch._A_ch, ch._r_ch,
+            ch._paper_act, ch._locked, ch.floating, q_c, v_c, p3, tau_ext, V0, A_B, g_B)
+    if data is None:
+        status, *out = derivatives.aba_derivatives_fresh(*args)
+    else:
+        status = derivatives.aba_derivatives(*args, data.aba_workspace(), data.rnea_workspace(),
+                                             data.aba_derivatives_workspace())
+        out = (data.a, data.da_dq, data.da_dv, data.da_dp, data.da_dtau)
     if status and check:
         what = {1: "an articulated inertia block is not positive definite",
                 2: "the mass matrix is not positive definite",
                 3: "non-finite accelerations or derivatives"}[status]
         raise QchainError(f"forward_dynamics_derivatives: {what} at t = {t}")
-    return ForwardDynamicsDerivatives(data.a, data.da_dq, data.da_dv, data.da_dp, data.da_dtau)
+    return ForwardDynamicsDerivatives(*out)
 
 
 _ZERO6 = np.zeros(6)
@@ -235,7 +242,7 @@ _ZERO6.flags.writeable = False
 # ---------------------------------------------------------------------------- mass matrix
 
 
-def mass_matrix_derivative(ch: Chain, st: _State, data: Data) -> np.ndarray:
+def mass_matrix_derivative(ch: Chain, st: _State, data: Data | None) -> np.ndarray:
     """``dM[:, :, k] = dM/dq_k`` (nv, nv, nv) along ``integrate``: column ``i`` of ``dM/dq`` is the
     configuration derivative of ``M e_i``, the inverse dynamics of a unit acceleration with no
     velocity and no gravity (one compiled pass per column)."""
@@ -253,6 +260,7 @@ def mass_matrix_derivative(ch: Chain, st: _State, data: Data) -> np.ndarray:
         A0 = e[:6].copy() if ch.floating else np.zeros(6)
         _, dq_c, _, M_c = _curvature_id_derivatives(ch, st0, qdd_c, A0, z, data)
         dMc[:, i, :] = dq_c
+    M_c = M_c.copy()
     if T is None:
         return dMc
     # M_e = T^T M_c T; d/dq_k = dT_k^T M_c T + T^T M_c dT_k + T^T (sum_l dM_c/dq_l T_lk) T
@@ -263,7 +271,7 @@ def mass_matrix_derivative(ch: Chain, st: _State, data: Data) -> np.ndarray:
         for c in range(3):
             dT[sl, sl, sl.start + c] = dJ[c]
     dMc_e = np.einsum("abl,lk->abk", dMc, T)
-    MT = M_c.copy() @ T
+    MT = M_c @ T
     out = np.einsum("ai,abk,bj->ijk", T, dMc_e, T)
     out += np.einsum("aik,aj->ijk", dT, MT) + np.einsum("ai,ajk->ijk", MT, dT)
     return out

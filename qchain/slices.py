@@ -125,20 +125,8 @@ def segment_slices(alpha, w, mass, radius, q, xi, xid, want_mass, M, Q):
     for k in range(alpha.shape[0]):
         arc_node(alpha[k], q[0], q[1], q[2], qd[0], qd[1], qd[2], R, p, S, Sd)
         if want_mass:
-            # M_xi = int Phi^T I Phi: the root block is the disk's spatial inertia moved to the
-            # root ([[m, -m[p]], [m[p], R I_d R^T - m[p]^2]]); the q columns are Phi^T (I S_c).
-            wk = w[k]
-            wsum += wk
-            pp = p[0] * p[0] + p[1] * p[1] + p[2] * p[2]
-            for ia in range(3):
-                mp[ia] += wk * m * p[ia]
-                for ib in range(3):
-                    Irot[ia, ib] += wk * ((izz - ixx) * R[ia, 2] * R[ib, 2] - m * p[ia] * p[ib])
-                Irot[ia, ia] += wk * (ixx + m * pp)
-            for cc in range(3):
-                for r in range(6):
-                    fc[r] = Id[r] * S[r, cc]
-                phi_transpose_force(R, p, S, fc, wk, M[:, 6 + cc])
+            wsum += w[k]
+            mass_node(R, p, S, Id, w[k], M, mp, Irot, fc)
         slice_twist(R, p, S, V0, zero3, Vr)
         for r in range(6):
             rel[r] = S[r, 0] * qd[0] + S[r, 1] * qd[1] + S[r, 2] * qd[2]
@@ -159,22 +147,49 @@ def segment_slices(alpha, w, mass, radius, q, xi, xid, want_mass, M, Q):
         f[5] = izz * a[5] + V[0] * hl1 - V[1] * hl0 + V[3] * ha1 - V[4] * ha0
         phi_transpose_force(R, p, S, f, w[k], Q)
     if want_mass:
-        for ia in range(3):
-            M[ia, ia] = m * wsum
-            for ib in range(3):
-                M[3 + ia, 3 + ib] = Irot[ia, ib]
-        M[0, 4] = mp[2]  # -[m p]
-        M[0, 5] = -mp[1]
-        M[1, 3] = -mp[2]
-        M[1, 5] = mp[0]
-        M[2, 3] = mp[1]
-        M[2, 4] = -mp[0]
-        for ia in range(3):
-            for ib in range(3):
-                M[3 + ia, ib] = M[ib, 3 + ia]
+        mass_finish(M, mp, Irot, m * wsum)
+
+
+@jit
+def mass_node(R, p, S, Id, wk, M, mp, Irot, fc):
+    """One node's share of ``M_xi = int Phi^T I Phi`` (weight ``wk``): the root block is the
+    disk's spatial inertia moved to the root (``[[m, -m[p]], [m[p], R I_d R^T - m[p]^2]]``),
+    gathered in ``mp`` (3,) and ``Irot`` (3, 3); the q columns ``Phi^T (I S_c)`` go to
+    ``M[:, 6:]``. ``Id`` (6,) is the disk's diagonal inertia, ``fc`` (6,) scratch."""
+    m = Id[0]
+    ixx = Id[3]
+    izz = Id[5]
+    pp = p[0] * p[0] + p[1] * p[1] + p[2] * p[2]
+    for ia in range(3):
+        mp[ia] += wk * m * p[ia]
+        for ib in range(3):
+            Irot[ia, ib] += wk * ((izz - ixx) * R[ia, 2] * R[ib, 2] - m * p[ia] * p[ib])
+        Irot[ia, ia] += wk * (ixx + m * pp)
+    for cc in range(3):
         for r in range(6):
-            for cc in range(3):
-                M[6 + cc, r] = M[r, 6 + cc]
+            fc[r] = Id[r] * S[r, cc]
+        phi_transpose_force(R, p, S, fc, wk, M[:, 6 + cc])
+
+
+@jit
+def mass_finish(M, mp, Irot, mtot):
+    """Complete ``M_xi`` from the sums of :func:`mass_node` (``mtot`` the weighted mass)."""
+    for ia in range(3):
+        M[ia, ia] = mtot
+        for ib in range(3):
+            M[3 + ia, 3 + ib] = Irot[ia, ib]
+    M[0, 4] = mp[2]  # -[m p]
+    M[0, 5] = -mp[1]
+    M[1, 3] = -mp[2]
+    M[1, 5] = mp[0]
+    M[2, 3] = mp[1]
+    M[2, 4] = -mp[0]
+    for ia in range(3):
+        for ib in range(3):
+            M[3 + ia, ib] = M[ib, 3 + ia]
+    for r in range(6):
+        for cc in range(3):
+            M[6 + cc, r] = M[r, 6 + cc]
 
 
 @jit
