@@ -737,19 +737,45 @@ class Chain:
                 f[j] = s.input_matrix(st.q_e[j]) @ p[j] - s.damping_force(st.q_e[j], st.v_e[j]) - s.elastic_force(st.q_e[j])
         return f
 
-    def forward_dynamics(self, q, v, p=None, tau=None, t: float = 0.0, data: Data | None = None) -> np.ndarray:
+    def forward_dynamics(self, q, v, p=None, tau=None, t: float = 0.0, data: Data | None = None,
+                         skip_checks: bool = False) -> np.ndarray:
         """Accelerations ``a`` (nv,) of ``M a + C v + g + D v + dU_el/dq = B p + tau``.
 
         Articulated-body recursion on the segment blocks (:func:`qchain.recursive.aba`),
         O(n); locked coordinates get zero acceleration. ``p`` (3 n,) Pa, default zero; ``tau`` (nv,) external generalised forces
         (for a floating base, ``tau[:6]`` is a wrench on the base in the base frame).
-        ``data`` (:meth:`create_data`) is the workspace the pass writes in.
+        ``data`` (:meth:`create_data`) is the workspace the pass writes in. ``skip_checks=True``
+        is the unchecked fast path (:meth:`forward_dynamics_derivatives`): it returns
+        ``data.a``, overwritten by the next call with that ``data``.
         """
+        if skip_checks:
+            return self._forward_dynamics_unchecked(q, v, p, tau, t, data)
         p3, tau, extra = self._pt(p, tau)
         st = self._state(q, v, t=t, nonsingular=True, extra=extra)
         if self._any_locked:
             self._check_locks(st.q_e, st.v_e)
         return self._forward_dynamics(st, p3, tau, t, data)
+
+    def _forward_dynamics_unchecked(self, q, v, p, tau, t, data):
+        q_c, v_c, p3, V0, A_B, g_B = self._unchecked_inputs(q, v, p, t, data)
+        f = data.f
+        recursive.internal_forces(q_c, v_c, p3, self._l0, self._EI, self._EA, self._beta, self._A_ch, self._r_ch,
+                                  self._paper_act, f)
+        F0 = _ZERO6
+        if tau is not None:
+            f += tau[self._voff :].reshape(self.n, 3)
+            if self.floating:
+                F0 = tau[:6]
+        A0 = data.A0
+        A0[:] = 0.0 if A_B is None else A_B
+        A0[:3] -= g_B
+        a = data.a
+        recursive.aba(self._alpha, self._w, self._offs, self._mass, self._radius, q_c, v_c, f, V0, A0, self.floating,
+                      F0, a[self._voff :].reshape(self.n, 3), a[:6] if self.floating else A0, self._locked,
+                      data.aba_workspace())
+        if self.floating:
+            a[:3] += g_B
+        return a
 
     def _forward_dynamics(self, st: _State, p3: np.ndarray, tau: np.ndarray | None, t: float,
                           data: Data | None = None) -> np.ndarray:
@@ -831,13 +857,20 @@ class Chain:
         return _derivs.forward_dynamics_derivatives(self, st, p3, tau, t, data)
 
     def _forward_dynamics_derivatives_unchecked(self, q, v, p, tau, t, data):
+        q_c, v_c, p3, V0, A_B, g_B = self._unchecked_inputs(q, v, p, t, data)
+        return _derivs.compiled_forward_dynamics_derivatives(self, q_c, v_c, p3, tau, V0, A_B, g_B, t, data,
+                                                             check=False)
+
+    def _unchecked_inputs(self, q, v, p, t, data):
+        """``(q_c, v_c, p (n, 3), V0, A_B, g_B)`` of the ``skip_checks`` fast path, which serves
+        chains in curvature coordinates with the material law and needs a ``data``."""
         if data is None or self._any_paper or self._has_linear:
             raise ValueError("skip_checks=True needs data=chain.create_data() and a chain in curvature coordinates "
                              "with the material law (no stiffness_matrix/damping_matrix)")
         n = self.n
         q_c = q[self._qoff :].reshape(n, 3)
         v_c = v[self._voff :].reshape(n, 3)
-        p3 = _ZERO_P(n) if p is None else p.reshape(n, 3)
+        p3 = data.p if p is None else p.reshape(n, 3)
         A_B = None
         if self.base == "fixed":
             V0, g_B = _ZERO6, self._g_B
@@ -847,8 +880,7 @@ class Chain:
         else:
             X, V0, A_B = self.base_motion(float(t))
             g_B = X.rotation.T @ self.gravity
-        return _derivs.compiled_forward_dynamics_derivatives(self, q_c, v_c, p3, tau, V0, A_B, g_B, t, data,
-                                                             check=False)
+        return q_c, v_c, p3, V0, A_B, g_B
 
     def mass_matrix_derivative(self, q, data: Data | None = None) -> np.ndarray:
         """``dM[:, :, k] = dM/dq_k`` (nv, nv, nv) along :meth:`integrate`, exact."""

@@ -30,7 +30,7 @@ from __future__ import annotations
 import numpy as np
 
 from .arc import arc_node, arc_pose, jit
-from .slices import elastic_gradient_c, input_matrix_c, rest_damping_c, phi_matrix, segment_slices, slice_twist, sub_motion_cross
+from .slices import domain_violation, elastic_gradient_c, input_matrix_c, rest_damping_c, phi_matrix, segment_slices, slice_twist, sub_motion_cross
 
 __all__ = ["rnea", "crba", "aba", "tip_maps", "frames", "internal_forces", "first_invalid"]
 
@@ -466,15 +466,8 @@ def first_invalid(x, q, radius, paper):
             return -2
     n = radius.shape[0]
     for jk in range(q.shape[0]):
-        l = q[jk, 0]
         j = jk % n
-        if paper[j]:
-            k = q[jk, 2]
-            if k < 0.0:
-                return jk
-        else:
-            k = np.sqrt(q[jk, 1] * q[jk, 1] + q[jk, 2] * q[jk, 2])
-        if not (l > 0.0) or abs(k) * radius[j] >= 1.0:
+        if domain_violation(q[jk, 0], q[jk, 1], q[jk, 2], radius[j], paper[j]):
             return jk
     return -1
 

@@ -46,6 +46,7 @@ from .errors import (
 )
 from .slices import (
     CHAMBER_ANGLES,
+    domain_violation,
     elastic_gradient_c,
     elastic_hessian_c,
     input_matrix_c,
@@ -319,15 +320,13 @@ class Segment:
             density field diverges); ``kappa < 0`` in paper coordinates.
         """
         q = as_vector(name, q_e, 3)
-        if q[0] <= 0.0:
+        code = domain_violation(q[0], q[1], q[2], self.radius, self.coords == "paper")
+        if code == 1:
             raise DomainError(f"{name}: length l = {q[0]:.6g} m must be > 0")
-        if self.coords == "paper":
-            kappa = q[2]
-            if kappa < 0.0:
-                raise DomainError(f"{name}: curvature kappa = {kappa:.6g} 1/m must be >= 0 in paper coordinates")
-        else:
-            kappa = float(np.hypot(q[1], q[2]))
-        if abs(kappa) * self.radius >= 1.0:
+        if code == 2:
+            raise DomainError(f"{name}: curvature kappa = {q[2]:.6g} 1/m must be >= 0 in paper coordinates")
+        if code == 3:
+            kappa = q[2] if self.coords == "paper" else float(np.hypot(q[1], q[2]))
             raise DomainError(
                 f"{name}: |kappa| r_s = {abs(kappa) * self.radius:.6g} must be < 1 "
                 f"(kappa = {kappa:.6g} 1/m, radius = {self.radius:.6g} m): the inner fibre length vanishes"

@@ -22,7 +22,7 @@ from .arc import arc_node, jit
 from .arc_derivatives import arc_node_derivatives
 
 __all__ = ["CHAMBER_ANGLES", "input_matrix_c", "pressure_jacobian_c", "elastic_gradient_c", "elastic_hessian_c",
-           "rest_damping_c", "segment_slices", "segment_mass", "segment_newton_euler", "phi_transpose_force", "phi_matrix", "slice_twist"]
+           "rest_damping_c", "domain_violation", "segment_slices", "segment_mass", "segment_newton_euler", "phi_transpose_force", "phi_matrix", "slice_twist"]
 
 
 @jit
@@ -294,3 +294,22 @@ def pressure_jacobian_c(q, p, A_ch, r_ch, paper_act, Kp):
         Kp[0, 1] = Kp[1, 0] = -mx
         Kp[0, 2] = Kp[2, 0] = -my
         Kp[1, 1] = Kp[1, 2] = Kp[2, 1] = Kp[2, 2] = 0.0
+
+
+@jit
+def domain_violation(l, a, b, radius, paper):
+    """The model's domain rule for one segment configuration, ``(l, ux, uy)`` or, with
+    ``paper``, ``(l, psi, kappa)`` (``a, b``): 0 inside; 1 where ``l`` is not > 0; 2 where the
+    paper's ``kappa < 0``; 3 where ``|kappa| r_s >= 1`` (the inner fibre length vanishes and the
+    density field diverges)."""
+    if not (l > 0.0):
+        return 1
+    if paper:
+        k = b
+        if k < 0.0:
+            return 2
+    else:
+        k = np.sqrt(a * a + b * b)
+    if not (abs(k) * radius < 1.0):
+        return 3
+    return 0

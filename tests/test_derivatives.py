@@ -253,3 +253,48 @@ def test_bad_acceleration_is_refused_where_it_enters():
         ch.inverse_dynamics_derivatives(q, v, a)
     with pytest.raises(ValueError, match=r"p must have shape"):
         ch.forward_dynamics_derivatives(q, v, np.zeros(2))
+
+
+# ---------------------------------------------------------------- workspace and fast path
+
+
+@pytest.mark.parametrize("base", [b for b, _ in CASES])
+def test_data_workspace_and_unchecked_fast_path(base, rng):
+    """With ``data`` the passes write in it (the result's arrays are its arrays, reused call
+    after call); ``skip_checks=True`` gives the checked results bit for bit."""
+    ch = Chain([Segment(**SEGMENT_KW, damping=0.01 * j) for j in range(3)], base=base, **dict(CASES)[base])
+    d = ch.create_data()
+    t = 0.3
+    results = []
+    for _ in range(2):
+        q, v = random_state(ch, rng)
+        p = rng.uniform(0, 4e4, ch.nu)
+        tau = rng.normal(size=ch.nv)
+        ref = ch.forward_dynamics_derivatives(q, v, p, tau, t=t)
+        got = ch.forward_dynamics_derivatives(q, v, p, tau, t=t, data=d)
+        assert got.da_dq is d.da_dq and got.a is d.a
+        for x, y in zip(got, ref):
+            assert np.array_equal(x, y)
+        fast = ch.forward_dynamics_derivatives(q, v, p, tau, t=t, data=d, skip_checks=True)
+        for x, y in zip(fast, ref):
+            assert np.array_equal(x, y)
+        a_ref = ch.forward_dynamics(q, v, p, tau, t=t)
+        assert np.array_equal(ch.forward_dynamics(q, v, p, tau, t=t, data=d), a_ref)
+        assert np.array_equal(ch.forward_dynamics(q, v, p, tau, t=t, data=d, skip_checks=True), a_ref)
+        results.append(ref.da_dq.copy())
+    assert not np.array_equal(results[0], d.da_dq)  # the second call overwrote the first's
+    i_ref = ch.inverse_dynamics_derivatives(q, v, ref.a, t=t)
+    i_got = ch.inverse_dynamics_derivatives(q, v, ref.a, t=t, data=d)
+    assert i_got.dtau_dq is d.dtau_dq
+    for x, y in zip(i_got, i_ref):
+        assert np.array_equal(x, y)
+
+
+def test_fast_path_refuses_what_it_does_not_serve():
+    paper = make_chain("paper")
+    q = paper.neutral()
+    with pytest.raises(ValueError, match="skip_checks=True needs data"):
+        paper.forward_dynamics_derivatives(q, np.zeros(paper.nv), data=paper.create_data(), skip_checks=True)
+    ch = Chain([Segment(**SEGMENT_KW)])
+    with pytest.raises(ValueError, match="skip_checks=True needs data"):
+        ch.forward_dynamics(ch.neutral(), np.zeros(ch.nv), skip_checks=True)
