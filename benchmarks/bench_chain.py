@@ -14,8 +14,8 @@ Run: ``python benchmarks/bench_chain.py [--n 1 3 8 10 30] [--repeats 15] [--csv 
 from __future__ import annotations
 
 import argparse
-import csv
 import time
+from pathlib import Path
 
 import numpy as np
 import pinocchio as pin
@@ -143,10 +143,7 @@ def main(argv=None):
     if args.png:
         plot(rows, args.png)
     if args.csv:
-        with open(args.csv, "w", newline="") as fh:
-            w = csv.DictWriter(fh, fieldnames=list(rows[0]))
-            w.writeheader()
-            w.writerows(rows)
+        _study.write_csv(rows, Path(args.csv))
     return rows
 
 

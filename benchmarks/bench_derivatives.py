@@ -15,11 +15,12 @@ Run: ``python benchmarks/bench_derivatives.py [--n 1 3 8 10 30] [--repeats 15] [
 from __future__ import annotations
 
 import argparse
-import csv
+from pathlib import Path
 
 import numpy as np
 import pinocchio as pin
 
+import _study
 from bench_chain import per_call_us, rigid_chain, soft_chain, state
 
 
@@ -88,10 +89,7 @@ def main(argv=None):
               f" {r['idd_over_fd']:>9.2f} {r['fdd_over_pin']:>9.1f} {r['da_dq_rel_err']:>10.1e}")
     print("(median us per call, interleaved; ratios of medians; da_dq err: relative to central differences)")
     if args.csv:
-        with open(args.csv, "w", newline="") as fh:
-            w = csv.DictWriter(fh, fieldnames=list(rows[0]))
-            w.writeheader()
-            w.writerows(rows)
+        _study.write_csv(rows, Path(args.csv))
     return rows
 
 

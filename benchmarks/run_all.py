@@ -3,7 +3,7 @@
 Writes into ``--out`` (default ``out/bench``): ``work_precision.{csv,png}``,
 ``cosserat_release.{csv,png}`` (PyElastica part only with the ``bench`` extra installed),
 ``static_cantilever.{csv,png}``,
-``scaling.{csv,png}``, ``stability_map.{csv,png}``. ``--quick`` shortens every study.
+``scaling.{csv,png}``, ``derivatives.csv``, ``stability_map.{csv,png}``. ``--quick`` shortens every study.
 
 Run: ``python benchmarks/run_all.py [--quick] [--out DIR]`` or ``qchain bench [--quick]``.
 """
@@ -23,12 +23,12 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="qchain bench", description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="short runs (under two minutes in all)")
     ap.add_argument("--out", type=Path, default=Path("out/bench"), help="folder for the CSV and PNG files")
-    ap.add_argument("--only", nargs="+", choices=["precision", "cosserat", "static", "scaling", "stability"],
+    ap.add_argument("--only", nargs="+", choices=["precision", "cosserat", "static", "scaling", "derivatives", "stability"],
                     help="run only these studies")
     args = ap.parse_args(argv)
     sys.path.insert(0, str(HERE))
     args.out.mkdir(parents=True, exist_ok=True)
-    todo = args.only or ["precision", "cosserat", "static", "scaling", "stability"]
+    todo = args.only or ["precision", "cosserat", "static", "scaling", "derivatives", "stability"]
     t_all = time.perf_counter()
     for name in todo:
         t0 = time.perf_counter()
@@ -50,6 +50,11 @@ def main(argv=None) -> int:
             reps = ["--repeats", "5", "--calls", "50"] if args.quick else ["--repeats", "21", "--calls", "200"]
             bc.main(["--n", *map(str, ns), *reps, "--csv", str(args.out / "scaling.csv"),
                      "--png", str(args.out / "scaling.png")])
+        elif name == "derivatives":
+            bd = importlib.import_module("bench_derivatives")
+            ns = [1, 3, 10] if args.quick else [1, 3, 8, 10, 30]
+            reps = ["--repeats", "5", "--calls", "20"] if args.quick else ["--repeats", "15", "--calls", "100"]
+            bd.main(["--n", *map(str, ns), *reps, "--csv", str(args.out / "derivatives.csv")])
         elif name == "stability":
             importlib.import_module("stability_map").run(args.quick, args.out)
         print(f"-- {name}: {time.perf_counter() - t0:.1f} s", flush=True)

@@ -750,11 +750,16 @@ class Chain:
         """
         if skip_checks:
             return self._forward_dynamics_unchecked(q, v, p, tau, t, data)
+        st, p3, tau = self._dynamics_inputs(q, v, p, tau, t)
+        return self._forward_dynamics(st, p3, tau, t, data)
+
+    def _dynamics_inputs(self, q, v, p, tau, t):
+        """Validated ``(state, p (n, 3), tau)`` of a forward-dynamics call, locks checked."""
         p3, tau, extra = self._pt(p, tau)
         st = self._state(q, v, t=t, nonsingular=True, extra=extra)
         if self._any_locked:
             self._check_locks(st.q_e, st.v_e)
-        return self._forward_dynamics(st, p3, tau, t, data)
+        return st, p3, tau
 
     def _forward_dynamics_unchecked(self, q, v, p, tau, t, data):
         q_c, v_c, p3, V0, A_B, g_B = self._unchecked_inputs(q, v, p, t, data)
@@ -850,10 +855,7 @@ class Chain:
         """
         if skip_checks:
             return self._forward_dynamics_derivatives_unchecked(q, v, p, tau, t, data)
-        p3, tau, extra = self._pt(p, tau)
-        st = self._state(q, v, t=t, nonsingular=True, extra=extra)
-        if self._any_locked:
-            self._check_locks(st.q_e, st.v_e)
+        st, p3, tau = self._dynamics_inputs(q, v, p, tau, t)
         return _derivs.forward_dynamics_derivatives(self, st, p3, tau, t, data)
 
     def _forward_dynamics_derivatives_unchecked(self, q, v, p, tau, t, data):

@@ -37,6 +37,7 @@ import numpy as np
 
 from .arc import arc_node, jit
 from .recursive import _chol as recursive_chol
+from .recursive import _project as recursive_project
 from .recursive import aba as recursive_aba
 from .recursive import aba_workspace as recursive_aba_workspace
 from .recursive import internal_forces as recursive_internal_forces
@@ -435,37 +436,24 @@ def rnea_derivatives(alpha, w, offs, mass, radius, q, qd, qdd, V0, A0, floating,
                 acc += Tj[r, k] * F[r]
             TF[k] = acc
         # composite inertia Mh = M_xi + T^T Ic T and W_j = dQ/dV + T^T (WF - Ic ad(rel1)) T_V
-        for r in range(6):
-            for s in range(6):
+        # Ic ad(rel1): column s of ad(rel1) is rel1 x e_s
+        for s in range(6):
+            t1[:] = 0.0
+            t1[s] = 1.0
+            _cross(rel1[j], t1, t2)
+            for r in range(6):
                 acc = WF[r, s]
-                # - (Ic ad(rel1))[r, s] = - sum_k Ic[r, k] ad(rel1)[k, s]
-                E[r, s] = acc
-        for r in range(6):
-            for s in range(6):
-                t1[:] = 0.0
-                t1[s] = 1.0
-                _cross(rel1[j], t1, t2)  # ad(rel1) e_s
-                acc = 0.0
                 for k in range(6):
-                    acc += Ic[r, k] * t2[k]
-                E[r, s] -= acc
+                    acc -= Ic[r, k] * t2[k]
+                E[r, s] = acc
         for r in range(6):
             for s in range(6):
                 acc = 0.0
                 for k in range(6):
                     acc += E[r, k] * Tj[k, s]
                 ET[r, s] = acc
-            for s in range(9):
-                acc = 0.0
-                for k in range(6):
-                    acc += Ic[r, k] * Tj[k, s]
-                IcT[r, s] = acc
+        recursive_project(Mxi[j], Tj, Ic, IcT, Mh)
         for a in range(9):
-            for b in range(9):
-                acc = Mxi[j, a, b]
-                for r in range(6):
-                    acc += Tj[r, a] * IcT[r, b]
-                Mh[a, b] = acc
             for b in range(6):
                 acc = QxT[j, b, a]
                 for r in range(6):
@@ -648,6 +636,20 @@ def aba_derivatives_workspace(n, nv):
 
 
 @jit
+def _zero_locked(locked, off, X, rows, cols):
+    """Zero the rows and/or columns of ``X`` (nv, nv) at the locked coordinates ``locked``
+    (n, 3) (indices ``off + 3 j + b``)."""
+    nv = X.shape[0]
+    for k in range(off, nv):
+        if locked[(k - off) // 3, (k - off) % 3]:
+            for r in range(nv):
+                if rows:
+                    X[k, r] = 0.0
+                if cols:
+                    X[r, k] = 0.0
+
+
+@jit
 def _chol_inverse(L, k, Minv):
     """``Minv = (L L^T)^-1`` (k, k) from the lower Cholesky factor ``L``, which is overwritten
     by its own inverse (lower)."""
@@ -727,35 +729,21 @@ def aba_derivatives(alpha, w, offs, mass, radius, l0, EI, EA, beta, A_ch, r_ch, 
             for b in range(3):
                 da_dq[i0 + a_, i0 + b] += dfq[j, a_, b]
                 da_dv[i0 + a_, i0 + b] += dfv[j, a_, b]
-    for j in range(n):
-        for b in range(3):
-            if locked[j, b]:
-                k = off + 3 * j + b
-                for r in range(nv):
-                    L[r, k] = 0.0
-                    L[k, r] = 0.0
-                L[k, k] = 1.0
+    # locked coordinates: decoupled in M (unit diagonal), zero rows and columns in the results
+    _zero_locked(locked, off, L, True, True)
+    for k in range(off, nv):
+        if locked[(k - off) // 3, (k - off) % 3]:
+            L[k, k] = 1.0
     if not recursive_chol(L, nv):
         return 2
     _chol_inverse(L, nv, da_dtau)
-    for j in range(n):
-        for b in range(3):
-            if locked[j, b]:
-                k = off + 3 * j + b
-                for r in range(nv):
-                    da_dtau[k, r] = 0.0
-                    da_dtau[r, k] = 0.0
+    _zero_locked(locked, off, da_dtau, True, True)
     rhs[:, :] = da_dq
     np.dot(da_dtau, rhs, da_dq)
     rhs[:, :] = da_dv
     np.dot(da_dtau, rhs, da_dv)
-    for j in range(n):
-        for b in range(3):
-            if locked[j, b]:
-                k = off + 3 * j + b
-                for r in range(nv):
-                    da_dq[r, k] = 0.0
-                    da_dv[r, k] = 0.0
+    _zero_locked(locked, off, da_dq, False, True)
+    _zero_locked(locked, off, da_dv, False, True)
     for r in range(nv):
         for j in range(n):
             i0 = off + 3 * j

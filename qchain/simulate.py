@@ -112,6 +112,7 @@ class _System:
         self.njev = 0
         self.error: str | None = None
         self.q_chart = None
+        self.data = chain.create_data()  # the passes' workspace, made once for the run
 
     def full(self, xA: np.ndarray) -> np.ndarray:
         x = np.zeros(self.ch.nv)
@@ -142,7 +143,7 @@ class _System:
         p = self.P(t, q, v)
         tau = self.Tq(t, q, v)
         self.nfev += 1
-        return self.ch.forward_dynamics(q, v, p, tau, t=t)
+        return self.ch.forward_dynamics(q, v, p, tau, t=t, data=self.data)
 
     def rhs(self, t, y):
         yd, yv = y[: self.nA], y[self.nA :]
