@@ -257,3 +257,26 @@ def arc_nodes(alpha, q, qdot=None) -> ArcNodes:
     Sd = np.empty((N, 6, 3))
     _arc_nodes_kernel(alpha, q, qd, R, p, S, Sd)
     return ArcNodes(R=R, p=p, S=S, Sdot=Sd)
+
+
+#: Floats of per-call scratch a compiled pass carves its small temporaries from
+#: (:func:`take1`): the deepest nest of passes uses under a thousand.
+SCRATCH = 2048
+
+
+@jit
+def take1(sc, o, k):
+    """``(sc[o:o+k], o + k)``: a vector of scratch, no allocation."""
+    return sc[o : o + k], o + k
+
+
+@jit
+def take2(sc, o, r, c):
+    """A (r, c) matrix of scratch from offset ``o`` and the next offset."""
+    return sc[o : o + r * c].reshape((r, c)), o + r * c
+
+
+@jit
+def take3(sc, o, a, b, c):
+    """An (a, b, c) array of scratch from offset ``o`` and the next offset."""
+    return sc[o : o + a * b * c].reshape((a, b, c)), o + a * b * c

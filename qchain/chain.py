@@ -34,7 +34,7 @@ import pinocchio as pin
 
 from . import dynamics_derivatives as _derivs
 from . import recursive
-from .arc import arc_nodes
+from .arc import SCRATCH, arc_nodes
 from .dynamics_derivatives import ForwardDynamicsDerivatives, InverseDynamicsDerivatives
 from .data import Data
 from .errors import DomainError, QchainError, SingularConfigurationError, as_vector
@@ -608,12 +608,18 @@ class Chain:
     def _ws(self, data: Data | None) -> tuple:
         return recursive.aba_workspace(self.n, self.nv) if data is None else data.aba_workspace()
 
+    def _ws_sc(self, data: Data | None) -> tuple:
+        """``(workspace, scratch)`` arguments of the compiled passes."""
+        ws = self._ws(data)
+        return ws, ws[8]
+
     def mass_matrix(self, q, data: Data | None = None) -> np.ndarray:
         """``M(q)`` (nv, nv) by composite-body assembly (:func:`qchain.recursive.crba`)."""
         st = self._state(q, nonsingular=True)
         H = np.empty((self.nv, self.nv)) if data is None else data.M
-        recursive.crba(self._alpha, self._w, self._offs, self._mass, self._radius, st.q_c, self.floating, H,
-                       self._ws(data))
+        ws = self._ws(data)
+        recursive.crba(self._alpha, self._w, self._offs, self._mass, self._radius, st.q_c, self.floating, H, ws,
+                       ws[8])
         T = self._lift(st)
         return H if T is None else T.T @ H @ T
 
@@ -622,7 +628,7 @@ class Chain:
         F0 = np.empty(6)
         recursive.rnea(
             self._alpha, self._w, self._offs, self._mass, self._radius, st.q_c, np.ascontiguousarray(st.v_c),
-            self._acc_c(st, a_e), st.V0, self._A0(st, a_base), tau_c, F0, self._ws(None),
+            self._acc_c(st, a_e), st.V0, self._A0(st, a_base), tau_c, F0, *self._ws_sc(None),
         )
         tau = self._force_e(st, tau_c).ravel()
         return np.concatenate([F0, tau]) if self.floating else tau
@@ -727,7 +733,7 @@ class Chain:
         f_c = np.empty((self.n, 3))
         recursive.internal_forces(
             st.q_c, np.ascontiguousarray(st.v_c), p, self._l0, self._EI, self._EA, self._beta, self._A_ch,
-            self._r_ch, self._paper_act, f_c,
+            self._r_ch, self._paper_act, f_c, np.empty(SCRATCH),
         )
         f = self._force_e(st, f_c)
         if self._has_linear:
@@ -765,7 +771,7 @@ class Chain:
         q_c, v_c, p3, V0, A_B, g_B = self._unchecked_inputs(q, v, p, t, data)
         f = data.f
         recursive.internal_forces(q_c, v_c, p3, self._l0, self._EI, self._EA, self._beta, self._A_ch, self._r_ch,
-                                  self._paper_act, f)
+                                  self._paper_act, f, data.scratch)
         F0 = _ZERO6
         if tau is not None:
             f += tau[self._voff :].reshape(self.n, 3)
@@ -777,7 +783,7 @@ class Chain:
         a = data.a
         recursive.aba(self._alpha, self._w, self._offs, self._mass, self._radius, q_c, v_c, f, V0, A0, self.floating,
                       F0, a[self._voff :].reshape(self.n, 3), a[:6] if self.floating else A0, self._locked,
-                      data.aba_workspace())
+                      *self._ws_sc(data))
         if self.floating:
             a[:3] += g_B
         return a
@@ -797,7 +803,7 @@ class Chain:
         ok = recursive.aba(
             self._alpha, self._w, self._offs, self._mass, self._radius, st.q_c, np.ascontiguousarray(st.v_c),
             np.ascontiguousarray(f_c), st.V0, self._A0(st), self.floating, F0, qdd_c, A0, self._locked,
-            self._ws(data),
+            *self._ws_sc(data),
         )
         if not ok:
             raise QchainError("forward_dynamics: an articulated inertia block is not positive definite")

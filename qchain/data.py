@@ -25,9 +25,12 @@ root frame of segment ``j``, ``root 0`` the base; ``[linear; angular]``; SI unit
 ``Ya, Yv, Ms, Jw``   (n, 3, 6)          subtree sensitivities, composite columns, tip
                                         Jacobians (root 0)
 ``Lq, U, u``         (n, 3, 3), (n, 6, 3), (n, 3)  articulated-body factors
+``scratch``          (SCRATCH,)         small temporaries of the passes (``qchain.arc.SCRATCH``)
 ``tau``              (nv,)              inverse dynamics (N, N m)
 ``a``                (nv,)              forward dynamics (m/s^2, rad/s^2, ...)
-``M, L``             (nv, nv)           mass matrix and its Cholesky factor (free block)
+``M, L``             (nv, nv)           mass matrix and the inverse of its Cholesky factor
+                                        (free block)
+``rhs``              (nv, nv)           right-hand sides of the derivative solves
 ``dtau_dq, dtau_dv`` (nv, nv)           inverse-dynamics derivatives
 ``da_dq, da_dv``     (nv, nv)           forward-dynamics derivatives
 ``da_dtau``          (nv, nv)           ``M^-1``
@@ -46,7 +49,7 @@ __all__ = ["Data"]
 # (allocator, names): a group's arrays are made by one compiled allocator, which the
 # compiled passes also call when no Data is given, so shapes are defined once
 _GROUPS = {
-    "aba": (recursive.aba_workspace, ("V", "T", "c", "Q", "M_xi", "Lq", "U", "u")),
+    "aba": (recursive.aba_workspace, ("V", "T", "c", "Q", "M_xi", "Lq", "U", "u", "scratch")),
     "rnea_derivatives": (derivatives.rnea_workspace, derivatives.RNEA_WORKSPACE),
     "aba_derivatives": (derivatives.aba_derivatives_workspace, derivatives.ABA_DERIVATIVES_WORKSPACE),
 }
@@ -73,7 +76,7 @@ class Data:
 
     def aba_workspace(self) -> tuple:
         """The arrays :func:`qchain.recursive.aba`, ``rnea`` and ``crba`` work in, in their order."""
-        return self._tuple("_ws", ("V", "T", "c", "Q", "M_xi", "Lq", "U", "u"))
+        return self._tuple("_ws", _GROUPS["aba"][1])
 
     def rnea_workspace(self) -> tuple:
         """The arrays :func:`qchain.derivatives.rnea_derivatives` works in, in its order."""

@@ -35,7 +35,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .arc import arc_node, jit
+from .arc import arc_node, jit, take1, take2, take3
 from .recursive import _chol as recursive_chol
 from .recursive import _project as recursive_project
 from .recursive import aba as recursive_aba
@@ -167,38 +167,43 @@ def _qd_variation(c, S, Sd, V, dV, da, h):
 
 
 @jit
-def segment_derivatives(alpha, w, mass, radius, q, xi, xid, M, Q, QqT, QxT):
+def segment_derivatives(alpha, w, mass, radius, q, xi, xid, M, Q, QqT, QxT, sc):
     """``Q = int Phi^T (I a + V x* I V) dalpha`` (9,) of one segment, ``M = M_xi`` (9, 9) and
     the derivatives of ``Q``, in one pass over the nodes (as :func:`qchain.slices.segment_slices`).
 
     ``QqT[c]`` (3, 9) ``= dQ/dq_c`` at fixed ``xi = (V_root, qdot)`` and ``xid = (A_root,
     qddot)``; ``QxT[k]`` (9, 9) ``= dQ/dxi_k`` at fixed ``xid`` (``dQ/dxid = M_xi``).
     """
-    R = np.empty((3, 3))
-    p = np.empty(3)
-    S = np.empty((6, 3))
-    Sd = np.empty((6, 3))
-    dS = np.empty((3, 6, 3))
-    K = np.empty((3, 6))
-    Vr = np.empty(6)
-    Ar = np.empty(6)
-    rel = np.empty(6)
-    V = np.empty(6)
-    a = np.empty(6)
-    hV = np.empty(6)
-    f = np.empty(6)
-    dV = np.empty(6)
-    da = np.empty(6)
-    df = np.empty(6)
-    t1 = np.empty(6)
-    t2 = np.empty(6)
-    t3 = np.empty(6)
-    Sc = np.empty(6)
-    E = np.empty((6, 6))
-    EA = np.empty((6, 6))
-    z3 = np.zeros(3)
+    o = 0
+    R, o = take2(sc, o, 3, 3)
+    p, o = take1(sc, o, 3)
+    S, o = take2(sc, o, 6, 3)
+    Sd, o = take2(sc, o, 6, 3)
+    dS, o = take3(sc, o, 3, 6, 3)
+    K, o = take2(sc, o, 3, 6)
+    Vr, o = take1(sc, o, 6)
+    Ar, o = take1(sc, o, 6)
+    rel, o = take1(sc, o, 6)
+    V, o = take1(sc, o, 6)
+    a, o = take1(sc, o, 6)
+    hV, o = take1(sc, o, 6)
+    f, o = take1(sc, o, 6)
+    dV, o = take1(sc, o, 6)
+    da, o = take1(sc, o, 6)
+    df, o = take1(sc, o, 6)
+    t1, o = take1(sc, o, 6)
+    t2, o = take1(sc, o, 6)
+    t3, o = take1(sc, o, 6)
+    Sc, o = take1(sc, o, 6)
+    E, o = take2(sc, o, 6, 6)
+    EA, o = take2(sc, o, 6, 6)
+    z3, o = take1(sc, o, 3)
+    z3[:] = 0.0
     ixx = 0.25 * mass * radius * radius
-    Id = np.array([mass, mass, mass, ixx, ixx, 2.0 * ixx])
+    Id, o = take1(sc, o, 6)
+    Id[:3] = mass
+    Id[3] = Id[4] = ixx
+    Id[5] = 2.0 * ixx
     V0 = xi[:6]
     qd = xi[6:]
     A0 = xid[:6]
@@ -207,8 +212,10 @@ def segment_derivatives(alpha, w, mass, radius, q, xi, xid, M, Q, QqT, QxT):
     QxT[:, :] = 0.0
     M[:, :] = 0.0
     Q[:] = 0.0
-    mp = np.zeros(3)
-    Irot = np.zeros((3, 3))
+    mp, o = take1(sc, o, 3)
+    mp[:] = 0.0
+    Irot, o = take2(sc, o, 3, 3)
+    Irot[:, :] = 0.0
     wsum = 0.0
     for k in range(alpha.shape[0]):
         wk = w[k]
@@ -325,7 +332,7 @@ def _add_skew_rows(E, r0, c0, x, y, z, Id, i0):
 
 
 @jit
-def tip_derivatives(q, qd, qdd, V0, A0, T, R1, p1, V1, A1, rel1, tipV, tipA, dS1):
+def tip_derivatives(q, qd, qdd, V0, A0, T, R1, p1, V1, A1, rel1, tipV, tipA, dS1, sc):
     """The tip (slice ``alpha = 1``) of one segment and its variations.
 
     Outputs: tip map ``T = Phi(1)`` (6, 9); tip placement ``R1`` (3, 3), ``p1`` (3,) in the
@@ -333,15 +340,17 @@ def tip_derivatives(q, qd, qdd, V0, A0, T, R1, p1, V1, A1, rel1, tipV, tipA, dS1
     ``tipV[k], tipA[k]`` (6, 6): their variations for ``k < 3`` a unit ``q_k``, ``k >= 3`` a unit
     ``qdot_(k-3)`` (fixed root twist and acceleration); ``dS1`` (3, 6, 3) ``= dS(1)/dq``.
     """
-    S = np.empty((6, 3))
-    Sd = np.empty((6, 3))
-    K = np.empty((3, 6))
-    Vr = np.empty(6)
-    Ar = np.empty(6)
-    t1 = np.empty(6)
-    t2 = np.empty(6)
-    t3 = np.empty(6)
-    z3 = np.zeros(3)
+    o = 0
+    S, o = take2(sc, o, 6, 3)
+    Sd, o = take2(sc, o, 6, 3)
+    K, o = take2(sc, o, 3, 6)
+    Vr, o = take1(sc, o, 6)
+    Ar, o = take1(sc, o, 6)
+    t1, o = take1(sc, o, 6)
+    t2, o = take1(sc, o, 6)
+    t3, o = take1(sc, o, 6)
+    z3, o = take1(sc, o, 3)
+    z3[:] = 0.0
     arc_node(1.0, q[0], q[1], q[2], qd[0], qd[1], qd[2], R1, p1, S, Sd)
     arc_node_derivatives(1.0, q[0], q[1], q[2], qd[0], qd[1], qd[2], dS1, K)
     phi_matrix(R1, p1, S, T)
@@ -368,10 +377,11 @@ def rnea_workspace(n, nv):
 
 
 @jit
-def rnea_derivatives(alpha, w, offs, mass, radius, q, qd, qdd, V0, A0, floating, g_B, ws, wd):
+def rnea_derivatives(alpha, w, offs, mass, radius, q, qd, qdd, V0, A0, floating, g_B, ws, wd, sc):
     """Inverse dynamics and its exact derivatives, curvature coordinates.
 
-    ``ws`` is :meth:`qchain.data.Data.aba_workspace`, ``wd`` :meth:`~qchain.data.Data.rnea_workspace`.
+    ``ws`` is :meth:`qchain.data.Data.aba_workspace`, ``wd`` :meth:`~qchain.data.Data.rnea_workspace`,
+    ``sc`` scratch (:data:`qchain.arc.SCRATCH`).
     Writes its ``tau_c`` (n, 3) and ``F0`` (6,) as :func:`qchain.recursive.rnea` does,
     ``dtau_dq`` and ``dtau_dv`` (nv, nv): ``d(F0, tau)/d(q, v)`` (rows: the base wrench for a
     floating base, then the segments; columns: the base's tangent ``(translation, rotation)``
@@ -380,13 +390,14 @@ def rnea_derivatives(alpha, w, offs, mass, radius, q, qd, qdd, V0, A0, floating,
     """
     n = q.shape[0]
     off = 6 if floating else 0
-    V, T, _, Q, Mxi, _, _, _ = ws
+    V, T, _, Q, Mxi, _, _, _, _ = ws
     (A, Rw, pw, QqT, QxT, rel1, tipV, tipA, dS1, G, Ya, Yv, Ms, Jw, sig1, sig2, tau, F0, M, dq, dv) = wd
     # ---------------------------------------------------------------- forward
-    R1 = np.empty((3, 3))
-    p1 = np.empty(3)
-    xi = np.empty(9)
-    xid = np.empty(9)
+    o = 0
+    R1, o = take2(sc, o, 3, 3)
+    p1, o = take1(sc, o, 3)
+    xi, o = take1(sc, o, 9)
+    xid, o = take1(sc, o, 9)
     V[0] = V0
     A[0] = A0
     Rw[0] = np.eye(3)
@@ -397,9 +408,10 @@ def rnea_derivatives(alpha, w, offs, mass, radius, q, qd, qdd, V0, A0, floating,
         xid[:6] = A[j]
         xid[6:] = qdd[j]
         a0, a1 = offs[j], offs[j + 1]
-        segment_derivatives(alpha[a0:a1], w[a0:a1], mass[j], radius[j], q[j], xi, xid, Mxi[j], Q[j], QqT[j], QxT[j])
+        segment_derivatives(alpha[a0:a1], w[a0:a1], mass[j], radius[j], q[j], xi, xid, Mxi[j], Q[j], QqT[j], QxT[j],
+                            sc[o:])
         tip_derivatives(q[j], qd[j], qdd[j], V[j], A[j], T[j], R1, p1, V[j + 1], A[j + 1], rel1[j], tipV[j],
-                        tipA[j], dS1[j])
+                        tipA[j], dS1[j], sc[o:])
         for r in range(3):
             acc = pw[j, r]
             for s in range(3):
@@ -407,22 +419,25 @@ def rnea_derivatives(alpha, w, offs, mass, radius, q, qd, qdd, V0, A0, floating,
                 Rw[j + 1, r, s] = Rw[j, r, 0] * R1[0, s] + Rw[j, r, 1] * R1[1, s] + Rw[j, r, 2] * R1[2, s]
             pw[j + 1, r] = acc
     # ---------------------------------------------------------------- backward
-    F = np.zeros(6)
-    Ic = np.zeros((6, 6))
-    WF = np.zeros((6, 6))
-    Mh = np.empty((9, 9))
-    Wj = np.empty((9, 6))
-    E = np.empty((6, 6))
-    ET = np.empty((6, 6))
-    IcT = np.empty((6, 9))
-    D = np.empty((6, 9))  # D[col] = d(F_j, tau_j)/d col, cols q_j then qd_j
-    dF = np.empty(6)
+    F, o = take1(sc, o, 6)
+    F[:] = 0.0
+    Ic, o = take2(sc, o, 6, 6)
+    Ic[:, :] = 0.0
+    WF, o = take2(sc, o, 6, 6)
+    WF[:, :] = 0.0
+    Mh, o = take2(sc, o, 9, 9)
+    Wj, o = take2(sc, o, 9, 6)
+    E, o = take2(sc, o, 6, 6)
+    ET, o = take2(sc, o, 6, 6)
+    IcT, o = take2(sc, o, 6, 9)
+    D, o = take2(sc, o, 6, 9)  # D[col] = d(F_j, tau_j)/d col, cols q_j then qd_j
+    dF, o = take1(sc, o, 6)
     # G[m, col]: wrench variation at root m; Ya, Yv: subtree sensitivities; Ms[j, b]: wrench at
     # root j per unit qdd_j,b; Jw[i, b]: twist of tip i per unit qd_i,b; all in root 0
-    t1 = np.empty(6)
-    t2 = np.empty(6)
-    vW = np.empty(6)
-    TF = np.empty(9)
+    t1, o = take1(sc, o, 6)
+    t2, o = take1(sc, o, 6)
+    vW, o = take1(sc, o, 6)
+    TF, o = take1(sc, o, 9)
     dq[:, :] = 0.0
     dv[:, :] = 0.0
     M[:, :] = 0.0
@@ -571,7 +586,7 @@ def rnea_derivatives(alpha, w, offs, mass, radius, q, qd, qdd, V0, A0, floating,
                 M[r, s] = Ic[r, s]
                 dv[r, s] = WF[r, s]
         # attitude: gravity in the base frame turns, dA0 = (e_k x g_B, 0)
-        sg = np.empty((3, 6))
+        sg, o = take2(sc, o, 3, 6)
         for k in range(3):
             t1[:] = 0.0
             t1[k] = 1.0
@@ -598,15 +613,16 @@ def rnea_derivatives(alpha, w, offs, mass, radius, q, qd, qdd, V0, A0, floating,
 
 
 @jit
-def internal_forces_derivatives(q, p, l0, EI, EA, beta, A_ch, r_ch, paper_act, dfq, dfv):
+def internal_forces_derivatives(q, p, l0, EI, EA, beta, A_ch, r_ch, paper_act, dfq, dfv, sc):
     """Derivatives of the internal forces ``f = B p - D qd - dU_el/dq`` of
     :func:`qchain.recursive.internal_forces` (material law, curvature coordinates):
     ``dfq[j] = d(B p)/dq - d^2 U_el/dq^2`` and ``dfv[j] = -D`` (n, 3, 3)."""
-    Kp = np.empty((3, 3))
-    H = np.empty((3, 3))
-    D = np.empty((3, 3))
+    o = 0
+    Kp, o = take2(sc, o, 3, 3)
+    H, o = take2(sc, o, 3, 3)
+    D, o = take2(sc, o, 3, 3)
     for j in range(q.shape[0]):
-        pressure_jacobian_c(q[j], p[j], A_ch[j], r_ch[j], paper_act[j], Kp)
+        pressure_jacobian_c(q[j], p[j], A_ch[j], r_ch[j], paper_act[j], Kp, sc[o:])
         elastic_hessian_c(q[j], l0[j], EI[j], EA[j], H)
         rest_damping_c(l0[j], EI[j], EA[j], beta[j], D)
         for a in range(3):
@@ -616,10 +632,10 @@ def internal_forces_derivatives(q, p, l0, EI, EA, beta, A_ch, r_ch, paper_act, d
 
 
 @jit
-def input_matrices(q, A_ch, r_ch, paper_act, B):
+def input_matrices(q, A_ch, r_ch, paper_act, B, sc):
     """``B[j]`` (3, 3) the input matrix of every segment (:func:`qchain.slices.input_matrix_c`)."""
     for j in range(q.shape[0]):
-        input_matrix_c(q[j], A_ch[j], r_ch[j], paper_act[j], B[j])
+        input_matrix_c(q[j], A_ch[j], r_ch[j], paper_act[j], B[j], sc)
 
 
 #: Names of :func:`aba_derivatives_workspace`'s arrays (``Data`` attributes), in order.
@@ -673,7 +689,7 @@ def _chol_inverse(L, k, Minv):
 
 @jit
 def aba_derivatives(alpha, w, offs, mass, radius, l0, EI, EA, beta, A_ch, r_ch, paper_act, locked, floating,
-                    q, qd, p, tau_ext, V0, A_B, g_B, ws, wd, wa):
+                    q, qd, p, tau_ext, V0, A_B, g_B, ws, wd, wa, sc):
     """Forward dynamics and its exact derivatives in one compiled call (curvature coordinates,
     the material law).
 
@@ -692,19 +708,21 @@ def aba_derivatives(alpha, w, offs, mass, radius, l0, EI, EA, beta, A_ch, r_ch, 
     nv = off + 3 * n
     f, qdd, A0, a, L, rhs, da_dq, da_dv, da_dtau, da_dp, dfq, dfv, B = wa
     M, dq, dv = wd[18], wd[19], wd[20]
-    recursive_internal_forces(q, qd, p, l0, EI, EA, beta, A_ch, r_ch, paper_act, f)
+    recursive_internal_forces(q, qd, p, l0, EI, EA, beta, A_ch, r_ch, paper_act, f, sc)
     for j in range(n):
         for b in range(3):
             f[j, b] += tau_ext[off + 3 * j + b]
-    F0 = np.zeros(6)
-    Aa = np.empty(6)
+    o = 0
+    F0, o = take1(sc, o, 6)
+    F0[:] = 0.0
+    Aa, o = take1(sc, o, 6)
     for r in range(6):
         Aa[r] = A_B[r]
         if floating:
             F0[r] = tau_ext[r]
     for r in range(3):
         Aa[r] -= g_B[r]
-    if not recursive_aba(alpha, w, offs, mass, radius, q, qd, f, V0, Aa, floating, F0, qdd, A0, locked, ws):
+    if not recursive_aba(alpha, w, offs, mass, radius, q, qd, f, V0, Aa, floating, F0, qdd, A0, locked, ws, sc[o:]):
         return 1
     if floating:
         for r in range(6):
@@ -714,9 +732,9 @@ def aba_derivatives(alpha, w, offs, mass, radius, l0, EI, EA, beta, A_ch, r_ch, 
     for j in range(n):
         for b in range(3):
             a[off + 3 * j + b] = qdd[j, b]
-    rnea_derivatives(alpha, w, offs, mass, radius, q, qd, qdd, V0, A0, floating, g_B, ws, wd)
-    internal_forces_derivatives(q, p, l0, EI, EA, beta, A_ch, r_ch, paper_act, dfq, dfv)
-    input_matrices(q, A_ch, r_ch, paper_act, B)
+    rnea_derivatives(alpha, w, offs, mass, radius, q, qd, qdd, V0, A0, floating, g_B, ws, wd, sc)
+    internal_forces_derivatives(q, p, l0, EI, EA, beta, A_ch, r_ch, paper_act, dfq, dfv, sc)
+    input_matrices(q, A_ch, r_ch, paper_act, B, sc)
     # right-hand sides df - dID, the free block of M with locked coordinates decoupled
     for r in range(nv):
         for c in range(nv):
@@ -773,7 +791,7 @@ def aba_derivatives_fresh(alpha, w, offs, mass, radius, l0, EI, EA, beta, A_ch, 
     wd = rnea_workspace(n, nv)
     wa = aba_derivatives_workspace(n, nv)
     status = aba_derivatives(alpha, w, offs, mass, radius, l0, EI, EA, beta, A_ch, r_ch, paper_act, locked, floating,
-                             q, qd, p, tau_ext, V0, A_B, g_B, ws, wd, wa)
+                             q, qd, p, tau_ext, V0, A_B, g_B, ws, wd, wa, ws[8])
     return status, wa[3], wa[6], wa[7], wa[9], wa[8]
 
 
@@ -785,5 +803,5 @@ def rnea_derivatives_fresh(alpha, w, offs, mass, radius, q, qd, qdd, V0, A0, flo
     nv = (6 if floating else 0) + 3 * n
     ws = recursive_aba_workspace(n, nv)
     wd = rnea_workspace(n, nv)
-    rnea_derivatives(alpha, w, offs, mass, radius, q, qd, qdd, V0, A0, floating, g_B, ws, wd)
+    rnea_derivatives(alpha, w, offs, mass, radius, q, qd, qdd, V0, A0, floating, g_B, ws, wd, ws[8])
     return wd[16], wd[17], wd[19], wd[20], wd[18]

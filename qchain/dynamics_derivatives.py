@@ -25,6 +25,7 @@ import numpy as np
 from scipy.linalg import cho_factor, cho_solve
 
 from . import derivatives, recursive
+from .arc import SCRATCH
 from .errors import QchainError, as_vector
 from .segment import paper_bias_derivative, paper_jacobian_derivative, paper_jacobian_dot
 
@@ -84,7 +85,7 @@ def _curvature_id_derivatives(ch: Chain, st: _State, qdd_c: np.ndarray, A0: np.n
     if data is None:
         tau, F0, dq, dv, M = derivatives.rnea_derivatives_fresh(*args)
     else:
-        derivatives.rnea_derivatives(*args, data.aba_workspace(), data.rnea_workspace())
+        derivatives.rnea_derivatives(*args, data.aba_workspace(), data.rnea_workspace(), data.scratch)
         tau, F0, dq, dv, M = data.tau_c, data.F0, data.dtau_dq, data.dtau_dv, data.M
     tau = tau.ravel()
     full = np.concatenate([F0, tau]) if ch.floating else tau.copy()
@@ -142,14 +143,14 @@ def _internal_derivatives(ch: Chain, st: _State, p3: np.ndarray):
     dfq_c = np.empty((n, 3, 3))
     dfv_c = np.empty((n, 3, 3))
     derivatives.internal_forces_derivatives(st.q_c, p3, ch._l0, ch._EI, ch._EA, ch._beta, ch._A_ch, ch._r_ch,
-                                            ch._paper_act, dfq_c, dfv_c)
+                                            ch._paper_act, dfq_c, dfv_c, np.empty(SCRATCH))
     Bc = np.empty((n, 3, 3))
-    derivatives.input_matrices(st.q_c, ch._A_ch, ch._r_ch, ch._paper_act, Bc)
+    derivatives.input_matrices(st.q_c, ch._A_ch, ch._r_ch, ch._paper_act, Bc, np.empty(SCRATCH))
     f_c = None
     if ch._any_paper:
         f_c = np.empty((n, 3))
         recursive.internal_forces(st.q_c, np.ascontiguousarray(st.v_c), p3, ch._l0, ch._EI, ch._EA, ch._beta,
-                                  ch._A_ch, ch._r_ch, ch._paper_act, f_c)
+                                  ch._A_ch, ch._r_ch, ch._paper_act, f_c, np.empty(SCRATCH))
     dfq = np.zeros((nv, nv))
     dfv = np.zeros((nv, nv))
     B = np.zeros((nv, ch.nu))
@@ -225,7 +226,7 @@ def compiled_forward_dynamics_derivatives(ch: Chain, q_c, v_c, p3, tau, V0, A_B,
         status, *out = derivatives.aba_derivatives_fresh(*args)
     else:
         status = derivatives.aba_derivatives(*args, data.aba_workspace(), data.rnea_workspace(),
-                                             data.aba_derivatives_workspace())
+                                             data.aba_derivatives_workspace(), data.scratch)
         out = (data.a, data.da_dq, data.da_dv, data.da_dp, data.da_dtau)
     if status and check:
         what = {1: "an articulated inertia block is not positive definite",

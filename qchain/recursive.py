@@ -29,25 +29,27 @@ from __future__ import annotations
 
 import numpy as np
 
-from .arc import arc_node, arc_pose, jit
+from .arc import SCRATCH, arc_node, arc_pose, jit, take1, take2
 from .slices import domain_violation, elastic_gradient_c, input_matrix_c, rest_damping_c, phi_matrix, segment_slices, slice_twist, sub_motion_cross
 
 __all__ = ["rnea", "crba", "aba", "tip_maps", "frames", "internal_forces", "first_invalid"]
 
 
 @jit
-def _tip(q, qd, xi, T, c):
+def _tip(q, qd, xi, T, c, sc):
     """Tip map ``T = Phi(1)`` (6, 9) and tip bias acceleration ``c = Phidot(1) xi`` (6,)."""
-    R = np.empty((3, 3))
-    p = np.empty(3)
-    S = np.empty((6, 3))
-    Sd = np.empty((6, 3))
+    o = 0
+    R, o = take2(sc, o, 3, 3)
+    p, o = take1(sc, o, 3)
+    S, o = take2(sc, o, 6, 3)
+    Sd, o = take2(sc, o, 6, 3)
     arc_node(1.0, q[0], q[1], q[2], qd[0], qd[1], qd[2], R, p, S, Sd)
     phi_matrix(R, p, S, T)
-    Vr = np.empty(6)
-    zero3 = np.zeros(3)
+    Vr, o = take1(sc, o, 6)
+    zero3, o = take1(sc, o, 3)
+    zero3[:] = 0.0
     slice_twist(R, p, S, xi[:6], zero3, Vr)
-    rel = np.empty(6)
+    rel, o = take1(sc, o, 6)
     for r in range(6):
         rel[r] = S[r, 0] * qd[0] + S[r, 1] * qd[1] + S[r, 2] * qd[2]
         c[r] = Sd[r, 0] * qd[0] + Sd[r, 1] * qd[1] + Sd[r, 2] * qd[2]
@@ -68,17 +70,18 @@ def tip_maps(q, qd, V0, T, c, V):
     """Forward velocity pass: tip maps ``T`` (n, 6, 9), tip biases ``c`` (n, 6) and root
     twists ``V`` (n + 1, 6), ``V[0] = V0``, ``V[j + 1] = T_j xi_j``."""
     n = q.shape[0]
-    xi = np.empty(9)
+    sc = np.empty(SCRATCH)  # called from Python, once per call
+    xi, o = take1(sc, 0, 9)
     V[0, :] = V0
     for j in range(n):
         xi[:6] = V[j]
         xi[6:] = qd[j]
-        _tip(q[j], qd[j], xi, T[j], c[j])
+        _tip(q[j], qd[j], xi, T[j], c[j], sc[o:])
         _matvec(T[j], xi, V[j + 1])
 
 
 @jit
-def rnea(alpha, w, offs, mass, radius, q, qd, qdd, V0, A0, tau, F0, ws):
+def rnea(alpha, w, offs, mass, radius, q, qd, qdd, V0, A0, tau, F0, ws, sc):
     """Inverse dynamics ``tau = M qdd + C qd + g`` (n, 3) and the base wrench ``F0`` (6,).
 
     ``F0`` is the wrench (first root frame) the base exerts on the chain: the generalised
@@ -86,26 +89,30 @@ def rnea(alpha, w, offs, mass, radius, q, qd, qdd, V0, A0, tau, F0, ws):
     :meth:`qchain.data.Data.aba_workspace`.
     """
     n = q.shape[0]
-    _, T, c, Q, _, _, _, _ = ws
-    xi = np.empty(9)
-    xid = np.empty(9)
-    V = V0.copy()
-    A = A0.copy()
-    Mdummy = np.empty((1, 1))
+    _, T, c, Q, _, _, _, _, _ = ws
+    o = 0
+    xi, o = take1(sc, o, 9)
+    xid, o = take1(sc, o, 9)
+    V, o = take1(sc, o, 6)
+    V[:] = V0
+    A, o = take1(sc, o, 6)
+    A[:] = A0
+    Mdummy, o = take2(sc, o, 1, 1)
+    F, o = take1(sc, o, 6)
+    out, o = take1(sc, o, 9)
     for j in range(n):
         xi[:6] = V
         xi[6:] = qd[j]
         xid[:6] = A
         xid[6:] = qdd[j]
         segment_slices(alpha[offs[j] : offs[j + 1]], w[offs[j] : offs[j + 1]], mass[j], radius[j], q[j], xi, xid,
-                       False, Mdummy, Q[j])
-        _tip(q[j], qd[j], xi, T[j], c[j])
+                       False, Mdummy, Q[j], sc[o:])
+        _tip(q[j], qd[j], xi, T[j], c[j], sc[o:])
         _matvec(T[j], xi, V)
         _matvec(T[j], xid, A)
         for r in range(6):
             A[r] += c[j, r]
-    F = np.zeros(6)
-    out = np.empty(9)
+    F[:] = 0.0
     for j in range(n - 1, -1, -1):
         out[:] = 0.0
         for r in range(6):  # T^T F
@@ -138,7 +145,7 @@ def _project(M, T, I, IT, out):
 
 
 @jit
-def crba(alpha, w, offs, mass, radius, q, floating, H, ws):
+def crba(alpha, w, offs, mass, radius, q, floating, H, ws, sc):
     """Composite-body assembly of the joint-space inertia ``H`` (nv, nv), curvature coordinates.
 
     Backwards from the tip: the composite inertia ``Ic`` of everything beyond root ``j + 1``
@@ -150,22 +157,26 @@ def crba(alpha, w, offs, mass, radius, q, floating, H, ws):
     n = q.shape[0]
     off = 6 if floating else 0
     T = ws[1]
-    c = np.empty(6)
-    Mj = np.empty((9, 9))
-    Q = np.empty(9)
-    z9 = np.zeros(9)
-    z3 = np.zeros(3)
+    o = 0
+    c, o = take1(sc, o, 6)
+    Mj, o = take2(sc, o, 9, 9)
+    Q, o = take1(sc, o, 9)
+    z9, o = take1(sc, o, 9)
+    z9[:] = 0.0
+    z3, o = take1(sc, o, 3)
+    z3[:] = 0.0
     for j in range(n):
-        _tip(q[j], z3, z9, T[j], c)
-    Ic = np.zeros((6, 6))
-    IcT = np.empty((6, 9))
-    Mh = np.empty((9, 9))
-    F = np.empty((6, 3))
-    Fn = np.empty((6, 3))
+        _tip(q[j], z3, z9, T[j], c, sc[o:])
+    Ic, o = take2(sc, o, 6, 6)
+    Ic[:, :] = 0.0
+    IcT, o = take2(sc, o, 6, 9)
+    Mh, o = take2(sc, o, 9, 9)
+    F, o = take2(sc, o, 6, 3)
+    Fn, o = take2(sc, o, 6, 3)
     H[:, :] = 0.0
     for j in range(n - 1, -1, -1):
         segment_slices(alpha[offs[j] : offs[j + 1]], w[offs[j] : offs[j + 1]], mass[j], radius[j], q[j], z9, z9,
-                       True, Mj, Q)
+                       True, Mj, Q, sc[o:])
         _project(Mj, T[j], Ic, IcT, Mh)
         i0 = off + 3 * j
         for a in range(3):
@@ -236,7 +247,7 @@ def _chol_solve(L, k, b):
 
 
 @jit
-def aba(alpha, w, offs, mass, radius, q, qd, tau, V0, A0, floating, F0, qdd, A0_out, locked, ws):
+def aba(alpha, w, offs, mass, radius, q, qd, tau, V0, A0, floating, F0, qdd, A0_out, locked, ws, sc):
     """Articulated-body forward dynamics: ``qdd`` (n, 3) from ``M qdd + C qd + g = tau``.
 
     ``tau`` (n, 3) is the total generalised force on the segment coordinates (pressure,
@@ -249,27 +260,35 @@ def aba(alpha, w, offs, mass, radius, q, qd, tau, V0, A0, floating, F0, qdd, A0_
     :meth:`qchain.data.Data.aba_workspace`.
     """
     n = q.shape[0]
-    _, T, c, b, Mall, Lq, U, u = ws
-    xi = np.empty(9)
-    z9 = np.zeros(9)
-    V = V0.copy()
+    _, T, c, b, Mall, Lq, U, u, _ = ws
+    o = 0
+    xi, o = take1(sc, o, 9)
+    z9, o = take1(sc, o, 9)
+    z9[:] = 0.0
+    V, o = take1(sc, o, 6)
+    V[:] = V0
+    IA, o = take2(sc, o, 6, 6)
+    pA, o = take1(sc, o, 6)
+    DiUt, o = take2(sc, o, 3, 6)
+    IAT, o = take2(sc, o, 6, 9)
+    Mh, o = take2(sc, o, 9, 9)
+    bh, o = take1(sc, o, 9)
+    pc, o = take1(sc, o, 6)
+    col, o = take1(sc, o, 3)
+    A, o = take1(sc, o, 6)
+    L6, o = take2(sc, o, 6, 6)
+    xid, o = take1(sc, o, 9)
     # pass 1: velocities, segment blocks and biases
     for j in range(n):
         xi[:6] = V
         xi[6:] = qd[j]
         segment_slices(alpha[offs[j] : offs[j + 1]], w[offs[j] : offs[j + 1]], mass[j], radius[j], q[j], xi, z9,
-                       True, Mall[j], b[j])
-        _tip(q[j], qd[j], xi, T[j], c[j])
+                       True, Mall[j], b[j], sc[o:])
+        _tip(q[j], qd[j], xi, T[j], c[j], sc[o:])
         _matvec(T[j], xi, V)
     # pass 2: articulated inertias, backwards
-    IA = np.zeros((6, 6))
-    pA = np.zeros(6)
-    DiUt = np.empty((3, 6))
-    IAT = np.empty((6, 9))
-    Mh = np.empty((9, 9))
-    bh = np.empty(9)
-    pc = np.empty(6)
-    col = np.empty(3)
+    IA[:, :] = 0.0
+    pA[:] = 0.0
     for j in range(n - 1, -1, -1):
         for r in range(6):
             acc = pA[r]
@@ -321,9 +340,8 @@ def aba(alpha, w, offs, mass, radius, q, qd, tau, V0, A0, floating, F0, qdd, A0_
                     acc -= U[j, r, a] * DiUt[a, s]
                 IA[r, s] = acc
     # pass 3: accelerations, forwards
-    A = np.empty(6)
     if floating:
-        L6 = IA.copy()
+        L6[:, :] = IA
         if not _chol(L6, 6):
             return False
         for r in range(6):
@@ -332,7 +350,6 @@ def aba(alpha, w, offs, mass, radius, q, qd, tau, V0, A0, floating, F0, qdd, A0_
     else:
         A[:] = A0
     A0_out[:] = A
-    xid = np.empty(9)
     for j in range(n):
         for a in range(3):
             acc = u[j, a]
@@ -435,17 +452,18 @@ def frames(q, paper, R0, o0, alpha, R, o, quat, points):
 
 
 @jit
-def internal_forces(q, qd, p, l0, EI, EA, beta, A_ch, r_ch, paper_act, out):
+def internal_forces(q, qd, p, l0, EI, EA, beta, A_ch, r_ch, paper_act, out, sc):
     """``out = B p - D qd - dU_el/dq`` (n, 3), material law, curvature coordinates, with
     ``D`` of :func:`qchain.slices.rest_damping_c` (:func:`qchain.slices.input_matrix_c`,
     :func:`qchain.slices.elastic_gradient_c`). These terms are coordinate-free: paper
     coordinates get ``J^T`` of them.
     """
-    B = np.empty((3, 3))
-    g = np.empty(3)
-    D = np.empty((3, 3))
+    o = 0
+    B, o = take2(sc, o, 3, 3)
+    g, o = take1(sc, o, 3)
+    D, o = take2(sc, o, 3, 3)
     for j in range(q.shape[0]):
-        input_matrix_c(q[j], A_ch[j], r_ch[j], paper_act[j], B)
+        input_matrix_c(q[j], A_ch[j], r_ch[j], paper_act[j], B, sc[o:])
         elastic_gradient_c(q[j], l0[j], EI[j], EA[j], g)
         rest_damping_c(l0[j], EI[j], EA[j], beta[j], D)
         for a in range(3):
@@ -476,6 +494,7 @@ def first_invalid(x, q, radius, paper):
 def aba_workspace(n, nv):
     """Fresh arrays for :func:`aba`, :func:`rnea` and :func:`crba` (``Data.aba_workspace``):
     root twists (n + 1, 6), tip maps (n, 6, 9), tip biases (n, 6), segment forces (n, 9),
-    segment blocks (n, 9, 9) and the articulated factors (n, 3, 3), (n, 6, 3), (n, 3)."""
+    segment blocks (n, 9, 9), the articulated factors (n, 3, 3), (n, 6, 3), (n, 3) and the
+    scratch (:data:`qchain.arc.SCRATCH`,) the passes carve their small temporaries from."""
     return (np.zeros((n + 1, 6)), np.zeros((n, 6, 9)), np.zeros((n, 6)), np.zeros((n, 9)), np.zeros((n, 9, 9)),
-            np.zeros((n, 3, 3)), np.zeros((n, 6, 3)), np.zeros((n, 3)))
+            np.zeros((n, 3, 3)), np.zeros((n, 6, 3)), np.zeros((n, 3)), np.zeros(SCRATCH))

@@ -36,7 +36,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import pinocchio as pin
 
-from .arc import arc_nodes, strain_twist
+from .arc import SCRATCH, arc_nodes, strain_twist
 from .errors import (
     DomainError,
     SingularConfigurationError,
@@ -509,7 +509,7 @@ class Segment:
         """
         q_c, J = self._curvature(q_e)
         Bc = np.empty((3, 3))
-        input_matrix_c(q_c, self.chamber_area, self.chamber_radius, self.actuation == "paper", Bc)
+        input_matrix_c(q_c, self.chamber_area, self.chamber_radius, self.actuation == "paper", Bc, np.empty(SCRATCH))
         return J.T @ Bc
 
     def pressure_stiffness(self, q_e, p) -> np.ndarray:
@@ -519,11 +519,11 @@ class Segment:
         q_c, J = self._curvature(q_e)
         paper_act = self.actuation == "paper"
         Kc = np.empty((3, 3))
-        pressure_jacobian_c(q_c, p, self.chamber_area, self.chamber_radius, paper_act, Kc)
+        pressure_jacobian_c(q_c, p, self.chamber_area, self.chamber_radius, paper_act, Kc, np.empty(SCRATCH))
         if self.coords == "curvature":
             return Kc
         Bc = np.empty((3, 3))
-        input_matrix_c(q_c, self.chamber_area, self.chamber_radius, paper_act, Bc)
+        input_matrix_c(q_c, self.chamber_area, self.chamber_radius, paper_act, Bc, np.empty(SCRATCH))
         return J.T @ Kc @ J + _paper_hessian_term(self.check_configuration(q_e), Bc @ p)
 
     # ------------------------------------------------------------------- elasticity

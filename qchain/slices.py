@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .arc import arc_node, jit
+from .arc import SCRATCH, arc_node, jit, take1, take2, take3
 from .arc_derivatives import arc_node_derivatives
 
 __all__ = ["CHAMBER_ANGLES", "input_matrix_c", "pressure_jacobian_c", "elastic_gradient_c", "elastic_hessian_c",
@@ -88,30 +88,33 @@ def phi_matrix(R, p, S, Phi):
 
 
 @jit
-def segment_slices(alpha, w, mass, radius, q, xi, xid, want_mass, M, Q):
+def segment_slices(alpha, w, mass, radius, q, xi, xid, want_mass, M, Q, sc):
     """One pass over the nodes of a segment (curvature coordinates).
 
     ``Q[:] = int Phi^T (I a + V x* I V) dalpha`` (9,) ``= M_xi xid + C_xi xi``; with
-    ``want_mass`` also ``M[:] = M_xi`` (9, 9). ``xi = (V_root, qdot)``, ``xid = (A_root, qddot)``.
+    ``want_mass`` also ``M[:] = M_xi`` (9, 9). ``xi = (V_root, qdot)``, ``xid = (A_root, qddot)``;
+    ``sc`` is scratch (:data:`qchain.arc.SCRATCH`).
     """
-    R = np.empty((3, 3))
-    p = np.empty(3)
-    S = np.empty((6, 3))
-    Sd = np.empty((6, 3))
-    V = np.empty(6)
+    o = 0
+    R, o = take2(sc, o, 3, 3)
+    p, o = take1(sc, o, 3)
+    S, o = take2(sc, o, 6, 3)
+    Sd, o = take2(sc, o, 6, 3)
+    V, o = take1(sc, o, 6)
     V0 = xi[:6]
     qd = xi[6:]
     A0 = xid[:6]
     qdd = xid[6:]
-    Vr = np.empty(6)  # Ad^-1 V0
-    a = np.empty(6)
-    rel = np.empty(6)
-    f = np.empty(6)
-    zero3 = np.zeros(3)
+    Vr, o = take1(sc, o, 6)  # Ad^-1 V0
+    a, o = take1(sc, o, 6)
+    rel, o = take1(sc, o, 6)
+    f, o = take1(sc, o, 6)
+    zero3, o = take1(sc, o, 3)
+    zero3[:] = 0.0
     m = mass
     ixx = 0.25 * mass * radius * radius
     izz = 0.5 * mass * radius * radius
-    Id = np.empty(6)
+    Id, o = take1(sc, o, 6)
     Id[0] = Id[1] = Id[2] = m
     Id[3] = Id[4] = ixx
     Id[5] = izz
@@ -119,9 +122,11 @@ def segment_slices(alpha, w, mass, radius, q, xi, xid, want_mass, M, Q):
     if want_mass:
         M[:, :] = 0.0
     wsum = 0.0
-    mp = np.zeros(3)  # sum w m p
-    Irot = np.zeros((3, 3))  # sum w (R I_d R^T - m [p]^2)
-    fc = np.empty(6)
+    mp, o = take1(sc, o, 3)  # sum w m p
+    mp[:] = 0.0
+    Irot, o = take2(sc, o, 3, 3)  # sum w (R I_d R^T - m [p]^2)
+    Irot[:, :] = 0.0
+    fc, o = take1(sc, o, 6)
     for k in range(alpha.shape[0]):
         arc_node(alpha[k], q[0], q[1], q[2], qd[0], qd[1], qd[2], R, p, S, Sd)
         if want_mass:
@@ -197,14 +202,14 @@ def segment_mass(alpha, w, mass, radius, q, M):
     """``M[:] = M_xi(q)`` (9, 9) in curvature coordinates, by quadrature over the nodes."""
     Q = np.empty(9)
     z = np.zeros(9)
-    segment_slices(alpha, w, mass, radius, q, z, z, True, M, Q)
+    segment_slices(alpha, w, mass, radius, q, z, z, True, M, Q, np.empty(SCRATCH))
 
 
 @jit
 def segment_newton_euler(alpha, w, mass, radius, q, xi, xid, Q):
     """``Q[:] = M_xi xid + C_xi xi`` (9,), curvature coordinates (see :func:`segment_slices`)."""
     M = np.empty((1, 1))
-    segment_slices(alpha, w, mass, radius, q, xi, xid, False, M, Q)
+    segment_slices(alpha, w, mass, radius, q, xi, xid, False, M, Q, np.empty(SCRATCH))
 
 
 # --------------------------------------------------------------------------- segment forces
@@ -215,7 +220,7 @@ _SIN_PHI = np.sin(CHAMBER_ANGLES)
 
 
 @jit
-def input_matrix_c(q, A_ch, r_ch, paper_act, B):
+def input_matrix_c(q, A_ch, r_ch, paper_act, B, sc):
     """``B[:] =`` the input matrix (3, 3) in curvature coordinates, column i = chamber i.
 
     Volume model: ``A_ch d l_i/dq`` with ``l_i = l (1 - r_ch (ux cos phi_i + uy sin phi_i))``.
@@ -224,10 +229,11 @@ def input_matrix_c(q, A_ch, r_ch, paper_act, B):
     """
     l, ux, uy = q[0], q[1], q[2]
     if paper_act:
-        R = np.empty((3, 3))
-        pt = np.empty(3)
-        S = np.empty((6, 3))
-        Sd = np.empty((6, 3))
+        o = 0
+        R, o = take2(sc, o, 3, 3)
+        pt, o = take1(sc, o, 3)
+        S, o = take2(sc, o, 6, 3)
+        Sd, o = take2(sc, o, 6, 3)
         arc_node(1.0, l, ux, uy, 0.0, 0.0, 0.0, R, pt, S, Sd)
         for i in range(3):
             for a in range(3):
@@ -270,7 +276,7 @@ def rest_damping_c(l0, EI, EA, beta, D):
 
 
 @jit
-def pressure_jacobian_c(q, p, A_ch, r_ch, paper_act, Kp):
+def pressure_jacobian_c(q, p, A_ch, r_ch, paper_act, Kp, sc):
     """``Kp[:] = d(B(q) p)/dq`` (3, 3), curvature coordinates, both actuation models of
     :func:`input_matrix_c` (the paper's through the tip Jacobian's exact derivative)."""
     Pc = 0.0
@@ -281,8 +287,9 @@ def pressure_jacobian_c(q, p, A_ch, r_ch, paper_act, Kp):
         Ps += _SIN_PHI[i] * p[i]
         P += p[i]
     if paper_act:
-        dS = np.empty((3, 6, 3))
-        K = np.empty((3, 6))
+        o = 0
+        dS, o = take3(sc, o, 3, 6, 3)
+        K, o = take2(sc, o, 3, 6)
         arc_node_derivatives(1.0, q[0], q[1], q[2], 0.0, 0.0, 0.0, dS, K)
         for a in range(3):
             for c in range(3):
