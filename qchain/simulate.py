@@ -8,8 +8,9 @@ Methods, chosen by name (``METHODS``):
 ``"RK45"``     scipy's adaptive Dormand-Prince 5(4), error-controlled by ``rtol``/``atol``.
 ``"DOP853"``   scipy's adaptive Dormand-Prince 8(5,3), for tight tolerances.
 ``"Radau"``    scipy's implicit Radau IIA (5th order), for stiff materials; the Newton
-``"BDF"``      matrix uses the model's exact elastic stiffness and damping (the stiff
-               part of the Jacobian; velocity-product and gravity terms are left out).
+``"BDF"``      matrix is the exact Jacobian of the whole system (elastic, damping,
+               pressure, velocity-product and gravity terms) from
+               ``Chain.forward_dynamics_derivatives``.
 ``"midpoint"`` implicit midpoint rule, fixed step ``dt``: symmetric (time-reversible) and
                A-stable; on undamped, unforced runs its energy error stays bounded instead
                of drifting. Newton iterations with ``M + dt/2 D + dt^2/4 K``.
@@ -158,8 +159,11 @@ class _System:
             return np.full_like(y, np.nan)
         return np.concatenate([self.delta_dot(yd, v), a[self.idx]])
 
-    def stiffness_jacobian(self, t, y):
-        """``[[0, I], [-M^-1 K, -M^-1 D]]`` on the active coordinates (elastic + damping)."""
+    def jacobian(self, t, y):
+        """The Newton matrix of the implicit solvers: the exact Jacobian of the first-order
+        system on the active coordinates, ``[[0, dexp^-1], [da/dq Jexp, da/dv]]``, from
+        :meth:`Chain.forward_dynamics_derivatives` (a feedback controller's own derivative is
+        left out)."""
         self.njev += 1
         yd, yv = y[: self.nA], y[self.nA :]
         n = self.nA
@@ -168,12 +172,20 @@ class _System:
         try:
             q = self.q_of(yd)
             v = self.full(yv)
-            M, K, D = self.mkd(q, v)
+            d = self.ch.forward_dynamics_derivatives(q, v, self.P(t, q, v), self.Tq(t, q, v), t=t, data=self.data)
         except QchainError:
             return J
-        c = cho_factor(M)
-        J[n:, :n] = -cho_solve(c, K)
-        J[n:, n:] = -cho_solve(c, D)
+        ix = np.ix_(self.idx, self.idx)
+        da_dq = d.da_dq
+        if self.ch.floating:
+            delta = self.full(yd)[:6]
+            if np.any(delta):  # q = integrate(q_chart, delta): the base tangent is Jexp6(delta) d delta
+                Je = pin.Jexp6(pin.Motion(delta))
+                da_dq = da_dq.copy()
+                da_dq[:, :6] = da_dq[:, :6] @ Je
+                J[:6, n : n + 6] = np.linalg.inv(Je)
+        J[n:, :n] = da_dq[ix]
+        J[n:, n:] = d.da_dv[ix]
         return J
 
     def mkd(self, q, v):
@@ -452,7 +464,7 @@ def _run_adaptive(cls, sysm, rec, bar, check_events, t0, t1, q, v, rtol, atol, m
         if h0 is not None:
             kw["first_step"] = min(h0, t1 - t_start)
         if implicit:
-            kw["jac"] = sysm.stiffness_jacobian
+            kw["jac"] = sysm.jacobian
         return cls(sysm.rhs, t_start, y0, t1, **kw)
 
     # scipy's own first-step guess probes y0 + h f(y0), which can leave the model's domain
