@@ -321,21 +321,22 @@ def simulate(
         if method in FIXED_STEP:
             step = _rk4_step if method == "rk4" else _midpoint_step
             nsteps_total = int(np.ceil((t1 - t0) / dt - 1e-9))
+            h_stable = _rk4_stable_step(sysm, t0, q0, v0) if method == "rk4" else None
             for k in range(nsteps_total):
                 h = min(dt, t1 - t)
                 sysm.q_chart = q
                 try:
                     q1, v1 = step(sysm, t, q, v, h)
                 except _DomainExit as err:
-                    status, message = -1, str(err)
+                    status, message = -1, _blow_up(str(err), h, h_stable)
                     break
                 if not (np.all(np.isfinite(q1)) and np.all(np.isfinite(v1))):
-                    status, message = -1, f"non-finite state at t = {t + h:.6g} s"
+                    status, message = -1, _blow_up(f"non-finite state at t = {t + h:.6g} s", h, h_stable)
                     break
                 try:
                     chain._state(q1, v1, t=t + h)
                 except QchainError as err:
-                    status, message = -1, f"{err} (at t = {t + h:.6g} s)"
+                    status, message = -1, _blow_up(f"{err} (at t = {t + h:.6g} s)", h, h_stable)
                     break
                 t_new = t0 + (k + 1) * dt if k + 1 < nsteps_total else t1
                 interp = _linear_interp(chain, t, q, v, t_new, q1, v1)
@@ -386,6 +387,37 @@ def _linear_interp(chain, ta, qa, va, tb, qb, vb):
     return interp
 
 
+#: RK4 is stable for h |lambda| below about 2.78 on the negative real axis and 2.83 on the
+#: imaginary axis; the smaller bound serves every eigenvalue direction of a damped arm.
+RK4_STABILITY_RADIUS = 2.78
+
+
+def _rk4_stable_step(sysm: _System, t, q, v) -> float | None:
+    """The largest stable RK4 step at ``(t, q, v)``: ``2.78 / max |lambda|`` over the
+    eigenvalues of the system's exact Jacobian (:meth:`_System.jacobian`); None if the
+    Jacobian cannot be formed there."""
+    sysm.q_chart = q
+    y = np.concatenate([np.zeros(sysm.nA), v[sysm.idx]])
+    try:
+        J = sysm.jacobian(t, y)
+    except (QchainError, ValueError, np.linalg.LinAlgError):
+        return None
+    rho = float(np.max(np.abs(np.linalg.eigvals(J))))
+    return RK4_STABILITY_RADIUS / rho if rho > 0 else None
+
+
+def _blow_up(message: str, h, h_start) -> str:
+    """A fixed-step RK4 run that failed: say so if the step is above the stability limit at
+    the start of the run, which is then the cause, not the model's domain. (Near the domain's
+    boundary the model stiffens, and a state that is already blowing up has spurious fast
+    modes, so the limit at the last good state would blame stable steps.)"""
+    if h_start is None or h <= h_start:
+        return message
+    return (f"rk4 became unstable: the step dt = {h:g} s is above its stability limit, about {h_start:.3g} s at "
+            f"the start of the run (2.78 / the largest |eigenvalue| of the exact Jacobian); use a smaller dt or an "
+            f"implicit method ('midpoint', 'Radau'). The run stopped at: {message}")
+
+
 def _rk4_step(sysm: _System, t, q, v, h):
     nA = sysm.nA
     y = np.concatenate([np.zeros(nA), v[sysm.idx]])
@@ -396,8 +428,7 @@ def _rk4_step(sysm: _System, t, q, v, h):
     y1 = y + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
     if not np.all(np.isfinite(y1)):
         if sysm.error:
-            raise _DomainExit(f"{sysm.error}, in a stage of the step from t = {t:.6g} s (dt = {h:g} s; if the "
-                              "state is far from the boundary, the step is too large)")
+            raise _DomainExit(f"{sysm.error}, in a stage of the step from t = {t:.6g} s (dt = {h:g} s)")
         raise _DomainExit(f"non-finite state at t = {t + h:.6g} s")
     return sysm.q_of(y1[:nA]), sysm.full(y1[nA:])
 

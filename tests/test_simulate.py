@@ -194,3 +194,25 @@ def test_locked_coordinates_are_held_and_reduce_the_state():
         ch.forward_dynamics(bad, v)
     with pytest.raises(ValueError, match="planar=True needs curvature coordinates"):
         Chain([Segment(**SEG, coords="paper")], planar=True)
+
+
+def test_rk4_above_its_stability_limit_says_so():
+    """A clamped rod of 10 short segments released under gravity: the exact Jacobian's fastest
+    mode puts RK4's limit near 7.2e-4 s. Above it the run says the step is unstable (not only
+    that the model left its domain); just below it the run succeeds; a genuine domain exit at
+    a stable step is reported without that diagnosis."""
+    n, L, r = 10, 0.2, 0.02
+    seg = dict(length=L / n, radius=r, mass=1000 * np.pi * r * r * L / n, chamber_area=2e-5, chamber_radius=0.01,
+               youngs_modulus=5e5)
+    ch = Chain([Segment(**seg) for _ in range(n)], gravity=(9.81, 0.0, 0.0))
+    bad = simulate(ch, ch.neutral(), np.zeros(ch.nv), (0, 0.3), method="rk4", dt=1e-3)
+    assert not bad.success
+    assert bad.message.startswith("rk4 became unstable: the step dt = 0.001 s is above its stability limit")
+    limit = float(bad.message.split("about ")[1].split(" s")[0])
+    assert 6e-4 < limit < 8e-4
+    ok = simulate(ch, ch.neutral(), np.zeros(ch.nv), (0, 0.3), method="rk4", dt=0.9 * limit)
+    assert ok.success, ok.message
+    one = Chain([Segment(**SEG, damping=0.05)], gravity=np.zeros(3))
+    exit_ = simulate(one, one.neutral(), np.zeros(3), (0, 1.0), pressure=Ramp(0.0, 1.0, end=[3e6, 0.0, 0.0]),
+                     method="rk4", dt=2e-4)
+    assert not exit_.success and "kappa" in exit_.message and "unstable" not in exit_.message
