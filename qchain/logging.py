@@ -1669,24 +1669,29 @@ def _read_frame_blocking(fd: int, reader: _FrameReader):
         reader.feed(data)
 
 
+#: The writer's nice value: a CFS share of about a tenth of a competitor's. Not ``SCHED_IDLE``:
+#: on a machine whose cores are all busy an idle-class writer gets no CPU time at all, never
+#: starts, and the recording is lost; at nice 10 it still progresses there, and on a quiet
+#: machine it runs on the other core as before.
+WRITER_NICE = 10
+
+
 def _yield_to_the_simulation(pid: int) -> None:
-    """Run process ``pid`` (and the threads it starts: Rerun's too) only on CPU time nobody
-    else wants (Linux ``SCHED_IDLE``; elsewhere ``nice 5``): the simulation never waits for
-    the writer, which catches up on the other core or while the simulation waits for it."""
+    """Run process ``pid`` (and the threads it starts: Rerun's too) at a low CPU share
+    (:data:`WRITER_NICE`): the simulation does not wait for the writer, which catches up on
+    the other core or while the simulation waits for it, and still gets some time on a busy
+    machine."""
     try:
-        os.sched_setscheduler(pid, os.SCHED_IDLE, os.sched_param(0))
-    except (AttributeError, OSError):  # pragma: no cover - not Linux
-        try:
-            os.setpriority(os.PRIO_PROCESS, pid, 5)
-        except (AttributeError, OSError):
-            pass
+        os.setpriority(os.PRIO_PROCESS, pid, WRITER_NICE)
+    except (AttributeError, OSError):  # pragma: no cover - not POSIX
+        pass
 
 
 def _normal_priority() -> None:
     """Undo :func:`_yield_to_the_simulation` (for the web viewer a writer starts)."""
     try:
-        os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
-    except (AttributeError, OSError):  # pragma: no cover - not Linux, or not allowed
+        os.setpriority(os.PRIO_PROCESS, 0, 0)
+    except (AttributeError, OSError):  # pragma: no cover - not allowed
         pass
 
 
@@ -1885,7 +1890,7 @@ def _launch_writer(rerun: bool) -> subprocess.Popen:
         raise
     finally:
         os.close(bell_r)
-    # idle priority from its start on (Popen returns once the exec is done; the writer's
+    # low priority from its start on (Popen returns once the exec is done; the writer's
     # first thread, OpenBLAS's, comes with numpy 30+ ms later and inherits it), not once the
     # writer has imported numpy: its 0.2 s start-up runs while the model is built, and the
     # simulating process's own threads (OpenBLAS's) must keep the other core then
