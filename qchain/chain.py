@@ -35,7 +35,7 @@ import pinocchio as pin
 from . import dynamics_derivatives as _derivs
 from . import recursive
 from .arc import SCRATCH, arc_nodes
-from .dynamics_derivatives import ForwardDynamicsDerivatives, InverseDynamicsDerivatives
+from .dynamics_derivatives import _ZERO6, ForwardDynamicsDerivatives, InverseDynamicsDerivatives
 from .data import Data
 from .errors import DomainError, QchainError, SingularConfigurationError, as_vector
 from .segment import PAPER_SINGULAR_ANGLE, Segment, paper_jacobian, paper_jacobian_dot, paper_to_curvature
@@ -49,12 +49,6 @@ QUATERNION_TOLERANCE = 1e-6
 
 _NO_POINTS = np.empty(0)  # recursive.frames without backbone points
 _NO_POINTS.flags.writeable = False
-_ZERO6 = np.zeros(6)
-_ZERO6.flags.writeable = False
-
-
-def _ZERO_P(n: int) -> np.ndarray:
-    return np.zeros((n, 3))
 
 
 class Frames(NamedTuple):

@@ -26,7 +26,7 @@ from scipy.linalg import cho_factor, cho_solve
 
 from . import derivatives, recursive
 from .arc import SCRATCH
-from .errors import QchainError, as_vector
+from .errors import QchainError
 from .segment import paper_bias_derivative, paper_jacobian_derivative, paper_jacobian_dot
 
 if TYPE_CHECKING:
@@ -34,6 +34,9 @@ if TYPE_CHECKING:
     from .data import Data
 
 __all__ = ["InverseDynamicsDerivatives", "ForwardDynamicsDerivatives"]
+
+_ZERO6 = np.zeros(6)  # a still base's twist or acceleration (read-only, shared)
+_ZERO6.flags.writeable = False
 
 
 class InverseDynamicsDerivatives(NamedTuple):
@@ -236,10 +239,6 @@ def compiled_forward_dynamics_derivatives(ch: Chain, q_c, v_c, p3, tau, V0, A_B,
     return ForwardDynamicsDerivatives(*out)
 
 
-_ZERO6 = np.zeros(6)
-_ZERO6.flags.writeable = False
-
-
 # ---------------------------------------------------------------------------- mass matrix
 
 
@@ -277,7 +276,3 @@ def mass_matrix_derivative(ch: Chain, st: _State, data: Data | None) -> np.ndarr
     out += np.einsum("aik,aj->ijk", dT, MT) + np.einsum("ai,ajk->ijk", MT, dT)
     return out
 
-
-def check_acceleration(ch: Chain, a) -> np.ndarray:
-    """``a`` (nv,) shape- and finiteness-checked where it enters."""
-    return as_vector("a", a, ch.nv)
