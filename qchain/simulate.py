@@ -1,19 +1,32 @@
 """Time integration of a chain: ``simulate(chain, q0, v0, t_span, ...) -> Trajectory``.
 
-Methods, chosen by name (``METHODS``):
+Methods, chosen by name (``METHODS``); the first four run on the compiled engine
+(:mod:`qchain.engine`): whole stretches of steps in compiled code, Python entered only
+for output samples, controller instants, events and progress.
 
 =============  =========================================================================
+``"radau5"``   (default) Radau IIA of order 5, adaptive, L-stable (Hairer and Wanner's
+               RADAU5): Newton with the exact Jacobian (``forward_dynamics_derivatives``),
+               factorisations reused over steps; for stiff, damped arms.
+``"dopri5"``   Dormand-Prince 5(4), adaptive explicit, error-controlled by ``rtol``/``atol``.
 ``"rk4"``      classical Runge-Kutta, fixed step ``dt``, 4th order (Munthe-Kaas form on
                the base's Lie group: a chart re-centred every step, ``dexp^-1`` applied).
-``"RK45"``     scipy's adaptive Dormand-Prince 5(4), error-controlled by ``rtol``/``atol``.
-``"DOP853"``   scipy's adaptive Dormand-Prince 8(5,3), for tight tolerances.
-``"Radau"``    scipy's implicit Radau IIA (5th order), for stiff materials; the Newton
-``"BDF"``      matrix uses the model's exact elastic stiffness and damping (the stiff
-               part of the Jacobian; velocity-product and gravity terms are left out).
 ``"midpoint"`` implicit midpoint rule, fixed step ``dt``: symmetric (time-reversible) and
                A-stable; on undamped, unforced runs its energy error stays bounded instead
-               of drifting. Newton iterations with ``M + dt/2 D + dt^2/4 K``.
+               of drifting. Newton with ``I - dt/2 Jv - dt^2/4 Jq`` of the exact Jacobian.
+``"RK45"``     scipy's solvers, Python at every stage (kept for comparison and for what
+``"DOP853"``   the compiled engine does not serve): RK45 and DOP853 explicit, Radau and
+``"Radau"``    BDF implicit with the model's exact elastic stiffness and damping as the
+``"BDF"``      Newton matrix.
 =============  =========================================================================
+
+The compiled engine serves chains in curvature coordinates with the material law, inputs
+that are constants or schedules (:mod:`qchain.inputs`), a fixed or floating base or a
+prescribed :class:`qchain.scene.SineMotion`, and Python controllers sampled at
+``controller_rate`` (zero-order hold). Anything else (paper coordinates, the linear law, a
+controller called at every stage, a Python ``base_motion``) runs the same method names on
+the Python steppers (``dopri5`` as scipy's RK45, ``radau5`` as scipy's Radau);
+``Trajectory.meta["engine"]`` says which ran.
 
 A floating base is always advanced on the Lie group: the state is ``(delta, v)`` with
 ``q = chain.integrate(q_chart, delta)`` in a chart re-centred as the base turns, never by
@@ -39,14 +52,17 @@ from scipy.optimize import brentq
 
 from .chain import Chain
 from .errors import QchainError, as_vector
-from .inputs import as_input
+from .inputs import Schedule, as_input
 from .trajectory import Trajectory
 
-__all__ = ["simulate", "METHODS", "Event"]
+__all__ = ["simulate", "METHODS", "FIXED_STEP", "COMPILED", "DEFAULT_METHOD", "Event"]
 
 FIXED_STEP = ("rk4", "midpoint")
-ADAPTIVE = {"RK45": si.RK45, "DOP853": si.DOP853, "Radau": si.Radau, "BDF": si.BDF}
-METHODS = FIXED_STEP + tuple(ADAPTIVE)
+COMPILED = ("radau5", "dopri5", "rk4", "midpoint")
+ADAPTIVE = {"RK45": si.RK45, "DOP853": si.DOP853, "Radau": si.Radau, "BDF": si.BDF,
+            "dopri5": si.RK45, "radau5": si.Radau}  # the Python path's stand-ins for the compiled two
+METHODS = COMPILED + ("RK45", "DOP853", "Radau", "BDF")
+DEFAULT_METHOD = "radau5"
 _RECENTER = 0.5  # rad/m of base chart coordinates before the chart is moved
 
 
@@ -202,7 +218,7 @@ def simulate(
     *,
     pressure=None,
     tau=None,
-    method: str = "RK45",
+    method: str = DEFAULT_METHOD,
     dt: float | None = None,
     rtol: float = 1e-6,
     atol: float = 1e-8,
@@ -214,6 +230,7 @@ def simulate(
     first_step: float | None = None,
     energies: bool = True,
     wall_limit: float | None = None,
+    controller_rate: float | None = None,
 ) -> Trajectory:
     """Integrate ``M a + C v + g + D v + dU/dq = B p + tau`` from ``(q0, v0)`` over ``t_span``.
 
@@ -244,6 +261,11 @@ def simulate(
         Compute kinetic and potential energy at every sample.
     wall_limit : float, s, optional
         Stop (``success = False``) when the run has taken this much wall-clock time.
+    controller_rate : float, Hz, optional
+        Sample a controller ``pressure`` (or ``tau``) at this rate and hold its output
+        between samples (zero-order hold), as a real controller runs: the run leaves
+        compiled code only at those instants. Without it a controller is called at every
+        stage of every step (the Python steppers).
 
     Returns
     -------
@@ -278,11 +300,58 @@ def simulate(
         if not isinstance(e, Event):
             raise TypeError("events must be qchain.simulate.Event objects")
 
-    sysm = _System(chain, as_input("pressure", pressure, chain.nu), as_input("tau", tau, chain.nv))
-    if wall_limit is not None:
-        sysm.deadline = _time.perf_counter() + float(wall_limit)
-    rec = _Recorder(chain, sysm, t_eval, on_sample, energies)
+    controllers = []
+    if controller_rate is not None:
+        if not (isinstance(controller_rate, (int, float, np.floating, np.integer)) and not isinstance(controller_rate, bool)
+                and np.isfinite(controller_rate) and controller_rate > 0):
+            raise ValueError(f"controller_rate must be a number of Hz > 0, got {controller_rate!r}")
+        controller_rate = float(controller_rate)
+        held = []
+        for name, u, size in (("pressure", pressure, chain.nu), ("tau", tau, chain.nv)):
+            if callable(u) and not isinstance(u, Schedule):
+                held.append((name, as_input(name, u, size), size))
+        if not held:
+            raise ValueError("controller_rate is given but neither pressure nor tau is a controller (t, q, v) -> array")
+    deadline = None if wall_limit is None else _time.perf_counter() + float(wall_limit)
     bar = _Progress(t0, t1, progress)
+    if method in COMPILED:
+        from .engine import driver, system
+
+        pk, tk = pressure, tau
+        if controller_rate is not None:
+            for name, _, size in held:
+                if name == "pressure":
+                    pk = np.zeros(size)
+                else:
+                    tk = np.zeros(size)
+        m = system.pack(chain, pk, tk)
+        if m is not None:
+            if controller_rate is not None:
+                slots = {"pressure": m[21], "tau": m[23]}
+                controllers = [(fn, slots[name]) for name, fn, _ in held]
+            pass_energies = False
+            if on_sample is not None and energies:
+                try:
+                    pass_energies = "energies" in inspect.signature(on_sample).parameters
+                except (TypeError, ValueError):
+                    pass
+            try:
+                traj = driver.run(chain, m, method, q0, v0, t0, t1, dt=dt, rtol=rtol, atol=atol, t_eval=t_eval,
+                                  on_sample=on_sample, pass_energies=pass_energies, events=events,
+                                  bar=bar if progress else None, max_step=max_step, first_step=first_step,
+                                  energies=energies, deadline=deadline, controllers=controllers,
+                                  controller_rate=controller_rate)
+            except driver.Interrupted as err:
+                bar.close(err.trajectory.t[-1] if len(err.trajectory.t) else t0)
+                raise _Interrupted(err.trajectory) from None
+            bar.close(traj.t[-1] if len(traj.t) else t0)
+            return traj
+    if controller_rate is not None:
+        raise ValueError("controller_rate needs the compiled engine: a chain in curvature coordinates with the "
+                         "material law, schedules or constants for the other input, no Python base_motion")
+    sysm = _System(chain, as_input("pressure", pressure, chain.nu), as_input("tau", tau, chain.nv))
+    sysm.deadline = deadline
+    rec = _Recorder(chain, sysm, t_eval, on_sample, energies)
     status, message = 0, "The end of the time span was reached."
     ev_log: list[tuple[str, float]] = []
     nsteps = 0
@@ -352,11 +421,11 @@ def simulate(
         status, message = -1, f"interrupted by the user at t = {t:.6g} s"
         bar.close(t)
         traj = rec.trajectory(status, message, sysm.nfev)
-        traj.meta.update(method=method, nsteps=nsteps, njev=sysm.njev, events=ev_log)
+        traj.meta.update(method=method, engine="python", nsteps=nsteps, njev=sysm.njev, events=ev_log)
         raise _Interrupted(traj) from None
     bar.close(t)
     traj = rec.trajectory(status, message, sysm.nfev)
-    traj.meta.update(method=method, nsteps=nsteps, njev=sysm.njev, events=ev_log)
+    traj.meta.update(method=method, engine="python", nsteps=nsteps, njev=sysm.njev, events=ev_log)
     return traj
 
 

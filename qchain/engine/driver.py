@@ -1,0 +1,291 @@
+"""The one driver loop of the compiled engine: Python between stretches of compiled steps.
+
+:func:`run` calls a stepper's ``advance`` (:mod:`qchain.engine.steppers`) and between calls
+does only what must be Python: hand new output samples to ``on_sample``, sample a
+zero-order-hold controller at its instants, check events, update the progress bar, honour
+Ctrl-C and the wall-clock limit. A call returns at the next of these; otherwise it runs a
+stretch sized to take about :data:`STRETCH` s of wall time, so Ctrl-C is felt promptly.
+"""
+
+from __future__ import annotations
+
+import time as _time
+
+import numpy as np
+from scipy.optimize import brentq
+
+from ..errors import QchainError
+from ..trajectory import Trajectory
+from . import steppers, system
+from .steppers import AT_STOP, FAILED, OUTPUT, STEPS
+
+__all__ = ["run", "Interrupted", "STRETCH"]
+
+STRETCH = 0.05  #: s of wall time a compiled stretch aims at between looks from Python
+EPS = np.finfo(float).eps
+
+
+class Interrupted(KeyboardInterrupt):
+    """Ctrl-C during a run: carries the trajectory recorded so far (``.trajectory``)."""
+
+    def __init__(self, trajectory: Trajectory):
+        super().__init__("interrupted")
+        self.trajectory = trajectory
+
+
+class _Outputs:
+    """Sample buffers the compiled steps write: ``t (K,)``, ``q (K, nq)``, ``v (K, nv)``, ``p (K, nu)``."""
+
+    def __init__(self, chain, t_eval: np.ndarray | None, guess: int):
+        self.every = t_eval is None
+        K = guess if self.every else t_eval.size
+        self.t = np.zeros(K) if self.every else np.ascontiguousarray(t_eval, dtype=float)
+        self.q = np.zeros((K, chain.nq))
+        self.v = np.zeros((K, chain.nv))
+        self.p = np.zeros((K, chain.nu))
+
+    @property
+    def arrays(self):
+        return (self.t, self.q, self.v, self.p)
+
+    def grow(self):
+        K = self.t.size
+        for name in ("t", "q", "v", "p"):
+            a = getattr(self, name)
+            b = np.zeros((2 * K,) + a.shape[1:])
+            b[:K] = a
+            setattr(self, name, b)
+
+
+def run(chain, m, method, q0, v0, t0, t1, *, dt, rtol, atol, t_eval, on_sample, pass_energies, events, bar,
+        max_step, first_step, energies, deadline, controllers, controller_rate) -> Trajectory:
+    """Integrate from ``(q0, v0)`` at ``t0`` to ``t1`` on the compiled engine (arguments as
+    :func:`qchain.simulate.simulate`'s, validated there; ``m`` from :func:`system.pack`;
+    ``controllers``: ``[(callable (t, q, v) -> (size,), params array to hold it in)]``)."""
+    idx = m[13]
+    nA = idx.size
+    advance = steppers.ADVANCE[method]
+    c = steppers.constants(method)
+    fixed = method in ("rk4", "midpoint")
+    wk = system.workspace(chain)
+    it = steppers.integrator(nA, chain.nq)
+    y, tf, cnt = it[0], it[4], it[5]
+    wk[2][:] = q0
+    y[nA:] = v0[idx]
+    tf[steppers.T] = tf[steppers.T0] = t0
+    tf[steppers.DT] = dt if fixed else 0.0
+    tf[steppers.RTOL], tf[steppers.ATOL] = rtol, atol
+    tf[steppers.MAX_STEP] = max_step
+    tf[steppers.H] = first_step if first_step is not None else min(1e-4, (t1 - t0) / 10)
+    tf[steppers.NEWTON_TOL] = max(10 * EPS / rtol, min(0.03, rtol**0.5))
+    if t_eval is None and fixed:
+        n = int(np.ceil((t1 - t0) / dt - 1e-9))
+        t_eval = np.minimum(t0 + dt * np.arange(n + 1), t1)
+    out = _Outputs(chain, t_eval, guess=1024)
+    if out.every:
+        cnt[steppers.EVERY] = 1
+    hold_times = _hold_times(controllers, controller_rate, t0, t1)
+    n_hold = 0
+
+    def hold(t, q, v):
+        for fn, params in controllers:
+            params[:] = fn(t, q, v)
+
+    # the samples at the start
+    k = 0
+    if controllers:
+        hold(t0, q0, v0)
+        n_hold = 1
+    system.inputs(m, wk, t0)
+    while k < out.t.size and (out.every and k == 0 or not out.every and out.t[k] <= t0):
+        if out.every:
+            out.t[0] = t0
+        out.q[k], out.v[k], out.p[k] = q0, v0, wk[3]
+        k += 1
+    cnt[steppers.K_OUT] = k
+    status, message = 0, "The end of the time span was reached."
+    ev_log: list[tuple[str, float]] = []
+    g_prev = [e.fun(t0, q0, v0) for e in events]
+    emitted = 0
+    max_steps = 16
+    t = t0
+    try:
+        emitted = _hand_over(out, emitted, cnt, on_sample, pass_energies, m, wk)
+        while True:
+            t_stop = hold_times[n_hold] if n_hold < hold_times.size else t1
+            max_out = 1 if on_sample is not None else (out.t.size - cnt[steppers.K_OUT] if out.every else 1 << 30)
+            steps = 1 if events else max_steps
+            w0 = _time.perf_counter()
+            code = advance(m, wk, it, out.arrays, c, t_stop, max_out, steps)
+            wall = _time.perf_counter() - w0
+            if code == STEPS and not events:  # size the next stretch to about STRETCH s
+                max_steps = int(min(max(max_steps * min(4.0, STRETCH / max(wall, 1e-6)), 1), 1 << 20))
+            t = tf[steppers.T]
+            if code == FAILED:
+                status, message = -1, _failure(chain, m, wk, it, method, q0, v0, t0)
+                emitted = _hand_over(out, emitted, cnt, on_sample, pass_energies, m, wk)
+                break
+            if events and cnt[steppers.DENSE_OK]:
+                hit = _events(events, g_prev, ev_log, method, m, wk, it, c)
+                if hit is not None:
+                    _cut(out, cnt, hit, method, m, wk, it, c)
+                    emitted = _hand_over(out, emitted, cnt, on_sample, pass_energies, m, wk)
+                    status, message = 1, f"A termination event occurred at t = {hit:.6g} s."
+                    t = hit
+                    break
+            emitted = _hand_over(out, emitted, cnt, on_sample, pass_energies, m, wk)
+            if out.every and cnt[steppers.K_OUT] == out.t.size:
+                out.grow()
+            if bar is not None:
+                bar.update(t)
+            if deadline is not None and _time.perf_counter() > deadline:
+                status, message = -1, f"wall-clock limit reached at t = {t:.6g} s"
+                break
+            if code == AT_STOP:
+                if t >= t1:
+                    break
+                system.configuration(m, wk, wk[2], y)
+                hold(t, wk[0].copy(), wk[1].copy())
+                n_hold += 1
+                for r in range(cnt[steppers.K_OUT] - 1, -1, -1):  # a sample at the instant shows the new hold
+                    if out.t[r] != t:
+                        break
+                    system.inputs(m, wk, t)
+                    out.p[r] = wk[3]
+            del code
+    except KeyboardInterrupt:
+        traj = _trajectory(chain, m, wk, out, cnt, -1, f"interrupted by the user at t = {t:.6g} s", energies, method,
+                           ev_log)
+        raise Interrupted(traj) from None
+    return _trajectory(chain, m, wk, out, cnt, status, message, energies, method, ev_log)
+
+
+def _hold_times(controllers, rate, t0, t1) -> np.ndarray:
+    """The controller's sampling instants after ``t0`` and before ``t1`` (s)."""
+    if not controllers:
+        return np.zeros(0)
+    n = int(np.floor((t1 - t0) * rate * (1 + 1e-12)))
+    ts = t0 + np.arange(n + 1) / rate
+    return ts[(ts > t0) & (ts < t1 - 1e-12 * max(1.0, abs(t1)))]
+
+
+def _hand_over(out, emitted, cnt, on_sample, pass_energies, m, wk) -> int:
+    """Give the samples written since the last call to ``on_sample``; returns the new count."""
+    k = int(cnt[steppers.K_OUT])
+    if on_sample is not None:
+        for r in range(emitted, k):
+            if pass_energies:
+                e = system.energies(m, wk, out.t[r], out.q[r], out.v[r])
+                on_sample(out.t[r], out.q[r].copy(), out.v[r].copy(), out.p[r].copy(), energies=e)
+            else:
+                on_sample(out.t[r], out.q[r].copy(), out.v[r].copy(), out.p[r].copy())
+    return k
+
+
+def _state_at(method, m, wk, it, c, s):
+    """``(q, v)`` copies at time ``s`` in the last step (its dense output)."""
+    ys = it[12][steppers.Y_OUT]
+    steppers.dense(steppers.CODES[method], it, c, s, ys)
+    system.configuration(m, wk, it[14], ys)
+    return wk[0].copy(), wk[1].copy()
+
+
+def _events(events, g_prev, ev_log, method, m, wk, it, c):
+    """Sign changes of the events over the last step, root-found on its dense output; returns
+    the first terminal event's time or None."""
+    tf = it[4]
+    ta, tb = tf[steppers.T_OLD], tf[steppers.T]
+    hit = None
+    for kk, e in enumerate(events):
+        gb = e.fun(tb, *_state_at(method, m, wk, it, c, tb))
+        ga = g_prev[kk]
+        g_prev[kk] = gb
+        if (ga < 0 <= gb and e.direction >= 0) or (ga > 0 >= gb and e.direction <= 0):
+            te = brentq(lambda s: e.fun(s, *_state_at(method, m, wk, it, c, s)), ta, tb,
+                        xtol=1e-12 * max(1.0, abs(tb)))
+            ev_log.append((e.name, te))
+            if e.terminal and (hit is None or te < hit):
+                hit = te
+    return hit
+
+
+def _cut(out, cnt, hit, method, m, wk, it, c):
+    """End the recording at a terminal event: drop samples after it; in every-step mode the
+    last sample becomes the event's state."""
+    k = int(cnt[steppers.K_OUT])
+    while k > 0 and out.t[k - 1] > hit:
+        k -= 1
+    if out.every:
+        q, v = _state_at(method, m, wk, it, c, hit)
+        system.inputs(m, wk, hit)
+        out.t[k], out.q[k], out.v[k], out.p[k] = hit, q, v, wk[3]
+        k += 1
+    cnt[steppers.K_OUT] = k
+
+
+def _failure(chain, m, wk, it, method, q0, v0, t0) -> str:
+    """The message of a failed run: what failed, where and when; for a fixed step above the
+    stability limit, that limit."""
+    cnt, tf = it[5], it[4]
+    code = int(cnt[steppers.STATUS])
+    t = tf[steppers.T]
+    q_bad = wk[0].copy()
+    if code == system.DOMAIN:
+        try:
+            chain._state(q_bad)
+            what = f"segment {int(wk[10][1])} left the model's domain"
+        except QchainError as err:
+            what = str(err)
+        msg = f"{what} (in a step from t = {t:.6g} s)"
+    elif code == system.SINGULAR:
+        msg = f"an articulated inertia is not positive definite (in a step from t = {t:.6g} s)"
+    elif code == system.NONFINITE:
+        msg = f"non-finite state in a step from t = {t:.6g} s"
+    elif code == steppers.NEWTON:
+        msg = f"{method}: Newton did not converge in the step from t = {t:.6g} s (reduce dt)"
+    else:
+        msg = f"{method}: the step size fell below its floor at t = {t:.6g} s (the solution may be singular there)"
+    if method == "rk4":
+        limit = stability_limit(chain, m, q0, v0, t0)
+        h = tf[steppers.DT]
+        if limit is not None and h > limit:
+            msg = (f"rk4 became unstable: the step dt = {h:g} s is above its stability limit, about {limit:.3g} s at "
+                   f"the start of the run (2.78 / the largest |eigenvalue| of the exact Jacobian); use a smaller dt "
+                   f"or an implicit method ('midpoint', 'radau5'). The run stopped at: {msg}")
+    return msg
+
+
+#: RK4 is stable for h |lambda| below about 2.78 on the negative real axis and 2.83 on the
+#: imaginary axis; the smaller bound serves every eigenvalue direction of a damped arm.
+RK4_STABILITY_RADIUS = 2.78
+
+
+def stability_limit(chain, m, q, v, t, radius: float = RK4_STABILITY_RADIUS) -> float | None:
+    """``radius / max |lambda|`` over the eigenvalues of the exact Jacobian of the free
+    coordinates at ``(t, q, v)`` (s), or None where it cannot be formed."""
+    idx = m[13]
+    nA = idx.size
+    wk = system.workspace(chain)
+    wk[2][:] = q
+    y = np.concatenate([np.zeros(nA), v[idx]])
+    Jq, Jv = np.zeros((nA, nA)), np.zeros((nA, nA))
+    if system.jacobian(m, wk, t, y, np.zeros(2 * nA), Jq, Jv) != 0:
+        return None
+    J = np.block([[np.zeros((nA, nA)), np.eye(nA)], [Jq, Jv]])
+    rho = float(np.max(np.abs(np.linalg.eigvals(J))))
+    return radius / rho if rho > 0 else None
+
+
+def _trajectory(chain, m, wk, out, cnt, status, message, energies, method, ev_log) -> Trajectory:
+    K = int(cnt[steppers.K_OUT])
+    t, q, v, p = out.t[:K].copy(), out.q[:K].copy(), out.v[:K].copy(), out.p[:K].copy()
+    if energies:
+        KE, PE = np.empty(K), np.empty(K)
+        system.energies_batch(m, wk, t, q, v, KE, PE)
+    else:
+        KE = PE = np.full(K, np.nan)
+    traj = Trajectory(t=t, q=q, v=v, p=p, kinetic_energy=KE, potential_energy=PE, success=status >= 0,
+                      message=message, nfev=int(cnt[steppers.NFEV]), status=status)
+    traj.meta.update(method=method, engine="compiled", nsteps=int(cnt[steppers.NSTEPS]), njev=int(cnt[steppers.NJEV]),
+                     nlu=int(cnt[steppers.NLU]), nreject=int(cnt[steppers.NREJECT]), events=ev_log)
+    return traj

@@ -1,0 +1,350 @@
+"""The first-order system a compiled stepper integrates, packed for numba.
+
+A run's state is ``y = (delta, v_A)`` (2 nA,) over the ``nA`` free velocity coordinates
+``idx = flatnonzero(chain.active)``: locked coordinates (``planar``, inextensible segments)
+are not in ``y`` at all, so every stepper works, factorises and controls errors on the free
+coordinates only. The configuration is ``q = q_chart (+) delta``: additive for the segment
+coordinates, ``ff_integrate`` (Pinocchio's free-flyer ``integrate``, on SE(3)) for a floating
+base, whose chart is moved to the current placement when it has turned far
+(:data:`RECENTER`); then
+
+    d(delta)/dt = dexp^-1(delta_B) v_B (base),  v_A (segments),   dv_A/dt = a_A(t, q, v).
+
+:func:`pack` turns a :class:`qchain.Chain` and its inputs into the tuple ``m`` (model,
+never written by a pass) and :func:`workspace` the tuple ``wk`` (everything a pass writes),
+both plain tuples of arrays so that one compiled specialisation serves every chain.
+
+``m`` (in order): ``alpha, w (N,), offs (n + 1,)`` nodes; ``mass, radius, l0, EI, EA, beta,
+A_ch, r_ch (n,)``; ``paper_act (n,) bool``; ``locked (n, 3) bool``; ``idx (nA,) int64``;
+``kind (4,) int64`` = (base: 0 fixed, 1 floating, 2 prescribed; planar kernel 0/1; nq; nv);
+``g_W (3,)`` world gravity (m/s^2); ``R_WB (3, 3), p_WB (3,)`` a fixed base's placement;
+``bm_i, bm_p`` a prescribed base's motion (:func:`qchain.engine.schedules.pack_base_motion`);
+``p_i, p_p`` the pressure input and ``t_i, t_p`` the generalised-force input
+(:func:`qchain.engine.schedules.pack_input`).
+
+Status codes returned by every pass: :data:`OK`, :data:`DOMAIN` (a segment left the model's
+domain: ``|kappa| r >= 1`` or ``l <= 0``; ``info[1]`` its index), :data:`SINGULAR` (an
+articulated inertia not positive definite), :data:`NONFINITE`.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .. import derivatives, recursive
+from ..arc import SCRATCH, arc_pose, jit
+from . import lie, schedules
+
+__all__ = ["pack", "workspace", "rhs", "jacobian", "configuration", "energies", "energies_batch", "inputs", "RECENTER",
+           "OK", "DOMAIN", "SINGULAR", "NONFINITE"]
+
+OK, DOMAIN, SINGULAR, NONFINITE = 0, 1, 2, 3
+RECENTER = 0.5  #: rad or m of base chart coordinates before the chart is moved
+
+
+def pack(chain, pressure, tau, planar_kernel: bool = False) -> tuple | None:
+    """The model tuple ``m`` of ``chain`` with compiled ``pressure`` and ``tau`` inputs, or None
+    where the compiled engine cannot serve it (paper coordinates, the linear law, a Python
+    controller or a Python ``base_motion``)."""
+    if chain._any_paper or chain._has_linear:
+        return None
+    p = schedules.pack_input(pressure, chain.nu)
+    f = schedules.pack_input(tau, chain.nv)
+    if p is None or f is None:
+        return None
+    base = {"fixed": 0, "floating": 1, "prescribed": 2}[chain.base]
+    if base == 2:
+        bm = schedules.pack_base_motion(chain.base_motion)
+        if bm is None:
+            return None
+    else:
+        bm = (np.zeros(1, dtype=np.int64), np.zeros(1))
+    X = chain.base_placement
+    kind = np.array([base, int(planar_kernel), chain.nq, chain.nv], dtype=np.int64)
+    return (chain._alpha, chain._w, chain._offs, chain._mass, chain._radius, chain._l0, chain._EI, chain._EA,
+            chain._beta, chain._A_ch, chain._r_ch, chain._paper_act, chain._locked,
+            np.flatnonzero(chain.active).astype(np.int64), kind, np.array(chain.gravity, dtype=float),
+            np.array(X.rotation), np.array(X.translation), bm[0], bm[1], p[0], p[1], f[0], f[1])
+
+
+def workspace(chain) -> tuple:
+    """The arrays the passes write for ``chain`` (one run, one thread), in order: ``q (nq,)``,
+    ``v (nv,)``, ``q_chart (nq,)``, ``p (nu,)`` Pa, ``tau (nv,)``, ``f (n, 3)`` internal plus
+    external forces, ``A0 (6,)`` apparent base acceleration, ``a (nv,)``, ``qdd (n, 3)``,
+    ``B (4, 6)`` the base's state (:func:`_base_state`), ``info (4,) int64`` (status, segment),
+    the aba, rnea-derivative and aba-derivative workspaces of :class:`qchain.data.Data`, a
+    scratch array, ``R_WB (3, 3)``."""
+    n, nv, nq = chain.n, chain.nv, chain.nq
+    ws = recursive.aba_workspace(n, nv)
+    wd = derivatives.rnea_workspace(n, nv)
+    wa = derivatives.aba_derivatives_workspace(n, nv)
+    return (np.zeros(nq), np.zeros(nv), np.zeros(nq), np.zeros(3 * n), np.zeros(nv), np.zeros((n, 3)), np.zeros(6),
+            np.zeros(nv), np.zeros((n, 3)), np.zeros((4, 6)), np.zeros(4, dtype=np.int64), ws, wd, wa,
+            np.zeros(SCRATCH), np.zeros((3, 3)))
+
+
+@jit
+def _base_state(m, wk, t, q, v):
+    """Fill ``B = wk[9]`` (4, 6): ``B[0]`` the base twist ``V0``, ``B[1]`` its own acceleration
+    ``A_B`` (prescribed), ``B[2, :3]`` gravity in the base frame ``g_B``, ``B[3, :3]`` the base
+    origin in the world; ``R = wk[15]`` the base rotation ``R_WB``."""
+    kind = m[14]
+    g_W = m[15]
+    B = wk[9]
+    R = wk[15]
+    B[1, :] = 0.0
+    if kind[0] == 0:
+        B[0, :] = 0.0
+        R[:, :] = m[16]
+        B[3, :3] = m[17]
+    elif kind[0] == 1:
+        B[0, :] = v[:6]
+        _rotation(q[3:7], R)
+        B[3, :3] = q[:3]
+    else:
+        schedules.base_motion_eval(m[18], m[19], t, R, B[3, :3], B[0], B[1])
+    for r in range(3):
+        B[2, r] = R[0, r] * g_W[0] + R[1, r] * g_W[1] + R[2, r] * g_W[2]
+
+
+@jit
+def _rotation(quat, R):
+    """``R`` (3, 3) of the unit quaternion ``(x, y, z, w)``."""
+    x, y, z, w = quat[0], quat[1], quat[2], quat[3]
+    R[0, 0] = 1.0 - 2.0 * (y * y + z * z)
+    R[0, 1] = 2.0 * (x * y - z * w)
+    R[0, 2] = 2.0 * (x * z + y * w)
+    R[1, 0] = 2.0 * (x * y + z * w)
+    R[1, 1] = 1.0 - 2.0 * (x * x + z * z)
+    R[1, 2] = 2.0 * (y * z - x * w)
+    R[2, 0] = 2.0 * (x * z - y * w)
+    R[2, 1] = 2.0 * (y * z + x * w)
+    R[2, 2] = 1.0 - 2.0 * (x * x + y * y)
+
+
+@jit
+def configuration(m, wk, qc, y):
+    """``q = qc (+) delta`` into ``wk[0]`` and the full ``v`` into ``wk[1]`` from ``y``, with
+    ``qc`` (nq,) the chart's centre."""
+    idx = m[13]
+    kind = m[14]
+    nA = idx.shape[0]
+    q, v = wk[0], wk[1]
+    v[:] = 0.0
+    for i in range(nA):
+        v[idx[i]] = y[nA + i]
+    if kind[0] == 1:
+        lie.ff_integrate(qc[:7], y[:6], q[:7])
+        for i in range(7, q.shape[0]):
+            q[i] = qc[i]
+        for i in range(6, nA):
+            q[idx[i] + 1] = qc[idx[i] + 1] + y[i]
+    else:
+        q[:] = qc
+        for i in range(nA):
+            q[idx[i]] += y[i]
+
+
+@jit
+def _check(m, wk, q):
+    """Domain check of the segment coordinates; sets ``info`` and returns the status."""
+    info = wk[10]
+    nv = m[14][3]
+    n = m[4].shape[0]
+    off = m[14][2] - 3 * n
+    for i in range(q.shape[0]):
+        if not np.isfinite(q[i]):
+            info[0] = NONFINITE
+            return NONFINITE
+    qe = q[off:].reshape(n, 3)
+    j = recursive.first_invalid(qe[:0, 0], qe, m[4], m[11])
+    if j >= 0:
+        info[0] = DOMAIN
+        info[1] = j
+        return DOMAIN
+    return OK
+
+
+@jit
+def inputs(m, wk, t):
+    """Pressure ``wk[3]`` and generalised force ``wk[4]`` at ``t``."""
+    schedules.input_eval(m[20], m[21], t, wk[3])
+    schedules.input_eval(m[22], m[23], t, wk[4])
+
+
+@jit
+def _accel(m, wk, t):
+    """Forward dynamics at ``(t, wk.q, wk.v)`` into ``wk[7]`` (nv,) (inputs evaluated here)."""
+    alpha, w, offs, mass, radius, l0, EI, EA, beta, A_ch, r_ch, paper_act, locked = m[:13]
+    kind = m[14]
+    q, v = wk[0], wk[1]
+    p, tau, f, A0, a, qdd, B = wk[3], wk[4], wk[5], wk[6], wk[7], wk[8], wk[9]
+    ws, sc = wk[11], wk[14]
+    n = mass.shape[0]
+    floating = kind[0] == 1
+    qoff = kind[2] - 3 * n
+    voff = kind[3] - 3 * n
+    status = _check(m, wk, q)
+    if status != OK:
+        return status
+    inputs(m, wk, t)
+    _base_state(m, wk, t, q, v)
+    q_c = q[qoff:].reshape(n, 3)
+    v_c = v[voff:].reshape(n, 3)
+    recursive.internal_forces(q_c, v_c, p.reshape(n, 3), l0, EI, EA, beta, A_ch, r_ch, paper_act, f, sc)
+    for j in range(n):
+        for b in range(3):
+            f[j, b] += tau[voff + 3 * j + b]
+    F0 = B[3]  # reused: the base wrench (floating); the origin row is not needed past here
+    for r in range(6):
+        A0[r] = B[1, r]
+        F0[r] = tau[r] if floating else 0.0
+    for r in range(3):
+        A0[r] -= B[2, r]
+    ok = recursive.aba(alpha, w, offs, mass, radius, q_c, v_c, f, B[0], A0, floating, F0, qdd, A0, locked, ws, sc)
+    if not ok:
+        wk[10][0] = SINGULAR
+        return SINGULAR
+    if floating:
+        for r in range(6):
+            a[r] = A0[r]
+        for r in range(3):
+            a[r] += B[2, r]
+    for j in range(n):
+        for b in range(3):
+            a[voff + 3 * j + b] = qdd[j, b]
+    for i in range(a.shape[0]):
+        if not np.isfinite(a[i]):
+            wk[10][0] = NONFINITE
+            return NONFINITE
+    return OK
+
+
+@jit
+def rhs(m, wk, t, y, out):
+    """``out = dy/dt`` (2 nA,) at ``(t, y)``; returns the status (``out`` undefined unless OK)."""
+    idx = m[13]
+    nA = idx.shape[0]
+    configuration(m, wk, wk[2], y)
+    status = _accel(m, wk, t)
+    if status != OK:
+        return status
+    a = wk[7]
+    for i in range(nA):
+        out[nA + i] = a[idx[i]]
+        out[i] = y[nA + i]
+    if m[14][0] == 1:
+        D = wk[12][18][:6, :6]  # a 6 x 6 of the derivative workspace, free here
+        lie.dexp_inv(y[:6], D)
+        for r in range(6):
+            acc = 0.0
+            for c in range(6):
+                acc += D[r, c] * y[nA + c]
+            out[r] = acc
+    return OK
+
+
+@jit
+def jacobian(m, wk, t, y, f0, Jq, Jv):
+    """The exact Jacobian blocks of ``dv_A/dt``: ``Jq = da_A/d(delta)`` and ``Jv = da_A/dv_A``
+    (nA, nA) at ``(t, y)`` (:func:`qchain.derivatives.aba_derivatives`; configuration
+    derivatives along ``integrate``, exact at ``delta_B = 0``), and ``f0 = dy/dt`` there."""
+    alpha, w, offs, mass, radius, l0, EI, EA, beta, A_ch, r_ch, paper_act, locked = m[:13]
+    idx = m[13]
+    kind = m[14]
+    nA = idx.shape[0]
+    status = rhs(m, wk, t, y, f0)
+    if status != OK:
+        return status
+    q, v, p, tau, B = wk[0], wk[1], wk[3], wk[4], wk[9]
+    ws, wd, wa, sc = wk[11], wk[12], wk[13], wk[14]
+    n = mass.shape[0]
+    floating = kind[0] == 1
+    qoff = kind[2] - 3 * n
+    voff = kind[3] - 3 * n
+    status = derivatives.aba_derivatives(alpha, w, offs, mass, radius, l0, EI, EA, beta, A_ch, r_ch, paper_act,
+                                         locked, floating, q[qoff:].reshape(n, 3), v[voff:].reshape(n, 3),
+                                         p.reshape(n, 3), tau, B[0], B[1], B[2, :3], ws, wd, wa, sc)
+    if status != 0:
+        wk[10][0] = SINGULAR if status < 3 else NONFINITE
+        return wk[10][0]
+    da_dq, da_dv = wa[6], wa[7]
+    for r in range(nA):
+        for c in range(nA):
+            Jq[r, c] = da_dq[idx[r], idx[c]]
+            Jv[r, c] = da_dv[idx[r], idx[c]]
+    return OK
+
+
+@jit
+def energies(m, wk, t, q, v):
+    """``(kinetic, potential)`` (J) at ``(t, q, v)``: ``1/2 sum_j xi_j^T M_xi_j xi_j`` (the
+    base's own motion included), gravity about the world origin plus the elastic energy.
+    Runs a forward-dynamics pass for the segment blocks; ``q``, ``v`` full (nq,), (nv,)."""
+    wk[0][:] = q
+    wk[1][:] = v
+    status = _accel(m, wk, t)
+    if status != OK:
+        return np.nan, np.nan
+    mass, l0, EI, EA = m[3], m[5], m[6], m[7]
+    alpha, w, offs = m[0], m[1], m[2]
+    kind = m[14]
+    g_W = m[15]
+    n = mass.shape[0]
+    qoff = kind[2] - 3 * n
+    voff = kind[3] - 3 * n
+    T, Mall = wk[11][1], wk[11][4]
+    B = wk[9]
+    sc = wk[14]
+    V = sc[0:6]
+    Vn = sc[6:12]
+    xi = sc[12:21]
+    Rj = sc[21:30].reshape(3, 3)
+    oj = sc[30:33]
+    Rs = sc[33:42].reshape(3, 3)
+    ps = sc[42:45]
+    Rn = sc[45:54].reshape(3, 3)
+    V[:] = B[0]
+    Rj[:, :] = wk[15]
+    _base_state(m, wk, t, q, v)  # B[3] was reused by the pass: the base origin again
+    oj[:] = B[3, :3]
+    kin = 0.0
+    pot = 0.0
+    for j in range(n):
+        xi[:6] = V
+        for b in range(3):
+            xi[6 + b] = v[voff + 3 * j + b]
+        for a in range(9):
+            acc = 0.0
+            for b in range(9):
+                acc += Mall[j, a, b] * xi[b]
+            kin += 0.5 * xi[a] * acc
+        for r in range(6):
+            acc = 0.0
+            for b in range(9):
+                acc += T[j, r, b] * xi[b]
+            Vn[r] = acc
+        V[:] = Vn
+        l, ux, uy = q[qoff + 3 * j], q[qoff + 3 * j + 1], q[qoff + 3 * j + 2]
+        for k in range(offs[j], offs[j + 1]):
+            arc_pose(alpha[k], l, ux, uy, Rs, ps)
+            for r in range(3):
+                x = oj[r] + Rj[r, 0] * ps[0] + Rj[r, 1] * ps[1] + Rj[r, 2] * ps[2]
+                pot -= mass[j] * w[k] * g_W[r] * x
+        pot += 0.5 * EI[j] * (ux * ux + uy * uy) * l * l / l0[j] + 0.5 * EA[j] * (l - l0[j]) ** 2 / l0[j]
+        arc_pose(1.0, l, ux, uy, Rs, ps)
+        for r in range(3):
+            oj[r] += Rj[r, 0] * ps[0] + Rj[r, 1] * ps[1] + Rj[r, 2] * ps[2]
+        for r in range(3):
+            for c in range(3):
+                Rn[r, c] = Rj[r, 0] * Rs[0, c] + Rj[r, 1] * Rs[1, c] + Rj[r, 2] * Rs[2, c]
+        Rj[:, :] = Rn
+    return kin, pot
+
+
+@jit
+def energies_batch(m, wk, t, q, v, kinetic, potential):
+    """:func:`energies` of ``K`` samples: ``t (K,)``, ``q (K, nq)``, ``v (K, nv)`` into
+    ``kinetic``, ``potential`` (K,) (J)."""
+    for k in range(t.shape[0]):
+        kinetic[k], potential[k] = energies(m, wk, t[k], q[k], v[k])
