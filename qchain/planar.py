@@ -71,12 +71,19 @@ from __future__ import annotations
 
 import numpy as np
 
-from .arc import SCRATCH, _bend, jit, take1, take2
+import numba
+
+from .arc import SCRATCH, _bend, jit
 
 __all__ = ["planar_aba", "planar_aba_moving", "planar_workspace"]
 
+#: :data:`qchain.arc.jit`'s options, inlined by numba into the caller: the helpers take arrays,
+#: and a compiled call with array arguments costs atomic reference counts (a third of a
+#: one-segment call) that numba prunes only within one function
+_inline = numba.njit(cache=True, fastmath=False, error_model="numpy", inline="always")
 
-@jit
+
+@_inline
 def _node(alpha, l, ux):
     """Slice ``alpha`` of a planar segment: ``(s, a1, a2, a3, g1, g2, c, sn)``."""
     s = alpha * l
@@ -88,10 +95,10 @@ def _node(alpha, l, ux):
     return s, a1, a2, a3, g1, g2, 1.0 - a2 * ux * ux, a1 * ux
 
 
-@jit
-def _segment(alpha, w, k0, k1, m, iyy, l, ux, ld, uxd, vx, vz, vw, M, b):
-    """Segment block ``M`` (5, 5) and bias force ``b`` (5,) (``M_xi`` and ``C_xi xi`` over the
-    planar quasi-velocity ``xi = (vx, vz, wy, ld, uxd)``), by the nodes ``k0:k1``."""
+@_inline
+def _segment(alpha, w, k0, k1, m, iyy, l, ux, ld, uxd, vx, vz, vw, M, b, j):
+    """Segment block ``M[j]`` (5, 5) and bias force ``b[j]`` (5,) (``M_xi`` and ``C_xi xi`` over
+    the planar quasi-velocity ``xi = (vx, vz, wy, ld, uxd)``), by the nodes ``k0:k1``."""
     sw = 0.0  # sum w
     spx = 0.0  # sum w px
     spz = 0.0  # sum w pz
@@ -165,54 +172,54 @@ def _segment(alpha, w, k0, k1, m, iyy, l, ux, ld, uxd, vx, vz, vw, M, b):
         b2 += wk * (pz * lx - px * lz + fw)
         bl += wa * (fz + ux * fw)
         bu += wk * (a2 * fx + a3u * fz + s * fw)
-    M[0, 0] = m * sw
-    M[0, 1] = 0.0
-    M[0, 2] = m * spz
-    M[1, 1] = m * sw
-    M[1, 2] = -m * spx
-    M[2, 2] = iyy * sw + m * sp2
-    M[0, 3] = m * m0l
-    M[1, 3] = m * m1l
-    M[2, 3] = m2l
-    M[0, 4] = m0u
-    M[1, 4] = m1u
-    M[2, 4] = m2u
-    M[3, 3] = mll
-    M[3, 4] = mlu
-    M[4, 4] = muu
+    M[j, 0, 0] = m * sw
+    M[j, 0, 1] = 0.0
+    M[j, 0, 2] = m * spz
+    M[j, 1, 1] = m * sw
+    M[j, 1, 2] = -m * spx
+    M[j, 2, 2] = iyy * sw + m * sp2
+    M[j, 0, 3] = m * m0l
+    M[j, 1, 3] = m * m1l
+    M[j, 2, 3] = m2l
+    M[j, 0, 4] = m0u
+    M[j, 1, 4] = m1u
+    M[j, 2, 4] = m2u
+    M[j, 3, 3] = mll
+    M[j, 3, 4] = mlu
+    M[j, 4, 4] = muu
     for r in range(5):
         for k in range(r):
-            M[r, k] = M[k, r]
-    b[0] = b0
-    b[1] = b1
-    b[2] = b2
-    b[3] = bl
-    b[4] = bu
+            M[j, r, k] = M[j, k, r]
+    b[j, 0] = b0
+    b[j, 1] = b1
+    b[j, 2] = b2
+    b[j, 3] = bl
+    b[j, 4] = bu
 
 
-@jit
-def _tip(l, ux, ld, uxd, vx, vz, vw, T, c):
-    """Tip map ``T = Phi(1)`` (3, 5), tip bias ``c = Phidot(1) xi`` (3,); returns the next
+@_inline
+def _tip(l, ux, ld, uxd, vx, vz, vw, T, c, j):
+    """Tip map ``T[j] = Phi(1)`` (3, 5), tip bias ``c[j] = Phidot(1) xi`` (3,); returns the next
     root's planar twist ``T xi``."""
     s, a1, a2, a3, g1, g2, cs, sn = _node(1.0, l, ux)
     px = a2 * ux
     pz = a1
     a3u = a3 * ux
-    T[0, 0] = cs
-    T[0, 1] = -sn
-    T[0, 2] = a1  # c pz + sn px
-    T[1, 0] = sn
-    T[1, 1] = cs
-    T[1, 2] = px  # sn pz - c px
-    T[2, 0] = 0.0
-    T[2, 1] = 0.0
-    T[2, 2] = 1.0
-    T[0, 3] = 0.0
-    T[1, 3] = 1.0
-    T[2, 3] = ux
-    T[0, 4] = a2
-    T[1, 4] = a3u
-    T[2, 4] = s
+    T[j, 0, 0] = cs
+    T[j, 0, 1] = -sn
+    T[j, 0, 2] = a1  # c pz + sn px
+    T[j, 1, 0] = sn
+    T[j, 1, 1] = cs
+    T[j, 1, 2] = px  # sn pz - c px
+    T[j, 2, 0] = 0.0
+    T[j, 2, 1] = 0.0
+    T[j, 2, 2] = 1.0
+    T[j, 0, 3] = 0.0
+    T[j, 1, 3] = 1.0
+    T[j, 2, 3] = ux
+    T[j, 0, 4] = a2
+    T[j, 1, 4] = a3u
+    T[j, 2, 4] = s
     tx = vx + pz * vw
     tz = vz - px * vw
     rx = cs * tx - sn * tz
@@ -221,23 +228,16 @@ def _tip(l, ux, ld, uxd, vx, vz, vw, T, c):
     ez = ld + a3u * uxd
     ew = ux * ld + s * uxd
     s4 = s * s * s * s
-    c[0] = uxd * (ld * a1 + uxd * s4 * g1 * ux) - (ew * rz - vw * ez)
-    c[1] = uxd * (ld * px + uxd * (a3 + s4 * s * g2 * ux * ux)) - (ex * vw - ew * rx)
-    c[2] = 2.0 * ld * uxd
+    c[j, 0] = uxd * (ld * a1 + uxd * s4 * g1 * ux) - (ew * rz - vw * ez)
+    c[j, 1] = uxd * (ld * px + uxd * (a3 + s4 * s * g2 * ux * ux)) - (ex * vw - ew * rx)
+    c[j, 2] = 2.0 * ld * uxd
     return rx + ex, rz + ez, vw + ew
 
 
-@jit
+@_inline
 def _planar_aba(alpha, w, offs, mass, radius, q, qd, tau, v0x, v0z, v0w, A0, qdd, locked, ws, sc):
     n = q.shape[0]
     T, c, b, M, Di, U, u = ws[0], ws[1], ws[2], ws[3], ws[4], ws[5], ws[6]
-    o = 0
-    IA, o = take2(sc, o, 3, 3)
-    IT, o = take2(sc, o, 3, 5)
-    Mh, o = take2(sc, o, 5, 5)
-    bh, o = take1(sc, o, 5)
-    pA, o = take1(sc, o, 3)
-    pc, o = take1(sc, o, 3)
     # pass 1: segment blocks, biases and tip maps, forwards
     vx, vz, vw = v0x, v0z, v0w
     for j in range(n):
@@ -247,36 +247,48 @@ def _planar_aba(alpha, w, offs, mass, radius, q, qd, tau, v0x, v0z, v0w, A0, qdd
         ux = q[j, 1]
         ld = qd[j, 0]
         uxd = qd[j, 1]
-        _segment(alpha, w, offs[j], offs[j + 1], m, iyy, l, ux, ld, uxd, vx, vz, vw, M[j], b[j])
-        vx, vz, vw = _tip(l, ux, ld, uxd, vx, vz, vw, T[j], c[j])
-    # pass 2: articulated inertias, backwards
-    for r in range(3):
-        pA[r] = 0.0
-        for k in range(3):
-            IA[r, k] = 0.0
+        _segment(alpha, w, offs[j], offs[j + 1], m, iyy, l, ux, ld, uxd, vx, vz, vw, M, b, j)
+        vx, vz, vw = _tip(l, ux, ld, uxd, vx, vz, vw, T, c, j)
+    # pass 2: articulated inertias, backwards. IA (symmetric 3 x 3) and pA in scalars;
+    # the scratch holds IA T (3, 5) at sc[0:15] and Mh (5, 5, upper triangle) at sc[15:40]
+    i00 = i01 = i02 = i11 = i12 = i22 = 0.0
+    p0 = p1 = p2 = 0.0
     for j in range(n - 1, -1, -1):
-        Tj = T[j]
-        cj = c[j]
-        for r in range(3):
-            pc[r] = pA[r] + IA[r, 0] * cj[0] + IA[r, 1] * cj[1] + IA[r, 2] * cj[2]
-        for r in range(3):
-            for k in range(5):
-                IT[r, k] = IA[r, 0] * Tj[0, k] + IA[r, 1] * Tj[1, k] + IA[r, 2] * Tj[2, k]
+        c0 = c[j, 0]
+        c1 = c[j, 1]
+        c2 = c[j, 2]
+        pc0 = p0 + i00 * c0 + i01 * c1 + i02 * c2
+        pc1 = p1 + i01 * c0 + i11 * c1 + i12 * c2
+        pc2 = p2 + i02 * c0 + i12 * c1 + i22 * c2
+        for k in range(5):
+            t0 = T[j, 0, k]
+            t1 = T[j, 1, k]
+            t2 = T[j, 2, k]
+            sc[k] = i00 * t0 + i01 * t1 + i02 * t2
+            sc[5 + k] = i01 * t0 + i11 * t1 + i12 * t2
+            sc[10 + k] = i02 * t0 + i12 * t1 + i22 * t2
         for a in range(5):
+            t0 = T[j, 0, a]
+            t1 = T[j, 1, a]
+            t2 = T[j, 2, a]
             for e in range(a, 5):
-                Mh[a, e] = M[j, a, e] + Tj[0, a] * IT[0, e] + Tj[1, a] * IT[1, e] + Tj[2, a] * IT[2, e]
-            bh[a] = b[j, a] + Tj[0, a] * pc[0] + Tj[1, a] * pc[1] + Tj[2, a] * pc[2]
-        d00 = Mh[3, 3]
-        d01 = Mh[3, 4]
-        d11 = Mh[4, 4]
-        u0 = tau[j, 0] - bh[3]
-        u1 = tau[j, 1] - bh[4]
-        U00 = Mh[0, 3]
-        U10 = Mh[1, 3]
-        U20 = Mh[2, 3]
-        U01 = Mh[0, 4]
-        U11 = Mh[1, 4]
-        U21 = Mh[2, 4]
+                sc[15 + 5 * a + e] = M[j, a, e] + t0 * sc[e] + t1 * sc[5 + e] + t2 * sc[10 + e]
+        bh0 = b[j, 0] + T[j, 0, 0] * pc0 + T[j, 1, 0] * pc1 + T[j, 2, 0] * pc2
+        bh1 = b[j, 1] + T[j, 0, 1] * pc0 + T[j, 1, 1] * pc1 + T[j, 2, 1] * pc2
+        bh2 = b[j, 2] + T[j, 0, 2] * pc0 + T[j, 1, 2] * pc1 + T[j, 2, 2] * pc2
+        bh3 = b[j, 3] + T[j, 0, 3] * pc0 + T[j, 1, 3] * pc1 + T[j, 2, 3] * pc2
+        bh4 = b[j, 4] + T[j, 0, 4] * pc0 + T[j, 1, 4] * pc1 + T[j, 2, 4] * pc2
+        d00 = sc[15 + 18]
+        d01 = sc[15 + 19]
+        d11 = sc[15 + 24]
+        u0 = tau[j, 0] - bh3
+        u1 = tau[j, 1] - bh4
+        U00 = sc[15 + 3]
+        U10 = sc[15 + 8]
+        U20 = sc[15 + 13]
+        U01 = sc[15 + 4]
+        U11 = sc[15 + 9]
+        U21 = sc[15 + 14]
         if locked[j, 0]:
             d00 = 1.0
             d01 = 0.0
@@ -294,13 +306,13 @@ def _planar_aba(alpha, w, offs, mass, radius, q, qd, tau, v0x, v0z, v0w, A0, qdd
         e = d11 - r * d01
         if not e > 0.0:
             return False
-        i11 = 1.0 / e
-        i01 = -r * i11
-        i00 = 1.0 / d00 + r * r * i11
-        Di[j, 0, 0] = i00
-        Di[j, 0, 1] = i01
-        Di[j, 1, 0] = i01
-        Di[j, 1, 1] = i11
+        e11 = 1.0 / e
+        e01 = -r * e11
+        e00 = 1.0 / d00 + r * r * e11
+        Di[j, 0, 0] = e00
+        Di[j, 0, 1] = e01
+        Di[j, 1, 0] = e01
+        Di[j, 1, 1] = e11
         U[j, 0, 0] = U00
         U[j, 1, 0] = U10
         U[j, 2, 0] = U20
@@ -310,24 +322,21 @@ def _planar_aba(alpha, w, offs, mass, radius, q, qd, tau, v0x, v0z, v0w, A0, qdd
         u[j, 0] = u0
         u[j, 1] = u1
         # K = U D^-1 (3, 2); IA = Mh_VV - K U^T; pA = bh_V + K u
-        k00 = U00 * i00 + U01 * i01
-        k01 = U00 * i01 + U01 * i11
-        k10 = U10 * i00 + U11 * i01
-        k11 = U10 * i01 + U11 * i11
-        k20 = U20 * i00 + U21 * i01
-        k21 = U20 * i01 + U21 * i11
-        IA[0, 0] = Mh[0, 0] - (k00 * U00 + k01 * U01)
-        IA[0, 1] = Mh[0, 1] - (k00 * U10 + k01 * U11)
-        IA[0, 2] = Mh[0, 2] - (k00 * U20 + k01 * U21)
-        IA[1, 1] = Mh[1, 1] - (k10 * U10 + k11 * U11)
-        IA[1, 2] = Mh[1, 2] - (k10 * U20 + k11 * U21)
-        IA[2, 2] = Mh[2, 2] - (k20 * U20 + k21 * U21)
-        IA[1, 0] = IA[0, 1]
-        IA[2, 0] = IA[0, 2]
-        IA[2, 1] = IA[1, 2]
-        pA[0] = bh[0] + k00 * u0 + k01 * u1
-        pA[1] = bh[1] + k10 * u0 + k11 * u1
-        pA[2] = bh[2] + k20 * u0 + k21 * u1
+        k00 = U00 * e00 + U01 * e01
+        k01 = U00 * e01 + U01 * e11
+        k10 = U10 * e00 + U11 * e01
+        k11 = U10 * e01 + U11 * e11
+        k20 = U20 * e00 + U21 * e01
+        k21 = U20 * e01 + U21 * e11
+        i00 = sc[15] - (k00 * U00 + k01 * U01)
+        i01 = sc[16] - (k00 * U10 + k01 * U11)
+        i02 = sc[17] - (k00 * U20 + k01 * U21)
+        i11 = sc[21] - (k10 * U10 + k11 * U11)
+        i12 = sc[22] - (k10 * U20 + k11 * U21)
+        i22 = sc[27] - (k20 * U20 + k21 * U21)
+        p0 = bh0 + k00 * u0 + k01 * u1
+        p1 = bh1 + k10 * u0 + k11 * u1
+        p2 = bh2 + k20 * u0 + k21 * u1
     # pass 3: accelerations, forwards
     ax = A0[0]
     az = A0[2]
@@ -340,11 +349,9 @@ def _planar_aba(alpha, w, offs, mass, radius, q, qd, tau, v0x, v0z, v0w, A0, qdd
         qdd[j, 0] = dl
         qdd[j, 1] = du
         qdd[j, 2] = 0.0
-        Tj = T[j]
-        cj = c[j]
-        nx = Tj[0, 0] * ax + Tj[0, 1] * az + Tj[0, 2] * aw + Tj[0, 4] * du + cj[0]
-        nz = Tj[1, 0] * ax + Tj[1, 1] * az + Tj[1, 2] * aw + dl + Tj[1, 4] * du + cj[1]
-        nw = aw + Tj[2, 3] * dl + Tj[2, 4] * du + cj[2]
+        nx = T[j, 0, 0] * ax + T[j, 0, 1] * az + T[j, 0, 2] * aw + T[j, 0, 4] * du + c[j, 0]
+        nz = T[j, 1, 0] * ax + T[j, 1, 1] * az + T[j, 1, 2] * aw + dl + T[j, 1, 4] * du + c[j, 1]
+        nw = aw + T[j, 2, 3] * dl + T[j, 2, 4] * du + c[j, 2]
         ax, az, aw = nx, nz, nw
     return True
 
