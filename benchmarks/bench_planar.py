@@ -8,10 +8,10 @@ number of free coordinates (an RY joint per segment, and a PZ joint if extensibl
 cylinder of the segment's mass, radius and length), and the same two kernels called in a
 compiled loop (``loop`` columns: what a compiled simulation engine pays, without Python's
 per-call dispatch of about a microsecond). The timed sets are interleaved: every repeat times
-each function once in turn. The last column is ``planar_aba``'s relative difference from
+each function once in turn, a set being as many calls as last about ``--set-ms``. The last column is ``planar_aba``'s relative difference from
 ``aba``.
 
-Run: ``python benchmarks/bench_planar.py [--n 1 3 10 30] [--repeats 15] [--calls 200] [--csv out.csv]``
+Run: ``python benchmarks/bench_planar.py [--n 1 3 10 30] [--repeats 41] [--set-ms 1] [--csv out.csv]``
 """
 
 from __future__ import annotations
@@ -89,7 +89,7 @@ def per_call_us(f, calls: int) -> float:
     return (time.perf_counter() - t0) / calls * 1e6
 
 
-def run(ns, repeats: int, calls: int):
+def run(ns, repeats: int, set_ms: float):
     rng = np.random.default_rng(0)
     rows = []
     for extensible in (True, False):
@@ -118,23 +118,32 @@ def run(ns, repeats: int, calls: int):
                 qr = rng.uniform(-1, 1, model.nq)
                 vr = rng.normal(size=model.nv)
                 tr = rng.normal(size=model.nv)
-                K = max(4, calls // 4)
+                loops = {"aba_loop": lambda K: _aba_loop(K, *la_args), "planar_loop": lambda K: _planar_loop(K, *p_args)}
                 fns = {
                     "aba": lambda: recursive.aba(*a_args),
                     "planar_aba": lambda: planar_aba(*p_args),
                     "pin.aba": lambda: pin.aba(model, data, qr, vr, tr),
-                    "aba_loop": lambda: _aba_loop(K, *la_args),
-                    "planar_loop": lambda: _planar_loop(K, *p_args),
                 }
                 for fn in fns.values():  # warm up (and compile)
                     fn()
+                for lp in loops.values():
+                    lp(1)
                 assert recursive.aba(*a_args) and planar_aba(*p_args)
                 err = float(np.linalg.norm(qdd_p - qdd_a) / np.linalg.norm(qdd_a))
-                times = {k: [] for k in fns}
+                # every timed set lasts about `set_ms`, well inside a scheduler slice, so a set that
+                # another process interrupts is an outlier the median ignores
+                calls = {}
+                for k, fn in fns.items():
+                    calls[k] = max(3, int(set_ms * 1e3 / min(per_call_us(fn, 5) for _ in range(3))))
+                for k, lp in loops.items():
+                    calls[k] = max(3, int(set_ms * 1e3 / min(per_call_us(lambda: lp(10), 1) / 10 for _ in range(3))))
+                times = {k: [] for k in (*fns, *loops)}
                 for _ in range(repeats):  # interleaved
                     for k, fn in fns.items():
-                        c = 1 if k.endswith("_loop") else calls
-                        times[k].append(per_call_us(fn, c) / (K if k.endswith("_loop") else 1))
+                        times[k].append(per_call_us(fn, calls[k]))
+                    for k, lp in loops.items():
+                        K = calls[k]
+                        times[k].append(per_call_us(lambda: lp(K), 1) / K)
                 med = {k: float(np.median(t)) for k, t in times.items()}
                 rows.append(dict(extensible=extensible, n=n, nodes=ch.segments[0].node_count,
                                  free_dofs=ch.nv_active, aba_us=med["aba"], planar_aba_us=med["planar_aba"],
@@ -147,11 +156,11 @@ def run(ns, repeats: int, calls: int):
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--n", type=int, nargs="+", default=[1, 3, 10, 30])
-    ap.add_argument("--repeats", type=int, default=15)
-    ap.add_argument("--calls", type=int, default=200)
+    ap.add_argument("--repeats", type=int, default=41)
+    ap.add_argument("--set-ms", type=float, default=1.0, help="duration of one timed set (ms)")
     ap.add_argument("--csv", default=None, help="also write the table as CSV")
     args = ap.parse_args(argv)
-    rows = run(args.n, args.repeats, args.calls)
+    rows = run(args.n, args.repeats, args.set_ms)
     print(f"{'ext':>5} {'n':>3} {'nodes':>5} {'dofs':>4} {'aba us':>8} {'planar us':>9} {'ratio':>6} {'pin.aba us':>10}"
           f" {'aba loop':>9} {'planar loop':>11} {'ratio':>6} {'rel err':>8}   (median us per call)")
     for r in rows:
