@@ -8,8 +8,8 @@ number of free coordinates (an RY joint per segment, and a PZ joint if extensibl
 cylinder of the segment's mass, radius and length), and the same two kernels called in a
 compiled loop (``loop`` columns: what a compiled simulation engine pays, without Python's
 per-call dispatch of about a microsecond). The timed sets are interleaved: every repeat times
-each function once in turn, a set being as many calls as last about ``--set-ms``. The last column is ``planar_aba``'s relative difference from
-``aba``.
+each function once in turn, a set being as many calls as last about ``--set-ms``. The last
+column is ``planar_aba``'s relative difference from ``aba``.
 
 Run: ``python benchmarks/bench_planar.py [--n 1 3 10 30] [--repeats 41] [--set-ms 1] [--csv out.csv]``
 """
@@ -118,7 +118,8 @@ def run(ns, repeats: int, set_ms: float):
                 qr = rng.uniform(-1, 1, model.nq)
                 vr = rng.normal(size=model.nv)
                 tr = rng.normal(size=model.nv)
-                loops = {"aba_loop": lambda K: _aba_loop(K, *la_args), "planar_loop": lambda K: _planar_loop(K, *p_args)}
+                loops = {"aba_loop": lambda K: _aba_loop(K, *la_args),
+                         "planar_loop": lambda K: _planar_loop(K, *p_args)}
                 fns = {
                     "aba": lambda: recursive.aba(*a_args),
                     "planar_aba": lambda: planar_aba(*p_args),

@@ -6,7 +6,7 @@ import pytest
 
 from helpers import SEGMENT_KW, rel
 from qchain import Chain, Segment, recursive
-from qchain.planar import planar_aba, planar_aba_moving, planar_workspace
+from qchain.planar import planar_aba, planar_aba_moving, planar_rnea, planar_workspace
 
 NODES = [None, 3, 5, 2, 8]  # per segment, cycled: different node counts in one chain
 
@@ -185,3 +185,34 @@ def test_workspace_reuse_is_clean(rng):
     fresh = planar_workspace(3)
     assert planar_aba(*args, q2, ch._locked, fresh, fresh[-1])
     assert np.array_equal(q1, q2) and np.all(np.isfinite(q1))
+
+
+@pytest.mark.parametrize("n", [1, 3, 10])
+def test_planar_rnea_equals_rnea_and_inverts_planar_aba(n, rng):
+    ext = [j % 3 != 1 for j in range(n)]
+    ch = planar_chain(n, ext, gravity_angle=0.8, base_angle=-0.3)
+    q, v, p = planar_state(ch, rng, straight={0: 1e-12, 2: 0.0})
+    q_c, v_c = q.reshape(n, 3), v.reshape(n, 3)
+    a_c = rng.normal(size=(n, 3)) * ch._locked.__invert__()
+    A0 = np.zeros(6)
+    A0[:3] = -ch._g_B
+    args = (ch._alpha, ch._w, ch._offs, ch._mass, ch._radius, q_c, v_c)
+    ws = recursive.aba_workspace(n, 3 * n)
+    tau_r, F_r = np.empty((n, 3)), np.empty(6)
+    recursive.rnea(*args, a_c, np.zeros(6), A0, tau_r, F_r, ws, ws[8])
+    pw = planar_workspace(n)
+    tau_p, F_p = np.full((n, 3), np.nan), np.full(6, np.nan)
+    planar_rnea(*args, a_c, A0, tau_p, F_p, pw, pw[-1])
+    assert rel(tau_p[:, :2], tau_r[:, :2]) < 1e-12
+    assert np.abs(tau_r[:, 2]).max() <= 1e-12 * np.abs(tau_r).max() and np.all(tau_p[:, 2] == 0.0)
+    assert rel(F_p, F_r) < 1e-12
+    # planar_aba undoes planar_rnea: the accelerations to the conditioning of M (up to 1e8
+    # here: l is stiff against ux; recursive.aba(recursive.rnea) is no closer), the forces on
+    # the free coordinates to rounding
+    qdd = np.empty((n, 3))
+    assert planar_aba(*args, tau_p, A0, qdd, ch._locked, pw, pw[-1])
+    assert rel(qdd, a_c) < 1e-10
+    tau2 = np.empty((n, 3))
+    planar_rnea(*args, qdd, A0, tau2, F_p, pw, pw[-1])
+    free = ~ch._locked
+    assert rel(tau2[free], tau_p[free]) < 1e-13
