@@ -300,6 +300,7 @@ def simulate(
         if not isinstance(e, Event):
             raise TypeError("events must be qchain.simulate.Event objects")
 
+    P_in, T_in = as_input("pressure", pressure, chain.nu), as_input("tau", tau, chain.nv)  # checked where they enter
     controllers = []
     if controller_rate is not None:
         if not (isinstance(controller_rate, (int, float, np.floating, np.integer)) and not isinstance(controller_rate, bool)
@@ -349,7 +350,7 @@ def simulate(
     if controller_rate is not None:
         raise ValueError("controller_rate needs the compiled engine: a chain in curvature coordinates with the "
                          "material law, schedules or constants for the other input, no Python base_motion")
-    sysm = _System(chain, as_input("pressure", pressure, chain.nu), as_input("tau", tau, chain.nv))
+    sysm = _System(chain, P_in, T_in)
     sysm.deadline = deadline
     rec = _Recorder(chain, sysm, t_eval, on_sample, energies)
     status, message = 0, "The end of the time span was reached."

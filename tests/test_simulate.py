@@ -165,7 +165,7 @@ def test_argument_errors():
         simulate(ch, q, v, (0, 1), pressure=Step(0.1, after=np.zeros(6)))
     with pytest.raises(ValueError, match=r"v0 must have shape \(3,\)"):
         simulate(ch, q, np.zeros(2), (0, 1))
-    assert set(METHODS) == {"rk4", "RK45", "DOP853", "Radau", "BDF", "midpoint"}
+    assert set(METHODS) == {"rk4", "midpoint", "dopri5", "radau5", "RK45", "DOP853", "Radau", "BDF"}
 
 
 def test_locked_coordinates_are_held_and_reduce_the_state():

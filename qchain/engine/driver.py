@@ -78,10 +78,7 @@ def run(chain, m, method, q0, v0, t0, t1, *, dt, rtol, atol, t_eval, on_sample, 
     tf[steppers.MAX_STEP] = max_step
     tf[steppers.H] = first_step if first_step is not None else min(1e-4, (t1 - t0) / 10)
     tf[steppers.NEWTON_TOL] = max(10 * EPS / rtol, min(0.03, rtol**0.5))
-    if t_eval is None and fixed:
-        n = int(np.ceil((t1 - t0) / dt - 1e-9))
-        t_eval = np.minimum(t0 + dt * np.arange(n + 1), t1)
-    out = _Outputs(chain, t_eval, guess=1024)
+    out = _Outputs(chain, t_eval, guess=int(min((t1 - t0) / dt + 2, 1 << 16)) if fixed and t_eval is None else 1024)
     if out.every:
         cnt[steppers.EVERY] = 1
     hold_times = _hold_times(controllers, controller_rate, t0, t1)
@@ -95,7 +92,6 @@ def run(chain, m, method, q0, v0, t0, t1, *, dt, rtol, atol, t_eval, on_sample, 
     k = 0
     if controllers:
         hold(t0, q0, v0)
-        n_hold = 1
     system.inputs(m, wk, t0)
     while k < out.t.size and (out.every and k == 0 or not out.every and out.t[k] <= t0):
         if out.every:
@@ -148,7 +144,7 @@ def run(chain, m, method, q0, v0, t0, t1, *, dt, rtol, atol, t_eval, on_sample, 
                 hold(t, wk[0].copy(), wk[1].copy())
                 n_hold += 1
                 for r in range(cnt[steppers.K_OUT] - 1, -1, -1):  # a sample at the instant shows the new hold
-                    if out.t[r] != t:
+                    if abs(out.t[r] - t) > 1e-12 * max(1.0, abs(t)):
                         break
                     system.inputs(m, wk, t)
                     out.p[r] = wk[3]

@@ -203,6 +203,14 @@ def _accepted(m, wk, it, fixed):
 
 
 @jit
+def _end_state(m, wk, y):
+    """The status of the configuration at ``y`` (a fixed step's end is checked before it is
+    accepted, so a run stops on the last valid state)."""
+    system.configuration(m, wk, wk[2], y)
+    return system.check(m, wk, wk[0])
+
+
+@jit
 def _step_end(t, t_stop, h, max_step):
     """The step from ``t``: ``h`` capped by ``max_step``, cut to end at ``t_stop`` (and not to
     leave a sliver under a hundredth of a step before it)."""
@@ -277,9 +285,11 @@ def advance_rk4(m, wk, it, out, c, t_stop, max_out, max_steps):
         yold[:] = y
         for i in range(N):
             y[i] = y[i] + h / 6.0 * (K[0, i] + 2.0 * K[1, i] + 2.0 * K[2, i] + K[3, i])
-            if not np.isfinite(y[i]):
-                cnt[STATUS] = system.NONFINITE
-                return FAILED
+        st = _end_state(m, wk, y)
+        if st != 0:
+            y[:] = yold
+            cnt[STATUS] = st
+            return FAILED
         K[8, :nA] = K[0, :nA]
         _position_rate(m, wk, y, K[9])
         tf[T_OLD] = t
@@ -382,6 +392,11 @@ def advance_midpoint(m, wk, it, out, c, t_stop, max_out, max_steps):
             K[1, nA + i] = F[nA + i]
             y[i] = y[i] + h * Y[nA + i]
             y[nA + i] = 2.0 * Y[nA + i] - y[nA + i]
+        st = _end_state(m, wk, y)
+        if st != 0:
+            y[:] = yold
+            cnt[STATUS] = st
+            return FAILED
         cnt[F_OK] = 1
         _position_rate(m, wk, yold, K[8])
         _position_rate(m, wk, y, K[9])

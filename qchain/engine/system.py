@@ -31,7 +31,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .. import derivatives, recursive
+from .. import derivatives, planar, recursive
 from ..arc import SCRATCH, arc_pose, jit
 from . import lie, schedules
 
@@ -42,21 +42,26 @@ OK, DOMAIN, SINGULAR, NONFINITE = 0, 1, 2, 3
 RECENTER = 0.5  #: rad or m of base chart coordinates before the chart is moved
 
 
-def pack(chain, pressure, tau, planar_kernel: bool = False) -> tuple | None:
+def pack(chain, pressure, tau) -> tuple | None:
     """The model tuple ``m`` of ``chain`` with compiled ``pressure`` and ``tau`` inputs, or None
     where the compiled engine cannot serve it (paper coordinates, the linear law, a Python
-    controller or a Python ``base_motion``)."""
+    controller or a Python ``base_motion``). A ``planar`` chain whose base stays in its x-z
+    plane runs on :func:`qchain.planar.planar_aba_moving` (2-D cost, the same accelerations)."""
     if chain._any_paper or chain._has_linear:
         return None
-    p = schedules.pack_input(pressure, chain.nu)
-    f = schedules.pack_input(tau, chain.nv)
+    p = schedules.pack_input(pressure, chain.nu, "pressure")
+    f = schedules.pack_input(tau, chain.nv, "tau")
     if p is None or f is None:
         return None
     base = {"fixed": 0, "floating": 1, "prescribed": 2}[chain.base]
+    planar_kernel = chain.planar and base != 1
     if base == 2:
         bm = schedules.pack_base_motion(chain.base_motion)
         if bm is None:
             return None
+        axis = bm[1][:3]
+        in_plane = axis[1] == 0.0 if bm[0][0] == schedules.TRANSLATION else axis[0] == axis[2] == 0.0
+        planar_kernel = planar_kernel and in_plane
     else:
         bm = (np.zeros(1, dtype=np.int64), np.zeros(1))
     X = chain.base_placement
@@ -73,14 +78,14 @@ def workspace(chain) -> tuple:
     external forces, ``A0 (6,)`` apparent base acceleration, ``a (nv,)``, ``qdd (n, 3)``,
     ``B (4, 6)`` the base's state (:func:`_base_state`), ``info (4,) int64`` (status, segment),
     the aba, rnea-derivative and aba-derivative workspaces of :class:`qchain.data.Data`, a
-    scratch array, ``R_WB (3, 3)``."""
+    scratch array, ``R_WB (3, 3)``, the planar kernel's workspace."""
     n, nv, nq = chain.n, chain.nv, chain.nq
     ws = recursive.aba_workspace(n, nv)
     wd = derivatives.rnea_workspace(n, nv)
     wa = derivatives.aba_derivatives_workspace(n, nv)
     return (np.zeros(nq), np.zeros(nv), np.zeros(nq), np.zeros(3 * n), np.zeros(nv), np.zeros((n, 3)), np.zeros(6),
             np.zeros(nv), np.zeros((n, 3)), np.zeros((4, 6)), np.zeros(4, dtype=np.int64), ws, wd, wa,
-            np.zeros(SCRATCH), np.zeros((3, 3)))
+            np.zeros(SCRATCH), np.zeros((3, 3)), planar.planar_workspace(n))
 
 
 @jit
@@ -146,7 +151,7 @@ def configuration(m, wk, qc, y):
 
 
 @jit
-def _check(m, wk, q):
+def check(m, wk, q):
     """Domain check of the segment coordinates; sets ``info`` and returns the status."""
     info = wk[10]
     nv = m[14][3]
@@ -173,8 +178,9 @@ def inputs(m, wk, t):
 
 
 @jit
-def _accel(m, wk, t):
-    """Forward dynamics at ``(t, wk.q, wk.v)`` into ``wk[7]`` (nv,) (inputs evaluated here)."""
+def _accel(m, wk, t, full):
+    """Forward dynamics at ``(t, wk.q, wk.v)`` into ``wk[7]`` (nv,) (inputs evaluated here);
+    ``full``: the 3-D pass even for a planar chain (it leaves the segment blocks in ``wk``)."""
     alpha, w, offs, mass, radius, l0, EI, EA, beta, A_ch, r_ch, paper_act, locked = m[:13]
     kind = m[14]
     q, v = wk[0], wk[1]
@@ -184,7 +190,7 @@ def _accel(m, wk, t):
     floating = kind[0] == 1
     qoff = kind[2] - 3 * n
     voff = kind[3] - 3 * n
-    status = _check(m, wk, q)
+    status = check(m, wk, q)
     if status != OK:
         return status
     inputs(m, wk, t)
@@ -201,7 +207,12 @@ def _accel(m, wk, t):
         F0[r] = tau[r] if floating else 0.0
     for r in range(3):
         A0[r] -= B[2, r]
-    ok = recursive.aba(alpha, w, offs, mass, radius, q_c, v_c, f, B[0], A0, floating, F0, qdd, A0, locked, ws, sc)
+    if kind[1] == 1 and not full:
+        pw = wk[16]
+        ok = planar.planar_aba_moving(alpha, w, offs, mass, radius, q_c, v_c, f, B[0], A0, qdd, locked, pw, pw[7])
+    else:
+        ok = recursive.aba(alpha, w, offs, mass, radius, q_c, v_c, f, B[0], A0, floating, F0, qdd, A0, locked, ws,
+                           sc)
     if not ok:
         wk[10][0] = SINGULAR
         return SINGULAR
@@ -226,7 +237,7 @@ def rhs(m, wk, t, y, out):
     idx = m[13]
     nA = idx.shape[0]
     configuration(m, wk, wk[2], y)
-    status = _accel(m, wk, t)
+    status = _accel(m, wk, t, False)
     if status != OK:
         return status
     a = wk[7]
@@ -283,7 +294,7 @@ def energies(m, wk, t, q, v):
     Runs a forward-dynamics pass for the segment blocks; ``q``, ``v`` full (nq,), (nv,)."""
     wk[0][:] = q
     wk[1][:] = v
-    status = _accel(m, wk, t)
+    status = _accel(m, wk, t, True)
     if status != OK:
         return np.nan, np.nan
     mass, l0, EI, EA = m[3], m[5], m[6], m[7]

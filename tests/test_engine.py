@@ -1,0 +1,247 @@
+"""The compiled engine against independent computations: a tight reference of scipy's own
+solver on the Python path, the Python path with the same method, exact zero-order-hold
+semantics, conservation, the planar reduction and the one-call-per-sample contract."""
+
+import numpy as np
+import pinocchio as pin
+import pytest
+
+from qchain import Chain, Segment
+from qchain.engine import system
+from qchain.inputs import Sine
+from qchain.scene import SineMotion
+from qchain.simulate import COMPILED, FIXED_STEP, METHODS, Event, simulate
+
+SEG = dict(length=0.1, radius=0.015, mass=0.05, chamber_area=4.5e-5, chamber_radius=0.0085, youngs_modulus=1e5)
+
+
+def arm(n=2, damping=0.01, **kw):
+    return Chain([Segment(**SEG, damping=damping) for _ in range(n)], gravity=(0, 0, 9.81), **kw)
+
+
+def waving(ch):
+    return Sine(amplitude=np.full(ch.nu, 2e4), frequency=2.0, phase=np.tile([0.0, 2.1, 4.2], ch.n),
+                offset=np.full(ch.nu, 2e4))
+
+
+def reference(ch, q0, v0, T, t_eval, **kw):
+    """scipy's DOP853 at rtol 1e-12 on the Python path: independent of every compiled stepper."""
+    ref = simulate(ch, q0, v0, (0, T), method="DOP853", rtol=1e-12, atol=1e-14, t_eval=t_eval, energies=False, **kw)
+    assert ref.success and ref.meta["engine"] == "python"
+    return ref
+
+
+def test_method_lists():
+    assert set(COMPILED) <= set(METHODS) and set(FIXED_STEP) <= set(COMPILED)
+    assert "radau5" in COMPILED and "dopri5" in COMPILED
+
+
+@pytest.mark.parametrize("method, kw, tol", [
+    ("rk4", dict(dt=2e-4), 1e-7),
+    ("midpoint", dict(dt=2e-4), 5e-5),
+    ("dopri5", dict(rtol=1e-9, atol=1e-11), 1e-8),
+    ("radau5", dict(rtol=1e-8, atol=1e-10), 1e-7),
+])
+def test_compiled_methods_match_a_tight_reference(method, kw, tol):
+    """A spatial two-segment arm waved in all chambers: every sample within ``tol`` of
+    the reference (q units: m and 1/m), on the compiled engine."""
+    ch = arm(2)
+    P = waving(ch)
+    t_eval = np.linspace(0, 0.3, 31)
+    q0, v0 = ch.neutral(), np.zeros(ch.nv)
+    ref = reference(ch, q0, v0, 0.3, t_eval, pressure=P)
+    tr = simulate(ch, q0, v0, (0, 0.3), pressure=P, method=method, t_eval=t_eval, energies=False, **kw)
+    assert tr.success, tr.message
+    assert tr.meta["engine"] == "compiled" and tr.meta["method"] == method
+    np.testing.assert_array_equal(tr.t, t_eval)
+    assert np.abs(tr.q - ref.q).max() < tol
+    assert np.abs(tr.v - ref.v).max() < 200 * tol
+    np.testing.assert_allclose(tr.p, np.array([P(t) for t in t_eval]), rtol=1e-15, atol=1e-9)
+
+
+def test_fixed_step_orders_on_the_compiled_engine():
+    ch = arm(2)
+    P = waving(ch)
+    T = 0.1
+    ref = reference(ch, ch.neutral(), np.zeros(ch.nv), T, None, pressure=P)
+    for method, order in (("rk4", 4), ("midpoint", 2)):
+        errs = []
+        for dt in (2e-3, 1e-3, 5e-4):
+            tr = simulate(ch, ch.neutral(), np.zeros(ch.nv), (0, T), pressure=P, method=method, dt=dt, energies=False)
+            errs.append(np.abs(tr.q[-1] - ref.q[-1]).max())
+        rates = np.log2(np.array(errs[:-1]) / np.array(errs[1:]))
+        assert np.all(rates > order - 0.3), (method, errs)
+
+
+def test_adaptive_tolerance_proportionality():
+    ch = arm(2)
+    P = waving(ch)
+    t_eval = np.linspace(0, 0.2, 5)
+    ref = reference(ch, ch.neutral(), np.zeros(ch.nv), 0.2, t_eval, pressure=P)
+    for method in ("dopri5", "radau5"):
+        errs = []
+        for rtol in (1e-5, 1e-8):
+            tr = simulate(ch, ch.neutral(), np.zeros(ch.nv), (0, 0.2), pressure=P, method=method, rtol=rtol,
+                          atol=rtol * 1e-2, t_eval=t_eval, energies=False)
+            assert tr.success, tr.message
+            errs.append(np.abs(tr.q - ref.q).max())
+        assert errs[1] < errs[0] / 20, (method, errs)
+
+
+def test_radau5_uses_the_exact_jacobian_sparingly_on_a_stiff_arm():
+    """A stiff, damped arm (E = 5 MPa): radau5 takes far fewer steps than the explicit pair
+    at the same tolerance, with Jacobians on a fraction of its steps."""
+    ch = Chain([Segment(**{**SEG, "youngs_modulus": 5e6}, damping=0.05) for _ in range(3)], gravity=(0, 0, 9.81))
+    P = waving(ch)
+    kw = dict(pressure=P, rtol=1e-5, atol=1e-7, energies=False)
+    r = simulate(ch, ch.neutral(), np.zeros(ch.nv), (0, 0.5), method="radau5", **kw)
+    d = simulate(ch, ch.neutral(), np.zeros(ch.nv), (0, 0.5), method="dopri5", **kw)
+    assert r.success and d.success
+    assert r.meta["nsteps"] * 5 < d.meta["nsteps"]
+    assert 0 < r.meta["njev"] < r.meta["nsteps"] / 2
+    assert np.abs(r.q[-1] - d.q[-1]).max() < 1e-4
+
+
+def test_floating_base_on_the_lie_group_conserves_momentum():
+    """Zero gravity, a spinning floating arm waving its chambers: the world momentum stays
+    constant (relative drift) and the quaternion stays unit, on every compiled method."""
+    ch = Chain([Segment(**SEG, damping=0.01) for _ in range(2)], base="floating", gravity=(0, 0, 0))
+    q0 = ch.neutral()
+    q0[3:7] = pin.Quaternion(pin.rpy.rpyToMatrix(0.3, -0.2, 0.5)).coeffs()
+    v0 = np.zeros(ch.nv)
+    v0[:6] = [0.1, -0.05, 0.02, 0.8, -0.6, 1.5]  # turns through the chart's re-centring
+    P = waving(ch)
+    h0 = ch.momentum(q0, v0)
+    # drift bounds: the truncation error of each method here (rk4 4th and midpoint 2nd order in dt)
+    for method, kw, bound in (("rk4", dict(dt=2.5e-4), 2e-7), ("dopri5", dict(rtol=1e-9, atol=1e-11), 1e-9),
+                              ("radau5", dict(rtol=1e-8, atol=1e-10), 5e-9), ("midpoint", dict(dt=2.5e-4), 5e-6)):
+        tr = simulate(ch, q0, v0, (0, 1.0), pressure=P, method=method, t_eval=np.linspace(0, 1, 11), **kw)
+        assert tr.success and tr.meta["engine"] == "compiled", tr.message
+        for q, v in zip(tr.q, tr.v):
+            assert abs(np.linalg.norm(q[3:7]) - 1) < 1e-12
+            assert np.linalg.norm(ch.momentum(q, v) - h0) < bound * np.linalg.norm(h0), method
+
+
+def test_floating_base_equals_the_python_path():
+    ch = Chain([Segment(**SEG, damping=0.01) for _ in range(2)], base="floating")
+    q0 = ch.neutral()
+    v0 = np.zeros(ch.nv)
+    v0[:6] = [0.0, 0.1, 0.0, 0.5, 1.0, -0.3]
+    t_eval = np.linspace(0, 0.5, 11)
+    ref = reference(ch, q0, v0, 0.5, t_eval, pressure=waving(ch))
+    tr = simulate(ch, q0, v0, (0, 0.5), pressure=waving(ch), method="dopri5", rtol=1e-10, atol=1e-12, t_eval=t_eval)
+    assert np.abs(tr.q - ref.q).max() < 1e-8
+    assert np.abs(tr.kinetic_energy - [ch.kinetic_energy(q, v) for q, v in zip(tr.q, tr.v)]).max() < 1e-12
+    assert np.abs(tr.potential_energy - [ch.potential_energy(q) for q in tr.q]).max() < 1e-12
+
+
+def test_prescribed_sine_motion_runs_compiled_and_equals_the_python_callable():
+    mount = pin.SE3(pin.rpy.rpyToMatrix(np.pi, 0.0, 0.0), np.array([0.0, 0.0, 0.5]))
+    motion = SineMotion(kind="rotation", axis=np.array([0.0, 1.0, 0.0]), amplitude=0.3, frequency=1.5, phase=0.2,
+                        mount=mount)
+    segs = [Segment(**SEG, damping=0.01) for _ in range(2)]
+    ch = Chain(segs, base="prescribed", base_motion=motion)
+    ch_py = Chain(segs, base="prescribed", base_motion=lambda t: motion(t))  # a Python callable: the Python path
+    t_eval = np.linspace(0, 0.5, 6)
+    q0, v0 = ch.neutral(), np.zeros(ch.nv)
+    ref = reference(ch_py, q0, v0, 0.5, t_eval)
+    tr = simulate(ch, q0, v0, (0, 0.5), method="dopri5", rtol=1e-10, atol=1e-12, t_eval=t_eval)
+    assert tr.meta["engine"] == "compiled"
+    assert np.abs(tr.q - ref.q).max() < 1e-8
+    np.testing.assert_allclose(tr.potential_energy, [ch.potential_energy(q, t) for t, q in zip(tr.t, tr.q)],
+                               rtol=0, atol=1e-12)
+
+
+def test_planar_chain_runs_on_the_planar_kernel_and_equals_the_full_chain():
+    segs = [Segment(**SEG, damping=0.01, extensible=e) for e in (True, False, True)]
+    planar = Chain(segs, gravity=(0, 0, 9.81), planar=True)
+    full = Chain(segs, gravity=(0, 0, 9.81))
+    P = Sine(amplitude=np.tile([2e4, -1e4, -1e4], 3), frequency=2.0, offset=np.full(9, 2e4))
+    assert system.pack(planar, P, None)[14][1] == 1 and system.pack(full, P, None)[14][1] == 0
+    q0 = planar.neutral()
+    kw = dict(pressure=P, method="radau5", rtol=1e-9, atol=1e-11, t_eval=np.linspace(0, 0.4, 9))
+    a, b = simulate(planar, q0, np.zeros(9), (0, 0.4), **kw), simulate(full, q0, np.zeros(9), (0, 0.4), **kw)
+    assert a.success and b.success
+    assert np.abs(a.q - b.q).max() < 1e-7
+    assert np.all(a.q[:, 2::3] == 0) and np.all(a.q[:, 3] == segs[1].length)  # locked stay locked
+
+
+def test_zero_order_hold_controller_equals_runs_chained_at_its_instants():
+    """``controller_rate``: the controller is called exactly at ``t0 + k / rate`` with the
+    state there and its output held until the next instant: the same as running each
+    interval with that constant pressure from where the last one ended."""
+    ch = arm(2)
+    rate = 20.0
+    calls = []
+
+    def ctl(t, q, v):
+        p = np.full(ch.nu, 1e4) * (1.0 + np.sin(10 * t)) + 1e5 * np.concatenate([q[1::3], q[1::3], q[2::3]])
+        calls.append((t, p))
+        return p
+
+    T = 0.3
+    tr = simulate(ch, ch.neutral(), np.zeros(ch.nv), (0, T), pressure=ctl, controller_rate=rate, method="rk4",
+                  dt=1e-3, t_eval=np.linspace(0, T, 13))
+    assert tr.success and tr.meta["engine"] == "compiled", tr.message
+    np.testing.assert_allclose([c[0] for c in calls], np.arange(6) / rate, atol=1e-12)
+    for k, t in enumerate(tr.t):  # each sample shows the output of the last instant at or before it
+        np.testing.assert_array_equal(tr.p[k], calls[min(int(t * rate + 1e-9), 5)][1])
+    q, v = ch.neutral(), np.zeros(ch.nv)
+    for k in range(6):
+        t0, t1 = k / rate, min((k + 1) / rate, T)
+        p = ctl(t0, q, v)
+        seg = simulate(ch, q, v, (t0, t1), pressure=p, method="rk4", dt=1e-3, energies=False)
+        q, v = seg.q[-1], seg.v[-1]
+    np.testing.assert_allclose(tr.q[-1], q, rtol=0, atol=1e-12)
+
+
+def test_zero_order_hold_with_an_adaptive_method_steps_onto_the_instants():
+    ch = arm(1)
+    ctl = lambda t, q, v: np.array([3e4 if t >= 0.1 else 0.0, 0.0, 0.0])  # noqa: E731
+    tr = simulate(ch, ch.neutral(), np.zeros(3), (0, 0.2), pressure=ctl, controller_rate=10.0, method="radau5",
+                  rtol=1e-8, atol=1e-10, t_eval=[0.0, 0.05, 0.1, 0.15, 0.2])
+    a = simulate(ch, ch.neutral(), np.zeros(3), (0, 0.1), method="radau5", rtol=1e-8, atol=1e-10, energies=False)
+    b = simulate(ch, a.q[-1], a.v[-1], (0.1, 0.2), pressure=[3e4, 0, 0], method="radau5", rtol=1e-8, atol=1e-10)
+    assert np.abs(tr.q[-1] - b.q[-1]).max() < 1e-8
+    np.testing.assert_array_equal(tr.p[:, 0], [0.0, 0.0, 3e4, 3e4, 3e4])  # the sample at the instant: the new hold
+
+
+def test_on_sample_once_per_sample_with_energies():
+    ch = arm(2)
+    got = []
+
+    def on_sample(t, q, v, p, energies=None):
+        got.append((t, q, energies))
+
+    t_eval = np.linspace(0, 0.2, 21)
+    tr = simulate(ch, ch.neutral(), np.zeros(ch.nv), (0, 0.2), pressure=waving(ch), method="radau5", t_eval=t_eval,
+                  on_sample=on_sample)
+    assert [g[0] for g in got] == list(tr.t) == list(t_eval)
+    for (t, q, e), qk, K, U in zip(got, tr.q, tr.kinetic_energy, tr.potential_energy):
+        np.testing.assert_array_equal(q, qk)
+        assert e == (K, U)
+    np.testing.assert_allclose(tr.kinetic_energy, [ch.kinetic_energy(q, v) for q, v in zip(tr.q, tr.v)],
+                               rtol=1e-12, atol=1e-15)
+
+
+def test_every_step_output_and_terminal_event():
+    ch = arm(1, damping=0.0)
+    q0 = ch.neutral()
+    q0[1] = 5.0
+    ev = Event(lambda t, q, v: q[1], terminal=True, direction=-1, name="straight")
+    for method, kw in (("dopri5", dict(rtol=1e-9, atol=1e-11)), ("rk4", dict(dt=1e-4))):
+        tr = simulate(ch, q0, np.zeros(3), (0, 1.0), method=method, events=[ev], **kw)
+        py = simulate(ch, q0, np.zeros(3), (0, 1.0), method="DOP853", rtol=1e-12, atol=1e-14, events=[ev])
+        assert tr.status == 1 and py.status == 1
+        t_hit = tr.meta["events"][0][1]
+        assert abs(t_hit - py.meta["events"][0][1]) < 1e-7
+        assert tr.t[-1] == pytest.approx(t_hit, abs=1e-12) and abs(tr.q[-1, 1]) < 1e-6
+        assert np.all(np.diff(tr.t) > 0) and len(tr.t) == tr.meta["nsteps"] + 1  # every step, then the event
+
+
+def test_rk4_above_its_stability_limit_says_so_with_the_limit():
+    ch = Chain([Segment(length=0.02, radius=0.02, mass=0.025, chamber_area=1e-6, chamber_radius=0.005,
+                        youngs_modulus=5e5, damping=0.0) for _ in range(10)], gravity=(0, 0, -9.81))
+    tr = simulate(ch, ch.neutral(), np.zeros(ch.nv), (0, 0.3), method="rk4", dt=2e-3, energies=False)
+    assert not tr.success
+    assert "above its stability limit" in tr.message and "implicit" in tr.message
