@@ -63,7 +63,7 @@ segments after ``count`` is expanded). An example::
 
     [simulation]
     duration = 2.0                      # s                         (required, > 0)
-    method = "RK45"                     # rk4, midpoint, RK45, DOP853, Radau, BDF
+    method = "radau5"                   # radau5 (default), dopri5, rk4, midpoint; scipy's RK45, DOP853, Radau, BDF
     rtol = 1e-6                         # adaptive methods
     atol = 1e-8
     dt = 1e-3                           # s, fixed-step methods (rk4, midpoint): required there
@@ -157,6 +157,7 @@ from .chain import Chain
 from .errors import QchainError
 from .inputs import Constant, Ramp, Schedule, Sine, Step, Table
 from .segment import CHAMBER_ANGLES, DEFAULT_NODES, Segment
+from .simulate import DEFAULT_METHOD, FIXED_STEP, METHODS  # a scene may name any method, without case
 
 __all__ = [
     "Scene",
@@ -174,9 +175,6 @@ __all__ = [
     "VACUUM_GAUGE",
 ]
 
-#: Integration methods a scene may name (``qchain.simulate.METHODS``); matched without case.
-METHODS = ("rk4", "midpoint", "RK45", "DOP853", "Radau", "BDF")
-FIXED_STEP = ("rk4", "midpoint")
 #: Plots a scene may ask for.
 PLOTS = ("tip", "arm", "energy", "pressure", "momentum")
 #: Safety factor on the estimated static bend (the overshoot of an undamped step response).
@@ -1119,7 +1117,7 @@ def parse_scene(text: str, path: str | os.PathLike | None = None) -> Scene:
     st = st or {}
     ck.keys(st, "simulation", _SIMULATION_KEYS)
     duration = ck.number(st, "duration", "simulation.duration", "s", minimum=0.0, required=have_sim)
-    method = ck.choice(st, "method", "simulation.method", METHODS, default="RK45", ignore_case=True)
+    method = ck.choice(st, "method", "simulation.method", METHODS, default=DEFAULT_METHOD, ignore_case=True)
     rtol = ck.number(st, "rtol", "simulation.rtol", minimum=0.0, default=1e-6)
     atol = ck.number(st, "atol", "simulation.atol", minimum=0.0, default=1e-8)
     dt = ck.number(st, "dt", "simulation.dt", "s", minimum=0.0)

@@ -51,6 +51,7 @@ from scipy.linalg import cho_factor, cho_solve
 from scipy.optimize import brentq
 
 from .chain import Chain
+from .engine import driver, system
 from .errors import QchainError, as_vector
 from .inputs import Schedule, as_input
 from .trajectory import Trajectory
@@ -316,8 +317,6 @@ def simulate(
     deadline = None if wall_limit is None else _time.perf_counter() + float(wall_limit)
     bar = _Progress(t0, t1, progress)
     if method in COMPILED:
-        from .engine import driver, system
-
         pk, tk = pressure, tau
         if controller_rate is not None:
             for name, _, size in held:

@@ -13,6 +13,7 @@ from qchain import Chain, QchainError
 from qchain.scene import BEND_MARGIN, SceneError, SineMotion, load_scene, parse_scene
 from qchain.segment import DEFAULT_NODES, nodes_for_tolerance
 from qchain.statics import equilibrium
+from qchain.simulate import DEFAULT_METHOD
 
 EXAMPLE_SCENES = sorted((Path(__file__).parents[1] / "examples" / "scenes").glob("*.toml"))
 
@@ -108,7 +109,7 @@ def test_defaults_and_count_expansion(tmp_path):
     assert scene.segments[3].source == "segments[1]"
     assert scene.base.type == "fixed"
     assert np.array_equal(scene.gravity, [0, 0, -9.81])
-    assert scene.method == "RK45" and scene.rtol == 1e-6 and scene.atol == 1e-8 and scene.dt is None
+    assert scene.method == DEFAULT_METHOD == "radau5" and scene.rtol == 1e-6 and scene.atol == 1e-8 and scene.dt is None
     assert scene.max_step == math.inf and scene.reduce is True and scene.node_tolerance is None
     assert scene.sample_rate == 100.0 and scene.output_folder == Path("out/arm") and scene.plots == ("tip",)
     assert np.array_equal(scene.q_e0, [[0.1, 0, 0]] * 3 + [[0.08, 0, 0]])
@@ -273,10 +274,10 @@ ERRORS = [
     ([_set("simulation", DELETE)], "simulation: expected a table, found nothing"),
     ([_set("simulation.duration", DELETE)], "simulation.duration: expected a number > 0 (s), found nothing (the key is required)"),
     ([_set("simulation.duration", -1.0)], "simulation.duration: expected a number > 0 (s), found -1.0"),
-    ([_set("simulation.method", "RK23")], 'simulation.method: expected one of "rk4", "midpoint", "RK45", "DOP853", '
-                                          '"Radau", "BDF", found a string "RK23"'),
+    ([_set("simulation.method", "RK23")], 'simulation.method: expected one of "radau5", "dopri5", "rk4", "midpoint", '
+                                          '"RK45", "DOP853", "Radau", "BDF", found a string "RK23"'),
     ([_set("simulation.method", "rk4")], "simulation.dt: expected a step > 0 (s): method 'rk4' takes fixed steps, found nothing"),
-    ([_set("simulation.dt", 1e-3)], "simulation.dt: expected no dt: method 'RK45' chooses its own steps"),
+    ([_set("simulation.dt", 1e-3)], "simulation.dt: expected no dt: method 'radau5' chooses its own steps"),
     ([_set("simulation.method", "midpoint"), _set("simulation.dt", 1.0)],
      "simulation.dt: expected a step <= duration = 0.1 s, found 1.0"),
     ([_set("simulation.rtol", 0.0)], "simulation.rtol: expected a number > 0, found 0"),

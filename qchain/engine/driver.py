@@ -16,7 +16,7 @@ from scipy.optimize import brentq
 
 from ..errors import QchainError
 from ..trajectory import Trajectory
-from . import steppers, system
+from . import steppers, system, warmup
 from .steppers import AT_STOP, FAILED, OUTPUT, STEPS
 
 __all__ = ["run", "Interrupted", "STRETCH"]
@@ -62,6 +62,10 @@ def run(chain, m, method, q0, v0, t0, t1, *, dt, rtol, atol, t_eval, on_sample, 
     """Integrate from ``(q0, v0)`` at ``t0`` to ``t1`` on the compiled engine (arguments as
     :func:`qchain.simulate.simulate`'s, validated there; ``m`` from :func:`system.pack`;
     ``controllers``: ``[(callable (t, q, v) -> (size,), params array to hold it in)]``)."""
+    t_prep = _time.perf_counter()
+    first = not warmup.loaded(method)
+    if first:
+        warmup.announce(method)
     idx = m[13]
     nA = idx.size
     advance = steppers.ADVANCE[method]
@@ -81,6 +85,10 @@ def run(chain, m, method, q0, v0, t0, t1, *, dt, rtol, atol, t_eval, on_sample, 
     out = _Outputs(chain, t_eval, guess=int(min((t1 - t0) / dt + 2, 1 << 16)) if fixed and t_eval is None else 1024)
     if out.every:
         cnt[steppers.EVERY] = 1
+    compile_s = 0.0
+    if first:
+        warmup.prepare(method, m, wk, it, out.arrays, c)
+        compile_s = _time.perf_counter() - t_prep
     hold_times = _hold_times(controllers, controller_rate, t0, t1)
     n_hold = 0
 
@@ -152,8 +160,11 @@ def run(chain, m, method, q0, v0, t0, t1, *, dt, rtol, atol, t_eval, on_sample, 
     except KeyboardInterrupt:
         traj = _trajectory(chain, m, wk, out, cnt, -1, f"interrupted by the user at t = {t:.6g} s", energies, method,
                            ev_log)
+        traj.meta["compile_s"] = compile_s
         raise Interrupted(traj) from None
-    return _trajectory(chain, m, wk, out, cnt, status, message, energies, method, ev_log)
+    traj = _trajectory(chain, m, wk, out, cnt, status, message, energies, method, ev_log)
+    traj.meta["compile_s"] = compile_s  # spent before the run: a caller's wall time less this is the run's
+    return traj
 
 
 def _hold_times(controllers, rate, t0, t1) -> np.ndarray:
@@ -225,6 +236,7 @@ def _failure(chain, m, wk, it, method, q0, v0, t0) -> str:
     cnt, tf = it[5], it[4]
     code = int(cnt[steppers.STATUS])
     t = tf[steppers.T]
+    at = f"(at t = {tf[steppers.T_FAIL]:.6g} s, in the step from t = {t:.6g} s)"
     q_bad = wk[0].copy()
     if code == system.DOMAIN:
         try:
@@ -232,11 +244,11 @@ def _failure(chain, m, wk, it, method, q0, v0, t0) -> str:
             what = f"segment {int(wk[10][1])} left the model's domain"
         except QchainError as err:
             what = str(err)
-        msg = f"{what} (in a step from t = {t:.6g} s)"
+        msg = f"{what} {at}"
     elif code == system.SINGULAR:
-        msg = f"an articulated inertia is not positive definite (in a step from t = {t:.6g} s)"
+        msg = f"an articulated inertia is not positive definite {at}"
     elif code == system.NONFINITE:
-        msg = f"non-finite state in a step from t = {t:.6g} s"
+        msg = f"non-finite state {at}"
     elif code == steppers.NEWTON:
         msg = f"{method}: Newton did not converge in the step from t = {t:.6g} s (reduce dt)"
     else:

@@ -50,7 +50,7 @@ AT_STOP, OUTPUT, STEPS, FAILED = 0, 1, 2, 3
 TOO_SMALL, NEWTON = 10, 11  # failure reasons beside the system's statuses
 
 # tf: the integrator's floats
-T, H, T_OLD, H_LAST, RTOL, ATOL, MAX_STEP, DT, T0, H_ABS_OLD, ERR_OLD, NEWTON_TOL, RATE, JAC_T, H_LU = range(15)
+T, H, T_OLD, H_LAST, RTOL, ATOL, MAX_STEP, DT, T0, H_ABS_OLD, ERR_OLD, NEWTON_TOL, RATE, JAC_T, H_LU, T_FAIL = range(16)
 # cnt: its counters and flags
 NSTEPS, NFEV, NJEV, NLU, NREJECT, JAC_CURRENT, LU_OK, F_OK, K_OUT, DENSE_OK, PRED_OK, STATUS, NNEWTON, LAST_ST, EVERY, \
     EMITTED = range(16)
@@ -98,7 +98,10 @@ def integrator(nA: int, nq: int) -> tuple:
 @jit
 def _f(m, wk, it, t, y, out):
     it[5][NFEV] += 1
-    return system.rhs(m, wk, t, y, out)
+    st = system.rhs(m, wk, t, y, out)
+    if st != 0:
+        it[4][T_FAIL] = t  # where the last evaluation failed, for the message
+    return st
 
 
 @jit
@@ -203,11 +206,14 @@ def _accepted(m, wk, it, fixed):
 
 
 @jit
-def _end_state(m, wk, y):
-    """The status of the configuration at ``y`` (a fixed step's end is checked before it is
-    accepted, so a run stops on the last valid state)."""
+def _end_state(m, wk, it, t, y):
+    """The status of the configuration at ``y`` at time ``t`` (a fixed step's end is checked
+    before it is accepted, so a run stops on the last valid state)."""
     system.configuration(m, wk, wk[2], y)
-    return system.check(m, wk, wk[0])
+    st = system.check(m, wk, wk[0])
+    if st != 0:
+        it[4][T_FAIL] = t
+    return st
 
 
 @jit
@@ -285,7 +291,7 @@ def advance_rk4(m, wk, it, out, c, t_stop, max_out, max_steps):
         yold[:] = y
         for i in range(N):
             y[i] = y[i] + h / 6.0 * (K[0, i] + 2.0 * K[1, i] + 2.0 * K[2, i] + K[3, i])
-        st = _end_state(m, wk, y)
+        st = _end_state(m, wk, it, t_new, y)
         if st != 0:
             y[:] = yold
             cnt[STATUS] = st
@@ -392,7 +398,7 @@ def advance_midpoint(m, wk, it, out, c, t_stop, max_out, max_steps):
             K[1, nA + i] = F[nA + i]
             y[i] = y[i] + h * Y[nA + i]
             y[nA + i] = 2.0 * Y[nA + i] - y[nA + i]
-        st = _end_state(m, wk, y)
+        st = _end_state(m, wk, it, t_new, y)
         if st != 0:
             y[:] = yold
             cnt[STATUS] = st

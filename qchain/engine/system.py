@@ -29,10 +29,16 @@ articulated inertia not positive definite), :data:`NONFINITE`.
 
 from __future__ import annotations
 
+import numba
 import numpy as np
 
 from .. import derivatives, planar, recursive
-from ..arc import SCRATCH, arc_pose, jit
+from ..arc import SCRATCH, arc_pose, jit, take1, take2
+from ..slices import segment_slices
+
+# helpers that take the model and workspace tuples are inlined into their callers: a call
+# that passes them costs a reference count per array inside (~1 us for ~60 arrays)
+inline = numba.njit(cache=True, error_model="numpy", inline="always")
 from . import lie, schedules
 
 __all__ = ["pack", "workspace", "rhs", "jacobian", "configuration", "energies", "energies_batch", "inputs", "RECENTER",
@@ -88,7 +94,7 @@ def workspace(chain) -> tuple:
             np.zeros(SCRATCH), np.zeros((3, 3)), planar.planar_workspace(n))
 
 
-@jit
+@inline
 def _base_state(m, wk, t, q, v):
     """Fill ``B = wk[9]`` (4, 6): ``B[0]`` the base twist ``V0``, ``B[1]`` its own acceleration
     ``A_B`` (prescribed), ``B[2, :3]`` gravity in the base frame ``g_B``, ``B[3, :3]`` the base
@@ -112,7 +118,7 @@ def _base_state(m, wk, t, q, v):
         B[2, r] = R[0, r] * g_W[0] + R[1, r] * g_W[1] + R[2, r] * g_W[2]
 
 
-@jit
+@inline
 def _rotation(quat, R):
     """``R`` (3, 3) of the unit quaternion ``(x, y, z, w)``."""
     x, y, z, w = quat[0], quat[1], quat[2], quat[3]
@@ -127,7 +133,7 @@ def _rotation(quat, R):
     R[2, 2] = 1.0 - 2.0 * (x * x + y * y)
 
 
-@jit
+@inline
 def configuration(m, wk, qc, y):
     """``q = qc (+) delta`` into ``wk[0]`` and the full ``v`` into ``wk[1]`` from ``y``, with
     ``qc`` (nq,) the chart's centre."""
@@ -150,7 +156,7 @@ def configuration(m, wk, qc, y):
             q[idx[i]] += y[i]
 
 
-@jit
+@inline
 def check(m, wk, q):
     """Domain check of the segment coordinates; sets ``info`` and returns the status."""
     info = wk[10]
@@ -170,14 +176,14 @@ def check(m, wk, q):
     return OK
 
 
-@jit
+@inline
 def inputs(m, wk, t):
     """Pressure ``wk[3]`` and generalised force ``wk[4]`` at ``t``."""
     schedules.input_eval(m[20], m[21], t, wk[3])
     schedules.input_eval(m[22], m[23], t, wk[4])
 
 
-@jit
+@inline
 def _accel(m, wk, t, full):
     """Forward dynamics at ``(t, wk.q, wk.v)`` into ``wk[7]`` (nv,) (inputs evaluated here);
     ``full``: the 3-D pass even for a planar chain (it leaves the segment blocks in ``wk``)."""
@@ -291,52 +297,54 @@ def jacobian(m, wk, t, y, f0, Jq, Jv):
 def energies(m, wk, t, q, v):
     """``(kinetic, potential)`` (J) at ``(t, q, v)``: ``1/2 sum_j xi_j^T M_xi_j xi_j`` (the
     base's own motion included), gravity about the world origin plus the elastic energy.
-    Runs a forward-dynamics pass for the segment blocks; ``q``, ``v`` full (nq,), (nv,)."""
-    wk[0][:] = q
-    wk[1][:] = v
-    status = _accel(m, wk, t, True)
-    if status != OK:
-        return np.nan, np.nan
-    mass, l0, EI, EA = m[3], m[5], m[6], m[7]
-    alpha, w, offs = m[0], m[1], m[2]
+    One pass over the segments (blocks, tip maps, node positions); ``q``, ``v`` full (nq,), (nv,)."""
+    alpha, w, offs, mass, radius, l0, EI, EA = m[0], m[1], m[2], m[3], m[4], m[5], m[6], m[7]
     kind = m[14]
     g_W = m[15]
     n = mass.shape[0]
     qoff = kind[2] - 3 * n
     voff = kind[3] - 3 * n
-    T, Mall = wk[11][1], wk[11][4]
     B = wk[9]
     sc = wk[14]
-    V = sc[0:6]
-    Vn = sc[6:12]
-    xi = sc[12:21]
-    Rj = sc[21:30].reshape(3, 3)
-    oj = sc[30:33]
-    Rs = sc[33:42].reshape(3, 3)
-    ps = sc[42:45]
-    Rn = sc[45:54].reshape(3, 3)
+    _base_state(m, wk, t, q, v)
+    o = 0
+    V, o = take1(sc, o, 6)
+    xi, o = take1(sc, o, 9)
+    z9, o = take1(sc, o, 9)
+    Q, o = take1(sc, o, 9)
+    c, o = take1(sc, o, 6)
+    M, o = take2(sc, o, 9, 9)
+    T, o = take2(sc, o, 6, 9)
+    Rj, o = take2(sc, o, 3, 3)
+    oj, o = take1(sc, o, 3)
+    Rs, o = take2(sc, o, 3, 3)
+    ps, o = take1(sc, o, 3)
+    Rn, o = take2(sc, o, 3, 3)
+    z9[:] = 0.0
     V[:] = B[0]
     Rj[:, :] = wk[15]
-    _base_state(m, wk, t, q, v)  # B[3] was reused by the pass: the base origin again
     oj[:] = B[3, :3]
     kin = 0.0
     pot = 0.0
     for j in range(n):
+        qj = q[qoff + 3 * j : qoff + 3 * j + 3]
         xi[:6] = V
         for b in range(3):
             xi[6 + b] = v[voff + 3 * j + b]
+        segment_slices(alpha[offs[j] : offs[j + 1]], w[offs[j] : offs[j + 1]], mass[j], radius[j], qj, z9, z9, True,
+                       M, Q, sc[o:])
         for a in range(9):
             acc = 0.0
             for b in range(9):
-                acc += Mall[j, a, b] * xi[b]
+                acc += M[a, b] * xi[b]
             kin += 0.5 * xi[a] * acc
+        recursive._tip(qj, xi[6:], xi, T, c, sc[o:])
         for r in range(6):
             acc = 0.0
             for b in range(9):
-                acc += T[j, r, b] * xi[b]
-            Vn[r] = acc
-        V[:] = Vn
-        l, ux, uy = q[qoff + 3 * j], q[qoff + 3 * j + 1], q[qoff + 3 * j + 2]
+                acc += T[r, b] * xi[b]
+            V[r] = acc
+        l, ux, uy = qj[0], qj[1], qj[2]
         for k in range(offs[j], offs[j + 1]):
             arc_pose(alpha[k], l, ux, uy, Rs, ps)
             for r in range(3):
@@ -347,8 +355,8 @@ def energies(m, wk, t, q, v):
         for r in range(3):
             oj[r] += Rj[r, 0] * ps[0] + Rj[r, 1] * ps[1] + Rj[r, 2] * ps[2]
         for r in range(3):
-            for c in range(3):
-                Rn[r, c] = Rj[r, 0] * Rs[0, c] + Rj[r, 1] * Rs[1, c] + Rj[r, 2] * Rs[2, c]
+            for cc in range(3):
+                Rn[r, cc] = Rj[r, 0] * Rs[0, cc] + Rj[r, 1] * Rs[1, cc] + Rj[r, 2] * Rs[2, cc]
         Rj[:, :] = Rn
     return kin, pot
 

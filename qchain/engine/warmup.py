@@ -1,0 +1,60 @@
+"""The first run after install: compile before the run, say so, and time it apart.
+
+numba compiles the engine's kernels at their first call and caches the machine code
+(``cache=True``: in ``qchain/__pycache__`` folders, or ``NUMBA_CACHE_DIR``); later processes
+load it. The driver makes that happen before a run starts (:func:`prepare`), so the run's
+wall time and real-time factor never include compiling or loading, and first prints one
+line on stderr when the cache holds nothing for the method (:func:`announce`, with the
+expected time, :data:`EXPECTED_COMPILE_S`).
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+
+import numpy as np
+
+from . import steppers, system
+
+__all__ = ["prepare", "loaded", "announce", "is_cached", "EXPECTED_COMPILE_S"]
+
+#: Seconds a cold compile of each method's engine took on a 2-core machine of the kind
+#: CI runs on (``benchmarks/bench_compile.py`` measures them again).
+EXPECTED_COMPILE_S = {"radau5": 45, "dopri5": 25, "rk4": 25, "midpoint": 40}
+
+
+def is_cached(dispatcher) -> bool | None:
+    """Whether numba's on-disk cache holds machine code for ``dispatcher`` built from its
+    current source (None if that cannot be told)."""
+    try:
+        return bool(dispatcher._cache._cache_file._load_index())
+    except Exception:  # numba's cache layout is not public API: no answer, no notice
+        return None
+
+
+def _needed(method: str) -> tuple:
+    from .. import derivatives, planar, recursive
+
+    return (steppers.ADVANCE[method], system.energies_batch, recursive.aba_workspace, derivatives.rnea_workspace,
+            derivatives.aba_derivatives_workspace, planar.planar_workspace)
+
+
+def loaded(method: str) -> bool:
+    """Whether this process has everything a run of ``method`` calls compiled or loaded."""
+    return all(len(d.overloads) for d in _needed(method))
+
+
+def announce(method: str, stream=sys.stderr) -> None:
+    """One line on ``stream`` if the on-disk cache holds nothing for ``method``'s stepper."""
+    if stream is not None and any(is_cached(d) is False for d in _needed(method)[:2]):
+        print(f"qchain: compiling the {method} engine for this machine: about {EXPECTED_COMPILE_S[method]} s on 2 "
+              f"cores, once after install or an update (cached for later runs)", file=stream, flush=True)
+
+
+def prepare(method: str, m, wk, it, out, c) -> None:
+    """Compile or load what a run of ``method`` calls (its stepper with the system, the
+    sample energies) without taking a step."""
+    steppers.ADVANCE[method](m, wk, it, out, c, it[4][steppers.T], 0, 0)  # no output, no step
+    e = np.zeros(0)
+    system.energies_batch(m, wk, e, np.zeros((0, wk[0].size)), np.zeros((0, wk[1].size)), e, e.copy())
