@@ -666,6 +666,29 @@ def _zero_locked(locked, off, X, rows, cols):
 
 
 @jit
+def _copy2(src, dst):
+    """``dst[:, :] = src`` element by element (no compile of numba's slice-assignment checks)."""
+    for r in range(src.shape[0]):
+        for c in range(src.shape[1]):
+            dst[r, c] = src[r, c]
+
+
+@jit
+def _matmul(A, B, out):
+    """``out = A B`` by loops (row by row, so the inner loop runs along rows of ``B`` and
+    ``out``): ``np.dot`` with ``out`` needs numba's reference counting, which the compiled
+    engine's callers run without."""
+    for r in range(A.shape[0]):
+        for c in range(B.shape[1]):
+            out[r, c] = 0.0
+        for k in range(A.shape[1]):
+            a = A[r, k]
+            if a != 0.0:
+                for c in range(B.shape[1]):
+                    out[r, c] += a * B[k, c]
+
+
+@jit
 def _chol_inverse(L, k, Minv):
     """``Minv = (L L^T)^-1`` (k, k) from the lower Cholesky factor ``L``, which is overwritten
     by its own inverse (lower)."""
@@ -756,10 +779,10 @@ def aba_derivatives(alpha, w, offs, mass, radius, l0, EI, EA, beta, A_ch, r_ch, 
         return 2
     _chol_inverse(L, nv, da_dtau)
     _zero_locked(locked, off, da_dtau, True, True)
-    rhs[:, :] = da_dq
-    np.dot(da_dtau, rhs, da_dq)
-    rhs[:, :] = da_dv
-    np.dot(da_dtau, rhs, da_dv)
+    _copy2(da_dq, rhs)
+    _matmul(da_dtau, rhs, da_dq)
+    _copy2(da_dv, rhs)
+    _matmul(da_dtau, rhs, da_dv)
     _zero_locked(locked, off, da_dq, False, True)
     _zero_locked(locked, off, da_dv, False, True)
     for r in range(nv):

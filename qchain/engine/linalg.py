@@ -10,11 +10,13 @@ from __future__ import annotations
 import numpy as np
 
 from ..arc import jit
+import numba
+ejit = numba.njit(cache=True, error_model="numpy", _nrt=False)
 
 __all__ = ["lu_factor", "lu_solve"]
 
 
-@jit
+@ejit
 def lu_factor(A, piv):
     """``A`` (k, k) overwritten by its LU factors (unit lower, upper) with row pivots ``piv``
     (k,) int64. Returns False if a pivot is zero or not finite (a singular matrix)."""
@@ -45,7 +47,7 @@ def lu_factor(A, piv):
     return True
 
 
-@jit
+@ejit
 def lu_solve(LU, piv, b):
     """Solve ``A x = b`` in place (``b`` (k,)) with the factors of :func:`lu_factor`."""
     k = LU.shape[0]

@@ -40,6 +40,8 @@ from scipy.integrate import RK45
 from scipy.integrate._ivp import radau as _radau
 
 from ..arc import jit
+import numba
+ejit = numba.njit(cache=True, error_model="numpy", _nrt=False)
 from . import lie, system
 from .linalg import lu_factor, lu_solve
 
@@ -95,7 +97,7 @@ def integrator(nA: int, nq: int) -> tuple:
 # ------------------------------------------------------------------------------- shared
 
 
-@jit
+@ejit
 def _f(m, wk, it, t, y, out):
     it[5][NFEV] += 1
     st = system.rhs(m, wk, t, y, out)
@@ -104,7 +106,7 @@ def _f(m, wk, it, t, y, out):
     return st
 
 
-@jit
+@ejit
 def _norm(e, y0, y1, rtol, atol):
     """RMS of ``e / (atol + rtol max(|y0|, |y1|))``."""
     acc = 0.0
@@ -114,7 +116,7 @@ def _norm(e, y0, y1, rtol, atol):
     return np.sqrt(acc / e.shape[0])
 
 
-@jit
+@ejit
 def dense(method, it, c, s, yout):
     """The last step's dense output at time ``s`` into ``yout`` (N,)."""
     y, yold, K, tf = it[12][Y_END], it[1], it[3], it[4]
@@ -138,7 +140,7 @@ def dense(method, it, c, s, yout):
             yout[nA + i] = (1.0 - x) * yold[nA + i] + x * y[nA + i]
 
 
-@jit
+@ejit
 def _emit(method, m, wk, it, out, c, budget):
     """Write the outputs that fall in the last accepted step (up to ``budget``); returns how
     many were written."""
@@ -154,10 +156,10 @@ def _emit(method, m, wk, it, out, c, budget):
         if cnt[EMITTED] != cnt[NSTEPS] and budget > 0 and k < t_out.shape[0]:
             t_out[k] = t
             system.configuration(m, wk, it[14], it[12][Y_END])
-            Qo[k, :] = wk[0]
-            Vo[k, :] = wk[1]
+            system.copy(Qo[k], wk[0])
+            system.copy(Vo[k], wk[1])
             system.inputs(m, wk, t)
-            Po[k, :] = wk[3]
+            system.copy(Po[k], wk[3])
             cnt[K_OUT] = k + 1
             cnt[EMITTED] = cnt[NSTEPS]
             return 1
@@ -165,30 +167,30 @@ def _emit(method, m, wk, it, out, c, budget):
     while k < t_out.shape[0] and wrote < budget and t_out[k] <= t:
         s = t_out[k]
         if s == t:
-            ys[:] = it[12][Y_END]
+            system.copy(ys, it[12][Y_END])
         else:
             dense(method, it, c, s, ys)
         system.configuration(m, wk, it[14], ys)
-        Qo[k, :] = wk[0]
-        Vo[k, :] = wk[1]
+        system.copy(Qo[k], wk[0])
+        system.copy(Vo[k], wk[1])
         system.inputs(m, wk, s)
-        Po[k, :] = wk[3]
+        system.copy(Po[k], wk[3])
         k += 1
         wrote += 1
     cnt[K_OUT] = k
     return wrote
 
 
-@jit
+@ejit
 def _accepted(m, wk, it, fixed):
     """After an accepted step: count it and move the chart where the base has turned far
     (every step for the fixed-step methods, whose steps start at ``delta = 0``)."""
     cnt = it[5]
     cnt[NSTEPS] += 1
     cnt[DENSE_OK] = 1
-    it[14][:] = wk[2]  # the chart the dense output is in
+    system.copy(it[14], wk[2])  # the chart the dense output is in
     y = it[0]
-    it[12][Y_END][:] = y
+    system.copy(it[12][Y_END], y)
     nA = y.shape[0] // 2
     move = fixed
     if m[14][0] == 1 and not fixed:
@@ -197,7 +199,7 @@ def _accepted(m, wk, it, fixed):
                 move = True
     if move:
         system.configuration(m, wk, wk[2], y)
-        wk[2][:] = wk[0]
+        system.copy(wk[2], wk[0])
         # the dense output stays valid in its own chart (it[14]); y restarts at delta = 0
         for i in range(nA):
             y[i] = 0.0
@@ -205,7 +207,7 @@ def _accepted(m, wk, it, fixed):
         cnt[PRED_OK] = 0
 
 
-@jit
+@ejit
 def _end_state(m, wk, it, t, y):
     """The status of the configuration at ``y`` at time ``t`` (a fixed step's end is checked
     before it is accepted, so a run stops on the last valid state)."""
@@ -216,7 +218,7 @@ def _end_state(m, wk, it, t, y):
     return st
 
 
-@jit
+@ejit
 def _step_end(t, t_stop, h, max_step):
     """The step from ``t``: ``h`` capped by ``max_step``, cut to end at ``t_stop`` (and not to
     leave a sliver under a hundredth of a step before it)."""
@@ -229,7 +231,7 @@ def _step_end(t, t_stop, h, max_step):
 # ------------------------------------------------------------------------------- fixed step
 
 
-@jit
+@ejit
 def _fixed_next(tf, t_stop):
     """The next grid time ``t0 + k dt`` after ``t`` (no drift over long runs), cut at ``t_stop``."""
     t, t0, dt = tf[T], tf[T0], tf[DT]
@@ -240,7 +242,7 @@ def _fixed_next(tf, t_stop):
     return min(t_new, t_stop)
 
 
-@jit
+@ejit
 def _position_rate(m, wk, y, out):
     """``d(delta)/dt`` at ``y`` (N,) into ``out`` (nA,) (the kinematic rows of :func:`system.rhs`)."""
     nA = y.shape[0] // 2
@@ -256,7 +258,7 @@ def _position_rate(m, wk, y, out):
             out[r] = acc
 
 
-@jit
+@ejit
 def advance_rk4(m, wk, it, out, c, t_stop, max_out, max_steps):
     y, yold, K, tf, cnt = it[0], it[1], it[3], it[4], it[5]
     N = y.shape[0]
@@ -288,15 +290,15 @@ def advance_rk4(m, wk, it, out, c, t_stop, max_out, max_steps):
         if st != 0:
             cnt[STATUS] = st
             return FAILED
-        yold[:] = y
+        system.copy(yold, y)
         for i in range(N):
             y[i] = y[i] + h / 6.0 * (K[0, i] + 2.0 * K[1, i] + 2.0 * K[2, i] + K[3, i])
         st = _end_state(m, wk, it, t_new, y)
         if st != 0:
-            y[:] = yold
+            system.copy(y, yold)
             cnt[STATUS] = st
             return FAILED
-        K[8, :nA] = K[0, :nA]
+        system.copy(K[8, :nA], K[0, :nA])
         _position_rate(m, wk, y, K[9])
         tf[T_OLD] = t
         tf[H_LAST] = h
@@ -307,7 +309,7 @@ def advance_rk4(m, wk, it, out, c, t_stop, max_out, max_steps):
     return OUTPUT
 
 
-@jit
+@ejit
 def _midpoint_matrix(m, wk, it, t, y, h):
     """Factor ``I - h/2 Jv - h^2/4 Jq`` at ``(t, y)`` with the exact Jacobian."""
     Jq, Jv, LU, piv, cnt = it[6], it[7], it[8], it[9], it[5]
@@ -328,7 +330,7 @@ def _midpoint_matrix(m, wk, it, t, y, h):
     return 0
 
 
-@jit
+@ejit
 def advance_midpoint(m, wk, it, out, c, t_stop, max_out, max_steps):
     """Implicit midpoint: ``Y = y + h/2 f(Y)``, ``y1 = 2 Y - y``; with ``Y = (h/2 V, V)`` from
     ``delta = 0`` the unknown is the midpoint velocity ``V``; ``q1 = q (+) h V``,
@@ -393,14 +395,14 @@ def advance_midpoint(m, wk, it, out, c, t_stop, max_out, max_steps):
         if not converged:
             cnt[STATUS] = st if st != 0 else NEWTON
             return FAILED
-        yold[:] = y
+        system.copy(yold, y)
         for i in range(nA):
             K[1, nA + i] = F[nA + i]
             y[i] = y[i] + h * Y[nA + i]
             y[nA + i] = 2.0 * Y[nA + i] - y[nA + i]
         st = _end_state(m, wk, it, t_new, y)
         if st != 0:
-            y[:] = yold
+            system.copy(y, yold)
             cnt[STATUS] = st
             return FAILED
         cnt[F_OK] = 1
@@ -419,7 +421,7 @@ def advance_midpoint(m, wk, it, out, c, t_stop, max_out, max_steps):
 # ------------------------------------------------------------------------------- dopri5
 
 
-@jit
+@ejit
 def advance_dopri5(m, wk, it, out, c, t_stop, max_out, max_steps):
     A, C, E, P = c
     y, yold, f, K, tf, cnt = it[0], it[1], it[2], it[3], it[4], it[5]
@@ -450,7 +452,7 @@ def advance_dopri5(m, wk, it, out, c, t_stop, max_out, max_steps):
             t_new = _step_end(t, t_stop, h, tf[MAX_STEP])
             trial = h
             h = t_new - t
-            K[0, :] = f
+            system.copy(K[0], f)
             st = 0
             for s in range(1, 6):
                 for i in range(N):
@@ -492,9 +494,9 @@ def advance_dopri5(m, wk, it, out, c, t_stop, max_out, max_steps):
                 tf[H] = h * max(MIN_FACTOR, SAFETY * en ** -0.2)
             rejected = True
         cnt[LAST_ST] = 0
-        yold[:] = y
-        y[:] = yn
-        f[:] = K[6]
+        system.copy(yold, y)
+        system.copy(y, yn)
+        system.copy(f, K[6])
         for r in range(4):
             for i in range(N):
                 acc = 0.0
@@ -513,7 +515,7 @@ def advance_dopri5(m, wk, it, out, c, t_stop, max_out, max_steps):
 # ------------------------------------------------------------------------------- radau5
 
 
-@jit
+@ejit
 def _radau_factor(it, h, mu):
     """Factor the real and complex Newton matrices of half size at step ``h``:
     ``c^2 I - c Jv - Jq`` with ``c = mu_real / h`` and ``c = mu_complex / h``."""
@@ -533,7 +535,7 @@ def _radau_factor(it, h, mu):
     return ok
 
 
-@jit
+@ejit
 def _radau_solve(it, c_, LU, piv, rx, rv, Jq, tmpv):
     """Solve ``(c I - J) (dx, dv) = (rx, rv)`` in place through the half-size factor:
     ``dv = LU^-1 (c rv + Jq rx)``, ``dx = (rx + dv) / c``."""
@@ -549,7 +551,7 @@ def _radau_solve(it, c_, LU, piv, rx, rv, Jq, tmpv):
         rx[r] = (rx[r] + tmpv[r]) / c_
 
 
-@jit
+@ejit
 def _radau_newton(m, wk, it, c, t, h, scale):
     """Simplified Newton for the collocation system (Hairer and Wanner IV.8): returns
     ``(converged, iterations, rate)``; ``Z = K[0:3]``, ``F = K[3:6]``, ``W = K[6:9]``."""
@@ -615,7 +617,7 @@ def _radau_newton(m, wk, it, c, t, h, scale):
     return False, NEWTON_MAXITER, rate
 
 
-@jit
+@ejit
 def _radau_jacobian(m, wk, it, t):
     it[5][NJEV] += 1
     st = system.jacobian(m, wk, t, it[0], it[12][6], it[6], it[7])
@@ -624,7 +626,7 @@ def _radau_jacobian(m, wk, it, t):
     return st
 
 
-@jit
+@ejit
 def advance_radau5(m, wk, it, out, c, t_stop, max_out, max_steps):
     C, E, Tm, TI, P, mu = c
     y, yold, f, K, tf, cnt = it[0], it[1], it[2], it[3], it[4], it[5]
@@ -685,7 +687,8 @@ def advance_radau5(m, wk, it, out, c, t_stop, max_out, max_steps):
                     if not _radau_factor(it, h, mu):
                         break
                     tf[H_LU] = h
-                Z[:, :] = Z0
+                for s in range(3):
+                    system.copy(Z[s], Z0[s])
                 converged, n_iter, rate = _radau_newton(m, wk, it, c, t, h, scale)
                 cnt[NNEWTON] += n_iter
                 if not converged:
@@ -745,8 +748,8 @@ def advance_radau5(m, wk, it, out, c, t_stop, max_out, max_steps):
         tf[H_ABS_OLD] = h
         tf[ERR_OLD] = en
         tf[H] = max(h * fac, trial) if h < trial and not rejected else h * fac
-        yold[:] = y
-        y[:] = yn
+        system.copy(yold, y)
+        system.copy(y, yn)
         for i in range(N):  # the collocation polynomial: Q = Z^T P
             for r in range(3):
                 Q[r, i] = Z[0, i] * P[0, r] + Z[1, i] * P[1, r] + Z[2, i] * P[2, r]
@@ -772,7 +775,7 @@ def advance_radau5(m, wk, it, out, c, t_stop, max_out, max_steps):
     return OUTPUT
 
 
-@jit
+@ejit
 def _predict(h, tf, en):
     """Gustafsson's predictive step factor (before the safety factor)."""
     if tf[H_ABS_OLD] <= 0.0 or tf[ERR_OLD] <= 0.0 or en == 0.0:

@@ -34,11 +34,12 @@ import numpy as np
 
 from .. import derivatives, planar, recursive
 from ..arc import SCRATCH, arc_pose, jit, take1, take2
+ejit = numba.njit(cache=True, error_model="numpy", _nrt=False)
 from ..slices import segment_slices
 
 # helpers that take the model and workspace tuples are inlined into their callers: a call
 # that passes them costs a reference count per array inside (~1 us for ~60 arrays)
-inline = numba.njit(cache=True, error_model="numpy", inline="always")
+inline = numba.njit(cache=True, error_model="numpy", inline="always", _nrt=False)
 from . import lie, schedules
 
 __all__ = ["pack", "workspace", "rhs", "jacobian", "configuration", "energies", "energies_batch", "inputs", "RECENTER",
@@ -95,6 +96,15 @@ def workspace(chain) -> tuple:
 
 
 @inline
+def copy(dst, src):
+    """``dst[:] = src`` (1-D) as a loop: the engine runs without numba's reference counting
+    (``_nrt=False``: no atomic count per array view, most of a call's cost otherwise), which
+    has no array-to-array assignment."""
+    for i in range(dst.shape[0]):
+        dst[i] = src[i]
+
+
+@inline
 def _base_state(m, wk, t, q, v):
     """Fill ``B = wk[9]`` (4, 6): ``B[0]`` the base twist ``V0``, ``B[1]`` its own acceleration
     ``A_B`` (prescribed), ``B[2, :3]`` gravity in the base frame ``g_B``, ``B[3, :3]`` the base
@@ -106,12 +116,13 @@ def _base_state(m, wk, t, q, v):
     B[1, :] = 0.0
     if kind[0] == 0:
         B[0, :] = 0.0
-        R[:, :] = m[16]
-        B[3, :3] = m[17]
+        for r in range(3):
+            copy(R[r], m[16][r])
+        copy(B[3, :3], m[17])
     elif kind[0] == 1:
-        B[0, :] = v[:6]
+        copy(B[0], v[:6])
         _rotation(q[3:7], R)
-        B[3, :3] = q[:3]
+        copy(B[3, :3], q[:3])
     else:
         schedules.base_motion_eval(m[18], m[19], t, R, B[3, :3], B[0], B[1])
     for r in range(3):
@@ -151,7 +162,7 @@ def configuration(m, wk, qc, y):
         for i in range(6, nA):
             q[idx[i] + 1] = qc[idx[i] + 1] + y[i]
     else:
-        q[:] = qc
+        copy(q, qc)
         for i in range(nA):
             q[idx[i]] += y[i]
 
@@ -237,7 +248,7 @@ def _accel(m, wk, t, full):
     return OK
 
 
-@jit
+@ejit
 def rhs(m, wk, t, y, out):
     """``out = dy/dt`` (2 nA,) at ``(t, y)``; returns the status (``out`` undefined unless OK)."""
     idx = m[13]
@@ -261,7 +272,7 @@ def rhs(m, wk, t, y, out):
     return OK
 
 
-@jit
+@ejit
 def jacobian(m, wk, t, y, f0, Jq, Jv):
     """The exact Jacobian blocks of ``dv_A/dt``: ``Jq = da_A/d(delta)`` and ``Jv = da_A/dv_A``
     (nA, nA) at ``(t, y)`` (:func:`qchain.derivatives.aba_derivatives`; configuration
@@ -293,7 +304,7 @@ def jacobian(m, wk, t, y, f0, Jq, Jv):
     return OK
 
 
-@jit
+@ejit
 def energies(m, wk, t, q, v):
     """``(kinetic, potential)`` (J) at ``(t, q, v)``: ``1/2 sum_j xi_j^T M_xi_j xi_j`` (the
     base's own motion included), gravity about the world origin plus the elastic energy.
@@ -321,14 +332,15 @@ def energies(m, wk, t, q, v):
     ps, o = take1(sc, o, 3)
     Rn, o = take2(sc, o, 3, 3)
     z9[:] = 0.0
-    V[:] = B[0]
-    Rj[:, :] = wk[15]
-    oj[:] = B[3, :3]
+    copy(V, B[0])
+    for r in range(3):
+        copy(Rj[r], wk[15][r])
+    copy(oj, B[3, :3])
     kin = 0.0
     pot = 0.0
     for j in range(n):
         qj = q[qoff + 3 * j : qoff + 3 * j + 3]
-        xi[:6] = V
+        copy(xi[:6], V)
         for b in range(3):
             xi[6 + b] = v[voff + 3 * j + b]
         segment_slices(alpha[offs[j] : offs[j + 1]], w[offs[j] : offs[j + 1]], mass[j], radius[j], qj, z9, z9, True,
@@ -357,11 +369,12 @@ def energies(m, wk, t, q, v):
         for r in range(3):
             for cc in range(3):
                 Rn[r, cc] = Rj[r, 0] * Rs[0, cc] + Rj[r, 1] * Rs[1, cc] + Rj[r, 2] * Rs[2, cc]
-        Rj[:, :] = Rn
+        for r in range(3):
+            copy(Rj[r], Rn[r])
     return kin, pot
 
 
-@jit
+@ejit
 def energies_batch(m, wk, t, q, v, kinetic, potential):
     """:func:`energies` of ``K`` samples: ``t (K,)``, ``q (K, nq)``, ``v (K, nv)`` into
     ``kinetic``, ``potential`` (K,) (J)."""
