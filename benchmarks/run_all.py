@@ -2,6 +2,7 @@
 
 Writes into ``--out`` (default ``out/bench``): ``work_precision.{csv,png}``,
 ``cosserat_release.{csv,png}`` (PyElastica part only with the ``bench`` extra installed),
+``release.{csv,png}`` (qchain against MuJoCo at equal accuracy; needs the ``bench`` extra's mujoco),
 ``static_cantilever.{csv,png}``,
 ``scaling.{csv,png}``, ``derivatives.csv``, ``stability_map.{csv,png}``. ``--quick`` shortens every study.
 
@@ -23,12 +24,13 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="qchain bench", description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="short runs (under two minutes in all)")
     ap.add_argument("--out", type=Path, default=Path("out/bench"), help="folder for the CSV and PNG files")
-    ap.add_argument("--only", nargs="+", choices=["precision", "cosserat", "static", "scaling", "derivatives", "stability"],
+    ap.add_argument("--only", nargs="+",
+                    choices=["precision", "cosserat", "release", "static", "scaling", "derivatives", "stability"],
                     help="run only these studies")
     args = ap.parse_args(argv)
     sys.path.insert(0, str(HERE))
     args.out.mkdir(parents=True, exist_ok=True)
-    todo = args.only or ["precision", "cosserat", "static", "scaling", "derivatives", "stability"]
+    todo = args.only or ["precision", "cosserat", "release", "static", "scaling", "derivatives", "stability"]
     t_all = time.perf_counter()
     for name in todo:
         t0 = time.perf_counter()
@@ -42,6 +44,13 @@ def main(argv=None) -> int:
                 print(f"skipping the Cosserat comparison: {err}")
                 continue
             mod.run(quick=args.quick, out_dir=args.out)
+        elif name == "release":
+            try:
+                import mujoco  # noqa: F401
+            except ImportError as err:
+                print(f"skipping the MuJoCo comparison (the `bench` extra: pip install mujoco): {err}")
+                continue
+            importlib.import_module("bench_release").run(args.quick, args.out)
         elif name == "static":
             importlib.import_module("bench_static").run(args.quick, args.out)
         elif name == "scaling":

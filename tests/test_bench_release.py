@@ -1,0 +1,100 @@
+"""The MuJoCo rod of benchmarks/bench_release.py against beam theory, independently of qchain.
+
+The rod's material is made 100x stiffer (E = 5e7 Pa) so that its own weight bends it by only
+L / 500: the small-load limit where Euler-Bernoulli theory holds. N = 40 links.
+"""
+
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+mujoco = pytest.importorskip("mujoco")
+
+sys.path.insert(0, str(Path(__file__).parents[1] / "benchmarks"))
+
+import bench_release as br  # noqa: E402
+
+N = 40
+STIFF = dict(br.SCENE, E=5e7)  # Pa: static tip deflection 0.39 mm
+DT = 1e-5  # s: below the Euler stability limit of the fastest link mode (~2.2e-5 s at N = 40, E = 5e7)
+
+
+def _tip_z(model, data):
+    mujoco.mj_kinematics(model, data)
+    return float(data.site_xpos[model.site("tip").id][2])
+
+
+@pytest.fixture(scope="module")
+def static_tip():
+    """Tip height at rest: the rod released with stiffness-proportional hinge damping (the
+    first mode about critically damped), stepped for 0.25 s until nothing moves."""
+    c = br.constants(STIFF)
+    beta = 2.0 * 0.7 / (2.0 * np.pi * c["f1"])  # s: damping ratio 0.7 on the first mode
+    model, data = br.mujoco_model(N, DT, "Euler", STIFF, damping=beta)
+    mujoco.mj_step(model, data, nstep=int(round(0.25 / DT)))
+    speed = float(np.max(np.abs(data.qvel)))
+    return _tip_z(model, data), speed
+
+
+def test_the_model_is_the_rod():
+    model, data = br.mujoco_model(N, DT, "RK4", STIFF)
+    c = br.constants(STIFF)
+    h = STIFF["L"] / N
+    assert model.nv == N and model.njnt == N
+    np.testing.assert_allclose(model.body_mass[1:].sum(), c["mass"], rtol=1e-12)
+    np.testing.assert_allclose(model.jnt_stiffness, [2 * c["EI"] / h] + [c["EI"] / h] * (N - 1), rtol=1e-12)
+    np.testing.assert_allclose(model.jnt_axis, np.tile([0.0, 1.0, 0.0], (N, 1)))
+    np.testing.assert_allclose(data.site_xpos[model.site("tip").id], [STIFF["L"], 0.0, 0.0], atol=1e-15)
+    # every link carries the rod's rotary inertia rho I h = m r^2 / 4 about y, plus m h^2 / 12
+    m = STIFF["rho"] * c["A"] * h
+    np.testing.assert_allclose(model.body_inertia[1:, 1], m * (STIFF["r"] ** 2 / 4 + h * h / 12), rtol=1e-10)
+
+
+def test_static_deflection_matches_euler_bernoulli(static_tip):
+    z, speed = static_tip
+    assert speed < 1e-6  # at rest
+    w = br.constants(STIFF)["w_static"]  # q L^4 / (8 EI) = 0.392 mm
+    # The chain's linear deflection is the trapezoidal rule of the exact integral:
+    # w (1 + 1/N^2); measured -z / w - 1 = 6.2e-4 = 1 / N^2.
+    assert -z == pytest.approx(w, rel=2.0 / N**2)
+    assert -z == pytest.approx(w * (1 + 1.0 / N**2), rel=1e-4)
+
+
+def test_first_natural_frequency(static_tip):
+    z_rest, _ = static_tip
+    c = br.constants(STIFF)  # Euler-Bernoulli f1 = 31.3 Hz
+    model, data = br.mujoco_model(N, DT, "Euler", STIFF)
+    every = 10
+    zs = []
+    for _ in range(int(round(0.2 / (DT * every)))):  # about 6 periods of free oscillation about rest
+        mujoco.mj_step(model, data, nstep=every)
+        zs.append(_tip_z(model, data))
+    s = np.array(zs) - z_rest
+    t = DT * every * np.arange(1, len(s) + 1)
+    k = np.flatnonzero((s[:-1] < 0) & (s[1:] >= 0))  # upward zero crossings
+    tc = t[k] - s[k] * (t[k + 1] - t[k]) / (s[k + 1] - s[k])
+    assert len(tc) >= 5
+    f = (len(tc) - 1) / (tc[-1] - tc[0])
+    # rotary inertia (Rayleigh beam) lowers it by ~0.4 %, the discretisation a little more:
+    # measured f / f1 - 1 = -0.67 %
+    assert f == pytest.approx(c["f1"], rel=0.02)
+    # amplitude: released from straight, it swings about rest by about the static deflection
+    # (measured 1.03 w: the higher modes add a little)
+    assert np.max(np.abs(s)) == pytest.approx(c["w_static"], rel=0.1)
+
+
+def test_release_run_samples_the_tip():
+    res = br.mujoco_run(10, "RK4", 1e-3, 0.05)
+    assert res["ok"], res["status"]
+    assert res["tips"].shape == (6, 3)
+    np.testing.assert_allclose(res["tips"][0], [br.SCENE["L"], 0.0, 0.0], atol=1e-15)
+    assert np.all(res["tips"][:, 1] == 0.0)  # planar
+    assert np.all(np.diff(res["tips"][:, 2]) < 0)  # it falls
+    unstable = br.mujoco_run(10, "Euler", 5e-3, 0.2)  # far above the explicit stability limit
+    assert not unstable["ok"] and unstable["status"].startswith("unstable")
+    a = np.zeros((3, 3))
+    b = a + [0.0, 3e-3, 4e-3]
+    assert br.tip_rms(a, b) == pytest.approx(5e-3)
+    np.testing.assert_allclose(br.richardson(a, b), (4 * b - a) / 3)
