@@ -11,7 +11,9 @@ target ``x_d`` by a spring ``Kp`` with a damper ``Kd``, and ``c v`` damps the mo
 tip does not see. With the skew-symmetry of ``dM/dt - 2C`` the energy
 ``V = 1/2 v^T M v + 1/2 e^T Kp e`` has ``dV/dt = -xdot^T Kd xdot - c v^T v - v^T D v <= 0``
 (``D`` the material damping), so the arm comes to rest with ``J^T Kp e = 0``: on the
-target. The pressures that realise ``tau`` solve ``B(q) p = tau`` in the least-squares
+target. The controller runs at CONTROL_RATE (500 Hz), its pressures held between samples
+(``controller_rate``: the arm is integrated in compiled code between them). The pressures
+that realise ``tau`` solve ``B(q) p = tau`` in the least-squares
 sense with ``0 <= p <= p_max`` (``scipy.optimize.lsq_linear``, with a small penalty on
 ``p``: equal pressure in a segment's three chambers does not bend it, so the least
 pressure is taken).
@@ -38,6 +40,7 @@ from qchain.statics import equilibrium
 KP = 20.0  # N/m, tip spring
 KD = 2.0  # N s/m, tip damper
 C_NULL = 2e-5  # N m^2 s, damping of the coordinates (ux, uy rates, 1/(m s))
+CONTROL_RATE = 500.0  # Hz: sampled and held between samples, as a real controller runs
 P_MAX = 1.0e5  # Pa, largest chamber pressure
 P_PENALTY = 1e-11  # N m^2/Pa: weight of |p| in the least squares (B is ~4e-8 N m^2/Pa)
 TARGET_PRESSURES = [0.0, 6e4, 0.0] * 3  # Pa: chamber 2 of every segment: the default target's shape
@@ -93,7 +96,7 @@ def main(argv=None) -> dict:
     T = _common.duration(args, sc, quick=0.3)
     ctl = TipController(ch, target)
     t0 = time.perf_counter()
-    traj = sc.simulate(model=model, duration=T, pressure=ctl)
+    traj = sc.simulate(model=model, duration=T, pressure=ctl, controller_rate=CONTROL_RATE)
     wall = time.perf_counter() - t0
     _common.report(traj)
     tip = _common.tips(ch, traj)

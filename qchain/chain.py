@@ -33,6 +33,7 @@ import numpy as np
 import pinocchio as pin
 
 from . import dynamics_derivatives as _derivs
+from . import planar as _planar
 from . import recursive
 from .arc import SCRATCH, arc_nodes
 from .dynamics_derivatives import _ZERO6, ForwardDynamicsDerivatives, InverseDynamicsDerivatives
@@ -201,6 +202,7 @@ class Chain:
             j = int(np.flatnonzero(self._paper)[0])
             raise ValueError(f"planar=True needs curvature coordinates; segments[{j}] has coords='paper'")
         self.planar = bool(planar)
+        self._planar_kernel = self.planar and base == "fixed"  # forward dynamics on qchain.planar
         self._locked = np.zeros((n, 3), dtype=bool)
         self._locked[:, 0] = [not s.extensible for s in segs]
         self._locked[:, 2] = self.planar
@@ -602,6 +604,17 @@ class Chain:
     def _ws(self, data: Data | None) -> tuple:
         return recursive.aba_workspace(self.n, self.nv) if data is None else data.aba_workspace()
 
+    def _aba(self, q_c, v_c, f_c, V0, A0, F0, qdd_c, A0_out, data: Data | None) -> bool:
+        """The articulated-body pass: :func:`qchain.planar.planar_aba` for a planar chain on a
+        fixed base (the same accelerations at 2-D cost), :func:`qchain.recursive.aba` else."""
+        if self._planar_kernel:
+            pw = _planar.planar_workspace(self.n) if data is None else data.planar_workspace()
+            A0_out[:] = A0
+            return _planar.planar_aba(self._alpha, self._w, self._offs, self._mass, self._radius, q_c, v_c, f_c, A0,
+                                     qdd_c, self._locked, pw, pw[7])
+        return recursive.aba(self._alpha, self._w, self._offs, self._mass, self._radius, q_c, v_c, f_c, V0, A0,
+                             self.floating, F0, qdd_c, A0_out, self._locked, *self._ws_sc(data))
+
     def _ws_sc(self, data: Data | None) -> tuple:
         """``(workspace, scratch)`` arguments of the compiled passes."""
         ws = self._ws(data)
@@ -775,9 +788,7 @@ class Chain:
         A0[:] = 0.0 if A_B is None else A_B
         A0[:3] -= g_B
         a = data.a
-        recursive.aba(self._alpha, self._w, self._offs, self._mass, self._radius, q_c, v_c, f, V0, A0, self.floating,
-                      F0, a[self._voff :].reshape(self.n, 3), a[:6] if self.floating else A0, self._locked,
-                      *self._ws_sc(data))
+        self._aba(q_c, v_c, f, V0, A0, F0, a[self._voff :].reshape(self.n, 3), a[:6] if self.floating else A0, data)
         if self.floating:
             a[:3] += g_B
         return a
@@ -794,11 +805,8 @@ class Chain:
         f_c = f if st.J is None else np.linalg.solve(np.swapaxes(st.J, 1, 2), f[..., None])[..., 0]
         qdd_c = np.empty((self.n, 3))
         A0 = np.empty(6)
-        ok = recursive.aba(
-            self._alpha, self._w, self._offs, self._mass, self._radius, st.q_c, np.ascontiguousarray(st.v_c),
-            np.ascontiguousarray(f_c), st.V0, self._A0(st), self.floating, F0, qdd_c, A0, self._locked,
-            *self._ws_sc(data),
-        )
+        ok = self._aba(st.q_c, np.ascontiguousarray(st.v_c), np.ascontiguousarray(f_c), st.V0, self._A0(st), F0, qdd_c,
+                       A0, data)
         if not ok:
             raise QchainError("forward_dynamics: an articulated inertia block is not positive definite")
         a = np.empty(self.nv)

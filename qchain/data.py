@@ -26,6 +26,9 @@ root frame of segment ``j``, ``root 0`` the base; ``[linear; angular]``; SI unit
                                         Jacobians (root 0)
 ``Lq, U, u``         (n, 3, 3), (n, 6, 3), (n, 3)  articulated-body factors
 ``scratch``          (SCRATCH,)         small temporaries of the passes (``qchain.arc.SCRATCH``)
+``pT, pc, pb, pM``   (n, 3, 5), (n, 3), the planar kernel's tip maps, biases, segment forces
+                     (n, 5), (n, 5, 5)  and blocks (:mod:`qchain.planar`, planar chains)
+``pDinv, pU, pu``    (n, 2, 2), (n, 3, 2), (n, 2)  its articulated factors; ``pscratch``
 ``tau``              (nv,)              inverse dynamics (N, N m)
 ``a``                (nv,)              forward dynamics (m/s^2, rad/s^2, ...)
 ``M, L``             (nv, nv)           mass matrix and the inverse of its Cholesky factor
@@ -41,7 +44,7 @@ root frame of segment ``j``, ``root 0`` the base; ``[linear; angular]``; SI unit
 
 from __future__ import annotations
 
-from . import derivatives, recursive
+from . import derivatives, planar, recursive
 
 __all__ = ["Data"]
 
@@ -52,6 +55,7 @@ _GROUPS = {
     "aba": (recursive.aba_workspace, ("V", "T", "c", "Q", "M_xi", "Lq", "U", "u", "scratch")),
     "rnea_derivatives": (derivatives.rnea_workspace, derivatives.RNEA_WORKSPACE),
     "aba_derivatives": (derivatives.aba_derivatives_workspace, derivatives.ABA_DERIVATIVES_WORKSPACE),
+    "planar": (lambda n, nv: planar.planar_workspace(n), planar.PLANAR_WORKSPACE),
 }
 
 
@@ -85,6 +89,10 @@ class Data:
     def aba_derivatives_workspace(self) -> tuple:
         """The arrays :func:`qchain.derivatives.aba_derivatives` writes, in its order."""
         return self._tuple("_wa", derivatives.ABA_DERIVATIVES_WORKSPACE)
+
+    def planar_workspace(self) -> tuple:
+        """The arrays :func:`qchain.planar.planar_aba` works in, in its order."""
+        return self._tuple("_wp", planar.PLANAR_WORKSPACE)
 
     def _tuple(self, key: str, names: tuple) -> tuple:
         t = self.__dict__.get(key)

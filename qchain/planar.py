@@ -438,6 +438,10 @@ def planar_rnea(alpha, w, offs, mass, radius, q, qd, qdd, A0, tau, F0, ws, sc):
     F0[5] = 0.0
 
 
+#: Names of :func:`planar_workspace`'s arrays (``qchain.data.Data`` attributes), in order.
+PLANAR_WORKSPACE = ("pT", "pc", "pb", "pM", "pDinv", "pU", "pu", "pscratch")
+
+
 @jit
 def planar_workspace(n):
     """Fresh arrays for :func:`planar_aba`: tip maps (n, 3, 5), tip biases (n, 3), segment

@@ -915,7 +915,8 @@ class Scene:
         return np.append(t, T)
 
     def simulate(self, *, reduce: bool | None = None, model: SceneModel | None = None,
-                 duration: float | None = None, pressure=None, on_sample=None, progress: bool = False):
+                 duration: float | None = None, pressure=None, on_sample=None, progress: bool = False,
+                 controller_rate: float | None = None):
         """Run the scene; returns a :class:`qchain.trajectory.Trajectory` sampled at
         :meth:`sample_times`.
 
@@ -934,6 +935,9 @@ class Scene:
             Called at every output sample.
         progress : bool
             Progress bar on stderr.
+        controller_rate : float, Hz, optional
+            Sample a controller ``pressure`` at this rate and hold it (zero-order hold): the
+            run stays in compiled code between samples (:func:`qchain.simulate.simulate`).
         """
         from .simulate import simulate
 
@@ -946,7 +950,7 @@ class Scene:
             model.chain, model.q0, model.v0, (0.0, T), pressure=model.pressure if pressure is None else pressure,
             method=self.method, dt=self.dt,
             rtol=self.rtol, atol=self.atol, t_eval=self.sample_times(T), on_sample=on_sample, progress=progress,
-            max_step=self.max_step,
+            max_step=self.max_step, controller_rate=controller_rate,
         )
 
     # ------------------------------------------------------------------ report

@@ -245,3 +245,21 @@ def test_rk4_above_its_stability_limit_says_so_with_the_limit():
     tr = simulate(ch, ch.neutral(), np.zeros(ch.nv), (0, 0.3), method="rk4", dt=2e-3, energies=False)
     assert not tr.success
     assert "above its stability limit" in tr.message and "implicit" in tr.message
+
+
+def test_planar_chain_forward_dynamics_is_the_full_chains(rng):
+    """``Chain(planar=True)`` runs its forward dynamics on the planar kernel: the same
+    accelerations as the full chain's 3-D pass on planar states, checked and unchecked."""
+    segs = [Segment(**SEG, damping=0.01, extensible=e) for e in (True, False, True, True)]
+    pl, full = Chain(segs, gravity=(0.3, -2.0, 9.81), planar=True), Chain(segs, gravity=(0.3, -2.0, 9.81))
+    for _ in range(5):
+        q = pl.neutral()
+        q[1::3] = rng.uniform(-20, 20, 4)
+        v = np.zeros(pl.nv)
+        v[pl.active] = rng.normal(size=pl.nv_active)
+        p = rng.uniform(0, 4e4, pl.nu)
+        a_full_free = full.forward_dynamics(q, v, p)[pl.active]  # out-of-plane gravity moves only uy there
+        d = pl.create_data()
+        for a in (pl.forward_dynamics(q, v, p), pl.forward_dynamics(q, v, p, data=d, skip_checks=True).copy()):
+            assert np.all(a[~pl.active] == 0.0)
+            assert np.abs(a[pl.active] - a_full_free).max() <= 1e-12 * np.abs(a_full_free).max()
