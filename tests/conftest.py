@@ -18,3 +18,18 @@ if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
 @pytest.fixture
 def rng():
     return np.random.default_rng(12345)
+
+
+def pytest_sessionstart(session):
+    """Compile (or load) the simulation engine of every compiled method once, before any test
+    runs: tests that start ``qchain`` processes then find numba's cache warm instead of each
+    compiling it against their own timeouts on a busy machine."""
+    from qchain import Chain, Segment
+    from qchain.simulate import COMPILED, FIXED_STEP, simulate
+
+    ch = Chain([Segment(length=0.1, radius=0.015, mass=0.05, chamber_area=4.5e-5, chamber_radius=0.0085,
+                        youngs_modulus=1e5, damping=0.01)])
+    for method in COMPILED:
+        kw = dict(dt=1e-3) if method in FIXED_STEP else {}
+        tr = simulate(ch, ch.neutral(), np.zeros(ch.nv), (0.0, 2e-3), method=method, **kw)
+        assert tr.success and tr.meta["engine"] == "compiled", tr.message

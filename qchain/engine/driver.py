@@ -100,7 +100,7 @@ def run(chain, m, method, q0, v0, t0, t1, *, dt, rtol, atol, t_eval, on_sample, 
     k = 0
     if controllers:
         hold(t0, q0, v0)
-    system.inputs(m, wk, t0)
+    system.input_values(m, wk, t0)
     while k < out.t.size and (out.every and k == 0 or not out.every and out.t[k] <= t0):
         if out.every:
             out.t[0] = t0
@@ -154,7 +154,7 @@ def run(chain, m, method, q0, v0, t0, t1, *, dt, rtol, atol, t_eval, on_sample, 
                 for r in range(cnt[steppers.K_OUT] - 1, -1, -1):  # a sample at the instant shows the new hold
                     if abs(out.t[r] - t) > 1e-12 * max(1.0, abs(t)):
                         break
-                    system.inputs(m, wk, t)
+                    system.input_values(m, wk, t)
                     out.p[r] = wk[3]
             del code
     except KeyboardInterrupt:
@@ -180,10 +180,11 @@ def _hand_over(out, emitted, cnt, on_sample, pass_energies, m, wk) -> int:
     """Give the samples written since the last call to ``on_sample``; returns the new count."""
     k = int(cnt[steppers.K_OUT])
     if on_sample is not None:
+        ke, pe = np.zeros(1), np.zeros(1)
         for r in range(emitted, k):
             if pass_energies:
-                e = system.energies(m, wk, out.t[r], out.q[r], out.v[r])
-                on_sample(out.t[r], out.q[r].copy(), out.v[r].copy(), out.p[r].copy(), energies=e)
+                system.energies_batch(m, wk, out.t[r : r + 1], out.q[r : r + 1], out.v[r : r + 1], ke, pe)
+                on_sample(out.t[r], out.q[r].copy(), out.v[r].copy(), out.p[r].copy(), energies=(ke[0], pe[0]))
             else:
                 on_sample(out.t[r], out.q[r].copy(), out.v[r].copy(), out.p[r].copy())
     return k
@@ -224,7 +225,7 @@ def _cut(out, cnt, hit, method, m, wk, it, c):
         k -= 1
     if out.every:
         q, v = _state_at(method, m, wk, it, c, hit)
-        system.inputs(m, wk, hit)
+        system.input_values(m, wk, hit)
         out.t[k], out.q[k], out.v[k], out.p[k] = hit, q, v, wk[3]
         k += 1
     cnt[steppers.K_OUT] = k
@@ -272,16 +273,22 @@ def stability_limit(chain, m, q, v, t, radius: float = RK4_STABILITY_RADIUS) -> 
     """``radius / max |lambda|`` over the eigenvalues of the exact Jacobian of the free
     coordinates at ``(t, q, v)`` (s), or None where it cannot be formed."""
     idx = m[13]
-    nA = idx.size
-    wk = system.workspace(chain)
-    wk[2][:] = q
-    y = np.concatenate([np.zeros(nA), v[idx]])
-    Jq, Jv = np.zeros((nA, nA)), np.zeros((nA, nA))
-    if system.jacobian(m, wk, t, y, np.zeros(2 * nA), Jq, Jv) != 0:
+    try:
+        d = chain.forward_dynamics_derivatives(q, v, *_inputs_at(chain, m, t), t=t)
+    except (QchainError, ValueError):
         return None
-    J = np.block([[np.zeros((nA, nA)), np.eye(nA)], [Jq, Jv]])
+    ix = np.ix_(idx, idx)
+    n = idx.size
+    J = np.block([[np.zeros((n, n)), np.eye(n)], [d.da_dq[ix], d.da_dv[ix]]])
     rho = float(np.max(np.abs(np.linalg.eigvals(J))))
     return radius / rho if rho > 0 else None
+
+
+def _inputs_at(chain, m, t):
+    """``(p, tau)`` of the packed inputs at ``t``."""
+    wk = system.workspace(chain)
+    system.input_values(m, wk, t)
+    return wk[3].copy(), wk[4].copy()
 
 
 def _trajectory(chain, m, wk, out, cnt, status, message, energies, method, ev_log) -> Trajectory:

@@ -42,6 +42,10 @@ from scipy.integrate._ivp import radau as _radau
 from ..arc import jit
 import numba
 ejit = numba.njit(cache=True, error_model="numpy", _nrt=False)
+# the steppers' helpers are inlined into each stepper: a separately compiled helper is
+# optimised again, with everything it calls, in every caller's module (numba links then
+# optimises), which multiplied the first compile's time
+inline = numba.njit(cache=True, error_model="numpy", _nrt=False, inline="always")
 from . import lie, system
 from .linalg import lu_factor, lu_solve
 
@@ -97,7 +101,7 @@ def integrator(nA: int, nq: int) -> tuple:
 # ------------------------------------------------------------------------------- shared
 
 
-@ejit
+@inline
 def _f(m, wk, it, t, y, out):
     it[5][NFEV] += 1
     st = system.rhs(m, wk, t, y, out)
@@ -106,7 +110,7 @@ def _f(m, wk, it, t, y, out):
     return st
 
 
-@ejit
+@inline
 def _norm(e, y0, y1, rtol, atol):
     """RMS of ``e / (atol + rtol max(|y0|, |y1|))``."""
     acc = 0.0
@@ -116,7 +120,7 @@ def _norm(e, y0, y1, rtol, atol):
     return np.sqrt(acc / e.shape[0])
 
 
-@ejit
+@inline
 def dense(method, it, c, s, yout):
     """The last step's dense output at time ``s`` into ``yout`` (N,)."""
     y, yold, K, tf = it[12][Y_END], it[1], it[3], it[4]
@@ -140,7 +144,7 @@ def dense(method, it, c, s, yout):
             yout[nA + i] = (1.0 - x) * yold[nA + i] + x * y[nA + i]
 
 
-@ejit
+@inline
 def _emit(method, m, wk, it, out, c, budget):
     """Write the outputs that fall in the last accepted step (up to ``budget``); returns how
     many were written."""
@@ -181,7 +185,7 @@ def _emit(method, m, wk, it, out, c, budget):
     return wrote
 
 
-@ejit
+@inline
 def _accepted(m, wk, it, fixed):
     """After an accepted step: count it and move the chart where the base has turned far
     (every step for the fixed-step methods, whose steps start at ``delta = 0``)."""
@@ -207,7 +211,7 @@ def _accepted(m, wk, it, fixed):
         cnt[PRED_OK] = 0
 
 
-@ejit
+@inline
 def _end_state(m, wk, it, t, y):
     """The status of the configuration at ``y`` at time ``t`` (a fixed step's end is checked
     before it is accepted, so a run stops on the last valid state)."""
@@ -218,7 +222,7 @@ def _end_state(m, wk, it, t, y):
     return st
 
 
-@ejit
+@inline
 def _step_end(t, t_stop, h, max_step):
     """The step from ``t``: ``h`` capped by ``max_step``, cut to end at ``t_stop`` (and not to
     leave a sliver under a hundredth of a step before it)."""
@@ -231,7 +235,7 @@ def _step_end(t, t_stop, h, max_step):
 # ------------------------------------------------------------------------------- fixed step
 
 
-@ejit
+@inline
 def _fixed_next(tf, t_stop):
     """The next grid time ``t0 + k dt`` after ``t`` (no drift over long runs), cut at ``t_stop``."""
     t, t0, dt = tf[T], tf[T0], tf[DT]
@@ -242,7 +246,7 @@ def _fixed_next(tf, t_stop):
     return min(t_new, t_stop)
 
 
-@ejit
+@inline
 def _position_rate(m, wk, y, out):
     """``d(delta)/dt`` at ``y`` (N,) into ``out`` (nA,) (the kinematic rows of :func:`system.rhs`)."""
     nA = y.shape[0] // 2
@@ -309,7 +313,7 @@ def advance_rk4(m, wk, it, out, c, t_stop, max_out, max_steps):
     return OUTPUT
 
 
-@ejit
+@inline
 def _midpoint_matrix(m, wk, it, t, y, h):
     """Factor ``I - h/2 Jv - h^2/4 Jq`` at ``(t, y)`` with the exact Jacobian."""
     Jq, Jv, LU, piv, cnt = it[6], it[7], it[8], it[9], it[5]
@@ -515,7 +519,7 @@ def advance_dopri5(m, wk, it, out, c, t_stop, max_out, max_steps):
 # ------------------------------------------------------------------------------- radau5
 
 
-@ejit
+@inline
 def _radau_factor(it, h, mu):
     """Factor the real and complex Newton matrices of half size at step ``h``:
     ``c^2 I - c Jv - Jq`` with ``c = mu_real / h`` and ``c = mu_complex / h``."""
@@ -535,7 +539,7 @@ def _radau_factor(it, h, mu):
     return ok
 
 
-@ejit
+@inline
 def _radau_solve(it, c_, LU, piv, rx, rv, Jq, tmpv):
     """Solve ``(c I - J) (dx, dv) = (rx, rv)`` in place through the half-size factor:
     ``dv = LU^-1 (c rv + Jq rx)``, ``dx = (rx + dv) / c``."""
@@ -551,7 +555,7 @@ def _radau_solve(it, c_, LU, piv, rx, rv, Jq, tmpv):
         rx[r] = (rx[r] + tmpv[r]) / c_
 
 
-@ejit
+@inline
 def _radau_newton(m, wk, it, c, t, h, scale):
     """Simplified Newton for the collocation system (Hairer and Wanner IV.8): returns
     ``(converged, iterations, rate)``; ``Z = K[0:3]``, ``F = K[3:6]``, ``W = K[6:9]``."""
@@ -617,7 +621,7 @@ def _radau_newton(m, wk, it, c, t, h, scale):
     return False, NEWTON_MAXITER, rate
 
 
-@ejit
+@inline
 def _radau_jacobian(m, wk, it, t):
     it[5][NJEV] += 1
     st = system.jacobian(m, wk, t, it[0], it[12][6], it[6], it[7])
@@ -775,7 +779,7 @@ def advance_radau5(m, wk, it, out, c, t_stop, max_out, max_steps):
     return OUTPUT
 
 
-@ejit
+@inline
 def _predict(h, tf, en):
     """Gustafsson's predictive step factor (before the safety factor)."""
     if tf[H_ABS_OLD] <= 0.0 or tf[ERR_OLD] <= 0.0 or en == 0.0:

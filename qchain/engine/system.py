@@ -37,6 +37,10 @@ from ..arc import SCRATCH, arc_pose, jit, take1, take2
 ejit = numba.njit(cache=True, error_model="numpy", _nrt=False)
 from ..slices import segment_slices
 
+# the engine's inner functions take the model and workspace tuples (dozens of arrays) and
+# are called only from compiled code: no CPython wrapper to unbox them is generated
+ejit_inner = numba.njit(cache=True, error_model="numpy", _nrt=False, no_cpython_wrapper=True)
+
 # helpers that take the model and workspace tuples are inlined into their callers: a call
 # that passes them costs a reference count per array inside (~1 us for ~60 arrays)
 inline = numba.njit(cache=True, error_model="numpy", inline="always", _nrt=False)
@@ -194,6 +198,13 @@ def inputs(m, wk, t):
     schedules.input_eval(m[22], m[23], t, wk[4])
 
 
+@ejit
+def input_values(m, wk, t):
+    """:func:`inputs` for callers in Python (an inlined function called from Python would be
+    compiled again on its own)."""
+    inputs(m, wk, t)
+
+
 @inline
 def _accel(m, wk, t, full):
     """Forward dynamics at ``(t, wk.q, wk.v)`` into ``wk[7]`` (nv,) (inputs evaluated here);
@@ -248,9 +259,10 @@ def _accel(m, wk, t, full):
     return OK
 
 
-@ejit
+@ejit_inner
 def rhs(m, wk, t, y, out):
-    """``out = dy/dt`` (2 nA,) at ``(t, y)``; returns the status (``out`` undefined unless OK)."""
+    """``out = dy/dt`` (2 nA,) at ``(t, y)``; returns the status (``out`` undefined unless OK).
+    Compiled callers only (no CPython wrapper)."""
     idx = m[13]
     nA = idx.shape[0]
     configuration(m, wk, wk[2], y)
@@ -272,11 +284,12 @@ def rhs(m, wk, t, y, out):
     return OK
 
 
-@ejit
+@ejit_inner
 def jacobian(m, wk, t, y, f0, Jq, Jv):
     """The exact Jacobian blocks of ``dv_A/dt``: ``Jq = da_A/d(delta)`` and ``Jv = da_A/dv_A``
     (nA, nA) at ``(t, y)`` (:func:`qchain.derivatives.aba_derivatives`; configuration
-    derivatives along ``integrate``, exact at ``delta_B = 0``), and ``f0 = dy/dt`` there."""
+    derivatives along ``integrate``, exact at ``delta_B = 0``), and ``f0 = dy/dt`` there.
+    Compiled callers only (no CPython wrapper)."""
     alpha, w, offs, mass, radius, l0, EI, EA, beta, A_ch, r_ch, paper_act, locked = m[:13]
     idx = m[13]
     kind = m[14]
@@ -304,11 +317,12 @@ def jacobian(m, wk, t, y, f0, Jq, Jv):
     return OK
 
 
-@ejit
+@ejit_inner
 def energies(m, wk, t, q, v):
     """``(kinetic, potential)`` (J) at ``(t, q, v)``: ``1/2 sum_j xi_j^T M_xi_j xi_j`` (the
     base's own motion included), gravity about the world origin plus the elastic energy.
-    One pass over the segments (blocks, tip maps, node positions); ``q``, ``v`` full (nq,), (nv,)."""
+    One pass over the segments (blocks, tip maps, node positions); ``q``, ``v`` full (nq,), (nv,).
+    Compiled callers only (no CPython wrapper): from Python, :func:`energies_batch`."""
     alpha, w, offs, mass, radius, l0, EI, EA = m[0], m[1], m[2], m[3], m[4], m[5], m[6], m[7]
     kind = m[14]
     g_W = m[15]

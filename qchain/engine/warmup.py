@@ -36,7 +36,8 @@ def is_cached(dispatcher) -> bool | None:
 def _needed(method: str) -> tuple:
     from .. import derivatives, planar, recursive
 
-    return (steppers.ADVANCE[method], system.energies_batch, recursive.aba_workspace, derivatives.rnea_workspace,
+    return (steppers.ADVANCE[method], system.energies_batch, system.input_values, recursive.aba_workspace,
+            derivatives.rnea_workspace,
             derivatives.aba_derivatives_workspace, planar.planar_workspace)
 
 
@@ -56,5 +57,6 @@ def prepare(method: str, m, wk, it, out, c) -> None:
     """Compile or load what a run of ``method`` calls (its stepper with the system, the
     sample energies) without taking a step."""
     steppers.ADVANCE[method](m, wk, it, out, c, it[4][steppers.T], 0, 0)  # no output, no step
+    system.input_values(m, wk, it[4][steppers.T])
     e = np.zeros(0)
     system.energies_batch(m, wk, e, np.zeros((0, wk[0].size)), np.zeros((0, wk[1].size)), e, e.copy())
