@@ -3,6 +3,7 @@
 Writes into ``--out`` (default ``out/bench``): ``work_precision.{csv,png}``,
 ``cosserat_release.{csv,png}`` (PyElastica part only with the ``bench`` extra installed),
 ``release.{csv,png}`` (qchain against MuJoCo at equal accuracy; needs the ``bench`` extra's mujoco),
+``reduced.csv`` (full against planar and inextensible models),
 ``static_cantilever.{csv,png}``,
 ``scaling.{csv,png}``, ``derivatives.csv``, ``stability_map.{csv,png}``. ``--quick`` shortens every study.
 
@@ -22,15 +23,15 @@ HERE = Path(__file__).resolve().parent
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="qchain bench", description=__doc__.splitlines()[0])
-    ap.add_argument("--quick", action="store_true", help="short runs (under two minutes in all)")
+    ap.add_argument("--quick", action="store_true", help="short runs (a few minutes in all)")
     ap.add_argument("--out", type=Path, default=Path("out/bench"), help="folder for the CSV and PNG files")
     ap.add_argument("--only", nargs="+",
-                    choices=["precision", "cosserat", "release", "static", "scaling", "derivatives", "stability"],
+                    choices=["precision", "cosserat", "release", "reduced", "static", "scaling", "derivatives", "stability"],
                     help="run only these studies")
     args = ap.parse_args(argv)
     sys.path.insert(0, str(HERE))
     args.out.mkdir(parents=True, exist_ok=True)
-    todo = args.only or ["precision", "cosserat", "release", "static", "scaling", "derivatives", "stability"]
+    todo = args.only or ["precision", "cosserat", "release", "reduced", "static", "scaling", "derivatives", "stability"]
     t_all = time.perf_counter()
     for name in todo:
         t0 = time.perf_counter()
@@ -51,6 +52,8 @@ def main(argv=None) -> int:
                 print(f"skipping the MuJoCo comparison (the `bench` extra: pip install mujoco): {err}")
                 continue
             importlib.import_module("bench_release").run(args.quick, args.out)
+        elif name == "reduced":
+            importlib.import_module("bench_reduced").run(args.quick, args.out)
         elif name == "static":
             importlib.import_module("bench_static").run(args.quick, args.out)
         elif name == "scaling":

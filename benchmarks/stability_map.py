@@ -33,6 +33,8 @@ QUICK_ROWS = [  # --quick: fewer rows
     ("RK45 / paper coords", "RK45", "paper"),
 ]
 ROWS = [  # (label, method, coords)
+    ("radau5", "radau5", "curvature"),
+    ("dopri5", "dopri5", "curvature"),
     ("Radau", "Radau", "curvature"),
     ("BDF", "BDF", "curvature"),
     ("RK45", "RK45", "curvature"),

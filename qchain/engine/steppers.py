@@ -105,8 +105,9 @@ def integrator(nA: int, nq: int) -> tuple:
 def _f(m, wk, it, t, y, out):
     it[5][NFEV] += 1
     st = system.rhs(m, wk, t, y, out)
-    if st != 0:
-        it[4][T_FAIL] = t  # where the last evaluation failed, for the message
+    if st != 0:  # where and why the last evaluation failed, for the message if the run stops
+        it[4][T_FAIL] = t
+        it[5][LAST_ST] = st
     return st
 
 
@@ -743,6 +744,7 @@ def advance_radau5(m, wk, it, out, c, t_stop, max_out, max_steps):
                 continue
             break
         # accepted
+        cnt[LAST_ST] = 0
         recompute_jac = n_iter > 2 and rate > 1e-3
         fac = min(MAX_FACTOR, safety * _predict(h, tf, en))
         if not recompute_jac and fac < 1.2:
