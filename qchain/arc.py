@@ -38,6 +38,7 @@ from math import factorial
 
 import numba
 import numpy as np
+from numba.extending import register_jitable
 
 from .spatial import inv_adjoint
 
@@ -51,6 +52,16 @@ _G_COEF = np.array(
 )
 
 jit = numba.njit(cache=True, fastmath=False, error_model="numpy")
+
+#: The kernels' private helpers (what only compiled code calls). numba types a constant argument
+#: (a size, an offset, a flag) as a literal and compiles a ``jit`` function once more for every
+#: distinct one (``take2`` had ten specialisations, each a full compile); a ``register_jitable``
+#: function is typed with the non-literal types first, so it is compiled once per argument types
+#: (and per set of its callers' compiler flags: ``jit`` callers, helper callers, callers without
+#: reference counting). It gets no CPython or C wrapper and no cache files of its own (it is
+#: compiled into its callers, which are cached), which makes it cheaper to compile than a ``jit``
+#: function. Called from Python it runs as plain Python.
+jit_helper = register_jitable(fastmath=False, error_model="numpy", no_cfunc_wrapper=True)
 
 
 @jit
@@ -85,7 +96,7 @@ def _bend(x):
     )
 
 
-@jit
+@jit_helper
 def _mcross(a, b):
     """Motion cross product ``a x b`` of 6-tuples ``[linear; angular]``."""
     return (
@@ -98,7 +109,7 @@ def _mcross(a, b):
     )
 
 
-@jit
+@jit_helper
 def _write_pose(a1, a2, ux, uy, R, p):
     """``R = I + a1 [w] + a2 [w]^2`` with ``w = (-uy, ux, 0)`` (``[w]^2 = w w^T - |w|^2 I``)
     and ``p = (a2 ux, a2 uy, a1)``, into ``R`` (3, 3) and ``p`` (3,)."""
@@ -264,19 +275,19 @@ def arc_nodes(alpha, q, qdot=None) -> ArcNodes:
 SCRATCH = 2048
 
 
-@jit
+@jit_helper
 def take1(sc, o, k):
     """``(sc[o:o+k], o + k)``: a vector of scratch, no allocation."""
     return sc[o : o + k], o + k
 
 
-@jit
+@jit_helper
 def take2(sc, o, r, c):
     """A (r, c) matrix of scratch from offset ``o`` and the next offset."""
     return sc[o : o + r * c].reshape((r, c)), o + r * c
 
 
-@jit
+@jit_helper
 def take3(sc, o, a, b, c):
     """An (a, b, c) array of scratch from offset ``o`` and the next offset."""
     return sc[o : o + a * b * c].reshape((a, b, c)), o + a * b * c

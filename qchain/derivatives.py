@@ -35,8 +35,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from .arc import arc_node, jit, take1, take2, take3
+from .arc import arc_node, jit, jit_helper, take1, take2, take3
 from .recursive import _chol as recursive_chol
+from .recursive import _load_xi
 from .recursive import _project as recursive_project
 from .recursive import aba as recursive_aba
 from .recursive import aba_workspace as recursive_aba_workspace
@@ -58,7 +59,7 @@ __all__ = ["segment_derivatives", "tip_derivatives", "rnea_derivatives", "rnea_w
            "aba_derivatives_workspace", "internal_forces_derivatives", "input_matrices"]
 
 
-@jit
+@jit_helper
 def _cross(a, b, out):
     """``out = a x b`` (motion cross product, 6-vectors ``[linear; angular]``)."""
     out[0] = a[4] * b[2] - a[5] * b[1] + a[1] * b[5] - a[2] * b[4]
@@ -69,7 +70,7 @@ def _cross(a, b, out):
     out[5] = a[3] * b[4] - a[4] * b[3]
 
 
-@jit
+@jit_helper
 def _fcross(a, h, out):
     """``out = a x* h`` (force cross product: ``(w x f, v x f + w x n)``)."""
     out[0] = a[4] * h[2] - a[5] * h[1]
@@ -80,7 +81,7 @@ def _fcross(a, h, out):
     out[5] = a[0] * h[1] - a[1] * h[0] + a[3] * h[4] - a[4] * h[3]
 
 
-@jit
+@jit_helper
 def _ad_twist(R, p, v, out):
     """``out = Ad(X) v`` for ``X = (R, p)``: ``(R v_l + p x R v_a, R v_a)``."""
     for r in range(3):
@@ -92,7 +93,7 @@ def _ad_twist(R, p, v, out):
     out[2] += p[0] * w1 - p[1] * w0
 
 
-@jit
+@jit_helper
 def _ad_force(R, p, f, out):
     """``out = Ad(X)^-T f``: a wrench in X's frame expressed in its parent, ``(R f_l, p x R f_l + R f_a)``."""
     for r in range(3):
@@ -104,7 +105,7 @@ def _ad_force(R, p, f, out):
     out[5] += p[0] * l1 - p[1] * l0
 
 
-@jit
+@jit_helper
 def _force_variation(Id, V, hV, dV, da, t, h, df):
     """``df = I da + dV x* (I V) + V x* (I dV)``: the slice force's variation (``I = diag(Id)``,
     ``hV = I V``); ``t``, ``h`` (6,) are scratch."""
@@ -117,7 +118,7 @@ def _force_variation(Id, V, hV, dV, da, t, h, df):
         df[r] += h[r]
 
 
-@jit
+@jit_helper
 def _node_state(R, p, S, Sd, V0, A0, qd, qdd, Vr, Ar, rel, V, a, z3, t):
     """Slice twist ``V`` and acceleration ``a`` (and ``Vr = Ad^-1 V0``, ``Ar = Ad^-1 A0``,
     ``rel = S qdot``) at a node whose kinematics ``R, p, S, Sd`` are known; ``z3`` (3,) zeros,
@@ -135,28 +136,28 @@ def _node_state(R, p, S, Sd, V0, A0, qd, qdd, Vr, Ar, rel, V, a, z3, t):
         Ar[r] -= S[r, 0] * qdd[0] + S[r, 1] * qdd[1] + S[r, 2] * qdd[2]
 
 
-@jit
+@jit_helper
 def _q_variation(c, S, dS, K, qd, qdd, Vr, Ar, rel, dV, da, t1, t2, h):
     """``dV, da`` of a slice for a unit change of ``q_c`` (fixed root twist and acceleration);
     ``t1, t2, h`` (6,) scratch."""
     for r in range(6):
         t2[r] = dS[c, r, 0] * qd[0] + dS[c, r, 1] * qd[1] + dS[c, r, 2] * qd[2]  # dS_c qd
-    Sc = S[:, c]
-    _cross(Sc, Vr, t1)  # S_c x Vr
+        da[r] = S[r, c]  # S_c, contiguous (a column view would compile _cross once more)
+    _cross(da, Vr, t1)  # S_c x Vr
     for r in range(6):
         dV[r] = -t1[r] + t2[r]
     _cross(rel, t1, h)  # rel x (S_c x Vr)
+    _cross(da, Ar, t1)  # S_c x Ar
     for r in range(6):
         da[r] = h[r] + K[c, r] + dS[c, r, 0] * qdd[0] + dS[c, r, 1] * qdd[1] + dS[c, r, 2] * qdd[2]
     _cross(t2, Vr, h)
     for r in range(6):
         da[r] -= h[r]
-    _cross(Sc, Ar, h)
     for r in range(6):
-        da[r] -= h[r]
+        da[r] -= t1[r]
 
 
-@jit
+@jit_helper
 def _qd_variation(c, S, Sd, V, dV, da, h):
     """``dV, da`` of a slice for a unit change of ``qdot_c``: ``S_c`` and ``2 Sd_c - S_c x V``."""
     for r in range(6):
@@ -174,6 +175,13 @@ def segment_derivatives(alpha, w, mass, radius, q, xi, xid, M, Q, QqT, QxT, sc):
     ``QqT[c]`` (3, 9) ``= dQ/dq_c`` at fixed ``xi = (V_root, qdot)`` and ``xid = (A_root,
     qddot)``; ``QxT[k]`` (9, 9) ``= dQ/dxi_k`` at fixed ``xid`` (``dQ/dxid = M_xi``).
     """
+    _segment_derivatives(alpha, w, mass, radius, q, xi, xid, M, Q, QqT, QxT, sc)
+
+
+@jit_helper
+def _segment_derivatives(alpha, w, mass, radius, q, xi, xid, M, Q, QqT, QxT, sc):
+    """:func:`segment_derivatives`, the body the kernels call: compiled into them, without a
+    Python entry point (:data:`qchain.arc.jit_helper`)."""
     o = 0
     R, o = take2(sc, o, 3, 3)
     p, o = take1(sc, o, 3)
@@ -276,7 +284,7 @@ def segment_derivatives(alpha, w, mass, radius, q, xi, xid, M, Q, QqT, QxT, sc):
     mass_finish(M, mp, Irot, mass * wsum)
 
 
-@jit
+@jit_helper
 def _velocity_force_matrix(Id, V, hV, rel, E):
     """``E = d f / d V`` (6, 6) of a slice force ``f = I a + V x* I V`` whose acceleration moves
     with its twist as ``da = -rel x dV``: ``[I V] x*bar + [V x*] I - I ad(rel)``."""
@@ -298,7 +306,7 @@ def _velocity_force_matrix(Id, V, hV, rel, E):
     _add_skew_rows(E, 3, 3, rel[3], rel[4], rel[5], Id, 3)
 
 
-@jit
+@jit_helper
 def _add_skew(E, r0, c0, x, y, z, scale):
     """``E[r0:r0+3, c0:c0+3] += scale [(x, y, z)]x``."""
     E[r0, c0 + 1] -= scale * z
@@ -309,7 +317,7 @@ def _add_skew(E, r0, c0, x, y, z, scale):
     E[r0 + 2, c0 + 1] += scale * x
 
 
-@jit
+@jit_helper
 def _add_skew_cols(E, r0, c0, x, y, z, Id, i0):
     """``E[r0:r0+3, c0:c0+3] += [(x, y, z)]x diag(Id[i0:i0+3])``."""
     E[r0, c0 + 1] -= z * Id[i0 + 1]
@@ -320,7 +328,7 @@ def _add_skew_cols(E, r0, c0, x, y, z, Id, i0):
     E[r0 + 2, c0 + 1] += x * Id[i0 + 1]
 
 
-@jit
+@jit_helper
 def _add_skew_rows(E, r0, c0, x, y, z, Id, i0):
     """``E[r0:r0+3, c0:c0+3] -= diag(Id[i0:i0+3]) [(x, y, z)]x``."""
     E[r0, c0 + 1] += z * Id[i0]
@@ -340,6 +348,13 @@ def tip_derivatives(q, qd, qdd, V0, A0, T, R1, p1, V1, A1, rel1, tipV, tipA, dS1
     ``tipV[k], tipA[k]`` (6, 6): their variations for ``k < 3`` a unit ``q_k``, ``k >= 3`` a unit
     ``qdot_(k-3)`` (fixed root twist and acceleration); ``dS1`` (3, 6, 3) ``= dS(1)/dq``.
     """
+    _tip_derivatives(q, qd, qdd, V0, A0, T, R1, p1, V1, A1, rel1, tipV, tipA, dS1, sc)
+
+
+@jit_helper
+def _tip_derivatives(q, qd, qdd, V0, A0, T, R1, p1, V1, A1, rel1, tipV, tipA, dS1, sc):
+    """:func:`tip_derivatives`, the body the kernels call: compiled into them, without a
+    Python entry point (:data:`qchain.arc.jit_helper`)."""
     o = 0
     S, o = take2(sc, o, 6, 3)
     Sd, o = take2(sc, o, 6, 3)
@@ -388,6 +403,13 @@ def rnea_derivatives(alpha, w, offs, mass, radius, q, qd, qdd, V0, A0, floating,
     / twist, then the segments), and ``M`` (nv, nv) ``= d(F0, tau)/da``. ``g_B`` (3,) is gravity
     in the first root's frame (it turns with a floating base).
     """
+    _rnea_derivatives(alpha, w, offs, mass, radius, q, qd, qdd, V0, A0, floating, g_B, ws, wd, sc)
+
+
+@jit_helper
+def _rnea_derivatives(alpha, w, offs, mass, radius, q, qd, qdd, V0, A0, floating, g_B, ws, wd, sc):
+    """:func:`rnea_derivatives`, the body the kernels call: compiled into them, without a
+    Python entry point (:data:`qchain.arc.jit_helper`)."""
     n = q.shape[0]
     off = 6 if floating else 0
     V, T, _, Q, Mxi, _, _, _, _ = ws
@@ -398,20 +420,21 @@ def rnea_derivatives(alpha, w, offs, mass, radius, q, qd, qdd, V0, A0, floating,
     p1, o = take1(sc, o, 3)
     xi, o = take1(sc, o, 9)
     xid, o = take1(sc, o, 9)
-    V[0] = V0
-    A[0] = A0
-    Rw[0] = np.eye(3)
+    for r in range(6):
+        V[0, r] = V0[r]
+        A[0, r] = A0[r]
+    for r in range(3):
+        for s in range(3):
+            Rw[0, r, s] = 1.0 if r == s else 0.0
     pw[0] = 0.0
     for j in range(n):
-        xi[:6] = V[j]
-        xi[6:] = qd[j]
-        xid[:6] = A[j]
-        xid[6:] = qdd[j]
+        _load_xi(xi, V[j], qd[j])
+        _load_xi(xid, A[j], qdd[j])
         a0, a1 = offs[j], offs[j + 1]
-        segment_derivatives(alpha[a0:a1], w[a0:a1], mass[j], radius[j], q[j], xi, xid, Mxi[j], Q[j], QqT[j], QxT[j],
-                            sc[o:])
-        tip_derivatives(q[j], qd[j], qdd[j], V[j], A[j], T[j], R1, p1, V[j + 1], A[j + 1], rel1[j], tipV[j],
-                        tipA[j], dS1[j], sc[o:])
+        _segment_derivatives(alpha[a0:a1], w[a0:a1], mass[j], radius[j], q[j], xi, xid, Mxi[j], Q[j], QqT[j], QxT[j],
+                             sc[o:])
+        _tip_derivatives(q[j], qd[j], qdd[j], V[j], A[j], T[j], R1, p1, V[j + 1], A[j + 1], rel1[j], tipV[j],
+                         tipA[j], dS1[j], sc[o:])
         for r in range(3):
             acc = pw[j, r]
             for s in range(3):
@@ -479,7 +502,9 @@ def rnea_derivatives(alpha, w, offs, mass, radius, q, qd, qdd, V0, A0, floating,
             if col < 3:
                 for k in range(9):
                     D[col, k] = QqT[j, col, k]
-                _fcross(Tj[:, 6 + col], F, t1)  # S1_c x* F
+                for r in range(6):
+                    t2[r] = Tj[r, 6 + col]
+                _fcross(t2, F, t1)  # S1_c x* F
                 for r in range(6):
                     acc = 0.0
                     for k in range(6):
@@ -523,7 +548,9 @@ def rnea_derivatives(alpha, w, offs, mass, radius, q, qd, qdd, V0, A0, floating,
             _ad_force(Rw[j], pw[j], t1, Ms[j, b])
             for a in range(3):
                 M[i0 + a, i0 + b] = Mh[6 + a, 6 + b]
-            _ad_twist(Rw[j + 1], pw[j + 1], Tj[:, 6 + b], Jw[j, b])
+            for r in range(6):
+                t2[r] = Tj[r, 6 + b]
+            _ad_twist(Rw[j + 1], pw[j + 1], t2, Jw[j, b])
         _ad_twist(Rw[j + 1], pw[j + 1], V[j + 1], vW)
         for col in range(6):
             _ad_twist(Rw[j + 1], pw[j + 1], tipV[j, col], sig1[j, col])
@@ -539,7 +566,8 @@ def rnea_derivatives(alpha, w, offs, mass, radius, q, qd, qdd, V0, A0, floating,
                 WF[r, s] = Wj[r, s]
         for b in range(3):
             tau[j, b] = Q[j, 6 + b] + TF[6 + b]
-    F0[:] = F
+    for r in range(6):
+        F0[r] = F[r]
     # ---------------------------------------------------------------- assembly, O(n^2)
     for i in range(n):
         ri = off + 3 * i
@@ -617,6 +645,13 @@ def internal_forces_derivatives(q, p, l0, EI, EA, beta, A_ch, r_ch, paper_act, d
     """Derivatives of the internal forces ``f = B p - D qd - dU_el/dq`` of
     :func:`qchain.recursive.internal_forces` (material law, curvature coordinates):
     ``dfq[j] = d(B p)/dq - d^2 U_el/dq^2`` and ``dfv[j] = -D`` (n, 3, 3)."""
+    _internal_forces_derivatives(q, p, l0, EI, EA, beta, A_ch, r_ch, paper_act, dfq, dfv, sc)
+
+
+@jit_helper
+def _internal_forces_derivatives(q, p, l0, EI, EA, beta, A_ch, r_ch, paper_act, dfq, dfv, sc):
+    """:func:`internal_forces_derivatives`, the body the kernels call: compiled into them, without a
+    Python entry point (:data:`qchain.arc.jit_helper`)."""
     o = 0
     Kp, o = take2(sc, o, 3, 3)
     H, o = take2(sc, o, 3, 3)
@@ -634,6 +669,13 @@ def internal_forces_derivatives(q, p, l0, EI, EA, beta, A_ch, r_ch, paper_act, d
 @jit
 def input_matrices(q, A_ch, r_ch, paper_act, B, sc):
     """``B[j]`` (3, 3) the input matrix of every segment (:func:`qchain.slices.input_matrix_c`)."""
+    _input_matrices(q, A_ch, r_ch, paper_act, B, sc)
+
+
+@jit_helper
+def _input_matrices(q, A_ch, r_ch, paper_act, B, sc):
+    """:func:`input_matrices`, the body the kernels call: compiled into them, without a
+    Python entry point (:data:`qchain.arc.jit_helper`)."""
     for j in range(q.shape[0]):
         input_matrix_c(q[j], A_ch[j], r_ch[j], paper_act[j], B[j], sc)
 
@@ -651,7 +693,7 @@ def aba_derivatives_workspace(n, nv):
             np.zeros((n, 3, 3)), np.zeros((n, 3, 3)))
 
 
-@jit
+@jit_helper
 def _zero_locked(locked, off, X, rows, cols):
     """Zero the rows and/or columns of ``X`` (nv, nv) at the locked coordinates ``locked``
     (n, 3) (indices ``off + 3 j + b``)."""
@@ -665,7 +707,7 @@ def _zero_locked(locked, off, X, rows, cols):
                     X[r, k] = 0.0
 
 
-@jit
+@jit_helper
 def _copy2(src, dst):
     """``dst[:, :] = src`` element by element (no compile of numba's slice-assignment checks)."""
     for r in range(src.shape[0]):
@@ -673,7 +715,7 @@ def _copy2(src, dst):
             dst[r, c] = src[r, c]
 
 
-@jit
+@jit_helper
 def _matmul(A, B, out):
     """``out = A B`` by loops (row by row, so the inner loop runs along rows of ``B`` and
     ``out``): ``np.dot`` with ``out`` needs numba's reference counting, which the compiled
@@ -688,7 +730,7 @@ def _matmul(A, B, out):
                     out[r, c] += a * B[k, c]
 
 
-@jit
+@jit_helper
 def _chol_inverse(L, k, Minv):
     """``Minv = (L L^T)^-1`` (k, k) from the lower Cholesky factor ``L``, which is overwritten
     by its own inverse (lower)."""
@@ -755,9 +797,9 @@ def aba_derivatives(alpha, w, offs, mass, radius, l0, EI, EA, beta, A_ch, r_ch, 
     for j in range(n):
         for b in range(3):
             a[off + 3 * j + b] = qdd[j, b]
-    rnea_derivatives(alpha, w, offs, mass, radius, q, qd, qdd, V0, A0, floating, g_B, ws, wd, sc)
-    internal_forces_derivatives(q, p, l0, EI, EA, beta, A_ch, r_ch, paper_act, dfq, dfv, sc)
-    input_matrices(q, A_ch, r_ch, paper_act, B, sc)
+    _rnea_derivatives(alpha, w, offs, mass, radius, q, qd, qdd, V0, A0, floating, g_B, ws, wd, sc)
+    _internal_forces_derivatives(q, p, l0, EI, EA, beta, A_ch, r_ch, paper_act, dfq, dfv, sc)
+    _input_matrices(q, A_ch, r_ch, paper_act, B, sc)
     # right-hand sides df - dID, the free block of M with locked coordinates decoupled
     for r in range(nv):
         for c in range(nv):
@@ -826,5 +868,5 @@ def rnea_derivatives_fresh(alpha, w, offs, mass, radius, q, qd, qdd, V0, A0, flo
     nv = (6 if floating else 0) + 3 * n
     ws = recursive_aba_workspace(n, nv)
     wd = rnea_workspace(n, nv)
-    rnea_derivatives(alpha, w, offs, mass, radius, q, qd, qdd, V0, A0, floating, g_B, ws, wd, ws[8])
+    _rnea_derivatives(alpha, w, offs, mass, radius, q, qd, qdd, V0, A0, floating, g_B, ws, wd, ws[8])
     return wd[16], wd[17], wd[19], wd[20], wd[18]

@@ -35,8 +35,11 @@ if TYPE_CHECKING:
 
 __all__ = ["InverseDynamicsDerivatives", "ForwardDynamicsDerivatives"]
 
-_ZERO6 = np.zeros(6)  # a still base's twist or acceleration (read-only, shared)
-_ZERO6.flags.writeable = False
+# A still base's twist or acceleration, shared and only ever read (the kernels read V0, F0,
+# A_B). Writable on purpose: numba types a read-only array apart from a writable one, so a
+# read-only zero here compiled a second specialisation of every kernel it reaches (aba,
+# aba_derivatives, rnea_derivatives: ~15 s of the first run's compile).
+_ZERO6 = np.zeros(6)
 
 
 class InverseDynamicsDerivatives(NamedTuple):

@@ -29,13 +29,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from .arc import SCRATCH, arc_node, arc_pose, jit, take1, take2
-from .slices import domain_violation, elastic_gradient_c, input_matrix_c, rest_damping_c, phi_matrix, segment_slices, slice_twist, sub_motion_cross
+from .arc import SCRATCH, arc_node, arc_pose, jit, jit_helper, take1, take2
+from .slices import _segment_slices, domain_violation, elastic_gradient_c, input_matrix_c, rest_damping_c, phi_matrix, slice_twist, sub_motion_cross
 
 __all__ = ["rnea", "crba", "aba", "tip_maps", "frames", "internal_forces", "first_invalid"]
 
 
-@jit
+@jit_helper
 def _tip(q, qd, xi, T, c, sc):
     """Tip map ``T = Phi(1)`` (6, 9) and tip bias acceleration ``c = Phidot(1) xi`` (6,)."""
     o = 0
@@ -56,13 +56,24 @@ def _tip(q, qd, xi, T, c, sc):
     sub_motion_cross(rel, Vr, c)
 
 
-@jit
+@jit_helper
 def _matvec(T, x, out):
     for r in range(T.shape[0]):
         acc = 0.0
         for k in range(T.shape[1]):
             acc += T[r, k] * x[k]
         out[r] = acc
+
+
+@jit_helper
+def _load_xi(xi, V, qd):
+    """``xi = (V, qd)`` (9,) from a twist (6,) and a segment velocity (3,), element by element:
+    an array-to-array slice assignment (``xi[:6] = V``) costs a compile of numba's shape-mismatch
+    error message (string formatting, seconds) and its code in every kernel library."""
+    for r in range(6):
+        xi[r] = V[r]
+    for r in range(3):
+        xi[6 + r] = qd[r]
 
 
 @jit
@@ -72,10 +83,10 @@ def tip_maps(q, qd, V0, T, c, V):
     n = q.shape[0]
     sc = np.empty(SCRATCH)  # called from Python, once per call
     xi, o = take1(sc, 0, 9)
-    V[0, :] = V0
+    for r in range(6):
+        V[0, r] = V0[r]
     for j in range(n):
-        xi[:6] = V[j]
-        xi[6:] = qd[j]
+        _load_xi(xi, V[j], qd[j])
         _tip(q[j], qd[j], xi, T[j], c[j], sc[o:])
         _matvec(T[j], xi, V[j + 1])
 
@@ -94,19 +105,18 @@ def rnea(alpha, w, offs, mass, radius, q, qd, qdd, V0, A0, tau, F0, ws, sc):
     xi, o = take1(sc, o, 9)
     xid, o = take1(sc, o, 9)
     V, o = take1(sc, o, 6)
-    V[:] = V0
     A, o = take1(sc, o, 6)
-    A[:] = A0
+    for r in range(6):
+        V[r] = V0[r]
+        A[r] = A0[r]
     Mdummy, o = take2(sc, o, 1, 1)
     F, o = take1(sc, o, 6)
     out, o = take1(sc, o, 9)
     for j in range(n):
-        xi[:6] = V
-        xi[6:] = qd[j]
-        xid[:6] = A
-        xid[6:] = qdd[j]
-        segment_slices(alpha[offs[j] : offs[j + 1]], w[offs[j] : offs[j + 1]], mass[j], radius[j], q[j], xi, xid,
-                       False, Mdummy, Q[j], sc[o:])
+        _load_xi(xi, V, qd[j])
+        _load_xi(xid, A, qdd[j])
+        _segment_slices(alpha[offs[j] : offs[j + 1]], w[offs[j] : offs[j + 1]], mass[j], radius[j], q[j], xi, xid,
+                        False, Mdummy, Q[j], sc[o:])
         _tip(q[j], qd[j], xi, T[j], c[j], sc[o:])
         _matvec(T[j], xi, V)
         _matvec(T[j], xid, A)
@@ -122,10 +132,11 @@ def rnea(alpha, w, offs, mass, radius, q, qd, qdd, V0, A0, tau, F0, ws, sc):
             F[r] = Q[j, r] + out[r]
         for r in range(3):
             tau[j, r] = Q[j, 6 + r] + out[6 + r]
-    F0[:] = F
+    for r in range(6):
+        F0[r] = F[r]
 
 
-@jit
+@jit_helper
 def _project(M, T, I, IT, out):
     """``out = M + T^T I T`` (9, 9): a segment's 9x9 block with the inertia ``I`` (6, 6) of what
     hangs beyond its tip carried to its root through the tip map ``T`` (6, 9); ``IT`` (6, 9)
@@ -175,8 +186,8 @@ def crba(alpha, w, offs, mass, radius, q, floating, H, ws, sc):
     Fn, o = take2(sc, o, 6, 3)
     H[:, :] = 0.0
     for j in range(n - 1, -1, -1):
-        segment_slices(alpha[offs[j] : offs[j + 1]], w[offs[j] : offs[j + 1]], mass[j], radius[j], q[j], z9, z9,
-                       True, Mj, Q, sc[o:])
+        _segment_slices(alpha[offs[j] : offs[j + 1]], w[offs[j] : offs[j + 1]], mass[j], radius[j], q[j], z9, z9,
+                        True, Mj, Q, sc[o:])
         _project(Mj, T[j], Ic, IcT, Mh)
         i0 = off + 3 * j
         for a in range(3):
@@ -197,7 +208,9 @@ def crba(alpha, w, offs, mass, radius, q, floating, H, ws, sc):
                         H[i0 + b, k0 + a - 6] = acc
                     else:
                         Fn[a, b] = acc
-            F[:, :] = Fn
+            for a in range(6):
+                for b in range(3):
+                    F[a, b] = Fn[a, b]
         if floating:
             for r in range(6):
                 for b in range(3):
@@ -212,7 +225,7 @@ def crba(alpha, w, offs, mass, radius, q, floating, H, ws, sc):
                 H[r, s] = Ic[r, s]
 
 
-@jit
+@jit_helper
 def _chol(A, k):
     """In-place Cholesky ``A = L L^T`` of the leading ``k x k`` block (lower triangle). False if not SPD."""
     for j in range(k):
@@ -231,7 +244,7 @@ def _chol(A, k):
     return True
 
 
-@jit
+@jit_helper
 def _chol_solve(L, k, b):
     """Solve ``L L^T x = b`` in place (``b`` of length k)."""
     for i in range(k):
@@ -266,7 +279,8 @@ def aba(alpha, w, offs, mass, radius, q, qd, tau, V0, A0, floating, F0, qdd, A0_
     z9, o = take1(sc, o, 9)
     z9[:] = 0.0
     V, o = take1(sc, o, 6)
-    V[:] = V0
+    for r in range(6):
+        V[r] = V0[r]
     IA, o = take2(sc, o, 6, 6)
     pA, o = take1(sc, o, 6)
     DiUt, o = take2(sc, o, 3, 6)
@@ -280,10 +294,9 @@ def aba(alpha, w, offs, mass, radius, q, qd, tau, V0, A0, floating, F0, qdd, A0_
     xid, o = take1(sc, o, 9)
     # pass 1: velocities, segment blocks and biases
     for j in range(n):
-        xi[:6] = V
-        xi[6:] = qd[j]
-        segment_slices(alpha[offs[j] : offs[j + 1]], w[offs[j] : offs[j + 1]], mass[j], radius[j], q[j], xi, z9,
-                       True, Mall[j], b[j], sc[o:])
+        _load_xi(xi, V, qd[j])
+        _segment_slices(alpha[offs[j] : offs[j + 1]], w[offs[j] : offs[j + 1]], mass[j], radius[j], q[j], xi, z9,
+                        True, Mall[j], b[j], sc[o:])
         _tip(q[j], qd[j], xi, T[j], c[j], sc[o:])
         _matvec(T[j], xi, V)
     # pass 2: articulated inertias, backwards
@@ -341,15 +354,19 @@ def aba(alpha, w, offs, mass, radius, q, qd, tau, V0, A0, floating, F0, qdd, A0_
                 IA[r, s] = acc
     # pass 3: accelerations, forwards
     if floating:
-        L6[:, :] = IA
+        for r in range(6):
+            for s in range(6):
+                L6[r, s] = IA[r, s]
         if not _chol(L6, 6):
             return False
         for r in range(6):
             A[r] = F0[r] - pA[r]
         _chol_solve(L6, 6, A)
     else:
-        A[:] = A0
-    A0_out[:] = A
+        for r in range(6):
+            A[r] = A0[r]
+    for r in range(6):
+        A0_out[r] = A[r]
     for j in range(n):
         for a in range(3):
             acc = u[j, a]
@@ -357,16 +374,16 @@ def aba(alpha, w, offs, mass, radius, q, qd, tau, V0, A0, floating, F0, qdd, A0_
                 acc -= U[j, r, a] * A[r]
             col[a] = acc
         _chol_solve(Lq[j], 3, col)
-        qdd[j, :] = col
-        xid[:6] = A
-        xid[6:] = col
+        for a in range(3):
+            qdd[j, a] = col[a]
+        _load_xi(xid, A, col)
         _matvec(T[j], xid, A)
         for r in range(6):
             A[r] += c[j, r]
     return True
 
 
-@jit
+@jit_helper
 def _quaternion(R, out):
     """Unit quaternion ``(x, y, z, w)`` of the rotation ``R`` (3, 3) into ``out`` (4,), with
     ``w >= 0`` (Pinocchio's ``Quaternion(R).coeffs()`` up to that sign); each entry from the
@@ -426,8 +443,12 @@ def frames(q, paper, R0, o0, alpha, R, o, quat, points):
     Rs = np.empty((3, 3))
     ps = np.empty(3)
     for k in range(K):
-        R[k, 0] = R0[min(k, R0.shape[0] - 1)]
-        o[k, 0] = o0[min(k, o0.shape[0] - 1)]
+        k0 = min(k, R0.shape[0] - 1)
+        k1 = min(k, o0.shape[0] - 1)
+        for r in range(3):
+            o[k, 0, r] = o0[k1, r]
+            for c in range(3):
+                R[k, 0, r, c] = R0[k0, r, c]
         for j in range(n):
             l = q[k, j, 0]
             if paper[j]:

@@ -18,14 +18,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from .arc import SCRATCH, arc_node, jit, take1, take2, take3
+from .arc import SCRATCH, arc_node, jit, jit_helper, take1, take2, take3
 from .arc_derivatives import arc_node_derivatives
 
 __all__ = ["CHAMBER_ANGLES", "input_matrix_c", "pressure_jacobian_c", "elastic_gradient_c", "elastic_hessian_c",
            "rest_damping_c", "domain_violation", "segment_slices", "segment_mass", "segment_newton_euler", "phi_transpose_force", "phi_matrix", "slice_twist"]
 
 
-@jit
+@jit_helper
 def sub_motion_cross(a, b, out):
     """``out -= a x b`` (motion cross product, 6-vectors): the velocity-product part
     ``-(S qdot) x (Ad^-1 V)`` of a slice's bias acceleration."""
@@ -95,6 +95,13 @@ def segment_slices(alpha, w, mass, radius, q, xi, xid, want_mass, M, Q, sc):
     ``want_mass`` also ``M[:] = M_xi`` (9, 9). ``xi = (V_root, qdot)``, ``xid = (A_root, qddot)``;
     ``sc`` is scratch (:data:`qchain.arc.SCRATCH`).
     """
+    _segment_slices(alpha, w, mass, radius, q, xi, xid, want_mass, M, Q, sc)
+
+
+@jit_helper
+def _segment_slices(alpha, w, mass, radius, q, xi, xid, want_mass, M, Q, sc):
+    """:func:`segment_slices`, for the kernels: compiled once for both values of ``want_mass``
+    (a ``jit`` function is compiled once per constant ``True``/``False`` its callers pass)."""
     o = 0
     R, o = take2(sc, o, 3, 3)
     p, o = take1(sc, o, 3)
@@ -155,7 +162,7 @@ def segment_slices(alpha, w, mass, radius, q, xi, xid, want_mass, M, Q, sc):
         mass_finish(M, mp, Irot, m * wsum)
 
 
-@jit
+@jit_helper
 def mass_node(R, p, S, Id, wk, M, mp, Irot, fc):
     """One node's share of ``M_xi = int Phi^T I Phi`` (weight ``wk``): the root block is the
     disk's spatial inertia moved to the root (``[[m, -m[p]], [m[p], R I_d R^T - m[p]^2]]``),
@@ -173,10 +180,26 @@ def mass_node(R, p, S, Id, wk, M, mp, Irot, fc):
     for cc in range(3):
         for r in range(6):
             fc[r] = Id[r] * S[r, cc]
-        phi_transpose_force(R, p, S, fc, wk, M[:, 6 + cc])
+        # M[:, 6 + cc] += wk * Phi^T fc: phi_transpose_force written out, as a column view of M
+        # (non-contiguous) would compile phi_transpose_force a second time
+        k = 6 + cc
+        l0 = R[0, 0] * fc[0] + R[0, 1] * fc[1] + R[0, 2] * fc[2]
+        l1 = R[1, 0] * fc[0] + R[1, 1] * fc[1] + R[1, 2] * fc[2]
+        l2 = R[2, 0] * fc[0] + R[2, 1] * fc[1] + R[2, 2] * fc[2]
+        M[0, k] += wk * l0
+        M[1, k] += wk * l1
+        M[2, k] += wk * l2
+        M[3, k] += wk * (p[1] * l2 - p[2] * l1 + R[0, 0] * fc[3] + R[0, 1] * fc[4] + R[0, 2] * fc[5])
+        M[4, k] += wk * (p[2] * l0 - p[0] * l2 + R[1, 0] * fc[3] + R[1, 1] * fc[4] + R[1, 2] * fc[5])
+        M[5, k] += wk * (p[0] * l1 - p[1] * l0 + R[2, 0] * fc[3] + R[2, 1] * fc[4] + R[2, 2] * fc[5])
+        for c in range(3):
+            acc = 0.0
+            for r in range(6):
+                acc += S[r, c] * fc[r]
+            M[6 + c, k] += wk * acc
 
 
-@jit
+@jit_helper
 def mass_finish(M, mp, Irot, mtot):
     """Complete ``M_xi`` from the sums of :func:`mass_node` (``mtot`` the weighted mass)."""
     for ia in range(3):
@@ -202,14 +225,17 @@ def segment_mass(alpha, w, mass, radius, q, M):
     """``M[:] = M_xi(q)`` (9, 9) in curvature coordinates, by quadrature over the nodes."""
     Q = np.empty(9)
     z = np.zeros(9)
-    segment_slices(alpha, w, mass, radius, q, z, z, True, M, Q, np.empty(SCRATCH))
+    # copies: a Segment's nodes are read-only arrays, which numba types apart from the writable
+    # ones of the kernels (one more compile of _segment_slices)
+    _segment_slices(alpha.copy(), w.copy(), mass, radius, q.copy(), z, z, True, M, Q, np.empty(SCRATCH))
 
 
 @jit
 def segment_newton_euler(alpha, w, mass, radius, q, xi, xid, Q):
     """``Q[:] = M_xi xid + C_xi xi`` (9,), curvature coordinates (see :func:`segment_slices`)."""
     M = np.empty((1, 1))
-    segment_slices(alpha, w, mass, radius, q, xi, xid, False, M, Q, np.empty(SCRATCH))
+    _segment_slices(alpha.copy(), w.copy(), mass, radius, q.copy(), xi.copy(), xid.copy(), False, M, Q,
+                    np.empty(SCRATCH))
 
 
 # --------------------------------------------------------------------------- segment forces
