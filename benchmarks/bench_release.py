@@ -10,7 +10,7 @@ disk (rotary inertia rho I per length) in both codes.
 
 Both codes discretise the same continuum: the shear-rigid, **inextensible** Kirchhoff rod
 (planar Euler elastica dynamics with rotary inertia). Reference: qchain with n = 32 and
-n = 64 inextensible segments (radau5, rtol 1e-10, atol 1e-12), Richardson-extrapolated
+n = 64 inextensible segments (dopri5, rtol 1e-10, atol 1e-12), Richardson-extrapolated
 (both codes converge at second order in the segment/link count: (4 x_64 - x_32) / 3 at
 every sample); ``--quick``: qchain n = 32 alone. Independent check: the MuJoCo link chain
 below with N = 80 and 160 links (``--quick``: 40 and 80) under RK4 at a small step, raw and
@@ -61,7 +61,7 @@ ACCURACY = 1e-3  # m RMS: the headline's accuracy level
 CONVERGED = 2e-4  # m RMS: the headline's time-convergence level
 STOP = 5e-6  # m RMS: a sweep stops after two neighbours this close
 REF_TOL = dict(rtol=1e-10, atol=1e-12)  # qchain reference
-REF_METHOD = "radau5"  # compiled: the n = 64 reference in seconds, not minutes
+REF_METHOD = "dopri5"  # compiled: the n = 64 reference in seconds, not minutes
 
 
 def constants(scene=SCENE) -> dict:

@@ -203,6 +203,7 @@ class Chain:
             raise ValueError(f"planar=True needs curvature coordinates; segments[{j}] has coords='paper'")
         self.planar = bool(planar)
         self._planar_kernel = self.planar and base == "fixed"  # forward dynamics on qchain.planar
+        self._p_zero = np.zeros((n, 3))  # p = None on the unchecked path (writable: one array type for the kernels)
         self._locked = np.zeros((n, 3), dtype=bool)
         self._locked[:, 0] = [not s.extensible for s in segs]
         self._locked[:, 2] = self.planar
@@ -880,7 +881,7 @@ class Chain:
         n = self.n
         q_c = q[self._qoff :].reshape(n, 3)
         v_c = v[self._voff :].reshape(n, 3)
-        p3 = data.p if p is None else p.reshape(n, 3)
+        p3 = self._p_zero if p is None else p.reshape(n, 3)
         A_B = None
         if self.base == "fixed":
             V0, g_B = _ZERO6, self._g_B

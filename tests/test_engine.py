@@ -263,3 +263,12 @@ def test_planar_chain_forward_dynamics_is_the_full_chains(rng):
         for a in (pl.forward_dynamics(q, v, p), pl.forward_dynamics(q, v, p, data=d, skip_checks=True).copy()):
             assert np.all(a[~pl.active] == 0.0)
             assert np.abs(a[pl.active] - a_full_free).max() <= 1e-12 * np.abs(a_full_free).max()
+
+
+def test_unchecked_forward_dynamics_without_pressure():
+    ch = arm(2)
+    q = ch.neutral()
+    q[1::3] = [3.0, -2.0]
+    v = np.linspace(-0.1, 0.2, ch.nv)
+    d = ch.create_data()
+    np.testing.assert_array_equal(ch.forward_dynamics(q, v, None, data=d, skip_checks=True), ch.forward_dynamics(q, v))

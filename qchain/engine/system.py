@@ -183,7 +183,7 @@ def check(m, wk, q):
             info[0] = NONFINITE
             return NONFINITE
     qe = q[off:].reshape(n, 3)
-    j = recursive.first_invalid(qe[:0, 0], qe, m[4], m[11])
+    j = recursive.first_invalid(m[4][:0], qe, m[4], m[11])  # a contiguous empty first argument: one type
     if j >= 0:
         info[0] = DOMAIN
         info[1] = j
