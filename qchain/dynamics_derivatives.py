@@ -22,7 +22,6 @@ from __future__ import annotations
 from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
-from scipy.linalg import cho_factor, cho_solve
 
 from . import derivatives, recursive
 from .arc import SCRATCH
@@ -196,6 +195,8 @@ def forward_dynamics_derivatives(ch: Chain, st: _State, p3: np.ndarray, tau, t: 
     idd = inverse_dynamics_derivatives(ch, st, a, data)
     dfq, dfv, B = _internal_derivatives(ch, st, p3)
     nv = ch.nv
+    from scipy.linalg import cho_factor, cho_solve  # here: scipy's import is a third of qchain's
+
     free = ch.active
     ix = np.ix_(free, free)
     try:

@@ -46,9 +46,6 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 import pinocchio as pin
-import scipy.integrate as si
-from scipy.linalg import cho_factor, cho_solve
-from scipy.optimize import brentq
 
 from .chain import Chain
 from .engine import driver, system
@@ -60,8 +57,9 @@ __all__ = ["simulate", "METHODS", "FIXED_STEP", "COMPILED", "DEFAULT_METHOD", "E
 
 FIXED_STEP = ("rk4", "midpoint")
 COMPILED = ("radau5", "dopri5", "rk4", "midpoint")
-ADAPTIVE = {"RK45": si.RK45, "DOP853": si.DOP853, "Radau": si.Radau, "BDF": si.BDF,
-            "dopri5": si.RK45, "radau5": si.Radau}  # the Python path's stand-ins for the compiled two
+# scipy's solver classes by name (imported where a Python-path run needs them: scipy's import
+# is a third of qchain's); dopri5 and radau5 stand in for the compiled two on that path
+ADAPTIVE = {"RK45": "RK45", "DOP853": "DOP853", "Radau": "Radau", "BDF": "BDF", "dopri5": "RK45", "radau5": "Radau"}
 METHODS = COMPILED + ("RK45", "DOP853", "Radau", "BDF")
 DEFAULT_METHOD = "radau5"
 _RECENTER = 0.5  # rad/m of base chart coordinates before the chart is moved
@@ -192,6 +190,8 @@ class _System:
             M, K, D = self.mkd(q, v)
         except QchainError:
             return J
+        from scipy.linalg import cho_factor, cho_solve
+
         c = cho_factor(M)
         J[n:, :n] = -cho_solve(c, K)
         J[n:, n:] = -cho_solve(c, D)
@@ -371,6 +371,8 @@ def simulate(
             ga = g_prev[k]
             rising, falling = ga < 0 <= gb, ga > 0 >= gb
             if (rising and e.direction >= 0) or (falling and e.direction <= 0):
+                from scipy.optimize import brentq
+
                 te = brentq(lambda s: e.fun(s, *interp(s)), t_a, t_b, xtol=1e-12 * max(1.0, abs(t_b)))
                 ev_log.append((e.name, te))
                 if e.terminal and (hit is None or te < hit):
@@ -543,9 +545,12 @@ def _midpoint_step(sysm: _System, t, q, v, h, tol=1e-10, max_iter=50):
     return ch.integrate(q, h * vmf), sysm.full(2 * vm - vA)
 
 
-def _run_adaptive(cls, sysm, rec, bar, check_events, t0, t1, q, v, rtol, atol, max_step, first_step, method):
+def _run_adaptive(name, sysm, rec, bar, check_events, t0, t1, q, v, rtol, atol, max_step, first_step, method):
+    import scipy.integrate as si
+
+    cls = getattr(si, name)
     nA = sysm.nA
-    implicit = cls in (si.Radau, si.BDF)
+    implicit = name in ("Radau", "BDF")
     nsteps = 0
     t = t0
     status, message = 0, "The end of the time span was reached."

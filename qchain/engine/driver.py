@@ -12,7 +12,6 @@ from __future__ import annotations
 import time as _time
 
 import numpy as np
-from scipy.optimize import brentq
 
 from ..errors import QchainError
 from ..trajectory import Trajectory
@@ -201,6 +200,8 @@ def _state_at(method, m, wk, it, c, s):
 def _events(events, g_prev, ev_log, method, m, wk, it, c):
     """Sign changes of the events over the last step, root-found on its dense output; returns
     the first terminal event's time or None."""
+    from scipy.optimize import brentq
+
     tf = it[4]
     ta, tb = tf[steppers.T_OLD], tf[steppers.T]
     hit = None

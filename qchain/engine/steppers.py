@@ -36,8 +36,6 @@ Tolerances act on ``y = (delta, v)`` as scipy's do: ``|err_i| <= atol + rtol |y_
 from __future__ import annotations
 
 import numpy as np
-from scipy.integrate import RK45
-from scipy.integrate._ivp import radau as _radau
 
 from ..arc import jit
 import numba
@@ -72,6 +70,9 @@ SAFETY, MIN_FACTOR, MAX_FACTOR = 0.9, 0.2, 10.0
 
 def constants(method: str) -> tuple:
     """The method's coefficient arrays (from scipy's own solvers: one set of numbers)."""
+    from scipy.integrate import RK45
+    from scipy.integrate._ivp import radau as _radau
+
     if method == "dopri5":
         A = np.zeros((7, 7))
         A[:6, :5] = RK45.A
