@@ -16,7 +16,7 @@ import numpy as np
 from ..errors import QchainError
 from ..trajectory import Trajectory
 from . import steppers, system, warmup
-from .steppers import AT_STOP, FAILED, OUTPUT, STEPS
+from .steppers import AT_STOP, FAILED, STEPS
 
 __all__ = ["run", "Interrupted", "STRETCH"]
 

@@ -9,9 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..arc import jit
-import numba
-ejit = numba.njit(cache=True, error_model="numpy", _nrt=False)
+from .jit import ejit
 
 __all__ = ["lu_factor", "lu_solve"]
 

@@ -37,14 +37,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..arc import jit
-import numba
-ejit = numba.njit(cache=True, error_model="numpy", _nrt=False)
-# the steppers' helpers are inlined into each stepper: a separately compiled helper is
-# optimised again, with everything it calls, in every caller's module (numba links then
-# optimises), which multiplied the first compile's time
-inline = numba.njit(cache=True, error_model="numpy", _nrt=False, inline="always")
-from . import lie, system
+from . import system
+from .jit import ejit, inline  # the steppers' helpers are inlined into each stepper
 from .linalg import lu_factor, lu_solve
 
 __all__ = ["integrator", "constants", "dense", "CODES", "advance_rk4", "advance_midpoint", "advance_dopri5", "advance_radau5",
@@ -249,19 +243,22 @@ def _fixed_next(tf, t_stop):
 
 
 @inline
-def _position_rate(m, wk, y, out):
-    """``d(delta)/dt`` at ``y`` (N,) into ``out`` (nA,) (the kinematic rows of :func:`system.rhs`)."""
-    nA = y.shape[0] // 2
-    for i in range(nA):
-        out[i] = y[nA + i]
-    if m[14][0] == 1:
-        D = wk[12][18][:6, :6]
-        lie.dexp_inv(y[:6], D)
-        for r in range(6):
-            acc = 0.0
-            for k in range(6):
-                acc += D[r, k] * y[nA + k]
-            out[r] = acc
+def _before_step(m, wk, it, t_stop, steps, max_steps, need_f):
+    """What an ``advance`` does before a step: the code to return at ``t_stop`` or after
+    ``max_steps``, :data:`FAILED` if ``f`` at the step's start (``need_f``) cannot be had,
+    else -1 (take the step)."""
+    tf, cnt = it[4], it[5]
+    if tf[T] >= t_stop:
+        return AT_STOP
+    if steps >= max_steps:
+        return STEPS
+    if need_f and cnt[F_OK] == 0:
+        st = _f(m, wk, it, tf[T], it[0], it[2])
+        if st != 0:
+            cnt[STATUS] = st
+            return FAILED
+        cnt[F_OK] = 1
+    return -1
 
 
 @ejit
@@ -273,11 +270,10 @@ def advance_rk4(m, wk, it, out, c, t_stop, max_out, max_steps):
     wrote = _emit(RK4, m, wk, it, out, c, max_out)
     steps = 0
     while wrote < max_out:
+        code = _before_step(m, wk, it, t_stop, steps, max_steps, False)
+        if code >= 0:
+            return code
         t = tf[T]
-        if t >= t_stop:
-            return AT_STOP
-        if steps >= max_steps:
-            return STEPS
         t_new = _fixed_next(tf, t_stop)
         h = t_new - t
         st = _f(m, wk, it, t, y, K[0])
@@ -305,7 +301,7 @@ def advance_rk4(m, wk, it, out, c, t_stop, max_out, max_steps):
             cnt[STATUS] = st
             return FAILED
         system.copy(K[8, :nA], K[0, :nA])
-        _position_rate(m, wk, y, K[9])
+        system.position_rate(m, y, K[9])
         tf[T_OLD] = t
         tf[H_LAST] = h
         tf[T] = t_new
@@ -349,11 +345,10 @@ def advance_midpoint(m, wk, it, out, c, t_stop, max_out, max_steps):
     steps = 0
     tol = 1e-10
     while wrote < max_out:
+        code = _before_step(m, wk, it, t_stop, steps, max_steps, False)
+        if code >= 0:
+            return code
         t = tf[T]
-        if t >= t_stop:
-            return AT_STOP
-        if steps >= max_steps:
-            return STEPS
         t_new = _fixed_next(tf, t_stop)
         h = t_new - t
         tm = t + 0.5 * h
@@ -412,8 +407,8 @@ def advance_midpoint(m, wk, it, out, c, t_stop, max_out, max_steps):
             cnt[STATUS] = st
             return FAILED
         cnt[F_OK] = 1
-        _position_rate(m, wk, yold, K[8])
-        _position_rate(m, wk, y, K[9])
+        system.position_rate(m, yold, K[8])
+        system.position_rate(m, y, K[9])
         tf[T_OLD] = t
         tf[H_LAST] = h
         tf[T] = t_new
@@ -437,17 +432,10 @@ def advance_dopri5(m, wk, it, out, c, t_stop, max_out, max_steps):
     steps = 0
     rtol, atol = tf[RTOL], tf[ATOL]
     while wrote < max_out:
+        code = _before_step(m, wk, it, t_stop, steps, max_steps, True)
+        if code >= 0:
+            return code
         t = tf[T]
-        if t >= t_stop:
-            return AT_STOP
-        if steps >= max_steps:
-            return STEPS
-        if cnt[F_OK] == 0:
-            st = _f(m, wk, it, t, y, f)
-            if st != 0:
-                cnt[STATUS] = st
-                return FAILED
-            cnt[F_OK] = 1
         rejected = False
         while True:
             h = tf[H]
@@ -638,24 +626,17 @@ def advance_radau5(m, wk, it, out, c, t_stop, max_out, max_steps):
     y, yold, f, K, tf, cnt = it[0], it[1], it[2], it[3], it[4], it[5]
     N = y.shape[0]
     nA = N // 2
-    Z, F, Q, Z0 = K[0:3], K[3:6], K[9:12], K[12:15]
+    Z, Q, Z0 = K[0:3], K[9:12], K[12:15]
     scale, yn, err, yt = it[12][0], it[12][3], it[12][4], it[12][1]
     Jq = it[6]
     rtol, atol = tf[RTOL], tf[ATOL]
     wrote = _emit(RADAU5, m, wk, it, out, c, max_out)
     steps = 0
     while wrote < max_out:
+        code = _before_step(m, wk, it, t_stop, steps, max_steps, True)
+        if code >= 0:
+            return code
         t = tf[T]
-        if t >= t_stop:
-            return AT_STOP
-        if steps >= max_steps:
-            return STEPS
-        if cnt[F_OK] == 0:
-            st = _f(m, wk, it, t, y, f)
-            if st != 0:
-                cnt[STATUS] = st
-                return FAILED
-            cnt[F_OK] = 1
         if cnt[JAC_CURRENT] == 0 and tf[JAC_T] < 0.0:  # the first step: a Jacobian at the start
             st = _radau_jacobian(m, wk, it, t)
             if st != 0:

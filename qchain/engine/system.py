@@ -29,22 +29,13 @@ articulated inertia not positive definite), :data:`NONFINITE`.
 
 from __future__ import annotations
 
-import numba
 import numpy as np
 
 from .. import derivatives, planar, recursive
-from ..arc import SCRATCH, arc_pose, jit, take1, take2
-ejit = numba.njit(cache=True, error_model="numpy", _nrt=False)
+from ..arc import SCRATCH, arc_pose, take1, take2
 from ..slices import segment_slices
-
-# the engine's inner functions take the model and workspace tuples (dozens of arrays) and
-# are called only from compiled code: no CPython wrapper to unbox them is generated
-ejit_inner = numba.njit(cache=True, error_model="numpy", _nrt=False, no_cpython_wrapper=True)
-
-# helpers that take the model and workspace tuples are inlined into their callers: a call
-# that passes them costs a reference count per array inside (~1 us for ~60 arrays)
-inline = numba.njit(cache=True, error_model="numpy", inline="always", _nrt=False)
 from . import lie, schedules
+from .jit import ejit, ejit_inner, inline
 
 __all__ = ["pack", "workspace", "rhs", "jacobian", "configuration", "energies", "energies_batch", "inputs", "RECENTER",
            "OK", "DOMAIN", "SINGULAR", "NONFINITE"]
@@ -175,7 +166,6 @@ def configuration(m, wk, qc, y):
 def check(m, wk, q):
     """Domain check of the segment coordinates; sets ``info`` and returns the status."""
     info = wk[10]
-    nv = m[14][3]
     n = m[4].shape[0]
     off = m[14][2] - 3 * n
     for i in range(q.shape[0]):
@@ -272,16 +262,19 @@ def rhs(m, wk, t, y, out):
     a = wk[7]
     for i in range(nA):
         out[nA + i] = a[idx[i]]
+    position_rate(m, y, out)
+    return OK
+
+
+@inline
+def position_rate(m, y, out):
+    """The kinematic rows ``out[:nA] = d(delta)/dt``: ``v_A``, with ``dexp^-1(delta_B) v_B`` for a
+    floating base's six."""
+    nA = y.shape[0] // 2
+    for i in range(nA):
         out[i] = y[nA + i]
     if m[14][0] == 1:
-        D = wk[12][18][:6, :6]  # a 6 x 6 of the derivative workspace, free here
-        lie.dexp_inv(y[:6], D)
-        for r in range(6):
-            acc = 0.0
-            for c in range(6):
-                acc += D[r, c] * y[nA + c]
-            out[r] = acc
-    return OK
+        lie.dexp_inv_apply(y[:6], y[nA : nA + 6], out[:6])
 
 
 @ejit_inner

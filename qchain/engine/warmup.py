@@ -11,7 +11,6 @@ expected time, :data:`EXPECTED_COMPILE_S`).
 from __future__ import annotations
 
 import sys
-import time
 
 import numpy as np
 
