@@ -30,7 +30,7 @@ def main(argv=None) -> dict:
     lin_scale = mass * speed
     ang_scale = lin_scale * sum(s.length for s in ch.segments)
     rel_lin, rel_ang = lin.max() / lin_scale, ang.max() / ang_scale
-    print(f"simulated {traj.t[-1]:g} s in {wall:.2f} s wall")
+    print(f"simulated {traj.t[-1]:g} s in {wall:.3g} s wall")
     print(f"momentum at the start: linear {np.linalg.norm(h[0, :3]):.6g} kg m/s, angular {np.linalg.norm(h[0, 3:]):.6g} kg m^2/s")
     print(f"largest drift: linear {lin.max():.3g} kg m/s ({rel_lin:.2g} of m v_tip,max = {lin_scale:.3g}), "
           f"angular {ang.max():.3g} kg m^2/s ({rel_ang:.2g} of m v_tip,max L = {ang_scale:.3g})")

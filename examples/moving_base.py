@@ -21,7 +21,7 @@ def main(argv=None) -> dict:
     tip = _common.tips(ch, traj)
     mount = np.array([ch.base_state(t)[0].translation for t in traj.t])
     rel = tip - mount
-    print(f"simulated {traj.t[-1]:g} s in {wall:.2f} s wall")
+    print(f"simulated {traj.t[-1]:g} s in {wall:.3g} s wall")
     print(f"mount sway {np.ptp(mount[:, 0]) * 1e3:.1f} mm peak to peak; tip sway {np.ptp(tip[:, 0]) * 1e3:.1f} mm; "
           f"tip relative to the mount {np.ptp(rel[:, 0]) * 1e3:.1f} mm")
 

@@ -34,7 +34,7 @@ def main(argv=None) -> dict:
     overshoot = 100.0 * (progress.max() - 1.0)
     left = float(np.linalg.norm(tip[-1] - tip_eq))
     print(f"static shape under {p_after / 1e3} kPa: tip ({', '.join(f'{x * 1e3:.2f}' for x in tip_eq)}) mm")
-    print(f"simulated {traj.t[-1]:g} s in {wall:.2f} s wall; overshoot {overshoot:.1f} % of the {np.linalg.norm(travel) * 1e3:.2f} mm "
+    print(f"simulated {traj.t[-1]:g} s in {wall:.3g} s wall; overshoot {overshoot:.1f} % of the {np.linalg.norm(travel) * 1e3:.2f} mm "
           f"travel; {left * 1e3:.3f} mm from the static shape at t = {traj.t[-1]:g} s")
 
     fig, axes = plt.subplots(2, 1, figsize=(8, 6), sharex=True)

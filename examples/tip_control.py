@@ -103,7 +103,7 @@ def main(argv=None) -> dict:
     err = np.linalg.norm(tip - target, axis=1)
     within = np.flatnonzero(err > 1e-3)
     settle = traj.t[within[-1] + 1] if within.size and within[-1] + 1 < len(traj.t) else (0.0 if not within.size else None)
-    print(f"simulated {traj.t[-1]:g} s in {wall:.2f} s wall; tip error {err[0] * 1e3:.1f} mm -> {err[-1] * 1e3:.4f} mm; "
+    print(f"simulated {traj.t[-1]:g} s in {wall:.3g} s wall; tip error {err[0] * 1e3:.1f} mm -> {err[-1] * 1e3:.4f} mm; "
           + (f"within 1 mm from t = {settle:.3g} s" if settle is not None else "not yet within 1 mm"))
     print(f"largest pressure {traj.p.max() / 1e3:.1f} kPa (limit {P_MAX / 1e3:g}); largest |B p - tau| "
           f"{ctl.worst_residual:.2g} N m^2 (nonzero where the pressure limits bind)")

@@ -22,7 +22,7 @@ import _common
 def main(argv=None) -> dict:
     args, sc, model, ch, traj, wall = _common.run(__doc__, "wave_arm", argv, quick=0.3)
     tip = _common.tips(ch, traj)
-    print(f"simulated {traj.t[-1]:g} s in {wall:.2f} s wall ({traj.t[-1] / wall:.2f} x real time)")
+    print(f"simulated {traj.t[-1]:g} s in {wall:.3g} s wall ({traj.t[-1] / wall:.0f} x real time)")
     print(f"tip sweep: x {np.ptp(tip[:, 0]) * 1e3:.1f} mm, z {np.ptp(tip[:, 2]) * 1e3:.1f} mm; "
           f"largest out-of-plane offset {np.abs(tip[:, 1]).max() * 1e3:.2g} mm")
 

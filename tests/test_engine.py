@@ -11,17 +11,11 @@ from qchain.engine import system
 from qchain.inputs import Sine
 from qchain.scene import SineMotion
 from qchain.simulate import COMPILED, FIXED_STEP, METHODS, Event, simulate
-
-SEG = dict(length=0.1, radius=0.015, mass=0.05, chamber_area=4.5e-5, chamber_radius=0.0085, youngs_modulus=1e5)
+from test_simulate import SEG, hanging_arm, waving
 
 
 def arm(n=2, damping=0.01, **kw):
-    return Chain([Segment(**SEG, damping=damping) for _ in range(n)], gravity=(0, 0, 9.81), **kw)
-
-
-def waving(ch):
-    return Sine(amplitude=np.full(ch.nu, 2e4), frequency=2.0, phase=np.tile([0.0, 2.1, 4.2], ch.n),
-                offset=np.full(ch.nu, 2e4))
+    return hanging_arm(n, damping=damping, **kw)
 
 
 def reference(ch, q0, v0, T, t_eval, **kw):

@@ -182,9 +182,14 @@ def _emit(method, m, wk, it, out, c, budget):
 
 
 @inline
-def _accepted(m, wk, it, fixed):
-    """After an accepted step: count it and move the chart where the base has turned far
-    (every step for the fixed-step methods, whose steps start at ``delta = 0``)."""
+def _accepted(m, wk, it, t, h, t_new, fixed):
+    """After an accepted step from ``t`` to ``t_new`` (length ``h``): record it for the dense
+    output, count it and move the chart where the base has turned far (every step for the
+    fixed-step methods, whose steps start at ``delta = 0``)."""
+    tf = it[4]
+    tf[T_OLD] = t
+    tf[H_LAST] = h
+    tf[T] = t_new
     cnt = it[5]
     cnt[NSTEPS] += 1
     cnt[DENSE_OK] = 1
@@ -302,11 +307,8 @@ def advance_rk4(m, wk, it, out, c, t_stop, max_out, max_steps):
             return FAILED
         system.copy(K[8, :nA], K[0, :nA])
         system.position_rate(m, y, K[9])
-        tf[T_OLD] = t
-        tf[H_LAST] = h
-        tf[T] = t_new
         steps += 1
-        _accepted(m, wk, it, True)
+        _accepted(m, wk, it, t, h, t_new, True)
         wrote += _emit(RK4, m, wk, it, out, c, max_out - wrote)
     return OUTPUT
 
@@ -409,11 +411,8 @@ def advance_midpoint(m, wk, it, out, c, t_stop, max_out, max_steps):
         cnt[F_OK] = 1
         system.position_rate(m, yold, K[8])
         system.position_rate(m, y, K[9])
-        tf[T_OLD] = t
-        tf[H_LAST] = h
-        tf[T] = t_new
         steps += 1
-        _accepted(m, wk, it, True)
+        _accepted(m, wk, it, t, h, t_new, True)
         cnt[F_OK] = 1
         wrote += _emit(MIDPOINT, m, wk, it, out, c, max_out - wrote)
     return OUTPUT
@@ -497,11 +496,8 @@ def advance_dopri5(m, wk, it, out, c, t_stop, max_out, max_steps):
                 for k in range(7):
                     acc += K[k, i] * P[k, r]
                 K[7 + r, i] = acc
-        tf[T_OLD] = t
-        tf[H_LAST] = h
-        tf[T] = t_new
         steps += 1
-        _accepted(m, wk, it, False)
+        _accepted(m, wk, it, t, h, t_new, False)
         wrote += _emit(DOPRI5, m, wk, it, out, c, max_out - wrote)
     return OUTPUT
 
@@ -741,12 +737,9 @@ def advance_radau5(m, wk, it, out, c, t_stop, max_out, max_steps):
         for i in range(N):  # the collocation polynomial: Q = Z^T P
             for r in range(3):
                 Q[r, i] = Z[0, i] * P[0, r] + Z[1, i] * P[1, r] + Z[2, i] * P[2, r]
-        tf[T_OLD] = t
-        tf[H_LAST] = h
-        tf[T] = t_new
         cnt[PRED_OK] = 1
         steps += 1
-        _accepted(m, wk, it, False)
+        _accepted(m, wk, it, t, h, t_new, False)
         st = _f(m, wk, it, t_new, y, f)
         if st != 0:
             cnt[STATUS] = st
