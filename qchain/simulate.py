@@ -384,22 +384,23 @@ def simulate(
         if method in FIXED_STEP:
             step = _rk4_step if method == "rk4" else _midpoint_step
             nsteps_total = int(np.ceil((t1 - t0) / dt - 1e-9))
-            h_stable = _rk4_stable_step(sysm, t0, q0, v0) if method == "rk4" else None
+            h_stable = (driver.stability_limit(chain, q0, v0, sysm.P(t0, q0, v0), sysm.Tq(t0, q0, v0), t0)
+                        if method == "rk4" else None)
             for k in range(nsteps_total):
                 h = min(dt, t1 - t)
                 sysm.q_chart = q
                 try:
                     q1, v1 = step(sysm, t, q, v, h)
                 except _DomainExit as err:
-                    status, message = -1, _blow_up(str(err), h, h_stable)
+                    status, message = -1, driver.unstable_message(str(err), h, h_stable)
                     break
                 if not (np.all(np.isfinite(q1)) and np.all(np.isfinite(v1))):
-                    status, message = -1, _blow_up(f"non-finite state at t = {t + h:.6g} s", h, h_stable)
+                    status, message = -1, driver.unstable_message(f"non-finite state at t = {t + h:.6g} s", h, h_stable)
                     break
                 try:
                     chain._state(q1, v1, t=t + h)
                 except QchainError as err:
-                    status, message = -1, _blow_up(f"{err} (at t = {t + h:.6g} s)", h, h_stable)
+                    status, message = -1, driver.unstable_message(f"{err} (at t = {t + h:.6g} s)", h, h_stable)
                     break
                 t_new = t0 + (k + 1) * dt if k + 1 < nsteps_total else t1
                 interp = _linear_interp(chain, t, q, v, t_new, q1, v1)
@@ -448,38 +449,6 @@ def _linear_interp(chain, ta, qa, va, tb, qb, vb):
         return chain.integrate(qa, w * dq), (1 - w) * va + w * vb
 
     return interp
-
-
-#: RK4 is stable for h |lambda| below about 2.78 on the negative real axis and 2.83 on the
-#: imaginary axis; the smaller bound serves every eigenvalue direction of a damped arm.
-RK4_STABILITY_RADIUS = 2.78
-
-
-def _rk4_stable_step(sysm: _System, t, q, v) -> float | None:
-    """The largest stable RK4 step at ``(t, q, v)``: ``2.78 / max |lambda|`` over the
-    eigenvalues of the elastic-and-damping Jacobian (:meth:`_System.stiffness_jacobian`:
-    the stiff modes that bound the step); None if it cannot be formed there."""
-    sysm.q_chart = q
-    y = np.concatenate([np.zeros(sysm.nA), v[sysm.idx]])
-    try:
-        J = sysm.stiffness_jacobian(t, y)
-        sysm.njev -= 1  # not the solver's
-    except (QchainError, ValueError, np.linalg.LinAlgError):
-        return None
-    rho = float(np.max(np.abs(np.linalg.eigvals(J))))
-    return RK4_STABILITY_RADIUS / rho if rho > 0 else None
-
-
-def _blow_up(message: str, h, h_start) -> str:
-    """A fixed-step RK4 run that failed: say so if the step is above the stability limit at
-    the start of the run, which is then the cause, not the model's domain. (Near the domain's
-    boundary the model stiffens, and a state that is already blowing up has spurious fast
-    modes, so the limit at the last good state would blame stable steps.)"""
-    if h_start is None or h <= h_start:
-        return message
-    return (f"rk4 became unstable: the step dt = {h:g} s is above its stability limit, about {h_start:.3g} s at "
-            f"the start of the run (2.78 / the fastest elastic mode's |eigenvalue|); use a smaller dt or an "
-            f"implicit method ('midpoint', 'Radau'). The run stopped at: {message}")
 
 
 def _rk4_step(sysm: _System, t, q, v, h):

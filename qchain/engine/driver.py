@@ -256,12 +256,7 @@ def _failure(chain, m, wk, it, method, q0, v0, t0) -> str:
     else:
         msg = f"{method}: the step size fell below its floor at t = {t:.6g} s (the solution may be singular there)"
     if method == "rk4":
-        limit = stability_limit(chain, m, q0, v0, t0)
-        h = tf[steppers.DT]
-        if limit is not None and h > limit:
-            msg = (f"rk4 became unstable: the step dt = {h:g} s is above its stability limit, about {limit:.3g} s at "
-                   f"the start of the run (2.78 / the largest |eigenvalue| of the exact Jacobian); use a smaller dt "
-                   f"or an implicit method ('midpoint', 'radau5'). The run stopped at: {msg}")
+        msg = unstable_message(msg, tf[steppers.DT], stability_limit(chain, q0, v0, *_inputs_at(chain, m, t0), t0))
     return msg
 
 
@@ -270,12 +265,14 @@ def _failure(chain, m, wk, it, method, q0, v0, t0) -> str:
 RK4_STABILITY_RADIUS = 2.78
 
 
-def stability_limit(chain, m, q, v, t, radius: float = RK4_STABILITY_RADIUS) -> float | None:
+def stability_limit(chain, q, v, p, tau, t, radius: float = RK4_STABILITY_RADIUS) -> float | None:
     """``radius / max |lambda|`` over the eigenvalues of the exact Jacobian of the free
-    coordinates at ``(t, q, v)`` (s), or None where it cannot be formed."""
-    idx = m[13]
+    coordinates at ``(t, q, v)`` with inputs ``p``, ``tau`` (s), or None where it cannot be
+    formed. For RK4 the limit at the start of a run is the one to quote: near the domain's
+    boundary the model stiffens, and a state already blowing up has spurious fast modes."""
+    idx = np.flatnonzero(chain.active)
     try:
-        d = chain.forward_dynamics_derivatives(q, v, *_inputs_at(chain, m, t), t=t)
+        d = chain.forward_dynamics_derivatives(q, v, p, tau, t=t)
     except (QchainError, ValueError):
         return None
     ix = np.ix_(idx, idx)
@@ -283,6 +280,16 @@ def stability_limit(chain, m, q, v, t, radius: float = RK4_STABILITY_RADIUS) -> 
     J = np.block([[np.zeros((n, n)), np.eye(n)], [d.da_dq[ix], d.da_dv[ix]]])
     rho = float(np.max(np.abs(np.linalg.eigvals(J))))
     return radius / rho if rho > 0 else None
+
+
+def unstable_message(message: str, h: float, limit: float | None) -> str:
+    """A failed fixed-step RK4 run's message: the step's stability limit where ``h`` is above
+    it (the cause, not the domain exit it ended in), else ``message`` as it is."""
+    if limit is None or h <= limit:
+        return message
+    return (f"rk4 became unstable: the step dt = {h:g} s is above its stability limit, about {limit:.3g} s at the "
+            f"start of the run (2.78 / the largest |eigenvalue| of the exact Jacobian); use a smaller dt or an "
+            f"implicit method ('midpoint', 'radau5'). The run stopped at: {message}")
 
 
 def _inputs_at(chain, m, t):
