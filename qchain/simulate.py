@@ -326,9 +326,15 @@ def simulate(
                     tk = np.zeros(size)
         m = system.pack(chain, pk, tk)
         if m is not None:
+            p_of, tau_of = P_in, T_in
             if controller_rate is not None:
                 slots = {"pressure": m[21], "tau": m[23]}
                 controllers = [(fn, slots[name]) for name, fn, _ in held]
+                names = {name for name, _, _ in held}
+                if "pressure" in names:  # the held output, not another call of the controller
+                    p_of = lambda t, q, v: m[21].copy()  # noqa: E731
+                if "tau" in names:
+                    tau_of = lambda t, q, v: m[23].copy()  # noqa: E731
             pass_energies = False
             if on_sample is not None and energies:
                 try:
@@ -340,7 +346,8 @@ def simulate(
                                   on_sample=on_sample, pass_energies=pass_energies, events=events,
                                   bar=bar if progress else None, max_step=max_step, first_step=first_step,
                                   energies=energies, deadline=deadline, controllers=controllers,
-                                  controller_rate=controller_rate)
+                                  controller_rate=controller_rate,
+                                  inputs=lambda t, q, v: (p_of(t, q, v), tau_of(t, q, v)))
             except driver.Interrupted as err:
                 bar.close(err.trajectory.t[-1] if len(err.trajectory.t) else t0)
                 raise _Interrupted(err.trajectory) from None

@@ -57,10 +57,12 @@ class _Outputs:
 
 
 def run(chain, m, method, q0, v0, t0, t1, *, dt, rtol, atol, t_eval, on_sample, pass_energies, events, bar,
-        max_step, first_step, energies, deadline, controllers, controller_rate) -> Trajectory:
+        max_step, first_step, energies, deadline, controllers, controller_rate, inputs) -> Trajectory:
     """Integrate from ``(q0, v0)`` at ``t0`` to ``t1`` on the compiled engine (arguments as
     :func:`qchain.simulate.simulate`'s, validated there; ``m`` from :func:`system.pack`;
-    ``controllers``: ``[(callable (t, q, v) -> (size,), params array to hold it in)]``)."""
+    ``controllers``: ``[(callable (t, q, v) -> (size,), params array to hold it in)]``;
+    ``inputs``: ``(t, q, v) -> (p, tau)`` in Python, for the samples Python writes (the first,
+    one at a controller instant or a terminal event) and the stability limit)."""
     t_prep = _time.perf_counter()
     first = not warmup.loaded(method)
     if first:
@@ -99,11 +101,11 @@ def run(chain, m, method, q0, v0, t0, t1, *, dt, rtol, atol, t_eval, on_sample, 
     k = 0
     if controllers:
         hold(t0, q0, v0)
-    system.input_values(m, wk, t0)
+    p0 = inputs(t0, q0, v0)[0]
     while k < out.t.size and (out.every and k == 0 or not out.every and out.t[k] <= t0):
         if out.every:
             out.t[0] = t0
-        out.q[k], out.v[k], out.p[k] = q0, v0, wk[3]
+        out.q[k], out.v[k], out.p[k] = q0, v0, p0
         k += 1
     cnt[steppers.K_OUT] = k
     status, message = 0, "The end of the time span was reached."
@@ -112,6 +114,8 @@ def run(chain, m, method, q0, v0, t0, t1, *, dt, rtol, atol, t_eval, on_sample, 
     emitted = 0
     max_steps = 16
     t = t0
+    if on_sample is not None and pass_energies:  # the samples' energies are needed as they come
+        compile_s += warmup.prepare_energies(m, wk)
     try:
         emitted = _hand_over(out, emitted, cnt, on_sample, pass_energies, m, wk)
         while True:
@@ -125,13 +129,13 @@ def run(chain, m, method, q0, v0, t0, t1, *, dt, rtol, atol, t_eval, on_sample, 
                 max_steps = int(min(max(max_steps * min(4.0, STRETCH / max(wall, 1e-6)), 1), 1 << 20))
             t = tf[steppers.T]
             if code == FAILED:
-                status, message = -1, _failure(chain, m, wk, it, method, q0, v0, t0)
+                status, message = -1, _failure(chain, wk, it, method, q0, v0, t0, inputs)
                 emitted = _hand_over(out, emitted, cnt, on_sample, pass_energies, m, wk)
                 break
             if events and cnt[steppers.DENSE_OK]:
-                hit = _events(events, g_prev, ev_log, method, m, wk, it, c)
+                hit = _events(events, g_prev, ev_log, method, chain, m, wk, it, c)
                 if hit is not None:
-                    _cut(out, cnt, hit, method, m, wk, it, c)
+                    _cut(out, cnt, hit, method, chain, m, wk, it, c, inputs)
                     emitted = _hand_over(out, emitted, cnt, on_sample, pass_energies, m, wk)
                     status, message = 1, f"A termination event occurred at t = {hit:.6g} s."
                     t = hit
@@ -147,22 +151,23 @@ def run(chain, m, method, q0, v0, t0, t1, *, dt, rtol, atol, t_eval, on_sample, 
             if code == AT_STOP:
                 if t >= t1:
                     break
-                system.configuration(m, wk, wk[2], y)
-                hold(t, wk[0].copy(), wk[1].copy())
+                q, v = _state(chain, m, wk[2], y)
+                hold(t, q, v)
                 n_hold += 1
                 for r in range(cnt[steppers.K_OUT] - 1, -1, -1):  # a sample at the instant shows the new hold
                     if abs(out.t[r] - t) > 1e-12 * max(1.0, abs(t)):
                         break
-                    system.input_values(m, wk, t)
-                    out.p[r] = wk[3]
+                    out.p[r] = inputs(t, q, v)[0]
             del code
     except KeyboardInterrupt:
         traj = _trajectory(chain, m, wk, out, cnt, -1, f"interrupted by the user at t = {t:.6g} s", energies, method,
                            ev_log)
         traj.meta["compile_s"] = compile_s
         raise Interrupted(traj) from None
+    if energies:  # loaded after the run (not before its first step), and counted as loading
+        compile_s += warmup.prepare_energies(m, wk)
     traj = _trajectory(chain, m, wk, out, cnt, status, message, energies, method, ev_log)
-    traj.meta["compile_s"] = compile_s  # spent before the run: a caller's wall time less this is the run's
+    traj.meta["compile_s"] = compile_s  # compiling or loading: a caller's wall time less this is the run's
     return traj
 
 
@@ -189,15 +194,30 @@ def _hand_over(out, emitted, cnt, on_sample, pass_energies, m, wk) -> int:
     return k
 
 
-def _state_at(method, m, wk, it, c, s):
-    """``(q, v)`` copies at time ``s`` in the last step (its dense output)."""
+def _state(chain, m, q_chart, y):
+    """``(q, v)`` of the engine state ``y`` in the chart at ``q_chart`` (Python's
+    :func:`system.configuration`)."""
+    idx = m[13]
+    nA = idx.size
+    v = np.zeros(chain.nv)
+    v[idx] = y[nA:]
+    if chain.floating:
+        delta = np.zeros(chain.nv)
+        delta[idx] = y[:nA]
+        return chain.integrate(q_chart, delta), v
+    q = q_chart.copy()
+    q[idx] += y[:nA]
+    return q, v
+
+
+def _state_at(method, chain, m, it, c, s):
+    """``(q, v)`` at time ``s`` in the last step (its dense output)."""
     ys = it[12][steppers.Y_OUT]
     steppers.dense(steppers.CODES[method], it, c, s, ys)
-    system.configuration(m, wk, it[14], ys)
-    return wk[0].copy(), wk[1].copy()
+    return _state(chain, m, it[14], ys)
 
 
-def _events(events, g_prev, ev_log, method, m, wk, it, c):
+def _events(events, g_prev, ev_log, method, chain, m, wk, it, c):
     """Sign changes of the events over the last step, root-found on its dense output; returns
     the first terminal event's time or None."""
     from scipy.optimize import brentq
@@ -206,11 +226,11 @@ def _events(events, g_prev, ev_log, method, m, wk, it, c):
     ta, tb = tf[steppers.T_OLD], tf[steppers.T]
     hit = None
     for kk, e in enumerate(events):
-        gb = e.fun(tb, *_state_at(method, m, wk, it, c, tb))
+        gb = e.fun(tb, *_state_at(method, chain, m, it, c, tb))
         ga = g_prev[kk]
         g_prev[kk] = gb
         if (ga < 0 <= gb and e.direction >= 0) or (ga > 0 >= gb and e.direction <= 0):
-            te = brentq(lambda s: e.fun(s, *_state_at(method, m, wk, it, c, s)), ta, tb,
+            te = brentq(lambda s: e.fun(s, *_state_at(method, chain, m, it, c, s)), ta, tb,
                         xtol=1e-12 * max(1.0, abs(tb)))
             ev_log.append((e.name, te))
             if e.terminal and (hit is None or te < hit):
@@ -218,21 +238,20 @@ def _events(events, g_prev, ev_log, method, m, wk, it, c):
     return hit
 
 
-def _cut(out, cnt, hit, method, m, wk, it, c):
+def _cut(out, cnt, hit, method, chain, m, wk, it, c, inputs):
     """End the recording at a terminal event: drop samples after it; in every-step mode the
     last sample becomes the event's state."""
     k = int(cnt[steppers.K_OUT])
     while k > 0 and out.t[k - 1] > hit:
         k -= 1
     if out.every:
-        q, v = _state_at(method, m, wk, it, c, hit)
-        system.input_values(m, wk, hit)
-        out.t[k], out.q[k], out.v[k], out.p[k] = hit, q, v, wk[3]
+        q, v = _state_at(method, chain, m, it, c, hit)
+        out.t[k], out.q[k], out.v[k], out.p[k] = hit, q, v, inputs(hit, q, v)[0]
         k += 1
     cnt[steppers.K_OUT] = k
 
 
-def _failure(chain, m, wk, it, method, q0, v0, t0) -> str:
+def _failure(chain, wk, it, method, q0, v0, t0, inputs) -> str:
     """The message of a failed run: what failed, where and when; for a fixed step above the
     stability limit, that limit."""
     cnt, tf = it[5], it[4]
@@ -256,7 +275,7 @@ def _failure(chain, m, wk, it, method, q0, v0, t0) -> str:
     else:
         msg = f"{method}: the step size fell below its floor at t = {t:.6g} s (the solution may be singular there)"
     if method == "rk4":
-        msg = unstable_message(msg, tf[steppers.DT], stability_limit(chain, q0, v0, *_inputs_at(chain, m, t0), t0))
+        msg = unstable_message(msg, tf[steppers.DT], stability_limit(chain, q0, v0, *inputs(t0, q0, v0), t0))
     return msg
 
 
@@ -290,13 +309,6 @@ def unstable_message(message: str, h: float, limit: float | None) -> str:
     return (f"rk4 became unstable: the step dt = {h:g} s is above its stability limit, about {limit:.3g} s at the "
             f"start of the run (2.78 / the largest |eigenvalue| of the exact Jacobian); use a smaller dt or an "
             f"implicit method ('midpoint', 'radau5'). The run stopped at: {message}")
-
-
-def _inputs_at(chain, m, t):
-    """``(p, tau)`` of the packed inputs at ``t``."""
-    wk = system.workspace(chain)
-    system.input_values(m, wk, t)
-    return wk[3].copy(), wk[4].copy()
 
 
 def _trajectory(chain, m, wk, out, cnt, status, message, energies, method, ev_log) -> Trajectory:

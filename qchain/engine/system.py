@@ -82,12 +82,14 @@ def workspace(chain) -> tuple:
     the aba, rnea-derivative and aba-derivative workspaces of :class:`qchain.data.Data`, a
     scratch array, ``R_WB (3, 3)``, the planar kernel's workspace."""
     n, nv, nq = chain.n, chain.nv, chain.nq
-    ws = recursive.aba_workspace(n, nv)
-    wd = derivatives.rnea_workspace(n, nv)
-    wa = derivatives.aba_derivatives_workspace(n, nv)
+    # the compiled allocators' own code, run by numpy: the same arrays without loading four
+    # cached functions before the run's first step
+    ws = recursive.aba_workspace.py_func(n, nv)
+    wd = derivatives.rnea_workspace.py_func(n, nv)
+    wa = derivatives.aba_derivatives_workspace.py_func(n, nv)
     return (np.zeros(nq), np.zeros(nv), np.zeros(nq), np.zeros(3 * n), np.zeros(nv), np.zeros((n, 3)), np.zeros(6),
             np.zeros(nv), np.zeros((n, 3)), np.zeros((4, 6)), np.zeros(4, dtype=np.int64), ws, wd, wa,
-            np.zeros(SCRATCH), np.zeros((3, 3)), planar.planar_workspace(n))
+            np.zeros(SCRATCH), np.zeros((3, 3)), planar.planar_workspace.py_func(n))
 
 
 @inline
@@ -186,13 +188,6 @@ def inputs(m, wk, t):
     """Pressure ``wk[3]`` and generalised force ``wk[4]`` at ``t``."""
     schedules.input_eval(m[20], m[21], t, wk[3])
     schedules.input_eval(m[22], m[23], t, wk[4])
-
-
-@ejit
-def input_values(m, wk, t):
-    """:func:`inputs` for callers in Python (an inlined function called from Python would be
-    compiled again on its own)."""
-    inputs(m, wk, t)
 
 
 @inline

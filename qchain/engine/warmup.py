@@ -11,12 +11,13 @@ expected time, :data:`EXPECTED_COMPILE_S`).
 from __future__ import annotations
 
 import sys
+import time
 
 import numpy as np
 
 from . import steppers, system
 
-__all__ = ["prepare", "loaded", "announce", "is_cached", "EXPECTED_COMPILE_S"]
+__all__ = ["prepare", "prepare_energies", "loaded", "announce", "is_cached", "EXPECTED_COMPILE_S"]
 
 #: Seconds a cold compile of each method's engine took on a 2-core machine of the kind
 #: CI runs on (``benchmarks/bench_compile.py`` measures them again).
@@ -33,16 +34,12 @@ def is_cached(dispatcher) -> bool | None:
 
 
 def _needed(method: str) -> tuple:
-    from .. import derivatives, planar, recursive
-
-    return (steppers.ADVANCE[method], system.energies_batch, system.input_values, recursive.aba_workspace,
-            derivatives.rnea_workspace,
-            derivatives.aba_derivatives_workspace, planar.planar_workspace)
+    return (steppers.ADVANCE[method], system.energies_batch)
 
 
 def loaded(method: str) -> bool:
-    """Whether this process has everything a run of ``method`` calls compiled or loaded."""
-    return all(len(d.overloads) for d in _needed(method))
+    """Whether this process has ``method``'s stepper compiled or loaded."""
+    return len(steppers.ADVANCE[method].overloads) > 0
 
 
 def announce(method: str, stream=sys.stderr) -> None:
@@ -53,9 +50,16 @@ def announce(method: str, stream=sys.stderr) -> None:
 
 
 def prepare(method: str, m, wk, it, out, c) -> None:
-    """Compile or load what a run of ``method`` calls (its stepper with the system, the
-    sample energies) without taking a step."""
+    """Compile or load ``method``'s stepper with the system it calls, without taking a step."""
     steppers.ADVANCE[method](m, wk, it, out, c, it[4][steppers.T], 0, 0)  # no output, no step
-    system.input_values(m, wk, it[4][steppers.T])
+
+
+def prepare_energies(m, wk) -> float:
+    """Compile or load the sample energies' pass (needed at the first sample that reports
+    energies, or after the run); returns the seconds it took, 0 if this process has it."""
+    if len(system.energies_batch.overloads):
+        return 0.0
+    t0 = time.perf_counter()
     e = np.zeros(0)
     system.energies_batch(m, wk, e, np.zeros((0, wk[0].size)), np.zeros((0, wk[1].size)), e, e.copy())
+    return time.perf_counter() - t0
