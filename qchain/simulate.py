@@ -350,7 +350,7 @@ def simulate(
                                   inputs=lambda t, q, v: (p_of(t, q, v), tau_of(t, q, v)))
             except driver.Interrupted as err:
                 bar.close(err.trajectory.t[-1] if len(err.trajectory.t) else t0)
-                raise _Interrupted(err.trajectory) from None
+                raise
             bar.close(traj.t[-1] if len(traj.t) else t0)
             return traj
     if controller_rate is not None:
@@ -432,19 +432,11 @@ def simulate(
         bar.close(t)
         traj = rec.trajectory(status, message, sysm.nfev)
         traj.meta.update(method=method, engine="python", nsteps=nsteps, njev=sysm.njev, events=ev_log)
-        raise _Interrupted(traj) from None
+        raise driver.Interrupted(traj) from None
     bar.close(t)
     traj = rec.trajectory(status, message, sysm.nfev)
     traj.meta.update(method=method, engine="python", nsteps=nsteps, njev=sysm.njev, events=ev_log)
     return traj
-
-
-class _Interrupted(KeyboardInterrupt):
-    """Ctrl-C during a run: carries the trajectory recorded so far (``.trajectory``)."""
-
-    def __init__(self, trajectory: Trajectory):
-        super().__init__("interrupted")
-        self.trajectory = trajectory
 
 
 def _linear_interp(chain, ta, qa, va, tb, qb, vb):

@@ -224,10 +224,17 @@ def _end_state(m, wk, it, t, y):
 
 
 @inline
-def _step_end(t, t_stop, h, max_step):
-    """The step from ``t``: ``h`` capped by ``max_step``, cut to end at ``t_stop`` (and not to
-    leave a sliver under a hundredth of a step before it)."""
-    h = min(h, max_step)
+def _trial_end(it, t, t_stop):
+    """The end of an adaptive method's trial step from ``t``: the proposed step ``tf[H]``
+    capped by ``max_step`` and cut to end at ``t_stop`` (never leaving a sliver under a
+    hundredth of a step before it); NaN, with the reason in ``cnt[STATUS]``, where the step
+    has shrunk below its floor (the last failed evaluation's status if one made it shrink)."""
+    tf, cnt = it[4], it[5]
+    h = tf[H]
+    if h < 10.0 * abs(np.nextafter(t, np.inf) - t):
+        cnt[STATUS] = cnt[LAST_ST] if cnt[LAST_ST] != 0 else TOO_SMALL
+        return np.nan
+    h = min(h, tf[MAX_STEP])
     if t + h >= t_stop or t_stop - (t + h) < 1e-2 * h:
         return t_stop
     return t + h
@@ -319,7 +326,7 @@ def _midpoint_matrix(m, wk, it, t, y, h):
     Jq, Jv, LU, piv, cnt = it[6], it[7], it[8], it[9], it[5]
     nA = Jq.shape[0]
     cnt[NJEV] += 1
-    st = system.jacobian(m, wk, t, y, it[12][3], Jq, Jv)
+    st = system.jacobian(m, wk, t, y, Jq, Jv)
     if st != 0:
         return st
     for r in range(nA):
@@ -438,11 +445,9 @@ def advance_dopri5(m, wk, it, out, c, t_stop, max_out, max_steps):
         rejected = False
         while True:
             h = tf[H]
-            min_step = 10.0 * abs(np.nextafter(t, np.inf) - t)
-            if h < min_step:
-                cnt[STATUS] = cnt[LAST_ST] if cnt[LAST_ST] != 0 else TOO_SMALL
+            t_new = _trial_end(it, t, t_stop)
+            if not t_new == t_new:
                 return FAILED
-            t_new = _step_end(t, t_stop, h, tf[MAX_STEP])
             trial = h
             h = t_new - t
             system.copy(K[0], f)
@@ -610,7 +615,7 @@ def _radau_newton(m, wk, it, c, t, h, scale):
 @inline
 def _radau_jacobian(m, wk, it, t):
     it[5][NJEV] += 1
-    st = system.jacobian(m, wk, t, it[0], it[12][6], it[6], it[7])
+    st = system.jacobian(m, wk, t, it[0], it[6], it[7])
     it[5][JAC_CURRENT] = 1
     it[5][LU_OK] = 0
     return st
@@ -642,11 +647,9 @@ def advance_radau5(m, wk, it, out, c, t_stop, max_out, max_steps):
         rejected = False
         while True:
             h = tf[H]
-            min_step = 10.0 * abs(np.nextafter(t, np.inf) - t)
-            if h < min_step:
-                cnt[STATUS] = cnt[LAST_ST] if cnt[LAST_ST] != 0 else TOO_SMALL
+            t_new = _trial_end(it, t, t_stop)
+            if not t_new == t_new:
                 return FAILED
-            t_new = _step_end(t, t_stop, h, tf[MAX_STEP])
             if tf[H_LU] != t_new - t:
                 cnt[LU_OK] = 0
             trial = h

@@ -273,19 +273,22 @@ def position_rate(m, y, out):
 
 
 @ejit_inner
-def jacobian(m, wk, t, y, f0, Jq, Jv):
+def jacobian(m, wk, t, y, Jq, Jv):
     """The exact Jacobian blocks of ``dv_A/dt``: ``Jq = da_A/d(delta)`` and ``Jv = da_A/dv_A``
-    (nA, nA) at ``(t, y)`` (:func:`qchain.derivatives.aba_derivatives`; configuration
-    derivatives along ``integrate``, exact at ``delta_B = 0``), and ``f0 = dy/dt`` there.
-    Compiled callers only (no CPython wrapper)."""
+    (nA, nA) at ``(t, y)`` (:func:`qchain.derivatives.aba_derivatives`, which solves the
+    forward dynamics itself; configuration derivatives along ``integrate``, exact at
+    ``delta_B = 0``). Compiled callers only (no CPython wrapper)."""
     alpha, w, offs, mass, radius, l0, EI, EA, beta, A_ch, r_ch, paper_act, locked = m[:13]
     idx = m[13]
     kind = m[14]
     nA = idx.shape[0]
-    status = rhs(m, wk, t, y, f0)
+    configuration(m, wk, wk[2], y)
+    q, v, p, tau, B = wk[0], wk[1], wk[3], wk[4], wk[9]
+    status = check(m, wk, q)
     if status != OK:
         return status
-    q, v, p, tau, B = wk[0], wk[1], wk[3], wk[4], wk[9]
+    inputs(m, wk, t)
+    _base_state(m, wk, t, q, v)
     ws, wd, wa, sc = wk[11], wk[12], wk[13], wk[14]
     n = mass.shape[0]
     floating = kind[0] == 1

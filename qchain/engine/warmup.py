@@ -33,10 +33,6 @@ def is_cached(dispatcher) -> bool | None:
         return None
 
 
-def _needed(method: str) -> tuple:
-    return (steppers.ADVANCE[method], system.energies_batch)
-
-
 def loaded(method: str) -> bool:
     """Whether this process has ``method``'s stepper compiled or loaded."""
     return len(steppers.ADVANCE[method].overloads) > 0
@@ -44,7 +40,7 @@ def loaded(method: str) -> bool:
 
 def announce(method: str, stream=sys.stderr) -> None:
     """One line on ``stream`` if the on-disk cache holds nothing for ``method``'s stepper."""
-    if stream is not None and any(is_cached(d) is False for d in _needed(method)[:2]):
+    if stream is not None and any(is_cached(d) is False for d in (steppers.ADVANCE[method], system.energies_batch)):
         print(f"qchain: compiling the {method} engine for this machine: about {EXPECTED_COMPILE_S[method]} s on 2 "
               f"cores, once after install or an update (cached for later runs)", file=stream, flush=True)
 
