@@ -175,10 +175,8 @@ class _System:
 
     def stiffness_jacobian(self, t, y):
         """``[[0, I], [-M^-1 K, -M^-1 D]]`` on the active coordinates (elastic + damping): the
-        stiff part of the Jacobian, the implicit solvers' Newton matrix. (The exact one,
-        ``forward_dynamics_derivatives``, cut Radau's steps and Jacobians on the wave arm by 10 %
-        and 54 % but compiles its kernels at the first run, ~40 s here: the compiled engine
-        will take it up.)"""
+        stiff part of the Jacobian: scipy's Radau and BDF's Newton matrix on the Python path
+        (the compiled ``radau5`` and ``midpoint`` use the exact one)."""
         self.njev += 1
         yd, yv = y[: self.nA], y[self.nA :]
         n = self.nA
