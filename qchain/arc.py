@@ -1,11 +1,13 @@
 """Closed-form kinematics of a constant-strain (constant-curvature, extensible) slice.
 
-This is the per-node kernel of the model (DESIGN.md section 1), compiled with numba
+This is the per-node kernel of the model (docs/model.md section 2), compiled with numba
 because it runs at every quadrature node of every segment in every dynamics call.
 A segment in curvature coordinates ``q = (l, ux, uy)`` has the constant strain twist
 ``X = l * xi_u`` with the unit-length strain ``xi_u = (0, 0, 1, -uy, ux, 0)``
 (Pinocchio's ``[linear; angular]``). Slice ``alpha`` in [0, 1] sits at
-``g(alpha) = exp6(alpha X)``, arc length ``s = alpha l`` along the backbone.
+``g(alpha) = exp6(alpha X)``, arc length ``s = alpha l`` along the backbone: the paper's
+constant-curvature kinematics, eq. (1a), (1b) at the tip and their slice version in its
+section III-C, ``R = Rz(psi) Ry(kappa s) Rz(psi)^T``, ``d = Rz(psi) d_xz(s, kappa)``.
 
 Because ``xi_u`` has zero pitch, ``A = ad(xi_u)`` obeys ``A^3 = -kappa^2 A`` with
 ``kappa^2 = ux^2 + uy^2``, so every exponential is a quadratic polynomial in ``A``
@@ -15,7 +17,8 @@ whose coefficients are the entire functions
 
 of the bending angle ``x = s kappa``, and their derivatives ``g_n(x) = f_n'(x)/x``
 (also entire). They are evaluated by their Taylor series for ``x < 2`` and in closed form
-otherwise, so nothing divides by the curvature and the straight pose is a regular point.
+otherwise, so nothing divides by the curvature and the straight pose is a regular point
+(docs/model.md section 1: why curvature coordinates need no clamp at ``kappa = 0``).
 With ``a1 = s f0, a2 = s^2 f1, a3 = s^3 f2``:
 
 * ``R(s) = I + a1 [w] + a2 [w]^2`` with ``w = (-uy, ux, 0)``; ``p(s) = (a2 ux, a2 uy, a1)``;
@@ -140,7 +143,8 @@ def arc_pose(alpha, l, ux, uy, R, p):
 
 @jit
 def arc_node(alpha, l, ux, uy, ld, uxd, uyd, R, p, S, Sd):
-    """Slice kinematics at one node (numba; also callable from Python).
+    """Slice kinematics at one node (numba; also callable from Python): ``g(alpha)``, ``S(alpha)``
+    and ``dS/dt`` of docs/model.md section 2 (the paper's eq. (1) at ``s = alpha l``).
 
     Parameters
     ----------

@@ -1,7 +1,8 @@
 """An n-segment soft arm: segments stacked through non-inertial root frames.
 
-The root frame of segment ``j + 1`` is the tip frame of segment ``j`` (DESIGN.md section 2),
-so the arm has piecewise-constant (variable) curvature. :class:`Chain` is the model
+The root frame of segment ``j + 1`` is the tip frame of segment ``j`` (docs/model.md
+section 8; the paper's non-inertial root frames, section III-B), so the arm has
+piecewise-constant (variable) curvature. :class:`Chain` is the model
 (parameters, never changed by algorithms) and its user-facing methods; the recursive
 passes live in :mod:`qchain.recursive`.
 
@@ -11,11 +12,13 @@ Configuration layout (Pinocchio's conventions):
   the base sits at ``base_placement`` in the world.
 * ``base="floating"``: ``q = (x, y, z, qx, qy, qz, qw, q_e...)`` (nq = 7 + 3n),
   ``v = (v_B, w_B, qdot_e...)`` (nv = 6 + 3n): the base's linear and angular velocity in
-  its own frame -- the paper's quasi-velocities ``xi`` for the base.
+  its own frame -- the paper's quasi-velocities ``xi`` for the base, so the attitude has no
+  singularity (docs/model.md section 7).
 * ``base="prescribed"``: as fixed, with the base placement, body twist and body
   acceleration given functions of time (``base_motion(t) -> (X_WB, V_B, A_B)``).
 
-Equation of motion (every generalised force in the segments' own coordinates)::
+Equation of motion, the paper's eq. (9) for a chain (docs/model.md section 6; every
+generalised force in the segments' own coordinates)::
 
     M(q) a + C(q, v) v + g(q) + D v + dU_el/dq = B(q) p + tau
 
@@ -379,7 +382,8 @@ class Chain:
     # ------------------------------------------------------------------ Lie group
 
     def integrate(self, q, v, dt: float = 1.0) -> np.ndarray:
-        """``q (+) v dt`` on the configuration manifold (Pinocchio's free-flyer exp for the base)."""
+        """``q (+) v dt`` on the configuration manifold (Pinocchio's free-flyer exp for the base;
+        docs/model.md section 7)."""
         q = self._q(q)
         v = as_vector("v", v, self.nv)
         out = q.copy()
@@ -548,7 +552,8 @@ class Chain:
         return M
 
     def kinetic_energy(self, q, v, t: float = 0.0) -> float:
-        """``T = sum_j 1/2 xi_j^T M_xi_j xi_j`` (J), the base's own motion included."""
+        """``T = sum_j 1/2 xi_j^T M_xi_j xi_j`` (J), the base's own motion included (the paper's
+        eq. (4) summed over the segments; docs/model.md section 8)."""
         st = self._state(q, v, t=t)
         V = self._root_twists(st)
         M = self._segment_masses_c(st)
@@ -567,7 +572,7 @@ class Chain:
         return np.einsum("nij,nj->ni", R[:-1], c) + o[:-1]
 
     def potential_energy(self, q, t: float = 0.0) -> float:
-        """Gravity (about the world origin) plus elastic energy (J)."""
+        """Gravity (about the world origin) plus elastic energy (J) (docs/model.md section 9)."""
         st = self._state(q, t=t)
         Ug = -float(self._mass @ (self._centers_of_mass(st) @ self.gravity))
         Ue = sum(s.elastic_energy(st.q_e[j]) for j, s in enumerate(self.segments))
@@ -622,7 +627,8 @@ class Chain:
         return ws, ws[8]
 
     def mass_matrix(self, q, data: Data | None = None) -> np.ndarray:
-        """``M(q)`` (nv, nv) by composite-body assembly (:func:`qchain.recursive.crba`)."""
+        """``M(q)`` (nv, nv) by composite-body assembly (:func:`qchain.recursive.crba`):
+        ``sum_j A_j^T M_xi_j A_j`` of the segments' eq. (6) blocks (docs/model.md section 8)."""
         st = self._state(q, nonsingular=True)
         H = np.empty((self.nv, self.nv)) if data is None else data.M
         ws = self._ws(data)
@@ -642,7 +648,8 @@ class Chain:
         return np.concatenate([F0, tau]) if self.floating else tau
 
     def inverse_dynamics(self, q, v, a, t: float = 0.0) -> np.ndarray:
-        """``M a + C v + g`` (nv,) by recursive Newton-Euler over the slices (Pinocchio's ``rnea``).
+        """``M a + C v + g`` (nv,) by recursive Newton-Euler over the slices (Pinocchio's ``rnea``;
+        docs/model.md sections 4 and 8): the inertial and gravity terms of eq. (9).
 
         No elastic, damping or pressure terms. For a floating base the first six entries
         are the wrench on the base (base frame). For a prescribed base the base's own
@@ -657,14 +664,15 @@ class Chain:
         return self.inverse_dynamics(q, v, np.zeros(self.nv), t=t)
 
     def generalized_gravity(self, q, t: float = 0.0) -> np.ndarray:
-        """``g(q)`` (nv,): gravity alone (a prescribed base held still at its placement at ``t``)."""
+        """``g(q)`` (nv,): gravity alone (a prescribed base held still at its placement at ``t``);
+        the ``g_xi`` of eq. (9) (docs/model.md section 9)."""
         st = self._state(q, np.zeros(self.nv), t=t, nonsingular=True)
         st.V0 = np.zeros(6)
         st.A_B = None
         return self._rnea(st, np.zeros((self.n, 3)), np.zeros(6) if self.floating else None)
 
     def elastic_force(self, q) -> np.ndarray:
-        """``dU_el/dq`` (nv,), zero on the base."""
+        """``dU_el/dq`` (nv,), zero on the base (docs/model.md section 9)."""
         st = self._state(q)
         out = np.zeros(self.nv)
         for j, s in enumerate(self.segments):
@@ -685,7 +693,7 @@ class Chain:
         return self._segment_blocks(q, lambda j, s, qe: s.elastic_stiffness(qe))
 
     def dissipation_matrix(self, q) -> np.ndarray:
-        """``D`` (nv, nv), block-diagonal, zero on the base."""
+        """``D`` (nv, nv), block-diagonal, zero on the base (docs/model.md section 9)."""
         return self._segment_blocks(q, lambda j, s, qe: s.dissipation_matrix(qe))
 
     def pressure_stiffness(self, q, p) -> np.ndarray:
@@ -703,7 +711,7 @@ class Chain:
 
     def input_matrix(self, q) -> np.ndarray:
         """``B(q)`` (nv, 3 n): block-diagonal, pressures act only on their own segment's ``q_e``,
-        never as a net force on the base."""
+        never as a net force on the base (the paper's eq. (8); docs/model.md section 5)."""
         st = self._state(q)
         B = np.zeros((self.nv, self.nu))
         for j, s in enumerate(self.segments):
@@ -729,7 +737,8 @@ class Chain:
         return p3, tau, extra
 
     def internal_forces(self, q, v, p=None) -> np.ndarray:
-        """``B p - D v - dU_el/dq`` (nv,), the segments' own generalised forces, zero on the base."""
+        """``B p - D v - dU_el/dq`` (nv,), the segments' own generalised forces, zero on the base
+        (docs/model.md sections 5 and 9)."""
         st = self._state(q, v)
         f = self._internal_e(st, self._p(p))
         out = np.zeros(self.nv)
@@ -755,10 +764,12 @@ class Chain:
                          skip_checks: bool = False) -> np.ndarray:
         """Accelerations ``a`` (nv,) of ``M a + C v + g + D v + dU_el/dq = B p + tau``.
 
-        Articulated-body recursion on the segment blocks (:func:`qchain.recursive.aba`),
-        O(n); locked coordinates get zero acceleration. ``p`` (3 n,) Pa, default zero; ``tau`` (nv,) external generalised forces
-        (for a floating base, ``tau[:6]`` is a wrench on the base in the base frame).
-        ``data`` (:meth:`create_data`) is the workspace the pass writes in. ``skip_checks=True``
+        The paper's eq. (9) for the chain (docs/model.md section 6), solved by the
+        articulated-body recursion on the segment blocks (:func:`qchain.recursive.aba`;
+        docs/model.md section 8), O(n); locked coordinates get zero acceleration. ``p`` (3 n,)
+        Pa, default zero; ``tau`` (nv,) external generalised forces (for a floating base,
+        ``tau[:6]`` is a wrench on the base in the base frame). ``data`` (:meth:`create_data`)
+        is the workspace the pass writes in. ``skip_checks=True``
         is the unchecked fast path (:meth:`forward_dynamics_derivatives`): it returns
         ``data.a``, overwritten by the next call with that ``data``.
         """
@@ -902,7 +913,9 @@ class Chain:
 
         ``C = sum_j A_j^T (C_xi_j A_j + M_xi_j Adot_j)`` with ``xi_j = A_j v``, from the
         segments' own ``C_xi`` (fixed and floating bases; a prescribed base adds a forcing
-        that is not of the form ``C v``).
+        that is not of the form ``C v``). docs/model.md sections 4 and 8; it is not the
+        Christoffel matrix of the Lagrangian form (docs/model.md section 7), with which it
+        shares ``C v`` and the skew property.
         """
         if self.base == "prescribed":
             raise ValueError("coriolis_matrix is defined for base='fixed' or 'floating' (a prescribed base "

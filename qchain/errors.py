@@ -23,7 +23,11 @@ class DomainError(QchainError, ValueError):
 
 
 class SingularConfigurationError(QchainError, ValueError):
-    """The paper's (l, psi, kappa) coordinates are singular at this configuration."""
+    """The paper's (l, psi, kappa) coordinates are singular at this configuration.
+
+    Also raised by :class:`qchain.LagrangianChain` at the attitude singularity of its
+    roll-pitch-yaw base coordinates (``|pitch| -> pi/2``).
+    """
 
 
 def as_vector(name: str, value, size: int) -> np.ndarray:

@@ -1,5 +1,8 @@
 """Recursive passes over a chain of segments (numba), in the manner of Pinocchio's algorithms.
 
+docs/model.md section 8 derives them: the chain form of the paper's eq. (9), assembled from
+each segment's eq. (6) block ``M_xi`` and slice Newton-Euler integral (section 4).
+
 The passes work on per-segment blocks and plain arrays, never on the ``Chain`` facade:
 
 * ``alpha, w`` (N,), ``offs`` (n + 1,): the Gauss nodes and weights of all segments,
@@ -79,7 +82,7 @@ def _load_xi(xi, V, qd):
 @jit
 def tip_maps(q, qd, V0, T, c, V):
     """Forward velocity pass: tip maps ``T`` (n, 6, 9), tip biases ``c`` (n, 6) and root
-    twists ``V`` (n + 1, 6), ``V[0] = V0``, ``V[j + 1] = T_j xi_j``."""
+    twists ``V`` (n + 1, 6), ``V[0] = V0``, ``V[j + 1] = T_j xi_j`` (docs/model.md section 8)."""
     n = q.shape[0]
     sc = np.empty(SCRATCH)  # called from Python, once per call
     xi, o = take1(sc, 0, 9)
@@ -93,7 +96,9 @@ def tip_maps(q, qd, V0, T, c, V):
 
 @jit
 def rnea(alpha, w, offs, mass, radius, q, qd, qdd, V0, A0, tau, F0, ws, sc):
-    """Inverse dynamics ``tau = M qdd + C qd + g`` (n, 3) and the base wrench ``F0`` (6,).
+    """Inverse dynamics ``tau = M qdd + C qd + g`` (n, 3) and the base wrench ``F0`` (6,): the
+    inertial and gravity terms of the paper's eq. (9) for the chain, by Newton-Euler over the
+    slices (docs/model.md section 8).
 
     ``F0`` is the wrench (first root frame) the base exerts on the chain: the generalised
     force of a floating base, the mount's reaction for a fixed or prescribed one. ``ws`` is
@@ -157,7 +162,8 @@ def _project(M, T, I, IT, out):
 
 @jit
 def crba(alpha, w, offs, mass, radius, q, floating, H, ws, sc):
-    """Composite-body assembly of the joint-space inertia ``H`` (nv, nv), curvature coordinates.
+    """Composite-body assembly of the joint-space inertia ``H`` (nv, nv), curvature coordinates
+    (``M = sum_j A_j^T M_xi_j A_j`` of the segments' eq. (6) blocks; docs/model.md section 8).
 
     Backwards from the tip: the composite inertia ``Ic`` of everything beyond root ``j + 1``
     gives ``Mh = M_xi_j + T_j^T Ic T_j`` (9 x 9): its ``qq`` block is ``H_jj``, its ``Vq``
@@ -261,7 +267,8 @@ def _chol_solve(L, k, b):
 
 @jit
 def aba(alpha, w, offs, mass, radius, q, qd, tau, V0, A0, floating, F0, qdd, A0_out, locked, ws, sc):
-    """Articulated-body forward dynamics: ``qdd`` (n, 3) from ``M qdd + C qd + g = tau``.
+    """Articulated-body forward dynamics: ``qdd`` (n, 3) from ``M qdd + C qd + g = tau`` (the
+    paper's eq. (9) for the chain; docs/model.md section 8).
 
     ``tau`` (n, 3) is the total generalised force on the segment coordinates (pressure,
     elastic, damping, external). ``locked`` (n, 3) bool holds coordinates still (ideal

@@ -5,28 +5,32 @@ with constant curvature and stretches (no twist, no swelling), driven by three i
 chambers at angles ``phi_i = 0, +2pi/3, -2pi/3`` about the root frame's z axis (chamber 1
 on the +x axis). It is the model of Olguin-Diaz, Trejo-Ramos, Parra-Vega and
 Navarro-Alarcon, "On the Modelling of Soft-robots as Quasi-Continuum Lagrangian
-Dynamical Systems with Well-posed Input Matrix"; DESIGN.md section 1 restates it.
+Dynamical Systems with Well-posed Input Matrix" ("the paper"); docs/model.md restates it
+(sections 1 to 6 and 9), with the paper's equation numbers.
 
 Conventions
 -----------
-* Deformation coordinates ``q_e`` (shape (3,)): ``coords="curvature"`` (default)
-  ``(l, ux, uy)`` [m, 1/m, 1/m] with ``(ux, uy) = kappa (cos psi, sin psi)``, analytic
-  everywhere; ``coords="paper"`` ``(l, psi, kappa)`` [m, rad, 1/m], the paper's own,
+* Deformation coordinates ``q_e`` (shape (3,)), docs/model.md section 1:
+  ``coords="curvature"`` (default) ``(l, ux, uy)`` [m, 1/m, 1/m] with
+  ``(ux, uy) = kappa (cos psi, sin psi)``, analytic everywhere; ``coords="paper"``
+  ``(l, psi, kappa)`` [m, rad, 1/m], the paper's own (section III-A, before eq. (1)),
   singular at ``kappa = 0``.
-* Quasi-velocities ``xi = (v, w, qdot_e)`` (shape (9,)): ``v, w`` the root frame's linear
-  and angular velocity in root coordinates (Pinocchio ``[linear; angular]``), ``qdot_e`` in
-  the segment's coordinates.
-* Equation of motion of a segment on a moving root frame (all terms on the left are
-  "generalised forces" in the sense of Pinocchio's ``rnea``/``computeGeneralizedGravity``)::
+* Quasi-velocities ``xi = (v, w, qdot_e)`` (shape (9,)), the paper's ``xi`` (before
+  eq. (3)): ``v, w`` the root frame's linear and angular velocity in root coordinates
+  (Pinocchio ``[linear; angular]``), ``qdot_e`` in the segment's coordinates.
+* Equation of motion of a segment on a moving root frame, the paper's eq. (9)
+  (docs/model.md section 6; all terms on the left are "generalised forces" in the sense of
+  Pinocchio's ``rnea``/``computeGeneralizedGravity``)::
 
       M_xi(q_e) xi_dot + C_xi(q_e, xi) xi + G(q_e) + [0; D qdot_e + dU_el/dq_e]
           = [w_root; B(q_e) p]
 
   where ``w_root`` is the wrench (root coordinates) the root frame exerts on the segment.
 * Mass: the paper's density field ``rho = rho0 l0 / (l (1 - kappa r cos(psi - phi)))``
-  makes every cross-section a rigid uniform disk of mass ``m dalpha``, so
-  ``M_xi = int_0^1 Phi^T I_disk Phi dalpha`` with ``Phi = [Ad(g)^-1, S(alpha)]``, computed
-  by Gauss-Legendre quadrature on ``nodes`` points.
+  (eq. (5)) makes every cross-section a rigid uniform disk of mass ``m dalpha``
+  (docs/model.md section 3), so ``M_xi = int_0^1 Phi^T I_disk Phi dalpha`` (eq. (6),
+  docs/model.md section 4) with ``Phi = [Ad(g)^-1, S(alpha)]``, computed by Gauss-Legendre
+  quadrature on ``nodes`` points.
 """
 
 from __future__ import annotations
@@ -92,7 +96,7 @@ ACTUATIONS = ("volume", "paper")
 
 
 def paper_to_curvature(q_p: np.ndarray) -> np.ndarray:
-    """``(l, psi, kappa) -> (l, ux, uy) = (l, kappa cos psi, kappa sin psi)``."""
+    """``(l, psi, kappa) -> (l, ux, uy) = (l, kappa cos psi, kappa sin psi)`` (docs/model.md section 1)."""
     l, psi, kappa = q_p
     return np.array([l, kappa * np.cos(psi), kappa * np.sin(psi)])
 
@@ -107,7 +111,8 @@ def curvature_to_paper(q_c: np.ndarray) -> np.ndarray:
 
 
 def paper_jacobian(q_p: np.ndarray) -> np.ndarray:
-    """``J = d(l, ux, uy) / d(l, psi, kappa)``, shape (3, 3)."""
+    """``J = d(l, ux, uy) / d(l, psi, kappa)``, shape (3, 3); ``det J = -kappa``, which is why
+    the paper's coordinates are singular at ``kappa = 0`` (docs/model.md section 1)."""
     _, psi, kappa = q_p
     c, s = np.cos(psi), np.sin(psi)
     return np.array([[1.0, 0.0, 0.0], [0.0, -kappa * s, c], [0.0, kappa * c, s]])
@@ -201,7 +206,8 @@ class Segment:
     radius : float
         Outer radius ``r_s`` (m).
     mass : float
-        Mass ``m`` (kg), spread uniformly over every cross-section (the paper's density).
+        Mass ``m`` (kg), spread uniformly over every cross-section (the paper's density,
+        eq. (5); docs/model.md section 3).
     chamber_area : float
         Cross-section area ``A_ch`` of each chamber (m^2).
     chamber_radius : float
@@ -211,16 +217,18 @@ class Segment:
         ``E`` (Pa); ``EI = E pi r_s^4 / 4``, ``EA = E pi r_s^2``.
     damping : float, optional
         Stiffness-proportional damping ``beta`` (s): ``D = beta K(q0)``, ``K(q0)`` the
-        elastic stiffness at rest in curvature coordinates, mapped to ``coords``.
+        elastic stiffness at rest in curvature coordinates, mapped to ``coords``
+        (docs/model.md section 9).
     coords : {"curvature", "paper"}
-        Deformation coordinates ``q_e``; see the module docstring.
+        Deformation coordinates ``q_e``; see the module docstring and docs/model.md section 1.
     actuation : {"volume", "paper"}
         Input matrix model: chamber-volume virtual work (default) or the paper's
-        tip-plate forces.
+        tip-plate forces (eq. (8); docs/model.md section 5).
     nodes : int, optional
         Gauss-Legendre nodes along the segment; ``None`` gives :data:`DEFAULT_NODES`.
     stiffness_matrix : (3, 3) array, optional
-        The paper's literal linear elasticity ``K_e`` in the segment's coordinates:
+        The paper's literal linear elasticity ``K_e`` in the segment's coordinates
+        (``-K_e (q - q_0) - D qdot``, the text before eq. (4); docs/model.md section 9):
         ``U_el = 1/2 (q_e - rest_q_e)^T K_e (q_e - rest_q_e)`` replaces the material law.
     damping_matrix : (3, 3) array, optional
         The paper's literal ``D`` in the segment's coordinates, replacing ``beta K(q0)``.
@@ -317,7 +325,8 @@ class Segment:
             wrong shape or non-finite entries.
         DomainError
             ``l <= 0``; ``|kappa| r_s >= 1`` (the inner fibre length vanishes and the
-            density field diverges); ``kappa < 0`` in paper coordinates.
+            density field diverges); ``kappa < 0`` in paper coordinates (docs/model.md
+            sections 1 and 3).
         """
         q = as_vector(name, q_e, 3)
         code = domain_violation(q[0], q[1], q[2], self.radius, self.coords == "paper")
@@ -374,7 +383,8 @@ class Segment:
     # ------------------------------------------------------------------- kinematics
 
     def slice_placement(self, q_e, alpha: float) -> pin.SE3:
-        """Placement ``g(alpha) = exp6(alpha X(q_e))`` of slice ``alpha`` in the root frame."""
+        """Placement ``g(alpha) = exp6(alpha X(q_e))`` of slice ``alpha`` in the root frame: the
+        paper's eq. (1) at ``s = alpha l`` (section III-C; docs/model.md section 2)."""
         a = float(alpha)
         if not 0.0 <= a <= 1.0:
             raise ValueError(f"alpha must be in [0, 1], got {alpha!r}")
@@ -382,11 +392,13 @@ class Segment:
         return pin.exp6(pin.Motion(a * q_c[0] * strain_twist(q_c)))
 
     def tip_placement(self, q_e) -> pin.SE3:
-        """Placement of the tip frame (slice ``alpha = 1``) in the root frame."""
+        """Placement of the tip frame (slice ``alpha = 1``) in the root frame: the paper's
+        eq. (1a), (1b) (docs/model.md section 2)."""
         return self.slice_placement(q_e, 1.0)
 
     def backbone(self, q_e, alpha) -> np.ndarray:
-        """Backbone points ``p(alpha)`` in the root frame (m), shape ``(P, 3)`` for ``alpha`` (P,)."""
+        """Backbone points ``p(alpha)`` in the root frame (m), shape ``(P, 3)`` for ``alpha`` (P,)
+        (docs/model.md section 2)."""
         a = np.atleast_1d(np.asarray(alpha, dtype=float))
         if a.ndim != 1 or np.any((a < 0.0) | (a > 1.0)) or not np.all(np.isfinite(a)):
             raise ValueError("alpha must be a 1-D array of values in [0, 1]")
@@ -394,12 +406,14 @@ class Segment:
         return arc_nodes(a, q_c).p
 
     def center_of_mass(self, q_e) -> np.ndarray:
-        """Centre of mass ``r_cm`` in the root frame (m), shape (3,); off the backbone when bent."""
+        """Centre of mass ``r_cm = int_0^1 p(alpha) dalpha`` in the root frame (m), shape (3,);
+        off the backbone when bent (the ``r_cm`` of eq. (6); docs/model.md section 3)."""
         q_c, _ = self._curvature(q_e)
         return self.alpha_weights @ arc_nodes(self.alpha_nodes, q_c).p
 
     def tip_jacobian(self, q_e) -> np.ndarray:
-        """Tip body twist per unit ``qdot_e``: ``S(1) J`` (6, 3), tip frame, ``[linear; angular]``."""
+        """Tip body twist per unit ``qdot_e``: ``S(1) J`` (6, 3), tip frame, ``[linear; angular]``
+        (docs/model.md section 2)."""
         q_c, J = self._curvature(q_e)
         return arc_nodes(1.0, q_c).S[0] @ J
 
@@ -418,10 +432,12 @@ class Segment:
     def mass_matrix(self, q_e) -> np.ndarray:
         """``M_xi(q_e)`` (9, 9), kg / kg m / kg m^2, in ``xi = (v, w, qdot_e)``.
 
-        The paper's eq. for M_xi with its density field: ``int_0^1 Phi^T I_disk Phi dalpha``
-        (:func:`qchain.slices.segment_mass`). Its top-left 6x6 block is the rigid composite
-        inertia seen from the root, ``[[m I, -m [r_cm]], [m [r_cm], I(q_e)]]``. In paper
-        coordinates ``T^T M_c T`` with ``T = blockdiag(I6, J)``.
+        The paper's eq. (6) with its density field, eq. (5): ``int_0^1 Phi^T I_disk Phi dalpha``
+        (:func:`qchain.slices.segment_mass`; docs/model.md sections 3 and 4). Its top-left 6x6
+        block is the rigid composite inertia seen from the root,
+        ``[[m I, -m [r_cm]], [m [r_cm], I(q_e)]]``. In paper coordinates ``T^T M_c T`` with
+        ``T = blockdiag(I6, J)`` (docs/model.md section 1). ``1/2 xi^T M_xi xi`` is the kinetic
+        energy, eq. (4).
 
         Raises
         ------
@@ -433,12 +449,14 @@ class Segment:
         return T.T @ self._mass_c(q_c) @ T
 
     def coriolis_matrix(self, q_e, xi) -> np.ndarray:
-        """``C_xi(q_e, xi)`` (9, 9) with ``C_xi + C_xi^T = dM_xi/dt``.
+        """``C_xi(q_e, xi)`` (9, 9) of eq. (9), with ``C_xi + C_xi^T = dM_xi/dt``.
 
         Per slice ``Phi^T (I_disk Phidot + [I_disk V]x*bar Phi)`` with the skew-symmetric
         ``[h]x*bar`` (``a x* h = [h]x*bar a``), so ``C_xi xi`` is the exact velocity-product
         force and the passivity identity holds exactly. ``Phidot = [-ad(S qdot) Ad(g)^-1,
-        Sdot]``. In paper coordinates ``T^T C_c T + T^T M_c Tdot``.
+        Sdot]``. In paper coordinates ``T^T C_c T + T^T M_c Tdot``. docs/model.md section 4;
+        the paper's own ``C_xi`` (after eq. (9), from the Christoffel symbols of ``H``) is a
+        different matrix with the same ``C_xi xi`` (docs/model.md section 7).
         """
         q_c, J = self._curvature(q_e, nonsingular=True)
         xi = as_vector("xi", xi, 9)
@@ -464,7 +482,8 @@ class Segment:
 
     def velocity_product_force(self, q_e, xi) -> np.ndarray:
         """``C_xi(q_e, xi) xi`` (9,) without forming the matrix: the slice Newton-Euler
-        integral (:func:`qchain.slices.segment_newton_euler`) at zero acceleration."""
+        integral (:func:`qchain.slices.segment_newton_euler`) at zero acceleration
+        (docs/model.md section 4)."""
         q_c, J = self._curvature(q_e, nonsingular=True)
         xi = as_vector("xi", xi, 9)
         T = self._lift(J)
@@ -476,9 +495,10 @@ class Segment:
     def generalized_gravity(self, q_e, gravity) -> np.ndarray:
         """``G(q_e)`` (9,): gradient of ``U = -int g . p dm``, gravity ``g`` (3,) m/s^2 in root coordinates.
 
-        ``G[:3]`` is minus the weight and ``G[3:6]`` minus its moment about the root
-        origin (root coordinates); ``G[6:]`` is ``dU/dq_e``. Computed as ``M_xi`` applied
-        to a root acceleration ``(-g, 0)`` (the disks' centres are their slice origins).
+        The ``g_xi`` of eq. (9). ``G[:3]`` is minus the weight and ``G[3:6]`` minus its moment
+        about the root origin (root coordinates); ``G[6:]`` is ``dU/dq_e``. Computed as
+        ``M_xi`` applied to a root acceleration ``(-g, 0)`` (the disks' centres are their slice
+        origins; docs/model.md section 9).
         """
         g = as_vector("gravity", gravity, 3)
         q_c, J = self._curvature(q_e)
@@ -487,12 +507,13 @@ class Segment:
         return self._lift(J).T @ self._newton_euler_c(q_c, np.zeros(9), xid_c)
 
     def gravity_energy(self, q_e, gravity) -> float:
-        """``U_g = -m g . r_cm`` (J) relative to the root origin; ``g`` in root coordinates."""
+        """``U_g = -m g . r_cm`` (J) relative to the root origin; ``g`` in root coordinates
+        (docs/model.md section 9)."""
         g = as_vector("gravity", gravity, 3)
         return -self.mass * float(g @ self.center_of_mass(q_e))
 
     def kinetic_energy(self, q_e, xi) -> float:
-        """``T = 1/2 xi^T M_xi xi`` (J)."""
+        """``T = 1/2 xi^T M_xi xi`` (J), the paper's eq. (4) (docs/model.md section 3)."""
         xi = as_vector("xi", xi, 9)
         return 0.5 * float(xi @ self.mass_matrix(q_e) @ xi)
 
@@ -505,7 +526,9 @@ class Segment:
         ``actuation="volume"``: ``B[:, i] = A_ch d l_i / d q_e`` with the chamber fibre length
         ``l_i = l (1 - kappa r_ch cos(psi - phi_i))`` (virtual work of the chamber volume).
         ``actuation="paper"``: ``B[:, i] = A_ch J_ci^T R k``, the force ``p_i A_ch`` along the
-        tip normal at the chamber's centre on the tip plate. The two share the ``l`` row.
+        tip normal at the chamber's centre on the tip plate (the paper's eq. (8) and the
+        display after it). The two share the ``l`` row; under equal pressures only the paper's
+        bends a bent segment. docs/model.md section 5 gives both in closed form.
         """
         q_c, J = self._curvature(q_e)
         Bc = np.empty((3, 3))
@@ -514,7 +537,7 @@ class Segment:
 
     def pressure_stiffness(self, q_e, p) -> np.ndarray:
         """``d(B(q_e) p)/d q_e`` (3, 3), exact, both actuation models
-        (:func:`qchain.slices.pressure_jacobian_c`)."""
+        (:func:`qchain.slices.pressure_jacobian_c`; ``B`` of docs/model.md section 5)."""
         p = as_vector("p", p, 3)
         q_c, J = self._curvature(q_e)
         paper_act = self.actuation == "paper"
@@ -537,7 +560,8 @@ class Segment:
         return self.neutral() if self.rest_q_e is None else self.rest_q_e
 
     def elastic_energy(self, q_e) -> float:
-        """``U_el`` (J): ``1/2 EI (kappa l)^2 / l0 + 1/2 EA (l - l0)^2 / l0``, or the linear law."""
+        """``U_el`` (J): ``1/2 EI (kappa l)^2 / l0 + 1/2 EA (l - l0)^2 / l0``, or the linear law
+        (docs/model.md section 9)."""
         q = self.check_configuration(q_e)
         if self.stiffness_matrix is not None:
             dq = q - self._rest()
@@ -553,7 +577,8 @@ class Segment:
         return g
 
     def elastic_force(self, q_e) -> np.ndarray:
-        """``dU_el/dq_e`` (3,), the elastic term on the left of the equation of motion."""
+        """``dU_el/dq_e`` (3,), the elastic term on the left of the equation of motion (the
+        paper's ``K_xi (q - q0)`` of eq. (9); docs/model.md section 9)."""
         q = self.check_configuration(q_e)
         if self.stiffness_matrix is not None:
             return self.stiffness_matrix @ (q - self._rest())
@@ -562,7 +587,7 @@ class Segment:
         return self._elastic_grad_c(q)
 
     def elastic_stiffness(self, q_e) -> np.ndarray:
-        """``d^2 U_el / dq_e^2`` (3, 3), exact."""
+        """``d^2 U_el / dq_e^2`` (3, 3), exact (docs/model.md section 9)."""
         q = self.check_configuration(q_e)
         if self.stiffness_matrix is not None:
             return self.stiffness_matrix.copy()
@@ -579,7 +604,8 @@ class Segment:
 
         ``damping_matrix`` if given; else ``beta K(q0)`` (``K`` the stiffness at rest:
         the linear ``K_e``, or the material law's in curvature coordinates mapped by
-        ``J^T D J`` to paper coordinates).
+        ``J^T D J`` to paper coordinates). The paper's ``D`` of eq. (7) and (9)
+        (docs/model.md section 9).
         """
         q = self.check_configuration(q_e)
         if self.damping_matrix is not None:
@@ -593,7 +619,8 @@ class Segment:
         return J.T @ Dc @ J
 
     def damping_force(self, q_e, qdot_e) -> np.ndarray:
-        """``D qdot_e`` (3,), the dissipative term on the left of the equation of motion."""
+        """``D qdot_e`` (3,), the dissipative term on the left of the equation of motion
+        (docs/model.md section 9)."""
         qd = as_vector("qdot_e", qdot_e, 3)
         return self.dissipation_matrix(q_e) @ qd
 
@@ -602,8 +629,8 @@ def nodes_for_tolerance(segment: Segment, theta_max: float, tol: float, referenc
     """Smallest Gauss-Legendre node count whose ``M_xi`` is within ``tol`` (relative, Frobenius)
     of a ``reference_nodes`` one at bending angle ``theta_max`` (rad) and rest length.
 
-    The quadrature error grows with the bending angle (DESIGN.md section 1: the node count
-    is a fidelity knob), so a scene that bends less needs fewer nodes.
+    The quadrature error grows with the bending angle (docs/model.md section 4: the node
+    count is a fidelity knob), so a scene that bends less needs fewer nodes.
     """
     theta = float(theta_max)
     if not (np.isfinite(theta) and theta >= 0.0):

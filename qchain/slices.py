@@ -1,6 +1,7 @@
 """Integrals over the slices of one segment (numba): M_xi and the slice Newton-Euler force.
 
-A segment is a continuum of rigid uniform disks (DESIGN.md section 1). With
+A segment is a continuum of rigid uniform disks (the paper's density field, eq. (5);
+docs/model.md section 3). With
 ``Phi(alpha) = [Ad(g(alpha))^-1, S(alpha)]`` (6 x 9) mapping the segment's quasi-velocity
 ``xi = (V_root, qdot)`` to the body twist of slice ``alpha``, and the disk's spatial inertia
 ``I = diag(m, m, m, m r^2/4, m r^2/4, m r^2/2)`` per unit ``alpha``:
@@ -9,8 +10,11 @@ A segment is a continuum of rigid uniform disks (DESIGN.md section 1). With
 * ``Q = int_0^1 Phi^T (I a + V x* I V) dalpha`` with the slice twist ``V = Phi xi`` and
   acceleration ``a = Phi xidot + Phidot xi``                (:func:`segment_newton_euler`)
 
-so ``Q = M_xi xidot + C_xi xi``; a root acceleration of ``(-g_root, 0)`` adds the
-generalised gravity ``G``. Everything is in curvature coordinates ``q = (l, ux, uy)``;
+so ``Q = M_xi xidot + C_xi xi`` (the paper's eq. (6) and the left side of eq. (9);
+docs/model.md section 4); a root acceleration of ``(-g_root, 0)`` adds the generalised
+gravity ``G`` (docs/model.md section 9). The segment forces below are the input matrix
+(eq. (8); docs/model.md section 5) and the elastic and damping laws (docs/model.md
+section 9). Everything is in curvature coordinates ``q = (l, ux, uy)``;
 integrals use the Gauss-Legendre nodes ``alpha`` with weights ``w`` (summing to 1).
 """
 
@@ -39,7 +43,7 @@ def sub_motion_cross(a, b, out):
 
 @jit
 def slice_twist(R, p, S, V0, qd, out):
-    """``out = Ad(g)^-1 V0 + S qd``: the slice body twist (6,)."""
+    """``out = Ad(g)^-1 V0 + S qd``: the slice body twist (6,) (docs/model.md section 2)."""
     v0 = V0[0] - (p[1] * V0[5] - p[2] * V0[4])
     v1 = V0[1] - (p[2] * V0[3] - p[0] * V0[5])
     v2 = V0[2] - (p[0] * V0[4] - p[1] * V0[3])
@@ -71,7 +75,7 @@ def phi_transpose_force(R, p, S, f, wgt, out):
 
 @jit
 def phi_matrix(R, p, S, Phi):
-    """``Phi = [Ad(g)^-1, S]`` (6, 9)."""
+    """``Phi = [Ad(g)^-1, S]`` (6, 9) (docs/model.md section 2)."""
     for r in range(3):
         for c in range(3):
             Phi[r, c] = R[c, r]
@@ -92,7 +96,7 @@ def segment_slices(alpha, w, mass, radius, q, xi, xid, want_mass, M, Q, sc):
     """One pass over the nodes of a segment (curvature coordinates).
 
     ``Q[:] = int Phi^T (I a + V x* I V) dalpha`` (9,) ``= M_xi xid + C_xi xi``; with
-    ``want_mass`` also ``M[:] = M_xi`` (9, 9). ``xi = (V_root, qdot)``, ``xid = (A_root, qddot)``;
+    ``want_mass`` also ``M[:] = M_xi`` (9, 9), the paper's eq. (6) (docs/model.md section 4). ``xi = (V_root, qdot)``, ``xid = (A_root, qddot)``;
     ``sc`` is scratch (:data:`qchain.arc.SCRATCH`).
     """
     _segment_slices(alpha, w, mass, radius, q, xi, xid, want_mass, M, Q, sc)
@@ -222,7 +226,8 @@ def mass_finish(M, mp, Irot, mtot):
 
 @jit
 def segment_mass(alpha, w, mass, radius, q, M):
-    """``M[:] = M_xi(q)`` (9, 9) in curvature coordinates, by quadrature over the nodes."""
+    """``M[:] = M_xi(q)`` (9, 9) in curvature coordinates, by quadrature over the nodes: the
+    paper's eq. (6) (docs/model.md section 4)."""
     Q = np.empty(9)
     z = np.zeros(9)
     # copies: a Segment's nodes are read-only arrays, which numba types apart from the writable
@@ -232,14 +237,16 @@ def segment_mass(alpha, w, mass, radius, q, M):
 
 @jit
 def segment_newton_euler(alpha, w, mass, radius, q, xi, xid, Q):
-    """``Q[:] = M_xi xid + C_xi xi`` (9,), curvature coordinates (see :func:`segment_slices`)."""
+    """``Q[:] = M_xi xid + C_xi xi`` (9,), curvature coordinates (see :func:`segment_slices`;
+    docs/model.md section 4)."""
     M = np.empty((1, 1))
     _segment_slices(alpha.copy(), w.copy(), mass, radius, q.copy(), xi.copy(), xid.copy(), False, M, Q,
                     np.empty(SCRATCH))
 
 
 # --------------------------------------------------------------------------- segment forces
-#: Chamber angles phi_i about the root z axis (rad): chamber 1 on +x.
+#: Chamber angles phi_i about the root z axis (rad): chamber 1 on +x (the paper's
+#: ``phi_i = 0, 2pi/3, -2pi/3``, section IV-B; docs/model.md section 1).
 CHAMBER_ANGLES = np.array([0.0, 2.0 * np.pi / 3.0, -2.0 * np.pi / 3.0])
 _COS_PHI = np.cos(CHAMBER_ANGLES)
 _SIN_PHI = np.sin(CHAMBER_ANGLES)
@@ -247,7 +254,8 @@ _SIN_PHI = np.sin(CHAMBER_ANGLES)
 
 @jit
 def input_matrix_c(q, A_ch, r_ch, paper_act, B, sc):
-    """``B[:] =`` the input matrix (3, 3) in curvature coordinates, column i = chamber i.
+    """``B[:] =`` the input matrix (3, 3) in curvature coordinates, column i = chamber i:
+    the ``B`` of the paper's eq. (8) (docs/model.md section 5, which derives both models).
 
     Volume model: ``A_ch d l_i/dq`` with ``l_i = l (1 - r_ch (ux cos phi_i + uy sin phi_i))``.
     Paper model (``paper_act``): ``A_ch (S_z(1) + S_w(1) . (r_ch sin phi_i, -r_ch cos phi_i, 0))``,
@@ -273,7 +281,8 @@ def input_matrix_c(q, A_ch, r_ch, paper_act, B, sc):
 
 @jit
 def elastic_gradient_c(q, l0, EI, EA, g):
-    """``g[:] = dU_el/dq`` (3,), ``U_el = 1/2 EI l^2 |u|^2 / l0 + 1/2 EA (l - l0)^2 / l0``."""
+    """``g[:] = dU_el/dq`` (3,), ``U_el = 1/2 EI l^2 |u|^2 / l0 + 1/2 EA (l - l0)^2 / l0``
+    (docs/model.md section 9)."""
     l, ux, uy = q[0], q[1], q[2]
     g[0] = EI * l * (ux * ux + uy * uy) / l0 + EA * (l - l0) / l0
     g[1] = EI * l * l * ux / l0
@@ -282,7 +291,8 @@ def elastic_gradient_c(q, l0, EI, EA, g):
 
 @jit
 def elastic_hessian_c(q, l0, EI, EA, H):
-    """``H[:] = d^2 U_el/dq^2`` (3, 3) of the material law of :func:`elastic_gradient_c`."""
+    """``H[:] = d^2 U_el/dq^2`` (3, 3) of the material law of :func:`elastic_gradient_c`
+    (docs/model.md section 9)."""
     l, ux, uy = q[0], q[1], q[2]
     H[0, 0] = EI * (ux * ux + uy * uy) / l0 + EA / l0
     H[0, 1] = H[1, 0] = 2.0 * EI * l * ux / l0
@@ -294,7 +304,7 @@ def elastic_hessian_c(q, l0, EI, EA, H):
 @jit
 def rest_damping_c(l0, EI, EA, beta, D):
     """``D[:] = beta K(q0)`` (3, 3): stiffness-proportional damping, ``K(q0) = diag(EA/l0, EI l0,
-    EI l0)`` the material law's stiffness at the straight rest pose."""
+    EI l0)`` the material law's stiffness at the straight rest pose (docs/model.md section 9)."""
     D[:, :] = 0.0
     D[0, 0] = beta * EA / l0
     D[1, 1] = beta * EI * l0
@@ -304,7 +314,8 @@ def rest_damping_c(l0, EI, EA, beta, D):
 @jit
 def pressure_jacobian_c(q, p, A_ch, r_ch, paper_act, Kp, sc):
     """``Kp[:] = d(B(q) p)/dq`` (3, 3), curvature coordinates, both actuation models of
-    :func:`input_matrix_c` (the paper's through the tip Jacobian's exact derivative)."""
+    :func:`input_matrix_c` (the paper's through the tip Jacobian's exact derivative;
+    docs/model.md section 5)."""
     Pc = 0.0
     Ps = 0.0
     P = 0.0
@@ -334,7 +345,7 @@ def domain_violation(l, a, b, radius, paper):
     """The model's domain rule for one segment configuration, ``(l, ux, uy)`` or, with
     ``paper``, ``(l, psi, kappa)`` (``a, b``): 0 inside; 1 where ``l`` is not > 0; 2 where the
     paper's ``kappa < 0``; 3 where ``|kappa| r_s >= 1`` (the inner fibre length vanishes and the
-    density field diverges)."""
+    density field, eq. (5), diverges; docs/model.md sections 1 and 3)."""
     if not (l > 0.0):
         return 1
     if paper:

@@ -1,4 +1,4 @@
-"""Batched spatial (6D) algebra in Pinocchio's conventions.
+"""Batched spatial (6D) algebra in Pinocchio's conventions (docs/model.md section 10).
 
 Spatial motion vectors are ``[linear; angular]`` (Pinocchio's ``Motion``), spatial
 forces ``[force; torque]`` (Pinocchio's ``Force``). Every function accepts a leading

@@ -1,11 +1,12 @@
 """Static equilibrium of a chain under constant pressures, gravity and a tip load.
 
-``equilibrium(chain, p)`` solves ``B(q) p + J_tip(q)^T w - dU_el/dq - g(q) = 0`` for the
-free (not locked) segment coordinates of a fixed or prescribed-base chain by Newton's
-method. The Newton matrix is the exact elastic stiffness ``d^2 U_el/dq^2`` minus the exact
-pressure stiffness ``d(B p)/dq`` (volume actuation); the gravity and tip-load stiffness
-are not available in closed form, so Broyden updates learn them from the iterates, and a
-backtracking line search on the residual keeps the iteration monotone. Segments in the
+``equilibrium(chain, p)`` solves ``B(q) p + J_tip(q)^T w - dU_el/dq - g(q) = 0`` (the paper's
+eq. (9) at rest; docs/model.md sections 5, 6 and 9) for the free (not locked) segment
+coordinates of a fixed or prescribed-base chain by Newton's method. The Newton matrix is the
+exact elastic stiffness ``d^2 U_el/dq^2`` minus the exact pressure stiffness ``d(B p)/dq``
+(volume actuation); the gravity and tip-load stiffness are not available in closed form, so
+Broyden updates learn them from the iterates, and a backtracking line search on the residual
+keeps the iteration monotone. Segments in the
 paper's coordinates are solved in curvature coordinates (the balance is the same, and
 regular through the straight pose) and the result is mapped back.
 """

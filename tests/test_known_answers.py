@@ -1,4 +1,4 @@
-"""Known answers (DESIGN.md section 3, rung 4): the n-segment static cantilever converges to
+"""Known answers (docs/model.md section 11, rung 5): the n-segment static cantilever converges to
 the Euler elastica (a Cosserat rod without shear and extension) at second order in 1/n.
 The pure-end-moment arc is in tests/test_statics.py."""
 

@@ -1,4 +1,4 @@
-"""One segment against independent references (DESIGN.md section 3)."""
+"""One segment against independent references (docs/model.md section 11)."""
 
 import dataclasses
 

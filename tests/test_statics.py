@@ -36,7 +36,7 @@ def test_weightless_segment_under_pressure_matches_closed_form(coords):
 
 def test_pure_end_moment_gives_an_exact_arc():
     """A weightless segment under a pure tip moment M about y bends into an arc of curvature
-    M / EI at its rest length (DESIGN.md section 3, known answers)."""
+    M / EI at its rest length (docs/model.md sections 9 and 11, known answers)."""
     seg = Segment(**SEG)
     ch = Chain([seg], gravity=np.zeros(3))
     for M in (0.002, 0.01, -0.02):
