@@ -304,6 +304,56 @@ def report_example(res: dict) -> None:
         print("  compiled on the warm run (not cached): " + ", ".join(sorted({k for k, _ in r["compiles"]})))
 
 
+# ----------------------------------------------------------------------------- warm start
+
+
+def _start_worker(t_parent: str, scene: str) -> None:
+    """A fresh process with a warm cache: the README scene loaded, built and run as ``qchain
+    run`` does, with the time since the parent started this process (``time.time()``) at each
+    stage, up to the run's first step (its first output sample is handed over just before)."""
+    t_spawn = float(t_parent)
+    marks = {"interpreter": time.time() - t_spawn}
+    import qchain  # noqa: F401
+    from qchain.scene import load_scene
+
+    marks["import"] = time.time() - t_spawn
+    sc = load_scene(scene)
+    marks["scene file"] = time.time() - t_spawn
+    model = sc.build()
+    marks["model"] = time.time() - t_spawn
+
+    def on_sample(t, q, v, p):
+        if "first step" not in marks:
+            marks["first step"] = time.time() - t_spawn
+
+    sc.simulate(model=model, on_sample=on_sample)
+    print(json.dumps(marks))
+
+
+def measure_start(repeat: int, scene: str) -> list[dict]:
+    """``repeat`` fresh processes (after one that fills the cache), each timed to its first step."""
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    subprocess.run([sys.executable, __file__, "--start-worker", str(time.time()), scene], env=env, cwd=str(ROOT),
+                   check=True, capture_output=True)
+    runs = []
+    for _ in range(repeat):
+        t = time.time()
+        p = subprocess.run([sys.executable, __file__, "--start-worker", str(t), scene], env=env, cwd=str(ROOT),
+                           check=True, capture_output=True, text=True)
+        runs.append(json.loads(p.stdout.strip().splitlines()[-1]))
+    return runs
+
+
+def report_start(runs: list[dict], scene: str) -> None:
+    import numpy as np
+
+    print(f"\nwarm start to the first step ({scene}, {len(runs)} fresh processes; seconds since the process "
+          f"was started, median [min, max]):")
+    for key in runs[0]:
+        x = np.array([r[key] for r in runs])
+        print(f"  {key:12s} {np.median(x):6.3f}  [{x.min():.3f}, {x.max():.3f}]")
+
+
 # ----------------------------------------------------------------------------- driver
 
 
@@ -404,6 +454,10 @@ def main(argv=None) -> int:
     ap.add_argument("--signatures", action="store_true", help="list every signature")
     ap.add_argument("--example", action="store_true", help="also time examples/wave_arm.py cold and warm")
     ap.add_argument("--no-kernels", action="store_true", help="skip the kernel table (with --example)")
+    ap.add_argument("--start", type=int, default=0, metavar="N",
+                    help="also time N warm fresh processes from their start to the first step")
+    ap.add_argument("--scene", default="examples/scenes/wave_arm.toml", help="the scene of --start")
+    ap.add_argument("--start-worker", nargs=2, help=argparse.SUPPRESS)
     ap.add_argument("--worker", help=argparse.SUPPRESS)
     ap.add_argument("--example-worker", nargs=argparse.REMAINDER, help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
@@ -413,6 +467,9 @@ def main(argv=None) -> int:
     if args.example_worker:
         _example_worker(*args.example_worker)
         return 0
+    if args.start_worker:
+        _start_worker(*args.start_worker)
+        return 0
     out = {}
     if not args.no_kernels:
         out["runs"] = runs = [measure() for _ in range(args.repeat)]
@@ -420,6 +477,9 @@ def main(argv=None) -> int:
     if args.example:
         out["example"] = ex = measure_example()
         report_example(ex)
+    if args.start:
+        out["start"] = st = measure_start(args.start, args.scene)
+        report_start(st, args.scene)
     if args.json:
         args.json.write_text(json.dumps(out))
     return 0

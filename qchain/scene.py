@@ -709,6 +709,7 @@ class Scene:
             )
         else:
             kept.append(f"planar: not applicable: {why_not}")
+        self._start_compiling(planar, controlled)
         nodes, max_bend, note = self._nodes(reduce, planar)
         (reductions if max_bend is not None else kept).append(note)  # sized from node_tolerance, or not
         segs = [s.segment(nodes=k) for s, k in zip(self.segments, nodes)]
@@ -716,6 +717,16 @@ class Scene:
         q0, v0 = self._initial_state(chain)
         return SceneModel(chain=chain, q0=q0, v0=v0, pressure=self.pressure, nodes=nodes, max_bend=max_bend,
                           reductions=reductions, kept=kept, reduced=reduce)
+
+    def _start_compiling(self, planar: bool, controlled: bool) -> None:
+        """On a cold cache, set the engine's compile going in worker processes while the model
+        is built (the node count's static solves compile kernels of their own here)."""
+        from .simulate import COMPILED
+
+        if self.method in COMPILED and not controlled and all(s.coords == "curvature" for s in self.segments):
+            from .engine import warmup
+
+            warmup.start(self.method, planar_kernel=planar and self.base.type != "floating")
 
     @functools.cached_property
     def model(self) -> SceneModel:

@@ -266,3 +266,48 @@ def test_unchecked_forward_dynamics_without_pressure():
     v = np.linspace(-0.1, 0.2, ch.nv)
     d = ch.create_data()
     np.testing.assert_array_equal(ch.forward_dynamics(q, v, None, data=d, skip_checks=True), ch.forward_dynamics(q, v))
+
+
+def _engine_args(ch, pressure=None, tau=None):
+    from qchain.engine import steppers
+
+    m = system.pack(ch, np.zeros(ch.nu) if pressure is None else pressure, tau)
+    wk = system.workspace(ch)
+    it = steppers.integrator(m[13].size, ch.nq)
+    return m, wk, it
+
+
+@pytest.mark.parametrize("base", ["fixed", "floating", "prescribed"])
+def test_every_model_has_the_stand_in_s_types(base):
+    """The cold-start workers compile the engine for a one-segment stand-in: its argument
+    types must be those of every run, or a run would miss the cache and compile again."""
+    import numba
+
+    from qchain.engine import warmup
+    from qchain.inputs import Ramp
+
+    kw = dict(base_motion=SineMotion(kind="translation", axis=np.array([0.0, 0.0, 1.0]), amplitude=0.01, frequency=2.0,
+                                     phase=0.0, mount=pin.SE3.Identity())) if base == "prescribed" else {}
+    for planar in (False, True):
+        ch = Chain([Segment(**SEG, nodes=k) for k in (3, 5)], base=base, planar=planar, **kw)
+        ref = warmup.standin("radau5", planar and base != "floating")
+        for pressure, tau in ((None, None), (Sine([1e3] * 6, [2.0] * 6, offset=[5e3] * 6), np.ones(ch.nv)),
+                              (Ramp(0.0, 0.5, [2e4] * 6), None)):
+            m, wk, it = _engine_args(ch, pressure, tau)
+            assert numba.typeof(m) == numba.typeof(ref[0])
+            assert numba.typeof(wk) == numba.typeof(ref[1])
+            assert numba.typeof(it) == numba.typeof(ref[2])
+            assert system.rhs(m) is (system.rhs_planar if planar and base != "floating" else system.rhs_spatial)
+
+
+def test_kernel_workspaces_carved_from_one_buffer_have_the_allocators_shapes():
+    """:data:`qchain.engine.system.KERNEL_NDIM` (the carving code's types) against the
+    allocators' arrays, and the carved views tile the buffer without overlap."""
+    for n, nv in ((1, 3), (3, 9), (4, 18)):
+        arrays = system._kernel_arrays(n, nv)
+        assert [a.ndim for a in arrays] == [d for group in system.KERNEL_NDIM for d in group]
+        table = system._layout(n, nv)
+        sizes = [a.size for a in arrays]
+        assert list(np.diff(table[:, 0])) == sizes
+        for row, a in zip(table, arrays):
+            assert tuple(row[1 : 1 + a.ndim]) == a.shape and np.all(row[1 + a.ndim :] == 1)

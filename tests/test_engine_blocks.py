@@ -260,3 +260,21 @@ def test_dexp_inv_apply(rng):
         np.testing.assert_allclose(out, M @ u, rtol=0, atol=1e-13 * max(1.0, np.abs(M).max()))
         dexp_inv_apply(d, u, u)  # in place
         assert np.array_equal(u, out)
+
+
+def test_method_coefficients_are_scipy_s_bit_for_bit():
+    """:mod:`qchain.engine.tableaus` holds scipy's RK45 and Radau numbers (so a run needs no
+    import of scipy.integrate)."""
+    from scipy.integrate import RK45
+    from scipy.integrate._ivp import radau as R
+
+    from qchain.engine import tableaus as T
+
+    A = np.zeros((7, 7))
+    A[:6, :5] = RK45.A
+    A[6, :6] = RK45.B
+    assert np.array_equal(T.DOPRI5_A, A) and np.array_equal(T.DOPRI5_C, np.append(RK45.C, 1.0))
+    assert np.array_equal(T.DOPRI5_E, RK45.E) and np.array_equal(T.DOPRI5_P, RK45.P)
+    for name in ("C", "E", "T", "TI", "P"):
+        assert np.array_equal(getattr(T, "RADAU_" + name), getattr(R, name)), name
+    assert np.array_equal(T.RADAU_MU, [R.MU_REAL, R.MU_COMPLEX.real, R.MU_COMPLEX.imag])

@@ -63,13 +63,8 @@ def run(chain, m, method, q0, v0, t0, t1, *, dt, rtol, atol, t_eval, on_sample, 
     ``controllers``: ``[(callable (t, q, v) -> (size,), params array to hold it in)]``;
     ``inputs``: ``(t, q, v) -> (p, tau)`` in Python, for the samples Python writes (the first,
     one at a controller instant or a terminal event) and the stability limit)."""
-    t_prep = _time.perf_counter()
-    first = not warmup.loaded(method)
-    if first:
-        warmup.announce(method)
     idx = m[13]
     nA = idx.size
-    advance = steppers.ADVANCE[method]
     c = steppers.constants(method)
     fixed = method in ("rk4", "midpoint")
     wk = system.workspace(chain)
@@ -86,10 +81,9 @@ def run(chain, m, method, q0, v0, t0, t1, *, dt, rtol, atol, t_eval, on_sample, 
     out = _Outputs(chain, t_eval, guess=int(min((t1 - t0) / dt + 2, 1 << 16)) if fixed and t_eval is None else 1024)
     if out.every:
         cnt[steppers.EVERY] = 1
-    compile_s = 0.0
-    if first:
-        warmup.prepare(method, m, wk, it, out.arrays, c)
-        compile_s = _time.perf_counter() - t_prep
+    t_prep = _time.perf_counter()
+    fs, advance = warmup.prepare(method, m, wk, it, out.arrays, c, energies=on_sample is not None and pass_energies)
+    compile_s = _time.perf_counter() - t_prep
     hold_times = _hold_times(controllers, controller_rate, t0, t1)
     n_hold = 0
 
@@ -123,7 +117,7 @@ def run(chain, m, method, q0, v0, t0, t1, *, dt, rtol, atol, t_eval, on_sample, 
             max_out = 1 if on_sample is not None else (out.t.size - cnt[steppers.K_OUT] if out.every else 1 << 30)
             steps = 1 if events else max_steps
             w0 = _time.perf_counter()
-            code = advance(m, wk, it, out.arrays, c, t_stop, max_out, steps)
+            code = advance(fs, m, wk, it, out.arrays, c, t_stop, max_out, steps)
             wall = _time.perf_counter() - w0
             if code == STEPS and not events:  # size the next stretch to about STRETCH s
                 max_steps = int(min(max(max_steps * min(4.0, STRETCH / max(wall, 1e-6)), 1), 1 << 20))
@@ -164,8 +158,6 @@ def run(chain, m, method, q0, v0, t0, t1, *, dt, rtol, atol, t_eval, on_sample, 
                            ev_log)
         traj.meta["compile_s"] = compile_s
         raise Interrupted(traj) from None
-    if energies:  # loaded after the run (not before its first step), and counted as loading
-        compile_s += warmup.prepare_energies(m, wk)
     traj = _trajectory(chain, m, wk, out, cnt, status, message, energies, method, ev_log)
     traj.meta["compile_s"] = compile_s  # compiling or loading: a caller's wall time less this is the run's
     return traj
@@ -314,13 +306,17 @@ def unstable_message(message: str, h: float, limit: float | None) -> str:
 def _trajectory(chain, m, wk, out, cnt, status, message, energies, method, ev_log) -> Trajectory:
     K = int(cnt[steppers.K_OUT])
     t, q, v, p = out.t[:K].copy(), out.q[:K].copy(), out.v[:K].copy(), out.p[:K].copy()
-    if energies:
-        KE, PE = np.empty(K), np.empty(K)
-        system.energies_batch(m, wk, t, q, v, KE, PE)
-    else:
-        KE = PE = np.full(K, np.nan)
-    traj = Trajectory(t=t, q=q, v=v, p=p, kinetic_energy=KE, potential_energy=PE, success=status >= 0,
+    nan = np.full(K, np.nan)
+    traj = Trajectory(t=t, q=q, v=v, p=p, kinetic_energy=nan, potential_energy=nan, success=status >= 0,
                       message=message, nfev=int(cnt[steppers.NFEV]), status=status)
+    if energies:  # at their first use: a run whose energies nobody reads does not compile their pass
+        def source():
+            KE, PE = np.empty(K), np.empty(K)
+            warmup.prepare_energies(m, wk)
+            system.energies_batch(m, wk, t, q, v, KE, PE)
+            return KE, PE
+
+        traj.with_energies(source)
     traj.meta.update(method=method, engine="compiled", nsteps=int(cnt[steppers.NSTEPS]), njev=int(cnt[steppers.NJEV]),
                      nlu=int(cnt[steppers.NLU]), nreject=int(cnt[steppers.NREJECT]), events=ev_log)
     return traj

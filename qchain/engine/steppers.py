@@ -38,7 +38,8 @@ from __future__ import annotations
 import numpy as np
 
 from . import system
-from .jit import ejit, inline  # the steppers' helpers are inlined into each stepper
+from . import tableaus as T_
+from .jit import ejit, ejit_inner  # helpers compiled once, not inlined: each inlined copy is typed again
 from .linalg import lu_factor, lu_solve
 
 __all__ = ["integrator", "constants", "dense", "CODES", "advance_rk4", "advance_midpoint", "advance_dopri5", "advance_radau5",
@@ -63,19 +64,12 @@ SAFETY, MIN_FACTOR, MAX_FACTOR = 0.9, 0.2, 10.0
 
 
 def constants(method: str) -> tuple:
-    """The method's coefficient arrays (from scipy's own solvers: one set of numbers)."""
-    from scipy.integrate import RK45
-    from scipy.integrate._ivp import radau as _radau
-
+    """The method's coefficient arrays (:mod:`qchain.engine.tableaus`, scipy's numbers)."""
     if method == "dopri5":
-        A = np.zeros((7, 7))
-        A[:6, :5] = RK45.A
-        A[6, :6] = RK45.B
-        return (A, np.append(RK45.C, 1.0), RK45.E.astype(float), RK45.P.astype(float))
+        return (T_.DOPRI5_A.copy(), T_.DOPRI5_C.copy(), T_.DOPRI5_E.copy(), T_.DOPRI5_P.copy())
     if method == "radau5":
-        return (np.asarray(_radau.C, float), np.asarray(_radau.E, float), np.asarray(_radau.T, float),
-                np.asarray(_radau.TI, float), np.asarray(_radau.P, float),
-                np.array([_radau.MU_REAL, _radau.MU_COMPLEX.real, _radau.MU_COMPLEX.imag]))
+        return (T_.RADAU_C.copy(), T_.RADAU_E.copy(), T_.RADAU_T.copy(), T_.RADAU_TI.copy(), T_.RADAU_P.copy(),
+                T_.RADAU_MU.copy())
     return (np.zeros((1, 1)),)
 
 
@@ -96,17 +90,17 @@ def integrator(nA: int, nq: int) -> tuple:
 # ------------------------------------------------------------------------------- shared
 
 
-@inline
-def _f(m, wk, it, t, y, out):
+@ejit_inner
+def _f(fs, m, wk, it, t, y, out):
     it[5][NFEV] += 1
-    st = system.rhs(m, wk, t, y, out)
+    st = fs[0](m, wk, t, y, out)
     if st != 0:  # where and why the last evaluation failed, for the message if the run stops
         it[4][T_FAIL] = t
         it[5][LAST_ST] = st
     return st
 
 
-@inline
+@ejit_inner
 def _norm(e, y0, y1, rtol, atol):
     """RMS of ``e / (atol + rtol max(|y0|, |y1|))``."""
     acc = 0.0
@@ -116,7 +110,7 @@ def _norm(e, y0, y1, rtol, atol):
     return np.sqrt(acc / e.shape[0])
 
 
-@inline
+@ejit  # also called from Python (events root-find on the dense output)
 def dense(method, it, c, s, yout):
     """The last step's dense output at time ``s`` into ``yout`` (N,)."""
     y, yold, K, tf = it[12][Y_END], it[1], it[3], it[4]
@@ -140,7 +134,7 @@ def dense(method, it, c, s, yout):
             yout[nA + i] = (1.0 - x) * yold[nA + i] + x * y[nA + i]
 
 
-@inline
+@ejit_inner
 def _emit(method, m, wk, it, out, c, budget):
     """Write the outputs that fall in the last accepted step (up to ``budget``); returns how
     many were written."""
@@ -181,7 +175,7 @@ def _emit(method, m, wk, it, out, c, budget):
     return wrote
 
 
-@inline
+@ejit_inner
 def _accepted(m, wk, it, t, h, t_new, fixed):
     """After an accepted step from ``t`` to ``t_new`` (length ``h``): record it for the dense
     output, count it and move the chart where the base has turned far (every step for the
@@ -212,7 +206,7 @@ def _accepted(m, wk, it, t, h, t_new, fixed):
         cnt[PRED_OK] = 0
 
 
-@inline
+@ejit_inner
 def _end_state(m, wk, it, t, y):
     """The status of the configuration at ``y`` at time ``t`` (a fixed step's end is checked
     before it is accepted, so a run stops on the last valid state)."""
@@ -223,7 +217,7 @@ def _end_state(m, wk, it, t, y):
     return st
 
 
-@inline
+@ejit_inner
 def _trial_end(it, t, t_stop):
     """The end of an adaptive method's trial step from ``t``: the proposed step ``tf[H]``
     capped by ``max_step`` and cut to end at ``t_stop`` (never leaving a sliver under a
@@ -243,7 +237,7 @@ def _trial_end(it, t, t_stop):
 # ------------------------------------------------------------------------------- fixed step
 
 
-@inline
+@ejit_inner
 def _fixed_next(tf, t_stop):
     """The next grid time ``t0 + k dt`` after ``t`` (no drift over long runs), cut at ``t_stop``."""
     t, t0, dt = tf[T], tf[T0], tf[DT]
@@ -254,8 +248,8 @@ def _fixed_next(tf, t_stop):
     return min(t_new, t_stop)
 
 
-@inline
-def _before_step(m, wk, it, t_stop, steps, max_steps, need_f):
+@ejit_inner
+def _before_step(fs, m, wk, it, t_stop, steps, max_steps, need_f):
     """What an ``advance`` does before a step: the code to return at ``t_stop`` or after
     ``max_steps``, :data:`FAILED` if ``f`` at the step's start (``need_f``) cannot be had,
     else -1 (take the step)."""
@@ -265,7 +259,7 @@ def _before_step(m, wk, it, t_stop, steps, max_steps, need_f):
     if steps >= max_steps:
         return STEPS
     if need_f and cnt[F_OK] == 0:
-        st = _f(m, wk, it, tf[T], it[0], it[2])
+        st = _f(fs, m, wk, it, tf[T], it[0], it[2])
         if st != 0:
             cnt[STATUS] = st
             return FAILED
@@ -274,7 +268,7 @@ def _before_step(m, wk, it, t_stop, steps, max_steps, need_f):
 
 
 @ejit
-def advance_rk4(m, wk, it, out, c, t_stop, max_out, max_steps):
+def advance_rk4(fs, m, wk, it, out, c, t_stop, max_out, max_steps):
     y, yold, K, tf, cnt = it[0], it[1], it[3], it[4], it[5]
     N = y.shape[0]
     nA = N // 2
@@ -282,25 +276,25 @@ def advance_rk4(m, wk, it, out, c, t_stop, max_out, max_steps):
     wrote = _emit(RK4, m, wk, it, out, c, max_out)
     steps = 0
     while wrote < max_out:
-        code = _before_step(m, wk, it, t_stop, steps, max_steps, False)
+        code = _before_step(fs, m, wk, it, t_stop, steps, max_steps, False)
         if code >= 0:
             return code
         t = tf[T]
         t_new = _fixed_next(tf, t_stop)
         h = t_new - t
-        st = _f(m, wk, it, t, y, K[0])
+        st = _f(fs, m, wk, it, t, y, K[0])
         for i in range(N):
             yt[i] = y[i] + 0.5 * h * K[0, i]
         if st == 0:
-            st = _f(m, wk, it, t + 0.5 * h, yt, K[1])
+            st = _f(fs, m, wk, it, t + 0.5 * h, yt, K[1])
         for i in range(N):
             yt[i] = y[i] + 0.5 * h * K[1, i]
         if st == 0:
-            st = _f(m, wk, it, t + 0.5 * h, yt, K[2])
+            st = _f(fs, m, wk, it, t + 0.5 * h, yt, K[2])
         for i in range(N):
             yt[i] = y[i] + h * K[2, i]
         if st == 0:
-            st = _f(m, wk, it, t_new, yt, K[3])
+            st = _f(fs, m, wk, it, t_new, yt, K[3])
         if st != 0:
             cnt[STATUS] = st
             return FAILED
@@ -320,13 +314,13 @@ def advance_rk4(m, wk, it, out, c, t_stop, max_out, max_steps):
     return OUTPUT
 
 
-@inline
-def _midpoint_matrix(m, wk, it, t, y, h):
+@ejit_inner
+def _midpoint_matrix(fs, m, wk, it, t, y, h):
     """Factor ``I - h/2 Jv - h^2/4 Jq`` at ``(t, y)`` with the exact Jacobian."""
     Jq, Jv, LU, piv, cnt = it[6], it[7], it[8], it[9], it[5]
     nA = Jq.shape[0]
     cnt[NJEV] += 1
-    st = system.jacobian(m, wk, t, y, Jq, Jv)
+    st = fs[1](m, wk, t, y, Jq, Jv)
     if st != 0:
         return st
     for r in range(nA):
@@ -342,7 +336,7 @@ def _midpoint_matrix(m, wk, it, t, y, h):
 
 
 @ejit
-def advance_midpoint(m, wk, it, out, c, t_stop, max_out, max_steps):
+def advance_midpoint(fs, m, wk, it, out, c, t_stop, max_out, max_steps):
     """Implicit midpoint: ``Y = y + h/2 f(Y)``, ``y1 = 2 Y - y``; with ``Y = (h/2 V, V)`` from
     ``delta = 0`` the unknown is the midpoint velocity ``V``; ``q1 = q (+) h V``,
     ``v1 = 2 V - v``."""
@@ -354,7 +348,7 @@ def advance_midpoint(m, wk, it, out, c, t_stop, max_out, max_steps):
     steps = 0
     tol = 1e-10
     while wrote < max_out:
-        code = _before_step(m, wk, it, t_stop, steps, max_steps, False)
+        code = _before_step(fs, m, wk, it, t_stop, steps, max_steps, False)
         if code >= 0:
             return code
         t = tf[T]
@@ -374,7 +368,7 @@ def advance_midpoint(m, wk, it, out, c, t_stop, max_out, max_steps):
         for itn in range(2 * MIDPOINT_MAXITER):
             for i in range(nA):
                 Y[i] = 0.5 * h * Y[nA + i]
-            st = _f(m, wk, it, tm, Y, F)
+            st = _f(fs, m, wk, it, tm, Y, F)
             if st != 0:
                 break
             vmax = 0.0
@@ -391,7 +385,7 @@ def advance_midpoint(m, wk, it, out, c, t_stop, max_out, max_steps):
                 converged = True
                 break
             if cnt[LU_OK] == 0 or (not fresh and itn > 0 and res > 0.5 * res_old):
-                st = _midpoint_matrix(m, wk, it, tm, Y, h)  # none yet, or a stale one that slows Newton
+                st = _midpoint_matrix(fs, m, wk, it, tm, Y, h)  # none yet, or a stale one that slows Newton
                 if st != 0:
                     break
                 fresh = True
@@ -429,7 +423,7 @@ def advance_midpoint(m, wk, it, out, c, t_stop, max_out, max_steps):
 
 
 @ejit
-def advance_dopri5(m, wk, it, out, c, t_stop, max_out, max_steps):
+def advance_dopri5(fs, m, wk, it, out, c, t_stop, max_out, max_steps):
     A, C, E, P = c
     y, yold, f, K, tf, cnt = it[0], it[1], it[2], it[3], it[4], it[5]
     N = y.shape[0]
@@ -438,7 +432,7 @@ def advance_dopri5(m, wk, it, out, c, t_stop, max_out, max_steps):
     steps = 0
     rtol, atol = tf[RTOL], tf[ATOL]
     while wrote < max_out:
-        code = _before_step(m, wk, it, t_stop, steps, max_steps, True)
+        code = _before_step(fs, m, wk, it, t_stop, steps, max_steps, True)
         if code >= 0:
             return code
         t = tf[T]
@@ -458,7 +452,7 @@ def advance_dopri5(m, wk, it, out, c, t_stop, max_out, max_steps):
                     for k in range(s):
                         acc += A[s, k] * K[k, i]
                     yt[i] = y[i] + h * acc
-                st = _f(m, wk, it, t + C[s] * h, yt, K[s])
+                st = _f(fs, m, wk, it, t + C[s] * h, yt, K[s])
                 if st != 0:
                     break
             if st == 0:
@@ -467,7 +461,7 @@ def advance_dopri5(m, wk, it, out, c, t_stop, max_out, max_steps):
                     for k in range(6):
                         acc += A[6, k] * K[k, i]
                     yn[i] = y[i] + h * acc
-                st = _f(m, wk, it, t_new, yn, K[6])
+                st = _f(fs, m, wk, it, t_new, yn, K[6])
             if st == 0:
                 for i in range(N):
                     acc = 0.0
@@ -510,7 +504,7 @@ def advance_dopri5(m, wk, it, out, c, t_stop, max_out, max_steps):
 # ------------------------------------------------------------------------------- radau5
 
 
-@inline
+@ejit_inner
 def _radau_factor(it, h, mu):
     """Factor the real and complex Newton matrices of half size at step ``h``:
     ``c^2 I - c Jv - Jq`` with ``c = mu_real / h`` and ``c = mu_complex / h``."""
@@ -530,7 +524,7 @@ def _radau_factor(it, h, mu):
     return ok
 
 
-@inline
+@ejit_inner
 def _radau_solve(it, c_, LU, piv, rx, rv, Jq, tmpv):
     """Solve ``(c I - J) (dx, dv) = (rx, rv)`` in place through the half-size factor:
     ``dv = LU^-1 (c rv + Jq rx)``, ``dx = (rx + dv) / c``."""
@@ -546,8 +540,8 @@ def _radau_solve(it, c_, LU, piv, rx, rv, Jq, tmpv):
         rx[r] = (rx[r] + tmpv[r]) / c_
 
 
-@inline
-def _radau_newton(m, wk, it, c, t, h, scale):
+@ejit_inner
+def _radau_newton(fs, m, wk, it, c, t, h, scale):
     """Simplified Newton for the collocation system (Hairer and Wanner IV.8): returns
     ``(converged, iterations, rate)``; ``Z = K[0:3]``, ``F = K[3:6]``, ``W = K[6:9]``."""
     C, E, Tm, TI, P, mu = c
@@ -571,7 +565,7 @@ def _radau_newton(m, wk, it, c, t, h, scale):
         for s in range(3):
             for i in range(N):
                 yt[i] = y[i] + Z[s, i]
-            st = _f(m, wk, it, t + C[s] * h, yt, F[s])
+            st = _f(fs, m, wk, it, t + C[s] * h, yt, F[s])
             if st != 0:
                 return False, k + 1, rate
         # real part: TI[0] F - cr W0 ; complex part: (TI[1] + i TI[2]) F - cc (W1 + i W2)
@@ -612,17 +606,17 @@ def _radau_newton(m, wk, it, c, t, h, scale):
     return False, NEWTON_MAXITER, rate
 
 
-@inline
-def _radau_jacobian(m, wk, it, t):
+@ejit_inner
+def _radau_jacobian(fs, m, wk, it, t):
     it[5][NJEV] += 1
-    st = system.jacobian(m, wk, t, it[0], it[6], it[7])
+    st = fs[1](m, wk, t, it[0], it[6], it[7])
     it[5][JAC_CURRENT] = 1
     it[5][LU_OK] = 0
     return st
 
 
 @ejit
-def advance_radau5(m, wk, it, out, c, t_stop, max_out, max_steps):
+def advance_radau5(fs, m, wk, it, out, c, t_stop, max_out, max_steps):
     C, E, Tm, TI, P, mu = c
     y, yold, f, K, tf, cnt = it[0], it[1], it[2], it[3], it[4], it[5]
     N = y.shape[0]
@@ -634,12 +628,12 @@ def advance_radau5(m, wk, it, out, c, t_stop, max_out, max_steps):
     wrote = _emit(RADAU5, m, wk, it, out, c, max_out)
     steps = 0
     while wrote < max_out:
-        code = _before_step(m, wk, it, t_stop, steps, max_steps, True)
+        code = _before_step(fs, m, wk, it, t_stop, steps, max_steps, True)
         if code >= 0:
             return code
         t = tf[T]
         if cnt[JAC_CURRENT] == 0 and tf[JAC_T] < 0.0:  # the first step: a Jacobian at the start
-            st = _radau_jacobian(m, wk, it, t)
+            st = _radau_jacobian(fs, m, wk, it, t)
             if st != 0:
                 cnt[STATUS] = st
                 return FAILED
@@ -675,12 +669,12 @@ def advance_radau5(m, wk, it, out, c, t_stop, max_out, max_steps):
                     tf[H_LU] = h
                 for s in range(3):
                     system.copy(Z[s], Z0[s])
-                converged, n_iter, rate = _radau_newton(m, wk, it, c, t, h, scale)
+                converged, n_iter, rate = _radau_newton(fs, m, wk, it, c, t, h, scale)
                 cnt[NNEWTON] += n_iter
                 if not converged:
                     if cnt[JAC_CURRENT] == 1:
                         break
-                    st = _radau_jacobian(m, wk, it, t)
+                    st = _radau_jacobian(fs, m, wk, it, t)
                     if st != 0:
                         cnt[LAST_ST] = st
                         break
@@ -708,7 +702,7 @@ def advance_radau5(m, wk, it, out, c, t_stop, max_out, max_steps):
             if rejected and en > 1.0:  # the estimate filtered once more (Hairer and Wanner)
                 for i in range(N):
                     yt[i] = y[i] + err[i]
-                if _f(m, wk, it, t, yt, err) == 0:
+                if _f(fs, m, wk, it, t, yt, err) == 0:
                     for i in range(N):
                         err[i] += ze[i]
                     _radau_solve(it, mu[0] / h, it[8], it[9], err[:nA], err[nA:], Jq, it[12][5][:nA])
@@ -743,13 +737,13 @@ def advance_radau5(m, wk, it, out, c, t_stop, max_out, max_steps):
         cnt[PRED_OK] = 1
         steps += 1
         _accepted(m, wk, it, t, h, t_new, False)
-        st = _f(m, wk, it, t_new, y, f)
+        st = _f(fs, m, wk, it, t_new, y, f)
         if st != 0:
             cnt[STATUS] = st
             return FAILED
         cnt[F_OK] = 1
         if recompute_jac:
-            st = _radau_jacobian(m, wk, it, t_new)
+            st = _radau_jacobian(fs, m, wk, it, t_new)
             if st != 0:
                 cnt[STATUS] = st
                 return FAILED
@@ -759,7 +753,7 @@ def advance_radau5(m, wk, it, out, c, t_stop, max_out, max_steps):
     return OUTPUT
 
 
-@inline
+@ejit_inner
 def _predict(h, tf, en):
     """Gustafsson's predictive step factor (before the safety factor)."""
     if tf[H_ABS_OLD] <= 0.0 or tf[ERR_OLD] <= 0.0 or en == 0.0:

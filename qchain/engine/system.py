@@ -20,7 +20,8 @@ A_ch, r_ch (n,)``; ``paper_act (n,) bool``; ``locked (n, 3) bool``; ``idx (nA,) 
 ``g_W (3,)`` world gravity (m/s^2); ``R_WB (3, 3), p_WB (3,)`` a fixed base's placement;
 ``bm_i, bm_p`` a prescribed base's motion (:func:`qchain.engine.schedules.pack_base_motion`);
 ``p_i, p_p`` the pressure input and ``t_i, t_p`` the generalised-force input
-(:func:`qchain.engine.schedules.pack_input`).
+(:func:`qchain.engine.schedules.pack_input`); ``layout (K + 1, 5) int64`` where the kernel
+workspaces lie in ``wk``'s buffer (:func:`_layout`).
 
 Status codes returned by every pass: :data:`OK`, :data:`DOMAIN` (a segment left the model's
 domain: ``|kappa| r >= 1`` or ``l <= 0``; ``info[1]`` its index), :data:`SINGULAR` (an
@@ -29,15 +30,17 @@ articulated inertia not positive definite), :data:`NONFINITE`.
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 from .. import derivatives, planar, recursive
 from ..arc import SCRATCH, arc_pose, take1, take2
 from ..slices import segment_slices
 from . import lie, schedules
-from .jit import ejit, ejit_inner, inline
+from .jit import ejit, ejit_inner, inline, kernel
 
-__all__ = ["pack", "workspace", "rhs", "jacobian", "configuration", "energies", "energies_batch", "inputs", "RECENTER",
+__all__ = ["pack", "workspace", "rhs", "rhs_planar", "rhs_spatial", "jacobian", "configuration", "energies", "energies_batch", "inputs", "RECENTER",
            "OK", "DOMAIN", "SINGULAR", "NONFINITE"]
 
 OK, DOMAIN, SINGULAR, NONFINITE = 0, 1, 2, 3
@@ -71,7 +74,41 @@ def pack(chain, pressure, tau) -> tuple | None:
     return (chain._alpha, chain._w, chain._offs, chain._mass, chain._radius, chain._l0, chain._EI, chain._EA,
             chain._beta, chain._A_ch, chain._r_ch, chain._paper_act, chain._locked,
             np.flatnonzero(chain.active).astype(np.int64), kind, np.array(chain.gravity, dtype=float),
-            np.array(X.rotation), np.array(X.translation), bm[0], bm[1], p[0], p[1], f[0], f[1])
+            np.array(X.rotation), np.array(X.translation), bm[0], bm[1], p[0], p[1], f[0], f[1],
+            _layout(chain.n, chain.nv))
+
+
+#: the kernel workspaces carved from one buffer (:func:`_layout`), in order: the aba,
+#: rnea-derivative and aba-derivative workspaces of :class:`qchain.data.Data` and the planar
+#: kernel's; each array's number of dimensions (the carving code's types; their shapes come
+#: from the allocators, and ``tests/test_engine.py`` checks the two agree)
+KERNEL_NDIM = ((2, 3, 2, 2, 3, 3, 3, 2, 1),
+               (2, 3, 2, 3, 3, 2, 3, 3, 4, 3, 3, 3, 3, 3, 3, 3, 2, 1, 2, 2, 2),
+               (2, 2, 1, 1, 2, 2, 2, 2, 2, 2, 3, 3, 3),
+               (3, 2, 2, 3, 3, 3, 2, 1))
+
+
+def _kernel_arrays(n: int, nv: int) -> list[np.ndarray]:
+    # the compiled allocators' own code, run by numpy: the arrays (and so the shapes) the
+    # kernels are written for, without loading four cached functions before the first step
+    return [*recursive.aba_workspace.py_func(n, nv), *derivatives.rnea_workspace.py_func(n, nv),
+            *derivatives.aba_derivatives_workspace.py_func(n, nv), *planar.planar_workspace.py_func(n)]
+
+
+@functools.lru_cache(maxsize=64)
+def _layout(n: int, nv: int) -> np.ndarray:
+    """``(K, 5) int64``: each kernel workspace array's offset in the buffer and its shape
+    (trailing dimensions 1); the last row's offset is the buffer's size. Shared by every
+    model of that size: never written."""
+    arrays = _kernel_arrays(n, nv)
+    table = np.ones((len(arrays) + 1, 5), dtype=np.int64)
+    o = 0
+    for i, a in enumerate(arrays):
+        table[i, 0] = o
+        table[i, 1 : 1 + a.ndim] = a.shape
+        o += a.size
+    table[-1, 0] = o
+    return table
 
 
 def workspace(chain) -> tuple:
@@ -79,17 +116,70 @@ def workspace(chain) -> tuple:
     ``v (nv,)``, ``q_chart (nq,)``, ``p (nu,)`` Pa, ``tau (nv,)``, ``f (n, 3)`` internal plus
     external forces, ``A0 (6,)`` apparent base acceleration, ``a (nv,)``, ``qdd (n, 3)``,
     ``B (4, 6)`` the base's state (:func:`_base_state`), ``info (4,) int64`` (status, segment),
-    the aba, rnea-derivative and aba-derivative workspaces of :class:`qchain.data.Data`, a
-    scratch array, ``R_WB (3, 3)``, the planar kernel's workspace."""
+    the kernels' workspaces as one buffer (:data:`KERNEL_NDIM`, carved by :func:`kernel_workspace`),
+    a scratch array, ``R_WB (3, 3)``. Few arrays: numba's compile time grows with the number
+    of arrays a compiled function passes around."""
     n, nv, nq = chain.n, chain.nv, chain.nq
-    # the compiled allocators' own code, run by numpy: the same arrays without loading four
-    # cached functions before the run's first step
-    ws = recursive.aba_workspace.py_func(n, nv)
-    wd = derivatives.rnea_workspace.py_func(n, nv)
-    wa = derivatives.aba_derivatives_workspace.py_func(n, nv)
     return (np.zeros(nq), np.zeros(nv), np.zeros(nq), np.zeros(3 * n), np.zeros(nv), np.zeros((n, 3)), np.zeros(6),
-            np.zeros(nv), np.zeros((n, 3)), np.zeros((4, 6)), np.zeros(4, dtype=np.int64), ws, wd, wa,
-            np.zeros(SCRATCH), np.zeros((3, 3)), planar.planar_workspace.py_func(n))
+            np.zeros(nv), np.zeros((n, 3)), np.zeros((4, 6)), np.zeros(4, dtype=np.int64),
+            np.zeros(_layout(n, nv)[-1, 0]), np.zeros(SCRATCH), np.zeros((3, 3)))
+
+
+@inline
+def _v1(buf, tb, i):
+    o = tb[i, 0]
+    return buf[o : o + tb[i, 1]]
+
+
+@inline
+def _v2(buf, tb, i):
+    o = tb[i, 0]
+    return buf[o : o + tb[i, 1] * tb[i, 2]].reshape((tb[i, 1], tb[i, 2]))
+
+
+@inline
+def _v3(buf, tb, i):
+    o = tb[i, 0]
+    return buf[o : o + tb[i, 1] * tb[i, 2] * tb[i, 3]].reshape((tb[i, 1], tb[i, 2], tb[i, 3]))
+
+
+@inline
+def _v4(buf, tb, i):
+    o = tb[i, 0]
+    return buf[o : o + tb[i, 1] * tb[i, 2] * tb[i, 3] * tb[i, 4]].reshape((tb[i, 1], tb[i, 2], tb[i, 3], tb[i, 4]))
+
+
+@inline
+def aba_ws(m, wk):
+    """The aba workspace (:func:`qchain.recursive.aba_workspace`) carved from ``wk``'s buffer."""
+    b, t = wk[11], m[24]
+    return (_v2(b, t, 0), _v3(b, t, 1), _v2(b, t, 2), _v2(b, t, 3), _v3(b, t, 4), _v3(b, t, 5), _v3(b, t, 6),
+            _v2(b, t, 7), _v1(b, t, 8))
+
+
+@inline
+def rnea_ws(m, wk):
+    """The rnea-derivative workspace (:func:`qchain.derivatives.rnea_workspace`), carved."""
+    b, t = wk[11], m[24]
+    return (_v2(b, t, 9), _v3(b, t, 10), _v2(b, t, 11), _v3(b, t, 12), _v3(b, t, 13), _v2(b, t, 14), _v3(b, t, 15),
+            _v3(b, t, 16), _v4(b, t, 17), _v3(b, t, 18), _v3(b, t, 19), _v3(b, t, 20), _v3(b, t, 21), _v3(b, t, 22),
+            _v3(b, t, 23), _v3(b, t, 24), _v2(b, t, 25), _v1(b, t, 26), _v2(b, t, 27), _v2(b, t, 28), _v2(b, t, 29))
+
+
+@inline
+def aba_derivatives_ws(m, wk):
+    """The aba-derivative workspace (:func:`qchain.derivatives.aba_derivatives_workspace`), carved."""
+    b, t = wk[11], m[24]
+    return (_v2(b, t, 30), _v2(b, t, 31), _v1(b, t, 32), _v1(b, t, 33), _v2(b, t, 34), _v2(b, t, 35), _v2(b, t, 36),
+            _v2(b, t, 37), _v2(b, t, 38), _v2(b, t, 39), _v3(b, t, 40), _v3(b, t, 41), _v3(b, t, 42))
+
+
+@inline
+def planar_ws(m, wk):
+    """The planar kernel's workspace (:func:`qchain.planar.planar_workspace`), carved."""
+    b, t = wk[11], m[24]
+    return (_v3(b, t, 43), _v2(b, t, 44), _v2(b, t, 45), _v3(b, t, 46), _v3(b, t, 47), _v3(b, t, 48), _v2(b, t, 49),
+            _v1(b, t, 50))
 
 
 @inline
@@ -105,11 +195,11 @@ def copy(dst, src):
 def _base_state(m, wk, t, q, v):
     """Fill ``B = wk[9]`` (4, 6): ``B[0]`` the base twist ``V0``, ``B[1]`` its own acceleration
     ``A_B`` (prescribed), ``B[2, :3]`` gravity in the base frame ``g_B``, ``B[3, :3]`` the base
-    origin in the world; ``R = wk[15]`` the base rotation ``R_WB``."""
+    origin in the world; ``R = wk[13]`` the base rotation ``R_WB``."""
     kind = m[14]
     g_W = m[15]
     B = wk[9]
-    R = wk[15]
+    R = wk[13]
     B[1, :] = 0.0
     if kind[0] == 0:
         B[0, :] = 0.0
@@ -191,16 +281,16 @@ def inputs(m, wk, t):
 
 
 @inline
-def _accel(m, wk, t, full):
-    """Forward dynamics at ``(t, wk.q, wk.v)`` into ``wk[7]`` (nv,) (inputs evaluated here);
-    ``full``: the 3-D pass even for a planar chain (it leaves the segment blocks in ``wk``)."""
-    alpha, w, offs, mass, radius, l0, EI, EA, beta, A_ch, r_ch, paper_act, locked = m[:13]
+def _forces(m, wk, t):
+    """What the forward dynamics at ``(t, wk.q, wk.v)`` needs before the articulated-body
+    pass: the domain check, the inputs, the base's state, the internal plus external forces
+    ``f = wk[5]`` and the apparent base acceleration ``A0 = wk[6]`` (gravity folded in), the
+    base wrench in ``wk[9][3]``; returns the status."""
+    l0, EI, EA, beta, A_ch, r_ch, paper_act = m[5], m[6], m[7], m[8], m[9], m[10], m[11]
     kind = m[14]
     q, v = wk[0], wk[1]
-    p, tau, f, A0, a, qdd, B = wk[3], wk[4], wk[5], wk[6], wk[7], wk[8], wk[9]
-    ws, sc = wk[11], wk[14]
-    n = mass.shape[0]
-    floating = kind[0] == 1
+    p, tau, f, A0, B = wk[3], wk[4], wk[5], wk[6], wk[9]
+    n = m[3].shape[0]
     qoff = kind[2] - 3 * n
     voff = kind[3] - 3 * n
     status = check(m, wk, q)
@@ -208,28 +298,34 @@ def _accel(m, wk, t, full):
         return status
     inputs(m, wk, t)
     _base_state(m, wk, t, q, v)
-    q_c = q[qoff:].reshape(n, 3)
-    v_c = v[voff:].reshape(n, 3)
-    recursive.internal_forces(q_c, v_c, p.reshape(n, 3), l0, EI, EA, beta, A_ch, r_ch, paper_act, f, sc)
+    recursive.internal_forces(q[qoff:].reshape(n, 3), v[voff:].reshape(n, 3), p.reshape(n, 3), l0, EI, EA, beta,
+                              A_ch, r_ch, paper_act, f, wk[12])
     for j in range(n):
         for b in range(3):
             f[j, b] += tau[voff + 3 * j + b]
     F0 = B[3]  # reused: the base wrench (floating); the origin row is not needed past here
     for r in range(6):
         A0[r] = B[1, r]
-        F0[r] = tau[r] if floating else 0.0
+        F0[r] = tau[r] if kind[0] == 1 else 0.0
     for r in range(3):
         A0[r] -= B[2, r]
-    if kind[1] == 1 and not full:
-        pw = wk[16]
-        ok = planar.planar_aba_moving(alpha, w, offs, mass, radius, q_c, v_c, f, B[0], A0, qdd, locked, pw, pw[7])
-    else:
-        ok = recursive.aba(alpha, w, offs, mass, radius, q_c, v_c, f, B[0], A0, floating, F0, qdd, A0, locked, ws,
-                           sc)
+    return OK
+
+
+@inline
+def _rates(m, wk, y, out, ok):
+    """After the articulated-body pass (``ok``: it succeeded): ``a = wk[7]`` (nv,) and
+    ``out = dy/dt``; returns the status."""
+    kind = m[14]
+    idx = m[13]
+    a, qdd, B = wk[7], wk[8], wk[9]
+    A0 = wk[6]
+    n = m[3].shape[0]
+    voff = kind[3] - 3 * n
     if not ok:
         wk[10][0] = SINGULAR
         return SINGULAR
-    if floating:
+    if kind[0] == 1:
         for r in range(6):
             a[r] = A0[r]
         for r in range(3):
@@ -241,24 +337,53 @@ def _accel(m, wk, t, full):
         if not np.isfinite(a[i]):
             wk[10][0] = NONFINITE
             return NONFINITE
-    return OK
-
-
-@ejit_inner
-def rhs(m, wk, t, y, out):
-    """``out = dy/dt`` (2 nA,) at ``(t, y)``; returns the status (``out`` undefined unless OK).
-    Compiled callers only (no CPython wrapper)."""
-    idx = m[13]
     nA = idx.shape[0]
-    configuration(m, wk, wk[2], y)
-    status = _accel(m, wk, t, False)
-    if status != OK:
-        return status
-    a = wk[7]
     for i in range(nA):
         out[nA + i] = a[idx[i]]
     position_rate(m, y, out)
     return OK
+
+
+@kernel
+def rhs_planar(m, wk, t, y, out):
+    """``out = dy/dt`` (2 nA,) at ``(t, y)`` of a chain on the planar kernel (``m[14][1] == 1``,
+    :func:`qchain.planar.planar_aba_moving`); returns the status (``out`` undefined unless OK).
+    A C callback (:func:`~qchain.engine.jit.kernel`)."""
+    configuration(m, wk, wk[2], y)
+    status = _forces(m, wk, t)
+    if status != OK:
+        return status
+    n = m[3].shape[0]
+    kind = m[14]
+    q_c = wk[0][kind[2] - 3 * n:].reshape(n, 3)
+    v_c = wk[1][kind[3] - 3 * n:].reshape(n, 3)
+    pw = planar_ws(m, wk)
+    ok = planar.planar_aba_moving(m[0], m[1], m[2], m[3], m[4], q_c, v_c, wk[5], wk[9][0], wk[6], wk[8], m[12], pw,
+                                  pw[7])
+    return _rates(m, wk, y, out, ok)
+
+
+@kernel
+def rhs_spatial(m, wk, t, y, out):
+    """``out = dy/dt`` (2 nA,) at ``(t, y)`` on the 3-D articulated-body pass
+    (:func:`qchain.recursive.aba`); as :func:`rhs_planar`."""
+    configuration(m, wk, wk[2], y)
+    status = _forces(m, wk, t)
+    if status != OK:
+        return status
+    n = m[3].shape[0]
+    kind = m[14]
+    q_c = wk[0][kind[2] - 3 * n:].reshape(n, 3)
+    v_c = wk[1][kind[3] - 3 * n:].reshape(n, 3)
+    A0 = wk[6]
+    ok = recursive.aba(m[0], m[1], m[2], m[3], m[4], q_c, v_c, wk[5], wk[9][0], A0, kind[0] == 1, wk[9][3], wk[8], A0,
+                       m[12], aba_ws(m, wk), wk[12])
+    return _rates(m, wk, y, out, ok)
+
+
+def rhs(m):
+    """The right-hand side :class:`~qchain.engine.jit.Kernel` for the model tuple ``m``."""
+    return rhs_planar if m[14][1] == 1 else rhs_spatial
 
 
 @inline
@@ -272,12 +397,12 @@ def position_rate(m, y, out):
         lie.dexp_inv_apply(y[:6], y[nA : nA + 6], out[:6])
 
 
-@ejit_inner
+@kernel
 def jacobian(m, wk, t, y, Jq, Jv):
     """The exact Jacobian blocks of ``dv_A/dt``: ``Jq = da_A/d(delta)`` and ``Jv = da_A/dv_A``
     (nA, nA) at ``(t, y)`` (:func:`qchain.derivatives.aba_derivatives`, which solves the
     forward dynamics itself; configuration derivatives along ``integrate``, exact at
-    ``delta_B = 0``). Compiled callers only (no CPython wrapper)."""
+    ``delta_B = 0``); returns the status. A C callback (:func:`kernel`)."""
     alpha, w, offs, mass, radius, l0, EI, EA, beta, A_ch, r_ch, paper_act, locked = m[:13]
     idx = m[13]
     kind = m[14]
@@ -289,7 +414,7 @@ def jacobian(m, wk, t, y, Jq, Jv):
         return status
     inputs(m, wk, t)
     _base_state(m, wk, t, q, v)
-    ws, wd, wa, sc = wk[11], wk[12], wk[13], wk[14]
+    ws, wd, wa, sc = aba_ws(m, wk), rnea_ws(m, wk), aba_derivatives_ws(m, wk), wk[12]
     n = mass.shape[0]
     floating = kind[0] == 1
     qoff = kind[2] - 3 * n
@@ -321,7 +446,7 @@ def energies(m, wk, t, q, v):
     qoff = kind[2] - 3 * n
     voff = kind[3] - 3 * n
     B = wk[9]
-    sc = wk[14]
+    sc = wk[12]
     _base_state(m, wk, t, q, v)
     o = 0
     V, o = take1(sc, o, 6)
@@ -339,7 +464,7 @@ def energies(m, wk, t, q, v):
     z9[:] = 0.0
     copy(V, B[0])
     for r in range(3):
-        copy(Rj[r], wk[15][r])
+        copy(Rj[r], wk[13][r])
     copy(oj, B[3, :3])
     kin = 0.0
     pot = 0.0
