@@ -770,9 +770,7 @@ def aba_derivatives(alpha, w, offs, mass, radius, l0, EI, EA, beta, A_ch, r_ch, 
     """
     n = q.shape[0]
     off = 6 if floating else 0
-    nv = off + 3 * n
-    f, qdd, A0, a, L, rhs, da_dq, da_dv, da_dtau, da_dp, dfq, dfv, B = wa
-    M, dq, dv = wd[18], wd[19], wd[20]
+    f, qdd, A0, a = wa[0], wa[1], wa[2], wa[3]
     recursive_internal_forces(q, qd, p, l0, EI, EA, beta, A_ch, r_ch, paper_act, f, sc)
     for j in range(n):
         for b in range(3):
@@ -797,6 +795,23 @@ def aba_derivatives(alpha, w, offs, mass, radius, l0, EI, EA, beta, A_ch, r_ch, 
     for j in range(n):
         for b in range(3):
             a[off + 3 * j + b] = qdd[j, b]
+    return _aba_derivatives_at(alpha, w, offs, mass, radius, l0, EI, EA, beta, A_ch, r_ch, paper_act, locked, floating,
+                               q, qd, p, qdd, A0, a, V0, g_B, ws, wd, wa, sc)
+
+
+@jit_helper
+def _aba_derivatives_at(alpha, w, offs, mass, radius, l0, EI, EA, beta, A_ch, r_ch, paper_act, locked, floating,
+                        q, qd, p, qdd, A0, a, V0, g_B, ws, wd, wa, sc):
+    """:func:`aba_derivatives` after its forward pass: the derivatives at the solved
+    accelerations ``qdd`` (n, 3), ``A0`` (6,) (the base's apparent acceleration: solved for a
+    floating base, the given one otherwise) and ``a`` (nv,). The compiled engine calls it
+    after its own right-hand side at the same state (:func:`qchain.engine.system.jacobian`),
+    so the forward pass is neither computed nor compiled twice."""
+    n = q.shape[0]
+    off = 6 if floating else 0
+    nv = off + 3 * n
+    L, rhs, da_dq, da_dv, da_dtau, da_dp, dfq, dfv, B = wa[4], wa[5], wa[6], wa[7], wa[8], wa[9], wa[10], wa[11], wa[12]
+    M, dq, dv = wd[18], wd[19], wd[20]
     _rnea_derivatives(alpha, w, offs, mass, radius, q, qd, qdd, V0, A0, floating, g_B, ws, wd, sc)
     _internal_forces_derivatives(q, p, l0, EI, EA, beta, A_ch, r_ch, paper_act, dfq, dfv, sc)
     _input_matrices(q, A_ch, r_ch, paper_act, B, sc)

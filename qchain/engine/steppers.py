@@ -53,8 +53,9 @@ T, H, T_OLD, H_LAST, RTOL, ATOL, MAX_STEP, DT, T0, H_ABS_OLD, ERR_OLD, NEWTON_TO
 # cnt: its counters and flags
 NSTEPS, NFEV, NJEV, NLU, NREJECT, JAC_CURRENT, LU_OK, F_OK, K_OUT, DENSE_OK, PRED_OK, STATUS, NNEWTON, LAST_ST, EVERY, \
     EMITTED = range(16)
-# rows of the scratch it[12]: the step's end state in the dense output's chart, an output sample
-Y_END, Y_OUT = 10, 11
+# rows of the scratch it[12]: the step's end state in the dense output's chart, an output sample, the
+# right-hand side evaluated before a Jacobian
+Y_END, Y_OUT, JAC_F = 10, 11, 9
 
 RK4, MIDPOINT, DOPRI5, RADAU5 = range(4)
 CODES = {"rk4": RK4, "midpoint": MIDPOINT, "dopri5": DOPRI5, "radau5": RADAU5}
@@ -98,6 +99,16 @@ def _f(fs, m, wk, it, t, y, out):
         it[4][T_FAIL] = t
         it[5][LAST_ST] = st
     return st
+
+
+@ejit_inner
+def _jacobian(fs, m, wk, it, t, y, Jq, Jv):
+    """The exact Jacobian at ``(t, y)``: the right-hand side first (the Jacobian kernel reuses
+    its forward pass; its result goes to a scratch row, not counted in ``nfev``)."""
+    st = fs[0](m, wk, t, y, it[12][JAC_F])
+    if st != 0:
+        return st
+    return fs[1](m, wk, t, y, Jq, Jv)
 
 
 @ejit_inner
@@ -320,7 +331,7 @@ def _midpoint_matrix(fs, m, wk, it, t, y, h):
     Jq, Jv, LU, piv, cnt = it[6], it[7], it[8], it[9], it[5]
     nA = Jq.shape[0]
     cnt[NJEV] += 1
-    st = fs[1](m, wk, t, y, Jq, Jv)
+    st = _jacobian(fs, m, wk, it, t, y, Jq, Jv)
     if st != 0:
         return st
     for r in range(nA):
@@ -609,7 +620,7 @@ def _radau_newton(fs, m, wk, it, c, t, h, scale):
 @ejit_inner
 def _radau_jacobian(fs, m, wk, it, t):
     it[5][NJEV] += 1
-    st = fs[1](m, wk, t, it[0], it[6], it[7])
+    st = _jacobian(fs, m, wk, it, t, it[0], it[6], it[7])
     it[5][JAC_CURRENT] = 1
     it[5][LU_OK] = 0
     return st

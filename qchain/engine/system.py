@@ -400,28 +400,24 @@ def position_rate(m, y, out):
 @kernel
 def jacobian(m, wk, t, y, Jq, Jv):
     """The exact Jacobian blocks of ``dv_A/dt``: ``Jq = da_A/d(delta)`` and ``Jv = da_A/dv_A``
-    (nA, nA) at ``(t, y)`` (:func:`qchain.derivatives.aba_derivatives`, which solves the
-    forward dynamics itself; configuration derivatives along ``integrate``, exact at
-    ``delta_B = 0``); returns the status. A C callback (:func:`kernel`)."""
-    alpha, w, offs, mass, radius, l0, EI, EA, beta, A_ch, r_ch, paper_act, locked = m[:13]
+    (nA, nA) at ``(t, y)`` (configuration derivatives along ``integrate``, exact at
+    ``delta_B = 0``); returns the status. Called right after the right-hand side at the same
+    ``(t, y)``, whose forward pass it reuses from ``wk`` (:func:`qchain.derivatives._aba_derivatives_at`):
+    the forward dynamics are neither computed nor compiled a second time. A C callback
+    (:func:`~qchain.engine.jit.kernel`)."""
     idx = m[13]
     kind = m[14]
     nA = idx.shape[0]
-    configuration(m, wk, wk[2], y)
-    q, v, p, tau, B = wk[0], wk[1], wk[3], wk[4], wk[9]
-    status = check(m, wk, q)
-    if status != OK:
-        return status
-    inputs(m, wk, t)
-    _base_state(m, wk, t, q, v)
-    ws, wd, wa, sc = aba_ws(m, wk), rnea_ws(m, wk), aba_derivatives_ws(m, wk), wk[12]
-    n = mass.shape[0]
-    floating = kind[0] == 1
-    qoff = kind[2] - 3 * n
+    q, v, p, B = wk[0], wk[1], wk[3], wk[9]
+    wa = aba_derivatives_ws(m, wk)
+    n = m[3].shape[0]
     voff = kind[3] - 3 * n
-    status = derivatives.aba_derivatives(alpha, w, offs, mass, radius, l0, EI, EA, beta, A_ch, r_ch, paper_act,
-                                         locked, floating, q[qoff:].reshape(n, 3), v[voff:].reshape(n, 3),
-                                         p.reshape(n, 3), tau, B[0], B[1], B[2, :3], ws, wd, wa, sc)
+    a = wa[3]
+    copy(a, wk[7])
+    status = derivatives._aba_derivatives_at(m[0], m[1], m[2], m[3], m[4], m[5], m[6], m[7], m[8], m[9], m[10], m[11],
+                                             m[12], kind[0] == 1, q[kind[2] - 3 * n:].reshape(n, 3),
+                                             v[voff:].reshape(n, 3), p.reshape(n, 3), wk[8], wk[6], a, B[0],
+                                             B[2, :3], aba_ws(m, wk), rnea_ws(m, wk), wa, wk[12])
     if status != 0:
         wk[10][0] = SINGULAR if status < 3 else NONFINITE
         return wk[10][0]

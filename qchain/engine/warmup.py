@@ -142,17 +142,12 @@ def announce(method: str, cold: list[str], stream=sys.stderr) -> None:
 
 
 def _groups(cold: list[str]) -> list[list[str]]:
-    """The cold parts as the workers' shares: the Jacobian (the largest part, the one the
-    first run waits for) alone, the rest together (they cost a little less)."""
-    big = [p for p in cold if p == "jacobian"]
-    rest = [p for p in cold if p != "jacobian"]
-    return [g for g in (big, rest) if g]
-
-
-#: the niceness of the workers that are not on the critical path (the Jacobian's is 0): while
-#: this process builds its model too, three processes share the cores, and the one that
-#: takes longest should not wait
-NICE_REST = 10
+    """The cold parts as two workers' shares of about equal cost (about 20 s each on one
+    core for an implicit method): the Jacobian alone and the rest together, or for an
+    explicit method the right-hand side and the rest."""
+    first = [p for p in cold if p == "jacobian"] or [p for p in cold if p.startswith("rhs_")]
+    rest = [p for p in cold if p not in first]
+    return [g for g in (first, rest) if g]
 
 
 def _spawn(parts_: list[str], method: str, planar_kernel: bool) -> None:
@@ -162,7 +157,7 @@ def _spawn(parts_: list[str], method: str, planar_kernel: bool) -> None:
     if not todo:
         return
     cmd = [sys.executable, "-c", "import sys; from qchain.engine.warmup import _main; sys.exit(_main(sys.argv[1:]))",
-           method, "planar" if planar_kernel else "spatial", str(0 if "jacobian" in todo else NICE_REST), *todo]
+           method, "planar" if planar_kernel else "spatial", *todo]
     try:
         _workers[todo] = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
                                           stderr=subprocess.DEVNULL, env=os.environ.copy())
@@ -271,10 +266,8 @@ def prepare_energies(m, wk, stream=sys.stderr) -> float:
 
 
 def _main(argv: list[str]) -> int:
-    """A worker process: compile ``METHOD planar|spatial NICENESS PART...`` into the cache."""
-    method, variant, nice, *names = argv
-    if int(nice) and hasattr(os, "nice"):
-        os.nice(int(nice))
+    """A worker process: compile ``METHOD planar|spatial PART...`` into the cache."""
+    method, variant, *names = argv
     m, wk, it, out, c = standin(method, variant == "planar")
     for name in names:
         if name == "advance":
