@@ -45,7 +45,7 @@ EXPECTED_ENERGIES_S = 8
 #: the methods whose stepper calls the Jacobian
 IMPLICIT = ("midpoint", "radau5")
 
-_workers: dict[tuple, subprocess.Popen] = {}  # parts -> the worker compiling them
+_workers: dict[tuple, subprocess.Popen] = {}  # ((method or '', part), ...) -> the worker compiling them
 
 
 def _terminate_workers() -> None:
@@ -153,14 +153,15 @@ def _groups(cold: list[str]) -> list[list[str]]:
 def _spawn(parts_: list[str], method: str, planar_kernel: bool) -> None:
     """Start a worker compiling ``parts_`` into the cache, unless a live one has them."""
     busy = {q for group, p in _workers.items() if p.poll() is None for q in group}
-    todo = tuple(q for q in parts_ if q not in busy)
+    todo = tuple(q for q in parts_ if (method, q) not in busy and ("", q) not in busy)
     if not todo:
         return
     cmd = [sys.executable, "-c", "import sys; from qchain.engine.warmup import _main; sys.exit(_main(sys.argv[1:]))",
            method, "planar" if planar_kernel else "spatial", *todo]
+    key = tuple((method if q == "advance" else "", q) for q in todo)  # the stepper is the method's own
     try:
-        _workers[todo] = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
-                                          stderr=subprocess.DEVNULL, env=os.environ.copy())
+        _workers[key] = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
+                                         stderr=subprocess.DEVNULL, env=os.environ.copy())
     except OSError:  # no process to be had: :func:`prepare` compiles it here
         pass
 
