@@ -28,6 +28,7 @@ base). Pressures ``p`` (Pa) are ordered segment by segment, chambers 1..3.
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import NamedTuple
@@ -41,7 +42,9 @@ from . import recursive
 from .arc import SCRATCH, arc_nodes
 from .dynamics_derivatives import _ZERO6, ForwardDynamicsDerivatives, InverseDynamicsDerivatives
 from .data import Data
-from .errors import DomainError, QchainError, SingularConfigurationError, as_vector
+from .bounds import GRAVITY
+from .errors import (DomainError, NonFiniteError, QchainError, SingularConfigurationError, as_real, as_real_array,
+                     as_vector)
 from .segment import PAPER_SINGULAR_ANGLE, Segment, paper_jacobian, paper_jacobian_dot, paper_to_curvature
 from .spatial import ad_matrix, quaternion_to_rotation
 
@@ -79,16 +82,59 @@ class Frames(NamedTuple):
 _ALPHAS: dict[int, np.ndarray] = {}
 
 
+def _vec3(x) -> str:
+    return "(" + ", ".join(f"{float(v):.6g}" for v in x) + ")"
+
+
 def _backbone_alpha(points_per_segment: int) -> np.ndarray:
     """``P`` evenly spaced slice coordinates from 0 to 1 (read-only, cached)."""
     alpha = _ALPHAS.get(points_per_segment)
     if alpha is None:
-        if not (isinstance(points_per_segment, (int, np.integer)) and points_per_segment >= 2):
-            raise ValueError(f"points_per_segment must be an int >= 2, got {points_per_segment!r}")
+        if not (isinstance(points_per_segment, (int, np.integer)) and not isinstance(points_per_segment, bool)
+                and 2 <= points_per_segment <= 10_000):
+            raise ValueError(f"points_per_segment must be an int >= 2 and <= 10000, got {points_per_segment!r}")
         alpha = np.linspace(0.0, 1.0, int(points_per_segment))
         alpha.flags.writeable = False
         _ALPHAS[int(points_per_segment)] = alpha
     return alpha
+
+
+def _all_finite(x) -> bool:
+    """Whether a result (array, number, placement, or a tuple or list of them) is finite."""
+    if isinstance(x, np.ndarray):
+        return bool(np.isfinite(x).all())
+    if isinstance(x, float):
+        return np.isfinite(x)
+    if isinstance(x, pin.SE3):
+        return bool(np.all(np.isfinite(x.homogeneous)))
+    if isinstance(x, (tuple, list)):
+        return all(_all_finite(y) for y in x)
+    return True
+
+
+def _finite(quantity: str, has_v: bool = False):
+    """Decorator of a :class:`Chain` method ``(self, q, [v,] ...)``: a result that is not
+    finite raises :class:`~qchain.errors.NonFiniteError` naming the quantity, the segment
+    whose state overflows and the time (:meth:`Chain.nonfinite_error`) instead of being
+    returned; so does a segment's own :class:`~qchain.errors.NonFiniteError` inside."""
+
+    def wrap(fn):
+        @functools.wraps(fn)
+        def method(self, q, *args, **kwargs):
+            if kwargs.get("skip_checks"):
+                return fn(self, q, *args, **kwargs)
+            v = args[0] if has_v and args else kwargs.get("v")
+            try:
+                out = fn(self, q, *args, **kwargs)
+            except NonFiniteError:
+                raise self.nonfinite_error(fn.__name__, quantity, q, v, kwargs.get("t")) from None
+            if not _all_finite(out):
+                raise self.nonfinite_error(fn.__name__, quantity, q, v, kwargs.get("t"))
+            return out
+
+        return method
+
+    return wrap
 
 
 @dataclass
@@ -115,7 +161,7 @@ class Chain:
         From the base to the tip; they may differ in every parameter and coordinate choice.
     base : {"fixed", "floating", "prescribed"}
     gravity : (3,) m/s^2
-        World gravity.
+        World gravity, each component within +-1e4 m/s^2 (:data:`qchain.bounds.GRAVITY`).
     base_placement : pinocchio.SE3, optional
         World placement ``X_WB`` of a fixed base (default identity).
     base_motion : callable, optional
@@ -131,6 +177,12 @@ class Chain:
     value (``l0``, or 0 for ``uy``), ``v`` zero there, and :meth:`forward_dynamics` returns
     zero acceleration there (an ideal constraint). ``active`` marks the free velocity
     coordinates.
+
+    Inputs of every method (``q``, ``v``, ``a``, ``p``, ``tau``) are real arrays of the right
+    shape (``TypeError`` for strings, booleans, complex numbers), finite and inside the
+    model's domain (``ValueError`` or :class:`~qchain.errors.DomainError` naming the entry
+    and segment); a result that is not finite raises :class:`~qchain.errors.NonFiniteError`
+    naming the quantity, the segment whose state overflows and the time.
 
     Attributes
     ----------
@@ -155,7 +207,7 @@ class Chain:
         for j, s in enumerate(segs):
             if not isinstance(s, Segment):
                 raise TypeError(f"segments[{j}] must be a qchain.Segment, got {type(s).__name__}")
-        if base not in BASES:
+        if not isinstance(base, str) or base not in BASES:
             raise ValueError(f"base must be one of {BASES}, got {base!r}")
         if base == "prescribed" and not callable(base_motion):
             raise ValueError("base='prescribed' needs base_motion, a callable t -> (X_WB, V_B, A_B)")
@@ -165,9 +217,11 @@ class Chain:
             raise ValueError(f"base_placement is only used with base='fixed', got base={base!r}")
         if base_placement is not None and not isinstance(base_placement, pin.SE3):
             raise TypeError(f"base_placement must be a pinocchio.SE3, got {type(base_placement).__name__}")
+        if base_placement is not None and not np.all(np.isfinite(base_placement.homogeneous)):
+            raise ValueError("base_placement must be finite, got a placement with non-finite entries")
         self.segments = segs
         self.base = base
-        self.gravity = as_vector("gravity", gravity, 3)
+        self.gravity = GRAVITY.check_array("gravity", as_vector("gravity", gravity, 3))
         self.base_placement = pin.SE3.Identity() if base_placement is None else pin.SE3(base_placement)
         self.base_motion = base_motion
         n = len(segs)
@@ -260,11 +314,73 @@ class Chain:
     def __repr__(self) -> str:
         return f"Chain(n={self.n}, base={self.base!r}, nq={self.nq}, nv={self.nv})"
 
+    def coordinate_name(self, i: int, velocity: bool = True) -> str:
+        """Who owns entry ``i`` of ``v`` (or of ``q`` with ``velocity=False``), in words:
+        ``"segment 1, uy"``, ``"base, angular velocity z"``."""
+        off = self._voff if velocity else self._qoff
+        if i < off:
+            names = (("linear velocity x", "linear velocity y", "linear velocity z", "angular velocity x",
+                      "angular velocity y", "angular velocity z") if velocity else
+                     ("position x", "position y", "position z", "quaternion x", "quaternion y", "quaternion z",
+                      "quaternion w"))
+            return f"base, {names[i]}"
+        j, k = divmod(i - off, 3)
+        return f"segment {j}, {('l', 'psi', 'kappa')[k] if self._paper[j] else ('l', 'ux', 'uy')[k]}"
+
+    def _overflowing_segment(self, q_e: np.ndarray, v_e: np.ndarray | None) -> str | None:
+        """The first segment whose own mass matrix, kinetic or elastic energy is not finite
+        at ``q_e`` (n, 3) (and ``v_e``), in words, or None."""
+        with np.errstate(all="ignore"):
+            for j, s in enumerate(self.segments):
+                q_c = paper_to_curvature(q_e[j]) if self._paper[j] else q_e[j]
+                M = s._mass_c(np.ascontiguousarray(q_c, dtype=float))
+                J = paper_jacobian(q_e[j]) if self._paper[j] else np.eye(3)
+                vc = None if v_e is None else J @ v_e[j]
+                T = 0.0 if vc is None else 0.5 * float(vc @ M[6:, 6:] @ vc)
+                U = Segment.elastic_energy.__wrapped__(s, q_e[j])
+                what = [w for w, ok in (("mass matrix", np.all(np.isfinite(M))),
+                                        (f"kinetic energy {T:.3g} J", np.isfinite(T) or not np.all(np.isfinite(M))),
+                                        (f"elastic energy {U:.3g} J", np.isfinite(U))) if not ok]
+                if what:
+                    sl, vs = self.q_slice(j), self.v_slice(j)
+                    rates = "" if v_e is None else f", v[{vs.start}:{vs.stop}] = {_vec3(v_e[j])}"
+                    return (f"segment {j} (q[{sl.start}:{sl.stop}] = {_vec3(q_e[j])}{rates}) overflows double "
+                            f"precision: its {' and '.join(what)}")
+        return None
+
+    def nonfinite_error(self, method: str, quantity: str, q, v=None, t=None, result=None) -> NonFiniteError:
+        """The :class:`~qchain.errors.NonFiniteError` of a ``method`` whose ``quantity`` came
+        out non-finite at ``(q, v)`` (and time ``t``): it names the first segment whose own
+        mass matrix, kinetic or elastic energy overflows there, or else the first
+        non-finite entry of ``result`` (a vector over ``v``)."""
+        try:
+            at = f" at t = {float(t):.6g} s" if t is not None else ""
+        except (TypeError, ValueError):
+            at = f" at t = {t!r}"
+        try:
+            q = np.asarray(q, dtype=float)
+            q_e = q[self._qoff :].reshape(self.n, 3)
+            v_e = None if v is None else np.asarray(v, dtype=float)[self._voff :].reshape(self.n, 3)
+        except (TypeError, ValueError):
+            return NonFiniteError(f"Chain.{method}: the {quantity} is not finite{at}")
+        culprit = self._overflowing_segment(q_e, v_e)
+        if culprit:
+            return NonFiniteError(f"Chain.{method}: the {quantity} is not finite{at}: {culprit}")
+        where = ""
+        if isinstance(result, np.ndarray) and result.shape == (self.nv,):
+            bad = np.flatnonzero(~np.isfinite(result))
+            if bad.size:
+                where = f": first at entry {int(bad[0])} ({self.coordinate_name(int(bad[0]))})"
+        return NonFiniteError(f"Chain.{method}: the {quantity} is not finite{at}{where}")
+
     # ------------------------------------------------------------------ inputs
 
     def _vec(self, name: str, x, size: int) -> np.ndarray:
-        """Fast shape check; finiteness is checked with the domain (:meth:`_state`)."""
-        x = np.asarray(x, dtype=float)
+        """Fast shape check; finiteness is checked with the domain (:meth:`_state`). A float
+        array passes straight; anything else is converted by :func:`qchain.errors.as_real_array`,
+        which refuses booleans, strings and complex numbers by name."""
+        if not (isinstance(x, np.ndarray) and x.dtype == np.float64):
+            x = as_real_array(name, x)
         if x.shape != (size,):
             as_vector(name, x, size)  # raises with the expected and actual shape
         return x
@@ -386,6 +502,7 @@ class Chain:
         docs/model.md section 7)."""
         q = self._q(q)
         v = as_vector("v", v, self.nv)
+        dt = as_real("dt", dt)
         out = q.copy()
         if self.floating:
             out[:7] = pin.integrate(self._ff, q[:7], v[:6] * dt)
@@ -404,6 +521,7 @@ class Chain:
 
     # ------------------------------------------------------------------ kinematics
 
+    @_finite("world placements")
     def placements(self, q, t: float = 0.0) -> list[pin.SE3]:
         """World placements of every segment root and of the tip: ``n + 1`` ``pinocchio.SE3``."""
         f = self._state_frames(self._state(q, t=t), _NO_POINTS)
@@ -417,6 +535,7 @@ class Chain:
         """World points along each segment's axis (m), shape ``(n, P, 3)``, ``alpha`` from 0 to 1."""
         return self.frames(q, points_per_segment, t)[1]
 
+    @_finite("frames and backbone")
     def frames(self, q, points_per_segment: int = 20, t: float = 0.0) -> tuple[list[pin.SE3], np.ndarray]:
         """:meth:`placements` and :meth:`backbone` in one pass (:meth:`frames_batch` does many
         configurations at once)."""
@@ -444,7 +563,7 @@ class Chain:
             the world; ``backbone`` (K, n, P, 3) m.
         """
         alpha = _backbone_alpha(points_per_segment)
-        Q = np.asarray(Q, dtype=float)
+        Q = as_real_array("Q", Q)
         if Q.ndim != 2 or Q.shape[1] != self.nq:
             raise ValueError(f"Q must have shape (K, nq) = (K, {self.nq}), got {Q.shape}")
         K = Q.shape[0]
@@ -473,7 +592,13 @@ class Chain:
             X = [self.base_state(tk)[0] for tk in np.broadcast_to(np.asarray(t, dtype=float), (K,))]
             R0 = np.array([x.rotation for x in X])
             o0 = np.array([x.translation for x in X])
-        return self._frames(q_e, R0, o0, alpha)
+        with np.errstate(all="ignore"):
+            f = self._frames(q_e, R0, o0, alpha)
+        bad = ~(np.isfinite(f.translation).all(axis=(1, 2)) & np.isfinite(f.backbone).all(axis=(1, 2, 3)))
+        if bad.any():
+            k = int(np.flatnonzero(bad)[0])
+            raise NonFiniteError(f"Q[{k}]: " + str(self.nonfinite_error("frames_batch", "frames", Q[k])))
+        return f
 
     def _state_frames(self, st: _State, alpha: np.ndarray) -> Frames:
         return self._frames(st.q_e[None], st.X_WB.rotation[None], st.X_WB.translation[None], alpha)
@@ -494,6 +619,7 @@ class Chain:
         S = n.S if st.J is None else n.S @ st.J
         return n.Ad_inv, S
 
+    @_finite("tip Jacobian")
     def tip_jacobian(self, q, reference: str = "local", t: float = 0.0) -> np.ndarray:
         """Tip frame Jacobian (6, nv): ``V_tip = J v`` (+ the base's own motion if prescribed).
 
@@ -524,6 +650,7 @@ class Chain:
             return out
         raise ValueError(f"reference must be 'local', 'local_world_aligned' or 'world', got {reference!r}")
 
+    @_finite("tip twist", has_v=True)
     def tip_velocity(self, q, v, reference: str = "local", t: float = 0.0) -> np.ndarray:
         """Tip twist (6,) ``[linear; angular]`` in ``reference`` (see :meth:`tip_jacobian`)."""
         st = self._state(q, v, t=t)
@@ -551,6 +678,7 @@ class Chain:
             segment_mass(self._alpha[o], self._w[o], self._mass[j], self._radius[j], st.q_c[j], M[j])
         return M
 
+    @_finite("kinetic energy", has_v=True)
     def kinetic_energy(self, q, v, t: float = 0.0) -> float:
         """``T = sum_j 1/2 xi_j^T M_xi_j xi_j`` (J), the base's own motion included (the paper's
         eq. (4) summed over the segments; docs/model.md section 8)."""
@@ -560,6 +688,7 @@ class Chain:
         xi = np.concatenate([V[:-1], st.v_c], axis=1)
         return 0.5 * float(np.einsum("ni,nij,nj->", xi, M, xi))
 
+    @_finite("centres of mass")
     def centers_of_mass(self, q, t: float = 0.0) -> np.ndarray:
         """World centre of mass of each segment (n, 3), m."""
         return self._centers_of_mass(self._state(q, t=t))
@@ -571,6 +700,7 @@ class Chain:
         c = np.add.reduceat(self._w[:, None] * p, self._offs[:-1], axis=0)  # root frames
         return np.einsum("nij,nj->ni", R[:-1], c) + o[:-1]
 
+    @_finite("potential energy")
     def potential_energy(self, q, t: float = 0.0) -> float:
         """Gravity (about the world origin) plus elastic energy (J) (docs/model.md section 9)."""
         st = self._state(q, t=t)
@@ -578,6 +708,7 @@ class Chain:
         Ue = sum(s.elastic_energy(st.q_e[j]) for j, s in enumerate(self.segments))
         return Ug + Ue
 
+    @_finite("momentum", has_v=True)
     def momentum(self, q, v, t: float = 0.0) -> np.ndarray:
         """World momentum (6,): linear (kg m/s) and angular about the world origin (kg m^2/s)."""
         st = self._state(q, v, t=t)
@@ -626,6 +757,7 @@ class Chain:
         ws = self._ws(data)
         return ws, ws[8]
 
+    @_finite("mass matrix")
     def mass_matrix(self, q, data: Data | None = None) -> np.ndarray:
         """``M(q)`` (nv, nv) by composite-body assembly (:func:`qchain.recursive.crba`):
         ``sum_j A_j^T M_xi_j A_j`` of the segments' eq. (6) blocks (docs/model.md section 8)."""
@@ -647,6 +779,7 @@ class Chain:
         tau = self._force_e(st, tau_c).ravel()
         return np.concatenate([F0, tau]) if self.floating else tau
 
+    @_finite("generalised force M a + C v + g", has_v=True)
     def inverse_dynamics(self, q, v, a, t: float = 0.0) -> np.ndarray:
         """``M a + C v + g`` (nv,) by recursive Newton-Euler over the slices (Pinocchio's ``rnea``;
         docs/model.md sections 4 and 8): the inertial and gravity terms of eq. (9).
@@ -663,6 +796,7 @@ class Chain:
         """``C(q, v) v + g(q)`` (nv,) ``== inverse_dynamics(q, v, 0)`` (Pinocchio's ``nle``)."""
         return self.inverse_dynamics(q, v, np.zeros(self.nv), t=t)
 
+    @_finite("generalised gravity")
     def generalized_gravity(self, q, t: float = 0.0) -> np.ndarray:
         """``g(q)`` (nv,): gravity alone (a prescribed base held still at its placement at ``t``);
         the ``g_xi`` of eq. (9) (docs/model.md section 9)."""
@@ -671,6 +805,7 @@ class Chain:
         st.A_B = None
         return self._rnea(st, np.zeros((self.n, 3)), np.zeros(6) if self.floating else None)
 
+    @_finite("elastic force")
     def elastic_force(self, q) -> np.ndarray:
         """``dU_el/dq`` (nv,), zero on the base (docs/model.md section 9)."""
         st = self._state(q)
@@ -688,19 +823,23 @@ class Chain:
             out[sl, sl] = block(j, s, st.q_e[j])
         return out
 
+    @_finite("elastic stiffness")
     def elastic_stiffness(self, q) -> np.ndarray:
         """``d^2 U_el / dq^2`` (nv, nv), exact, block-diagonal, zero on the base."""
         return self._segment_blocks(q, lambda j, s, qe: s.elastic_stiffness(qe))
 
+    @_finite("dissipation matrix")
     def dissipation_matrix(self, q) -> np.ndarray:
         """``D`` (nv, nv), block-diagonal, zero on the base (docs/model.md section 9)."""
         return self._segment_blocks(q, lambda j, s, qe: s.dissipation_matrix(qe))
 
+    @_finite("pressure stiffness")
     def pressure_stiffness(self, q, p) -> np.ndarray:
         """``d(B(q) p)/dq`` (nv, nv), exact for both actuation models, zero on the base."""
         p3 = self._p(p)
         return self._segment_blocks(q, lambda j, s, qe: s.pressure_stiffness(qe, p3[j]))
 
+    @_finite("damping force", has_v=True)
     def damping_force(self, q, v) -> np.ndarray:
         """``D v`` (nv,), zero on the base."""
         st = self._state(q, v)
@@ -709,6 +848,7 @@ class Chain:
             out[self.v_slice(j)] = s.damping_force(st.q_e[j], st.v_e[j])
         return out
 
+    @_finite("input matrix")
     def input_matrix(self, q) -> np.ndarray:
         """``B(q)`` (nv, 3 n): block-diagonal, pressures act only on their own segment's ``q_e``,
         never as a net force on the base (the paper's eq. (8); docs/model.md section 5)."""
@@ -736,6 +876,7 @@ class Chain:
             extra.append(("tau", tau))
         return p3, tau, extra
 
+    @_finite("internal forces", has_v=True)
     def internal_forces(self, q, v, p=None) -> np.ndarray:
         """``B p - D v - dU_el/dq`` (nv,), the segments' own generalised forces, zero on the base
         (docs/model.md sections 5 and 9)."""
@@ -820,6 +961,10 @@ class Chain:
         ok = self._aba(st.q_c, np.ascontiguousarray(st.v_c), np.ascontiguousarray(f_c), st.V0, self._A0(st), F0, qdd_c,
                        A0, data)
         if not ok:
+            culprit = self._overflowing_segment(st.q_e, st.v_e)
+            if culprit:
+                raise NonFiniteError(f"Chain.forward_dynamics: the acceleration is not finite at t = {t:.6g} s: "
+                                     f"{culprit}")
             raise QchainError("forward_dynamics: an articulated inertia block is not positive definite")
         a = np.empty(self.nv)
         if self.floating:
@@ -836,11 +981,14 @@ class Chain:
                 a_e[j] = np.linalg.solve(st.J[j], rhs)
             a[self._voff :] = a_e.ravel()
         if not np.all(np.isfinite(a)):
-            raise QchainError(f"forward_dynamics produced non-finite accelerations at t = {t}")
+            q_full = np.concatenate([np.zeros(self._qoff), st.q_e.ravel()])
+            v_full = np.concatenate([np.zeros(self._voff), st.v_e.ravel()])
+            raise self.nonfinite_error("forward_dynamics", "acceleration", q_full, v_full, t, result=a)
         return a
 
     # ------------------------------------------------------------------ derivatives
 
+    @_finite("inverse dynamics derivatives", has_v=True)
     def inverse_dynamics_derivatives(self, q, v, a, t: float = 0.0,
                                      data: Data | None = None) -> InverseDynamicsDerivatives:
         """Exact derivatives of :meth:`inverse_dynamics` (Pinocchio's ``computeRNEADerivatives``).
@@ -856,6 +1004,7 @@ class Chain:
         st = self._state(q, v, t=t, nonsingular=True, extra=(("a", a),))
         return _derivs.inverse_dynamics_derivatives(self, st, a, data)
 
+    @_finite("forward dynamics derivatives", has_v=True)
     def forward_dynamics_derivatives(self, q, v, p=None, tau=None, t: float = 0.0, data: Data | None = None,
                                      skip_checks: bool = False) -> ForwardDynamicsDerivatives:
         """Exact derivatives of :meth:`forward_dynamics` (Pinocchio's ``computeABADerivatives``).
@@ -904,10 +1053,12 @@ class Chain:
             g_B = X.rotation.T @ self.gravity
         return q_c, v_c, p3, V0, A_B, g_B
 
+    @_finite("mass matrix derivative")
     def mass_matrix_derivative(self, q, data: Data | None = None) -> np.ndarray:
         """``dM[:, :, k] = dM/dq_k`` (nv, nv, nv) along :meth:`integrate`, exact."""
         return _derivs.mass_matrix_derivative(self, self._state(q, nonsingular=True), data)
 
+    @_finite("Coriolis matrix", has_v=True)
     def coriolis_matrix(self, q, v) -> np.ndarray:
         """``C(q, v)`` (nv, nv) with ``C v = nonlinear_effects - g`` and ``dM/dt - 2C`` skew.
 

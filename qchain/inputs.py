@@ -14,16 +14,25 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .errors import as_vector
+from .bounds import FREQUENCY
+from .errors import as_real, as_real_array, as_vector
 
 __all__ = ["Schedule", "Constant", "Step", "Ramp", "Sine", "Table", "as_input"]
 
 
 def _vec(name, x, size=None) -> np.ndarray:
-    x = np.atleast_1d(np.asarray(x, dtype=float))
+    x = np.atleast_1d(as_real_array(name, x))
     if x.ndim != 1:
         raise ValueError(f"{name} must be a 1-D array, got shape {x.shape}")
     return as_vector(name, x, x.size if size is None else size)
+
+
+def _spread(name, x, n) -> np.ndarray:
+    """One number or ``n`` (as an ``(n,)`` array), else ``ValueError`` naming ``name``."""
+    v = _vec(name, x)
+    if v.size not in (1, n):
+        raise ValueError(f"{name} must be one number or {n} (one an entry of amplitude), got {v.size}")
+    return np.broadcast_to(v, (n,)).copy()
 
 
 class Schedule(ABC):
@@ -65,8 +74,7 @@ class Step(Schedule):
         a = _vec("after", self.after)
         object.__setattr__(self, "after", a)
         object.__setattr__(self, "before", np.zeros_like(a) if self.before is None else _vec("before", self.before, a.size))
-        if not np.isfinite(self.time):
-            raise ValueError(f"time must be finite, got {self.time}")
+        object.__setattr__(self, "time", as_real("time", self.time))
 
     @property
     def size(self) -> int:
@@ -89,7 +97,9 @@ class Ramp(Schedule):
         e = _vec("end", self.end)
         object.__setattr__(self, "end", e)
         object.__setattr__(self, "start", np.zeros_like(e) if self.start is None else _vec("start", self.start, e.size))
-        if not (np.isfinite(self.t0) and np.isfinite(self.t1) and self.t1 > self.t0):
+        object.__setattr__(self, "t0", as_real("t0", self.t0))
+        object.__setattr__(self, "t1", as_real("t1", self.t1))
+        if not self.t1 > self.t0:
             raise ValueError(f"ramp times must be finite with t1 > t0, got t0 = {self.t0}, t1 = {self.t1}")
 
     @property
@@ -103,7 +113,8 @@ class Ramp(Schedule):
 
 @dataclass(frozen=True)
 class Sine(Schedule):
-    """``offset + amplitude * sin(2 pi frequency t + phase)``, element-wise (Hz, rad)."""
+    """``offset + amplitude * sin(2 pi frequency t + phase)``, element-wise (Hz, rad);
+    ``0 <= frequency <= 1e4`` Hz (:data:`qchain.bounds.FREQUENCY`)."""
 
     amplitude: np.ndarray
     frequency: np.ndarray
@@ -113,11 +124,10 @@ class Sine(Schedule):
     def __post_init__(self):
         a = _vec("amplitude", self.amplitude)
         n = a.size
-        f = np.broadcast_to(_vec("frequency", self.frequency), (n,)).copy()
-        if np.any(f < 0):
-            raise ValueError(f"frequency must be >= 0 Hz, got {f.tolist()}")
-        ph = np.zeros(n) if self.phase is None else np.broadcast_to(_vec("phase", self.phase), (n,)).copy()
-        off = np.zeros(n) if self.offset is None else np.broadcast_to(_vec("offset", self.offset), (n,)).copy()
+        f = _spread("frequency", self.frequency, n)
+        FREQUENCY.check_array("frequency", f)
+        ph = np.zeros(n) if self.phase is None else _spread("phase", self.phase, n)
+        off = np.zeros(n) if self.offset is None else _spread("offset", self.offset, n)
         for k, v in (("amplitude", a), ("frequency", f), ("phase", ph), ("offset", off)):
             object.__setattr__(self, k, v)
 
@@ -139,7 +149,7 @@ class Table(Schedule):
 
     def __post_init__(self):
         t = _vec("times", self.times)
-        v = np.asarray(self.values, dtype=float)
+        v = as_real_array("values", self.values)
         if v.ndim != 2 or v.shape[0] != t.size:
             raise ValueError(f"values must have shape ({t.size}, m) to match times, got {v.shape}")
         if not np.all(np.isfinite(v)):

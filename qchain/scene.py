@@ -8,99 +8,22 @@ s, Pa, rad, Hz.
 
 File format
 -----------
-Every key is optional unless marked *required*. Vectors of pressures, coordinates and
-velocities hold one entry per segment and chamber/coordinate: write them either flat,
-``3 n`` numbers segment by segment, or nested, ``n`` lists of 3 numbers (``n`` = number of
-segments after ``count`` is expanded). An example::
-
-    name = "three-segment wave"         # free text, also "description"
-    gravity = [0.0, 0.0, -9.81]         # m/s^2, world frame (default)
-
-    [model]
-    reduce = true                       # automatic reductions on (default)
-    node_tolerance = 1e-8               # relative M_xi accuracy -> Gauss nodes a segment
-    max_bend = 1.2                      # rad; default: estimated (see "Model reduction")
-
-    [[segments]]                        # required: one table a segment, base to tip
-    count = 3                           # repeat this segment (default 1)
-    length = 0.1                        # m, rest length l0         (required, > 0)
-    radius = 0.015                      # m, outer radius r_s       (required, > 0)
-    mass = 0.05                         # kg                        (required, > 0)
-    chamber_area = 4.5e-5               # m^2, each chamber         (required, > 0)
-    chamber_radius = 0.0085             # m, chamber centres        (required, > 0)
-    youngs_modulus = 1e5                # Pa                        (required, > 0)
-    damping = 0.01                      # s, beta of D = beta K(q0) (>= 0, default 0)
-    coords = "curvature"                # or "paper": q_e = (l, ux, uy) or (l, psi, kappa)
-    actuation = "volume"                # or "paper"
-    extensible = true                   # false: l held at l0, the axial mode dropped
-    nodes = 6                           # Gauss nodes (>= 1); overrides node_tolerance
-
-    [base]
-    type = "fixed"                      # "fixed" (default), "floating" or "prescribed"
-    position = [0.0, 0.0, 0.0]          # m, world; fixed: the mount, floating: initial
-    rpy = [0.0, 0.0, 0.0]               # rad, roll-pitch-yaw, R = Rz(yaw) Ry(pitch) Rx(roll)
-    velocity = [0.0, 0.0, 0.0]          # floating only: initial linear velocity, m/s, base frame
-    angular_velocity = [0.0, 0.0, 0.0]  # floating only: initial angular velocity, rad/s, base frame
-
-    [base.motion]                       # prescribed only (required there)
-    type = "translation"                # or "rotation" (about an axis through the mount origin)
-    axis = [1.0, 0.0, 0.0]              # mount frame (position + rpy above), normalised
-    amplitude = 0.02                    # m or rad
-    frequency = 1.0                     # Hz (>= 0)
-    phase = 0.0                         # rad
-
-    [pressure]                          # chamber pressures, gauge, Pa (default: none)
-    type = "sine"                       # one of the five kinds below
-    amplitude = [20e3, 0, 0,  20e3, 0, 0,  20e3, 0, 0]
-    offset = [20e3, 0, 0,  20e3, 0, 0,  20e3, 0, 0]
-    frequency = 0.5                     # Hz, a number or one a chamber
-    phase = 0.0                         # rad, a number or one a chamber
-    segment_phase = -1.0                # rad, added j times to segment j's chambers
-
-    [initial]
-    q_e = [[0.1, 0.0, 0.0], [0.1, 0.0, 0.0], [0.1, 0.0, 0.0]]  # segment coordinates
-    v = [0.0, 0.0, 0.0,  0.0, 0.0, 0.0,  0.0, 0.0, 0.0]        # their rates
-
-    [simulation]
-    duration = 2.0                      # s                         (required, > 0)
-    method = "radau5"                   # radau5 (default), dopri5, rk4, midpoint; scipy's RK45, DOP853, Radau, BDF
-    rtol = 1e-6                         # adaptive methods
-    atol = 1e-8
-    dt = 1e-3                           # s, fixed-step methods (rk4, midpoint): required there
-    max_step = 0.01                     # s, adaptive methods: largest step (default unbounded)
-
-    [output]
-    sample_rate = 100.0                 # Hz, samples of the trajectory (default 100)
-    folder = "out/wave"                 # default out/<file stem>, relative to the working dir
-    plots = ["tip", "arm"]              # of tip, arm, energy, pressure, momentum (default tip)
-    save = true                         # write trajectory.npz (t, q, v, p, energies)
-
-Pressure kinds (every vector as above, ``3 n`` values; gauge pressures must stay at or
-above -101325 Pa, a vacuum):
-
-* ``type = "constant"``: ``value``.
-* ``type = "step"``: ``time`` (s), ``after``; ``before`` (default zeros).
-* ``type = "ramp"``: ``t0 < t1`` (s), ``end``; ``start`` (default zeros): ``start`` until
-  ``t0``, linear to ``end`` at ``t1``, held after.
-* ``type = "sine"``: ``offset + amplitude sin(2 pi frequency t + phase + j segment_phase)``
-  per chamber of segment ``j``; ``amplitude`` required, ``offset`` default zeros,
-  ``frequency`` (Hz) and ``phase`` (rad) a number or one a chamber.
-* ``type = "table"``: ``times`` (s, strictly increasing) and ``values``, one pressure
-  vector a time: piecewise linear, held constant outside the table.
-
-Initial state: ``q_e`` in each segment's own coordinates (default the straight rest pose;
-an inextensible segment must start at ``l = length``), ``v`` their rates (default zero).
-A floating base starts at ``base.position``/``base.rpy`` with ``base.velocity`` and
-``base.angular_velocity``.
+Declared once, in :mod:`qchain.scene_format` (every key's type, unit, range, default and
+meaning); ``docs/scene-format.md`` is generated from it and holds an example. Vectors of
+pressures, coordinates and velocities hold one entry per segment and chamber/coordinate,
+flat (``3 n`` numbers) or nested (``n`` arrays of 3), ``n`` the number of segments after
+``count`` is expanded.
 
 Errors
 ------
 :func:`load_scene` checks the whole file and raises one :class:`SceneError` listing every
 problem, each as ``key: expected ..., found ...`` with the dotted key (``segments[1].radius``,
-``pressure.values[2]``): unknown keys (with the closest known one), wrong types, sizes
-that are not positive, vectors of the wrong length, decreasing table times, unknown
-methods and kinds, initial states outside the model (``l <= 0``, ``|kappa| r_s >= 1``), a
-fixed-step method without ``dt``.
+``pressure.values[2]``): unknown keys (with the closest known one), wrong types (booleans
+are not numbers), numbers outside their range (:mod:`qchain.bounds`), NaN and infinities,
+vectors of the wrong length, decreasing table times, unknown methods and kinds, initial
+states outside the model, a fixed-step method without ``dt``, files too large or nested
+too deep, and a run that would exceed its budget (:mod:`qchain.budget`: steps, samples,
+memory, segments), named by the key that makes the cost.
 
 Model reduction
 ---------------
@@ -142,10 +65,10 @@ off: same layout, all coordinates free, the default node count, for comparison.
 
 from __future__ import annotations
 
-import difflib
 import functools
 import math
 import os
+import stat
 import tomllib
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -153,9 +76,14 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 
+from . import scene_format as F
+from .bounds import DURATION, VACUUM_GAUGE
+from .budget import Budget, run_cost
 from .chain import Chain
-from .errors import QchainError
+from .errors import describe_value
 from .inputs import Constant, Ramp, Schedule, Sine, Step, Table
+from .scene_format import (  # noqa: F401 (Problem, SceneError, _Checker, _show, _type_name re-exported)
+    _MISSING, PLOTS, Problem, SceneError, _Checker, _is_number, _show, _type_name)
 from .segment import CHAMBER_ANGLES, DEFAULT_NODES, Segment
 from .simulate import DEFAULT_METHOD, FIXED_STEP, METHODS  # a scene may name any method, without case
 
@@ -175,278 +103,12 @@ __all__ = [
     "VACUUM_GAUGE",
 ]
 
-#: Plots a scene may ask for.
-PLOTS = ("tip", "arm", "energy", "pressure", "momentum")
 #: Safety factor on the estimated static bend (the overshoot of an undamped step response).
 BEND_MARGIN = 2.0
-#: Lowest gauge pressure a chamber can hold (Pa): a vacuum.
-VACUUM_GAUGE = -101325.0
 #: Even samples of the run at which the pressure schedule is scanned for the bend estimate.
 BEND_SAMPLES = 65
 
-_SEGMENT_KEYS = {
-    "count": "number of copies of this segment (integer >= 1)",
-    "length": "rest length l0 (m)",
-    "radius": "outer radius (m)",
-    "mass": "mass (kg)",
-    "chamber_area": "chamber cross-section (m^2)",
-    "chamber_radius": "distance of the chamber centres from the axis (m)",
-    "youngs_modulus": "Young's modulus (Pa)",
-    "damping": "stiffness-proportional damping beta (s)",
-    "coords": "deformation coordinates",
-    "actuation": "input matrix model",
-    "extensible": "whether the length may change",
-    "nodes": "Gauss-Legendre nodes",
-}
-_TOP_KEYS = ("name", "description", "gravity", "model", "segments", "base", "pressure", "initial", "simulation",
-             "output")
-_MODEL_KEYS = ("reduce", "node_tolerance", "max_bend")
-_BASE_KEYS = ("type", "position", "rpy", "velocity", "angular_velocity", "motion")
-_MOTION_KEYS = ("type", "axis", "amplitude", "frequency", "phase")
-_PRESSURE_KEYS = {
-    "constant": ("type", "value"),
-    "step": ("type", "time", "after", "before"),
-    "ramp": ("type", "t0", "t1", "end", "start"),
-    "sine": ("type", "amplitude", "frequency", "phase", "offset", "segment_phase"),
-    "table": ("type", "times", "values"),
-}
-_INITIAL_KEYS = ("q_e", "v")
-_SIMULATION_KEYS = ("duration", "method", "rtol", "atol", "dt", "max_step")
-_OUTPUT_KEYS = ("sample_rate", "folder", "plots", "save")
-
-
-# --------------------------------------------------------------------------------------
-# errors
-
-
-@dataclass(frozen=True)
-class Problem:
-    """One problem of a scene file: the dotted ``key``, what was ``expected``, what was ``found``."""
-
-    key: str
-    expected: str
-    found: str
-
-    def __str__(self) -> str:
-        return f"{self.key}: expected {self.expected}, found {self.found}"
-
-
-class SceneError(QchainError, ValueError):
-    """A scene file that cannot be used; ``problems`` lists every problem found.
-
-    The message names the file and, for each problem, the key, what was expected and
-    what was found.
-    """
-
-    def __init__(self, path: str, problems: list[Problem]):
-        self.path = str(path)
-        self.problems = list(problems)
-        if len(self.problems) == 1:
-            msg = f"{self.path}: {self.problems[0]}"
-        else:
-            msg = f"{self.path}: {len(self.problems)} problems:\n" + "\n".join(f"  {p}" for p in self.problems)
-        super().__init__(msg)
-
-
-_MISSING = object()
-
-
-def _type_name(v) -> str:
-    if isinstance(v, bool):
-        return "a boolean"
-    if isinstance(v, int):
-        return "an integer"
-    if isinstance(v, float):
-        return "a float"
-    if isinstance(v, str):
-        return "a string"
-    if isinstance(v, list):
-        return "an array"
-    if isinstance(v, dict):
-        return "a table"
-    return f"a {type(v).__name__}"
-
-
-def _show(v, limit: int = 60) -> str:
-    """A TOML-like rendering of a value, cut at ``limit`` characters."""
-    if isinstance(v, bool):
-        s = "true" if v else "false"
-    elif isinstance(v, str):
-        s = '"' + v + '"'
-    elif isinstance(v, float):
-        s = repr(v)
-    elif isinstance(v, list):
-        s = "[" + ", ".join(_show(x, limit) for x in v) + "]"
-    elif isinstance(v, dict):
-        s = "{" + ", ".join(f"{k} = {_show(x, limit)}" for k, x in v.items()) + "}"
-    else:
-        s = str(v)
-    return s if len(s) <= limit else s[: limit - 3] + "..."
-
-
-def _is_number(v) -> bool:
-    return isinstance(v, (int, float)) and not isinstance(v, bool)
-
-
-class _Checker:
-    """Walks the parsed TOML, collecting :class:`Problem` s instead of stopping at the first."""
-
-    def __init__(self):
-        self.problems: list[Problem] = []
-
-    def add(self, key: str, expected: str, found: str) -> None:
-        self.problems.append(Problem(key, expected, found))
-
-    def keys(self, d: dict, path: str, allowed) -> None:
-        allowed = list(allowed)
-        for k in d:
-            if k not in allowed:
-                close = difflib.get_close_matches(k, allowed, n=1, cutoff=0.7)
-                hint = f" (did you mean {close[0]!r}?)" if close else ""
-                self.add(f"{path}.{k}" if path else k, f"one of the keys {', '.join(allowed)}{hint}",
-                         f"the unknown key {k!r}")
-
-    def table(self, d: dict, key: str, path: str, required: bool = False) -> dict | None:
-        v = d.get(key, _MISSING)
-        if v is _MISSING:
-            if required:
-                self.add(path, "a table", "nothing")
-            return None
-        if not isinstance(v, dict):
-            self.add(path, "a table", f"{_type_name(v)} {_show(v)}")
-            return None
-        return v
-
-    def number(self, d: dict, key: str, path: str, unit: str = "", *, default=None, required: bool = False,
-               minimum: float | None = None, strict: bool = True, maximum: float | None = None):
-        """A finite real number, optionally bounded below (``> minimum`` if ``strict``, else ``>=``)."""
-        v = d.get(key, _MISSING)
-        u = f" ({unit})" if unit else ""
-        bound = ""
-        if minimum is not None:
-            bound = f" {'>' if strict else '>='} {minimum:g}"
-        if maximum is not None:
-            bound += f"{' and' if bound else ''} <= {maximum:g}"
-        if v is _MISSING:
-            if required:
-                self.add(path, f"a number{bound}{u}", "nothing (the key is required)")
-            return default
-        if not _is_number(v):
-            self.add(path, f"a number{bound}{u}", f"{_type_name(v)} {_show(v)}")
-            return default
-        x = float(v)
-        if not math.isfinite(x):
-            self.add(path, f"a finite number{bound}{u}", _show(v))
-            return default
-        if minimum is not None and (x <= minimum if strict else x < minimum):
-            self.add(path, f"a number{bound}{u}", _show(v))
-            return default
-        if maximum is not None and x > maximum:
-            self.add(path, f"a number{bound}{u}", _show(v))
-            return default
-        return x
-
-    def integer(self, d: dict, key: str, path: str, *, default=None, minimum: int = 1):
-        v = d.get(key, _MISSING)
-        if v is _MISSING:
-            return default
-        if not isinstance(v, int) or isinstance(v, bool):
-            self.add(path, f"an integer >= {minimum}", f"{_type_name(v)} {_show(v)}")
-            return default
-        if v < minimum:
-            self.add(path, f"an integer >= {minimum}", _show(v))
-            return default
-        return int(v)
-
-    def boolean(self, d: dict, key: str, path: str, default: bool) -> bool:
-        v = d.get(key, _MISSING)
-        if v is _MISSING:
-            return default
-        if not isinstance(v, bool):
-            self.add(path, "true or false", f"{_type_name(v)} {_show(v)}")
-            return default
-        return v
-
-    def string(self, d: dict, key: str, path: str, default: str | None = None) -> str | None:
-        v = d.get(key, _MISSING)
-        if v is _MISSING:
-            return default
-        if not isinstance(v, str):
-            self.add(path, "a string", f"{_type_name(v)} {_show(v)}")
-            return default
-        return v
-
-    def choice(self, d: dict, key: str, path: str, choices, default=None, required: bool = False,
-               ignore_case: bool = False):
-        v = d.get(key, _MISSING)
-        options = ", ".join(f'"{c}"' for c in choices)
-        if v is _MISSING:
-            if required:
-                self.add(path, f"one of {options}", "nothing (the key is required)")
-            return default
-        if isinstance(v, str):
-            for c in choices:
-                if v == c or (ignore_case and v.lower() == c.lower()):
-                    return c
-        close = difflib.get_close_matches(v, list(choices), n=1, cutoff=0.7) if isinstance(v, str) else []
-        hint = f" (did you mean {close[0]!r}?)" if close else ""
-        self.add(path, f"one of {options}{hint}", f"{_type_name(v)} {_show(v)}")
-        return default
-
-    def _numbers(self, v, path: str, what: str) -> np.ndarray | None:
-        """A flat list of finite numbers, or None (with a problem)."""
-        if not isinstance(v, list):
-            self.add(path, what, f"{_type_name(v)} {_show(v)}")
-            return None
-        for i, x in enumerate(v):
-            if not _is_number(x) or not math.isfinite(float(x)):
-                self.add(f"{path}[{i}]", "a finite number", f"{_type_name(x)} {_show(x)}")
-                return None
-        return np.array(v, dtype=float)
-
-    def vector(self, d: dict, key: str, path: str, size: int, unit: str = "", default=None):
-        v = d.get(key, _MISSING)
-        if v is _MISSING:
-            return None if default is None else np.array(default, dtype=float)
-        what = f"an array of {size} numbers{f' ({unit})' if unit else ''}"
-        arr = self._numbers(v, path, what)
-        if arr is None:
-            return None if default is None else np.array(default, dtype=float)
-        if arr.size != size:
-            self.add(path, what, f"{arr.size} numbers {_show(v)}")
-            return None if default is None else np.array(default, dtype=float)
-        return arr
-
-    def per_segment(self, v, path: str, n: int | None, unit: str = "", width: int = 3) -> np.ndarray | None:
-        """``n * width`` numbers, flat or as ``n`` lists of ``width``; shape (n, width)."""
-        what = (f"{width * n} numbers ({width} a segment x {n} segment{'s' if n != 1 else ''}), flat or as {n} "
-                f"arrays of {width}{f', {unit}' if unit else ''}") if n is not None else "numbers"
-        if not isinstance(v, list):
-            self.add(path, what, f"{_type_name(v)} {_show(v)}")
-            return None
-        if n is None:  # the segment count is unknown (bad segments): check the entries only
-            return None
-        if v and all(isinstance(x, list) for x in v):
-            if len(v) != n:
-                self.add(path, what, f"{len(v)} arrays {_show(v)}")
-                return None
-            out = np.empty((n, width))
-            for j, row in enumerate(v):
-                arr = self._numbers(row, f"{path}[{j}]", f"an array of {width} numbers")
-                if arr is None:
-                    return None
-                if arr.size != width:
-                    self.add(f"{path}[{j}]", f"an array of {width} numbers (segment {j})", f"{arr.size} numbers {_show(row)}")
-                    return None
-                out[j] = arr
-            return out
-        arr = self._numbers(v, path, what)
-        if arr is None:
-            return None
-        if arr.size != n * width:
-            self.add(path, what, f"{arr.size} numbers {_show(v)}")
-            return None
-        return arr.reshape(n, width)
+_TOP_KEYS = F.TOP.keys()
 
 
 # --------------------------------------------------------------------------------------
@@ -643,6 +305,8 @@ class Scene:
     output_folder : Path
     plots : tuple of str
     save : bool
+    budget : Budget
+        What a run may cost (:mod:`qchain.budget`; the file's ``[budget]`` table).
     """
 
     path: Path | None
@@ -669,6 +333,7 @@ class Scene:
     output_folder: Path
     plots: tuple[str, ...]
     save: bool
+    budget: Budget = field(default_factory=Budget)
 
     @property
     def n(self) -> int:
@@ -918,8 +583,10 @@ class Scene:
     # ------------------------------------------------------------------ run
 
     def sample_times(self, duration: float | None = None) -> np.ndarray:
-        """Output times ``k / sample_rate`` from 0 up to the run's end (included), s."""
-        T = self.duration if duration is None else float(duration)
+        """Output times ``k / sample_rate`` from 0 up to the run's end (included), s; a
+        :class:`qchain.budget.BudgetError` if there would be more than the budget allows."""
+        T = self.duration if duration is None else DURATION.check("duration", duration)
+        self.check_budget(T)
         k = np.arange(0, int(math.floor(T * self.sample_rate * (1 + 1e-12))) + 1)
         t = k / self.sample_rate
         t = t[t < T - 1e-9 * max(1.0, T)]
@@ -952,17 +619,66 @@ class Scene:
         """
         from .simulate import simulate
 
+        T = self.duration if duration is None else DURATION.check("duration", duration)
+        self.check_budget(T)
+        if self.method in FIXED_STEP and self.dt > T:
+            raise ValueError(f"duration must be >= the scene's step dt = {self.dt:g} s, got {T:g} s")
         if model is None:
             model = self.model if reduce is None or reduce == self.reduce else self.build(reduce)
-        T = self.duration if duration is None else float(duration)
-        if not (math.isfinite(T) and T > 0):
-            raise ValueError(f"duration must be > 0 s, got {duration!r}")
         return simulate(
             model.chain, model.q0, model.v0, (0.0, T), pressure=model.pressure if pressure is None else pressure,
             method=self.method, dt=self.dt,
             rtol=self.rtol, atol=self.atol, t_eval=self.sample_times(T), on_sample=on_sample, progress=progress,
-            max_step=self.max_step, controller_rate=controller_rate,
+            max_step=self.max_step, controller_rate=controller_rate, budget=self.budget,
         )
+
+    def cost(self, duration: float | None = None):
+        """What a run of the scene (``duration`` s, default the file's) costs:
+        :class:`qchain.budget.Cost`."""
+        T = self.duration if duration is None else duration
+        return _cost(self.n, self.base.type, self.method, self.dt, self.max_step, T, self.sample_rate,
+                     _frequency(self.pressure_spec, self.base))
+
+    def check_budget(self, duration: float | None = None) -> None:
+        """Raise :class:`qchain.budget.BudgetError` if a run of ``duration`` s (default the
+        file's) would exceed :attr:`budget`, naming the bound and how to raise it."""
+        self.budget.check(self.cost(duration), how="raise it in the scene's [budget] table")
+
+    def check_output(self, folder: str | os.PathLike | None = None) -> Path:
+        """Make sure a run can write its outputs to ``folder`` (default ``output.folder``)
+        before it starts: the folder is made, must be a writable folder (not a file, not
+        read-only) on a file system with room for the trajectory; returns it.
+
+        Raises
+        ------
+        SceneError
+            naming ``output.folder``, the folder and what is wrong with it.
+        """
+        import shutil
+        import tempfile
+
+        p = Path(self.output_folder if folder is None else folder)
+
+        def fail(expected, found):
+            raise SceneError(str(self.path) if self.path else "<scene>", [Problem("output.folder", expected, found)])
+
+        if "\0" in str(p):
+            fail("a folder path without a NUL character", _show(str(p).replace("\0", "\\0")))
+        for parent in [p, *p.parents]:
+            if parent.exists() and not parent.is_dir():
+                fail("a folder (or a path where one can be made)", f"{parent} is a file")
+        try:
+            p.mkdir(parents=True, exist_ok=True)
+            with tempfile.TemporaryFile(dir=p) as fh:
+                fh.write(b"qchain")
+        except OSError as err:
+            fail("a folder qchain can write in", f"{p}: {err.strerror or err}")
+        cost = self.cost()
+        need = cost.samples * 8.0 * (6 + 4 * 3 * self.n) + 2**20 * (len(self.plots) + 1)
+        free = shutil.disk_usage(p).free
+        if free < need:
+            fail(f"room for the outputs, about {need / 2**20:.3g} MiB", f"{free / 2**20:.3g} MiB free in {p}")
+        return p
 
     # ------------------------------------------------------------------ report
 
@@ -1069,22 +785,60 @@ def _chambers_2_3_differ(spec: dict, n: int) -> str | None:
 # reading
 
 
+def _file_problem(p: Path) -> Problem | None:
+    """Why ``p`` cannot be read as a scene file (missing, a folder, a FIFO or device, too
+    large), or None; opened without blocking, so a FIFO cannot hang the check."""
+    try:
+        fd = os.open(p, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))
+    except FileNotFoundError:
+        return Problem("(file)", "an existing scene file", "no such file")
+    except IsADirectoryError:
+        return Problem("(file)", "a scene file", "a folder")
+    except (OSError, ValueError) as err:
+        return Problem("(file)", "a readable scene file", str(err))
+    try:
+        st = os.fstat(fd)
+    finally:
+        os.close(fd)
+    if stat.S_ISDIR(st.st_mode):
+        return Problem("(file)", "a scene file", "a folder")
+    if not stat.S_ISREG(st.st_mode):
+        kind = ("a FIFO" if stat.S_ISFIFO(st.st_mode) else "a device" if stat.S_ISCHR(st.st_mode) or
+                stat.S_ISBLK(st.st_mode) else "a socket" if stat.S_ISSOCK(st.st_mode) else "not a regular file")
+        return Problem("(file)", "a regular scene file", kind)
+    if st.st_size > F.MAX_SCENE_BYTES:
+        return Problem("(file)", f"a scene file of at most {F.MAX_SCENE_BYTES} bytes", f"{st.st_size} bytes")
+    return None
+
+
 def load_scene(path: str | os.PathLike) -> Scene:
-    """Read and validate a scene file (TOML); see the module docstring for the format.
+    """Read and validate a scene file (TOML); ``docs/scene-format.md`` gives the format.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        A regular file of at most :data:`qchain.scene_format.MAX_SCENE_BYTES` bytes of UTF-8.
 
     Raises
     ------
+    TypeError
+        ``path`` is not a path.
     SceneError
         listing every problem (file, dotted key, what was expected, what was found), for
-        a file that cannot be read, is not valid TOML, or does not describe a scene.
+        a file that cannot be read (missing, a folder, a FIFO or device, too large, not
+        UTF-8), is not valid TOML, or does not describe a scene.
     """
+    if not isinstance(path, (str, os.PathLike)):
+        raise TypeError(f"load_scene: path must be a str or os.PathLike naming a scene file, got "
+                        f"{describe_value(path)}")
     p = Path(path)
+    bad = _file_problem(p)
+    if bad is not None:
+        raise SceneError(str(p), [bad])
     try:
-        text = p.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise SceneError(str(p), [Problem("(file)", "an existing scene file", "no such file")]) from None
-    except IsADirectoryError:
-        raise SceneError(str(p), [Problem("(file)", "a scene file", "a folder")]) from None
+        with open(p, "rb") as fh:
+            data = fh.read(F.MAX_SCENE_BYTES + 1)
+        text = data.decode("utf-8")
     except (OSError, UnicodeDecodeError) as err:
         raise SceneError(str(p), [Problem("(file)", "a readable UTF-8 text file", str(err))]) from None
     return parse_scene(text, p)
@@ -1092,51 +846,67 @@ def load_scene(path: str | os.PathLike) -> Scene:
 
 def parse_scene(text: str, path: str | os.PathLike | None = None) -> Scene:
     """Validate the TOML ``text`` of a scene; ``path`` names it in errors and sets the
-    default output folder (``out/<stem>``)."""
+    default output folder (``out/<stem>``).
+
+    Raises
+    ------
+    TypeError
+        ``text`` is not a ``str`` (or UTF-8 ``bytes``), or ``path`` not a path.
+    SceneError
+        every problem of the scene (see :func:`load_scene`).
+    """
+    if path is not None and not isinstance(path, (str, os.PathLike)):
+        raise TypeError(f"parse_scene: path must be None, a str or os.PathLike, got {describe_value(path)}")
     where = str(path) if path is not None else "<scene>"
+    if isinstance(text, (bytes, bytearray)):
+        try:
+            text = bytes(text).decode("utf-8")
+        except UnicodeDecodeError as err:
+            raise SceneError(where, [Problem("(file)", "UTF-8 text", str(err))]) from None
+    if not isinstance(text, str):
+        raise TypeError(f"parse_scene: text must be the TOML text of a scene (a str), got {describe_value(text)}")
+    bad = F.nesting_problem(text)
+    if bad is not None:
+        raise SceneError(where, [bad])
     try:
         raw = tomllib.loads(text)
     except tomllib.TOMLDecodeError as err:
         raise SceneError(where, [Problem("(file)", "valid TOML", f"a syntax error: {err}")]) from None
     ck = _Checker()
-    ck.keys(raw, "", _TOP_KEYS)
-    name = ck.string(raw, "name", "name", "") or ""
-    description = ck.string(raw, "description", "description", "") or ""
-    gravity = ck.vector(raw, "gravity", "gravity", 3, "m/s^2", default=(0.0, 0.0, -9.81))
+    ck.keys(raw, "", F.TOP.keys())
+    name = ck.field(raw, F.TOP["name"], "name", "") or ""
+    description = ck.field(raw, F.TOP["description"], "description", "") or ""
+    gravity = ck.field(raw, F.TOP["gravity"], "gravity", default=(0.0, 0.0, -9.81))
     if gravity is None:
         gravity = np.array([0.0, 0.0, -9.81])
+    budget = _budget(ck, raw)
 
     # model
     mt = ck.table(raw, "model", "model") or {}
-    ck.keys(mt, "model", _MODEL_KEYS)
-    reduce = ck.boolean(mt, "reduce", "model.reduce", True)
-    node_tol = ck.number(mt, "node_tolerance", "model.node_tolerance", minimum=0.0)
-    if node_tol is not None and node_tol >= 1.0:
-        ck.add("model.node_tolerance", "a relative tolerance > 0 and < 1", _show(mt["node_tolerance"]))
-        node_tol = None
-    max_bend = ck.number(mt, "max_bend", "model.max_bend", "rad", minimum=0.0, strict=False)
+    ck.keys(mt, "model", F.MODEL.keys())
+    reduce = ck.field(mt, F.MODEL["reduce"], "model.reduce", True)
+    node_tol = ck.field(mt, F.MODEL["node_tolerance"], "model.node_tolerance")
+    max_bend = ck.field(mt, F.MODEL["max_bend"], "model.max_bend")
     if "max_bend" in mt and "node_tolerance" not in mt:
         ck.add("model.max_bend", "model.node_tolerance beside it (max_bend only sizes the node count)",
                "max_bend without node_tolerance")
 
-    # segments
-    segments = _segments(ck, raw)
+    segments = _segments(ck, raw, budget)
     n = len(segments) if segments is not None else None
-
-    # base
     base = _base(ck, raw)
 
     # simulation
+    S = F.SIMULATION
     st = ck.table(raw, "simulation", "simulation", required=True)
     have_sim = st is not None
     st = st or {}
-    ck.keys(st, "simulation", _SIMULATION_KEYS)
-    duration = ck.number(st, "duration", "simulation.duration", "s", minimum=0.0, required=have_sim)
+    ck.keys(st, "simulation", S.keys())
+    duration = ck.number(st, "duration", "simulation.duration", "s", required=have_sim, bounds=S["duration"].range)
     method = ck.choice(st, "method", "simulation.method", METHODS, default=DEFAULT_METHOD, ignore_case=True)
-    rtol = ck.number(st, "rtol", "simulation.rtol", minimum=0.0, default=1e-6)
-    atol = ck.number(st, "atol", "simulation.atol", minimum=0.0, default=1e-8)
-    dt = ck.number(st, "dt", "simulation.dt", "s", minimum=0.0)
-    max_step = ck.number(st, "max_step", "simulation.max_step", "s", minimum=0.0, default=math.inf)
+    rtol = ck.field(st, S["rtol"], "simulation.rtol", 1e-6)
+    atol = ck.field(st, S["atol"], "simulation.atol", 1e-8)
+    dt = ck.field(st, S["dt"], "simulation.dt")
+    max_step = ck.field(st, S["max_step"], "simulation.max_step", math.inf)
     if method in FIXED_STEP and "dt" not in st:
         ck.add("simulation.dt", f"a step > 0 (s): method {method!r} takes fixed steps", "nothing")
     if method not in FIXED_STEP and "dt" in st:
@@ -1147,20 +917,16 @@ def parse_scene(text: str, path: str | os.PathLike | None = None) -> Scene:
     if dt is not None and duration is not None and dt > duration:
         ck.add("simulation.dt", f"a step <= duration = {duration:g} s", _show(st["dt"]))
 
-    # pressure
     pressure, pspec = _pressure(ck, raw, n)
-
-    # initial state
     q_e0, v_e0 = _initial(ck, raw, segments)
 
     # output
+    O = F.OUTPUT
     ot = ck.table(raw, "output", "output") or {}
-    ck.keys(ot, "output", _OUTPUT_KEYS)
-    rate = ck.number(ot, "sample_rate", "output.sample_rate", "Hz", minimum=0.0, default=100.0)
+    ck.keys(ot, "output", O.keys())
+    rate = ck.field(ot, O["sample_rate"], "output.sample_rate", 100.0)
     stem = Path(path).stem if path is not None else "scene"
-    folder = ck.string(ot, "folder", "output.folder", f"out/{stem}")
-    if folder is not None and not folder.strip():
-        ck.add("output.folder", "a folder path", '""')
+    folder = ck.path(ot, "folder", "output.folder", f"out/{stem}")
     plots = ot.get("plots", ["tip"])
     if not isinstance(plots, list) or not all(isinstance(x, str) for x in plots):
         ck.add("output.plots", f"an array of names from {', '.join(PLOTS)}", f"{_type_name(plots)} {_show(plots)}")
@@ -1168,13 +934,18 @@ def parse_scene(text: str, path: str | os.PathLike | None = None) -> Scene:
     else:
         for i, x in enumerate(plots):
             if x not in PLOTS:
-                close = difflib.get_close_matches(x, PLOTS, n=1, cutoff=0.7)
-                hint = f" (did you mean {close[0]!r}?)" if close else ""
-                ck.add(f"output.plots[{i}]", f"one of {', '.join(PLOTS)}{hint}", _show(x))
+                ck.choice({"p": x}, "p", f"output.plots[{i}]", PLOTS)
+                ck.problems[-1] = Problem(f"output.plots[{i}]", ck.problems[-1].expected.replace('"', ""), _show(x))
         if "momentum" in plots and base is not None and base.type != "floating":
             ck.add("output.plots", "'momentum' only with a floating base (a fixed or moving mount exchanges momentum)",
                    f"base.type = {base.type!r}")
-    save = ck.boolean(ot, "save", "output.save", True)
+    save = ck.field(ot, O["save"], "output.save", True)
+
+    if not ck.problems:  # the run's cost, from valid values only
+        cost = _cost(n, base.type, method, dt, max_step, duration, rate, _frequency(pspec, base))
+        for key, expected, found in budget.problems(cost):
+            ck.add(_cost_key(key, cost, method, pspec, base), f"{expected} (budget.{key}; raise it in [budget] to "
+                   "allow more)", found)
 
     if ck.problems:
         raise SceneError(where, ck.problems)
@@ -1183,11 +954,58 @@ def parse_scene(text: str, path: str | os.PathLike | None = None) -> Scene:
         segments=segments, base=base, gravity=gravity, pressure=pressure, pressure_spec=pspec, q_e0=q_e0,
         v_e0=v_e0, duration=duration, method=method, rtol=rtol, atol=atol, dt=dt, max_step=max_step,
         reduce=reduce, node_tolerance=node_tol, max_bend=max_bend, sample_rate=rate, output_folder=Path(folder),
-        plots=tuple(dict.fromkeys(plots)), save=save,
+        plots=tuple(dict.fromkeys(plots)), save=save, budget=budget,
     )
 
 
-def _segments(ck: _Checker, raw: dict) -> list[SegmentSpec] | None:
+def _budget(ck: _Checker, raw: dict) -> Budget:
+    bt = ck.table(raw, "budget", "budget") or {}
+    ck.keys(bt, "budget", F.BUDGET.keys())
+    d = Budget()
+    vals = {k: ck.field(bt, F.BUDGET[k], f"budget.{k}", getattr(d, k)) for k in F.BUDGET.keys()}
+    return Budget(**vals)
+
+
+def _frequency(pspec: dict, base: BaseSpec | None) -> float:
+    """The fastest sine input's or base motion's frequency (Hz) whose amplitude is not zero."""
+    f = 0.0
+    if pspec.get("type") == "sine":
+        live = pspec["frequency"][pspec["amplitude"] != 0]
+        f = float(live.max()) if live.size else 0.0
+    if base is not None and base.motion is not None and base.motion.amplitude != 0:
+        f = max(f, base.motion.frequency)
+    return f
+
+
+def _samples(duration: float, rate: float) -> float:
+    """How many output samples :meth:`Scene.sample_times` gives (without making them)."""
+    return math.floor(duration * rate * (1 + 1e-12)) + 2.0
+
+
+def _cost(n, base_type, method, dt, max_step, duration, rate, frequency):
+    floating = base_type == "floating"
+    nq, nv = (7 if floating else 0) + 3 * n, (6 if floating else 0) + 3 * n
+    return run_cost(duration=duration, method=method, fixed_step=method in FIXED_STEP, dt=dt, max_step=max_step,
+                    frequency=frequency, samples=_samples(duration, rate),
+                    samples_why=f"duration {duration:g} s x sample_rate {rate:g} Hz", nq=nq, nv=nv, nu=3 * n)
+
+
+def _cost_key(budget_key: str, cost, method: str, pspec: dict, base) -> str:
+    """The scene key that makes a cost over budget (the one to change, beside the budget)."""
+    if budget_key == "max_steps":
+        if method in FIXED_STEP:
+            return "simulation.dt"
+        if cost.steps_why.startswith("duration"):
+            return "simulation.max_step"
+        f_p = _frequency(pspec, None)
+        f_b = base.motion.frequency if base is not None and base.motion is not None else 0.0
+        return "pressure.frequency" if f_p >= f_b else "base.motion.frequency"
+    if budget_key == "max_samples":
+        return "output.sample_rate"
+    return "segments" if cost.matrix_memory > cost.memory / 2 else "output.sample_rate"
+
+
+def _segments(ck: _Checker, raw: dict, budget: Budget) -> list[SegmentSpec] | None:
     segs = raw.get("segments", _MISSING)
     if segs is _MISSING:
         ck.add("segments", "an array of tables [[segments]], base to tip", "nothing (the key is required)")
@@ -1195,22 +1013,29 @@ def _segments(ck: _Checker, raw: dict) -> list[SegmentSpec] | None:
     if not isinstance(segs, list) or not segs or not all(isinstance(s, dict) for s in segs):
         ck.add("segments", "a non-empty array of tables [[segments]]", f"{_type_name(segs)} {_show(segs)}")
         return None
+    T = F.SEGMENT
     out: list[SegmentSpec] = []
     ok = True
+    total = 0
     start = len(ck.problems)
     for i, s in enumerate(segs):
         path = f"segments[{i}]"
-        ck.keys(s, path, _SEGMENT_KEYS)
-        count = ck.integer(s, "count", f"{path}.count", default=1, minimum=1)
+        ck.keys(s, path, T.keys())
+        count = ck.field(s, T["count"], f"{path}.count", default=1)
+        total += count if count is not None else 1
+        if total > budget.max_segments:
+            ck.add(f"{path}.count" if "count" in s else "segments",
+                   f"at most budget.max_segments = {budget.max_segments} segments in all, count expanded (raise it "
+                   "in [budget] to allow more)", f"{total} segments up to {path}")
+            return None
         vals = {}
-        for k, unit in (("length", "m"), ("radius", "m"), ("mass", "kg"), ("chamber_area", "m^2"),
-                        ("chamber_radius", "m"), ("youngs_modulus", "Pa")):
-            vals[k] = ck.number(s, k, f"{path}.{k}", unit, minimum=0.0, required=True)
-        vals["damping"] = ck.number(s, "damping", f"{path}.damping", "s", minimum=0.0, strict=False, default=0.0)
-        vals["coords"] = ck.choice(s, "coords", f"{path}.coords", ("curvature", "paper"), default="curvature")
-        vals["actuation"] = ck.choice(s, "actuation", f"{path}.actuation", ("volume", "paper"), default="volume")
-        vals["extensible"] = ck.boolean(s, "extensible", f"{path}.extensible", True)
-        vals["nodes"] = ck.integer(s, "nodes", f"{path}.nodes", default=None, minimum=1)
+        for k in ("length", "radius", "mass", "chamber_area", "chamber_radius", "youngs_modulus"):
+            vals[k] = ck.field(s, T[k], f"{path}.{k}")
+        vals["damping"] = ck.field(s, T["damping"], f"{path}.damping", 0.0)
+        vals["coords"] = ck.field(s, T["coords"], f"{path}.coords", "curvature")
+        vals["actuation"] = ck.field(s, T["actuation"], f"{path}.actuation", "volume")
+        vals["extensible"] = ck.field(s, T["extensible"], f"{path}.extensible", True)
+        vals["nodes"] = ck.field(s, T["nodes"], f"{path}.nodes")
         if len(ck.problems) > start:
             ok = False
             start = len(ck.problems)
@@ -1226,7 +1051,7 @@ def _segments(ck: _Checker, raw: dict) -> list[SegmentSpec] | None:
         spec = SegmentSpec(**vals, source=path)
         try:
             spec.segment(nodes=spec.nodes)
-        except ValueError as err:  # anything the constructor checks beyond the above
+        except (ValueError, TypeError) as err:  # anything the constructor checks beyond the above
             ck.add(path, "a valid segment", str(err))
             ok = False
             start = len(ck.problems)
@@ -1237,38 +1062,37 @@ def _segments(ck: _Checker, raw: dict) -> list[SegmentSpec] | None:
 
 
 def _base(ck: _Checker, raw: dict) -> BaseSpec | None:
+    T = F.BASE
     bt = ck.table(raw, "base", "base")
     if bt is None:
         return BaseSpec() if "base" not in raw else None
-    kind = ck.choice(bt, "type", "base.type", ("fixed", "floating", "prescribed"), default="fixed")
-    allowed = {"fixed": ("type", "position", "rpy"), "floating": ("type", "position", "rpy", "velocity", "angular_velocity"),
-               "prescribed": ("type", "position", "rpy", "motion")}.get(kind, _BASE_KEYS)
+    kind = ck.field(bt, T["type"], "base.type", "fixed")
+    allowed = T.keys(kind) if kind is not None else T.keys()
     for k in bt:
-        if k in _BASE_KEYS and k not in allowed:
+        if k in T.keys() and k not in allowed:
             ck.add(f"base.{k}", f"only the keys {', '.join(allowed)} with base.type = {kind!r}", f"the key {k!r}")
-    ck.keys(bt, "base", _BASE_KEYS)
+    ck.keys(bt, "base", T.keys())
     start = len(ck.problems)
-    pos = ck.vector(bt, "position", "base.position", 3, "m", default=(0.0, 0.0, 0.0))
-    rpy = ck.vector(bt, "rpy", "base.rpy", 3, "rad", default=(0.0, 0.0, 0.0))
-    vel = ck.vector(bt, "velocity", "base.velocity", 3, "m/s", default=(0.0, 0.0, 0.0))
-    ang = ck.vector(bt, "angular_velocity", "base.angular_velocity", 3, "rad/s", default=(0.0, 0.0, 0.0))
+    pos = ck.field(bt, T["position"], "base.position", default=(0.0, 0.0, 0.0))
+    rpy = ck.field(bt, T["rpy"], "base.rpy", default=(0.0, 0.0, 0.0))
+    vel = ck.field(bt, T["velocity"], "base.velocity", default=(0.0, 0.0, 0.0))
+    ang = ck.field(bt, T["angular_velocity"], "base.angular_velocity", default=(0.0, 0.0, 0.0))
     motion = None
     mount = pin.SE3(pin.rpy.rpyToMatrix(*rpy), pos) if rpy is not None and pos is not None else pin.SE3.Identity()
     if kind == "prescribed":
+        M = F.MOTION
         mt = ck.table(bt, "motion", "base.motion", required=True)
         if mt is not None:
-            ck.keys(mt, "base.motion", _MOTION_KEYS)
-            mkind = ck.choice(mt, "type", "base.motion.type", ("translation", "rotation"), required=True)
-            axis = ck.vector(mt, "axis", "base.motion.axis", 3)
-            if "axis" not in mt:
-                ck.add("base.motion.axis", "an array of 3 numbers (mount frame)", "nothing (the key is required)")
-            elif axis is not None and float(np.linalg.norm(axis)) == 0.0:
+            ck.keys(mt, "base.motion", M.keys())
+            mkind = ck.field(mt, M["type"], "base.motion.type")
+            axis = ck.field(mt, M["axis"], "base.motion.axis")
+            if axis is not None and float(np.linalg.norm(axis)) == 0.0:
                 ck.add("base.motion.axis", "a non-zero direction", _show(mt["axis"]))
                 axis = None
-            unit = "m" if mkind == "translation" else "rad"
-            amp = ck.number(mt, "amplitude", "base.motion.amplitude", unit, required=True)
-            freq = ck.number(mt, "frequency", "base.motion.frequency", "Hz", minimum=0.0, strict=False, required=True)
-            phase = ck.number(mt, "phase", "base.motion.phase", "rad", default=0.0)
+            amp = ck.number(mt, "amplitude", "base.motion.amplitude", "m" if mkind == "translation" else "rad",
+                            required=True, bounds=M["amplitude"].range)
+            freq = ck.field(mt, M["frequency"], "base.motion.frequency")
+            phase = ck.field(mt, M["phase"], "base.motion.phase", 0.0)
             if len(ck.problems) == start and mkind is not None:
                 motion = SineMotion(kind=mkind, axis=axis / np.linalg.norm(axis), amplitude=amp, frequency=freq,
                                     phase=phase, mount=mount)
@@ -1277,15 +1101,30 @@ def _base(ck: _Checker, raw: dict) -> BaseSpec | None:
     return BaseSpec(type=kind, position=pos, rpy=rpy, velocity=vel, angular_velocity=ang, motion=motion)
 
 
+def _where(k: int) -> str:
+    return f"index {k} (segment {k // 3}, chamber {k % 3 + 1})"
+
+
 def _pressure(ck: _Checker, raw: dict, n: int | None) -> tuple[Schedule | None, dict]:
+    T = F.PRESSURE
+    P = T["value"].range  # every pressure vector's range
     pt = ck.table(raw, "pressure", "pressure")
     if pt is None:
         return None, {}
-    kind = ck.choice(pt, "type", "pressure.type", tuple(_PRESSURE_KEYS), required=True)
+    kind = ck.field(pt, T["type"], "pressure.type")
     if kind is None:
         return None, {}
-    ck.keys(pt, "pressure", _PRESSURE_KEYS[kind])
+    ck.keys(pt, "pressure", T.keys(kind))
     start = len(ck.problems)
+
+    def gauge(key, arr, rng=P):
+        """Pressures in the range of a chamber (:data:`qchain.bounds.PRESSURE`: a vacuum to 1 GPa)."""
+        if arr is not None and rng.outside(arr).any():
+            k = int(np.flatnonzero(rng.outside(arr))[0])
+            what = f"gauge pressures {rng.text()} (a vacuum to 1 GPa)" if rng is P else f"values {rng.text()}"
+            ck.add(f"pressure.{key}", what, f"{arr[k]:g} Pa at {_where(k)}")
+            return None
+        return arr
 
     def vec(key, required=False):
         if key not in pt:
@@ -1293,58 +1132,48 @@ def _pressure(ck: _Checker, raw: dict, n: int | None) -> tuple[Schedule | None, 
                 ck.add(f"pressure.{key}", "a pressure vector (Pa), one value a chamber", "nothing (the key is required)")
             return None if required or n is None else np.zeros(3 * n)
         arr = ck.per_segment(pt[key], f"pressure.{key}", n, "Pa")
-        return None if arr is None else arr.ravel()
+        return None if arr is None else gauge(key, arr.ravel(), T[key].range)
 
-    def scalar_or_vec(key, default, unit, minimum=None):
+    def scalar_or_vec(key, default):
+        f = T[key]
         if key not in pt:
             return None if n is None else np.full(3 * n, default)
         v = pt[key]
         if _is_number(v):
-            x = ck.number(pt, key, f"pressure.{key}", unit, minimum=minimum, strict=False)
+            x = ck.number(pt, key, f"pressure.{key}", f.range.unit, bounds=f.range)
             return None if x is None or n is None else np.full(3 * n, x)
-        arr = ck.per_segment(v, f"pressure.{key}", n, unit)
+        arr = ck.per_segment(v, f"pressure.{key}", n, f.range.unit)
         if arr is None:
             return None
-        if minimum is not None and np.any(arr < minimum):
-            k = int(np.flatnonzero(arr.ravel() < minimum)[0])
-            ck.add(f"pressure.{key}", f"values >= {minimum:g} ({unit})", f"{arr.ravel()[k]:g} at index {k}")
+        bad = f.range.outside(arr.ravel())
+        if bad.any():
+            k = int(np.flatnonzero(bad)[0])
+            ck.add(f"pressure.{key}", f"values {f.range.text()}", f"{arr.ravel()[k]:g} at index {k}")
             return None
         return arr.ravel()
 
-    def floor(key, arr):
-        if arr is not None and np.any(arr < VACUUM_GAUGE):
-            k = int(np.flatnonzero(arr < VACUUM_GAUGE)[0])
-            ck.add(f"pressure.{key}", f"gauge pressures >= {VACUUM_GAUGE:g} Pa (a vacuum)",
-                   f"{arr[k]:g} Pa at index {k} (segment {k // 3}, chamber {k % 3 + 1})")
-
     spec: dict = {"type": kind}
-    sched = None
     if kind == "constant":
         spec["value"] = vec("value", required=True)
-        floor("value", spec["value"])
     elif kind == "step":
-        spec["time"] = ck.number(pt, "time", "pressure.time", "s", required=True)
+        spec["time"] = ck.field(pt, T["time"], "pressure.time")
         spec["after"] = vec("after", required=True)
         spec["before"] = vec("before")
-        floor("after", spec["after"])
-        floor("before", spec["before"])
     elif kind == "ramp":
-        spec["t0"] = ck.number(pt, "t0", "pressure.t0", "s", required=True)
-        spec["t1"] = ck.number(pt, "t1", "pressure.t1", "s", required=True)
+        spec["t0"] = ck.field(pt, T["t0"], "pressure.t0")
+        spec["t1"] = ck.field(pt, T["t1"], "pressure.t1")
         if spec["t0"] is not None and spec["t1"] is not None and not spec["t1"] > spec["t0"]:
             ck.add("pressure.t1", f"a time > t0 = {spec['t0']:g} s", _show(pt["t1"]))
         spec["end"] = vec("end", required=True)
         spec["start"] = vec("start")
-        floor("end", spec["end"])
-        floor("start", spec["start"])
     elif kind == "sine":
         spec["amplitude"] = vec("amplitude", required=True)
         spec["offset"] = vec("offset")
-        spec["frequency"] = scalar_or_vec("frequency", 0.0, "Hz", minimum=0.0)
+        spec["frequency"] = scalar_or_vec("frequency", 0.0)
         if "frequency" not in pt:
             ck.add("pressure.frequency", "a frequency (Hz), a number or one a chamber", "nothing (the key is required)")
-        phase = scalar_or_vec("phase", 0.0, "rad")
-        spec["segment_phase"] = ck.number(pt, "segment_phase", "pressure.segment_phase", "rad", default=0.0)
+        phase = scalar_or_vec("phase", 0.0)
+        spec["segment_phase"] = ck.field(pt, T["segment_phase"], "pressure.segment_phase", 0.0)
         if phase is not None and spec["segment_phase"] is not None and n is not None:
             phase = phase + np.repeat(np.arange(n), 3) * spec["segment_phase"]
         spec["phase"] = phase
@@ -1352,10 +1181,15 @@ def _pressure(ck: _Checker, raw: dict, n: int | None) -> tuple[Schedule | None, 
                 and phase is not None:
             A, off, f = spec["amplitude"], spec["offset"], spec["frequency"]
             low = np.where(f > 0, off - np.abs(A), off + A * np.sin(phase))
+            high = np.where(f > 0, off + np.abs(A), off + A * np.sin(phase))
             if np.any(low < VACUUM_GAUGE):
                 k = int(np.flatnonzero(low < VACUUM_GAUGE)[0])
                 ck.add("pressure.offset", f"offset - |amplitude| >= {VACUUM_GAUGE:g} Pa (a vacuum) in every chamber",
-                       f"{low[k]:g} Pa at index {k} (segment {k // 3}, chamber {k % 3 + 1})")
+                       f"{low[k]:g} Pa at {_where(k)}")
+            elif np.any(high > P.high):
+                k = int(np.flatnonzero(high > P.high)[0])
+                ck.add("pressure.offset", f"offset + |amplitude| <= {P.high:g} Pa in every chamber",
+                       f"{high[k]:g} Pa at {_where(k)}")
     else:  # table
         times = pt.get("times", _MISSING)
         values = pt.get("values", _MISSING)
@@ -1363,7 +1197,7 @@ def _pressure(ck: _Checker, raw: dict, n: int | None) -> tuple[Schedule | None, 
         if times is _MISSING:
             ck.add("pressure.times", "an array of times (s), strictly increasing", "nothing (the key is required)")
         else:
-            t_arr = ck._numbers(times, "pressure.times", "an array of times (s), strictly increasing")
+            t_arr = ck._numbers(times, "pressure.times", "an array of times (s), strictly increasing", T["times"].range)
             if t_arr is not None:
                 if t_arr.size < 1:
                     ck.add("pressure.times", "at least one time (s)", "an empty array")
@@ -1384,14 +1218,15 @@ def _pressure(ck: _Checker, raw: dict, n: int | None) -> tuple[Schedule | None, 
             if isinstance(times, list) and len(values) != len(times):
                 ck.add("pressure.values", f"{len(times)} pressure vectors, one for each of the {len(times)} times",
                        f"{len(values)}")
-            rows = []
-            for k, row in enumerate(values):
+            rows = _valid_rows(values, n, P)  # a long table of good rows, at numpy speed
+            for k, row in enumerate(values if rows is None else ()):
+                if k == 0:
+                    rows = []
                 arr = ck.per_segment(row, f"pressure.values[{k}]", n, "Pa")
-                if arr is None:
+                if arr is None or gauge(f"values[{k}]", arr.ravel()) is None:
                     rows = None
                     break
                 rows.append(arr.ravel())
-                floor(f"values[{k}]", arr.ravel())
         spec["times"] = t_arr
         spec["values"] = None if rows is None or not rows else np.array(rows)
     if len(ck.problems) > start or n is None:
@@ -1407,21 +1242,41 @@ def _pressure(ck: _Checker, raw: dict, n: int | None) -> tuple[Schedule | None, 
             sched = Sine(spec["amplitude"], spec["frequency"], spec["phase"], spec["offset"])
         else:
             sched = Table(spec["times"], spec["values"])
-    except ValueError as err:  # pragma: no cover - the checks above cover the schedules' own
+    except (ValueError, TypeError) as err:  # pragma: no cover - the checks above cover the schedules' own
         ck.add("pressure", "a valid schedule", str(err))
         return None, {}
     return sched, spec
 
 
+def _valid_rows(values: list, n: int | None, rng) -> list | None:
+    """``values`` as a list of ``(3 n,)`` arrays if every row is a flat array of ``3 n`` finite
+    numbers inside ``rng``, else None (the row-by-row check then names the first problem)."""
+    if n is None or not values:
+        return None
+    w = 3 * n
+    if not all(type(r) is list and len(r) == w for r in values):
+        return None
+    if not {type(x) for r in values for x in r} <= {int, float}:
+        return None
+    try:
+        arr = np.array(values, dtype=float)
+    except (OverflowError, ValueError):
+        return None
+    if rng.outside(arr).any():
+        return None
+    return list(arr)
+
+
 def _initial(ck: _Checker, raw: dict, segments: list[SegmentSpec] | None):
+    T = F.INITIAL
     it = ck.table(raw, "initial", "initial") or {}
-    ck.keys(it, "initial", _INITIAL_KEYS)
+    ck.keys(it, "initial", T.keys())
     n = None if segments is None else len(segments)
     q = v = None
     if "q_e" in it:
         q = ck.per_segment(it["q_e"], "initial.q_e", n)
     if "v" in it:
-        v = ck.per_segment(it["v"], "initial.v", n)
+        v = ck.per_segment(it["v"], "initial.v", n, bounds=T["v"].range)
     if segments is None:
         return None, None
     if q is None:
@@ -1440,6 +1295,14 @@ def _initial(ck: _Checker, raw: dict, segments: list[SegmentSpec] | None):
             ck.add(f"initial.q_e[{j}]", "a configuration inside the model (l > 0, |kappa| r_s < 1"
                    f"{', kappa >= 0' if s.coords == 'paper' else ''})", f"{_vec_str(q[j])}: {err}")
             continue
+        if q[j, 0] > F.MAX_STRETCH * s.length:
+            ck.add(f"initial.q_e[{j}][0]", f"l <= {F.MAX_STRETCH:g} x length = {F.MAX_STRETCH * s.length:g} m",
+                   f"{q[j, 0]:g}")
+            continue
+        why = _nonfinite_state(seg, q[j], v[j])
+        if why:
+            ck.add(f"initial.q_e[{j}]", "a state whose mass matrix and energies are finite", why)
+            continue
         if not s.extensible:
             if abs(q[j, 0] - s.length) > 1e-12 * s.length:
                 ck.add(f"initial.q_e[{j}][0]", f"l = length = {s.length:g} m (segment {j} is inextensible)",
@@ -1447,3 +1310,20 @@ def _initial(ck: _Checker, raw: dict, segments: list[SegmentSpec] | None):
             if v[j, 0] != 0.0:
                 ck.add(f"initial.v[{j}][0]", f"0 (segment {j} is inextensible)", f"{v[j, 0]:g}")
     return q, v
+
+
+def _nonfinite_state(seg: Segment, q: np.ndarray, v: np.ndarray) -> str | None:
+    """What is not finite at the segment state ``(q, v)`` (its own coordinates): the mass
+    matrix, the kinetic or the elastic energy; None if all are."""
+    q_c = seg.to_curvature(q)
+    v_c = seg.coordinate_jacobian(q) @ v
+    with np.errstate(all="ignore"):
+        M = seg._mass_c(q_c)
+        xi = np.concatenate([np.zeros(6), v_c])
+        T = 0.5 * float(xi @ M @ xi)
+        U = seg.elastic_energy(q)
+    if not np.all(np.isfinite(M)):
+        return f"a non-finite mass matrix at q_e = {_vec_str(q)}"
+    if not (math.isfinite(T) and math.isfinite(U)):
+        return f"kinetic energy {T:g} J, elastic energy {U:g} J at q_e = {_vec_str(q)}, v = {_vec_str(v)}"
+    return None

@@ -35,18 +35,23 @@ Conventions
 
 from __future__ import annotations
 
+import functools
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
 import pinocchio as pin
 
+from . import bounds as B
 from .arc import SCRATCH, arc_nodes, strain_twist
 from .errors import (
     DomainError,
+    NonFiniteError,
     SingularConfigurationError,
     as_matrix,
+    as_real,
+    as_real_array,
     as_vector,
-    check_positive,
 )
 from .slices import (
     CHAMBER_ANGLES,
@@ -89,6 +94,45 @@ PAPER_SINGULAR_ANGLE = 1e-6
 
 COORDS = ("curvature", "paper")
 ACTUATIONS = ("volume", "paper")
+
+
+def _is_finite(x) -> bool:
+    if isinstance(x, pin.SE3):
+        x = x.homogeneous
+    if isinstance(x, float):
+        return math.isfinite(x)
+    return bool(np.isfinite(x).all())
+
+
+def _short(x) -> str:
+    try:
+        a = np.asarray(x, dtype=float).ravel()
+    except (TypeError, ValueError):
+        return repr(x)[:60]
+    return "(" + ", ".join(f"{v:.6g}" for v in a[:9]) + (", ..." if a.size > 9 else "") + ")"
+
+
+def _finite(quantity: str):
+    """Decorator of a :class:`Segment` method ``(self, q_e, ...)``: a result that is not
+    finite raises :class:`~qchain.errors.NonFiniteError` naming the quantity, the method
+    and its arguments instead of being returned."""
+
+    def wrap(fn):
+        @functools.wraps(fn)
+        def method(self, q_e, *args, **kwargs):
+            out = fn(self, q_e, *args, **kwargs)
+            if not _is_finite(out):
+                more = "".join(f", {_short(a)}" for a in args)
+                raise NonFiniteError(
+                    f"Segment.{fn.__name__}: the {quantity} is not finite at q_e = {_short(q_e)}{more} "
+                    f"(segment of length {self.length:g} m, radius {self.radius:g} m, mass {self.mass:g} kg): "
+                    "the configuration's or rates' magnitudes overflow double precision"
+                )
+            return out
+
+        return method
+
+    return wrap
 
 
 # ---------------------------------------------------------------------------------------
@@ -202,22 +246,23 @@ class Segment:
     Parameters
     ----------
     length : float
-        Rest length ``l0`` (m).
+        Rest length ``l0`` (m), ``1e-5 <= l0 <= 100`` (:data:`qchain.bounds.LENGTH`).
     radius : float
-        Outer radius ``r_s`` (m).
+        Outer radius ``r_s`` (m), ``1e-6 <= r_s <= 10`` (:data:`qchain.bounds.RADIUS`).
     mass : float
-        Mass ``m`` (kg), spread uniformly over every cross-section (the paper's density,
-        eq. (5); docs/model.md section 3).
+        Mass ``m`` (kg), ``1e-9 <= m <= 1e6`` (:data:`qchain.bounds.MASS`), spread uniformly
+        over every cross-section (the paper's density, eq. (5); docs/model.md section 3).
     chamber_area : float
-        Cross-section area ``A_ch`` of each chamber (m^2).
+        Cross-section area ``A_ch`` of each chamber (m^2), ``> 0``.
     chamber_radius : float
-        Distance ``r_ch`` of the chamber centres from the axis (m); the chamber must fit:
+        Distance ``r_ch`` of the chamber centres from the axis (m), ``> 0``; the chamber must fit:
         ``r_ch + sqrt(A_ch / pi) <= r_s``.
     youngs_modulus : float
-        ``E`` (Pa); ``EI = E pi r_s^4 / 4``, ``EA = E pi r_s^2``.
+        ``E`` (Pa), ``1 <= E <= 1e12`` (:data:`qchain.bounds.YOUNGS_MODULUS`);
+        ``EI = E pi r_s^4 / 4``, ``EA = E pi r_s^2``.
     damping : float, optional
-        Stiffness-proportional damping ``beta`` (s): ``D = beta K(q0)``, ``K(q0)`` the
-        elastic stiffness at rest in curvature coordinates, mapped to ``coords``
+        Stiffness-proportional damping ``beta`` (s), ``0 <= beta <= 100``: ``D = beta K(q0)``,
+        ``K(q0)`` the elastic stiffness at rest in curvature coordinates, mapped to ``coords``
         (docs/model.md section 9).
     coords : {"curvature", "paper"}
         Deformation coordinates ``q_e``; see the module docstring and docs/model.md section 1.
@@ -225,7 +270,8 @@ class Segment:
         Input matrix model: chamber-volume virtual work (default) or the paper's
         tip-plate forces (eq. (8); docs/model.md section 5).
     nodes : int, optional
-        Gauss-Legendre nodes along the segment; ``None`` gives :data:`DEFAULT_NODES`.
+        Gauss-Legendre nodes along the segment, ``1 <= nodes <= 100``
+        (:data:`qchain.bounds.NODES`); ``None`` gives :data:`DEFAULT_NODES`.
     stiffness_matrix : (3, 3) array, optional
         The paper's literal linear elasticity ``K_e`` in the segment's coordinates
         (``-K_e (q - q_0) - D qdot``, the text before eq. (4); docs/model.md section 9):
@@ -238,6 +284,12 @@ class Segment:
         ``False`` holds the length at ``l0`` in a :class:`~qchain.Chain` (an ideal
         constraint): the stiffest, axial mode is dropped so integrators can take larger
         steps. The segment's own blocks keep all three coordinates.
+
+    Every number is a real (a ``bool``, a string or a complex number raises ``TypeError``)
+    inside the range above (else ``ValueError`` naming the parameter, the value and the
+    bound). Every method validates ``q_e`` (shape, finiteness, the model's domain) and
+    raises :class:`~qchain.errors.NonFiniteError` rather than return a result that is not
+    finite (a configuration whose magnitudes overflow, ``q_e = (1e300, 0, 0)``).
     """
 
     length: float
@@ -264,13 +316,10 @@ class Segment:
 
     def __post_init__(self):
         s = object.__setattr__
-        s(self, "length", check_positive("length", self.length, "m"))
-        s(self, "radius", check_positive("radius", self.radius, "m"))
-        s(self, "mass", check_positive("mass", self.mass, "kg"))
-        s(self, "chamber_area", check_positive("chamber_area", self.chamber_area, "m^2"))
-        s(self, "chamber_radius", check_positive("chamber_radius", self.chamber_radius, "m"))
-        s(self, "youngs_modulus", check_positive("youngs_modulus", self.youngs_modulus, "Pa"))
-        s(self, "damping", check_positive("damping", self.damping, "s", allow_zero=True))
+        for name, rng in (("length", B.LENGTH), ("radius", B.RADIUS), ("mass", B.MASS),
+                          ("chamber_area", B.CHAMBER_AREA), ("chamber_radius", B.CHAMBER_RADIUS),
+                          ("youngs_modulus", B.YOUNGS_MODULUS), ("damping", B.DAMPING)):
+            s(self, name, rng.check(name, getattr(self, name)))
         outer = self.chamber_radius + np.sqrt(self.chamber_area / np.pi)
         if outer > self.radius:
             raise ValueError(
@@ -278,14 +327,12 @@ class Segment:
                 f"must be <= radius = {self.radius:.6g} m"
             )
         if not isinstance(self.extensible, (bool, np.bool_)):
-            raise ValueError(f"extensible must be True or False, got {self.extensible!r}")
-        if self.coords not in COORDS:
+            raise TypeError(f"extensible must be True or False, got {self.extensible!r}")
+        if not isinstance(self.coords, str) or self.coords not in COORDS:
             raise ValueError(f"coords must be one of {COORDS}, got {self.coords!r}")
-        if self.actuation not in ACTUATIONS:
+        if not isinstance(self.actuation, str) or self.actuation not in ACTUATIONS:
             raise ValueError(f"actuation must be one of {ACTUATIONS}, got {self.actuation!r}")
-        n = DEFAULT_NODES if self.nodes is None else self.nodes
-        if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
-            raise ValueError(f"nodes must be an integer >= 1 or None, got {self.nodes!r}")
+        n = DEFAULT_NODES if self.nodes is None else B.NODES.check("nodes", self.nodes)
         s(self, "node_count", int(n))
         if self.stiffness_matrix is not None:
             K = as_matrix("stiffness_matrix", self.stiffness_matrix, (3, 3))
@@ -382,10 +429,11 @@ class Segment:
 
     # ------------------------------------------------------------------- kinematics
 
+    @_finite("slice placement")
     def slice_placement(self, q_e, alpha: float) -> pin.SE3:
         """Placement ``g(alpha) = exp6(alpha X(q_e))`` of slice ``alpha`` in the root frame: the
         paper's eq. (1) at ``s = alpha l`` (section III-C; docs/model.md section 2)."""
-        a = float(alpha)
+        a = as_real("alpha", alpha)
         if not 0.0 <= a <= 1.0:
             raise ValueError(f"alpha must be in [0, 1], got {alpha!r}")
         q_c = self.to_curvature(q_e)
@@ -396,21 +444,24 @@ class Segment:
         eq. (1a), (1b) (docs/model.md section 2)."""
         return self.slice_placement(q_e, 1.0)
 
+    @_finite("backbone")
     def backbone(self, q_e, alpha) -> np.ndarray:
         """Backbone points ``p(alpha)`` in the root frame (m), shape ``(P, 3)`` for ``alpha`` (P,)
         (docs/model.md section 2)."""
-        a = np.atleast_1d(np.asarray(alpha, dtype=float))
+        a = np.atleast_1d(as_real_array("alpha", alpha))
         if a.ndim != 1 or np.any((a < 0.0) | (a > 1.0)) or not np.all(np.isfinite(a)):
             raise ValueError("alpha must be a 1-D array of values in [0, 1]")
         q_c = self.to_curvature(q_e)
         return arc_nodes(a, q_c).p
 
+    @_finite("centre of mass")
     def center_of_mass(self, q_e) -> np.ndarray:
         """Centre of mass ``r_cm = int_0^1 p(alpha) dalpha`` in the root frame (m), shape (3,);
         off the backbone when bent (the ``r_cm`` of eq. (6); docs/model.md section 3)."""
         q_c, _ = self._curvature(q_e)
         return self.alpha_weights @ arc_nodes(self.alpha_nodes, q_c).p
 
+    @_finite("tip Jacobian")
     def tip_jacobian(self, q_e) -> np.ndarray:
         """Tip body twist per unit ``qdot_e``: ``S(1) J`` (6, 3), tip frame, ``[linear; angular]``
         (docs/model.md section 2)."""
@@ -429,6 +480,7 @@ class Segment:
         segment_newton_euler(self.alpha_nodes, self.alpha_weights, self.mass, self.radius, q_c, xi_c, xid_c, Q)
         return Q
 
+    @_finite("mass matrix M_xi")
     def mass_matrix(self, q_e) -> np.ndarray:
         """``M_xi(q_e)`` (9, 9), kg / kg m / kg m^2, in ``xi = (v, w, qdot_e)``.
 
@@ -448,6 +500,7 @@ class Segment:
         T = self._lift(J)
         return T.T @ self._mass_c(q_c) @ T
 
+    @_finite("Coriolis matrix C_xi")
     def coriolis_matrix(self, q_e, xi) -> np.ndarray:
         """``C_xi(q_e, xi)`` (9, 9) of eq. (9), with ``C_xi + C_xi^T = dM_xi/dt``.
 
@@ -480,6 +533,7 @@ class Segment:
         Td[6:, 6:] = paper_jacobian_dot(self.check_configuration(q_e), xi[6:])
         return T.T @ Cc @ T + T.T @ self._mass_c(q_c) @ Td
 
+    @_finite("velocity-product force C_xi xi")
     def velocity_product_force(self, q_e, xi) -> np.ndarray:
         """``C_xi(q_e, xi) xi`` (9,) without forming the matrix: the slice Newton-Euler
         integral (:func:`qchain.slices.segment_newton_euler`) at zero acceleration
@@ -492,6 +546,7 @@ class Segment:
             xid_c[6:] = paper_jacobian_dot(self.check_configuration(q_e), xi[6:]) @ xi[6:]
         return T.T @ self._newton_euler_c(q_c, T @ xi, xid_c)
 
+    @_finite("generalised gravity G")
     def generalized_gravity(self, q_e, gravity) -> np.ndarray:
         """``G(q_e)`` (9,): gradient of ``U = -int g . p dm``, gravity ``g`` (3,) m/s^2 in root coordinates.
 
@@ -506,12 +561,14 @@ class Segment:
         xid_c[:3] = -g
         return self._lift(J).T @ self._newton_euler_c(q_c, np.zeros(9), xid_c)
 
+    @_finite("gravity energy")
     def gravity_energy(self, q_e, gravity) -> float:
         """``U_g = -m g . r_cm`` (J) relative to the root origin; ``g`` in root coordinates
         (docs/model.md section 9)."""
         g = as_vector("gravity", gravity, 3)
         return -self.mass * float(g @ self.center_of_mass(q_e))
 
+    @_finite("kinetic energy")
     def kinetic_energy(self, q_e, xi) -> float:
         """``T = 1/2 xi^T M_xi xi`` (J), the paper's eq. (4) (docs/model.md section 3)."""
         xi = as_vector("xi", xi, 9)
@@ -519,6 +576,7 @@ class Segment:
 
     # ------------------------------------------------------------------- input matrix
 
+    @_finite("input matrix B")
     def input_matrix(self, q_e) -> np.ndarray:
         """``B(q_e)`` (3, 3): generalised force on ``q_e`` per chamber pressure (N/Pa, N m/Pa).
 
@@ -535,6 +593,7 @@ class Segment:
         input_matrix_c(q_c, self.chamber_area, self.chamber_radius, self.actuation == "paper", Bc, np.empty(SCRATCH))
         return J.T @ Bc
 
+    @_finite("pressure stiffness d(B p)/dq_e")
     def pressure_stiffness(self, q_e, p) -> np.ndarray:
         """``d(B(q_e) p)/d q_e`` (3, 3), exact, both actuation models
         (:func:`qchain.slices.pressure_jacobian_c`; ``B`` of docs/model.md section 5)."""
@@ -559,6 +618,7 @@ class Segment:
     def _rest(self) -> np.ndarray:
         return self.neutral() if self.rest_q_e is None else self.rest_q_e
 
+    @_finite("elastic energy")
     def elastic_energy(self, q_e) -> float:
         """``U_el`` (J): ``1/2 EI (kappa l)^2 / l0 + 1/2 EA (l - l0)^2 / l0``, or the linear law
         (docs/model.md section 9)."""
@@ -576,6 +636,7 @@ class Segment:
         elastic_gradient_c(q_c, self.length, self.bending_stiffness, self.axial_stiffness, g)
         return g
 
+    @_finite("elastic force dU_el/dq_e")
     def elastic_force(self, q_e) -> np.ndarray:
         """``dU_el/dq_e`` (3,), the elastic term on the left of the equation of motion (the
         paper's ``K_xi (q - q0)`` of eq. (9); docs/model.md section 9)."""
@@ -586,6 +647,7 @@ class Segment:
             return paper_jacobian(q).T @ self._elastic_grad_c(paper_to_curvature(q))
         return self._elastic_grad_c(q)
 
+    @_finite("elastic stiffness")
     def elastic_stiffness(self, q_e) -> np.ndarray:
         """``d^2 U_el / dq_e^2`` (3, 3), exact (docs/model.md section 9)."""
         q = self.check_configuration(q_e)
@@ -599,6 +661,7 @@ class Segment:
         J = paper_jacobian(q)
         return J.T @ Hc @ J + _paper_hessian_term(q, self._elastic_grad_c(q_c))
 
+    @_finite("dissipation matrix D")
     def dissipation_matrix(self, q_e) -> np.ndarray:
         """Dissipation matrix ``D`` (3, 3) in the segment's coordinates (N s/m ...).
 
@@ -618,6 +681,7 @@ class Segment:
         J = paper_jacobian(q)
         return J.T @ Dc @ J
 
+    @_finite("damping force D qdot_e")
     def damping_force(self, q_e, qdot_e) -> np.ndarray:
         """``D qdot_e`` (3,), the dissipative term on the left of the equation of motion
         (docs/model.md section 9)."""
@@ -630,13 +694,13 @@ def nodes_for_tolerance(segment: Segment, theta_max: float, tol: float, referenc
     of a ``reference_nodes`` one at bending angle ``theta_max`` (rad) and rest length.
 
     The quadrature error grows with the bending angle (docs/model.md section 4: the node
-    count is a fidelity knob), so a scene that bends less needs fewer nodes.
+    count is a fidelity knob), so a scene that bends less needs fewer nodes. ``theta_max``
+    is a finite angle >= 0 (bends past ``l0 / r_s`` are taken at ``|kappa| r_s = 0.999``),
+    ``0 < tol < 1``, ``1 <= reference_nodes <= 100``.
     """
-    theta = float(theta_max)
-    if not (np.isfinite(theta) and theta >= 0.0):
-        raise ValueError(f"theta_max must be a finite angle >= 0 rad, got {theta_max!r}")
-    if not (np.isfinite(tol) and tol > 0.0):
-        raise ValueError(f"tol must be > 0, got {tol!r}")
+    theta = B.Range(0.0, None, "rad").check("theta_max", theta_max)  # any bend: kappa is capped below
+    tol = B.NODE_TOLERANCE.check("tol", tol)
+    reference_nodes = B.NODES.check("reference_nodes", reference_nodes)
     import dataclasses
 
     base = dataclasses.replace(segment, coords="curvature", nodes=reference_nodes)

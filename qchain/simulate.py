@@ -47,9 +47,12 @@ from collections.abc import Callable, Sequence
 import numpy as np
 import pinocchio as pin
 
+from . import bounds as B
+from .budget import DEFAULT as DEFAULT_BUDGET
+from .budget import Budget, input_frequency, run_cost
 from .chain import Chain
 from .engine import driver, system
-from .errors import QchainError, as_vector
+from .errors import QchainError, as_real_array, as_vector, describe_value
 from .inputs import Schedule, as_input
 from .trajectory import Trajectory
 
@@ -84,6 +87,10 @@ class _DomainExit(Exception):
 
 class _WallLimit(Exception):
     pass
+
+
+class _Stop(Exception):
+    """Ends a Python-path run with ``success = False`` and this message, the samples kept."""
 
 
 class _Progress:
@@ -203,10 +210,38 @@ class _System:
 
 
 def _check_span(t_span):
-    ts = np.asarray(t_span, dtype=float)
+    ts = as_real_array("t_span", t_span)
     if ts.shape != (2,) or not np.all(np.isfinite(ts)) or not ts[1] > ts[0]:
-        raise ValueError(f"t_span must be (t0, t1) with finite t1 > t0, got {t_span!r}")
+        raise ValueError(f"t_span must be (t0, t1) with finite t1 > t0, got {describe_value(t_span)}")
+    B.TIME.check("t_span[0]", ts[0])
+    B.TIME.check("t_span[1]", ts[1])
+    B.DURATION.check("t_span[1] - t_span[0]", ts[1] - ts[0])
     return float(ts[0]), float(ts[1])
+
+
+def _check_t_eval(t_eval, t0: float, t1: float) -> np.ndarray:
+    t = as_real_array("t_eval", t_eval)
+    if t.ndim != 1 or t.size == 0:
+        raise ValueError(f"t_eval must be a non-empty 1-D array of times (s), got shape {t.shape}")
+    bad = np.flatnonzero(~np.isfinite(t))
+    if bad.size:
+        raise ValueError(f"t_eval[{int(bad[0])}] must be finite, got {t[bad[0]]}")
+    if np.any(np.diff(t) <= 0):
+        k = int(np.flatnonzero(np.diff(t) <= 0)[0])
+        raise ValueError(f"t_eval must be strictly increasing: t_eval[{k + 1}] = {t[k + 1]:g} s <= t_eval[{k}] = "
+                         f"{t[k]:g} s")
+    if t[0] < t0 or t[-1] > t1:
+        raise ValueError(f"t_eval must be inside t_span = ({t0:g}, {t1:g}) s, got {t[0]:g} s to {t[-1]:g} s")
+    return t
+
+
+def _state_entry(chain: Chain, q, v) -> str:
+    """The first non-finite entry of a state, in words (``"v[4] (segment 1, ux)"``)."""
+    for name, x, vel in (("q", q, False), ("v", v, True)):
+        bad = np.flatnonzero(~np.isfinite(np.asarray(x, dtype=float)))
+        if bad.size:
+            return f"{name}[{int(bad[0])}] ({chain.coordinate_name(int(bad[0]), velocity=vel)})"
+    return "the state"
 
 
 def simulate(
@@ -230,6 +265,7 @@ def simulate(
     energies: bool = True,
     wall_limit: float | None = None,
     controller_rate: float | None = None,
+    budget: Budget | None = None,
 ) -> Trajectory:
     """Integrate ``M a + C v + g + D v + dU/dq = B p + tau`` from ``(q0, v0)`` over ``t_span``.
 
@@ -265,6 +301,18 @@ def simulate(
         between samples (zero-order hold), as a real controller runs: the run leaves
         compiled code only at those instants. Without it a controller is called at every
         stage of every step (the Python steppers).
+    budget : Budget, optional
+        What the run may cost (:mod:`qchain.budget`; default :data:`qchain.budget.DEFAULT`):
+        a run whose steps (``duration / dt``, ``duration / max_step``, 2 a period of the
+        fastest sine input or base motion), samples or memory would exceed it is refused
+        before it starts (:class:`qchain.budget.BudgetError`).
+
+    Every number is a real (``bool``, strings and complex numbers raise ``TypeError``)
+    inside its range (:mod:`qchain.bounds`; else ``ValueError`` naming the argument, the
+    value and the bound): ``t_span`` within +-1e12 s, ``dt``, ``max_step`` and
+    ``first_step`` > 0 s, ``1e-15 <= rtol <= 1``, ``1e-20 <= atol <= 1e3``, ``t_eval``
+    finite, strictly increasing and inside ``t_span``, ``wall_limit`` > 0 s,
+    ``0 < controller_rate <= 1e9`` Hz.
 
     Returns
     -------
@@ -275,7 +323,7 @@ def simulate(
     """
     if not isinstance(chain, Chain):
         raise TypeError(f"chain must be a qchain.Chain, got {type(chain).__name__}")
-    if method not in METHODS:
+    if not isinstance(method, str) or method not in METHODS:
         raise ValueError(f"method must be one of {METHODS}, got {method!r}")
     t0, t1 = _check_span(t_span)
     q0 = chain._q(q0, "q0")
@@ -283,17 +331,34 @@ def simulate(
     st = chain._state(q0, v0, t=t0)  # raises at the input if the start is outside the model
     if chain._any_locked:
         chain._check_locks(st.q_e, st.v_e)
+    chain.kinetic_energy(q0, v0, t=t0)  # NonFiniteError naming the segment if the start overflows
+    chain.potential_energy(q0, t=t0)
     if method in FIXED_STEP:
-        if dt is None or not (np.isfinite(dt) and dt > 0):
-            raise ValueError(f"method {method!r} needs a step dt > 0 s, got {dt!r}")
-        dt = float(dt)
-    for name, val in (("rtol", rtol), ("atol", atol)):
-        if not (np.isfinite(val) and val > 0):
-            raise ValueError(f"{name} must be > 0, got {val!r}")
+        if dt is None:
+            raise ValueError(f"method {method!r} needs a step dt > 0 s, got None")
+        try:
+            dt = B.STEP.check("dt", dt)
+        except ValueError as err:
+            raise ValueError(f"method {method!r} needs a step dt > 0 s: {err}") from None
+    rtol = B.RTOL.check("rtol", rtol)
+    atol = B.ATOL.check("atol", atol)
+    if not (isinstance(max_step, (float, np.floating)) and max_step == np.inf):
+        max_step = B.STEP.check("max_step", max_step)
+    if first_step is not None:
+        first_step = B.STEP.check("first_step", first_step)
+    if wall_limit is not None:
+        wall_limit = B.WALL_LIMIT.check("wall_limit", wall_limit)
     if t_eval is not None:
-        t_eval = np.asarray(t_eval, dtype=float)
-        if t_eval.ndim != 1 or np.any(np.diff(t_eval) <= 0) or t_eval[0] < t0 or t_eval[-1] > t1:
-            raise ValueError("t_eval must be increasing and inside t_span")
+        t_eval = _check_t_eval(t_eval, t0, t1)
+    if budget is None:
+        budget = DEFAULT_BUDGET
+    elif not isinstance(budget, Budget):
+        raise TypeError(f"budget must be a qchain.budget.Budget, got {describe_value(budget)}")
+    cost = run_cost(duration=t1 - t0, method=method, fixed_step=method in FIXED_STEP, dt=dt, max_step=max_step,
+                    frequency=input_frequency(pressure, tau, chain.base_motion), samples=float(
+                        t_eval.size) if t_eval is not None else (np.nan if method in FIXED_STEP else 1.0),
+                    samples_why="len(t_eval)" if t_eval is not None else "", nq=chain.nq, nv=chain.nv, nu=chain.nu)
+    budget.check(cost)
     events = list(events or [])
     for e in events:
         if not isinstance(e, Event):
@@ -302,10 +367,7 @@ def simulate(
     P_in, T_in = as_input("pressure", pressure, chain.nu), as_input("tau", tau, chain.nv)  # checked where they enter
     controllers = []
     if controller_rate is not None:
-        if not (isinstance(controller_rate, (int, float, np.floating, np.integer)) and not isinstance(controller_rate, bool)
-                and np.isfinite(controller_rate) and controller_rate > 0):
-            raise ValueError(f"controller_rate must be a number of Hz > 0, got {controller_rate!r}")
-        controller_rate = float(controller_rate)
+        controller_rate = B.SAMPLE_RATE.check("controller_rate", controller_rate)
         held = []
         for name, u, size in (("pressure", pressure, chain.nu), ("tau", tau, chain.nv)):
             if callable(u) and not isinstance(u, Schedule):
@@ -400,7 +462,8 @@ def simulate(
                     status, message = -1, driver.unstable_message(str(err), h, h_stable)
                     break
                 if not (np.all(np.isfinite(q1)) and np.all(np.isfinite(v1))):
-                    status, message = -1, driver.unstable_message(f"non-finite state at t = {t + h:.6g} s", h, h_stable)
+                    status, message = -1, driver.unstable_message(
+                        f"non-finite state {_state_entry(chain, q1, v1)} at t = {t + h:.6g} s", h, h_stable)
                     break
                 try:
                     chain._state(q1, v1, t=t + h)
@@ -423,7 +486,7 @@ def simulate(
             t, q, v, status, message, nsteps = _run_adaptive(
                 ADAPTIVE[method], sysm, rec, bar, check_events, t0, t1, q, v, rtol, atol, max_step, first_step, method
             )
-    except _WallLimit as err:
+    except (_WallLimit, _Stop) as err:
         status, message = -1, str(err)
     except KeyboardInterrupt:
         status, message = -1, f"interrupted by the user at t = {t:.6g} s"
@@ -459,7 +522,10 @@ def _rk4_step(sysm: _System, t, q, v, h):
     if not np.all(np.isfinite(y1)):
         if sysm.error:
             raise _DomainExit(f"{sysm.error}, in a stage of the step from t = {t:.6g} s (dt = {h:g} s)")
-        raise _DomainExit(f"non-finite state at t = {t + h:.6g} s")
+        bad = int(np.flatnonzero(~np.isfinite(y1))[0])
+        which = sysm.ch.coordinate_name(int(sysm.idx[bad % nA]))
+        raise _DomainExit(f"non-finite state ({'velocity' if bad >= nA else 'position'} of {which}) at "
+                          f"t = {t + h:.6g} s")
     return sysm.q_of(y1[:nA]), sysm.full(y1[nA:])
 
 
@@ -490,14 +556,19 @@ def _midpoint_step(sysm: _System, t, q, v, h, tol=1e-10, max_iter=50):
             raise _DomainExit(f"{err} (at t = {t + h / 2:.6g} s)") from None
         R = vm - vA - 0.5 * h * a[idx]
         if not np.all(np.isfinite(R)):
-            raise _DomainExit(f"non-finite state at t = {t + h / 2:.6g} s")
+            bad = int(np.flatnonzero(~np.isfinite(R))[0])
+            raise _DomainExit(f"non-finite midpoint velocity of {ch.coordinate_name(int(idx[bad]))} at "
+                              f"t = {t + h / 2:.6g} s")
         if np.max(np.abs(R)) <= tol * (1.0 + np.max(np.abs(vm))):
             break
         if R_old is not None:
             dR = R - R_old
             B = B + np.outer(dR - B @ dx, dx) / (dx @ dx)  # Broyden: learns what M, D, K leave out
         if B is None or it == 8:
-            M, K, D = sysm.mkd(qm, vmf)
+            try:
+                M, K, D = sysm.mkd(qm, vmf)
+            except QchainError as err:
+                raise _DomainExit(f"{err} (at t = {t + h / 2:.6g} s)") from None
             B = np.linalg.solve(M, M + 0.5 * h * D + 0.25 * h * h * K)
         dx = -np.linalg.solve(B, R)
         vm = vm + dx
@@ -552,7 +623,10 @@ def _run_adaptive(name, sysm, rec, bar, check_events, t0, t1, q, v, rtol, atol, 
             return sysm.ch.integrate(chart, sysm.full(ys[:nA])), sysm.full(ys[nA:])
 
         if not np.all(np.isfinite(y)):
-            status, message = -1, f"non-finite state at t = {t_new:.6g} s"
+            bad = int(np.flatnonzero(~np.isfinite(y))[0])
+            which = sysm.ch.coordinate_name(int(sysm.idx[bad % nA]))
+            status, message = -1, (f"non-finite state ({'velocity' if bad >= nA else 'position'} of {which}) at "
+                                   f"t = {t_new:.6g} s")
             break
         hit = check_events(t_prev, t_new, interp)
         if hit is not None:
@@ -592,13 +666,18 @@ class _Recorder:
 
     def _add(self, t, q, v):
         p = self.sysm.P(t, q, v)
+        if self.energies:
+            try:
+                ke, pe = self.ch.kinetic_energy(q, v, t=t), self.ch.potential_energy(q, t=t)
+            except QchainError as err:  # a state whose energies overflow ends the run, the samples before it kept
+                raise _Stop(f"{err} (a sample's energies)") from None
         self.T.append(t)
         self.Q.append(q)
         self.V.append(v)
         self.Pp.append(np.array(p, dtype=float))
         if self.energies:
-            self.KE.append(self.ch.kinetic_energy(q, v, t=t))
-            self.PE.append(self.ch.potential_energy(q, t=t))
+            self.KE.append(ke)
+            self.PE.append(pe)
         if self.on_sample is not None:
             if self._pass_energies:
                 self.on_sample(t, q, v, self.Pp[-1], energies=(self.KE[-1], self.PE[-1]))

@@ -18,6 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .bounds import TIME, Range
 from .chain import Chain
 from .errors import QchainError, as_vector
 
@@ -64,15 +65,24 @@ def equilibrium(chain: Chain, p=None, q0=None, tip_wrench=None, *, t: float = 0.
         Starting guess (default ``chain.neutral()``).
     tip_wrench : (6,), optional
         ``[force (N); torque (N m)]`` on the tip, world axes, applied at the tip origin.
+    t : float, s
+        Time of a prescribed base's placement, within +-1e12 s.
+    max_iter : int
+        Newton iterations, 1 to 100000.
     tol : float
-        Converged when every residual entry is below ``tol`` times the scale of the
+        In (0, 1). Converged when every residual entry is below ``tol`` times the scale of the
         generalised forces (the largest of the elastic, pressure and gravity terms at q0).
     continuation : bool
         If Newton fails from ``q0``, follow the solution from the unloaded shape as
         gravity, pressures and tip load grow from zero (steps halved on failure).
     """
+    if not isinstance(chain, Chain):
+        raise TypeError(f"chain must be a qchain.Chain, got {type(chain).__name__}")
     if chain.floating:
         raise ValueError("equilibrium needs a fixed or prescribed base: a floating arm has no static shape")
+    tol = Range(0.0, 1.0, low_open=True, high_open=True).check("tol", tol)
+    max_iter = Range(1, 100_000, integer=True).check("max_iter", max_iter)
+    t = TIME.check("t", t)
     if chain._any_paper and not chain._linear[chain._paper].any():
         # the balance is coordinate-free: solve it where it is regular and map the result back
         twin = Chain([dataclasses.replace(s, coords="curvature") for s in chain.segments], base=chain.base,

@@ -111,7 +111,7 @@ def test_bad_scene_exits_2(tmp_path, capsys):
     p.write_text(SHORT.replace("radius = 0.015", "radius = -0.015"))
     assert main(["run", str(p), "--no-record"]) == 2
     err = capsys.readouterr().err
-    assert f"qchain run: error: {p}: segments[0].radius: expected a number > 0 (m), found -0.015" in err
+    assert f"qchain run: error: {p}: segments[0].radius: expected a number >= 1e-06 and <= 10 (m), found -0.015" in err
     assert main(["info", str(tmp_path / "missing.toml")]) == 2
     assert "expected an existing scene file, found no such file" in capsys.readouterr().err
 

@@ -259,9 +259,12 @@ def _failure(chain, wk, it, method, q0, v0, t0, inputs) -> str:
             what = str(err)
         msg = f"{what} {at}"
     elif code == system.SINGULAR:
-        msg = f"an articulated inertia is not positive definite {at}"
+        n = chain.n
+        culprit = chain._overflowing_segment(wk[0][chain.nq - 3 * n :].reshape(n, 3),
+                                             wk[1][chain.nv - 3 * n :].reshape(n, 3))
+        msg = f"an articulated inertia is not positive definite{f' ({culprit})' if culprit else ''} {at}"
     elif code == system.NONFINITE:
-        msg = f"non-finite state {at}"
+        msg = f"{_nonfinite_what(chain, wk)} {at}"
     elif code == steppers.NEWTON:
         msg = f"{method}: Newton did not converge in the step from t = {t:.6g} s (reduce dt)"
     else:
@@ -269,6 +272,17 @@ def _failure(chain, wk, it, method, q0, v0, t0, inputs) -> str:
     if method == "rk4":
         msg = unstable_message(msg, tf[steppers.DT], stability_limit(chain, q0, v0, *inputs(t0, q0, v0), t0))
     return msg
+
+
+def _nonfinite_what(chain, wk) -> str:
+    """Which quantity of the last evaluation was not finite, and whose: the configuration
+    ``wk[0]``, the velocity ``wk[1]`` or the acceleration ``wk[7]`` (the first entry)."""
+    for name, x, vel in (("configuration", wk[0], False), ("velocity", wk[1], True), ("acceleration", wk[7], True)):
+        bad = np.flatnonzero(~np.isfinite(x))
+        if bad.size:
+            i = int(bad[0])
+            return f"non-finite {name} {'v' if vel else 'q'}[{i}] ({chain.coordinate_name(i, velocity=vel)})"
+    return "non-finite state (the integrator's stage values)"
 
 
 #: RK4 is stable for h |lambda| below about 2.78 on the negative real axis and 2.83 on the
