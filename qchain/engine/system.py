@@ -344,6 +344,14 @@ def _rates(m, wk, y, out, ok):
     return OK
 
 
+@inline
+def _segment_states(m, wk):
+    """The segment coordinates and velocities of ``wk.q``, ``wk.v`` as ``(n, 3)`` views."""
+    n = m[3].shape[0]
+    kind = m[14]
+    return wk[0][kind[2] - 3 * n:].reshape(n, 3), wk[1][kind[3] - 3 * n:].reshape(n, 3)
+
+
 @kernel
 def rhs_planar(m, wk, t, y, out):
     """``out = dy/dt`` (2 nA,) at ``(t, y)`` of a chain on the planar kernel (``m[14][1] == 1``,
@@ -353,10 +361,7 @@ def rhs_planar(m, wk, t, y, out):
     status = _forces(m, wk, t)
     if status != OK:
         return status
-    n = m[3].shape[0]
-    kind = m[14]
-    q_c = wk[0][kind[2] - 3 * n:].reshape(n, 3)
-    v_c = wk[1][kind[3] - 3 * n:].reshape(n, 3)
+    q_c, v_c = _segment_states(m, wk)
     pw = planar_ws(m, wk)
     ok = planar.planar_aba_moving(m[0], m[1], m[2], m[3], m[4], q_c, v_c, wk[5], wk[9][0], wk[6], wk[8], m[12], pw,
                                   pw[7])
@@ -371,12 +376,9 @@ def rhs_spatial(m, wk, t, y, out):
     status = _forces(m, wk, t)
     if status != OK:
         return status
-    n = m[3].shape[0]
-    kind = m[14]
-    q_c = wk[0][kind[2] - 3 * n:].reshape(n, 3)
-    v_c = wk[1][kind[3] - 3 * n:].reshape(n, 3)
+    q_c, v_c = _segment_states(m, wk)
     A0 = wk[6]
-    ok = recursive.aba(m[0], m[1], m[2], m[3], m[4], q_c, v_c, wk[5], wk[9][0], A0, kind[0] == 1, wk[9][3], wk[8], A0,
+    ok = recursive.aba(m[0], m[1], m[2], m[3], m[4], q_c, v_c, wk[5], wk[9][0], A0, m[14][0] == 1, wk[9][3], wk[8], A0,
                        m[12], aba_ws(m, wk), wk[12])
     return _rates(m, wk, y, out, ok)
 
@@ -408,16 +410,15 @@ def jacobian(m, wk, t, y, Jq, Jv):
     idx = m[13]
     kind = m[14]
     nA = idx.shape[0]
-    q, v, p, B = wk[0], wk[1], wk[3], wk[9]
+    B = wk[9]
     wa = aba_derivatives_ws(m, wk)
     n = m[3].shape[0]
-    voff = kind[3] - 3 * n
+    q_c, v_c = _segment_states(m, wk)
     a = wa[3]
     copy(a, wk[7])
     status = derivatives._aba_derivatives_at(m[0], m[1], m[2], m[3], m[4], m[5], m[6], m[7], m[8], m[9], m[10], m[11],
-                                             m[12], kind[0] == 1, q[kind[2] - 3 * n:].reshape(n, 3),
-                                             v[voff:].reshape(n, 3), p.reshape(n, 3), wk[8], wk[6], a, B[0],
-                                             B[2, :3], aba_ws(m, wk), rnea_ws(m, wk), wa, wk[12])
+                                             m[12], kind[0] == 1, q_c, v_c, wk[3].reshape(n, 3), wk[8], wk[6], a,
+                                             B[0], B[2, :3], aba_ws(m, wk), rnea_ws(m, wk), wa, wk[12])
     if status != 0:
         wk[10][0] = SINGULAR if status < 3 else NONFINITE
         return wk[10][0]
