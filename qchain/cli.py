@@ -6,6 +6,9 @@
                           [--progress | --no-progress] [--mcap OUT] [--serve | --connect URL] [--rrd OUT]
     qchain info SCENE.toml [--full]
     qchain replay LOG.mcap [--serve | --connect URL | --rrd OUT]
+    qchain sweep SWEEP.toml [--workers N | --dask ADDRESS] [--out DIR] [--restart] [--dry-run] (qchain.sweeps)
+    qchain recover LOG.mcap
+    qchain layout LOG.mcap [-o layout.json]
 
 ``run`` builds the scene's model (:meth:`qchain.scene.Scene.build`), integrates it,
 writes the plots and ``trajectory.npz`` the scene's ``[output]`` asks for, and prints a
@@ -13,11 +16,15 @@ summary: the final tip pose (position in mm, orientation as roll-pitch-yaw in de
 as a quaternion), the energies, the wall time, the real-time factor (simulated seconds per
 wall-clock second), the number of dynamics evaluations and how the run ended. A progress
 bar goes to stderr for runs longer than a second of wall time when stderr is a terminal
-(``--progress`` forces it). When :mod:`qchain.logging` is available every output sample is
-recorded to an MCAP file (``--no-record`` turns that off) and can be streamed to Rerun.
+(``--progress`` forces it). Every output sample is recorded to an MCAP file (``--no-record``
+turns that off) and can be streamed to Rerun; the output paths are checked before the model
+is built, and a recording that cannot be written stops the run with an error (never a run
+without its recording). ``recover`` makes the recording of a killed run whole from its
+journal; ``layout`` writes a recording's Foxglove layout.
 
-Exit codes: 0 success, 1 the run failed (domain exit, solver failure, interruption),
-2 a bad scene file or bad usage.
+Exit codes: 0 success, 1 the run failed (domain exit, solver failure, interruption, a
+recording that could not be written), 2 a bad scene file or bad usage (an output path that
+cannot be used included).
 """
 
 from __future__ import annotations
@@ -26,6 +33,7 @@ import argparse
 import math
 import sys
 import time
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -227,8 +235,18 @@ def _run(args, parser) -> int:
         parser.error(f"--duration {duration:g} s is shorter than the scene's step dt = {scene.dt:g} s")
     qlog = _logging_module()
     record = qlog is not None and not (args.no_record and not (args.serve or args.connect or args.rrd))
-    if record:  # the log writer starts up on the other core while the model is built
-        qlog.prepare_writer(rerun=bool(args.serve or args.connect or args.rrd))
+    if record:
+        if args.mcap is None and not args.no_record:
+            args.mcap = qlog.default_mcap_path(scene.path)
+        try:  # before anything is built: a bad path is said at once
+            notices = qlog.check_outputs(None if args.no_record and not args.mcap else args.mcap, args.rrd,
+                                         scene.path)
+        except qlog.LoggingError as err:
+            print(f"qchain run: error: {err}", file=sys.stderr)
+            return EXIT_USAGE
+        for notice in notices:
+            print(f"qchain run: {notice}", file=sys.stderr)
+        qlog.prepare_writer()  # the log writer starts up on the other core while the model is built
     model = scene.build(reduce=False if args.full else None)
     for line in scene.describe(model):
         print(line)
@@ -241,15 +259,13 @@ def _run(args, parser) -> int:
     logger = None
     on_sample = None
     if record:
-        asked = bool(args.mcap or args.serve or args.connect or args.rrd)
         try:
-            logger, on_sample = _make_logger(qlog, args, scene, model)
+            with warnings.catch_warnings():  # the notices were printed above
+                warnings.simplefilter("ignore", qlog.LoggingWarning)
+                logger, on_sample = _make_logger(qlog, args, scene, model, duration=duration)
         except (QchainError, OSError, ValueError) as err:
-            if asked:
-                print(f"qchain run: error: the recording could not start: {err}", file=sys.stderr)
-                return EXIT_FAILED
-            print(f"qchain run: warning: running without a recording: {err}", file=sys.stderr)
-            logger, on_sample = None, None
+            print(f"qchain run: error: the recording could not start: {err}", file=sys.stderr)
+            return EXIT_FAILED
     t0 = time.perf_counter()
     traj = None
     interrupted = False
@@ -261,25 +277,40 @@ def _run(args, parser) -> int:
                 except KeyboardInterrupt as err:
                     traj = getattr(err, "trajectory", None)
                     interrupted = True
-                if traj is not None:
+                if traj is not None:  # samples computed but not handed over (an interrupt between the two)
+                    for k in range(on_sample.taken, len(traj.t)):
+                        on_sample(traj.t[k], traj.q[k], traj.v[k], traj.p[k],
+                                  energies=(traj.kinetic_energy[k], traj.potential_energy[k]))
                     logger.set_outcome(traj.success and not interrupted, traj.message, traj.status, traj.nfev)
                 else:
                     logger.set_outcome(False, "interrupted by the user")
+            done = logger.close()
             if logger.mcap_path is not None:
-                print(f"recorded {logger.mcap_path}")
+                reached = "no sample" if done.get("last_t") is None else f"t = {done['last_t']:.6g} s"
+                print(f"recorded {logger.mcap_path} ({done.get('n_records', 0)} samples, up to {reached})")
+            if done.get("error"):
+                print(f"qchain run: error: the recording failed: {done['error']}", file=sys.stderr)
+                return EXIT_FAILED
         else:
             try:
                 traj = scene.simulate(model=model, duration=duration, progress=progress)
             except KeyboardInterrupt as err:
                 traj = getattr(err, "trajectory", None)
                 interrupted = True
-    except (ValueError, QchainError) as err:  # the start state or an input outside the model
+    except (ValueError, QchainError) as err:  # the start state or an input outside the model, a full disk
         print(f"qchain run: error: {err}", file=sys.stderr)
+        if logger is not None and logger.mcap_path is not None:
+            done = logger.close()
+            reached = "no sample" if done.get("last_t") is None else f"t = {done['last_t']:.6g} s"
+            print(f"recorded {logger.mcap_path} ({done.get('n_records', 0)} samples, up to {reached})",
+                  file=sys.stderr)
         return EXIT_FAILED
     wall = time.perf_counter() - t0 - (traj.meta.get("compile_s", 0.0) if traj is not None else 0.0)
     if traj is None:
         print("run: interrupted before the first sample", file=sys.stderr)
         return EXIT_FAILED
+    if interrupted and len(traj.t):
+        print(f"run: interrupted at t = {traj.t[-1]:.6g} s", file=sys.stderr)
     for line in summary_lines(scene, model, traj, wall):
         print(line)
     if not args.no_plots and len(traj.t):
@@ -289,11 +320,14 @@ def _run(args, parser) -> int:
     return EXIT_OK if traj.success and not interrupted else EXIT_FAILED
 
 
-def _make_logger(qlog, args, scene: Scene, model: SceneModel, **logger_kwargs):
+def _make_logger(qlog, args, scene: Scene, model: SceneModel, duration: float | None = None, **logger_kwargs):
     """The run logger and the ``on_sample`` callback that feeds it one record a sample, a
     :class:`qchain.recorder.ChainRecorder` (``logger_kwargs`` go to
     :class:`qchain.logging.RunLogger`). Enter both: ``with logger, recorder: ...``."""
+    from .recorder import ChainRecorder, series_names
+
     ch = model.chain
+    q_names, v_names = series_names(ch)
     info = qlog.RunInfo(
         n_segments=ch.n,
         radii=[s.radius for s in ch.segments],
@@ -313,15 +347,16 @@ def _make_logger(qlog, args, scene: Scene, model: SceneModel, **logger_kwargs):
                          for s in ch.segments],
         },
         name=scene.name or (scene.path.stem if scene.path else "qchain run"),
+        q_names=q_names,
+        v_names=v_names,
+        duration=duration if duration is not None else scene.duration,
     )
     if args.no_record and not args.mcap:
         logger = qlog.RunLogger(info, None, serve=args.serve, connect=args.connect, rrd=args.rrd,
                                 bind=args.bind, linger=args.serve, **logger_kwargs)
     else:
         logger = qlog.logger_from_args(args, info, **logger_kwargs)
-    from .recorder import ChainRecorder  # with qchain.logging, which may be missing (_logging_module)
-
-    return logger, ChainRecorder(logger, ch)
+    return logger, ChainRecorder(logger, ch, realtime=bool(getattr(args, "realtime", False)))
 
 
 def _info(args) -> int:
@@ -351,15 +386,21 @@ def _parser(qlog) -> argparse.ArgumentParser:
         run.add_argument("--no-record", action="store_true", help="write no MCAP recording (unless --mcap is given)")
         qlog.add_logging_arguments(run)
     else:  # the same flags, refused with a clear message at run time
-        run.set_defaults(no_record=True, mcap=None, serve=False, connect=None, rrd=None, bind="127.0.0.1")
+        run.set_defaults(no_record=True, mcap=None, serve=False, connect=None, rrd=None, bind="127.0.0.1",
+                         realtime=False)
     info = sub.add_parser("info", help="describe the model a scene builds", description="Describe the model a scene "
                           "file builds: sizes, reductions and why, nodes, method.")
     info.add_argument("scene", type=Path, help="the scene file (.toml)")
     info.add_argument("--full", action="store_true", help="the model without automatic reductions")
-    if qlog is not None and hasattr(qlog, "replay_main"):
+    if qlog is not None:
         sub.add_parser("replay", help="replay an MCAP recording in Rerun (qchain replay --help)", add_help=False)
+        sub.add_parser("recover", help="make a killed run's recording whole (qchain recover --help)",
+                       add_help=False)
+        sub.add_parser("layout", help="write a recording's Foxglove layout (qchain layout --help)", add_help=False)
     sub.add_parser("bench", help="speed against accuracy: every benchmark chart (qchain bench --help)",
                    add_help=False)
+    sub.add_parser("sweep", help="run a scene over axes of its values, on every core or a Dask cluster "
+                   "(qchain sweep --help)", add_help=False)
     return parser
 
 
@@ -376,14 +417,22 @@ def _bench(argv) -> int:
     return int(run_all.main(argv) or 0)
 
 
+def _sweep(argv) -> int:
+    """``qchain sweep SWEEP.toml``: :func:`qchain.sweeps.main`."""
+    from .sweeps import main as sweep_main
+
+    return sweep_main(argv)
+
+
 def main(argv=None) -> int:
     """Entry point of the ``qchain`` command; returns the exit code (0 ok, 1 run failed,
     2 bad scene or usage)."""
     argv = list(sys.argv[1:] if argv is None else argv)
     qlog = _logging_module()
-    if argv and argv[0] == "replay" and qlog is not None and hasattr(qlog, "replay_main"):
+    handed = {"replay": "replay_main", "recover": "recover_main", "layout": "layout_main"}
+    if argv and argv[0] in handed and qlog is not None:
         try:
-            return int(qlog.replay_main(argv[1:]) or 0)
+            return int(getattr(qlog, handed[argv[0]])(argv[1:]) or 0)
         except SystemExit as exc:
             return _exit_code(exc)
     if argv and argv[0] == "bench":
@@ -391,6 +440,8 @@ def main(argv=None) -> int:
             return _bench(argv[1:])
         except SystemExit as exc:
             return _exit_code(exc)
+    if argv and argv[0] == "sweep":
+        return _sweep(argv[1:])
     parser = _parser(qlog)
     try:
         args = parser.parse_args(argv)

@@ -1,19 +1,13 @@
 """Step records of a simulated chain, for :mod:`qchain.logging`, computed in batches.
 
 :class:`ChainRecorder` is the ``on_sample`` callback of :func:`qchain.simulate` that turns
-each sample into a step record (time, q, v, p, energies, backbone points and segment-tip
-frames) for a :class:`qchain.logging.RunLogger`. A sample only costs a copy of the state:
-the frames of a batch of samples come from one compiled call
-(:meth:`qchain.Chain.frames_batch`) and the batch goes to the logger in one
+each sample into a step record (time, q, v, p, energies, base frame, backbone points and
+segment-tip frames) for a :class:`qchain.logging.RunLogger`. A sample only costs a copy of
+the state: the frames of a batch of samples come from one compiled call
+(:meth:`qchain.Chain.frames_batch`) and the batch goes to the logger's journal in one
 :meth:`~qchain.logging.RunLogger.log_rows` call. A sample waits here at most the logger's
 ``flush_interval`` of simulation time (0.25 s by default) and ``max_wall`` seconds of wall
-time (50 ms): that is what a SIGKILL of the simulating process can lose (the writer process
-then finishes the file with what it has).
-
-The bound trades speed against what a crash loses: a batch costs the simulating process a
-fixed ~0.15-0.2 ms (its caches are cold from the simulation), which for the three-segment
-example (50 samples and ~0.1 s of wall time a simulated second) is ~1.5 % of the run time
-with batches of 0.1 s of simulation time and ~0.8 % with 0.25 s.
+time (50 ms): that is what killing the run can lose.
 """
 
 from __future__ import annotations
@@ -22,11 +16,28 @@ import time
 
 import numpy as np
 
-from .logging import RecordLayout
+from .recording.records import RecordLayout
 
-__all__ = ["ChainRecorder", "BACKBONE_POINTS"]
+__all__ = ["ChainRecorder", "BACKBONE_POINTS", "series_names"]
 
 BACKBONE_POINTS = 12  # backbone points a segment in a logged record
+
+
+def series_names(chain) -> tuple[list[str], list[str]]:
+    """Names with units of a chain's coordinates and velocities, for plots and layouts:
+    ``"segment 2 ux [1/m]"``, ``"base qw"``, ``"segment 1 dl/dt [m/s]"``."""
+    q, v = [], []
+    if chain.floating:
+        q += [f"base {c} [m]" for c in "xyz"] + [f"base q{c}" for c in "xyzw"]
+        v += [f"base v{c} [m/s]" for c in "xyz"] + [f"base w{c} [rad/s]" for c in "xyz"]
+    for i, s in enumerate(chain.segments):
+        names = (("l", "m"), ("psi", "rad"), ("kappa", "1/m")) if s.coords == "paper" else \
+            (("l", "m"), ("ux", "1/m"), ("uy", "1/m"))
+        q += [f"segment {i + 1} {c} [{u}]" for c, u in names]
+        v += [f"segment {i + 1} d{c}/dt [{u}/s]" for c, u in names]
+    if len(q) != chain.nq or len(v) != chain.nv:  # a layout this function does not know
+        return [f"q[{k}]" for k in range(chain.nq)], [f"v[{k}]" for k in range(chain.nv)]
+    return q, v
 
 
 class ChainRecorder:
@@ -44,6 +55,10 @@ class ChainRecorder:
         Samples computed and logged together (>= 1).
     max_wall : float, s
         Wall time a sample may wait here (> 0).
+    realtime : bool
+        Pace the simulation to the wall clock: a sample at simulated time ``t`` is not
+        handed over before ``t`` seconds of wall time after the first (to watch a short
+        run live).
 
     Notes
     -----
@@ -57,7 +72,7 @@ class ChainRecorder:
     """
 
     def __init__(self, logger, chain, points_per_segment: int = BACKBONE_POINTS, max_batch: int = 64,
-                 max_wall: float = 0.05):
+                 max_wall: float = 0.05, realtime: bool = False):
         if not (isinstance(points_per_segment, (int, np.integer)) and points_per_segment >= 2):
             raise ValueError(f"points_per_segment must be an int >= 2, got {points_per_segment!r}")
         if not (isinstance(max_batch, (int, np.integer)) and max_batch >= 1):
@@ -70,24 +85,26 @@ class ChainRecorder:
         self.max_batch = int(max_batch)
         self.max_wall = float(max_wall)
         self.max_sim = logger.flush_interval  # s of simulation time a sample waits here at most
+        self.realtime = bool(realtime)
+        self._clock0: tuple[float, float] | None = None
         self.n_samples = 0
         self.layout = RecordLayout(chain.nq, chain.nv, chain.nu, chain.n, self.points_per_segment)
         sl = self.layout.slices
-        assert sl["q"].stop == sl["v"].start and sl["v"].stop == sl["p"].start  # q, v, p side by side
-        self._sq, self._sx, self._se = sl["q"], slice(sl["q"].start, sl["p"].stop), sl["energy"]
-        self._nx = sl["p"].stop - sl["q"].start
-        self._sbb, self._stf = sl["backbone"], sl["tip_frames"]
+        # q, v, p, kinetic, potential side by side: one copy a sample, one assignment a batch
+        assert sl["q"].stop == sl["v"].start and sl["v"].stop == sl["p"].start and sl["p"].stop == sl["energy"].start
+        self._sq, self._sx, self._se = sl["q"], slice(sl["q"].start, sl["energy"].start + 2), sl["energy"]
+        self._nx = sl["energy"].start + 2 - sl["q"].start
+        self._sbase, self._sbb, self._stf = sl["base"], sl["backbone"], sl["tip_frames"]
         self._rows = np.empty((self.max_batch, self.layout.row_width))  # the records of a batch
-        # the samples waiting: times, (q, v, p) copied into one array each, (kinetic, potential)
+        self._steps = np.arange(self.max_batch, dtype=np.float64)
+        # the samples waiting: times, (q, v, p, kinetic, potential) copied into one array each
         self._t: list[float] = []
         self._x: list[np.ndarray] = []
-        self._e: list[tuple] = []
         self._wall0 = 0.0
 
     def __call__(self, t, q, v, p, energies=None) -> None:
-        # A sample is copied into lists, not into the rows: three list appends and one
-        # concatenate cost the simulation 7-10 us a call in the example, against 12-13 us for
-        # filling a numpy row field by field (the caches are cold from the simulation).
+        # A sample is copied into lists, not into the rows: list appends and one concatenate
+        # cost the simulation less than filling a numpy row field by field.
         if energies is None:
             energies = (self.chain.kinetic_energy(q, v, t=t), self.chain.potential_energy(q, t=t))
         ts = self._t
@@ -96,36 +113,87 @@ class ChainRecorder:
             ts = self._t
         if not ts:
             self._wall0 = time.monotonic()
-        x = np.concatenate((q, v, p))  # a copy: the caller may reuse its arrays
-        if x.shape != (self._nx,):
+        x = np.concatenate((q, v, p, energies))  # a copy: the caller may reuse its arrays
+        if x.shape != (self._nx,) or len(energies) != 2:
             lay = self.layout
             raise ValueError(f"q, v, p must have shapes ({lay.nq},), ({lay.nv},), ({lay.n_p},), got "
                              f"{np.shape(q)}, {np.shape(v)}, {np.shape(p)}")
         ts.append(t)
         self._x.append(x)
-        self._e.append(energies)
+        if self.realtime:
+            self._pace(t)
         if len(ts) >= self.max_batch or time.monotonic() - self._wall0 >= self.max_wall:
             self.flush()
+
+    def record_batch(self, t, q, v, p, kinetic, potential) -> None:
+        """Take ``K`` samples at once as arrays: ``t`` (K,) s, ``q`` (K, nq), ``v`` (K, nv),
+        ``p`` (K, 3 n) Pa, ``kinetic``, ``potential`` (K,) J. The batch form of a call, for a
+        caller that has its samples in arrays (no Python work a sample); the batches logged
+        still span less than ``max_sim`` of simulated time each. Paced to the wall clock
+        (``realtime``), the samples are taken one by one, so the view moves smoothly."""
+        t = np.asarray(t, dtype=np.float64)
+        K = t.shape[0]
+        if self.realtime:
+            for k in range(K):
+                self(t[k], q[k], v[k], p[k], energies=(kinetic[k], potential[k]))
+            return
+        self.flush()
+        if K == 0:
+            return
+        x = np.concatenate((q, v, p, np.asarray(kinetic)[:, None], np.asarray(potential)[:, None]), axis=1)
+        if x.shape != (K, self._nx):
+            lay = self.layout
+            raise ValueError(f"q, v, p must have shapes (K, {lay.nq}), (K, {lay.nv}), (K, {lay.n_p}), got "
+                             f"{np.shape(q)}, {np.shape(v)}, {np.shape(p)}")
+        a = 0
+        while a < K:  # cut where a batch would span max_sim (and at max_batch samples)
+            b = min(K, a + self.max_batch, int(np.searchsorted(t, t[a] + self.max_sim, side="left")))
+            b = max(b, a + 1)
+            self._write(t[a:b], x[a:b])
+            a = b
+
+    @property
+    def taken(self) -> int:
+        """Samples taken so far (logged or waiting here)."""
+        return self.n_samples + len(self._t)
+
+    def _pace(self, t: float) -> None:
+        now = time.monotonic()
+        if self._clock0 is None:
+            self._clock0 = (now, t)
+            return
+        ahead = (t - self._clock0[1]) - (now - self._clock0[0])
+        if ahead > 0:
+            self.flush()  # what is waiting goes out (to the viewer) before the pause
+            time.sleep(ahead)
 
     def flush(self) -> None:
         """Compute the frames of the samples still waiting and log them."""
         K = len(self._t)
         if K == 0:
             return
-        ts, xs, es = self._t, self._x, self._e
-        self._t, self._x, self._e = [], [], []
+        ts, xs = self._t, self._x
+        self._t, self._x = [], []
+        self._write(ts, xs)
+
+    def _write(self, ts, xs) -> None:
+        """Log ``K`` samples: times (K,), rows (K, nx) of (q, v, p, kinetic, potential)."""
+        K = len(ts)
         rows = self._rows[:K]
         rows[:, 0] = ts
-        rows[:, 1] = np.arange(self.n_samples, self.n_samples + K)
+        np.add(self._steps[:K], self.n_samples, out=rows[:, 1])
         rows[:, self._sx] = xs
         e = self._se.start
-        rows[:, e : e + 2] = es
-        rows[:, e + 2] = rows[:, e] + rows[:, e + 1]  # total = kinetic + potential
+        np.add(rows[:, e], rows[:, e + 1], out=rows[:, e + 2])  # total = kinetic + potential
         f = self.chain.frames_batch(rows[:, self._sq], self.points_per_segment, t=rows[:, 0])
         rows[:, self._sbb] = f.backbone.reshape(K, -1)
+        b = self._sbase.start
+        rows[:, b : b + 3] = f.translation[:, 0]
+        rows[:, b + 3 : b + 7] = f.quaternion[:, 0]
         # tip frames (K, n, 7): x, y, z, qx, qy, qz, qw
-        tips = np.concatenate([f.translation[:, 1:], f.quaternion[:, 1:]], axis=-1)
-        rows[:, self._stf] = tips.reshape(K, -1)
+        tf = rows[:, self._stf].reshape(K, -1, 7)  # a view into the rows
+        tf[:, :, :3] = f.translation[:, 1:]
+        tf[:, :, 3:] = f.quaternion[:, 1:]
         self.logger.log_rows(rows, self.layout)
         self.n_samples += K
 

@@ -1,5 +1,6 @@
 """The live viewer in a real browser: ``qchain run --serve`` serves the Rerun web viewer on loopback,
-headless Chromium opens it (driven over the DevTools protocol), and the arm must be drawn.
+headless Chromium opens it (driven over the DevTools protocol); the whole arm must be drawn inside
+the 3D view, and the page must ask no host but 127.0.0.1 for anything.
 
 Needs Debian's ``chromium`` (``apt-get install chromium``) and the ``websocket-client``
 package; without them the test fails with a message saying so (it is not skipped). The
@@ -65,12 +66,15 @@ class DevTools:
 
         self.ws = websocket.create_connection(ws_url, timeout=30, suppress_origin=True)
         self._id = 0
+        self.events: list[dict] = []  # what the page did meanwhile (Network.* events)
 
     def call(self, method: str, **params):
         self._id += 1
         self.ws.send(json.dumps({"id": self._id, "method": method, "params": params}))
         while True:
             msg = json.loads(self.ws.recv())
+            if "method" in msg:
+                self.events.append(msg)
             if msg.get("id") == self._id:
                 if "error" in msg:
                     raise AssertionError(f"{method}: {msg['error']}")
@@ -100,21 +104,49 @@ def _start_chromium(profile: Path) -> tuple[subprocess.Popen, DevTools]:
     return proc, DevTools(page["webSocketDebuggerUrl"])
 
 
-def _arm_pixels(png: bytes) -> int:
-    """Pixels of the arm's colours in the 3D view (the left part of the viewer)."""
+#: The 3D view in the viewer's window (fractions of its width and height): left of the plots
+#: (3 : 2 columns), below the top bar and the view's title, above the time panel.
+VIEW = (0.0, 0.595, 0.075, 0.94)
+
+
+def _arm_mask(png: bytes) -> np.ndarray:
+    """Pixels of the arm's colours in the whole window (bool, H x W)."""
     from PIL import Image  # Pillow comes with matplotlib
 
     img = np.asarray(Image.open(io.BytesIO(png)).convert("RGB"), dtype=np.int16)
-    h, w, _ = img.shape
-    view = img[int(0.06 * h) : int(0.92 * h), : int(0.55 * w)]
-    near = np.zeros(view.shape[:2], dtype=bool)
+    near = np.zeros(img.shape[:2], dtype=bool)
     for c in SEGMENT_COLORS:
-        near |= np.abs(view - np.array(c, dtype=np.int16)).max(axis=2) <= 24
-    return int(near.sum())
+        near |= np.abs(img - np.array(c, dtype=np.int16)).max(axis=2) <= 24
+    return near
 
 
-def test_live_viewer_draws_the_arm(tmp_path):
-    """``qchain run SCENE --serve`` prints the viewer URL; Chromium opens it and the arm is drawn."""
+def _view_box(mask: np.ndarray) -> tuple[int, int, int, int]:
+    h, w = mask.shape
+    return int(VIEW[0] * w), int(VIEW[1] * w), int(VIEW[2] * h), int(VIEW[3] * h)
+
+
+def _arm_pixels(png: bytes) -> int:
+    """Pixels of the arm's colours in the 3D view."""
+    mask = _arm_mask(png)
+    x0, x1, y0, y1 = _view_box(mask)
+    return int(mask[y0:y1, x0:x1].sum())
+
+
+def _framing(png: bytes) -> dict:
+    """Where the arm is in the 3D view: its bounding box's margins to the view's edges
+    (px) and its centre as fractions of the view's size."""
+    mask = _arm_mask(png)
+    x0, x1, y0, y1 = _view_box(mask)
+    ys, xs = np.nonzero(mask[y0:y1, x0:x1])
+    return {"left": int(xs.min()), "right": int(x1 - x0 - 1 - xs.max()), "top": int(ys.min()),
+            "bottom": int(y1 - y0 - 1 - ys.max()), "cx": float(xs.mean() / (x1 - x0)),
+            "cy": float(ys.mean() / (y1 - y0)), "outside": int(mask.sum() - mask[y0:y1, x0:x1].sum())}
+
+
+def test_live_viewer_frames_the_arm_and_stays_on_loopback(tmp_path):
+    """``qchain run SCENE --serve`` prints the viewer URL; Chromium opens it; the arm (hanging
+    from its base) is drawn whole inside the 3D view, near its middle; every request of the
+    page goes to 127.0.0.1."""
     import sys
 
     t_start = time.monotonic()
@@ -148,6 +180,7 @@ def test_live_viewer_draws_the_arm(tmp_path):
         profile = Path(tempfile.mkdtemp(prefix="chromium-profile-", dir=tmp_path))
         browser, devtools = _start_chromium(profile)
         devtools.call("Page.enable")
+        devtools.call("Network.enable")
         devtools.call("Emulation.setDeviceMetricsOverride", width=WIDTH, height=HEIGHT, deviceScaleFactor=1,
                       mobile=False)
         devtools.call("Page.navigate", url=url)
@@ -182,6 +215,7 @@ def test_live_viewer_draws_the_arm(tmp_path):
             f"screenshot: {counts} (screenshots in {shots})"
         )
     finally:
+        devtools_events = devtools.events if devtools is not None else []
         if devtools is not None:
             devtools.close()
         if browser is not None:
@@ -202,5 +236,16 @@ def test_live_viewer_draws_the_arm(tmp_path):
                 os.killpg(run.pid, signal.SIGKILL)
                 run.wait()
     assert run.returncode == 0, "".join(lines) + run.stdout.read()
+    # the whole arm inside the 3D view, not cut at an edge, and about its middle
+    f = _framing(best)
+    assert min(f["left"], f["right"], f["top"], f["bottom"]) >= 8, f
+    assert 0.3 <= f["cx"] <= 0.7 and 0.25 <= f["cy"] <= 0.75, f
+    # nothing but loopback: every request the page made, web sockets included
+    from urllib.parse import urlsplit
+
+    urls = [e["params"]["request"]["url"] for e in devtools_events if e["method"] == "Network.requestWillBeSent"]
+    urls += [e["params"]["url"] for e in devtools_events if e["method"] == "Network.webSocketCreated"]
+    hosts = {urlsplit(u).hostname for u in urls if not u.startswith(("data:", "blob:", "about:"))}
+    assert urls and hosts == {"127.0.0.1"}, sorted(hosts)
     assert (tmp_path / "run.mcap").stat().st_size > 1000
     assert time.monotonic() - t_start < 60.0

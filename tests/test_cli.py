@@ -1,6 +1,8 @@
 """The ``qchain`` command: info, run (summary, outputs, recording, progress), exit codes."""
 
+import os
 import re
+import time
 import subprocess
 import sys
 from pathlib import Path
@@ -190,3 +192,105 @@ def test_replay_is_handed_to_the_logging_module(tmp_path, capsys):
     bad.write_bytes(b"not a recording")
     assert main(["replay", str(bad), "--rrd", str(tmp_path / "x.rrd")]) == 2
     assert "qchain replay: error:" in capsys.readouterr().err
+
+
+# --------------------------------------------------------------------------------------
+# output paths: checked before the run starts, a clear error rather than a loss
+
+
+def test_recording_over_the_scene_file_is_refused(short_scene, capsys):
+    before = short_scene.read_bytes()
+    assert main(["run", str(short_scene), "--mcap", str(short_scene), "--no-plots", "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert f"qchain run: error: mcap path {short_scene} is the scene file itself" in err
+    assert short_scene.read_bytes() == before
+    assert main(["run", str(short_scene), "--rrd", str(short_scene), "--no-record", "--no-plots", "--no-progress"]) == 2
+    assert "rrd path" in capsys.readouterr().err and short_scene.read_bytes() == before
+
+
+def test_one_path_for_two_outputs_is_refused(short_scene, tmp_path, capsys):
+    out = tmp_path / "x.out"
+    assert main(["run", str(short_scene), "--mcap", str(out), "--rrd", str(out), "--no-plots", "--no-progress"]) == 2
+    assert "--mcap and --rrd are the same path" in capsys.readouterr().err
+    assert not out.exists()
+
+
+def test_unwritable_and_full_locations_are_refused_before_the_run(short_scene, tmp_path, capsys, monkeypatch):
+    blocker = tmp_path / "blocker"
+    blocker.write_text("a file, not a folder")
+    assert main(["run", str(short_scene), "--mcap", str(blocker / "run.mcap"), "--no-plots", "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert "cannot write mcap file" in err and "blocker/run.mcap" in err
+    assert "simulated" not in capsys.readouterr().out  # no run without its recording
+    import shutil
+
+    from qchain.recording import options
+
+    monkeypatch.setattr(options.shutil, "disk_usage", lambda p: shutil._ntuple_diskusage(10 << 30, 10 << 30, 1 << 20))
+    assert main(["run", str(short_scene), "--mcap", str(tmp_path / "full.mcap"), "--no-plots", "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert "only 1.0 MB free" in err and "a run needs at least 17 MB" in err
+    assert not (tmp_path / "full.mcap").exists()
+
+
+def test_a_path_another_run_is_writing_is_refused(short_scene, tmp_path, capsys):
+    """A live run holds its journal locked: a second run on the same path stops at once with
+    an error naming it; the first run's recording is untouched. A killed run's journal is
+    named too, with the command that recovers it."""
+    from qchain.logging import LoggingError, RunLogger, journal_path, read_recording
+    from logging_fixtures import arm_info, arm_records
+
+    path = tmp_path / "shared.mcap"
+    records = arm_records(30)
+    with RunLogger(arm_info(), path, quiet=True) as first:
+        for r in records[:10]:
+            first.log(r)
+        assert main(["run", str(short_scene), "--mcap", str(path), "--no-plots", "--no-progress"]) == 2
+        err = capsys.readouterr().err
+        assert f"another run (pid {os.getpid()}) is writing {path}" in err
+        with pytest.raises(LoggingError, match="another run"):
+            RunLogger(arm_info(), path, quiet=True)
+        for r in records[10:]:
+            first.log(r)
+    rec = read_recording(path)
+    assert len(rec) == 30 and not rec.truncated
+    journal_path(path).write_bytes(journal_path(path).read_bytes() if journal_path(path).exists() else b"\x89MCAP0\r\n")
+    assert main(["run", str(short_scene), "--mcap", str(path), "--no-plots", "--no-progress"]) == 2
+    assert f"qchain recover {path}" in capsys.readouterr().err
+
+
+def test_an_existing_file_that_is_not_a_recording_is_not_overwritten(short_scene, tmp_path, capsys):
+    notes = tmp_path / "notes.mcap"
+    notes.write_text("my notes")
+    assert main(["run", str(short_scene), "--mcap", str(notes), "--no-plots", "--no-progress"]) == 2
+    assert "exists and is not an MCAP recording; refusing to overwrite it" in capsys.readouterr().err
+    assert notes.read_text() == "my notes"
+    rec = tmp_path / "again.mcap"
+    assert main(["run", str(short_scene), "--mcap", str(rec), "--no-plots", "--no-progress"]) == 0
+    capsys.readouterr()
+    assert main(["run", str(short_scene), "--mcap", str(rec), "--no-plots", "--no-progress"]) == 0
+    assert f"qchain run: replacing the earlier recording {rec}" in capsys.readouterr().err
+
+
+def test_realtime_paces_the_run_to_the_wall_clock(short_scene, tmp_path, capsys):
+    t0 = time.perf_counter()
+    assert main(["run", str(short_scene), "--mcap", str(tmp_path / "rt.mcap"), "--no-plots", "--no-progress",
+                 "--realtime", "--duration", "1.0"]) == 0
+    wall = time.perf_counter() - t0
+    assert wall >= 1.0  # one simulated second took at least one second
+    assert "recorded" in capsys.readouterr().out
+
+
+def test_recover_and_layout_commands(short_scene, tmp_path, capsys):
+    import json
+
+    path = tmp_path / "r.mcap"
+    assert main(["run", str(short_scene), "--mcap", str(path), "--no-plots", "--no-progress"]) == 0
+    capsys.readouterr()
+    assert main(["layout", str(path), "-o", str(tmp_path / "layout.json")]) == 0
+    layout = json.loads((tmp_path / "layout.json").read_text())
+    text = json.dumps(layout)
+    assert '"segment 2 ux [1/m]"' in text and "/qchain/state.q[4]" in text and "/qchain/arm" in text
+    assert main(["recover", str(path)]) == 0  # a whole recording stays whole
+    assert "recovered" in capsys.readouterr().out
+    assert main(["recover", str(tmp_path / "none.mcap")]) == 2

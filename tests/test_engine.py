@@ -311,3 +311,34 @@ def test_kernel_workspaces_carved_from_one_buffer_have_the_allocators_shapes():
         assert list(np.diff(table[:, 0])) == sizes
         for row, a in zip(table, arrays):
             assert tuple(row[1 : 1 + a.ndim]) == a.shape and np.all(row[1 + a.ndim :] == 1)
+
+
+def test_a_batch_taker_gets_every_sample_in_batches_within_its_max_sim():
+    """An ``on_sample`` with ``record_batch`` (the recorder) takes the samples as arrays, a
+    stretch at a time, each batch within its ``max_sim`` of simulated time (what a killed
+    run may lose), with the energies; together they are the trajectory."""
+    ch = hanging_arm()
+    q0, v0 = ch.neutral(), np.zeros(ch.nv)
+
+    class Taker:
+        max_sim = 0.05
+
+        def __init__(self):
+            self.batches = []
+
+        def __call__(self, t, q, v, p, energies=None):
+            raise AssertionError("called sample by sample")
+
+        def record_batch(self, t, q, v, p, kinetic, potential):
+            self.batches.append([np.array(x, copy=True) for x in (t, q, v, p, kinetic, potential)])
+
+    taker = Taker()
+    t_eval = np.linspace(0.0, 0.3, 61)
+    tr = simulate(ch, q0, v0, (0.0, 0.3), pressure=waving(ch), method="radau5", t_eval=t_eval, on_sample=taker)
+    assert tr.success and len(taker.batches) > 3
+    for b in taker.batches:
+        assert b[0][-1] - b[0][0] < taker.max_sim
+    t, q, v, p, ke, pe = (np.concatenate([b[i] for b in taker.batches]) for i in range(6))
+    assert np.array_equal(t, tr.t) and np.array_equal(q, tr.q) and np.array_equal(v, tr.v)
+    assert np.array_equal(p, tr.p)
+    assert np.allclose(ke, tr.kinetic_energy, rtol=1e-13, atol=0) and np.allclose(pe, tr.potential_energy, rtol=1e-13)

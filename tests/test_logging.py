@@ -122,12 +122,9 @@ def test_mcap_round_trip_in_memory_is_exact():
 
     buf.seek(0)
     rec = read_recording(buf)
-    expected = [r for r in records]
-    exp_p8 = records[8].p.copy()
     records[8].p[0] = np.nan
-    _assert_records_equal(rec, expected)
-    records[8].p[:] = exp_p8
-    assert not rec.truncated and rec.stop_reason == ""
+    _assert_records_equal(rec, records)
+    assert not rec.truncated and rec.stop_reason == "" and rec.gaps == [] and rec.damage == []
     assert rec.outcome["success"] == "true" and rec.outcome["message"] == "finished"
     assert rec.outcome["n_records"] == "300"
     # metadata: scene, model parameters, qchain version, segment radii
@@ -141,27 +138,88 @@ def test_mcap_round_trip_in_memory_is_exact():
     buf.seek(0)
     reader = make_reader(buf)
     stats = reader.get_summary().statistics
-    assert stats.message_count == 6 * 300
-    assert sorted(stats.channel_message_counts.values()) == [300] * 6
+    assert stats.message_count == 4 * 300
+    assert sorted(stats.channel_message_counts.values()) == [300] * 4
     topics = {ch.topic: ch for ch in reader.get_summary().channels.values()}
     assert set(topics) == set(TOPICS.values())
-    assert stats.message_start_time == 0 and stats.message_end_time == round(records[-1].t * 1e9)
+    assert stats.message_start_time == round(records[0].t * 1e9) and stats.message_end_time == round(records[-1].t * 1e9)
     schema_names = {s.name for s in reader.get_summary().schemas.values()}
-    assert {"foxglove.FrameTransforms", "foxglove.SceneUpdate", "qchain.Coordinates"} <= schema_names
+    assert schema_names == {"qchain.State", "foxglove.FrameTransforms", "foxglove.SceneUpdate", "foxglove.PointCloud"}
     seen = {k: 0 for k in TOPICS.values()}
     for schema, channel, msg in reader.iter_messages():
         k = seen[channel.topic]
         r = records[k]
         assert msg.log_time == msg.publish_time == round(r.t * 1e9)
         assert msg.sequence == r.step & 0xFFFFFFFF
-        assert schema.encoding == "jsonschema" and channel.message_encoding == "json"
-        if k in (0, 7, 8, 299):
-            _check_json_schema(json.loads(msg.data), json.loads(schema.data))
-        if k == 0:
-            _check_foxglove_readable(json.loads(schema.data))
+        if channel.topic == TOPICS["state"]:
+            assert schema.encoding == "jsonschema" and channel.message_encoding == "json"
+            if k in (0, 7, 8, 299):
+                _check_json_schema(json.loads(msg.data), json.loads(schema.data))
+            if k == 0:
+                _check_foxglove_readable(json.loads(schema.data))
+        else:
+            assert schema.encoding == "protobuf" and channel.message_encoding == "protobuf"
         seen[channel.topic] += 1
     assert set(seen.values()) == {300}
-    assert [m.name for m in reader.iter_metadata()] == ["qchain", "qchain.outcome"]
+    assert [m.name for m in reader.iter_metadata()] == ["qchain", "qchain.outcome", "qchain"]
+
+
+def test_foxglove_messages_follow_the_official_schemas():
+    """The Foxglove channels decode with the published schemas (foxglove-schemas-protobuf),
+    independently of the descriptors the file carries: the frame tree is world -> base ->
+    segment_1_tip -> ..., its transforms composed give each tip's world placement, the
+    backbone is one line strip a segment (thickness = diameter) and a point cloud."""
+    from foxglove_schemas_protobuf.FrameTransforms_pb2 import FrameTransforms
+    from foxglove_schemas_protobuf.PointCloud_pb2 import PointCloud
+    from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
+
+    from qchain.recording.rerun_sink import _quat_rot
+
+    records = arm_records(20, dt=1e-2)
+    for k, r in enumerate(records):  # a base that moves and turns
+        ang = 0.3 * k
+        r.base_frame = np.array([0.01 * k, 0.0, 0.5, np.sin(ang / 2), 0.0, 0.0, np.cos(ang / 2)])
+    buf = io.BytesIO()
+    _log_all(records, mcap=buf)
+    buf.seek(0)
+    decoders = {TOPICS["tf"]: FrameTransforms, TOPICS["arm"]: SceneUpdate, TOPICS["points"]: PointCloud}
+    got = {t: [] for t in decoders}
+    reader = make_reader(buf)
+    for schema, channel, msg in reader.iter_messages():
+        if channel.topic in decoders:
+            assert schema.name == "foxglove." + decoders[channel.topic].__name__
+            m = decoders[channel.topic]()
+            m.ParseFromString(msg.data)
+            got[channel.topic].append(m)
+    radius = arm_info().radii[0]
+    for k, r in enumerate(records):
+        tf = got[TOPICS["tf"]][k]
+        chain = [(t.parent_frame_id, t.child_frame_id) for t in tf.transforms]
+        assert chain == [("world", "base"), ("base", "segment_1_tip"), ("segment_1_tip", "segment_2_tip"),
+                         ("segment_2_tip", "segment_3_tip")]
+        assert all(t.timestamp.seconds * 10**9 + t.timestamp.nanos == round(r.t * 1e9) for t in tf.transforms)
+        R, o = np.eye(3), np.zeros(3)  # compose parent -> child down the tree
+        world = []
+        for t in tf.transforms:
+            q = np.array([t.rotation.x, t.rotation.y, t.rotation.z, t.rotation.w])
+            o = o + R @ np.array([t.translation.x, t.translation.y, t.translation.z])
+            R = R @ _quat_rot(q)
+            world.append((o.copy(), R.copy()))
+        np.testing.assert_allclose(world[0][0], r.base_frame[:3], atol=1e-12)
+        np.testing.assert_allclose(world[0][1], _quat_rot(r.base_frame[3:]), atol=1e-12)
+        for i in range(3):
+            np.testing.assert_allclose(world[i + 1][0], r.tip_frames[i, :3], atol=1e-12)
+            np.testing.assert_allclose(world[i + 1][1], _quat_rot(r.tip_frames[i, 3:]), atol=1e-12)
+        arm = got[TOPICS["arm"]][k]
+        assert [e.id for e in arm.entities] == ["segment_1", "segment_2", "segment_3"]
+        for i, e in enumerate(arm.entities):
+            assert e.frame_id == "world" and len(e.lines) == 1
+            line = e.lines[0]
+            assert line.type == 0 and line.thickness == pytest.approx(2 * radius)  # LINE_STRIP
+            np.testing.assert_array_equal([(p.x, p.y, p.z) for p in line.points], r.backbone[i])
+        pc = got[TOPICS["points"]][k]
+        assert [f.name for f in pc.fields] == ["x", "y", "z"] and pc.point_stride == 24 and pc.frame_id == "world"
+        np.testing.assert_array_equal(np.frombuffer(pc.data, dtype="<f8").reshape(-1, 3), r.backbone.reshape(-1, 3))
 
 
 def test_mcap_round_trip_through_writer_process(tmp_path):
@@ -181,16 +239,16 @@ def test_mcap_round_trip_through_writer_process(tmp_path):
     np.testing.assert_array_equal(traj.meta["total_energy"], _stack(records, "total"))
     assert traj.meta["backbone"].shape == (400, 3, records[0].backbone.shape[1], 3)
     assert traj.meta["scene"] == arm_info().scene and traj.meta["truncated"] is False
-    # chunks are flushed every 0.25 s of simulation time by default: 0.8 s -> 3 cuts and the
+    # chunks are cut every 0.4 s of simulation time by default: 0 .. 0.798 s -> one cut and the
     # last chunk (the 0.5 s wall-time interval may cut more on a slow machine)
-    assert DEFAULT_FLUSH_INTERVAL == 0.25
+    assert DEFAULT_FLUSH_INTERVAL == 0.4
     with open(path, "rb") as fh:
-        assert 4 <= make_reader(fh).get_summary().statistics.chunk_count <= 6
+        assert 2 <= make_reader(fh).get_summary().statistics.chunk_count <= 4
     # an independent MCAP reader (Rerun's, in Rust) accepts the file and its summary
     import rerun as rr
 
     about = rr.chunk.McapReader(path, timeline_type="duration_ns").info()
-    assert about.statistics_present and about.message_count == 6 * 400 and about.metadata_count == 2
+    assert about.statistics_present and about.message_count == 4 * 400 and about.metadata_count == 3
     assert {c.topic: c.message_count for c in about.channels} == {t: 400 for t in TOPICS.values()}
     assert about.message_end_time_ns == round(records[-1].t * 1e9)
 
@@ -211,12 +269,12 @@ def test_flush_makes_everything_logged_so_far_readable(tmp_path):
 
 
 def test_flush_and_end_wake_a_pausing_writer(tmp_path, monkeypatch):
-    """The writer reads its pipe only every _WRITER_POLL seconds (records do not wake it); a
-    flush and the end ring its doorbell. With a 60 s pause, both are still answered within
-    the 20 s allowed here: only the bell can have woken it."""
-    from qchain import logging as qlog
+    """The writer reads the journal every WRITER_POLL seconds (records do not wake it); a
+    flush and the end come over its control connection, which wakes it at once. With a
+    60 s pause, both are still answered within the 20 s allowed here."""
+    from qchain.recording import logger as qlogger
 
-    monkeypatch.setattr(qlog, "_WRITER_POLL", 60.0)
+    monkeypatch.setattr(qlogger, "WRITER_POLL", 60.0)
     path = tmp_path / "bell.mcap"
     records = arm_records(40)
     log = RunLogger(arm_info(), path, quiet=True, worker="process")
@@ -261,24 +319,25 @@ def test_outcome_set_by_the_simulation_is_recorded():
 
 
 def test_bounded_queue_waits_for_a_slow_writer(monkeypatch):
-    """Memory stays flat: with a writer slower than the simulation, log() waits."""
-    from qchain import logging as qlog
+    """Memory stays flat with the thread writer: with a writer slower than the simulation,
+    log() waits once max_queue records are queued."""
+    from qchain.recording.writer import Sinks
 
-    slow = qlog._SinkSet.write_payloads
+    slow = Sinks.write_rows
 
-    def write_slowly(self, payloads):
-        time.sleep(0.002 * len(payloads))
-        slow(self, payloads)
+    def write_slowly(self, rows, layout):
+        time.sleep(0.002 * len(rows))
+        slow(self, rows, layout)
 
-    monkeypatch.setattr(qlog._SinkSet, "write_payloads", write_slowly)
+    monkeypatch.setattr(Sinks, "write_rows", write_slowly)
     buf = io.BytesIO()
     peak = 0
     records = arm_records(120)
     with RunLogger(arm_info(), buf, max_queue=8) as log:
         for r in records:
-            log.log(r)
-            peak = max(peak, log._q.qsize())
-    assert peak <= 8 + 1  # the layout marker may ride along once
+            log.log_columns(**_columns([r]))  # one record a batch: the queue's unit is a record
+            peak = max(peak, log._thread.pending)
+    assert peak <= 8 + 1
     buf.seek(0)
     assert len(read_recording(buf)) == 120
 
@@ -353,6 +412,7 @@ def test_columns_and_rows_round_trip_like_single_records(target, tmp_path):
         rows[i, sl["t"]], rows[i, sl["step"]], rows[i, sl["q"]], rows[i, sl["v"]] = r.t, r.step, r.q, r.v
         rows[i, sl["p"]], rows[i, sl["energy"]] = r.p, (r.kinetic, r.potential, r.total)
         rows[i, sl["backbone"]], rows[i, sl["tip_frames"]] = r.backbone.ravel(), r.tip_frames.ravel()
+        rows[i, sl["base"]] = [*r.backbone[0, 0], 0.0, 0.0, 0.0, 1.0]  # what a record without base_frame gets
     out = io.BytesIO() if target == "stream" else tmp_path / "batch.mcap"
     with RunLogger(arm_info(), out, quiet=True) as log:
         log.log_columns(**_columns(records[:50]))
@@ -396,62 +456,76 @@ def test_batch_validation():
 
 def test_prepared_writer_is_taken_by_the_next_logger(tmp_path):
     """prepare_writer starts the writer process ahead (qchain run does it before building the
-    model); the next logger uses it, and its file is right."""
-    from qchain import logging as qlog
+    model); the next logger uses it, and its file is right. The writer is a plain
+    `python -m qchain.recording.writer`: importing qchain loads no model code."""
+    from qchain.recording import writer as qwriter
 
     prepare_writer()
-    pid = [p for r, p in qlog._SPARE_WRITERS if not r][-1].pid
-    if sys.platform.startswith("linux"):  # low priority before the writer has run any Python
-        assert os.getpriority(os.PRIO_PROCESS, pid) == qlog.WRITER_NICE
-    prepare_writer()  # one spare a kind is enough
-    spares = [p for r, p in qlog._SPARE_WRITERS if not r and p.poll() is None]
-    assert len(spares) == 1
+    prepare_writer()  # one spare is enough
+    assert len(qwriter._SPARES) == 1
+    pid = qwriter._SPARES[0][0].pid
+    deadline = time.monotonic() + 30.0
+    cmdline = b""
+    while not cmdline and time.monotonic() < deadline:  # empty until its exec is done
+        with open(f"/proc/{pid}/cmdline", "rb") as fh:
+            cmdline = fh.read()
+        time.sleep(0.01)
+    assert cmdline.split(b"\0")[1:3] == [b"-m", b"qchain.recording.writer"]
     records = arm_records(30)
     log = _log_all(records, mcap=tmp_path / "pre.mcap")
-    assert log.worker_pid == spares[0].pid == pid
-    assert not any(p is spares[0] for _, p in qlog._SPARE_WRITERS)
+    assert log.worker_pid == pid and not qwriter._SPARES
     _assert_records_equal(read_recording(tmp_path / "pre.mcap"), records)
+    assert not (tmp_path / "pre.mcap.journal").exists()  # removed once the recording is whole
+    code = ("import sys, qchain.recording.writer, qchain.recording.mcap_sink; "
+            "print(sorted(m for m in ('pinocchio', 'numba', 'scipy', 'qchain.chain') if m in sys.modules))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert out.stdout.strip() == "[]", out.stderr
 
 
 @pytest.mark.skipif(not hasattr(signal, "SIGSTOP"), reason="needs SIGSTOP")
 def test_a_file_logger_does_not_wait_for_its_writer(tmp_path):
-    """For files only, the constructor does not wait for the writer's answer (a writer still
-    importing rerun-sdk takes 10-30 ms to give it): a stopped writer does not hold it up, the
-    records wait in the pipe, and close() reads the answer and finishes the file. A writer
-    that dies before answering leaves the logger broken with a warning, not hanging."""
-    from qchain import logging as qlog
+    """The simulating process only appends to the journal: a stopped writer holds nothing
+    up, and close() waits for it to finish. A writer that dies before answering leaves the
+    records in the journal: close() finishes the recording from it in this process, warns,
+    and the file is whole."""
+    from qchain.recording import writer as qwriter
 
     records = arm_records(40)
     prepare_writer()
-    writer = [p for r, p in qlog._SPARE_WRITERS if not r][-1]
+    writer = qwriter._SPARES[-1][0]
     os.kill(writer.pid, signal.SIGSTOP)
     try:
+        t0 = time.monotonic()
         log = RunLogger(arm_info(), tmp_path / "stopped.mcap", quiet=True, startup_timeout=1.0)
         assert log.worker_pid == writer.pid
         for r in records:
             log.log(r)
+        assert time.monotonic() - t0 < 5.0
     finally:
         os.kill(writer.pid, signal.SIGCONT)
     log.close()
     _assert_records_equal(read_recording(tmp_path / "stopped.mcap"), records)
 
     prepare_writer()
-    writer = [p for r, p in qlog._SPARE_WRITERS if not r][-1]
+    writer = qwriter._SPARES[-1][0]
     os.kill(writer.pid, signal.SIGSTOP)
     log = RunLogger(arm_info(), tmp_path / "dead.mcap", quiet=True, startup_timeout=1.0)
+    for r in records:
+        log.log(r)
     os.kill(writer.pid, signal.SIGKILL)
     writer.wait(10)
     with pytest.warns(LoggingWarning, match="log writer"):
-        for r in records:
-            log.log(r)
         log.close()
-    assert log._broken is not None
+    rec = read_recording(tmp_path / "dead.mcap")
+    _assert_records_equal(rec, records)
+    assert not rec.truncated and "finished from the journal" in rec.outcome["message"]
+    assert not (tmp_path / "dead.mcap.journal").exists()
 
 
 def test_an_unwritable_output_fails_where_it_is_given(tmp_path):
     blocker = tmp_path / "file"
     blocker.write_text("x")
-    with pytest.raises(OSError, match="file"):
+    with pytest.raises(LoggingError, match=r"cannot write mcap file .*file/run\.mcap"):
         RunLogger(arm_info(), blocker / "run.mcap", quiet=True)
 
 
@@ -495,17 +569,17 @@ def test_rerun_gets_its_first_batch_at_once(tmp_path):
     with RunLogger(arm_info(), io.BytesIO(), rrd=rrd, worker="thread", rerun_latency=60.0, quiet=True) as log:
         for r in records[:20]:
             log.log(r)
-        sinks = log._sinks
+        sinks = log._thread.sinks
         deadline = time.monotonic() + 30.0
-        while not (sinks.rerun is not None and sinks.rerun._started) and time.monotonic() < deadline:
+        while not (sinks.rerun is not None and sinks.rerun.started) and time.monotonic() < deadline:
             time.sleep(0.01)
-        assert sinks.rerun is not None and sinks.rerun._started  # long before the 60 s latency
+        assert sinks.rerun is not None and sinks.rerun.started  # long before the 60 s latency
         for r in records[20:]:
             log.log(r)
         time.sleep(0.6)  # the thread's idle ticks: the records now wait for the latency
         assert 20 <= sinks._rr_count < 40 and sinks.n_records == 40
     cols, _ = _rrd_columns(rrd)
-    assert cols["/plots/q"]["step"] == [r.step for r in records]
+    assert cols["/plots/q/segment_1"]["step"] == [r.step for r in records]
 
 
 def test_rrd_round_trip(tmp_path):
@@ -514,14 +588,15 @@ def test_rrd_round_trip(tmp_path):
     _log_all(records, mcap=io.BytesIO(), rrd=rrd)
     cols, reader = _rrd_columns(rrd)
     assert len(reader.blueprints()) == 1
-    assert {"/plots/q", "/plots/v", "/plots/pressure", "/plots/energy", "/arm/backbone", "/arm/tip_axes",
-            "/arm/pressure"} <= set(cols)
+    assert {"/plots/q/segment_1", "/plots/q/segment_3", "/plots/v", "/plots/pressure", "/plots/energy",
+            "/arm/backbone", "/arm/tip_axes", "/arm/pressure"} <= set(cols)
     t_ns = [round(r.t * 1e9) for r in records]
     steps = [r.step for r in records]
-    for entity, field in (("/plots/q", "q"), ("/plots/v", "v"), ("/plots/pressure", "p")):
+    for entity, field, sl in (("/plots/q/segment_2", "q", slice(3, 6)), ("/plots/v", "v", slice(None)),
+                              ("/plots/pressure", "p", slice(None))):
         c = cols[entity]
         assert c["step"] == steps and c["t"] == t_ns
-        np.testing.assert_array_equal(np.array(c["scalars"]), _stack(records, field))
+        np.testing.assert_array_equal(np.array(c["scalars"]), _stack(records, field)[:, sl])
     energy = np.array(cols["/plots/energy"]["scalars"])
     np.testing.assert_array_equal(energy, np.c_[_stack(records, "kinetic"), _stack(records, "potential"),
                                                 _stack(records, "total")])
@@ -553,7 +628,7 @@ def test_rerun_display_rate_thins_only_the_viewer(tmp_path):
     buf = io.BytesIO()
     _log_all(records, mcap=buf, rrd=rrd, rerun_rate=100.0)  # 100 records a simulated second
     cols, _ = _rrd_columns(rrd)
-    assert cols["/plots/q"]["step"] == list(range(0, 200, 10))
+    assert cols["/plots/q/segment_1"]["step"] == list(range(0, 200, 10))
     buf.seek(0)
     assert len(read_recording(buf)) == 200
     with pytest.raises(ValueError, match="rerun_rate"):
@@ -676,10 +751,10 @@ def test_file_cut_at_half_replays_its_first_part(tmp_path, capsys):
     assert traj.meta["stopped_at"] == rec.t[-1]
 
     out = tmp_path / "cut.rrd"
-    with pytest.warns(LoggingWarning, match="truncated; replaying up to its last complete chunk"):
+    with pytest.warns(LoggingWarning, match="is truncated; replaying up to t = "):
         replay(cut, rrd=out)
     cols, _ = _rrd_columns(out)
-    assert cols["/plots/q"]["step"] == rec.step.tolist()
+    assert cols["/plots/q/segment_1"]["step"] == rec.step.tolist()
 
     assert replay_main([str(cut), "--rrd", str(tmp_path / "cut2.rrd")]) == 0
     printed = capsys.readouterr().out
@@ -799,8 +874,8 @@ def test_sigkill_of_the_simulation_alone_still_finishes_the_file(tmp_path):
     while time.monotonic() < deadline:  # the writer sees its pipe close and finishes
         try:
             rec = read_recording(path)
-        except RecordingFormatError as err:  # created by the logger, not yet written by a writer still starting
-            assert "is empty" in str(err)
+        except (RecordingFormatError, FileNotFoundError):  # a writer still starting: its file comes
+            pass
         if rec is not None and not rec.truncated:
             break
         time.sleep(0.05)
@@ -826,7 +901,8 @@ def test_sigint_leaves_a_complete_log(tmp_path):
     assert summary is not None and summary.statistics.message_count > 0
     rec = read_recording(path)
     assert not rec.truncated and rec.t[-1] >= t_seen
-    assert rec.outcome["success"] == "false" and rec.outcome["message"] == "interrupted (KeyboardInterrupt)"
+    assert rec.outcome["success"] == "false"
+    assert rec.outcome["message"] == f"interrupted (KeyboardInterrupt) at t = {rec.t[-1]:.6g} s"
     assert rec.outcome["n_records"] == str(len(rec))
 
 

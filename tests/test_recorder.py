@@ -141,3 +141,28 @@ def test_samples_are_copied_and_their_shapes_checked():
     np.testing.assert_array_equal(rows[:, sl["v"]], np.repeat([[0.0], [1.0], [2.0]], ch.nv, axis=1))
     np.testing.assert_array_equal(rows[:, sl["p"]], np.repeat([[0.0], [10.0], [20.0]], 3 * ch.n, axis=1))
     np.testing.assert_array_equal(rows[:, sl["energy"]], [[0.0, 0.0, 0.0], [1.0, 0.0, 1.0], [2.0, 0.0, 2.0]])
+
+
+def test_a_batch_of_samples_logs_what_the_samples_one_by_one_log():
+    """record_batch (samples as arrays, for a caller that has them so) gives the rows the
+    per-sample calls give, cut into batches spanning less than the logger's flush_interval."""
+    ch = make_chain()
+    rng = np.random.default_rng(3)
+    K = 40
+    t = np.cumsum(rng.uniform(0.005, 0.02, K))
+    q = np.tile(ch.neutral(), (K, 1))
+    q[:, ch.q_slice(1)] += rng.normal(scale=[0.0, 0.5, 0.5], size=(K, 3))
+    v, p = rng.normal(size=(K, ch.nv)), rng.uniform(0, 3e4, (K, 3 * ch.n))
+    ke, pe = rng.uniform(size=K), rng.uniform(size=K)
+    one, batch = _Rows(), _Rows()
+    with ChainRecorder(one, ch, max_wall=1e9) as rec:
+        for k in range(K):
+            rec(t[k], q[k], v[k], p[k], energies=(ke[k], pe[k]))
+    with ChainRecorder(batch, ch) as rec:
+        rec.record_batch(t, q, v, p, ke, pe)
+        assert rec.taken == K
+    rows_one = np.concatenate([c[0] for c in one.calls])
+    rows_batch = np.concatenate([c[0] for c in batch.calls])
+    np.testing.assert_array_equal(rows_batch, rows_one)
+    for rows, _ in batch.calls:
+        assert rows[-1, 0] - rows[0, 0] < _Rows.flush_interval

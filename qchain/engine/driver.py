@@ -110,11 +110,14 @@ def run(chain, m, method, q0, v0, t0, t1, *, dt, rtol, atol, t_eval, on_sample, 
     t = t0
     if on_sample is not None and pass_energies:  # the samples' energies are needed as they come
         compile_s += warmup.prepare_energies(m, wk)
+    elif getattr(on_sample, "record_batch", None) is not None:  # a batch taker records them
+        pass_energies = True
+        compile_s += warmup.prepare_energies(m, wk)
     try:
         emitted = _hand_over(out, emitted, cnt, on_sample, pass_energies, m, wk)
         while True:
             t_stop = hold_times[n_hold] if n_hold < hold_times.size else t1
-            max_out = 1 if on_sample is not None else (out.t.size - cnt[steppers.K_OUT] if out.every else 1 << 30)
+            max_out = _max_out(out, cnt, t, on_sample)
             steps = 1 if events else max_steps
             w0 = _time.perf_counter()
             code = advance(fs, m, wk, it, out.arrays, c, t_stop, max_out, steps)
@@ -154,6 +157,8 @@ def run(chain, m, method, q0, v0, t0, t1, *, dt, rtol, atol, t_eval, on_sample, 
                     out.p[r] = inputs(t, q, v)[0]
             del code
     except KeyboardInterrupt:
+        if getattr(on_sample, "record_batch", None) is not None:  # the samples it had not taken yet
+            _hand_over(out, emitted, cnt, on_sample, pass_energies, m, wk)
         traj = _trajectory(chain, m, wk, out, cnt, -1, f"interrupted by the user at t = {t:.6g} s", energies, method,
                            ev_log)
         traj.meta["compile_s"] = compile_s
@@ -172,10 +177,31 @@ def _hold_times(controllers, rate, t0, t1) -> np.ndarray:
     return ts[(ts > t0) & (ts < t1 - 1e-12 * max(1.0, abs(t1)))]
 
 
-def _hand_over(out, emitted, cnt, on_sample, pass_energies, m, wk) -> int:
-    """Give the samples written since the last call to ``on_sample``; returns the new count."""
+def _max_out(out, cnt, t, on_sample) -> int:
+    """How many samples a compiled stretch may write before Python takes them: one for an
+    ``on_sample`` called sample by sample; for one that takes batches (``record_batch``),
+    the samples within its ``max_sim`` s of simulated time (what it may hold back at most,
+    so a killed run loses no more); all that fit otherwise."""
     k = int(cnt[steppers.K_OUT])
-    if on_sample is not None:
+    if on_sample is None:
+        return out.t.size - k if out.every else 1 << 30
+    if getattr(on_sample, "record_batch", None) is None or out.every:
+        return 1
+    max_sim = float(getattr(on_sample, "max_sim", 0.0))
+    return max(1, int(np.searchsorted(out.t, t + max_sim, side="left")) - k)
+
+
+def _hand_over(out, emitted, cnt, on_sample, pass_energies, m, wk) -> int:
+    """Give the samples written since the last call to ``on_sample`` (in one
+    ``on_sample.record_batch(t, q, v, p, kinetic, potential)`` call where it has one, with
+    the energies of one compiled pass, prepared before the run); returns the new count."""
+    k = int(cnt[steppers.K_OUT])
+    batch = getattr(on_sample, "record_batch", None)
+    if batch is not None and k > emitted:
+        ke, pe = np.empty(k - emitted), np.empty(k - emitted)
+        system.energies_batch(m, wk, out.t[emitted:k], out.q[emitted:k], out.v[emitted:k], ke, pe)
+        batch(out.t[emitted:k], out.q[emitted:k], out.v[emitted:k], out.p[emitted:k], ke, pe)
+    elif on_sample is not None:
         ke, pe = np.zeros(1), np.zeros(1)
         for r in range(emitted, k):
             if pass_energies:

@@ -1,0 +1,188 @@
+"""Batch throughput: 256 one-second rollouts of the four-segment spatial arm on 1 and 2 cores,
+on the local worker pool and on a Dask LocalCluster.
+
+The workload (``examples/scenes/spatial_arm.toml``'s model, 12 free coordinates): each
+rollout is the scene's rotating sine pressure with its own amplitude (x 0.5..1), frequency
+(0.5..1.5 Hz) and phase, 1 s, ``radau5`` at rtol = 3e-2, atol = 3e-4, sampled at the
+scene's 50 Hz; the tip error of every rollout against a converged reference (the same
+batch at rtol = 1e-10) is printed, so "within 1 mm" is measured here, not assumed.
+
+Engines, timed side by side in rounds (each round runs every engine once, in a rotating
+order; the first round is not timed: pools started, engines loaded):
+
+* ``serial``   ``simulate_batch(workers=1)``: one core, in this process;
+* ``pool-1``   a :class:`qchain.workers.LocalPool` of 1 worker process;
+* ``pool-2``   a :class:`qchain.workers.LocalPool` of 2 worker processes;
+* ``dask-2``   a ``dask.distributed.LocalCluster`` on 127.0.0.1, 2 worker processes of 1 thread.
+
+Figures: wall time of the whole ``simulate_batch`` call (median and min-max over rounds),
+the batch's simulated seconds per wall second (1 s of the batch / wall: every rollout
+advanced together) and the rollouts' seconds per wall second (256 times that), parallel
+efficiency ``rate(pool-2) / (2 rate(serial))`` and ``rate(pool-2) / (2 rate(pool-1))`` (per round,
+then the median), and the Dask overhead ``wall(dask-2) / wall(pool-2) - 1`` (per round). The
+machine's load average and CPU steal time are printed beside them. Start-up costs (pool and
+cluster start, first batch with the engine loaded in the workers) are measured once.
+
+Run: ``python benchmarks/bench_batch.py [--quick] [--rounds N] [--out DIR]``; on a shared
+machine under ``flock /tmp/qchain-bench.flock``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import os
+import time
+from pathlib import Path
+
+import numpy as np
+
+import _study
+from qchain import simulate_batch
+from qchain.inputs import Sine
+from qchain.scene import load_scene
+from qchain.workers import LocalPool
+
+SCENE = Path(__file__).resolve().parents[1] / "examples" / "scenes" / "spatial_arm.toml"
+SETTING = dict(method="radau5", rtol=3e-2, atol=3e-4)
+REFERENCE = dict(method="radau5", rtol=1e-10, atol=1e-12)
+
+
+def workload(B: int, seed: int = 0):
+    sc = load_scene(SCENE)
+    model = sc.build()
+    spec = sc.pressure_spec
+    rng = np.random.default_rng(seed)
+    P = [Sine(amplitude=spec["amplitude"] * rng.uniform(0.5, 1.0), frequency=spec["frequency"] * rng.uniform(0.5, 1.5),
+              phase=spec["phase"] + rng.uniform(0, 2 * np.pi), offset=spec["offset"]) for _ in range(B)]
+    return sc, model, P, sc.sample_times(1.0)
+
+
+def cpu_steal() -> float:
+    """Seconds of CPU time the hypervisor took from this machine so far (``/proc/stat`` steal)."""
+    try:
+        with open("/proc/stat") as fh:
+            fields = fh.readline().split()
+        return int(fields[8]) / os.sysconf("SC_CLK_TCK")
+    except (OSError, IndexError, ValueError):
+        return float("nan")
+
+
+def tip_errors(model, batch, ref) -> np.ndarray:
+    """Largest tip distance (m) of each rollout from its reference over the samples."""
+    ch = model.chain
+    out = np.empty(len(batch))
+    for i in range(len(batch)):
+        a = ch.frames_batch(batch.q[i], 2, t=batch.t).translation[:, -1]
+        b = ch.frames_batch(ref.q[i], 2, t=ref.t).translation[:, -1]
+        out[i] = np.max(np.linalg.norm(a - b, axis=1))
+    return out
+
+
+def run(quick: bool = False, out_dir: Path = Path("out/bench"), rounds: int | None = None) -> list[dict]:
+    import distributed
+
+    B = 64 if quick else 256
+    rounds = rounds or (3 if quick else 7)
+    sc, model, P, t_eval = workload(B)
+    ch = model.chain
+    args = (ch, model.q0, model.v0, (0.0, 1.0))
+    kw = dict(pressure=P, t_eval=t_eval, **SETTING)
+    load0, steal0 = os.getloadavg(), cpu_steal()
+    print(f"machine: {os.cpu_count()} cores; load average before: {load0[0]:.2f} {load0[1]:.2f} {load0[2]:.2f}")
+    print(f"workload: {B} rollouts of 1 s, {ch.n} segments, {ch.nv_active} free coordinates, "
+          f"{SETTING['method']} rtol {SETTING['rtol']:g}, {t_eval.size} samples each")
+
+    # start-up, once
+    t0 = time.perf_counter()
+    simulate_batch(*args, **{**kw, "pressure": P[:2]}, workers=1)  # this process: engine compiled or loaded
+    warm_s = time.perf_counter() - t0
+    pools = {}
+    startup = {}
+    for n in (1, 2):
+        t0 = time.perf_counter()
+        pools[n] = LocalPool(n).start()
+        simulate_batch(*args, **{**kw, "pressure": P[: 2 * n]}, workers=pools[n])
+        startup[f"pool-{n}"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    cluster = distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
+                                       dashboard_address=None, silence_logs=logging.ERROR)
+    client = distributed.Client(cluster)
+    client.wait_for_workers(2)
+    simulate_batch(*args, **{**kw, "pressure": P[:4]}, client=client)
+    startup["dask-2"] = time.perf_counter() - t0
+    print(f"start-up: this process's engine {warm_s:.2f} s; " +
+          ", ".join(f"{k} started and its engines loaded {v:.2f} s" for k, v in startup.items()))
+
+    engines = {"serial": dict(workers=1), "pool-1": dict(workers=pools[1]), "pool-2": dict(workers=pools[2]),
+               "dask-2": dict(client=client)}
+    walls: dict[str, list[float]] = {k: [] for k in engines}
+    batches = {}
+    try:
+        for r in range(rounds + 1):
+            names = list(engines)
+            names = names[r % len(names):] + names[: r % len(names)]
+            for name in names:
+                t0 = time.perf_counter()
+                b = simulate_batch(*args, **kw, **engines[name])
+                w = time.perf_counter() - t0
+                if r > 0:
+                    walls[name].append(w)
+                batches[name] = b
+            if r > 0:
+                print(f"round {r}: " + ", ".join(f"{k} {walls[k][-1]:.3f} s" for k in engines), flush=True)
+    finally:
+        client.close()
+        cluster.close()
+        for p in pools.values():
+            p.close()
+    load1, steal1 = os.getloadavg(), cpu_steal()
+
+    ref = simulate_batch(*args, pressure=P, t_eval=t_eval, **REFERENCE, workers=2)
+    err = tip_errors(model, batches["serial"], ref)
+    same = all(np.array_equal(batches[k].q, batches["serial"].q) and np.array_equal(batches[k].v, batches["serial"].v)
+               for k in engines)
+    print(f"tip error against the reference (rtol 1e-10), over all {B} rollouts: median {np.median(err) * 1e3:.3f} mm, "
+          f"largest {err.max() * 1e3:.3f} mm; all rollouts succeeded: {bool(batches['serial'].success.all())}; "
+          f"every engine's batch bit-identical to the serial one: {same}")
+
+    W = {k: np.array(v) for k, v in walls.items()}
+    rows = []
+    print(f"\n{'engine':>8} {'cores':>5} {'wall s (median, min-max)':>26} {'batch s/s':>10} {'rollout s/s':>12}")
+    for k, w in W.items():
+        cores = 1 if k in ("serial", "pool-1") else 2
+        med = float(np.median(w))
+        rows.append(dict(engine=k, cores=cores, rollouts=B, rounds=len(w), wall_median_s=med, wall_min_s=float(w.min()),
+                         wall_max_s=float(w.max()), batch_sim_s_per_wall_s=1.0 / med, rollout_sim_s_per_wall_s=B / med))
+        print(f"{k:>8} {cores:>5} {med:10.3f} ({w.min():.3f}-{w.max():.3f}) {1 / med:10.2f} {B / med:12.0f}")
+    eff_serial = W["serial"] / (2 * W["pool-2"])
+    eff_pool = W["pool-1"] / (2 * W["pool-2"])
+    over = W["dask-2"] / W["pool-2"] - 1
+    print(f"\nparallel efficiency 1 -> 2 cores (per round): against serial {np.median(eff_serial) * 100:.1f} % "
+          f"({eff_serial.min() * 100:.1f}-{eff_serial.max() * 100:.1f}), against pool-1 {np.median(eff_pool) * 100:.1f} % "
+          f"({eff_pool.min() * 100:.1f}-{eff_pool.max() * 100:.1f})")
+    print(f"Dask LocalCluster overhead against pool-2 (per round): {np.median(over) * 100:+.1f} % "
+          f"({over.min() * 100:+.1f}..{over.max() * 100:+.1f})")
+    print(f"machine load average after: {load1[0]:.2f} {load1[1]:.2f} {load1[2]:.2f}; CPU steal during the run: "
+          f"{steal1 - steal0:.2f} s")
+    summary = dict(engine="summary", cores=2, rollouts=B, rounds=rounds,
+                   efficiency_vs_serial=float(np.median(eff_serial)), efficiency_vs_pool1=float(np.median(eff_pool)),
+                   dask_overhead=float(np.median(over)), tip_error_max_m=float(err.max()),
+                   tip_error_median_m=float(np.median(err)), load_before=load0[0], load_after=load1[0],
+                   steal_s=steal1 - steal0, bit_identical=same)
+    _study.write_csv(rows, out_dir / "batch.csv")
+    _study.write_csv([summary], out_dir / "batch_summary.csv")
+    return rows + [summary]
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.strip().splitlines()[0])
+    ap.add_argument("--quick", action="store_true", help="64 rollouts, 3 rounds")
+    ap.add_argument("--rounds", type=int, default=None, help="timed rounds (default 7, 3 with --quick)")
+    ap.add_argument("--out", type=Path, default=Path("out/bench"), help="folder for the CSV files")
+    args = ap.parse_args(argv)
+    return run(args.quick, args.out, args.rounds)
+
+
+if __name__ == "__main__":
+    main()

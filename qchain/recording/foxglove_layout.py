@@ -1,0 +1,74 @@
+"""The Foxglove layout qchain ships, built with ``foxglove-sdk``'s layout types.
+
+:func:`foxglove_layout` makes the layout of a run: the 3D arm (``/qchain/arm`` line
+strips, the frame tree of ``/qchain/tf``, the camera following the base frame) beside
+plots of the chamber pressures, the coordinates (one plot a segment, each series named
+with its unit, ``segment 2 ux [1/m]``) and the energies, legends on top of the plots, not
+over the data, the whole run on the time axis. ``qchain layout RECORDING.mcap -o
+layout.json`` writes it for a recording; Foxglove imports it from its layout menu
+("Import from file").
+"""
+
+from __future__ import annotations
+
+import json
+
+from .records import TOPICS, RunInfo
+
+__all__ = ["foxglove_layout", "layout_json"]
+
+
+def _plot(fl, title: str, values: list[tuple[str, str]]):
+    return fl.PlotPanel(title=title, config=fl.PlotConfig(
+        paths=[fl.PlotSeries(value=v, label=label, enabled=True, timestamp_method="receiveTime")
+               for v, label in values],
+        show_legend=True, legend_display="top", show_x_axis_labels=True, show_y_axis_labels=True,
+        is_synced=True, x_axis_val="timestamp", time_range="all", time_window_mode="automatic"))
+
+
+def foxglove_layout(info: RunInfo, nq: int, nv: int, n_p: int):
+    """The :class:`foxglove.layouts.Layout` of a run with ``nq`` coordinates, ``nv``
+    velocities and ``n_p`` pressures."""
+    import foxglove.layouts as fl
+
+    st = TOPICS["state"]
+    n = info.n_segments
+    qn = info.names("q", nq)
+    s0 = max(0, nq - 3 * n)
+    q_tabs = []
+    if s0:
+        q_tabs.append(fl.TabItem(title="base", content=_plot(fl, "base coordinates",
+                                                             [(f"{st}.q[{i}]", qn[i]) for i in range(s0)])))
+    for i in range(n):
+        idx = range(s0 + 3 * i, min(s0 + 3 * i + 3, nq))
+        q_tabs.append(fl.TabItem(title=f"segment {i + 1}", content=_plot(
+            fl, f"segment {i + 1} coordinates", [(f"{st}.q[{j}]", qn[j]) for j in idx])))
+    vn = info.names("v", nv)
+    q_tabs.append(fl.TabItem(title="velocities", content=_plot(fl, "velocities",
+                                                               [(f"{st}.v[{j}]", vn[j]) for j in range(nv)])))
+    pn = info.names("p", n_p)
+    pressures = _plot(fl, "chamber pressures [Pa]", [(f"{st}.p[{j}]", pn[j]) for j in range(n_p)])
+    energy = _plot(fl, "energy [J]", [(f"{st}.{k}", f"{k} [J]") for k in ("kinetic", "potential", "total")])
+    reach = sum(float(s.get("length", 0.0)) for s in info.params.get("segments", [])
+                if isinstance(s, dict)) or 10.0 * sum(info.radii)
+    three = fl.ThreeDeePanel(title="arm", config=fl.ThreeDeeConfig(
+        follow_tf="base", follow_mode="follow-position",
+        camera_state=fl.ThreeDeeCameraState(distance=4.0 * reach, perspective=True, phi=70.0, theta_offset=35.0,
+                                            target_offset=(0.0, 0.0, 0.5 * reach), fovy=45.0, near=0.001,
+                                            far=1000.0),
+        topics={TOPICS["arm"]: fl.BaseRendererSceneUpdateTopicSettings(visible=True),
+                TOPICS["points"]: fl.BaseRendererPointCloudTopicSettings(visible=False)},
+    ))
+    return fl.Layout(content=fl.SplitContainer(direction="row", items=[
+        fl.SplitItem(proportion=3, content=three),
+        fl.SplitItem(proportion=2, content=fl.SplitContainer(direction="column", items=[
+            fl.SplitItem(proportion=1, content=pressures),
+            fl.SplitItem(proportion=1, content=fl.TabContainer(tabs=q_tabs)),
+            fl.SplitItem(proportion=1, content=energy),
+        ])),
+    ]))
+
+
+def layout_json(info: RunInfo, nq: int, nv: int, n_p: int) -> str:
+    """The layout as the JSON text Foxglove imports."""
+    return json.dumps(json.loads(foxglove_layout(info, nq, nv, n_p).to_json()), indent=1)

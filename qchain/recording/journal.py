@@ -1,0 +1,213 @@
+"""The journal: the simulating process's own copy of every record, on disk at once.
+
+A recording ``run.mcap`` is written by a writer process, which may be slow to start or
+starved of CPU time on a busy machine. So the simulating process does not hand records to
+it directly: it appends each batch of records to ``run.mcap.journal``, an MCAP file of
+its own (the mcap library's ``Writer``, no compression, one chunk a batch), with a single
+write the operating system keeps whatever happens to the processes. The writer reads the
+journal as it grows and writes the recording; once the recording is finished the journal
+is removed. If every process of the run is killed, the journal stays, and
+:func:`qchain.logging.read_recording` reads the records the recording lacks from it
+(``qchain recover`` makes the recording whole again).
+
+The simulating process holds an exclusive ``flock`` on the journal while the run lasts:
+another run on the same path is refused, and a journal nobody holds is a killed run's.
+"""
+
+from __future__ import annotations
+
+import errno
+import fcntl
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+from mcap.records import Channel, Message
+from mcap.writer import CompressionType, IndexType, Writer
+
+from .records import LoggingError, RecordLayout, ns, seal, unseal
+from .scan import MAGIC, scan
+
+__all__ = ["journal_path", "JournalWriter", "JournalReader", "journal_owner", "ROWS_ENCODING"]
+
+#: Message encoding of the journal's rows: little-endian float64 rows of the layout in the
+#: channel's metadata.
+ROWS_ENCODING = "qchain.rows.f64le"
+ROWS_TOPIC = "/qchain/rows"
+
+
+def journal_path(mcap_path: str | os.PathLike) -> Path:
+    """Where the journal of the recording ``mcap_path`` lives."""
+    p = Path(mcap_path)
+    return p.with_name(p.name + ".journal")
+
+
+def journal_owner(path: str | os.PathLike) -> int | None:
+    """The pid of the live process writing the journal ``path``, 0 if a live process holds
+    it but its pid is unknown, None if nobody holds it (or it does not exist)."""
+    try:
+        fd = os.open(path, os.O_RDONLY)
+    except FileNotFoundError:
+        return None
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
+        except OSError as exc:
+            if exc.errno not in (errno.EWOULDBLOCK, errno.EAGAIN):
+                raise
+            try:
+                with open(path, "rb") as fh:
+                    head = fh.read(1 << 16)
+                for item in scan(head, final=False):
+                    if item.kind == "metadata" and item.record.name == "qchain.journal":
+                        return int(item.record.metadata.get("pid", "0"))
+            except (OSError, ValueError):
+                pass
+            return 0
+        fcntl.flock(fd, fcntl.LOCK_UN)
+        return None
+    finally:
+        os.close(fd)
+
+
+class JournalWriter:
+    """Appends batches of record rows to a journal (the simulating process's side).
+
+    Parameters
+    ----------
+    path : path
+        The journal file; created (or truncated), then locked.
+    metadata : dict of str
+        The recording's ``qchain`` metadata (sealed here again).
+    mcap_path : str or None
+        The recording the journal belongs to (None: a viewer-only run).
+    """
+
+    def __init__(self, path: str | os.PathLike, metadata: dict[str, str], mcap_path: str | None):
+        self.path = Path(path)
+        fd = os.open(self.path, os.O_WRONLY | os.O_CREAT, 0o644)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError as exc:
+            os.close(fd)
+            if exc.errno in (errno.EWOULDBLOCK, errno.EAGAIN):
+                raise LoggingError(f"another run is writing {mcap_path or self.path} (its journal {self.path} "
+                                   "is locked)") from None
+            raise
+        os.ftruncate(fd, 0)
+        self._fh = os.fdopen(fd, "wb")  # buffered: the Writer flushes it at each batch
+        self._w = Writer(self._fh, chunk_size=1 << 40, compression=CompressionType.NONE,
+                         index_types=IndexType.NONE, use_statistics=False, use_summary_offsets=False)
+        self._w.start(profile="", library="qchain journal")
+        self._w.add_metadata("qchain", seal({k: v for k, v in metadata.items() if k != "crc32"}))
+        self._w.add_metadata("qchain.journal", seal({"pid": str(os.getpid()), "mcap": mcap_path or ""}))
+        self._w.flush()
+        self._channel: int | None = None
+        self._seq = 0
+        self.closed = False
+
+    def start(self, layout: RecordLayout) -> None:
+        """Declare the run's record layout (before the first batch)."""
+        sid = self._w.register_schema("qchain.RecordRows", "", b"")
+        self._channel = self._w.register_channel(ROWS_TOPIC, ROWS_ENCODING, sid,
+                                                 {"layout": json.dumps(layout.to_json())})
+
+    def append(self, rows: np.ndarray) -> None:
+        """Append rows (K, row_width) float64 as one message in a chunk of its own: on disk
+        (in the operating system's hands) when this returns."""
+        t = rows[:, 0]
+        self._w.add_message(self._channel, ns(float(t[-1])), rows.tobytes(), ns(float(t[0])), self._seq & 0xFFFFFFFF)
+        self._seq += 1
+        self._w.flush()
+
+    def finish(self, outcome: dict[str, str]) -> None:
+        """Write how the run ended and the journal's summary; keep the lock."""
+        if self.closed:
+            return
+        self._w.add_metadata("qchain.outcome", seal(outcome))
+        self._w.finish()
+        self._fh.flush()
+        self.closed = True
+
+    def release(self, remove: bool) -> None:
+        """Close the file (the lock goes with it); ``remove`` deletes it first."""
+        if remove:
+            try:
+                self.path.unlink()
+            except FileNotFoundError:
+                pass
+        try:
+            self._fh.close()
+        except OSError:
+            pass
+
+
+class JournalReader:
+    """Reads a journal, also while it grows (the writer's and the reader's side).
+
+    Call :meth:`poll` for what was appended since the last call: a list of row blocks
+    (numpy arrays). ``layout``, ``metadata`` (the ``qchain`` entries), ``outcome`` and
+    ``finished`` fill in as the journal says them; ``damage`` lists what could not be read.
+    """
+
+    def __init__(self, path: str | os.PathLike):
+        self.path = Path(path)
+        self._fd = os.open(self.path, os.O_RDONLY)
+        self._buf = bytearray()
+        self._base = 0  # file offset of _buf[0]
+        self._pos = len(MAGIC)  # next record's offset in the file
+        self.layout: RecordLayout | None = None
+        self.metadata: dict[str, str] | None = None
+        self.outcome: dict[str, str] | None = None
+        self.finished = False
+        self.damage: list[str] = []
+        self._rows_channels: set[int] = set()
+
+    def close(self) -> None:
+        if self._fd >= 0:
+            os.close(self._fd)
+            self._fd = -1
+
+    def poll(self, final: bool = False) -> list[np.ndarray]:
+        """The row blocks appended since the last call. ``final``: the journal will not grow
+        any more (its writer is gone): a cut record at its end is reported, not awaited."""
+        while True:
+            data = os.pread(self._fd, 1 << 22, self._base + len(self._buf))
+            if not data:
+                break
+            self._buf += data
+        if self._base == 0 and len(self._buf) < len(MAGIC):
+            return []
+        if self._base == 0 and bytes(self._buf[: len(MAGIC)]) != MAGIC:
+            raise LoggingError(f"{self.path} is not a qchain journal")
+        out: list[np.ndarray] = []
+        resume = self._pos
+        for item in scan(self._buf, start=self._pos - self._base, final=final):
+            resume = item.end + self._base
+            if item.kind == "chunk":
+                for rec in item.records:
+                    if isinstance(rec, Channel) and rec.message_encoding == ROWS_ENCODING:
+                        self._rows_channels.add(rec.id)
+                        self.layout = RecordLayout.from_json(json.loads(rec.metadata["layout"]))
+                    elif isinstance(rec, Message) and rec.channel_id in self._rows_channels:
+                        out.append(np.frombuffer(rec.data, dtype=np.float64).reshape(-1, self.layout.row_width))
+            elif item.kind == "metadata":
+                entries = unseal(item.record.metadata)
+                if entries is None:
+                    self.damage.append(f"metadata record {item.record.name!r} at byte {item.offset}: checksum "
+                                       "mismatch")
+                elif item.record.name == "qchain":
+                    self.metadata = entries
+                elif item.record.name == "qchain.outcome":
+                    self.outcome = entries
+            elif item.kind == "footer":
+                self.finished = True
+            elif item.kind in ("damage", "end"):
+                self.damage.append(item.reason)
+        drop = resume - self._base
+        if drop > (1 << 20):  # keep memory flat on long runs
+            del self._buf[:drop]
+            self._base += drop
+        self._pos = resume
+        return out

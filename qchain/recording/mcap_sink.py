@@ -1,0 +1,294 @@
+"""The recording: an MCAP file written with the mcap library's ``Writer``.
+
+Channels (``log_time`` = ``publish_time`` = simulation time in ns, ``sequence`` = step
+modulo 2**32):
+
+======================================  =============================  ===========================
+topic                                   schema (encoding)              what
+======================================  =============================  ===========================
+``/qchain/state``                       ``qchain.State`` (JSON)        every field of a step
+                                                                       record, bit for bit
+``/qchain/tf``                          ``foxglove.FrameTransforms``   world -> base ->
+                                        (protobuf)                     segment_1_tip -> ...
+``/qchain/arm``                         ``foxglove.SceneUpdate``       one line strip a segment,
+                                        (protobuf)                     thickness = its diameter
+``/qchain/backbone_points``             ``foxglove.PointCloud``        the backbone points (what
+                                        (protobuf)                     Rerun's importer draws)
+======================================  =============================  ===========================
+
+The Foxglove messages are built and encoded by ``foxglove-sdk`` with its official schemas.
+``/qchain/state`` is JSON with numbers in their shortest round-trip form (``null`` for a
+non-finite one), so a recording reads back bit for bit and Foxglove plots any field.
+
+Chunks (zstd) are closed at step boundaries every ``flush_interval`` of simulation time
+and ``flush_wall_interval`` of wall time, so a damaged chunk loses whole steps only. The
+``qchain`` metadata record (scene, parameters, version, radii, layout) is sealed with a
+CRC32 and written twice, at the start and before the end; ``qchain.outcome`` says how the
+run ended.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import json
+import os
+import time
+from typing import BinaryIO
+
+import numpy as np
+
+from .records import (
+    FORMAT_NAME,
+    FORMAT_VERSION,
+    SEGMENT_COLORS,
+    TOPICS,
+    Batch,
+    RunInfo,
+    seal,
+)
+
+__all__ = ["McapSink", "info_metadata", "STATE_SCHEMA", "relative_frames"]
+
+#: JSON schema of ``/qchain/state`` (a number may be null: a non-finite value).
+STATE_SCHEMA = {
+    "title": "qchain.State",
+    "description": "The arm at one output sample of a qchain run",
+    "type": "object",
+    "properties": {
+        "t": {"type": "number", "description": "simulation time, s"},
+        "step": {"type": "integer", "description": "sample counter"},
+        "q": {"type": "array", "items": {"type": "number"}, "description": "generalised coordinates"},
+        "v": {"type": "array", "items": {"type": "number"}, "description": "velocities"},
+        "p": {"type": "array", "items": {"type": "number"}, "description": "chamber pressures, Pa"},
+        "kinetic": {"type": "number", "description": "kinetic energy, J"},
+        "potential": {"type": "number", "description": "potential energy (gravity + elastic), J"},
+        "total": {"type": "number", "description": "kinetic + potential, J"},
+        "base": {"type": "array", "items": {"type": "number"},
+                 "description": "world placement of the base: x, y, z (m), qx, qy, qz, qw"},
+        "tips": {"type": "array", "items": {"type": "array", "items": {"type": "number"}},
+                 "description": "world placement of each segment tip: x, y, z (m), qx, qy, qz, qw"},
+        "backbone": {"type": "array",
+                     "items": {"type": "array", "items": {"type": "array", "items": {"type": "number"}}},
+                     "description": "world backbone points of each segment, root to tip, m"},
+    },
+    "required": ["t", "step", "q", "v", "p", "kinetic", "potential", "total", "base", "tips", "backbone"],
+}
+
+
+def info_metadata(info: RunInfo, recording_id: str) -> dict[str, str]:
+    """The ``qchain`` metadata entries of a recording (sealed by the writers)."""
+    return {
+        "format": FORMAT_NAME,
+        "format_version": str(FORMAT_VERSION),
+        "qchain_version": info.qchain_version,
+        "scene": info.scene,
+        "scene_path": info.scene_path or "",
+        "params": json.dumps(info.params, sort_keys=True),
+        "n_segments": str(info.n_segments),
+        "radii": json.dumps(list(info.radii)),
+        "recording_id": recording_id,
+        "created_utc": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
+        "info": json.dumps(info.to_json(), sort_keys=True),
+        "topics": json.dumps(TOPICS, sort_keys=True),
+    }
+
+
+def _qmul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Quaternion products (..., 4) x, y, z, w."""
+    ax, ay, az, aw = np.moveaxis(a, -1, 0)
+    bx, by, bz, bw = np.moveaxis(b, -1, 0)
+    return np.stack([aw * bx + ax * bw + ay * bz - az * by,
+                     aw * by - ax * bz + ay * bw + az * bx,
+                     aw * bz + ax * by - ay * bx + az * bw,
+                     aw * bw - ax * bx - ay * by - az * bz], axis=-1)
+
+
+def _qrot(q: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Rotate vectors (..., 3) by unit quaternions (..., 4)."""
+    u, w = q[..., :3], q[..., 3:4]
+    t = 2.0 * np.cross(u, v)
+    return v + w * t + np.cross(u, t)
+
+
+def relative_frames(base: np.ndarray, tips: np.ndarray) -> np.ndarray:
+    """The frame tree's transforms (K, n + 1, 7): world -> base, base -> tip 1, tip i -> tip
+    i + 1, each as its child's placement in its parent (x, y, z, qx, qy, qz, qw), from
+    world placements ``base`` (K, 7) and ``tips`` (K, n, 7)."""
+    world = np.concatenate([base[:, None, :], tips], axis=1)  # (K, n + 1, 7)
+    out = world.copy()
+    parent = world[:, :-1]
+    child = world[:, 1:]
+    pinv = parent[..., 3:] * np.array([-1.0, -1.0, -1.0, 1.0])  # conjugate = inverse of a unit quaternion
+    with np.errstate(all="ignore"):  # a non-finite record gives non-finite transforms, said as such
+        out[:, 1:, :3] = _qrot(pinv, child[..., :3] - parent[..., :3])
+        out[:, 1:, 3:] = _qmul(pinv, child[..., 3:])
+    return out
+
+
+class McapSink:
+    """Writes batches of records into an MCAP file or binary stream.
+
+    Parameters
+    ----------
+    out : path or binary stream
+    info : RunInfo
+    recording_id : str
+    flush_interval, flush_wall_interval : float, s
+        Simulation and wall time between chunk flushes.
+    """
+
+    def __init__(self, out: str | os.PathLike | BinaryIO, info: RunInfo, *, recording_id: str,
+                 flush_interval: float, flush_wall_interval: float):
+        import foxglove.messages as fm
+        import orjson
+        from mcap.writer import CompressionType, Writer
+
+        self._fm = fm
+        self._dumps = orjson.dumps
+        self._opt = orjson.OPT_SERIALIZE_NUMPY
+        self.info = info
+        if isinstance(out, (str, os.PathLike)):
+            self.path: str | None = os.fspath(out)
+            self._stream = open(self.path, "wb")
+            self._owns = True
+        else:
+            self.path = None
+            self._stream = out
+            self._owns = False
+        # chunks are cut here, at step boundaries (flush), never by size inside a step
+        self._w = Writer(self._stream, chunk_size=1 << 40, compression=CompressionType.ZSTD)
+        self._w.start(profile="", library=f"qchain {info.qchain_version}")
+        ch = {}  # (the schema and channel records go into the first chunk)
+        sid = self._w.register_schema("qchain.State", "jsonschema", json.dumps(STATE_SCHEMA).encode())
+        ch["state"] = self._w.register_channel(TOPICS["state"], "json", sid)
+        for key, cls in (("tf", fm.FrameTransforms), ("arm", fm.SceneUpdate), ("points", fm.PointCloud)):
+            s = cls.get_schema()
+            ch[key] = self._w.register_channel(TOPICS[key], "protobuf",
+                                               self._w.register_schema(s.name, s.encoding, s.data))
+        self._ch = ch
+        # the channel ids in the sealed metadata too: a damaged first chunk loses its channel
+        # records, not the meaning of every chunk after it
+        meta = info_metadata(info, recording_id)
+        meta["channels"] = json.dumps({str(cid): TOPICS[key] for key, cid in ch.items()}, sort_keys=True)
+        self._meta = seal(meta)
+        self._w.add_metadata("qchain", self._meta)
+        self.flush_interval = float(flush_interval)
+        self.flush_wall_interval = float(flush_wall_interval)
+        self._last_flush_t: float | None = None
+        self._last_flush_wall = time.monotonic()
+        self._open = 0  # records in the open chunk
+        self._static = None
+        self.n_records = 0
+        self.last_t: float | None = None
+        self.last_step: int | None = None
+        self.finished = False
+
+    def _statics(self, n: int):
+        fm = self._fm
+        colors = [fm.Color(r=c[0] / 255.0, g=c[1] / 255.0, b=c[2] / 255.0, a=1.0)
+                  for c in (SEGMENT_COLORS[i % len(SEGMENT_COLORS)] for i in range(n))]
+        names = ["world", "base"] + [f"segment_{i + 1}_tip" for i in range(n)]
+        F64 = fm.PackedElementFieldNumericType.Float64
+        fields = [fm.PackedElementField(name=c, offset=8 * i, type=F64) for i, c in enumerate("xyz")]
+        identity = fm.Pose(position=fm.Vector3(x=0.0, y=0.0, z=0.0),
+                           orientation=fm.Quaternion(x=0.0, y=0.0, z=0.0, w=1.0))
+        return colors, names, fields, identity
+
+    def flush(self) -> None:
+        """Close the open chunk (compressed, handed to the operating system)."""
+        self._w.flush()
+        self._open = 0
+        self._last_flush_wall = time.monotonic()
+
+    def write_batch(self, b: Batch) -> None:
+        K = len(b)
+        if K == 0:
+            return
+        fm = self._fm
+        n = b.backbone.shape[1]
+        if self._static is None:
+            self._static = self._statics(n)
+        colors, names, fields, identity = self._static
+        dumps, opt, w, ch = self._dumps, self._opt, self._w, self._ch
+        ns_all = np.rint(b.t * 1e9).astype(np.int64)
+        if K and ns_all.min() < 0:
+            raise ValueError("negative simulation time")
+        rel = relative_frames(b.base, b.tip_frames).tolist()
+        ts, steps, lts = b.t.tolist(), b.step.tolist(), ns_all.tolist()
+        radii = self.info.radii
+        last_flush_t = self._last_flush_t
+        for k in range(K):
+            t, step, lt = ts[k], steps[k], lts[k]
+            seq = step & 0xFFFFFFFF
+            state = dumps({"t": b.t[k], "step": step, "q": b.q[k], "v": b.v[k], "p": b.p[k],
+                           "kinetic": b.energy[k, 0], "potential": b.energy[k, 1], "total": b.energy[k, 2],
+                           "base": b.base[k], "tips": b.tip_frames[k], "backbone": b.backbone[k]}, option=opt)
+            stamp = fm.Timestamp(lt // 1_000_000_000, lt % 1_000_000_000)
+            tf = fm.FrameTransforms(transforms=[
+                fm.FrameTransform(timestamp=stamp, parent_frame_id=names[j], child_frame_id=names[j + 1],
+                                  translation=fm.Vector3(x=f[0], y=f[1], z=f[2]),
+                                  rotation=fm.Quaternion(x=f[3], y=f[4], z=f[5], w=f[6]))
+                for j, f in enumerate(rel[k])])
+            bb = b.backbone[k]
+            arm = fm.SceneUpdate(entities=[
+                fm.SceneEntity(timestamp=stamp, frame_id="world", id=f"segment_{i + 1}", lines=[fm.LinePrimitive(
+                    type=fm.LinePrimitiveLineType.LineStrip, thickness=2.0 * radii[i], scale_invariant=False,
+                    points=[fm.Point3(x=x, y=y, z=z) for x, y, z in bb[i].tolist()], color=colors[i],
+                    pose=identity)])
+                for i in range(n)])
+            pts = fm.PointCloud(timestamp=stamp, frame_id="world", pose=identity, point_stride=24, fields=fields,
+                                data=np.ascontiguousarray(bb).tobytes())
+            w.add_message(ch["state"], lt, state, lt, seq)
+            w.add_message(ch["tf"], lt, tf.encode(), lt, seq)
+            w.add_message(ch["arm"], lt, arm.encode(), lt, seq)
+            w.add_message(ch["points"], lt, pts.encode(), lt, seq)
+            self._open += 1
+            if last_flush_t is None:
+                last_flush_t = t
+            if t - last_flush_t >= self.flush_interval:
+                self.flush()
+                last_flush_t = t
+        self._last_flush_t = last_flush_t
+        self.n_records += K
+        self.last_t, self.last_step = ts[-1], steps[-1]
+        self.tick()
+
+    def tick(self) -> None:
+        """Close the open chunk if it is older than the wall-time interval."""
+        if self._open and time.monotonic() - self._last_flush_wall >= self.flush_wall_interval:
+            self.flush()
+
+    def finish(self, outcome: dict) -> None:
+        """Close the last chunk, write the outcome, the metadata's second copy and the
+        summary; close a file this sink opened (after ``fsync``)."""
+        if self.finished:
+            return
+        self.flush()
+        self._w.add_metadata("qchain.outcome", seal(outcome_entries(outcome, self.n_records, self.last_t)))
+        self._w.add_metadata("qchain", self._meta)
+        self._w.finish()
+        self._stream.flush()
+        if self._owns:
+            os.fsync(self._stream.fileno())
+            self._stream.close()
+        self.finished = True
+
+    def abandon(self) -> None:
+        """Close a file this sink opened without finishing it (its chunks stay readable)."""
+        if self._owns and not self._stream.closed:
+            try:
+                self._stream.close()
+            except OSError:
+                pass
+
+
+def outcome_entries(outcome: dict, n_records: int, last_t: float | None) -> dict[str, str]:
+    """The ``qchain.outcome`` metadata entries."""
+    return {
+        "success": "true" if outcome.get("success") else "false",
+        "status": str(int(outcome.get("status", 0))),
+        "message": str(outcome.get("message", "")),
+        "nfev": str(int(outcome.get("nfev", 0) or 0)),
+        "n_records": str(n_records),
+        "last_t": "" if last_t is None else repr(float(last_t)),
+    }

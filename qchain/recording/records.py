@@ -1,0 +1,444 @@
+"""What a recording holds: step records, the run's static information, the row layout.
+
+Imported by both sides: the simulating process packs records into rows of float64 numbers
+(:class:`RecordLayout`); the writer, the reader and the sinks unpack them into
+:class:`Batch` columns. Numpy only: the writer process imports nothing heavier.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import zlib
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from .. import __version__
+from ..errors import QchainError
+
+__all__ = [
+    "StepRecord",
+    "RunInfo",
+    "RecordLayout",
+    "Batch",
+    "LoggingError",
+    "RecordingFormatError",
+    "LoggingWarning",
+    "FORMAT_NAME",
+    "FORMAT_VERSION",
+    "TOPICS",
+    "SEGMENT_COLORS",
+    "DEFAULT_FLUSH_INTERVAL",
+    "DEFAULT_FLUSH_WALL_INTERVAL",
+    "seal",
+    "unseal",
+    "ns",
+]
+
+FORMAT_NAME = "qchain-mcap"
+#: 2: one JSON state channel, Foxglove messages in protobuf, checksummed metadata.
+FORMAT_VERSION = 2
+
+#: MCAP topic of each channel of a recording.
+TOPICS = {
+    "state": "/qchain/state",  # qchain.State, JSON: every field of a step record
+    "tf": "/qchain/tf",  # foxglove.FrameTransforms: world -> base -> segment tips
+    "arm": "/qchain/arm",  # foxglove.SceneUpdate: the backbone as line strips
+    "points": "/qchain/backbone_points",  # foxglove.PointCloud: the backbone points
+}
+
+#: Seconds of simulation time a record may wait before it is on disk (the journal's
+#: batches and the recording's chunks are cut at least this often).
+DEFAULT_FLUSH_INTERVAL = 0.4
+#: Seconds of wall time between forced MCAP chunk flushes in the writer.
+DEFAULT_FLUSH_WALL_INTERVAL = 0.5
+
+#: Segment colours (RGB) of the arm in Rerun and Foxglove, cycled along the chain.
+SEGMENT_COLORS = ((255, 140, 0), (230, 95, 0), (255, 185, 50))
+
+
+class LoggingError(QchainError):
+    """The run log could not be written (a writer that cannot start, a bad output path)."""
+
+
+class RecordingFormatError(LoggingError, ValueError):
+    """A file that is not a (readable) qchain MCAP recording; the message names the file."""
+
+
+class LoggingWarning(UserWarning):
+    """Something of the logging did not work out (a viewer out of reach); the run goes on."""
+
+
+def ns(t: float) -> int:
+    """Simulation time ``t`` (s) as the MCAP's ``log_time`` (ns)."""
+    return int(round(t * 1e9))
+
+
+# --------------------------------------------------------------------------------------
+# Checksummed metadata
+# --------------------------------------------------------------------------------------
+
+
+def _canonical(entries: dict[str, str]) -> bytes:
+    return json.dumps(sorted(entries.items()), ensure_ascii=False, separators=(",", ":")).encode()
+
+
+def seal(entries: dict[str, str]) -> dict[str, str]:
+    """``entries`` with a ``crc32`` key over all of them: MCAP metadata records carry no
+    CRC of their own, and a flipped bit must not change a scene silently."""
+    if "crc32" in entries:
+        raise ValueError("metadata entries must not have a 'crc32' key (it is the seal)")
+    return {**entries, "crc32": "%08x" % zlib.crc32(_canonical(entries))}
+
+
+def unseal(entries: dict[str, str]) -> dict[str, str] | None:
+    """The entries without their seal, or None when the seal is missing or does not match."""
+    got = entries.get("crc32")
+    rest = {k: v for k, v in entries.items() if k != "crc32"}
+    if got is None or got != "%08x" % zlib.crc32(_canonical(rest)):
+        return None
+    return rest
+
+
+# --------------------------------------------------------------------------------------
+# Records and run information
+# --------------------------------------------------------------------------------------
+
+
+@dataclass
+class StepRecord:
+    """The state of the arm at one simulation step, as the logger takes it.
+
+    Attributes
+    ----------
+    t : float, s
+        Simulation time, finite and >= 0.
+    step : int
+        Step counter (>= 0), also the MCAP ``sequence`` (modulo 2**32).
+    q : (nq,) array
+        Generalised coordinates, in the chain's layout.
+    v : (nv,) array
+        Velocities.
+    p : (3 n,) array, Pa
+        Chamber pressures, segment by segment, chambers 1..3.
+    kinetic, potential, total : float, J
+        Energies; potential = gravity + elastic, total = kinetic + potential.
+    backbone : (n, P, 3) array, m
+        World points along each segment's axis, from its root to its tip.
+    tip_frames : (n, 7) array
+        World placement of each segment's tip frame as ``(x, y, z, qx, qy, qz, qw)`` (m and
+        a unit quaternion, scalar last).
+    base_frame : (7,) array or None
+        World placement of the base frame (the root of segment 1) in the same form;
+        ``None``: at the first backbone point, aligned with the world.
+
+    Arrays may be reused by the caller after ``log()`` returns: the logger copies them.
+    Every record of a run must have the shapes of the first one.
+    """
+
+    t: float
+    step: int
+    q: np.ndarray
+    v: np.ndarray
+    p: np.ndarray
+    kinetic: float
+    potential: float
+    total: float
+    backbone: np.ndarray
+    tip_frames: np.ndarray
+    base_frame: np.ndarray | None = None
+
+
+def _jsonable(value: Any, where: str) -> Any:
+    """``value`` as plain JSON types (numpy arrays and scalars, tuples and paths
+    converted); ``ValueError`` naming ``where`` for anything else."""
+    if value is None or isinstance(value, (bool, str)):
+        return value
+    if isinstance(value, (int, np.integer)):
+        return int(value)
+    if isinstance(value, (float, np.floating)):
+        return float(value)
+    if isinstance(value, np.ndarray):
+        return _jsonable(value.tolist(), where)
+    if isinstance(value, os.PathLike):
+        return os.fspath(value)
+    if isinstance(value, dict):
+        out = {}
+        for k, v in value.items():
+            if not isinstance(k, str):
+                raise ValueError(f"{where} keys must be strings, got {k!r}")
+            out[k] = _jsonable(v, f"{where}[{k!r}]")
+        return out
+    if isinstance(value, (list, tuple)):
+        return [_jsonable(v, f"{where}[{i}]") for i, v in enumerate(value)]
+    raise ValueError(
+        f"{where} must hold only JSON-like values (numbers, strings, lists, dicts, numpy "
+        f"arrays), got {type(value).__name__}: {value!r}"
+    )
+
+
+@dataclass(kw_only=True)
+class RunInfo:
+    """Static information about a run, recorded once (checksummed).
+
+    Attributes
+    ----------
+    n_segments : int
+        Number of segments ``n`` of the arm.
+    radii : (n,) sequence of float, m
+        Segment radii, used to draw the backbone as tubes.
+    scene : str
+        The scene text (e.g. the TOML file's content); may be empty.
+    scene_path : str or None
+        Where the scene came from, for the record, for default file names and so that the
+        recording never overwrites it.
+    params : dict
+        Model parameters; JSON-like values only (numpy arrays become lists).
+    qchain_version : str
+        Defaults to ``qchain.__version__``.
+    chamber_radii : (n,) sequence of float or None, m
+        Distance of the chambers from the axis, for drawing the pressure arrows; ``None``
+        draws them at 0.6 x the segment radius.
+    chamber_angles : (3,) sequence of float, rad
+        Angular positions of chambers 1..3 about a tip frame's z axis, from its x axis.
+    pressure_ref : float, Pa
+        Pressure drawn as an arrow half a segment long.
+    name : str
+        Run name (the Rerun recording name).
+    q_names, v_names : sequence of str or None
+        Names of the coordinates and velocities with their units, e.g.
+        ``"segment 2 ux [1/m]"`` (plots and layouts); ``None``: ``q[0]``, ``v[0]``, ...
+    duration : float or None, s
+        The simulated time the run is meant to reach (the live plots' time axis).
+    """
+
+    n_segments: int
+    radii: Sequence[float]
+    scene: str = ""
+    scene_path: str | None = None
+    params: dict = field(default_factory=dict)
+    qchain_version: str = __version__
+    chamber_radii: Sequence[float] | None = None
+    chamber_angles: Sequence[float] = (0.0, 2.0 * math.pi / 3.0, -2.0 * math.pi / 3.0)
+    pressure_ref: float = 1.0e5
+    name: str = "qchain run"
+    q_names: Sequence[str] | None = None
+    v_names: Sequence[str] | None = None
+    duration: float | None = None
+
+    def __post_init__(self) -> None:
+        if isinstance(self.n_segments, bool) or not isinstance(self.n_segments, (int, np.integer)):
+            raise ValueError(f"n_segments must be an int >= 1, got {self.n_segments!r}")
+        if self.n_segments < 1:
+            raise ValueError(f"n_segments must be >= 1, got {self.n_segments}")
+        self.n_segments = int(self.n_segments)
+        self.radii = [float(r) for r in self._vector("radii", self.radii, self.n_segments)]
+        if self.chamber_radii is not None:
+            self.chamber_radii = [
+                float(r) for r in self._vector("chamber_radii", self.chamber_radii, self.n_segments)
+            ]
+        angles = np.asarray(self.chamber_angles, dtype=float)
+        if angles.shape != (3,) or not np.all(np.isfinite(angles)):
+            raise ValueError(f"chamber_angles must be 3 finite angles (rad), got {self.chamber_angles!r}")
+        self.chamber_angles = [float(a) for a in angles]
+        if not (math.isfinite(float(self.pressure_ref)) and float(self.pressure_ref) > 0.0):
+            raise ValueError(f"pressure_ref must be > 0 Pa, got {self.pressure_ref!r}")
+        self.pressure_ref = float(self.pressure_ref)
+        if not isinstance(self.scene, str):
+            raise ValueError(f"scene must be a str (the scene text), got {type(self.scene).__name__}")
+        if self.scene_path is not None:
+            self.scene_path = os.fspath(self.scene_path)
+        if not isinstance(self.params, dict):
+            raise ValueError(f"params must be a dict, got {type(self.params).__name__}")
+        self.params = _jsonable(self.params, "params")
+        self.qchain_version = str(self.qchain_version)
+        self.name = str(self.name)
+        for key in ("q_names", "v_names"):
+            names = getattr(self, key)
+            if names is not None:
+                if isinstance(names, str) or not all(isinstance(s, str) for s in names):
+                    raise ValueError(f"{key} must be a sequence of str, got {names!r}")
+                setattr(self, key, list(names))
+        if self.duration is not None:
+            d = float(self.duration)
+            if not (math.isfinite(d) and d > 0):
+                raise ValueError(f"duration must be None or a finite time > 0 s, got {self.duration!r}")
+            self.duration = d
+
+    @staticmethod
+    def _vector(name: str, value, n: int) -> np.ndarray:
+        arr = np.asarray(value, dtype=float)
+        if arr.shape != (n,):
+            raise ValueError(f"{name} must have shape ({n},) (one a segment), got shape {arr.shape}")
+        if not np.all(np.isfinite(arr)) or np.any(arr <= 0.0):
+            raise ValueError(f"{name} must be finite and > 0 m, got {arr.tolist()}")
+        return arr
+
+    def names(self, kind: str, count: int) -> list[str]:
+        """Series names of ``q``, ``v`` (with units when known), ``p`` or ``energy``."""
+        if kind in ("q", "v"):
+            given = self.q_names if kind == "q" else self.v_names
+            if given is not None and len(given) == count:
+                return list(given)
+            return [f"{kind}[{i}]" for i in range(count)]
+        if kind == "p":
+            out = [f"segment {i // 3 + 1} chamber {i % 3 + 1} [Pa]" for i in range(3 * self.n_segments)]
+            return (out + [f"p[{i}]" for i in range(len(out), count)])[:count]
+        if kind == "energy":
+            return ["kinetic [J]", "potential [J]", "total [J]"]
+        raise ValueError(f"kind must be 'q', 'v', 'p' or 'energy', got {kind!r}")
+
+    def to_json(self) -> dict:
+        """The information as a JSON-ready dict (inverse of :meth:`from_json`)."""
+        return {
+            "n_segments": self.n_segments,
+            "radii": list(self.radii),
+            "scene": self.scene,
+            "scene_path": self.scene_path,
+            "params": self.params,
+            "qchain_version": self.qchain_version,
+            "chamber_radii": None if self.chamber_radii is None else list(self.chamber_radii),
+            "chamber_angles": list(self.chamber_angles),
+            "pressure_ref": self.pressure_ref,
+            "name": self.name,
+            "q_names": self.q_names,
+            "v_names": self.v_names,
+            "duration": self.duration,
+        }
+
+    @classmethod
+    def from_json(cls, data: dict) -> RunInfo:
+        """Rebuild from :meth:`to_json` output; unknown keys are ignored."""
+        known = {k: data[k] for k in cls.__dataclass_fields__ if k in data}
+        return cls(**known)
+
+
+# --------------------------------------------------------------------------------------
+# Row layout: how a record is packed into one float64 row
+# --------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class RecordLayout:
+    """A step record as one row of float64 numbers, the form records travel in.
+
+    The row holds, in this order, ``t`` (s), ``step`` (an integer value), ``q`` (nq),
+    ``v`` (nv), ``p`` (n_p, Pa), ``kinetic``, ``potential``, ``total`` (J), the base frame
+    (7: x, y, z, qx, qy, qz, qw), the backbone (n x P x 3, m, row-major) and the tip frames
+    (n x 7): the fields of :class:`StepRecord` flattened. :attr:`slices` says where each
+    field is.
+
+    Attributes
+    ----------
+    nq, nv, n_p : int
+        Lengths of q, v and p.
+    n : int
+        Segments.
+    P : int
+        Backbone points a segment.
+    """
+
+    nq: int
+    nv: int
+    n_p: int
+    n: int
+    P: int
+
+    @property
+    def row_width(self) -> int:
+        """Numbers in a row."""
+        return 2 + self.nq + self.nv + self.n_p + 3 + 7 + self.n * self.P * 3 + self.n * 7
+
+    @property
+    def slices(self) -> dict[str, slice]:
+        """Field name -> its columns in a row (``t``, ``step``, ``q``, ``v``, ``p``,
+        ``energy`` (kinetic, potential, total), ``base``, ``backbone``, ``tip_frames``)."""
+        sizes = (("t", 1), ("step", 1), ("q", self.nq), ("v", self.nv), ("p", self.n_p), ("energy", 3),
+                 ("base", 7), ("backbone", self.n * self.P * 3), ("tip_frames", self.n * 7))
+        out, a = {}, 0
+        for name, size in sizes:
+            out[name] = slice(a, a + size)
+            a += size
+        return out
+
+    def to_json(self) -> dict:
+        return {"nq": self.nq, "nv": self.nv, "np": self.n_p, "n": self.n, "P": self.P}
+
+    @classmethod
+    def from_json(cls, d: dict) -> RecordLayout:
+        return cls(int(d["nq"]), int(d["nv"]), int(d["np"]), int(d["n"]), int(d["P"]))
+
+
+@dataclass
+class Batch:
+    """K records, stacked: t (K,), step (K,), q (K, nq), v (K, nv), p (K, 3n),
+    energy (K, 3) = (kinetic, potential, total), base (K, 7), backbone (K, n, P, 3),
+    tip_frames (K, n, 7)."""
+
+    t: np.ndarray
+    step: np.ndarray
+    q: np.ndarray
+    v: np.ndarray
+    p: np.ndarray
+    energy: np.ndarray
+    base: np.ndarray
+    backbone: np.ndarray
+    tip_frames: np.ndarray
+
+    def __len__(self) -> int:
+        return int(self.t.shape[0])
+
+    @classmethod
+    def from_rows(cls, rows: np.ndarray, lay: RecordLayout) -> Batch:
+        """From rows (K, lay.row_width)."""
+        K = rows.shape[0]
+        sl = lay.slices
+        col = lambda name: np.ascontiguousarray(rows[:, sl[name]])  # noqa: E731
+        return cls(
+            t=col("t")[:, 0],
+            step=col("step")[:, 0].astype(np.int64),
+            q=col("q"),
+            v=col("v"),
+            p=col("p"),
+            energy=col("energy"),
+            base=col("base"),
+            backbone=col("backbone").reshape(K, lay.n, lay.P, 3),
+            tip_frames=col("tip_frames").reshape(K, lay.n, 7),
+        )
+
+    @classmethod
+    def from_bytes(cls, data: bytes, lay: RecordLayout) -> Batch:
+        return cls.from_rows(np.frombuffer(data, dtype=np.float64).reshape(-1, lay.row_width), lay)
+
+    def rows(self) -> np.ndarray:
+        """The batch as rows of its layout (the inverse of :meth:`from_rows`)."""
+        K = len(self)
+        return np.concatenate(
+            (self.t[:, None], self.step[:, None].astype(np.float64), self.q, self.v, self.p, self.energy,
+             self.base, self.backbone.reshape(K, -1), self.tip_frames.reshape(K, -1)), axis=1)
+
+    @property
+    def layout(self) -> RecordLayout:
+        return RecordLayout(self.q.shape[1], self.v.shape[1], self.p.shape[1], self.backbone.shape[1],
+                            self.backbone.shape[2])
+
+    @classmethod
+    def concatenate(cls, batches: Sequence[Batch]) -> Batch:
+        return cls(*(np.concatenate([getattr(x, f) for x in batches]) for f in cls.__dataclass_fields__))
+
+    def take(self, index) -> Batch:
+        """The records at ``index`` (a slice, or integer positions)."""
+        return Batch(*(getattr(self, f)[index] for f in self.__dataclass_fields__))
+
+
+def default_base(backbone: np.ndarray) -> np.ndarray:
+    """The base frame a record without one gets: at the first backbone point, aligned with
+    the world."""
+    out = np.zeros(7)
+    out[:3] = backbone[0, 0] if backbone.size else 0.0
+    out[6] = 1.0
+    return out

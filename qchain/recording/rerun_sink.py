@@ -1,0 +1,434 @@
+"""The Rerun view of a run: live (a served web viewer, a viewer you run) or an ``.rrd`` file.
+
+A blueprint puts the 3D arm (backbone as tubes of the segments' radii, tip axes, chamber
+pressures as arrows on the tip plates, length and colour by pressure) beside time series
+of the pressures, coordinates, velocities and energies, every series named with its unit
+(``segment 2 ux [1/m]``). The camera is framed from the arm's reach about its base, along
+the base's own axis, so an arm hanging from its base is as centred as one standing on it.
+The plots show the whole run on their time axis (``RunInfo.duration`` when known) and no
+legend over the data (a series' name shows on hover). Per-step data go on the
+``sim_time`` (duration) and ``step`` (sequence) timelines in column batches
+(``send_columns``).
+
+``serve=True`` hosts ``rr.GrpcServerSink`` on ``bind`` (127.0.0.1 by default) and the
+web viewer of the ``rerun`` program shipped in the rerun-sdk wheel, behind a front on
+``bind`` that keeps the page from asking any other host for anything
+(:mod:`.web_viewer`), with Rerun's analytics turned off.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+from urllib.parse import quote, urlsplit
+
+import numpy as np
+
+from .records import SEGMENT_COLORS, Batch, LoggingError, RunInfo
+
+__all__ = ["RerunSink", "camera", "DEFAULT_BIND", "DEFAULT_GRPC_PORT", "DEFAULT_WEB_PORT", "quiet_env"]
+
+DEFAULT_BIND = "127.0.0.1"
+DEFAULT_GRPC_PORT = 9876
+DEFAULT_WEB_PORT = 9090
+#: Vertical field of view (deg) of Rerun's 3D view camera.
+FOV_Y_DEG = 55.0
+
+
+def quiet_env(env: dict | None = None) -> dict:
+    """An environment in which Rerun (SDK and viewer) sends no analytics anywhere."""
+    env = dict(os.environ if env is None else env)
+    env["RERUN_ANALYTICS"] = "0"  # read by rerun-sdk's Python side
+    env["DO_NOT_TRACK"] = "1"
+    env.setdefault("RUST_LOG", "warn")
+    # the analytics setting of the rerun program lives in its config folder: one of our own,
+    # with analytics off (`rerun analytics disable` would change the user's)
+    cfg = Path(env.get("XDG_CONFIG_HOME") or Path.home() / ".config")
+    if not (cfg / "rerun" / "analytics.json").exists():
+        import tempfile
+
+        own = Path(tempfile.gettempdir()) / f"qchain-rerun-config-{os.getuid()}"
+        try:
+            (own / "rerun").mkdir(parents=True, exist_ok=True)
+            f = own / "rerun" / "analytics.json"
+            if not f.exists():
+                f.write_text(json.dumps({"analytics_enabled": False, "opt_in_metadata": {}}))
+            env["XDG_CONFIG_HOME"] = str(own)
+        except OSError:  # no config folder of our own: the variables above still hold
+            pass
+    return env
+
+
+def _pressure_colors(p_rel: np.ndarray) -> np.ndarray:
+    """Colours (..., 3) uint8 for pressures relative to the reference, blue (0) to red (1)."""
+    s = np.clip(np.nan_to_num(p_rel), 0.0, 1.0)[..., None]
+    lo = np.array([60.0, 120.0, 255.0])
+    hi = np.array([220.0, 20.0, 60.0])
+    return (lo + (hi - lo) * s).astype(np.uint8)
+
+
+def _quat_rot(qxyzw: np.ndarray) -> np.ndarray:
+    """Rotation matrices (..., 3, 3) of unit quaternions (..., 4) x, y, z, w."""
+    x, y, z, w = np.moveaxis(np.asarray(qxyzw, dtype=float), -1, 0)
+    return np.stack([
+        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)], -1),
+        np.stack([2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)], -1),
+        np.stack([2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)], -1),
+    ], -2)
+
+
+def camera(base: np.ndarray, reach: float, fov_deg: float = FOV_Y_DEG, margin: float = 1.05):
+    """Eye position, look target and up vector that frame the arm's whole reach.
+
+    The arm stays within a ball of radius ``reach`` (its length) about its base, on the
+    base's side of it. The camera looks at the point half a reach along the base's z axis,
+    from a distance at which a sphere of radius 1.25 reach about that point (which holds
+    that ball's part in front of the base) fits the view's height (times ``margin``), from
+    a side: perpendicular to the base axis where it can, world z up.
+
+    Parameters
+    ----------
+    base : (7,) x, y, z (m), qx, qy, qz, qw: the base's world placement.
+    reach : float, m
+    """
+    o = np.asarray(base[:3], dtype=float)
+    z_b = _quat_rot(np.asarray(base[3:7], dtype=float))[:, 2]
+    target = o + 0.5 * reach * z_b
+    up = np.array([0.0, 0.0, 1.0])
+    side = np.array([0.55, -0.8, 0.0])  # a three-quarter view
+    side -= np.dot(side, z_b) * z_b  # perpendicular to the arm's axis
+    if np.linalg.norm(side) < 1e-6:
+        side = np.array([0.0, -1.0, 0.0])
+    side /= np.linalg.norm(side)
+    view = side + 0.35 * up  # a little from above
+    view /= np.linalg.norm(view)
+    # what the arm reaches (a ball of radius reach about the base, on the base's side of it)
+    # lies within 1.25 reach of the target; at this distance that sphere fits the view
+    radius = 1.25 * reach
+    dist = margin * radius / np.sin(np.radians(0.5 * fov_deg))
+    return target + dist * view, target, up
+
+
+def _pick_port(host: str, preferred: int | None, default: int) -> int:
+    """``preferred`` if given; else ``default`` when free on ``host``, else a free port."""
+    if preferred:
+        return int(preferred)
+    for candidate in (default, 0):
+        try:
+            with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+                s.bind((host, candidate))
+                return int(s.getsockname()[1])
+        except OSError:
+            continue
+    raise LoggingError(f"no free TCP port on {host}")
+
+
+def _wait_listening(host: str, port: int, timeout: float, proc: subprocess.Popen | None = None) -> bool:
+    deadline = time.monotonic() + timeout
+    target = "127.0.0.1" if host in ("0.0.0.0", "") else host
+    while time.monotonic() < deadline:
+        if proc is not None and proc.poll() is not None:
+            return False
+        try:
+            with socket.create_connection((target, port), timeout=0.5):
+                return True
+        except OSError:
+            time.sleep(0.05)
+    return False
+
+
+def probe_url(url: str, timeout: float = 2.0) -> str | None:
+    """None when a TCP connection to the URL's host and port opens, else why not."""
+    parts = urlsplit(url)
+    if parts.scheme not in ("rerun", "rerun+http", "rerun+https", "http", "https"):
+        return f"unsupported URL scheme {parts.scheme!r} (use rerun+http://HOST:PORT/proxy)"
+    host = parts.hostname
+    if not host:
+        return "the URL names no host"
+    try:
+        port = parts.port or (443 if parts.scheme.endswith("https") else 9876)
+    except ValueError as exc:
+        return f"bad port in URL: {exc}"
+    try:
+        with socket.create_connection((host, port), timeout=timeout):
+            return None
+    except OSError as exc:
+        return f"{exc.strerror or exc}"
+
+
+def rerun_cli() -> str | None:
+    """Path of the ``rerun`` program shipped in the rerun-sdk wheel (or on PATH)."""
+    try:
+        import rerun_cli as _rc
+
+        exe = Path(_rc.__file__).parent / ("rerun.exe" if os.name == "nt" else "rerun")
+        if exe.exists():
+            return str(exe)
+    except ImportError:
+        pass
+    import shutil
+
+    return shutil.which("rerun")
+
+
+def _die_with_parent() -> None:  # runs in the forked child before exec
+    if sys.platform.startswith("linux"):
+        try:
+            import ctypes
+
+            ctypes.CDLL(None).prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
+        except (OSError, AttributeError):
+            pass
+
+
+class RerunSink:
+    """Logs batches to a Rerun recording stream (live server, remote viewer, .rrd file)."""
+
+    def __init__(self, info: RunInfo, *, serve: bool = False, connect: str | None = None,
+                 rrd: str | os.PathLike | None = None, bind: str = DEFAULT_BIND, grpc_port: int | None = None,
+                 web_port: int | None = None, recording_id: str, server_memory_limit: str = "1GiB", warn):
+        self.info = info
+        self.rec = None
+        self.viewer_url: str | None = None
+        self.grpc_url: str | None = None
+        self.serving = False
+        self.web: subprocess.Popen | None = None
+        self.front = None
+        self.started = False
+        os.environ.update({k: v for k, v in quiet_env().items() if k in ("RERUN_ANALYTICS", "DO_NOT_TRACK")})
+        import rerun as rr
+        import rerun.blueprint as rrb
+
+        self.rr, self.rrb = rr, rrb
+        rec = rr.RecordingStream("qchain", recording_id=recording_id)
+        sinks = []
+        if rrd is not None:
+            sinks.append(rr.FileSink(os.fspath(rrd)))
+        if connect:
+            why = probe_url(connect)
+            if why is None:
+                sinks.append(rr.GrpcSink(connect))
+            else:
+                warn(f"no Rerun viewer can be reached at {connect} ({why}); the run goes on without it and the "
+                     "MCAP log is still written")
+        server_port = None
+        if serve:
+            server_port = _pick_port(bind, grpc_port, DEFAULT_GRPC_PORT)
+            server = rr.GrpcServerSink(bind_ip=bind, port=server_port, server_memory_limit=server_memory_limit)
+            sinks.append(server)
+            self.grpc_url = server.uri
+        if not sinks:
+            return
+        rec.set_sinks(*sinks)
+        self.rec = rec
+        if serve:
+            if not _wait_listening(bind, server_port, 5.0):
+                warn(f"the Rerun gRPC server could not listen on {bind}:{server_port} (port in use?); no live "
+                     "view, the MCAP log is still written")
+            else:
+                self.serving = True
+                self._start_web_viewer(bind, web_port, warn)
+        rec.send_recording_name(info.name)
+
+    def _start_web_viewer(self, bind: str, web_port: int | None, warn) -> None:
+        exe = rerun_cli()
+        if exe is None:
+            warn("the `rerun` program of rerun-sdk was not found, so no web viewer is served; open the data with "
+                 f"a Rerun viewer: rerun --connect {self.grpc_url}")
+            return
+        from .web_viewer import LoopbackFront
+
+        port = _pick_port(bind, web_port, DEFAULT_WEB_PORT)
+        inner = _pick_port("127.0.0.1", None, 0)  # the rerun program's own server, behind the front
+        self.web = subprocess.Popen(
+            [exe, "--serve-web", "--bind", "127.0.0.1", "--web-viewer-port", str(inner), self.grpc_url],
+            stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=quiet_env(),
+            preexec_fn=_die_with_parent,
+        )
+        if not _wait_listening("127.0.0.1", inner, 15.0, self.web):
+            warn(f"the Rerun web viewer did not start; connect a Rerun viewer to {self.grpc_url} instead")
+            self._stop_web()
+            return
+        try:
+            self.front = LoopbackFront(bind, port, inner, int(urlsplit(self.grpc_url).port))
+        except OSError as exc:
+            warn(f"the web viewer cannot be served on {bind}:{port} ({exc.strerror or exc}); connect a Rerun viewer "
+                 f"to {self.grpc_url} instead")
+            self._stop_web()
+            return
+        host = "127.0.0.1" if bind in ("0.0.0.0", "") else bind
+        self.viewer_url = f"http://{host}:{port}/?url={quote(self.grpc_url, safe='')}"
+
+    def _stop_web(self) -> None:
+        front, self.front = getattr(self, "front", None), None
+        if front is not None:
+            front.close()
+        if self.web is not None and self.web.poll() is None:
+            self.web.terminate()
+            try:
+                self.web.wait(5.0)
+            except subprocess.TimeoutExpired:
+                self.web.kill()
+                self.web.wait()
+        self.web = None
+
+    # -- static part ---------------------------------------------------------------------
+
+    def blueprint(self, b: Batch):
+        """The view: 3D arm beside the plots (built from a run's first records)."""
+        rrb, info = self.rrb, self.info
+        reach = self._reach(b)
+        eye, target, up = camera(b.base[0], reach)
+        hidden = rrb.PlotLegend(visible=False)  # names show on hover: no legend over the data
+        t_end = info.duration
+        axis = None
+        if t_end is not None:
+            B = self.rr.TimeRangeBoundary
+            axis = rrb.TimeAxis(view_range=self.rr.TimeRange(start=B.absolute(seconds=0.0),
+                                                             end=B.absolute(seconds=float(t_end))))
+
+        def plot(name, origin):
+            return rrb.TimeSeriesView(name=name, origin=origin, plot_legend=hidden, axis_x=axis)
+
+        n = self.info.n_segments
+        q_views = [plot(f"segment {i + 1} coordinates", f"/plots/q/segment_{i + 1}") for i in range(n)]
+        if self._seg_q0(b) > 0:  # a floating base's coordinates
+            q_views.insert(0, plot("base coordinates", "/plots/q/base"))
+        return rrb.Blueprint(
+            rrb.Horizontal(
+                rrb.Spatial3DView(name="arm", origin="/", contents=["+ /arm/**", "+ /world/**"],
+                                  eye_controls=rrb.EyeControls3D(position=eye, look_target=target, eye_up=up)),
+                rrb.Vertical(
+                    plot("chamber pressures [Pa]", "/plots/pressure"),
+                    rrb.Tabs(*q_views, plot("velocities", "/plots/v"), rrb.TextDocumentView(name="scene",
+                                                                                            origin="/scene")),
+                    plot("energy [J]", "/plots/energy"),
+                ),
+                column_shares=[3, 2],
+            ),
+            rrb.BlueprintPanel(state="collapsed"),
+            rrb.SelectionPanel(state="collapsed"),
+            rrb.TimePanel(state="collapsed", timeline="sim_time"),
+        )
+
+    def _seg_q0(self, b: Batch) -> int:
+        """Index of the first segment coordinate (after the base's)."""
+        return max(0, b.q.shape[1] - 3 * self.info.n_segments)
+
+    def _reach(self, b: Batch) -> float:
+        n, P = b.backbone.shape[1], b.backbone.shape[2]
+        lengths = self.info.params.get("segments") if isinstance(self.info.params, dict) else None
+        if isinstance(lengths, list) and len(lengths) == n and all("length" in s for s in lengths):
+            return float(sum(float(s["length"]) for s in lengths))
+        bb0 = np.nan_to_num(b.backbone[0])
+        seg = np.linalg.norm(np.diff(bb0, axis=1), axis=2).sum(axis=1) if P > 1 else np.zeros(n)
+        return max(float(seg.sum()), 8.0 * float(np.sum(self.info.radii)))
+
+    def _start(self, b: Batch) -> None:
+        rr, rec, info = self.rr, self.rec, self.info
+        n, P = b.backbone.shape[1], b.backbone.shape[2]
+        bb0 = np.nan_to_num(b.backbone[0])
+        seg_len = np.linalg.norm(np.diff(bb0, axis=1), axis=2).sum(axis=1) if P > 1 else np.zeros(n)
+        seg_len = np.where(seg_len > 0, seg_len, 4.0 * np.asarray(info.radii))
+        self._arrow_scale = 0.5 * seg_len / info.pressure_ref  # m/Pa, (n,)
+        radii = np.asarray(info.radii)
+        self._axis_len = 2.5 * radii
+        self._chamber_r = np.asarray(info.chamber_radii) if info.chamber_radii is not None else 0.6 * radii
+        ang = np.asarray(info.chamber_angles)
+        self._cos, self._sin = np.cos(ang), np.sin(ang)
+        colors = np.array([SEGMENT_COLORS[i % len(SEGMENT_COLORS)] for i in range(n)], dtype=np.uint8)
+        reach = self._reach(b)
+        rec.log("/", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+        rec.log("world/axes", rr.Arrows3D(origins=np.zeros((3, 3)), vectors=np.eye(3) * 0.25 * reach,
+                                          colors=[(200, 60, 60), (60, 170, 60), (60, 90, 220)],
+                                          radii=0.05 * float(radii.min())), static=True)
+        rec.log("arm/backbone", rr.LineStrips3D.from_fields(radii=radii, colors=colors), static=True)
+        rec.log("arm/tip_axes", rr.Arrows3D.from_fields(
+            colors=np.tile(np.array([(220, 40, 40), (40, 180, 40), (40, 80, 230)], np.uint8), (n, 1)),
+            radii=np.repeat(0.12 * radii, 3)), static=True)
+        rec.log("arm/pressure", rr.Arrows3D.from_fields(radii=np.repeat(0.08 * radii, 3)), static=True)
+        rec.log("plots/pressure", rr.SeriesLines(names=info.names("p", b.p.shape[1])), static=True)
+        qn = info.names("q", b.q.shape[1])
+        s0 = self._seg_q0(b)
+        self._q_groups = [("base", slice(0, s0))] if s0 else []
+        self._q_groups += [(f"segment_{i + 1}", slice(s0 + 3 * i, s0 + 3 * i + 3)) for i in range(n)]
+        for key, sl in self._q_groups:
+            rec.log(f"plots/q/{key}", rr.SeriesLines(names=qn[sl]), static=True)
+        rec.log("plots/v", rr.SeriesLines(names=info.names("v", b.v.shape[1])), static=True)
+        rec.log("plots/energy", rr.SeriesLines(names=info.names("energy", 3),
+                                               colors=[(40, 120, 220), (60, 170, 60), (30, 30, 30)]), static=True)
+        text = f"# {info.name}\n\nqchain {info.qchain_version}, {n} segment(s)"
+        if info.scene_path:
+            text += f", scene `{info.scene_path}`"
+        if info.scene:
+            text += "\n\n```toml\n" + info.scene + "\n```"
+        if info.params:
+            text += "\n\n## Model parameters\n\n```json\n" + json.dumps(info.params, indent=2, sort_keys=True) + "\n```"
+        rec.log("scene", rr.TextDocument(text, media_type=rr.MediaType.MARKDOWN), static=True)
+        rec.send_blueprint(self.blueprint(b), make_active=True, make_default=True)
+        self.started = True
+
+    # -- per-step part -----------------------------------------------------------------------
+
+    def write_batch(self, b: Batch) -> None:
+        if self.rec is None or len(b) == 0:
+            return
+        rr, rec = self.rr, self.rec
+        if not self.started:
+            self._start(b)
+        K, n, P = b.backbone.shape[:3]
+        idx = [rr.TimeColumn("sim_time", duration=b.t), rr.TimeColumn("step", sequence=b.step)]
+        rec.send_columns("arm/backbone", indexes=idx, columns=rr.LineStrips3D.columns(
+            strips=b.backbone.reshape(K * n, P, 3)).partition(np.full(K, n)))
+        pos = b.tip_frames[..., :3]  # (K, n, 3)
+        R = _quat_rot(b.tip_frames[..., 3:])  # (K, n, 3, 3)
+        axes = np.swapaxes(R, -1, -2) * self._axis_len[None, :, None, None]  # rows = axis vectors
+        rec.send_columns("arm/tip_axes", indexes=idx, columns=rr.Arrows3D.columns(
+            origins=np.repeat(pos, 3, axis=1).reshape(-1, 3), vectors=axes.reshape(-1, 3)).partition(np.full(K, 3 * n)))
+        # chamber arrows: at the chamber centres on each tip plate, along the backbone's end
+        # tangent, length and colour by pressure
+        radial = self._cos[None, None, :, None] * R[:, :, None, :, 0] + self._sin[None, None, :, None] * R[:, :, None, :, 1]
+        origins = pos[:, :, None, :] + self._chamber_r[None, :, None, None] * radial
+        tangent = b.backbone[:, :, -1, :] - b.backbone[:, :, -2, :] if P > 1 else R[..., 2]
+        tangent = tangent / np.maximum(np.linalg.norm(tangent, axis=-1, keepdims=True), 1e-300)
+        npress = min(b.p.shape[1], 3 * n)
+        press = np.zeros((K, 3 * n))
+        press[:, :npress] = b.p[:, :npress]
+        press = press.reshape(K, n, 3)
+        vec = tangent[:, :, None, :] * (press * self._arrow_scale[None, :, None])[..., None]
+        rec.send_columns("arm/pressure", indexes=idx, columns=rr.Arrows3D.columns(
+            origins=origins.reshape(-1, 3), vectors=vec.reshape(-1, 3),
+            colors=_pressure_colors(press / self.info.pressure_ref).reshape(-1, 3)).partition(np.full(K, 3 * n)))
+        rec.send_columns("plots/pressure", indexes=idx, columns=rr.Scalars.columns(scalars=b.p))
+        for key, sl in self._q_groups:
+            rec.send_columns(f"plots/q/{key}", indexes=idx, columns=rr.Scalars.columns(scalars=b.q[:, sl]))
+        rec.send_columns("plots/v", indexes=idx, columns=rr.Scalars.columns(scalars=b.v))
+        rec.send_columns("plots/energy", indexes=idx, columns=rr.Scalars.columns(scalars=b.energy))
+
+    def finish(self) -> None:
+        """Flush everything; finalise a .rrd file (keep a live server up)."""
+        if self.rec is None:
+            return
+        self.rec.flush(timeout_sec=10.0)
+        if not self.serving:
+            self.rec.disconnect()
+        else:
+            try:
+                import rerun_bindings
+
+                rerun_bindings.finalize_deferred_sinks(recording=self.rec.to_native())
+            except Exception:  # pragma: no cover - best effort
+                pass
+
+    def close(self) -> None:
+        if self.rec is not None:
+            self.rec.disconnect()
+            self.rec = None
+        self._stop_web()
+        self.serving = False

@@ -1,0 +1,116 @@
+"""Damaged recordings: a flipped bit loses at most its own chunk, and damaged metadata is
+reported, never used."""
+
+from __future__ import annotations
+
+import io
+
+import numpy as np
+import pytest
+from logging_fixtures import arm_info, arm_records
+
+from qchain.logging import RecordingFormatError, RunLogger, read_recording
+from qchain.recording.scan import scan
+
+N = 600
+
+
+@pytest.fixture(scope="module")
+def clean():
+    """A recording of N records in about 12 chunks, and where its records are."""
+    records = arm_records(N, dt=1e-3)
+    buf = io.BytesIO()
+    with RunLogger(arm_info(), buf, flush_interval=0.05, quiet=True) as log:
+        for r in records:
+            log.log(r)
+    data = buf.getvalue()
+    chunks, metas = [], []
+    first = 0
+    for item in scan(data):
+        if item.kind == "chunk":
+            k = sum(1 for r in item.records if type(r).__name__ == "Message" and r.channel_id == 1)
+            chunks.append((item.offset, item.end, first, first + k))
+            first += k
+        elif item.kind == "metadata":
+            metas.append((item.offset, item.end, item.record.name))
+    assert first == N and len(chunks) >= 10
+    t = np.array([r.t for r in records])
+    q = np.array([r.q for r in records])
+    return data, chunks, metas, t, q
+
+
+def _flip(data: bytes, pos: int, bit: int) -> bytes:
+    b = bytearray(data)
+    b[pos] ^= 1 << bit
+    return bytes(b)
+
+
+def test_a_flipped_bit_in_a_chunk_loses_only_that_chunk(clean):
+    """90 single-bit flips at random places inside chunks: each recording reads; every
+    record outside the damaged chunk is there, equal to what was logged; the records lost are
+    those of that chunk at most, and the gap names the time range around them."""
+    data, chunks, _, t, q = clean
+    rng = np.random.default_rng(17)
+    lost_only_itself = 0
+    for _ in range(90):
+        c = int(rng.integers(len(chunks)))
+        a, b, first, last = chunks[c]
+        pos = int(rng.integers(a, b))
+        rec = read_recording(io.BytesIO(_flip(data, pos, int(rng.integers(8)))))
+        idx = np.searchsorted(t, rec.t)
+        np.testing.assert_array_equal(rec.t, t[idx])
+        np.testing.assert_array_equal(rec.q, q[idx])
+        missing = sorted(set(range(N)) - set(idx.tolist()))
+        assert set(missing) <= set(range(first, last)), (pos, missing[:3])
+        if missing:
+            assert missing == list(range(first, last))  # the whole chunk, nothing else
+            (gap,) = rec.gaps
+            assert gap.after_t == (t[first - 1] if first else None) and gap.before_t == (t[last] if last < N else None)
+            assert rec.to_trajectory().success is False and "are missing" in rec.to_trajectory().message
+        else:  # a bit the CRC does not cover and the reading does not need (a chunk's time fields)
+            assert not rec.gaps
+        lost_only_itself += 1
+    assert lost_only_itself == 90
+
+
+def test_flips_outside_the_chunks_lose_nothing(clean):
+    """Flips in the header, metadata, message indexes, summary and footer: every record
+    still reads; a damaged qchain metadata record is reported (its CRC32 seal fails) and
+    its intact second copy is used; a damaged outcome is reported and not used."""
+    data, chunks, metas, t, q = clean
+    inside = np.zeros(len(data), dtype=bool)
+    for a, b, _, _ in chunks:
+        inside[a:b] = True
+    outside = np.flatnonzero(~inside[8:]) + 8
+    rng = np.random.default_rng(18)
+    for pos in rng.choice(outside, 60, replace=False).tolist():
+        flipped = _flip(data, pos, int(rng.integers(8)))
+        rec = read_recording(io.BytesIO(flipped))
+        np.testing.assert_array_equal(rec.t, t)
+        np.testing.assert_array_equal(rec.q, q)
+        assert not rec.gaps
+        assert rec.info == arm_info()
+        for a, b, name in metas:
+            if a <= pos < b:
+                assert rec.damage, (pos, name)
+                if name == "qchain.outcome":
+                    assert rec.outcome is None
+    # the first qchain metadata copy damaged: reported, the second copy is used
+    a, b, name = metas[0]
+    assert name == "qchain"
+    scene_at = data.index(b"synthetic", a)  # inside the scene text
+    rec = read_recording(io.BytesIO(_flip(data, scene_at, 0)))
+    assert rec.info.scene == arm_info().scene and any("fails its checksum" in d for d in rec.damage)
+
+
+def test_damaged_metadata_is_never_used_silently(clean):
+    """Both copies of the qchain metadata damaged: a clear error, not a recording whose scene
+    or radii changed without a word."""
+    data, _, metas, _, _ = clean
+    copies = [(a, b) for a, b, name in metas if name == "qchain"]
+    assert len(copies) == 2
+    flipped = data
+    for a, b in copies:
+        flipped = _flip(flipped, flipped.index(b"radii", a), 2)
+    with pytest.raises(RecordingFormatError, match="qchain metadata record is damaged"):
+        read_recording(io.BytesIO(flipped))
