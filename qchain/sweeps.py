@@ -70,7 +70,7 @@ METRICS = {
     "bend_max": "rad, largest bending angle of any segment",
     "kinetic_final": "J", "potential_final": "J (gravity + elastic)", "kinetic_max": "J",
     "energy_start": "J, total at the start", "energy_final": "J, total at the end",
-    "wall_s": "s, the simulation's wall time",
+    "wall_s": "s, the simulation's wall time (a worker's first run includes loading the engine)",
     "build_s": "s, building the model (0 when a worker had it built)",
     "worker": "the worker process that ran it (host:pid)",
 }
