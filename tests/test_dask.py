@@ -1,23 +1,16 @@
 """Batches and sweeps on a real dask.distributed LocalCluster (127.0.0.1, 2 worker processes):
-the same results as in this process, and a worker killed mid-sweep costs only its unfinished runs."""
+the same results as in this process."""
 
-import json
 import logging
-import os
-import signal
-import threading
-import time
 
 import pyarrow.parquet as pq
 import pytest
 
 import distributed  # the test extra installs dask[distributed]
 
-from qchain import simulate_batch, sweep
-from qchain.scene import parse_scene
+from qchain import simulate_batch
 from qchain.simulate import simulate
 from qchain.sweeps import main
-from qchain.workers import _DASK_FACTOR, plan_chunks
 from test_batch import T, T_EVAL, inputs, same, two_segment_arm
 from test_sweep import BASE, deterministic
 
@@ -62,43 +55,6 @@ def test_qchain_sweep_dask_gives_the_same_table(cluster, tmp_path):
     assert on_dask.num_rows == 6 and all(on_dask.column("success").to_pylist())
     assert deterministic(on_dask).equals(deterministic(serial))
     assert len(set(on_dask.column("worker").to_pylist()) - set(serial.column("worker").to_pylist())) == 2
-
-
-def test_a_dask_worker_killed_mid_sweep_costs_only_its_unfinished_runs(cluster, tmp_path):
-    _, client = cluster
-    log = tmp_path / "ran.log"
-    dampings = [round(0.011 + 0.001 * k, 3) for k in range(12)]
-    folder = tmp_path / "out"
-    journal = folder / "runs.jsonl"
-    victim = sorted(client.run(os.getpid).values())[0]
-    seen = {}
-
-    def kill_mid_sweep():
-        deadline = time.monotonic() + 120
-        while time.monotonic() < deadline:
-            if journal.is_file() and journal.read_text().count("\n") >= 3:
-                break
-            time.sleep(0.01)
-        seen["before"] = {json.loads(x)["segments[0].damping"] for x in journal.read_text().splitlines()}
-        os.kill(victim, signal.SIGKILL)
-
-    th = threading.Thread(target=kill_mid_sweep, daemon=True)
-    th.start()
-    scene = parse_scene(BASE, path=tmp_path / "base.toml")
-    res = sweep(scene, {"segments[0].damping": dampings}, set={"description": f"probe {log} 0.3"}, client=client,
-                folder=folder, progress=False, metrics="batch_probe:damping_logged")
-    th.join(10)
-    assert "before" in seen and len(seen["before"]) < len(dampings)
-    assert res.complete and res.table.num_rows == len(dampings) and res.n_failed == 0
-    assert victim not in client.run(os.getpid).values()  # the worker did die (its nanny started another)
-    ran = [float(x) for x in log.read_text().split()]
-    assert sorted(set(ran)) == dampings
-    assert all(ran.count(d) == 1 for d in seen["before"])  # finished runs were not computed again
-    held = 2 * len(plan_chunks(len(dampings), 2, factor=_DASK_FACTOR)[0])  # a worker takes 2 tasks of 1 thread
-    assert len(ran) - len(dampings) <= held  # at most what the dead worker held
-    fresh = sweep(scene, {"segments[0].damping": dampings}, set={"description": f"probe {tmp_path / 'x.log'} 0"},
-                  workers=1, progress=False, metrics="batch_probe:damping_logged")
-    assert deterministic(res.table).equals(deterministic(fresh.table))
 
 
 def test_a_scheduler_address_is_enough(arm, cluster):
