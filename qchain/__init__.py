@@ -1,17 +1,22 @@
 """qchain: quasi-Lagrangian dynamics of soft continuum arms (Olguin-Diaz et al.).
 
-The names below are imported on first use (PEP 562), so that ``import qchain`` stays light:
-the recording's writer process imports :mod:`qchain.recording` without loading Pinocchio or
-numba.
+The names below are imported on first use (PEP 562), so that ``import qchain`` stays light
+(no numpy, Pinocchio or numba): the recording's writer process imports
+:mod:`qchain.recording` without loading Pinocchio or numba, and the ``qchain`` command
+starts answering (``--version``, ``--help``, Ctrl-C) before the model's libraries load.
 """
-
-from .errors import DomainError, QchainError, SingularConfigurationError
 
 __version__ = "0.1.0"
 
-__all__ = ["Chain", "LagrangianChain", "Segment", "Scene", "SceneError", "load_scene", "QchainError", "DomainError", "SingularConfigurationError", "simulate_batch", "BatchTrajectory", "sweep", "__version__"]
+__all__ = ["Chain", "LagrangianChain", "Segment", "Scene", "SceneError", "load_scene", "QchainError", "DomainError",
+           "SingularConfigurationError", "NonFiniteError", "Budget", "BudgetError", "simulate_batch",
+           "BatchTrajectory", "sweep", "__version__"]
 
-_LAZY = {"Chain": ".chain", "LagrangianChain": ".lagrangian", "Scene": ".scene", "SceneError": ".scene", "load_scene": ".scene", "Segment": ".segment", "BatchTrajectory": ".batch", "simulate_batch": ".batch", "sweep": ".sweeps"}
+_LAZY = {"Chain": ".chain", "LagrangianChain": ".lagrangian", "Scene": ".scene", "SceneError": ".scene",
+         "load_scene": ".scene", "Segment": ".segment", "BatchTrajectory": ".batch", "simulate_batch": ".batch",
+         "sweep": ".sweeps", "QchainError": ".errors", "DomainError": ".errors",
+         "SingularConfigurationError": ".errors", "NonFiniteError": ".errors", "Budget": ".budget",
+         "BudgetError": ".budget"}
 
 
 def __getattr__(name: str):

@@ -4,7 +4,9 @@ The root frame of segment ``j + 1`` is the tip frame of segment ``j`` (docs/mode
 section 8; the paper's non-inertial root frames, section III-B), so the arm has
 piecewise-constant (variable) curvature. :class:`Chain` is the model
 (parameters, never changed by algorithms) and its user-facing methods; the recursive
-passes live in :mod:`qchain.recursive`.
+passes live in :mod:`qchain.recursive`, the world frames and kinematics in
+:mod:`qchain.chain_kinematics` and the input checks and non-finite result errors in
+:mod:`qchain.chain_checks` (base classes of :class:`Chain`).
 
 Configuration layout (Pinocchio's conventions):
 
@@ -28,10 +30,8 @@ base). Pressures ``p`` (Pa) are ordered segment by segment, chambers 1..3.
 
 from __future__ import annotations
 
-import functools
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import NamedTuple
 
 import numpy as np
 import pinocchio as pin
@@ -40,101 +40,18 @@ from . import dynamics_derivatives as _derivs
 from . import planar as _planar
 from . import recursive
 from .arc import SCRATCH, arc_nodes
+from .chain_checks import QUATERNION_TOLERANCE, ChainChecks, _finite  # noqa: F401 (QUATERNION_TOLERANCE re-exported)
+from .chain_kinematics import _NO_POINTS, ChainKinematics, Frames
 from .dynamics_derivatives import _ZERO6, ForwardDynamicsDerivatives, InverseDynamicsDerivatives
 from .data import Data
 from .bounds import GRAVITY
-from .errors import (DomainError, NonFiniteError, QchainError, SingularConfigurationError, as_real, as_real_array,
-                     as_vector)
+from .errors import NonFiniteError, QchainError, SingularConfigurationError, as_real, as_vector
 from .segment import PAPER_SINGULAR_ANGLE, Segment, paper_jacobian, paper_jacobian_dot, paper_to_curvature
 from .spatial import ad_matrix, quaternion_to_rotation
 
 __all__ = ["Chain", "Frames", "BASES"]
 
 BASES = ("fixed", "floating", "prescribed")
-QUATERNION_TOLERANCE = 1e-6
-
-
-_NO_POINTS = np.empty(0)  # recursive.frames without backbone points
-_NO_POINTS.flags.writeable = False
-
-
-class Frames(NamedTuple):
-    """World frames of ``K`` configurations (:meth:`Chain.frames_batch`): index ``j < n``
-    is the root of segment ``j``, index ``n`` the tip.
-
-    Attributes
-    ----------
-    rotation : (K, n + 1, 3, 3)
-    translation : (K, n + 1, 3), m
-    quaternion : (K, n + 1, 4)
-        The rotations as unit quaternions ``(x, y, z, w)``, ``w >= 0``.
-    backbone : (K, n, P, 3), m
-        World points along each segment's axis, ``alpha`` from 0 to 1
-        (``backbone[k, j, -1] == translation[k, j + 1]``).
-    """
-
-    rotation: np.ndarray
-    translation: np.ndarray
-    quaternion: np.ndarray
-    backbone: np.ndarray
-
-
-_ALPHAS: dict[int, np.ndarray] = {}
-
-
-def _vec3(x) -> str:
-    return "(" + ", ".join(f"{float(v):.6g}" for v in x) + ")"
-
-
-def _backbone_alpha(points_per_segment: int) -> np.ndarray:
-    """``P`` evenly spaced slice coordinates from 0 to 1 (read-only, cached)."""
-    alpha = _ALPHAS.get(points_per_segment)
-    if alpha is None:
-        if not (isinstance(points_per_segment, (int, np.integer)) and not isinstance(points_per_segment, bool)
-                and 2 <= points_per_segment <= 10_000):
-            raise ValueError(f"points_per_segment must be an int >= 2 and <= 10000, got {points_per_segment!r}")
-        alpha = np.linspace(0.0, 1.0, int(points_per_segment))
-        alpha.flags.writeable = False
-        _ALPHAS[int(points_per_segment)] = alpha
-    return alpha
-
-
-def _all_finite(x) -> bool:
-    """Whether a result (array, number, placement, or a tuple or list of them) is finite."""
-    if isinstance(x, np.ndarray):
-        return bool(np.isfinite(x).all())
-    if isinstance(x, float):
-        return np.isfinite(x)
-    if isinstance(x, pin.SE3):
-        return bool(np.all(np.isfinite(x.homogeneous)))
-    if isinstance(x, (tuple, list)):
-        return all(_all_finite(y) for y in x)
-    return True
-
-
-def _finite(quantity: str, has_v: bool = False):
-    """Decorator of a :class:`Chain` method ``(self, q, [v,] ...)``: a result that is not
-    finite raises :class:`~qchain.errors.NonFiniteError` naming the quantity, the segment
-    whose state overflows and the time (:meth:`Chain.nonfinite_error`) instead of being
-    returned; so does a segment's own :class:`~qchain.errors.NonFiniteError` inside."""
-
-    def wrap(fn):
-        @functools.wraps(fn)
-        def method(self, q, *args, **kwargs):
-            if kwargs.get("skip_checks"):
-                return fn(self, q, *args, **kwargs)
-            v = args[0] if has_v and args else kwargs.get("v")
-            try:
-                out = fn(self, q, *args, **kwargs)
-            except NonFiniteError:
-                raise self.nonfinite_error(fn.__name__, quantity, q, v, kwargs.get("t")) from None
-            if not _all_finite(out):
-                raise self.nonfinite_error(fn.__name__, quantity, q, v, kwargs.get("t"))
-            return out
-
-        return method
-
-    return wrap
 
 
 @dataclass
@@ -152,7 +69,7 @@ class _State:
     g_B: np.ndarray | None = None  # (3,) gravity in the base frame
 
 
-class Chain:
+class Chain(ChainKinematics, ChainChecks):
     """A soft arm of ``n`` segments.
 
     Parameters
@@ -297,20 +214,6 @@ class Chain:
             q[self.q_slice(j)] = s.neutral()
         return q
 
-    def _check_locks(self, q_e: np.ndarray, v_e: np.ndarray | None) -> None:
-        bad = self._locked & (np.abs(q_e - self._lock_values) > 1e-12 * np.maximum(1.0, np.abs(self._lock_values)))
-        if bad.any():
-            j, i = map(int, np.argwhere(bad)[0])
-            raise ValueError(
-                f"q[{self._qoff + 3 * j + i}] (segment {j}, {'l' if i == 0 else 'uy'}) is locked at "
-                f"{self._lock_values[j, i]:.9g}, got {q_e[j, i]:.9g}"
-            )
-        if v_e is not None:
-            bad = self._locked & (v_e != 0.0)
-            if bad.any():
-                j, i = map(int, np.argwhere(bad)[0])
-                raise ValueError(f"v[{self._voff + 3 * j + i}] (segment {j}) is locked and must be 0, got {v_e[j, i]:.9g}")
-
     def __repr__(self) -> str:
         return f"Chain(n={self.n}, base={self.base!r}, nq={self.nq}, nv={self.nv})"
 
@@ -327,93 +230,7 @@ class Chain:
         j, k = divmod(i - off, 3)
         return f"segment {j}, {('l', 'psi', 'kappa')[k] if self._paper[j] else ('l', 'ux', 'uy')[k]}"
 
-    def _overflowing_segment(self, q_e: np.ndarray, v_e: np.ndarray | None) -> str | None:
-        """The first segment whose own mass matrix, kinetic or elastic energy is not finite
-        at ``q_e`` (n, 3) (and ``v_e``), in words, or None."""
-        with np.errstate(all="ignore"):
-            for j, s in enumerate(self.segments):
-                q_c = paper_to_curvature(q_e[j]) if self._paper[j] else q_e[j]
-                M = s._mass_c(np.ascontiguousarray(q_c, dtype=float))
-                J = paper_jacobian(q_e[j]) if self._paper[j] else np.eye(3)
-                vc = None if v_e is None else J @ v_e[j]
-                T = 0.0 if vc is None else 0.5 * float(vc @ M[6:, 6:] @ vc)
-                U = Segment.elastic_energy.__wrapped__(s, q_e[j])
-                what = [w for w, ok in (("mass matrix", np.all(np.isfinite(M))),
-                                        (f"kinetic energy {T:.3g} J", np.isfinite(T) or not np.all(np.isfinite(M))),
-                                        (f"elastic energy {U:.3g} J", np.isfinite(U))) if not ok]
-                if what:
-                    sl, vs = self.q_slice(j), self.v_slice(j)
-                    rates = "" if v_e is None else f", v[{vs.start}:{vs.stop}] = {_vec3(v_e[j])}"
-                    return (f"segment {j} (q[{sl.start}:{sl.stop}] = {_vec3(q_e[j])}{rates}) overflows double "
-                            f"precision: its {' and '.join(what)}")
-        return None
-
-    def nonfinite_error(self, method: str, quantity: str, q, v=None, t=None, result=None) -> NonFiniteError:
-        """The :class:`~qchain.errors.NonFiniteError` of a ``method`` whose ``quantity`` came
-        out non-finite at ``(q, v)`` (and time ``t``): it names the first segment whose own
-        mass matrix, kinetic or elastic energy overflows there, or else the first
-        non-finite entry of ``result`` (a vector over ``v``)."""
-        try:
-            at = f" at t = {float(t):.6g} s" if t is not None else ""
-        except (TypeError, ValueError):
-            at = f" at t = {t!r}"
-        try:
-            q = np.asarray(q, dtype=float)
-            q_e = q[self._qoff :].reshape(self.n, 3)
-            v_e = None if v is None else np.asarray(v, dtype=float)[self._voff :].reshape(self.n, 3)
-        except (TypeError, ValueError):
-            return NonFiniteError(f"Chain.{method}: the {quantity} is not finite{at}")
-        culprit = self._overflowing_segment(q_e, v_e)
-        if culprit:
-            return NonFiniteError(f"Chain.{method}: the {quantity} is not finite{at}: {culprit}")
-        where = ""
-        if isinstance(result, np.ndarray) and result.shape == (self.nv,):
-            bad = np.flatnonzero(~np.isfinite(result))
-            if bad.size:
-                where = f": first at entry {int(bad[0])} ({self.coordinate_name(int(bad[0]))})"
-        return NonFiniteError(f"Chain.{method}: the {quantity} is not finite{at}{where}")
-
     # ------------------------------------------------------------------ inputs
-
-    def _vec(self, name: str, x, size: int) -> np.ndarray:
-        """Fast shape check; finiteness is checked with the domain (:meth:`_state`). A float
-        array passes straight; anything else is converted by :func:`qchain.errors.as_real_array`,
-        which refuses booleans, strings and complex numbers by name."""
-        if not (isinstance(x, np.ndarray) and x.dtype == np.float64):
-            x = as_real_array(name, x)
-        if x.shape != (size,):
-            as_vector(name, x, size)  # raises with the expected and actual shape
-        return x
-
-    def _q(self, q, name="q") -> np.ndarray:
-        q = self._vec(name, q, self.nq)
-        if self.floating:
-            norm = np.sqrt(q[3] * q[3] + q[4] * q[4] + q[5] * q[5] + q[6] * q[6])
-            if not abs(norm - 1.0) <= QUATERNION_TOLERANCE:
-                as_vector(name, q, self.nq)  # non-finite entries are named first
-                raise ValueError(
-                    f"{name}[3:7] quaternion (qx, qy, qz, qw) has norm {norm:.9g}; it must be within "
-                    f"{QUATERNION_TOLERANCE:g} of 1"
-                )
-            if norm != 1.0:
-                q = q.copy()
-                q[3:7] /= norm
-        return q
-
-    def _check_domain(self, q_e: np.ndarray, *checked: tuple[str, np.ndarray]) -> None:
-        """Raise for non-finite entries of the ``checked`` (name, array) pairs, or a segment
-        configuration outside the model (naming the segment and its indices in q)."""
-        for name, x in checked:
-            if recursive.first_invalid(x, q_e[:0], self._radius, self._paper) == -2:
-                as_vector(name, x, x.shape[0])
-        j = recursive.first_invalid(q_e[:0, 0], q_e, self._radius, self._paper)
-        if j >= 0:
-            sl = self.q_slice(j)
-            try:
-                self.segments[j].check_configuration(q_e[j], name=f"segment {j} (q[{sl.start}:{sl.stop}])")
-            except DomainError as err:
-                raise DomainError(str(err)) from None
-            raise DomainError(f"segment {j} (q[{sl.start}:{sl.stop}]) is outside the model: {q_e[j]}")
 
     def base_state(self, t: float = 0.0):
         """``(X_WB, V_B, A_B)`` of a prescribed base at time ``t`` (validated)."""
@@ -518,154 +335,6 @@ class Chain:
             out[:6] = pin.difference(self._ff, q0[:7], q1[:7])
         out[self._voff :] = q1[self._qoff :] - q0[self._qoff :]
         return out
-
-    # ------------------------------------------------------------------ kinematics
-
-    @_finite("world placements")
-    def placements(self, q, t: float = 0.0) -> list[pin.SE3]:
-        """World placements of every segment root and of the tip: ``n + 1`` ``pinocchio.SE3``."""
-        f = self._state_frames(self._state(q, t=t), _NO_POINTS)
-        return [pin.SE3(f.rotation[0, k], f.translation[0, k]) for k in range(self.n + 1)]
-
-    def tip_placement(self, q, t: float = 0.0) -> pin.SE3:
-        """World placement of the tip frame."""
-        return self.placements(q, t)[-1]
-
-    def backbone(self, q, points_per_segment: int = 20, t: float = 0.0) -> np.ndarray:
-        """World points along each segment's axis (m), shape ``(n, P, 3)``, ``alpha`` from 0 to 1."""
-        return self.frames(q, points_per_segment, t)[1]
-
-    @_finite("frames and backbone")
-    def frames(self, q, points_per_segment: int = 20, t: float = 0.0) -> tuple[list[pin.SE3], np.ndarray]:
-        """:meth:`placements` and :meth:`backbone` in one pass (:meth:`frames_batch` does many
-        configurations at once)."""
-        f = self._state_frames(self._state(q, t=t), _backbone_alpha(points_per_segment))
-        return [pin.SE3(f.rotation[0, k], f.translation[0, k]) for k in range(self.n + 1)], f.backbone[0]
-
-    def frames_batch(self, Q, points_per_segment: int = 20, t=0.0) -> Frames:
-        """World frames and backbones of ``K`` configurations in one compiled call: what a
-        batch of logged step records needs, at a few microseconds a configuration.
-
-        Parameters
-        ----------
-        Q : (K, nq)
-            Configurations, validated as ``q`` is everywhere (an error names the row).
-        points_per_segment : int
-            Backbone points a segment, ``alpha`` from 0 to 1 (>= 2).
-        t : float or (K,), s
-            Times (they matter for a prescribed base only).
-
-        Returns
-        -------
-        Frames
-            ``rotation`` (K, n + 1, 3, 3), ``translation`` (K, n + 1, 3) m and ``quaternion``
-            (K, n + 1, 4) of the roots of segments ``0..n-1`` and of the tip (index ``n``) in
-            the world; ``backbone`` (K, n, P, 3) m.
-        """
-        alpha = _backbone_alpha(points_per_segment)
-        Q = as_real_array("Q", Q)
-        if Q.ndim != 2 or Q.shape[1] != self.nq:
-            raise ValueError(f"Q must have shape (K, nq) = (K, {self.nq}), got {Q.shape}")
-        K = Q.shape[0]
-        q_e = Q[:, self._qoff :].reshape(K, self.n, 3)
-        bad = recursive.first_invalid(Q.ravel(), q_e.reshape(K * self.n, 3), self._radius, self._paper)
-        if bad == -2:
-            bad = int(np.flatnonzero(~np.isfinite(Q).all(axis=1))[0])
-        elif bad >= 0:
-            bad //= self.n
-        if self.floating:
-            norm = np.linalg.norm(Q[:, 3:7], axis=1)
-            off = np.flatnonzero(~(np.abs(norm - 1.0) <= QUATERNION_TOLERANCE))
-            if off.size and (bad < 0 or off[0] < bad):
-                bad = int(off[0])
-        if bad >= 0:
-            t_bad = float(np.broadcast_to(t, (K,))[bad])
-            try:
-                self._state(Q[bad], t=t_bad)
-            except (ValueError, QchainError) as err:
-                raise type(err)(f"Q[{bad}]: {err}") from None
-        if self.base == "fixed":
-            R0, o0 = self._R_WB, self._p_WB
-        elif self.floating:
-            R0, o0 = quaternion_to_rotation(Q[:, 3:7]), Q[:, :3]
-        else:
-            X = [self.base_state(tk)[0] for tk in np.broadcast_to(np.asarray(t, dtype=float), (K,))]
-            R0 = np.array([x.rotation for x in X])
-            o0 = np.array([x.translation for x in X])
-        with np.errstate(all="ignore"):
-            f = self._frames(q_e, R0, o0, alpha)
-        bad = ~(np.isfinite(f.translation).all(axis=(1, 2)) & np.isfinite(f.backbone).all(axis=(1, 2, 3)))
-        if bad.any():
-            k = int(np.flatnonzero(bad)[0])
-            raise NonFiniteError(f"Q[{k}]: " + str(self.nonfinite_error("frames_batch", "frames", Q[k])))
-        return f
-
-    def _state_frames(self, st: _State, alpha: np.ndarray) -> Frames:
-        return self._frames(st.q_e[None], st.X_WB.rotation[None], st.X_WB.translation[None], alpha)
-
-    def _frames(self, q_e: np.ndarray, R0: np.ndarray, o0: np.ndarray, alpha: np.ndarray) -> Frames:
-        """The one :func:`recursive.frames` call: ``q_e`` (K, n, 3) segment coordinates, base
-        rotations (K, 3, 3) and origins (K, 3)."""
-        K = q_e.shape[0]
-        f = Frames(np.empty((K, self.n + 1, 3, 3)), np.empty((K, self.n + 1, 3)), np.empty((K, self.n + 1, 4)),
-                   np.empty((K, self.n, alpha.shape[0], 3)))
-        recursive.frames(np.ascontiguousarray(q_e), self._paper, np.ascontiguousarray(R0), np.ascontiguousarray(o0),
-                         alpha, *f)
-        return f
-
-    def _tip_maps(self, st: _State):
-        """Per-segment tip maps in segment coordinates: ``Ad_j`` (n, 6, 6), ``S_j`` (n, 6, 3)."""
-        n = arc_nodes(np.ones(self.n), st.q_c)
-        S = n.S if st.J is None else n.S @ st.J
-        return n.Ad_inv, S
-
-    @_finite("tip Jacobian")
-    def tip_jacobian(self, q, reference: str = "local", t: float = 0.0) -> np.ndarray:
-        """Tip frame Jacobian (6, nv): ``V_tip = J v`` (+ the base's own motion if prescribed).
-
-        ``reference``: ``"local"`` (tip frame, Pinocchio LOCAL), ``"local_world_aligned"``
-        (tip origin, world axes) or ``"world"`` (spatial twist at the world origin).
-        """
-        st = self._state(q, t=t)
-        Ad, S = self._tip_maps(st)
-        Jt = np.zeros((6, self.nv))
-        if self.floating:
-            Jt[:, :6] = np.eye(6)
-        for j in range(self.n):
-            Jt = Ad[j] @ Jt
-            Jt[:, self.v_slice(j)] += S[j]
-        return self._express(Jt, self.placements(q, t)[-1], reference)
-
-    @staticmethod
-    def _express(J_local: np.ndarray, X: pin.SE3, reference: str) -> np.ndarray:
-        if reference == "local":
-            return J_local
-        if reference == "world":
-            return X.action @ J_local
-        if reference == "local_world_aligned":
-            R = X.rotation
-            out = np.empty_like(J_local)
-            out[:3] = R @ J_local[:3]
-            out[3:] = R @ J_local[3:]
-            return out
-        raise ValueError(f"reference must be 'local', 'local_world_aligned' or 'world', got {reference!r}")
-
-    @_finite("tip twist", has_v=True)
-    def tip_velocity(self, q, v, reference: str = "local", t: float = 0.0) -> np.ndarray:
-        """Tip twist (6,) ``[linear; angular]`` in ``reference`` (see :meth:`tip_jacobian`)."""
-        st = self._state(q, v, t=t)
-        T = np.empty((self.n, 6, 9))
-        c = np.empty((self.n, 6))
-        V = np.empty((self.n + 1, 6))
-        recursive.tip_maps(st.q_c, np.ascontiguousarray(st.v_c), st.V0, T, c, V)
-        return self._express(V[-1][:, None], self.placements(q, t)[-1], reference)[:, 0]
-
-    def _root_twists(self, st: _State) -> np.ndarray:
-        T = np.empty((self.n, 6, 9))
-        c = np.empty((self.n, 6))
-        V = np.empty((self.n + 1, 6))
-        recursive.tip_maps(st.q_c, np.ascontiguousarray(st.v_c), st.V0, T, c, V)
-        return V
 
     # ------------------------------------------------------------------ energies
 
@@ -857,24 +526,6 @@ class Chain:
         for j, s in enumerate(self.segments):
             B[self.v_slice(j), 3 * j : 3 * j + 3] = s.input_matrix(st.q_e[j])
         return B
-
-    def _p(self, p) -> np.ndarray:
-        return np.zeros((self.n, 3)) if p is None else as_vector("p", p, self.nu).reshape(self.n, 3)
-
-    def _pt(self, p, tau):
-        """Shape-checked ``p`` (n, 3) and ``tau`` (nv,) or None, and their (name, array) pairs
-        for the finiteness check of :meth:`_state`."""
-        extra = []
-        if p is None:
-            p3 = np.zeros((self.n, 3))
-        else:
-            pv = self._vec("p", p, self.nu)
-            extra.append(("p", pv))
-            p3 = pv.reshape(self.n, 3)
-        if tau is not None:
-            tau = self._vec("tau", tau, self.nv)
-            extra.append(("tau", tau))
-        return p3, tau, extra
 
     @_finite("internal forces", has_v=True)
     def internal_forces(self, q, v, p=None) -> np.ndarray:

@@ -9,6 +9,11 @@
     qchain sweep SWEEP.toml [--workers N | --dask ADDRESS] [--out DIR] [--restart] [--dry-run] (qchain.sweeps)
     qchain recover LOG.mcap
     qchain layout LOG.mcap [-o layout.json]
+    qchain bench [--quick] [--out DIR]
+    qchain --version
+    python -m qchain ...                    (the same command)
+
+``--debug``, anywhere on the line, prints the traceback of an error as well as its line.
 
 ``run`` builds the scene's model (:meth:`qchain.scene.Scene.build`), integrates it,
 writes the plots and ``trajectory.npz`` the scene's ``[output]`` asks for, and prints a
@@ -17,34 +22,72 @@ as a quaternion), the energies, the wall time, the real-time factor (simulated s
 wall-clock second), the number of dynamics evaluations and how the run ended. A progress
 bar goes to stderr for runs longer than a second of wall time when stderr is a terminal
 (``--progress`` forces it). Every output sample is recorded to an MCAP file (``--no-record``
-turns that off) and can be streamed to Rerun; the output paths are checked before the model
+turns that off) and can be streamed to Rerun. Every output path (the recording, the
+``.rrd`` file, the folder of the plots and ``trajectory.npz``) is checked before the model
 is built, and a recording that cannot be written stops the run with an error (never a run
-without its recording). ``recover`` makes the recording of a killed run whole from its
-journal; ``layout`` writes a recording's Foxglove layout.
+without its recording); a viewer named by ``--connect`` must answer within
+:data:`CONNECT_TIMEOUT` seconds, or the run goes on without it, with a warning.
+``recover`` makes the recording of a killed run whole from its journal; ``layout`` writes a
+recording's Foxglove layout.
 
-Exit codes: 0 success, 1 the run failed (domain exit, solver failure, interruption, a
-recording that could not be written), 2 a bad scene file or bad usage (an output path that
-cannot be used included).
+Errors are one line on stderr, ``qchain COMMAND: error: ...`` (a scene file with several
+problems lists them one a line under it), never a traceback; an error qchain did not
+foresee adds ``(run with --debug for the traceback)``. Warnings are one line each,
+``qchain COMMAND: warning: ...``.
+
+Exit codes
+----------
+0
+    Success (also ``--help`` and ``--version``).
+1
+    The run failed or stopped: the arm left the model's domain, the solver failed, a
+    recording or output could not be written while running, Ctrl-C (at any moment, start-up
+    included), or an error qchain did not foresee.
+2
+    Bad input, refused before anything ran: bad usage, a scene or sweep file with problems,
+    a run over its budget, an output path that cannot be used.
 """
 
 from __future__ import annotations
 
 import argparse
 import math
+import os
+import re
 import sys
 import time
 import warnings
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-import numpy as np
-import pinocchio as pin
+from .cli_checks import CONNECT_TIMEOUT, _recording_stem, _shown, check_output_folder, \
+    check_output_path, viewer_silence
+from .cli_errors import (EXIT_FAILED, EXIT_OK, EXIT_USAGE, BadInput, _forget_unhandled_interrupt,
+                         _one_line, _Session, _show_warnings, _tolerant_streams, guarded, report_error, take_debug)
+from .run_outputs import summary_lines, tip_positions, write_outputs
 
-from .errors import QchainError
-from .scene import Scene, SceneError, SceneModel, load_scene
+if TYPE_CHECKING:  # the model's libraries load when a command needs them: Ctrl-C and --version answer at once
+    from .scene import Scene, SceneModel
 
-__all__ = ["main", "write_outputs", "tip_positions", "summary_lines"]
+__all__ = ["main", "command", "write_outputs", "tip_positions", "summary_lines", "version", "report_error", "guarded",
+           "take_debug", "check_output_path", "check_output_folder", "viewer_silence", "BadInput", "EXIT_OK",
+           "EXIT_FAILED", "EXIT_USAGE", "CONNECT_TIMEOUT"]
 
-EXIT_OK, EXIT_FAILED, EXIT_USAGE = 0, 1, 2
+#: The commands; the first word of the command line names one.
+COMMANDS = ("run", "info", "replay", "recover", "layout", "bench", "sweep")
+
+
+def version() -> str:
+    """The installed qchain's version (``X.Y.Z``)."""
+    from importlib.metadata import PackageNotFoundError
+    from importlib.metadata import version as dist_version
+
+    try:
+        return dist_version("qchain")
+    except PackageNotFoundError:  # a source tree on sys.path, not installed
+        from . import __version__
+
+        return __version__
 
 
 def _logging_module():
@@ -57,218 +100,84 @@ def _logging_module():
 
 
 # --------------------------------------------------------------------------------------
-# outputs
-
-
-def tip_positions(model: SceneModel, traj) -> np.ndarray:
-    """World tip positions (N, 3) m of a trajectory."""
-    ch = model.chain
-    return np.array([ch.tip_placement(q, t=t).translation for t, q in zip(traj.t, traj.q)])
-
-
-def write_outputs(scene: Scene, model: SceneModel, traj, folder: Path, plots=None, save: bool | None = None) -> list[Path]:
-    """Write the plots (PNG) and ``trajectory.npz`` of a run into ``folder``; return the paths.
-
-    Parameters
-    ----------
-    plots : sequence of str, optional
-        Names from :data:`qchain.scene.PLOTS`; default the scene's ``output.plots``.
-    save : bool, optional
-        Write ``trajectory.npz`` (``t, q, v, p, kinetic_energy, potential_energy, tip``
-        and ``success``, ``message``); default the scene's ``output.save``.
-    """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    plots = scene.plots if plots is None else tuple(plots)
-    save = scene.save if save is None else save
-    folder = Path(folder)
-    folder.mkdir(parents=True, exist_ok=True)
-    written: list[Path] = []
-    t = traj.t
-    tip = tip_positions(model, traj) if len(t) else np.zeros((0, 3))
-    title = scene.name or (scene.path.stem if scene.path else "scene")
-
-    def finish(fig, name):
-        path = folder / name
-        fig.tight_layout()
-        fig.savefig(path, dpi=110)
-        plt.close(fig)
-        written.append(path)
-
-    if "tip" in plots:
-        fig, ax = plt.subplots(figsize=(8, 4))
-        for k, c in enumerate("xyz"):
-            ax.plot(t, tip[:, k] * 1e3, label=c)
-        ax.set_xlabel("t (s)")
-        ax.set_ylabel("tip position, world (mm)")
-        ax.set_title(f"{title}: tip position")
-        ax.legend()
-        ax.grid(alpha=0.3)
-        finish(fig, "tip.png")
-    if "arm" in plots:
-        fig = plot_arm(model, traj, tip, title)
-        finish(fig, "arm.png")
-    if "energy" in plots:
-        fig, ax = plt.subplots(figsize=(8, 4))
-        ax.plot(t, traj.kinetic_energy, label="kinetic")
-        ax.plot(t, traj.potential_energy, label="potential (gravity + elastic)")
-        ax.plot(t, traj.total_energy, "k", label="total")
-        ax.set_xlabel("t (s)")
-        ax.set_ylabel("energy (J)")
-        ax.set_title(f"{title}: energies")
-        ax.legend()
-        ax.grid(alpha=0.3)
-        finish(fig, "energy.png")
-    if "pressure" in plots:
-        fig, ax = plt.subplots(figsize=(8, 4))
-        for k in range(traj.p.shape[1]):
-            ax.plot(t, traj.p[:, k] / 1e3, label=f"segment {k // 3}, chamber {k % 3 + 1}")
-        ax.set_xlabel("t (s)")
-        ax.set_ylabel("pressure (kPa)")
-        ax.set_title(f"{title}: chamber pressures")
-        ax.legend(fontsize=7, ncol=3)
-        ax.grid(alpha=0.3)
-        finish(fig, "pressure.png")
-    if "momentum" in plots and model.chain.floating and len(t):
-        h = momenta(model, traj)
-        fig, ax = plt.subplots(figsize=(8, 4))
-        for k, name in enumerate(["px", "py", "pz", "Lx", "Ly", "Lz"]):
-            ax.plot(t, h[:, k] - h[0, k], label=name)
-        ax.set_xlabel("t (s)")
-        ax.set_ylabel("momentum drift h(t) - h(0) (kg m/s, kg m^2/s)")
-        ax.set_title(f"{title}: world momentum drift (max {np.abs(h - h[0]).max():.2e})")
-        ax.legend(ncol=2)
-        ax.grid(alpha=0.3)
-        finish(fig, "momentum.png")
-    if save:
-        path = folder / "trajectory.npz"
-        np.savez_compressed(path, t=t, q=traj.q, v=traj.v, p=traj.p, kinetic_energy=traj.kinetic_energy,
-                            potential_energy=traj.potential_energy, tip=tip, success=traj.success,
-                            message=traj.message)
-        written.append(path)
-    return written
-
-
-def momenta(model: SceneModel, traj) -> np.ndarray:
-    """World momentum (N, 6) of a trajectory: linear (kg m/s), angular about the origin (kg m^2/s)."""
-    ch = model.chain
-    return np.array([ch.momentum(q, v, t=t) for t, q, v in zip(traj.t, traj.q, traj.v)])
-
-
-def plot_arm(model: SceneModel, traj, tip: np.ndarray, title: str, snapshots: int = 8):
-    """Side (x-z) and top (x-y) views of the arm at ``snapshots`` times, with the tip path."""
-    import matplotlib.pyplot as plt
-
-    ch = model.chain
-    fig, axes = plt.subplots(1, 2, figsize=(11, 5))
-    N = len(traj.t)
-    idx = np.unique(np.linspace(0, N - 1, min(snapshots, N)).round().astype(int)) if N else []
-    cmap = plt.get_cmap("viridis")
-    for (a, b), ax, view in (((0, 2), axes[0], "side view (x-z)"), ((0, 1), axes[1], "top view (x-y)")):
-        ax.plot(tip[:, a] * 1e3, tip[:, b] * 1e3, color="0.6", lw=1, label="tip path")
-        for n_, k in enumerate(idx):
-            pts = ch.backbone(traj.q[k], 16, t=traj.t[k]).reshape(-1, 3) * 1e3
-            c = cmap(n_ / max(1, len(idx) - 1))
-            ax.plot(pts[:, a], pts[:, b], color=c, lw=3, label=f"t = {traj.t[k]:.2f} s")
-            ax.plot(pts[0, a], pts[0, b], "ks", ms=4)
-        ax.set_aspect("equal", adjustable="datalim")
-        ax.set_xlabel(f"{'xyz'[a]} (mm)")
-        ax.set_ylabel(f"{'xyz'[b]} (mm)")
-        ax.set_title(view)
-        ax.grid(alpha=0.3)
-    axes[0].legend(fontsize=7)
-    fig.suptitle(f"{title}: arm snapshots")
-    return fig
-
-
-# --------------------------------------------------------------------------------------
-# summary
-
-
-def summary_lines(scene: Scene, model: SceneModel, traj, wall: float) -> list[str]:
-    """The run summary ``qchain run`` prints."""
-    lines = [f"run: {'success' if traj.success else 'FAILED'}: {traj.message}"]
-    if len(traj.t) == 0:
-        return lines + ["no samples were recorded"]
-    t_end = float(traj.t[-1])
-    rtf = t_end / wall if wall > 0 else math.inf
-    lines.append(f"simulated {t_end:.6g} s in {wall:.3g} s wall time: {rtf:.3g} x real time; nfev = {traj.nfev}, "
-                 f"{len(traj.t)} samples, method {scene.method} ({traj.meta.get('engine', 'python')} engine)")
-    if traj.meta.get("compile_s", 0.0) > 0.05:
-        lines.append(f"  compiled or loaded the engine first in {traj.meta['compile_s']:.3g} s (not in the wall time)")
-    X = model.chain.tip_placement(traj.q[-1], t=t_end)
-    p = X.translation * 1e3
-    rpy = np.degrees(pin.rpy.matrixToRpy(X.rotation))
-    quat = pin.Quaternion(X.rotation).coeffs()  # x, y, z, w
-    lines.append(f"final tip (t = {t_end:.6g} s, world): position ({p[0]:.3f}, {p[1]:.3f}, {p[2]:.3f}) mm")
-    lines.append(f"  orientation rpy ({rpy[0]:.3f}, {rpy[1]:.3f}, {rpy[2]:.3f}) deg, quaternion xyzw "
-                 f"({quat[0]:.6f}, {quat[1]:.6f}, {quat[2]:.6f}, {quat[3]:.6f})")
-    reached = scene.bends(model.chain, traj)
-    line = f"largest bends reached (rad): {', '.join(f'{x:.3g}' for x in reached)}"
-    if model.max_bend is not None:
-        line += f"; nodes sized for {', '.join(sorted({f'{x:.3g}' for x in model.max_bend}))}"
-        over = np.flatnonzero(reached > model.max_bend)
-        if over.size:
-            j = int(over[0])
-            line += (f"\nwarning: segment {j} bent {reached[j]:.3g} rad, more than the {model.max_bend[j]:.3g} rad its "
-                     f"{model.nodes[j]} nodes were sized for: set model.max_bend in the scene")
-    lines.append(line)
-    ke, pe = traj.kinetic_energy, traj.potential_energy
-    lines.append(f"energies (J): kinetic {ke[-1]:.6g}, potential {pe[-1]:.6g} (gravity + elastic), total "
-                 f"{ke[-1] + pe[-1]:.6g}; at the start total {ke[0] + pe[0]:.6g}")
-    return lines
-
-
-# --------------------------------------------------------------------------------------
 # commands
 
 
-def _run(args, parser) -> int:
+def _run(args, parser, session: _Session) -> int:
+    from .errors import QchainError
+    from .scene import SceneError, load_scene
+
     scene = load_scene(args.scene)
     duration = scene.duration if args.duration is None else args.duration
     if not (math.isfinite(duration) and duration > 0):
         parser.error(f"--duration must be > 0 s, got {args.duration}")
     if scene.method in ("rk4", "midpoint") and scene.dt > duration:
         parser.error(f"--duration {duration:g} s is shorter than the scene's step dt = {scene.dt:g} s")
+    scene.check_budget(duration)  # a --duration beyond the budget is refused before anything is built
     qlog = _logging_module()
+    if qlog is None and (args.mcap or args.serve or args.connect or args.rrd):
+        raise BadInput("recording needs qchain.logging, which is not available")
     record = qlog is not None and not (args.no_record and not (args.serve or args.connect or args.rrd))
+    notices: list[str] = []
     if record:
         if args.mcap is None and not args.no_record:
-            args.mcap = qlog.default_mcap_path(scene.path)
+            args.mcap = qlog.default_mcap_path(f"{_recording_stem(scene.path)}.toml")
+        mcap = None if args.no_record and not args.mcap else args.mcap
+        check_output_path("--mcap", mcap, extra=".journal")
+        check_output_path("--rrd", args.rrd)
         try:  # before anything is built: a bad path is said at once
-            notices = qlog.check_outputs(None if args.no_record and not args.mcap else args.mcap, args.rrd,
-                                         scene.path)
+            notices = qlog.check_outputs(mcap, args.rrd, scene.path)
         except qlog.LoggingError as err:
-            print(f"qchain run: error: {err}", file=sys.stderr)
-            return EXIT_USAGE
-        for notice in notices:
-            print(f"qchain run: {notice}", file=sys.stderr)
+            raise BadInput(str(err)) from None
+    if not args.no_plots:  # the plots' and trajectory.npz's folder: made, writable, with room
+        try:
+            scene.check_output(args.out)
+        except SceneError as err:
+            if args.out is None or not err.problems:
+                raise
+            p = err.problems[0]
+            raise BadInput(f"--out {_shown(args.out)}: expected {p.expected}, found {p.found}") from None
+    if args.connect and qlog is not None:  # a viewer that never answers would hold the run without end
+        why = viewer_silence(args.connect, timeout=CONNECT_TIMEOUT)
+        if why is not None:
+            print(f"qchain run: warning: no Rerun viewer answers at {args.connect} ({why}); the run goes on without "
+                  "it", file=sys.stderr)
+            args.connect = None
+            record = not (args.no_record and not (args.serve or args.rrd))
+    for notice in notices:
+        print(f"qchain run: {notice}", file=sys.stderr)
+    if record:
         qlog.prepare_writer()  # the log writer starts up on the other core while the model is built
+    session.check_interrupt()
     model = scene.build(reduce=False if args.full else None)
+    session.check_interrupt()
     for line in scene.describe(model):
         print(line)
     sys.stdout.flush()
     progress = sys.stderr.isatty() if args.progress is None else args.progress
 
-    if qlog is None and (args.mcap or args.serve or args.connect or args.rrd):
-        print("qchain run: error: recording needs qchain.logging, which is not available", file=sys.stderr)
-        return EXIT_USAGE
     logger = None
     on_sample = None
     if record:
-        try:
-            with warnings.catch_warnings():  # the notices were printed above
-                warnings.simplefilter("ignore", qlog.LoggingWarning)
+        with warnings.catch_warnings():  # the notices were printed above; other warnings are lines
+            for notice in notices:
+                warnings.filterwarnings("ignore", message=re.escape(f"qchain.logging: {notice}"))
+            try:
                 logger, on_sample = _make_logger(qlog, args, scene, model, duration=duration)
-        except (QchainError, OSError, ValueError) as err:
-            print(f"qchain run: error: the recording could not start: {err}", file=sys.stderr)
-            return EXIT_FAILED
+            except (QchainError, OSError, ValueError) as err:
+                print(f"qchain run: error: the recording could not start: {_one_line(err)}", file=sys.stderr)
+                return EXIT_FAILED
     t0 = time.perf_counter()
     traj = None
     interrupted = False
+    try:
+        session.check_interrupt()
+    except KeyboardInterrupt:
+        if logger is not None:
+            with logger, on_sample:
+                logger.set_outcome(False, "interrupted by the user (Ctrl-C) before the first sample")
+        raise
+    session.phase = "run"
     try:
         if logger is not None:
             with logger, on_sample:  # the recorder logs its last samples before the logger finishes
@@ -278,18 +187,20 @@ def _run(args, parser) -> int:
                     traj = getattr(err, "trajectory", None)
                     interrupted = True
                 if traj is not None:  # samples computed but not handed over (an interrupt between the two)
+                    session.reached = float(traj.t[-1]) if len(traj.t) else None
                     for k in range(on_sample.taken, len(traj.t)):
                         on_sample(traj.t[k], traj.q[k], traj.v[k], traj.p[k],
                                   energies=(traj.kinetic_energy[k], traj.potential_energy[k]))
-                    logger.set_outcome(traj.success and not interrupted, traj.message, traj.status, traj.nfev)
+                    message = _interrupt_message(traj) if interrupted else traj.message
+                    logger.set_outcome(traj.success and not interrupted, message, traj.status, traj.nfev)
                 else:
-                    logger.set_outcome(False, "interrupted by the user")
+                    logger.set_outcome(False, "interrupted by the user (Ctrl-C) before the first sample")
             done = logger.close()
             if logger.mcap_path is not None:
                 reached = "no sample" if done.get("last_t") is None else f"t = {done['last_t']:.6g} s"
-                print(f"recorded {logger.mcap_path} ({done.get('n_records', 0)} samples, up to {reached})")
+                print(f"recorded {_shown(logger.mcap_path)} ({done.get('n_records', 0)} samples, up to {reached})")
             if done.get("error"):
-                print(f"qchain run: error: the recording failed: {done['error']}", file=sys.stderr)
+                print(f"qchain run: error: the recording failed: {_one_line(done['error'])}", file=sys.stderr)
                 return EXIT_FAILED
         else:
             try:
@@ -298,26 +209,35 @@ def _run(args, parser) -> int:
                 traj = getattr(err, "trajectory", None)
                 interrupted = True
     except (ValueError, QchainError) as err:  # the start state or an input outside the model, a full disk
-        print(f"qchain run: error: {err}", file=sys.stderr)
+        print(f"qchain run: error: {_one_line(err)}", file=sys.stderr)
         if logger is not None and logger.mcap_path is not None:
             done = logger.close()
             reached = "no sample" if done.get("last_t") is None else f"t = {done['last_t']:.6g} s"
-            print(f"recorded {logger.mcap_path} ({done.get('n_records', 0)} samples, up to {reached})",
+            print(f"recorded {_shown(logger.mcap_path)} ({done.get('n_records', 0)} samples, up to {reached})",
                   file=sys.stderr)
         return EXIT_FAILED
+    session.phase = "end"
     wall = time.perf_counter() - t0 - (traj.meta.get("compile_s", 0.0) if traj is not None else 0.0)
     if traj is None:
         print("run: interrupted before the first sample", file=sys.stderr)
         return EXIT_FAILED
+    session.reached = float(traj.t[-1]) if len(traj.t) else None
     if interrupted and len(traj.t):
         print(f"run: interrupted at t = {traj.t[-1]:.6g} s", file=sys.stderr)
-    for line in summary_lines(scene, model, traj, wall):
+    for line in summary_lines(scene, model, traj, wall, message=_interrupt_message(traj) if interrupted else None):
         print(line)
     if not args.no_plots and len(traj.t):
         folder = Path(args.out) if args.out is not None else scene.output_folder
         for path in write_outputs(scene, model, traj, folder):
-            print(f"wrote {path}")
+            print(f"wrote {_shown(path)}")
     return EXIT_OK if traj.success and not interrupted else EXIT_FAILED
+
+
+def _interrupt_message(traj) -> str:
+    """How an interrupted run ended, with the time its samples reach."""
+    if len(traj.t):
+        return f"interrupted by the user (Ctrl-C) at t = {traj.t[-1]:.6g} s"
+    return "interrupted by the user (Ctrl-C) before the first sample"
 
 
 def _make_logger(qlog, args, scene: Scene, model: SceneModel, duration: float | None = None, **logger_kwargs):
@@ -328,12 +248,13 @@ def _make_logger(qlog, args, scene: Scene, model: SceneModel, duration: float | 
 
     ch = model.chain
     q_names, v_names = series_names(ch)
+    stem = _recording_stem(scene.path) if scene.path else None
     info = qlog.RunInfo(
         n_segments=ch.n,
         radii=[s.radius for s in ch.segments],
         chamber_radii=[s.chamber_radius for s in ch.segments],
         scene=scene.text,
-        scene_path=str(scene.path) if scene.path else None,
+        scene_path=_shown(scene.path) if scene.path else None,  # stored as UTF-8 text
         params={
             "base": ch.base,
             "gravity": ch.gravity,
@@ -346,7 +267,7 @@ def _make_logger(qlog, args, scene: Scene, model: SceneModel, duration: float | 
                                                        "youngs_modulus", "damping", "coords", "actuation")}
                          for s in ch.segments],
         },
-        name=scene.name or (scene.path.stem if scene.path else "qchain run"),
+        name=scene.name or stem or "qchain run",
         q_names=q_names,
         v_names=v_names,
         duration=duration if duration is not None else scene.duration,
@@ -360,6 +281,8 @@ def _make_logger(qlog, args, scene: Scene, model: SceneModel, duration: float | 
 
 
 def _info(args) -> int:
+    from .scene import load_scene
+
     scene = load_scene(args.scene)
     model = scene.build(reduce=False if args.full else None)
     for line in scene.describe(model):
@@ -369,7 +292,11 @@ def _info(args) -> int:
 
 def _parser(qlog) -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="qchain", description="Simulate soft continuum arms described in TOML "
-                                     "scene files (format: the docstring of qchain.scene).")
+                                     "scene files (format: docs/scene-format.md). Exit codes: 0 success, 1 the run "
+                                     "failed or was interrupted, 2 bad input or usage.")
+    parser.add_argument("--version", action="version", version=f"qchain {version()}")
+    parser.add_argument("--debug", action="store_true", help="print the traceback of an error too (anywhere on the "
+                        "command line)")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     run = sub.add_parser("run", help="run a scene and write its outputs", description="Run a scene file: build the "
                          "smallest model that represents it, integrate, print a summary, write plots.")
@@ -408,57 +335,112 @@ def _bench(argv) -> int:
     """``qchain bench``: the scripts of the source tree's ``benchmarks/`` folder (not in a wheel)."""
     folder = Path(__file__).resolve().parents[1] / "benchmarks"
     if not (folder / "run_all.py").is_file():
-        print(f"qchain bench: error: the benchmarks folder is not here ({folder}); run it from a source checkout "
-              "(pip install -e .)", file=sys.stderr)
-        return EXIT_USAGE
+        raise BadInput(f"the benchmarks folder is not here ({folder}); run it from a source checkout (pip install -e .)")
     sys.path.insert(0, str(folder))
     import run_all
 
     return int(run_all.main(argv) or 0)
 
 
-def _sweep(argv) -> int:
-    """``qchain sweep SWEEP.toml``: :func:`qchain.sweeps.main`."""
-    from .sweeps import main as sweep_main
+def _dispatch(argv: list[str], session: _Session, debug: bool) -> int:
+    if argv[:1] in (["--version"], ["-V"]) and len(argv) == 1:  # at once, before the libraries load
+        print(f"qchain {version()}")
+        return EXIT_OK
+    if argv and argv[0] == "sweep":
+        from .sweeps import main as sweep_main
 
-    return sweep_main(argv)
-
-
-def main(argv=None) -> int:
-    """Entry point of the ``qchain`` command; returns the exit code (0 ok, 1 run failed,
-    2 bad scene or usage)."""
-    argv = list(sys.argv[1:] if argv is None else argv)
+        return sweep_main(argv[1:], debug=debug, session=session)
+    if argv and argv[0] == "bench":
+        session.phase = "run"  # its own scripts: an interrupt or error is theirs
+        return _bench(argv[1:])
     qlog = _logging_module()
     handed = {"replay": "replay_main", "recover": "recover_main", "layout": "layout_main"}
     if argv and argv[0] in handed and qlog is not None:
-        try:
-            return int(getattr(qlog, handed[argv[0]])(argv[1:]) or 0)
-        except SystemExit as exc:
-            return _exit_code(exc)
-    if argv and argv[0] == "bench":
-        try:
-            return _bench(argv[1:])
-        except SystemExit as exc:
-            return _exit_code(exc)
-    if argv and argv[0] == "sweep":
-        return _sweep(argv[1:])
+        session.phase = "run"  # qchain.logging says its errors and their exit codes itself
+        return int(getattr(qlog, handed[argv[0]])(argv[1:]) or 0)
     parser = _parser(qlog)
+    args = parser.parse_args(argv)
+    if args.command == "run":
+        return _run(args, parser, session)
+    return _info(args)
+
+
+def command(name: str, body, debug: bool = False, session: _Session | None = None) -> int:
+    """Run ``body(session)`` as the command ``qchain NAME`` and return its exit code: every
+    exception one line on stderr (:func:`guarded`), warnings one line each, Ctrl-C one line
+    at any moment (also where a library drops the ``KeyboardInterrupt``).
+
+    Parameters
+    ----------
+    name : str
+        The command (``"run"``, ``"sweep"``); ``""`` for none.
+    body : callable (session) -> int or None
+    debug : bool
+        Print tracebacks too.
+    session : optional
+        The session of the command this one runs inside (``qchain sweep`` from ``qchain``).
+    """
+    if session is not None:
+        return guarded(session.prog, lambda: body(session), debug, session)
+    session = _Session(name)
+    sig = _sigint_handler(session.on_sigint)
+    hook = sys.unraisablehook
+
+    def unraisable(info):  # Ctrl-C dropped in a callback (llvmlite's): counted, no traceback
+        if not (isinstance(info.exc_value, KeyboardInterrupt) and session.sigints):
+            hook(info)
+
+    sys.unraisablehook = unraisable
     try:
-        args = parser.parse_args(argv)
-        if args.command == "run":
-            return _run(args, parser)
-        return _info(args)
-    except SystemExit as exc:  # argparse: --help (0) and usage errors (2)
-        return _exit_code(exc)
-    except SceneError as err:
-        print(f"qchain {argv[0] if argv else ''}: error: {err}", file=sys.stderr)
-        return EXIT_USAGE
+        with warnings.catch_warnings():
+            warnings.showwarning = _show_warnings(session.prog)
+            return guarded(session.prog, lambda: body(session), debug, session)
+    finally:
+        sys.unraisablehook = hook
+        if sig is not None:
+            sig.signal(sig.SIGINT, _PREVIOUS_SIGINT.pop())
+        if session.sigints:
+            _forget_unhandled_interrupt()
 
 
-def _exit_code(exc: SystemExit) -> int:
-    if exc.code is None:
-        return 0
-    return exc.code if isinstance(exc.code, int) else EXIT_USAGE
+def main(argv=None) -> int:
+    """Entry point of the ``qchain`` command (and ``python -m qchain``).
+
+    Parameters
+    ----------
+    argv : list of str, optional
+        The arguments (default ``sys.argv[1:]``); ``--debug`` anywhere before a ``--``
+        prints tracebacks too.
+
+    Returns
+    -------
+    int
+        The exit code: 0 success, 1 the run failed or was interrupted (or an error qchain
+        did not foresee), 2 bad input or usage (see the module docstring).
+    """
+    argv, debug = take_debug([os.fspath(a) for a in (sys.argv[1:] if argv is None else argv)])
+    _tolerant_streams()
+    name = argv[0] if argv and argv[0] in COMMANDS else ""
+    return command(name, lambda session: _dispatch(argv, session, debug), debug)
+
+
+_PREVIOUS_SIGINT: list = []
+
+
+def _sigint_handler(handler):
+    """Install ``handler`` for SIGINT where Python's own is (the main thread, Ctrl-C not
+    ignored); returns the :mod:`signal` module if it did (the previous handler is kept)."""
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        return None
+    previous = signal.getsignal(signal.SIGINT)
+    if previous is not signal.default_int_handler:
+        return None
+    signal.signal(signal.SIGINT, handler)
+    _PREVIOUS_SIGINT.append(previous)
+    return signal
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -123,7 +123,7 @@ def as_real_array(name: str, value) -> np.ndarray:
     elif isinstance(value, (bool, np.bool_, str, bytes)) or value is None:
         _refuse(name, value, "an array of real numbers")
     elif isinstance(value, numbers.Real) and not isinstance(value, (complex, np.complexfloating)):
-        return np.asarray(float(value))
+        return np.asarray(_float(name, value))
     try:
         arr = np.asarray(value)
     except (ValueError, TypeError):
@@ -144,8 +144,17 @@ def as_real_array(name: str, value) -> np.ndarray:
             if isinstance(x, (bool, np.bool_, complex, np.complexfloating)) or not isinstance(x, numbers.Real):
                 where = f"{name}[{i}]" if arr.ndim == 1 else f"{name} (entry {i} in row-major order)"
                 _refuse(where, x, "a real number")
-        return np.array([float(x) for x in flat]).reshape(arr.shape)
+        return np.array([_float(name, x) for x in flat]).reshape(arr.shape)
     _refuse(name, value, "an array of real numbers")
+
+
+def _float(name: str, x) -> float:
+    """``float(x)``; an integer too large for a float is a ``ValueError`` naming ``name``."""
+    try:
+        return float(x)
+    except OverflowError:
+        raise ValueError(f"{name} must hold real numbers representable as floats (|x| <= 1.8e308), got "
+                         f"{describe_value(x)}") from None
 
 
 def as_vector(name: str, value, size: int) -> np.ndarray:

@@ -8,16 +8,29 @@ controller into the ``(t, q, v) -> (m,)`` form the integrators use.
 from __future__ import annotations
 
 import inspect
+import re
 from abc import ABC, abstractmethod
 from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 
-from .bounds import FREQUENCY
+from .bounds import FREQUENCY, PRESSURE, Range
 from .errors import as_real, as_real_array, as_vector
 
-__all__ = ["Schedule", "Constant", "Step", "Ramp", "Sine", "Table", "as_input"]
+__all__ = ["Schedule", "Constant", "Step", "Ramp", "Sine", "Table", "as_input", "input_range", "FORCE"]
+
+#: Each entry of the generalised forces ``tau`` (N, N m, or N m^2 for a curvature
+#: coordinate): wider than what 1 GPa in the largest chamber of :mod:`qchain.bounds` makes
+#: (3e13), small enough that no product with the model's quantities overflows.
+FORCE = Range(-1e15, 1e15)
+
+_RANGES = {"pressure": PRESSURE, "tau": FORCE}
+
+
+def _vector(name, x, size) -> np.ndarray:
+    """:func:`~qchain.errors.as_vector`."""
+    return as_vector(name, as_real_array(name, x), size)
 
 
 def _vec(name, x, size=None) -> np.ndarray:
@@ -44,6 +57,12 @@ class Schedule(ABC):
     def __call__(self, t: float) -> np.ndarray:
         """The value at time ``t`` (s), shape ``(size,)``."""
 
+    def extent(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """The smallest and the largest value each entry takes over all times, two
+        ``(size,)`` arrays; None where that is not known (the base class: a subclass's
+        values are then checked at every call)."""
+        return None
+
 
 @dataclass(frozen=True)
 class Constant(Schedule):
@@ -60,6 +79,9 @@ class Constant(Schedule):
 
     def __call__(self, t):
         return self.value.copy()
+
+    def extent(self):
+        return self.value, self.value
 
 
 @dataclass(frozen=True)
@@ -82,6 +104,9 @@ class Step(Schedule):
 
     def __call__(self, t):
         return (self.after if t >= self.time else self.before).copy()
+
+    def extent(self):
+        return np.minimum(self.before, self.after), np.maximum(self.before, self.after)
 
 
 @dataclass(frozen=True)
@@ -110,6 +135,9 @@ class Ramp(Schedule):
         s = min(max((t - self.t0) / (self.t1 - self.t0), 0.0), 1.0)
         return self.start + s * (self.end - self.start)
 
+    def extent(self):
+        return np.minimum(self.start, self.end), np.maximum(self.start, self.end)
+
 
 @dataclass(frozen=True)
 class Sine(Schedule):
@@ -137,6 +165,13 @@ class Sine(Schedule):
 
     def __call__(self, t):
         return self.offset + self.amplitude * np.sin(2.0 * np.pi * self.frequency * t + self.phase)
+
+    def extent(self):
+        """``offset -+ |amplitude|`` (a sine of frequency 0 is the constant
+        ``offset + amplitude sin(phase)``)."""
+        swing = np.where(self.frequency > 0.0, np.abs(self.amplitude), 0.0)
+        mid = np.where(self.frequency > 0.0, self.offset, self.offset + self.amplitude * np.sin(self.phase))
+        return mid - swing, mid + swing
 
 
 @dataclass(frozen=True)
@@ -175,17 +210,101 @@ class Table(Schedule):
         s = (t - t0) / (t1 - t0)
         return (1 - s) * self.values[i - 1] + s * self.values[i]
 
+    def extent(self):
+        return self.values.min(axis=0), self.values.max(axis=0)
 
-def as_input(name: str, u, size: int) -> Callable[[float, np.ndarray, np.ndarray], np.ndarray]:
+
+def input_range(name: str) -> Range | None:
+    """The declared range of the input called ``name`` (``"pressure"``, ``"tau"``, also
+    as ``"pressure[3]"`` for a batch's rollout 3): :data:`qchain.bounds.PRESSURE`,
+    :data:`FORCE`, or None for a name without one."""
+    return _RANGES.get(re.split(r"[\[(]", str(name), maxsplit=1)[0])
+
+
+def _extent(u: Schedule) -> tuple[np.ndarray, np.ndarray] | None:
+    """``u.extent()`` where it describes ``u``'s values: not for a subclass that changes
+    ``__call__`` and keeps its parent's ``extent``."""
+    owner = next(cls for cls in type(u).__mro__ if "extent" in vars(cls))
+    if type(u).__call__ is not owner.__call__:
+        return None
+    return u.extent()
+
+
+def _check_extent(name: str, rng: Range, u: Schedule) -> None:
+    """``ValueError`` naming ``name``, the entry, the value and the bound if the schedule
+    ``u`` goes outside ``rng`` at any time (its extent known)."""
+    ext = _extent(u)
+    if ext is None:
+        return
+    unit = f" {rng.unit}" if rng.unit else ""
+    for values in ext:
+        bad = rng.outside(values)
+        if bad.any():
+            k = int(np.flatnonzero(bad)[0])
+            raise ValueError(f"{name}[{k}] must stay {rng.text()}, but the {type(u).__name__} schedule given as "
+                             f"{name} reaches {float(values[k]):g}{unit}")
+
+
+def _range_check(rng: Range, label: str) -> Callable[[np.ndarray], np.ndarray]:
+    """A function that returns a finite ``(m,)`` array whose entries are inside ``rng`` and
+    raises ``Range.check_array``'s ``ValueError`` otherwise; cheap for the few entries of
+    an input (it runs at every call of a controller)."""
+    lo = -np.inf if rng.low is None else rng.low
+    hi = np.inf if rng.high is None else rng.high
+    closed = not (rng.low_open or rng.high_open)
+
+    def check(arr: np.ndarray) -> np.ndarray:
+        values = arr.tolist()
+        if values and closed and lo <= min(values) and max(values) <= hi:
+            return arr
+        return rng.check_array(label, arr)
+
+    return check
+
+
+def as_input(name: str, u, size: int, bound: Range | None | str = "auto"
+             ) -> Callable[[float, np.ndarray, np.ndarray], np.ndarray]:
     """``(t, q, v) -> (size,)`` from ``None`` (zeros), a constant array, a :class:`Schedule` or a
-    controller ``(t, q, v) -> (size,)``. Sizes are checked here, where the input enters; a
-    controller's outputs are checked at every call (shape and finiteness)."""
+    controller ``(t, q, v) -> (size,)`` (or ``(t) -> (size,)``).
+
+    Checked here, where the input enters: sizes; a constant's entries (real, finite, inside
+    ``bound``); a schedule's values over all times (:meth:`Schedule.extent`); a
+    controller's outputs (and those of a schedule whose extent is unknown) at every call.
+
+    Parameters
+    ----------
+    name : str
+        The argument's name in messages (``"pressure"``, ``"tau"``, ``"pressure[3]"``).
+    u : None, array_like, Schedule or callable
+    size : int
+        How many values the model needs.
+    bound : Range, None or "auto"
+        The range every value must be in; ``"auto"`` takes :func:`input_range` of
+        ``name``, None checks no range.
+
+    Raises
+    ------
+    TypeError
+        Entries that are not real numbers (booleans, strings, complex numbers), naming ``name``.
+    ValueError
+        A wrong size or shape, non-finite entries, or values outside ``bound``, naming
+        ``name``, the entry, the value and the bound.
+    """
+    rng = input_range(name) if isinstance(bound, str) and bound == "auto" else bound
+    if rng is not None and not isinstance(rng, Range):
+        raise TypeError(f"bound must be a qchain.bounds.Range, None or 'auto', got {type(rng).__name__}")
     if u is None:
         z = np.zeros(size)
         return lambda t, q, v: z
     if isinstance(u, Schedule):
         if u.size != size:
             raise ValueError(f"{name} schedule gives {u.size} values, the model needs {size}")
+        if rng is not None:
+            if _extent(u) is None:  # a schedule of the user's: its values are checked as they come
+                label = f"{name}(t)"
+                check = _range_check(rng, label)
+                return lambda t, q, v: check(_vector(label, u(t), size))
+            _check_extent(name, rng, u)
         return lambda t, q, v: u(t)
     if callable(u):
         try:
@@ -193,7 +312,17 @@ def as_input(name: str, u, size: int) -> Callable[[float, np.ndarray, np.ndarray
         except (TypeError, ValueError):
             nargs = 3
         if nargs == 1:
-            return lambda t, q, v: as_vector(f"{name}(t)", u(t), size)
-        return lambda t, q, v: as_vector(f"{name}(t, q, v)", u(t, q, v), size)
-    c = as_vector(name, u, size)
+            label = f"{name}(t)"
+            if rng is None:
+                return lambda t, q, v: _vector(label, u(t), size)
+            check = _range_check(rng, label)
+            return lambda t, q, v: check(_vector(label, u(t), size))
+        label = f"{name}(t, q, v)"
+        if rng is None:
+            return lambda t, q, v: _vector(label, u(t, q, v), size)
+        check = _range_check(rng, label)
+        return lambda t, q, v: check(_vector(label, u(t, q, v), size))
+    c = _vector(name, u, size)
+    if rng is not None:
+        rng.check_array(name, c)
     return lambda t, q, v: c

@@ -16,7 +16,9 @@ backbone as line strips (``/qchain/arm``) and as a point cloud
 qchain version under a CRC32 seal. :func:`read_recording` and :func:`read_mcap` read it back
 bit for bit; a damaged chunk loses only its own records (``Recording.gaps`` says which);
 :func:`recover` makes a killed run's recording whole. :func:`replay` re-logs a recording
-into Rerun; :func:`foxglove_layout` is the Foxglove layout qchain ships.
+into Rerun; :func:`foxglove_layout` is the Foxglove layout qchain ships. Reading a file from
+anywhere is bounded in time and memory (:class:`ReadLimits`); every bad file is a
+:class:`RecordingFormatError` naming it and the byte where it is bad.
 
 Command line: :func:`add_logging_arguments` adds ``--mcap OUT``, ``--serve``, ``--connect
 URL``, ``--rrd OUT``, ``--bind``, ``--rerun-rate`` and ``--realtime``;
@@ -31,6 +33,7 @@ from __future__ import annotations
 import argparse
 import os
 
+from .recording.bounded import ReadLimits
 from .recording.foxglove_layout import foxglove_layout, layout_json
 from .recording.journal import journal_path
 from .recording.logger import DEFAULT_MAX_QUEUE, RunLogger
@@ -65,6 +68,7 @@ __all__ = [
     "Gap",
     "read_recording",
     "read_mcap",
+    "ReadLimits",
     "replay",
     "ReplaySession",
     "replay_main",

@@ -16,6 +16,7 @@ import time
 
 import numpy as np
 
+from .chain import Frames
 from .recording.records import RecordLayout
 
 __all__ = ["ChainRecorder", "BACKBONE_POINTS", "series_names"]
@@ -96,9 +97,13 @@ class ChainRecorder:
         self._nx = sl["energy"].start + 2 - sl["q"].start
         self._sbase, self._sbb, self._stf = sl["base"], sl["backbone"], sl["tip_frames"]
         self._rows = np.empty((self.max_batch, self.layout.row_width))  # the records of a batch
+        n, B = chain.n, self.max_batch
+        self._frames = Frames(np.empty((B, n + 1, 3, 3)), np.empty((B, n + 1, 3)), np.empty((B, n + 1, 4)),
+                              np.empty((B, n, self.points_per_segment, 3)))  # the frames of a batch
         self._steps = np.arange(self.max_batch, dtype=np.float64)
         # the samples waiting: times, (q, v, p, kinetic, potential) copied into one array each
         self._t: list[float] = []
+        self._t_taken: float | None = None  # the time of the last sample taken
         self._x: list[np.ndarray] = []
         self._wall0 = 0.0
 
@@ -120,23 +125,43 @@ class ChainRecorder:
                              f"{np.shape(q)}, {np.shape(v)}, {np.shape(p)}")
         ts.append(t)
         self._x.append(x)
+        self._t_taken = t
         if self.realtime:
             self._pace(t)
         if len(ts) >= self.max_batch or time.monotonic() - self._wall0 >= self.max_wall:
             self.flush()
 
-    def record_batch(self, t, q, v, p, kinetic, potential) -> None:
+    def record_batch(self, t, q, v, p, kinetic, potential, *, skip_checks: bool = False) -> None:
         """Take ``K`` samples at once as arrays: ``t`` (K,) s, ``q`` (K, nq), ``v`` (K, nv),
         ``p`` (K, 3 n) Pa, ``kinetic``, ``potential`` (K,) J. The batch form of a call, for a
         caller that has its samples in arrays (no Python work a sample); the batches logged
         still span less than ``max_sim`` of simulated time each. Paced to the wall clock
-        (``realtime``), the samples are taken one by one, so the view moves smoothly."""
+        (``realtime``), the samples are taken one by one, so the view moves smoothly.
+
+        ``skip_checks``: the configurations are a run's states, which the engine checked at
+        every step (:meth:`qchain.Chain.frames_batch` does not check them again)."""
         t = np.asarray(t, dtype=np.float64)
         K = t.shape[0]
+        if K and self._t_taken is not None and t[0] <= self._t_taken:
+            # a batch handed over again (a Ctrl-C inside this call, while it paced a batch
+            # sample by sample): what was taken is not taken twice
+            a = int(np.searchsorted(t, self._t_taken, side="right"))
+            t, q, v, p, kinetic, potential = t[a:], q[a:], v[a:], p[a:], kinetic[a:], potential[a:]
+            K = t.shape[0]
         if self.realtime:
-            for k in range(K):
-                self(t[k], q[k], v[k], p[k], energies=(kinetic[k], potential[k]))
+            try:
+                for k in range(K):
+                    self(t[k], q[k], v[k], p[k], energies=(kinetic[k], potential[k]))
+            except KeyboardInterrupt:  # the rest of the batch at once, unpaced: the user asked to stop
+                a = 0 if self._t_taken is None else int(np.searchsorted(t, self._t_taken, side="right"))
+                self._take(t[a:], q[a:], v[a:], p[a:], kinetic[a:], potential[a:], skip_checks)
+                raise
             return
+        self._take(t, q, v, p, kinetic, potential, skip_checks)
+
+    def _take(self, t, q, v, p, kinetic, potential, skip_checks: bool) -> None:
+        """:meth:`record_batch` unpaced: log the samples in pieces within ``max_sim``."""
+        K = t.shape[0]
         self.flush()
         if K == 0:
             return
@@ -149,7 +174,7 @@ class ChainRecorder:
         while a < K:  # cut where a batch would span max_sim (and at max_batch samples)
             b = min(K, a + self.max_batch, int(np.searchsorted(t, t[a] + self.max_sim, side="left")))
             b = max(b, a + 1)
-            self._write(t[a:b], x[a:b])
+            self._write(t[a:b], x[a:b], skip_checks)
             a = b
 
     @property
@@ -176,7 +201,7 @@ class ChainRecorder:
         self._t, self._x = [], []
         self._write(ts, xs)
 
-    def _write(self, ts, xs) -> None:
+    def _write(self, ts, xs, skip_checks: bool = False) -> None:
         """Log ``K`` samples: times (K,), rows (K, nx) of (q, v, p, kinetic, potential)."""
         K = len(ts)
         rows = self._rows[:K]
@@ -185,7 +210,11 @@ class ChainRecorder:
         rows[:, self._sx] = xs
         e = self._se.start
         np.add(rows[:, e], rows[:, e + 1], out=rows[:, e + 2])  # total = kinetic + potential
-        f = self.chain.frames_batch(rows[:, self._sq], self.points_per_segment, t=rows[:, 0])
+        if skip_checks:
+            f = self.chain.frames_batch(rows[:, self._sq], self.points_per_segment, t=rows[:, 0], skip_checks=True,
+                                        out=self._frames)
+        else:
+            f = self.chain.frames_batch(rows[:, self._sq], self.points_per_segment, t=rows[:, 0])
         rows[:, self._sbb] = f.backbone.reshape(K, -1)
         b = self._sbase.start
         rows[:, b : b + 3] = f.translation[:, 0]
@@ -196,6 +225,7 @@ class ChainRecorder:
         tf[:, :, 3:] = f.quaternion[:, 1:]
         self.logger.log_rows(rows, self.layout)
         self.n_samples += K
+        self._t_taken = float(rows[K - 1, 0])
 
     def __enter__(self) -> ChainRecorder:
         return self

@@ -449,6 +449,18 @@ def frames(q, paper, R0, o0, alpha, R, o, quat, points):
     P = alpha.shape[0]
     Rs = np.empty((3, 3))
     ps = np.empty(3)
+    # Evenly spaced points from 0 to 1 (a drawn backbone's) follow one another by the same
+    # rigid step g(d), a constant-curvature arc's: one arc_pose a segment instead of one a
+    # point (the tip's end point is the tip frame's origin itself).
+    even = P >= 3 and alpha[0] == 0.0 and alpha[P - 1] == 1.0
+    d = alpha[1] if P >= 2 else 0.0
+    for i in range(P):
+        if even and abs(alpha[i] - i * d) > 4e-16:
+            even = False
+    Rd = np.empty((3, 3))
+    pd = np.empty(3)
+    Rw = np.empty((3, 3))
+    ow = np.empty(3)
     for k in range(K):
         k0 = min(k, R0.shape[0] - 1)
         k1 = min(k, o0.shape[0] - 1)
@@ -466,15 +478,32 @@ def frames(q, paper, R0, o0, alpha, R, o, quat, points):
                 uy = q[k, j, 2]
             Rj = R[k, j]
             oj = o[k, j]
-            for i in range(P):
-                arc_pose(alpha[i], l, ux, uy, Rs, ps)
-                for r in range(3):
-                    points[k, j, i, r] = oj[r] + Rj[r, 0] * ps[0] + Rj[r, 1] * ps[1] + Rj[r, 2] * ps[2]
             arc_pose(1.0, l, ux, uy, Rs, ps)
             for r in range(3):
                 o[k, j + 1, r] = oj[r] + Rj[r, 0] * ps[0] + Rj[r, 1] * ps[1] + Rj[r, 2] * ps[2]
                 for c in range(3):
                     R[k, j + 1, r, c] = Rj[r, 0] * Rs[0, c] + Rj[r, 1] * Rs[1, c] + Rj[r, 2] * Rs[2, c]
+            if even:
+                arc_pose(d, l, ux, uy, Rd, pd)
+                for r in range(3):
+                    ow[r] = oj[r]
+                    points[k, j, 0, r] = oj[r]
+                    points[k, j, P - 1, r] = o[k, j + 1, r]
+                    for c in range(3):
+                        Rw[r, c] = Rj[r, c]
+                for i in range(1, P - 1):
+                    for r in range(3):
+                        ow[r] += Rw[r, 0] * pd[0] + Rw[r, 1] * pd[1] + Rw[r, 2] * pd[2]
+                        points[k, j, i, r] = ow[r]
+                    for r in range(3):
+                        a0, a1, a2 = Rw[r, 0], Rw[r, 1], Rw[r, 2]
+                        for c in range(3):
+                            Rw[r, c] = a0 * Rd[0, c] + a1 * Rd[1, c] + a2 * Rd[2, c]
+            else:
+                for i in range(P):
+                    arc_pose(alpha[i], l, ux, uy, Rs, ps)
+                    for r in range(3):
+                        points[k, j, i, r] = oj[r] + Rj[r, 0] * ps[0] + Rj[r, 1] * ps[1] + Rj[r, 2] * ps[2]
         for j in range(n + 1):
             _quaternion(R[k, j], quat[k, j])
 

@@ -290,6 +290,13 @@ def simulate(
     on_sample : callable ``(t, q, v, p)``, optional
         Called at every output sample as it is produced (e.g. to log it). If it takes a
         keyword ``energies``, it also gets ``(kinetic, potential)`` (J) of the sample.
+        An object with a method ``record_batch(t, q, v, p, kinetic, potential)`` and an
+        attribute ``max_sim`` (s) takes the compiled engine's samples in batches instead:
+        arrays ``(K,)``, ``(K, nq)``, ``(K, nv)``, ``(K, 3 n)``, ``(K,)``, ``(K,)``, each
+        batch within ``max_sim`` of simulated time (what it may hold back at most), the
+        samples' energies included; a ``skip_checks`` keyword, if it takes one, is True
+        (the states were checked at every step). :class:`qchain.recorder.ChainRecorder` is
+        one.
     max_step, first_step : float, s
         Passed to the adaptive solvers (``first_step`` defaults to ``min(1e-4 s, span / 10)``).
     energies : bool
@@ -489,6 +496,8 @@ def simulate(
     except (_WallLimit, _Stop) as err:
         status, message = -1, str(err)
     except KeyboardInterrupt:
+        # an adaptive run is interrupted inside _run_adaptive: its samples say how far it got
+        t = max(t, rec.T[-1]) if rec.T else t
         status, message = -1, f"interrupted by the user at t = {t:.6g} s"
         bar.close(t)
         traj = rec.trajectory(status, message, sysm.nfev)

@@ -45,9 +45,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .scene import Scene, SceneError, load_scene, parse_scene
+from .scene import Scene, load_scene, parse_scene
 from .sweep_spec import Axis, SweepError, SweepSpec, _metrics_name, _plain, load_sweep, validate_runs
-from .workers import DEFAULT_RETRIES, Lost, Payload, engine_for
+from .workers import DEFAULT_RETRIES, ClusterLost, Lost, Payload, engine_for
 
 __all__ = ["sweep", "run_sweep", "SweepResult", "METRICS", "TIMING_COLUMNS", "summary_metrics", "main", "Axis",
            "SweepSpec", "SweepError", "load_sweep"]
@@ -505,6 +505,11 @@ def run_sweep(spec: SweepSpec, *, workers=None, client=None, progress: bool | No
             if bar is not None:
                 bar.update(1)
         complete = True
+    except ClusterLost as err:
+        if folder is None:
+            raise
+        raise ClusterLost(f"{err}; the {len(done)} of {len(runs)} runs finished are in {spec.folder} (run the sweep "
+                          "again to compute the rest)") from None
     finally:
         if bar is not None:
             bar.close()
@@ -591,51 +596,77 @@ def _parser() -> argparse.ArgumentParser:
     return p
 
 
-def main(argv=None) -> int:
-    """``qchain sweep``; returns the exit code: 0 the sweep completed (failed runs are
-    results, listed), 1 it stopped early (Ctrl-C, an engine error), 2 a bad file or usage."""
-    p = _parser()
-    try:
-        args = p.parse_args(argv)
-    except SystemExit as exc:
-        return 0 if exc.code in (0, None) else 2
+def main(argv=None, *, debug: bool | None = None, session=None) -> int:
+    """``qchain sweep SWEEP.toml [...]``; returns the exit code.
+
+    Parameters
+    ----------
+    argv : list of str, optional
+        The arguments after ``sweep`` (default ``sys.argv[1:]``).
+    debug : bool, optional
+        Print the traceback of an error too; default: whether ``argv`` holds ``--debug``.
+    session : optional
+        The ``qchain`` command's session when it hands ``sweep`` over (:func:`qchain.cli.command`).
+
+    Returns
+    -------
+    int
+        0 the sweep completed (failed runs are results, listed); 1 it stopped early
+        (Ctrl-C, an engine error, a results folder that could not be written while
+        running); 2 bad input, refused before any run: usage, a sweep file or a run's
+        scene with problems, a results folder that cannot be used or holds another sweep.
+        Errors are one line on stderr (:func:`qchain.cli.report_error`), never a traceback.
+    """
+    from .cli import command, take_debug
+
+    argv = [os.fspath(a) for a in (sys.argv[1:] if argv is None else argv)]
+    if debug is None:
+        argv, debug = take_debug(argv)
+    return command("sweep", lambda s: _main(argv, s), bool(debug), session)
+
+
+def _main(argv: list[str], session) -> int:
+    """The body of :func:`main`; its exceptions become one line and an exit code there."""
+    from .cli import BadInput, check_output_folder
+
+    args = _parser().parse_args(argv)
     if args.workers is not None and args.workers < 1:
-        print(f"qchain sweep: error: --workers must be >= 1, got {args.workers}", file=sys.stderr)
-        return 2
+        raise BadInput(f"--workers must be >= 1, got {args.workers}")
     if args.retries is not None and args.retries < 0:
-        print(f"qchain sweep: error: --retries must be >= 0, got {args.retries}", file=sys.stderr)
-        return 2
+        raise BadInput(f"--retries must be >= 0, got {args.retries}")
+    spec = load_sweep(args.sweep)
+    if args.out is not None:
+        spec.folder = args.out
+    if args.trajectories:
+        spec.trajectories = True
+    if args.mcap:
+        spec.mcap = True
+    if args.retries is not None:
+        spec.retries = args.retries
+    for line in spec.describe():
+        print(line)
+    runs = spec.run_texts()
+    print(f"{len(runs)} runs; results in {spec.folder}")
+    if args.dry_run:
+        validate_runs(spec, runs)
+        for i, (point, _) in enumerate(runs):
+            print(f"  run {i}: " + (", ".join(f"{k} = {json.dumps(v)}" for k, v in point.items()) or "(base)"))
+        return 0
+    if spec.folder is not None:  # before any run: a folder that cannot take the results is said at once
+        check_output_folder("the results folder", spec.folder)
+    sys.stdout.flush()
+    workers, client = args.workers, args.dask
+    if workers is None and client is None:
+        workers, client = spec.workers, spec.dask
+    session.phase = "run"
     try:
-        spec = load_sweep(args.sweep)
-        if args.out is not None:
-            spec.folder = args.out
-        if args.trajectories:
-            spec.trajectories = True
-        if args.mcap:
-            spec.mcap = True
-        if args.retries is not None:
-            spec.retries = args.retries
-        for line in spec.describe():
-            print(line)
-        runs = spec.run_texts()
-        print(f"{len(runs)} runs; results in {spec.folder}")
-        if args.dry_run:
-            validate_runs(spec, runs)
-            for i, (point, _) in enumerate(runs):
-                print(f"  run {i}: " + (", ".join(f"{k} = {json.dumps(v)}" for k, v in point.items()) or "(base)"))
-            return 0
-        sys.stdout.flush()
-        workers, client = args.workers, args.dask
-        if workers is None and client is None:
-            workers, client = spec.workers, spec.dask
         res = run_sweep(spec, workers=workers, client=client, progress=args.progress, restart=args.restart, runs=runs)
-    except SceneError as err:  # SweepError too
-        print(f"qchain sweep: error: {err}", file=sys.stderr)
-        return 2
     except KeyboardInterrupt:
-        print(f"qchain sweep: interrupted; the finished runs are in {spec.folder} (run the same command again to "
-              "continue)", file=sys.stderr)
+        where = f"; the finished runs are in {spec.folder} (run the same command again to continue)" \
+            if spec.folder is not None else ""
+        print(f"qchain sweep: interrupted{where}", file=sys.stderr)
         return 1
+    session.phase = "end"
     n = res.table.num_rows
     now = f"{res.computed} computed now on the {res.engine} engine" if res.computed else "nothing left to compute"
     print(f"sweep {spec.name}: {n} runs ({res.resumed} finished before, {now}, {res.n_failed} failed) in "
@@ -645,5 +676,6 @@ def main(argv=None) -> int:
         print(f"  run {r['run']} failed: {r['message']}")
     if len(failed) > 5:
         print(f"  ... and {len(failed) - 5} more (summary.parquet, column message)")
-    print(f"wrote {spec.folder / 'summary.parquet'}")
+    if spec.folder is not None:
+        print(f"wrote {spec.folder / 'summary.parquet'}")
     return 0

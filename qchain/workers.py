@@ -29,10 +29,15 @@ local pool at once (a new process takes the dead one's place), on Dask after the
 scheduler's own retries (``distributed.scheduler.allowed-failures``). An item whose worker
 died more than ``retries`` times is given up: its result is a :class:`Lost` saying so, and
 the other items go on. Results already received are never computed again.
+
+On Dask every wait is bounded: a cluster left without workers, or whose scheduler does not
+answer, for ``lost_timeout`` seconds (dask config ``qchain.lost-timeout``, default 300 s)
+ends the work with :class:`ClusterLost` instead of waiting for ever.
 """
 
 from __future__ import annotations
 
+import asyncio
 import atexit
 import math
 import os
@@ -49,8 +54,10 @@ from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
 
-__all__ = ["LocalPool", "DaskEngine", "Lost", "Payload", "plan_chunks", "resolve_workers", "engine_for",
-           "default_pool", "dumps", "DEFAULT_RETRIES"]
+from .errors import QchainError
+
+__all__ = ["LocalPool", "DaskEngine", "ClusterLost", "Lost", "Payload", "plan_chunks", "resolve_workers", "engine_for",
+           "default_pool", "dumps", "DEFAULT_RETRIES", "DEFAULT_LOST_TIMEOUT"]
 
 #: times an item is sent again after the worker running it died
 DEFAULT_RETRIES = 3
@@ -409,6 +416,50 @@ def _close_default() -> None:  # pragma: no cover - interpreter shutdown
 # ------------------------------------------------------------------------------ dask
 
 
+class ClusterLost(QchainError, RuntimeError):
+    """A Dask cluster had no worker, or its scheduler could not be reached, for longer than
+    the engine's ``lost_timeout`` (or the client closed): the items not finished were not
+    computed. A sweep with a results folder keeps every run it finished and resumes the
+    rest when started again."""
+
+
+#: seconds a :class:`DaskEngine` waits while its cluster has no worker or its scheduler does
+#: not answer, before it raises :class:`ClusterLost` (dask config ``qchain.lost-timeout``,
+#: e.g. the environment variable ``DASK_QCHAIN__LOST_TIMEOUT=600``)
+DEFAULT_LOST_TIMEOUT = 300.0
+_POLL = 0.25  #: s, the longest the Dask engine sleeps between looks at its tasks
+_CHECK = 1.0  #: s between asking the scheduler for its workers while tasks are outstanding
+_ASK = 10.0  #: s the scheduler has to answer that question
+#: s the first fetch of a finished task's result may take before the engine looks at the
+#: cluster again (the result died with its worker: the fetch waits for the scheduler to run the
+#: task again); each further try of the same fetch waits twice as long, up to _FETCH_MAX
+_FETCH = 2.0
+_FETCH_MAX = 60.0
+#: a failed fetch of a finished task's result to look at again: its worker died (the
+#: scheduler runs the task again), the scheduler did not answer in time
+_FETCH_FAILED = (OSError, TimeoutError, asyncio.CancelledError)
+_KEEP = object()  # lost_timeout not given: the dask config's, else DEFAULT_LOST_TIMEOUT
+
+
+def _lost_timeout(value) -> float | None:
+    if value is _KEEP:
+        import dask
+
+        value = dask.config.get("qchain.lost-timeout", DEFAULT_LOST_TIMEOUT)
+    if value is None:
+        return None
+    from dask.utils import parse_timedelta
+
+    try:
+        seconds = parse_timedelta(value, default="s")
+    except (TypeError, ValueError, KeyError):
+        seconds = None
+    if seconds is None or isinstance(value, bool) or not math.isfinite(seconds) or seconds <= 0:
+        raise ValueError(f"lost_timeout (dask config qchain.lost-timeout) must be a positive number of seconds or "
+                         f"None (wait for ever), got {value!r}")
+    return float(seconds)
+
+
 class DaskEngine:
     """Items as tasks on a ``dask.distributed`` cluster.
 
@@ -417,6 +468,10 @@ class DaskEngine:
     client : distributed.Client or str
         A client, or a scheduler address (``tcp://HOST:PORT``) to connect to (closed again
         by :meth:`close`).
+    lost_timeout : float, str or None, optional
+        Seconds :meth:`map` waits while the cluster has no worker (all died, or none joined
+        yet) or its scheduler does not answer, before it raises :class:`ClusterLost`.
+        Default: the dask config ``qchain.lost-timeout``, else 300 s; None waits for ever.
 
     Notes
     -----
@@ -426,31 +481,47 @@ class DaskEngine:
     kind reach a cluster, one worker of each machine other than this one compiles or
     loads the engine (:meth:`warm`), so workers sharing a cache do not all compile it at
     once.
+
+    Every wait is on this engine's own client and bounded: :meth:`map` looks at its tasks
+    at least every quarter second and asks the scheduler for its workers every second
+    while tasks are outstanding.
     """
 
     kind = "dask"
 
-    def __init__(self, client):
+    def __init__(self, client, *, lost_timeout=_KEEP):
         try:
             import distributed
         except ImportError:  # pragma: no cover - the dask extra is missing
             raise ImportError("the Dask engine needs dask.distributed: pip install 'qchain[dask]'") from None
+        self.lost_timeout = _lost_timeout(lost_timeout)
         self._own = isinstance(client, str)
         if self._own:
-            client = distributed.Client(client, set_as_default=False)
+            address = client
+            try:
+                client = distributed.Client(address, set_as_default=False)
+            except OSError as err:  # distributed's connect timeout, a refused connection
+                raise ClusterLost(f"cannot reach the Dask scheduler at {address}: {err}") from None
+            _quiet_gathers_given_up(client)
         elif not isinstance(client, distributed.Client):
             raise TypeError(f"client must be a dask.distributed.Client or a scheduler address, got {client!r}")
         self.client = client
         self._warmed: set = set()
 
     def __repr__(self) -> str:
-        return f"DaskEngine({self.client.scheduler.address})"
+        return f"DaskEngine({self._address()})"
 
     def __enter__(self) -> DaskEngine:
         return self
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+    def _address(self) -> str:
+        try:
+            return str(self.client.scheduler.address)
+        except AttributeError:  # a closed client
+            return "(closed client)"
 
     def _workers(self) -> dict:
         return self.client.scheduler_info(n_workers=-1)["workers"] if _takes_n_workers(self.client) \
@@ -461,34 +532,79 @@ class DaskEngine:
         """Threads over all workers (the items running at once)."""
         return max(1, sum(int(w.get("nthreads", 1)) for w in self._workers().values()))
 
+    def _threads(self) -> dict | None:
+        """{address: threads} of the scheduler's running workers; None when the client is
+        not connected or the scheduler does not answer within ``_ASK`` seconds."""
+        if self.client.status != "running":
+            return None
+        try:
+            return dict(self.client.sync(self.client.scheduler.ncores_running, callback_timeout=_ASK))
+        except (OSError, TimeoutError):  # CommClosedError, a refused connection, no answer in time
+            return None
+
+    def _lost(self, since: float, what: str) -> ClusterLost | None:
+        """The error to raise when the cluster has been unusable (``what``) since ``since``."""
+        if self.client.status in ("closing", "closed"):
+            return ClusterLost(f"the Dask client of the scheduler at {self._address()} closed ({what})")
+        waited = time.monotonic() - since
+        if self.lost_timeout is not None and waited > self.lost_timeout:
+            return ClusterLost(f"the Dask cluster at {self._address()}: {what} for {waited:.0f} s (lost_timeout = "
+                               f"{self.lost_timeout:g} s, dask config qchain.lost-timeout)")
+        return None
+
+    def _wait_for_threads(self) -> dict:
+        """The running workers' threads, waiting (bounded by ``lost_timeout``) for a first
+        worker: a cluster still starting, jobs in a queue."""
+        since = time.monotonic()
+        said = False
+        while True:
+            threads = self._threads()
+            if threads:
+                return threads
+            what = "no worker" if threads is not None else "the scheduler does not answer"
+            err = self._lost(since, what)
+            if err is not None:
+                raise err
+            if not said:
+                wait = "" if self.lost_timeout is None else f" (up to {self.lost_timeout:g} s)"
+                print(f"qchain: waiting for a worker to join the Dask cluster at {self._address()}{wait}",
+                      file=sys.stderr, flush=True)
+                said = True
+            time.sleep(_POLL)
+
     def warm(self, fn: Callable, payload: Payload, key=None) -> None:
         """Run ``fn(shared)`` (a one-step run) on one worker of each machine other than
-        this one, once per ``key``."""
+        this one, once per ``key``; a worker that dies meanwhile is skipped (the warm-up only
+        saves time)."""
         if key is not None and key in self._warmed:
             return
         here = socket.gethostname()
-        names = self.client.run(socket.gethostname)
+        names = self.client.run(socket.gethostname, on_error="return")
         first: dict[str, str] = {}
         for addr, host in sorted(names.items()):
-            if host != here:
+            if isinstance(host, str) and host != here:
                 first.setdefault(host, addr)
         if first:
-            self.client.run(_call_shared, fn, payload, workers=list(first.values()))
+            self.client.run(_call_shared, fn, payload, workers=list(first.values()), on_error="return")
         if key is not None:
             self._warmed.add(key)
 
     def map(self, fn: Callable, payload: Payload, items: Sequence, *, retries: int = DEFAULT_RETRIES
             ) -> Iterator[tuple[int, object]]:
-        """As :meth:`LocalPool.map`, on the cluster; a chunk whose workers died (Dask's
-        ``KilledWorker``) is split into single items and sent again."""
-        from distributed import KilledWorker, as_completed
+        """As :meth:`LocalPool.map`, on the cluster.
 
-        threads = [int(w.get("nthreads", 1)) for w in self._workers().values()]
-        if not threads:  # a cluster still starting (a job queue): wait for its first worker
-            print(f"qchain: waiting for a worker to join the Dask cluster at {self.client.scheduler.address}",
-                  file=sys.stderr, flush=True)
-            self.client.wait_for_workers(1)
-            threads = [int(w.get("nthreads", 1)) for w in self._workers().values()]
+        A worker that dies costs the tasks it had not handed back: the scheduler runs them
+        again (up to ``distributed.scheduler.allowed-failures`` deaths); then (Dask's
+        ``KilledWorker``) qchain splits the chunk into single items and sends them again,
+        ``retries`` times, before it gives an item up as :class:`Lost`. Tasks the scheduler
+        forgot (this client lost its connection to it) are sent again once the client is
+        connected again. Raises :class:`ClusterLost` when the cluster has had no worker, or
+        its scheduler has not answered, for ``lost_timeout`` seconds; an exception raised by
+        ``fn`` itself is raised here. Closing the iterator early releases the tasks still
+        outstanding (the scheduler cancels them)."""
+        from distributed import KilledWorker
+
+        threads = list(self._wait_for_threads().values())
         if any(n > 1 for n in threads):
             import warnings
 
@@ -496,42 +612,119 @@ class DaskEngine:
                           "compiled engine holds the GIL): start one worker process a core with --nthreads 1",
                           RuntimeWarning, stacklevel=3)
         attempts = [0] * len(items)
-        owner: dict = {}
+        pending: dict = {}  # future -> chunk (item indices), in the order sent
+        lost: list = []  # chunks whose tasks the scheduler forgot, to send again when connected
+        fetch_wait: dict = {}  # future -> seconds its next fetch may take
+        wake = threading.Event()
 
-        def submit(chunk):
+        def woken(_fut) -> None:
+            wake.set()
+
+        def submit(chunk: list) -> None:
             fut = self.client.submit(_run_chunk, fn, payload, [items[i] for i in chunk], pure=False,
                                      key=f"qchain-{payload.token[:8]}-{chunk[0]}-{uuid.uuid4().hex[:8]}")
-            owner[fut] = chunk
-            return fut
+            pending[fut] = chunk
+            fut.add_done_callback(woken)
 
-        futures = [submit(list(c)) for c in plan_chunks(len(items), sum(threads), factor=_DASK_FACTOR)]
-        ac = as_completed(futures, with_results=True, raise_errors=False)
-        finished = False
+        def killed(chunk: list, err) -> Iterator[tuple[int, object]]:
+            for i in chunk:
+                attempts[i] += 1
+            for i in chunk:
+                if attempts[i] > retries:
+                    yield i, Lost(f"the Dask workers running it died ({err})", attempts[i])
+                else:
+                    submit([i])
+
+        for c in plan_chunks(len(items), sum(threads), factor=_DASK_FACTOR):
+            submit(list(c))
+        lost_since = None  # when the engine first found the cluster without a worker or an answer
+        checked = time.monotonic()
         try:
-            for fut, res in ac:
-                chunk = owner.pop(fut)
-                if fut.status == "error":
-                    if not isinstance(res, KilledWorker):
-                        raise res
-                    for i in chunk:
-                        attempts[i] += 1
-                    for i in chunk:
-                        if attempts[i] > retries:
-                            yield i, Lost(f"the Dask workers running it died ({res})", attempts[i])
-                        else:
-                            ac.add(submit([i]))
-                    continue
-                fut.release()
-                yield from zip(chunk, res)
-            finished = True
+            while pending or lost:
+                wake.wait(_POLL)
+                wake.clear()
+                for fut in list(pending):
+                    status = fut.status  # "pending" and "lost" (its result died with a worker): the scheduler's
+                    chunk = pending[fut]
+                    if status == "finished":
+                        wait_s = fetch_wait.get(fut, _FETCH)
+                        try:
+                            res = fut.result(timeout=wait_s)
+                        except Exception as err:
+                            if fut.status == "finished" and not isinstance(err, _FETCH_FAILED):
+                                raise
+                            if fut.status == "finished":  # a slow transfer, or no answer: next time wait longer
+                                fetch_wait[fut] = min(2 * wait_s, _FETCH_MAX)
+                            continue  # else its worker died before handing it over: the scheduler runs it again
+                        fetch_wait.pop(fut, None)
+                        del pending[fut]
+                        fut.release()
+                        yield from zip(chunk, res)
+                    elif status == "error":
+                        err = fut.exception(timeout=_FETCH_MAX)
+                        tb = fut.traceback(timeout=_FETCH_MAX)
+                        del pending[fut]
+                        fut.release()  # (releasing a future cancels its state: read it first)
+                        if not isinstance(err, KilledWorker):
+                            raise err.with_traceback(tb)
+                        yield from killed(chunk, err)
+                    elif status == "cancelled":  # the scheduler forgot it: this client lost its connection
+                        del pending[fut]
+                        lost.append(chunk)
+                if lost and self.client.status == "running":
+                    for chunk in lost:
+                        submit(chunk)
+                    lost.clear()
+                now = time.monotonic()
+                if now - checked >= _CHECK:
+                    checked = now
+                    threads_now = self._threads()
+                    if threads_now:
+                        lost_since = None
+                    else:
+                        lost_since = time.monotonic() if lost_since is None else lost_since
+                        err = self._lost(lost_since, "no worker" if threads_now is not None else
+                                         "the scheduler does not answer")
+                        if err is not None:
+                            n_open = sum(len(c) for c in pending.values()) + sum(len(c) for c in lost)
+                            raise ClusterLost(f"{err}; {n_open} of {len(items)} items not computed") from None
         finally:
-            if not finished and owner:
-                self.client.cancel(list(owner))
+            for fut in pending:  # a message to the scheduler, never a wait: it cancels what no one wants
+                fut.release()
 
     def close(self) -> None:
         """Close the client if this engine opened it."""
-        if self._own:
+        if not self._own:
+            return
+        if self.client.status == "running":
             self.client.close()
+            return
+        # a client still trying to reach a lost scheduler logs the end of its attempts as an
+        # error with two tracebacks: ClusterLost has said what happened
+        import logging
+
+        log = logging.getLogger("distributed.client")
+        level = log.level
+        log.setLevel(logging.CRITICAL)
+        try:
+            self.client.close()
+        finally:
+            log.setLevel(level)
+
+
+def _quiet_gathers_given_up(client) -> None:
+    """On the event loop of a client the engine opened: distributed ends the inner waits of a
+    fetch the engine gave up on (its worker died meanwhile) with its own ``AllExit``, which
+    asyncio would print as "Task exception was never retrieved" with a traceback when the
+    client closes. Everything else goes to asyncio's handler as before."""
+    def handler(loop, context):
+        if type(context.get("exception")).__name__ != "AllExit":
+            loop.default_exception_handler(context)
+
+    try:
+        client.loop.asyncio_loop.set_exception_handler(handler)
+    except AttributeError:  # pragma: no cover - a loop without one
+        pass
 
 
 def _takes_n_workers(client) -> bool:

@@ -27,7 +27,7 @@ from qchain import bounds as B
 from qchain import scene_format as F
 from qchain.budget import Budget, BudgetError
 from qchain.errors import NonFiniteError
-from qchain.inputs import Sine
+from qchain.inputs import Constant, Ramp, Sine, Step, Table
 from qchain.scene import SceneError, load_scene, parse_scene
 from qchain.simulate import simulate
 
@@ -684,10 +684,14 @@ def test_raising_the_budget_of_simulate_lets_the_run_through():
 
 
 @pytest.mark.parametrize("case", ["compiled rk4", "compiled midpoint", "python rk4"])
-def test_a_run_that_turns_non_finite_stops_naming_quantity_segment_and_time(case):
+def test_a_run_that_turns_non_finite_stops_naming_quantity_segment_and_time(case, monkeypatch):
     """Pressures of 1e300 Pa overflow the accelerations at the first stage: the run stops
     with success = False and a message naming the quantity, the coordinate's segment and
-    the time; every sample it kept is finite."""
+    the time; every sample it kept is finite. (Such pressures are refused where they enter,
+    outside :data:`qchain.bounds.PRESSURE`; the range is lifted here to reach the check
+    within the run, which guards against any overflow on the way.)"""
+    import qchain.inputs
+
     method = case.split()[1]
     coords = "paper" if case.startswith("python") else "curvature"
     seg = segment(coords=coords)
@@ -695,6 +699,9 @@ def test_a_run_that_turns_non_finite_stops_naming_quantity_segment_and_time(case
     q = ch.neutral()
     if coords == "paper":
         q[2] = q[5] = 1.0  # away from the paper coordinates' singular straight pose
+    with pytest.raises(ValueError, match=r"pressure\[0\] must be >= -101325 and <= 1e\+09 Pa, got 1e\+300 Pa"):
+        simulate(ch, q, np.zeros(ch.nv), (0.0, 0.1), method=method, dt=1e-3, pressure=np.full(6, 1e300))
+    monkeypatch.setattr(qchain.inputs, "input_range", lambda name: None)
     with within(60):
         tr = simulate(ch, q, np.zeros(ch.nv), (0.0, 0.1), method=method, dt=1e-3, pressure=np.full(6, 1e300))
     assert tr.meta["engine"] == ("python" if coords == "paper" else "compiled")
@@ -805,3 +812,160 @@ def test_former_hangs_are_refused_before_they_start():
         words = lines[name].split()
         assert words[0] == "refused" and words[2] == key, out.stdout
     assert lines["api_dt"] == "refused" and lines["api_max_step"] == "refused", out.stdout
+
+
+# --------------------------------------------------------------------------------------
+# pressures and generalised forces from Python: the declared ranges, checked where they enter
+
+
+def _arm():
+    return Chain([segment(), segment()])  # 6 pressures, 6 generalised forces
+
+
+@pytest.mark.parametrize("name, value, match", [
+    ("pressure", np.full(6, 1e300), r"pressure\[0\] must be >= -101325 and <= 1e\+09 Pa, got 1e\+300 Pa"),
+    ("pressure", [0, 0, -2e5, 0, 0, 0], r"pressure\[2\] must be >= -101325 and <= 1e\+09 Pa, got -200000 Pa"),
+    ("pressure", Sine(np.full(6, 2e5), 1.0), r"pressure\[0\] must stay >= -101325 and <= 1e\+09 Pa, but the Sine "
+                                            r"schedule given as pressure reaches -200000 Pa"),
+    ("pressure", Sine(np.full(6, 2e5), 1.0, offset=np.full(6, 1e9)), r"pressure\[0\] must stay .* reaches 1\.0002e\+09"),
+    ("pressure", Step(0.1, after=[0, 0, 0, 0, 2e9, 0]), r"pressure\[4\] must stay .* Step schedule .* reaches 2e\+09 Pa"),
+    ("pressure", Ramp(0.0, 1.0, end=np.zeros(6), start=[0, 0, 0, 0, 0, -1e6]), r"pressure\[5\] must stay .* Ramp"),
+    ("pressure", Table([0.0, 1.0], [np.zeros(6), [3e9, 0, 0, 0, 0, 0]]), r"pressure\[0\] must stay .* Table .* 3e\+09"),
+    ("pressure", [10**400, 0, 0, 0, 0, 0], r"pressure must hold real numbers representable as floats"),
+    ("tau", np.full(6, 1e308), r"tau\[0\] must be >= -1e\+15 and <= 1e\+15, got 1e\+308"),
+    ("tau", Step(0.05, after=[0, 0, 0, -1e16, 0, 0]), r"tau\[3\] must stay >= -1e\+15 and <= 1e\+15, but the Step"),
+])
+def test_absurd_pressures_and_forces_are_refused_before_the_run_naming_the_argument(name, value, match):
+    ch = _arm()
+    with within(20):
+        with pytest.raises(ValueError, match=match):
+            simulate(ch, ch.neutral(), np.zeros(6), (0.0, 1.0), **{name: value})
+
+
+@pytest.mark.parametrize("name", ["pressure", "tau"])
+@pytest.mark.parametrize("value, error, match", [
+    ([True, 0, 0, 0, 0, 0], TypeError, r"\(booleans are not numbers\)"),
+    ([1j, 0, 0, 0, 0, 0], TypeError, r"complex numbers are refused"),
+    (np.array([0, 0, 1 + 0j, 0, 0, 0]), TypeError, r"complex numbers are refused"),
+    (["1e4", 0, 0, 0, 0, 0], TypeError, r"array of real numbers"),
+    ([np.nan, 0, 0, 0, 0, 0], ValueError, r"non-finite entries at indices \[0\]"),
+    ([0, 0, 0, 0, 0, -np.inf], ValueError, r"non-finite entries at indices \[5\]"),
+])
+def test_pressures_and_forces_that_are_not_finite_real_numbers_are_refused_by_name(name, value, error, match):
+    ch = _arm()
+    with pytest.raises(error, match=match) as exc:
+        simulate(ch, ch.neutral(), np.zeros(6), (0.0, 0.1), **{name: value})
+    assert str(exc.value).startswith(name), str(exc.value)
+    with pytest.raises(error, match=match):  # a schedule refuses it when it is made
+        Constant(value)
+
+
+def test_a_controller_outside_the_range_stops_the_run_naming_the_call():
+    ch = _arm()
+    calls = []
+
+    def pump(t, q, v):
+        calls.append(t)
+        return np.full(6, 2e4) if t < 0.01 else np.array([0, 0, 0, 0, 0, 5e9])
+
+    with within(60):
+        with pytest.raises(ValueError, match=r"pressure\(t, q, v\)\[5\] must be >= -101325 and <= 1e\+09 Pa, got "
+                                             r"5e\+09 Pa"):
+            simulate(ch, ch.neutral(), np.zeros(6), (0.0, 0.05), pressure=pump, method="RK45")
+    assert calls and max(calls) >= 0.01  # it ran until the controller left the range
+    with within(60):  # held at 100 Hz by the compiled engine: checked at each hold too
+        with pytest.raises(ValueError, match=r"tau\(t\)\[0\] must be >= -1e\+15 and <= 1e\+15, got 1e\+20"):
+            simulate(ch, ch.neutral(), np.zeros(6), (0.0, 0.05), tau=lambda t: np.full(6, 1e20 if t > 0.02 else 0.0),
+                     controller_rate=100.0)
+
+
+def test_the_edges_of_the_ranges_are_accepted():
+    from qchain.inputs import FORCE, as_input, input_range
+
+    assert input_range("pressure") is B.PRESSURE and input_range("pressure[3]") is B.PRESSURE
+    assert input_range("tau") is FORCE and input_range("tau(t)") is FORCE and input_range("gain") is None
+    edge = np.array([B.VACUUM_GAUGE, 1e9, 0.0])
+    assert np.array_equal(as_input("pressure", edge, 3)(0.0, None, None), edge)
+    assert as_input("pressure", Sine([1e5] * 3, 2.0, offset=[B.VACUUM_GAUGE + 1e5] * 3), 3)(0.0, None, None).shape == (3,)
+    assert np.array_equal(as_input("tau", np.array([-1e15, 1e15, 0.0]), 3)(0.0, None, None), [-1e15, 1e15, 0.0])
+    # a sine of frequency 0 is a constant: only the value it holds counts
+    assert as_input("pressure", Sine([2e5, 0, 0], 0.0), 3)(0.0, None, None)[0] == 0.0
+    with pytest.raises(ValueError, match=r"pressure\[0\] must stay"):
+        as_input("pressure", Sine([2e5, 0, 0], 0.0, phase=[-np.pi / 2, 0, 0]), 3)
+    # no range for a name without one, or when asked for none
+    assert as_input("gain", np.full(3, 1e300), 3)(0.0, None, None)[0] == 1e300
+    assert as_input("pressure", np.full(3, 1e300), 3, bound=None)(0.0, None, None)[0] == 1e300
+
+
+def test_a_schedule_whose_values_are_not_known_ahead_is_checked_at_every_call():
+    from qchain.inputs import Schedule, as_input
+
+    class Surge(Step):  # changes __call__, keeps Step's extent: that extent says nothing of it
+        def __call__(self, t):
+            return np.full(self.size, 5e9 if t > 1.0 else 1e4)
+
+    class Mine(Schedule):
+        size = 3
+
+        def __call__(self, t):
+            return np.array([0.0, 0.0, -2e5 if t > 1.0 else 0.0])
+
+    surge, mine = as_input("pressure", Surge(0.0, [1.0, 2.0, 3.0]), 3), as_input("pressure", Mine(), 3)
+    assert surge(0.5, None, None)[0] == 1e4 and mine(0.5, None, None)[2] == 0.0
+    with pytest.raises(ValueError, match=r"pressure\(t\)\[0\] must be >= -101325 and <= 1e\+09 Pa, got 5e\+09 Pa"):
+        surge(2.0, None, None)
+    with pytest.raises(ValueError, match=r"pressure\(t\)\[2\] must be >= -101325 and <= 1e\+09 Pa, got -200000 Pa"):
+        mine(2.0, None, None)
+
+
+def test_a_batch_names_the_rollout_whose_pressure_is_out_of_range():
+    from qchain import simulate_batch
+
+    ch = _arm()
+    P = [np.full(6, 1e4), np.full(6, 1e4), Sine(np.full(6, 3e5), 1.0)]
+    with within(60):
+        with pytest.raises(ValueError, match=r"pressure\[2\]\[0\] must stay >= -101325"):
+            simulate_batch(ch, np.tile(ch.neutral(), (3, 1)), np.zeros((3, 6)), (0.0, 0.1), pressure=P, workers=1,
+                           t_eval=np.linspace(0.0, 0.1, 11))
+
+
+@settings(max_examples=200, deadline=None, derandomize=True, database=None)
+@given(data=st.data())
+def test_fuzzed_pressures_and_forces_give_a_clean_error_naming_the_argument(data):
+    from qchain.inputs import FORCE
+
+    name = data.draw(st.sampled_from(["pressure", "tau"]))
+    rng = B.PRESSURE if name == "pressure" else FORCE
+    bad = data.draw(st.one_of(outside(rng), NOT_NUMBERS, st.complex_numbers()))
+    i = data.draw(st.integers(0, 5))
+    values = [0.0] * 6
+    values[i] = bad
+    kind = data.draw(st.sampled_from(["array", "Constant", "Step", "Ramp", "Sine offset", "Table"]))
+    ch = _arm()
+    with within(20):
+        with pytest.raises((ValueError, TypeError)) as exc:
+            if kind == "array":
+                u = values
+            elif kind == "Constant":
+                u = Constant(values)
+            elif kind == "Step":
+                u = Step(0.5, after=values)
+            elif kind == "Ramp":
+                u = Ramp(0.0, 0.5, end=values)
+            elif kind == "Sine offset":
+                u = Sine(np.zeros(6), 1.0, offset=values)
+            else:
+                u = Table([0.0, 1.0], [[0.0] * 6, values])
+            simulate(ch, ch.neutral(), np.zeros(6), (0.0, 0.01), **{name: u})
+    text = str(exc.value)
+    names = (name, "value", "after", "end", "offset", "values")  # a schedule refuses it when it is made
+    assert text.startswith(names), text
+    assert "could not convert" not in text and "OverflowError" not in text
+
+
+@pytest.mark.parametrize("value", [10**400, [1.0, -(10**400)], np.array([0.5, 10**309], dtype=object)])
+def test_integers_too_large_for_a_float_are_a_value_error_naming_the_argument(value):
+    from qchain.errors import as_real_array
+
+    with pytest.raises(ValueError, match=r"^q_e must hold real numbers representable as floats \(\|x\| <= 1.8e308\), got "):
+        as_real_array("q_e", value)

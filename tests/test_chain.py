@@ -7,6 +7,7 @@ import pytest
 from helpers import SEGMENT_KW, rel
 from particles import brute_chain
 from qchain import Chain, DomainError, Segment, SingularConfigurationError
+from qchain.chain import Frames
 
 G_W = np.array([0.0, 0.0, -9.81])
 
@@ -266,6 +267,56 @@ def test_frames_batch_equals_one_configuration_at_a_time(coords, base, rng):
             assert f.quaternion[k, j, 3] >= 0.0
         np.testing.assert_allclose(f.backbone[k, :, -1], f.translation[k, 1:], rtol=0, atol=1e-15)
         np.testing.assert_allclose(f.backbone[k, :, 0], f.translation[k, :-1], rtol=0, atol=1e-15)
+
+
+@pytest.mark.parametrize("coords, base", [("curvature", "fixed"), ("paper", "floating"), ("curvature", "prescribed")])
+def test_frames_batch_skip_checks_into_out_gives_the_same_frames(coords, base, rng):
+    """The recorder's fast path (``skip_checks``, written into the first K rows of ``out``,
+    from a strided view of record rows) == the checked call, bit for bit; ``out`` alone is
+    refused."""
+    motion = lambda t: (pin.SE3(pin.exp3(np.array([0.2 * t, -0.5, 0.1])), np.array([t, 0.2, -0.1])),  # noqa: E731
+                        np.zeros(6), np.zeros(6))
+    kw = {"base_motion": motion} if base == "prescribed" else dict(BASES[0][1]) if base == "fixed" else {}
+    ch = make_chain(coords, base, **kw)
+    Q = np.array([random_state(ch, rng)[0] for _ in range(5)])
+    t = np.linspace(0.0, 0.6, 5)
+    rows = np.zeros((8, ch.nq + 3))
+    rows[:5, 2 : 2 + ch.nq] = Q
+    view = rows[:5, 2 : 2 + ch.nq]  # not contiguous, as the recorder's rows
+    out = Frames(np.full((8, ch.n + 1, 3, 3), np.nan), np.full((8, ch.n + 1, 3), np.nan),
+                 np.full((8, ch.n + 1, 4), np.nan), np.full((8, ch.n, 9, 3), np.nan))
+    fast = ch.frames_batch(view, 9, t=t, skip_checks=True, out=out)
+    ref = ch.frames_batch(Q, 9, t=t)
+    for a, b, o in zip(fast, ref, out):
+        np.testing.assert_array_equal(a, b)
+        assert a.shape == b.shape and np.shares_memory(a, o) and np.isnan(o[5:]).all()
+    for a, b in zip(ch.frames_batch(view, 9, t=t, skip_checks=True), ref):
+        np.testing.assert_array_equal(a, b)
+    with pytest.raises(ValueError, match="out is for skip_checks=True only"):
+        ch.frames_batch(Q, 9, t=t, out=out)
+
+
+def test_evenly_spaced_backbone_points_equal_each_point_s_own_arc_pose(rng):
+    """``recursive.frames`` steps along a segment by one rigid arc step for evenly spaced
+    points: each point within 1e-15 m of its own ``arc_pose`` placed by its root frame,
+    straight, bent and nearly straight (the series branch), 2 to 41 points."""
+    from qchain.arc import arc_pose
+    from qchain.recursive import frames
+
+    q = np.array([[[0.2, 0.0, 0.0], [0.25, 7.0, -3.0], [0.15, 1e-9, 2e-9], [0.3, -12.0, 0.5]]])
+    paper = np.zeros(4, dtype=np.bool_)
+    X = pin.SE3(pin.exp3(np.array([0.3, -1.2, 0.4])), np.array([0.1, -0.2, 0.3]))
+    for P in (2, 3, 12, 41):
+        alpha = np.linspace(0.0, 1.0, P)
+        R, o, quat = np.empty((1, 5, 3, 3)), np.empty((1, 5, 3)), np.empty((1, 5, 4))
+        pts = np.empty((1, 4, P, 3))
+        frames(q, paper, X.rotation[None].copy(), X.translation[None].copy(), alpha, R, o, quat, pts)
+        Rs, ps = np.empty((3, 3)), np.empty(3)
+        for j in range(4):
+            for i, a in enumerate(alpha):
+                arc_pose(a, *q[0, j], Rs, ps)
+                np.testing.assert_allclose(pts[0, j, i], o[0, j] + R[0, j] @ ps, rtol=0, atol=1e-15)
+            assert np.array_equal(pts[0, j, 0], o[0, j]) and np.array_equal(pts[0, j, -1], o[0, j + 1])
 
 
 def test_frames_batch_quaternions_on_every_branch():

@@ -342,3 +342,38 @@ def test_a_batch_taker_gets_every_sample_in_batches_within_its_max_sim():
     assert np.array_equal(t, tr.t) and np.array_equal(q, tr.q) and np.array_equal(v, tr.v)
     assert np.array_equal(p, tr.p)
     assert np.allclose(ke, tr.kinetic_energy, rtol=1e-13, atol=0) and np.allclose(pe, tr.potential_energy, rtol=1e-13)
+
+
+@pytest.mark.parametrize("base", ["fixed", "floating", "prescribed"])
+def test_the_compiled_energies_pass_equals_the_chain_s_mass_matrix_energies(base):
+    """``system.energies_batch`` (the node-by-node quadrature of ``1/2 V^T I_d V``, the
+    recorder's and trajectories' energies) against ``Chain.kinetic_energy`` (``1/2 xi^T M_xi
+    xi`` with the 9 x 9 blocks) and ``Chain.potential_energy`` (centres of mass), at random
+    bent, stretched, moving states with unequal segments, at several times (the prescribed
+    base moves)."""
+    kw = dict(base_motion=SineMotion(kind="rotation", axis=np.array([0.3, 0.4, 0.5]), amplitude=0.4, frequency=1.5,
+                                     phase=0.2, mount=pin.SE3.Identity())) if base == "prescribed" else {}
+    segs = [Segment(**{**SEG, "length": 0.2 + 0.05 * k}, nodes=3 + 2 * k) for k in range(3)]
+    ch = Chain(segs, base=base, **kw)
+    m, wk, _ = _engine_args(ch)
+    rng = np.random.default_rng(7)
+    K = 6
+    Q = np.array([ch.neutral() for _ in range(K)])
+    V = rng.normal(size=(K, ch.nv))
+    qoff = ch.nq - 3 * ch.n
+    for k in range(K):
+        Q[k, qoff::3] *= 1.0 + 0.2 * rng.uniform(-1, 1, ch.n)
+        Q[k, qoff + 1 :: 3] = rng.uniform(-8, 8, ch.n)
+        Q[k, qoff + 2 :: 3] = rng.uniform(-8, 8, ch.n)
+        if ch.floating:
+            Q[k, :3] = rng.normal(size=3)
+            quat = rng.normal(size=4)
+            Q[k, 3:7] = quat / np.linalg.norm(quat)
+    t = np.linspace(0.0, 0.9, K)
+    ke, pe = np.empty(K), np.empty(K)
+    system.energies_batch(m, wk, t, Q, V, ke, pe)
+    ke_ref = [ch.kinetic_energy(Q[k], V[k], t=t[k]) for k in range(K)]
+    pe_ref = [ch.potential_energy(Q[k], t=t[k]) for k in range(K)]
+    np.testing.assert_allclose(ke, ke_ref, rtol=1e-12)
+    np.testing.assert_allclose(pe, pe_ref, rtol=1e-12, atol=1e-12 * np.abs(pe_ref).max())
+    assert min(ke_ref) > 0 and np.ptp(pe_ref) > 0

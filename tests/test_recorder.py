@@ -166,3 +166,33 @@ def test_a_batch_of_samples_logs_what_the_samples_one_by_one_log():
     np.testing.assert_array_equal(rows_batch, rows_one)
     for rows, _ in batch.calls:
         assert rows[-1, 0] - rows[0, 0] < _Rows.flush_interval
+
+
+def test_ctrl_c_while_a_paced_batch_is_taken_records_no_sample_twice(monkeypatch):
+    """``realtime``: the recorder takes an engine batch sample by sample, pausing between
+    them; a Ctrl-C in a pause ends the run, and the engine hands the batch over again. The
+    samples already taken are not logged twice: the records are the trajectory's first
+    samples, each once, in order."""
+    import qchain.recorder as recorder_module
+    from qchain.engine.driver import Interrupted
+    from test_simulate import hanging_arm
+
+    ch = hanging_arm(2)
+    pauses = []
+
+    def sleep(s):
+        pauses.append(s)
+        if len(pauses) == 6:
+            raise KeyboardInterrupt
+
+    monkeypatch.setattr(recorder_module.time, "sleep", sleep)
+    log = _Rows()
+    with pytest.raises(Interrupted) as info:
+        with ChainRecorder(log, ch, realtime=True) as rec:
+            simulate(ch, ch.neutral(), np.zeros(ch.nv), (0.0, 2.0), method="radau5",
+                     t_eval=np.linspace(0.0, 2.0, 201), on_sample=rec)
+    traj = info.value.trajectory
+    assert traj.meta["engine"] == "compiled" and len(pauses) == 6  # no pause after the Ctrl-C
+    t = np.concatenate([rows[:, 0] for rows, _ in log.calls])
+    assert len(t) == rec.n_samples == rec.taken and len(t) >= 6
+    np.testing.assert_array_equal(t, traj.t[: len(t)])  # each once, in order

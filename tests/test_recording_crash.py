@@ -41,8 +41,8 @@ def reported(self, t, q, v, p, energies=None):
     os.write(fd, b"%r\n" % float(t))
 rec.ChainRecorder.__call__ = reported
 batch = rec.ChainRecorder.record_batch
-def reported_batch(self, t, q, v, p, kinetic, potential):  # the compiled engine hands over batches
-    batch(self, t, q, v, p, kinetic, potential)
+def reported_batch(self, t, q, v, p, kinetic, potential, **kw):  # the compiled engine hands over batches
+    batch(self, t, q, v, p, kinetic, potential, **kw)
     if len(t):
         os.write(fd, b"".join(b"%r\n" % float(x) for x in t))
 rec.ChainRecorder.record_batch = reported_batch

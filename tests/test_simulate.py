@@ -124,7 +124,7 @@ def test_domain_exit_stops_cleanly_with_the_trajectory_kept(method, kw):
 
 def test_non_finite_state_stops_cleanly():
     ch = Chain([Segment(**SEG)], gravity=np.zeros(3))
-    tau = Step(0.05, after=[1e308, 0.0, 0.0])
+    tau = Step(0.05, after=[0.0, 1e15, 0.0])  # within the force range; the state blows up
     tr = simulate(ch, ch.neutral(), np.zeros(3), (0, 0.1), tau=tau, method="rk4", dt=1e-3)
     assert not tr.success
     assert ("non-finite" in tr.message) or ("segment 0" in tr.message)
@@ -216,3 +216,28 @@ def test_rk4_above_its_stability_limit_says_so():
     exit_ = simulate(one, one.neutral(), np.zeros(3), (0, 1.0), pressure=Ramp(0.0, 1.0, end=[3e6, 0.0, 0.0]),
                      method="rk4", dt=2e-4)
     assert not exit_.success and "kappa" in exit_.message and "unstable" not in exit_.message
+
+
+@pytest.mark.parametrize("method", ["RK45", "dopri5"])
+def test_ctrl_c_says_how_far_the_run_got_on_either_engine(method):
+    """A Ctrl-C during a run (raised here by ``on_sample`` once it has seen t >= 0.1 s)
+    ends it with its samples so far, and the message names the time they reach, not the
+    start: the Python path is interrupted inside its adaptive loop, before it returns
+    its time."""
+    from qchain.engine.driver import Interrupted
+
+    ch = hanging_arm(1)
+    seen = []
+
+    def on_sample(t, q, v, p):
+        seen.append(t)
+        if t >= 0.1:
+            raise KeyboardInterrupt
+
+    with pytest.raises(Interrupted) as info:
+        simulate(ch, ch.neutral(), np.zeros(3), (0, 1.0), method=method, t_eval=np.linspace(0, 1.0, 101),
+                 on_sample=on_sample)
+    tr = info.value.trajectory
+    assert tr.status == -1 and tr.meta["engine"] == ("python" if method == "RK45" else "compiled")
+    reached = float(tr.message.rsplit("t = ", 1)[1].split(" s")[0])
+    assert reached >= 0.1 and reached >= tr.t[-1] - 1e-12, tr.message

@@ -9,6 +9,8 @@ stretch sized to take about :data:`STRETCH` s of wall time, so Ctrl-C is felt pr
 
 from __future__ import annotations
 
+import functools
+import inspect
 import time as _time
 
 import numpy as np
@@ -188,7 +190,19 @@ def _max_out(out, cnt, t, on_sample) -> int:
     if getattr(on_sample, "record_batch", None) is None or out.every:
         return 1
     max_sim = float(getattr(on_sample, "max_sim", 0.0))
-    return max(1, int(np.searchsorted(out.t, t + max_sim, side="left")) - k)
+    # from the first sample not handed over yet: the last step may have passed samples before t
+    t_first = out.t[k] if k < out.t.size else t
+    return max(1, int(np.searchsorted(out.t, t_first + max_sim, side="left")) - k)
+
+
+@functools.lru_cache(maxsize=32)
+def _trusts_states(taker: type) -> bool:
+    """Whether a batch taker's ``record_batch`` takes ``skip_checks`` (the engine's states
+    were checked at every step: it need not check them again)."""
+    try:
+        return "skip_checks" in inspect.signature(taker.record_batch).parameters
+    except (TypeError, ValueError, AttributeError):
+        return False
 
 
 def _hand_over(out, emitted, cnt, on_sample, pass_energies, m, wk) -> int:
@@ -200,7 +214,10 @@ def _hand_over(out, emitted, cnt, on_sample, pass_energies, m, wk) -> int:
     if batch is not None and k > emitted:
         ke, pe = np.empty(k - emitted), np.empty(k - emitted)
         system.energies_batch(m, wk, out.t[emitted:k], out.q[emitted:k], out.v[emitted:k], ke, pe)
-        batch(out.t[emitted:k], out.q[emitted:k], out.v[emitted:k], out.p[emitted:k], ke, pe)
+        if _trusts_states(type(on_sample)):
+            batch(out.t[emitted:k], out.q[emitted:k], out.v[emitted:k], out.p[emitted:k], ke, pe, skip_checks=True)
+        else:
+            batch(out.t[emitted:k], out.q[emitted:k], out.v[emitted:k], out.p[emitted:k], ke, pe)
     elif on_sample is not None:
         ke, pe = np.zeros(1), np.zeros(1)
         for r in range(emitted, k):

@@ -35,8 +35,8 @@ import functools
 import numpy as np
 
 from .. import derivatives, planar, recursive
-from ..arc import SCRATCH, arc_pose, take1, take2
-from ..slices import segment_slices
+from ..arc import SCRATCH, arc_node, take1, take2
+from ..slices import slice_twist
 from . import lie, schedules
 from .jit import ejit, ejit_inner, inline, kernel
 
@@ -434,8 +434,12 @@ def jacobian(m, wk, t, y, Jq, Jv):
 def energies(m, wk, t, q, v):
     """``(kinetic, potential)`` (J) at ``(t, q, v)``: ``1/2 sum_j xi_j^T M_xi_j xi_j`` (the
     base's own motion included), gravity about the world origin plus the elastic energy.
-    One pass over the segments (blocks, tip maps, node positions); ``q``, ``v`` full (nq,), (nv,).
-    Compiled callers only (no CPython wrapper): from Python, :func:`energies_batch`."""
+    One pass over the segments' nodes: the kinetic energy as the quadrature of eq. (6)'s
+    integrand itself, ``1/2 sum_k w_k V_k^T I_d V_k`` with the slice twists ``V_k = Phi_k xi``
+    (equal to ``1/2 xi^T M_xi xi`` without forming the 9 x 9 ``M_xi``), the node positions
+    for gravity, the tip twist and frame for the next segment's root. ``q``, ``v`` full
+    (nq,), (nv,). Compiled callers only (no CPython wrapper): from Python,
+    :func:`energies_batch`."""
     alpha, w, offs, mass, radius, l0, EI, EA = m[0], m[1], m[2], m[3], m[4], m[5], m[6], m[7]
     kind = m[14]
     g_W = m[15]
@@ -447,18 +451,15 @@ def energies(m, wk, t, q, v):
     _base_state(m, wk, t, q, v)
     o = 0
     V, o = take1(sc, o, 6)
-    xi, o = take1(sc, o, 9)
-    z9, o = take1(sc, o, 9)
-    Q, o = take1(sc, o, 9)
-    c, o = take1(sc, o, 6)
-    M, o = take2(sc, o, 9, 9)
-    T, o = take2(sc, o, 6, 9)
+    Vn, o = take1(sc, o, 6)
+    qd, o = take1(sc, o, 3)
+    R, o = take2(sc, o, 3, 3)
+    p, o = take1(sc, o, 3)
+    S, o = take2(sc, o, 6, 3)
+    Sd, o = take2(sc, o, 6, 3)
     Rj, o = take2(sc, o, 3, 3)
     oj, o = take1(sc, o, 3)
-    Rs, o = take2(sc, o, 3, 3)
-    ps, o = take1(sc, o, 3)
     Rn, o = take2(sc, o, 3, 3)
-    z9[:] = 0.0
     copy(V, B[0])
     for r in range(3):
         copy(Rj[r], wk[13][r])
@@ -466,36 +467,34 @@ def energies(m, wk, t, q, v):
     kin = 0.0
     pot = 0.0
     for j in range(n):
-        qj = q[qoff + 3 * j : qoff + 3 * j + 3]
-        copy(xi[:6], V)
+        l = q[qoff + 3 * j]
+        ux = q[qoff + 3 * j + 1]
+        uy = q[qoff + 3 * j + 2]
         for b in range(3):
-            xi[6 + b] = v[voff + 3 * j + b]
-        segment_slices(alpha[offs[j] : offs[j + 1]], w[offs[j] : offs[j + 1]], mass[j], radius[j], qj, z9, z9, True,
-                       M, Q, sc[o:])
-        for a in range(9):
-            acc = 0.0
-            for b in range(9):
-                acc += M[a, b] * xi[b]
-            kin += 0.5 * xi[a] * acc
-        recursive._tip(qj, xi[6:], xi, T, c, sc[o:])
-        for r in range(6):
-            acc = 0.0
-            for b in range(9):
-                acc += T[r, b] * xi[b]
-            V[r] = acc
-        l, ux, uy = qj[0], qj[1], qj[2]
+            qd[b] = v[voff + 3 * j + b]
+        mj = mass[j]
+        ixx = 0.25 * mj * radius[j] * radius[j]
+        izz = 0.5 * mj * radius[j] * radius[j]
+        gx = g_W[0] * Rj[0, 0] + g_W[1] * Rj[1, 0] + g_W[2] * Rj[2, 0]  # gravity in the root frame
+        gy = g_W[0] * Rj[0, 1] + g_W[1] * Rj[1, 1] + g_W[2] * Rj[2, 1]
+        gz = g_W[0] * Rj[0, 2] + g_W[1] * Rj[1, 2] + g_W[2] * Rj[2, 2]
+        go = g_W[0] * oj[0] + g_W[1] * oj[1] + g_W[2] * oj[2]
         for k in range(offs[j], offs[j + 1]):
-            arc_pose(alpha[k], l, ux, uy, Rs, ps)
-            for r in range(3):
-                x = oj[r] + Rj[r, 0] * ps[0] + Rj[r, 1] * ps[1] + Rj[r, 2] * ps[2]
-                pot -= mass[j] * w[k] * g_W[r] * x
+            arc_node(alpha[k], l, ux, uy, 0.0, 0.0, 0.0, R, p, S, Sd)
+            slice_twist(R, p, S, V, qd, Vn)
+            kin += 0.5 * w[k] * (mj * (Vn[0] * Vn[0] + Vn[1] * Vn[1] + Vn[2] * Vn[2])
+                                 + ixx * (Vn[3] * Vn[3] + Vn[4] * Vn[4]) + izz * Vn[5] * Vn[5])
+            pot -= mj * w[k] * (go + gx * p[0] + gy * p[1] + gz * p[2])
         pot += 0.5 * EI[j] * (ux * ux + uy * uy) * l * l / l0[j] + 0.5 * EA[j] * (l - l0[j]) ** 2 / l0[j]
-        arc_pose(1.0, l, ux, uy, Rs, ps)
+        # the tip: the next segment's root twist (its body frame) and frame
+        arc_node(1.0, l, ux, uy, 0.0, 0.0, 0.0, R, p, S, Sd)
+        slice_twist(R, p, S, V, qd, Vn)
+        copy(V, Vn)
         for r in range(3):
-            oj[r] += Rj[r, 0] * ps[0] + Rj[r, 1] * ps[1] + Rj[r, 2] * ps[2]
+            oj[r] += Rj[r, 0] * p[0] + Rj[r, 1] * p[1] + Rj[r, 2] * p[2]
         for r in range(3):
             for cc in range(3):
-                Rn[r, cc] = Rj[r, 0] * Rs[0, cc] + Rj[r, 1] * Rs[1, cc] + Rj[r, 2] * Rs[2, cc]
+                Rn[r, cc] = Rj[r, 0] * R[0, cc] + Rj[r, 1] * R[1, cc] + Rj[r, 2] * R[2, cc]
         for r in range(3):
             copy(Rj[r], Rn[r])
     return kin, pot

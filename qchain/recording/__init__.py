@@ -8,6 +8,9 @@ module                 concern
 ``journal``            the simulating process's own copy of every record on disk (an
                        MCAP file beside the recording), and reading it while it grows
 ``scan``               reading MCAP records one by one, resynchronising after damage
+``bounded``            reading files from anywhere within limits of time and memory
+                       (:class:`ReadLimits`): regular files only, capped decompression,
+                       record counts and nesting
 ``mcap_sink``          the recording: the mcap library's ``Writer``, qchain's JSON state
                        channel and the official Foxglove schemas (``foxglove-sdk``)
 ``rerun_sink``         the Rerun view: blueprint, camera, plots, served web viewer

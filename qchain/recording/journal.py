@@ -20,16 +20,20 @@ import errno
 import fcntl
 import json
 import os
+import stat
+import struct
+import zlib
 from pathlib import Path
 
 import numpy as np
 from mcap.records import Channel, Message
 from mcap.writer import CompressionType, IndexType, Writer
 
+from .bounded import Budget, ReadLimits, loads, open_regular
 from .records import LoggingError, RecordLayout, ns, seal, unseal
 from .scan import MAGIC, scan
 
-__all__ = ["journal_path", "JournalWriter", "JournalReader", "journal_owner", "ROWS_ENCODING"]
+__all__ = ["journal_path", "JournalWriter", "JournalReader", "journal_owner", "chunk_record", "ROWS_ENCODING"]
 
 #: Message encoding of the journal's rows: little-endian float64 rows of the layout in the
 #: channel's metadata.
@@ -45,21 +49,29 @@ def journal_path(mcap_path: str | os.PathLike) -> Path:
 
 def journal_owner(path: str | os.PathLike) -> int | None:
     """The pid of the live process writing the journal ``path``, 0 if a live process holds
-    it but its pid is unknown, None if nobody holds it (or it does not exist)."""
+    it but its pid is unknown, None if nobody holds it (or it does not exist, or it is not
+    a regular file: a FIFO or a device is never opened, so this never waits)."""
     try:
-        fd = os.open(path, os.O_RDONLY)
+        st = os.stat(path)
+    except (FileNotFoundError, NotADirectoryError):
+        return None
+    if not stat.S_ISREG(st.st_mode):
+        return None
+    try:
+        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_NOCTTY", 0))
     except FileNotFoundError:
         return None
     try:
+        if not stat.S_ISREG(os.fstat(fd).st_mode):
+            return None
         try:
             fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
         except OSError as exc:
             if exc.errno not in (errno.EWOULDBLOCK, errno.EAGAIN):
                 raise
             try:
-                with open(path, "rb") as fh:
-                    head = fh.read(1 << 16)
-                for item in scan(head, final=False):
+                head = os.pread(fd, 1 << 16, 0)
+                for item in scan(head, final=False, budget=Budget(len(head))):
                     if item.kind == "metadata" and item.record.name == "qchain.journal":
                         return int(item.record.metadata.get("pid", "0"))
             except (OSError, ValueError):
@@ -69,6 +81,22 @@ def journal_owner(path: str | os.PathLike) -> int | None:
         return None
     finally:
         os.close(fd)
+
+
+_MESSAGE_HEAD = struct.Struct("<BQHIQQ")  # opcode, record length, channel id, sequence, log and publish time
+_CHUNK_HEAD = struct.Struct("<BQQQQIIQ")  # opcode, record length, start and end time, size, crc, "", records length
+
+
+def chunk_record(channel: int, sequence: int, log_time: int, publish_time: int, data) -> bytes:
+    """An uncompressed MCAP chunk record holding one message record, as the mcap library's
+    ``Writer`` writes it (``compression=NONE``, CRCs on): ``data`` a bytes-like payload,
+    times in ns."""
+    data = memoryview(data).cast("B")
+    n = len(data)
+    message = _MESSAGE_HEAD.pack(0x05, 22 + n, channel, sequence, log_time, publish_time)
+    size = len(message) + n
+    crc = zlib.crc32(data, zlib.crc32(message))
+    return b"".join((_CHUNK_HEAD.pack(0x06, 40 + size, log_time, log_time, size, crc, 0, size), message, data))
 
 
 class JournalWriter:
@@ -115,11 +143,24 @@ class JournalWriter:
 
     def append(self, rows: np.ndarray) -> None:
         """Append rows (K, row_width) float64 as one message in a chunk of its own: on disk
-        (in the operating system's hands) when this returns."""
+        (in the operating system's hands) when this returns.
+
+        The first batch goes through the mcap library's ``Writer`` (its chunk carries the
+        schema and channel records too); the later ones are the same chunk record built
+        here: one ``struct.pack`` and one CRC instead of the ``Writer``'s hundred-odd Python
+        calls a chunk, the largest part of the journal's cost to the simulating process
+        (``benchmarks/bench_recording_cost.py --journal``; a test checks the bytes equal
+        the ``Writer``'s)."""
         t = rows[:, 0]
-        self._w.add_message(self._channel, ns(float(t[-1])), rows.tobytes(), ns(float(t[0])), self._seq & 0xFFFFFFFF)
+        log_time, publish_time = ns(float(t[-1])), ns(float(t[0]))
+        if self._seq == 0:
+            self._w.add_message(self._channel, log_time, rows.tobytes(), publish_time, 0)
+            self._w.flush()
+        else:
+            self._fh.write(chunk_record(self._channel, self._seq & 0xFFFFFFFF, log_time, publish_time,
+                                        np.ascontiguousarray(rows)))
+            self._fh.flush()
         self._seq += 1
-        self._w.flush()
 
     def finish(self, outcome: dict[str, str]) -> None:
         """Write how the run ended and the journal's summary; keep the lock."""
@@ -148,12 +189,29 @@ class JournalReader:
 
     Call :meth:`poll` for what was appended since the last call: a list of row blocks
     (numpy arrays). ``layout``, ``metadata`` (the ``qchain`` entries), ``outcome`` and
-    ``finished`` fill in as the journal says them; ``damage`` lists what could not be read.
+    ``finished`` fill in as the journal says them; ``damage`` lists what could not be read
+    (a damaged record, a layout or a block of rows that does not fit).
+
+    Parameters
+    ----------
+    path : path
+        A regular file (a FIFO or a device is refused, never waited on).
+    limits : ReadLimits or None
+        What reading it may cost, in proportion to its size when opened (a journal left by
+        a killed run is read within them; the writer reading its own run's journal, which
+        grows, passes None).
+
+    Raises
+    ------
+    FileNotFoundError
+    RecordingFormatError
+        Not a regular file, or it cannot be read.
     """
 
-    def __init__(self, path: str | os.PathLike):
+    def __init__(self, path: str | os.PathLike, limits: ReadLimits | None = None):
         self.path = Path(path)
-        self._fd = os.open(self.path, os.O_RDONLY)
+        self._fd = open_regular(os.fspath(self.path))
+        self._budget = None if limits is None else Budget(os.fstat(self._fd).st_size, limits)
         self._buf = bytearray()
         self._base = 0  # file offset of _buf[0]
         self._pos = len(MAGIC)  # next record's offset in the file
@@ -171,9 +229,18 @@ class JournalReader:
 
     def poll(self, final: bool = False) -> list[np.ndarray]:
         """The row blocks appended since the last call. ``final``: the journal will not grow
-        any more (its writer is gone): a cut record at its end is reported, not awaited."""
-        while True:
-            data = os.pread(self._fd, 1 << 22, self._base + len(self._buf))
+        any more (its writer is gone): a cut record at its end is reported, not awaited.
+
+        Raises
+        ------
+        LoggingError
+            Not a qchain journal.
+        LimitExceeded
+            Past the reading budget.
+        """
+        size = os.fstat(self._fd).st_size  # read what is there now, never more
+        while self._base + len(self._buf) < size:
+            data = os.pread(self._fd, min(1 << 22, size - self._base - len(self._buf)), self._base + len(self._buf))
             if not data:
                 break
             self._buf += data
@@ -183,15 +250,26 @@ class JournalReader:
             raise LoggingError(f"{self.path} is not a qchain journal")
         out: list[np.ndarray] = []
         resume = self._pos
-        for item in scan(self._buf, start=self._pos - self._base, final=final):
+        for item in scan(self._buf, start=self._pos - self._base, final=final, budget=self._budget):
             resume = item.end + self._base
             if item.kind == "chunk":
                 for rec in item.records:
                     if isinstance(rec, Channel) and rec.message_encoding == ROWS_ENCODING:
+                        try:
+                            self.layout = RecordLayout.from_json(loads(rec.metadata.get("layout", ""),
+                                                                       "the journal's row layout"))
+                        except (ValueError, TypeError, KeyError) as exc:
+                            self.damage.append(f"the rows channel {rec.id} in the chunk at byte {item.offset}: its "
+                                               f"layout is not usable ({exc}): its rows are not read")
+                            continue
                         self._rows_channels.add(rec.id)
-                        self.layout = RecordLayout.from_json(json.loads(rec.metadata["layout"]))
                     elif isinstance(rec, Message) and rec.channel_id in self._rows_channels:
-                        out.append(np.frombuffer(rec.data, dtype=np.float64).reshape(-1, self.layout.row_width))
+                        width = self.layout.row_width
+                        if len(rec.data) % (8 * width):
+                            self.damage.append(f"a block of rows in the chunk at byte {item.offset} is "
+                                               f"{len(rec.data)} bytes, not whole rows of {width} numbers: not read")
+                            continue
+                        out.append(np.frombuffer(rec.data, dtype=np.float64).reshape(-1, width))
             elif item.kind == "metadata":
                 entries = unseal(item.record.metadata)
                 if entries is None:

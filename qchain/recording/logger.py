@@ -39,13 +39,16 @@ from .records import (
     StepRecord,
     default_base,
 )
-from .rerun_sink import DEFAULT_BIND
-from .writer import DEFAULT_RERUN_LATENCY, WRITER_POLL, ThreadWriter, launch, take_spare
+from .rerun_sink import CONNECT_TIMEOUT, DEFAULT_BIND
+from .writer import DEFAULT_RERUN_LATENCY, TEARDOWN_LIMIT, WRITER_POLL, ThreadWriter, launch, take_spare
 
-__all__ = ["RunLogger", "DEFAULT_MAX_QUEUE"]
+__all__ = ["RunLogger", "DEFAULT_MAX_QUEUE", "WRITER_SILENCE"]
 
 #: Records the thread writer's queue holds before ``log()`` waits.
 DEFAULT_MAX_QUEUE = 4096
+#: s without a word from the writer process (it says it is alive every second while it
+#: finishes) after which the recording is finished here from the journal instead.
+WRITER_SILENCE = 30.0
 _F8 = np.dtype(np.float64)
 _COLUMNS = ("step", "q", "v", "p", "kinetic", "potential", "total", "backbone", "tip_frames")
 _OPEN: weakref.WeakSet = weakref.WeakSet()
@@ -113,6 +116,11 @@ class RunLogger:
         Do not print the viewer URL.
     startup_timeout : float, s
         How long to wait for a viewer's URL (serving or connecting).
+    viewer_timeout : float, s
+        How long a viewer at ``connect`` has to answer the connection (its HTTP/2 settings),
+        and to take data: a viewer that takes nothing for that long is given up with a
+        warning (the recording never waits for it), and at the end this logger waits at
+        most that long (plus its disconnect, at most 5 s) for the viewer to take the rest.
 
     Notes
     -----
@@ -133,15 +141,15 @@ class RunLogger:
                  flush_wall_interval: float = DEFAULT_FLUSH_WALL_INTERVAL, max_queue: int = DEFAULT_MAX_QUEUE,
                  linger: bool = False, recording_id: str | None = None, server_memory_limit: str = "1GiB",
                  rerun_rate: float | None = None, rerun_latency: float = DEFAULT_RERUN_LATENCY, quiet: bool = False,
-                 startup_timeout: float = 60.0, **legacy):
+                 startup_timeout: float = 60.0, viewer_timeout: float = CONNECT_TIMEOUT, **legacy):
         legacy.pop("chunk_bytes", None)  # accepted for compatibility: chunks are cut by time
         if legacy:
             raise TypeError(f"RunLogger got unexpected arguments {sorted(legacy)}")
         if not isinstance(info, RunInfo):
             raise TypeError(f"info must be a RunInfo, got {type(info).__name__}")
         for name, value in (("flush_interval", flush_interval), ("flush_wall_interval", flush_wall_interval),
-                            ("rerun_latency", rerun_latency)):
-            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+                            ("rerun_latency", rerun_latency), ("viewer_timeout", viewer_timeout)):
+            if isinstance(value, bool) or not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
                 raise ValueError(f"{name} must be a finite number of seconds > 0, got {value!r}")
         if not (isinstance(max_queue, int) and max_queue >= 1):
             raise ValueError(f"max_queue must be an int >= 1, got {max_queue!r}")
@@ -166,7 +174,7 @@ class RunLogger:
             worker = "thread" if stream is not None else "process"
         if worker == "process" and stream is not None:
             raise ValueError("worker='process' cannot write into an in-memory stream; use worker='thread'")
-        for notice in check_outputs(mcap_path, rrd, info.scene_path):
+        for notice in check_outputs(mcap_path, rrd, info.scene_file):
             warnings.warn(f"qchain.logging: {notice}", LoggingWarning, stacklevel=2)
         self.info = info
         self.mcap_path = mcap_path
@@ -193,12 +201,15 @@ class RunLogger:
         self._buf_t0 = 0.0
         self._buf_wall = 0.0
         self._tmpdir: str | None = None
+        self._inbox: list = []  # the writer's messages taken while looking for another
+        self.viewer_timeout = float(viewer_timeout)
         cfg = {
             "info": info.to_json(), "mcap": None if mcap_path is None else str(mcap_path), "serve": bool(serve),
             "connect": connect, "rrd": None if rrd is None else str(rrd), "bind": bind, "grpc_port": grpc_port,
             "web_port": web_port, "recording_id": self.recording_id, "flush_interval": float(flush_interval),
             "flush_wall_interval": float(flush_wall_interval), "server_memory_limit": server_memory_limit,
             "rerun_rate": rerun_rate, "rerun_latency": float(rerun_latency), "poll": WRITER_POLL,
+            "viewer_timeout": float(viewer_timeout),
         }
         if worker == "thread":
             warn = lambda m: warnings.warn(f"qchain.logging: {m}", LoggingWarning, stacklevel=2)  # noqa: E731
@@ -222,8 +233,22 @@ class RunLogger:
             self._tmpdir = tempfile.mkdtemp(prefix="qchain-run-")
             jp = Path(self._tmpdir) / "run.journal"
         self.journal_path = jp
-        self._journal = JournalWriter(jp, info_metadata(self.info, self.recording_id),
-                                      None if self.mcap_path is None else str(self.mcap_path))
+        existed = os.path.lexists(jp)  # (check_outputs refused a journal of another run)
+        try:
+            self._journal = JournalWriter(jp, info_metadata(self.info, self.recording_id),
+                                          None if self.mcap_path is None else str(self.mcap_path))
+        except LoggingError:
+            raise
+        except (OSError, ValueError) as exc:  # nothing is left behind: a journal made here is removed
+            if not existed:
+                try:
+                    os.unlink(jp)
+                except OSError:
+                    pass
+            if self._tmpdir is not None:
+                shutil.rmtree(self._tmpdir, ignore_errors=True)
+            why = exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc)
+            raise LoggingError(f"the recording's journal {jp} cannot be written ({why})") from None
         cfg["journal"] = str(jp)
         self._proc, self._conn = take_spare() or launch()
         self.worker_pid = self._proc.pid
@@ -232,19 +257,40 @@ class RunLogger:
         if wait_ready:  # the viewer's URL, or that it is missing, comes first
             self._take_ready(timeout, starting=True)
 
-    def _recv(self, timeout: float):
-        """The writer's next message, or None (timeout, or the writer is gone)."""
-        deadline = time.monotonic() + timeout
+    def _absorb(self, msg) -> bool:
+        """Take a warning of the writer's (warned here) or a sign of life: True; else False."""
+        if isinstance(msg, tuple) and msg and msg[0] == "warning":
+            warnings.warn(f"qchain.logging: {msg[1]}", LoggingWarning, stacklevel=5)
+            return True
+        return isinstance(msg, tuple) and bool(msg) and msg[0] == "progress"
+
+    def _recv(self, timeout: float, idle: float | None = None):
+        """The writer's next message (its warnings warned on the way), or None: ``timeout``
+        s in all, ``idle`` s without a word from it (signs of life count), or it is gone."""
+        if self._inbox:
+            return self._inbox.pop(0)
+        start = last = time.monotonic()
         while True:
+            now = time.monotonic()
+            wait = min(0.5, max(0.0, start + timeout - now))
+            if idle is not None:
+                wait = min(wait, max(0.0, last + idle - now))
             try:
-                if self._conn.poll(min(0.5, max(0.0, deadline - time.monotonic()))):
-                    return self._conn.recv()
+                if self._conn.poll(wait):
+                    msg = self._conn.recv()
+                    last = time.monotonic()
+                    if not self._absorb(msg):
+                        return msg
+                    continue
             except (EOFError, OSError):
                 return None
-            if self._proc.poll() is not None or time.monotonic() >= deadline:
+            now = time.monotonic()
+            if self._proc.poll() is not None or now >= start + timeout or (idle is not None and now >= last + idle):
                 try:
-                    if self._conn.poll(0):
-                        return self._conn.recv()
+                    while self._conn.poll(0):
+                        msg = self._conn.recv()
+                        if not self._absorb(msg):
+                            return msg
                 except (EOFError, OSError):
                     pass
                 return None
@@ -413,7 +459,7 @@ class RunLogger:
             if layout.n != self.info.n_segments:
                 raise ValueError(f"layout.n = {layout.n} segments, but the run's RunInfo has {self.info.n_segments}")
             self._set_layout(layout)
-        elif layout != self._layout:
+        elif layout is not self._layout and layout != self._layout:
             raise ValueError(f"layout {layout} differs from the run's {self._layout} (fixed by its first record)")
         t = rows[:, 0]
         if not (t.min() >= 0.0 and t.max() < math.inf):  # NaN fails both
@@ -586,19 +632,28 @@ class RunLogger:
         finally:
             if old is not None:
                 signal.pthread_sigmask(signal.SIG_SETMASK, old)
-        self._take_ready(120.0)
         msg = None
-        if proc.poll() is None:
-            try:
-                self._conn.send(("end", outcome))
-                msg = self._recv(300.0)
-            except OSError:
-                msg = None
+        interrupted = None
+        try:
+            self._take_ready(120.0)
+            if proc.poll() is None:
+                try:
+                    self._conn.send(("end", outcome))
+                    # as long as it takes, while the writer says it is alive (every second)
+                    msg = self._recv(math.inf, idle=WRITER_SILENCE)
+                except OSError:
+                    msg = None
+        except KeyboardInterrupt as exc:  # the journal is complete: the writer finishes the recording
+            interrupted = exc             # on its own (or `qchain recover` does); this process goes
+            msg = ("left", {})
         if msg is not None and msg[0] == "finished":
             summary = msg[1]
-        else:
+            if summary.pop("viewer_pending", False):
+                self._wait_for_viewer()
+        elif interrupted is None:
             why = (msg[1].get("message") if msg and msg[0] == "error" else None) or \
-                "the log writer did not confirm the end of the recording"
+                ("the log writer did not confirm the end of the recording" if proc.poll() is not None else
+                 f"the log writer stopped answering (nothing for {WRITER_SILENCE:g} s)")
             self._broken = self._broken or why
             summary = self._finish_here(outcome)
         try:
@@ -607,13 +662,30 @@ class RunLogger:
         finally:
             self._conn.close()
             self._journal.release(remove=False)
-            if summary:  # the writer's own exit (interpreter and Rerun teardown) need not hold us up
-                threading.Thread(target=_reap, args=(proc,), name="qchain-log-reaper", daemon=True).start()
+            if summary or interrupted is not None:  # its own leave of Rerun (bounded) need not hold us up
+                threading.Thread(target=_reap, args=(proc, 30.0 if interrupted is None else None),
+                                 name="qchain-log-reaper", daemon=True).start()
             else:
                 _reap(proc)
-            if self._tmpdir is not None:
+            if self._tmpdir is not None:  # (a writer still reading the journal holds it open)
                 shutil.rmtree(self._tmpdir, ignore_errors=True)
+        if interrupted is not None:
+            raise interrupted
         return summary
+
+    def _wait_for_viewer(self) -> None:
+        """The recording is complete; a viewer at ``connect`` is given the rest by the writer
+        within ``viewer_timeout`` (then its disconnect, bounded): wait for that, said if it
+        was given up. Ctrl-C stops the waiting (the writer ends on its own)."""
+        try:
+            msg = self._recv(self.viewer_timeout + TEARDOWN_LIMIT + 10.0)
+        except KeyboardInterrupt:
+            warnings.warn("qchain.logging: the viewer was not waited for (interrupted); the MCAP log is complete",
+                          LoggingWarning, stacklevel=4)
+            return
+        if msg is None:
+            warnings.warn(f"qchain.logging: the viewer was not done within {self.viewer_timeout:g} s; the MCAP log "
+                          "is complete", LoggingWarning, stacklevel=4)
 
     def _finish_here(self, outcome: dict) -> dict:
         """The writer failed: finish the recording in this process from the journal (the
@@ -670,9 +742,11 @@ class RunLogger:
         return float(self.last_t)
 
 
-def _reap(proc: subprocess.Popen) -> None:
+def _reap(proc: subprocess.Popen, kill_after: float | None = 30.0) -> None:
+    """Wait for the writer's exit (it ends on its own, within its deadlines); kill it after
+    ``kill_after`` s (None: a writer left to finish a recording is not cut short)."""
     try:
-        proc.wait(30.0)
+        proc.wait(kill_after)
     except subprocess.TimeoutExpired:
         proc.kill()
         proc.wait()

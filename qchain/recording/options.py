@@ -14,11 +14,79 @@ from .records import LoggingError
 from .rerun_sink import DEFAULT_BIND
 from .scan import MAGIC
 
-__all__ = ["check_outputs", "default_mcap_path", "add_logging_arguments", "MIN_FREE_BYTES"]
+__all__ = ["check_outputs", "check_output_name", "default_mcap_path", "add_logging_arguments", "MIN_FREE_BYTES",
+           "JOURNAL_SUFFIX"]
 
 #: Free bytes an output's folder must have before a run starts (a recording takes about
 #: 0.1 MB a simulated second at 50 samples a second, its journal as much again).
 MIN_FREE_BYTES = 16 << 20
+
+
+#: What the journal of a recording adds to its file name (``run.mcap.journal``).
+JOURNAL_SUFFIX = ".journal"
+#: Bytes of a whole path the system takes where it does not say (Linux's PATH_MAX).
+_PATH_MAX = 4096
+
+
+def _shown(path: str, limit: int = 120) -> str:
+    """A path as text any terminal shows (bytes that are not UTF-8 escaped), its middle
+    left out beyond ``limit`` characters."""
+    text = os.fsencode(path).decode("utf-8", "backslashreplace") if isinstance(path, str) else str(path)
+    return text if len(text) <= limit else f"{text[:limit - 30]}...{text[-27:]}"
+
+
+def _limits(folder: Path) -> tuple[int, int]:
+    """NAME_MAX and PATH_MAX (bytes) of the file system of ``folder`` or its nearest
+    existing parent (255 and 4096 where it does not say)."""
+    for p in [folder, *folder.parents]:
+        try:
+            if os.path.isdir(p):
+                return int(os.pathconf(p, "PC_NAME_MAX")), int(os.pathconf(p, "PC_PATH_MAX"))
+        except (OSError, ValueError):
+            break
+    return 255, _PATH_MAX
+
+
+def check_output_name(what: str, path: str | os.PathLike, suffix: str = "") -> Path:
+    """Refuse an output path the system or the recording cannot take, before anything is
+    made: a NUL character, a name that is not UTF-8 text (a recording stores its path, and
+    Rerun takes UTF-8), a file name (with ``suffix``, the name of a file written beside it
+    such as ``.journal``) or a folder name longer than the file system takes, or a path
+    longer than it takes in all. Returns the path.
+
+    Raises
+    ------
+    LoggingError
+        naming ``what``, the path and the limit.
+    """
+    text = os.fspath(path)
+    if isinstance(text, bytes):
+        text = os.fsdecode(text)
+    if "\0" in text:
+        raise LoggingError(f"{what} path {_shown(text.replace(chr(0), '?'))} contains a NUL character")
+    try:
+        text.encode("utf-8")
+    except UnicodeEncodeError:
+        raise LoggingError(f"{what} path {_shown(text)} is not UTF-8 text (a recording stores its path as UTF-8): "
+                           "choose a name of UTF-8 characters") from None
+    p = Path(text)
+    name_max, path_max = _limits(Path(os.path.abspath(p)).parent)
+    for part in p.parent.parts:
+        size = len(os.fsencode(part))
+        if size > name_max:
+            raise LoggingError(f"{what} path {_shown(text)}: its folder name {_shown(part, 60)} is {size} bytes long, "
+                               f"more than the {name_max} bytes a name may have there")
+    size, extra = len(os.fsencode(p.name)), len(suffix.encode())
+    if size + extra > name_max:
+        beside = f" and its {suffix} file beside it needs {extra} more" if suffix else ""
+        raise LoggingError(f"{what} path {_shown(text)}: its file name is {size} bytes long{beside}, more than the "
+                           f"{name_max} bytes a file name may have there; choose a shorter name")
+    whole = len(os.fsencode(os.path.abspath(p))) + extra
+    if whole >= path_max:
+        raise LoggingError(f"{what} path {_shown(text)} is {whole} bytes long as an absolute path"
+                           f"{' with its ' + suffix + ' suffix' if suffix else ''}, more than the {path_max - 1} bytes "
+                           "a path may have; choose a shorter one")
+    return p
 
 
 def _same(a: Path, b: Path) -> bool:
@@ -32,52 +100,64 @@ def check_outputs(mcap: str | os.PathLike | None, rrd: str | os.PathLike | None 
                   scene_path: str | os.PathLike | None = None, min_free: int = MIN_FREE_BYTES) -> list[str]:
     """Check the output paths of a run before it starts; create their folders.
 
-    Refused with :class:`~qchain.logging.LoggingError` naming the path and why: a folder;
-    the scene file itself; the same path for the MCAP and the ``.rrd``; a folder that
-    cannot be created or written, or has less than ``min_free`` bytes free; a recording
-    another run is writing (its journal is locked); a killed run's journal not recovered
-    yet; an existing file that is not an MCAP recording. Returns notices (an earlier
-    recording that will be replaced).
+    Refused with :class:`~qchain.logging.LoggingError` naming the path and why: a path
+    the system or the recording cannot take (:func:`check_output_name`: a NUL character, a
+    name that is not UTF-8, a file name that with the journal's ``.journal`` suffix is
+    longer than the file system takes); a folder; the scene file itself; the same path for
+    the MCAP and the ``.rrd``; a folder that cannot be created or written, or has less
+    than ``min_free`` bytes free; a recording another run is writing (its journal is
+    locked); a killed run's journal not recovered yet; an existing file that is not an
+    MCAP recording. Returns notices (an earlier recording that will be replaced).
     """
     notices: list[str] = []
-    outs = [(name, Path(p)) for name, p in (("mcap", mcap), ("rrd", rrd)) if p is not None]
+    outs = [(name, check_output_name(name, p, JOURNAL_SUFFIX if name == "mcap" else ""))
+            for name, p in (("mcap", mcap), ("rrd", rrd)) if p is not None]
     if len(outs) == 2 and os.path.abspath(outs[0][1]) == os.path.abspath(outs[1][1]):
         raise LoggingError(f"--mcap and --rrd are the same path {outs[0][1]}: each output needs its own file")
     for name, p in outs:
-        if p.is_dir():
-            raise LoggingError(f"{name} must be a file path, got the folder {p}")
-        if scene_path is not None and (_same(p, Path(scene_path)) or
-                                       os.path.abspath(p) == os.path.abspath(scene_path)):
-            raise LoggingError(f"{name} path {p} is the scene file itself: it would be overwritten; choose another "
-                               "path")
-        parent = p.parent if str(p.parent) else Path(".")
         try:
-            parent.mkdir(parents=True, exist_ok=True)
-            with tempfile.NamedTemporaryFile(dir=parent, prefix=".qchain-write-test-"):
-                pass
-        except OSError as exc:
-            raise LoggingError(f"cannot write {name} file {p}: {exc.strerror or exc} ({parent})") from None
-        free = shutil.disk_usage(parent).free
-        if free < min_free:
-            raise LoggingError(f"cannot write {name} file {p}: only {free / 1e6:.1f} MB free in {parent} (a run "
-                               f"needs at least {min_free / 1e6:.0f} MB)")
-        if name == "mcap":
-            j = journal_path(p)
-            owner = journal_owner(j)
-            if owner is not None:
-                who = f" (pid {owner})" if owner else ""
-                raise LoggingError(f"another run{who} is writing {p}: choose another path")
-            if j.exists():
-                raise LoggingError(f"{j} holds the records of a run that was killed while writing {p}: "
-                                   f"`qchain recover {p}` makes that recording whole (or remove the journal)")
-            if p.exists() and p.stat().st_size > 0:
-                with open(p, "rb") as fh:
-                    head = fh.read(len(MAGIC))
-                if head != MAGIC:
-                    raise LoggingError(f"{p} exists and is not an MCAP recording; refusing to overwrite it")
-                notices.append(f"replacing the earlier recording {p}")
-        elif p.exists() and p.stat().st_size > 0:
-            notices.append(f"replacing the earlier .rrd file {p}")
+            notices += _check_output(name, p, scene_path, min_free)
+        except OSError as exc:  # what the system says of the path, as one line naming it
+            raise LoggingError(f"cannot use {name} path {_shown(str(p))}: {exc.strerror or exc}") from None
+    return notices
+
+
+def _check_output(name: str, p: Path, scene_path, min_free: int) -> list[str]:
+    notices: list[str] = []
+    if p.is_dir():
+        raise LoggingError(f"{name} must be a file path, got the folder {p}")
+    if scene_path is not None and (_same(p, Path(scene_path)) or
+                                   os.path.abspath(p) == os.path.abspath(scene_path)):
+        raise LoggingError(f"{name} path {p} is the scene file itself: it would be overwritten; choose another "
+                           "path")
+    parent = p.parent if str(p.parent) else Path(".")
+    try:
+        parent.mkdir(parents=True, exist_ok=True)
+        with tempfile.NamedTemporaryFile(dir=parent, prefix=".qchain-write-test-"):
+            pass
+    except OSError as exc:
+        raise LoggingError(f"cannot write {name} file {p}: {exc.strerror or exc} ({parent})") from None
+    free = shutil.disk_usage(parent).free
+    if free < min_free:
+        raise LoggingError(f"cannot write {name} file {p}: only {free / 1e6:.1f} MB free in {parent} (a run "
+                           f"needs at least {min_free / 1e6:.0f} MB)")
+    if name == "mcap":
+        j = journal_path(p)
+        owner = journal_owner(j)
+        if owner is not None:
+            who = f" (pid {owner})" if owner else ""
+            raise LoggingError(f"another run{who} is writing {p}: choose another path")
+        if j.exists():
+            raise LoggingError(f"{j} holds the records of a run that was killed while writing {p}: "
+                               f"`qchain recover {p}` makes that recording whole (or remove the journal)")
+        if p.exists() and p.stat().st_size > 0:
+            with open(p, "rb") as fh:
+                head = fh.read(len(MAGIC))
+            if head != MAGIC:
+                raise LoggingError(f"{p} exists and is not an MCAP recording; refusing to overwrite it")
+            notices.append(f"replacing the earlier recording {p}")
+    elif p.exists() and p.stat().st_size > 0:
+        notices.append(f"replacing the earlier .rrd file {p}")
     return notices
 
 

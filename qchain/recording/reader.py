@@ -7,12 +7,20 @@ match its CRC32 seal (its second copy is used when the first is damaged); a dama
 metadata record is reported, never used. If the run that wrote the file was killed, its
 journal (``run.mcap.journal``) still holds the records the file lacks: they are read too
 (:attr:`Recording.recovered`). Reading parses JSON only: nothing in a file is executed.
+
+A file may come from anywhere: reading it is bounded in time and memory by
+:class:`~qchain.recording.bounded.ReadLimits` (in proportion to its size), a FIFO or a
+device is refused before anything waits on it, and every value handed on is checked (times
+finite and representable, steps whole, shapes consistent, at most ``max_segments``
+segments). Anything wrong is a :class:`RecordingFormatError` naming the file and the byte
+(the chunk) where it is; non-finite values the file holds (``null``) are read as NaN and
+said in :attr:`Recording.nonfinite`.
 """
 
 from __future__ import annotations
 
-import json
-import mmap
+import errno
+import math
 import os
 from dataclasses import dataclass, field
 from typing import BinaryIO
@@ -21,19 +29,27 @@ import numpy as np
 from mcap.records import Channel, Message
 
 from ..trajectory import Trajectory
+from .bounded import DEFAULT_LIMITS, Budget, LimitExceeded, ReadLimits, loads, open_source
 from .journal import JournalReader, journal_owner, journal_path
 from .records import (
     FORMAT_NAME,
     FORMAT_VERSION,
     TOPICS,
     Batch,
+    LoggingError,
     RecordingFormatError,
     RunInfo,
     unseal,
 )
 from .scan import MAGIC, scan, summary_chunks
 
-__all__ = ["Recording", "Gap", "read_recording", "read_mcap"]
+__all__ = ["Recording", "Gap", "read_recording", "read_mcap", "T_MAX", "STEP_MAX"]
+
+#: Latest simulation time a recording may hold (s): its nanoseconds fit a signed 64-bit
+#: ``log_time`` and Rerun's time columns.
+T_MAX = 9.2e9
+#: Largest step number (a journal row holds it as a float64, exact up to 2**53).
+STEP_MAX = 1 << 53
 
 
 @dataclass
@@ -97,6 +113,9 @@ class Recording:
         Everything found damaged (gaps, metadata that failed its checksum).
     recovered : int
         Records read from the run's journal (a killed run), after those of the file.
+    nonfinite : list of str
+        Fields holding non-finite values (``null`` in the file, read as NaN): how many, in
+        how many records, the first time. Empty for a run that stayed finite.
     """
 
     path: str
@@ -117,6 +136,7 @@ class Recording:
     gaps: list = field(default_factory=list)
     damage: list = field(default_factory=list)
     recovered: int = 0
+    nonfinite: list = field(default_factory=list)
 
     def __len__(self) -> int:
         return int(self.t.shape[0])
@@ -148,6 +168,9 @@ class Recording:
         if self.gaps:
             success = False
             message = (message + "; " if message else "") + "; ".join(g.describe() for g in self.gaps)
+        if self.nonfinite:
+            message = (message + "; " if message else "") + "non-finite values recorded (null in the file, read " \
+                f"as NaN): {'; '.join(self.nonfinite)}"
         return Trajectory(
             t=self.t,
             q=self.q,
@@ -171,6 +194,7 @@ class Recording:
                 "stopped_at": float(self.t[-1]) if (self.truncated and len(self)) else None,
                 "gaps": self.gaps,
                 "recovered": self.recovered,
+                "nonfinite": self.nonfinite,
                 "outcome": out,
                 "qchain_version": self.info.qchain_version,
                 "scene": self.info.scene,
@@ -179,155 +203,346 @@ class Recording:
         )
 
 
-def _open(source) -> tuple[str, object, callable]:
-    """(name, bytes-like of the whole file, closer)."""
-    if isinstance(source, (str, os.PathLike)):
-        name = os.fspath(source)
-        if not os.path.exists(name) and journal_path(name).exists():
-            return name, b"", lambda: None  # the writer never started: the journal holds it all
-        fh = open(name, "rb")
-        size = os.fstat(fh.fileno()).st_size
-        if size == 0:
-            fh.close()
-            return name, b"", lambda: None
-        mm = mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ)
-        return name, mm, lambda: (mm.close(), fh.close())
-    name = getattr(source, "name", None) or f"<{type(source).__name__}>"
-    if not isinstance(name, str):
-        name = f"<{type(source).__name__}>"
-    return name, source.read(), lambda: None
+# --------------------------------------------------------------------------------------
+# Checking what a file says
+# --------------------------------------------------------------------------------------
+
+_STATE_KEYS = ("t", "step", "q", "v", "p", "kinetic", "potential", "total", "base", "tips", "backbone")
+_STATE_KEYSET = frozenset(_STATE_KEYS)
+#: A state message holds no string but its keys: this many '"' bytes.
+_STATE_QUOTES = 2 * len(_STATE_KEYS)
+_BLOCK = 4096  # state messages decoded at once (the dicts of a block only are held)
+#: Levels of list nesting of each field of a state (0: a number).
+_NDIM = {"q": 1, "v": 1, "p": 1, "kinetic": 0, "potential": 0, "total": 0, "base": 1, "tips": 2, "backbone": 3}
 
 
-def _rows_of(states: list[dict], info: RunInfo) -> Batch:
-    """Columns of decoded ``/qchain/state`` messages."""
-    N = len(states)
+def _series_max(n: int) -> int:
+    """Most entries q, v or p may have for n segments: 3 a segment and a floating base's 7."""
+    return 3 * n + 7
+
+
+def _state_error(name: str, offset: int, what: str) -> RecordingFormatError:
+    return RecordingFormatError(f"{name}: the state message in the chunk at byte {offset}: {what}")
+
+
+def _parse_state(data: bytes, offset: int, name: str) -> dict:
+    import orjson
+
+    try:
+        s = orjson.loads(data)
+    except orjson.JSONDecodeError as exc:
+        raise _state_error(name, offset, f"not valid JSON ({exc})") from None
+    if type(s) is not dict or s.keys() != _STATE_KEYSET:
+        found = ", ".join(sorted(s)) if isinstance(s, dict) else f"a JSON {type(s).__name__}"
+        raise _state_error(name, offset, f"expected the fields {', '.join(_STATE_KEYS)}; found {found}")
+    if data.count(b'"') != _STATE_QUOTES or b"true" in data or b"false" in data:
+        raise _state_error(name, offset, "a value that is not a number, a list of numbers or null")
+    step = s["step"]
+    if type(step) is not int or not 0 <= step <= STEP_MAX:
+        raise _state_error(name, offset, f"step must be a whole number from 0 to 2**53, found {step!r}")
+    t = s["t"]
+    if type(t) not in (int, float) or not 0.0 <= t <= T_MAX:
+        raise _state_error(name, offset, f"t must be a time from 0 to {T_MAX:g} s, found {t!r}")
+    return s
+
+
+def _column(states: list[dict], offsets: list[int], key: str, shape: tuple | None, name: str) -> np.ndarray:
+    """The field ``key`` of every state as one array (N, *shape); ``shape`` None: the first
+    state's, if it has the field's nesting."""
+    ndim = _NDIM[key]
+    try:
+        arr = np.array([s[key] for s in states], dtype=float)
+    except (ValueError, TypeError):
+        arr = None
+    if arr is not None and arr.ndim == ndim + 1 and (shape is None or arr.shape[1:] == shape):
+        return arr
+    for s, off in zip(states, offsets):  # the first state at fault
+        try:
+            x = np.array(s[key], dtype=float)
+        except (ValueError, TypeError) as exc:
+            raise _state_error(name, off, f"{key} is not {'a number' if ndim == 0 else 'a list of numbers'} "
+                                          f"(or lists of them, {ndim} deep) ({exc})") from None
+        if x.ndim != ndim:
+            raise _state_error(name, off, f"{key} is nested {x.ndim} deep, expected {ndim}")
+        if shape is None:
+            shape = x.shape
+        elif x.shape != shape:
+            raise _state_error(name, off, f"{key} has the shape {x.shape}, the others {shape}")
+    raise _state_error(name, offsets[0], f"{key}: shapes that disagree")  # not reached
+
+
+def _dims_error(name: str, offset: int, dims: dict, n: int) -> str | None:
+    """Why the shapes of a record do not fit a recording of n segments, or None."""
+    top = _series_max(n)
+    for key in ("q", "v", "p"):
+        if dims[key][0] > top:
+            return f"{key} has {dims[key][0]} entries; {n} segment(s) have at most {top}"
+    if dims["base"] != (7,):
+        return f"base has the shape {dims['base']}, expected (7,)"
+    if dims["tips"] != (n, 7):
+        return f"tips has the shape {dims['tips']}, expected ({n}, 7) for {n} segment(s)"
+    bb = dims["backbone"]
+    if bb[0] != n or bb[2] != 3 or bb[1] < 1:
+        return f"backbone has the shape {bb}, expected ({n}, P, 3) with P >= 1 for {n} segment(s)"
+    return None
+
+
+def _decode_states(msgs: list[tuple[int, bytes]], info: RunInfo, name: str) -> Batch:
+    """The ``/qchain/state`` messages ``(chunk offset, JSON)`` as checked columns."""
     n = info.n_segments
-    f = lambda key: np.array([s[key] for s in states], dtype=float)  # noqa: E731  (null -> NaN)
-    if N == 0:
+    if not msgs:
         return Batch(np.zeros(0), np.zeros(0, np.int64), np.zeros((0, 0)), np.zeros((0, 0)), np.zeros((0, 3 * n)),
                      np.zeros((0, 3)), np.zeros((0, 7)), np.zeros((0, n, 0, 3)), np.zeros((0, n, 7)))
-    energy = np.array([[s["kinetic"], s["potential"], s["total"]] for s in states], dtype=float)
-    return Batch(
-        t=f("t"), step=np.array([s["step"] for s in states], dtype=np.int64),
-        q=f("q").reshape(N, -1), v=f("v").reshape(N, -1), p=f("p").reshape(N, -1), energy=energy,
-        base=f("base").reshape(N, 7), backbone=f("backbone").reshape(N, n, -1, 3), tip_frames=f("tips").reshape(N, n, 7),
-    )
+    dims: dict | None = None
+    parts = []
+    for a in range(0, len(msgs), _BLOCK):
+        block = msgs[a : a + _BLOCK]
+        offsets = [off for off, _ in block]
+        states = [_parse_state(data, off, name) for off, data in block]
+        cols = {}
+        for key in _NDIM:
+            cols[key] = _column(states, offsets, key, None if dims is None else dims[key], name)
+        if dims is None:
+            dims = {key: col.shape[1:] for key, col in cols.items()}
+            why = _dims_error(name, offsets[0], dims, n)
+            if why:
+                raise _state_error(name, offsets[0], why)
+        N = len(states)
+        parts.append(Batch(
+            t=np.array([s["t"] for s in states], dtype=float),
+            step=np.array([s["step"] for s in states], dtype=np.int64),
+            q=cols["q"], v=cols["v"], p=cols["p"],
+            energy=np.stack([cols["kinetic"], cols["potential"], cols["total"]], axis=1).reshape(N, 3),
+            base=cols["base"], backbone=cols["backbone"], tip_frames=cols["tips"]))
+        del states, cols
+    return parts[0] if len(parts) == 1 else Batch.concatenate(parts)
 
 
-def read_recording(source: str | os.PathLike | BinaryIO, journal: bool = True) -> Recording:
-    """Read a qchain MCAP recording: complete, truncated or damaged.
+def _check_rows(rows: np.ndarray, lay, info: RunInfo, where: str) -> str | None:
+    """Why the journal's rows (K, width) of layout ``lay`` do not fit, or None."""
+    n = info.n_segments
+    if lay.n != n:
+        return f"its rows are of {lay.n} segment(s), the recording's {n}"
+    top = _series_max(n)
+    for key, size in (("q", lay.nq), ("v", lay.nv), ("p", lay.n_p)):
+        if size > top:
+            return f"its rows have {size} entries of {key}; {n} segment(s) have at most {top}"
+    t, step = rows[:, 0], rows[:, 1]
+    bad = ~((t >= 0.0) & (t <= T_MAX))
+    if bad.any():
+        return f"row {int(np.argmax(bad))} has the time {t[bad][0]!r} (expected 0 .. {T_MAX:g} s)"
+    bad = ~((step >= 0.0) & (step <= STEP_MAX) & (step == np.floor(step)))
+    if bad.any():
+        return f"row {int(np.argmax(bad))} has the step {step[bad][0]!r} (expected a whole number 0 .. 2**53)"
+    return None
+
+
+def _nonfinite(b: Batch) -> list[str]:
+    """Fields of ``b`` that hold non-finite values, in words."""
+    out = []
+    K = len(b)
+    for key, label in (("q", "q"), ("v", "v"), ("p", "p"), ("energy", "energies"), ("base", "base"),
+                       ("backbone", "backbone"), ("tip_frames", "tip frames")):
+        arr = getattr(b, key)
+        if K == 0 or arr.size == 0:
+            continue
+        bad = ~np.isfinite(arr.reshape(K, -1))
+        if bad.any():
+            rows = np.flatnonzero(bad.any(axis=1))
+            k = int(rows[0])
+            out.append(f"{label}: {int(bad.sum())} value(s) in {len(rows)} record(s), the first at t = {b.t[k]:.6g} s "
+                       f"(step {int(b.step[k])})")
+    return out
+
+
+def _outcome_problem(e: dict[str, str]) -> str | None:
+    """Why the entries of a ``qchain.outcome`` record cannot be used, or None."""
+    if e.get("success", "false") not in ("true", "false"):
+        return f"success is {e.get('success')!r}"
+    for key, low in (("status", -(1 << 31)), ("nfev", 0), ("n_records", 0)):
+        v = e.get(key)
+        if v is None or (key == "n_records" and v == ""):
+            continue
+        try:
+            x = int(v) if len(v) < 20 else None
+        except ValueError:
+            x = None
+        if x is None or not low <= x < (1 << 62):
+            return f"{key} is {v[:40]!r}, not a whole number"
+    last_t = e.get("last_t", "")
+    if last_t:
+        try:
+            ok = len(last_t) < 40 and math.isfinite(float(last_t))
+        except ValueError:
+            ok = False
+        if not ok:
+            return f"last_t is {last_t[:40]!r}"
+    return None
+
+
+def _info_of(meta: dict[str, str], name: str, offset: int | None, limits: ReadLimits) -> RunInfo:
+    """The :class:`RunInfo` of the ``qchain`` metadata, checked."""
+    where = f"{name}: its qchain metadata record" + (f" at byte {offset}" if offset is not None else "")
+    try:
+        data = loads(meta["info"], "the run information", limits)
+    except KeyError:
+        raise RecordingFormatError(f"{where} has no run information ('info')") from None
+    except ValueError as exc:
+        raise RecordingFormatError(f"{where}: {exc}") from None
+    if not isinstance(data, dict):
+        raise RecordingFormatError(f"{where}: the run information is a JSON {type(data).__name__}, not an object")
+    n = data.get("n_segments")
+    if isinstance(n, int) and not isinstance(n, bool) and n > limits.max_segments:
+        raise RecordingFormatError(f"{where} declares {n} segments, more than {limits.max_segments} "
+                                   "(ReadLimits.max_segments allows more)")
+    segs = data.get("params", {}).get("segments") if isinstance(data.get("params"), dict) else None
+    if segs is not None:
+        good = isinstance(segs, list) and all(
+            isinstance(s, dict) and ("length" not in s or (type(s["length"]) in (int, float) and s["length"] > 0))
+            for s in segs)
+        if not good:
+            raise RecordingFormatError(f"{where}: params.segments must be a list of objects whose length is a "
+                                       "number > 0 m")
+    try:
+        return RunInfo.from_json(data)
+    except (KeyError, ValueError, TypeError) as exc:
+        raise RecordingFormatError(f"{where} does not have the expected form ({exc})") from None
+
+
+# --------------------------------------------------------------------------------------
+# Reading
+# --------------------------------------------------------------------------------------
+
+
+def read_recording(source: str | os.PathLike | BinaryIO, journal: bool = True, *,
+                   limits: ReadLimits | None = None) -> Recording:
+    """Read a qchain MCAP recording: complete, truncated or damaged, from anywhere.
 
     Parameters
     ----------
     source : path or binary stream
+        A path must name a regular file (a FIFO or a device is refused, never waited on);
+        a stream is read up to ``limits.max_stream_bytes``.
     journal : bool
         For a path: also read the records a killed run left in its journal
         (``PATH.journal``) and the file lacks.
+    limits : ReadLimits or None
+        What reading may cost (default :class:`~qchain.recording.bounded.ReadLimits`()).
 
     Raises
     ------
+    TypeError
+        ``source`` is neither a path nor a binary stream.
     RecordingFormatError
-        The file is not an MCAP file, not a qchain recording, or its qchain metadata is
-        damaged in both copies; the message names the file.
+        The file is not an MCAP file, not a qchain recording, its qchain metadata is
+        damaged in both copies, a value in it is not what the format allows, reading it
+        would exceed ``limits``, or it cannot be read (not a regular file, no
+        permission); the message names the file and, where there is one, the byte.
     FileNotFoundError
+        No such file (and no journal of a run writing it).
     """
-    import orjson
-
-    name, buf, close = _open(source)
-    jpath = journal_path(name) if journal and isinstance(source, (str, os.PathLike)) else None
-    has_journal = jpath is not None and jpath.exists()
+    if limits is None:
+        limits = DEFAULT_LIMITS
+    elif not isinstance(limits, ReadLimits):
+        raise TypeError(f"read_recording: limits must be a ReadLimits, got {type(limits).__name__}")
+    name, buf, is_path = open_source(source, "source", "read_recording", limits)
+    jpath = journal_path(name) if journal and is_path else None
+    has_journal = jpath is not None and os.path.lexists(jpath)
+    if buf is None:
+        if not has_journal:
+            raise FileNotFoundError(errno.ENOENT, "no such recording", name)
+        buf = bytearray()  # the writer never started: the journal holds it all
     try:
-        if len(buf) == 0 and not has_journal:
-            raise RecordingFormatError(f"{name}: the file is empty, not a qchain MCAP recording")
-        head = bytes(buf[: len(MAGIC)])
-        if len(buf) and head != MAGIC[: len(head)]:
-            raise RecordingFormatError(f"{name}: not an MCAP file (it starts with {head!r}, an MCAP file with "
-                                       f"{MAGIC!r})")
-        damage: list[str] = []
-        meta = None
-        outcome = None
-        complete = False
-        stop_reason = ""
-        state_channels: set[int] = set()
-        other_channels: set[int] = set()
-        # in file order: ("m", channel id, message data) and ("d", damage item); messages are
-        # kept until the end when their channel's record was lost (a damaged first chunk):
-        # the sealed metadata names the channel ids too
-        stream: list[tuple] = []
-        for item in scan(buf) if len(buf) >= len(MAGIC) else ():
-            if item.kind == "chunk":
-                for rec in item.records:
-                    if isinstance(rec, Channel):
-                        (state_channels if rec.topic == TOPICS["state"] else other_channels).add(rec.id)
-                    elif isinstance(rec, Message) and rec.channel_id not in other_channels:
-                        stream.append(("m", rec.channel_id, rec.data))
-            elif item.kind == "metadata":
-                entries = unseal(item.record.metadata)
-                if item.record.name == "qchain":
-                    if entries is None:
-                        damage.append(f"the qchain metadata record at byte {item.offset} fails its checksum: "
-                                      "not used")
-                    elif meta is None:
-                        meta = entries
-                elif item.record.name == "qchain.outcome":
-                    if entries is None:
-                        damage.append(f"the qchain.outcome metadata record at byte {item.offset} fails its "
-                                      "checksum: not used")
-                    else:
-                        outcome = entries
-            elif item.kind == "footer":
-                complete = True
-            elif item.kind == "damage":
-                stream.append(("d", item))
+        return _read(name, buf, jpath if has_journal else None, limits)
+    except LimitExceeded as exc:
+        raise RecordingFormatError(f"{name}: {exc}") from None
+
+
+def _read(name: str, buf: bytearray, jpath, limits: ReadLimits) -> Recording:
+    if len(buf) == 0 and jpath is None:
+        raise RecordingFormatError(f"{name}: the file is empty, not a qchain MCAP recording")
+    head = bytes(buf[: len(MAGIC)])
+    if len(buf) and head != MAGIC[: len(head)]:
+        raise RecordingFormatError(f"{name}: not an MCAP file (it starts with {head!r}, an MCAP file with "
+                                   f"{MAGIC!r})")
+    damage: list[str] = []
+    meta = None
+    meta_offset = None
+    outcome = None
+    complete = False
+    stop_reason = ""
+    state_channels: set[int] = set()
+    other_channels: set[int] = set()
+    # in file order: ("m", channel id, message data, chunk offset) and ("d", damage item);
+    # messages are kept until the end when their channel's record was lost (a damaged first
+    # chunk): the sealed metadata names the channel ids too
+    stream: list[tuple] = []
+    budget = Budget(len(buf), limits)
+    for item in scan(buf, budget=budget) if len(buf) >= len(MAGIC) else ():
+        if item.kind == "chunk":
+            if item.reason:
                 damage.append(item.reason)
-            elif item.kind == "end":
-                stop_reason = item.reason
-        if meta is not None and "channels" in meta:
-            state_channels |= {int(k) for k, v in json.loads(meta["channels"]).items() if v == TOPICS["state"]}
-        states: list[dict] = []
-        events: list[tuple[int, object]] = []  # (position in states, damage item)
-        for entry in stream:
-            if entry[0] == "m":
-                if entry[1] in state_channels:
-                    states.append(orjson.loads(entry[2]))
-            else:
-                events.append((len(states), entry[1]))
-        del stream
-        index = summary_chunks(buf) if events else None
-        if len(buf) < len(MAGIC):
-            stop_reason = "the file ends before its first record"
-        elif not complete and not stop_reason:
-            stop_reason = "the file ends before its footer"
-    finally:
-        del buf
-        close()
-    recovered = 0
-    if has_journal:
-        owner = journal_owner(jpath)
-        if owner is None:  # a killed run's journal (a live run's is still being written)
-            jr = JournalReader(jpath)
+            for rec in item.records:
+                if isinstance(rec, Channel):
+                    (state_channels if rec.topic == TOPICS["state"] else other_channels).add(rec.id)
+                elif isinstance(rec, Message) and rec.channel_id not in other_channels:
+                    stream.append(("m", rec.channel_id, rec.data, item.offset))
+        elif item.kind == "metadata":
+            entries = unseal(item.record.metadata)
+            if item.record.name == "qchain":
+                if entries is None:
+                    damage.append(f"the qchain metadata record at byte {item.offset} fails its checksum: not used")
+                elif meta is None:
+                    meta, meta_offset = entries, item.offset
+            elif item.record.name == "qchain.outcome":
+                why = None if entries is None else _outcome_problem(entries)
+                if entries is None:
+                    damage.append(f"the qchain.outcome metadata record at byte {item.offset} fails its checksum: "
+                                  "not used")
+                elif why:
+                    damage.append(f"the qchain.outcome metadata record at byte {item.offset} is not usable ({why}): "
+                                  "not used")
+                else:
+                    outcome = entries
+        elif item.kind == "footer":
+            complete = True
+        elif item.kind == "damage":
+            stream.append(("d", item))
+            damage.append(item.reason)
+        elif item.kind == "end":
+            stop_reason = item.reason
+    if len(buf) < len(MAGIC):
+        stop_reason = "the file ends before its first record"
+    elif not complete and not stop_reason:
+        stop_reason = "the file ends before its footer"
+    # a killed run's journal (a live run's is still being written: not read)
+    jr = None
+    journal_rows = None
+    if jpath is not None and journal_owner(jpath) is None:
+        try:
+            jr = JournalReader(jpath, limits)
             try:
                 blocks = jr.poll(final=True)
             finally:
                 jr.close()
+        except FileNotFoundError:
+            jr = None
+        except LimitExceeded as exc:
+            raise RecordingFormatError(f"{jpath} (the journal of {name}): {exc}") from None
+        except LoggingError as exc:  # not a regular file, not a journal
+            damage.append(f"journal: {exc}; not read")
+            jr = None
+        if jr is not None:
             if meta is None and jr.metadata is not None:
                 meta = jr.metadata
             if jr.layout is not None and blocks:
-                last = states[-1]["step"] if states else None
-                last_t = states[-1]["t"] if states else None
-                rows = np.concatenate(blocks)
-                keep = rows if last is None else rows[(rows[:, 1] > last) & (rows[:, 0] >= last_t)]
-                recovered = len(keep)
-                journal_rows = keep
-            else:
-                journal_rows = None
-            if outcome is None and jr.outcome is not None:
+                journal_rows = np.concatenate(blocks)
+            if outcome is None and jr.outcome is not None and _outcome_problem(jr.outcome) is None:
                 outcome = jr.outcome
             damage.extend(f"journal: {d}" for d in jr.damage)
-        else:
-            journal_rows = None
-    else:
-        journal_rows = None
+    if meta is None and len(buf) == 0:
+        raise RecordingFormatError(f"{name}: no recording file, and its journal {jpath} holds no qchain recording ("
+                                   f"{'; '.join(damage) or 'no qchain metadata'})")
     if meta is None or meta.get("format") != FORMAT_NAME:
         if any("qchain metadata" in d for d in damage):
             raise RecordingFormatError(f"{name}: its qchain metadata record is damaged (checksum mismatch) and "
@@ -339,23 +554,34 @@ def read_recording(source: str | os.PathLike | BinaryIO, journal: bool = True) -
         raise RecordingFormatError(
             f"{name}: an MCAP file, but not a qchain recording (no 'qchain' metadata record with format "
             f"{FORMAT_NAME!r})")
-    try:
-        version = int(meta.get("format_version", "0"))
-    except ValueError:
-        version = -1
-    if version != FORMAT_VERSION:
-        raise RecordingFormatError(f"{name}: qchain recording format version {meta.get('format_version')!r}; this "
-                                   f"qchain reads version {FORMAT_VERSION}")
-    try:
-        info = RunInfo.from_json(json.loads(meta["info"]))
-    except (KeyError, ValueError, TypeError) as exc:
-        raise RecordingFormatError(f"{name}: its qchain metadata record does not have the expected form ({exc})") \
-            from None
-    try:
-        b = _rows_of(states, info)
-    except (KeyError, TypeError, ValueError, IndexError) as exc:
-        raise RecordingFormatError(f"{name}: a qchain state message does not have the expected form ({exc!r})") \
-            from None
+    where = f"{name}: its qchain metadata record" + (f" at byte {meta_offset}" if meta_offset is not None else "")
+    version = meta.get("format_version", "0")
+    if version != str(FORMAT_VERSION):
+        raise RecordingFormatError(f"{name}: qchain recording format version {version[:40]!r}; this qchain reads "
+                                   f"version {FORMAT_VERSION}")
+    info = _info_of(meta, name, meta_offset, limits)
+    if "channels" in meta:
+        try:
+            channels = loads(meta["channels"], "its channel list", limits)
+            if not isinstance(channels, dict):
+                raise ValueError("its channel list is not a JSON object")
+            ids = {int(k) for k, v in channels.items() if v == TOPICS["state"] and k.isdigit() and len(k) < 6}
+        except ValueError as exc:
+            raise RecordingFormatError(f"{where}: {exc}") from None
+        state_channels |= ids
+    msgs: list[tuple[int, bytes]] = []
+    events: list[tuple[int, object]] = []  # (position in msgs, damage item)
+    for entry in stream:
+        if entry[0] == "m":
+            if entry[1] in state_channels:
+                msgs.append((entry[3], entry[2]))
+        else:
+            events.append((len(msgs), entry[1]))
+    del stream
+    index = summary_chunks(buf) if events else None
+    del buf
+    b = _decode_states(msgs, info, name)
+    del msgs
     gaps = []
     for pos, item in events:
         if index is not None and not any(item.offset <= c.chunk_start_offset < item.end for c in index):
@@ -366,23 +592,34 @@ def read_recording(source: str | os.PathLike | BinaryIO, journal: bool = True) -
         gaps.append(Gap(None if after is None else float(after), None if before is None else float(before),
                         None if pos == 0 else int(b.step[pos - 1]), None if pos >= len(b) else int(b.step[pos]),
                         item.offset, item.end, item.reason))
-    if journal_rows is not None and len(journal_rows):
-        jb = Batch.from_rows(journal_rows, jr.layout)
-        if len(b) == 0:
-            b = jb
-        else:
-            b = Batch.concatenate([b, jb])
-        if not complete:
-            stop_reason = (stop_reason + "; " if stop_reason else "") + \
-                f"{recovered} records after it read from the run's journal {jpath}"
+    recovered = 0
+    if journal_rows is not None:
+        why = _check_rows(journal_rows, jr.layout, info, str(jpath))
+        if why is None and len(b):
+            if (b.q.shape[1], b.v.shape[1], b.p.shape[1], b.backbone.shape[2]) != \
+                    (jr.layout.nq, jr.layout.nv, jr.layout.n_p, jr.layout.P):
+                why = f"its rows have the layout {jr.layout.to_json()}, the recording's records another"
+        if why is not None:
+            raise RecordingFormatError(f"{jpath} (the journal of {name}): {why}")
+        if len(b):
+            last, last_t = int(b.step[-1]), float(b.t[-1])
+            journal_rows = journal_rows[(journal_rows[:, 1] > last) & (journal_rows[:, 0] >= last_t)]
+        recovered = len(journal_rows)
+        if recovered:
+            jb = Batch.from_rows(journal_rows, jr.layout)
+            b = jb if len(b) == 0 else Batch.concatenate([b, jb])
+            if not complete:
+                stop_reason = (stop_reason + "; " if stop_reason else "") + \
+                    f"{recovered} records after it read from the run's journal {jpath}"
     return Recording(
         path=name, info=info, t=b.t, step=b.step, q=b.q, v=b.v, p=b.p, energy=b.energy, base=b.base,
         backbone=b.backbone, tip_frames=b.tip_frames, outcome=outcome, truncated=not complete,
         stop_reason="" if complete else stop_reason, metadata=meta, gaps=gaps, damage=damage, recovered=recovered,
+        nonfinite=_nonfinite(b),
     )
 
 
-def read_mcap(path: str | os.PathLike | BinaryIO) -> Trajectory:
+def read_mcap(path: str | os.PathLike | BinaryIO, *, limits: ReadLimits | None = None) -> Trajectory:
     """Read a qchain MCAP recording as a :class:`~qchain.trajectory.Trajectory`.
 
     A truncated recording (a killed run) reads up to its last complete chunk and on from
@@ -390,12 +627,18 @@ def read_mcap(path: str | os.PathLike | BinaryIO) -> Trajectory:
     saying where it stopped, and ``meta["truncated"] = True``, ``meta["stopped_at"]`` (s).
     A damaged chunk loses only its own records: ``meta["gaps"]`` says which. ``meta`` also
     holds the step numbers, backbone points (N, n, P, 3), tip frames (N, n, 7), base frames
-    (N, 7), logged total energy, scene text, model parameters and qchain version.
+    (N, 7), logged total energy, scene text, model parameters and qchain version; non-finite
+    values the file holds are said in the message and ``meta["nonfinite"]``.
 
     Raises
     ------
+    TypeError
+        ``path`` is neither a path nor a binary stream.
     RecordingFormatError
-        Not a qchain MCAP recording (message names the file and what is wrong).
+        Not a (readable) qchain MCAP recording (message names the file and what is wrong).
+    FileNotFoundError
     """
-    return read_recording(path).to_trajectory()
-
+    if not isinstance(path, (str, os.PathLike)) and not callable(getattr(path, "read", None)):
+        raise TypeError(f"read_mcap: path must be a path (str or os.PathLike) or a binary stream with read(); got "
+                        f"{'None' if path is None else type(path).__name__}")
+    return read_recording(path, limits=limits).to_trajectory()

@@ -181,6 +181,29 @@ def _jsonable(value: Any, where: str) -> Any:
     )
 
 
+def _utf8(name: str, text: str) -> str:
+    """``text``, or ``ValueError`` naming ``name`` if it is not UTF-8 text (lone surrogates)."""
+    try:
+        text.encode("utf-8")
+    except UnicodeEncodeError as exc:
+        raise ValueError(f"{name} is not UTF-8 text ({exc.reason}: {text[exc.start:exc.end]!a} at character "
+                         f"{exc.start}); a recording stores it as UTF-8") from None
+    return text
+
+
+def _escaped(path: str) -> str:
+    """A path as UTF-8 text: bytes of its name that are not UTF-8 escaped as ``\\xNN``."""
+    try:
+        path.encode("utf-8")
+        return path
+    except UnicodeEncodeError:
+        pass
+    try:
+        return os.fsencode(path).decode("utf-8", "backslashreplace")
+    except UnicodeError:  # surrogates os.fsdecode does not make
+        return path.encode("utf-8", "backslashreplace").decode("utf-8")
+
+
 @dataclass(kw_only=True)
 class RunInfo:
     """Static information about a run, recorded once (checksummed).
@@ -195,7 +218,9 @@ class RunInfo:
         The scene text (e.g. the TOML file's content); may be empty.
     scene_path : str or None
         Where the scene came from, for the record, for default file names and so that the
-        recording never overwrites it.
+        recording never overwrites it. A name that is not UTF-8 text (``bytes``, or a
+        ``str`` with the lone surrogates ``os.fsdecode`` makes of such bytes) is recorded
+        with those bytes escaped (``\\xff``); :attr:`scene_file` keeps the path itself.
     params : dict
         Model parameters; JSON-like values only (numpy arrays become lists).
     qchain_version : str
@@ -214,6 +239,10 @@ class RunInfo:
         ``"segment 2 ux [1/m]"`` (plots and layouts); ``None``: ``q[0]``, ``v[0]``, ...
     duration : float or None, s
         The simulated time the run is meant to reach (the live plots' time axis).
+
+    ``scene``, ``name``, ``qchain_version``, ``q_names`` and ``v_names`` must be UTF-8
+    text (a recording stores them as such): a ``ValueError`` names the field otherwise,
+    before anything is written.
     """
 
     n_segments: int
@@ -250,24 +279,40 @@ class RunInfo:
         self.pressure_ref = float(self.pressure_ref)
         if not isinstance(self.scene, str):
             raise ValueError(f"scene must be a str (the scene text), got {type(self.scene).__name__}")
+        _utf8("scene", self.scene)
+        self._scene_file = None
         if self.scene_path is not None:
-            self.scene_path = os.fspath(self.scene_path)
+            path = os.fspath(self.scene_path)
+            if isinstance(path, bytes):
+                path = os.fsdecode(path)  # undecodable bytes become lone surrogates
+            if not isinstance(path, str):
+                raise ValueError(f"scene_path must be a path (str, bytes or os.PathLike) or None, got "
+                                 f"{type(self.scene_path).__name__}")
+            self._scene_file = path
+            self.scene_path = _escaped(path)
         if not isinstance(self.params, dict):
             raise ValueError(f"params must be a dict, got {type(self.params).__name__}")
         self.params = _jsonable(self.params, "params")
-        self.qchain_version = str(self.qchain_version)
-        self.name = str(self.name)
+        self.qchain_version = _utf8("qchain_version", str(self.qchain_version))
+        self.name = _utf8("name", str(self.name))
         for key in ("q_names", "v_names"):
             names = getattr(self, key)
             if names is not None:
                 if isinstance(names, str) or not all(isinstance(s, str) for s in names):
                     raise ValueError(f"{key} must be a sequence of str, got {names!r}")
+                for i, name in enumerate(names):
+                    _utf8(f"{key}[{i}]", name)
                 setattr(self, key, list(names))
         if self.duration is not None:
             d = float(self.duration)
             if not (math.isfinite(d) and d > 0):
                 raise ValueError(f"duration must be None or a finite time > 0 s, got {self.duration!r}")
             self.duration = d
+
+    @property
+    def scene_file(self) -> str | None:
+        """The scene's path as given (for the file system), ``scene_path`` as recorded."""
+        return self._scene_file if getattr(self, "_scene_file", None) is not None else self.scene_path
 
     @staticmethod
     def _vector(name: str, value, n: int) -> np.ndarray:
@@ -370,7 +415,22 @@ class RecordLayout:
 
     @classmethod
     def from_json(cls, d: dict) -> RecordLayout:
-        return cls(int(d["nq"]), int(d["nv"]), int(d["np"]), int(d["n"]), int(d["P"]))
+        """From :meth:`to_json` output; ``ValueError`` for anything but whole numbers
+        (``n`` and ``P`` >= 1, the others >= 0, a row of at most 2**24 numbers)."""
+        if not isinstance(d, dict):
+            raise ValueError(f"a record layout must be a JSON object, got {type(d).__name__}")
+        vals = {}
+        for key in ("nq", "nv", "np", "n", "P"):
+            v = d.get(key)
+            if isinstance(v, bool) or not isinstance(v, int) or not (0 <= v <= 1 << 24):
+                raise ValueError(f"record layout: {key} must be a whole number >= 0, got {v!r}")
+            vals[key] = v
+        if vals["n"] < 1 or vals["P"] < 1:
+            raise ValueError(f"record layout: n and P must be >= 1, got n = {vals['n']}, P = {vals['P']}")
+        lay = cls(vals["nq"], vals["nv"], vals["np"], vals["n"], vals["P"])
+        if lay.row_width > 1 << 24:
+            raise ValueError(f"record layout: a row of {lay.row_width} numbers (more than 2**24)")
+        return lay
 
 
 @dataclass

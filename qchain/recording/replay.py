@@ -1,26 +1,42 @@
 """Re-logging a recording into Rerun (``qchain replay``), making a killed run's recording
-whole (``qchain recover``) and writing its Foxglove layout (``qchain layout``)."""
+whole (``qchain recover``) and writing its Foxglove layout (``qchain layout``).
+
+The recording is read within :class:`~qchain.recording.bounded.ReadLimits` (see
+:mod:`qchain.recording.reader`). Sending to a viewer at ``--connect URL`` is bounded in time
+too: the viewer must answer a connection (its HTTP/2 settings, or a TLS handshake) within
+``timeout`` seconds, and the sending runs in a child process of its own that must be done
+within a deadline: a peer that accepts and never answers, or stops taking data halfway, is
+reported with a warning, and the child is killed (it also dies with this process). The Rerun
+SDK's gRPC client waits for such a peer forever, even at interpreter exit, which is why the
+sending is not done in this process. Output paths (``--rrd``, ``-o``) are checked before
+anything is written, and never the recording itself."""
 
 from __future__ import annotations
 
 import argparse
+import json
 import os
+import signal
+import stat
+import subprocess
 import sys
 import tempfile
 import time
 import uuid
 import warnings
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
+from .bounded import ReadLimits
 from .journal import journal_owner, journal_path
 from .reader import Recording, read_recording
-from .records import DEFAULT_FLUSH_INTERVAL, LoggingError, LoggingWarning, RecordingFormatError
-from .rerun_sink import DEFAULT_BIND
+from .records import DEFAULT_FLUSH_INTERVAL, LoggingError, LoggingWarning
+from .rerun_sink import CONNECT_TIMEOUT, DEFAULT_BIND, probe_viewer
 
-__all__ = ["ReplaySession", "replay", "replay_main", "recover", "recover_main", "layout_main"]
+__all__ = ["ReplaySession", "replay", "replay_main", "recover", "recover_main", "layout_main", "probe_viewer",
+           "CONNECT_TIMEOUT"]
 
 
 @dataclass
@@ -33,12 +49,18 @@ class ReplaySession:
     viewer_url : str or None
         Web viewer URL while serving.
     grpc_url : str or None
+    problems : list of str
+        What did not work out (each also warned as a LoggingWarning).
+    sent : bool or None
+        Whether the viewer at ``connect`` took the recording (None: no ``connect``).
     """
 
     recording: Recording
     viewer_url: str | None = None
     grpc_url: str | None = None
     _sink: Any = None
+    problems: list = field(default_factory=list)
+    sent: bool | None = None
 
     @property
     def trajectory(self):
@@ -56,18 +78,129 @@ class ReplaySession:
         self.close()
 
 
+class _IncompleteWarning(LoggingWarning):
+    """What a recording lacks (the command line says it in its summary instead)."""
+
+
 def _warn_incomplete(recording: Recording, stacklevel: int) -> None:
     if recording.truncated:
         where = f"t = {recording.t[-1]:.6g} s (step {int(recording.step[-1])})" if len(recording) else "its start"
         warnings.warn(f"qchain.logging: {recording.path} is truncated; replaying up to {where} ("
-                      f"{recording.stop_reason})", LoggingWarning, stacklevel=stacklevel)
+                      f"{recording.stop_reason})", _IncompleteWarning, stacklevel=stacklevel)
     for g in recording.gaps:
-        warnings.warn(f"qchain.logging: {recording.path}: {g.describe()}", LoggingWarning, stacklevel=stacklevel)
+        warnings.warn(f"qchain.logging: {recording.path}: {g.describe()}", _IncompleteWarning, stacklevel=stacklevel)
+    if recording.nonfinite:
+        warnings.warn(f"qchain.logging: {recording.path} holds non-finite values (null in the file, read as NaN): "
+                      + "; ".join(recording.nonfinite), _IncompleteWarning, stacklevel=stacklevel)
+
+
+# --------------------------------------------------------------------------------------
+# A viewer at --connect: answered within a timeout, fed by a child process with a deadline
+# --------------------------------------------------------------------------------------
+
+#: Seconds the sending child may take beyond that to start and read the recording.
+SEND_STARTUP = 30.0
+
+
+def _send_main() -> None:
+    """The sending child: ``python -c "...; _send_main()" PARENT_PID PATH URL TIMEOUT LIMITS``.
+
+    Prints ``sent`` or ``failed: WHY`` on its standard output and ends with ``os._exit``
+    (the Rerun SDK would wait for a stalled viewer forever at interpreter exit)."""
+    parent, path, url, timeout, limits = int(sys.argv[1]), sys.argv[2], sys.argv[3], float(sys.argv[4]), sys.argv[5]
+    if sys.platform.startswith("linux"):
+        try:
+            import ctypes
+
+            ctypes.CDLL(None).prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG: die with the parent
+        except (OSError, AttributeError):
+            pass
+    if os.getppid() != parent:  # the parent is gone already
+        os._exit(1)
+    from .rerun_sink import RerunSink
+
+    code, line = 1, "failed: nothing sent"
+    try:
+        rec = read_recording(path, limits=ReadLimits(**json.loads(limits)))
+        info = rec.info
+        if info.duration is None and len(rec):
+            info.duration = float(rec.t[-1]) if rec.t[-1] > 0 else None
+        problems: list[str] = []
+        sink = RerunSink(info, connect=url, recording_id=rec.metadata.get("recording_id") or str(uuid.uuid4()),
+                         warn=problems.append)
+        if sink.rec is None:
+            line = "failed: " + ("; ".join(problems) or "no connection")
+        else:
+            b = rec.batch()
+            for a in range(0, len(rec), 2000):
+                sink.write_batch(b.take(slice(a, a + 2000)))
+            try:
+                sink.rec.flush(timeout_sec=timeout)
+                code, line = 0, "sent"
+            except RuntimeError:
+                line = f"failed: the viewer did not take the recording within {timeout:g} s"
+            else:  # close the connection cleanly, if that is quick
+                import threading
+
+                closer = threading.Thread(target=sink.rec.disconnect, daemon=True)
+                closer.start()
+                closer.join(2.0)
+    except Exception as exc:  # reported to the parent, which warns
+        line = f"failed: {type(exc).__name__}: {exc}"
+    sys.stdout.write(line.replace("\n", " ") + "\n")
+    sys.stdout.flush()
+    os._exit(code)
+
+
+def _send(path: str, url: str, timeout: float, limits: ReadLimits) -> str | None:
+    """Send the recording at ``path`` to the viewer at ``url`` from a child process; None
+    when done, else why not. The child is killed if it is not done in time."""
+    code = "from qchain.recording.replay import _send_main; _send_main()"
+    root = str(Path(__file__).resolve().parents[2])
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join(filter(None, [root, env.get("PYTHONPATH")]))
+    proc = subprocess.Popen([sys.executable, "-c", code, str(os.getpid()), path, url, repr(float(timeout)),
+                             json.dumps(asdict(limits))], stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, env=env)
+    deadline = timeout + SEND_STARTUP
+    try:
+        out, _ = proc.communicate(timeout=deadline)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.communicate()
+        return f"the viewer did not take the recording within {deadline:g} s: stopped"
+    finally:
+        if proc.poll() is None:  # an interrupt: the child goes with it
+            proc.kill()
+            proc.wait()
+    line = out.decode(errors="replace").strip().splitlines()[-1:] or [""]
+    if line[0] == "sent" and proc.returncode == 0:
+        return None
+    return line[0].removeprefix("failed: ") or f"the sending process ended with code {proc.returncode}"
+
+
+def _check_rrd(rrd, recording_path) -> None:
+    """Refuse an ``.rrd`` path that cannot be written, or that is the recording itself."""
+    from .options import check_outputs
+
+    if recording_path is not None:
+        for p in (Path(recording_path), journal_path(recording_path)):
+            if os.path.abspath(rrd) == os.path.abspath(p) or (Path(rrd).exists() and p.exists()
+                                                               and os.path.samefile(rrd, p)):
+                raise LoggingError(f"--rrd {rrd} is the recording being replayed ({p}): it would be overwritten")
+    try:
+        mode = os.stat(rrd).st_mode
+    except OSError:
+        mode = None
+    if mode is not None and not stat.S_ISREG(mode) and not stat.S_ISDIR(mode):
+        raise LoggingError(f"--rrd {rrd} exists and is not a regular file (a FIFO or a device): refused")
+    check_outputs(None, rrd, min_free=1 << 20)
 
 
 def replay(path: str | os.PathLike, serve: bool = False, connect: str | None = None,
            rrd: str | os.PathLike | None = None, *, bind: str = DEFAULT_BIND, grpc_port: int | None = None,
-           web_port: int | None = None, batch: int = 2000, quiet: bool = False) -> ReplaySession:
+           web_port: int | None = None, batch: int = 2000, quiet: bool = False, limits: ReadLimits | None = None,
+           timeout: float = CONNECT_TIMEOUT) -> ReplaySession:
     """Re-log a qchain MCAP recording into Rerun with its original simulation times.
 
     Parameters
@@ -79,92 +212,167 @@ def replay(path: str | os.PathLike, serve: bool = False, connect: str | None = N
         to a running viewer, write a ``.rrd`` file. At least one must be given.
     batch : int
         Records a ``send_columns`` batch.
+    limits : ReadLimits or None
+        What reading the recording may cost.
+    timeout : float, s
+        How long a viewer at ``connect`` has to answer, and then to take the recording
+        (sent from a child process, killed if it is not done ``timeout`` + 30 s after it
+        started).
 
     Returns
     -------
     ReplaySession
         Keep it (and the process) alive while a served viewer is used; ``close()`` it
         after. A truncated or damaged recording warns (:class:`LoggingWarning`) what is
-        missing.
+        missing; a viewer that cannot be reached or does not answer in time is warned and
+        listed in ``problems``.
 
     Raises
     ------
+    TypeError
+        ``path`` is not a path.
     RecordingFormatError
-        Not a qchain MCAP recording.
+        Not a (readable) qchain MCAP recording.
+    LoggingError
+        An ``.rrd`` path that cannot be written (or is the recording itself), or an ``.rrd``
+        file that was not written.
     ValueError
         No target given, or both ``serve`` and ``connect``.
     """
-    from .rerun_sink import RerunSink
-
+    if not isinstance(path, (str, os.PathLike)):
+        raise TypeError(f"replay: path must be a path (str or os.PathLike), got "
+                        f"{'None' if path is None else type(path).__name__}")
     if not (serve or connect or rrd):
         raise ValueError("replay needs a target: serve=True, connect=URL or rrd=PATH")
     if serve and connect:
         raise ValueError("serve and connect exclude each other")
-    recording = read_recording(path)
-    _warn_incomplete(recording, 3)
+    if connect is not None and not isinstance(connect, str):
+        raise TypeError(f"replay: connect must be a URL (str), got {type(connect).__name__}")
+    if isinstance(timeout, bool) or not isinstance(timeout, (int, float)) or not 0 < timeout <= 3600:
+        raise ValueError(f"replay: timeout must be a number of seconds > 0 and <= 3600, got {timeout!r}")
+    limits = ReadLimits() if limits is None else limits
     if rrd is not None:
-        Path(rrd).parent.mkdir(parents=True, exist_ok=True)
+        _check_rrd(rrd, path)
+    recording = read_recording(path, limits=limits)
+    _warn_incomplete(recording, 3)
+    problems: list[str] = []
+
+    def problem(msg: str) -> None:
+        problems.append(msg)
+        warnings.warn(f"qchain.logging: {msg}", LoggingWarning, stacklevel=4)
+
+    sent = None
+    if connect:
+        why = probe_viewer(connect, timeout)
+        if why is None:
+            why = _send(os.fspath(path), connect, timeout, limits)
+        sent = why is None
+        if not sent:
+            problem(f"no Rerun viewer took the recording at {connect} ({why}); nothing was sent there")
+    session = ReplaySession(recording, problems=problems, sent=sent)
+    if not (serve or rrd):
+        return session
+    from .rerun_sink import RerunSink
+
     info = recording.info
     if info.duration is None and len(recording):
         info.duration = float(recording.t[-1]) if recording.t[-1] > 0 else None
-    sink = RerunSink(info, serve=serve, connect=connect, rrd=rrd, bind=bind, grpc_port=grpc_port,
-                     web_port=web_port, recording_id=recording.metadata.get("recording_id") or str(uuid.uuid4()),
-                     warn=lambda m: warnings.warn(f"qchain.logging: {m}", LoggingWarning, stacklevel=3))
-    b = recording.batch()
-    step = max(1, int(batch))
-    for a in range(0, len(recording), step):
-        sink.write_batch(b.take(slice(a, a + step)))
-    sink.finish()
-    session = ReplaySession(recording, sink.viewer_url, sink.grpc_url, sink if sink.serving else None)
+    sink = None
+    try:
+        sink = RerunSink(info, serve=serve, rrd=rrd, bind=bind, grpc_port=grpc_port, web_port=web_port,
+                         recording_id=recording.metadata.get("recording_id") or str(uuid.uuid4()), warn=problem)
+        b = recording.batch()
+        step = max(1, int(batch))
+        for a in range(0, len(recording), step):
+            sink.write_batch(b.take(slice(a, a + step)))
+        sink.finish()
+    except RuntimeError as exc:  # the Rerun SDK's errors: a file that cannot be written, ...
+        if sink is not None:
+            sink.close()
+        raise LoggingError(f"the replay into Rerun failed ({exc})" + (f"; {rrd} is not complete" if rrd else "")) \
+            from None
+    except BaseException:
+        if sink is not None:
+            sink.close()
+        raise
+    session.viewer_url, session.grpc_url = sink.viewer_url, sink.grpc_url
+    session._sink = sink if sink.serving else None
     if not sink.serving:
         sink.close()
     elif session.viewer_url and not quiet:
         print(f"qchain: replay served at {session.viewer_url}  (open it in a browser)", file=sys.stderr, flush=True)
+    if rrd is not None:
+        try:
+            written = os.path.getsize(rrd) > 0
+        except OSError:
+            written = False
+        if not written:
+            session.close()
+            raise LoggingError(f"the .rrd file {rrd} was not written")
     return session
 
 
-def recover(path: str | os.PathLike) -> Recording:
+def recover(path: str | os.PathLike, *, limits: ReadLimits | None = None) -> Recording:
     """Make the recording of a killed run whole: read what the file and the run's journal
     hold together, write it as a complete recording in place of the file (atomically),
-    remove the journal. Returns the recording as written.
+    remove the journal. Returns the recording as written. What the old file lacked (gaps
+    left by damage, non-finite values) is said in the new one's outcome message.
 
     Raises
     ------
+    TypeError
+        ``path`` is not a path.
     LoggingError
-        A run is still writing ``path`` (its journal is locked).
+        A run is still writing ``path`` (its journal is locked), or the recovered recording
+        cannot be written next to it.
     RecordingFormatError
-        Neither the file nor a journal holds a qchain recording.
+        Neither the file nor a journal holds a (readable) qchain recording.
+    FileNotFoundError
     """
     from .mcap_sink import McapSink
 
+    if not isinstance(path, (str, os.PathLike)):
+        raise TypeError(f"recover: path must be a path (str or os.PathLike), got "
+                        f"{'None' if path is None else type(path).__name__}")
     path = Path(path)
     jp = journal_path(path)
     owner = journal_owner(jp)
     if owner is not None:
         raise LoggingError(f"a run{f' (pid {owner})' if owner else ''} is still writing {path}; recover it after it "
                            "ends or is killed")
-    if not path.exists() and not jp.exists():
+    if not os.path.lexists(path) and not os.path.lexists(jp):
         raise FileNotFoundError(f"{path}: no such recording, and no journal of a run writing it")
-    rec = read_recording(path)  # (without the file, from the journal alone: the writer never started)
+    # (without the file, from the journal alone: the writer never started)
+    rec = read_recording(path, limits=limits)
     out = rec.outcome or {"success": "false", "status": "-1", "message": ""}
     message = out.get("message") or "the run was killed"
     if rec.recovered or rec.truncated:
         message += f" (recovered by `qchain recover`: {len(rec)} records, {rec.recovered} from the journal)"
-    fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".recovering", dir=path.parent)
-    os.close(fd)
+    for g in rec.gaps:
+        message += f"; before recovery {g.describe()}"
+    tmp = None
     try:
+        fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".recovering", dir=path.parent)
+        os.close(fd)
         sink = McapSink(tmp, rec.info, recording_id=rec.metadata.get("recording_id", str(uuid.uuid4())),
                         flush_interval=DEFAULT_FLUSH_INTERVAL, flush_wall_interval=1e9)
-        sink.write_batch(rec.batch())
-        sink.finish({"success": out.get("success") == "true", "status": int(out.get("status", -1)),
-                     "message": message, "nfev": int(out.get("nfev", 0) or 0)})
+        try:
+            sink.write_batch(rec.batch())
+            sink.finish({"success": out.get("success") == "true" and not rec.gaps,
+                         "status": int(out.get("status", -1)), "message": message,
+                         "nfev": int(out.get("nfev", 0) or 0)})
+        finally:
+            sink.abandon()
         os.replace(tmp, path)
+    except OSError as exc:
+        raise LoggingError(f"cannot write the recovered recording of {path} ({exc.strerror or exc}); the file and its "
+                           "journal are as they were") from None
     finally:
-        if os.path.exists(tmp):
+        if tmp is not None and os.path.exists(tmp):
             os.unlink(tmp)
     if jp.exists():
         jp.unlink()
-    return read_recording(path)
+    return read_recording(path, limits=limits)
 
 
 def _summary(rec: Recording) -> list[str]:
@@ -181,16 +389,29 @@ def _summary(rec: Recording) -> list[str]:
     for g in rec.gaps:
         lines.append(f"damaged: {g.describe()}")
     for d in rec.damage:
-        if "metadata" in d:
+        if "metadata" in d or d.startswith("journal:"):
             lines.append(f"damaged: {d}")
+    for d in rec.nonfinite:
+        lines.append(f"non-finite values (null in the file, read as NaN): {d}")
     return lines
+
+
+#: What the commands report as an error (exit code 2) rather than a traceback.
+_ERRORS = (LoggingError, OSError, ValueError, TypeError)
+
+
+def _error(prog: str, exc: BaseException) -> int:
+    print(f"qchain {prog}: error: {exc}", file=sys.stderr)
+    return 2
 
 
 def replay_main(argv: Sequence[str] | None = None) -> int:
     """``qchain replay LOG.mcap [--serve | --connect URL | --rrd OUT]``; returns the exit code.
 
     Without a target the replay is served on 127.0.0.1 (``--serve``) until Ctrl-C.
-    Exit codes: 0 done, 2 not a (readable) qchain recording or bad arguments.
+    Exit codes: 0 done, 1 a target not reached (a viewer that cannot be reached or does
+    not answer in time, said on standard error), 2 not a (readable) qchain recording, an
+    output that cannot be written, or bad arguments.
     """
     parser = argparse.ArgumentParser(prog="qchain replay", description="Re-log a qchain MCAP recording into Rerun "
                                      "with its original simulation times.")
@@ -200,21 +421,31 @@ def replay_main(argv: Sequence[str] | None = None) -> int:
     target.add_argument("--connect", metavar="URL", help="send to a running Rerun viewer (rerun+http://HOST:PORT/proxy)")
     target.add_argument("--rrd", metavar="OUT", type=Path, help="write a Rerun .rrd file")
     parser.add_argument("--bind", default=DEFAULT_BIND, help="address to serve on (default 127.0.0.1: this machine only)")
+    parser.add_argument("--timeout", type=float, default=CONNECT_TIMEOUT, metavar="S",
+                        help=f"seconds a viewer at --connect has to answer and take the recording (default "
+                             f"{CONNECT_TIMEOUT:g})")
     args = parser.parse_args(argv)
     serve = args.serve or not (args.connect or args.rrd)
-    try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", LoggingWarning)
-            session = replay(args.log, serve=serve, connect=args.connect, rrd=args.rrd, bind=args.bind, quiet=True)
-    except (RecordingFormatError, FileNotFoundError, IsADirectoryError) as exc:
-        print(f"qchain replay: error: {exc}", file=sys.stderr)
-        return 2
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", LoggingWarning)
+        try:
+            session = replay(args.log, serve=serve, connect=args.connect, rrd=args.rrd, bind=args.bind, quiet=True,
+                             timeout=args.timeout)
+        except _ERRORS as exc:
+            return _error("replay", exc)
+    for w in caught:
+        if issubclass(w.category, LoggingWarning) and not issubclass(w.category, _IncompleteWarning):
+            print(f"qchain replay: warning: {str(w.message).removeprefix('qchain.logging: ')}", file=sys.stderr)
     rec = session.recording
     lines = _summary(rec)
-    lines[0] = "replayed " + lines[0] if len(rec) else lines[0]
+    sent = session.sent is not False
+    if len(rec):
+        lines[0] = ("replayed " if sent else "read ") + lines[0]
     print("\n".join(lines))
     if args.rrd:
         print(f"wrote {args.rrd}")
+    if args.connect:
+        print(f"sent to {args.connect}" if sent else f"not sent to {args.connect}: see the warning above")
     if serve:
         if session.viewer_url:
             print(f"open {session.viewer_url}  - Ctrl-C to stop", flush=True)
@@ -230,26 +461,27 @@ def replay_main(argv: Sequence[str] | None = None) -> int:
             pass
         finally:
             session.close()
-    return 0
+    return 0 if sent else 1
 
 
 def recover_main(argv: Sequence[str] | None = None) -> int:
-    """``qchain recover LOG.mcap``: make a killed run's recording whole from its journal."""
+    """``qchain recover LOG.mcap``: make a killed run's recording whole from its journal.
+    Exit codes: 0 done, 2 nothing to recover, not readable, or not writable."""
     parser = argparse.ArgumentParser(prog="qchain recover", description="Make the recording of a killed run whole: "
                                      "the records its journal (LOG.mcap.journal) holds are written into it.")
     parser.add_argument("log", type=Path, help="the .mcap recording")
     args = parser.parse_args(argv)
     try:
         rec = recover(args.log)
-    except (LoggingError, FileNotFoundError, IsADirectoryError) as exc:
-        print(f"qchain recover: error: {exc}", file=sys.stderr)
-        return 2
+    except _ERRORS as exc:
+        return _error("recover", exc)
     print("recovered " + "\n".join(_summary(rec)))
     return 0
 
 
 def layout_main(argv: Sequence[str] | None = None) -> int:
-    """``qchain layout LOG.mcap [-o layout.json]``: the Foxglove layout of a recording."""
+    """``qchain layout LOG.mcap [-o layout.json]``: the Foxglove layout of a recording.
+    Exit codes: 0 done, 2 not a readable recording, or an output that cannot be written."""
     from .foxglove_layout import layout_json
 
     parser = argparse.ArgumentParser(prog="qchain layout", description="Write the Foxglove layout of a recording "
@@ -258,15 +490,29 @@ def layout_main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("-o", "--out", type=Path, default=None, help="output file (default: standard output)")
     args = parser.parse_args(argv)
     try:
+        if args.out is not None:
+            for p in (args.log, journal_path(args.log)):
+                if os.path.abspath(args.out) == os.path.abspath(p) or (
+                        args.out.exists() and p.exists() and os.path.samefile(args.out, p)):
+                    raise LoggingError(f"-o {args.out} is the recording ({p}): it would be overwritten")
+            if args.out.is_dir():
+                raise LoggingError(f"-o must be a file path, got the folder {args.out}")
         rec = read_recording(args.log)
-    except (RecordingFormatError, FileNotFoundError, IsADirectoryError) as exc:
-        print(f"qchain layout: error: {exc}", file=sys.stderr)
-        return 2
-    text = layout_json(rec.info, rec.q.shape[1], rec.v.shape[1], rec.p.shape[1])
-    if args.out is None:
-        print(text)
-    else:
-        args.out.parent.mkdir(parents=True, exist_ok=True)
-        args.out.write_text(text + "\n")
-        print(f"wrote {args.out}")
+        text = layout_json(rec.info, rec.q.shape[1], rec.v.shape[1], rec.p.shape[1])
+        if args.out is None:
+            print(text)
+        else:
+            tmp = args.out.with_name(f".{args.out.name}.{os.getpid()}.tmp")
+            try:
+                args.out.parent.mkdir(parents=True, exist_ok=True)
+                tmp.write_text(text + "\n")
+                os.replace(tmp, args.out)
+            except OSError as exc:
+                raise LoggingError(f"cannot write {args.out} ({exc.strerror or exc})") from None
+            finally:
+                if tmp.exists():
+                    tmp.unlink()
+            print(f"wrote {args.out}")
+    except _ERRORS as exc:
+        return _error("layout", exc)
     return 0

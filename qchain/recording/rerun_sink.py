@@ -32,7 +32,8 @@ import numpy as np
 
 from .records import SEGMENT_COLORS, Batch, LoggingError, RunInfo
 
-__all__ = ["RerunSink", "camera", "DEFAULT_BIND", "DEFAULT_GRPC_PORT", "DEFAULT_WEB_PORT", "quiet_env"]
+__all__ = ["RerunSink", "camera", "probe_viewer", "bound_rerun_exit", "CONNECT_TIMEOUT", "DEFAULT_BIND",
+           "DEFAULT_GRPC_PORT", "DEFAULT_WEB_PORT", "quiet_env"]
 
 DEFAULT_BIND = "127.0.0.1"
 DEFAULT_GRPC_PORT = 9876
@@ -143,8 +144,20 @@ def _wait_listening(host: str, port: int, timeout: float, proc: subprocess.Popen
     return False
 
 
-def probe_url(url: str, timeout: float = 2.0) -> str | None:
-    """None when a TCP connection to the URL's host and port opens, else why not."""
+#: s a Rerun viewer at ``connect`` has to answer a connection, and to take a run's data.
+CONNECT_TIMEOUT = 10.0
+_H2_PREFACE = b"PRI * HTTP/2.0\r\n\r\nSM\r\n\r\n" + b"\x00\x00\x00\x04\x00\x00\x00\x00\x00"  # + empty SETTINGS
+
+
+def probe_viewer(url: str, timeout: float = CONNECT_TIMEOUT) -> str | None:
+    """None when a Rerun viewer (a gRPC server) answers at ``url`` within ``timeout`` s,
+    else why not, in words: an unsupported URL, a closed port, a host that cannot be
+    reached, a peer that accepts the connection and never answers (its HTTP/2 settings for
+    ``rerun+http``, the TLS handshake for ``rerun+https`` and ``rerun``), or one that
+    answers as something else.
+
+    A TCP connection alone proves nothing: the Rerun SDK waits for a peer that accepts and
+    never answers without end (when it flushes, disconnects, and at interpreter exit)."""
     parts = urlsplit(url)
     if parts.scheme not in ("rerun", "rerun+http", "rerun+https", "http", "https"):
         return f"unsupported URL scheme {parts.scheme!r} (use rerun+http://HOST:PORT/proxy)"
@@ -152,14 +165,76 @@ def probe_url(url: str, timeout: float = 2.0) -> str | None:
     if not host:
         return "the URL names no host"
     try:
-        port = parts.port or (443 if parts.scheme.endswith("https") else 9876)
+        port = parts.port or (9876 if parts.scheme.startswith("rerun") else 443 if parts.scheme == "https" else 80)
     except ValueError as exc:
-        return f"bad port in URL: {exc}"
+        return f"bad port in the URL ({exc})"
+    tls = parts.scheme in ("rerun", "rerun+https", "https")
+    deadline = time.monotonic() + timeout
     try:
-        with socket.create_connection((host, port), timeout=timeout):
-            return None
+        sock = socket.create_connection((host, port), timeout=timeout)
+    except socket.timeout:
+        return f"no connection within {timeout:g} s"
     except OSError as exc:
-        return f"{exc.strerror or exc}"
+        return exc.strerror or str(exc)
+    try:
+        sock.settimeout(max(0.05, deadline - time.monotonic()))
+        if tls:
+            import ssl
+
+            ctx = ssl.create_default_context()
+            ctx.set_alpn_protocols(["h2"])
+            try:
+                ctx.wrap_socket(sock, server_hostname=host).close()
+            except ssl.SSLError:
+                return None  # it answered (a certificate problem is the SDK's to report, within the deadline)
+            return None
+        sock.sendall(_H2_PREFACE)
+        got = b""
+        while len(got) < 9:
+            sock.settimeout(max(0.05, deadline - time.monotonic()))
+            piece = sock.recv(9 - len(got))
+            if not piece:
+                return "the peer closed the connection without answering (not a Rerun viewer?)"
+            got += piece
+        if got[3] != 0x04:  # the first frame an HTTP/2 server sends is its SETTINGS
+            return "the peer answered, but not as an HTTP/2 (gRPC) server: not a Rerun viewer?"
+        return None
+    except socket.timeout:
+        return f"the peer accepted the connection but did not answer within {timeout:g} s"
+    except OSError as exc:
+        return exc.strerror or str(exc)
+    finally:
+        sock.close()
+
+
+_EXIT_BOUNDED = False
+_ABANDONED: list = []  # recording streams whose peer stopped answering (RerunSink.abandon)
+
+
+def bound_rerun_exit(limit: float = 5.0) -> None:
+    """Let this process's exit wait at most ``limit`` s for Rerun's own shutdown.
+
+    The Rerun SDK flushes every recording at interpreter exit (an ``atexit`` handler), and
+    waits without end for a peer that stopped taking data. Once such a peer was given up,
+    that handler is replaced by one that runs it on a thread and waits at most ``limit`` s
+    (what the other recordings of the process have still gets its chance)."""
+    global _EXIT_BOUNDED
+    if _EXIT_BOUNDED:
+        return
+    import atexit
+    import threading
+
+    import rerun as rr
+
+    rr.unregister_shutdown()
+
+    def bounded() -> None:
+        th = threading.Thread(target=rr.rerun_shutdown, name="qchain-rerun-shutdown", daemon=True)
+        th.start()
+        th.join(limit)
+
+    atexit.register(bounded)
+    _EXIT_BOUNDED = True
 
 
 def rerun_cli() -> str | None:
@@ -192,7 +267,8 @@ class RerunSink:
 
     def __init__(self, info: RunInfo, *, serve: bool = False, connect: str | None = None,
                  rrd: str | os.PathLike | None = None, bind: str = DEFAULT_BIND, grpc_port: int | None = None,
-                 web_port: int | None = None, recording_id: str, server_memory_limit: str = "1GiB", warn):
+                 web_port: int | None = None, recording_id: str, server_memory_limit: str = "1GiB", warn,
+                 viewer_timeout: float = CONNECT_TIMEOUT):
         self.info = info
         self.rec = None
         self.viewer_url: str | None = None
@@ -210,8 +286,8 @@ class RerunSink:
         sinks = []
         if rrd is not None:
             sinks.append(rr.FileSink(os.fspath(rrd)))
-        if connect:
-            why = probe_url(connect)
+        if connect:  # a viewer that does not answer would hold this process without end
+            why = probe_viewer(connect, viewer_timeout)
             if why is None:
                 sinks.append(rr.GrpcSink(connect))
             else:
@@ -432,3 +508,19 @@ class RerunSink:
             self.rec = None
         self._stop_web()
         self.serving = False
+
+    def abandon(self) -> None:
+        """Never wait for this stream's peer again (it stopped answering): the stream is
+        kept for the life of the process (collecting it, Rerun flushes it, and so waits for
+        the peer without end, at the latest at interpreter exit) and Rerun's own exit
+        handler is bounded (:func:`bound_rerun_exit`)."""
+        rec = self.rec
+        if rec is not None and rec not in _ABANDONED:
+            _ABANDONED.append(rec)
+            try:  # also through the interpreter's teardown, which clears module globals
+                import ctypes
+
+                ctypes.pythonapi.Py_IncRef(ctypes.py_object(rec))
+            except (ImportError, AttributeError, OSError):  # pragma: no cover - not CPython
+                pass
+        bound_rerun_exit()

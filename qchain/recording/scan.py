@@ -1,4 +1,4 @@
-"""MCAP records one by one, with resynchronisation after damage.
+"""MCAP records one by one, with resynchronisation after damage, within a reading budget.
 
 The mcap library's ``StreamReader`` stops at the first damaged record, so one flipped bit
 in a chunk would lose every intact chunk after it. :func:`scan` parses the records with
@@ -8,6 +8,12 @@ damage and searches forward for the next record it can trust: a chunk whose unco
 data match its CRC, or a metadata record whose qchain seal matches. Every byte between is
 reported as damaged; nothing after it is lost.
 
+Given a :class:`~qchain.recording.bounded.Budget`, a scan processes at most the bytes and
+records it allows (:class:`~qchain.recording.bounded.LimitExceeded` past them): a chunk is
+decompressed to at most what the budget has left whatever sizes it declares, the records
+inside are counted, and the search past damage costs the bytes it examines and is linear
+in the file's size (candidates are found by one regular expression, not a ``find`` a byte).
+
 :func:`scan` also reads a file that is still being written (``final=False``): it stops
 before a record that is not complete yet and says where to resume.
 """
@@ -15,14 +21,16 @@ before a record that is not complete yet and says where to resume.
 from __future__ import annotations
 
 import io
+import re
 import struct
+import zlib
 from dataclasses import dataclass, field
 
 from mcap.data_stream import ReadDataStream
 from mcap.opcode import Opcode
-from mcap.records import Chunk, Footer, Metadata
-from mcap.stream_reader import breakup_chunk
+from mcap.records import Channel, Chunk, Footer, Message, Metadata, Schema
 
+from .bounded import Budget, LimitExceeded, decompress
 from .records import unseal
 
 __all__ = ["MAGIC", "Item", "scan", "summary_chunks"]
@@ -30,15 +38,20 @@ __all__ = ["MAGIC", "Item", "scan", "summary_chunks"]
 MAGIC = b"\x89MCAP0\r\n"
 _HEAD = struct.Struct("<BQ")
 _CHUNK_FIXED = struct.Struct("<QQQII")  # start, end, uncompressed size, crc, compression length
+_MESSAGE_FIXED = struct.Struct("<HIQQ")  # channel id, sequence, log time, publish time
 _KNOWN = {int(op) for op in Opcode}
 _COMPRESSIONS = ("", "zstd", "lz4")
+#: Where a record a resynchronisation may trust can start: a chunk, metadata or footer
+#: opcode followed by a length below 2**40 (no record of a file under a terabyte is longer).
+_CANDIDATE = re.compile(rb"[\x02\x06\x0c](?=.{5}\x00\x00\x00)", re.DOTALL)
 
 
 @dataclass
 class Item:
     """One thing :func:`scan` found.
 
-    ``kind`` is ``"chunk"`` (``records``: the records inside, ``chunk``: its header),
+    ``kind`` is ``"chunk"`` (``records``: the records inside, ``chunk``: its header,
+    ``reason``: a size field found damaged while the data are intact, else ""),
     ``"metadata"`` (``record``), ``"footer"``, ``"record"`` (any other intact record,
     ``record`` is None: skipped by length), ``"damage"`` (``reason``; ``end`` is where
     reading went on) or ``"end"`` (the file ends inside a record, ``reason``). Offsets are
@@ -55,40 +68,98 @@ class Item:
     reason: str = ""
 
 
-def _chunk(buf, pos: int, length: int) -> tuple[Chunk, list]:
-    """The chunk record at ``pos`` (its body ``length`` bytes) and its records; raises
-    ValueError on any damage."""
+def _records(data: bytes, budget: Budget | None, offset: int) -> list:
+    """The records inside a chunk's uncompressed ``data`` (the library's record classes);
+    records of an opcode the format does not know are skipped, as the library does."""
+    out = []
+    n = len(data)
+    view = memoryview(data)
+    p = 0
+    count = 0
+    left = budget.records_left if budget is not None else None
+    while p < n:
+        if n - p < 9:
+            raise ValueError("a record cut at the end of the chunk data")
+        opcode, length = _HEAD.unpack_from(data, p)
+        e = p + 9 + length
+        if e > n:
+            raise ValueError(f"a record inside the chunk claims {length} bytes, past the chunk's end")
+        if opcode == Opcode.MESSAGE:
+            if length < _MESSAGE_FIXED.size:
+                raise ValueError("a message record too short")
+            cid, seq, log_time, publish_time = _MESSAGE_FIXED.unpack_from(data, p + 9)
+            out.append(Message(channel_id=cid, sequence=seq, log_time=log_time, publish_time=publish_time,
+                               data=bytes(view[p + 9 + _MESSAGE_FIXED.size : e])))
+        elif opcode in (Opcode.CHANNEL, Opcode.SCHEMA):
+            stream = ReadDataStream(io.BytesIO(view[p + 9 : e]))
+            out.append((Channel if opcode == Opcode.CHANNEL else Schema).read(stream))
+        elif opcode in _KNOWN or opcode == 0:
+            raise ValueError(f"a record of opcode 0x{opcode:02x} inside a chunk")
+        p = e
+        count += 1
+        if left is not None and count > left:
+            budget.count(count, offset)  # raises
+    if budget is not None:
+        budget.count(count, offset)
+    return out
+
+
+def _chunk(buf, pos: int, length: int, budget: Budget | None = None) -> tuple[Chunk, list, str]:
+    """The chunk record at ``pos`` (its body ``length`` bytes), its records and a note (a
+    damaged size field whose data are intact); raises ValueError on any damage,
+    :class:`LimitExceeded` past the budget."""
     body = pos + 9
     if length < _CHUNK_FIXED.size + 8:
         raise ValueError("chunk record too short")
-    _, _, usize, _, clen = _CHUNK_FIXED.unpack_from(buf, body)
+    start_t, end_t, usize, crc, clen = _CHUNK_FIXED.unpack_from(buf, body)
     if clen > 8 or length < _CHUNK_FIXED.size + clen + 8:
         raise ValueError("chunk compression field damaged")
     (dlen,) = struct.unpack_from("<Q", buf, body + _CHUNK_FIXED.size + clen)
     if _CHUNK_FIXED.size + clen + 8 + dlen != length:
         raise ValueError("chunk lengths disagree")
-    if usize > 1 << 32:
+    if budget is None and usize > 1 << 32:
         raise ValueError("chunk size field damaged")
-    chunk = Chunk.read(ReadDataStream(io.BytesIO(bytes(buf[body : body + length]))))
-    if chunk.compression not in _COMPRESSIONS:
-        raise ValueError(f"unknown compression {chunk.compression!r}")
-    if chunk.uncompressed_crc == 0:
-        raise ValueError("chunk without a CRC")
     try:
-        records = breakup_chunk(chunk, validate_crc=True)
-    except ValueError:
+        compression = bytes(buf[body + _CHUNK_FIXED.size : body + _CHUNK_FIXED.size + clen]).decode()
+    except UnicodeDecodeError:
+        raise ValueError("chunk compression field damaged") from None
+    if compression not in _COMPRESSIONS:
+        raise ValueError(f"unknown compression {compression!r}")
+    if crc == 0:
+        raise ValueError("chunk without a CRC")
+    a = body + _CHUNK_FIXED.size + clen + 8
+    if budget is not None:
+        budget.spend(dlen, pos)
+    data = bytes(buf[a : a + dlen])
+    raw = decompress(compression, data, usize, budget, pos)
+    if zlib.crc32(raw) != crc:
+        if len(raw) != usize:
+            raise ValueError(f"its data decompress to {'more than ' if len(raw) > usize else ''}{len(raw)} "
+                             f"bytes, not the {usize} it declares, and fail its CRC")
+        raise ValueError("CRC mismatch")
+    note = "" if len(raw) == usize else (f"the chunk at byte {pos} declares {usize} bytes uncompressed, its data "
+                                         f"are {len(raw)} (they match its CRC: read, nothing lost)")
+    try:
+        records = _records(raw, budget, pos)
+    except (ValueError, LimitExceeded):
         raise
-    except Exception as exc:  # zstd errors, a damaged record inside, ...
+    except Exception as exc:  # the library's EndOfFile, struct and UTF-8 errors on a damaged record inside
         raise ValueError(f"{type(exc).__name__}: {exc}") from None
-    return chunk, records
+    chunk = Chunk(compression=compression, data=data, message_start_time=start_t, message_end_time=end_t,
+                  uncompressed_crc=crc, uncompressed_size=usize)
+    return chunk, records, note
 
 
-def _metadata(buf, pos: int, length: int) -> Metadata:
-    rec = Metadata.read(ReadDataStream(io.BytesIO(bytes(buf[pos + 9 : pos + 9 + length]))))
-    return rec
+def _metadata(buf, pos: int, length: int, budget: Budget | None = None) -> Metadata:
+    if budget is not None:
+        budget.spend(length, pos)
+    try:
+        return Metadata.read(ReadDataStream(io.BytesIO(bytes(buf[pos + 9 : pos + 9 + length]))))
+    except Exception as exc:  # EndOfFile, struct and UTF-8 errors of a damaged record
+        raise ValueError(f"{type(exc).__name__}: {exc}") from None
 
 
-def _trusted_at(buf, pos: int, size: int) -> Item | None:
+def _trusted_at(buf, pos: int, size: int, budget: Budget | None = None) -> Item | None:
     """The record at ``pos`` if it is one a resynchronisation may trust, else None."""
     if size - pos < 9:
         return None
@@ -98,39 +169,40 @@ def _trusted_at(buf, pos: int, size: int) -> Item | None:
         return None
     if opcode == Opcode.CHUNK:
         try:
-            chunk, records = _chunk(buf, pos, length)
-        except (ValueError, struct.error, UnicodeDecodeError):
+            chunk, records, note = _chunk(buf, pos, length, budget)
+        except ValueError as exc:
+            if isinstance(exc, LimitExceeded):
+                raise
             return None
-        return Item("chunk", pos, end, opcode, records=records, chunk=chunk)
+        return Item("chunk", pos, end, opcode, records=records, chunk=chunk, reason=note)
     if opcode == Opcode.METADATA and length < 1 << 28:
         try:
-            rec = _metadata(buf, pos, length)
-        except Exception:
+            rec = _metadata(buf, pos, length, budget)
+        except ValueError as exc:
+            if isinstance(exc, LimitExceeded):
+                raise
             return None
-        if rec.name.startswith("qchain") and unseal(rec.metadata) is not None:
-            return Item("metadata", pos, end, opcode, record=rec)
+        if rec.name.startswith("qchain"):
+            if budget is not None:
+                budget.spend(length, pos)  # the seal's check
+            if unseal(rec.metadata) is not None:
+                return Item("metadata", pos, end, opcode, record=rec)
         return None
     if opcode == Opcode.FOOTER and length == 20 and bytes(buf[end : end + 8]) == MAGIC:
         return Item("footer", pos, end + 8, opcode)
     return None
 
 
-def _resync(buf, start: int, size: int) -> Item | None:
-    """The first trusted record at or after ``start``."""
-    pos = start
-    candidates = (Opcode.CHUNK, Opcode.METADATA, Opcode.FOOTER)
-    while pos < size:
-        nxt = min((i for i in (buf.find(bytes([op]), pos, size) for op in candidates) if i >= 0), default=-1)
-        if nxt < 0:
-            return None
-        item = _trusted_at(buf, nxt, size)
+def _resync(buf, start: int, size: int, budget: Budget | None = None) -> Item | None:
+    """The first trusted record at or after ``start`` (linear in the bytes searched)."""
+    for m in _CANDIDATE.finditer(buf, start, size):
+        item = _trusted_at(buf, m.start(), size, budget)
         if item is not None:
             return item
-        pos = nxt + 1
     return None
 
 
-def scan(buf, start: int = len(MAGIC), final: bool = True):
+def scan(buf, start: int = len(MAGIC), final: bool = True, budget: Budget | None = None):
     """Items of the MCAP data in ``buf`` (bytes, bytearray or mmap) from ``start`` on.
 
     Parameters
@@ -143,6 +215,13 @@ def scan(buf, start: int = len(MAGIC), final: bool = True):
         The file is complete as it stands. If False (a file still being written), a record
         not complete yet ends the scan without an ``"end"`` item; the last item's ``end`` is
         where to resume.
+    budget : Budget or None
+        What the scan may process (None: no limit, for a file this process wrote).
+
+    Raises
+    ------
+    LimitExceeded
+        The budget is spent (a decompression bomb, crafted lengths, too many records).
 
     Yields
     ------
@@ -163,7 +242,7 @@ def scan(buf, start: int = len(MAGIC), final: bool = True):
         elif end > size:
             if not final:
                 return  # a record still being written
-            nxt = _resync(buf, pos + 1, size)
+            nxt = _resync(buf, pos + 1, size, budget)
             if nxt is None:
                 yield Item("end", pos, size, opcode, reason=f"the file ends inside a record at byte {pos}")
                 return
@@ -171,10 +250,10 @@ def scan(buf, start: int = len(MAGIC), final: bool = True):
         else:
             try:
                 if opcode == Opcode.CHUNK:
-                    chunk, records = _chunk(buf, pos, length)
-                    yield Item("chunk", pos, end, opcode, records=records, chunk=chunk)
+                    chunk, records, note = _chunk(buf, pos, length, budget)
+                    yield Item("chunk", pos, end, opcode, records=records, chunk=chunk, reason=note)
                 elif opcode == Opcode.METADATA:
-                    yield Item("metadata", pos, end, opcode, record=_metadata(buf, pos, length))
+                    yield Item("metadata", pos, end, opcode, record=_metadata(buf, pos, length, budget))
                 elif opcode == Opcode.FOOTER:
                     Footer.read(ReadDataStream(io.BytesIO(bytes(buf[pos + 9 : end]))))
                     if bytes(buf[end : end + 8]) != MAGIC:
@@ -189,11 +268,13 @@ def scan(buf, start: int = len(MAGIC), final: bool = True):
                     yield Item("record", pos, end, opcode)
                 pos = end
                 continue
+            except LimitExceeded:
+                raise
             except (ValueError, struct.error, UnicodeDecodeError) as exc:
                 why = f"{Opcode(opcode).name.lower()} record at byte {pos} is damaged ({exc})"
             except Exception as exc:  # the library's own errors on a damaged record
                 why = f"record at byte {pos} is damaged ({type(exc).__name__}: {exc})"
-        nxt = _resync(buf, pos + 1, size)
+        nxt = _resync(buf, pos + 1, size, budget)
         if nxt is None:
             if not final:
                 return  # maybe the rest is still coming
@@ -222,17 +303,18 @@ def summary_chunks(buf) -> list | None:
     start, offsets, crc = struct.unpack_from("<QQI", buf, fpos + 9)
     if not (len(MAGIC) <= start <= fpos) or crc == 0:
         return None
-    import zlib
-
     got = zlib.crc32(bytes(buf[start:fpos]))
     got = zlib.crc32(struct.pack("<BQQQ", Opcode.FOOTER, 20, start, offsets), got)
     if got != crc:
         return None
     out = []
     pos = start
-    while pos + 9 <= fpos:
-        opcode, length = _HEAD.unpack_from(buf, pos)
-        if opcode == Opcode.CHUNK_INDEX:
-            out.append(ChunkIndex.read(ReadDataStream(io.BytesIO(bytes(buf[pos + 9 : pos + 9 + length])))))
-        pos += 9 + length
+    try:
+        while pos + 9 <= fpos:
+            opcode, length = _HEAD.unpack_from(buf, pos)
+            if opcode == Opcode.CHUNK_INDEX and pos + 9 + length <= fpos:
+                out.append(ChunkIndex.read(ReadDataStream(io.BytesIO(bytes(buf[pos + 9 : pos + 9 + length])))))
+            pos += 9 + length
+    except Exception:  # a summary whose CRC matches but whose records do not parse: not used
+        return None
     return out

@@ -10,6 +10,15 @@ connection close, reads the journal to its end and finishes the recording, with 
 outcome saying so; then it removes the journal. For an in-memory stream the writer is a
 thread of the simulating process fed through a queue (no journal: a stream dies with the
 process anyway).
+
+A Rerun viewer at a URL (``connect``) is fed from a thread of its own
+(:class:`RemoteViewer`): the Rerun SDK holds a sender without end when its peer stops
+taking data (its queue full, its flush, its disconnect, its exit), so only that thread can
+be held; a viewer that takes nothing for ``viewer_timeout`` s is given up with one warning,
+and the recording and the ``.rrd`` file never wait for it. At the end the writer process
+says "finished" (the recording complete, the journal removed) before it waits for the
+viewer, then takes its leave of Rerun within :data:`TEARDOWN_LIMIT` s and ends with
+``os._exit``: no writer outlives its run by more than that.
 """
 
 from __future__ import annotations
@@ -30,16 +39,196 @@ import numpy as np
 
 from .records import Batch, RecordLayout, RunInfo
 
-__all__ = ["Sinks", "ThreadWriter", "launch", "prepare_writer", "take_spare", "WRITER_POLL"]
+__all__ = ["Sinks", "RemoteViewer", "ThreadWriter", "launch", "prepare_writer", "take_spare", "WRITER_POLL",
+           "TEARDOWN_LIMIT", "BEAT_INTERVAL"]
 
 #: s between two reads of the journal when the writer is idle.
 WRITER_POLL = 0.02
 #: Wall time (s) records gather in the writer before they go to Rerun in one batch.
 DEFAULT_RERUN_LATENCY = 0.2
+#: s the writer's leave of Rerun (disconnect, servers stopped) may take before it exits anyway.
+TEARDOWN_LIMIT = 5.0
+#: s between two signs of life of the writer while it finishes a recording.
+BEAT_INTERVAL = 1.0
+
+
+def _bounded(fn, limit: float, name: str) -> bool:
+    """Run ``fn()`` on a daemon thread; True if it returned within ``limit`` s (its
+    exceptions are dropped: this is for taking leave)."""
+    def run():
+        try:
+            fn()
+        except Exception:
+            pass
+
+    th = threading.Thread(target=run, name=name, daemon=True)
+    th.start()
+    th.join(limit)
+    return not th.is_alive()
+
+
+class RemoteViewer:
+    """A Rerun viewer at a URL, fed by a thread of its own.
+
+    The Rerun SDK waits without end for a peer that stops taking data: once about 100 MB
+    are queued its ``send_columns`` blocks, and its ``flush`` (whatever its timeout then)
+    and ``disconnect`` wait for the peer. Here only the feeding thread can be held up: a
+    viewer that has taken nothing for ``timeout`` s (a call of the thread that has not
+    returned, a flush that timed out) is given up, said once with ``warn``, and fed no more.
+
+    Parameters
+    ----------
+    sink : RerunSink
+        Connected to the viewer (``sink.rec`` set).
+    url : str
+    timeout : float, s
+    warn : callable(str)
+    """
+
+    def __init__(self, sink, url: str, timeout: float, warn):
+        self.sink, self.url, self.timeout, self.warn = sink, url, float(timeout), warn
+        self.stalled: str | None = None  # why the viewer was given up
+        self.fed = False
+        self._cv = threading.Condition()
+        self._ops: list = []
+        self._busy_since: float | None = None  # when the thread's current Rerun call began
+        self._thread = threading.Thread(target=self._loop, name="qchain-rerun-remote", daemon=True)
+        self._thread.start()
+
+    # -- the caller's side (never blocks on Rerun) --------------------------------------
+
+    def put(self, b: Batch) -> None:
+        """Queue a batch for the viewer (dropped once it is given up)."""
+        if self.stalled is not None or self._stuck():
+            return
+        with self._cv:
+            self._ops.append(("batch", b))
+            self._cv.notify()
+        self.fed = True
+
+    def flush(self) -> str | None:
+        """Wait until the viewer has taken everything queued so far; None when it has,
+        else why not (the viewer is then given up)."""
+        return self._do("flush", self.timeout + 2.0)
+
+    def finish(self) -> str | None:
+        """Flush, then disconnect (bounded); None when the viewer took everything. (A
+        flush may return while the data only sit in the system's buffers: a peer that
+        stalled then holds the disconnect.)"""
+        why = self.flush()
+        if why is None and not self._do("disconnect", TEARDOWN_LIMIT, give_up=False):
+            self._give_up(f"it did not close the connection within {TEARDOWN_LIMIT:g} s")
+            why = self.stalled
+        return why
+
+    def close(self) -> None:
+        """Stop feeding; the thread ends when its call returns (or with the process)."""
+        with self._cv:
+            self._ops.append(("stop", None))
+            self._cv.notify()
+
+    def _stuck(self) -> bool:
+        since = self._busy_since
+        if since is not None and time.monotonic() - since > self.timeout:
+            self._give_up(f"it has taken no data for {self.timeout:g} s")
+            return True
+        return False
+
+    def _give_up(self, why: str) -> None:
+        if self.stalled is not None:
+            return
+        self.stalled = why
+        with self._cv:
+            self._ops.clear()
+            self._ops.append(("stop", None))
+            self._cv.notify()
+        bound_exit(self.sink)  # this process's exit must not wait for that peer either
+        self.warn(f"the Rerun viewer at {self.url} stopped answering ({why}) and was given up; the MCAP log is not "
+                  "affected")
+
+    def _do(self, kind: str, limit: float, give_up: bool = True):
+        """Queue ``kind`` and wait for it: its result, or why not after ``limit`` s of a
+        call that does not return."""
+        if self.stalled is not None:
+            return self.stalled if kind == "flush" else False
+        box: list = []
+        done = threading.Event()
+        with self._cv:
+            self._ops.append((kind, (box, done)))
+            self._cv.notify()
+        while not done.wait(0.05):
+            since = self._busy_since
+            if self.stalled is not None or not self._thread.is_alive():
+                break
+            if since is not None and time.monotonic() - since > limit:
+                if give_up:
+                    self._give_up(f"it has taken no data for {self.timeout:g} s")
+                break
+        if kind == "flush":
+            if box and box[0] is not None:
+                self._give_up(box[0])
+            return self.stalled if not box or box[0] is not None else None
+        return bool(box)
+
+    # -- the feeding thread ---------------------------------------------------------------
+
+    def _loop(self) -> None:
+        while True:
+            with self._cv:
+                while not self._ops:
+                    self._cv.wait()
+                ops, self._ops = self._ops, []
+            batches = []
+            for kind, arg in ops:
+                if kind == "batch":
+                    batches.append(arg)
+                    continue
+                if batches:
+                    if not self._send(Batch.concatenate(batches) if len(batches) > 1 else batches[0]):
+                        return
+                    batches = []
+                if kind == "stop":
+                    return
+                box, done = arg
+                self._busy_since = time.monotonic()
+                try:
+                    if kind == "flush":
+                        try:
+                            self.sink.rec.flush(timeout_sec=self.timeout)
+                            box.append(None)
+                        except Exception:  # the SDK's "Flush timed out"
+                            box.append(f"it did not take the data within {self.timeout:g} s")
+                    else:  # disconnect
+                        self.sink.close()
+                        box.append(True)
+                finally:
+                    self._busy_since = None
+                    done.set()
+            if batches and not self._send(Batch.concatenate(batches) if len(batches) > 1 else batches[0]):
+                return
+
+    def _send(self, b: Batch) -> bool:
+        self._busy_since = time.monotonic()
+        try:
+            self.sink.write_batch(b)
+            return True
+        except Exception as exc:  # a viewer problem never stops the recording
+            self.stalled = self.stalled or f"Rerun failed: {type(exc).__name__}: {exc}"
+            self.warn(f"Rerun logging to {self.url} failed and is switched off ({type(exc).__name__}: {exc})")
+            return False
+        finally:
+            self._busy_since = None
+
+
+def bound_exit(sink) -> None:
+    """The stream of ``sink`` is never waited for again, nor (beyond TEARDOWN_LIMIT) this
+    process's exit."""
+    sink.abandon()
 
 
 class Sinks:
-    """The sinks one writer feeds: an MCAP recording and/or a Rerun view."""
+    """The sinks one writer feeds: an MCAP recording, a Rerun view of this machine (served,
+    an ``.rrd`` file) and a Rerun viewer at a URL (:class:`RemoteViewer`)."""
 
     def __init__(self, cfg: dict, mcap_stream: BinaryIO | None, warn):
         from .mcap_sink import McapSink
@@ -47,13 +236,16 @@ class Sinks:
         self.info = RunInfo.from_json(cfg["info"])
         self.warn = warn
         self.mcap: McapSink | None = None
-        self.rerun = None
+        self.rerun = None  # the Rerun view of this machine: served, .rrd
+        self.remote: RemoteViewer | None = None  # a viewer at a URL
         out = mcap_stream if mcap_stream is not None else cfg.get("mcap")
         if out is not None:
             self.mcap = McapSink(out, self.info, recording_id=cfg["recording_id"],
                                  flush_interval=cfg["flush_interval"], flush_wall_interval=cfg["flush_wall_interval"])
         self._rr_thread: threading.Thread | None = None
-        if cfg.get("serve") or cfg.get("connect"):  # before "ready": the URL, or a missing viewer, first
+        if cfg.get("connect"):  # before "ready": a viewer that does not answer is said first
+            self._start_remote(cfg)
+        if cfg.get("serve"):  # before "ready": the URL first
             self._start_rerun(cfg)
         elif cfg.get("rrd"):  # a .rrd file only: Rerun (a large import) comes up while the MCAP is written
             self._rr_thread = threading.Thread(target=self._start_rerun, args=(cfg,), name="qchain-rerun-start",
@@ -71,11 +263,26 @@ class Sinks:
         self._rr_count = 0
         self._rr_wall0 = 0.0
 
+    def _start_remote(self, cfg: dict) -> None:
+        from .rerun_sink import CONNECT_TIMEOUT, RerunSink
+
+        url = cfg["connect"]
+        timeout = float(cfg.get("viewer_timeout", CONNECT_TIMEOUT))
+        try:
+            sink = RerunSink(self.info, connect=url, recording_id=cfg["recording_id"], warn=lambda m: self.warn(m),
+                             viewer_timeout=timeout)
+        except Exception as exc:  # no viewer: say so, keep the MCAP
+            self.warn(f"Rerun could not start ({type(exc).__name__}: {exc}); the run goes on and the MCAP log is "
+                      "still written")
+            return
+        if sink.rec is not None:
+            self.remote = RemoteViewer(sink, url, timeout, lambda m: self.warn(m))
+
     def _start_rerun(self, cfg: dict) -> None:
         from .rerun_sink import DEFAULT_BIND, RerunSink
 
         try:
-            self.rerun = RerunSink(self.info, serve=bool(cfg.get("serve")), connect=cfg.get("connect"),
+            self.rerun = RerunSink(self.info, serve=bool(cfg.get("serve")),
                                    rrd=cfg.get("rrd"), bind=cfg.get("bind", DEFAULT_BIND),
                                    grpc_port=cfg.get("grpc_port"), web_port=cfg.get("web_port"),
                                    recording_id=cfg["recording_id"],
@@ -112,7 +319,8 @@ class Sinks:
         self.last_t = float(b.t[-1])
         if self.mcap is not None:
             self.mcap.write_batch(b)
-        if self._rr_thread is not None or (self.rerun is not None and self.rerun.rec is not None):
+        if self._rr_thread is not None or (self.rerun is not None and self.rerun.rec is not None) or \
+                self.remote is not None:
             if self._rr_dt > 0.0:  # a display rate: one record every rerun_rate-th of a second
                 keep = []
                 nxt, dt = self._rr_next, self._rr_dt
@@ -135,9 +343,13 @@ class Sinks:
         if not self._rerun_started(wait):
             return
         pending, self._rr_pending, self._rr_count = self._rr_pending, [], 0
-        if not pending or self.rerun is None or self.rerun.rec is None:
+        if not pending:
             return
         b = pending[0] if len(pending) == 1 else Batch.concatenate(pending)
+        if self.remote is not None:
+            self.remote.put(b)
+        if self.rerun is None or self.rerun.rec is None:
+            return
         try:
             self.rerun.write_batch(b)
         except Exception as exc:  # a viewer problem never stops the MCAP
@@ -156,7 +368,8 @@ class Sinks:
         geometry) goes at once, so a live viewer shows the arm as soon as it can."""
         th = self._rr_thread
         return ((th is None or not th.is_alive()) and self.rerun is not None and self.rerun.rec is not None
-                and not self.rerun.started)
+                and not self.rerun.started) or (self.remote is not None and not self.remote.fed
+                                                and self.remote.stalled is None)
 
     def flush(self) -> dict:
         """Everything so far into the files (MCAP chunk closed) and out to the viewer."""
@@ -168,12 +381,16 @@ class Sinks:
                 self.rerun.rec.flush(timeout_sec=10.0)
             except Exception as exc:  # pragma: no cover - best effort
                 self.warn(f"Rerun flush failed ({type(exc).__name__}: {exc})")
+        if self.remote is not None:
+            self.remote.flush()  # bounded; a viewer that took nothing is given up (and said)
         return {"n_records": self.n_records, "last_t": self.last_t}
 
     def finish(self, outcome: dict) -> dict:
-        self._send_rerun(wait=True)
+        """The recording finished first, then the Rerun view of this machine (the ``.rrd``
+        file finalised); a viewer at a URL is :meth:`finish_viewer`'s."""
         if self.mcap is not None:
             self.mcap.finish(outcome)
+        self._send_rerun(wait=True)
         if self.rerun is not None:
             try:
                 self.rerun.finish()
@@ -181,12 +398,24 @@ class Sinks:
                 self.warn(f"Rerun flush failed ({type(exc).__name__}: {exc})")
         return {"n_records": self.n_records, "last_t": self.last_t}
 
+    @property
+    def viewer_pending(self) -> bool:
+        """A viewer at a URL still to be given the rest of the data."""
+        return self.remote is not None and self.remote.stalled is None
+
+    def finish_viewer(self) -> str | None:
+        """Give a viewer at a URL the rest (within its timeout) and disconnect from it
+        (within :data:`TEARDOWN_LIMIT`); None when it took everything, else why not."""
+        return None if self.remote is None else self.remote.finish()
+
     def abandon(self) -> None:
         if self.mcap is not None:
             self.mcap.abandon()
 
     def close(self) -> None:
         self._rerun_started(wait=True)
+        if self.remote is not None:
+            self.remote.close()
         if self.rerun is not None:
             self.rerun.close()
 
@@ -264,6 +493,7 @@ class ThreadWriter:
             self.summary = sinks.finish(outcome)
         except Exception as exc:  # pragma: no cover - a stream that fails
             self.broken = f"the log writer could not finish ({type(exc).__name__}: {exc})"
+        sinks.finish_viewer()  # bounded; a viewer given up is warned of
 
 
 # --------------------------------------------------------------------------------------
@@ -271,15 +501,21 @@ class ThreadWriter:
 # --------------------------------------------------------------------------------------
 
 
-def _drain(journal, sinks: Sinks, final: bool = False) -> None:
+def _drain(journal, sinks: Sinks, final: bool = False, beat=None) -> None:
     for rows in journal.poll(final=final):
         sinks.write_rows(rows, journal.layout)
+        if beat is not None:
+            beat()
+
+
+_SEND_LOCK = threading.Lock()  # the feeding thread of a viewer may warn while the main thread sends
 
 
 def _send(conn: Connection, msg) -> bool:
     """Send to the simulating process; False when it is gone."""
     try:
-        conn.send(msg)
+        with _SEND_LOCK:
+            conn.send(msg)
         return True
     except OSError:
         return False
@@ -305,9 +541,23 @@ def process_main(fd: int) -> int:
     from .journal import JournalReader
 
     startup: list[str] = []
+    gone = threading.Event()  # the simulating process no longer listens
 
     def warn_live(msg: str) -> None:
-        print(f"qchain.logging: warning: {msg}", file=sys.stderr, flush=True)
+        """To the simulating process, which warns (once, in its own words); else to stderr."""
+        if gone.is_set() or not _send(conn, ("warning", msg)):
+            gone.set()
+            print(f"qchain.logging: warning: {msg}", file=sys.stderr, flush=True)
+
+    last_beat = [0.0]
+
+    def beat() -> None:
+        """A sign of life while the simulating process waits for the end."""
+        now = time.monotonic()
+        if now - last_beat[0] >= BEAT_INTERVAL and not gone.is_set():
+            last_beat[0] = now
+            if not _send(conn, ("progress", sinks.n_records)):
+                gone.set()
 
     try:
         sinks = Sinks(cfg, None, startup.append)
@@ -337,29 +587,33 @@ def process_main(fd: int) -> int:
                 alive = False
                 break
             if kind == "flush":
-                _drain(journal, sinks)
+                _drain(journal, sinks, beat=beat)
                 alive = _send(conn, ("flushed", sinks.flush()))
             elif kind == "end":
                 deadline = time.monotonic() + 60.0
                 while not journal.finished and time.monotonic() < deadline:
-                    _drain(journal, sinks, final=False)
+                    _drain(journal, sinks, final=False, beat=beat)
+                    beat()
                     if not journal.finished:
                         time.sleep(0.005)
-                _drain(journal, sinks, final=True)
+                _drain(journal, sinks, final=True, beat=beat)
                 outcome = dict(body)
         if outcome is None:  # the simulating process is gone: the journal holds all it logged
+            gone.set()
             _drain(journal, sinks, final=True)
             out = journal.outcome
             outcome = ({"success": out.get("success") == "true", "status": int(out.get("status", -1)),
                         "message": out.get("message", ""), "nfev": int(out.get("nfev", 0))} if out else
                        {"success": False, "status": -1,
                         "message": "the simulating process ended without closing its log (killed?)"})
+        beat()
         summary = sinks.finish(outcome)
     except Exception as exc:  # the disk full and the like: say so; the journal keeps the records
         msg = f"the log writer failed: {type(exc).__name__}: {exc}"
-        warn_live(msg)
+        print(f"qchain.logging: warning: {msg}", file=sys.stderr, flush=True)
         sinks.abandon()
         _send(conn, ("error", {"message": msg}))
+        _bounded(sinks.close, TEARDOWN_LIMIT, "qchain-rerun-close")
         return 1
     journal.close()
     if cfg.get("remove_journal", True):
@@ -367,14 +621,20 @@ def process_main(fd: int) -> int:
             Path(cfg["journal"]).unlink()
         except FileNotFoundError:
             pass
+    # the recording is complete: said before anything of Rerun's that may wait for a peer
+    summary["viewer_pending"] = sinks.viewer_pending
     alive = _send(conn, ("finished", summary)) and alive
+    if sinks.remote is not None:  # within its timeout; a viewer given up is warned of
+        taken = sinks.finish_viewer() is None
+        alive = alive and not gone.is_set() and _send(conn, ("viewer", {"taken": taken}))
     if alive:  # a served viewer stays up until the simulating process lets go
         try:
             while True:
                 conn.recv()
         except (EOFError, OSError):
             pass
-    sinks.close()
+    gone.set()
+    _bounded(sinks.close, TEARDOWN_LIMIT, "qchain-rerun-close")  # then os._exit, whatever Rerun still waits for
     return 0
 
 
@@ -388,6 +648,9 @@ def launch() -> tuple[subprocess.Popen, Connection]:
     env = dict(os.environ, OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1", MKL_NUM_THREADS="1")
     env["PYTHONPATH"] = os.pathsep.join(filter(None, [pkg_parent, env.get("PYTHONPATH")]))
     env.pop("PYTHONDONTWRITEBYTECODE", None)
+    # Rerun's own log lines about a viewer that stalls or goes away (its gRPC client, its
+    # flushes) would repeat, many times over, the one warning the writer gives of it
+    env.setdefault("RUST_LOG", "error,re_grpc_client=off,re_sdk::recording_stream=off,re_quota_channel=off")
     try:
         proc = subprocess.Popen(
             [sys.executable, "-m", "qchain.recording.writer", str(b.fileno())],
@@ -439,4 +702,13 @@ import atexit  # noqa: E402
 atexit.register(_stop_spares)
 
 if __name__ == "__main__":
-    sys.exit(process_main(int(sys.argv[1])))
+    _code = 1
+    try:
+        _code = process_main(int(sys.argv[1]))
+    finally:  # never the interpreter's exit: Rerun's exit handler waits for a stalled peer without end
+        for _f in (sys.stdout, sys.stderr):
+            try:
+                _f.flush()
+            except Exception:
+                pass
+        os._exit(_code)

@@ -1,0 +1,200 @@
+"""What ``qchain run`` writes and prints: the plots and ``trajectory.npz`` a scene's
+``[output]`` asks for, and the run summary (tip pose, energies, wall time, real-time
+factor, how the run ended)."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    import numpy as np
+
+    from .scene import Scene, SceneModel
+
+# --------------------------------------------------------------------------------------
+# outputs
+
+
+def tip_positions(model: SceneModel, traj) -> np.ndarray:
+    """World tip positions (N, 3) m of a trajectory."""
+    import numpy as np
+
+    ch = model.chain
+    return np.array([ch.tip_placement(q, t=t).translation for t, q in zip(traj.t, traj.q)])
+
+
+def write_outputs(scene: Scene, model: SceneModel, traj, folder: Path, plots=None, save: bool | None = None) -> list[Path]:
+    """Write the plots (PNG) and ``trajectory.npz`` of a run into ``folder``; return the paths.
+
+    Parameters
+    ----------
+    plots : sequence of str, optional
+        Names from :data:`qchain.scene.PLOTS`; default the scene's ``output.plots``.
+    save : bool, optional
+        Write ``trajectory.npz`` (``t, q, v, p, kinetic_energy, potential_energy, tip``
+        and ``success``, ``message``); default the scene's ``output.save``.
+    """
+    import matplotlib
+    import numpy as np
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    plots = scene.plots if plots is None else tuple(plots)
+    save = scene.save if save is None else save
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    written: list[Path] = []
+    t = traj.t
+    tip = tip_positions(model, traj) if len(t) else np.zeros((0, 3))
+    title = scene.name or (scene.path.stem if scene.path else "scene")
+
+    def finish(fig, name):
+        path = folder / name
+        fig.tight_layout()
+        fig.savefig(path, dpi=110)
+        plt.close(fig)
+        written.append(path)
+
+    if "tip" in plots:
+        fig, ax = plt.subplots(figsize=(8, 4))
+        for k, c in enumerate("xyz"):
+            ax.plot(t, tip[:, k] * 1e3, label=c)
+        ax.set_xlabel("t (s)")
+        ax.set_ylabel("tip position, world (mm)")
+        ax.set_title(f"{title}: tip position")
+        ax.legend()
+        ax.grid(alpha=0.3)
+        finish(fig, "tip.png")
+    if "arm" in plots:
+        fig = plot_arm(model, traj, tip, title)
+        finish(fig, "arm.png")
+    if "energy" in plots:
+        fig, ax = plt.subplots(figsize=(8, 4))
+        ax.plot(t, traj.kinetic_energy, label="kinetic")
+        ax.plot(t, traj.potential_energy, label="potential (gravity + elastic)")
+        ax.plot(t, traj.total_energy, "k", label="total")
+        ax.set_xlabel("t (s)")
+        ax.set_ylabel("energy (J)")
+        ax.set_title(f"{title}: energies")
+        ax.legend()
+        ax.grid(alpha=0.3)
+        finish(fig, "energy.png")
+    if "pressure" in plots:
+        fig, ax = plt.subplots(figsize=(8, 4))
+        for k in range(traj.p.shape[1]):
+            ax.plot(t, traj.p[:, k] / 1e3, label=f"segment {k // 3}, chamber {k % 3 + 1}")
+        ax.set_xlabel("t (s)")
+        ax.set_ylabel("pressure (kPa)")
+        ax.set_title(f"{title}: chamber pressures")
+        ax.legend(fontsize=7, ncol=3)
+        ax.grid(alpha=0.3)
+        finish(fig, "pressure.png")
+    if "momentum" in plots and model.chain.floating and len(t):
+        h = momenta(model, traj)
+        fig, ax = plt.subplots(figsize=(8, 4))
+        for k, name in enumerate(["px", "py", "pz", "Lx", "Ly", "Lz"]):
+            ax.plot(t, h[:, k] - h[0, k], label=name)
+        ax.set_xlabel("t (s)")
+        ax.set_ylabel("momentum drift h(t) - h(0) (kg m/s, kg m^2/s)")
+        ax.set_title(f"{title}: world momentum drift (max {np.abs(h - h[0]).max():.2e})")
+        ax.legend(ncol=2)
+        ax.grid(alpha=0.3)
+        finish(fig, "momentum.png")
+    if save:
+        path = folder / "trajectory.npz"
+        np.savez_compressed(path, t=t, q=traj.q, v=traj.v, p=traj.p, kinetic_energy=traj.kinetic_energy,
+                            potential_energy=traj.potential_energy, tip=tip, success=traj.success,
+                            message=traj.message)
+        written.append(path)
+    return written
+
+
+def momenta(model: SceneModel, traj) -> np.ndarray:
+    """World momentum (N, 6) of a trajectory: linear (kg m/s), angular about the origin (kg m^2/s)."""
+    import numpy as np
+
+    ch = model.chain
+    return np.array([ch.momentum(q, v, t=t) for t, q, v in zip(traj.t, traj.q, traj.v)])
+
+
+def plot_arm(model: SceneModel, traj, tip: np.ndarray, title: str, snapshots: int = 8):
+    """Side (x-z) and top (x-y) views of the arm at ``snapshots`` times, with the tip path."""
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    ch = model.chain
+    fig, axes = plt.subplots(1, 2, figsize=(11, 5))
+    N = len(traj.t)
+    idx = np.unique(np.linspace(0, N - 1, min(snapshots, N)).round().astype(int)) if N else []
+    cmap = plt.get_cmap("viridis")
+    for (a, b), ax, view in (((0, 2), axes[0], "side view (x-z)"), ((0, 1), axes[1], "top view (x-y)")):
+        ax.plot(tip[:, a] * 1e3, tip[:, b] * 1e3, color="0.6", lw=1, label="tip path")
+        for n_, k in enumerate(idx):
+            pts = ch.backbone(traj.q[k], 16, t=traj.t[k]).reshape(-1, 3) * 1e3
+            c = cmap(n_ / max(1, len(idx) - 1))
+            ax.plot(pts[:, a], pts[:, b], color=c, lw=3, label=f"t = {traj.t[k]:.2f} s")
+            ax.plot(pts[0, a], pts[0, b], "ks", ms=4)
+        ax.set_aspect("equal", adjustable="datalim")
+        ax.set_xlabel(f"{'xyz'[a]} (mm)")
+        ax.set_ylabel(f"{'xyz'[b]} (mm)")
+        ax.set_title(view)
+        ax.grid(alpha=0.3)
+    axes[0].legend(fontsize=7)
+    fig.suptitle(f"{title}: arm snapshots")
+    return fig
+
+
+# --------------------------------------------------------------------------------------
+# summary
+
+
+def summary_lines(scene: Scene, model: SceneModel, traj, wall: float, message: str | None = None) -> list[str]:
+    """The run summary ``qchain run`` prints.
+
+    Parameters
+    ----------
+    scene, model : the run's scene and the model built from it
+    traj : Trajectory
+    wall : float, s
+        Wall time of the run (compiling excluded).
+    message : str, optional
+        How the run ended, instead of ``traj.message`` (e.g. an interrupt, with the time
+        the samples reach); a run with a message of its own is not a success.
+    """
+    import numpy as np
+    import pinocchio as pin
+
+    ok = traj.success and message is None
+    lines = [f"run: {'success' if ok else 'FAILED'}: {traj.message if message is None else message}"]
+    if len(traj.t) == 0:
+        return lines + ["no samples were recorded"]
+    t_end = float(traj.t[-1])
+    rtf = t_end / wall if wall > 0 else math.inf
+    lines.append(f"simulated {t_end:.6g} s in {wall:.3g} s wall time: {rtf:.3g} x real time; nfev = {traj.nfev}, "
+                 f"{len(traj.t)} samples, method {scene.method} ({traj.meta.get('engine', 'python')} engine)")
+    if traj.meta.get("compile_s", 0.0) > 0.05:
+        lines.append(f"  compiled or loaded the engine first in {traj.meta['compile_s']:.3g} s (not in the wall time)")
+    X = model.chain.tip_placement(traj.q[-1], t=t_end)
+    p = X.translation * 1e3
+    rpy = np.degrees(pin.rpy.matrixToRpy(X.rotation))
+    quat = pin.Quaternion(X.rotation).coeffs()  # x, y, z, w
+    lines.append(f"final tip (t = {t_end:.6g} s, world): position ({p[0]:.3f}, {p[1]:.3f}, {p[2]:.3f}) mm")
+    lines.append(f"  orientation rpy ({rpy[0]:.3f}, {rpy[1]:.3f}, {rpy[2]:.3f}) deg, quaternion xyzw "
+                 f"({quat[0]:.6f}, {quat[1]:.6f}, {quat[2]:.6f}, {quat[3]:.6f})")
+    reached = scene.bends(model.chain, traj)
+    line = f"largest bends reached (rad): {', '.join(f'{x:.3g}' for x in reached)}"
+    if model.max_bend is not None:
+        line += f"; nodes sized for {', '.join(sorted({f'{x:.3g}' for x in model.max_bend}))}"
+        over = np.flatnonzero(reached > model.max_bend)
+        if over.size:
+            j = int(over[0])
+            line += (f"\nwarning: segment {j} bent {reached[j]:.3g} rad, more than the {model.max_bend[j]:.3g} rad its "
+                     f"{model.nodes[j]} nodes were sized for: set model.max_bend in the scene")
+    lines.append(line)
+    ke, pe = traj.kinetic_energy, traj.potential_energy
+    lines.append(f"energies (J): kinetic {ke[-1]:.6g}, potential {pe[-1]:.6g} (gravity + elastic), total "
+                 f"{ke[-1] + pe[-1]:.6g}; at the start total {ke[0] + pe[0]:.6g}")
+    return lines
