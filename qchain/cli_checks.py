@@ -4,7 +4,6 @@ recording, ``--rrd``) and the Rerun viewer named by ``--connect``."""
 from __future__ import annotations
 
 import os
-import time
 from pathlib import Path
 
 from .cli_errors import BadInput
@@ -107,65 +106,11 @@ def check_output_folder(what: str, folder) -> Path:
     return p
 
 
-_H2_PREFACE = b"PRI * HTTP/2.0\r\n\r\nSM\r\n\r\n" + b"\x00\x00\x00\x04\x00\x00\x00\x00\x00"  # + empty SETTINGS
-
-
 def viewer_silence(url: str, timeout: float = CONNECT_TIMEOUT) -> str | None:
-    """None when a Rerun viewer (a gRPC server) answers at ``url`` within ``timeout`` s,
-    else why not, in words: a closed port, a host that cannot be reached, a peer that
-    accepts the connection and never answers (its HTTP/2 settings for ``rerun+http``, the
-    TLS handshake for ``rerun+https``), or one that answers as something else.
+    """None when a Rerun viewer answers at ``url`` within ``timeout`` s, else why not, in
+    words (:func:`qchain.recording.rerun_sink.probe_viewer`, which the recording and
+    ``qchain replay`` use too). The Rerun SDK waits for a peer that accepts and never
+    answers without end, so ``qchain run --connect`` asks first."""
+    from .recording.rerun_sink import probe_viewer  # (loads no Rerun: the command starts at once)
 
-    The Rerun SDK waits for a peer that accepts and never answers without end (also when
-    the run finishes), so ``qchain run --connect`` asks first.
-    """
-    import socket
-    from urllib.parse import urlsplit
-
-    parts = urlsplit(url)
-    if parts.scheme not in ("rerun", "rerun+http", "rerun+https", "http", "https"):
-        return f"unsupported URL scheme {parts.scheme!r} (use rerun+http://HOST:PORT/proxy)"
-    host = parts.hostname
-    if not host:
-        return "the URL names no host"
-    try:
-        port = parts.port or (9876 if parts.scheme.startswith("rerun") else 443 if parts.scheme == "https" else 80)
-    except ValueError as exc:
-        return f"bad port in the URL ({exc})"
-    tls = parts.scheme in ("rerun", "rerun+https", "https")
-    deadline = time.monotonic() + timeout
-    try:
-        sock = socket.create_connection((host, port), timeout=timeout)
-    except socket.timeout:
-        return f"no connection within {timeout:g} s"
-    except OSError as exc:
-        return exc.strerror or str(exc)
-    try:
-        if tls:
-            import ssl
-
-            ctx = ssl.create_default_context()
-            ctx.set_alpn_protocols(["h2"])
-            sock.settimeout(max(0.05, deadline - time.monotonic()))
-            try:
-                ctx.wrap_socket(sock, server_hostname=host).close()
-            except ssl.SSLError:
-                return None  # it answered (a certificate problem is the SDK's to report)
-            return None
-        sock.sendall(_H2_PREFACE)
-        got = b""
-        while len(got) < 9:
-            sock.settimeout(max(0.05, deadline - time.monotonic()))
-            piece = sock.recv(9 - len(got))
-            if not piece:
-                return "the peer closed the connection without answering (not a Rerun viewer?)"
-            got += piece
-        if got[3] != 0x04:  # the first frame an HTTP/2 server sends is its SETTINGS
-            return "the peer answered, but not as an HTTP/2 (gRPC) server: not a Rerun viewer?"
-        return None
-    except socket.timeout:
-        return f"the peer accepted the connection but did not answer within {timeout:g} s"
-    except OSError as exc:
-        return exc.strerror or str(exc)
-    finally:
-        sock.close()
+    return probe_viewer(url, timeout)

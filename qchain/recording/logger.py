@@ -218,7 +218,9 @@ class RunLogger:
             rr = self._thread.sinks.rerun
             self.grpc_url = rr.grpc_url if rr is not None else None
         else:
-            self._start_process(cfg, startup_timeout, bool(serve or connect))
+            # (a viewer at connect has viewer_timeout to answer before the writer is ready)
+            self._start_process(cfg, startup_timeout + (float(viewer_timeout) if connect else 0.0),
+                                bool(serve or connect))
         if self.viewer_url and not self.quiet:
             print(f"qchain: live Rerun viewer at {self.viewer_url}  (open it in a browser)", file=sys.stderr,
                   flush=True)
