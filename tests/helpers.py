@@ -1,5 +1,9 @@
 """Shared test parameters and assertions (not fixtures)."""
 
+import contextlib
+import faulthandler
+import signal
+
 import numpy as np
 
 SEGMENT_KW = dict(
@@ -39,3 +43,25 @@ def assert_regular_at_straight_pose(f, length, direction=(0.6, 0.8), rtol=1e-12)
         fk = np.asarray(f(q0 + k * d))
         assert np.all(np.isfinite(fk))
         assert np.linalg.norm(fk - f0 - k * slope) <= rtol * np.linalg.norm(f0), k
+
+
+class Hang(Exception):
+    """A block ran longer than its :func:`deadline`."""
+
+
+@contextlib.contextmanager
+def deadline(seconds: float, what: str = "the block"):
+    """Fail, not hang, when the block runs longer than ``seconds``: SIGALRM interrupts the
+    main thread's wait and raises :class:`Hang`, after printing every thread's stack
+    (where it hung)."""
+    def expired(signum, frame):
+        faulthandler.dump_traceback(all_threads=True)
+        raise Hang(f"{what} still running after {seconds} s: a hang (every thread's stack is above)")
+
+    old = signal.signal(signal.SIGALRM, expired)
+    signal.setitimer(signal.ITIMER_REAL, seconds)
+    try:
+        yield
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        signal.signal(signal.SIGALRM, old)

@@ -7,11 +7,9 @@ declared once (:mod:`qchain.scene_format`); the fuzz tests walk that declaration
 added there is fuzzed here without a new test.
 """
 
-import contextlib
 import math
 import os
 import re
-import signal
 import subprocess
 import sys
 import textwrap
@@ -22,6 +20,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from helpers import deadline
 from qchain import Chain, QchainError, Segment
 from qchain import bounds as B
 from qchain import scene_format as F
@@ -38,26 +37,6 @@ CLEAN = (SceneError,)  # the only exception a scene file may raise
 # fixed examples (CI sees the same ones every run), no example database written in the repository
 FUZZ = settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow], derandomize=True,
                 database=None)
-
-
-class Hang(Exception):
-    pass
-
-
-@contextlib.contextmanager
-def within(seconds: float):
-    """Turn a hang into a failure: raise :class:`Hang` after ``seconds`` of wall time."""
-
-    def alarm(signum, frame):
-        raise Hang(f"no answer in {seconds} s")
-
-    old = signal.signal(signal.SIGALRM, alarm)
-    signal.setitimer(signal.ITIMER_REAL, seconds)
-    try:
-        yield
-    finally:
-        signal.setitimer(signal.ITIMER_REAL, 0)
-        signal.signal(signal.SIGALRM, old)
 
 
 # --------------------------------------------------------------------------------------
@@ -168,7 +147,7 @@ FIELDS = [(t, f) for t in F.TABLES for f in t.fields]
 
 
 def problems(text: str, path="scene.toml") -> SceneError:
-    with within(20):
+    with deadline(20):
         with pytest.raises(SceneError) as exc:
             parse_scene(text, path)
     return exc.value
@@ -280,7 +259,7 @@ def test_any_toml_value_anywhere_gives_a_scene_or_a_scene_error(place, tree, kin
     if table == "base.motion" and base != "prescribed":
         table = ""
     put(d, table, key, tree)
-    with within(20):
+    with deadline(20):
         try:
             scene = parse_scene(to_toml(d), "tree.toml")
         except SceneError as err:
@@ -355,7 +334,7 @@ def test_valid_fuzzed_scenes_build_finite_models_and_describe_without_nan(data):
     d["gravity"] = data.draw(st.lists(st.floats(-1e4, 1e4), min_size=3, max_size=3))
     d["simulation"]["duration"] = data.draw(st.floats(1e-3, 10.0))
     d["output"] = {"sample_rate": data.draw(in_range(B.SAMPLE_RATE, low=1.0, high=1e4))}
-    with within(30):
+    with deadline(30):
         try:
             scene = parse_scene(to_toml(d), "fuzz.toml")
         except SceneError as err:
@@ -506,7 +485,7 @@ def test_scene_simulate_checks_its_duration_and_budget_before_running():
 def test_load_scene_refuses_what_is_not_a_readable_regular_file(tmp_path):
     fifo = tmp_path / "fifo.toml"
     os.mkfifo(fifo)
-    with within(10):
+    with deadline(10):
         with pytest.raises(SceneError, match=r"fifo.toml: \(file\): expected a regular scene file, found a FIFO"):
             load_scene(fifo)
     with pytest.raises(SceneError, match=r"expected a regular scene file, found a device"):
@@ -657,7 +636,7 @@ def test_simulate_refuses_bad_times_and_steps_by_name():
         (dict(budget="big"), TypeError, r"budget must be a qchain.budget.Budget"),
     ]
     for kw, exc, match in cases:
-        with within(20):
+        with deadline(20):
             with pytest.raises(exc, match=match):
                 simulate(ch, q, v, (0.0, 1.0), **kw)
     with pytest.raises(TypeError, match=r"t_span must be an array of real numbers \(complex"):
@@ -702,7 +681,7 @@ def test_a_run_that_turns_non_finite_stops_naming_quantity_segment_and_time(case
     with pytest.raises(ValueError, match=r"pressure\[0\] must be >= -101325 and <= 1e\+09 Pa, got 1e\+300 Pa"):
         simulate(ch, q, np.zeros(ch.nv), (0.0, 0.1), method=method, dt=1e-3, pressure=np.full(6, 1e300))
     monkeypatch.setattr(qchain.inputs, "input_range", lambda name: None)
-    with within(60):
+    with deadline(60):
         tr = simulate(ch, q, np.zeros(ch.nv), (0.0, 0.1), method=method, dt=1e-3, pressure=np.full(6, 1e300))
     assert tr.meta["engine"] == ("python" if coords == "paper" else "compiled")
     assert not tr.success and tr.status == -1
@@ -739,7 +718,7 @@ def test_fuzzed_simulate_arguments_give_a_clean_error_naming_the_argument(data):
         kw["method"] = "rk4"
     if name == "controller_rate":
         kw["pressure"] = lambda t, q, v: np.zeros(3)
-    with within(20):
+    with deadline(20):
         with pytest.raises((ValueError, TypeError)) as exc:
             simulate(ch, q, v, (0.0, 0.01), **kw)
     assert name in str(exc.value), str(exc.value)
@@ -800,7 +779,7 @@ HANG_SCRIPT = textwrap.dedent('''
 
 
 def test_former_hangs_are_refused_before_they_start():
-    with within(200):
+    with deadline(200):
         out = subprocess.run([sys.executable, "-c", HANG_SCRIPT], capture_output=True, text=True, timeout=180,
                              cwd=ROOT)
     assert out.returncode == 0, out.stderr
@@ -837,7 +816,7 @@ def _arm():
 ])
 def test_absurd_pressures_and_forces_are_refused_before_the_run_naming_the_argument(name, value, match):
     ch = _arm()
-    with within(20):
+    with deadline(20):
         with pytest.raises(ValueError, match=match):
             simulate(ch, ch.neutral(), np.zeros(6), (0.0, 1.0), **{name: value})
 
@@ -868,12 +847,12 @@ def test_a_controller_outside_the_range_stops_the_run_naming_the_call():
         calls.append(t)
         return np.full(6, 2e4) if t < 0.01 else np.array([0, 0, 0, 0, 0, 5e9])
 
-    with within(60):
+    with deadline(60):
         with pytest.raises(ValueError, match=r"pressure\(t, q, v\)\[5\] must be >= -101325 and <= 1e\+09 Pa, got "
                                              r"5e\+09 Pa"):
             simulate(ch, ch.neutral(), np.zeros(6), (0.0, 0.05), pressure=pump, method="RK45")
     assert calls and max(calls) >= 0.01  # it ran until the controller left the range
-    with within(60):  # held at 100 Hz by the compiled engine: checked at each hold too
+    with deadline(60):  # held at 100 Hz by the compiled engine: checked at each hold too
         with pytest.raises(ValueError, match=r"tau\(t\)\[0\] must be >= -1e\+15 and <= 1e\+15, got 1e\+20"):
             simulate(ch, ch.neutral(), np.zeros(6), (0.0, 0.05), tau=lambda t: np.full(6, 1e20 if t > 0.02 else 0.0),
                      controller_rate=100.0)
@@ -923,7 +902,7 @@ def test_a_batch_names_the_rollout_whose_pressure_is_out_of_range():
 
     ch = _arm()
     P = [np.full(6, 1e4), np.full(6, 1e4), Sine(np.full(6, 3e5), 1.0)]
-    with within(60):
+    with deadline(60):
         with pytest.raises(ValueError, match=r"pressure\[2\]\[0\] must stay >= -101325"):
             simulate_batch(ch, np.tile(ch.neutral(), (3, 1)), np.zeros((3, 6)), (0.0, 0.1), pressure=P, workers=1,
                            t_eval=np.linspace(0.0, 0.1, 11))
@@ -942,7 +921,7 @@ def test_fuzzed_pressures_and_forces_give_a_clean_error_naming_the_argument(data
     values[i] = bad
     kind = data.draw(st.sampled_from(["array", "Constant", "Step", "Ramp", "Sine offset", "Table"]))
     ch = _arm()
-    with within(20):
+    with deadline(20):
         with pytest.raises((ValueError, TypeError)) as exc:
             if kind == "array":
                 u = values

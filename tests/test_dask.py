@@ -5,7 +5,6 @@ again; a cluster left without workers or without its scheduler ends the sweep wi
 within a bound, not a hang. Every test has a deadline: a hang fails it with every thread's stack."""
 
 import contextlib
-import faulthandler
 import gc
 import json
 import logging
@@ -28,6 +27,7 @@ import distributed  # the test extra installs dask[distributed]
 import batch_probe
 import dask_probe
 from dask_probe import read_log
+from helpers import deadline
 from qchain import simulate_batch, sweep
 from qchain.batch import RolloutError
 from qchain.scene import parse_scene
@@ -39,23 +39,6 @@ from test_sweep import BASE, deterministic
 
 TESTS = Path(__file__).parent
 DEADLINE = 120  # s, for any one test of this file
-
-
-@contextlib.contextmanager
-def deadline(seconds: float, what: str):
-    """Fail, not hang, when the block runs longer than ``seconds``: SIGALRM interrupts the
-    main thread's wait and raises, after printing every thread's stack (where it hung)."""
-    def expired(signum, frame):
-        faulthandler.dump_traceback(all_threads=True)
-        raise TimeoutError(f"{what} still running after {seconds} s: a hang (every thread's stack is above)")
-
-    old = signal.signal(signal.SIGALRM, expired)
-    signal.setitimer(signal.ITIMER_REAL, seconds)
-    try:
-        yield
-    finally:
-        signal.setitimer(signal.ITIMER_REAL, 0)
-        signal.signal(signal.SIGALRM, old)
 
 
 @pytest.fixture(autouse=True)
