@@ -28,11 +28,6 @@ FORCE = Range(-1e15, 1e15)
 _RANGES = {"pressure": PRESSURE, "tau": FORCE}
 
 
-def _vector(name, x, size) -> np.ndarray:
-    """:func:`~qchain.errors.as_vector`."""
-    return as_vector(name, as_real_array(name, x), size)
-
-
 def _vec(name, x, size=None) -> np.ndarray:
     x = np.atleast_1d(as_real_array(name, x))
     if x.ndim != 1:
@@ -303,7 +298,7 @@ def as_input(name: str, u, size: int, bound: Range | None | str = "auto"
             if _extent(u) is None:  # a schedule of the user's: its values are checked as they come
                 label = f"{name}(t)"
                 check = _range_check(rng, label)
-                return lambda t, q, v: check(_vector(label, u(t), size))
+                return lambda t, q, v: check(as_vector(label, u(t), size))
             _check_extent(name, rng, u)
         return lambda t, q, v: u(t)
     if callable(u):
@@ -314,15 +309,15 @@ def as_input(name: str, u, size: int, bound: Range | None | str = "auto"
         if nargs == 1:
             label = f"{name}(t)"
             if rng is None:
-                return lambda t, q, v: _vector(label, u(t), size)
+                return lambda t, q, v: as_vector(label, u(t), size)
             check = _range_check(rng, label)
-            return lambda t, q, v: check(_vector(label, u(t), size))
+            return lambda t, q, v: check(as_vector(label, u(t), size))
         label = f"{name}(t, q, v)"
         if rng is None:
-            return lambda t, q, v: _vector(label, u(t, q, v), size)
+            return lambda t, q, v: as_vector(label, u(t, q, v), size)
         check = _range_check(rng, label)
-        return lambda t, q, v: check(_vector(label, u(t, q, v), size))
-    c = _vector(name, u, size)
+        return lambda t, q, v: check(as_vector(label, u(t, q, v), size))
+    c = as_vector(name, u, size)
     if rng is not None:
         rng.check_array(name, c)
     return lambda t, q, v: c

@@ -210,11 +210,8 @@ class ChainRecorder:
         rows[:, self._sx] = xs
         e = self._se.start
         np.add(rows[:, e], rows[:, e + 1], out=rows[:, e + 2])  # total = kinetic + potential
-        if skip_checks:
-            f = self.chain.frames_batch(rows[:, self._sq], self.points_per_segment, t=rows[:, 0], skip_checks=True,
-                                        out=self._frames)
-        else:
-            f = self.chain.frames_batch(rows[:, self._sq], self.points_per_segment, t=rows[:, 0])
+        f = self.chain.frames_batch(rows[:, self._sq], self.points_per_segment, t=rows[:, 0], skip_checks=skip_checks,
+                                    out=self._frames if skip_checks else None)
         rows[:, self._sbb] = f.backbone.reshape(K, -1)
         b = self._sbase.start
         rows[:, b : b + 3] = f.translation[:, 0]
