@@ -79,6 +79,33 @@ def tip_errors(model, batch, ref) -> np.ndarray:
     return out
 
 
+def result_encoding(sc, model, P, t_eval, n: int = 64, reps: int = 20) -> tuple[float, float]:
+    """Milliseconds (median of ``reps``) a Dask worker spends encoding one chunk of ``n``
+    rollouts' results: with Dask's own protocol (out-of-band, a frame per array) and as one
+    in-band pickle (what :class:`qchain.workers.DaskEngine` hands Dask instead)."""
+    import pickle
+
+    from distributed.protocol import dumps, to_serialize
+
+    from qchain.simulate import simulate
+
+    # what a worker returns for a chunk: (Trajectory, wall seconds) a rollout
+    res = [(simulate(model.chain, model.q0, model.v0, (0.0, 1.0), pressure=p, t_eval=t_eval, **SETTING), 0.0)
+           for p in P[:n]]
+
+    def ms(f) -> float:
+        ts = []
+        for _ in range(reps):
+            t0 = time.perf_counter()
+            f()
+            ts.append(time.perf_counter() - t0)
+        return float(np.median(ts) * 1e3)
+
+    return (ms(lambda: dumps({"op": "get_data-response", "data": {"k": to_serialize(res)}})),
+            ms(lambda: dumps({"op": "get_data-response", "data": {"k": to_serialize(
+                pickle.dumps(res, protocol=pickle.HIGHEST_PROTOCOL))}})))
+
+
 def run(quick: bool = False, out_dir: Path = Path("out/bench"), rounds: int | None = None) -> list[dict]:
     import distributed
 
@@ -137,6 +164,7 @@ def run(quick: bool = False, out_dir: Path = Path("out/bench"), rounds: int | No
         for p in pools.values():
             p.close()
     load1, steal1 = os.getloadavg(), cpu_steal()
+    enc_dask, enc_pickle = result_encoding(sc, model, P, t_eval)
 
     ref = simulate_batch(*args, pressure=P, t_eval=t_eval, **REFERENCE, workers=2)
     err = tip_errors(model, batches["serial"], ref)
@@ -163,13 +191,15 @@ def run(quick: bool = False, out_dir: Path = Path("out/bench"), rounds: int | No
           f"({eff_pool.min() * 100:.1f}-{eff_pool.max() * 100:.1f})")
     print(f"Dask LocalCluster overhead against pool-2 (per round): {np.median(over) * 100:+.1f} % "
           f"({over.min() * 100:+.1f}..{over.max() * 100:+.1f})")
+    print(f"a Dask worker encoding one chunk of 64 rollouts' results: {enc_dask:.2f} ms with Dask's protocol, "
+          f"{enc_pickle:.2f} ms as one pickle (what qchain sends)")
     print(f"machine load average after: {load1[0]:.2f} {load1[1]:.2f} {load1[2]:.2f}; CPU steal during the run: "
           f"{steal1 - steal0:.2f} s")
     summary = dict(engine="summary", cores=2, rollouts=B, rounds=rounds,
                    efficiency_vs_serial=float(np.median(eff_serial)), efficiency_vs_pool1=float(np.median(eff_pool)),
                    dask_overhead=float(np.median(over)), tip_error_max_m=float(err.max()),
                    tip_error_median_m=float(np.median(err)), load_before=load0[0], load_after=load1[0],
-                   steal_s=steal1 - steal0, bit_identical=same)
+                   steal_s=steal1 - steal0, bit_identical=same, encode_dask_ms=enc_dask, encode_pickle_ms=enc_pickle)
     _study.write_csv(rows, out_dir / "batch.csv")
     _study.write_csv([summary], out_dir / "batch_summary.csv")
     return rows + [summary]

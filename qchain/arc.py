@@ -43,7 +43,8 @@ import numba
 import numpy as np
 from numba.extending import register_jitable
 
-from .spatial import inv_adjoint
+from .errors import as_batch, as_real_array
+from .spatial import _inv_adjoint as inv_adjoint
 
 __all__ = ["ArcNodes", "arc_nodes", "bend_functions", "strain_twist", "arc_node", "arc_pose"]
 
@@ -214,9 +215,14 @@ def _bend_kernel(x, out):
 
 def bend_functions(x, derivatives: bool = False):
     """The entire functions ``(f0, f1, f2)`` (and ``(g0, g1, g2)`` with ``derivatives``) of
-    bending angles ``x >= 0`` (rad), each of the shape of ``x``. At ``x = 0``:
-    ``f = (1, 1/2, 1/6)``, ``g = (-1/3, -1/12, -1/60)``."""
-    xa = np.ascontiguousarray(np.atleast_1d(np.asarray(x, dtype=float)).ravel())
+    bending angles ``x`` (rad; even functions, so any finite real), each of the shape of
+    ``x``. At ``x = 0``: ``f = (1, 1/2, 1/6)``, ``g = (-1/3, -1/12, -1/60)``.
+    ``x`` must be real and finite (``TypeError``/``ValueError`` naming it)."""
+    x = as_real_array("x", x)
+    if not np.all(np.isfinite(x)):
+        raise ValueError(f"x must be finite, got non-finite entries at flat indices "
+                         f"{np.flatnonzero(~np.isfinite(x.ravel())).tolist()[:10]}")
+    xa = np.ascontiguousarray(np.atleast_1d(x).ravel())
     out = np.empty((6, xa.size))
     _bend_kernel(xa, out)
     out = out.reshape((6,) + np.shape(x))
@@ -224,8 +230,9 @@ def bend_functions(x, derivatives: bool = False):
 
 
 def strain_twist(q: np.ndarray) -> np.ndarray:
-    """Unit-length strain twist ``xi_u = (0, 0, 1, -uy, ux, 0)``, ``(..., 3)`` -> ``(..., 6)``."""
-    q = np.asarray(q, dtype=float)
+    """Unit-length strain twist ``xi_u = (0, 0, 1, -uy, ux, 0)``, ``(..., 3)`` -> ``(..., 6)``
+    (``q`` real and finite, else ``TypeError``/``ValueError`` naming it)."""
+    q = as_batch("q", q, 3)
     xi = np.zeros(q.shape[:-1] + (6,))
     xi[..., 2] = 1.0
     xi[..., 3] = -q[..., 2]
@@ -261,17 +268,32 @@ def arc_nodes(alpha, q, qdot=None) -> ArcNodes:
     """Slice kinematics at nodes ``alpha`` (N,) for configurations ``q`` (N, 3) or (3,).
 
     ``qdot`` ((N, 3) or (3,)) adds the exact time derivative ``Sdot`` of the Jacobian.
+    Every argument must be real and finite, ``alpha`` a number or 1-D (``TypeError`` or
+    ``ValueError`` naming the argument); the kinematics is that of any curvature (a
+    segment's own domain, ``|kappa| r_s < 1``, is checked by :class:`qchain.Segment`).
     """
-    alpha = np.ascontiguousarray(np.atleast_1d(np.asarray(alpha, dtype=float)))
+    alpha = np.atleast_1d(as_real_array("alpha", alpha))
+    if alpha.ndim != 1 or not np.all(np.isfinite(alpha)):
+        raise ValueError(f"alpha must be a finite number or 1-D array of them, got shape {alpha.shape}"
+                         + ("" if alpha.ndim != 1 else " with non-finite entries"))
+    alpha = np.ascontiguousarray(alpha)
     N = alpha.shape[0]
-    q = np.ascontiguousarray(np.broadcast_to(np.asarray(q, dtype=float), (N, 3)))
-    qd = np.zeros((N, 3)) if qdot is None else np.ascontiguousarray(np.broadcast_to(np.asarray(qdot, float), (N, 3)))
+    q = _per_node("q", q, N)
+    qd = np.zeros((N, 3)) if qdot is None else _per_node("qdot", qdot, N)
     R = np.empty((N, 3, 3))
     p = np.empty((N, 3))
     S = np.empty((N, 6, 3))
     Sd = np.empty((N, 6, 3))
     _arc_nodes_kernel(alpha, q, qd, R, p, S, Sd)
     return ArcNodes(R=R, p=p, S=S, Sdot=Sd)
+
+
+def _per_node(name: str, x, N: int) -> np.ndarray:
+    """``x`` (3,) or (N, 3), real and finite, as a C-contiguous (N, 3) float array."""
+    x = as_batch(name, x, 3)
+    if x.shape not in ((3,), (N, 3)):
+        raise ValueError(f"{name} must have shape (3,) or ({N}, 3) (one a node), got {x.shape}")
+    return np.ascontiguousarray(np.broadcast_to(x, (N, 3)))
 
 
 #: Floats of per-call scratch a compiled pass carves its small temporaries from

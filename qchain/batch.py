@@ -31,11 +31,12 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .chain import Chain
-from .errors import QchainError, as_vector
+from . import bounds as _bounds
+from .errors import QchainError, as_bool, as_real_array, as_vector
 from .inputs import Schedule, as_input
-from .simulate import COMPILED, DEFAULT_METHOD, FIXED_STEP, METHODS, Event, simulate
+from .simulate import COMPILED, DEFAULT_METHOD, FIXED_STEP, METHODS, Event, _check_span, check_settings, simulate
 from .trajectory import Trajectory
-from .workers import DEFAULT_RETRIES, Lost, Payload, dumps, engine_for
+from .workers import DEFAULT_RETRIES, Lost, Payload, check_engine, dumps, engine_for
 
 __all__ = ["simulate_batch", "BatchTrajectory", "RolloutError"]
 
@@ -148,9 +149,9 @@ def _batched_input(name: str, u, size: int) -> tuple[object, list | None]:
         return u, None
     if isinstance(u, np.ndarray) or (isinstance(u, (list, tuple)) and not any(
             x is None or isinstance(x, Schedule) or callable(x) for x in u)):
-        try:
-            arr = np.asarray(u, dtype=float)
-        except (TypeError, ValueError):
+        try:  # real numbers only: booleans, strings and complex numbers are refused by name
+            arr = as_real_array(name, u)
+        except ValueError:  # ragged: a sequence of B inputs of their own
             arr = None
         if arr is not None and arr.ndim == 1:
             as_vector(name, arr, size)
@@ -173,7 +174,7 @@ def _batched_input(name: str, u, size: int) -> tuple[object, list | None]:
 
 
 def _states(name: str, x, size: int) -> np.ndarray:
-    arr = np.asarray(x, dtype=float)
+    arr = as_real_array(name, x)  # booleans, strings and complex numbers refused by name, never cast
     if arr.ndim == 1:
         return arr
     if arr.ndim != 2 or arr.shape[1] != size:
@@ -315,11 +316,13 @@ def simulate_batch(
         own steps); for ``rk4`` and ``midpoint`` without events the default is every step.
     workers : int, None or LocalPool
         Worker processes on this machine: None or -1 every core (default), 1 runs the
-        rollouts in this process one after the other, or a :class:`qchain.workers.LocalPool`.
+        rollouts in this process one after the other, up to 1024
+        (:data:`qchain.bounds.WORKERS`), or a :class:`qchain.workers.LocalPool`.
     client : dask.distributed.Client, str or DaskEngine, optional
         Run on a Dask cluster instead (a client, or a scheduler address ``tcp://HOST:PORT``).
     retries : int
-        Times a rollout runs again after the worker process running it died (>= 0).
+        Times a rollout runs again after the worker process running it died, 0 to 100
+        (:data:`qchain.bounds.RETRIES`).
     progress : bool
         A progress bar (tqdm) on stderr, one step a finished rollout.
 
@@ -337,26 +340,25 @@ def simulate_batch(
     """
     if not isinstance(chain, Chain):
         raise TypeError(f"chain must be a qchain.Chain, got {type(chain).__name__}")
-    if method not in METHODS:
+    if not isinstance(method, str) or method not in METHODS:
         raise ValueError(f"method must be one of {METHODS}, got {method!r}")
-    ts = np.asarray(t_span, dtype=float)
-    if ts.shape != (2,) or not np.all(np.isfinite(ts)) or not ts[1] > ts[0]:
-        raise ValueError(f"t_span must be (t0, t1) with finite t1 > t0, got {t_span!r}")
-    t0, t1 = float(ts[0]), float(ts[1])
-    if not (isinstance(retries, int) and not isinstance(retries, bool) and retries >= 0):
-        raise ValueError(f"retries must be an int >= 0, got {retries!r}")
-    if method in FIXED_STEP and (dt is None or not (np.isfinite(dt) and dt > 0)):  # as simulate says it
-        raise ValueError(f"method {method!r} needs a step dt > 0 s, got {dt!r}")
-    for name, val in (("rtol", rtol), ("atol", atol)):
-        if not (np.isfinite(val) and val > 0):
-            raise ValueError(f"{name} must be > 0, got {val!r}")
+    t0, t1 = _check_span(t_span)  # the checks of simulate, here where the arguments enter
+    retries = check_engine(workers, client, retries)
+    for name, val, rng in (("rtol", rtol, _bounds.RTOL), ("atol", atol, _bounds.ATOL)):
+        if isinstance(val, (int, float, np.integer, np.floating)) and not isinstance(val, (bool, np.bool_)) and val <= 0:
+            raise ValueError(f"{name} must be > 0, got {val!r} (it must be {rng.what()})")
+    progress = as_bool("progress", progress)
+    cfg = check_settings(chain, t0, t1, method=method, dt=dt, rtol=rtol, atol=atol, max_step=max_step,
+                         first_step=first_step, wall_limit=wall_limit, t_eval=t_eval, energies=energies,
+                         progress=False, on_sample=None, events=events, controller_rate=controller_rate)
+    dt, rtol, atol, max_step, first_step = cfg["dt"], cfg["rtol"], cfg["atol"], cfg["max_step"], cfg["first_step"]
+    wall_limit, t_eval, energies, events = cfg["wall_limit"], cfg["t_eval"], cfg["energies"], cfg["events"]
+    controller_rate = cfg["controller_rate"]
     if t_eval is None and (method not in FIXED_STEP or events):
         raise ValueError(f"t_eval is required for method {method!r}{' with events' if events else ''}: each rollout "
                          "takes its own steps, and a batch shares one time grid; give the output times (N,) s")
     if t_eval is not None:
-        t_eval = np.asarray(t_eval, dtype=float)
-        if t_eval.ndim != 1 or t_eval.size == 0 or np.any(np.diff(t_eval) <= 0) or t_eval[0] < t0 or t_eval[-1] > t1:
-            raise ValueError("t_eval must be a non-empty increasing (N,) array inside t_span")
+        t_eval = np.array(t_eval)  # the batch's own copy (BatchTrajectory.t is made from it)
     Q0 = _states("q0", q0, chain.nq)
     V0 = _states("v0", v0, chain.nv)
     p_shared, p_each = _batched_input("pressure", pressure, chain.nu)
@@ -364,10 +366,6 @@ def simulate_batch(
     sizes = {name: len(x) for name, x in (("q0", Q0 if Q0.ndim == 2 else None), ("v0", V0 if V0.ndim == 2 else None),
                                           ("pressure", p_each), ("tau", tau_each)) if x is not None}
     B = _batch_size(sizes)
-    events = list(events or [])
-    for e in events:
-        if not isinstance(e, Event):
-            raise TypeError("events must be qchain.simulate.Event objects")
     for i in range(B):  # every start inside the model, checked here where it enters
         qi = Q0[i] if Q0.ndim == 2 else Q0
         vi = V0[i] if V0.ndim == 2 else V0

@@ -52,6 +52,9 @@ __all__ = [
     "MAX_BEND",
     "WALL_LIMIT",
     "VACUUM_GAUGE",
+    "SEGMENT_COUNT",
+    "WORKERS",
+    "RETRIES",
 ]
 
 
@@ -194,3 +197,7 @@ SAMPLE_RATE = Range(0.0, 1e9, "Hz", low_open=True)  #: output samples a second
 NODE_TOLERANCE = Range(0.0, 1.0, low_open=True, high_open=True)  #: relative M_xi accuracy
 MAX_BEND = Range(0.0, 1e3, "rad")  #: the bend the node count is sized for
 WALL_LIMIT = Range(0.0, 1e9, "s", low_open=True)  #: wall-clock limit of a run
+
+SEGMENT_COUNT = Range(1, 10**6, integer=True)  #: segments of a chain (a workspace's n)
+WORKERS = Range(1, 1024, integer=True)  #: worker processes of a batch (each one a Python process with the engine)
+RETRIES = Range(0, 100, integer=True)  #: runs of a rollout again after its worker process died

@@ -44,10 +44,12 @@ from .chain_checks import QUATERNION_TOLERANCE, ChainChecks, _finite  # noqa: F4
 from .chain_kinematics import _NO_POINTS, ChainKinematics, Frames
 from .dynamics_derivatives import _ZERO6, ForwardDynamicsDerivatives, InverseDynamicsDerivatives
 from .data import Data
-from .bounds import GRAVITY
-from .errors import NonFiniteError, QchainError, SingularConfigurationError, as_real, as_vector
-from .segment import PAPER_SINGULAR_ANGLE, Segment, paper_jacobian, paper_jacobian_dot, paper_to_curvature
-from .spatial import ad_matrix, quaternion_to_rotation
+from .bounds import GRAVITY, POSITION, TIME
+from .errors import NonFiniteError, SingularConfigurationError, as_index, as_vector, describe_value
+from .segment import PAPER_SINGULAR_ANGLE, Segment
+from .segment import _paper_jacobian as paper_jacobian, _paper_jacobian_dot as paper_jacobian_dot
+from .segment import _paper_to_curvature as paper_to_curvature
+from .spatial import _ad_matrix as ad_matrix, _quaternion_to_rotation as quaternion_to_rotation
 
 __all__ = ["Chain", "Frames", "BASES"]
 
@@ -67,6 +69,22 @@ class _State:
     V0: np.ndarray | None = None  # (6,) base body twist
     A_B: np.ndarray | None = None  # (6,) base body acceleration (prescribed)
     g_B: np.ndarray | None = None  # (3,) gravity in the base frame
+
+
+def _check_placement(name: str, X) -> None:
+    """``X`` must be a ``pinocchio.SE3`` with a finite rotation matrix (orthonormal, det 1,
+    within 1e-9) and a translation within :data:`qchain.bounds.POSITION`."""
+    if not isinstance(X, pin.SE3):
+        raise TypeError(f"{name} must be a pinocchio.SE3, got {describe_value(X)}")
+    H = X.homogeneous
+    if not np.all(np.isfinite(H)):
+        raise ValueError(f"{name} must be finite, got a placement with non-finite entries")
+    R = H[:3, :3]
+    err = float(np.max(np.abs(R.T @ R - np.eye(3))))
+    if not (err <= 1e-9 and np.linalg.det(R) > 0.0):
+        raise ValueError(f"{name}.rotation must be a rotation matrix (R^T R = I within 1e-9, det R = 1), got "
+                         f"|R^T R - I| = {err:.3g}, det R = {np.linalg.det(R):.6g}")
+    POSITION.check_array(f"{name}.translation", H[:3, 3])
 
 
 class Chain(ChainKinematics, ChainChecks):
@@ -118,6 +136,8 @@ class Chain(ChainKinematics, ChainChecks):
         base_motion: Callable | None = None,
         planar: bool = False,
     ):
+        if isinstance(segments, Segment) or not isinstance(segments, Sequence) and not hasattr(segments, "__iter__"):
+            raise TypeError(f"segments must be a sequence of qchain.Segment, got {describe_value(segments)}")
         segs = tuple(segments)
         if len(segs) == 0:
             raise ValueError("segments must hold at least one Segment, got none")
@@ -134,11 +154,12 @@ class Chain(ChainKinematics, ChainChecks):
             raise ValueError(f"base_placement is only used with base='fixed', got base={base!r}")
         if base_placement is not None and not isinstance(base_placement, pin.SE3):
             raise TypeError(f"base_placement must be a pinocchio.SE3, got {type(base_placement).__name__}")
-        if base_placement is not None and not np.all(np.isfinite(base_placement.homogeneous)):
-            raise ValueError("base_placement must be finite, got a placement with non-finite entries")
+        if base_placement is not None:
+            _check_placement("base_placement", base_placement)
         self.segments = segs
         self.base = base
-        self.gravity = GRAVITY.check_array("gravity", as_vector("gravity", gravity, 3))
+        self.gravity = np.array(GRAVITY.check_array("gravity", as_vector("gravity", gravity, 3)))  # its own copy
+        self.gravity.flags.writeable = False  # the passes use it (and its base-frame image) as given here
         self.base_placement = pin.SE3.Identity() if base_placement is None else pin.SE3(base_placement)
         self.base_motion = base_motion
         n = len(segs)
@@ -171,7 +192,7 @@ class Chain(ChainKinematics, ChainChecks):
         self._linear = np.array([s.stiffness_matrix is not None or s.damping_matrix is not None for s in segs])
         self._has_linear = bool(self._linear.any())
         if not isinstance(planar, (bool, np.bool_)):
-            raise ValueError(f"planar must be True or False, got {planar!r}")
+            raise TypeError(f"planar must be True or False, got {describe_value(planar)}")
         if planar and self._any_paper:
             j = int(np.flatnonzero(self._paper)[0])
             raise ValueError(f"planar=True needs curvature coordinates; segments[{j}] has coords='paper'")
@@ -198,11 +219,15 @@ class Chain(ChainKinematics, ChainChecks):
     # ------------------------------------------------------------------ layout
 
     def q_slice(self, j: int) -> slice:
-        """Indices of segment ``j``'s ``q_e`` in ``q``."""
+        """Indices of segment ``j``'s ``q_e`` in ``q`` (``0 <= j < n``)."""
+        if type(j) is not int or not 0 <= j < self.n:
+            j = as_index("j", j, self.n)
         return slice(self._qoff + 3 * j, self._qoff + 3 * j + 3)
 
     def v_slice(self, j: int) -> slice:
-        """Indices of segment ``j``'s ``qdot_e`` in ``v``."""
+        """Indices of segment ``j``'s ``qdot_e`` in ``v`` (``0 <= j < n``)."""
+        if type(j) is not int or not 0 <= j < self.n:
+            j = as_index("j", j, self.n)
         return slice(self._voff + 3 * j, self._voff + 3 * j + 3)
 
     def neutral(self) -> np.ndarray:
@@ -221,6 +246,7 @@ class Chain(ChainKinematics, ChainChecks):
         """Who owns entry ``i`` of ``v`` (or of ``q`` with ``velocity=False``), in words:
         ``"segment 1, uy"``, ``"base, angular velocity z"``."""
         off = self._voff if velocity else self._qoff
+        i = as_index("i", i, self.nv if velocity else self.nq)
         if i < off:
             names = (("linear velocity x", "linear velocity y", "linear velocity z", "angular velocity x",
                       "angular velocity y", "angular velocity z") if velocity else
@@ -236,20 +262,21 @@ class Chain(ChainKinematics, ChainChecks):
         """``(X_WB, V_B, A_B)`` of a prescribed base at time ``t`` (validated)."""
         if self.base != "prescribed":
             raise ValueError(f"base_state is for base='prescribed', this chain has base={self.base!r}")
-        out = self.base_motion(float(t))
+        t = self._time(t)
+        out = self.base_motion(t)
         if not (isinstance(out, tuple) and len(out) == 3):
-            raise TypeError("base_motion(t) must return (X_WB: pinocchio.SE3, V_B: (6,), A_B: (6,))")
+            raise TypeError(f"base_motion(t) must return (X_WB: pinocchio.SE3, V_B: (6,), A_B: (6,)), got "
+                            f"{describe_value(out)} at t = {t:g} s")
         X, V, A = out
-        if not isinstance(X, pin.SE3):
-            raise TypeError(f"base_motion(t)[0] must be a pinocchio.SE3, got {type(X).__name__}")
-        if not np.all(np.isfinite(X.homogeneous)):
-            raise ValueError(f"base_motion({t}) gave a non-finite placement")
+        _check_placement(f"base_motion({t:g})[0] (X_WB)", X)
         return X, as_vector("base_motion(t)[1] (V_B)", V, 6), as_vector("base_motion(t)[2] (A_B)", A, 6)
 
     def _state(self, q, v=None, t: float = 0.0, nonsingular: bool = False, extra=()) -> _State:
         """Validate and convert ``q`` (and ``v``); ``extra`` (name, array) pairs are checked
         for non-finite entries too."""
         q = self._q(q)
+        if type(t) is not float or not -1e12 <= t <= 1e12:
+            t = self._time(t)
         q_e = q[self._qoff :].reshape(self.n, 3)
         if v is not None:
             v = self._vec("v", v, self.nv)
@@ -317,23 +344,33 @@ class Chain(ChainKinematics, ChainChecks):
     def integrate(self, q, v, dt: float = 1.0) -> np.ndarray:
         """``q (+) v dt`` on the configuration manifold (Pinocchio's free-flyer exp for the base;
         docs/model.md section 7)."""
-        q = self._q(q)
+        q = as_vector("q", self._q(q), self.nq)
         v = as_vector("v", v, self.nv)
-        dt = as_real("dt", dt)
+        dt = TIME.check("dt", dt)
         out = q.copy()
-        if self.floating:
-            out[:7] = pin.integrate(self._ff, q[:7], v[:6] * dt)
-        out[self._qoff :] += v[self._voff :] * dt
+        with np.errstate(all="ignore"):
+            if self.floating:
+                out[:7] = pin.integrate(self._ff, q[:7], v[:6] * dt)
+            out[self._qoff :] += v[self._voff :] * dt
+        if not np.all(np.isfinite(out)):
+            k = int(np.flatnonzero(~np.isfinite(out))[0])
+            raise NonFiniteError(f"Chain.integrate: q (+) v dt is not finite (first at q[{k}], "
+                                 f"{self.coordinate_name(k, velocity=False)}) for dt = {dt:g} s: v dt overflows")
         return out
 
     def difference(self, q0, q1) -> np.ndarray:
         """The ``v`` (nv,) with ``integrate(q0, v, 1) == q1``."""
-        q0 = self._q(q0, "q0")
-        q1 = self._q(q1, "q1")
+        q0 = as_vector("q0", self._q(q0, "q0"), self.nq)
+        q1 = as_vector("q1", self._q(q1, "q1"), self.nq)
         out = np.empty(self.nv)
-        if self.floating:
-            out[:6] = pin.difference(self._ff, q0[:7], q1[:7])
-        out[self._voff :] = q1[self._qoff :] - q0[self._qoff :]
+        with np.errstate(all="ignore"):
+            if self.floating:
+                out[:6] = pin.difference(self._ff, q0[:7], q1[:7])
+            out[self._voff :] = q1[self._qoff :] - q0[self._qoff :]
+        if not np.all(np.isfinite(out)):
+            k = int(np.flatnonzero(~np.isfinite(out))[0])
+            raise NonFiniteError(f"Chain.difference: q1 - q0 is not finite (first at v[{k}], "
+                                 f"{self.coordinate_name(k)}): the difference overflows")
         return out
 
     # ------------------------------------------------------------------ energies
@@ -431,6 +468,7 @@ class Chain(ChainKinematics, ChainChecks):
         """``M(q)`` (nv, nv) by composite-body assembly (:func:`qchain.recursive.crba`):
         ``sum_j A_j^T M_xi_j A_j`` of the segments' eq. (6) blocks (docs/model.md section 8)."""
         st = self._state(q, nonsingular=True)
+        data = self._data(data)
         H = np.empty((self.nv, self.nv)) if data is None else data.M
         ws = self._ws(data)
         recursive.crba(self._alpha, self._w, self._offs, self._mass, self._radius, st.q_c, self.floating, H, ws,
@@ -565,6 +603,7 @@ class Chain(ChainKinematics, ChainChecks):
         is the unchecked fast path (:meth:`forward_dynamics_derivatives`): it returns
         ``data.a``, overwritten by the next call with that ``data``.
         """
+        data = self._data(data)
         if skip_checks:
             return self._forward_dynamics_unchecked(q, v, p, tau, t, data)
         st, p3, tau = self._dynamics_inputs(q, v, p, tau, t)
@@ -616,7 +655,7 @@ class Chain(ChainKinematics, ChainChecks):
             if culprit:
                 raise NonFiniteError(f"Chain.forward_dynamics: the acceleration is not finite at t = {t:.6g} s: "
                                      f"{culprit}")
-            raise QchainError("forward_dynamics: an articulated inertia block is not positive definite")
+            raise self.indefinite_error("forward_dynamics", st.q_e, t)
         a = np.empty(self.nv)
         if self.floating:
             a[:6] = A0
@@ -653,7 +692,7 @@ class Chain(ChainKinematics, ChainChecks):
         """
         a = self._vec("a", a, self.nv)
         st = self._state(q, v, t=t, nonsingular=True, extra=(("a", a),))
-        return _derivs.inverse_dynamics_derivatives(self, st, a, data)
+        return _derivs.inverse_dynamics_derivatives(self, st, a, self._data(data))
 
     @_finite("forward dynamics derivatives", has_v=True)
     def forward_dynamics_derivatives(self, q, v, p=None, tau=None, t: float = 0.0, data: Data | None = None,
@@ -673,6 +712,7 @@ class Chain(ChainKinematics, ChainChecks):
         checked -- and the result is not checked for non-finite entries. It needs ``data``
         and a chain in curvature coordinates with the material law.
         """
+        data = self._data(data)
         if skip_checks:
             return self._forward_dynamics_derivatives_unchecked(q, v, p, tau, t, data)
         st, p3, tau = self._dynamics_inputs(q, v, p, tau, t)
@@ -707,7 +747,7 @@ class Chain(ChainKinematics, ChainChecks):
     @_finite("mass matrix derivative")
     def mass_matrix_derivative(self, q, data: Data | None = None) -> np.ndarray:
         """``dM[:, :, k] = dM/dq_k`` (nv, nv, nv) along :meth:`integrate`, exact."""
-        return _derivs.mass_matrix_derivative(self, self._state(q, nonsingular=True), data)
+        return _derivs.mass_matrix_derivative(self, self._state(q, nonsingular=True), self._data(data))
 
     @_finite("Coriolis matrix", has_v=True)
     def coriolis_matrix(self, q, v) -> np.ndarray:

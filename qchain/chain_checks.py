@@ -21,8 +21,10 @@ import numpy as np
 import pinocchio as pin
 
 from . import recursive
-from .errors import DomainError, NonFiniteError, as_real_array, as_vector
-from .segment import Segment, paper_jacobian, paper_to_curvature
+from .bounds import POSITION, TIME
+from .errors import DomainError, NonFiniteError, QchainError, as_real_array, as_vector, describe_value
+from .segment import Segment
+from .segment import _paper_jacobian as paper_jacobian, _paper_to_curvature as paper_to_curvature
 
 __all__ = ["ChainChecks", "QUATERNION_TOLERANCE"]
 
@@ -59,6 +61,8 @@ def _finite(quantity: str, has_v: bool = False):
             if kwargs.get("skip_checks"):
                 return fn(self, q, *args, **kwargs)
             v = args[0] if has_v and args else kwargs.get("v")
+            if has_v and v is None:  # None means "no velocities" inside; here it is a missing argument
+                raise TypeError(f"Chain.{fn.__name__}: v must be an array of real numbers of shape ({self.nv},), got None")
             try:
                 out = fn(self, q, *args, **kwargs)
             except NonFiniteError:
@@ -138,6 +142,50 @@ class ChainChecks:
                 where = f": first at entry {int(bad[0])} ({self.coordinate_name(int(bad[0]))})"
         return NonFiniteError(f"Chain.{method}: the {quantity} is not finite{at}{where}")
 
+    def _data(self, data, name: str = "data"):
+        """``data`` if it is None or a :class:`~qchain.data.Data` made for this chain's sizes
+        (``chain.create_data()``); ``TypeError``/``ValueError`` naming ``data`` otherwise (the
+        compiled passes would write outside another chain's arrays). Cheap: the unchecked
+        ``skip_checks`` path runs it too."""
+        if data is None:
+            return None
+        from .data import Data
+
+        if not isinstance(data, Data):
+            raise TypeError(f"{name} must be None or chain.create_data(), got {describe_value(data)}")
+        if data.n != self.n or data.nv != self.nv:
+            raise ValueError(f"{name} is a workspace for n = {data.n} segments and nv = {data.nv} velocities; this "
+                             f"chain has n = {self.n}, nv = {self.nv}: make it with this chain's create_data()")
+        return data
+
+    def _time(self, t, name: str = "t") -> float:
+        """A time ``t`` (s): a real number within :data:`qchain.bounds.TIME`."""
+        return t if type(t) is float and -1e12 <= t <= 1e12 else TIME.check(name, t)
+
+    def indefinite_error(self, method: str, q_e: np.ndarray, t=None) -> QchainError:
+        """The error of a ``method`` whose articulated-body pass met an inertia block that is
+        not positive definite at the segment coordinates ``q_e`` (n, 3): it names the first
+        segment whose own mass matrix ``M_xi`` is singular there (a length so small, or so
+        large, that the inertia loses rank in double precision) and its entries of ``q``."""
+        at = "" if t is None else f" at t = {float(t):.6g} s"
+        with np.errstate(all="ignore"):
+            for j, s in enumerate(self.segments):
+                q_c = paper_to_curvature(q_e[j]) if self._paper[j] else np.asarray(q_e[j], dtype=float)
+                M = s._mass_c(np.ascontiguousarray(q_c))
+                try:
+                    np.linalg.cholesky(M)
+                    ok = np.all(np.isfinite(M))
+                except np.linalg.LinAlgError:
+                    ok = False
+                if not ok:
+                    sl = self.q_slice(j)
+                    return QchainError(
+                        f"Chain.{method}: an articulated inertia block is not positive definite{at}: segment {j} "
+                        f"(q[{sl.start}:{sl.stop}] = {_vec3(q_e[j])}) has a singular mass matrix M_xi in double "
+                        f"precision (length l = {float(q_e[j][0]):.3g} m against rest length {s.length:g} m)")
+        return QchainError(f"Chain.{method}: an articulated inertia block is not positive definite{at} "
+                           f"(q = {np.array2string(np.ravel(q_e), precision=6)})")
+
     def _vec(self, name: str, x, size: int) -> np.ndarray:
         """Fast shape check; finiteness is checked with the domain
         (:meth:`~qchain.chain.Chain._state`). A float array passes straight; anything else is
@@ -151,9 +199,13 @@ class ChainChecks:
 
     def _q(self, q, name="q") -> np.ndarray:
         """Shape-checked ``q`` (nq,), a floating base's quaternion normalised (within
-        :data:`QUATERNION_TOLERANCE` of unit norm, else a ``ValueError``)."""
+        :data:`QUATERNION_TOLERANCE` of unit norm, else a ``ValueError``) and its position
+        within :data:`qchain.bounds.POSITION`."""
         q = self._vec(name, q, self.nq)
         if self.floating:
+            if not np.abs(q[:3]).max() <= 1e6:  # qchain.bounds.POSITION (NaN is named by the finiteness check)
+                as_vector(name, q, self.nq)
+                POSITION.check_array(f"{name}[0:3] (base position)", q[:3])
             norm = np.sqrt(q[3] * q[3] + q[4] * q[4] + q[5] * q[5] + q[6] * q[6])
             if not abs(norm - 1.0) <= QUATERNION_TOLERANCE:
                 as_vector(name, q, self.nq)  # non-finite entries are named first

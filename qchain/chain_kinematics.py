@@ -20,8 +20,8 @@ import pinocchio as pin
 from . import recursive
 from .arc import arc_nodes
 from .chain_checks import QUATERNION_TOLERANCE, _finite
-from .errors import NonFiniteError, QchainError, as_real_array
-from .spatial import quaternion_to_rotation
+from .errors import NonFiniteError, QchainError, as_real_array, describe_value
+from .spatial import _quaternion_to_rotation as quaternion_to_rotation
 
 if TYPE_CHECKING:
     from .chain import _State
@@ -113,7 +113,8 @@ class ChainKinematics:
             check of the results: for a caller that records a run's samples.
         out : Frames, optional
             Arrays to write the frames into, of at least ``K`` rows (their first ``K`` rows
-            are returned); with ``skip_checks`` only.
+            are returned); with ``skip_checks`` only. They are checked (float64, C-contiguous,
+            writeable, the shapes above): the compiled pass writes into them.
 
         Returns
         -------
@@ -124,6 +125,10 @@ class ChainKinematics:
         """
         alpha = _backbone_alpha(points_per_segment)
         if skip_checks:
+            if not (isinstance(Q, np.ndarray) and Q.dtype == np.float64):  # a list, or big-endian: one conversion
+                Q = np.asarray(Q, dtype=np.float64)
+            if out is not None:
+                self._check_out(out, Q.shape[0], alpha.shape[0])
             return self._frames(np.ascontiguousarray(Q[:, self._qoff :]).reshape(Q.shape[0], self.n, 3),
                                 *self._base_frames(Q, t), alpha, out=out)
         if out is not None:
@@ -132,6 +137,8 @@ class ChainKinematics:
         if Q.ndim != 2 or Q.shape[1] != self.nq:
             raise ValueError(f"Q must have shape (K, nq) = (K, {self.nq}), got {Q.shape}")
         K = Q.shape[0]
+        if self.base == "prescribed":
+            t = self._times(t, K)
         q_e = Q[:, self._qoff :].reshape(K, self.n, 3)
         bad = recursive.first_invalid(Q.ravel(), q_e.reshape(K * self.n, 3), self._radius, self._paper)
         if bad == -2:
@@ -156,6 +163,28 @@ class ChainKinematics:
             k = int(np.flatnonzero(bad)[0])
             raise NonFiniteError(f"Q[{k}]: " + str(self.nonfinite_error("frames_batch", "frames", Q[k])))
         return f
+
+    def _times(self, t, K: int) -> np.ndarray:
+        """``t`` a time or ``K`` times (s), each within :data:`qchain.bounds.TIME`."""
+        ts = as_real_array("t", t)
+        if ts.shape not in ((), (K,)):
+            raise ValueError(f"t must be one time or ({K},) times, one a configuration, got shape {ts.shape}")
+        for k, tk in enumerate(np.ravel(ts)):
+            self._time(float(tk) if np.isfinite(tk) else tk, "t" if ts.ndim == 0 else f"t[{k}]")
+        return ts
+
+    def _check_out(self, out, K: int, P: int) -> None:
+        """``out`` must be four float64, C-contiguous, writeable arrays of the shapes of
+        :class:`Frames` with at least ``K`` rows (the compiled pass writes into them)."""
+        shapes = ((self.n + 1, 3, 3), (self.n + 1, 3), (self.n + 1, 4), (self.n, P, 3))
+        if not (isinstance(out, tuple) and len(out) == 4):
+            raise TypeError(f"out must be a Frames (four arrays), got {describe_value(out)}")
+        for name, a, tail in zip(Frames._fields, out, shapes):
+            if not (isinstance(a, np.ndarray) and a.dtype == np.float64 and a.flags.c_contiguous and a.flags.writeable
+                    and a.ndim == 1 + len(tail) and a.shape[1:] == tail and a.shape[0] >= K):
+                got = describe_value(a) if not isinstance(a, np.ndarray) else f"{a.dtype} {a.shape}"
+                raise ValueError(f"out.{name} must be a writeable C-contiguous float64 array of shape (>= {K}, "
+                                 f"{', '.join(map(str, tail))}), got {got}")
 
     def _state_frames(self, st: _State, alpha: np.ndarray) -> Frames:
         """The :class:`Frames` (K = 1) of one validated state, backbone points at ``alpha``."""

@@ -4,6 +4,7 @@
 
     qchain run SCENE.toml [--duration S] [--out DIR] [--full] [--no-plots] [--no-record]
                           [--progress | --no-progress] [--mcap OUT] [--serve | --connect URL] [--rrd OUT]
+                          [--rerun-rate HZ] [--viewer-timeout S]
     qchain info SCENE.toml [--full]
     qchain replay LOG.mcap [--serve | --connect URL | --rrd OUT]
     qchain sweep SWEEP.toml [--workers N | --dask ADDRESS] [--out DIR] [--restart] [--dry-run] (qchain.sweeps)
@@ -26,7 +27,10 @@ turns that off) and can be streamed to Rerun. Every output path (the recording, 
 ``.rrd`` file, the folder of the plots and ``trajectory.npz``) is checked before the model
 is built, and a recording that cannot be written stops the run with an error (never a run
 without its recording); a viewer named by ``--connect`` must answer within
-:data:`CONNECT_TIMEOUT` seconds, or the run goes on without it, with a warning.
+:data:`CONNECT_TIMEOUT` seconds (``--viewer-timeout``), or the run goes on without it, with a
+warning. Numeric flags are checked against their ranges (:func:`qchain.cli_checks.flag_ranges`)
+and a ``--connect`` URL that cannot name a viewer is refused, before the scene is read. The
+summary's wall time is the simulation's (not finishing the recording).
 ``recover`` makes the recording of a killed run whole from its journal; ``layout`` writes a
 recording's Foxglove layout.
 
@@ -51,7 +55,6 @@ Exit codes
 from __future__ import annotations
 
 import argparse
-import math
 import os
 import re
 import sys
@@ -60,8 +63,8 @@ import warnings
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from .cli_checks import CONNECT_TIMEOUT, _recording_stem, _shown, check_output_folder, \
-    check_output_path, viewer_silence
+from .cli_checks import CONNECT_TIMEOUT, path_argument, _recording_stem, _shown, check_bind_address, check_flag_values, \
+    check_output_folder, check_output_path, check_viewer_url, viewer_silence
 from .cli_errors import (EXIT_FAILED, EXIT_OK, EXIT_USAGE, BadInput, _forget_unhandled_interrupt,
                          _one_line, _Session, _show_warnings, _tolerant_streams, guarded, report_error, take_debug)
 from .run_outputs import summary_lines, tip_positions, write_outputs
@@ -107,13 +110,19 @@ def _run(args, parser, session: _Session) -> int:
     from .errors import QchainError
     from .scene import SceneError, load_scene
 
+    from .budget import BudgetError
+
     scene = load_scene(args.scene)
-    duration = scene.duration if args.duration is None else args.duration
-    if not (math.isfinite(duration) and duration > 0):
-        parser.error(f"--duration must be > 0 s, got {args.duration}")
+    duration = scene.duration if args.duration is None else args.duration  # its range: check_flag_values
     if scene.method in ("rk4", "midpoint") and scene.dt > duration:
-        parser.error(f"--duration {duration:g} s is shorter than the scene's step dt = {scene.dt:g} s")
-    scene.check_budget(duration)  # a --duration beyond the budget is refused before anything is built
+        parser.commands["run"].error(f"argument --duration: expected a duration >= the scene's step dt = {scene.dt:g} s, found "
+                     f"{duration:g} s")
+    try:  # a --duration beyond the budget is refused before anything is built
+        scene.check_budget(duration)
+    except BudgetError as err:
+        if args.duration is None:
+            raise
+        raise BadInput(f"--duration {duration:g} s: {err}") from None
     qlog = _logging_module()
     if qlog is None and (args.mcap or args.serve or args.connect or args.rrd):
         raise BadInput("recording needs qchain.logging, which is not available")
@@ -138,7 +147,7 @@ def _run(args, parser, session: _Session) -> int:
             p = err.problems[0]
             raise BadInput(f"--out {_shown(args.out)}: expected {p.expected}, found {p.found}") from None
     if args.connect and qlog is not None:  # a viewer that never answers would hold the run without end
-        why = viewer_silence(args.connect, timeout=CONNECT_TIMEOUT)
+        why = viewer_silence(args.connect, timeout=_viewer_timeout(args))
         if why is not None:
             print(f"qchain run: warning: no Rerun viewer answers at {args.connect} ({why}); the run goes on without "
                   "it", file=sys.stderr)
@@ -163,11 +172,13 @@ def _run(args, parser, session: _Session) -> int:
             for notice in notices:
                 warnings.filterwarnings("ignore", message=re.escape(f"qchain.logging: {notice}"))
             try:
-                logger, on_sample = _make_logger(qlog, args, scene, model, duration=duration)
+                logger, on_sample = _make_logger(qlog, args, scene, model, duration=duration,
+                                                 viewer_timeout=_viewer_timeout(args))
             except (QchainError, OSError, ValueError) as err:
                 print(f"qchain run: error: the recording could not start: {_one_line(err)}", file=sys.stderr)
                 return EXIT_FAILED
     t0 = time.perf_counter()
+    t1 = None  # when the simulation ended: the wall time excludes finishing the recording (a slow viewer)
     traj = None
     interrupted = False
     try:
@@ -186,6 +197,7 @@ def _run(args, parser, session: _Session) -> int:
                 except KeyboardInterrupt as err:
                     traj = getattr(err, "trajectory", None)
                     interrupted = True
+                t1 = time.perf_counter()
                 if traj is not None:  # samples computed but not handed over (an interrupt between the two)
                     session.reached = float(traj.t[-1]) if len(traj.t) else None
                     for k in range(on_sample.taken, len(traj.t)):
@@ -208,6 +220,7 @@ def _run(args, parser, session: _Session) -> int:
             except KeyboardInterrupt as err:
                 traj = getattr(err, "trajectory", None)
                 interrupted = True
+            t1 = time.perf_counter()
     except (ValueError, QchainError) as err:  # the start state or an input outside the model, a full disk
         print(f"qchain run: error: {_one_line(err)}", file=sys.stderr)
         if logger is not None and logger.mcap_path is not None:
@@ -217,7 +230,8 @@ def _run(args, parser, session: _Session) -> int:
                   file=sys.stderr)
         return EXIT_FAILED
     session.phase = "end"
-    wall = time.perf_counter() - t0 - (traj.meta.get("compile_s", 0.0) if traj is not None else 0.0)
+    wall = (time.perf_counter() if t1 is None else t1) - t0 - (traj.meta.get("compile_s", 0.0) if traj is not None
+                                                               else 0.0)
     if traj is None:
         print("run: interrupted before the first sample", file=sys.stderr)
         return EXIT_FAILED
@@ -231,6 +245,24 @@ def _run(args, parser, session: _Session) -> int:
         for path in write_outputs(scene, model, traj, folder):
             print(f"wrote {_shown(path)}")
     return EXIT_OK if traj.success and not interrupted else EXIT_FAILED
+
+
+def _viewer_timeout(args) -> float:
+    """s a Rerun viewer has to answer (``--viewer-timeout``, default :data:`CONNECT_TIMEOUT`)."""
+    t = getattr(args, "viewer_timeout", None)
+    return CONNECT_TIMEOUT if t is None else float(t)
+
+
+def _check_run_flags(args) -> None:
+    """The flags of ``qchain run`` that argparse cannot check alone (numbers in their ranges:
+    :func:`qchain.cli_checks.check_flag_values`, in :func:`_dispatch`): the viewer's URL,
+    the address to serve on, flags that exclude each other. Raises :class:`BadInput`."""
+    if getattr(args, "serve", False) and getattr(args, "connect", None) is not None:
+        raise BadInput("argument --connect: not allowed with --serve (they exclude each other: serve a viewer here, "
+                       "or stream to a running one)")
+    check_viewer_url("argument --connect", getattr(args, "connect", None))
+    if getattr(args, "serve", False):
+        check_bind_address("argument --bind", getattr(args, "bind", None))
 
 
 def _interrupt_message(traj) -> str:
@@ -311,10 +343,13 @@ def _parser(qlog) -> argparse.ArgumentParser:
     bar.add_argument("--no-progress", dest="progress", action="store_false", help="no progress bar")
     if qlog is not None:
         run.add_argument("--no-record", action="store_true", help="write no MCAP recording (unless --mcap is given)")
-        qlog.add_logging_arguments(run)
+        g = qlog.add_logging_arguments(run)
+        g.add_argument("--viewer-timeout", type=float, default=None, metavar="S",
+                       help=f"seconds a Rerun viewer (--connect, --serve) has to answer before it is given up, with a "
+                            f"warning (default {CONNECT_TIMEOUT:g})")
     else:  # the same flags, refused with a clear message at run time
         run.set_defaults(no_record=True, mcap=None, serve=False, connect=None, rrd=None, bind="127.0.0.1",
-                         realtime=False)
+                         realtime=False, rerun_rate=None, viewer_timeout=None)
     info = sub.add_parser("info", help="describe the model a scene builds", description="Describe the model a scene "
                           "file builds: sizes, reductions and why, nodes, method.")
     info.add_argument("scene", type=Path, help="the scene file (.toml)")
@@ -328,6 +363,11 @@ def _parser(qlog) -> argparse.ArgumentParser:
                    add_help=False)
     sub.add_parser("sweep", help="run a scene over axes of its values, on every core or a Dask cluster "
                    "(qchain sweep --help)", add_help=False)
+    parser.commands = {"run": run, "info": info}  # (their usage errors: _dispatch)
+    for p in (run, info):  # every path argument: not empty (Path("") is the working folder), no NUL
+        for action in p._actions:
+            if action.type is Path:
+                action.type = path_argument
     return parser
 
 
@@ -360,6 +400,11 @@ def _dispatch(argv: list[str], session: _Session, debug: bool) -> int:
         return int(getattr(qlog, handed[argv[0]])(argv[1:]) or 0)
     parser = _parser(qlog)
     args = parser.parse_args(argv)
+    try:
+        check_flag_values(args)
+    except BadInput as err:  # as argparse says a bad value: the command's usage, then the line
+        parser.commands[args.command].error(str(err))
+    _check_run_flags(args)
     if args.command == "run":
         return _run(args, parser, session)
     return _info(args)

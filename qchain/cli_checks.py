@@ -1,10 +1,18 @@
-"""What ``qchain run`` checks before it builds a model: output paths (the plots' folder, the
-recording, ``--rrd``) and the Rerun viewer named by ``--connect``."""
+"""What ``qchain run`` checks before it builds a model: the values of its numeric flags
+(:data:`FLAG_RANGES`), output paths (the plots' folder, the recording, ``--rrd``), the
+address ``--serve`` binds and the Rerun viewer named by ``--connect``."""
 
 from __future__ import annotations
 
+import argparse
+
+import errno
+import ipaddress
+import math
 import os
+import re
 from pathlib import Path
+from urllib.parse import urlsplit
 
 from .cli_errors import BadInput
 
@@ -12,6 +20,102 @@ from .cli_errors import BadInput
 CONNECT_TIMEOUT = 5.0
 #: Bytes of the scene file's name that name a default recording (``runs/<stem>-<time>.mcap``).
 MAX_STEM_BYTES = 100
+#: URL schemes ``--connect`` takes (those :func:`qchain.recording.rerun_sink.probe_viewer` knows).
+VIEWER_SCHEMES = ("rerun+http", "rerun+https", "rerun", "http", "https")
+
+
+def flag_ranges() -> dict:
+    """``{argparse dest: (flag, Range)}``: the numeric flags of ``qchain run`` and the ranges
+    (:mod:`qchain.bounds`) their values must be in, declared once; :func:`check_flag_values`
+    applies them."""
+    from .bounds import DURATION, SAMPLE_RATE, Range
+
+    return {
+        "duration": ("--duration", DURATION),
+        "rerun_rate": ("--rerun-rate", SAMPLE_RATE),
+        "viewer_timeout": ("--viewer-timeout", Range(0.0, 3600.0, "s", low_open=True)),
+    }
+
+
+def check_flag_values(args, ranges: dict | None = None) -> None:
+    """Refuse a numeric flag whose value is outside its range (NaN and infinities too).
+
+    Raises
+    ------
+    BadInput
+        ``argument FLAG: expected a number > 0 and <= 1e+12 (s), found nan``: the flag, its
+        bound and the value given.
+    """
+    for dest, (flag, rng) in (flag_ranges() if ranges is None else ranges).items():
+        value = getattr(args, dest, None)
+        if value is None:
+            continue
+        if not (isinstance(value, (int, float)) and math.isfinite(value) and rng.contains(value)):
+            raise BadInput(f"argument {flag}: expected {rng.what()}, found {value:g}")
+
+
+def _hostname_ok(host: str) -> bool:
+    """A host name of DNS syntax (labels of 1 to 63 letters, digits and hyphens; at most
+    253 bytes), not all digits (an IPv4 address is checked as one)."""
+    if not host or len(host) > 253 or re.fullmatch(r"[0-9.]+", host):
+        return False
+    return all(re.fullmatch(r"(?!-)[A-Za-z0-9_-]{1,63}(?<!-)", part) for part in host.rstrip(".").split("."))
+
+
+def _host_ok(host: str) -> bool:
+    try:
+        ipaddress.ip_address(host.strip("[]"))
+        return True
+    except ValueError:
+        return _hostname_ok(host)
+
+
+def check_viewer_url(flag: str, url) -> None:
+    """Refuse a viewer URL that cannot name one (before the run; a URL that names a viewer
+    which does not answer is a warning, :func:`viewer_silence`): a supported scheme
+    (:data:`VIEWER_SCHEMES`), a host (an IP address or a DNS name) and a port from 1 to 65535.
+
+    Raises
+    ------
+    BadInput
+        naming ``flag``, the URL and what is wrong.
+    """
+    if url is None:
+        return
+    text = str(url)
+    shown = text if len(text) <= 80 else text[:77] + "..."
+    example = "rerun+http://127.0.0.1:9876/proxy"
+    if not text.strip():
+        raise BadInput(f"{flag}: expected a Rerun viewer's URL such as {example}, found an empty string")
+    if any(c.isspace() or not c.isprintable() for c in text):
+        raise BadInput(f"{flag}: expected a URL without spaces or control characters, found {shown!r}")
+    try:
+        parts = urlsplit(text)
+        port = parts.port
+    except ValueError as err:
+        raise BadInput(f"{flag}: expected a URL with a port from 1 to 65535, found {shown!r} ({err})") from None
+    if parts.scheme not in VIEWER_SCHEMES:
+        raise BadInput(f"{flag}: expected a URL of scheme {', '.join(VIEWER_SCHEMES)} (such as {example}), found "
+                       f"{shown!r}")
+    if not parts.hostname or not _host_ok(parts.hostname):
+        raise BadInput(f"{flag}: expected a URL naming a host (an IP address or a DNS name), found {shown!r}")
+    if port is not None and not 1 <= port <= 65535:
+        raise BadInput(f"{flag}: expected a URL with a port from 1 to 65535, found {shown!r}")
+
+
+def check_bind_address(flag: str, host) -> None:
+    """Refuse an address to listen on that is neither an IP address nor a DNS name.
+
+    Raises
+    ------
+    BadInput
+        naming ``flag`` and the address.
+    """
+    if host is None:
+        return
+    if not _host_ok(str(host)):
+        shown = str(host) if len(str(host)) <= 80 else str(host)[:77] + "..."
+        raise BadInput(f"{flag}: expected an IP address (127.0.0.1, 0.0.0.0, ::1) or a host name, found {shown!r}")
 
 # --------------------------------------------------------------------------------------
 # paths and viewers, checked before the run
@@ -76,6 +180,32 @@ def check_output_path(flag: str, path, extra: str = "") -> None:
         beside = f" and its {extra} file beside it needs {len(extra.encode())} more" if extra else ""
         raise BadInput(f"{flag} file name {name} is {size} bytes long{beside}: a file name may have at most {limit} "
                        "bytes there")
+    for target in [p] + ([Path(text + extra)] if extra else []):
+        _existing_output_problem(flag, target)
+
+
+def _existing_output_problem(flag: str, p: Path) -> None:
+    """Refuse an output file path that exists as something other than a regular file (a
+    folder, a device such as /dev/null or /dev/full, a FIFO), or is a loop of symbolic links
+    (the recording's own checks, :func:`qchain.logging.check_outputs`, say the rest)."""
+    import stat
+
+    shown = _shown(p)
+    shown = shown if len(shown) <= 120 else shown[:117] + "..."
+    try:
+        st = os.stat(p)
+    except FileNotFoundError:
+        return
+    except OSError as err:
+        if err.errno != errno.ELOOP:  # a file where a folder must be, a path too long: the recording's checks say it
+            return
+        raise BadInput(f"{flag} path {shown} cannot be used: {err.strerror or err}") from None
+    mode = st.st_mode
+    if stat.S_ISREG(mode):
+        return
+    kind = ("a folder" if stat.S_ISDIR(mode) else "a FIFO" if stat.S_ISFIFO(mode) else "a device"
+            if stat.S_ISCHR(mode) or stat.S_ISBLK(mode) else "a socket" if stat.S_ISSOCK(mode) else "not a file")
+    raise BadInput(f"{flag} path {shown} is {kind}: expected a regular file (or a path where one can be made)")
 
 
 def check_output_folder(what: str, folder) -> Path:
@@ -114,3 +244,12 @@ def viewer_silence(url: str, timeout: float = CONNECT_TIMEOUT) -> str | None:
     from .recording.rerun_sink import probe_viewer  # (loads no Rerun: the command starts at once)
 
     return probe_viewer(url, timeout)
+
+
+def path_argument(text: str) -> Path:
+    """A path argument: argparse says ``argument --out: expected a path, found an empty
+    string`` for an empty one (``Path("")`` would be the working folder); the checks of
+    each output (:mod:`qchain.cli_checks`) say the rest."""
+    if not text:
+        raise argparse.ArgumentTypeError("expected a path, found an empty string")
+    return Path(text)

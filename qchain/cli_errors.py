@@ -11,6 +11,8 @@ import os
 import sys
 import traceback
 
+from .text import printable
+
 EXIT_OK, EXIT_FAILED, EXIT_USAGE = 0, 1, 2
 DEBUG_HINT = "(run with --debug for the traceback)"
 
@@ -69,7 +71,7 @@ def _instance(err: BaseException, module: str, name: str) -> bool:
 
 
 def _one_line(text: str, limit: int = 2000) -> str:
-    text = " ".join(str(text).split())
+    text = printable(" ".join(str(text).split()))  # lines folded into one, then what a terminal would act on escaped
     return text if len(text) <= limit else text[: limit - 3] + "..."
 
 

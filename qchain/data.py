@@ -44,6 +44,8 @@ root frame of segment ``j``, ``root 0`` the base; ``[linear; angular]``; SI unit
 
 from __future__ import annotations
 
+import numpy as np
+
 from . import derivatives, planar, recursive
 
 __all__ = ["Data"]
@@ -65,8 +67,14 @@ class Data:
     use, so a workspace made for one call costs only what that call writes."""
 
     def __init__(self, n: int, nv: int):
+        from .bounds import SEGMENT_COUNT
+
+        n = SEGMENT_COUNT.check("n", n)
+        if isinstance(nv, (bool, np.bool_)) or not isinstance(nv, (int, np.integer)) or int(nv) not in (3 * n, 3 * n + 6):
+            raise ValueError(f"nv must be 3 n = {3 * n} (a fixed or prescribed base) or 3 n + 6 = {3 * n + 6} (a "
+                             f"floating base), got {nv!r}")
         self.n = n
-        self.nv = nv
+        self.nv = int(nv)
 
     def __getattr__(self, name: str):
         if name.startswith("_"):

@@ -26,7 +26,8 @@ import numpy as np
 from . import derivatives, recursive
 from .arc import SCRATCH
 from .errors import QchainError
-from .segment import paper_bias_derivative, paper_jacobian_derivative, paper_jacobian_dot
+from .segment import _paper_bias_derivative as paper_bias_derivative
+from .segment import _paper_jacobian_derivative as paper_jacobian_derivative, _paper_jacobian_dot as paper_jacobian_dot
 
 if TYPE_CHECKING:
     from .chain import Chain, _State
@@ -202,7 +203,7 @@ def forward_dynamics_derivatives(ch: Chain, st: _State, p3: np.ndarray, tau, t: 
     try:
         c = cho_factor(idd.dtau_da[ix], lower=True, check_finite=False)
     except np.linalg.LinAlgError:
-        raise QchainError("forward_dynamics_derivatives: the mass matrix is not positive definite") from None
+        raise ch.indefinite_error("forward_dynamics_derivatives", st.q_e, t) from None
     Minv = cho_solve(c, np.eye(int(free.sum())), check_finite=False)
     da_dq = np.zeros((nv, nv))
     da_dv = np.zeros((nv, nv))
@@ -236,10 +237,11 @@ def compiled_forward_dynamics_derivatives(ch: Chain, q_c, v_c, p3, tau, V0, A_B,
                                              data.aba_derivatives_workspace(), data.scratch)
         out = (data.a, data.da_dq, data.da_dv, data.da_dp, data.da_dtau)
     if status and check:
-        what = {1: "an articulated inertia block is not positive definite",
-                2: "the mass matrix is not positive definite",
-                3: "non-finite accelerations or derivatives"}[status]
-        raise QchainError(f"forward_dynamics_derivatives: {what} at t = {t}")
+        if status in (1, 2):  # name the segment whose inertia is singular, and its coordinates
+            raise ch.indefinite_error("forward_dynamics_derivatives", q_c, t)
+        raise ch.nonfinite_error("forward_dynamics_derivatives", "accelerations or their derivatives",
+                                 np.concatenate([np.zeros(ch._qoff), np.ravel(q_c)]),
+                                 np.concatenate([np.zeros(ch._voff), np.ravel(v_c)]), t)
     return ForwardDynamicsDerivatives(*out)
 
 

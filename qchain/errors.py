@@ -23,6 +23,10 @@ __all__ = [
     "as_matrix",
     "check_positive",
     "describe_value",
+    "as_batch",
+    "as_bool",
+    "as_index",
+    "check_callable",
 ]
 
 
@@ -188,3 +192,44 @@ def check_positive(name: str, value, unit: str, allow_zero: bool = False) -> flo
     if not allow_zero and v <= 0.0:
         raise ValueError(f"{name} must be > 0 {unit}, got {v} {unit}".replace("  ", " "))
     return v
+
+
+def as_batch(name: str, value, last: int) -> np.ndarray:
+    """``value`` as a finite float array of shape ``(..., last)`` (a batch of vectors of
+    ``last`` entries): ``TypeError`` for entries that are not real numbers, ``ValueError``
+    naming ``name`` for another shape or non-finite entries."""
+    arr = as_real_array(name, value)
+    if arr.ndim == 0 or arr.shape[-1] != last:
+        raise ValueError(f"{name} must have shape ({last},) or (..., {last}), got shape {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        bad = np.flatnonzero(~np.isfinite(arr.ravel())).tolist()
+        raise ValueError(f"{name} has non-finite entries at flat indices {bad[:10]}: {describe_value(arr)}")
+    return arr
+
+
+def as_bool(name: str, value) -> bool:
+    """``True`` or ``False`` (Python or numpy booleans); ``TypeError`` naming ``name`` for
+    anything else (``"no"``, ``0.5`` and ``None`` are not booleans, whatever their truth)."""
+    if isinstance(value, (bool, np.bool_)):
+        return bool(value)
+    raise TypeError(f"{name} must be True or False, got {describe_value(value)}")
+
+
+def as_index(name: str, value, size: int) -> int:
+    """An integer ``0 <= value < size`` (Python or numpy integers, not booleans); ``TypeError``
+    or ``ValueError`` naming ``name``, the value and the bound."""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)):
+        raise TypeError(f"{name} must be an integer >= 0 and < {size}, got {describe_value(value)}")
+    i = int(value)
+    if not 0 <= i < size:
+        raise ValueError(f"{name} must be an integer >= 0 and < {size}, got {i}")
+    return i
+
+
+def check_callable(name: str, value, optional: bool = True):
+    """``value`` if it is callable (or None with ``optional``); ``TypeError`` naming ``name``."""
+    if value is None and optional:
+        return None
+    if not callable(value):
+        raise TypeError(f"{name} must be {'None or ' if optional else ''}a callable, got {describe_value(value)}")
+    return value

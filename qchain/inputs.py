@@ -15,8 +15,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .bounds import FREQUENCY, PRESSURE, Range
-from .errors import as_real, as_real_array, as_vector
+from .bounds import FREQUENCY, PRESSURE, TIME, Range
+from .errors import as_real_array, as_vector
 
 __all__ = ["Schedule", "Constant", "Step", "Ramp", "Sine", "Table", "as_input", "input_range", "FORCE"]
 
@@ -29,10 +29,23 @@ _RANGES = {"pressure": PRESSURE, "tau": FORCE}
 
 
 def _vec(name, x, size=None) -> np.ndarray:
+    """A read-only copy of ``x`` as a finite (size,) float array: a schedule owns its values
+    (a later change of the caller's array cannot get around the checks made here)."""
     x = np.atleast_1d(as_real_array(name, x))
     if x.ndim != 1:
         raise ValueError(f"{name} must be a 1-D array, got shape {x.shape}")
-    return as_vector(name, x, x.size if size is None else size)
+    return _frozen(as_vector(name, x, x.size if size is None else size))
+
+
+def _frozen(x: np.ndarray) -> np.ndarray:
+    x = np.array(x, dtype=np.float64)
+    x.flags.writeable = False
+    return x
+
+
+def _copy(x):
+    """What a user's callable gets: its own copy of a state array (its writes stay its own)."""
+    return x.copy() if isinstance(x, np.ndarray) else x
 
 
 def _spread(name, x, n) -> np.ndarray:
@@ -40,7 +53,7 @@ def _spread(name, x, n) -> np.ndarray:
     v = _vec(name, x)
     if v.size not in (1, n):
         raise ValueError(f"{name} must be one number or {n} (one an entry of amplitude), got {v.size}")
-    return np.broadcast_to(v, (n,)).copy()
+    return _frozen(np.broadcast_to(v, (n,)))
 
 
 class Schedule(ABC):
@@ -90,8 +103,9 @@ class Step(Schedule):
     def __post_init__(self):
         a = _vec("after", self.after)
         object.__setattr__(self, "after", a)
-        object.__setattr__(self, "before", np.zeros_like(a) if self.before is None else _vec("before", self.before, a.size))
-        object.__setattr__(self, "time", as_real("time", self.time))
+        object.__setattr__(self, "before", _frozen(np.zeros_like(a)) if self.before is None else
+                           _vec("before", self.before, a.size))
+        object.__setattr__(self, "time", TIME.check("time", self.time))
 
     @property
     def size(self) -> int:
@@ -116,9 +130,10 @@ class Ramp(Schedule):
     def __post_init__(self):
         e = _vec("end", self.end)
         object.__setattr__(self, "end", e)
-        object.__setattr__(self, "start", np.zeros_like(e) if self.start is None else _vec("start", self.start, e.size))
-        object.__setattr__(self, "t0", as_real("t0", self.t0))
-        object.__setattr__(self, "t1", as_real("t1", self.t1))
+        object.__setattr__(self, "start", _frozen(np.zeros_like(e)) if self.start is None else
+                           _vec("start", self.start, e.size))
+        object.__setattr__(self, "t0", TIME.check("t0", self.t0))
+        object.__setattr__(self, "t1", TIME.check("t1", self.t1))
         if not self.t1 > self.t0:
             raise ValueError(f"ramp times must be finite with t1 > t0, got t0 = {self.t0}, t1 = {self.t1}")
 
@@ -149,8 +164,8 @@ class Sine(Schedule):
         n = a.size
         f = _spread("frequency", self.frequency, n)
         FREQUENCY.check_array("frequency", f)
-        ph = np.zeros(n) if self.phase is None else _spread("phase", self.phase, n)
-        off = np.zeros(n) if self.offset is None else _spread("offset", self.offset, n)
+        ph = _frozen(np.zeros(n)) if self.phase is None else _spread("phase", self.phase, n)
+        off = _frozen(np.zeros(n)) if self.offset is None else _spread("offset", self.offset, n)
         for k, v in (("amplitude", a), ("frequency", f), ("phase", ph), ("offset", off)):
             object.__setattr__(self, k, v)
 
@@ -178,7 +193,7 @@ class Table(Schedule):
     values: np.ndarray
 
     def __post_init__(self):
-        t = _vec("times", self.times)
+        t = TIME.check_array("times", _vec("times", self.times))
         v = as_real_array("values", self.values)
         if v.ndim != 2 or v.shape[0] != t.size:
             raise ValueError(f"values must have shape ({t.size}, m) to match times, got {v.shape}")
@@ -189,7 +204,7 @@ class Table(Schedule):
             k = int(np.flatnonzero(d <= 0)[0])
             raise ValueError(f"times must increase strictly: times[{k}] = {t[k]} >= times[{k + 1}] = {t[k + 1]}")
         object.__setattr__(self, "times", t)
-        object.__setattr__(self, "values", v)
+        object.__setattr__(self, "values", _frozen(v))
 
     @property
     def size(self) -> int:
@@ -257,6 +272,26 @@ def _range_check(rng: Range, label: str) -> Callable[[np.ndarray], np.ndarray]:
     return check
 
 
+def _arity(name: str, u) -> int:
+    """1 for a schedule-like callable ``u(t)``, 3 for a controller ``u(t, q, v)``; a
+    ``TypeError`` naming ``name`` for a callable that takes neither."""
+    try:
+        sig = inspect.signature(u)
+    except (TypeError, ValueError):  # a builtin without a signature: taken as a controller
+        return 3
+    for n in (3, 1):
+        try:
+            sig.bind(*range(n))
+        except TypeError:
+            continue
+        if n == 3 and len(sig.parameters) == 1 and not any(
+                p.kind is p.VAR_POSITIONAL for p in sig.parameters.values()):
+            continue
+        return n
+    raise TypeError(f"{name} must be a controller (t, q, v) -> array or a function of time t -> array, got a "
+                    f"callable {getattr(u, '__qualname__', type(u).__name__)}{sig} that takes neither")
+
+
 def as_input(name: str, u, size: int, bound: Range | None | str = "auto"
              ) -> Callable[[float, np.ndarray, np.ndarray], np.ndarray]:
     """``(t, q, v) -> (size,)`` from ``None`` (zeros), a constant array, a :class:`Schedule` or a
@@ -289,7 +324,7 @@ def as_input(name: str, u, size: int, bound: Range | None | str = "auto"
     if rng is not None and not isinstance(rng, Range):
         raise TypeError(f"bound must be a qchain.bounds.Range, None or 'auto', got {type(rng).__name__}")
     if u is None:
-        z = np.zeros(size)
+        z = _frozen(np.zeros(size))
         return lambda t, q, v: z
     if isinstance(u, Schedule):
         if u.size != size:
@@ -302,22 +337,19 @@ def as_input(name: str, u, size: int, bound: Range | None | str = "auto"
             _check_extent(name, rng, u)
         return lambda t, q, v: u(t)
     if callable(u):
-        try:
-            nargs = len(inspect.signature(u).parameters)
-        except (TypeError, ValueError):
-            nargs = 3
+        nargs = _arity(name, u)
         if nargs == 1:
             label = f"{name}(t)"
             if rng is None:
                 return lambda t, q, v: as_vector(label, u(t), size)
             check = _range_check(rng, label)
             return lambda t, q, v: check(as_vector(label, u(t), size))
-        label = f"{name}(t, q, v)"
+        label = f"{name}(t, q, v)"  # the controller gets copies of the state: its writes stay its own
         if rng is None:
-            return lambda t, q, v: as_vector(label, u(t, q, v), size)
+            return lambda t, q, v: as_vector(label, u(t, _copy(q), _copy(v)), size)
         check = _range_check(rng, label)
-        return lambda t, q, v: check(as_vector(label, u(t, q, v), size))
-    c = as_vector(name, u, size)
+        return lambda t, q, v: check(as_vector(label, u(t, _copy(q), _copy(v)), size))
+    c = _frozen(as_vector(name, u, size))
     if rng is not None:
         rng.check_array(name, c)
     return lambda t, q, v: c

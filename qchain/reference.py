@@ -14,6 +14,9 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.integrate import solve_bvp
 
+from .bounds import Range
+from .errors import QchainError
+
 __all__ = ["ElasticaSolution", "elastica_cantilever"]
 
 
@@ -37,8 +40,15 @@ def elastica_cantilever(length: float, EI: float, weight_per_length: float, tol:
     Parameters
     ----------
     length : m;  EI : N m^2;  weight_per_length : w = rho A g (N/m), acting downwards.
+        Real numbers (``TypeError`` otherwise): ``0 < length <= 1e3`` m, ``0 < EI <= 1e12``
+        N m^2, ``|weight_per_length| <= 1e9`` N/m, ``0 < tol < 1``. A boundary-value problem
+        that does not converge (loads far beyond the elastica's regime) raises
+        :class:`qchain.QchainError` naming them.
     """
-    L, w = float(length), float(weight_per_length)
+    L = Range(0.0, 1e3, "m", low_open=True).check("length", length)
+    EI = Range(0.0, 1e12, "N m^2", low_open=True).check("EI", EI)
+    w = Range(-1e9, 1e9, "N/m").check("weight_per_length", weight_per_length)
+    tol = Range(0.0, 1.0, low_open=True, high_open=True).check("tol", tol)
 
     def f(s, y):
         th, k, x, z = y
@@ -52,7 +62,8 @@ def elastica_cantilever(length: float, EI: float, weight_per_length: float, tol:
     guess[2] = s
     sol = solve_bvp(f, bc, s, guess, tol=tol, max_nodes=200000)
     if not sol.success:
-        raise RuntimeError(f"elastica BVP did not converge: {sol.message}")
+        raise QchainError(f"elastica_cantilever: the boundary-value problem did not converge for length = {L:g} m, "
+                          f"EI = {EI:g} N m^2, weight_per_length = {w:g} N/m: {sol.message}")
     ss = np.linspace(0.0, L, 2001)
     th, _, x, z = sol.sol(ss)
     return ElasticaSolution(s=ss, theta=th, x=x, z=z, tip=np.array([x[-1], z[-1]]))

@@ -262,15 +262,16 @@ class Scene(ModelBuilder):
 
         if "\0" in str(p):
             fail("a folder path without a NUL character", _show(str(p).replace("\0", "\\0")))
-        for parent in [p, *p.parents]:
-            if parent.exists() and not parent.is_dir():
-                fail("a folder (or a path where one can be made)", f"{parent} is a file")
         try:
+            for parent in [p, *p.parents]:
+                if parent.exists() and not parent.is_dir():
+                    fail("a folder (or a path where one can be made)", f"{parent} is a file")
             p.mkdir(parents=True, exist_ok=True)
             with tempfile.TemporaryFile(dir=p) as fh:
                 fh.write(b"qchain")
-        except OSError as err:
-            fail("a folder qchain can write in", f"{p}: {err.strerror or err}")
+        except OSError as err:  # also a path too long, a loop of links (from exists() too)
+            shown = str(p) if len(str(p)) <= 120 else str(p)[:117] + "..."
+            fail("a folder qchain can write in", f"{shown}: {err.strerror or err}")
         cost = self.cost()
         need = cost.samples * 8.0 * (6 + 4 * 3 * self.n) + 2**20 * (len(self.plots) + 1)
         free = shutil.disk_usage(p).free

@@ -28,6 +28,7 @@ from .bounds import Range
 from .budget import DEFAULT as DEFAULT_BUDGET
 from .budget import RANGES as BUDGET_RANGES
 from .errors import QchainError
+from .text import printable
 from .segment import DEFAULT_NODES
 from .simulate import DEFAULT_METHOD, FIXED_STEP, METHODS
 
@@ -59,6 +60,8 @@ MAX_STRETCH = 10.0
 MAX_LISTED = 50
 #: Longest path component of ``output.folder`` (bytes, UTF-8): most file systems' limit.
 MAX_NAME_BYTES = 255
+#: Longest ``output.folder`` (bytes, UTF-8): Linux's ``PATH_MAX`` less its NUL.
+MAX_PATH_BYTES = 4095
 
 
 # --------------------------------------------------------------------------------------
@@ -282,7 +285,8 @@ SIMULATION = Table("simulation", "The run.", (
 OUTPUT = Table("output", "What a run writes (`qchain run`).", (
     Field("sample_rate", "number", "Samples of the trajectory a second.", B.SAMPLE_RATE, default="100"),
     Field("folder", "path", "Where the plots and `trajectory.npz` go, relative to the working directory: not "
-          f"empty, no NUL character, no path component over {MAX_NAME_BYTES} bytes.", default='"out/<file stem>"'),
+          f"empty, no NUL character, no path component over {MAX_NAME_BYTES} bytes, at most {MAX_PATH_BYTES} bytes in "
+          "all.", default='"out/<file stem>"'),
     Field("plots", "names", "Plots to draw (`momentum` only with a floating base).", choices=PLOTS,
           default='["tip"]'),
     Field("save", "boolean", "Write `trajectory.npz` (t, q, v, p, energies).", default="true"),
@@ -330,11 +334,13 @@ class SceneError(QchainError, ValueError):
     def __init__(self, path: str, problems: list[Problem]):
         self.path = str(path)
         self.problems = list(problems)
+        where = self.path if len(self.path) <= 200 else f"{self.path[:100]}...{self.path[-97:]}"  # a 4 KB path: cut
+        where = printable(where)  # a problem a line: a newline or escape sequence in a name stays in its line
         if len(self.problems) == 1:
-            msg = f"{self.path}: {self.problems[0]}"
+            msg = f"{where}: {printable(self.problems[0])}"
         else:
             shown = self.problems[:MAX_LISTED]
-            msg = f"{self.path}: {len(self.problems)} problems:\n" + "\n".join(f"  {p}" for p in shown)
+            msg = f"{where}: {len(self.problems)} problems:\n" + "\n".join(f"  {printable(p)}" for p in shown)
             if len(self.problems) > MAX_LISTED:
                 msg += f"\n  ... and {len(self.problems) - MAX_LISTED} more (SceneError.problems lists them all)"
         super().__init__(msg)
@@ -524,7 +530,7 @@ class _Checker:
         if not bounds.contains(x):
             self.add(path, what, _show(v))
             return default
-        return x
+        return x + 0.0  # -0.0 is 0 (no "-0" in messages and descriptions)
 
     def integer(self, d: dict, key: str, path: str, *, default=None, minimum: int = 1, maximum: int | None = None):
         v = d.get(key, _MISSING)
@@ -569,6 +575,10 @@ class _Checker:
         if "\0" in v:
             self.add(path, "a folder path without a NUL character", _show(v.replace("\0", "\\0")))
             return None
+        size = len(v.encode("utf-8", "surrogatepass"))
+        if size > MAX_PATH_BYTES:
+            self.add(path, f"a folder path of at most {MAX_PATH_BYTES} bytes", f"{size} bytes, {_show(v)}")
+            return None
         for part in re.split(r"[/\\]", v):
             if len(part.encode("utf-8", "surrogatepass")) > MAX_NAME_BYTES:
                 self.add(path, f"path components of at most {MAX_NAME_BYTES} bytes",
@@ -604,7 +614,7 @@ class _Checker:
             if fx is None or not math.isfinite(fx):
                 self.add(f"{path}[{i}]", "a finite number", f"{_type_name(x)} {_show(x)}")
                 return None
-        arr = np.array(v, dtype=float)
+        arr = np.array(v, dtype=float) + 0.0  # -0.0 is 0
         if bounds is not None:
             bad = bounds.outside(arr)
             if bad.any():

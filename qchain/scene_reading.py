@@ -35,30 +35,63 @@ if TYPE_CHECKING:
 __all__ = ["load_scene", "parse_scene"]
 
 
-def _file_problem(p: Path) -> Problem | None:
-    """Why ``p`` cannot be read as a scene file (missing, a folder, a FIFO or device, too
-    large), or None; opened without blocking, so a FIFO cannot hang the check."""
+def _file_problem(p: Path, what: str = "scene file") -> Problem | None:
+    """Why ``p`` cannot be read as a ``what`` (missing, a folder, a FIFO or device, too
+    large, a path too long or a loop of links), or None; opened without blocking, so a FIFO
+    cannot hang the check."""
     try:
         fd = os.open(p, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))
     except FileNotFoundError:
-        return Problem("(file)", "an existing scene file", "no such file")
+        return Problem("(file)", f"an existing {what}", "no such file")
     except IsADirectoryError:
-        return Problem("(file)", "a scene file", "a folder")
-    except (OSError, ValueError) as err:
-        return Problem("(file)", "a readable scene file", str(err))
+        return Problem("(file)", f"a {what}", "a folder")
+    except ValueError as err:  # a NUL character
+        return Problem("(file)", f"a readable {what}", str(err))
+    except OSError as err:
+        return Problem("(file)", f"a readable {what}", err.strerror or str(err))
     try:
         st = os.fstat(fd)
     finally:
         os.close(fd)
     if stat.S_ISDIR(st.st_mode):
-        return Problem("(file)", "a scene file", "a folder")
+        return Problem("(file)", f"a {what}", "a folder")
     if not stat.S_ISREG(st.st_mode):
         kind = ("a FIFO" if stat.S_ISFIFO(st.st_mode) else "a device" if stat.S_ISCHR(st.st_mode) or
                 stat.S_ISBLK(st.st_mode) else "a socket" if stat.S_ISSOCK(st.st_mode) else "not a regular file")
-        return Problem("(file)", "a regular scene file", kind)
+        return Problem("(file)", f"a regular {what}", kind)
     if st.st_size > F.MAX_SCENE_BYTES:
-        return Problem("(file)", f"a scene file of at most {F.MAX_SCENE_BYTES} bytes", f"{st.st_size} bytes")
+        return Problem("(file)", f"a {what} of at most {F.MAX_SCENE_BYTES} bytes", f"{st.st_size} bytes")
     return None
+
+
+def read_toml(path: str | os.PathLike, what: str = "scene file", error=SceneError) -> tuple[str, dict]:
+    """The text of the TOML file ``path`` and its table, read within the limits of a scene
+    file (a regular file of at most :data:`qchain.scene_format.MAX_SCENE_BYTES` bytes of
+    UTF-8, nested at most :data:`qchain.scene_format.MAX_DEPTH` deep): a FIFO, a device or a
+    file too large or too deep is refused before it is read or parsed.
+
+    Raises
+    ------
+    SceneError (or ``error``, a subclass)
+        naming the file and what is wrong with it, as ``(file): expected ..., found ...``.
+    """
+    p = Path(path)
+    bad = _file_problem(p, what)
+    if bad is not None:
+        raise error(str(p), [bad])
+    try:
+        with open(p, "rb") as fh:
+            data = fh.read(F.MAX_SCENE_BYTES + 1)
+        text = data.decode("utf-8")
+    except (OSError, UnicodeDecodeError) as err:
+        raise error(str(p), [Problem("(file)", "a readable UTF-8 text file", str(err))]) from None
+    bad = F.nesting_problem(text)
+    if bad is not None:
+        raise error(str(p), [bad])
+    try:
+        return text, tomllib.loads(text)
+    except tomllib.TOMLDecodeError as err:
+        raise error(str(p), [Problem("(file)", "valid TOML", f"a syntax error: {err}")]) from None
 
 
 def load_scene(path: str | os.PathLike) -> Scene:
@@ -280,6 +313,13 @@ def _segments(ck: _Checker, raw: dict, budget: Budget) -> list[SegmentSpec] | No
             ck.add(f"{path}.count" if "count" in s else "segments",
                    f"at most budget.max_segments = {budget.max_segments} segments in all, count expanded (raise it "
                    "in [budget] to allow more)", f"{total} segments up to {path}")
+            return None
+        least = _cost(total, "fixed", DEFAULT_METHOD, None, math.inf, 1e-300, 1.0, 0.0)  # the matrices alone
+        over = [(k, e, f) for k, e, f in budget.problems(least) if k == "max_memory"]
+        if over:  # said now, before thousands of segments are made only to be refused at the end
+            key, expected, found = over[0]
+            ck.add("segments", f"{expected} (budget.{key}; raise it in [budget] to allow more)",
+                   f"{found}, with the {total} segments up to {path}")
             return None
         vals = {}
         for k in ("length", "radius", "mass", "chamber_area", "chamber_radius", "youngs_modulus"):

@@ -64,7 +64,7 @@ from .slices import (
     segment_mass,
     segment_newton_euler,
 )
-from .spatial import ad_matrix, disk_inertia, force_cross_bar
+from .spatial import _ad_matrix as ad_matrix, _disk_inertia as disk_inertia, _force_cross_bar as force_cross_bar
 
 __all__ = [
     "Segment",
@@ -139,13 +139,13 @@ def _finite(quantity: str):
 # coordinate conversions (module level: they know no segment parameters)
 
 
-def paper_to_curvature(q_p: np.ndarray) -> np.ndarray:
+def _paper_to_curvature(q_p: np.ndarray) -> np.ndarray:
     """``(l, psi, kappa) -> (l, ux, uy) = (l, kappa cos psi, kappa sin psi)`` (docs/model.md section 1)."""
     l, psi, kappa = q_p
     return np.array([l, kappa * np.cos(psi), kappa * np.sin(psi)])
 
 
-def curvature_to_paper(q_c: np.ndarray) -> np.ndarray:
+def _curvature_to_paper(q_c: np.ndarray) -> np.ndarray:
     """``(l, ux, uy) -> (l, psi, kappa)`` with ``psi = atan2(uy, ux)`` in (-pi, pi].
 
     At ``ux = uy = 0`` the azimuth is undefined; ``psi = 0`` is returned.
@@ -154,7 +154,7 @@ def curvature_to_paper(q_c: np.ndarray) -> np.ndarray:
     return np.array([l, np.arctan2(uy, ux), np.hypot(ux, uy)])
 
 
-def paper_jacobian(q_p: np.ndarray) -> np.ndarray:
+def _paper_jacobian(q_p: np.ndarray) -> np.ndarray:
     """``J = d(l, ux, uy) / d(l, psi, kappa)``, shape (3, 3); ``det J = -kappa``, which is why
     the paper's coordinates are singular at ``kappa = 0`` (docs/model.md section 1)."""
     _, psi, kappa = q_p
@@ -162,7 +162,7 @@ def paper_jacobian(q_p: np.ndarray) -> np.ndarray:
     return np.array([[1.0, 0.0, 0.0], [0.0, -kappa * s, c], [0.0, kappa * c, s]])
 
 
-def paper_jacobian_dot(q_p: np.ndarray, qd_p: np.ndarray) -> np.ndarray:
+def _paper_jacobian_dot(q_p: np.ndarray, qd_p: np.ndarray) -> np.ndarray:
     """Time derivative of :func:`paper_jacobian` along ``qd_p``, shape (3, 3)."""
     _, psi, kappa = q_p
     _, psid, kappad = qd_p
@@ -176,7 +176,7 @@ def paper_jacobian_dot(q_p: np.ndarray, qd_p: np.ndarray) -> np.ndarray:
     )
 
 
-def paper_jacobian_derivative(q_p: np.ndarray) -> np.ndarray:
+def _paper_jacobian_derivative(q_p: np.ndarray) -> np.ndarray:
     """``dJ[c] = d paper_jacobian / d q_p[c]`` (3, 3, 3), ``c`` over ``(l, psi, kappa)``."""
     _, psi, kappa = q_p
     c, s = np.cos(psi), np.sin(psi)
@@ -186,7 +186,7 @@ def paper_jacobian_derivative(q_p: np.ndarray) -> np.ndarray:
     return dJ
 
 
-def paper_bias_derivative(q_p: np.ndarray, qd_p: np.ndarray) -> np.ndarray:
+def _paper_bias_derivative(q_p: np.ndarray, qd_p: np.ndarray) -> np.ndarray:
     """``d(Jdot qd_p)/d q_p`` (3, 3) at fixed ``qd_p``: the configuration derivative of the
     velocity-product term of ``qdd_c = J qdd_p + Jdot qd_p``."""
     _, psi, kappa = q_p
@@ -200,12 +200,12 @@ def paper_bias_derivative(q_p: np.ndarray, qd_p: np.ndarray) -> np.ndarray:
     return out
 
 
-def paper_velocity_to_curvature(q_p: np.ndarray, qd_p: np.ndarray) -> np.ndarray:
+def _paper_velocity_to_curvature(q_p: np.ndarray, qd_p: np.ndarray) -> np.ndarray:
     """``(ldot, psidot, kappadot) -> (ldot, uxdot, uydot) = J qd_p``."""
-    return paper_jacobian(q_p) @ qd_p
+    return _paper_jacobian(q_p) @ qd_p
 
 
-def curvature_velocity_to_paper(q_c: np.ndarray, qd_c: np.ndarray) -> np.ndarray:
+def _curvature_velocity_to_paper(q_c: np.ndarray, qd_c: np.ndarray) -> np.ndarray:
     """Inverse of :func:`paper_velocity_to_curvature`; needs ``kappa > 0``.
 
     Raises
@@ -213,8 +213,7 @@ def curvature_velocity_to_paper(q_c: np.ndarray, qd_c: np.ndarray) -> np.ndarray
     SingularConfigurationError
         where ``kappa`` is zero (``psidot`` is undefined there).
     """
-    q_p = curvature_to_paper(q_c)
-    if q_p[2] == 0.0:
+    if not q_c[1] * q_c[1] + q_c[2] * q_c[2] > 0.0:  # kappa = 0, or so small that kappa^2 underflows
         raise SingularConfigurationError(
             "curvature_velocity_to_paper: kappa = 0, psidot is undefined in the paper's "
             "(l, psi, kappa) coordinates; use coords='curvature'"
@@ -223,6 +222,70 @@ def curvature_velocity_to_paper(q_c: np.ndarray, qd_c: np.ndarray) -> np.ndarray
     _, uxd, uyd = qd_c
     k2 = ux * ux + uy * uy
     return np.array([qd_c[0], (ux * uyd - uy * uxd) / k2, (ux * uxd + uy * uyd) / np.sqrt(k2)])
+
+
+def _q3(name: str, x) -> np.ndarray:
+    """A finite real (3,) array named ``name`` in errors."""
+    return as_vector(name, x, 3)
+
+
+def paper_to_curvature(q_p) -> np.ndarray:
+    """``(l, psi, kappa) -> (l, ux, uy) = (l, kappa cos psi, kappa sin psi)`` (docs/model.md section 1).
+
+    Like every coordinate map of this module, it takes finite real (3,) arrays
+    (``TypeError``/``ValueError`` naming the argument otherwise)."""
+    return _paper_to_curvature(_q3("q_p", q_p))
+
+
+def curvature_to_paper(q_c) -> np.ndarray:
+    """``(l, ux, uy) -> (l, psi, kappa)`` with ``psi = atan2(uy, ux)`` in (-pi, pi].
+
+    At ``ux = uy = 0`` the azimuth is undefined; ``psi = 0`` is returned.
+    """
+    return _curvature_to_paper(_q3("q_c", q_c))
+
+
+def paper_jacobian(q_p) -> np.ndarray:
+    """``J = d(l, ux, uy) / d(l, psi, kappa)``, shape (3, 3); ``det J = -kappa``, which is why
+    the paper's coordinates are singular at ``kappa = 0`` (docs/model.md section 1)."""
+    return _paper_jacobian(_q3("q_p", q_p))
+
+
+def paper_jacobian_dot(q_p, qd_p) -> np.ndarray:
+    """Time derivative of :func:`paper_jacobian` along ``qd_p``, shape (3, 3)."""
+    return _paper_jacobian_dot(_q3("q_p", q_p), _q3("qd_p", qd_p))
+
+
+def paper_jacobian_derivative(q_p) -> np.ndarray:
+    """``dJ[c] = d paper_jacobian / d q_p[c]`` (3, 3, 3), ``c`` over ``(l, psi, kappa)``."""
+    return _paper_jacobian_derivative(_q3("q_p", q_p))
+
+
+def paper_bias_derivative(q_p, qd_p) -> np.ndarray:
+    """``d(Jdot qd_p)/d q_p`` (3, 3) at fixed ``qd_p``: the configuration derivative of the
+    velocity-product term of ``qdd_c = J qdd_p + Jdot qd_p``."""
+    return _paper_bias_derivative(_q3("q_p", q_p), _q3("qd_p", qd_p))
+
+
+def paper_velocity_to_curvature(q_p, qd_p) -> np.ndarray:
+    """``(ldot, psidot, kappadot) -> (ldot, uxdot, uydot) = J qd_p``."""
+    return _paper_velocity_to_curvature(_q3("q_p", q_p), _q3("qd_p", qd_p))
+
+
+def curvature_velocity_to_paper(q_c, qd_c) -> np.ndarray:
+    """Inverse of :func:`paper_velocity_to_curvature`; needs ``kappa > 0``.
+
+    Raises
+    ------
+    SingularConfigurationError
+        where ``kappa`` is zero, or so small that ``kappa^2`` underflows (``psidot`` is
+        undefined there).
+    """
+    out = _curvature_velocity_to_paper(_q3("q_c", q_c), _q3("qd_c", qd_c))
+    if not np.all(np.isfinite(out)):
+        raise NonFiniteError(f"curvature_velocity_to_paper: the paper rates overflow at q_c = {_short(q_c)}, "
+                             f"qd_c = {_short(qd_c)}")
+    return out
 
 
 def _paper_hessian_term(q_p: np.ndarray, grad_c: np.ndarray) -> np.ndarray:
@@ -335,26 +398,28 @@ class Segment:
         n = DEFAULT_NODES if self.nodes is None else B.NODES.check("nodes", self.nodes)
         s(self, "node_count", int(n))
         if self.stiffness_matrix is not None:
-            K = as_matrix("stiffness_matrix", self.stiffness_matrix, (3, 3))
+            K = np.array(as_matrix("stiffness_matrix", self.stiffness_matrix, (3, 3)))  # a copy of its own
             if not np.allclose(K, K.T, rtol=1e-12, atol=0.0):
                 raise ValueError("stiffness_matrix must be symmetric")
             s(self, "stiffness_matrix", K)
         if self.damping_matrix is not None:
-            D = as_matrix("damping_matrix", self.damping_matrix, (3, 3))
+            D = np.array(as_matrix("damping_matrix", self.damping_matrix, (3, 3)))
             if not np.allclose(D, D.T, rtol=1e-12, atol=0.0):
                 raise ValueError("damping_matrix must be symmetric")
             if np.linalg.eigvalsh(D).min() < -1e-12 * max(1.0, np.abs(D).max()):
                 raise ValueError("damping_matrix must be positive semi-definite")
             s(self, "damping_matrix", D)
-        if self.rest_q_e is not None:
-            s(self, "rest_q_e", as_vector("rest_q_e", self.rest_q_e, 3))
+        if self.rest_q_e is not None:  # a configuration of this segment: inside its domain
+            s(self, "rest_q_e", self.check_configuration(self.rest_q_e, name="rest_q_e"))
         s(self, "bending_stiffness", self.youngs_modulus * np.pi * self.radius**4 / 4.0)
         s(self, "axial_stiffness", self.youngs_modulus * np.pi * self.radius**2)
         x, w = np.polynomial.legendre.leggauss(self.node_count)
         s(self, "alpha_nodes", 0.5 * (x + 1.0))
         s(self, "alpha_weights", 0.5 * w)
         s(self, "disk_inertia", disk_inertia(self.mass, self.radius))
-        for name in ("alpha_nodes", "alpha_weights", "disk_inertia"):
+        for name in ("alpha_nodes", "alpha_weights", "disk_inertia", "stiffness_matrix", "damping_matrix", "rest_q_e"):
+            if getattr(self, name) is None:
+                continue
             getattr(self, name).flags.writeable = False
 
     # ----------------------------------------------------------------- configurations
@@ -375,7 +440,7 @@ class Segment:
             density field diverges); ``kappa < 0`` in paper coordinates (docs/model.md
             sections 1 and 3).
         """
-        q = as_vector(name, q_e, 3)
+        q = np.array(as_vector(name, q_e, 3))  # the caller's array is never returned (nor kept)
         code = domain_violation(q[0], q[1], q[2], self.radius, self.coords == "paper")
         if code == 1:
             raise DomainError(f"{name}: length l = {q[0]:.6g} m must be > 0")
@@ -392,17 +457,17 @@ class Segment:
     def to_curvature(self, q_e) -> np.ndarray:
         """The configuration in curvature coordinates ``(l, ux, uy)`` (3,)."""
         q = self.check_configuration(q_e)
-        return paper_to_curvature(q) if self.coords == "paper" else q
+        return _paper_to_curvature(q) if self.coords == "paper" else q
 
     def from_curvature(self, q_c) -> np.ndarray:
         """A curvature-coordinate configuration in the segment's coordinates (3,)."""
         q = as_vector("q_c", q_c, 3)
-        return curvature_to_paper(q) if self.coords == "paper" else q.copy()
+        return _curvature_to_paper(q) if self.coords == "paper" else q.copy()
 
     def coordinate_jacobian(self, q_e) -> np.ndarray:
         """``d q_c / d q_e`` (3, 3): identity in curvature coordinates, :func:`paper_jacobian` else."""
         q = self.check_configuration(q_e)
-        return paper_jacobian(q) if self.coords == "paper" else np.eye(3)
+        return _paper_jacobian(q) if self.coords == "paper" else np.eye(3)
 
     def _curvature(self, q_e, nonsingular: bool = False):
         """``(q_c, J)``: the configuration in curvature coordinates and ``J = dq_c/dq_e``.
@@ -419,7 +484,7 @@ class Segment:
                 "the paper's (l, psi, kappa) coordinates are singular at kappa = 0 (psi is undefined "
                 "and M_xi loses rank); use coords='curvature', which is regular there"
             )
-        return paper_to_curvature(q), paper_jacobian(q)
+        return _paper_to_curvature(q), _paper_jacobian(q)
 
     def _lift(self, J: np.ndarray) -> np.ndarray:
         """``T = blockdiag(I6, J)`` (9, 9)."""
@@ -530,7 +595,7 @@ class Segment:
         if self.coords == "curvature":
             return Cc
         Td = np.zeros((9, 9))
-        Td[6:, 6:] = paper_jacobian_dot(self.check_configuration(q_e), xi[6:])
+        Td[6:, 6:] = _paper_jacobian_dot(self.check_configuration(q_e), xi[6:])
         return T.T @ Cc @ T + T.T @ self._mass_c(q_c) @ Td
 
     @_finite("velocity-product force C_xi xi")
@@ -543,7 +608,7 @@ class Segment:
         T = self._lift(J)
         xid_c = np.zeros(9)
         if self.coords == "paper":
-            xid_c[6:] = paper_jacobian_dot(self.check_configuration(q_e), xi[6:]) @ xi[6:]
+            xid_c[6:] = _paper_jacobian_dot(self.check_configuration(q_e), xi[6:]) @ xi[6:]
         return T.T @ self._newton_euler_c(q_c, T @ xi, xid_c)
 
     @_finite("generalised gravity G")
@@ -644,7 +709,7 @@ class Segment:
         if self.stiffness_matrix is not None:
             return self.stiffness_matrix @ (q - self._rest())
         if self.coords == "paper":
-            return paper_jacobian(q).T @ self._elastic_grad_c(paper_to_curvature(q))
+            return _paper_jacobian(q).T @ self._elastic_grad_c(_paper_to_curvature(q))
         return self._elastic_grad_c(q)
 
     @_finite("elastic stiffness")
@@ -653,12 +718,12 @@ class Segment:
         q = self.check_configuration(q_e)
         if self.stiffness_matrix is not None:
             return self.stiffness_matrix.copy()
-        q_c = paper_to_curvature(q) if self.coords == "paper" else q
+        q_c = _paper_to_curvature(q) if self.coords == "paper" else q
         Hc = np.empty((3, 3))
         elastic_hessian_c(q_c, self.length, self.bending_stiffness, self.axial_stiffness, Hc)
         if self.coords == "curvature":
             return Hc
-        J = paper_jacobian(q)
+        J = _paper_jacobian(q)
         return J.T @ Hc @ J + _paper_hessian_term(q, self._elastic_grad_c(q_c))
 
     @_finite("dissipation matrix D")
@@ -678,7 +743,7 @@ class Segment:
         Dc = self._rest_damping_c()
         if self.coords == "curvature":
             return Dc
-        J = paper_jacobian(q)
+        J = _paper_jacobian(q)
         return J.T @ Dc @ J
 
     @_finite("damping force D qdot_e")
@@ -698,6 +763,8 @@ def nodes_for_tolerance(segment: Segment, theta_max: float, tol: float, referenc
     is a finite angle >= 0 (bends past ``l0 / r_s`` are taken at ``|kappa| r_s = 0.999``),
     ``0 < tol < 1``, ``1 <= reference_nodes <= 100``.
     """
+    if not isinstance(segment, Segment):
+        raise TypeError(f"segment must be a qchain.Segment, got {type(segment).__name__}")
     theta = B.Range(0.0, None, "rad").check("theta_max", theta_max)  # any bend: kappa is capped below
     tol = B.NODE_TOLERANCE.check("tol", tol)
     reference_nodes = B.NODES.check("reference_nodes", reference_nodes)

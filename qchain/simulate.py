@@ -52,8 +52,8 @@ from .budget import DEFAULT as DEFAULT_BUDGET
 from .budget import Budget, input_frequency, run_cost
 from .chain import Chain
 from .engine import driver, system
-from .errors import QchainError, as_real_array, as_vector, describe_value
-from .inputs import Schedule, as_input
+from .errors import QchainError, as_bool, as_real, as_real_array, as_vector, check_callable, describe_value
+from .inputs import Schedule, _copy, as_input
 from .trajectory import Trajectory
 
 __all__ = ["simulate", "METHODS", "FIXED_STEP", "COMPILED", "DEFAULT_METHOD", "Event"]
@@ -74,11 +74,21 @@ class Event:
 
     def __init__(self, fun: Callable, terminal: bool = False, direction: float = 0.0, name: str | None = None):
         if not callable(fun):
-            raise TypeError("Event fun must be callable (t, q, v) -> float")
+            raise TypeError(f"Event fun must be callable (t, q, v) -> float, got {describe_value(fun)}")
+        if name is not None and not isinstance(name, str):
+            raise TypeError(f"Event name must be None or a str, got {describe_value(name)}")
         self.fun = fun
-        self.terminal = bool(terminal)
-        self.direction = float(direction)
+        self.terminal = as_bool("Event terminal", terminal)
+        self.direction = as_real("Event direction", direction)
         self.name = name or getattr(fun, "__name__", "event")
+
+    def __call__(self, t, q, v) -> float:
+        """``fun(t, q, v)`` as a finite float (``TypeError``/``ValueError`` naming the event and
+        the time otherwise); ``fun`` gets copies of the state, so its writes stay its own."""
+        g = self.fun(t, _copy(q), _copy(v))
+        if not (type(g) is float and g - g == 0.0):
+            g = as_real(f"event {self.name!r}: fun(t, q, v) at t = {float(t):.6g} s", g)
+        return g
 
 
 class _DomainExit(Exception):
@@ -209,6 +219,11 @@ class _System:
         return ch.mass_matrix(q)[ix], ch.elastic_stiffness(q)[ix], ch.dissipation_matrix(q)[ix]
 
 
+#: The shortest span a run may have, relative to ``max(1 s, |t0|, |t1|)``: below it the
+#: times of the steps are not distinct in double precision.
+SPAN_RESOLUTION = 64 * np.finfo(float).eps
+
+
 def _check_span(t_span):
     ts = as_real_array("t_span", t_span)
     if ts.shape != (2,) or not np.all(np.isfinite(ts)) or not ts[1] > ts[0]:
@@ -216,7 +231,53 @@ def _check_span(t_span):
     B.TIME.check("t_span[0]", ts[0])
     B.TIME.check("t_span[1]", ts[1])
     B.DURATION.check("t_span[1] - t_span[0]", ts[1] - ts[0])
+    floor = SPAN_RESOLUTION * max(1.0, abs(float(ts[0])), abs(float(ts[1])))
+    if not ts[1] - ts[0] >= floor:
+        raise ValueError(f"t_span must last at least {floor:.3g} s (64 float64 epsilons of max(1 s, |t0|, |t1|), "
+                         f"where the times of steps are still distinct), got t_span[1] - t_span[0] = "
+                         f"{float(ts[1] - ts[0]):.3g} s")
     return float(ts[0]), float(ts[1])
+
+
+def check_settings(chain: Chain, t0: float, t1: float, *, method, dt, rtol, atol, max_step, first_step, wall_limit,
+                   t_eval, energies, progress, on_sample, events, controller_rate) -> dict:
+    """The run settings shared by :func:`simulate` and :func:`qchain.batch.simulate_batch`,
+    checked where they enter (each error names the argument, the value and the bound) and
+    normalised: floats, ``t_eval`` a float array, ``events`` a list of :class:`Event`."""
+    if method in FIXED_STEP:
+        if dt is None:
+            raise ValueError(f"method {method!r} needs a step dt > 0 s, got None")
+        try:
+            dt = B.STEP.check("dt", dt)
+        except ValueError as err:
+            raise ValueError(f"method {method!r} needs a step dt > 0 s: {err}") from None
+    elif dt is not None:  # ignored by the adaptive methods, but a bad one is still refused
+        dt = B.STEP.check("dt", dt)
+    rtol = B.RTOL.check("rtol", rtol)
+    atol = B.ATOL.check("atol", atol)
+    if not (isinstance(max_step, (float, np.floating)) and max_step == np.inf):
+        max_step = B.STEP.check("max_step", max_step)
+    if first_step is not None:
+        first_step = B.STEP.check("first_step", first_step)
+    if wall_limit is not None:
+        wall_limit = B.WALL_LIMIT.check("wall_limit", wall_limit)
+    if t_eval is not None:
+        t_eval = _check_t_eval(t_eval, t0, t1)
+    if controller_rate is not None:
+        controller_rate = B.SAMPLE_RATE.check("controller_rate", controller_rate)
+    energies = as_bool("energies", energies)
+    progress = as_bool("progress", progress)
+    check_callable("on_sample", on_sample)
+    if events is None:
+        events = []
+    elif isinstance(events, Event) or not isinstance(events, (list, tuple)):
+        raise TypeError(f"events must be None or a list of qchain.simulate.Event, got {describe_value(events)}")
+    events = list(events)
+    for k, e in enumerate(events):
+        if not isinstance(e, Event):
+            raise TypeError(f"events[{k}] must be a qchain.simulate.Event, got {describe_value(e)}")
+    return dict(dt=dt, rtol=rtol, atol=atol, max_step=max_step, first_step=first_step, wall_limit=wall_limit,
+                t_eval=t_eval, energies=energies, progress=progress, events=events, controller_rate=controller_rate)
 
 
 def _check_t_eval(t_eval, t0: float, t1: float) -> np.ndarray:
@@ -319,7 +380,12 @@ def simulate(
     value and the bound): ``t_span`` within +-1e12 s, ``dt``, ``max_step`` and
     ``first_step`` > 0 s, ``1e-15 <= rtol <= 1``, ``1e-20 <= atol <= 1e3``, ``t_eval``
     finite, strictly increasing and inside ``t_span``, ``wall_limit`` > 0 s,
-    ``0 < controller_rate <= 1e9`` Hz.
+    ``0 < controller_rate <= 1e9`` Hz; ``t_span`` lasts at least :data:`SPAN_RESOLUTION`
+    times ``max(1 s, |t0|, |t1|)`` (shorter spans have no distinct step times); ``energies``
+    and ``progress`` are booleans, ``on_sample`` a callable, ``events`` a list of
+    :class:`Event`, a controller takes ``(t, q, v)`` or ``(t)``. A controller, an event
+    function and ``on_sample`` get their own copies of the state: what they do with them
+    changes neither the run nor its samples. An exception they raise propagates unchanged.
 
     Returns
     -------
@@ -340,23 +406,13 @@ def simulate(
         chain._check_locks(st.q_e, st.v_e)
     chain.kinetic_energy(q0, v0, t=t0)  # NonFiniteError naming the segment if the start overflows
     chain.potential_energy(q0, t=t0)
-    if method in FIXED_STEP:
-        if dt is None:
-            raise ValueError(f"method {method!r} needs a step dt > 0 s, got None")
-        try:
-            dt = B.STEP.check("dt", dt)
-        except ValueError as err:
-            raise ValueError(f"method {method!r} needs a step dt > 0 s: {err}") from None
-    rtol = B.RTOL.check("rtol", rtol)
-    atol = B.ATOL.check("atol", atol)
-    if not (isinstance(max_step, (float, np.floating)) and max_step == np.inf):
-        max_step = B.STEP.check("max_step", max_step)
-    if first_step is not None:
-        first_step = B.STEP.check("first_step", first_step)
-    if wall_limit is not None:
-        wall_limit = B.WALL_LIMIT.check("wall_limit", wall_limit)
-    if t_eval is not None:
-        t_eval = _check_t_eval(t_eval, t0, t1)
+    cfg = check_settings(chain, t0, t1, method=method, dt=dt, rtol=rtol, atol=atol, max_step=max_step,
+                         first_step=first_step, wall_limit=wall_limit, t_eval=t_eval, energies=energies,
+                         progress=progress, on_sample=on_sample, events=events, controller_rate=controller_rate)
+    dt, rtol, atol, max_step, first_step = cfg["dt"], cfg["rtol"], cfg["atol"], cfg["max_step"], cfg["first_step"]
+    wall_limit, t_eval, energies, progress, events = (cfg["wall_limit"], cfg["t_eval"], cfg["energies"],
+                                                      cfg["progress"], cfg["events"])
+    controller_rate = cfg["controller_rate"]
     if budget is None:
         budget = DEFAULT_BUDGET
     elif not isinstance(budget, Budget):
@@ -366,15 +422,10 @@ def simulate(
                         t_eval.size) if t_eval is not None else (np.nan if method in FIXED_STEP else 1.0),
                     samples_why="len(t_eval)" if t_eval is not None else "", nq=chain.nq, nv=chain.nv, nu=chain.nu)
     budget.check(cost)
-    events = list(events or [])
-    for e in events:
-        if not isinstance(e, Event):
-            raise TypeError("events must be qchain.simulate.Event objects")
 
     P_in, T_in = as_input("pressure", pressure, chain.nu), as_input("tau", tau, chain.nv)  # checked where they enter
     controllers = []
     if controller_rate is not None:
-        controller_rate = B.SAMPLE_RATE.check("controller_rate", controller_rate)
         held = []
         for name, u, size in (("pressure", pressure, chain.nu), ("tau", tau, chain.nv)):
             if callable(u) and not isinstance(u, Schedule):
@@ -430,8 +481,13 @@ def simulate(
     ev_log: list[tuple[str, float]] = []
     nsteps = 0
     q, v, t = q0.copy(), v0.copy(), t0
-    rec.start(t, q, v)
-    g_prev = [e.fun(t, q, v) for e in events]
+    try:
+        rec.start(t, q, v)
+    except _Stop as err:  # the first sample's energies overflow: a run of no steps, its message says why
+        traj = rec.trajectory(-1, str(err), sysm.nfev)
+        traj.meta.update(method=method, engine="python", nsteps=0, njev=0, events=[])
+        return traj
+    g_prev = [e(t, q, v) for e in events]
 
     def check_events(t_a, t_b, interp):
         """Root-find sign changes of the events over [t_a, t_b]; return the first terminal time."""
@@ -440,14 +496,14 @@ def simulate(
         hit = None
         for k, e in enumerate(events):
             qb, vb = interp(t_b)
-            gb = e.fun(t_b, qb, vb)
+            gb = e(t_b, qb, vb)
             g_now.append(gb)
             ga = g_prev[k]
             rising, falling = ga < 0 <= gb, ga > 0 >= gb
             if (rising and e.direction >= 0) or (falling and e.direction <= 0):
                 from scipy.optimize import brentq
 
-                te = brentq(lambda s: e.fun(s, *interp(s)), t_a, t_b, xtol=1e-12 * max(1.0, abs(t_b)))
+                te = brentq(lambda s: e(s, *interp(s)), t_a, t_b, xtol=1e-12 * max(1.0, abs(t_b)))
                 ev_log.append((e.name, te))
                 if e.terminal and (hit is None or te < hit):
                     hit = te
@@ -688,10 +744,11 @@ class _Recorder:
             self.KE.append(ke)
             self.PE.append(pe)
         if self.on_sample is not None:
+            # its own copies: what it does with them cannot change the recorded samples or the run
             if self._pass_energies:
-                self.on_sample(t, q, v, self.Pp[-1], energies=(self.KE[-1], self.PE[-1]))
+                self.on_sample(t, q.copy(), v.copy(), self.Pp[-1].copy(), energies=(self.KE[-1], self.PE[-1]))
             else:
-                self.on_sample(t, q, v, self.Pp[-1])
+                self.on_sample(t, q.copy(), v.copy(), self.Pp[-1].copy())
 
     def start(self, t, q, v):
         if self.t_eval is None:

@@ -16,6 +16,14 @@ gravity ``G`` (docs/model.md section 9). The segment forces below are the input 
 (eq. (8); docs/model.md section 5) and the elastic and damping laws (docs/model.md
 section 9). Everything is in curvature coordinates ``q = (l, ux, uy)``;
 integrals use the Gauss-Legendre nodes ``alpha`` with weights ``w`` (summing to 1).
+
+Unchecked (``skip_checks``) by design: every function here is a compiled kernel (or its
+direct helper) called with arguments that the checked entry points -- :class:`qchain.Chain`'s
+methods, :func:`qchain.simulate.simulate`, :func:`qchain.batch.simulate_batch` -- have
+already validated: float64, C-contiguous arrays of the documented shapes (output arrays
+included), finite, inside the model's domain. They do not check them again: a wrong type
+is a numba typing error, a wrong shape a wrong result or a crash. Call the checked API
+unless you guarantee all of that yourself.
 """
 
 from __future__ import annotations

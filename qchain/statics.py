@@ -18,9 +18,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .bounds import TIME, Range
+from .bounds import PRESSURE, TIME, Range
+from .inputs import FORCE
 from .chain import Chain
-from .errors import QchainError, as_vector
+from .errors import QchainError, as_bool, as_vector
 
 __all__ = ["equilibrium", "EquilibriumResult"]
 
@@ -61,6 +62,8 @@ def equilibrium(chain: Chain, p=None, q0=None, tip_wrench=None, *, t: float = 0.
     chain : Chain
         Fixed or prescribed base (a prescribed base is held at its placement at ``t``).
     p : (3 n,) Pa, optional
+        Within :data:`qchain.bounds.PRESSURE`; ``tip_wrench`` within
+        :data:`qchain.inputs.FORCE`; ``q0`` inside the model's domain.
     q0 : (nq,), optional
         Starting guess (default ``chain.neutral()``).
     tip_wrench : (6,), optional
@@ -83,6 +86,14 @@ def equilibrium(chain: Chain, p=None, q0=None, tip_wrench=None, *, t: float = 0.
     tol = Range(0.0, 1.0, low_open=True, high_open=True).check("tol", tol)
     max_iter = Range(1, 100_000, integer=True).check("max_iter", max_iter)
     t = TIME.check("t", t)
+    continuation = as_bool("continuation", continuation)
+    if p is not None:  # checked here, where they enter: real, finite, within their declared ranges
+        p = PRESSURE.check_array("p", as_vector("p", p, chain.nu))
+    if tip_wrench is not None:
+        tip_wrench = FORCE.check_array("tip_wrench", as_vector("tip_wrench", tip_wrench, 6))
+    if q0 is not None:
+        q0 = as_vector("q0", chain._q(q0, "q0"), chain.nq)
+        chain._state(q0, t=t)  # inside the model (DomainError naming the segment)
     if chain._any_paper and not chain._linear[chain._paper].any():
         # the balance is coordinate-free: solve it where it is regular and map the result back
         twin = Chain([dataclasses.replace(s, coords="curvature") for s in chain.segments], base=chain.base,

@@ -21,6 +21,8 @@ TOML; every key is optional unless marked *required*::
                                         # "random" or "lhs" (Latin hypercube): n samples of the ranges
     n = 64                              # random, lhs: number of runs (required there)
     seed = 1                            # random, lhs: seed of the samples (default 0)
+    max_runs = 100000                   # the most runs the sweep may have (default 100000): a grid or n
+                                        # beyond it is refused before any run is made; raise it to allow more
 
     [set]                               # values put in every run's scene, before the axes'
     "simulation.duration" = 1.0
@@ -43,7 +45,7 @@ TOML; every key is optional unless marked *required*::
     mcap = false                        # record each run (runs/run-NNNNN.mcap)
 
     [engine]
-    workers = 2                         # local worker processes (default: every core)
+    workers = 2                         # local worker processes (default: every core; at most 1024)
     dask = "tcp://127.0.0.1:8786"       # or a Dask scheduler's address instead
     retries = 3                         # times a run whose worker died is run again
 
@@ -68,11 +70,23 @@ from pathlib import Path
 
 import numpy as np
 
+from . import bounds as _B
 from .scene import _TOP_KEYS, Problem, Scene, SceneError, _Checker, _show, _type_name, parse_scene
 
-__all__ = ["Axis", "SweepSpec", "SweepError", "load_sweep", "parse_key", "apply_values", "SAMPLINGS"]
+__all__ = ["Axis", "SweepSpec", "SweepError", "load_sweep", "parse_key", "apply_values", "SAMPLINGS",
+           "check_results_folder", "address_problem", "DEFAULT_MAX_RUNS", "MAX_WORKERS"]
 
 SAMPLINGS = ("grid", "random", "lhs")
+#: Runs a sweep may have unless its file raises ``[sampling] max_runs`` (each run's scene is made
+#: and checked before anything runs: a mistyped ``num = 1000000000`` is refused, not built).
+DEFAULT_MAX_RUNS = 100_000
+#: The largest ``max_runs`` a sweep may set (the runs' scene texts are held in memory).
+MAX_RUNS_LIMIT = 10**8
+#: ``[engine] workers`` and ``retries``: the ranges :func:`qchain.simulate_batch` takes (``qchain.bounds``).
+_WORKERS = _B.WORKERS
+_RETRIES = _B.RETRIES
+#: The most local worker processes a sweep file's ``[engine] workers`` may ask for.
+MAX_WORKERS = int(_WORKERS.high)
 _FILE_KEYS = ("scene", "name", "folder", "metrics", "sampling", "set", "axes", "output", "engine")
 _AXIS_KEYS = ("key", "keys", "values", "range", "num", "log", "integer")
 _KEY = re.compile(r"([A-Za-z_][A-Za-z0-9_]*)((?:\[(?:\d+|\*)\])*)")
@@ -150,13 +164,29 @@ def _expand(value, n: int):
     return value
 
 
+def _segment_limit(raw: dict) -> int:
+    """The most segments the scene ``raw`` may have: its ``budget.max_segments`` if that is
+    valid, else the default budget's."""
+    from .budget import DEFAULT, RANGES
+
+    b = raw.get("budget")
+    m = b.get("max_segments") if isinstance(b, dict) else None
+    rng = RANGES["max_segments"]
+    if isinstance(m, int) and not isinstance(m, bool) and rng.contains(m):
+        return m
+    return DEFAULT.max_segments
+
+
 def apply_values(raw: dict, values: dict) -> dict:
     """A copy of the scene table ``raw`` with ``values`` ({dotted key: value}) put in, in
-    order, and ``{each_segment = [...]}`` expanded for the result's segment count."""
+    order, and ``{each_segment = [...]}`` expanded for the result's segment count (left as is
+    for a count over the scene's ``budget.max_segments``, which the scene's check then refuses
+    by name, instead of a list of that many entries)."""
     out = copy.deepcopy(raw)
     for key, value in values.items():
         _set(out, parse_key(key), value, key)
-    return _expand(out, _segment_count(out))
+    n = _segment_count(out)
+    return _expand(out, n) if n <= _segment_limit(out) else out
 
 
 # ------------------------------------------------------------------------------ axes
@@ -239,6 +269,11 @@ class Axis:
     @property
     def keys(self) -> tuple[str, ...]:
         return (self.key,) if isinstance(self.key, str) else tuple(self.key)
+
+    def size(self) -> int | None:
+        """How many values the axis takes on a grid (at most, for an integer range), known
+        without making them; None for a range without ``num``."""
+        return len(self.values) if self.values is not None else self.num
 
     @property
     def name(self) -> str:
@@ -344,6 +379,7 @@ class SweepSpec:
     dask: str | None = None
     retries: int = 3
     path: Path | None = None
+    max_runs: int = DEFAULT_MAX_RUNS
 
     def __post_init__(self):
         if self.sampling not in SAMPLINGS:
@@ -358,17 +394,27 @@ class SweepSpec:
                 if k in seen:
                     raise ValueError(f"the key {k!r} is on two axes ({seen[k]} and {a.name})")
                 seen[k] = a.name
+        if not (isinstance(self.max_runs, int) and not isinstance(self.max_runs, bool)
+                and 1 <= self.max_runs <= MAX_RUNS_LIMIT):
+            raise ValueError(f"max_runs must be an int >= 1 and <= {MAX_RUNS_LIMIT}, got {self.max_runs!r}")
         if self.sampling == "grid":
             if self.n is not None:
                 raise ValueError("n is for random and lhs sampling; a grid runs every combination")
+            too_many = runs_problem("grid", None, self.axes, self.max_runs)
+            if too_many is not None:  # before a.grid() makes the values
+                raise ValueError(f"{too_many[0]}: expected {too_many[1]}, found {too_many[2]}")
             for a in self.axes:
                 a.grid()  # a range without num raises here
         elif not (isinstance(self.n, int) and not isinstance(self.n, bool) and self.n >= 1):
             raise ValueError(f"{self.sampling} sampling needs n, the number of runs (an int >= 1), got {self.n!r}")
+        elif self.n > self.max_runs:
+            key, expected, found = runs_problem(self.sampling, self.n, self.axes, self.max_runs)
+            raise ValueError(f"{key}: expected {expected}, found {found}")
         if not (isinstance(self.seed, int) and not isinstance(self.seed, bool)):
             raise ValueError(f"seed must be an int, got {self.seed!r}")
-        if not (isinstance(self.retries, int) and not isinstance(self.retries, bool) and self.retries >= 0):
-            raise ValueError(f"retries must be an int >= 0, got {self.retries!r}")
+        from .workers import check_engine
+
+        self.retries = check_engine(None, None, self.retries)
         if self.folder is not None:
             self.folder = Path(self.folder)
 
@@ -430,10 +476,153 @@ class SweepSpec:
         return lines
 
 
+def runs_problem(sampling: str, n: int | None, axes: list[Axis], max_runs: int) -> tuple[str, str, str] | None:
+    """``(key, expected, found)`` if the sweep would have more than ``max_runs`` runs (counted
+    without making them), else None."""
+    how = f"at most [sampling] max_runs = {max_runs} runs (raise it to allow more)"
+    if sampling != "grid":
+        return ("sampling.n", how, f"n = {n}") if n is not None and n > max_runs else None
+    total, sizes = 1, []
+    for a in axes:
+        k = a.size()
+        if k is None:
+            return None  # a range without num: said elsewhere
+        sizes.append(f"{k} ({a.name})")
+        total *= k
+    if total <= max_runs:
+        return None
+    return "axes", how, f"a grid of {total:.4g} runs: {' x '.join(sizes)} values"
+
+
 def _takes_rng(cls) -> bool:
     import inspect
 
     return "rng" in inspect.signature(cls.__init__).parameters
+
+
+#: Schemes of a Dask scheduler's address (``distributed.comm``).
+DASK_SCHEMES = ("tcp", "tls", "ws", "wss", "ucx", "inproc")
+
+
+def address_problem(address: str) -> str | None:
+    """What is wrong with a Dask scheduler's address (``[SCHEME://]HOST:PORT``: a known
+    scheme, a host that is an IP address or a DNS name, a port from 1 to 65535), or None.
+    ``qchain sweep --dask`` can check its value with it too."""
+    from urllib.parse import urlsplit
+
+    from .cli_checks import _host_ok
+
+    text = str(address)
+    if not text.strip() or any(c.isspace() or not c.isprintable() for c in text):
+        return "not an address (empty, or with spaces or control characters)"
+    if "://" not in text:
+        text = "tcp://" + text
+    try:
+        parts = urlsplit(text)
+        port = parts.port
+    except ValueError as err:
+        return f"a bad port ({err})"
+    if parts.scheme not in DASK_SCHEMES:
+        return f"the scheme {parts.scheme!r} is not one of {', '.join(DASK_SCHEMES)}"
+    if parts.scheme == "inproc":
+        return None
+    if not parts.hostname or not _host_ok(parts.hostname):
+        return "no host (an IP address or a DNS name)"
+    if port is not None and not 1 <= port <= 65535:
+        return f"the port {port} is not from 1 to 65535"
+    return None
+
+
+def check_results_folder(folder, n_runs: int | None = None) -> None:
+    """Refuse a results folder a sweep cannot resume from, before any run (the files of
+    :mod:`qchain.sweeps`' results folder): ``sweep.json`` a JSON object with a ``fingerprint``;
+    ``runs.jsonl`` one JSON object a line with a whole ``run`` number (below ``n_runs``);
+    ``summary.parquet`` a file; ``runs`` a folder. A missing file is fine (a new sweep).
+
+    Raises
+    ------
+    SweepError
+        listing every problem, each naming the file, what it should be and what it is.
+    """
+    import os
+    import stat
+
+    root = Path(folder)
+    problems: list[Problem] = []
+
+    def kind(p: Path) -> str | None:
+        """None if ``p`` is missing, else what it is."""
+        try:
+            mode = os.stat(p).st_mode
+        except FileNotFoundError:
+            return None
+        except OSError as err:
+            return f"a path that cannot be read ({err.strerror or err})"
+        return "a file" if stat.S_ISREG(mode) else "a folder" if stat.S_ISDIR(mode) else "not a regular file"
+
+    def add(name, expected, found):
+        problems.append(Problem(str(root / name), expected, found))
+
+    def read(name: str, limit: int | None) -> bytes | None:
+        k = kind(root / name)
+        if k is None:
+            return None
+        if k != "a file":
+            add(name, "a regular file", k)
+            return None
+        size = os.stat(root / name).st_size
+        if limit is not None and size > limit:
+            add(name, f"a file of at most {limit} bytes", f"{size} bytes")
+            return None
+        return (root / name).read_bytes()
+
+    data = read("sweep.json", 64 * 2**20)
+    if data is not None:
+        try:
+            manifest = json.loads(data)
+        except (ValueError, UnicodeDecodeError) as err:
+            add("sweep.json", "the JSON description of a sweep (written by qchain sweep)", f"not JSON ({err})")
+        else:
+            if not isinstance(manifest, dict) or not isinstance(manifest.get("fingerprint"), str):
+                add("sweep.json", "a JSON object with the sweep's fingerprint (written by qchain sweep)",
+                    f"{_type_name(manifest)} {_show(manifest)}")
+    data = read("runs.jsonl", None)
+    if data is not None:
+        lines = data[: data.rfind(b"\n") + 1].splitlines()  # a last line cut by a kill is dropped on resuming
+        for number, line in enumerate(lines, 1):
+            try:
+                row = json.loads(line)
+            except (ValueError, UnicodeDecodeError) as err:
+                add(f"runs.jsonl, line {number}", "one JSON object a finished run", f"not JSON ({err})")
+                break
+            run = row.get("run") if isinstance(row, dict) else None
+            if not (isinstance(run, int) and not isinstance(run, bool) and run >= 0
+                    and (n_runs is None or run < n_runs)):
+                what = f"a whole run number{f' below {n_runs}' if n_runs is not None else ''}"
+                add(f"runs.jsonl, line {number}", f"a JSON object with 'run', {what}", _show(row))
+                break
+    for name, want in (("summary.parquet", "a file"), ("runs", "a folder")):
+        k = kind(root / name)
+        if k is not None and k != want:
+            add(name, "a regular file" if want == "a file" else "a folder", k)
+    if problems:
+        raise SweepError(str(root), problems)
+
+
+def _metrics_problem(name: str) -> str | None:
+    """Why ``"module:function"`` names no function that can be imported, or None."""
+    import importlib
+
+    module, _, attr = name.partition(":")
+    try:
+        obj = importlib.import_module(module)
+    except Exception as err:  # noqa: BLE001 - any error of the user's module is its problem, said by name
+        return f"module {module!r} cannot be imported ({type(err).__name__}: {err})"
+    for part in attr.split("."):
+        if not hasattr(obj, part):
+            return f"module {module!r} has no {attr!r}"
+        obj = getattr(obj, part)
+    return None if callable(obj) else f"{attr!r} is not a function"
 
 
 def _metrics_name(fn) -> str | None:
@@ -467,43 +656,48 @@ def validate_runs(spec: SweepSpec, runs: list[tuple[dict, str]]) -> list[Scene]:
 
 def load_sweep(path) -> SweepSpec:
     """Read and validate a sweep file; one :class:`SweepError` lists every problem."""
+    from .scene import load_scene
+    from .scene_reading import read_toml
+
     path = Path(path)
-    try:
-        text = path.read_text()
-    except OSError as err:
-        raise SweepError(str(path), [Problem("(file)", "a readable sweep file", str(err))]) from None
-    try:
-        raw = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as err:
-        raise SweepError(str(path), [Problem("(file)", "valid TOML", f"a syntax error: {err}")]) from None
+    _, raw = read_toml(path, "sweep file", SweepError)  # a regular file, bounded in size and nesting
     ck = _Checker()
     ck.keys(raw, "", _FILE_KEYS)
     scene_name = ck.string(raw, "scene", "scene")
     scene = None
     if scene_name is None:
         ck.add("scene", "the base scene file (a path relative to this file)", "nothing (the key is required)")
+    elif "\0" in scene_name or not scene_name.strip():
+        ck.add("scene", "the base scene file (a path relative to this file)", _show(scene_name.replace("\0", "\\0")))
     else:
-        from .scene import load_scene
-
         sp = (path.parent / scene_name)
-        if not sp.is_file():
-            ck.add("scene", "an existing scene file (relative to the sweep file)", f"{scene_name!r}: no file {sp}")
-        else:
-            try:
-                scene = load_scene(sp)
-            except SceneError as err:
-                for p in err.problems:
-                    ck.add(f"scene ({sp}): {p.key}", p.expected, p.found)
+        try:
+            scene = load_scene(sp)
+        except SceneError as err:
+            for p in err.problems:
+                ck.add(f"scene ({_show(str(sp), 120)}): {p.key}", p.expected, p.found)
     name = ck.string(raw, "name", "name", path.stem)
-    folder = ck.string(raw, "folder", "folder", None)
+    if name is not None and (not name.strip() or "\0" in name or "/" in name or "\\" in name or name in (".", "..")
+                             or len(name.encode("utf-8", "surrogatepass")) > 200):
+        ck.add("name", "a name for the sweep (it names the default folder out/sweeps/NAME): not empty, no NUL, / or "
+               "\\, at most 200 bytes", _show(name.replace("\0", "\\0")))
+        name = None
+    folder = ck.path(raw, "folder", "folder", None) if "folder" in raw else None
     metrics = ck.string(raw, "metrics", "metrics", None)
     if metrics is not None and not re.fullmatch(r"[\w.]+:[\w.]+", metrics):
         ck.add("metrics", "'module:function', a function (scene, model, traj) -> dict", _show(metrics))
+    elif metrics is not None:
+        why = _metrics_problem(metrics)
+        if why is not None:
+            ck.add("metrics", "'module:function' naming a function (scene, model, traj) -> dict that can be imported",
+                   f"{_show(metrics)}: {why}")
     st = ck.table(raw, "sampling", "sampling") or {}
-    ck.keys(st, "sampling", ("kind", "n", "seed"))
+    ck.keys(st, "sampling", ("kind", "n", "seed", "max_runs"))
     kind = ck.choice(st, "kind", "sampling.kind", SAMPLINGS, default="grid")
     n = ck.integer(st, "n", "sampling.n", default=None, minimum=1)
     seed = ck.integer(st, "seed", "sampling.seed", default=0, minimum=0)
+    max_runs = ck.integer(st, "max_runs", "sampling.max_runs", default=DEFAULT_MAX_RUNS, minimum=1,
+                          maximum=MAX_RUNS_LIMIT)
     if kind in ("random", "lhs") and "n" not in st:
         ck.add("sampling.n", f"the number of runs (an integer >= 1) for {kind} sampling", "nothing")
     if kind == "grid" and "n" in st:
@@ -560,17 +754,28 @@ def load_sweep(path) -> SweepSpec:
     mcap = ck.boolean(ot, "mcap", "output.mcap", False)
     et = ck.table(raw, "engine", "engine") or {}
     ck.keys(et, "engine", ("workers", "dask", "retries"))
-    workers = ck.integer(et, "workers", "engine.workers", default=None, minimum=1)
+    workers = ck.integer(et, "workers", "engine.workers", default=None, minimum=int(_WORKERS.low), maximum=MAX_WORKERS)
     dask = ck.string(et, "dask", "engine.dask", None)
-    retries = ck.integer(et, "retries", "engine.retries", default=3, minimum=0)
+    if dask is not None:
+        why = address_problem(dask)
+        if why is not None:
+            ck.add("engine.dask", "a Dask scheduler's address, [SCHEME://]HOST:PORT (tcp://127.0.0.1:8786)",
+                   f"{_show(dask)}: {why}")
+            dask = None
+    retries = ck.integer(et, "retries", "engine.retries", default=3, minimum=int(_RETRIES.low),
+                         maximum=int(_RETRIES.high))
     if workers is not None and dask is not None:
         ck.add("engine", "workers or dask, not both (a Dask cluster has its own workers)", "both")
+    if not ck.problems:  # how many runs, counted before any is made
+        too_many = runs_problem(kind, n, axes, max_runs)
+        if too_many is not None:
+            ck.add(*too_many)
     if ck.problems:
         raise SweepError(str(path), ck.problems)
     try:
         return SweepSpec(scene=scene, axes=axes, sampling=kind, n=n, seed=seed, set=sets, name=name,
                          folder=Path(folder) if folder is not None else Path("out") / "sweeps" / name,
                          trajectories=trajectories, mcap=mcap, metrics=metrics, workers=workers, dask=dask,
-                         retries=retries, path=path)
+                         retries=retries, path=path, max_runs=max_runs)
     except ValueError as err:
         raise SweepError(str(path), [Problem("(sweep)", "a consistent sweep", str(err))]) from None

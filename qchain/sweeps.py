@@ -45,9 +45,12 @@ from pathlib import Path
 
 import numpy as np
 
+from . import bounds as _bounds
+from .cli_checks import path_argument
 from .scene import Scene, load_scene, parse_scene
-from .sweep_spec import Axis, SweepError, SweepSpec, _metrics_name, _plain, load_sweep, validate_runs
-from .workers import DEFAULT_RETRIES, ClusterLost, Lost, Payload, engine_for
+from .sweep_spec import (Axis, SweepError, SweepSpec, _metrics_name, _plain, address_problem, check_results_folder,
+                         load_sweep, validate_runs)
+from .workers import DEFAULT_RETRIES, ClusterLost, Lost, Payload, check_engine, engine_for
 
 __all__ = ["sweep", "run_sweep", "SweepResult", "METRICS", "TIMING_COLUMNS", "summary_metrics", "main", "Axis",
            "SweepSpec", "SweepError", "load_sweep"]
@@ -448,6 +451,9 @@ def run_sweep(spec: SweepSpec, *, workers=None, client=None, progress: bool | No
     """Run a :class:`SweepSpec` (see :func:`sweep`); ``workers``/``client`` override the spec's
     engine; ``runs``: ``spec.run_texts()`` if the caller has them already."""
     w_start = time.perf_counter()
+    if workers is None and client is None:
+        workers, client = spec.workers, spec.dask
+    check_engine(workers, client, spec.retries)
     runs = spec.run_texts() if runs is None else runs
     scenes = validate_runs(spec, runs)
     axis_cols = [k for a in spec.axes for k in a.keys]
@@ -457,6 +463,7 @@ def run_sweep(spec: SweepSpec, *, workers=None, client=None, progress: bool | No
     if folder is not None:
         if restart:
             folder.clear()
+        check_results_folder(spec.folder, n_runs=len(runs))  # a folder it cannot resume from, before any run
         fingerprint = spec.fingerprint(runs)
         manifest = {"name": spec.name, "fingerprint": fingerprint, "runs": len(runs), "sampling": spec.sampling,
                     "n": spec.n, "seed": spec.seed, "set": spec.set, "axes": [a.to_json() for a in spec.axes],
@@ -466,8 +473,6 @@ def run_sweep(spec: SweepSpec, *, workers=None, client=None, progress: bool | No
             done[int(row["run"])] = row
     todo = [i for i in range(len(runs)) if i not in done]
     resumed = len(done)
-    if workers is None and client is None:
-        workers, client = spec.workers, spec.dask
     engine = engine_for(workers, client) if todo else None
     shared = _Shared(metrics=spec.metrics, trajectories=spec.trajectories, mcap=spec.mcap,
                      scene_path=str(spec.scene.path) if spec.scene.path else None)
@@ -578,12 +583,12 @@ def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="qchain sweep", description="Run a sweep file (format: the docstring of "
                                 "qchain.sweep_spec): a base scene over axes of its values, on every core or a Dask "
                                 "cluster; per-run metrics in SWEEP_FOLDER/summary.parquet. Run it again to resume.")
-    p.add_argument("sweep", type=Path, help="the sweep file (.toml)")
+    p.add_argument("sweep", type=path_argument, help="the sweep file (.toml)")
     eng = p.add_mutually_exclusive_group()
     eng.add_argument("--workers", type=int, default=None, metavar="N",
                      help="local worker processes (default: the file's, else every core; 1: in this process)")
     eng.add_argument("--dask", default=None, metavar="ADDRESS", help="run on a Dask scheduler, e.g. tcp://HOST:8786")
-    p.add_argument("--out", type=Path, default=None, metavar="DIR", help="results folder, instead of the file's")
+    p.add_argument("--out", type=path_argument, default=None, metavar="DIR", help="results folder, instead of the file's")
     p.add_argument("--restart", action="store_true", help="clear the folder's earlier results of this sweep first")
     p.add_argument("--trajectories", action="store_true", default=None, help="save each run's trajectory (npz)")
     p.add_argument("--mcap", action="store_true", default=None, help="record each run (MCAP)")
@@ -630,10 +635,11 @@ def _main(argv: list[str], session) -> int:
     from .cli import BadInput, check_output_folder
 
     args = _parser().parse_args(argv)
-    if args.workers is not None and args.workers < 1:
-        raise BadInput(f"--workers must be >= 1, got {args.workers}")
-    if args.retries is not None and args.retries < 0:
-        raise BadInput(f"--retries must be >= 0, got {args.retries}")
+    for flag, value, rng in (("--workers", args.workers, _bounds.WORKERS), ("--retries", args.retries, _bounds.RETRIES)):
+        if value is not None and not rng.contains(value):
+            raise BadInput(f"{flag} must be an integer {rng.text()}, got {value}")
+    if args.dask is not None and (why := address_problem(args.dask)) is not None:
+        raise BadInput(f"--dask {args.dask!r}: {why}")
     spec = load_sweep(args.sweep)
     if args.out is not None:
         spec.folder = args.out

@@ -54,9 +54,13 @@ from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
 
-from .errors import QchainError
+import numpy as np
 
-__all__ = ["LocalPool", "DaskEngine", "ClusterLost", "Lost", "Payload", "plan_chunks", "resolve_workers", "engine_for",
+from . import bounds
+from .errors import QchainError, describe_value
+
+__all__ = ["LocalPool", "DaskEngine", "ClusterLost", "Lost", "Payload", "plan_chunks", "resolve_workers", "check_engine",
+           "engine_for",
            "default_pool", "dumps", "DEFAULT_RETRIES", "DEFAULT_LOST_TIMEOUT"]
 
 #: times an item is sent again after the worker running it died
@@ -135,6 +139,16 @@ def _run_chunk(fn: Callable, payload: Payload, items: list) -> list:
     return fn(_shared(payload.token, payload.blob, payload.path), items)
 
 
+def _run_chunk_packed(fn: Callable, payload: Payload, items: list) -> bytes:
+    """In a Dask worker: ``fn(shared, items)`` pickled in band, one bytes object.
+
+    Dask would serialize a list of results with its out-of-band protocol, a frame per
+    array: for a chunk of trajectories that costs the worker several times the
+    plain pickle (``benchmarks/bench_batch.py``'s Dask overhead), on the cores that run
+    the items."""
+    return pickle.dumps(_run_chunk(fn, payload, items), protocol=pickle.HIGHEST_PROTOCOL)
+
+
 def _call_shared(fn: Callable, payload: Payload):
     """In a worker: ``fn(shared)`` (a warm-up)."""
     return fn(_shared(payload.token, payload.blob, payload.path))
@@ -164,17 +178,44 @@ def plan_chunks(n_items: int, n_workers: int, factor: int = 4, max_chunk: int = 
     return chunks
 
 
+def _whole(x) -> bool:
+    return isinstance(x, (int, np.integer)) and not isinstance(x, (bool, np.bool_))
+
+
 def resolve_workers(workers) -> int:
     """The number of worker processes for ``workers``: None or -1 every core this process
-    may use, else an int >= 1."""
-    if workers is None or (isinstance(workers, int) and not isinstance(workers, bool) and workers == -1):
+    may use, else an int within :data:`qchain.bounds.WORKERS`."""
+    if workers is None or (_whole(workers) and workers == -1):
         try:
             return len(os.sched_getaffinity(0))
         except AttributeError:  # not Linux
             return os.cpu_count() or 1
-    if not isinstance(workers, int) or isinstance(workers, bool) or workers < 1:
-        raise ValueError(f"workers must be None or -1 (every core), or an int >= 1, got {workers!r}")
-    return workers
+    if not (_whole(workers) and bounds.WORKERS.contains(workers)):
+        raise ValueError(f"workers must be None or -1 (every core), an int >= 1 and <= {bounds.WORKERS.high:g} or a "
+                         f"qchain.workers.LocalPool, got {describe_value(workers)}")
+    return int(workers)
+
+
+def check_engine(workers, client, retries) -> int:
+    """Check where a batch or a sweep's engine arguments enter, before anything starts:
+    ``workers`` None, -1 (every core), an int within :data:`qchain.bounds.WORKERS` or a
+    :class:`LocalPool`; ``client`` None, a scheduler address, a Dask client or a
+    :class:`DaskEngine`; ``retries`` an int within :data:`qchain.bounds.RETRIES`. Returns
+    ``retries`` as an int.
+
+    Raises
+    ------
+    TypeError, ValueError
+        naming the argument, the value and the bound.
+    """
+    if not (workers is None or isinstance(workers, (LocalPool, DaskEngine))):
+        resolve_workers(workers)
+    if client is not None and not (isinstance(client, (str, DaskEngine)) or hasattr(client, "submit")):
+        raise TypeError(f"client must be None, a scheduler address 'tcp://HOST:PORT', a dask.distributed.Client or a "
+                        f"qchain.workers.DaskEngine, got {describe_value(client)}")
+    if not (_whole(retries) and bounds.RETRIES.contains(retries)):
+        raise ValueError(f"retries must be an int >= 0 and <= {bounds.RETRIES.high:g}, got {describe_value(retries)}")
+    return int(retries)
 
 
 # ------------------------------------------------------------------------------ local pool
@@ -621,7 +662,7 @@ class DaskEngine:
             wake.set()
 
         def submit(chunk: list) -> None:
-            fut = self.client.submit(_run_chunk, fn, payload, [items[i] for i in chunk], pure=False,
+            fut = self.client.submit(_run_chunk_packed, fn, payload, [items[i] for i in chunk], pure=False,
                                      key=f"qchain-{payload.token[:8]}-{chunk[0]}-{uuid.uuid4().hex[:8]}")
             pending[fut] = chunk
             fut.add_done_callback(woken)
@@ -659,7 +700,7 @@ class DaskEngine:
                         fetch_wait.pop(fut, None)
                         del pending[fut]
                         fut.release()
-                        yield from zip(chunk, res)
+                        yield from zip(chunk, pickle.loads(res))
                     elif status == "error":
                         err = fut.exception(timeout=_FETCH_MAX)
                         tb = fut.traceback(timeout=_FETCH_MAX)

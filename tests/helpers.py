@@ -1,8 +1,12 @@
-"""Shared test parameters and assertions (not fixtures)."""
+"""Shared test parameters and assertions (not fixtures), and fake viewer peers."""
 
 import contextlib
 import faulthandler
 import signal
+import socket
+import struct
+import threading
+import time
 
 import numpy as np
 
@@ -65,3 +69,92 @@ def deadline(seconds: float, what: str = "the block"):
     finally:
         signal.setitimer(signal.ITIMER_REAL, 0)
         signal.signal(signal.SIGALRM, old)
+
+
+#: The answer of an HTTP/2 server to a connection: an empty SETTINGS frame.
+SETTINGS = b"\x00\x00\x00\x04\x00\x00\x00\x00\x00"
+
+
+class Peer:
+    """A fake Rerun viewer: a TCP server on 127.0.0.1 that accepts connections and then
+    behaves as ``mode`` says:
+
+    * ``"silent"`` (or ``answer=False``): says nothing, reads nothing;
+    * ``"stall"`` (or ``answer=True``): sends an HTTP/2 SETTINGS frame (what the probe asks
+      for), then reads nothing;
+    * ``"garbage"``: sends bytes that are not HTTP/2;
+    * ``"reset"``: resets the connection at once (SO_LINGER 0);
+    * ``"settings-then-reset"``: answers, reads a little of the stream, then resets.
+
+    ``url`` is its ``rerun+http`` URL; ``close()`` ends it (and its connections)."""
+
+    def __init__(self, answer: bool | None = None, mode: str | None = None):
+        self.mode = mode or ("stall" if answer else "silent")
+        self.sock = socket.socket()
+        self.sock.bind(("127.0.0.1", 0))
+        self.sock.listen(16)
+        self.sock.settimeout(0.1)
+        self.port = self.sock.getsockname()[1]
+        self.conns: list[socket.socket] = []
+        self.stop = threading.Event()
+        self.thread = threading.Thread(target=self._serve, daemon=True)
+        self.thread.start()
+
+    def _serve(self):
+        while not self.stop.is_set():
+            try:
+                c, _ = self.sock.accept()
+            except socket.timeout:
+                continue
+            except OSError:
+                return
+            self.conns.append(c)
+            try:
+                self._answer(c)
+            except OSError:
+                pass
+
+    def _answer(self, c: socket.socket) -> None:
+        if self.mode == "stall":
+            c.sendall(SETTINGS)
+        elif self.mode == "garbage":
+            c.sendall(b"HTTP/1.1 400 Bad Request\r\nContent-Length: 0\r\n\r\n" + bytes(range(256)))
+        elif self.mode == "reset":
+            c.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, struct.pack("ii", 1, 0))
+            c.close()
+        elif self.mode == "settings-then-reset":
+            c.sendall(SETTINGS)
+            c.settimeout(2.0)
+            end = time.monotonic() + 2.0
+            got = 0
+            while got < 2000 and time.monotonic() < end:
+                try:
+                    piece = c.recv(65536)
+                except socket.timeout:
+                    break
+                if not piece:
+                    break
+                got += len(piece)
+            c.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, struct.pack("ii", 1, 0))
+            c.close()
+
+    @property
+    def url(self) -> str:
+        return f"rerun+http://127.0.0.1:{self.port}/proxy"
+
+    def close(self):
+        self.stop.set()
+        self.thread.join(5)
+        self.sock.close()
+        for c in self.conns:
+            try:
+                c.close()
+            except OSError:
+                pass
+
+
+def closed_port_url() -> str:
+    """A ``rerun+http`` URL of a loopback port nothing listens on."""
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return f"rerun+http://127.0.0.1:{s.getsockname()[1]}/proxy"

@@ -29,6 +29,7 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from helpers import Peer
 from logging_fixtures import arm_info, arm_records
 from mcap.writer import CompressionType, Writer
 
@@ -669,46 +670,6 @@ def _children() -> set[int]:
             if int(fields[1]) == me and fields[0] != "Z":
                 out.add(int(entry))
     return out
-
-
-class Peer:
-    """A TCP server on 127.0.0.1 that accepts and then either says nothing (``answer``
-    False) or sends an HTTP/2 SETTINGS frame and then never reads."""
-
-    def __init__(self, answer: bool):
-        self.sock = socket.socket()
-        self.sock.bind(("127.0.0.1", 0))
-        self.sock.listen(16)
-        self.port = self.sock.getsockname()[1]
-        self.sock.settimeout(0.1)
-        self.conns: list[socket.socket] = []
-        self.answer = answer
-        self.stop = threading.Event()
-        self.thread = threading.Thread(target=self._serve, daemon=True)
-        self.thread.start()
-
-    def _serve(self):
-        while not self.stop.is_set():
-            try:
-                c, _ = self.sock.accept()
-            except socket.timeout:
-                continue
-            except OSError:
-                return
-            self.conns.append(c)
-            if self.answer:
-                c.sendall(b"\x00\x00\x00\x04\x00\x00\x00\x00\x00")
-
-    @property
-    def url(self) -> str:
-        return f"rerun+http://127.0.0.1:{self.port}/proxy"
-
-    def close(self):
-        self.stop.set()
-        self.thread.join(5)
-        self.sock.close()
-        for c in self.conns:
-            c.close()
 
 
 def test_connect_to_a_closed_port_warns_and_fails(tmp_path, capsys):

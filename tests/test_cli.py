@@ -703,7 +703,7 @@ def test_sweep_errors_are_one_line_with_their_exit_code(sweep_file, tmp_path, mo
                       "file\n"
     assert "computed now" not in got.out
     assert main(["sweep", str(sweep_file), "--workers", "0"]) == 2
-    assert capsys.readouterr().err == "qchain sweep: error: --workers must be >= 1, got 0\n"
+    assert capsys.readouterr().err == "qchain sweep: error: --workers must be an integer >= 1 and <= 1024, got 0\n"
 
     def interrupted(path):
         raise KeyboardInterrupt

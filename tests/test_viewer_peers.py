@@ -24,6 +24,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from helpers import Peer
 from logging_fixtures import arm_info, arm_records
 from qchain.logging import LoggingError, LoggingWarning, RunLogger, check_outputs, read_recording
 from qchain.recording import replay, rerun_sink
@@ -58,8 +59,6 @@ dt = 1e-3
 [output]
 sample_rate = 100.0
 """
-#: The answer of an HTTP/2 server to a connection: an empty SETTINGS frame.
-SETTINGS = b"\x00\x00\x00\x04\x00\x00\x00\x00\x00"
 #: s a test waits for the processes of a run to be gone after it ended (the writer's leave
 #: of Rerun is bounded by TEARDOWN_LIMIT; the rest is a loaded machine's slack).
 GONE_WITHIN = TEARDOWN_LIMIT + 25.0
@@ -68,45 +67,6 @@ GONE_WITHIN = TEARDOWN_LIMIT + 25.0
 # --------------------------------------------------------------------------------------
 # helpers
 # --------------------------------------------------------------------------------------
-
-
-class Peer:
-    """A TCP server on 127.0.0.1 that accepts connections and then says nothing
-    (``answer`` False), or sends an HTTP/2 SETTINGS frame and then reads nothing."""
-
-    def __init__(self, answer: bool):
-        self.sock = socket.socket()
-        self.sock.bind(("127.0.0.1", 0))
-        self.sock.listen(16)
-        self.sock.settimeout(0.1)
-        self.answer = answer
-        self.conns: list[socket.socket] = []
-        self.stop = threading.Event()
-        self.thread = threading.Thread(target=self._serve, daemon=True)
-        self.thread.start()
-
-    def _serve(self):
-        while not self.stop.is_set():
-            try:
-                c, _ = self.sock.accept()
-            except socket.timeout:
-                continue
-            except OSError:
-                return
-            self.conns.append(c)
-            if self.answer:
-                c.sendall(SETTINGS)
-
-    @property
-    def url(self) -> str:
-        return f"rerun+http://127.0.0.1:{self.sock.getsockname()[1]}/proxy"
-
-    def close(self):
-        self.stop.set()
-        self.thread.join(5)
-        self.sock.close()
-        for c in self.conns:
-            c.close()
 
 
 @pytest.fixture

@@ -106,7 +106,7 @@ def run(chain, m, method, q0, v0, t0, t1, *, dt, rtol, atol, t_eval, on_sample, 
     cnt[steppers.K_OUT] = k
     status, message = 0, "The end of the time span was reached."
     ev_log: list[tuple[str, float]] = []
-    g_prev = [e.fun(t0, q0, v0) for e in events]
+    g_prev = [e(t0, q0, v0) for e in events]
     emitted = 0
     max_steps = 16
     t = t0
@@ -261,11 +261,11 @@ def _events(events, g_prev, ev_log, method, chain, m, wk, it, c):
     ta, tb = tf[steppers.T_OLD], tf[steppers.T]
     hit = None
     for kk, e in enumerate(events):
-        gb = e.fun(tb, *_state_at(method, chain, m, it, c, tb))
+        gb = e(tb, *_state_at(method, chain, m, it, c, tb))
         ga = g_prev[kk]
         g_prev[kk] = gb
         if (ga < 0 <= gb and e.direction >= 0) or (ga > 0 >= gb and e.direction <= 0):
-            te = brentq(lambda s: e.fun(s, *_state_at(method, chain, m, it, c, s)), ta, tb,
+            te = brentq(lambda s: e(s, *_state_at(method, chain, m, it, c, s)), ta, tb,
                         xtol=1e-12 * max(1.0, abs(tb)))
             ev_log.append((e.name, te))
             if e.terminal and (hit is None or te < hit):
@@ -333,12 +333,20 @@ def _nonfinite_what(chain, wk) -> str:
 RK4_STABILITY_RADIUS = 2.78
 
 
+#: the most free coordinates :func:`stability_limit` forms the Jacobian for: its eigenvalues
+#: cost O((2 nv)^3), minutes for a thousand segments, and the limit only decorates a message
+STABILITY_MAX_NV = 300
+
+
 def stability_limit(chain, q, v, p, tau, t, radius: float = RK4_STABILITY_RADIUS) -> float | None:
     """``radius / max |lambda|`` over the eigenvalues of the exact Jacobian of the free
     coordinates at ``(t, q, v)`` with inputs ``p``, ``tau`` (s), or None where it cannot be
-    formed. For RK4 the limit at the start of a run is the one to quote: near the domain's
-    boundary the model stiffens, and a state already blowing up has spurious fast modes."""
+    formed or the chain has more than :data:`STABILITY_MAX_NV` free coordinates. For RK4 the
+    limit at the start of a run is the one to quote: near the domain's boundary the model
+    stiffens, and a state already blowing up has spurious fast modes."""
     idx = np.flatnonzero(chain.active)
+    if idx.size > STABILITY_MAX_NV:
+        return None
     try:
         d = chain.forward_dynamics_derivatives(q, v, p, tau, t=t)
     except (QchainError, ValueError):

@@ -26,6 +26,14 @@ workspaces lie in ``wk``'s buffer (:func:`_layout`).
 Status codes returned by every pass: :data:`OK`, :data:`DOMAIN` (a segment left the model's
 domain: ``|kappa| r >= 1`` or ``l <= 0``; ``info[1]`` its index), :data:`SINGULAR` (an
 articulated inertia not positive definite), :data:`NONFINITE`.
+
+Unchecked (``skip_checks``) by design: every function here is a compiled kernel (or its
+direct helper) called with arguments that the checked entry points -- :class:`qchain.Chain`'s
+methods, :func:`qchain.simulate.simulate`, :func:`qchain.batch.simulate_batch` -- have
+already validated: float64, C-contiguous arrays of the documented shapes (output arrays
+included), finite, inside the model's domain. They do not check them again: a wrong type
+is a numba typing error, a wrong shape a wrong result or a crash. Call the checked API
+unless you guarantee all of that yourself.
 """
 
 from __future__ import annotations
@@ -52,6 +60,10 @@ def pack(chain, pressure, tau) -> tuple | None:
     where the compiled engine cannot serve it (paper coordinates, the linear law, a Python
     controller or a Python ``base_motion``). A ``planar`` chain whose base stays in its x-z
     plane runs on :func:`qchain.planar.planar_aba_moving` (2-D cost, the same accelerations)."""
+    from qchain.chain import Chain
+
+    if not isinstance(chain, Chain):
+        raise TypeError(f"chain must be a qchain.Chain, got {type(chain).__name__}")
     if chain._any_paper or chain._has_linear:
         return None
     p = schedules.pack_input(pressure, chain.nu, "pressure")

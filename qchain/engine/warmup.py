@@ -240,7 +240,14 @@ def compile_all(methods=None, stream=sys.stderr) -> None:
     """Compile every part of the engine of each of ``methods`` (default: all) for both
     right-hand sides, with the energies' pass, into the cache: in parallel worker processes,
     or here if there are none. For an image or a cluster node to start warm."""
-    methods = list(steppers.ADVANCE) if methods is None else list(methods)
+    if methods is None:
+        methods = list(steppers.ADVANCE)
+    elif isinstance(methods, str) or not isinstance(methods, (list, tuple)) or not all(
+            isinstance(m, str) and m in steppers.ADVANCE for m in methods):
+        raise ValueError(f"methods must be None (all) or a list of the compiled methods {tuple(steppers.ADVANCE)}, "
+                         f"got {methods!r}")
+    else:
+        methods = list(methods)
     for method in methods:
         for planar_kernel in (False, True):
             start(method, planar_kernel, energies=True, stream=stream)

@@ -58,7 +58,11 @@ class ReadLimits:
     max_depth : int
         Nesting of JSON values (the metadata's run information and parameters).
     max_stream_bytes : int
-        Bytes read from a binary stream (a path is read to the size it has when opened).
+        Bytes read from a binary stream.
+    max_file_bytes : int
+        Size of a file a path may name (it is read into memory whole, to the size it has
+        when opened): a bigger one (a sparse file of 64 GiB, say) is refused before
+        anything is read.
     """
 
     expansion: float = 256.0
@@ -68,6 +72,7 @@ class ReadLimits:
     max_segments: int = 10_000
     max_depth: int = 64
     max_stream_bytes: int = 1 << 30
+    max_file_bytes: int = 4 << 30
 
     def __post_init__(self) -> None:
         for name in ("expansion", "records_per_byte"):
@@ -75,7 +80,8 @@ class ReadLimits:
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not (math.isfinite(value)
                                                                                       and value > 0):
                 raise ValueError(f"ReadLimits.{name} must be a finite number > 0, got {value!r}")
-        for name in ("slack_bytes", "slack_records", "max_segments", "max_depth", "max_stream_bytes"):
+        for name in ("slack_bytes", "slack_records", "max_segments", "max_depth", "max_stream_bytes",
+                     "max_file_bytes"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:
                 raise ValueError(f"ReadLimits.{name} must be an int >= 1, got {value!r}")
@@ -188,9 +194,16 @@ def open_regular(path: str) -> int:
     return fd
 
 
+def _too_big(name: str, size: int, why: str) -> RecordingFormatError:
+    return RecordingFormatError(f"{name}: the file is {size} bytes ({_mib(size)}), {why}: refused")
+
+
 def read_fd(fd: int, size: int, name: str) -> bytearray:
     """Exactly the first ``size`` bytes of ``fd`` (fewer if the file was cut meanwhile)."""
-    buf = bytearray(size)
+    try:
+        buf = bytearray(size)
+    except (MemoryError, OverflowError):
+        raise _too_big(name, size, "more than this process can hold in memory") from None
     view = memoryview(buf)
     got = 0
     try:
@@ -235,6 +248,9 @@ def open_source(source, argument: str, function: str, limits: ReadLimits = DEFAU
             return name, None, True
         try:
             size = os.fstat(fd).st_size
+            if size > limits.max_file_bytes:
+                raise _too_big(name, size, f"more than the {_mib(limits.max_file_bytes)} a recording may have "
+                                           "(ReadLimits.max_file_bytes allows more)")
             return name, read_fd(fd, size, name), True
         finally:
             os.close(fd)

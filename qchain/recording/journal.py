@@ -30,7 +30,7 @@ from mcap.records import Channel, Message
 from mcap.writer import CompressionType, IndexType, Writer
 
 from .bounded import Budget, ReadLimits, loads, open_regular
-from .records import LoggingError, RecordLayout, ns, seal, unseal
+from .records import LoggingError, RecordingFormatError, RecordLayout, ns, seal, unseal
 from .scan import MAGIC, scan
 
 __all__ = ["journal_path", "JournalWriter", "JournalReader", "journal_owner", "chunk_record", "ROWS_ENCODING"]
@@ -55,6 +55,10 @@ def journal_owner(path: str | os.PathLike) -> int | None:
         st = os.stat(path)
     except (FileNotFoundError, NotADirectoryError):
         return None
+    except OSError as exc:
+        if exc.errno == errno.ENAMETOOLONG:  # a recording's name too long for a journal beside it: none can be
+            return None
+        raise
     if not stat.S_ISREG(st.st_mode):
         return None
     try:
@@ -211,7 +215,14 @@ class JournalReader:
     def __init__(self, path: str | os.PathLike, limits: ReadLimits | None = None):
         self.path = Path(path)
         self._fd = open_regular(os.fspath(self.path))
-        self._budget = None if limits is None else Budget(os.fstat(self._fd).st_size, limits)
+        size = os.fstat(self._fd).st_size
+        if limits is not None and size > limits.max_file_bytes:
+            os.close(self._fd)
+            self._fd = -1
+            raise RecordingFormatError(f"{self.path}: the journal is {size} bytes, more than the "
+                                       f"{limits.max_file_bytes} bytes a recording may have "
+                                       "(ReadLimits.max_file_bytes allows more): refused")
+        self._budget = None if limits is None else Budget(size, limits)
         self._buf = bytearray()
         self._base = 0  # file offset of _buf[0]
         self._pos = len(MAGIC)  # next record's offset in the file

@@ -41,7 +41,7 @@ from .records import (
     RunInfo,
     unseal,
 )
-from .scan import MAGIC, scan, summary_chunks
+from .scan import MAGIC, scan, summary_records
 
 __all__ = ["Recording", "Gap", "read_recording", "read_mcap", "T_MAX", "STEP_MAX"]
 
@@ -79,7 +79,8 @@ class Gap:
     def describe(self) -> str:
         a = "the start" if self.after_t is None else f"t = {self.after_t:.6g} s (step {self.after_step})"
         b = "the end" if self.before_t is None else f"t = {self.before_t:.6g} s (step {self.before_step})"
-        return f"records between {a} and {b} are missing (bytes {self.offset}..{self.end}: {self.reason})"
+        where = f"bytes {self.offset}..{self.end}: " if self.end > self.offset else ""
+        return f"records between {a} and {b} are missing ({where}{self.reason})"
 
 
 @dataclass
@@ -116,6 +117,13 @@ class Recording:
     nonfinite : list of str
         Fields holding non-finite values (``null`` in the file, read as NaN): how many, in
         how many records, the first time. Empty for a run that stayed finite.
+    disorder : str
+        Where records are out of order (a time before the previous record's, or a step not
+        after it: chunks duplicated or swapped), "" when they follow one another.
+    journal_unread : str
+        Why a journal beside the file (a killed run's) could not be read, or some of its
+        records were not ("" when there is none, or it was read whole): ``recover`` then
+        leaves it where it is.
     """
 
     path: str
@@ -137,6 +145,8 @@ class Recording:
     damage: list = field(default_factory=list)
     recovered: int = 0
     nonfinite: list = field(default_factory=list)
+    journal_unread: str = ""
+    disorder: str = ""
 
     def __len__(self) -> int:
         return int(self.t.shape[0])
@@ -171,6 +181,8 @@ class Recording:
         if self.nonfinite:
             message = (message + "; " if message else "") + "non-finite values recorded (null in the file, read " \
                 f"as NaN): {'; '.join(self.nonfinite)}"
+        if self.disorder:
+            message = (message + "; " if message else "") + self.disorder
         return Trajectory(
             t=self.t,
             q=self.q,
@@ -195,6 +207,7 @@ class Recording:
                 "gaps": self.gaps,
                 "recovered": self.recovered,
                 "nonfinite": self.nonfinite,
+                "disorder": self.disorder,
                 "outcome": out,
                 "qchain_version": self.info.qchain_version,
                 "scene": self.info.scene,
@@ -473,6 +486,9 @@ def _read(name: str, buf: bytearray, jpath, limits: ReadLimits) -> Recording:
     stop_reason = ""
     state_channels: set[int] = set()
     other_channels: set[int] = set()
+    declared: dict[int, str] = {}  # channel id -> topic of its first declaration
+    redeclared: set[int] = set()
+    chunk_times: list[tuple[int, int]] = []  # (message start, end time) of every chunk read
     # in file order: ("m", channel id, message data, chunk offset) and ("d", damage item);
     # messages are kept until the end when their channel's record was lost (a damaged first
     # chunk): the sealed metadata names the channel ids too
@@ -480,11 +496,19 @@ def _read(name: str, buf: bytearray, jpath, limits: ReadLimits) -> Recording:
     budget = Budget(len(buf), limits)
     for item in scan(buf, budget=budget) if len(buf) >= len(MAGIC) else ():
         if item.kind == "chunk":
+            chunk_times.append((item.chunk.message_start_time, item.chunk.message_end_time))
             if item.reason:
                 damage.append(item.reason)
             for rec in item.records:
                 if isinstance(rec, Channel):
-                    (state_channels if rec.topic == TOPICS["state"] else other_channels).add(rec.id)
+                    first = declared.setdefault(rec.id, rec.topic)
+                    if first == rec.topic:
+                        (state_channels if rec.topic == TOPICS["state"] else other_channels).add(rec.id)
+                    elif rec.id not in redeclared:
+                        redeclared.add(rec.id)
+                        damage.append(f"the chunk at byte {item.offset} declares channel {rec.id} again as "
+                                      f"{rec.topic[:80]!r}, first declared as {first[:80]!r}: the first declaration "
+                                      "is used")
                 elif isinstance(rec, Message) and rec.channel_id not in other_channels:
                     stream.append(("m", rec.channel_id, rec.data, item.offset))
         elif item.kind == "metadata":
@@ -518,6 +542,7 @@ def _read(name: str, buf: bytearray, jpath, limits: ReadLimits) -> Recording:
     # a killed run's journal (a live run's is still being written: not read)
     jr = None
     journal_rows = None
+    journal_unread = ""
     if jpath is not None and journal_owner(jpath) is None:
         try:
             jr = JournalReader(jpath, limits)
@@ -529,8 +554,9 @@ def _read(name: str, buf: bytearray, jpath, limits: ReadLimits) -> Recording:
             jr = None
         except LimitExceeded as exc:
             raise RecordingFormatError(f"{jpath} (the journal of {name}): {exc}") from None
-        except LoggingError as exc:  # not a regular file, not a journal
+        except LoggingError as exc:  # not a regular file, not a journal, too big
             damage.append(f"journal: {exc}; not read")
+            journal_unread = str(exc)
             jr = None
         if jr is not None:
             if meta is None and jr.metadata is not None:
@@ -540,6 +566,9 @@ def _read(name: str, buf: bytearray, jpath, limits: ReadLimits) -> Recording:
             if outcome is None and jr.outcome is not None and _outcome_problem(jr.outcome) is None:
                 outcome = jr.outcome
             damage.extend(f"journal: {d}" for d in jr.damage)
+            unread = [d for d in jr.damage if "not read" in d]
+            if unread:
+                journal_unread = "; ".join(unread)
     if meta is None and len(buf) == 0:
         raise RecordingFormatError(f"{name}: no recording file, and its journal {jpath} holds no qchain recording ("
                                    f"{'; '.join(damage) or 'no qchain metadata'})")
@@ -565,20 +594,31 @@ def _read(name: str, buf: bytearray, jpath, limits: ReadLimits) -> Recording:
             channels = loads(meta["channels"], "its channel list", limits)
             if not isinstance(channels, dict):
                 raise ValueError("its channel list is not a JSON object")
-            ids = {int(k) for k, v in channels.items() if v == TOPICS["state"] and k.isdigit() and len(k) < 6}
+            ids = {int(k) for k, v in channels.items() if v == TOPICS["state"] and k.isascii() and k.isdigit()
+                   and len(k) < 6}
+            named = {int(k) for k in channels if k.isascii() and k.isdigit() and len(k) < 6}
         except ValueError as exc:
             raise RecordingFormatError(f"{where}: {exc}") from None
-        state_channels |= ids
+        state_channels |= ids - other_channels
+        for k in named:
+            declared.setdefault(k, "")
     msgs: list[tuple[int, bytes]] = []
     events: list[tuple[int, object]] = []  # (position in msgs, damage item)
+    undeclared: dict[int, int] = {}  # channel id -> messages on it, never declared
     for entry in stream:
         if entry[0] == "m":
             if entry[1] in state_channels:
                 msgs.append((entry[3], entry[2]))
+            elif entry[1] not in declared:
+                undeclared[entry[1]] = undeclared.get(entry[1], 0) + 1
         else:
             events.append((len(msgs), entry[1]))
     del stream
-    index = summary_chunks(buf) if events else None
+    if undeclared:
+        damage.append(f"{sum(undeclared.values())} message(s) on channel(s) "
+                      f"{', '.join(map(str, sorted(undeclared)[:10]))} that no channel record declares: not read")
+    summary = summary_records(buf, budget) if complete else None
+    index, stats = summary if summary is not None else (None, None)
     del buf
     b = _decode_states(msgs, info, name)
     del msgs
@@ -611,12 +651,63 @@ def _read(name: str, buf: bytearray, jpath, limits: ReadLimits) -> Recording:
             if not complete:
                 stop_reason = (stop_reason + "; " if stop_reason else "") + \
                     f"{recovered} records after it read from the run's journal {jpath}"
+    if not gaps and not recovered:
+        gap = _missing(b, name, outcome, stats, state_channels, index, chunk_times)
+        if gap is not None:
+            gaps.append(gap)
+            damage.append(gap.reason)
+    disorder = _disorder(b)
     return Recording(
         path=name, info=info, t=b.t, step=b.step, q=b.q, v=b.v, p=b.p, energy=b.energy, base=b.base,
         backbone=b.backbone, tip_frames=b.tip_frames, outcome=outcome, truncated=not complete,
         stop_reason="" if complete else stop_reason, metadata=meta, gaps=gaps, damage=damage, recovered=recovered,
-        nonfinite=_nonfinite(b),
+        nonfinite=_nonfinite(b), journal_unread=journal_unread, disorder=disorder,
     )
+
+
+def _missing(b: Batch, name: str, outcome, stats, state_channels: set, index, chunk_times) -> Gap | None:
+    """A gap for records the file says it holds but does not: its outcome's ``n_records``
+    or its summary's message count of the state channel more than were read (a chunk cut
+    out cleanly leaves no damage to find). Where the summary's chunk index shows chunks
+    whose times hold no record read, the gap is there; else it is the whole run."""
+    counts = []
+    if outcome is not None and outcome.get("n_records"):
+        counts.append((int(outcome["n_records"]), "its qchain.outcome record"))
+    if stats is not None and state_channels:
+        n = sum(stats.channel_message_counts.get(c, 0) for c in state_channels)
+        if n:
+            counts.append((n, "its summary's statistics"))
+    if not counts:
+        return None
+    expected, source = max(counts)
+    if expected <= len(b):
+        return None
+    why = f"{source} counts {expected} records, {len(b)} were read: {expected - len(b)} missing"
+    read_ns = np.rint(b.t * 1e9).astype(np.int64)
+    have = set(chunk_times)
+    for c in index or ():
+        span = (c.message_start_time, c.message_end_time)
+        if span in have or np.any((read_ns >= span[0]) & (read_ns <= span[1])):
+            continue
+        k = int(np.searchsorted(read_ns, span[0]))  # the first record read after the missing chunk
+        return Gap(None if k == 0 else float(b.t[k - 1]), None if k >= len(b) else float(b.t[k]),
+                   None if k == 0 else int(b.step[k - 1]), None if k >= len(b) else int(b.step[k]),
+                   int(c.chunk_start_offset), int(c.chunk_start_offset + c.chunk_length),
+                   f"{why} (the summary lists a chunk of t = {span[0] / 1e9:.6g} .. {span[1] / 1e9:.6g} s that the "
+                   "file does not hold)")
+    return Gap(None, None, None, None, 0, 0, f"{why}, where is not known")
+
+
+def _disorder(b: Batch) -> str:
+    """Where the records are out of order, in words ("" if they are not)."""
+    if len(b) < 2:
+        return ""
+    back = (np.diff(b.t) < 0) | (np.diff(b.step) <= 0)
+    if not back.any():
+        return ""
+    k = int(np.argmax(back)) + 1
+    return (f"records out of order: {int(back.sum())} record(s) do not follow the one before (the first: step "
+            f"{int(b.step[k])} at t = {b.t[k]:.6g} s after step {int(b.step[k - 1])} at t = {b.t[k - 1]:.6g} s)")
 
 
 def read_mcap(path: str | os.PathLike | BinaryIO, *, limits: ReadLimits | None = None) -> Trajectory:

@@ -305,8 +305,9 @@ class RunInfo:
                 setattr(self, key, list(names))
         if self.duration is not None:
             d = float(self.duration)
-            if not (math.isfinite(d) and d > 0):
-                raise ValueError(f"duration must be None or a finite time > 0 s, got {self.duration!r}")
+            if not (math.isfinite(d) and 0 < d <= 9.2e9):
+                raise ValueError(f"duration must be None or a time > 0 s and <= 9.2e9 s (its nanoseconds fit a "
+                                 f"recording's 64-bit times), got {self.duration!r}")
             self.duration = d
 
     @property

@@ -29,6 +29,7 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
+from ..text import printable
 from .bounded import ReadLimits
 from .journal import journal_owner, journal_path
 from .reader import Recording, read_recording
@@ -92,6 +93,9 @@ def _warn_incomplete(recording: Recording, stacklevel: int) -> None:
     if recording.nonfinite:
         warnings.warn(f"qchain.logging: {recording.path} holds non-finite values (null in the file, read as NaN): "
                       + "; ".join(recording.nonfinite), _IncompleteWarning, stacklevel=stacklevel)
+    if recording.disorder:
+        warnings.warn(f"qchain.logging: {recording.path}: {recording.disorder}", _IncompleteWarning,
+                      stacklevel=stacklevel)
 
 
 # --------------------------------------------------------------------------------------
@@ -344,6 +348,9 @@ def recover(path: str | os.PathLike, *, limits: ReadLimits | None = None) -> Rec
         raise FileNotFoundError(f"{path}: no such recording, and no journal of a run writing it")
     # (without the file, from the journal alone: the writer never started)
     rec = read_recording(path, limits=limits)
+    if rec.journal_unread:
+        raise LoggingError(f"{path}: its journal {jp} is not (wholly) readable ({rec.journal_unread}); nothing was "
+                           "changed (the journal would be lost): move it away to recover the file without it")
     out = rec.outcome or {"success": "false", "status": "-1", "message": ""}
     message = out.get("message") or "the run was killed"
     if rec.recovered or rec.truncated:
@@ -352,7 +359,9 @@ def recover(path: str | os.PathLike, *, limits: ReadLimits | None = None) -> Rec
         message += f"; before recovery {g.describe()}"
     tmp = None
     try:
-        fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".recovering", dir=path.parent)
+        # a short name of its own (not the file's name plus a suffix: that can pass the file
+        # system's limit for a name check_outputs accepts), hidden, in the same folder
+        fd, tmp = tempfile.mkstemp(prefix=".recovering-", dir=path.parent)
         os.close(fd)
         sink = McapSink(tmp, rec.info, recording_id=rec.metadata.get("recording_id", str(uuid.uuid4())),
                         flush_interval=DEFAULT_FLUSH_INTERVAL, flush_wall_interval=1e9)
@@ -370,7 +379,7 @@ def recover(path: str | os.PathLike, *, limits: ReadLimits | None = None) -> Rec
     finally:
         if tmp is not None and os.path.exists(tmp):
             os.unlink(tmp)
-    if jp.exists():
+    if os.path.lexists(jp):  # (not Path.exists: a name too long for a journal raises there)
         jp.unlink()
     return read_recording(path, limits=limits)
 
@@ -388,11 +397,14 @@ def _summary(rec: Recording) -> list[str]:
         lines.append(f"the run ended: {rec.outcome.get('message', '')}")
     for g in rec.gaps:
         lines.append(f"damaged: {g.describe()}")
+    shown = {g.reason for g in rec.gaps}
     for d in rec.damage:
-        if "metadata" in d or d.startswith("journal:"):
+        if d not in shown and "(no chunk there, per the summary: no record lost)" not in d:
             lines.append(f"damaged: {d}")
     for d in rec.nonfinite:
         lines.append(f"non-finite values (null in the file, read as NaN): {d}")
+    if rec.disorder:
+        lines.append(rec.disorder)
     return lines
 
 
@@ -401,7 +413,7 @@ _ERRORS = (LoggingError, OSError, ValueError, TypeError)
 
 
 def _error(prog: str, exc: BaseException) -> int:
-    print(f"qchain {prog}: error: {exc}", file=sys.stderr)
+    print(f"qchain {prog}: error: {printable(exc)}", file=sys.stderr)
     return 2
 
 
@@ -435,17 +447,18 @@ def replay_main(argv: Sequence[str] | None = None) -> int:
             return _error("replay", exc)
     for w in caught:
         if issubclass(w.category, LoggingWarning) and not issubclass(w.category, _IncompleteWarning):
-            print(f"qchain replay: warning: {str(w.message).removeprefix('qchain.logging: ')}", file=sys.stderr)
+            print(f"qchain replay: warning: {printable(str(w.message).removeprefix('qchain.logging: '))}",
+                  file=sys.stderr)
     rec = session.recording
     lines = _summary(rec)
     sent = session.sent is not False
     if len(rec):
         lines[0] = ("replayed " if sent else "read ") + lines[0]
-    print("\n".join(lines))
+    print("\n".join(map(printable, lines)))
     if args.rrd:
-        print(f"wrote {args.rrd}")
+        print(f"wrote {printable(args.rrd)}")
     if args.connect:
-        print(f"sent to {args.connect}" if sent else f"not sent to {args.connect}: see the warning above")
+        print(printable(f"sent to {args.connect}" if sent else f"not sent to {args.connect}: see the warning above"))
     if serve:
         if session.viewer_url:
             print(f"open {session.viewer_url}  - Ctrl-C to stop", flush=True)
@@ -475,7 +488,7 @@ def recover_main(argv: Sequence[str] | None = None) -> int:
         rec = recover(args.log)
     except _ERRORS as exc:
         return _error("recover", exc)
-    print("recovered " + "\n".join(_summary(rec)))
+    print("recovered " + "\n".join(map(printable, _summary(rec))))
     return 0
 
 
@@ -512,7 +525,7 @@ def layout_main(argv: Sequence[str] | None = None) -> int:
             finally:
                 if tmp.exists():
                     tmp.unlink()
-            print(f"wrote {args.out}")
+            print(f"wrote {printable(args.out)}")
     except _ERRORS as exc:
         return _error("layout", exc)
     return 0

@@ -33,7 +33,7 @@ from mcap.records import Channel, Chunk, Footer, Message, Metadata, Schema
 from .bounded import Budget, LimitExceeded, decompress
 from .records import unseal
 
-__all__ = ["MAGIC", "Item", "scan", "summary_chunks"]
+__all__ = ["MAGIC", "Item", "scan", "summary_chunks", "summary_records"]
 
 MAGIC = b"\x89MCAP0\r\n"
 _HEAD = struct.Struct("<BQ")
@@ -291,7 +291,15 @@ def scan(buf, start: int = len(MAGIC), final: bool = True, budget: Budget | None
 def summary_chunks(buf) -> list | None:
     """The chunk indexes of a complete file's summary, if its footer and summary are intact
     (the summary's CRC matches), else None."""
-    from mcap.records import ChunkIndex
+    found = summary_records(buf)
+    return None if found is None else found[0]
+
+
+def summary_records(buf, budget: Budget | None = None):
+    """``(chunk indexes, statistics or None)`` of a complete file's summary, if its footer
+    and summary are intact (the summary's CRC matches), else None; the records parsed
+    are counted in ``budget``."""
+    from mcap.records import ChunkIndex, Statistics
 
     size = len(buf)
     fpos = size - len(MAGIC) - 29
@@ -308,13 +316,22 @@ def summary_chunks(buf) -> list | None:
     if got != crc:
         return None
     out = []
+    stats = None
     pos = start
     try:
         while pos + 9 <= fpos:
             opcode, length = _HEAD.unpack_from(buf, pos)
-            if opcode == Opcode.CHUNK_INDEX and pos + 9 + length <= fpos:
-                out.append(ChunkIndex.read(ReadDataStream(io.BytesIO(bytes(buf[pos + 9 : pos + 9 + length])))))
+            if pos + 9 + length <= fpos and opcode in (Opcode.CHUNK_INDEX, Opcode.STATISTICS):
+                stream = ReadDataStream(io.BytesIO(bytes(buf[pos + 9 : pos + 9 + length])))
+                if budget is not None:
+                    budget.count(1, pos)
+                if opcode == Opcode.CHUNK_INDEX:
+                    out.append(ChunkIndex.read(stream))
+                else:
+                    stats = Statistics.read(stream)
             pos += 9 + length
+    except LimitExceeded:
+        raise
     except Exception:  # a summary whose CRC matches but whose records do not parse: not used
         return None
-    return out
+    return out, stats
