@@ -160,7 +160,7 @@ class Chain(ChainKinematics, ChainChecks):
         self.base = base
         self.gravity = np.array(GRAVITY.check_array("gravity", as_vector("gravity", gravity, 3)))  # its own copy
         self.gravity.flags.writeable = False  # the passes use it (and its base-frame image) as given here
-        self.base_placement = pin.SE3.Identity() if base_placement is None else pin.SE3(base_placement)
+        self._X_WB0 = pin.SE3.Identity() if base_placement is None else pin.SE3(base_placement)
         self.base_motion = base_motion
         n = len(segs)
         self.n = n
@@ -209,14 +209,20 @@ class Chain(ChainKinematics, ChainChecks):
         self.active[self._voff :] = ~self._locked.ravel()
         self.active.flags.writeable = False
         self.nv_active = int(self.active.sum())
-        self._g_B = self.base_placement.rotation.T @ self.gravity
-        self._R_WB = self.base_placement.rotation[None].copy()  # (1, 3, 3), for recursive.frames
-        self._p_WB = self.base_placement.translation[None].copy()  # (1, 3)
+        self._g_B = self._X_WB0.rotation.T @ self.gravity
+        self._R_WB = self._X_WB0.rotation[None].copy()  # (1, 3, 3), for recursive.frames
+        self._p_WB = self._X_WB0.translation[None].copy()  # (1, 3)
         if self.floating:
             self._ff = pin.Model()
             self._ff.addJoint(0, pin.JointModelFreeFlyer(), pin.SE3.Identity(), "base")
 
     # ------------------------------------------------------------------ layout
+
+    @property
+    def base_placement(self) -> pin.SE3:
+        """World placement ``X_WB`` of a fixed base (a copy: the chain's passes keep
+        quantities made from it, so it is set once, at construction)."""
+        return pin.SE3(self._X_WB0)
 
     def q_slice(self, j: int) -> slice:
         """Indices of segment ``j``'s ``q_e`` in ``q`` (``0 <= j < n``)."""
@@ -285,7 +291,7 @@ class Chain(ChainKinematics, ChainChecks):
             self._check_domain(q_e, ("q", q), *extra)
         A_B = None
         if self.base == "fixed":
-            X = self.base_placement
+            X = self._X_WB0
             V0 = np.zeros(6)
         elif self.base == "floating":
             X = pin.XYZQUATToSE3(q[:7])

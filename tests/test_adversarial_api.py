@@ -371,6 +371,20 @@ def test_schedules_and_constants_keep_read_only_copies():
             arr[0] = 5.0
 
 
+def test_the_base_placement_is_given_as_a_copy():
+    """It was the chain's own SE3: changing it left the passes' gravity in the base frame stale."""
+    X = pin.SE3(pin.rpy.rpyToMatrix(0.3, 0.0, 0.0), np.array([0.0, 0.0, 1.0]))
+    ch = Chain([S], base_placement=X)
+    q = ch.neutral()
+    g0 = ch.generalized_gravity(q)
+    got = ch.base_placement
+    got.rotation = np.eye(3)
+    X.rotation = np.eye(3)
+    again = ch.generalized_gravity(q)
+    assert np.array_equal(g0, again)
+    assert np.allclose(ch.base_placement.rotation, pin.rpy.rpyToMatrix(0.3, 0.0, 0.0), atol=0, rtol=0)
+
+
 def test_inputs_and_outputs_share_no_memory():
     q0, v0, P, te = CH2.neutral(), np.zeros(6), np.full(6, 1e4), np.linspace(0, 0.01, 3)
     keep = [x.copy() for x in (q0, v0, P, te)]
@@ -403,3 +417,16 @@ def test_the_lagrangian_form_and_engine_entry_points_name_bad_arguments():
     refused(lambda: warmup.compile_all(["bogus"]), "methods")
     refused(lambda: warmup.compile_all("rk4"), "methods")
     refused(lambda: system.pack("chain", None, None), "chain")
+
+
+def test_a_failed_run_of_a_large_chain_does_not_spend_minutes_on_its_stability_limit():
+    """A 1000-segment rk4 run that failed formed the 6000 x 6000 Jacobian for its message."""
+    from helpers import deadline
+    from qchain.engine.driver import STABILITY_MAX_NV, stability_limit
+
+    big = Chain([S] * (STABILITY_MAX_NV // 3 + 1))
+    with deadline(10, "stability_limit of a large chain"):
+        assert stability_limit(big, big.neutral(), np.zeros(big.nv), np.zeros(big.nu), np.zeros(big.nv), 0.0) is None
+    small = Chain([S] * 2)
+    lim = stability_limit(small, small.neutral(), np.zeros(small.nv), np.zeros(small.nu), np.zeros(small.nv), 0.0)
+    assert lim is not None and 0 < lim < 1
