@@ -30,13 +30,8 @@ rows of its wrench ``F0``.
 Arrays named ``...T`` hold derivatives by their first index: ``QqT[c]`` is ``dQ/dq_c``.
 ``tests/test_derivatives.py`` holds every output to central differences of the model.
 
-Unchecked (``skip_checks``) by design: every function here is a compiled kernel (or its
-direct helper) called with arguments that the checked entry points -- :class:`qchain.Chain`'s
-methods, :func:`qchain.simulate.simulate`, :func:`qchain.batch.simulate_batch` -- have
-already validated: float64, C-contiguous arrays of the documented shapes (output arrays
-included), finite, inside the model's domain. They do not check them again: a wrong type
-is a numba typing error, a wrong shape a wrong result or a crash. Call the checked API
-unless you guarantee all of that yourself.
+Unchecked by design: compiled kernels whose arguments the checked API has validated
+(``docs/engine.md``, "Unchecked kernels"); call the checked API unless you guarantee them.
 """
 
 from __future__ import annotations

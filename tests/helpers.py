@@ -2,6 +2,7 @@
 
 import contextlib
 import faulthandler
+import os
 import signal
 import socket
 import struct
@@ -18,6 +19,38 @@ SEGMENT_KW = dict(
     chamber_radius=0.01,
     youngs_modulus=1e5,
 )
+
+#: two short soft segments in a scene file's form: the arm of the command-line, sweep and
+#: viewer tests' scenes
+SEGMENTS_TOML = """[[segments]]
+count = 2
+length = 0.1
+radius = 0.015
+mass = 0.05
+chamber_area = 4.5e-5
+chamber_radius = 0.0085
+youngs_modulus = 1e5
+damping = 0.02
+"""
+
+#: a 0.1 s rk4 run of those segments under a pressure ramp (the command-line tests' scene)
+SHORT_SCENE = f"""
+name = "short"
+gravity = [0.0, 0.0, -9.81]
+[model]
+node_tolerance = 1e-8
+{SEGMENTS_TOML}[pressure]
+type = "ramp"
+t0 = 0.0
+t1 = 0.05
+end = [3e4, 0.0, 0.0,  0.0, 2e4, 0.0]
+[simulation]
+duration = 0.1
+method = "rk4"
+dt = 1e-3
+[output]
+sample_rate = 100.0
+"""
 
 
 def bent(coords, theta, psi=0.7, l=0.22):
@@ -158,3 +191,54 @@ def closed_port_url() -> str:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         return f"rerun+http://127.0.0.1:{s.getsockname()[1]}/proxy"
+
+
+# --------------------------------------------------------------------------------------
+# processes a test started, and whether they are gone
+
+
+def _live(procs) -> set[int]:
+    import psutil
+
+    out = set()
+    for p in procs:
+        try:
+            if p.status() != psutil.STATUS_ZOMBIE:
+                out.add(p.pid)
+        except psutil.Error:  # gone meanwhile
+            pass
+    return out
+
+
+def children(pid: int | None = None) -> set[int]:
+    """Live (not zombie) processes whose parent is ``pid`` (this process by default)."""
+    import psutil
+
+    try:
+        return _live(psutil.Process(pid).children())
+    except psutil.NoSuchProcess:
+        return set()
+
+
+def descendants(pid: int | None = None) -> set[int]:
+    """Live (not zombie) processes descended from ``pid`` (this process by default)."""
+    import psutil
+
+    try:
+        return _live(psutil.Process(pid).children(recursive=True))
+    except psutil.NoSuchProcess:
+        return set()
+
+
+def session_members(sid: int) -> set[int]:
+    """Live processes of the session ``sid`` (a command started with start_new_session)."""
+    import psutil
+
+    members = []
+    for p in psutil.process_iter():
+        try:
+            if os.getsid(p.pid) == sid:
+                members.append(p)
+        except OSError:  # gone meanwhile
+            pass
+    return _live(members)

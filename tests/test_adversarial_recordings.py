@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from helpers import Peer, closed_port_url, deadline
+from helpers import Peer, children, closed_port_url, deadline
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from logging_fixtures import arm_info, arm_records
@@ -413,20 +413,6 @@ def test_flips_and_cuts_lose_only_their_chunk_and_say_so(logged, data):
 # --------------------------------------------------------------------------------------
 
 
-def _children() -> set[int]:
-    me, out = os.getpid(), set()
-    for entry in os.listdir("/proc"):
-        if entry.isdigit():
-            try:
-                with open(f"/proc/{entry}/stat") as fh:
-                    fields = fh.read().rsplit(")", 1)[1].split()
-            except OSError:
-                continue
-            if int(fields[1]) == me and fields[0] != "Z":
-                out.add(int(entry))
-    return out
-
-
 @pytest.mark.parametrize("mode, why", [("garbage", "not as an HTTP/2 (gRPC) server"),
                                        ("reset", "Connection reset by peer"),
                                        ("settings-then-reset", "")])
@@ -436,7 +422,7 @@ def test_replay_to_a_peer_that_answers_garbage_or_resets(tmp_path, mode, why):
     p = tmp_path / "rec.mcap"
     p.write_bytes(craft(_states(200), chunks=4))
     peer = Peer(mode=mode)
-    before = _children()
+    before = children()
     try:
         t0 = time.monotonic()
         with deadline(90, f"replay to a {mode} peer"), warnings.catch_warnings(record=True) as caught:
@@ -452,9 +438,9 @@ def test_replay_to_a_peer_that_answers_garbage_or_resets(tmp_path, mode, why):
         assert session.sent is False and len(said) == 1 and peer.url in said[0] and why in said[0], said
     assert len(session.recording) == 200 and took < 60
     deadline_t = time.monotonic() + 10
-    while _children() - before and time.monotonic() < deadline_t:
+    while children() - before and time.monotonic() < deadline_t:
         time.sleep(0.1)
-    assert _children() <= before
+    assert children() <= before
 
 
 @pytest.mark.parametrize("mode", ["garbage", "reset", "closed"])

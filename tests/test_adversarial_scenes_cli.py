@@ -16,7 +16,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from helpers import deadline
+from helpers import SEGMENTS_TOML, deadline
 from qchain import bounds as B
 from qchain.cli import main
 from qchain.cli_checks import BadInput, check_flag_values, check_viewer_url, flag_ranges
@@ -28,16 +28,7 @@ FAST = settings(max_examples=60, deadline=2000, derandomize=True, database=None)
 
 SCENE = """
 name = "adversarial"
-[[segments]]
-count = 2
-length = 0.1
-radius = 0.015
-mass = 0.05
-chamber_area = 4.5e-5
-chamber_radius = 0.0085
-youngs_modulus = 1e5
-damping = 0.02
-[pressure]
+""" + SEGMENTS_TOML + """[pressure]
 type = "constant"
 value = [1e4, 0, 0, 0, 2e4, 2e4]
 [simulation]

@@ -29,7 +29,7 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-from helpers import Peer
+from helpers import Peer, children
 from logging_fixtures import arm_info, arm_records
 from mcap.writer import CompressionType, Writer
 
@@ -657,21 +657,6 @@ def test_recover_that_cannot_write_leaves_everything_as_it_was(tmp_path, monkeyp
 # --------------------------------------------------------------------------------------
 
 
-def _children() -> set[int]:
-    """Live processes whose parent is this one."""
-    me, out = os.getpid(), set()
-    for entry in os.listdir("/proc"):
-        if entry.isdigit():
-            try:
-                with open(f"/proc/{entry}/stat") as fh:
-                    fields = fh.read().rsplit(")", 1)[1].split()
-            except OSError:
-                continue
-            if int(fields[1]) == me and fields[0] != "Z":
-                out.add(int(entry))
-    return out
-
-
 def test_connect_to_a_closed_port_warns_and_fails(tmp_path, capsys):
     """Nothing listening (it reported success before): a warning naming the URL, exit code 1."""
     p = write(tmp_path, craft())
@@ -695,7 +680,7 @@ def test_connect_to_a_peer_that_never_answers_times_out(tmp_path, capsys):
     process left."""
     p = write(tmp_path, craft())
     peer = Peer(answer=False)
-    before = _children()
+    before = children()
     try:
         t0 = time.monotonic()
         assert replay_main([str(p), "--connect", peer.url, "--timeout", "1"]) == 1
@@ -704,7 +689,7 @@ def test_connect_to_a_peer_that_never_answers_times_out(tmp_path, capsys):
         peer.close()
     assert 0.9 < elapsed < 10.0
     assert "did not answer within 1 s" in capsys.readouterr().err
-    assert _children() <= before
+    assert children() <= before
 
 
 def test_connect_to_a_peer_that_stops_halfway_is_cut_off(tmp_path):
@@ -756,7 +741,7 @@ def test_connect_to_a_real_viewer_sends(tmp_path, capsys):
     server = rr.RecordingStream("qchain-test-viewer")
     server.set_sinks(rr.GrpcServerSink(bind_ip="127.0.0.1", port=port))
     p = write(tmp_path, craft())
-    before = _children()
+    before = children()
     try:
         deadline = time.monotonic() + 20
         while time.monotonic() < deadline:
@@ -770,7 +755,7 @@ def test_connect_to_a_real_viewer_sends(tmp_path, capsys):
         server.disconnect()
     out = capsys.readouterr()
     assert "replayed 6 steps" in out.out and "sent to" in out.out and "warning" not in out.err
-    assert _children() <= before
+    assert children() <= before
 
 
 # --------------------------------------------------------------------------------------

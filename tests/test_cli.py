@@ -11,38 +11,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from helpers import SHORT_SCENE
 from qchain.cli import main
 from qchain.scene import load_scene
 
 EXAMPLES = Path(__file__).parents[1] / "examples" / "scenes"
 
-SHORT = """
-name = "short"
-gravity = [0.0, 0.0, -9.81]
-[model]
-node_tolerance = 1e-8
-[[segments]]
-count = 2
-length = 0.1
-radius = 0.015
-mass = 0.05
-chamber_area = 4.5e-5
-chamber_radius = 0.0085
-youngs_modulus = 1e5
-damping = 0.02
-[pressure]
-type = "ramp"
-t0 = 0.0
-t1 = 0.05
-end = [3e4, 0.0, 0.0,  0.0, 2e4, 0.0]
-[simulation]
-duration = 0.1
-method = "rk4"
-dt = 1e-3
-[output]
-sample_rate = 100.0
-plots = ["tip", "arm", "energy", "pressure"]
-"""
+SHORT = SHORT_SCENE + 'plots = ["tip", "arm", "energy", "pressure"]\n'
 
 
 @pytest.fixture

@@ -18,22 +18,14 @@ from qchain.scene import parse_scene
 from qchain.sweep_spec import Axis, SweepError, SweepSpec, apply_values, load_sweep, parse_key, validate_runs
 from qchain.sweeps import METRICS, TIMING_COLUMNS, main, summary_metrics
 from test_batch import _alive
+from helpers import SEGMENTS_TOML
 
 TESTS = Path(__file__).parent
 
 BASE = """
 name = "sweep base"
 gravity = [0.0, 0.0, -9.81]
-[[segments]]
-count = 2
-length = 0.1
-radius = 0.015
-mass = 0.05
-chamber_area = 4.5e-5
-chamber_radius = 0.0085
-youngs_modulus = 1e5
-damping = 0.02
-[pressure]
+""" + SEGMENTS_TOML + """[pressure]
 type = "sine"
 offset = [2e4, 2e4, 2e4, 2e4, 2e4, 2e4]
 amplitude = [2e4, 2e4, 2e4, 2e4, 2e4, 2e4]

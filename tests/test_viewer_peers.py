@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from helpers import Peer
+from helpers import Peer, SHORT_SCENE, descendants, session_members
 from logging_fixtures import arm_info, arm_records
 from qchain.logging import LoggingError, LoggingWarning, RunLogger, check_outputs, read_recording
 from qchain.recording import replay, rerun_sink
@@ -33,32 +33,7 @@ from qchain.recording.writer import TEARDOWN_LIMIT, RemoteViewer
 ROOT = Path(__file__).resolve().parents[1]
 TESTS = Path(__file__).resolve().parent
 PY = sys.executable
-SCENE = """
-name = "short"
-gravity = [0.0, 0.0, -9.81]
-[model]
-node_tolerance = 1e-8
-[[segments]]
-count = 2
-length = 0.1
-radius = 0.015
-mass = 0.05
-chamber_area = 4.5e-5
-chamber_radius = 0.0085
-youngs_modulus = 1e5
-damping = 0.02
-[pressure]
-type = "ramp"
-t0 = 0.0
-t1 = 0.05
-end = [3e4, 0.0, 0.0,  0.0, 2e4, 0.0]
-[simulation]
-duration = 0.1
-method = "rk4"
-dt = 1e-3
-[output]
-sample_rate = 100.0
-"""
+SCENE = SHORT_SCENE
 #: s a test waits for the processes of a run to be gone after it ended (the writer's leave
 #: of Rerun is bounded by TEARDOWN_LIMIT; the rest is a loaded machine's slack).
 GONE_WITHIN = TEARDOWN_LIMIT + 25.0
@@ -81,36 +56,6 @@ def stalling_peer():
     p = Peer(answer=True)
     yield p
     p.close()
-
-
-def _proc_table() -> dict[int, tuple[int, int, str]]:
-    """pid -> (parent pid, session id, state) of every process."""
-    out = {}
-    for entry in os.listdir("/proc"):
-        if entry.isdigit():
-            try:
-                with open(f"/proc/{entry}/stat") as fh:
-                    fields = fh.read().rsplit(")", 1)[1].split()
-            except OSError:
-                continue
-            out[int(entry)] = (int(fields[1]), int(fields[4]), fields[0])
-    return out
-
-
-def descendants(pid: int | None = None) -> set[int]:
-    """Live (not zombie) processes descended from ``pid`` (this process by default)."""
-    pid = os.getpid() if pid is None else pid
-    table = _proc_table()
-    found, frontier = set(), {pid}
-    while frontier:
-        frontier = {p for p, (pp, _, st) in table.items() if pp in frontier and p not in found}
-        found |= frontier
-    return {p for p in found if table.get(p, (0, 0, "Z"))[2] != "Z"}
-
-
-def session_members(sid: int) -> set[int]:
-    """Live processes of the session ``sid`` (a command started with start_new_session)."""
-    return {p for p, (_, s, st) in _proc_table().items() if s == sid and st != "Z"}
 
 
 def wait_gone(probe, within: float = GONE_WITHIN) -> set[int]:

@@ -32,13 +32,8 @@ Methods (Hairer, Norsett and Wanner, *Solving ODEs I*; Hairer and Wanner, *Solvi
 
 Tolerances act on ``y = (delta, v)`` as scipy's do: ``|err_i| <= atol + rtol |y_i|``, RMS norm.
 
-Unchecked (``skip_checks``) by design: every function here is a compiled kernel (or its
-direct helper) called with arguments that the checked entry points -- :class:`qchain.Chain`'s
-methods, :func:`qchain.simulate.simulate`, :func:`qchain.batch.simulate_batch` -- have
-already validated: float64, C-contiguous arrays of the documented shapes (output arrays
-included), finite, inside the model's domain. They do not check them again: a wrong type
-is a numba typing error, a wrong shape a wrong result or a crash. Call the checked API
-unless you guarantee all of that yourself.
+Unchecked by design: compiled kernels whose arguments the checked API has validated
+(``docs/engine.md``, "Unchecked kernels"); call the checked API unless you guarantee them.
 """
 
 from __future__ import annotations
