@@ -224,6 +224,23 @@ def test_a_million_segments_is_refused_at_once(tmp_path):
     refused(ok, "declares 2 segments, more than 1", limits=ReadLimits(max_segments=1))
 
 
+def test_the_commands_raise_the_segment_limit_with_a_flag(tmp_path, capsys):
+    """A run whose budget allowed more segments than the reader's default is read back by
+    raising --max-segments, never by editing code; a value outside 1..1e6 is a usage error."""
+    two = write(tmp_path, craft(info=info_json(n_segments=2)), "two.mcap")
+    out = tmp_path / ("l" * 240 + ".json")  # its temporary name must stay under the 255-byte limit too
+    assert layout_main([str(two), "-o", str(out), "--max-segments", "1"]) == 2
+    assert "--max-segments of qchain replay, recover and layout" in capsys.readouterr().err
+    assert layout_main([str(two), "-o", str(out), "--max-segments", "2"]) == 0 and out.stat().st_size > 0
+    assert sorted(x.name for x in tmp_path.iterdir()) == sorted(["two.mcap", out.name])  # no temporary left
+    for bad in ("0", "1000001"):
+        with pytest.raises(SystemExit) as exc:
+            layout_main([str(two), "--max-segments", bad])
+        assert exc.value.code == 2 and f"found {bad}" in capsys.readouterr().err
+    assert replay_main([str(two), "--rrd", str(tmp_path / "r.rrd"), "--max-segments", "1"]) == 2
+    assert not (tmp_path / "r.rrd").exists()
+
+
 @pytest.mark.parametrize("field, value, match", [
     ("step", 1e30, "step must be a whole number"),  # an OverflowError before
     ("step", -1, "step must be a whole number"),

@@ -407,7 +407,7 @@ def _info_of(meta: dict[str, str], name: str, offset: int | None, limits: ReadLi
     n = data.get("n_segments")
     if isinstance(n, int) and not isinstance(n, bool) and n > limits.max_segments:
         raise RecordingFormatError(f"{where} declares {n} segments, more than {limits.max_segments} "
-                                   "(ReadLimits.max_segments allows more)")
+                                   "(ReadLimits.max_segments, or --max-segments of qchain replay, recover and layout, allows more)")
     segs = data.get("params", {}).get("segments") if isinstance(data.get("params"), dict) else None
     if segs is not None:
         good = isinstance(segs, list) and all(

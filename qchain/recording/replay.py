@@ -25,12 +25,13 @@ import time
 import uuid
 import warnings
 from collections.abc import Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
 from ..text import printable
-from .bounded import ReadLimits
+from ..budget import RANGES
+from .bounded import DEFAULT_LIMITS, ReadLimits
 from .journal import journal_owner, journal_path
 from .reader import Recording, read_recording
 from .records import DEFAULT_FLUSH_INTERVAL, LoggingError, LoggingWarning
@@ -417,6 +418,19 @@ def _error(prog: str, exc: BaseException) -> int:
     return 2
 
 
+def _add_limits(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--max-segments", type=int, default=DEFAULT_LIMITS.max_segments, metavar="N",
+                        help=f"segments a recording may declare (default {DEFAULT_LIMITS.max_segments}; a run whose "
+                             "budget allowed more needs it raised)")
+
+
+def _limits(parser: argparse.ArgumentParser, args) -> ReadLimits:
+    top = int(RANGES["max_segments"].high)
+    if not 1 <= args.max_segments <= top:
+        parser.error(f"argument --max-segments: expected an integer >= 1 and <= {top}, found {args.max_segments}")
+    return replace(DEFAULT_LIMITS, max_segments=args.max_segments)
+
+
 def replay_main(argv: Sequence[str] | None = None) -> int:
     """``qchain replay LOG.mcap [--serve | --connect URL | --rrd OUT]``; returns the exit code.
 
@@ -436,13 +450,15 @@ def replay_main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--timeout", type=float, default=CONNECT_TIMEOUT, metavar="S",
                         help=f"seconds a viewer at --connect has to answer and take the recording (default "
                              f"{CONNECT_TIMEOUT:g})")
+    _add_limits(parser)
     args = parser.parse_args(argv)
+    limits = _limits(parser, args)
     serve = args.serve or not (args.connect or args.rrd)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", LoggingWarning)
         try:
             session = replay(args.log, serve=serve, connect=args.connect, rrd=args.rrd, bind=args.bind, quiet=True,
-                             timeout=args.timeout)
+                             timeout=args.timeout, limits=limits)
         except _ERRORS as exc:
             return _error("replay", exc)
     for w in caught:
@@ -483,9 +499,11 @@ def recover_main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="qchain recover", description="Make the recording of a killed run whole: "
                                      "the records its journal (LOG.mcap.journal) holds are written into it.")
     parser.add_argument("log", type=Path, help="the .mcap recording")
+    _add_limits(parser)
     args = parser.parse_args(argv)
+    limits = _limits(parser, args)
     try:
-        rec = recover(args.log)
+        rec = recover(args.log, limits=limits)
     except _ERRORS as exc:
         return _error("recover", exc)
     print("recovered " + "\n".join(map(printable, _summary(rec))))
@@ -501,7 +519,9 @@ def layout_main(argv: Sequence[str] | None = None) -> int:
                                      "(3D arm, frame tree, named plots); import it in Foxglove's layout menu.")
     parser.add_argument("log", type=Path, help="the .mcap recording")
     parser.add_argument("-o", "--out", type=Path, default=None, help="output file (default: standard output)")
+    _add_limits(parser)
     args = parser.parse_args(argv)
+    limits = _limits(parser, args)
     try:
         if args.out is not None:
             for p in (args.log, journal_path(args.log)):
@@ -510,21 +530,24 @@ def layout_main(argv: Sequence[str] | None = None) -> int:
                     raise LoggingError(f"-o {args.out} is the recording ({p}): it would be overwritten")
             if args.out.is_dir():
                 raise LoggingError(f"-o must be a file path, got the folder {args.out}")
-        rec = read_recording(args.log)
+        rec = read_recording(args.log, limits=limits)
         text = layout_json(rec.info, rec.q.shape[1], rec.v.shape[1], rec.p.shape[1])
         if args.out is None:
             print(text)
         else:
-            tmp = args.out.with_name(f".{args.out.name}.{os.getpid()}.tmp")
+            tmp = None
             try:
                 args.out.parent.mkdir(parents=True, exist_ok=True)
-                tmp.write_text(text + "\n")
+                fd, tmp = tempfile.mkstemp(prefix=".layout-", dir=args.out.parent)  # short: see recover
+                with os.fdopen(fd, "w") as fh:
+                    fh.write(text + "\n")
                 os.replace(tmp, args.out)
+                tmp = None
             except OSError as exc:
                 raise LoggingError(f"cannot write {args.out} ({exc.strerror or exc})") from None
             finally:
-                if tmp.exists():
-                    tmp.unlink()
+                if tmp is not None and os.path.exists(tmp):
+                    os.unlink(tmp)
             print(f"wrote {printable(args.out)}")
     except _ERRORS as exc:
         return _error("layout", exc)
