@@ -34,6 +34,7 @@ __all__ = [
     "GRAVITY",
     "POSITION",
     "ANGLE",
+    "PSI",
     "VELOCITY",
     "ANGULAR_VELOCITY",
     "RATE",
@@ -178,6 +179,7 @@ NODES = Range(1, 100, integer=True)  #: Gauss-Legendre nodes along a segment (th
 GRAVITY = Range(-1e4, 1e4, "m/s^2")  #: each component
 POSITION = Range(-1e6, 1e6, "m")  #: each component of a base position
 ANGLE = Range(-1e3, 1e3, "rad")  #: roll-pitch-yaw angles, phases
+PSI = Range(-1e3, 1e3, "rad")  #: the bending plane angle psi of paper coordinates (l, psi, kappa)
 VELOCITY = Range(-1e3, 1e3, "m/s")  #: each component of a base velocity
 ANGULAR_VELOCITY = Range(-1e4, 1e4, "rad/s")  #: each component of a base angular velocity
 RATE = Range(-1e6, 1e6, "m/s or 1/(m s)")  #: initial rates of the segment coordinates
@@ -189,7 +191,8 @@ PRESSURE_AMPLITUDE = Range(-1e9, 1e9, "Pa")  #: a sine's amplitude (its sign is 
 
 # -- time and the run
 TIME = Range(-1e12, 1e12, "s")  #: times of schedules
-DURATION = Range(0.0, 1e12, "s", low_open=True)  #: a run's length (its cost is bounded by the budget)
+DURATION = Range(1e-12, 1e12, "s")  #: a run's length (its cost is bounded by the budget; from 1e-12 s, which
+#: the solver can always step: qchain.simulate needs 64 float64 epsilons of max(1 s, |t0|, |t1|))
 STEP = Range(0.0, 1e12, "s", low_open=True)  #: dt, max_step, first_step
 RTOL = Range(1e-15, 1.0)  #: relative tolerance of the adaptive methods
 ATOL = Range(1e-20, 1e3)  #: absolute tolerance (units of each state entry)

@@ -44,8 +44,8 @@ from .chain_checks import QUATERNION_TOLERANCE, ChainChecks, _finite  # noqa: F4
 from .chain_kinematics import _NO_POINTS, ChainKinematics, Frames
 from .dynamics_derivatives import _ZERO6, ForwardDynamicsDerivatives, InverseDynamicsDerivatives
 from .data import Data
-from .bounds import GRAVITY, POSITION, TIME
-from .errors import NonFiniteError, SingularConfigurationError, as_index, as_vector, describe_value
+from .bounds import GRAVITY, POSITION, PSI, TIME
+from .errors import DomainError, NonFiniteError, SingularConfigurationError, as_index, as_vector, describe_value
 from .segment import PAPER_SINGULAR_ANGLE, Segment
 from .segment import _paper_jacobian as paper_jacobian, _paper_jacobian_dot as paper_jacobian_dot
 from .segment import _paper_to_curvature as paper_to_curvature
@@ -136,9 +136,15 @@ class Chain(ChainKinematics, ChainChecks):
         base_motion: Callable | None = None,
         planar: bool = False,
     ):
-        if isinstance(segments, Segment) or not isinstance(segments, Sequence) and not hasattr(segments, "__iter__"):
-            raise TypeError(f"segments must be a sequence of qchain.Segment, got {describe_value(segments)}")
-        segs = tuple(segments)
+        if (isinstance(segments, (Segment, str, bytes)) or isinstance(segments, np.ndarray) and segments.ndim != 1
+                or not isinstance(segments, Sequence) and not hasattr(segments, "__iter__")):
+            raise TypeError(f"segments must be a sequence (list or tuple, or a 1-d array) of qchain.Segment, got "
+                            f"{describe_value(segments)}")
+        try:
+            segs = tuple(segments)
+        except TypeError as e:  # an object whose __iter__ refuses
+            raise TypeError(f"segments must be a sequence of qchain.Segment, got {describe_value(segments)} ({e})"
+                            ) from None
         if len(segs) == 0:
             raise ValueError("segments must hold at least one Segment, got none")
         for j, s in enumerate(segs):
@@ -304,6 +310,10 @@ class Chain(ChainKinematics, ChainChecks):
             q_c = q_e.copy()
             J = np.broadcast_to(np.eye(3), (self.n, 3, 3)).copy()
             for j in np.flatnonzero(self._paper):
+                if not PSI.contains(q_e[j, 1]):  # qchain.bounds.PSI
+                    sl = self.q_slice(j)
+                    raise DomainError(f"segment {j} (q[{sl.start}:{sl.stop}]): bending plane angle psi = "
+                                      f"{q_e[j, 1]:.6g} rad must be {PSI.text()} (qchain.bounds.PSI)")
                 if nonsingular and q_e[j, 2] * q_e[j, 0] < PAPER_SINGULAR_ANGLE:
                     sl = self.q_slice(j)
                     raise SingularConfigurationError(

@@ -191,7 +191,7 @@ class ChainChecks:
         (:meth:`~qchain.chain.Chain._state`). A float array passes straight; anything else is
         converted by :func:`qchain.errors.as_real_array`, which refuses booleans, strings and
         complex numbers by name."""
-        if not (isinstance(x, np.ndarray) and x.dtype == np.float64):
+        if not (type(x) is np.ndarray and x.dtype == np.float64):
             x = as_real_array(name, x)
         if x.shape != (size,):
             as_vector(name, x, size)  # raises with the expected and actual shape

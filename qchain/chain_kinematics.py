@@ -180,7 +180,7 @@ class ChainKinematics:
         if not (isinstance(out, tuple) and len(out) == 4):
             raise TypeError(f"out must be a Frames (four arrays), got {describe_value(out)}")
         for name, a, tail in zip(Frames._fields, out, shapes):
-            if not (isinstance(a, np.ndarray) and a.dtype == np.float64 and a.flags.c_contiguous and a.flags.writeable
+            if not (type(a) is np.ndarray and a.dtype == np.float64 and a.flags.c_contiguous and a.flags.writeable
                     and a.ndim == 1 + len(tail) and a.shape[1:] == tail and a.shape[0] >= K):
                 got = describe_value(a) if not isinstance(a, np.ndarray) else f"{a.dtype} {a.shape}"
                 raise ValueError(f"out.{name} must be a writeable C-contiguous float64 array of shape (>= {K}, "

@@ -66,8 +66,10 @@ from typing import TYPE_CHECKING
 from .cli_checks import CONNECT_TIMEOUT, path_argument, _recording_stem, _shown, check_bind_address, check_flag_values, \
     check_output_folder, check_output_path, check_viewer_url, viewer_silence
 from .cli_errors import (EXIT_FAILED, EXIT_OK, EXIT_USAGE, BadInput, _forget_unhandled_interrupt,
-                         _one_line, _Session, _show_warnings, _tolerant_streams, guarded, report_error, take_debug)
-from .run_outputs import summary_lines, tip_positions, write_outputs
+                         _one_line, _Session, _show_warnings, _tolerant_streams,
+                         SummaryOutput, guarded, report_error, take_debug)
+from .run_outputs import planned_outputs, summary_lines, tip_positions, write_outputs
+from .text import printable
 
 if TYPE_CHECKING:  # the model's libraries load when a command needs them: Ctrl-C and --version answer at once
     from .scene import Scene, SceneModel
@@ -146,6 +148,7 @@ def _run(args, parser, session: _Session) -> int:
                 raise
             p = err.problems[0]
             raise BadInput(f"--out {_shown(args.out)}: expected {p.expected}, found {p.found}") from None
+    _check_planned_outputs(args, scene, mcap if record else None)
     if args.connect and qlog is not None:  # a viewer that never answers would hold the run without end
         why = viewer_silence(args.connect, timeout=_viewer_timeout(args))
         if why is not None:
@@ -160,8 +163,7 @@ def _run(args, parser, session: _Session) -> int:
     session.check_interrupt()
     model = scene.build(reduce=False if args.full else None)
     session.check_interrupt()
-    for line in scene.describe(model):
-        print(line)
+    _print_lines(scene.describe(model))
     sys.stdout.flush()
     progress = sys.stderr.isatty() if args.progress is None else args.progress
 
@@ -210,7 +212,7 @@ def _run(args, parser, session: _Session) -> int:
             done = logger.close()
             if logger.mcap_path is not None:
                 reached = "no sample" if done.get("last_t") is None else f"t = {done['last_t']:.6g} s"
-                print(f"recorded {_shown(logger.mcap_path)} ({done.get('n_records', 0)} samples, up to {reached})")
+                print(f"recorded {printable(_shown(logger.mcap_path))} ({done.get('n_records', 0)} samples, up to {reached})")
             if done.get("error"):
                 print(f"qchain run: error: the recording failed: {_one_line(done['error'])}", file=sys.stderr)
                 return EXIT_FAILED
@@ -226,7 +228,7 @@ def _run(args, parser, session: _Session) -> int:
         if logger is not None and logger.mcap_path is not None:
             done = logger.close()
             reached = "no sample" if done.get("last_t") is None else f"t = {done['last_t']:.6g} s"
-            print(f"recorded {_shown(logger.mcap_path)} ({done.get('n_records', 0)} samples, up to {reached})",
+            print(f"recorded {printable(_shown(logger.mcap_path))} ({done.get('n_records', 0)} samples, up to {reached})",
                   file=sys.stderr)
         return EXIT_FAILED
     session.phase = "end"
@@ -238,13 +240,51 @@ def _run(args, parser, session: _Session) -> int:
     session.reached = float(traj.t[-1]) if len(traj.t) else None
     if interrupted and len(traj.t):
         print(f"run: interrupted at t = {traj.t[-1]:.6g} s", file=sys.stderr)
-    for line in summary_lines(scene, model, traj, wall, message=_interrupt_message(traj) if interrupted else None):
-        print(line)
+    _print_lines(summary_lines(scene, model, traj, wall, message=_interrupt_message(traj) if interrupted else None))
     if not args.no_plots and len(traj.t):
         folder = Path(args.out) if args.out is not None else scene.output_folder
         for path in write_outputs(scene, model, traj, folder):
-            print(f"wrote {_shown(path)}")
+            print(f"wrote {printable(_shown(path))}")
     return EXIT_OK if traj.success and not interrupted else EXIT_FAILED
+
+
+def _check_planned_outputs(args, scene, mcap) -> None:
+    """Refuse, before the run, a plot or ``trajectory.npz`` path that is not a regular file
+    (a folder, a device, a FIFO: :func:`check_output_path`), and two outputs of the run that
+    are the same file (a recording ``--mcap o/trajectory.npz`` the plots would overwrite).
+
+    Raises
+    ------
+    BadInput
+        naming the flags (or ``output.folder``) and the path.
+    """
+    outputs: list[tuple[str, object]] = []
+    if mcap is not None:
+        outputs += [("--mcap", mcap), ("--mcap (its journal)", os.fspath(mcap) + ".journal")]
+    if args.rrd is not None:
+        outputs.append(("--rrd", args.rrd))
+    if not args.no_plots:
+        flag = "--out" if args.out is not None else "output.folder"
+        for path in planned_outputs(scene, args.out):
+            check_output_path(f"{flag} {_shown(path.parent)}: output", path)
+            outputs.append((f"{flag} {_shown(path.parent)} (its {path.name})", path))
+    seen: dict[str, str] = {}
+    for what, path in outputs:
+        try:
+            key = os.path.realpath(os.fspath(path))
+        except (OSError, ValueError):
+            continue
+        if key in seen:
+            raise BadInput(f"{what} path {_shown(path)} is the same file as {seen[key]}: the run would write both "
+                           "there; choose another path")
+        seen[key] = what
+
+
+def _print_lines(lines) -> None:
+    """Print lines that hold text from outside (a scene's name, path, description; a run's
+    message) one printed line each: control characters escaped (:func:`qchain.text.printable`)."""
+    for line in lines:
+        print(printable(line))
 
 
 def _viewer_timeout(args) -> float:
@@ -317,8 +357,7 @@ def _info(args) -> int:
 
     scene = load_scene(args.scene)
     model = scene.build(reduce=False if args.full else None)
-    for line in scene.describe(model):
-        print(line)
+    _print_lines(scene.describe(model))
     return EXIT_OK
 
 
@@ -428,6 +467,9 @@ def command(name: str, body, debug: bool = False, session: _Session | None = Non
     if session is not None:
         return guarded(session.prog, lambda: body(session), debug, session)
     session = _Session(name)
+    _tolerant_streams()
+    stdout = sys.stdout
+    sys.stdout = SummaryOutput(stdout, session.prog)
     sig = _sigint_handler(session.on_sigint)
     hook = sys.unraisablehook
 
@@ -441,6 +483,11 @@ def command(name: str, body, debug: bool = False, session: _Session | None = Non
             warnings.showwarning = _show_warnings(session.prog)
             return guarded(session.prog, lambda: body(session), debug, session)
     finally:
+        try:
+            sys.stdout.flush()
+        except (OSError, ValueError):
+            pass
+        sys.stdout = stdout
         sys.unraisablehook = hook
         if sig is not None:
             sig.signal(sig.SIGINT, _PREVIOUS_SIGINT.pop())

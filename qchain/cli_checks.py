@@ -51,7 +51,15 @@ def check_flag_values(args, ranges: dict | None = None) -> None:
         if value is None:
             continue
         if not (isinstance(value, (int, float)) and math.isfinite(value) and rng.contains(value)):
-            raise BadInput(f"argument {flag}: expected {rng.what()}, found {value:g}")
+            raise BadInput(f"argument {flag}: expected {rng.what()}, found {_found(value, rng)}")
+
+
+def _found(value, rng) -> str:
+    """``value`` as an error line shows it: ``%g``, or all its digits (``repr``) where ``%g``
+    would read as the bound it is outside (``1000000000000.0001`` is not ``1e+12``)."""
+    shown = f"{value:g}"
+    near = any(b is not None and shown == f"{b:g}" and value != b for b in (rng.low, rng.high))
+    return repr(float(value)) if near else shown
 
 
 def _hostname_ok(host: str) -> bool:

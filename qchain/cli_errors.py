@@ -204,11 +204,81 @@ def _show_warnings(prog: str):
 
 
 def _tolerant_streams() -> None:
-    """Let stdout and stderr print any path (a file name that is not UTF-8 shows escaped
-    instead of raising ``UnicodeEncodeError``)."""
+    """Let stdout and stderr print any path (a file name that is not UTF-8, a character the
+    locale's encoding lacks, e.g. under ``LC_ALL=C``: shown escaped instead of raising
+    ``UnicodeEncodeError``), and give a closed stdout or stderr (``>&-``) a place to go
+    (``os.devnull``), so that printing never stops a run."""
+    for fd, name in ((1, "stdout"), (2, "stderr")):
+        try:
+            os.fstat(fd)
+        except OSError:  # closed: a file opened later (the recording) must not take its number
+            try:
+                null = os.open(os.devnull, os.O_WRONLY)
+                if null != fd:
+                    os.dup2(null, fd)
+                    os.close(null)
+            except OSError:
+                pass
+        if getattr(sys, name) is None:
+            try:
+                setattr(sys, name, open(os.devnull, "w", encoding="utf-8"))
+            except OSError:
+                pass
     for stream in (sys.stdout, sys.stderr):
-        if getattr(stream, "errors", None) == "strict" and hasattr(stream, "reconfigure"):
+        if getattr(stream, "errors", None) not in (None, "backslashreplace") and hasattr(stream, "reconfigure"):
             try:
                 stream.reconfigure(errors="backslashreplace")
-            except (ValueError, OSError, AttributeError):
+            except (ValueError, OSError, AttributeError, TypeError):
                 pass
+
+
+class SummaryOutput:
+    """``sys.stdout`` while a command runs: the same stream, except that an error writing to
+    it (a closed pipe, ``/dev/full``: EPIPE, ENOSPC) does not stop the command or lose its
+    recording. It is said once on stderr (``PROG: warning: standard output: ... (the rest of
+    the summary is not shown)``) and what is printed after it is dropped."""
+
+    def __init__(self, stream, prog: str = "qchain"):
+        self._stream = stream
+        self._prog = prog
+        self.failed: OSError | None = None
+
+    def _fail(self, err: OSError) -> None:
+        if self.failed is None:
+            self.failed = err
+            try:
+                print(f"{self._prog}: warning: standard output: {err.strerror or err} (the rest of the summary is "
+                      "not shown)", file=sys.stderr, flush=True)
+            except (OSError, ValueError):
+                pass
+        try:  # what is left in the stream's buffer goes nowhere, also when Python exits
+            fd = self._stream.fileno()
+            null = os.open(os.devnull, os.O_WRONLY)
+            os.dup2(null, fd)
+            os.close(null)
+        except (OSError, ValueError, AttributeError):
+            pass
+
+    def write(self, text):
+        if self.failed is not None:
+            return len(text)
+        try:
+            return self._stream.write(text)
+        except OSError as err:
+            self._fail(err)
+            return len(text)
+
+    def writelines(self, lines):
+        for line in lines:
+            self.write(line)
+
+    def flush(self):
+        if self.failed is not None:
+            return
+        try:
+            self._stream.flush()
+        except OSError as err:
+            self._fail(err)
+
+    def __getattr__(self, name):
+        return getattr(self._stream, name)

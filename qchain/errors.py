@@ -94,6 +94,8 @@ def as_real(name: str, value) -> float:
     numbers and other non-numbers, ``ValueError`` for NaN and infinities; both name ``name``."""
     if isinstance(value, (bool, np.bool_)):
         _refuse(name, value, "a real number (booleans are not numbers)")
+    if isinstance(value, np.ndarray) and type(value) is not np.ndarray:
+        value = _plain(name, value)
     if isinstance(value, np.ndarray) and value.shape == () and value.dtype.kind in "fiu":
         value = value[()]
     if isinstance(value, (complex, np.complexfloating)):
@@ -114,7 +116,11 @@ def as_real_array(name: str, value) -> np.ndarray:
     """``value`` as a float array of real numbers (any shape), without numpy's silent
     conversions: booleans, strings, ``None``, complex numbers and objects are refused
     (``TypeError`` naming ``name``), ragged nestings too (``ValueError``). Finiteness is
-    not checked here (:func:`as_vector` does)."""
+    not checked here (:func:`as_vector` does). A numpy masked array with a masked entry is
+    refused (its masked entries would be used silently), an unmasked one and any other
+    ndarray subclass (``np.matrix``) become a plain ndarray: compiled code takes no subclass."""
+    if isinstance(value, np.ndarray) and type(value) is not np.ndarray:
+        value = _plain(name, value)
     if isinstance(value, np.ndarray):
         kind = value.dtype.kind
         if kind == "f":
@@ -130,6 +136,8 @@ def as_real_array(name: str, value) -> np.ndarray:
         return np.asarray(_float(name, value))
     try:
         arr = np.asarray(value)
+        if type(arr) is not np.ndarray:
+            arr = _plain(name, arr)
     except (ValueError, TypeError):
         raise ValueError(f"{name} must be a rectangular array of real numbers, got {describe_value(value)} "
                          "(rows of different lengths?)") from None
@@ -150,6 +158,20 @@ def as_real_array(name: str, value) -> np.ndarray:
                 _refuse(where, x, "a real number")
         return np.array([_float(name, x) for x in flat]).reshape(arr.shape)
     _refuse(name, value, "an array of real numbers")
+
+
+def _plain(name: str, value) -> np.ndarray:
+    """A plain ndarray holding the data of an ndarray subclass; ``ValueError`` naming ``name``
+    for a masked array with any masked entry."""
+    if isinstance(value, np.ma.MaskedArray):
+        mask = np.ma.getmaskarray(value)
+        if mask.any():
+            bad = np.flatnonzero(mask.ravel()).tolist()
+            raise ValueError(f"{name} has masked entries at flat indices {bad[:10]} (a masked array must have "
+                             f"no masked entry: fill them, e.g. with .filled(), or pass a plain array), got "
+                             f"{describe_value(value)}")
+        value = np.ma.getdata(value)
+    return np.asarray(value).view(np.ndarray) if isinstance(value, np.ndarray) else np.asarray(value)
 
 
 def _float(name: str, x) -> float:

@@ -327,13 +327,21 @@ def as_input(name: str, u, size: int, bound: Range | None | str = "auto"
         z = _frozen(np.zeros(size))
         return lambda t, q, v: z
     if isinstance(u, Schedule):
-        if u.size != size:
-            raise ValueError(f"{name} schedule gives {u.size} values, the model needs {size}")
+        # a schedule of the user's may declare no size: it is then a function of time whose
+        # values (shape, finiteness, range) are checked as they come, like any u(t)
+        usize = getattr(u, "size", None)
+        if usize is not None:
+            if isinstance(usize, (bool, np.bool_)) or not isinstance(usize, (int, np.integer)):
+                raise TypeError(f"{name} schedule {type(u).__qualname__} has size {usize!r}, not an integer")
+            if usize != size:
+                raise ValueError(f"{name} schedule gives {usize} values, the model needs {size}")
+        if usize is None or _extent(u) is None:  # a schedule of the user's: its values are checked as they come
+            label = f"{name}(t)"
+            if rng is None:
+                return lambda t, q, v: as_vector(label, u(t), size)
+            check = _range_check(rng, label)
+            return lambda t, q, v: check(as_vector(label, u(t), size))
         if rng is not None:
-            if _extent(u) is None:  # a schedule of the user's: its values are checked as they come
-                label = f"{name}(t)"
-                check = _range_check(rng, label)
-                return lambda t, q, v: check(as_vector(label, u(t), size))
             _check_extent(name, rng, u)
         return lambda t, q, v: u(t)
     if callable(u):

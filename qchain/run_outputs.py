@@ -25,6 +25,18 @@ def tip_positions(model: SceneModel, traj) -> np.ndarray:
     return np.array([ch.tip_placement(q, t=t).translation for t, q in zip(traj.t, traj.q)])
 
 
+def planned_outputs(scene: Scene, folder: Path | None = None) -> list[Path]:
+    """The files :func:`write_outputs` will write for ``scene`` into ``folder`` (default the
+    scene's ``output.folder``): its plots (``NAME.png``; ``momentum.png`` for a floating base
+    only) and ``trajectory.npz`` if ``output.save``. Checked before the run."""
+    folder = Path(scene.output_folder if folder is None else folder)
+    floating = getattr(getattr(scene, "base", None), "type", None) == "floating"
+    names = [f"{name}.png" for name in scene.plots if name != "momentum" or floating]
+    if scene.save:
+        names.append("trajectory.npz")
+    return [folder / name for name in names]
+
+
 def write_outputs(scene: Scene, model: SceneModel, traj, folder: Path, plots=None, save: bool | None = None) -> list[Path]:
     """Write the plots (PNG) and ``trajectory.npz`` of a run into ``folder``; return the paths.
 
@@ -186,14 +198,17 @@ def summary_lines(scene: Scene, model: SceneModel, traj, wall: float, message: s
                  f"({quat[0]:.6f}, {quat[1]:.6f}, {quat[2]:.6f}, {quat[3]:.6f})")
     reached = scene.bends(model.chain, traj)
     line = f"largest bends reached (rad): {', '.join(f'{x:.3g}' for x in reached)}"
+    warning = None
     if model.max_bend is not None:
         line += f"; nodes sized for {', '.join(sorted({f'{x:.3g}' for x in model.max_bend}))}"
         over = np.flatnonzero(reached > model.max_bend)
         if over.size:
             j = int(over[0])
-            line += (f"\nwarning: segment {j} bent {reached[j]:.3g} rad, more than the {model.max_bend[j]:.3g} rad its "
-                     f"{model.nodes[j]} nodes were sized for: set model.max_bend in the scene")
+            warning = (f"warning: segment {j} bent {reached[j]:.3g} rad, more than the {model.max_bend[j]:.3g} rad its "
+                       f"{model.nodes[j]} nodes were sized for: set model.max_bend in the scene")
     lines.append(line)
+    if warning is not None:
+        lines.append(warning)
     ke, pe = traj.kinetic_energy, traj.potential_energy
     lines.append(f"energies (J): kinetic {ke[-1]:.6g}, potential {pe[-1]:.6g} (gravity + elastic), total "
                  f"{ke[-1] + pe[-1]:.6g}; at the start total {ke[0] + pe[0]:.6g}")

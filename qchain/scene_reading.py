@@ -580,7 +580,14 @@ def _initial(ck: _Checker, raw: dict, segments: list[SegmentSpec] | None):
         if "v" in it:
             return None, None
         v = np.zeros((n, 3))
+    given = "q_e" in it
     for j, s in enumerate(segments):
+        if s.coords == "paper" and q[j, 2] == 0.0:  # psi has no meaning at kappa = 0: the paper coordinates' Jacobian is singular
+            ck.add(f"initial.q_e[{j}][2]", "kappa > 0 in paper coordinates (at kappa = 0, the straight pose, the bending "
+                   "direction psi is undefined; use coords = \"curvature\" for segment "
+                   f"{j} to start straight)", f"{_vec_str(q[j])}" if given else
+                   f"nothing (the default straight pose {_vec_str(q[j])})")
+            continue
         seg = s.segment(nodes=1)
         try:
             seg.check_configuration(q[j], name=f"segment {j}")

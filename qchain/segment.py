@@ -446,6 +446,9 @@ class Segment:
             raise DomainError(f"{name}: length l = {q[0]:.6g} m must be > 0")
         if code == 2:
             raise DomainError(f"{name}: curvature kappa = {q[2]:.6g} 1/m must be >= 0 in paper coordinates")
+        if code == 0 and self.coords == "paper" and not B.PSI.contains(q[1]):
+            raise DomainError(f"{name}: bending plane angle psi = {q[1]:.6g} rad must be {B.PSI.text()} "
+                              "(qchain.bounds.PSI)")
         if code == 3:
             kappa = q[2] if self.coords == "paper" else float(np.hypot(q[1], q[2]))
             raise DomainError(

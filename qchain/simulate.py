@@ -465,7 +465,8 @@ def simulate(
                                   bar=bar if progress else None, max_step=max_step, first_step=first_step,
                                   energies=energies, deadline=deadline, controllers=controllers,
                                   controller_rate=controller_rate,
-                                  inputs=lambda t, q, v: (p_of(t, q, v), tau_of(t, q, v)))
+                                  inputs=lambda t, q, v: (p_of(t, q, v), tau_of(t, q, v)),
+                                  max_total_steps=budget.max_steps)
             except driver.Interrupted as err:
                 bar.close(err.trajectory.t[-1] if len(err.trajectory.t) else t0)
                 raise
@@ -547,8 +548,8 @@ def simulate(
                 bar.update(t)
         else:
             t, q, v, status, message, nsteps = _run_adaptive(
-                ADAPTIVE[method], sysm, rec, bar, check_events, t0, t1, q, v, rtol, atol, max_step, first_step, method
-            )
+                ADAPTIVE[method], sysm, rec, bar, check_events, t0, t1, q, v, rtol, atol, max_step, first_step, method,
+                max_total_steps=budget.max_steps)
     except (_WallLimit, _Stop) as err:
         status, message = -1, str(err)
     except KeyboardInterrupt:
@@ -647,7 +648,8 @@ def _midpoint_step(sysm: _System, t, q, v, h, tol=1e-10, max_iter=50):
     return ch.integrate(q, h * vmf), sysm.full(2 * vm - vA)
 
 
-def _run_adaptive(name, sysm, rec, bar, check_events, t0, t1, q, v, rtol, atol, max_step, first_step, method):
+def _run_adaptive(name, sysm, rec, bar, check_events, t0, t1, q, v, rtol, atol, max_step, first_step, method,
+                  max_total_steps=None):
     import scipy.integrate as si
 
     cls = getattr(si, name)
@@ -672,6 +674,12 @@ def _run_adaptive(name, sysm, rec, bar, check_events, t0, t1, q, v, rtol, atol, 
     # controllers grow the step by up to 10x per step.
     solver = new_solver(t, q, v, first_step if first_step is not None else min(1e-4, (t1 - t0) / 10))
     while True:
+        if max_total_steps is not None and nsteps >= max_total_steps:
+            status = -1
+            message = (f"step budget exceeded: budget.max_steps = {max_total_steps}, {nsteps} steps taken, t reached = "
+                       f"{t:.6g} s of {t1:.6g} s with method {method!r}; the model is probably stiff: use "
+                       "method='radau5' (or raise budget.max_steps)")
+            break
         msg = solver.step()
         if solver.status == "failed":
             status = -1

@@ -89,7 +89,7 @@ _RETRIES = _B.RETRIES
 MAX_WORKERS = int(_WORKERS.high)
 _FILE_KEYS = ("scene", "name", "folder", "metrics", "sampling", "set", "axes", "output", "engine")
 _AXIS_KEYS = ("key", "keys", "values", "range", "num", "log", "integer")
-_KEY = re.compile(r"([A-Za-z_][A-Za-z0-9_]*)((?:\[(?:\d+|\*)\])*)")
+_KEY = re.compile(r"([A-Za-z_][A-Za-z0-9_]*)((?:\[(?:[0-9]+|\*)\])*)")
 _EACH = "each_segment"
 
 
@@ -113,11 +113,24 @@ def parse_key(key: str) -> list:
             raise ValueError(f"a scene key must be dotted names with [index] or [*], like 'segments[0].radius'; "
                              f"{key!r} has {part!r}")
         out.append(m.group(1))
-        for idx in re.findall(r"\[(\d+|\*)\]", m.group(2)):
+        for idx in re.findall(r"\[([0-9]+|\*)\]", m.group(2)):
             out.append("*" if idx == "*" else int(idx))
     if out[0] not in _TOP_KEYS:
         raise ValueError(f"{key!r} does not start with a scene key ({', '.join(_TOP_KEYS)})")
     return out
+
+
+def _put(node, at, value) -> None:
+    """``node[at] = value``, except that a table put over a table is merged into it key by
+    key (a dotted assignment per leaf): ``simulation = {duration = 0.03}`` changes the
+    duration and keeps the scene's method and dt (it replaced the whole table)."""
+    here = node.get(at) if isinstance(node, dict) else node[at]
+    if isinstance(value, dict) and isinstance(here, dict) and value and set(value) != {_EACH} \
+            and set(here) != {_EACH}:
+        for k, v in value.items():
+            _put(here, k, v)
+        return
+    node[at] = copy.deepcopy(value)
 
 
 def _set(node, tokens: list, value, key: str) -> None:
@@ -126,7 +139,7 @@ def _set(node, tokens: list, value, key: str) -> None:
         if not isinstance(node, dict):
             raise ValueError(f"{key}: {head!r} is a key of a table, found {_type_name(node)}")
         if not rest:
-            node[head] = copy.deepcopy(value)
+            _put(node, head, value)
             return
         if head not in node:
             node[head] = {} if isinstance(rest[0], str) else []
@@ -139,7 +152,7 @@ def _set(node, tokens: list, value, key: str) -> None:
         if i >= len(node):
             raise ValueError(f"{key}: index {i} is past the end of an array of {len(node)}")
         if not rest:
-            node[i] = copy.deepcopy(value)
+            _put(node, i, value)
         else:
             _set(node[i], rest, value, key)
 
@@ -473,7 +486,9 @@ class SweepSpec:
                     f"range [{a.range[0]:g}, {a.range[1]:g}]{' log' if a.log else ''}{' integer' if a.integer else ''}"
                     + (f", {a.num} values" if self.sampling == "grid" else ""))
             lines.append(f"  axis {a.name}: {what}")
-        return lines
+        from .text import printable
+
+        return [printable(line) for line in lines]
 
 
 def runs_problem(sampling: str, n: int | None, axes: list[Axis], max_runs: int) -> tuple[str, str, str] | None:

@@ -36,6 +36,7 @@ import hashlib
 import importlib
 import io
 import json
+import math
 import os
 import sys
 import time
@@ -47,6 +48,8 @@ import numpy as np
 
 from . import bounds as _bounds
 from .cli_checks import path_argument
+from .text import printable
+from .errors import describe_value
 from .scene import Scene, load_scene, parse_scene
 from .sweep_spec import (Axis, SweepError, SweepSpec, _metrics_name, _plain, address_problem, check_results_folder,
                          load_sweep, validate_runs)
@@ -181,7 +184,10 @@ def _one(shared: _Shared, i: int, text: str) -> dict:
             clash = set(more) & (set(METRICS) | {"run"})
             if clash:
                 raise ValueError(f"the metrics function's names {sorted(clash)} are the sweep's own")
-            row.update({str(k): _plain(v) for k, v in more.items()})
+            more = {str(k): _plain(v) for k, v in more.items()}
+            for k, v in more.items():
+                _check_metric(k, v)
+            row.update(more)
         row.update(wall_s=wall, build_s=build_s)
         if shared.trajectories:
             extra["trajectory"] = (traj, model.chain.frames_batch(traj.q, 2, t=traj.t).translation[:, -1]
@@ -192,6 +198,29 @@ def _one(shared: _Shared, i: int, text: str) -> dict:
         row.update(success=False, status=-2, message=f"raised {type(err).__name__}: {err}")
     row["worker"] = f"{socket.gethostname()}:{os.getpid()}"
     return {"row": row, **extra}
+
+
+def _metric_ok(v, depth: int = 0) -> bool:
+    if v is None or isinstance(v, (bool, str)):
+        return True
+    if isinstance(v, (int, float)):
+        return True
+    if isinstance(v, list) and depth < 8:
+        return all(isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
+                   or isinstance(x, list) and _metric_ok(x, depth + 1) for x in v)
+    return False
+
+
+def _check_metric(key: str, value) -> None:
+    """``TypeError`` naming the metric ``key`` and its type unless ``value`` is a number, a
+    boolean, a string, None or a (nested) list of finite numbers: a value the run journal
+    (JSON) and the summary table cannot hold makes its run a failed row, not a lost sweep."""
+    if not _metric_ok(value):
+        shown = type(value).__name__
+        if isinstance(value, list):
+            shown = "list holding something other than finite numbers"
+        raise TypeError(f"the metrics function's value {key!r} is a {shown} ({describe_value(value, 40)}); "
+                        "a metric must be a number, a boolean, a string, None or a list of finite numbers")
 
 
 def _runs(shared: _Shared, items: list) -> list:
@@ -652,7 +681,7 @@ def _main(argv: list[str], session) -> int:
     for line in spec.describe():
         print(line)
     runs = spec.run_texts()
-    print(f"{len(runs)} runs; results in {spec.folder}")
+    print(printable(f"{len(runs)} runs; results in {spec.folder}"))
     if args.dry_run:
         validate_runs(spec, runs)
         for i, (point, _) in enumerate(runs):
@@ -675,13 +704,13 @@ def _main(argv: list[str], session) -> int:
     session.phase = "end"
     n = res.table.num_rows
     now = f"{res.computed} computed now on the {res.engine} engine" if res.computed else "nothing left to compute"
-    print(f"sweep {spec.name}: {n} runs ({res.resumed} finished before, {now}, {res.n_failed} failed) in "
-          f"{res.wall_s:.3g} s")
+    print(printable(f"sweep {spec.name}: {n} runs ({res.resumed} finished before, {now}, {res.n_failed} failed) in "
+                    f"{res.wall_s:.3g} s"))
     failed = [r for r in res.rows() if not r["success"]]
     for r in failed[:5]:
-        print(f"  run {r['run']} failed: {r['message']}")
+        print(printable(f"  run {r['run']} failed: {r['message']}"))
     if len(failed) > 5:
         print(f"  ... and {len(failed) - 5} more (summary.parquet, column message)")
     if spec.folder is not None:
-        print(f"wrote {spec.folder / 'summary.parquet'}")
+        print(printable(f"wrote {spec.folder / 'summary.parquet'}"))
     return 0

@@ -430,3 +430,123 @@ def test_a_failed_run_of_a_large_chain_does_not_spend_minutes_on_its_stability_l
     small = Chain([S] * 2)
     lim = stability_limit(small, small.neutral(), np.zeros(small.nv), np.zeros(small.nu), np.zeros(small.nv), 0.0)
     assert lim is not None and 0 < lim < 1
+
+
+# ------------------------------------------------------------------------------ second round (issue 18 follow-up)
+
+@pytest.mark.filterwarnings("ignore:the matrix subclass:PendingDeprecationWarning")
+def test_masked_arrays_are_refused_by_name_or_taken_as_plain_arrays():
+    """A masked array with a masked entry is refused where it enters (it reached numba, or
+    its masked entries were used silently); an unmasked one, or an np.matrix row, is a plain
+    array for compiled code."""
+    from qchain.errors import as_batch, as_matrix, as_real, as_real_array, as_vector
+
+    masked = np.ma.masked_array(QB, mask=[0, 1, 0])
+    for call in (lambda: simulate(CH1, masked, np.zeros(3), (0, 0.01)),
+                 lambda: as_vector("q0", masked, 3), lambda: as_real_array("q0", masked),
+                 lambda: as_batch("q0", masked, 3), lambda: as_matrix("q0", masked.reshape(1, 3), (1, 3))):
+        assert "masked entries" in refused(call, "q0")
+    refused(lambda: Chain([S], gravity=np.ma.masked_array([0, 0, -9.81], mask=[0, 0, 1])), "gravity")
+    refused(lambda: simulate(CH1, QB, np.zeros(3), (0, 0.01), t_eval=np.ma.masked_array([0, 0.005], mask=[0, 1])),
+            "t_eval")
+    refused(lambda: simulate(CH1, QB, np.zeros(3), (0, 0.01), pressure=np.ma.masked_array(np.ones(3), mask=[0, 1, 0])),
+            "pressure")
+    refused(lambda: simulate(CH1, QB, np.zeros(3), (0, 0.01),
+                             pressure=lambda t, q, v: np.ma.masked_array(np.ones(3), mask=[0, 1, 0])), "pressure")
+    refused(lambda: as_real("t", np.ma.masked_array(1.0, mask=True)), "t")
+    for plain in (np.ma.masked_array(QB), np.ma.masked_array(QB, mask=[0, 0, 0])):
+        a = as_vector("q0", plain, 3)
+        assert type(a) is np.ndarray and np.array_equal(a, QB)
+        r = simulate(CH1, plain, np.zeros(3), (0, 0.01))
+        assert r.success and np.array_equal(r.q[-1], simulate(CH1, QB, np.zeros(3), (0, 0.01)).q[-1])
+    assert type(as_real_array("x", np.matrix([[1.0, 2.0]]))) is np.ndarray
+    refused(lambda: simulate(CH1, np.matrix(QB), np.zeros(3), (0, 0.01)), "q0")
+
+
+def test_a_set_table_is_merged_into_the_scenes_table():
+    """``set={'simulation': {'duration': ...}}`` changes the duration and keeps method and dt
+    (it replaced the whole [simulation] table: the runs used the default method)."""
+    from qchain.sweep_spec import apply_values
+
+    raw = {"simulation": {"duration": 0.2, "method": "rk4", "dt": 1e-3}, "segments": [{"damping": 0.1}]}
+    out = apply_values(raw, {"simulation": {"duration": 0.03}})
+    assert out["simulation"] == {"duration": 0.03, "method": "rk4", "dt": 1e-3}
+    assert raw["simulation"]["duration"] == 0.2
+    out = apply_values(raw, {"simulation": {"duration": 0.03, "output": {"x": 1}}, "segments[0]": {"mass": 2.0}})
+    assert out["simulation"]["method"] == "rk4" and out["segments"][0] == {"damping": 0.1, "mass": 2.0}
+
+
+def test_sweep_keys_take_ascii_digits_only():
+    from qchain.sweep_spec import parse_key
+
+    assert parse_key("segments[0].damping") == ["segments", 0, "damping"]
+    for key in ("segments[\u0660].damping", "segments[\uff11].damping"):
+        with pytest.raises(ValueError, match="segments"):
+            parse_key(key)
+
+
+def bad_metric(scene, model, traj):
+    return {"x": object(), "ok": 1.0}
+
+
+def test_an_unserialisable_metric_fails_its_run_not_the_sweep(tmp_path):
+    from helpers import SEGMENTS_TOML
+    from qchain import sweep
+    from qchain.sweeps import _check_metric
+
+    base = tmp_path / "base.toml"
+    base.write_text('name = "m"\n' + SEGMENTS_TOML + '[simulation]\nduration = 0.002\nmethod = "rk4"\ndt = 1e-3\n')
+    res = sweep(base, {"segments[0].damping": [0.01, 0.02]}, workers=1, folder=tmp_path / "f", progress=False,
+                metrics=bad_metric)
+    rows = res.rows()
+    assert len(rows) == 2 and all(not r["success"] for r in rows)
+    assert all("'x'" in r["message"] and "object" in r["message"] for r in rows), rows[0]["message"]
+    assert (tmp_path / "f" / "summary.parquet").exists()
+    for ok in (None, True, 1, 2.5, "s", [1.0, 2], [[1.0], [2.0]]):
+        _check_metric("k", ok)
+    for bad in (object(), {"a": 1}, [1.0, math.nan], [1.0, "a"], b"x"):
+        with pytest.raises(TypeError, match="'k'"):
+            _check_metric("k", bad)
+
+
+def test_a_schedule_subclass_of_the_users_is_a_checked_function_of_time():
+    from qchain.inputs import Schedule
+
+    class U(Schedule):
+        __call__ = lambda self, t: np.full(3, np.nan)  # noqa: E731
+
+    class W(Schedule):
+        __call__ = lambda self, t: np.zeros(4)  # noqa: E731
+
+    class Good(Schedule):
+        __call__ = lambda self, t: np.full(3, 1e4)  # noqa: E731
+
+    msg = refused(lambda: simulate(CH1, QB, np.zeros(3), (0, 0.01), pressure=U()), "pressure")
+    assert "non-finite" in msg
+    refused(lambda: simulate(CH1, QB, np.zeros(3), (0, 0.01), pressure=W()), "pressure")
+    r = simulate(CH1, QB, np.zeros(3), (0, 0.01), pressure=Good())
+    assert r.success and np.allclose(r.p[-1], 1e4)
+
+
+def test_paper_psi_is_bounded_where_it_enters():
+    sp = Segment(**SEG, coords="paper")
+    msg = refused(lambda: simulate(Chain([sp]), np.array([0.1, 1e300, 2.0]), np.zeros(3), (0, 0.01)), "psi")
+    assert "1000" in msg
+    refused(lambda: Segment(**SEG, coords="paper", rest_q_e=[0.1, -2e3, 2.0]), "psi")
+    assert simulate(Chain([sp]), np.array([0.1, 0.5, 2.0]), np.zeros(3), (0, 0.002)).success
+
+
+def test_a_0d_object_array_of_segments_is_refused_by_name():
+    msg = refused(lambda: Chain(np.array(S, dtype=object)), "segments")
+    assert "sequence" in msg
+    assert Chain(np.array([S, S], dtype=object)).n == 2
+
+
+def test_an_explicit_adaptive_method_on_a_stiff_model_stops_at_the_step_budget():
+    from qchain.budget import Budget
+
+    s = Segment(length=1e-5, radius=1e-3, mass=1e-9, chamber_area=1e-8, chamber_radius=5e-4, youngs_modulus=1e12)
+    t = time.perf_counter()
+    r = simulate(Chain([s]), s.neutral(), np.zeros(3), (0, 0.02), method="dopri5", budget=Budget(max_steps=5000))
+    assert time.perf_counter() - t < 60
+    assert not r.success and "budget.max_steps = 5000" in r.message and "radau5" in r.message, r.message

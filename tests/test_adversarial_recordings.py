@@ -463,3 +463,131 @@ def test_a_run_beside_a_peer_that_answers_garbage_keeps_every_record(tmp_path, m
     assert len(said) == 1 and url in said[0] and "the MCAP log is still written" in said[0], said
     rec = read_recording(path)
     assert len(rec) == 150 and rec.complete and not journal_path(path).exists()
+
+
+# --------------------------------------------------------------------------------------
+# layout -o, another run's journal, text streams, flags
+# --------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("kind", ["fifo", "device"])
+def test_layout_never_replaces_a_fifo_or_a_device(tmp_path, logged, kind, capsys):
+    """Before: ``qchain layout r.mcap -o NODE`` made a temporary file and os.replace'd the
+    FIFO or device node with it (``-o /dev/full`` as root). Now: refused, one line, exit 2."""
+    from qchain.recording.replay import layout_main
+
+    data, _ = logged
+    rec = tmp_path / "r.mcap"
+    rec.write_bytes(data)
+    node = tmp_path / "node"
+    if kind == "fifo":
+        os.mkfifo(node)
+    else:
+        try:
+            os.mknod(node, 0o600 | __import__("stat").S_IFCHR, os.makedev(1, 3))
+        except PermissionError:
+            pytest.skip("mknod needs privileges here")
+    before = os.stat(node)
+    assert layout_main([str(rec), "-o", str(node)]) == 2
+    err = capsys.readouterr().err
+    assert str(node) in err and err.count("\n") == 1, err
+    after = os.stat(node)
+    assert (after.st_mode, after.st_ino) == (before.st_mode, before.st_ino)
+    assert sorted(os.listdir(tmp_path)) == ["node", "r.mcap"]
+
+
+def _run(path: Path, rid: str, k: int) -> None:
+    with RunLogger(arm_info(N_SEG), path, flush_interval=0.05, quiet=True, recording_id=rid) as log:
+        for r in arm_records(k, dt=1e-2, n=N_SEG, P=POINTS):
+            log.log(r)
+
+
+def _journal_of(path: Path, rec, rid: str | None, keep: int) -> None:
+    """A killed run's journal beside ``path``: ``rec``'s first ``keep`` records, under ``rid``."""
+    from qchain.recording.journal import JournalWriter
+    from qchain.recording.records import Batch
+
+    meta = info_metadata(arm_info(N_SEG), rid or "x")
+    if rid is None:  # an older journal: no recording_id in its header
+        del meta["recording_id"]
+    b = Batch(rec.t, rec.step, rec.q, rec.v, rec.p, rec.energy, rec.base, rec.backbone, rec.tip_frames)
+    jw = JournalWriter(journal_path(path), meta, str(path))
+    jw.start(b.layout)
+    jw.append(b.rows()[:keep])
+    jw.release(remove=False)  # killed: no outcome, no summary
+
+
+def test_another_run_s_journal_is_never_merged(tmp_path, capsys):
+    """Before: another killed run's journal copied beside a complete recording was merged
+    by read_recording, replay and recover (6 records read back as 224, and recover replaced
+    the complete file with steps of both runs). Now: the journal names its run's
+    recording_id; one of another run is not merged (journal_unread says so) and recover
+    changes nothing."""
+    base, other = tmp_path / "base.mcap", tmp_path / "other.mcap"
+    _run(base, "run-a", 6)
+    _run(other, "run-b", 40)
+    orec = read_recording(other)
+    _journal_of(base, orec, "run-b", 40)
+    before = base.read_bytes()
+    rec = read_recording(base)
+    assert len(rec) == 6 and rec.recovered == 0 and rec.complete
+    assert "another run's" in rec.journal_unread and "run-b" in rec.journal_unread
+    assert len(read_mcap(base).t) == 6
+    assert recover_main([str(base)]) == 2
+    err = capsys.readouterr().err
+    assert "another run's" in err and err.count("\n") == 1, err
+    assert base.read_bytes() == before and journal_path(base).exists()
+    # the same beside a killed (truncated) file of run-a: still not merged
+    _killed(base, before, 1)
+    rec = read_recording(base)
+    assert rec.recovered == 0 and "another run's" in rec.journal_unread
+    assert set(rec.step.tolist()) <= set(read_recording(io.BytesIO(before)).step.tolist())
+
+
+def test_a_journal_without_id_is_merged_only_into_a_truncated_file(tmp_path):
+    """An older journal (no recording_id): beside a complete file its records are not
+    merged (said); beside a truncated file they are, as before."""
+    base = tmp_path / "base.mcap"
+    _run(base, "run-a", 6)
+    whole = base.read_bytes()
+    big = tmp_path / "big.mcap"
+    _run(big, "run-a", 40)
+    brec = read_recording(big)
+    _journal_of(base, brec, None, 40)
+    rec = read_recording(base)
+    assert len(rec) == 6 and rec.recovered == 0 and "complete" in rec.journal_unread
+    _killed(base, whole, 1)
+    rec = read_recording(base)
+    assert rec.recovered > 0 and not rec.journal_unread
+    # the same run's own journal beside its complete file, nothing more in it: silent
+    base.write_bytes(whole)
+    _journal_of(base, read_recording(io.BytesIO(whole)), "run-a", 6)
+    rec = read_recording(base)
+    assert len(rec) == 6 and rec.complete and not rec.journal_unread
+
+
+def test_a_text_stream_is_refused_with_a_clear_error(tmp_path, logged):
+    data, _ = logged
+    p = tmp_path / "r.mcap"
+    p.write_bytes(data)
+    with open(p) as fh, pytest.raises(TypeError, match=r"expected a binary stream \(open the file with 'rb'\)"):
+        read_mcap(fh)
+    with open(p, encoding="latin-1") as fh, pytest.raises(TypeError, match="binary stream"):
+        read_recording(fh)
+
+    class Texty:  # not an io.TextIOBase, but read() gives str
+        def read(self, n=-1):
+            return "\x89MCAP0\r\n"
+
+    with pytest.raises(TypeError, match="binary stream"):
+        read_recording(Texty())
+
+
+@pytest.mark.parametrize("value", ["yes", 1, None, 0.0])
+def test_read_recording_journal_flag_must_be_a_bool(tmp_path, logged, value):
+    data, _ = logged
+    p = tmp_path / "r.mcap"
+    p.write_bytes(data)
+    with pytest.raises(TypeError, match="journal must be True or False"):
+        read_recording(p, journal=value)
+    assert len(read_recording(p, journal=False)) == N

@@ -67,10 +67,10 @@ def error_line(err: str) -> str:
 
 
 @pytest.mark.parametrize("flag, value, bound", [
-    ("--duration", "nan", "> 0 and <= 1e+12 (s)"),
-    ("--duration", "-inf", "> 0 and <= 1e+12 (s)"),
-    ("--duration", "1e13", "> 0 and <= 1e+12 (s)"),
-    ("--duration", "-0", "> 0 and <= 1e+12 (s)"),
+    ("--duration", "nan", ">= 1e-12 and <= 1e+12 (s)"),
+    ("--duration", "-inf", ">= 1e-12 and <= 1e+12 (s)"),
+    ("--duration", "1e13", ">= 1e-12 and <= 1e+12 (s)"),
+    ("--duration", "-0", ">= 1e-12 and <= 1e+12 (s)"),
     ("--rerun-rate", "nan", "> 0 and <= 1e+09 (Hz)"),  # was accepted and ignored
     ("--rerun-rate", "-5", "> 0 and <= 1e+09 (Hz)"),
     ("--rerun-rate", "0", "> 0 and <= 1e+09 (Hz)"),
@@ -467,3 +467,180 @@ def test_the_wall_time_excludes_finishing_the_recording(scene, capsys, monkeypat
     m = re.search(r"simulated 0\.02 s in ([0-9.e+-]+) s wall time", out)
     assert m and float(m[1]) < 1.0, out
     assert load_scene(scene).duration == 0.02
+
+
+# --------------------------------------------------------------------------------------
+# outputs that would lose data, a stdout that cannot be written, text shown raw
+
+
+OUT_SCENE = SCENE.replace("plots = []", 'plots = ["tip"]\nsave = true')
+
+
+@pytest.fixture
+def out_scene(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    p = tmp_path / "scene.toml"
+    p.write_text(OUT_SCENE)
+    return p
+
+
+@pytest.mark.parametrize("flag, name", [("--mcap", "trajectory.npz"), ("--mcap", "tip.png"),
+                                        ("--rrd", "trajectory.npz")])
+def test_a_recording_at_a_planned_output_is_refused_before_the_run(flag, name, out_scene, capsys):
+    """`--out o --mcap o/trajectory.npz` ran, then the plots and trajectory.npz overwrote the recording."""
+    out = out_scene.parent / "o"
+    argv = ["run", out_scene, "--out", out, flag, out / name, "--no-progress"]
+    if flag == "--rrd":
+        argv.append("--no-record")
+    code, stdout, err = run(argv, capsys)
+    line = error_line(err)
+    assert code == 2 and flag in line and name in line and "same file" in line, err
+    assert "simulated" not in stdout and not (out / name).exists(), stdout
+
+
+@pytest.mark.parametrize("name, make", [("tip.png", "dir"), ("trajectory.npz", "fifo")])
+def test_a_planned_output_that_is_no_regular_file_is_refused_before_the_run(name, make, out_scene, capsys):
+    """A folder at o/tip.png failed after the run ([Errno 21]); a device at o/trajectory.npz took the data."""
+    out = out_scene.parent / "o"
+    out.mkdir()
+    if make == "dir":
+        (out / name).mkdir()
+    else:
+        os.mkfifo(out / name)
+    code, stdout, err = run(["run", out_scene, "--out", out, "--no-record", "--no-progress"], capsys)
+    line = error_line(err)
+    assert code == 2 and "--out" in line and name in line and "expected a regular file" in line, err
+    assert "simulated" not in stdout
+
+
+def _mcap_samples(path):
+    from mcap.reader import make_reader
+
+    with open(path, "rb") as fh:
+        summary = make_reader(fh).get_summary()
+    return summary.statistics.message_count if summary is not None else 0
+
+
+@pytest.mark.parametrize("how", ["closed", "full", "pipe"])
+def test_a_stdout_that_cannot_be_written_loses_no_recording(how, scene, tmp_path):
+    """stdout closed (`>&-`) ended in 'NoneType has no attribute flush', /dev/full in [Errno 28], a closed pipe in
+    EPIPE: exit 1 and no recording."""
+    import subprocess
+    import sys
+
+    mcap = tmp_path / "r.mcap"
+    cmd = [sys.executable, "-m", "qchain", "run", str(scene), "--no-plots", "--no-progress", "--mcap", str(mcap)]
+    if how == "closed":
+        proc = subprocess.run(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, timeout=120,
+                              preexec_fn=lambda: os.close(1))
+    elif how == "full":
+        with open("/dev/full", "w") as full:
+            proc = subprocess.run(cmd, stdout=full, stderr=subprocess.PIPE, text=True, timeout=120)
+    else:
+        r, w = os.pipe()
+        os.close(r)
+        proc = subprocess.run(cmd, stdout=w, stderr=subprocess.PIPE, text=True, timeout=120)
+        os.close(w)
+    assert "Traceback" not in proc.stderr and "AttributeError" not in proc.stderr, proc.stderr
+    if how != "pipe":
+        assert proc.returncode == 0, proc.stderr
+    if how != "closed":
+        assert "warning: standard output:" in proc.stderr and "the rest of the summary is not shown" in proc.stderr
+    assert _mcap_samples(mcap) > 0 and not (tmp_path / "r.mcap.journal").exists()
+
+
+def test_a_closed_stdout_does_not_stop_a_sweep(tmp_path):
+    import subprocess
+    import sys
+
+    p = sweep_file(tmp_path, SWEEP_HEAD + AXIS)
+    proc = subprocess.run([sys.executable, "-m", "qchain", "sweep", str(p), "--dry-run"], stdout=subprocess.DEVNULL,
+                          stderr=subprocess.PIPE, text=True, timeout=120, cwd=tmp_path,
+                          preexec_fn=lambda: os.close(1))
+    assert proc.returncode == 0 and "Traceback" not in proc.stderr, proc.stderr
+
+
+def test_control_characters_of_a_scene_are_escaped_in_info_and_run(scene, capsys):
+    scene.write_text(SCENE.replace('name = "adversarial"', 'name = "a\\nb\\u001b[31mRED"'))
+    for argv in (["info", scene], ["run", scene, "--no-record", "--no-plots", "--no-progress"]):
+        code, out, err = run(argv, capsys)
+        assert code == 0, err
+        assert "\x1b" not in out and "a\\nb\\x1b[31mRED" in out, out
+        (line,) = [x for x in out.splitlines() if x.startswith("scene:")]
+        assert line.endswith("(a\\nb\\x1b[31mRED)"), line
+
+
+def test_control_characters_of_a_sweep_are_escaped_in_its_description(tmp_path, capsys, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    p = sweep_file(tmp_path, 'name = "s\\u001b[31m"\n' + SWEEP_HEAD + AXIS)
+    code, out, err = run(["sweep", p, "--dry-run"], capsys)
+    assert code == 0, err
+    assert "\x1b" not in out, out
+
+
+@pytest.mark.parametrize("where", ["flag", "scene"])
+@pytest.mark.parametrize("value", ["4.9e-324", "1e-20", "1e-13"])
+def test_a_duration_shorter_than_the_solver_takes_is_bad_input(where, value, scene, capsys):
+    """Was 't_span must last at least 1.42e-14 s', exit 1, naming t_span."""
+    if where == "flag":
+        code, _, err = run(["run", scene, "--duration", value, "--no-record", "--no-plots"], capsys)
+        name = "--duration"
+    else:
+        scene.write_text(SCENE.replace("duration = 0.02", f"duration = {value}").replace('method = "rk4"\ndt = 1e-3\n',
+                                                                                         ""))
+        code, _, err = run(["run", scene, "--no-record", "--no-plots"], capsys)
+        name = "simulation.duration"
+    line = error_line(err) if where == "flag" else err
+    assert code == 2 and name in line and ">= 1e-12" in line and "t_span" not in err, err
+
+
+def test_the_shortest_accepted_duration_runs(scene, capsys):
+    scene.write_text(SCENE.replace('method = "rk4"\ndt = 1e-3\n', ""))
+    code, _, err = run(["run", scene, "--duration", "1e-12", "--no-record", "--no-plots", "--no-progress"], capsys)
+    assert code == 0, err
+
+
+@pytest.mark.parametrize("flag, value", [("--duration", "1000000000000.0001"), ("--viewer-timeout", "3600.0000000001")])
+def test_a_value_just_past_its_bound_is_shown_with_all_its_digits(flag, value, scene, capsys):
+    code, _, err = run(["run", scene, flag, value], capsys)
+    line = error_line(err)
+    assert code == 2 and line.endswith(f"found {value}"), line
+
+
+def test_a_c_locale_without_coercion_shows_a_non_ascii_name_escaped(tmp_path):
+    import subprocess
+    import sys
+
+    p = tmp_path / "é🦑.toml"
+    p.write_text(SCENE)
+    env = dict(os.environ, LC_ALL="C", PYTHONCOERCECLOCALE="0", PYTHONUTF8="0")
+    proc = subprocess.run([sys.executable, "-m", "qchain", "info", os.fsencode(p)], capture_output=True, env=env,
+                          timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    assert b"codec" not in proc.stderr and b"scene: " in proc.stdout
+
+
+def test_check_flag_values_at_a_closed_bound_and_past_it():
+    ranges = {"duration": ("--duration", B.DURATION)}
+
+    class A:
+        duration = B.DURATION.high
+
+    check_flag_values(A, ranges)
+    A.duration = math.nextafter(B.DURATION.high, math.inf)
+    with pytest.raises(BadInput, match=re.escape(f"found {A.duration!r}")):
+        check_flag_values(A, ranges)
+
+
+@pytest.mark.parametrize("q_e", ["[[0.1, 3.0, 0.0], [0.1, 0.0, 0.0]]", None])
+def test_paper_coordinates_at_the_straight_pose_are_refused_at_load(q_e, tmp_path):
+    """Was numpy warnings, then 'array must not contain infs or NaNs', exit 1."""
+    text = SCENE.replace("[pressure]", "[initial]\n" + (f"q_e = {q_e}\n" if q_e else "") + "[pressure]")
+    text = text.replace("[[segments]]", '[[segments]]\ncoords = "paper"', 1)
+    if q_e is None:
+        text = text.replace("[initial]\n", "")
+    with pytest.raises(SceneError) as exc:
+        parse_scene(text)
+    keys = [p.key for p in exc.value.problems]
+    assert "initial.q_e[0][2]" in keys, exc.value.problems
+    assert 'coords = "curvature"' in str(exc.value)

@@ -404,7 +404,7 @@ ISSUE_SCENES = {
     "base velocity 1e300": (_scene(lambda d: d.update(base={"type": "floating", "velocity": [1e300, 0.0, 0.0]})),
                             "base.velocity[0]", "a number >= -1000 and <= 1000 (m/s)"),
     "duration = 1e300": (_scene(lambda d: d["simulation"].update(duration=1e300)), "simulation.duration",
-                         "a number > 0 and <= 1e+12 (s)"),
+                         "a number >= 1e-12 and <= 1e+12 (s)"),
     "duration = 1e9 at 100 Hz": (_scene(lambda d: d["simulation"].update(duration=1e9)), "output.sample_rate",
                                  "at most 1000000 output samples"),
     "folder with a NUL": (_scene(lambda d: d.update(output={"folder": "out/a\0b"})), "output.folder",
@@ -417,7 +417,7 @@ ISSUE_SCENES = {
                            "a number >= -1e+06 and <= 1e+06"),
     "integer too large for a float": ("[simulation]\nduration = 1" + "0" * 400 + "\n" + "\n".join(
         to_toml(base_scene()).split("\n")[:-1]).replace("[simulation]\n\"duration\" = 0.1", ""),
-        "simulation.duration", "a number > 0"),
+        "simulation.duration", "a number >= 1e-12"),
 }
 
 
@@ -469,7 +469,7 @@ def test_scene_simulate_checks_its_duration_and_budget_before_running():
     scene = parse_scene(to_toml(base_scene()), "s.toml")
     with pytest.raises(TypeError, match="duration must be a real number"):
         scene.simulate(duration="10")
-    with pytest.raises(ValueError, match=r"duration must be > 0 and <= 1e\+12 s, got 1e\+300 s"):
+    with pytest.raises(ValueError, match=r"duration must be >= 1e-12 and <= 1e\+12 s, got 1e\+300 s"):
         scene.simulate(duration=1e300)
     with pytest.raises(BudgetError, match=r"budget.max_samples: expected at most 1000000 output samples.*"
                                           r"raise it in the scene's \[budget\] table"):

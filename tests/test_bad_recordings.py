@@ -841,6 +841,12 @@ def test_a_journal_with_a_bad_layout_is_reported_not_a_crash(tmp_path):
     _journal(path, rows3, other.to_json())
     refused(path, "rows are of 3 segment(s), the recording's 2")
     _journal(path, rows, layout)
+    rec = read_recording(path)  # a complete file (outcome, summary): never merged, said
+    assert len(rec) == 6 and rec.recovered == 0 and "complete" in rec.journal_unread
+    from qchain.recording.scan import scan
+
+    whole = craft()
+    path.write_bytes(whole[: [it.end for it in scan(whole) if it.kind == "chunk"][-1]])  # killed: no outcome
     rec = read_recording(path)
     assert len(rec) == 9 and rec.recovered == 3
     path.write_bytes(b"")

@@ -273,8 +273,8 @@ ERRORS = [
     ([_set("segments[1].extensible", False), _set("initial.v", [0.0, 0.0, 0.0, 0.1, 0.0, 0.0])],
      "initial.v[1][0]: expected 0 (segment 1 is inextensible), found 0.1"),
     ([_set("simulation", DELETE)], "simulation: expected a table, found nothing"),
-    ([_set("simulation.duration", DELETE)], "simulation.duration: expected a number > 0 and <= 1e+12 (s), found nothing (the key is required)"),
-    ([_set("simulation.duration", -1.0)], "simulation.duration: expected a number > 0 and <= 1e+12 (s), found -1.0"),
+    ([_set("simulation.duration", DELETE)], "simulation.duration: expected a number >= 1e-12 and <= 1e+12 (s), found nothing (the key is required)"),
+    ([_set("simulation.duration", -1.0)], "simulation.duration: expected a number >= 1e-12 and <= 1e+12 (s), found -1.0"),
     ([_set("simulation.method", "RK23")], 'simulation.method: expected one of "radau5", "dopri5", "rk4", "midpoint", '
                                           '"RK45", "DOP853", "Radau", "BDF", found a string "RK23"'),
     ([_set("simulation.method", "rk4")], "simulation.dt: expected a step > 0 (s): method 'rk4' takes fixed steps, found nothing"),

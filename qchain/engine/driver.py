@@ -59,12 +59,16 @@ class _Outputs:
 
 
 def run(chain, m, method, q0, v0, t0, t1, *, dt, rtol, atol, t_eval, on_sample, pass_energies, events, bar,
-        max_step, first_step, energies, deadline, controllers, controller_rate, inputs) -> Trajectory:
+        max_step, first_step, energies, deadline, controllers, controller_rate, inputs,
+        max_total_steps: int | None = None) -> Trajectory:
     """Integrate from ``(q0, v0)`` at ``t0`` to ``t1`` on the compiled engine (arguments as
     :func:`qchain.simulate.simulate`'s, validated there; ``m`` from :func:`system.pack`;
     ``controllers``: ``[(callable (t, q, v) -> (size,), params array to hold it in)]``;
     ``inputs``: ``(t, q, v) -> (p, tau)`` in Python, for the samples Python writes (the first,
-    one at a controller instant or a terminal event) and the stability limit)."""
+    one at a controller instant or a terminal event) and the stability limit);
+    ``max_total_steps``: the budget's ``max_steps``, enforced as the run goes for the adaptive
+    methods (steps taken, rejected ones included): a stiff model that drives an explicit
+    method's step to nothing stops (status -1) instead of running for hours."""
     idx = m[13]
     nA = idx.size
     c = steppers.constants(method)
@@ -121,6 +125,16 @@ def run(chain, m, method, q0, v0, t0, t1, *, dt, rtol, atol, t_eval, on_sample, 
             t_stop = hold_times[n_hold] if n_hold < hold_times.size else t1
             max_out = _max_out(out, cnt, t, on_sample)
             steps = 1 if events else max_steps
+            if max_total_steps is not None and not fixed:
+                taken = int(cnt[steppers.NSTEPS]) + int(cnt[steppers.NREJECT])
+                if taken >= max_total_steps:
+                    status = -1
+                    message = (f"step budget exceeded: budget.max_steps = {max_total_steps}, {taken} steps taken "
+                               f"({int(cnt[steppers.NSTEPS])} accepted, {int(cnt[steppers.NREJECT])} rejected), "
+                               f"t reached = {t:.6g} s of {t1:.6g} s with method {method!r}; the model is "
+                               "probably stiff: use method='radau5' (or raise budget.max_steps)")
+                    break
+                steps = min(steps, max_total_steps - taken)
             w0 = _time.perf_counter()
             code = advance(fs, m, wk, it, out.arrays, c, t_stop, max_out, steps)
             wall = _time.perf_counter() - w0

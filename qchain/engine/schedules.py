@@ -85,9 +85,11 @@ def pack_input(u, size: int, name: str = "input") -> tuple[np.ndarray, np.ndarra
     if u is None:
         return _packed(CONSTANT, size, np.zeros(size))
     if isinstance(u, Schedule):
-        if u.size != size:
-            raise ValueError(f"{name} schedule gives {u.size} values, the model needs {size}")
         kind = type(u)  # exact types only: a subclass may override __call__
+        if kind not in (Constant, Step, Ramp, Sine, Table):
+            return None  # a schedule of the user's (maybe without a size): checked by as_input at each call
+        if u.size != size:
+            raise ValueError(f"{name} schedule gives {u.size} values, the model needs {size}")  # exact types only: a subclass may override __call__
         if kind is Constant:
             return _packed(CONSTANT, size, u.value)
         if kind is Step:

@@ -21,6 +21,7 @@ the offset, the limit and how to raise it; the reader adds the file's name.
 
 from __future__ import annotations
 
+import io
 import math
 import os
 import stat
@@ -261,6 +262,8 @@ def open_source(source, argument: str, function: str, limits: ReadLimits = DEFAU
     if not callable(read):
         raise TypeError(f"{function}: {argument} must be a path (str or os.PathLike) or a binary stream with read(); "
                         f"got {'None' if source is None else type(source).__name__}")
+    if isinstance(source, io.TextIOBase):
+        raise TypeError(f"{function}: {argument} is a text stream, not binary mode: expected a binary stream (open the file with 'rb')")
     name = getattr(source, "name", None)
     if not isinstance(name, str):
         name = f"<{type(source).__name__}>"
@@ -269,13 +272,17 @@ def open_source(source, argument: str, function: str, limits: ReadLimits = DEFAU
     while len(data) <= cap:
         try:
             piece = read(min(1 << 20, cap + 1 - len(data)))
+        except UnicodeDecodeError:  # a text stream the checks above did not know
+            raise TypeError(f"{function}: {argument} is a text stream, not binary mode: expected a binary stream (open the file with "
+                            "'rb')") from None
         except OSError as exc:
             raise RecordingFormatError(f"{name}: cannot be read at byte {len(data)} ({exc.strerror or exc})") from None
         if piece is None:  # a non-blocking stream with nothing now
             raise RecordingFormatError(f"{name}: the stream has no data now (non-blocking); pass a path or a "
                                        "blocking binary stream")
         if isinstance(piece, str):
-            raise TypeError(f"{function}: {argument} is a text stream; open the file in binary mode ('rb')")
+            raise TypeError(f"{function}: {argument} is a text stream, not binary mode: expected a binary stream (open the file with "
+                            "'rb')")
         if not isinstance(piece, (bytes, bytearray, memoryview)):
             raise TypeError(f"{function}: {argument}.read() returned {type(piece).__name__}, not bytes")
         if not piece:

@@ -28,6 +28,7 @@ from typing import BinaryIO
 import numpy as np
 from mcap.records import Channel, Message
 
+from ..errors import as_bool
 from ..trajectory import Trajectory
 from .bounded import DEFAULT_LIMITS, Budget, LimitExceeded, ReadLimits, loads, open_source
 from .journal import JournalReader, journal_owner, journal_path
@@ -438,14 +439,17 @@ def read_recording(source: str | os.PathLike | BinaryIO, journal: bool = True, *
         a stream is read up to ``limits.max_stream_bytes``.
     journal : bool
         For a path: also read the records a killed run left in its journal
-        (``PATH.journal``) and the file lacks.
+        (``PATH.journal``) and the file lacks. A journal whose ``recording_id`` is not
+        the file's (another run's), or one holding records after a complete file's last
+        (its outcome and summary are there), is not merged: ``journal_unread`` says so.
     limits : ReadLimits or None
         What reading may cost (default :class:`~qchain.recording.bounded.ReadLimits`()).
 
     Raises
     ------
     TypeError
-        ``source`` is neither a path nor a binary stream.
+        ``source`` is neither a path nor a binary stream (a text stream is refused: open
+        the file with ``'rb'``), or ``journal`` is not True or False.
     RecordingFormatError
         The file is not an MCAP file, not a qchain recording, its qchain metadata is
         damaged in both copies, a value in it is not what the format allows, reading it
@@ -454,6 +458,7 @@ def read_recording(source: str | os.PathLike | BinaryIO, journal: bool = True, *
     FileNotFoundError
         No such file (and no journal of a run writing it).
     """
+    journal = as_bool("read_recording: journal", journal)
     if limits is None:
         limits = DEFAULT_LIMITS
     elif not isinstance(limits, ReadLimits):
@@ -543,6 +548,7 @@ def _read(name: str, buf: bytearray, jpath, limits: ReadLimits) -> Recording:
     jr = None
     journal_rows = None
     journal_unread = ""
+    file_complete = complete and outcome is not None  # footer, summary and outcome: nothing to add
     if jpath is not None and journal_owner(jpath) is None:
         try:
             jr = JournalReader(jpath, limits)
@@ -558,6 +564,16 @@ def _read(name: str, buf: bytearray, jpath, limits: ReadLimits) -> Recording:
             damage.append(f"journal: {exc}; not read")
             journal_unread = str(exc)
             jr = None
+        if jr is not None:
+            # a journal is merged only into its own run's file: the recording_id both carry
+            # (in their qchain metadata) must agree; a journal without one (an older run's)
+            # is taken only beside a file that is not complete (see below)
+            file_id = (meta or {}).get("recording_id", "")
+            journal_id = (jr.metadata or {}).get("recording_id", "")
+            if file_id and journal_id and file_id != journal_id:
+                journal_unread = (f"the journal {jpath} is another run's (its recording_id {journal_id[:40]!r}, the "
+                                  f"file's {file_id[:40]!r}): not merged")
+                jr = None
         if jr is not None:
             if meta is None and jr.metadata is not None:
                 meta = jr.metadata
@@ -645,6 +661,10 @@ def _read(name: str, buf: bytearray, jpath, limits: ReadLimits) -> Recording:
             last, last_t = int(b.step[-1]), float(b.t[-1])
             journal_rows = journal_rows[(journal_rows[:, 1] > last) & (journal_rows[:, 0] >= last_t)]
         recovered = len(journal_rows)
+        if recovered and file_complete:  # never merged into a complete file: said instead
+            journal_unread = (f"the file is complete (its outcome and summary are there), yet its journal {jpath} "
+                              f"holds {recovered} records after its last: not merged")
+            recovered = 0
         if recovered:
             jb = Batch.from_rows(journal_rows, jr.layout)
             b = jb if len(b) == 0 else Batch.concatenate([b, jb])

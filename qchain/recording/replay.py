@@ -350,7 +350,7 @@ def recover(path: str | os.PathLike, *, limits: ReadLimits | None = None) -> Rec
     # (without the file, from the journal alone: the writer never started)
     rec = read_recording(path, limits=limits)
     if rec.journal_unread:
-        raise LoggingError(f"{path}: its journal {jp} is not (wholly) readable ({rec.journal_unread}); nothing was "
+        raise LoggingError(f"{path}: its journal {jp} cannot be (wholly) merged ({rec.journal_unread}); nothing was "
                            "changed (the journal would be lost): move it away to recover the file without it")
     out = rec.outcome or {"success": "false", "status": "-1", "message": ""}
     message = out.get("message") or "the run was killed"
@@ -530,6 +530,12 @@ def layout_main(argv: Sequence[str] | None = None) -> int:
                     raise LoggingError(f"-o {args.out} is the recording ({p}): it would be overwritten")
             if args.out.is_dir():
                 raise LoggingError(f"-o must be a file path, got the folder {args.out}")
+            from ..cli_checks import check_output_path
+            from ..cli_errors import BadInput
+            try:  # a device or a FIFO there is refused, never replaced (os.replace below would)
+                check_output_path("-o", args.out)
+            except BadInput as exc:
+                raise LoggingError(str(exc)) from None
         rec = read_recording(args.log, limits=limits)
         text = layout_json(rec.info, rec.q.shape[1], rec.v.shape[1], rec.p.shape[1])
         if args.out is None:
