@@ -449,7 +449,19 @@ def _dispatch(argv: list[str], session: _Session, debug: bool) -> int:
     return _info(args)
 
 
-def command(name: str, body, debug: bool = False, session: _Session | None = None) -> int:
+def _result_on_stdout(argv: list[str]) -> bool:
+    """Whether the command's standard output is its result (``info``; ``layout`` without
+    ``-o``), not a summary of files it wrote: an output that cannot be written fails it."""
+    if not argv:
+        return False
+    if argv[0] == "info":
+        return True
+    return argv[0] == "layout" and not any(a in ("-o", "--out") or a.startswith("--out=") or
+                                           (a.startswith("-o") and len(a) > 2) for a in argv[1:])
+
+
+def command(name: str, body, debug: bool = False, session: _Session | None = None,
+            result_on_stdout: bool = False) -> int:
     """Run ``body(session)`` as the command ``qchain NAME`` and return its exit code: every
     exception one line on stderr (:func:`guarded`), warnings one line each, Ctrl-C one line
     at any moment (also where a library drops the ``KeyboardInterrupt``).
@@ -463,13 +475,15 @@ def command(name: str, body, debug: bool = False, session: _Session | None = Non
         Print tracebacks too.
     session : optional
         The session of the command this one runs inside (``qchain sweep`` from ``qchain``).
+    result_on_stdout : bool
+        Standard output is the command's result: exit code 1 when it could not be written.
     """
     if session is not None:
         return guarded(session.prog, lambda: body(session), debug, session)
     session = _Session(name)
     _tolerant_streams()
     stdout = sys.stdout
-    sys.stdout = SummaryOutput(stdout, session.prog)
+    sys.stdout = out = SummaryOutput(stdout, session.prog)
     sig = _sigint_handler(session.on_sigint)
     hook = sys.unraisablehook
 
@@ -481,7 +495,14 @@ def command(name: str, body, debug: bool = False, session: _Session | None = Non
     try:
         with warnings.catch_warnings():
             warnings.showwarning = _show_warnings(session.prog)
-            return guarded(session.prog, lambda: body(session), debug, session)
+            code = guarded(session.prog, lambda: body(session), debug, session)
+        try:
+            sys.stdout.flush()
+        except (OSError, ValueError):
+            pass
+        if code == EXIT_OK and out.failed is not None and result_on_stdout:
+            code = EXIT_FAILED  # what it was asked for did not reach its reader
+        return code
     finally:
         try:
             sys.stdout.flush()
@@ -513,7 +534,8 @@ def main(argv=None) -> int:
     argv, debug = take_debug([os.fspath(a) for a in (sys.argv[1:] if argv is None else argv)])
     _tolerant_streams()
     name = argv[0] if argv and argv[0] in COMMANDS else ""
-    return command(name, lambda session: _dispatch(argv, session, debug), debug)
+    return command(name, lambda session: _dispatch(argv, session, debug), debug,
+                   result_on_stdout=_result_on_stdout(argv))
 
 
 _PREVIOUS_SIGINT: list = []

@@ -11,6 +11,7 @@ import ipaddress
 import math
 import os
 import re
+import sys
 from pathlib import Path
 from urllib.parse import urlsplit
 
@@ -134,12 +135,21 @@ def _shown(path) -> str:
     return os.fsencode(path).decode("utf-8", "backslashreplace")
 
 
+def _fs_encodable(c: str) -> bool:
+    """Whether the file system's encoding (ASCII in a C locale without UTF-8 mode) takes ``c``."""
+    try:
+        c.encode(sys.getfilesystemencoding())
+        return True
+    except UnicodeEncodeError:
+        return False
+
+
 def _recording_stem(scene_path) -> str:
     """The name a scene's default recording starts with: its file's stem as printable
     UTF-8 (other bytes become ``_``), at most :data:`MAX_STEM_BYTES` bytes."""
     stem = Path(scene_path).stem if scene_path else "run"
     text = os.fsencode(stem).decode("utf-8", "replace")
-    text = "".join(c if c.isprintable() and c not in "\ufffd/\\" else "_" for c in text)
+    text = "".join(c if c.isprintable() and c not in "\ufffd/\\" and _fs_encodable(c) else "_" for c in text)
     text = text.encode("utf-8")[:MAX_STEM_BYTES].decode("utf-8", "ignore")
     return text if text.strip(". ") else "run"
 

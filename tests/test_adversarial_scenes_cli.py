@@ -549,6 +549,23 @@ def test_a_stdout_that_cannot_be_written_loses_no_recording(how, scene, tmp_path
     assert _mcap_samples(mcap) > 0 and not (tmp_path / "r.mcap.journal").exists()
 
 
+def test_a_result_printed_where_it_cannot_be_written_fails_the_command(scene, tmp_path):
+    """`qchain info` and `qchain layout` print their result: with standard output /dev/full they said a
+    warning and exit 0. `layout -o FILE` prints only a summary, which may be lost."""
+    import subprocess
+    import sys
+
+    mcap = tmp_path / "r.mcap"
+    assert main(["run", str(scene), "--no-plots", "--no-progress", "--mcap", str(mcap)]) == 0
+    for args, code in ((["info", str(scene)], 1), (["layout", str(mcap)], 1),
+                       (["layout", str(mcap), "-o", str(tmp_path / "l.json")], 0)):
+        with open("/dev/full", "w") as full:
+            proc = subprocess.run([sys.executable, "-m", "qchain", *args], stdout=full, stderr=subprocess.PIPE,
+                                  text=True, timeout=120)
+        assert proc.returncode == code and "Traceback" not in proc.stderr, (args, proc.stderr)
+        assert "warning: standard output: No space left on device" in proc.stderr, (args, proc.stderr)
+
+
 def test_a_closed_stdout_does_not_stop_a_sweep(tmp_path):
     import subprocess
     import sys
@@ -618,6 +635,11 @@ def test_a_c_locale_without_coercion_shows_a_non_ascii_name_escaped(tmp_path):
                           timeout=120)
     assert proc.returncode == 0, proc.stderr
     assert b"codec" not in proc.stderr and b"scene: " in proc.stdout
+    # a run names its recording after the scene: in characters this file system's encoding takes
+    proc = subprocess.run([sys.executable, "-m", "qchain", "run", os.fsencode(p), "--no-plots", "--no-progress"],
+                          capture_output=True, env=env, timeout=120, cwd=tmp_path)
+    assert proc.returncode == 0 and b"codec" not in proc.stderr, proc.stderr
+    assert [f.name for f in (tmp_path / "runs").iterdir() if f.suffix == ".mcap"], list((tmp_path / "runs").iterdir())
 
 
 def test_check_flag_values_at_a_closed_bound_and_past_it():
