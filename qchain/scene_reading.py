@@ -64,6 +64,19 @@ def _file_problem(p: Path, what: str = "scene file") -> Problem | None:
     return None
 
 
+def _read_text(p: Path, what: str, error) -> str:
+    """The UTF-8 text of the file ``p`` within a scene file's limits (:func:`_file_problem`)."""
+    bad = _file_problem(p, what)
+    if bad is not None:
+        raise error(str(p), [bad])
+    try:
+        with open(p, "rb") as fh:
+            data = fh.read(F.MAX_SCENE_BYTES + 1)
+        return data.decode("utf-8")
+    except (OSError, UnicodeDecodeError) as err:
+        raise error(str(p), [Problem("(file)", "a readable UTF-8 text file", str(err))]) from None
+
+
 def read_toml(path: str | os.PathLike, what: str = "scene file", error=SceneError) -> tuple[str, dict]:
     """The text of the TOML file ``path`` and its table, read within the limits of a scene
     file (a regular file of at most :data:`qchain.scene_format.MAX_SCENE_BYTES` bytes of
@@ -76,15 +89,7 @@ def read_toml(path: str | os.PathLike, what: str = "scene file", error=SceneErro
         naming the file and what is wrong with it, as ``(file): expected ..., found ...``.
     """
     p = Path(path)
-    bad = _file_problem(p, what)
-    if bad is not None:
-        raise error(str(p), [bad])
-    try:
-        with open(p, "rb") as fh:
-            data = fh.read(F.MAX_SCENE_BYTES + 1)
-        text = data.decode("utf-8")
-    except (OSError, UnicodeDecodeError) as err:
-        raise error(str(p), [Problem("(file)", "a readable UTF-8 text file", str(err))]) from None
+    text = _read_text(p, what, error)
     bad = F.nesting_problem(text)
     if bad is not None:
         raise error(str(p), [bad])
@@ -115,16 +120,7 @@ def load_scene(path: str | os.PathLike) -> Scene:
         raise TypeError(f"load_scene: path must be a str or os.PathLike naming a scene file, got "
                         f"{describe_value(path)}")
     p = Path(path)
-    bad = _file_problem(p)
-    if bad is not None:
-        raise SceneError(str(p), [bad])
-    try:
-        with open(p, "rb") as fh:
-            data = fh.read(F.MAX_SCENE_BYTES + 1)
-        text = data.decode("utf-8")
-    except (OSError, UnicodeDecodeError) as err:
-        raise SceneError(str(p), [Problem("(file)", "a readable UTF-8 text file", str(err))]) from None
-    return parse_scene(text, p)
+    return parse_scene(_read_text(p, "scene file", SceneError), p)
 
 
 def parse_scene(text: str, path: str | os.PathLike | None = None) -> Scene:
