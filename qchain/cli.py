@@ -496,16 +496,9 @@ def command(name: str, body, debug: bool = False, session: _Session | None = Non
         with warnings.catch_warnings():
             warnings.showwarning = _show_warnings(session.prog)
             code = guarded(session.prog, lambda: body(session), debug, session)
-        try:
-            sys.stdout.flush()
-        except (OSError, ValueError):
-            pass
-        if code == EXIT_OK and out.failed is not None and result_on_stdout:
-            code = EXIT_FAILED  # what it was asked for did not reach its reader
-        return code
     finally:
         try:
-            sys.stdout.flush()
+            sys.stdout.flush()  # (a write error here is the wrapper's to say)
         except (OSError, ValueError):
             pass
         sys.stdout = stdout
@@ -514,6 +507,9 @@ def command(name: str, body, debug: bool = False, session: _Session | None = Non
             sig.signal(sig.SIGINT, _PREVIOUS_SIGINT.pop())
         if session.sigints:
             _forget_unhandled_interrupt()
+    if code == EXIT_OK and out.failed is not None and result_on_stdout:
+        code = EXIT_FAILED  # what it was asked for did not reach its reader
+    return code
 
 
 def main(argv=None) -> int:
@@ -532,7 +528,6 @@ def main(argv=None) -> int:
         did not foresee), 2 bad input or usage (see the module docstring).
     """
     argv, debug = take_debug([os.fspath(a) for a in (sys.argv[1:] if argv is None else argv)])
-    _tolerant_streams()
     name = argv[0] if argv and argv[0] in COMMANDS else ""
     return command(name, lambda session: _dispatch(argv, session, debug), debug,
                    result_on_stdout=_result_on_stdout(argv))

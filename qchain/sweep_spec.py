@@ -74,7 +74,7 @@ from . import bounds as _B
 from .scene import _TOP_KEYS, Problem, Scene, SceneError, _Checker, _show, _type_name, parse_scene
 
 __all__ = ["Axis", "SweepSpec", "SweepError", "load_sweep", "parse_key", "apply_values", "SAMPLINGS",
-           "check_results_folder", "address_problem", "DEFAULT_MAX_RUNS", "MAX_WORKERS"]
+           "check_results_folder", "address_problem", "DEFAULT_MAX_RUNS"]
 
 SAMPLINGS = ("grid", "random", "lhs")
 #: Runs a sweep may have unless its file raises ``[sampling] max_runs`` (each run's scene is made
@@ -82,11 +82,6 @@ SAMPLINGS = ("grid", "random", "lhs")
 DEFAULT_MAX_RUNS = 100_000
 #: The largest ``max_runs`` a sweep may set (the runs' scene texts are held in memory).
 MAX_RUNS_LIMIT = 10**8
-#: ``[engine] workers`` and ``retries``: the ranges :func:`qchain.simulate_batch` takes (``qchain.bounds``).
-_WORKERS = _B.WORKERS
-_RETRIES = _B.RETRIES
-#: The most local worker processes a sweep file's ``[engine] workers`` may ask for.
-MAX_WORKERS = int(_WORKERS.high)
 _FILE_KEYS = ("scene", "name", "folder", "metrics", "sampling", "set", "axes", "output", "engine")
 _AXIS_KEYS = ("key", "keys", "values", "range", "num", "log", "integer")
 _KEY = re.compile(r"([A-Za-z_][A-Za-z0-9_]*)((?:\[(?:[0-9]+|\*)\])*)")
@@ -769,7 +764,9 @@ def load_sweep(path) -> SweepSpec:
     mcap = ck.boolean(ot, "mcap", "output.mcap", False)
     et = ck.table(raw, "engine", "engine") or {}
     ck.keys(et, "engine", ("workers", "dask", "retries"))
-    workers = ck.integer(et, "workers", "engine.workers", default=None, minimum=int(_WORKERS.low), maximum=MAX_WORKERS)
+    # the ranges qchain.simulate_batch takes (qchain.bounds)
+    workers = ck.integer(et, "workers", "engine.workers", default=None, minimum=int(_B.WORKERS.low),
+                         maximum=int(_B.WORKERS.high))
     dask = ck.string(et, "dask", "engine.dask", None)
     if dask is not None:
         why = address_problem(dask)
@@ -777,8 +774,8 @@ def load_sweep(path) -> SweepSpec:
             ck.add("engine.dask", "a Dask scheduler's address, [SCHEME://]HOST:PORT (tcp://127.0.0.1:8786)",
                    f"{_show(dask)}: {why}")
             dask = None
-    retries = ck.integer(et, "retries", "engine.retries", default=3, minimum=int(_RETRIES.low),
-                         maximum=int(_RETRIES.high))
+    retries = ck.integer(et, "retries", "engine.retries", default=3, minimum=int(_B.RETRIES.low),
+                         maximum=int(_B.RETRIES.high))
     if workers is not None and dask is not None:
         ck.add("engine", "workers or dask, not both (a Dask cluster has its own workers)", "both")
     if not ck.problems:  # how many runs, counted before any is made

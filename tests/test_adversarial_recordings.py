@@ -482,11 +482,8 @@ def test_layout_never_replaces_a_fifo_or_a_device(tmp_path, logged, kind, capsys
     node = tmp_path / "node"
     if kind == "fifo":
         os.mkfifo(node)
-    else:
-        try:
-            os.mknod(node, 0o600 | __import__("stat").S_IFCHR, os.makedev(1, 3))
-        except PermissionError:
-            pytest.skip("mknod needs privileges here")
+    else:  # a link to a device: no privileges needed, and a replaced link leaves the device itself alone
+        os.symlink(os.devnull, node)
     before = os.stat(node)
     assert layout_main([str(rec), "-o", str(node)]) == 2
     err = capsys.readouterr().err

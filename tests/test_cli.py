@@ -577,6 +577,19 @@ def _wait_for(predicate, timeout: float, what: str):
         time.sleep(0.005)
 
 
+def _interrupt_when(proc, predicate, timeout: float, what: str) -> tuple[str, str]:
+    """Ctrl-C ``proc`` once ``predicate()`` holds (within ``timeout`` s); its stdout and
+    stderr. The process is killed if it is still there when the test leaves."""
+    try:
+        _wait_for(predicate, timeout, what)
+        proc.send_signal(signal.SIGINT)
+        return proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate()
+
+
 def _maps(pid: int) -> str:
     try:
         with open(f"/proc/{pid}/maps") as fh:
@@ -592,14 +605,7 @@ def test_ctrl_c_during_start_up_is_one_line_and_exit_code_1(loading, short_scene
     proc = subprocess.Popen([PY, "-m", "qchain", "run", str(short_scene), "--duration", "30", "--realtime",
                              "--mcap", str(tmp_path / "r.mcap"), "--no-plots", "--no-progress"],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    try:
-        _wait_for(lambda: loading in _maps(proc.pid) or proc.poll() is not None, 120, loading)
-        proc.send_signal(signal.SIGINT)
-        out, err = proc.communicate(timeout=120)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.communicate()
+    out, err = _interrupt_when(proc, lambda: loading in _maps(proc.pid) or proc.poll() is not None, 120, loading)
     assert proc.returncode == 1, (out, err)
     assert _said(err) == "qchain run: interrupted during start-up (nothing was run)\n"
     assert "simulated" not in out
@@ -631,14 +637,7 @@ def test_ctrl_c_in_a_run_reports_the_time_its_samples_reach(method, tmp_path):
     proc = subprocess.Popen([PY, "-m", "qchain", "run", str(scene), "--duration", "60", "--realtime", "--mcap",
                              str(mcap), "--no-plots", "--no-progress"],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    try:
-        _wait_for(_journal_grows(Path(str(mcap) + ".journal"), 1.0), 240, "samples recorded")
-        proc.send_signal(signal.SIGINT)
-        out, err = proc.communicate(timeout=120)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.communicate()
+    out, err = _interrupt_when(proc, _journal_grows(Path(str(mcap) + ".journal"), 1.0), 240, "samples recorded")
     assert proc.returncode == 1, (out, err)
     m = re.search(r"run: FAILED: interrupted by the user \(Ctrl-C\) at t = ([0-9.e+-]+) s\n", out)
     assert m, out
@@ -716,15 +715,9 @@ def test_ctrl_c_in_a_running_sweep_is_said_once(sweep_file, tmp_path):
     proc = subprocess.Popen([PY, "-m", "qchain", "sweep", str(sweep_file), "--out", str(out), "--workers", "1",
                              "--no-progress"], env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     journal = out / "runs.jsonl"
-    try:
-        _wait_for(lambda: (journal.is_file() and journal.read_text().count("\n") >= 2) or proc.poll() is not None,
-                  240, "two finished runs")
-        proc.send_signal(signal.SIGINT)
-        stdout, err = proc.communicate(timeout=120)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.communicate()
+    stdout, err = _interrupt_when(
+        proc, lambda: (journal.is_file() and journal.read_text().count("\n") >= 2) or proc.poll() is not None, 240,
+        "two finished runs")
     assert proc.returncode == 1, (stdout, err)
     assert _said(err) == f"qchain sweep: interrupted; the finished runs are in {out} (run the same command again " \
                          "to continue)\n"
