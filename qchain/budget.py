@@ -10,7 +10,11 @@ The costs are lower bounds or estimates, known before a run:
 
 * steps: ``duration / dt`` for the fixed-step methods; for the adaptive ones
   ``duration / max_step`` and ``2 f duration`` for the fastest sine input or base motion of
-  frequency ``f`` (a step longer than half a period cannot follow it);
+  frequency ``f`` (a step longer than half a period cannot follow it), and for the explicit
+  adaptive ones (``dopri5``, ``RK45``, ``DOP853``) ``duration / h_s`` with ``h_s`` the
+  step's stability limit at the start (the largest ``|z|`` of the method's stability region
+  over the largest ``|eigenvalue|`` of the exact Jacobian: no stable step is longer, so a
+  stiff model is refused before it takes hours of tiny steps);
 * samples: the output times (``duration * sample_rate + 1`` for a scene, ``len(t_eval)``,
   or one a step of a fixed-step run without ``t_eval``);
 * memory (bytes): the samples' arrays (``t, q, v, p`` and two energies, 8 bytes each)
@@ -113,11 +117,14 @@ class Cost:
 
 
 def run_cost(*, duration: float, method: str, fixed_step: bool, dt: float | None, max_step: float,
-             frequency: float, samples: float, samples_why: str, nq: int, nv: int, nu: int) -> Cost:
+             frequency: float, samples: float, samples_why: str, nq: int, nv: int, nu: int,
+             stable_step: float | None = None) -> Cost:
     """The :class:`Cost` of a run of ``duration`` s (see the module docstring).
 
     ``samples`` is the number of output samples (``math.nan``: one a step, for a run
-    without output times); ``frequency`` the fastest input's (Hz, 0 for none).
+    without output times); ``frequency`` the fastest input's (Hz, 0 for none);
+    ``stable_step`` an explicit adaptive method's stability limit of the step at the start
+    (s; None where unknown or the method is implicit).
     """
     if fixed_step:
         steps = duration / dt
@@ -130,6 +137,10 @@ def run_cost(*, duration: float, method: str, fixed_step: bool, dt: float | None
             steps = 2.0 * frequency * duration
             why = (f"2 steps a period of the fastest input, {frequency:g} Hz, over {duration:g} s: {method} must "
                    "follow it")
+        if stable_step is not None and duration / stable_step > steps:
+            steps = duration / stable_step
+            why = (f"duration {duration:g} s / {method}'s stability limit of the step at the start, about "
+                   f"{stable_step:.3g} s: the model is stiff for an explicit method, use method 'radau5'")
     if math.isnan(samples):
         samples, samples_why = steps + 1.0, "one a step"
     per_sample = 8.0 * (3 + nq + nv + nu)

@@ -22,7 +22,8 @@ summary: the final tip pose (position in mm, orientation as roll-pitch-yaw in de
 as a quaternion), the energies, the wall time, the real-time factor (simulated seconds per
 wall-clock second), the number of dynamics evaluations and how the run ended. A progress
 bar goes to stderr for runs longer than a second of wall time when stderr is a terminal
-(``--progress`` forces it). Every output sample is recorded to an MCAP file (``--no-record``
+(``--progress`` forces it); to a log or a pipe, a plain line once a run has taken 10 s and
+every 30 s after, with the time still to go (``--no-progress`` turns both off). Every output sample is recorded to an MCAP file (``--no-record``
 turns that off) and can be streamed to Rerun. Every output path (the recording, the
 ``.rrd`` file, the folder of the plots and ``trajectory.npz``) is checked before the model
 is built, and a recording that cannot be written stops the run with an error (never a run
@@ -163,9 +164,13 @@ def _run(args, parser, session: _Session) -> int:
     session.check_interrupt()
     model = scene.build(reduce=False if args.full else None)
     session.check_interrupt()
+    try:  # an explicit method on a stiff model: refused before anything is recorded
+        scene.check_budget(duration, model)
+    except BudgetError as err:
+        raise BadInput(f"{printable(_shown(args.scene))}: {err}") from None
     _print_lines(scene.describe(model))
     sys.stdout.flush()
-    progress = sys.stderr.isatty() if args.progress is None else args.progress
+    progress = (True if sys.stderr.isatty() else "lines") if args.progress is None else args.progress
 
     logger = None
     on_sample = None
@@ -378,7 +383,8 @@ def _parser(qlog) -> argparse.ArgumentParser:
     run.add_argument("--no-plots", action="store_true", help="write no plots and no trajectory.npz")
     bar = run.add_mutually_exclusive_group()
     bar.add_argument("--progress", dest="progress", action="store_true", default=None,
-                     help="progress bar on stderr (default: when stderr is a terminal)")
+                     help="progress bar on stderr (default: when stderr is a terminal; else a line every 30 s "
+                          "once a run has taken 10 s)")
     bar.add_argument("--no-progress", dest="progress", action="store_false", help="no progress bar")
     if qlog is not None:
         run.add_argument("--no-record", action="store_true", help="write no MCAP recording (unless --mcap is given)")

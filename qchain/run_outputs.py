@@ -163,6 +163,23 @@ def plot_arm(model: SceneModel, traj, tip: np.ndarray, title: str, snapshots: in
 # summary
 
 
+#: the most values a summary line lists one by one (a longer list is summed up)
+SUMMARY_LIST = 12
+
+
+def _values(x) -> str:
+    """Values a segment, listed (``0.1, 0.2``), or for more than :data:`SUMMARY_LIST` segments
+    summed up: the largest, which segment, the median and the smallest."""
+    import numpy as np
+
+    x = np.asarray(x, dtype=float)
+    if x.size <= SUMMARY_LIST:
+        return ", ".join(f"{v:.3g}" for v in x)
+    j = int(np.argmax(x))
+    return (f"{x.size} segments, largest {x[j]:.3g} (segment {j}), median {float(np.median(x)):.3g}, smallest "
+            f"{float(np.min(x)):.3g}")
+
+
 def summary_lines(scene: Scene, model: SceneModel, traj, wall: float, message: str | None = None) -> list[str]:
     """The run summary ``qchain run`` prints.
 
@@ -197,10 +214,11 @@ def summary_lines(scene: Scene, model: SceneModel, traj, wall: float, message: s
     lines.append(f"  orientation rpy ({rpy[0]:.3f}, {rpy[1]:.3f}, {rpy[2]:.3f}) deg, quaternion xyzw "
                  f"({quat[0]:.6f}, {quat[1]:.6f}, {quat[2]:.6f}, {quat[3]:.6f})")
     reached = scene.bends(model.chain, traj)
-    line = f"largest bends reached (rad): {', '.join(f'{x:.3g}' for x in reached)}"
+    line = f"largest bends reached (rad): {_values(reached)}"
     warning = None
     if model.max_bend is not None:
-        line += f"; nodes sized for {', '.join(sorted({f'{x:.3g}' for x in model.max_bend}))}"
+        sized = sorted({float(f"{x:.3g}") for x in model.max_bend})
+        line += f"; nodes sized for {_values(sized) if len(sized) > SUMMARY_LIST else ', '.join(f'{x:.3g}' for x in sized)}"
         over = np.flatnonzero(reached > model.max_bend)
         if over.size:
             j = int(over[0])

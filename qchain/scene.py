@@ -80,6 +80,7 @@ import numpy as np
 from . import scene_format as F
 from .bounds import DURATION, VACUUM_GAUGE
 from .budget import Budget
+from .engine.driver import EXPLICIT_STABILITY_EXTENT
 from .inputs import Schedule
 from .scene_format import PLOTS, Problem, SceneError, _Checker, _show, _type_name  # noqa: F401 (re-exported)
 from .scene_model import BEND_MARGIN, BEND_SAMPLES, ModelBuilder, SceneModel, _list_or_one  # noqa: F401 (re-exported)
@@ -191,7 +192,7 @@ class Scene(ModelBuilder):
         return np.append(t, T)
 
     def simulate(self, *, reduce: bool | None = None, model: SceneModel | None = None,
-                 duration: float | None = None, pressure=None, on_sample=None, progress: bool = False,
+                 duration: float | None = None, pressure=None, on_sample=None, progress: bool | str = False,
                  controller_rate: float | None = None):
         """Run the scene; returns a :class:`qchain.trajectory.Trajectory` sampled at
         :meth:`sample_times`.
@@ -209,8 +210,8 @@ class Scene(ModelBuilder):
             ``controlled=True`` then).
         on_sample : callable ``(t, q, v, p)``, optional
             Called at every output sample.
-        progress : bool
-            Progress bar on stderr.
+        progress : bool or "lines"
+            Progress on stderr (:func:`qchain.simulate.simulate`'s ``progress``).
         controller_rate : float, Hz, optional
             Sample a controller ``pressure`` at this rate and hold it (zero-order hold): the
             run stays in compiled code between samples (:func:`qchain.simulate.simulate`).
@@ -230,17 +231,25 @@ class Scene(ModelBuilder):
             max_step=self.max_step, controller_rate=controller_rate, budget=self.budget,
         )
 
-    def cost(self, duration: float | None = None):
+    def cost(self, duration: float | None = None, model: SceneModel | None = None):
         """What a run of the scene (``duration`` s, default the file's) costs:
-        :class:`qchain.budget.Cost`."""
+        :class:`qchain.budget.Cost`. With the built ``model``, an explicit adaptive method's
+        steps include its stability limit at the start
+        (:func:`qchain.simulate.explicit_stability_limit`)."""
         T = self.duration if duration is None else duration
-        return _cost(self.n, self.base.type, self.method, self.dt, self.max_step, T, self.sample_rate,
-                     _frequency(self.pressure_spec, self.base))
+        stable = None
+        if model is not None and self.method in EXPLICIT_STABILITY_EXTENT:
+            from .simulate import explicit_stability_limit
 
-    def check_budget(self, duration: float | None = None) -> None:
+            stable = explicit_stability_limit(model.chain, self.method, model.q0, model.v0, 0.0, model.pressure)
+        return _cost(self.n, self.base.type, self.method, self.dt, self.max_step, T, self.sample_rate,
+                     _frequency(self.pressure_spec, self.base), stable_step=stable)
+
+    def check_budget(self, duration: float | None = None, model: SceneModel | None = None) -> None:
         """Raise :class:`qchain.budget.BudgetError` if a run of ``duration`` s (default the
-        file's) would exceed :attr:`budget`, naming the bound and how to raise it."""
-        self.budget.check(self.cost(duration), how="raise it in the scene's [budget] table")
+        file's) would exceed :attr:`budget`, naming the bound and how to raise it; with the
+        built ``model`` the steps include an explicit method's stability limit."""
+        self.budget.check(self.cost(duration, model), how="raise it in the scene's [budget] table")
 
     def check_output(self, folder: str | os.PathLike | None = None) -> Path:
         """Make sure a run can write its outputs to ``folder`` (default ``output.folder``)

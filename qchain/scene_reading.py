@@ -263,13 +263,15 @@ def _samples(duration: float, rate: float) -> float:
     return math.floor(duration * rate * (1 + 1e-12)) + 2.0
 
 
-def _cost(n, base_type, method, dt, max_step, duration, rate, frequency):
-    """The :class:`qchain.budget.Cost` of a run of ``n`` segments from the scene's values."""
+def _cost(n, base_type, method, dt, max_step, duration, rate, frequency, stable_step=None):
+    """The :class:`qchain.budget.Cost` of a run of ``n`` segments from the scene's values
+    (``stable_step``: an explicit method's stability limit, s, known once the model is built)."""
     floating = base_type == "floating"
     nq, nv = (7 if floating else 0) + 3 * n, (6 if floating else 0) + 3 * n
     return run_cost(duration=duration, method=method, fixed_step=method in FIXED_STEP, dt=dt, max_step=max_step,
                     frequency=frequency, samples=_samples(duration, rate),
-                    samples_why=f"duration {duration:g} s x sample_rate {rate:g} Hz", nq=nq, nv=nv, nu=3 * n)
+                    samples_why=f"duration {duration:g} s x sample_rate {rate:g} Hz", nq=nq, nv=nv, nu=3 * n,
+                    stable_step=stable_step)
 
 
 def _cost_key(budget_key: str, cost, method: str, pspec: dict, base) -> str:

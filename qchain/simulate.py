@@ -59,6 +59,8 @@ from .trajectory import Trajectory
 __all__ = ["simulate", "METHODS", "FIXED_STEP", "COMPILED", "DEFAULT_METHOD", "Event"]
 
 FIXED_STEP = ("rk4", "midpoint")
+#: the methods that form the exact Jacobian (a dense, O(nv^3) computation) and factor it
+JACOBIAN_METHODS = ("radau5", "midpoint", "Radau", "BDF")
 COMPILED = ("radau5", "dopri5", "rk4", "midpoint")
 # scipy's solver classes by name (imported where a Python-path run needs them: scipy's import
 # is a third of qchain's); dopri5 and radau5 stand in for the compiled two on that path
@@ -104,8 +106,14 @@ class _Stop(Exception):
 
 
 class _Progress:
+    """The progress of a run on stderr: a bar redrawn in place (``True``, for a terminal), or
+    for a log or a pipe (``"lines"``) a plain line once the run has taken
+    :data:`LINES_AFTER` s of wall time and then every :data:`LINES_EVERY` s, with the time
+    still to go (a long run is seen going on, not mistaken for a hang)."""
+
     def __init__(self, t0, t1, enabled):
         self.t0, self.t1, self.enabled = t0, t1, enabled
+        self.lines = enabled == "lines"
         self.start = _time.perf_counter()
         self.last = self.start
         self.shown = False
@@ -114,22 +122,35 @@ class _Progress:
         if not self.enabled:
             return
         now = _time.perf_counter()
-        if not force and (now - self.last < 0.25 or now - self.start < 1.0):
+        wall = now - self.start
+        frac = min(max((t - self.t0) / (self.t1 - self.t0), 0.0), 1.0)
+        if self.lines:
+            if force or wall < LINES_AFTER or (self.shown and now - self.last < LINES_EVERY):
+                return
+            self.last, self.shown = now, True
+            left = f", about {wall * (1 - frac) / frac:.3g} s to go" if frac > 0 else ""
+            sys.stderr.write(f"qchain: t = {t:.6g} s of {self.t1:.6g} s ({100 * frac:.1f} %) after {wall:.3g} s "
+                             f"wall time{left}\n")
+            sys.stderr.flush()
+            return
+        if not force and (now - self.last < 0.25 or wall < 1.0):
             return
         self.last = now
-        frac = min(max((t - self.t0) / (self.t1 - self.t0), 0.0), 1.0)
         width = 30
         bar = "#" * int(frac * width) + "-" * (width - int(frac * width))
-        wall = now - self.start
         rtf = (t - self.t0) / wall if wall > 0 else 0.0
         sys.stderr.write(f"\r[{bar}] {100 * frac:5.1f}%  t = {t:.3f} s  wall {wall:.1f} s  x{rtf:.3g} real time")
         sys.stderr.flush()
         self.shown = True
 
     def close(self, t):
-        if self.shown:
+        if self.shown and not self.lines:
             self.update(t, force=True)
             sys.stderr.write("\n")
+
+
+#: s of wall time before a run's first progress line (``progress="lines"``), and between lines
+LINES_AFTER, LINES_EVERY = 10.0, 30.0
 
 
 class _System:
@@ -266,7 +287,11 @@ def check_settings(chain: Chain, t0: float, t1: float, *, method, dt, rtol, atol
     if controller_rate is not None:
         controller_rate = B.SAMPLE_RATE.check("controller_rate", controller_rate)
     energies = as_bool("energies", energies)
-    progress = as_bool("progress", progress)
+    if not (isinstance(progress, str) and progress == "lines"):
+        try:
+            progress = as_bool("progress", progress)
+        except TypeError:
+            raise TypeError(f"progress must be True, False or 'lines', got {describe_value(progress)}") from None
     check_callable("on_sample", on_sample)
     if events is None:
         events = []
@@ -303,6 +328,22 @@ def _state_entry(chain: Chain, q, v) -> str:
         if bad.size:
             return f"{name}[{int(bad[0])}] ({chain.coordinate_name(int(bad[0]), velocity=vel)})"
     return "the state"
+
+
+def explicit_stability_limit(chain: Chain, method: str, q0, v0, t0: float, pressure=None, tau=None) -> float | None:
+    """The stability limit of an explicit adaptive method's step at the start (s): the
+    largest ``|z|`` of its stability region (:data:`qchain.engine.driver.EXPLICIT_STABILITY_EXTENT`)
+    over the largest ``|eigenvalue|`` of the exact Jacobian at ``(t0, q0, v0)``; no stable
+    step is longer. Inputs are taken at ``t0``; a controller's as zero (it is not called
+    before the run: it may keep state). None where the Jacobian cannot be formed or has more
+    than :data:`qchain.engine.driver.STABILITY_MAX_NV` free coordinates."""
+    def at_start(u, size):
+        if u is None or (callable(u) and not isinstance(u, Schedule)):
+            return np.zeros(size)
+        return as_input("input", u, size)(t0, q0, v0)
+
+    return driver.stability_limit(chain, q0, v0, at_start(pressure, chain.nu), at_start(tau, chain.nv), t0,
+                                  radius=driver.EXPLICIT_STABILITY_EXTENT[method])
 
 
 def simulate(
@@ -346,8 +387,10 @@ def simulate(
     t_eval : (K,) s, optional
         Output times (interpolated by the solver's dense output); default every step.
     events : sequence of :class:`Event`, optional
-    progress : bool
-        Show a progress bar on stderr for runs longer than a second of wall time.
+    progress : bool or "lines"
+        Show a progress bar on stderr for runs longer than a second of wall time; ``"lines"``
+        (for a log or a pipe): a plain line after 10 s of wall time and every 30 s after, with
+        the time still to go.
     on_sample : callable ``(t, q, v, p)``, optional
         Called at every output sample as it is produced (e.g. to log it). If it takes a
         keyword ``energies``, it also gets ``(kinetic, potential)`` (J) of the sample.
@@ -417,13 +460,17 @@ def simulate(
         budget = DEFAULT_BUDGET
     elif not isinstance(budget, Budget):
         raise TypeError(f"budget must be a qchain.budget.Budget, got {describe_value(budget)}")
-    cost = run_cost(duration=t1 - t0, method=method, fixed_step=method in FIXED_STEP, dt=dt, max_step=max_step,
-                    frequency=input_frequency(pressure, tau, chain.base_motion), samples=float(
-                        t_eval.size) if t_eval is not None else (np.nan if method in FIXED_STEP else 1.0),
-                    samples_why="len(t_eval)" if t_eval is not None else "", nq=chain.nq, nv=chain.nv, nu=chain.nu)
-    budget.check(cost)
+    def cost(stable_step=None):
+        return run_cost(duration=t1 - t0, method=method, fixed_step=method in FIXED_STEP, dt=dt, max_step=max_step,
+                        frequency=input_frequency(pressure, tau, chain.base_motion), samples=float(
+                            t_eval.size) if t_eval is not None else (np.nan if method in FIXED_STEP else 1.0),
+                        samples_why="len(t_eval)" if t_eval is not None else "", nq=chain.nq, nv=chain.nv,
+                        nu=chain.nu, stable_step=stable_step)
 
+    budget.check(cost())
     P_in, T_in = as_input("pressure", pressure, chain.nu), as_input("tau", tau, chain.nv)  # checked where they enter
+    if method in driver.EXPLICIT_STABILITY_EXTENT:  # a stiff model: refused before hours of tiny steps
+        budget.check(cost(explicit_stability_limit(chain, method, q0, v0, t0, pressure, tau)))
     controllers = []
     if controller_rate is not None:
         held = []
@@ -434,6 +481,12 @@ def simulate(
             raise ValueError("controller_rate is given but neither pressure nor tau is a controller (t, q, v) -> array")
     deadline = None if wall_limit is None else _time.perf_counter() + float(wall_limit)
     bar = _Progress(t0, t1, progress)
+    n_free = int(np.count_nonzero(chain.active))
+    if progress and method in JACOBIAN_METHODS and n_free > driver.STABILITY_MAX_NV:
+        sys.stderr.write(f"qchain: {method} on {n_free} free coordinates: each exact Jacobian is dense "
+                         f"{chain.nv} x {chain.nv} work, O(nv^3) (seconds to minutes each for nv in the thousands, "
+                         "docs/engine.md); progress is shown after each step\n")
+        sys.stderr.flush()
     if method in COMPILED:
         pk, tk = pressure, tau
         if controller_rate is not None:

@@ -543,10 +543,19 @@ def test_a_0d_object_array_of_segments_is_refused_by_name():
 
 
 def test_an_explicit_adaptive_method_on_a_stiff_model_stops_at_the_step_budget():
-    from qchain.budget import Budget
+    """Refused before it starts where the stability limit puts it over budget; where the
+    limit (a lower bound of the steps) lets it start, stopped at budget.max_steps as it goes."""
+    from qchain.budget import Budget, BudgetError
+    from qchain.simulate import explicit_stability_limit
 
     s = Segment(length=1e-5, radius=1e-3, mass=1e-9, chamber_area=1e-8, chamber_radius=5e-4, youngs_modulus=1e12)
+    ch = Chain([s])
     t = time.perf_counter()
-    r = simulate(Chain([s]), s.neutral(), np.zeros(3), (0, 0.02), method="dopri5", budget=Budget(max_steps=5000))
+    with pytest.raises(BudgetError, match=r"budget.max_steps: expected at most 10000000 steps, found .* steps \("
+                       r"duration 0.02 s / dopri5's stability limit of the step at the start, about .* s: the model "
+                       r"is stiff for an explicit method, use method 'radau5'\)"):
+        simulate(ch, s.neutral(), np.zeros(3), (0, 0.02), method="dopri5")
+    h = explicit_stability_limit(ch, "dopri5", s.neutral(), np.zeros(3), 0.0)
+    r = simulate(ch, s.neutral(), np.zeros(3), (0, 2000 * h), method="dopri5", budget=Budget(max_steps=5000))
     assert time.perf_counter() - t < 60
     assert not r.success and "budget.max_steps = 5000" in r.message and "radau5" in r.message, r.message

@@ -666,3 +666,28 @@ def test_paper_coordinates_at_the_straight_pose_are_refused_at_load(q_e, tmp_pat
     keys = [p.key for p in exc.value.problems]
     assert "initial.q_e[0][2]" in keys, exc.value.problems
     assert 'coords = "curvature"' in str(exc.value)
+
+
+def test_an_explicit_method_on_a_stiff_scene_is_refused_before_anything_is_recorded(tmp_path, capsys):
+    """Once 1e7 steps of about 1e-14 s (a minute) before the step budget stopped it; now the
+    stability limit of dopri5's step at the start puts it over budget.max_steps at once."""
+    text = SCENE.replace('method = "rk4"\ndt = 1e-3', 'method = "dopri5"').replace("youngs_modulus = 1e5",
+                                                                                   "youngs_modulus = 1e12")
+    text = text.replace("length = 0.1", "length = 1e-5")
+    assert "1e12" in text and "1e-5" in text and "dopri5" in text
+    p = tmp_path / "stiff.toml"
+    p.write_text(text)
+    t = time.perf_counter()
+    code, out, err = run(["run", p, "--mcap", tmp_path / "stiff.mcap", "--no-progress"], capsys)
+    assert code == 2 and time.perf_counter() - t < 30, err
+    line = error_line(err)
+    assert re.search(r"stiff.toml: the run would exceed its budget, refused before it starts: budget.max_steps: "
+                     r"expected at most 10000000 steps, found [0-9.e+]+ steps \(duration 0.02 s / dopri5's stability "
+                     r"limit of the step at the start, about [0-9.e+-]+ s: the model is stiff for an explicit "
+                     r"method, use method 'radau5'\) \(raise it in the scene's \[budget\] table\)", line), line
+    assert not (tmp_path / "stiff.mcap").exists() and "simulated" not in out
+    code, out, err = run(["run", p, "--no-record", "--no-progress", "--no-plots"], capsys, seconds=60)
+    assert code == 2  # the same with no recording
+    p.write_text(text.replace('method = "dopri5"', 'method = "radau5"'))
+    code, out, err = run(["run", p, "--no-record", "--no-progress", "--no-plots"], capsys, seconds=60)
+    assert code == 0 and "run: success" in out, err

@@ -68,6 +68,19 @@ def test_run_prints_the_summary_and_writes_the_outputs(short_scene, tmp_path, ca
     assert np.array_equal(traj.q, data["q"])
 
 
+def test_summary_values_of_many_segments_are_summed_up_not_listed():
+    """A 1000-segment run once printed 1000 numbers on its bends line."""
+    from qchain.run_outputs import SUMMARY_LIST, _values
+
+    few = [0.1, 0.25, 0.5]
+    assert _values(few) == "0.1, 0.25, 0.5"
+    many = np.linspace(0.0, 1.0, 1000)
+    many[437] = 2.5
+    assert _values(many) == ("1000 segments, largest 2.5 (segment 437), median "
+                             f"{np.median(many):.3g}, smallest 0")
+    assert len(_values(many)) < 100 and _values(np.ones(SUMMARY_LIST)).count(",") == SUMMARY_LIST - 1
+
+
 def test_run_failure_exits_1(tmp_path, capsys):
     """300 kPa in one chamber curls the arm out of the model's domain: the run stops
     there, names the segment and the time, and exits 1."""

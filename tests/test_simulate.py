@@ -1,5 +1,7 @@
 """Integrators: convergence orders, long-run energy behaviour, Lie-group base, clean stops."""
 
+import re
+
 import numpy as np
 import pinocchio as pin
 import pytest
@@ -148,6 +150,46 @@ def test_inputs_events_samples_and_progress(capsys):
     tr2 = simulate(ch, ch.neutral(), np.zeros(3), (0, 0.05), pressure=lambda t, q, v: [1e4 * (1 - q[1]), 0, 0],
                    method="rk4", dt=1e-3)
     assert tr2.success and tr2.p[-1, 0] > 1e4
+
+
+@pytest.mark.parametrize("method", ["radau5", "RK45"])
+def test_progress_lines_for_a_log_say_how_far_and_how_long(method, capsys, monkeypatch):
+    """progress="lines" (qchain run's default off a terminal): plain lines, no carriage
+    returns, each with the time reached, the fraction, the wall time and the time to go."""
+    import qchain.simulate as S
+
+    monkeypatch.setattr(S, "LINES_AFTER", 0.0)
+    monkeypatch.setattr(S, "LINES_EVERY", 0.0)
+    ch = hanging_arm(2)
+    tr = simulate(ch, ch.neutral(), np.zeros(ch.nv), (0, 0.5), pressure=Sine([1e4] * 6, 2.0), method=method,
+                  t_eval=np.linspace(0, 0.5, 51), progress="lines")
+    assert tr.success
+    err = capsys.readouterr().err
+    lines = err.splitlines()
+    assert lines and "\r" not in err, err
+    for line in lines:
+        m = re.fullmatch(r"qchain: t = (\S+) s of 0.5 s \((\S+) %\) after (\S+) s wall time(, about (\S+) s to go)?",
+                         line)
+        assert m, line
+        t, pct = float(m.group(1)), float(m.group(2))
+        assert 0 <= t <= 0.5 and pct == pytest.approx(200 * t, abs=0.06) and float(m.group(3)) >= 0
+    with pytest.raises(TypeError, match=r"progress must be True, False or 'lines', got a str 'bar'"):
+        simulate(ch, ch.neutral(), np.zeros(ch.nv), (0, 0.5), progress="bar")
+
+
+def test_a_large_implicit_model_says_at_its_start_that_each_jacobian_is_dense_work(capsys):
+    """Over STABILITY_MAX_NV free coordinates, radau5 with progress on says so before its
+    first (dense, O(nv^3)) Jacobian; without progress it says nothing."""
+    seg = Segment(**{**SEG, "length": 0.01, "damping": 0.05})
+    ch = Chain([seg] * 101)  # 303 free coordinates
+    q, v = ch.neutral(), np.zeros(ch.nv)
+    tr = simulate(ch, q, v, (0, 1e-4), method="radau5", t_eval=[1e-4], progress="lines")
+    assert tr.success
+    err = capsys.readouterr().err
+    assert ("qchain: radau5 on 303 free coordinates: each exact Jacobian is dense 303 x 303 work, O(nv^3) (seconds "
+            "to minutes each for nv in the thousands, docs/engine.md); progress is shown after each step") in err, err
+    simulate(ch, q, v, (0, 1e-4), method="radau5", t_eval=[1e-4])
+    assert capsys.readouterr().err == ""
 
 
 def test_argument_errors():

@@ -112,7 +112,7 @@ def run(chain, m, method, q0, v0, t0, t1, *, dt, rtol, atol, t_eval, on_sample, 
     ev_log: list[tuple[str, float]] = []
     g_prev = [e(t0, q0, v0) for e in events]
     emitted = 0
-    max_steps = 16
+    max_steps = 1  # grows by 4x a stretch to STRETCH s: a costly step (a large implicit model) is felt at once
     t = t0
     if on_sample is not None and pass_energies:  # the samples' energies are needed as they come
         compile_s += warmup.prepare_energies(m, wk)
@@ -347,8 +347,17 @@ def _nonfinite_what(chain, wk) -> str:
 RK4_STABILITY_RADIUS = 2.78
 
 
+#: The largest ``|z|`` in each explicit adaptive method's stability region ``|R(z)| <= 1``
+#: (its stability polynomial from the tableau, searched over the complex plane; the
+#: region's lobes into the right half plane included): no step ``h`` with
+#: ``h |lambda| > EXTENT`` is stable for an eigenvalue ``lambda``, so ``EXTENT / max |lambda|``
+#: bounds every stable step from above (``tests/test_stability.py`` recomputes them).
+EXPLICIT_STABILITY_EXTENT = {"dopri5": 3.99, "RK45": 3.99, "DOP853": 7.13}
+
+
 #: the most free coordinates :func:`stability_limit` forms the Jacobian for: its eigenvalues
-#: cost O((2 nv)^3), minutes for a thousand segments, and the limit only decorates a message
+#: cost O((2 nv)^3), minutes for a thousand segments; where the limit is unknown the budget
+#: check of an explicit method goes without it and the run stops at budget.max_steps
 STABILITY_MAX_NV = 300
 
 
