@@ -43,7 +43,12 @@ RANGES = {
 
 
 class BudgetError(QchainError, ValueError):
-    """A run that would exceed its :class:`Budget`; the message names the budget and how to raise it."""
+    """A run that would exceed its :class:`Budget`; the message names the budget and how to
+    raise it; ``cost`` is the run's :class:`Cost`."""
+
+    def __init__(self, message: str, cost: "Cost | None" = None):
+        super().__init__(message)
+        self.cost = cost
 
 
 @dataclass(frozen=True)
@@ -90,7 +95,7 @@ class Budget:
         if bad:
             lines = [f"budget.{k}: expected {e}, found {f}" for k, e, f in bad]
             raise BudgetError("the run would exceed its budget, refused before it starts: " + "; ".join(lines)
-                              + f" ({how})")
+                              + f" ({how})", cost)
 
 
 DEFAULT = Budget()
@@ -137,8 +142,9 @@ def run_cost(*, duration: float, method: str, fixed_step: bool, dt: float | None
             steps = 2.0 * frequency * duration
             why = (f"2 steps a period of the fastest input, {frequency:g} Hz, over {duration:g} s: {method} must "
                    "follow it")
-        if stable_step is not None and duration / stable_step > steps:
-            steps = duration / stable_step
+        stable_steps = None if stable_step is None else (duration / stable_step if stable_step > 0 else math.inf)
+        if stable_steps is not None and stable_steps > steps:
+            steps = stable_steps
             why = (f"duration {duration:g} s / {method}'s stability limit of the step at the start, about "
                    f"{stable_step:.3g} s: the model is stiff for an explicit method, use method 'radau5'")
     if math.isnan(samples):

@@ -79,7 +79,7 @@ import numpy as np
 
 from . import scene_format as F
 from .bounds import DURATION, VACUUM_GAUGE
-from .budget import Budget
+from .budget import Budget, BudgetError
 from .engine.driver import EXPLICIT_STABILITY_EXTENT
 from .inputs import Schedule
 from .scene_format import PLOTS, Problem, SceneError, _Checker, _show, _type_name  # noqa: F401 (re-exported)
@@ -224,12 +224,18 @@ class Scene(ModelBuilder):
             raise ValueError(f"duration must be >= the scene's step dt = {self.dt:g} s, got {T:g} s")
         if model is None:
             model = self.model if reduce is None or reduce == self.reduce else self.build(reduce)
-        return simulate(
-            model.chain, model.q0, model.v0, (0.0, T), pressure=model.pressure if pressure is None else pressure,
-            method=self.method, dt=self.dt,
-            rtol=self.rtol, atol=self.atol, t_eval=self.sample_times(T), on_sample=on_sample, progress=progress,
-            max_step=self.max_step, controller_rate=controller_rate, budget=self.budget,
-        )
+        try:
+            return simulate(
+                model.chain, model.q0, model.v0, (0.0, T), pressure=model.pressure if pressure is None else pressure,
+                method=self.method, dt=self.dt,
+                rtol=self.rtol, atol=self.atol, t_eval=self.sample_times(T), on_sample=on_sample, progress=progress,
+                max_step=self.max_step, controller_rate=controller_rate, budget=self.budget,
+            )
+        except BudgetError as err:  # said as a scene's budget: raised in its [budget] table
+            if err.cost is None:
+                raise
+            self.budget.check(err.cost, how="raise it in the scene's [budget] table")
+            raise
 
     def cost(self, duration: float | None = None, model: SceneModel | None = None):
         """What a run of the scene (``duration`` s, default the file's) costs:
