@@ -28,8 +28,13 @@ def __getattr__(name: str):
         return value
     import importlib.util
 
-    if not name.startswith("_") and importlib.util.find_spec(f"{__name__}.{name}") is not None:
-        return importlib.import_module(f"{__name__}.{name}")  # a submodule, as an eager import made it
+    if not name.startswith("_") and name.isidentifier():
+        try:
+            found = importlib.util.find_spec(f"{__name__}.{name}") is not None
+        except ImportError:
+            found = False
+        if found:
+            return importlib.import_module(f"{__name__}.{name}")  # a submodule, as an eager import made it
     raise AttributeError(f"module 'qchain' has no attribute {name!r}")
 
 

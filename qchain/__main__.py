@@ -5,7 +5,9 @@ input or usage)."""
 import sys
 
 
-def _main() -> int:
+def entry() -> int:
+    """The ``qchain`` console script and ``python -m qchain``: :func:`qchain.cli.main`, imported
+    here so that a Ctrl-C while it loads is one line, not a traceback."""
     try:
         from .cli import main
     except KeyboardInterrupt:  # Ctrl-C while Python loads the command: one line, no traceback
@@ -15,4 +17,4 @@ def _main() -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(_main())
+    sys.exit(entry())

@@ -34,7 +34,10 @@ from .chain import Chain
 from . import bounds as _bounds
 from .errors import QchainError, as_bool, as_real_array, as_vector
 from .inputs import Schedule, as_input
-from .simulate import COMPILED, DEFAULT_METHOD, FIXED_STEP, METHODS, Event, _check_span, check_settings, simulate
+from .budget import DEFAULT as DEFAULT_BUDGET
+from .budget import Budget
+from .simulate import (COMPILED, DEFAULT_METHOD, FIXED_STEP, METHODS, Event, _check_span, check_settings, run_cost_of,
+                       simulate)
 from .trajectory import Trajectory
 from .workers import DEFAULT_RETRIES, Lost, Payload, check_engine, dumps, engine_for
 
@@ -154,13 +157,13 @@ def _batched_input(name: str, u, size: int) -> tuple[object, list | None]:
         except ValueError:  # ragged: a sequence of B inputs of their own
             arr = None
         if arr is not None and arr.ndim == 1:
-            as_vector(name, arr, size)
+            as_input(name, arr, size)  # its bounds too (a pressure within qchain.bounds.PRESSURE)
             return arr, None
         if arr is not None and arr.ndim == 2:
             if arr.shape[1] != size:
                 raise ValueError(f"{name} as an array of constants must have shape (B, {size}), got {arr.shape}")
             for i in range(arr.shape[0]):
-                as_vector(f"{name}[{i}]", arr[i], size)
+                as_input(f"{name}[{i}]", arr[i], size)
             return None, [arr[i] for i in range(arr.shape[0])]
         if arr is not None:
             raise ValueError(f"{name} must be one input, an array (B, {size}) of constants or a sequence of B inputs; "
@@ -287,6 +290,7 @@ def simulate_batch(
     energies: bool = True,
     wall_limit: float | None = None,
     controller_rate: float | None = None,
+    budget: Budget | None = None,
     workers=None,
     client=None,
     retries: int = DEFAULT_RETRIES,
@@ -309,8 +313,9 @@ def simulate_batch(
         constants, or a sequence of B inputs.
     tau : input or per-rollout inputs
         External generalised forces, in the same forms with size nv.
-    method, dt, rtol, atol, events, max_step, first_step, energies, wall_limit, controller_rate
-        As :func:`qchain.simulate.simulate`, shared by every rollout.
+    method, dt, rtol, atol, events, max_step, first_step, energies, wall_limit, controller_rate, budget
+        As :func:`qchain.simulate.simulate`, shared by every rollout (a rollout's cost is
+        checked against ``budget`` here, before any runs).
     t_eval : (N,) s
         Output times, shared. Required for the adaptive methods (each rollout takes its
         own steps); for ``rk4`` and ``midpoint`` without events the default is every step.
@@ -363,6 +368,14 @@ def simulate_batch(
     V0 = _states("v0", v0, chain.nv)
     p_shared, p_each = _batched_input("pressure", pressure, chain.nu)
     tau_shared, tau_each = _batched_input("tau", tau, chain.nv)
+    # a rollout's cost against the budget (qchain.budget), before anything runs
+    if budget is None:
+        budget = DEFAULT_BUDGET
+    elif not isinstance(budget, Budget):
+        raise TypeError(f"budget must be a qchain.budget.Budget, got {type(budget).__name__}")
+    budget.check(run_cost_of(chain, t0, t1, method=method, dt=dt, max_step=max_step, t_eval=t_eval,
+                             inputs=(p_shared, tau_shared, *(p_each or ()), *(tau_each or ())),
+                             controller_rate=controller_rate))
     sizes = {name: len(x) for name, x in (("q0", Q0 if Q0.ndim == 2 else None), ("v0", V0 if V0.ndim == 2 else None),
                                           ("pressure", p_each), ("tau", tau_each)) if x is not None}
     B = _batch_size(sizes)
@@ -379,7 +392,7 @@ def simulate_batch(
             raise ValueError(f"rollout {i}: q0[{i}], v0[{i}]: {err}") from err
 
     kw = dict(method=method, dt=dt, rtol=rtol, atol=atol, t_eval=t_eval, max_step=max_step, first_step=first_step,
-              energies=energies, wall_limit=wall_limit, controller_rate=controller_rate,
+              energies=energies, wall_limit=wall_limit, controller_rate=controller_rate, budget=budget,
               pressure=_as_item(p_shared, "pressure"), tau=_as_item(tau_shared, "tau"), events=_as_item(events, "events"))
     items = [(i, Q0[i] if Q0.ndim == 2 else Q0, V0[i] if V0.ndim == 2 else V0,
               None if p_each is None else _as_item(p_each[i], f"pressure[{i}]"),

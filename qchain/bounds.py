@@ -129,6 +129,15 @@ class Range:
             bad |= (a >= self.high) if self.high_open else (a > self.high)
         return bad
 
+    def shown(self, value) -> str:
+        """``value`` as an error shows it: ``%g`` (``inf`` and ``-inf`` spelled), or all its
+        digits (``repr``) where ``%g`` would read as a bound it is outside
+        (``1000000000.0000001`` is not ``1e+09``)."""
+        x = float(value)
+        text = _num(x)
+        near = any(b is not None and text == _num(b) and x != b for b in (self.low, self.high))
+        return repr(x) if near else text
+
     def check(self, name: str, value):
         """``value`` as a ``float`` (``int`` for an integer range) inside the range.
 
@@ -149,7 +158,7 @@ class Range:
         if not self.contains(x):
             u = f" {self.unit}" if self.unit else ""
             raise ValueError(f"{name} must be {'an integer ' if self.integer else ''}{self.text()}, got "
-                             f"{_num(x) if not self.integer else x}{u}")
+                             f"{self.shown(x) if not self.integer else x}{u}")
         return x
 
     def check_array(self, name: str, arr: np.ndarray) -> np.ndarray:
@@ -158,7 +167,7 @@ class Range:
         if bad.any():
             k = int(np.flatnonzero(bad.ravel())[0])
             u = f" {self.unit}" if self.unit else ""
-            raise ValueError(f"{name}[{k}] must be {self.text()}, got {np.ravel(arr)[k]:g}{u}")
+            raise ValueError(f"{name}[{k}] must be {self.text()}, got {self.shown(np.ravel(arr)[k])}{u}")
         return arr
 
 

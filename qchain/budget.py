@@ -10,7 +10,8 @@ The costs are lower bounds or estimates, known before a run:
 
 * steps: ``duration / dt`` for the fixed-step methods; for the adaptive ones
   ``duration / max_step`` and ``2 f duration`` for the fastest sine input or base motion of
-  frequency ``f`` (a step longer than half a period cannot follow it), and for the explicit
+  frequency ``f`` (a step longer than half a period cannot follow it), ``duration x rate``
+  for a held controller (a step ends at each of its instants), and for the explicit
   adaptive ones (``dopri5``, ``RK45``, ``DOP853``) ``duration / h_s`` with ``h_s`` the
   step's stability limit at the start (the largest ``|z|`` of the method's stability region
   over the largest ``|eigenvalue|`` of the exact Jacobian: no stable step is longer, so a
@@ -123,13 +124,14 @@ class Cost:
 
 def run_cost(*, duration: float, method: str, fixed_step: bool, dt: float | None, max_step: float,
              frequency: float, samples: float, samples_why: str, nq: int, nv: int, nu: int,
-             stable_step: float | None = None) -> Cost:
+             stable_step: float | None = None, controller_rate: float | None = None) -> Cost:
     """The :class:`Cost` of a run of ``duration`` s (see the module docstring).
 
     ``samples`` is the number of output samples (``math.nan``: one a step, for a run
     without output times); ``frequency`` the fastest input's (Hz, 0 for none);
     ``stable_step`` an explicit adaptive method's stability limit of the step at the start
-    (s; None where unknown or the method is implicit).
+    (s; None where unknown or the method is implicit); ``controller_rate`` (Hz) a held
+    controller's: a step ends at each of its instants.
     """
     if fixed_step:
         steps = duration / dt
@@ -147,6 +149,10 @@ def run_cost(*, duration: float, method: str, fixed_step: bool, dt: float | None
             steps = stable_steps
             why = (f"duration {duration:g} s / {method}'s stability limit of the step at the start, about "
                    f"{stable_step:.3g} s: the model is stiff for an explicit method, use method 'radau5'")
+    if controller_rate is not None and duration * controller_rate > steps:
+        steps = duration * controller_rate
+        why = (f"duration {duration:g} s x controller_rate {controller_rate:g} Hz: a step ends at every controller "
+               "instant")
     if math.isnan(samples):
         samples, samples_why = steps + 1.0, "one a step"
     per_sample = 8.0 * (3 + nq + nv + nu)

@@ -45,11 +45,13 @@ from .chain_kinematics import _NO_POINTS, ChainKinematics, Frames
 from .dynamics_derivatives import _ZERO6, ForwardDynamicsDerivatives, InverseDynamicsDerivatives
 from .data import Data
 from .bounds import GRAVITY, POSITION, PSI, TIME
-from .errors import DomainError, NonFiniteError, SingularConfigurationError, as_index, as_vector, describe_value
+from .errors import (DomainError, NonFiniteError, SingularConfigurationError, as_bool, as_index, as_vector,
+                     describe_value)
 from .segment import PAPER_SINGULAR_ANGLE, Segment
 from .segment import _paper_jacobian as paper_jacobian, _paper_jacobian_dot as paper_jacobian_dot
 from .segment import _paper_to_curvature as paper_to_curvature
 from .spatial import _ad_matrix as ad_matrix, _quaternion_to_rotation as quaternion_to_rotation
+from .frozen import KeepsReadOnly
 
 __all__ = ["Chain", "Frames", "BASES"]
 
@@ -87,7 +89,7 @@ def _check_placement(name: str, X) -> None:
     POSITION.check_array(f"{name}.translation", H[:3, 3])
 
 
-class Chain(ChainKinematics, ChainChecks):
+class Chain(KeepsReadOnly, ChainKinematics, ChainChecks):
     """A soft arm of ``n`` segments.
 
     Parameters
@@ -136,8 +138,9 @@ class Chain(ChainKinematics, ChainChecks):
         base_motion: Callable | None = None,
         planar: bool = False,
     ):
-        if (isinstance(segments, (Segment, str, bytes)) or isinstance(segments, np.ndarray) and segments.ndim != 1
-                or not isinstance(segments, Sequence) and not hasattr(segments, "__iter__")):
+        if (isinstance(segments, (Segment, str, bytes, set, frozenset, dict)) or isinstance(segments, np.ndarray)
+                and segments.ndim != 1 or not isinstance(segments, Sequence) and not hasattr(segments, "__iter__")):
+            # (a set or a dict has no order: the segments' order from base to tip would be arbitrary)
             raise TypeError(f"segments must be a sequence (list or tuple, or a 1-d array) of qchain.Segment, got "
                             f"{describe_value(segments)}")
         try:
@@ -620,7 +623,7 @@ class Chain(ChainKinematics, ChainChecks):
         ``data.a``, overwritten by the next call with that ``data``.
         """
         data = self._data(data)
-        if skip_checks:
+        if as_bool("skip_checks", skip_checks):
             return self._forward_dynamics_unchecked(q, v, p, tau, t, data)
         st, p3, tau = self._dynamics_inputs(q, v, p, tau, t)
         return self._forward_dynamics(st, p3, tau, t, data)
@@ -729,7 +732,7 @@ class Chain(ChainKinematics, ChainChecks):
         and a chain in curvature coordinates with the material law.
         """
         data = self._data(data)
-        if skip_checks:
+        if as_bool("skip_checks", skip_checks):
             return self._forward_dynamics_derivatives_unchecked(q, v, p, tau, t, data)
         st, p3, tau = self._dynamics_inputs(q, v, p, tau, t)
         return _derivs.forward_dynamics_derivatives(self, st, p3, tau, t, data)

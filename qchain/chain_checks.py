@@ -195,6 +195,10 @@ class ChainChecks:
             x = as_real_array(name, x)
         if x.shape != (size,):
             as_vector(name, x, size)  # raises with the expected and actual shape
+        if not (x.flags.c_contiguous and x.flags.writeable):
+            # the compiled passes are compiled for writeable contiguous float64 arrays: a
+            # read-only or strided one would compile them again (seconds), so it is copied
+            x = np.array(x, dtype=np.float64)
         return x
 
     def _q(self, q, name="q") -> np.ndarray:

@@ -20,7 +20,7 @@ import pinocchio as pin
 from . import recursive
 from .arc import arc_nodes
 from .chain_checks import QUATERNION_TOLERANCE, _finite
-from .errors import NonFiniteError, QchainError, as_real_array, describe_value
+from .errors import NonFiniteError, QchainError, as_bool, as_real_array, describe_value
 from .spatial import _quaternion_to_rotation as quaternion_to_rotation
 
 if TYPE_CHECKING:
@@ -58,11 +58,12 @@ _ALPHAS: dict[int, np.ndarray] = {}
 
 def _backbone_alpha(points_per_segment: int) -> np.ndarray:
     """``P`` evenly spaced slice coordinates from 0 to 1 (read-only, cached)."""
-    alpha = _ALPHAS.get(points_per_segment)
+    # checked before the cache is asked: an unhashable value, or 20.0 after a call with 20
+    if not (isinstance(points_per_segment, (int, np.integer)) and not isinstance(points_per_segment, (bool, np.bool_))
+            and 2 <= points_per_segment <= 10_000):
+        raise ValueError(f"points_per_segment must be an int >= 2 and <= 10000, got {describe_value(points_per_segment)}")
+    alpha = _ALPHAS.get(int(points_per_segment))
     if alpha is None:
-        if not (isinstance(points_per_segment, (int, np.integer)) and not isinstance(points_per_segment, bool)
-                and 2 <= points_per_segment <= 10_000):
-            raise ValueError(f"points_per_segment must be an int >= 2 and <= 10000, got {points_per_segment!r}")
         alpha = np.linspace(0.0, 1.0, int(points_per_segment))
         alpha.flags.writeable = False
         _ALPHAS[int(points_per_segment)] = alpha
@@ -124,7 +125,7 @@ class ChainKinematics:
             the world; ``backbone`` (K, n, P, 3) m.
         """
         alpha = _backbone_alpha(points_per_segment)
-        if skip_checks:
+        if as_bool("skip_checks", skip_checks):
             if not (isinstance(Q, np.ndarray) and Q.dtype == np.float64):  # a list, or big-endian: one conversion
                 Q = np.asarray(Q, dtype=np.float64)
             if out is not None:
@@ -137,8 +138,9 @@ class ChainKinematics:
         if Q.ndim != 2 or Q.shape[1] != self.nq:
             raise ValueError(f"Q must have shape (K, nq) = (K, {self.nq}), got {Q.shape}")
         K = Q.shape[0]
+        times = self._times(t, K)  # checked also where a fixed base does not use it
         if self.base == "prescribed":
-            t = self._times(t, K)
+            t = times
         q_e = Q[:, self._qoff :].reshape(K, self.n, 3)
         bad = recursive.first_invalid(Q.ravel(), q_e.reshape(K * self.n, 3), self._radius, self._paper)
         if bad == -2:

@@ -69,7 +69,7 @@ from .cli_checks import CONNECT_TIMEOUT, path_argument, _recording_stem, _shown,
 from .cli_errors import (EXIT_FAILED, EXIT_OK, EXIT_USAGE, BadInput, _forget_unhandled_interrupt,
                          _one_line, _Session, _show_warnings, _tolerant_streams,
                          SummaryOutput, guarded, report_error, take_debug)
-from .run_outputs import planned_outputs, summary_lines, tip_positions, write_outputs
+from .run_outputs import OutputError, planned_outputs, summary_lines, tip_positions, write_outputs
 from .text import printable
 
 if TYPE_CHECKING:  # the model's libraries load when a command needs them: Ctrl-C and --version answer at once
@@ -129,7 +129,7 @@ def _run(args, parser, session: _Session) -> int:
     qlog = _logging_module()
     if qlog is None and (args.mcap or args.serve or args.connect or args.rrd):
         raise BadInput("recording needs qchain.logging, which is not available")
-    record = qlog is not None and not (args.no_record and not (args.serve or args.connect or args.rrd))
+    record = qlog is not None and not (args.no_record and not (args.mcap or args.serve or args.connect or args.rrd))
     notices: list[str] = []
     if record:
         if args.mcap is None and not args.no_record:
@@ -156,7 +156,7 @@ def _run(args, parser, session: _Session) -> int:
             print(f"qchain run: warning: no Rerun viewer answers at {args.connect} ({why}); the run goes on without "
                   "it", file=sys.stderr)
             args.connect = None
-            record = not (args.no_record and not (args.serve or args.rrd))
+            record = not (args.no_record and not (args.mcap or args.serve or args.rrd))
     for notice in notices:
         print(f"qchain run: {notice}", file=sys.stderr)
     if record:
@@ -248,7 +248,14 @@ def _run(args, parser, session: _Session) -> int:
     _print_lines(summary_lines(scene, model, traj, wall, message=_interrupt_message(traj) if interrupted else None))
     if not args.no_plots and len(traj.t):
         folder = Path(args.out) if args.out is not None else scene.output_folder
-        for path in write_outputs(scene, model, traj, folder):
+        try:
+            written = write_outputs(scene, model, traj, folder)
+        except OutputError as err:
+            for path in err.written:
+                print(f"wrote {printable(_shown(path))}")
+            print(f"qchain run: error: {_one_line(err)}", file=sys.stderr)
+            return EXIT_FAILED
+        for path in written:
             print(f"wrote {printable(_shown(path))}")
     return EXIT_OK if traj.success and not interrupted else EXIT_FAILED
 

@@ -56,11 +56,8 @@ def check_flag_values(args, ranges: dict | None = None) -> None:
 
 
 def _found(value, rng) -> str:
-    """``value`` as an error line shows it: ``%g``, or all its digits (``repr``) where ``%g``
-    would read as the bound it is outside (``1000000000000.0001`` is not ``1e+12``)."""
-    shown = f"{value:g}"
-    near = any(b is not None and shown == f"{b:g}" and value != b for b in (rng.low, rng.high))
-    return repr(float(value)) if near else shown
+    """``value`` as an error line shows it (:meth:`qchain.bounds.Range.shown`)."""
+    return rng.shown(value)
 
 
 def _hostname_ok(host: str) -> bool:
@@ -113,7 +110,8 @@ def check_viewer_url(flag: str, url) -> None:
 
 
 def check_bind_address(flag: str, host) -> None:
-    """Refuse an address to listen on that is neither an IP address nor a DNS name.
+    """Refuse an address to listen on that is neither an IPv4 address nor a host name with
+    one (:func:`qchain.recording.rerun_sink.listen_address`, where the server takes it).
 
     Raises
     ------
@@ -122,9 +120,16 @@ def check_bind_address(flag: str, host) -> None:
     """
     if host is None:
         return
+    shown = str(host) if len(str(host)) <= 80 else str(host)[:77] + "..."
     if not _host_ok(str(host)):
-        shown = str(host) if len(str(host)) <= 80 else str(host)[:77] + "..."
-        raise BadInput(f"{flag}: expected an IP address (127.0.0.1, 0.0.0.0, ::1) or a host name, found {shown!r}")
+        raise BadInput(f"{flag}: expected an IPv4 address (127.0.0.1, 0.0.0.0) or a host name, found {shown!r}")
+    from .recording.rerun_sink import listen_address
+    from .recording.records import LoggingError
+
+    try:
+        listen_address(str(host))
+    except LoggingError as exc:
+        raise BadInput(f"{flag}: {str(exc).removeprefix('bind: ')}") from None
 
 # --------------------------------------------------------------------------------------
 # paths and viewers, checked before the run

@@ -17,6 +17,7 @@ import numpy as np
 
 from .bounds import FREQUENCY, PRESSURE, TIME, Range
 from .errors import as_real_array, as_vector
+from .frozen import KeepsReadOnly
 
 __all__ = ["Schedule", "Constant", "Step", "Ramp", "Sine", "Table", "as_input", "input_range", "FORCE"]
 
@@ -56,7 +57,7 @@ def _spread(name, x, n) -> np.ndarray:
     return _frozen(np.broadcast_to(v, (n,)))
 
 
-class Schedule(ABC):
+class Schedule(KeepsReadOnly, ABC):
     """Base class of time schedules ``s(t) -> (size,)``."""
 
     size: int

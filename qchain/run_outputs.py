@@ -5,6 +5,7 @@ factor, how the run ended)."""
 from __future__ import annotations
 
 import math
+import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -48,27 +49,62 @@ def write_outputs(scene: Scene, model: SceneModel, traj, folder: Path, plots=Non
         Write ``trajectory.npz`` (``t, q, v, p, kinetic_energy, potential_energy, tip``
         and ``success``, ``message``); default the scene's ``output.save``.
     """
-    import matplotlib
-    import numpy as np
+    import os
+    import secrets
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    import numpy as np
 
     plots = scene.plots if plots is None else tuple(plots)
     save = scene.save if save is None else save
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     written: list[Path] = []
+    failed: list[str] = []
     t = traj.t
     tip = tip_positions(model, traj) if len(t) else np.zeros((0, 3))
-    title = scene.name or (scene.path.stem if scene.path else "scene")
+    if save:  # the data first (the plots may fail), whole or not at all: a temporary file renamed
+        path = folder / "trajectory.npz"
+        tmp = folder / f".trajectory-{os.getpid()}-{secrets.token_hex(4)}.npz"
+        try:
+            fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)  # the umask's mode, as a plain open
+            with os.fdopen(fd, "wb") as fh:
+                np.savez_compressed(fh, t=t, q=traj.q, v=traj.v, p=traj.p, kinetic_energy=traj.kinetic_energy,
+                                    potential_energy=traj.potential_energy, tip=tip, success=traj.success,
+                                    message=traj.message)
+            os.replace(tmp, path)
+            written.append(path)
+        except OSError as exc:
+            failed.append(f"{path} ({exc.strerror or exc})")
+        finally:
+            if os.path.exists(tmp):
+                os.unlink(tmp)
+    if not plots:
+        _raise_failed(failed, written)
+        return written
+    if "matplotlib" not in sys.modules:  # Agg is chosen below: a bad MPLBACKEND in the environment is moot
+        os.environ.pop("MPLBACKEND", None)
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    # the scene's name as plain text: '$' would start matplotlib's mathtext (and "$x^$" fail)
+    title = (scene.name or (scene.path.stem if scene.path else "scene")).replace("$", r"\$")
 
     def finish(fig, name):
         path = folder / name
-        fig.tight_layout()
-        fig.savefig(path, dpi=110)
-        plt.close(fig)
-        written.append(path)
+        try:
+            fig.tight_layout()
+            fig.savefig(path, dpi=110)
+            written.append(path)
+        except (OSError, ValueError, RuntimeError) as exc:  # a full disk, a file size limit, a renderer's error
+            failed.append(f"{path} ({getattr(exc, 'strerror', None) or f'{type(exc).__name__}: {exc}'})")
+            try:
+                os.unlink(path)  # no half-written PNG left behind
+            except OSError:
+                pass
+        finally:
+            plt.close(fig)
 
     if "tip" in plots:
         fig, ax = plt.subplots(figsize=(8, 4))
@@ -115,13 +151,22 @@ def write_outputs(scene: Scene, model: SceneModel, traj, folder: Path, plots=Non
         ax.legend(ncol=2)
         ax.grid(alpha=0.3)
         finish(fig, "momentum.png")
-    if save:
-        path = folder / "trajectory.npz"
-        np.savez_compressed(path, t=t, q=traj.q, v=traj.v, p=traj.p, kinetic_energy=traj.kinetic_energy,
-                            potential_energy=traj.potential_energy, tip=tip, success=traj.success,
-                            message=traj.message)
-        written.append(path)
+    _raise_failed(failed, written)
     return written
+
+
+class OutputError(OSError):
+    """Outputs of a run that could not be written (each named, with why); ``written`` lists
+    those that were."""
+
+    def __init__(self, message: str, written: list):
+        super().__init__(message)
+        self.written = written
+
+
+def _raise_failed(failed: list[str], written: list) -> None:
+    if failed:
+        raise OutputError(f"could not write {'; '.join(failed)}", written)
 
 
 def momenta(model: SceneModel, traj) -> np.ndarray:

@@ -377,7 +377,7 @@ def _base(ck: _Checker, raw: dict) -> BaseSpec | None:
             ck.keys(mt, "base.motion", M.keys())
             mkind = ck.field(mt, M["type"], "base.motion.type")
             axis = ck.field(mt, M["axis"], "base.motion.axis")
-            if axis is not None and float(np.linalg.norm(axis)) == 0.0:
+            if axis is not None and not np.any(axis):
                 ck.add("base.motion.axis", "a non-zero direction", _show(mt["axis"]))
                 axis = None
             amp = ck.number(mt, "amplitude", "base.motion.amplitude", "m" if mkind == "translation" else "rad",
@@ -385,7 +385,8 @@ def _base(ck: _Checker, raw: dict) -> BaseSpec | None:
             freq = ck.field(mt, M["frequency"], "base.motion.frequency")
             phase = ck.field(mt, M["phase"], "base.motion.phase", 0.0)
             if len(ck.problems) == start and mkind is not None:
-                motion = SineMotion(kind=mkind, axis=axis / np.linalg.norm(axis), amplitude=amp, frequency=freq,
+                unit = axis / np.max(np.abs(axis))  # scaled first: the norm of [1e-200, 0, 0] underflows to 0
+                motion = SineMotion(kind=mkind, axis=unit / np.linalg.norm(unit), amplitude=amp, frequency=freq,
                                     phase=phase, mount=mount)
     if len(ck.problems) > start or kind is None:
         return None
@@ -413,7 +414,7 @@ def _pressure(ck: _Checker, raw: dict, n: int | None) -> tuple[Schedule | None, 
         if arr is not None and rng.outside(arr).any():
             k = int(np.flatnonzero(rng.outside(arr))[0])
             what = f"gauge pressures {rng.text()} (a vacuum to 1 GPa)" if rng is P else f"values {rng.text()}"
-            ck.add(f"pressure.{key}", what, f"{arr[k]:g} Pa at {_where(k)}")
+            ck.add(f"pressure.{key}", what, f"{rng.shown(arr[k])} Pa at {_where(k)}")
             return None
         return arr
 
@@ -439,7 +440,7 @@ def _pressure(ck: _Checker, raw: dict, n: int | None) -> tuple[Schedule | None, 
         bad = f.range.outside(arr.ravel())
         if bad.any():
             k = int(np.flatnonzero(bad)[0])
-            ck.add(f"pressure.{key}", f"values {f.range.text()}", f"{arr.ravel()[k]:g} at index {k}")
+            ck.add(f"pressure.{key}", f"values {f.range.text()}", f"{f.range.shown(arr.ravel()[k])} at index {k}")
             return None
         return arr.ravel()
 
@@ -476,11 +477,11 @@ def _pressure(ck: _Checker, raw: dict, n: int | None) -> tuple[Schedule | None, 
             if np.any(low < VACUUM_GAUGE):
                 k = int(np.flatnonzero(low < VACUUM_GAUGE)[0])
                 ck.add("pressure.offset", f"offset - |amplitude| >= {VACUUM_GAUGE:g} Pa (a vacuum) in every chamber",
-                       f"{low[k]:g} Pa at {_where(k)}")
+                       f"{P.shown(low[k])} Pa at {_where(k)}")
             elif np.any(high > P.high):
                 k = int(np.flatnonzero(high > P.high)[0])
                 ck.add("pressure.offset", f"offset + |amplitude| <= {P.high:g} Pa in every chamber",
-                       f"{high[k]:g} Pa at {_where(k)}")
+                       f"{P.shown(high[k])} Pa at {_where(k)}")
     else:  # table
         times = pt.get("times", _MISSING)
         values = pt.get("values", _MISSING)
@@ -594,8 +595,9 @@ def _initial(ck: _Checker, raw: dict, segments: list[SegmentSpec] | None):
                    f"{', kappa >= 0' if s.coords == 'paper' else ''})", f"{_vec_str(q[j])}: {err}")
             continue
         if q[j, 0] > F.MAX_STRETCH * s.length:
-            ck.add(f"initial.q_e[{j}][0]", f"l <= {F.MAX_STRETCH:g} x length = {F.MAX_STRETCH * s.length:g} m",
-                   f"{q[j, 0]:g}")
+            top = F.MAX_STRETCH * s.length
+            ck.add(f"initial.q_e[{j}][0]", f"l <= {F.MAX_STRETCH:g} x length = {top:g} m",
+                   repr(float(q[j, 0])) if f"{q[j, 0]:g}" == f"{top:g}" else f"{q[j, 0]:g}")
             continue
         why = _nonfinite_state(seg, q[j], v[j])
         if why:

@@ -65,6 +65,7 @@ from .slices import (
     segment_newton_euler,
 )
 from .spatial import _ad_matrix as ad_matrix, _disk_inertia as disk_inertia, _force_cross_bar as force_cross_bar
+from .frozen import KeepsReadOnly
 
 __all__ = [
     "Segment",
@@ -303,7 +304,7 @@ def _paper_hessian_term(q_p: np.ndarray, grad_c: np.ndarray) -> np.ndarray:
 
 
 @dataclass(frozen=True, kw_only=True, eq=False)
-class Segment:
+class Segment(KeepsReadOnly):
     """A constant-curvature, extensible soft segment with three pressure chambers.
 
     Parameters
@@ -773,7 +774,10 @@ def nodes_for_tolerance(segment: Segment, theta_max: float, tol: float, referenc
     reference_nodes = B.NODES.check("reference_nodes", reference_nodes)
     import dataclasses
 
-    base = dataclasses.replace(segment, coords="curvature", nodes=reference_nodes)
+    rest = segment.rest_q_e  # the M_xi compared here does not use it, but it must be valid in curvature coordinates
+    if rest is not None and segment.coords == "paper":
+        rest = paper_to_curvature(rest)
+    base = dataclasses.replace(segment, coords="curvature", nodes=reference_nodes, rest_q_e=rest)
     kappa = min(theta / base.length, 0.999 / base.radius)
     q = np.array([base.length, kappa * np.cos(0.3), kappa * np.sin(0.3)])
     ref = base.mass_matrix(q)

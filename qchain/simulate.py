@@ -280,6 +280,10 @@ def check_settings(chain: Chain, t0: float, t1: float, *, method, dt, rtol, atol
         max_step = B.STEP.check("max_step", max_step)
     if first_step is not None:
         first_step = B.STEP.check("first_step", first_step)
+        least = SPAN_RESOLUTION * max(1.0, abs(t0), abs(t1))  # where step times are still distinct
+        if first_step < least:
+            raise ValueError(f"first_step must be >= {least:.3g} s (64 float64 epsilons of max(1 s, |t0|, |t1|)), "
+                             f"got {first_step:.17g} s")
     if wall_limit is not None:
         wall_limit = B.WALL_LIMIT.check("wall_limit", wall_limit)
     if t_eval is not None:
@@ -293,6 +297,10 @@ def check_settings(chain: Chain, t0: float, t1: float, *, method, dt, rtol, atol
         except TypeError:
             raise TypeError(f"progress must be True, False or 'lines', got {describe_value(progress)}") from None
     check_callable("on_sample", on_sample)
+    if on_sample is not None and getattr(on_sample, "record_batch", None) is not None:
+        max_sim = as_real("on_sample.max_sim", getattr(on_sample, "max_sim", 0.0))
+        if not max_sim >= 0.0:
+            raise ValueError(f"on_sample.max_sim must be a number of seconds >= 0, got {max_sim!r}")
     if events is None:
         events = []
     elif isinstance(events, Event) or not isinstance(events, (list, tuple)):
@@ -328,6 +336,18 @@ def _state_entry(chain: Chain, q, v) -> str:
         if bad.size:
             return f"{name}[{int(bad[0])}] ({chain.coordinate_name(int(bad[0]), velocity=vel)})"
     return "the state"
+
+
+def run_cost_of(chain: Chain, t0: float, t1: float, *, method: str, dt, max_step, t_eval, inputs=(),
+                controller_rate=None, stable_step=None):
+    """The :class:`qchain.budget.Cost` of a run of ``chain`` over ``(t0, t1)`` with checked
+    settings (:func:`check_settings`); ``inputs``: the pressure and torque inputs (their
+    fastest sine counts)."""
+    return run_cost(duration=t1 - t0, method=method, fixed_step=method in FIXED_STEP, dt=dt, max_step=max_step,
+                    frequency=input_frequency(*inputs, chain.base_motion), samples=float(
+                        t_eval.size) if t_eval is not None else (np.nan if method in FIXED_STEP else 1.0),
+                    samples_why="len(t_eval)" if t_eval is not None else "", nq=chain.nq, nv=chain.nv,
+                    nu=chain.nu, stable_step=stable_step, controller_rate=controller_rate)
 
 
 def explicit_stability_limit(chain: Chain, method: str, q0, v0, t0: float, pressure=None, tau=None) -> float | None:
@@ -396,8 +416,10 @@ def simulate(
         keyword ``energies``, it also gets ``(kinetic, potential)`` (J) of the sample.
         An object with a method ``record_batch(t, q, v, p, kinetic, potential)`` and an
         attribute ``max_sim`` (s) takes the compiled engine's samples in batches instead:
-        arrays ``(K,)``, ``(K, nq)``, ``(K, nv)``, ``(K, 3 n)``, ``(K,)``, ``(K,)``, each
-        batch within ``max_sim`` of simulated time (what it may hold back at most), the
+        arrays ``(K,)``, ``(K, nq)``, ``(K, nv)``, ``(K, 3 n)``, ``(K,)``, ``(K,)`` (the
+        first four read-only views of the run's samples: no copy, and the results cannot
+        be changed through them), each batch within ``max_sim`` of simulated time (a
+        number of seconds >= 0: what it may hold back at most), the
         samples' energies included; a ``skip_checks`` keyword, if it takes one, is True
         (the states were checked at every step). :class:`qchain.recorder.ChainRecorder` is
         one.
@@ -461,11 +483,8 @@ def simulate(
     elif not isinstance(budget, Budget):
         raise TypeError(f"budget must be a qchain.budget.Budget, got {describe_value(budget)}")
     def cost(stable_step=None):
-        return run_cost(duration=t1 - t0, method=method, fixed_step=method in FIXED_STEP, dt=dt, max_step=max_step,
-                        frequency=input_frequency(pressure, tau, chain.base_motion), samples=float(
-                            t_eval.size) if t_eval is not None else (np.nan if method in FIXED_STEP else 1.0),
-                        samples_why="len(t_eval)" if t_eval is not None else "", nq=chain.nq, nv=chain.nv,
-                        nu=chain.nu, stable_step=stable_step)
+        return run_cost_of(chain, t0, t1, method=method, dt=dt, max_step=max_step, t_eval=t_eval,
+                           inputs=(pressure, tau), controller_rate=controller_rate, stable_step=stable_step)
 
     budget.check(cost())
     P_in, T_in = as_input("pressure", pressure, chain.nu), as_input("tau", tau, chain.nv)  # checked where they enter

@@ -270,6 +270,9 @@ class Axis:
             if self.log and r[0] <= 0:
                 raise ValueError(f"axis {self.name}: a log range needs low > 0, got {r[0]:g}")
             object.__setattr__(self, "range", r)
+            if self.integer and math.ceil(r[0]) > math.floor(r[1]):
+                raise ValueError(f"axis {self.name}: an integer range needs a whole number in it, got "
+                                 f"[{r[0]:g}, {r[1]:g}]")
             if self.num is not None and not (isinstance(self.num, int) and not isinstance(self.num, bool)
                                              and self.num >= 1):
                 raise ValueError(f"axis {self.name}: num must be an int >= 1, got {self.num!r}")
@@ -288,7 +291,10 @@ class Axis:
         return " + ".join(self.keys)
 
     def _num(self, x: float):
-        return int(round(x)) if self.integer else float(x)
+        if not self.integer:
+            return float(x)
+        lo, hi = self.range  # the nearest whole number inside the range (round(1.2) is not in [1.2, 1.8])
+        return int(min(max(round(x), math.ceil(lo)), math.floor(hi)))
 
     def grid(self) -> list:
         """The axis's values on a grid."""
@@ -418,8 +424,9 @@ class SweepSpec:
         elif self.n > self.max_runs:
             key, expected, found = runs_problem(self.sampling, self.n, self.axes, self.max_runs)
             raise ValueError(f"{key}: expected {expected}, found {found}")
-        if not (isinstance(self.seed, int) and not isinstance(self.seed, bool)):
-            raise ValueError(f"seed must be an int, got {self.seed!r}")
+        if not (isinstance(self.seed, int) and not isinstance(self.seed, bool) and 0 <= self.seed < 2**128):
+            raise ValueError(f"seed must be an int >= 0 and < 2**128 (numpy's generators take no other), got "
+                             f"{self.seed!r}")
         from .workers import check_engine
 
         self.retries = check_engine(None, None, self.retries)

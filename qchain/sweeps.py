@@ -36,6 +36,7 @@ import hashlib
 import importlib
 import io
 import json
+import re
 import math
 import os
 import sys
@@ -278,6 +279,10 @@ def _engine_kinds(scenes: list[Scene]) -> dict:
 # ------------------------------------------------------------------------------ the folder
 
 
+#: The files a sweep writes in its runs/ folder, and their temporaries
+_RUN_FILE = re.compile(r"\.?run-[0-9]{5,}\.[A-Za-z0-9]+(\.[A-Za-z0-9._-]*)?")
+
+
 class _Folder:
     """A sweep's results folder: manifest, journal, table, per-run files."""
 
@@ -288,16 +293,16 @@ class _Folder:
         self.table = self.folder / "summary.parquet"
         self.runs = self.folder / "runs"
         self._fh = None
+        self._lock: int | None = None
 
     def clear(self) -> None:
         """Remove this sweep's own files (and nothing else)."""
         for p in (self.manifest, self.journal, self.table):
             p.unlink(missing_ok=True)
-        if self.runs.is_dir():
-            for p in self.runs.glob("run-*.*"):
-                p.unlink()
-            for p in self.runs.glob(".run-*"):
-                p.unlink()
+        if self.runs.is_dir():  # only names this sweep gives (run-00012.npz, .run-00012...): a
+            for p in self.runs.iterdir():  # qchain run's runs/run-20261202-134758.mcap stays
+                if _RUN_FILE.fullmatch(p.name):
+                    p.unlink()
 
     def open(self, manifest: dict) -> list[dict]:
         """Start or resume: the rows finished before (raises if the folder holds another sweep)."""
@@ -356,10 +361,34 @@ class _Folder:
         self._fh.write(json.dumps(row) + "\n")
         self._fh.flush()
 
+    def lock(self) -> None:
+        """Hold the folder for this process (an exclusive ``flock`` on its ``.sweep.lock``,
+        released by :meth:`close` or the process's end); a SweepError naming the folder and
+        the holder if another sweep holds it."""
+        import fcntl
+
+        self.folder.mkdir(parents=True, exist_ok=True)
+        fd = os.open(self.folder / ".sweep.lock", os.O_RDWR | os.O_CREAT, 0o644)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            holder = os.pread(fd, 32, 0).decode("ascii", "replace").strip()
+            os.close(fd)
+            raise SweepError(str(self.folder), [_problem(
+                "folder", "a folder no other sweep is writing",
+                f"another sweep{f' (pid {holder})' if holder.isdigit() else ''} is writing it: wait for it to end "
+                "(then run this one to resume), or use another folder")]) from None
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, str(os.getpid()).encode(), 0)
+        self._lock = fd
+
     def close(self) -> None:
         if self._fh is not None:
             self._fh.close()
             self._fh = None
+        if self._lock is not None:
+            os.close(self._lock)  # (the lock goes with it)
+            self._lock = None
 
 
 def _problem(key, expected, found):
@@ -490,16 +519,21 @@ def run_sweep(spec: SweepSpec, *, workers=None, client=None, progress: bool | No
     folder = _Folder(spec.folder) if spec.folder is not None else None
     done: dict[int, dict] = {}
     if folder is not None:
-        if restart:
-            folder.clear()
         check_results_folder(spec.folder, n_runs=len(runs))  # a folder it cannot resume from, before any run
-        fingerprint = spec.fingerprint(runs)
-        manifest = {"name": spec.name, "fingerprint": fingerprint, "runs": len(runs), "sampling": spec.sampling,
-                    "n": spec.n, "seed": spec.seed, "set": spec.set, "axes": [a.to_json() for a in spec.axes],
-                    "scene": str(spec.scene.path) if spec.scene.path else None, "trajectories": spec.trajectories,
-                    "mcap": spec.mcap, "metrics": _metrics_name(spec.metrics)}
-        for row in folder.open(manifest):
-            done[int(row["run"])] = row
+        folder.lock()  # one sweep a folder at a time: a second one would compute every run again
+        try:
+            if restart:
+                folder.clear()
+            fingerprint = spec.fingerprint(runs)
+            manifest = {"name": spec.name, "fingerprint": fingerprint, "runs": len(runs), "sampling": spec.sampling,
+                        "n": spec.n, "seed": spec.seed, "set": spec.set, "axes": [a.to_json() for a in spec.axes],
+                        "scene": str(spec.scene.path) if spec.scene.path else None, "trajectories": spec.trajectories,
+                        "mcap": spec.mcap, "metrics": _metrics_name(spec.metrics)}
+            for row in folder.open(manifest):
+                done[int(row["run"])] = row
+        except BaseException:
+            folder.close()
+            raise
     todo = [i for i in range(len(runs)) if i not in done]
     resumed = len(done)
     engine = engine_for(workers, client) if todo else None

@@ -213,9 +213,36 @@ def check_engine(workers, client, retries) -> int:
     if client is not None and not (isinstance(client, (str, DaskEngine)) or hasattr(client, "submit")):
         raise TypeError(f"client must be None, a scheduler address 'tcp://HOST:PORT', a dask.distributed.Client or a "
                         f"qchain.workers.DaskEngine, got {describe_value(client)}")
+    if isinstance(client, str):
+        _check_address(client)
     if not (_whole(retries) and bounds.RETRIES.contains(retries)):
         raise ValueError(f"retries must be an int >= 0 and <= {bounds.RETRIES.high:g}, got {describe_value(retries)}")
     return int(retries)
+
+
+#: The schemes of a Dask scheduler address (distributed's comm protocols)
+SCHEDULER_SCHEMES = ("tcp", "tls", "ws", "wss", "ucx", "inproc")
+
+
+def _check_address(address: str) -> None:
+    """A scheduler address ``[SCHEME://]HOST:PORT`` (``tcp`` when no scheme is given);
+    ``ValueError`` naming ``client`` otherwise (distributed's own error names nothing)."""
+    from urllib.parse import urlsplit
+
+    shown = address if len(address) <= 80 else address[:77] + "..."
+    why = None
+    try:
+        parts = urlsplit(address if "://" in address else f"tcp://{address}")
+        port = parts.port
+    except ValueError as exc:
+        parts, port, why = None, None, str(exc)
+    if why is None and parts.scheme not in SCHEDULER_SCHEMES:
+        why = f"the scheme {parts.scheme!r} is none of {', '.join(SCHEDULER_SCHEMES)}"
+    elif why is None and parts.scheme != "inproc" and (not parts.hostname or port is None):
+        why = "it needs a host and a port"
+    if why is not None or any(c.isspace() for c in address):
+        raise ValueError(f"client must be a scheduler address 'tcp://HOST:PORT', got {shown!r} "
+                         f"({why or 'it has spaces'})")
 
 
 # ------------------------------------------------------------------------------ local pool

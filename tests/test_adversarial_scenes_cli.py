@@ -147,8 +147,53 @@ def test_serve_and_connect_together_are_refused_instead_of_serving_for_ever(scen
 def test_an_address_to_serve_on_that_is_no_address_is_refused(bind, scene, capsys):
     code, out, err = run(["run", scene, "--no-record", "--serve", "--bind", bind], capsys, seconds=20)
     assert code == 2
-    assert error_line(err) == f"qchain run: error: argument --bind: expected an IP address (127.0.0.1, 0.0.0.0, " \
-                              f"::1) or a host name, found {bind!r}"
+    assert error_line(err) == f"qchain run: error: argument --bind: expected an IPv4 address (127.0.0.1, 0.0.0.0) " \
+                              f"or a host name, found {bind!r}"
+
+
+@pytest.mark.parametrize("bind, why", [
+    ("::1", "expected an IPv4 address (IPv6 is not served), found '::1': use 127.0.0.1 (this machine) or 0.0.0.0"),
+    ("[::1]", "expected an IPv4 address (IPv6 is not served), found '[::1]'"),
+    ("no-such-host.invalid", "the host name 'no-such-host.invalid' has no IPv4 address"),
+])
+def test_an_address_the_viewer_cannot_be_served_on_is_refused_before_the_run(bind, why, scene, capsys):
+    """Once accepted, then a warning that Rerun could not start (no free port on ::1, or
+    'invalid socket address syntax' for a name) and a run without its viewer."""
+    code, out, err = run(["run", scene, "--no-record", "--serve", "--bind", bind], capsys, seconds=30)
+    assert code == 2 and "simulated" not in out
+    assert error_line(err).startswith(f"qchain run: error: argument --bind: {why}"), err
+
+
+def test_a_host_name_to_serve_on_is_resolved_to_its_ipv4_address():
+    from qchain.recording.rerun_sink import listen_address
+
+    assert listen_address("localhost") == "127.0.0.1"
+    assert listen_address("127.0.0.1") == "127.0.0.1" and listen_address("0.0.0.0") == "0.0.0.0"
+
+
+def test_the_web_front_says_nothing_of_a_client_that_sends_garbage(capfd):
+    """A local client sending a request with a huge Content-Length and hanging up once put
+    socketserver's traceback (BrokenPipeError) on a serving run's stderr."""
+    import socket
+    import struct
+
+    from qchain.recording.web_viewer import LoopbackFront
+
+    upstream = socket.create_server(("127.0.0.1", 0))  # answers nothing: the requests never get that far
+    front = LoopbackFront("127.0.0.1", 0, upstream.getsockname()[1], 1)
+    try:
+        for payload in (b"POST / HTTP/1.1\r\nHost: x\r\nContent-Length: 99999999999\r\n\r\nabc",
+                        b"\x16\x03\x01garbage\r\n\r\n", b"GET /" + b"a" * 70000 + b" HTTP/1.1\r\n\r\n") * 3:
+            c = socket.create_connection(("127.0.0.1", front.port), timeout=5)
+            c.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, struct.pack("ii", 1, 0))  # hang up with a reset
+            c.sendall(payload)
+            c.close()
+        time.sleep(1.0)  # the server's threads answer into the reset connections
+    finally:
+        front.close()
+        upstream.close()
+    err = capfd.readouterr().err
+    assert "Traceback" not in err and "Exception occurred" not in err, err
 
 
 @given(url=st.text(max_size=60) | st.builds(lambda h, p: f"rerun+http://{h}:{p}/proxy", st.text(max_size=20),

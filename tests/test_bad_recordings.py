@@ -839,7 +839,13 @@ def test_a_journal_with_a_bad_layout_is_reported_not_a_crash(tmp_path):
     rows3 = np.zeros((3, other.row_width))
     rows3[:, 0], rows3[:, 1] = [1.0, 1.1, 1.2], [100, 101, 102]
     _journal(path, rows3, other.to_json())
-    refused(path, "rows are of 3 segment(s), the recording's 2")
+    rec = read_recording(path)  # the file's own records read; the journal said, kept, not merged
+    assert len(rec) == 6 and rec.recovered == 0
+    assert "rows are of 3 segment(s), the recording's 2: not merged" in rec.journal_unread
+    assert any("rows are of 3 segment(s)" in d for d in rec.damage)
+    with pytest.raises(LoggingError, match="cannot be \\(wholly\\) merged"):
+        recover(path)
+    assert journal_path(path).exists()
     _journal(path, rows, layout)
     rec = read_recording(path)  # a complete file (outcome, summary): never merged, said
     assert len(rec) == 6 and rec.recovered == 0 and "complete" in rec.journal_unread

@@ -103,6 +103,33 @@ def test_flips_outside_the_chunks_lose_nothing(clean):
     assert rec.info.scene == arm_info().scene and any("fails its checksum" in d for d in rec.damage)
 
 
+def test_a_damaged_length_outside_the_chunks_never_swallows_a_chunk(clean):
+    """Four bits of the length of every record between the chunks (the header, the metadata,
+    the message indexes, the data end), flipped: a length grown past its record
+    once skipped the chunk after it unread (a third of a recording lost to one bit); now a
+    skipped record must end where another starts, else the reading resynchronises after it."""
+    from qchain.recording.scan import MAGIC
+
+    data, chunks, _, t, q = clean
+    inside = np.zeros(len(data), dtype=bool)
+    for a, b, _, _ in chunks:
+        inside[a:b] = True
+    between = []
+    for item in scan(data):
+        if not inside[item.offset] and item.kind != "footer":
+            between.append(item.offset)  # up to the data end (the summary is read by its CRC)
+    assert len(between) >= 10 and between[0] == len(MAGIC)
+    flips = 0
+    for pos in between:
+        for bit in (3, 12, 20, 33):  # lengths grown by 8 B, 4 KiB (a chunk's size), 1 MiB, 8 GiB
+            rec = read_recording(io.BytesIO(_flip(data, pos + 1 + bit // 8, bit % 8)))
+            np.testing.assert_array_equal(rec.t, t, err_msg=f"length of the record at byte {pos}, bit {bit}")
+            np.testing.assert_array_equal(rec.q, q)
+            assert not rec.gaps
+            flips += 1
+    assert flips == 4 * len(between)
+
+
 def test_damaged_metadata_is_never_used_silently(clean):
     """Both copies of the qchain metadata damaged: a clear error, not a recording whose scene
     or radii changed without a word."""

@@ -40,7 +40,7 @@ class _Outputs:
     def __init__(self, chain, t_eval: np.ndarray | None, guess: int):
         self.every = t_eval is None
         K = guess if self.every else t_eval.size
-        self.t = np.zeros(K) if self.every else np.ascontiguousarray(t_eval, dtype=float)
+        self.t = np.zeros(K) if self.every else np.array(t_eval, dtype=float)  # never the caller's t_eval
         self.q = np.zeros((K, chain.nq))
         self.v = np.zeros((K, chain.nv))
         self.p = np.zeros((K, chain.nu))
@@ -82,7 +82,9 @@ def run(chain, m, method, q0, v0, t0, t1, *, dt, rtol, atol, t_eval, on_sample, 
     tf[steppers.DT] = dt if fixed else 0.0
     tf[steppers.RTOL], tf[steppers.ATOL] = rtol, atol
     tf[steppers.MAX_STEP] = max_step
-    tf[steppers.H] = first_step if first_step is not None else min(1e-4, (t1 - t0) / 10)
+    h0 = first_step if first_step is not None else min(1e-4, (t1 - t0) / 10)
+    # above the steppers' floor, 10 float64 spacings of t (coarse at large t: 1.2e-4 s at 1e12 s)
+    tf[steppers.H] = max(h0, min(20.0 * float(np.spacing(max(abs(t0), abs(t1)))), (t1 - t0) / 4))
     tf[steppers.NEWTON_TOL] = max(10 * EPS / rtol, min(0.03, rtol**0.5))
     out = _Outputs(chain, t_eval, guess=int(min((t1 - t0) / dt + 2, 1 << 16)) if fixed and t_eval is None else 1024)
     if out.every:
@@ -203,7 +205,7 @@ def _max_out(out, cnt, t, on_sample) -> int:
         return out.t.size - k if out.every else 1 << 30
     if getattr(on_sample, "record_batch", None) is None or out.every:
         return 1
-    max_sim = float(getattr(on_sample, "max_sim", 0.0))
+    max_sim = float(getattr(on_sample, "max_sim", 0.0))  # checked where on_sample enters (check_settings)
     # from the first sample not handed over yet: the last step may have passed samples before t
     t_first = out.t[k] if k < out.t.size else t
     return max(1, int(np.searchsorted(out.t, t_first + max_sim, side="left")) - k)
@@ -228,10 +230,12 @@ def _hand_over(out, emitted, cnt, on_sample, pass_energies, m, wk) -> int:
     if batch is not None and k > emitted:
         ke, pe = np.empty(k - emitted), np.empty(k - emitted)
         system.energies_batch(m, wk, out.t[emitted:k], out.q[emitted:k], out.v[emitted:k], ke, pe)
+        # views of the run's own samples (no copy), read-only: a taker cannot change the results
+        views = [_read_only(a[emitted:k]) for a in out.arrays] + [ke, pe]
         if _trusts_states(type(on_sample)):
-            batch(out.t[emitted:k], out.q[emitted:k], out.v[emitted:k], out.p[emitted:k], ke, pe, skip_checks=True)
+            batch(*views, skip_checks=True)
         else:
-            batch(out.t[emitted:k], out.q[emitted:k], out.v[emitted:k], out.p[emitted:k], ke, pe)
+            batch(*views)
     elif on_sample is not None:
         ke, pe = np.zeros(1), np.zeros(1)
         for r in range(emitted, k):
@@ -241,6 +245,12 @@ def _hand_over(out, emitted, cnt, on_sample, pass_energies, m, wk) -> int:
             else:
                 on_sample(out.t[r], out.q[r].copy(), out.v[r].copy(), out.p[r].copy())
     return k
+
+
+def _read_only(a: np.ndarray) -> np.ndarray:
+    v = a.view()
+    v.flags.writeable = False
+    return v
 
 
 def _state(chain, m, q_chart, y):
@@ -325,7 +335,11 @@ def _failure(chain, wk, it, method, q0, v0, t0, inputs) -> str:
     elif code == steppers.NEWTON:
         msg = f"{method}: Newton did not converge in the step from t = {t:.6g} s (reduce dt)"
     else:
-        msg = f"{method}: the step size fell below its floor at t = {t:.6g} s (the solution may be singular there)"
+        floor = 10.0 * float(np.spacing(abs(t)))
+        msg = (f"{method}: the step size fell below its floor, 10 float64 spacings of t ({floor:.3g} s), at t = "
+               f"{t:.6g} s (the solution may be singular there"
+               + ("; or t is so large that its spacing is coarse for this run: shift t_span toward 0)" if floor > 1e-9
+                  else ")"))
     if method == "rk4":
         msg = unstable_message(msg, tf[steppers.DT], stability_limit(chain, q0, v0, *inputs(t0, q0, v0), t0))
     return msg

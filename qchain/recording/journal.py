@@ -39,6 +39,8 @@ __all__ = ["journal_path", "JournalWriter", "JournalReader", "journal_owner", "c
 #: channel's metadata.
 ROWS_ENCODING = "qchain.rows.f64le"
 ROWS_TOPIC = "/qchain/rows"
+#: The metadata record that repeats the rows channel's id and layout (sealed)
+LAYOUT_RECORD = "qchain.journal.layout"
 
 
 def journal_path(mcap_path: str | os.PathLike) -> Path:
@@ -56,7 +58,9 @@ def journal_owner(path: str | os.PathLike) -> int | None:
     except (FileNotFoundError, NotADirectoryError):
         return None
     except OSError as exc:
-        if exc.errno == errno.ENAMETOOLONG:  # a recording's name too long for a journal beside it: none can be
+        # a recording's name too long for a journal beside it: none can be; a loop of links:
+        # no file a run could hold (the reader says it cannot read it)
+        if exc.errno in (errno.ENAMETOOLONG, errno.ELOOP):
             return None
         raise
     if not stat.S_ISREG(st.st_mode):
@@ -144,6 +148,10 @@ class JournalWriter:
         sid = self._w.register_schema("qchain.RecordRows", "", b"")
         self._channel = self._w.register_channel(ROWS_TOPIC, ROWS_ENCODING, sid,
                                                  {"layout": json.dumps(layout.to_json())})
+        # the layout again, sealed, outside the first chunk: a damaged first chunk (which
+        # declares the channel) does not take the rows of the later ones with it
+        self._w.add_metadata(LAYOUT_RECORD, seal({"layout": json.dumps(layout.to_json()),
+                                                  "channel": str(self._channel)}))
 
     def append(self, rows: np.ndarray) -> None:
         """Append rows (K, row_width) float64 as one message in a chunk of its own: on disk
@@ -194,7 +202,9 @@ class JournalReader:
     Call :meth:`poll` for what was appended since the last call: a list of row blocks
     (numpy arrays). ``layout``, ``metadata`` (the ``qchain`` entries), ``outcome`` and
     ``finished`` fill in as the journal says them; ``damage`` lists what could not be read
-    (a damaged record, a layout or a block of rows that does not fit).
+    (a damaged record, a layout or a block of rows that does not fit) and ``lost`` the part
+    of it that may have held rows (all but a record cut at the end, where a killed run's
+    journal stops).
 
     Parameters
     ----------
@@ -231,7 +241,29 @@ class JournalReader:
         self.outcome: dict[str, str] | None = None
         self.finished = False
         self.damage: list[str] = []
+        self.lost: list[str] = []
         self._rows_channels: set[int] = set()
+
+    def _lose(self, what: str) -> None:
+        self.damage.append(what)
+        self.lost.append(what)
+
+    def _declare(self, channel: int, layout_json: str, where: str) -> None:
+        """The rows channel ``channel`` of ``layout_json``, declared at ``where``: taken if it
+        is the run's layout (one layout a journal; the same channel may be declared twice)."""
+        try:
+            layout = RecordLayout.from_json(loads(layout_json, "the journal's row layout"))
+        except (ValueError, TypeError, KeyError) as exc:
+            self._lose(f"the rows channel {channel} in {where}: its layout is not usable ({exc}): its rows are not "
+                       "read")
+            return
+        if self.layout is not None and layout.to_json() != self.layout.to_json():
+            self._lose(f"the rows channel {channel} in {where} has the layout {layout.to_json()}, the journal's "
+                       f"first {self.layout.to_json()}: its rows are not read")
+            self._rows_channels.discard(channel)
+            return
+        self.layout = layout
+        self._rows_channels.add(channel)
 
     def close(self) -> None:
         if self._fd >= 0:
@@ -266,33 +298,35 @@ class JournalReader:
             if item.kind == "chunk":
                 for rec in item.records:
                     if isinstance(rec, Channel) and rec.message_encoding == ROWS_ENCODING:
-                        try:
-                            self.layout = RecordLayout.from_json(loads(rec.metadata.get("layout", ""),
-                                                                       "the journal's row layout"))
-                        except (ValueError, TypeError, KeyError) as exc:
-                            self.damage.append(f"the rows channel {rec.id} in the chunk at byte {item.offset}: its "
-                                               f"layout is not usable ({exc}): its rows are not read")
-                            continue
-                        self._rows_channels.add(rec.id)
+                        self._declare(rec.id, rec.metadata.get("layout", ""), f"the chunk at byte {item.offset}")
                     elif isinstance(rec, Message) and rec.channel_id in self._rows_channels:
                         width = self.layout.row_width
                         if len(rec.data) % (8 * width):
-                            self.damage.append(f"a block of rows in the chunk at byte {item.offset} is "
-                                               f"{len(rec.data)} bytes, not whole rows of {width} numbers: not read")
+                            self._lose(f"a block of rows in the chunk at byte {item.offset} is {len(rec.data)} "
+                                       f"bytes, not whole rows of {width} numbers: not read")
                             continue
                         out.append(np.frombuffer(rec.data, dtype=np.float64).reshape(-1, width))
+                    elif isinstance(rec, Message):
+                        self._lose(f"a block of rows in the chunk at byte {item.offset} is on channel "
+                                   f"{rec.channel_id}, which no usable rows channel declares: not read")
             elif item.kind == "metadata":
                 entries = unseal(item.record.metadata)
                 if entries is None:
-                    self.damage.append(f"metadata record {item.record.name!r} at byte {item.offset}: checksum "
-                                       "mismatch")
+                    self._lose(f"metadata record {item.record.name[:80]!r} at byte {item.offset}: checksum mismatch")
                 elif item.record.name == "qchain":
                     self.metadata = entries
                 elif item.record.name == "qchain.outcome":
                     self.outcome = entries
+                elif item.record.name == LAYOUT_RECORD:
+                    cid = entries.get("channel", "")
+                    if cid.isascii() and cid.isdigit() and len(cid) < 6:
+                        self._declare(int(cid), entries.get("layout", ""), f"the metadata record at byte "
+                                                                           f"{item.offset}")
             elif item.kind == "footer":
                 self.finished = True
-            elif item.kind in ("damage", "end"):
+            elif item.kind == "damage":
+                self._lose(item.reason)
+            elif item.kind == "end":
                 self.damage.append(item.reason)
         drop = resume - self._base
         if drop > (1 << 20):  # keep memory flat on long runs

@@ -194,6 +194,7 @@ class RunLogger:
         self._layout: RecordLayout | None = None
         self._closed = False
         self._broken: str | None = None
+        self._notice: str | None = None  # a trouble the recording came through complete (said as a warning)
         self._warned_broken = False
         self._outcome: dict | None = None
         self._final: dict | None = None
@@ -605,9 +606,12 @@ class RunLogger:
             "rrd": None if self.rrd_path is None else str(self.rrd_path),
             "viewer_url": self.viewer_url,
             "error": self._broken,
+            "warning": self._notice,
         }
         if self._broken is not None:
             warnings.warn(f"qchain.logging: {self._broken}", LoggingWarning, stacklevel=2)
+        elif self._notice is not None:
+            warnings.warn(f"qchain.logging: {self._notice}", LoggingWarning, stacklevel=2)
         return self._final
 
     def _wait_while_serving(self, alive) -> None:
@@ -656,8 +660,13 @@ class RunLogger:
             why = (msg[1].get("message") if msg and msg[0] == "error" else None) or \
                 ("the log writer did not confirm the end of the recording" if proc.poll() is not None else
                  f"the log writer stopped answering (nothing for {WRITER_SILENCE:g} s)")
-            self._broken = self._broken or why
-            summary = self._finish_here(outcome)
+            summary = self._finish_here(outcome, why)
+            if summary and summary.get("n_records") == self.n_logged:  # complete all the same: said, not a failure
+                trouble = why if self._broken is None or self._broken == why else f"{self._broken}; {why}"
+                self._notice = f"{trouble}; the recording was finished from the journal, complete"
+                self._broken = None
+            else:
+                self._broken = self._broken or why
         try:
             if self.linger and self.viewer_url and proc.poll() is None and summary:
                 self._wait_while_serving(lambda: proc.poll() is None)
@@ -689,9 +698,10 @@ class RunLogger:
             warnings.warn(f"qchain.logging: the viewer was not done within {self.viewer_timeout:g} s; the MCAP log "
                           "is complete", LoggingWarning, stacklevel=4)
 
-    def _finish_here(self, outcome: dict) -> dict:
-        """The writer failed: finish the recording in this process from the journal (the
-        records are all there), if there is a recording to finish."""
+    def _finish_here(self, outcome: dict, why: str) -> dict:
+        """The writer failed (``why``): finish the recording in this process from the journal
+        (the records are all there), if there is a recording to finish; the summary, or {}
+        (then ``_broken`` says why)."""
         if self.mcap_path is None or not self.journal_path.exists():
             return {}
         try:
@@ -712,12 +722,12 @@ class RunLogger:
             for rows in blocks:
                 sink.write_batch(Batch.from_rows(rows, jr.layout))
             outcome = dict(outcome)
-            outcome["message"] = f"{outcome.get('message', '')} (recording finished from the journal: {self._broken})"
+            outcome["message"] = f"{outcome.get('message', '')} (recording finished from the journal: {why})"
             sink.finish(outcome)
             self.journal_path.unlink()
             return {"n_records": sink.n_records, "last_t": sink.last_t}
         except Exception as exc:
-            self._broken = f"{self._broken}; finishing the recording from the journal failed too " \
+            self._broken = f"{self._broken or why}; finishing the recording from the journal failed too " \
                            f"({type(exc).__name__}: {exc}); the records stay in {self.journal_path}"
             return {}
 

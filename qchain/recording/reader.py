@@ -301,8 +301,15 @@ def _dims_error(name: str, offset: int, dims: dict, n: int) -> str | None:
     return None
 
 
-def _decode_states(msgs: list[tuple[int, bytes]], info: RunInfo, name: str) -> Batch:
-    """The ``/qchain/state`` messages ``(chunk offset, JSON)`` as checked columns."""
+#: Bytes of Python objects a parsed JSON number costs (a float and its list slot, with the
+#: lists around; measured with tracemalloc on orjson): charged to the reading budget before a
+#: message is parsed, so a few KiB of "[0.0,0.0,0.0]," compressed never grow into gigabytes
+PARSED_NUMBER_BYTES = 56
+
+
+def _decode_states(msgs: list[tuple[int, bytes]], info: RunInfo, name: str, budget: Budget | None = None) -> Batch:
+    """The ``/qchain/state`` messages ``(chunk offset, JSON)`` as checked columns; each
+    message's numbers (its commas) are charged to ``budget`` before it is parsed."""
     n = info.n_segments
     if not msgs:
         return Batch(np.zeros(0), np.zeros(0, np.int64), np.zeros((0, 0)), np.zeros((0, 0)), np.zeros((0, 3 * n)),
@@ -312,6 +319,9 @@ def _decode_states(msgs: list[tuple[int, bytes]], info: RunInfo, name: str) -> B
     for a in range(0, len(msgs), _BLOCK):
         block = msgs[a : a + _BLOCK]
         offsets = [off for off, _ in block]
+        if budget is not None:
+            for off, data in block:
+                budget.spend(PARSED_NUMBER_BYTES * data.count(b","), off, "the numbers of its state messages")
         states = [_parse_state(data, off, name) for off, data in block]
         cols = {}
         for key in _NDIM:
@@ -344,10 +354,10 @@ def _check_rows(rows: np.ndarray, lay, info: RunInfo, where: str) -> str | None:
     t, step = rows[:, 0], rows[:, 1]
     bad = ~((t >= 0.0) & (t <= T_MAX))
     if bad.any():
-        return f"row {int(np.argmax(bad))} has the time {t[bad][0]!r} (expected 0 .. {T_MAX:g} s)"
+        return f"row {int(np.argmax(bad))} has the time {float(t[bad][0])!r} (expected 0 .. {T_MAX:g} s)"
     bad = ~((step >= 0.0) & (step <= STEP_MAX) & (step == np.floor(step)))
     if bad.any():
-        return f"row {int(np.argmax(bad))} has the step {step[bad][0]!r} (expected a whole number 0 .. 2**53)"
+        return f"row {int(np.argmax(bad))} has the step {float(step[bad][0])!r} (expected a whole number 0 .. 2**53)"
     return None
 
 
@@ -582,9 +592,9 @@ def _read(name: str, buf: bytearray, jpath, limits: ReadLimits) -> Recording:
             if outcome is None and jr.outcome is not None and _outcome_problem(jr.outcome) is None:
                 outcome = jr.outcome
             damage.extend(f"journal: {d}" for d in jr.damage)
-            unread = [d for d in jr.damage if "not read" in d]
-            if unread:
-                journal_unread = "; ".join(unread)
+            if jr.lost:  # what it holds is read, but it is not whole: recover keeps it
+                journal_unread = "; ".join(jr.lost[:3]) + (f" (and {len(jr.lost) - 3} more)" if len(jr.lost) > 3
+                                                           else "")
     if meta is None and len(buf) == 0:
         raise RecordingFormatError(f"{name}: no recording file, and its journal {jpath} holds no qchain recording ("
                                    f"{'; '.join(damage) or 'no qchain metadata'})")
@@ -636,7 +646,7 @@ def _read(name: str, buf: bytearray, jpath, limits: ReadLimits) -> Recording:
     summary = summary_records(buf, budget) if complete else None
     index, stats = summary if summary is not None else (None, None)
     del buf
-    b = _decode_states(msgs, info, name)
+    b = _decode_states(msgs, info, name, budget)
     del msgs
     gaps = []
     for pos, item in events:
@@ -655,22 +665,45 @@ def _read(name: str, buf: bytearray, jpath, limits: ReadLimits) -> Recording:
             if (b.q.shape[1], b.v.shape[1], b.p.shape[1], b.backbone.shape[2]) != \
                     (jr.layout.nq, jr.layout.nv, jr.layout.n_p, jr.layout.P):
                 why = f"its rows have the layout {jr.layout.to_json()}, the recording's records another"
-        if why is not None:
-            raise RecordingFormatError(f"{jpath} (the journal of {name}): {why}")
-        if len(b):
+        if why is not None:  # the file's own records still read; the journal is said, kept, not merged
+            if not len(b) and not complete:
+                raise RecordingFormatError(f"{jpath} (the journal of {name}): {why}")
+            journal_unread = f"{jpath} (the journal of {name}): {why}: not merged"
+            damage.append(journal_unread)
+            journal_rows = None
+    if journal_rows is not None:
+        inside = np.zeros(len(journal_rows), dtype=bool)
+        if len(b):  # records the file lacks: after its last, and inside it (a damaged chunk's)
             last, last_t = int(b.step[-1]), float(b.t[-1])
-            journal_rows = journal_rows[(journal_rows[:, 1] > last) & (journal_rows[:, 0] >= last_t)]
+            after = (journal_rows[:, 1] > last) & (journal_rows[:, 0] >= last_t)
+            inside = ~after & (journal_rows[:, 1] < last) & ~np.isin(journal_rows[:, 1], b.step)
+            if file_complete and after.any():  # never appended to a complete file: said instead
+                journal_unread = (f"the file is complete (its outcome and summary are there), yet its journal "
+                                  f"{jpath} holds {int(after.sum())} records after its last: not merged")
+                after[:] = False
+            journal_rows = journal_rows[after | inside]
+            inside = inside[after | inside]
         recovered = len(journal_rows)
-        if recovered and file_complete:  # never merged into a complete file: said instead
-            journal_unread = (f"the file is complete (its outcome and summary are there), yet its journal {jpath} "
-                              f"holds {recovered} records after its last: not merged")
-            recovered = 0
         if recovered:
+            filled = int(inside.sum())
             jb = Batch.from_rows(journal_rows, jr.layout)
             b = jb if len(b) == 0 else Batch.concatenate([b, jb])
-            if not complete:
+            if filled:  # the file's records and the journal's in step order
+                b = b.take(np.argsort(b.step, kind="stable"))
+            if gaps:  # a gap whose steps the journal holds is filled: said as damage, not as a gap
+                have = set(b.step.tolist())
+                kept = []
+                for g in gaps:
+                    lo = -1 if g.after_step is None else g.after_step
+                    hi = g.before_step if g.before_step is not None else (max(have) + 1 if lo + 1 in have else lo + 1)
+                    if hi > lo + 1 and all(k in have for k in range(lo + 1, hi)):
+                        damage[damage.index(g.reason)] = f"{g.reason} (its records read from the run's journal {jpath})"
+                    else:
+                        kept.append(g)
+                gaps = kept
+            if recovered > filled and not complete:
                 stop_reason = (stop_reason + "; " if stop_reason else "") + \
-                    f"{recovered} records after it read from the run's journal {jpath}"
+                    f"{recovered - filled} records after it read from the run's journal {jpath}"
     if not gaps and not recovered:
         gap = _missing(b, name, outcome, stats, state_channels, index, chunk_times)
         if gap is not None:

@@ -362,7 +362,9 @@ def recover(path: str | os.PathLike, *, limits: ReadLimits | None = None) -> Rec
     try:
         # a short name of its own (not the file's name plus a suffix: that can pass the file
         # system's limit for a name check_outputs accepts), hidden, in the same folder
-        fd, tmp = tempfile.mkstemp(prefix=".recovering-", dir=path.parent)
+        # a link is kept: the file it names is replaced (in that file's folder)
+        target = Path(os.path.realpath(path)) if os.path.islink(path) else path
+        fd, tmp = tempfile.mkstemp(prefix=".recovering-", dir=target.parent)
         os.close(fd)
         sink = McapSink(tmp, rec.info, recording_id=rec.metadata.get("recording_id", str(uuid.uuid4())),
                         flush_interval=DEFAULT_FLUSH_INTERVAL, flush_wall_interval=1e9)
@@ -373,7 +375,7 @@ def recover(path: str | os.PathLike, *, limits: ReadLimits | None = None) -> Rec
                          "nfev": int(out.get("nfev", 0) or 0)})
         finally:
             sink.abandon()
-        os.replace(tmp, path)
+        os.replace(tmp, target)
     except OSError as exc:
         raise LoggingError(f"cannot write the recovered recording of {path} ({exc.strerror or exc}); the file and its "
                            "journal are as they were") from None
@@ -454,6 +456,15 @@ def replay_main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(argv)
     limits = _limits(parser, args)
     serve = args.serve or not (args.connect or args.rrd)
+    from ..cli_errors import BadInput
+    from ..cli_checks import check_bind_address, check_viewer_url
+
+    try:  # the same checks as qchain run's, before the file is read
+        check_viewer_url("argument --connect", args.connect)
+        if serve:
+            check_bind_address("argument --bind", args.bind)
+    except BadInput as exc:
+        return _error("replay", exc)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", LoggingWarning)
         try:

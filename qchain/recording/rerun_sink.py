@@ -116,6 +116,35 @@ def camera(base: np.ndarray, reach: float, fov_deg: float = FOV_Y_DEG, margin: f
     return target + dist * view, target, up
 
 
+def listen_address(bind: str) -> str:
+    """The IPv4 address a server listens on for ``bind`` (an IPv4 address, or a host name
+    resolved to its first IPv4 address: Rerun's server takes addresses only). IPv6 is not
+    served (the viewer's page is served and linked on IPv4).
+
+    Raises
+    ------
+    LoggingError
+        naming ``bind``: an IPv6 address, or a name with no IPv4 address.
+    """
+    import ipaddress
+
+    text = str(bind)
+    try:
+        ip = ipaddress.ip_address(text.strip("[]"))
+    except ValueError:
+        ip = None
+    if ip is not None:
+        if ip.version != 4:
+            raise LoggingError(f"bind: expected an IPv4 address (IPv6 is not served), found {text[:80]!r}: use "
+                               "127.0.0.1 (this machine) or 0.0.0.0 (every interface)")
+        return str(ip)
+    try:
+        infos = socket.getaddrinfo(text, None, socket.AF_INET, socket.SOCK_STREAM)
+    except (OSError, UnicodeError) as exc:
+        raise LoggingError(f"bind: the host name {text[:80]!r} has no IPv4 address ({exc})") from None
+    return str(infos[0][4][0])
+
+
 def _pick_port(host: str, preferred: int | None, default: int) -> int:
     """``preferred`` if given; else ``default`` when free on ``host``, else a free port."""
     if preferred:
@@ -295,6 +324,7 @@ class RerunSink:
                      "MCAP log is still written")
         server_port = None
         if serve:
+            bind = listen_address(bind)
             server_port = _pick_port(bind, grpc_port, DEFAULT_GRPC_PORT)
             server = rr.GrpcServerSink(bind_ip=bind, port=server_port, server_memory_limit=server_memory_limit)
             sinks.append(server)

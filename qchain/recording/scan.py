@@ -28,7 +28,8 @@ from dataclasses import dataclass, field
 
 from mcap.data_stream import ReadDataStream
 from mcap.opcode import Opcode
-from mcap.records import Channel, Chunk, Footer, Message, Metadata, Schema
+from mcap.records import (Attachment, AttachmentIndex, Channel, Chunk, ChunkIndex, DataEnd, Footer, Header, Message,
+                          MessageIndex, Metadata, MetadataIndex, Schema, Statistics, SummaryOffset)
 
 from .bounded import Budget, LimitExceeded, decompress
 from .records import unseal
@@ -41,6 +42,12 @@ _CHUNK_FIXED = struct.Struct("<QQQII")  # start, end, uncompressed size, crc, co
 _MESSAGE_FIXED = struct.Struct("<HIQQ")  # channel id, sequence, log time, publish time
 _KNOWN = {int(op) for op in Opcode}
 _COMPRESSIONS = ("", "zstd", "lz4")
+#: The record classes that parse a record outside a chunk field by field (a length check)
+_CLASSES = {Opcode.HEADER: Header, Opcode.METADATA: Metadata, Opcode.MESSAGE_INDEX: MessageIndex,
+            Opcode.CHUNK_INDEX: ChunkIndex, Opcode.ATTACHMENT: Attachment, Opcode.ATTACHMENT_INDEX: AttachmentIndex,
+            Opcode.STATISTICS: Statistics, Opcode.METADATA_INDEX: MetadataIndex,
+            Opcode.SUMMARY_OFFSET: SummaryOffset, Opcode.DATA_END: DataEnd, Opcode.SCHEMA: Schema,
+            Opcode.CHANNEL: Channel}
 #: Where a record a resynchronisation may trust can start: a chunk, metadata or footer
 #: opcode followed by a length below 2**40 (no record of a file under a terabyte is longer).
 _CANDIDATE = re.compile(rb"[\x02\x06\x0c](?=.{5}\x00\x00\x00)", re.DOTALL)
@@ -159,6 +166,44 @@ def _metadata(buf, pos: int, length: int, budget: Budget | None = None) -> Metad
         raise ValueError(f"{type(exc).__name__}: {exc}") from None
 
 
+def _exact(buf, pos: int, length: int, opcode: int, budget: Budget | None) -> bool:
+    """Whether the record at ``pos`` parses (the mcap library's record class) to exactly its
+    ``length`` bytes; a message outside a chunk (its data are the rest of it) counts as such."""
+    cls = _CLASSES.get(opcode)
+    if cls is None:
+        return opcode == Opcode.MESSAGE
+    if budget is not None:
+        budget.spend(length, pos)
+    stream = ReadDataStream(io.BytesIO(bytes(buf[pos + 9 : pos + 9 + length])))
+    try:
+        cls.read(stream)
+    except Exception:  # the library's EndOfFile, struct and UTF-8 errors: it does not parse
+        return False
+    return stream.count == length
+
+
+def _footer_at_end(buf, start: int, size: int) -> Item | None:
+    """The file's footer where a complete file has it (its last 37 bytes: the record and the
+    closing magic), if it is intact and after ``start``, else None."""
+    fpos = size - len(MAGIC) - 29
+    if fpos < start or bytes(buf[size - len(MAGIC):]) != MAGIC:
+        return None
+    opcode, length = _HEAD.unpack_from(buf, fpos)
+    return Item("footer", fpos, size, opcode) if opcode == Opcode.FOOTER and length == 20 else None
+
+
+def _followed(buf, end: int, size: int, final: bool) -> bool:
+    """Whether a record skipped by its length ends where the file ends or another record
+    could start: a known opcode whose length stays inside the file (or a header not written
+    yet, for a file still growing)."""
+    if end == size or (size - end < 9 and not final):
+        return True
+    if size - end < 9:
+        return False
+    opcode, length = _HEAD.unpack_from(buf, end)
+    return opcode in _KNOWN and (end + 9 + length <= size or not final)
+
+
 def _trusted_at(buf, pos: int, size: int, budget: Budget | None = None) -> Item | None:
     """The record at ``pos`` if it is one a resynchronisation may trust, else None."""
     if size - pos < 9:
@@ -252,6 +297,11 @@ def scan(buf, start: int = len(MAGIC), final: bool = True, budget: Budget | None
                 if opcode == Opcode.CHUNK:
                     chunk, records, note = _chunk(buf, pos, length, budget)
                     yield Item("chunk", pos, end, opcode, records=records, chunk=chunk, reason=note)
+                elif opcode != Opcode.FOOTER and not _followed(buf, end, size, final) and \
+                        not _exact(buf, pos, length, opcode, budget):
+                    # a length that was damaged larger would skip the records after it (a whole
+                    # chunk): trusted only where its fields fill it exactly or a record follows it
+                    raise ValueError(f"its length {length} does not end where another record starts")
                 elif opcode == Opcode.METADATA:
                     yield Item("metadata", pos, end, opcode, record=_metadata(buf, pos, length, budget))
                 elif opcode == Opcode.FOOTER:
@@ -266,6 +316,11 @@ def scan(buf, start: int = len(MAGIC), final: bool = True, budget: Budget | None
                     return
                 else:
                     yield Item("record", pos, end, opcode)
+                    if opcode == Opcode.DATA_END and final:
+                        footer = _footer_at_end(buf, end, size)
+                        if footer is not None:  # the summary between: read by its CRC (summary_records)
+                            yield footer
+                            return
                 pos = end
                 continue
             except LimitExceeded:

@@ -56,6 +56,17 @@ def _csp(grpc_port: int) -> str:
             f"connect-src {local} blob: data:; worker-src 'self' blob:")
 
 
+class _QuietServer(ThreadingHTTPServer):
+    """The front's server: a client that sends garbage or goes away mid-request is that
+    client's trouble, not the run's: no traceback on the run's stderr (the standard
+    library's ``handle_error`` prints one)."""
+
+    daemon_threads = True
+
+    def handle_error(self, request, client_address) -> None:
+        pass
+
+
 class LoopbackFront:
     """An HTTP front before the ``rerun`` program's web server.
 
@@ -107,8 +118,7 @@ class LoopbackFront:
                 self.end_headers()
                 self.wfile.write(body)
 
-        self.server = ThreadingHTTPServer((bind, port), Handler)
-        self.server.daemon_threads = True
+        self.server = _QuietServer((bind, port), Handler)
         self.port = self.server.server_address[1]
         self.thread = threading.Thread(target=self.server.serve_forever, name="qchain-web-front", daemon=True)
         self.thread.start()
