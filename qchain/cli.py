@@ -64,7 +64,7 @@ import warnings
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from .cli_checks import CONNECT_TIMEOUT, path_argument, _recording_stem, _shown, check_bind_address, check_flag_values, \
+from .cli_checks import CONNECT_TIMEOUT, file_argument, path_argument, _recording_stem, _shown, check_bind_address, check_flag_values, \
     check_output_folder, check_output_path, check_viewer_url, viewer_silence
 from .cli_errors import (EXIT_FAILED, EXIT_OK, EXIT_USAGE, BadInput, _forget_unhandled_interrupt,
                          _one_line, _Session, _show_warnings, _tolerant_streams,
@@ -168,7 +168,7 @@ def _run(args, parser, session: _Session) -> int:
         scene.check_budget(duration, model)
     except BudgetError as err:
         raise BadInput(f"{printable(_shown(args.scene))}: {err}") from None
-    _print_lines(scene.describe(model))
+    _print_lines(scene.describe(model, duration=duration, folder=args.out, plots=not args.no_plots))
     sys.stdout.flush()
     progress = (True if sys.stderr.isatty() else "lines") if args.progress is None else args.progress
 
@@ -215,12 +215,13 @@ def _run(args, parser, session: _Session) -> int:
                 else:
                     logger.set_outcome(False, "interrupted by the user (Ctrl-C) before the first sample")
             done = logger.close()
+            if done.get("error"):
+                print(f"qchain run: error: the recording failed: {_one_line(done['error'])}", file=sys.stderr)
+                _say_journal(logger)
+                return EXIT_FAILED
             if logger.mcap_path is not None:
                 reached = "no sample" if done.get("last_t") is None else f"t = {done['last_t']:.6g} s"
                 print(f"recorded {printable(_shown(logger.mcap_path))} ({done.get('n_records', 0)} samples, up to {reached})")
-            if done.get("error"):
-                print(f"qchain run: error: the recording failed: {_one_line(done['error'])}", file=sys.stderr)
-                return EXIT_FAILED
         else:
             try:
                 traj = scene.simulate(model=model, duration=duration, progress=progress)
@@ -232,9 +233,12 @@ def _run(args, parser, session: _Session) -> int:
         print(f"qchain run: error: {_one_line(err)}", file=sys.stderr)
         if logger is not None and logger.mcap_path is not None:
             done = logger.close()
-            reached = "no sample" if done.get("last_t") is None else f"t = {done['last_t']:.6g} s"
-            print(f"recorded {printable(_shown(logger.mcap_path))} ({done.get('n_records', 0)} samples, up to {reached})",
-                  file=sys.stderr)
+            if done.get("error"):
+                _say_journal(logger)
+            else:
+                reached = "no sample" if done.get("last_t") is None else f"t = {done['last_t']:.6g} s"
+                print(f"recorded {printable(_shown(logger.mcap_path))} ({done.get('n_records', 0)} samples, up to "
+                      f"{reached})", file=sys.stderr)
         return EXIT_FAILED
     session.phase = "end"
     wall = (time.perf_counter() if t1 is None else t1) - t0 - (traj.meta.get("compile_s", 0.0) if traj is not None
@@ -258,6 +262,16 @@ def _run(args, parser, session: _Session) -> int:
         for path in written:
             print(f"wrote {printable(_shown(path))}")
     return EXIT_OK if traj.success and not interrupted else EXIT_FAILED
+
+
+def _say_journal(logger) -> None:
+    """Where the records of a recording that could not be finished are: its journal, if it
+    stayed (``qchain replay`` reads it, ``qchain recover`` makes the file whole)."""
+    jp = getattr(logger, "journal_path", None)
+    if logger.mcap_path is not None and jp is not None and os.path.exists(jp):
+        mcap = printable(_shown(logger.mcap_path))
+        print(f"qchain run: the recording {mcap} is not finished; its records are in {printable(_shown(jp))} "
+              f"(`qchain replay {mcap}` reads them, `qchain recover {mcap}` makes the file whole)", file=sys.stderr)
 
 
 def _check_planned_outputs(args, scene, mcap) -> None:
@@ -419,7 +433,7 @@ def _parser(qlog) -> argparse.ArgumentParser:
     for p in (run, info):  # every path argument: not empty (Path("") is the working folder), no NUL
         for action in p._actions:
             if action.type is Path:
-                action.type = path_argument
+                action.type = file_argument if action.dest in ("mcap", "rrd") else path_argument
     return parser
 
 
@@ -438,6 +452,15 @@ def _dispatch(argv: list[str], session: _Session, debug: bool) -> int:
     if argv[:1] in (["--version"], ["-V"]) and len(argv) == 1:  # at once, before the libraries load
         print(f"qchain {version()}")
         return EXIT_OK
+    try:
+        os.getcwd()
+    except OSError as exc:  # relative paths (the scene, runs/, out/) would fail later, naming nothing
+        raise BadInput(f"the working folder cannot be used ({exc.strerror or exc}: deleted?): change to an existing "
+                       "folder") from None
+    if argv and argv[0] in ("run", "info", "sweep", "bench") and \
+            os.environ.get("NUMBA_DISABLE_JIT", "0").strip() not in ("", "0"):
+        raise BadInput(f"NUMBA_DISABLE_JIT={os.environ['NUMBA_DISABLE_JIT'][:20]} is set: qchain's engine is "
+                       "numba-compiled (and would take hours as Python); unset it")
     if argv and argv[0] == "sweep":
         from .sweeps import main as sweep_main
 
@@ -494,7 +517,9 @@ def command(name: str, body, debug: bool = False, session: _Session | None = Non
     if session is not None:
         return guarded(session.prog, lambda: body(session), debug, session)
     session = _Session(name)
-    _tolerant_streams()
+    if "stdout" in _tolerant_streams() and result_on_stdout:  # (info >&-): the result would go nowhere
+        print(f"{session.prog}: error: standard output is closed: the result has nowhere to go", file=sys.stderr)
+        return EXIT_FAILED
     stdout = sys.stdout
     sys.stdout = out = SummaryOutput(stdout, session.prog)
     sig = _sigint_handler(session.on_sigint)

@@ -276,3 +276,12 @@ def path_argument(text: str) -> Path:
     if not text:
         raise argparse.ArgumentTypeError("expected a path, found an empty string")
     return Path(text)
+
+
+def file_argument(text: str) -> Path:
+    """An output file's path argument: :func:`path_argument`, and not ending in ``/`` (a
+    folder's name: ``Path`` would drop the slash and write a file of the folder's name)."""
+    if text.endswith(os.sep) or (os.altsep and text.endswith(os.altsep)):
+        raise argparse.ArgumentTypeError(f"expected a file's path, found {text!r}, which ends in {os.sep!r} (a "
+                                         "folder's name)")
+    return path_argument(text)

@@ -203,15 +203,18 @@ def _show_warnings(prog: str):
     return show
 
 
-def _tolerant_streams() -> None:
+def _tolerant_streams() -> set[str]:
     """Let stdout and stderr print any path (a file name that is not UTF-8, a character the
     locale's encoding lacks, e.g. under ``LC_ALL=C``: shown escaped instead of raising
     ``UnicodeEncodeError``), and give a closed stdout or stderr (``>&-``) a place to go
-    (``os.devnull``), so that printing never stops a run."""
+    (``os.devnull``), so that printing never stops a run. Returns the names of those that
+    were closed."""
+    closed = set()
     for fd, name in ((1, "stdout"), (2, "stderr")):
         try:
             os.fstat(fd)
         except OSError:  # closed: a file opened later (the recording) must not take its number
+            closed.add(name)
             try:
                 null = os.open(os.devnull, os.O_WRONLY)
                 if null != fd:
@@ -230,6 +233,7 @@ def _tolerant_streams() -> None:
                 stream.reconfigure(errors="backslashreplace")
             except (ValueError, OSError, AttributeError, TypeError):
                 pass
+    return closed
 
 
 class SummaryOutput:

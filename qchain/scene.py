@@ -296,8 +296,11 @@ class Scene(ModelBuilder):
 
     # ------------------------------------------------------------------ report
 
-    def describe(self, model: SceneModel | None = None) -> list[str]:
-        """Lines describing the scene and the model it builds (``qchain info``)."""
+    def describe(self, model: SceneModel | None = None, duration: float | None = None,
+                 folder: str | os.PathLike | None = None, plots: bool = True) -> list[str]:
+        """Lines describing the scene and the model it builds (``qchain info``); ``duration``,
+        ``folder`` and ``plots`` (False: none written) are a run's own where it overrides
+        the file's (``qchain run --duration --out --no-plots``)."""
         m = self.model if model is None else model
         ch = m.chain
         lines = [f"scene: {self.path if self.path else '<text>'}" + (f" ({self.name})" if self.name else "")]
@@ -329,9 +332,13 @@ class Scene(ModelBuilder):
         meth = f"{self.method}, dt = {self.dt:g} s" if self.method in FIXED_STEP else \
             f"{self.method}, rtol = {self.rtol:g}, atol = {self.atol:g}" + \
             (f", max_step = {self.max_step:g} s" if math.isfinite(self.max_step) else "")
-        lines.append(f"simulation: {self.duration:g} s, {meth}")
-        lines.append(f"output: {self.sample_rate:g} Hz to {self.output_folder}, plots: "
-                     f"{', '.join(self.plots) if self.plots else 'none'}{', trajectory.npz' if self.save else ''}")
+        lines.append(f"simulation: {self.duration if duration is None else duration:g} s, {meth}")
+        if plots:
+            lines.append(f"output: {self.sample_rate:g} Hz to {self.output_folder if folder is None else folder}, "
+                         f"plots: {', '.join(self.plots) if self.plots else 'none'}"
+                         f"{', trajectory.npz' if self.save else ''}")
+        else:
+            lines.append(f"output: {self.sample_rate:g} Hz, no plots and no trajectory.npz")
         return lines
 
 

@@ -259,8 +259,12 @@ def _frequency(pspec: dict, base: BaseSpec | None) -> float:
 
 
 def _samples(duration: float, rate: float) -> float:
-    """How many output samples :meth:`Scene.sample_times` gives (without making them)."""
-    return math.floor(duration * rate * (1 + 1e-12)) + 2.0
+    """How many output samples :meth:`Scene.sample_times` gives (without making them): the
+    grid ``k / rate`` from 0 up to ``duration``, its last point replaced by ``duration``
+    where it falls within 1e-9 of it, else ``duration`` added."""
+    last = math.floor(duration * rate * (1 + 1e-12))
+    on_end = last / rate >= duration - 1e-9 * max(1.0, duration)
+    return float(last + 1 if on_end else last + 2)
 
 
 def _cost(n, base_type, method, dt, max_step, duration, rate, frequency, stable_step=None):

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import functools
 import inspect
+import sys
 import time as _time
 
 import numpy as np
@@ -144,7 +145,9 @@ def run(chain, m, method, q0, v0, t0, t1, *, dt, rtol, atol, t_eval, on_sample, 
                 max_steps = int(min(max(max_steps * min(4.0, STRETCH / max(wall, 1e-6)), 1), 1 << 20))
             t = tf[steppers.T]
             if code == FAILED:
+                w0 = _time.perf_counter()  # (rk4's stability limit: the exact derivatives, compiled at their first use)
                 status, message = -1, _failure(chain, wk, it, method, q0, v0, t0, inputs)
+                compile_s += _time.perf_counter() - w0
                 emitted = _hand_over(out, emitted, cnt, on_sample, pass_energies, m, wk)
                 break
             if events and cnt[steppers.DENSE_OK]:
@@ -384,6 +387,12 @@ def stability_limit(chain, q, v, p, tau, t, radius: float = RK4_STABILITY_RADIUS
     idx = np.flatnonzero(chain.active)
     if idx.size > STABILITY_MAX_NV:
         return None
+    from .. import derivatives
+
+    if not len(derivatives.aba_derivatives.overloads) and warmup.is_cached(derivatives.aba_derivatives) is False:
+        print("qchain: compiling the exact derivatives for this machine (the stability limit of an explicit "
+              "method's step): about 20 s, once after install or an update (cached for later runs)",
+              file=sys.stderr, flush=True)
     try:
         d = chain.forward_dynamics_derivatives(q, v, p, tau, t=t)
     except (QchainError, ValueError):

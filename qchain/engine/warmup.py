@@ -256,6 +256,15 @@ def compile_all(methods=None, stream=sys.stderr) -> None:
         for planar_kernel in (False, True):
             m, wk, it, out, c = standin(method, planar_kernel)
             prepare(method, m, wk, it, out, c, energies=True, stream=stream)  # loads what the workers cached
+    if any(m in ("dopri5", "rk4") for m in methods):  # the explicit methods' stability limit: the exact derivatives
+        from ..chain import Chain
+        from ..segment import Segment
+        from . import driver
+
+        seg = Segment(length=0.1, radius=0.015, mass=0.05, chamber_area=4.5e-5, chamber_radius=0.0085,
+                      youngs_modulus=1e5)
+        ch = Chain([seg])
+        driver.stability_limit(ch, ch.neutral(), np.zeros(ch.nv), np.zeros(ch.nu), np.zeros(ch.nv), 0.0)
 
 
 def prepare_energies(m, wk, stream=sys.stderr) -> float:

@@ -630,9 +630,11 @@ class RunLogger:
         summary: dict = {}
         old = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT}) if hasattr(signal, "pthread_sigmask") \
             else None
+        finished = False
         try:  # a second Ctrl-C must not leave the journal without its end
             try:
                 self._journal.finish(outcome_entries(outcome, self.n_logged, self.last_t))
+                finished = True
             except OSError as exc:
                 self._broken = self._broken or f"the journal could not be finished ({exc.strerror or exc})"
         finally:
@@ -644,7 +646,8 @@ class RunLogger:
             self._take_ready(120.0)
             if proc.poll() is None:
                 try:
-                    self._conn.send(("end", outcome))
+                    # (a journal that could not be finished: the writer does not wait for its end)
+                    self._conn.send(("end", {**outcome, "journal_finished": finished}))
                     # as long as it takes, while the writer says it is alive (every second)
                     msg = self._recv(math.inf, idle=WRITER_SILENCE)
                 except OSError:

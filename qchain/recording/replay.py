@@ -447,7 +447,9 @@ def replay_main(argv: Sequence[str] | None = None) -> int:
     target = parser.add_mutually_exclusive_group()
     target.add_argument("--serve", action="store_true", help="serve a web viewer on 127.0.0.1 (the default)")
     target.add_argument("--connect", metavar="URL", help="send to a running Rerun viewer (rerun+http://HOST:PORT/proxy)")
-    target.add_argument("--rrd", metavar="OUT", type=Path, help="write a Rerun .rrd file")
+    from ..cli_checks import file_argument
+
+    target.add_argument("--rrd", metavar="OUT", type=file_argument, help="write a Rerun .rrd file")
     parser.add_argument("--bind", default=DEFAULT_BIND, help="address to serve on (default 127.0.0.1: this machine only)")
     parser.add_argument("--timeout", type=float, default=CONNECT_TIMEOUT, metavar="S",
                         help=f"seconds a viewer at --connect has to answer and take the recording (default "
@@ -529,7 +531,10 @@ def layout_main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="qchain layout", description="Write the Foxglove layout of a recording "
                                      "(3D arm, frame tree, named plots); import it in Foxglove's layout menu.")
     parser.add_argument("log", type=Path, help="the .mcap recording")
-    parser.add_argument("-o", "--out", type=Path, default=None, help="output file (default: standard output)")
+    from ..cli_checks import file_argument
+
+    parser.add_argument("-o", "--out", type=file_argument, default=None,
+                        help="output file (default: standard output)")
     _add_limits(parser)
     args = parser.parse_args(argv)
     limits = _limits(parser, args)

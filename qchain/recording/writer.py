@@ -590,7 +590,10 @@ def process_main(fd: int) -> int:
                 _drain(journal, sinks, beat=beat)
                 alive = _send(conn, ("flushed", sinks.flush()))
             elif kind == "end":
-                deadline = time.monotonic() + 60.0
+                body = dict(body)
+                # the journal's end is waited for only where it was written (a full disk or a file
+                # size limit stops it: then the records there are all there will be)
+                deadline = time.monotonic() + (60.0 if body.pop("journal_finished", True) else 0.0)
                 while not journal.finished and time.monotonic() < deadline:
                     _drain(journal, sinks, final=False, beat=beat)
                     beat()
