@@ -280,9 +280,9 @@ def check_settings(chain: Chain, t0: float, t1: float, *, method, dt, rtol, atol
         max_step = B.STEP.check("max_step", max_step)
     if first_step is not None:
         first_step = B.STEP.check("first_step", first_step)
-        least = SPAN_RESOLUTION * max(1.0, abs(t0), abs(t1))  # where step times are still distinct
+        least = 20.0 * float(np.spacing(max(1.0, abs(t0), abs(t1))))  # twice the steppers' floor
         if first_step < least:
-            raise ValueError(f"first_step must be >= {least:.3g} s (64 float64 epsilons of max(1 s, |t0|, |t1|)), "
+            raise ValueError(f"first_step must be >= {least:.3g} s (20 float64 spacings of max(1 s, |t0|, |t1|)), "
                              f"got {first_step:.17g} s")
     if wall_limit is not None:
         wall_limit = B.WALL_LIMIT.check("wall_limit", wall_limit)

@@ -351,7 +351,7 @@ def test_frames_batch_errors_name_the_row(rng):
         ch.frames_batch(bad)
     with pytest.raises(ValueError, match=r"Q must have shape \(K, nq\) = \(K, 16\), got \(5, 15\)"):
         ch.frames_batch(Q[:, :-1])
-    with pytest.raises(ValueError, match="points_per_segment must be an int >= 2 and <= 10000, got 1"):
+    with pytest.raises(ValueError, match="points_per_segment must be an int >= 2 and <= 10000, got an int 1"):
         ch.frames_batch(Q, 1)
     assert ch.frames_batch(Q[:0]).backbone.shape == (0, 3, 20, 3)
 

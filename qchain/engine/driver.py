@@ -84,8 +84,10 @@ def run(chain, m, method, q0, v0, t0, t1, *, dt, rtol, atol, t_eval, on_sample, 
     tf[steppers.RTOL], tf[steppers.ATOL] = rtol, atol
     tf[steppers.MAX_STEP] = max_step
     h0 = first_step if first_step is not None else min(1e-4, (t1 - t0) / 10)
-    # above the steppers' floor, 10 float64 spacings of t (coarse at large t: 1.2e-4 s at 1e12 s)
-    tf[steppers.H] = max(h0, min(20.0 * float(np.spacing(max(abs(t0), abs(t1)))), (t1 - t0) / 4))
+    # well above the steppers' floor, 10 float64 spacings of t (coarse at large t: 1.2e-4 s at
+    # 1e12 s), where a first step's rejections would take it under the floor
+    tf[steppers.H] = h0 if first_step is not None else \
+        max(h0, min(1000.0 * float(np.spacing(max(abs(t0), abs(t1)))), (t1 - t0) / 4))
     tf[steppers.NEWTON_TOL] = max(10 * EPS / rtol, min(0.03, rtol**0.5))
     out = _Outputs(chain, t_eval, guess=int(min((t1 - t0) / dt + 2, 1 << 16)) if fixed and t_eval is None else 1024)
     if out.every:
