@@ -23,6 +23,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from helpers import SEGMENTS_TOML
 from logging_fixtures import arm_info, arm_records
 
 import qchain
@@ -380,15 +381,7 @@ def test_a_sweep_seed_and_an_integer_axis_are_checked():
 
 SCENE = """
 name = "NAME"
-[[segments]]
-length = 0.1
-radius = 0.015
-mass = 0.05
-chamber_area = 4.5e-5
-chamber_radius = 0.0085
-youngs_modulus = 1e5
-damping = 0.01
-[pressure]
+""" + SEGMENTS_TOML.replace("count = 2", "count = 1") + """[pressure]
 type = "constant"
 value = [2e4, 0.0, 0.0]
 [simulation]
