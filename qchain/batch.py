@@ -400,7 +400,7 @@ def simulate_batch(
     shared = _Shared(chain=chain, t_span=(t0, t1), kw=kw, each={"pressure": p_each is not None, "tau": tau_each is not None})
 
     w_start = time.perf_counter()
-    engine = engine_for(workers, client)
+    engine = engine_for(workers, client, tasks=B)
     compile_s = 0.0
     results: list = [None] * B
     bar = _bar(B, progress)

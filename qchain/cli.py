@@ -131,6 +131,13 @@ def _run(args, parser, session: _Session) -> int:
         raise BadInput("recording needs qchain.logging, which is not available")
     record = qlog is not None and not (args.no_record and not (args.mcap or args.serve or args.connect or args.rrd))
     notices: list[str] = []
+    if record or args.rrd:  # a recording's times end at 2**32 s: said before the model is built
+        from .recording.records import T_MAX, T_MAX_WHY
+
+        if duration > T_MAX:
+            src = "--duration" if args.duration is not None else f"{printable(_shown(args.scene))}: simulation.duration"
+            raise BadInput(f"{src} {duration:g} s: a recorded run lasts at most {T_MAX:.10g} s ({T_MAX_WHY}); run "
+                           "it with --no-record (and no --rrd, --serve or --connect)")
     if record:
         if args.mcap is None and not args.no_record:
             args.mcap = qlog.default_mcap_path(f"{_recording_stem(scene.path)}.toml")

@@ -655,11 +655,20 @@ def validate_runs(spec: SweepSpec, runs: list[tuple[dict, str]]) -> list[Scene]:
     is not a valid scene (and how many are not)."""
     scenes = []
     bad: list[tuple[int, dict, SceneError]] = []
+    from .recording.records import T_MAX, T_MAX_WHY
+
     for i, (point, text) in enumerate(runs):
         try:
-            scenes.append(parse_scene(text, path=spec.scene.path))
+            sc = parse_scene(text, path=spec.scene.path)
         except SceneError as err:
             bad.append((i, point, err))
+            continue
+        if spec.mcap and sc.duration > T_MAX:  # its recording would fail at 2**32 s (as qchain run refuses)
+            bad.append((i, point, SceneError(str(spec.scene.path), [Problem(
+                "simulation.duration", f"at most {T_MAX:.10g} s for a recorded run ({T_MAX_WHY}; or no --mcap)",
+                f"{sc.duration:g}")])))
+            continue
+        scenes.append(sc)
     if bad:
         i, point, err = bad[0]
         where = ", ".join(f"{k} = {_show(v)}" for k, v in point.items()) or "the values in [set]"

@@ -536,7 +536,7 @@ def run_sweep(spec: SweepSpec, *, workers=None, client=None, progress: bool | No
             raise
     todo = [i for i in range(len(runs)) if i not in done]
     resumed = len(done)
-    engine = engine_for(workers, client) if todo else None
+    engine = engine_for(workers, client, tasks=len(todo)) if todo else None
     shared = _Shared(metrics=spec.metrics, trajectories=spec.trajectories, mcap=spec.mcap,
                      scene_path=str(spec.scene.path) if spec.scene.path else None)
     show = stream is not None and (stream.isatty() if progress is None else progress)

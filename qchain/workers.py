@@ -804,10 +804,11 @@ def _takes_n_workers(client) -> bool:
         return False
 
 
-def engine_for(workers=None, client=None):
+def engine_for(workers=None, client=None, tasks: int | None = None):
     """The engine for ``workers`` (an int, None for every core, or a :class:`LocalPool`) and
     ``client`` (a Dask client or address, or a :class:`DaskEngine`); None where the work
-    runs in this process (``workers=1`` without a client)."""
+    runs in this process (``workers=1`` without a client). ``tasks``: how many there are to
+    run; no more worker processes start than that (``workers=1024`` for two runs starts two)."""
     if client is not None:
         if workers is not None:
             raise ValueError("give workers or client, not both: a Dask cluster has its own workers")
@@ -815,4 +816,6 @@ def engine_for(workers=None, client=None):
     if isinstance(workers, (LocalPool, DaskEngine)):
         return workers
     n = resolve_workers(workers)
+    if tasks is not None:
+        n = max(1, min(n, int(tasks)))
     return None if n == 1 else default_pool(n)

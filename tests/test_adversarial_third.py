@@ -525,3 +525,103 @@ def test_replay_checks_its_viewer_flags_as_run_does(whole, tmp_path, capsys):
     assert "argument --bind: expected an IPv4 address" in capsys.readouterr().err
     assert replay_main([str(path), "--serve", "--bind", "::1"]) == 2
     assert "IPv6 is not served" in capsys.readouterr().err
+
+
+# --------------------------------------------------------------------------------------
+# a fourth pass's cases
+
+
+def test_recover_refuses_a_link_to_its_own_journal_or_to_a_file_with_a_journal(whole, tmp_path):
+    """A link to its own journal: recover wrote the journal over itself, then deleted it (every
+    record lost). A link to a killed run's file: the journal beside that file was ignored."""
+    data, rows, layout, meta = whole
+    a = tmp_path / "a"
+    a.mkdir()
+    path = a / "r.mcap"
+    _journal(path, rows, layout, meta)
+    path.symlink_to(journal_path(path).name)
+    before = journal_path(path).read_bytes()
+    with pytest.raises(LoggingError, match="is a link to its own journal"):
+        recover(path)
+    assert journal_path(path).read_bytes() == before
+    b = tmp_path / "b"
+    b.mkdir()
+    target = b / "s.mcap"
+    target.write_bytes(_killed(data)[: len(data) // 2])
+    _journal(target, rows, layout, meta)
+    link = b / "r.mcap"
+    link.symlink_to(target.name)
+    with pytest.raises(LoggingError, match=r"has a journal of its own .* recover .*s\.mcap"):
+        recover(link)
+    from qchain.logging import check_outputs
+
+    with pytest.raises(LoggingError, match=r"s\.mcap\.journal holds the records of a run that was killed"):
+        check_outputs(link)  # a run through the link would write over that file
+    recover(target)
+    assert len(read_recording(target)) == N
+
+
+def test_journal_rows_with_no_place_keep_the_journal(whole, tmp_path):
+    """Rows after the file's last step but before its last time were dropped without a word,
+    and recover then deleted the journal that held them."""
+    data, rows, layout, meta = whole
+    path = tmp_path / "run.mcap"
+    path.write_bytes(_killed(data)[: len(data) // 2])
+    k = len(read_recording(path, journal=False))
+    odd = rows.copy()
+    odd[k:, 0] -= 0.05
+    _journal(path, odd, layout, meta)
+    rec = read_recording(path)
+    assert "have steps after the file's last" in rec.journal_unread
+    with pytest.raises(LoggingError):
+        recover(path)
+    assert journal_path(path).exists()
+
+
+def test_recover_keeps_the_files_mode(whole, tmp_path):
+    data, rows, layout, meta = whole
+    path = tmp_path / "run.mcap"
+    path.write_bytes(_killed(data))
+    path.chmod(0o644)
+    _journal(path, rows, layout, meta)
+    recover(path)
+    assert (path.stat().st_mode & 0o777) == 0o644
+
+
+def test_a_recorded_run_past_two_to_the_32_seconds_is_refused_before_the_build(tmp_path, monkeypatch, capsys):
+    """Foxglove timestamps count seconds in 32 bits: a run of 7.5e9 s failed after the build
+    (the writer's OverflowError), and recover then failed too; a sweep reported success
+    with 5 of its 11 samples recorded."""
+    from qchain.cli import main
+    from qchain.recording.records import T_MAX
+
+    assert T_MAX == 2**32 - 1
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "s.toml").write_text(SCENE.replace("NAME", "long").replace("duration = 0.05", "duration = 7.5e9")
+                                     .replace("sample_rate = 200.0", "sample_rate = 1e-9"))
+    assert main(["run", "s.toml", "--no-plots", "--mcap", "r.mcap"]) == 2
+    err = capsys.readouterr()
+    assert "simulation.duration 7.5e+09 s: a recorded run lasts at most 4294967295 s" in err.err and \
+        "scene:" not in err.out
+    assert main(["run", "s.toml", "--no-plots", "--no-record", "--duration", "5e9", "--rrd", "x.rrd"]) == 2
+    assert "--duration 5e+09 s: a recorded run lasts at most" in capsys.readouterr().err
+    from qchain.sweep_spec import Axis, SweepError, SweepSpec
+    from qchain.scene import load_scene
+
+    spec = SweepSpec(scene=load_scene(tmp_path / "s.toml"), axes=[Axis("segments[0].damping", values=(0.01,))],
+                     mcap=True, folder=tmp_path / "sw")
+    from qchain.sweeps import run_sweep
+
+    with pytest.raises(SweepError, match=r"simulation.duration: expected at most 4294967295 s for a recorded run"):
+        run_sweep(spec, workers=1)
+
+
+def test_no_more_workers_start_than_there_are_tasks():
+    from qchain.workers import engine_for
+
+    assert engine_for(1024, tasks=1) is None  # one run: in this process
+    pool = engine_for(1024, tasks=2)
+    try:
+        assert pool.workers == 2
+    finally:
+        pool.close()

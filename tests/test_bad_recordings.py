@@ -163,7 +163,7 @@ def assert_valid(rec) -> None:
     consistent, and every non-finite value said in ``nonfinite``."""
     N = len(rec)
     assert rec.t.shape == (N,) and rec.step.shape == (N,) and rec.step.dtype == np.int64
-    assert np.all(np.isfinite(rec.t)) and np.all((rec.t >= 0) & (rec.t <= 9.2e9))
+    assert np.all(np.isfinite(rec.t)) and np.all((rec.t >= 0) & (rec.t <= 2**32 - 1))
     assert np.all((rec.step >= 0) & (rec.step <= 1 << 53))
     n = rec.info.n_segments
     assert rec.backbone.shape[:2] == (N, n) and rec.tip_frames.shape == (N, n, 7) and rec.base.shape == (N, 7)

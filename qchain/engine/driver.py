@@ -321,7 +321,10 @@ def _failure(chain, wk, it, method, q0, v0, t0, inputs) -> str:
     cnt, tf = it[5], it[4]
     code = int(cnt[steppers.STATUS])
     t = tf[steppers.T]
-    at = f"(at t = {tf[steppers.T_FAIL]:.6g} s, in the step from t = {t:.6g} s)"
+    # (T_FAIL is set where the right-hand side failed; a failure found in a step's stage
+    # values leaves an earlier, rejected trial's there)
+    t_fail = tf[steppers.T_FAIL] if tf[steppers.T_FAIL] >= t else t
+    at = f"(at t = {t_fail:.6g} s, in the step from t = {t:.6g} s)"
     q_bad = wk[0].copy()
     if code == system.DOMAIN:
         try:

@@ -142,14 +142,17 @@ def _check_output(name: str, p: Path, scene_path, min_free: int) -> list[str]:
         raise LoggingError(f"cannot write {name} file {p}: only {free / 1e6:.1f} MB free in {parent} (a run "
                            f"needs at least {min_free / 1e6:.0f} MB)")
     if name == "mcap":
-        j = journal_path(p)
-        owner = journal_owner(j)
-        if owner is not None:
-            who = f" (pid {owner})" if owner else ""
-            raise LoggingError(f"another run{who} is writing {p}: choose another path")
-        if j.exists():
-            raise LoggingError(f"{j} holds the records of a run that was killed while writing {p}: "
-                               f"`qchain recover {p}` makes that recording whole (or remove the journal)")
+        # the journal beside the path, and (a link) the one beside the file it names: a run
+        # writes through the link, over that file
+        target = Path(os.path.realpath(p)) if p.is_symlink() else p
+        for q, j in dict.fromkeys([(p, journal_path(p)), (target, journal_path(target))]):
+            owner = journal_owner(j)
+            if owner is not None:
+                who = f" (pid {owner})" if owner else ""
+                raise LoggingError(f"another run{who} is writing {q}: choose another path")
+            if os.path.lexists(j):
+                raise LoggingError(f"{j} holds the records of a run that was killed while writing {q}: "
+                                   f"`qchain recover {q}` makes that recording whole (or remove the journal)")
         if p.exists() and p.stat().st_size > 0:
             with open(p, "rb") as fh:
                 head = fh.read(len(MAGIC))

@@ -39,6 +39,7 @@ from .records import (
     Batch,
     LoggingError,
     RecordingFormatError,
+    T_MAX,
     RunInfo,
     unseal,
 )
@@ -46,9 +47,6 @@ from .scan import MAGIC, scan, summary_records
 
 __all__ = ["Recording", "Gap", "read_recording", "read_mcap", "T_MAX", "STEP_MAX"]
 
-#: Latest simulation time a recording may hold (s): its nanoseconds fit a signed 64-bit
-#: ``log_time`` and Rerun's time columns.
-T_MAX = 9.2e9
 #: Largest step number (a journal row holds it as a float64, exact up to 2**53).
 STEP_MAX = 1 << 53
 
@@ -676,7 +674,12 @@ def _read(name: str, buf: bytearray, jpath, limits: ReadLimits) -> Recording:
         if len(b):  # records the file lacks: after its last, and inside it (a damaged chunk's)
             last, last_t = int(b.step[-1]), float(b.t[-1])
             after = (journal_rows[:, 1] > last) & (journal_rows[:, 0] >= last_t)
-            inside = ~after & (journal_rows[:, 1] < last) & ~np.isin(journal_rows[:, 1], b.step)
+            have = np.isin(journal_rows[:, 1], b.step)
+            inside = ~after & (journal_rows[:, 1] < last) & ~have
+            odd = ~(after | inside | have)  # a later step at an earlier time: no place for it
+            if odd.any():
+                journal_unread = (f"{int(odd.sum())} rows of the journal {jpath} have steps after the file's last "
+                                  f"({last}) but times before its last ({last_t:.6g} s): not merged")
             if file_complete and after.any():  # never appended to a complete file: said instead
                 journal_unread = (f"the file is complete (its outcome and summary are there), yet its journal "
                                   f"{jpath} holds {int(after.sum())} records after its last: not merged")

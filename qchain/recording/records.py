@@ -61,6 +61,12 @@ DEFAULT_FLUSH_WALL_INTERVAL = 0.5
 SEGMENT_COLORS = ((255, 140, 0), (230, 95, 0), (255, 185, 50))
 
 
+
+#: The latest time a recording holds (s): its messages carry Foxglove timestamps, whose
+#: seconds are a 32-bit unsigned number (and their nanoseconds a 64-bit MCAP log time)
+T_MAX = float(2**32 - 1)
+T_MAX_WHY = "Foxglove timestamps count whole seconds in 32 bits"
+
 class LoggingError(QchainError):
     """The run log could not be written (a writer that cannot start, a bad output path)."""
 
@@ -305,9 +311,9 @@ class RunInfo:
                 setattr(self, key, list(names))
         if self.duration is not None:
             d = float(self.duration)
-            if not (math.isfinite(d) and 0 < d <= 9.2e9):
-                raise ValueError(f"duration must be None or a time > 0 s and <= 9.2e9 s (its nanoseconds fit a "
-                                 f"recording's 64-bit times), got {self.duration!r}")
+            if not (math.isfinite(d) and 0 < d <= T_MAX):
+                raise ValueError(f"duration must be None or a time > 0 s and <= {T_MAX:.10g} s (a recording's "
+                                 f"times: {T_MAX_WHY}), got {self.duration!r}")
             self.duration = d
 
     @property

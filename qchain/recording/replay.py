@@ -347,6 +347,15 @@ def recover(path: str | os.PathLike, *, limits: ReadLimits | None = None) -> Rec
                            "ends or is killed")
     if not os.path.lexists(path) and not os.path.lexists(jp):
         raise FileNotFoundError(f"{path}: no such recording, and no journal of a run writing it")
+    if os.path.islink(path):  # the file a link names is replaced: it must be no journal, nor have one of its own
+        target = Path(os.path.realpath(path))
+        if os.path.lexists(jp) and target == Path(os.path.realpath(jp)):
+            raise LoggingError(f"{path} is a link to its own journal {jp}: nothing was changed (recover a path of its "
+                               "own: move the journal to NAME.mcap.journal and recover NAME.mcap)")
+        tj = journal_path(target)
+        if os.path.lexists(tj) and Path(os.path.realpath(tj)) != Path(os.path.realpath(jp)):
+            raise LoggingError(f"{path} is a link to {target}, which has a journal of its own ({tj}): nothing was "
+                               f"changed; recover {target}")
     # (without the file, from the journal alone: the writer never started)
     rec = read_recording(path, limits=limits)
     if rec.journal_unread:
@@ -375,6 +384,10 @@ def recover(path: str | os.PathLike, *, limits: ReadLimits | None = None) -> Rec
                          "nfev": int(out.get("nfev", 0) or 0)})
         finally:
             sink.abandon()
+        try:  # the file's own mode (mkstemp's is 0600)
+            os.chmod(tmp, stat.S_IMODE(os.stat(target).st_mode) if os.path.exists(target) else 0o666 & ~_umask())
+        except OSError:
+            pass
         os.replace(tmp, target)
     except OSError as exc:
         raise LoggingError(f"cannot write the recovered recording of {path} ({exc.strerror or exc}); the file and its "
@@ -385,6 +398,12 @@ def recover(path: str | os.PathLike, *, limits: ReadLimits | None = None) -> Rec
     if os.path.lexists(jp):  # (not Path.exists: a name too long for a journal raises there)
         jp.unlink()
     return read_recording(path, limits=limits)
+
+
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
 
 
 def _summary(rec: Recording) -> list[str]:
@@ -462,6 +481,8 @@ def replay_main(argv: Sequence[str] | None = None) -> int:
     from ..cli_checks import check_bind_address, check_viewer_url
 
     try:  # the same checks as qchain run's, before the file is read
+        if not 0.0 < args.timeout <= 3600.0:
+            raise BadInput(f"argument --timeout: expected a number > 0 and <= 3600 (s), found {args.timeout!r}")
         check_viewer_url("argument --connect", args.connect)
         if serve:
             check_bind_address("argument --bind", args.bind)
