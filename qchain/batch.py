@@ -106,7 +106,7 @@ class BatchTrajectory:
     def __getitem__(self, i: int) -> Trajectory:
         """Rollout ``i`` as the :class:`~qchain.trajectory.Trajectory` ``simulate`` returns."""
         B = len(self)
-        if not isinstance(i, (int, np.integer)) or not -B <= i < B:
+        if not isinstance(i, (int, np.integer)) or isinstance(i, (bool, np.bool_)) or not -B <= i < B:
             raise IndexError(f"rollout index must be an int in [-{B}, {B}), got {i!r}")
         i = int(i) % B
         K = int(self.nsamples[i])

@@ -17,7 +17,7 @@ import time
 import numpy as np
 
 from .chain import Frames
-from .recording.records import RecordLayout
+from .recording.records import T_MAX, RecordLayout
 
 __all__ = ["ChainRecorder", "BACKBONE_POINTS", "series_names"]
 
@@ -67,7 +67,7 @@ class ChainRecorder:
     logged before the logger finishes its files, also when the simulation raises::
 
         with RunLogger(info, "runs/arm.mcap") as log, ChainRecorder(log, chain) as rec:
-            simulate(chain, q0, v0, duration=4.0, on_sample=rec)
+            simulate(chain, q0, v0, (0.0, 4.0), on_sample=rec)
 
     ``step`` of the records counts the samples from 0.
     """
@@ -110,19 +110,31 @@ class ChainRecorder:
     def __call__(self, t, q, v, p, energies=None) -> None:
         # A sample is copied into lists, not into the rows: list appends and one concatenate
         # cost the simulation less than filling a numpy row field by field.
+        # checked here, where the sample enters: a bad one found at the batch's flush would
+        # take the good samples buffered with it
+        if not (type(t) is float or isinstance(t, (int, np.integer, np.floating))) or isinstance(t, bool) \
+                or not 0.0 <= t <= T_MAX:
+            raise ValueError(f"t must be a time >= 0 and <= {T_MAX:.10g} s, got {t!r}")
+        if self._t_taken is not None and t < self._t_taken:
+            raise ValueError(f"t must not go back: got t = {t!r} s after a sample at t = {self._t_taken!r} s")
         if energies is None:
             energies = (self.chain.kinetic_energy(q, v, t=t), self.chain.potential_energy(q, t=t))
+        elif np.shape(energies) != (2,):
+            raise ValueError(f"energies must be (kinetic, potential) J, two numbers, got shape {np.shape(energies)}")
         ts = self._t
         if ts and t - ts[0] >= self.max_sim:  # a batch spans less than max_sim
             self.flush()
             ts = self._t
         if not ts:
             self._wall0 = time.monotonic()
-        x = np.concatenate((q, v, p, energies))  # a copy: the caller may reuse its arrays
-        if x.shape != (self._nx,) or len(energies) != 2:
-            lay = self.layout
+        lay = self.layout
+        if (np.shape(q), np.shape(v), np.shape(p)) != ((lay.nq,), (lay.nv,), (lay.n_p,)):
             raise ValueError(f"q, v, p must have shapes ({lay.nq},), ({lay.nv},), ({lay.n_p},), got "
                              f"{np.shape(q)}, {np.shape(v)}, {np.shape(p)}")
+        x = np.concatenate((q, v, p, energies))  # a copy: the caller may reuse its arrays
+        if not np.isfinite(x[: lay.nq]).all():  # the frames need them (v, p and energies may be NaN: null)
+            k = int(np.flatnonzero(~np.isfinite(x[: lay.nq]))[0])
+            raise ValueError(f"q[{k}] must be finite, got {x[k]!r} at t = {t!r} s")
         ts.append(t)
         self._x.append(x)
         self._t_taken = t
@@ -142,6 +154,9 @@ class ChainRecorder:
         every step (:meth:`qchain.Chain.frames_batch` does not check them again)."""
         t = np.asarray(t, dtype=np.float64)
         K = t.shape[0]
+        if K > 1 and not (np.diff(t) >= 0.0).all():
+            k = int(np.flatnonzero(~(np.diff(t) >= 0.0))[0])
+            raise ValueError(f"t must not go back: t[{k + 1}] = {t[k + 1]!r} s after t[{k}] = {t[k]!r} s")
         if K and self._t_taken is not None and t[0] <= self._t_taken:
             # a batch handed over again (a Ctrl-C inside this call, while it paced a batch
             # sample by sample): what was taken is not taken twice

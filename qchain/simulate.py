@@ -720,6 +720,20 @@ def _midpoint_step(sysm: _System, t, q, v, h, tol=1e-10, max_iter=50):
     return ch.integrate(q, h * vmf), sysm.full(2 * vm - vA)
 
 
+#: An adaptive run on the Python steppers stops as stalled after STALL_STEPS accepted steps in
+#: a row each shorter than STALL_STEP x max(1 s, |t|): no smooth model of an arm needs them
+#: (an explicit method's stability limit below it is refused before the run by the budget),
+#: a noisy controller drives the step to them and would take hours to reach the step budget
+STALL_STEP, STALL_STEPS = 1e-9, 1000
+
+
+def step_budget_hint(method: str) -> str:
+    """What a run that spent its step budget should try, by its method."""
+    if method in driver.EXPLICIT_STABILITY_EXTENT:
+        return "the model is probably stiff: use method='radau5' (or raise budget.max_steps)"
+    return "raise budget.max_steps (rejected steps count), or give max_step / controller_rate a longer interval"
+
+
 def _run_adaptive(name, sysm, rec, bar, check_events, t0, t1, q, v, rtol, atol, max_step, first_step, method,
                   max_total_steps=None):
     import scipy.integrate as si
@@ -745,12 +759,19 @@ def _run_adaptive(name, sysm, rec, bar, check_events, t0, t1, q, v, rtol, atol, 
     # (or the paper coordinates' regular set) and return NaN; start small instead: the
     # controllers grow the step by up to 10x per step.
     solver = new_solver(t, q, v, first_step if first_step is not None else min(1e-4, (t1 - t0) / 10))
+    tiny = 0  # accepted steps in a row below STALL_STEP
     while True:
         if max_total_steps is not None and nsteps >= max_total_steps:
             status = -1
             message = (f"step budget exceeded: budget.max_steps = {max_total_steps}, {nsteps} steps taken, t reached = "
-                       f"{t:.6g} s of {t1:.6g} s with method {method!r}; the model is probably stiff: use "
-                       "method='radau5' (or raise budget.max_steps)")
+                       f"{t:.6g} s of {t1:.6g} s with method {method!r}; {step_budget_hint(method)}")
+            break
+        if tiny >= STALL_STEPS:
+            status = -1
+            message = (f"{method} stalled: {STALL_STEPS} steps in a row shorter than {STALL_STEP:g} x max(1 s, |t|), "
+                       f"t reached = {t:.6g} s of {t1:.6g} s; the right-hand side is not smooth in time (a controller "
+                       "whose output is noisy or keeps state between calls, a discontinuous input): give "
+                       "controller_rate to hold the controller between its instants, or use a fixed-step method")
             break
         msg = solver.step()
         if solver.status == "failed":
@@ -782,6 +803,7 @@ def _run_adaptive(name, sysm, rec, bar, check_events, t0, t1, q, v, rtol, atol, 
             break
         rec.advance(t_prev, t_new, interp)
         nsteps += 1
+        tiny = tiny + 1 if t_new - t_prev < STALL_STEP * max(1.0, abs(t_new)) else 0
         t = t_new
         q, v = interp(t_new)
         bar.update(t)

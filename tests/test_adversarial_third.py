@@ -11,6 +11,8 @@ The generators are not part of the suite; these are their representative cases.
 from __future__ import annotations
 
 import copy
+import io
+import math
 import os
 import pickle
 import subprocess
@@ -625,3 +627,96 @@ def test_no_more_workers_start_than_there_are_tasks():
         assert pool.workers == 2
     finally:
         pool.close()
+
+
+def test_a_noisy_controller_without_a_rate_stalls_and_says_so():
+    """It once took 30 s for 6.5e-7 s of 0.01 s (hours to the step budget); now the run
+    stops after 1000 steps shorter than 1e-9 s, naming controller_rate."""
+    ch = arm(1)
+    rng = np.random.default_rng(0)
+    t0 = time.perf_counter()
+    r = simulate(ch, ch.neutral(), np.zeros(3), (0, 0.01), pressure=lambda t, q, v: 1e4 + rng.normal(0, 10, 3),
+                 t_eval=[0, 0.005, 0.01])
+    assert time.perf_counter() - t0 < 60
+    assert not r.success and "stalled" in r.message and "controller_rate" in r.message, r.message
+    held = simulate(ch, ch.neutral(), np.zeros(3), (0, 0.01), pressure=lambda t, q, v: 1e4 + rng.normal(0, 10, 3),
+                    t_eval=[0, 0.005, 0.01], controller_rate=1000.0)
+    assert held.success
+
+
+@pytest.mark.parametrize("method", ["rk4", "midpoint"])
+def test_a_terminal_event_at_a_step_end_is_one_sample(method):
+    from qchain.simulate import Event
+
+    ch = arm(1)
+    for root in (0.05, 0.02):
+        r = simulate(ch, ch.neutral(), np.zeros(3), (0, 0.05), method=method, dt=0.01,
+                     events=[Event(lambda t, q, v, root=root: t - root, terminal=True)])
+        np.testing.assert_allclose(r.t, np.arange(0, root + 1e-9, 0.01))
+
+
+def test_the_step_budget_hint_fits_the_method():
+    from qchain.budget import Budget
+
+    ch = arm(1)
+    r = simulate(ch, ch.neutral(), np.zeros(3), (0, 1), pressure=lambda t, q, v: np.full(3, 1e4 * math.sin(t)),
+                 controller_rate=100.0, budget=Budget(max_steps=100))
+    assert not r.success and "budget.max_steps = 100" in r.message
+    assert "use method='radau5'" not in r.message and "rejected steps count" in r.message, r.message
+
+
+def test_a_recorder_checks_each_sample_where_it_enters(tmp_path):
+    """A negative time or a NaN q was taken, then refused at the flush, taking the good
+    samples buffered with it; times going back were recorded silently."""
+    from qchain.recorder import ChainRecorder
+
+    ch = arm(1)
+    q, v, p = ch.neutral(), np.zeros(3), np.zeros(3)
+    path = tmp_path / "r.mcap"
+    with RunLogger(arm_info(1), path, quiet=True, worker="thread") as log, ChainRecorder(log, ch) as rec:
+        rec(0.0, q, v, p)
+        rec(0.001, q, v, p)
+        for t, qq, energies, match in ((-1.0, q, None, "t must be a time >= 0"),
+                                       (0.0005, q, None, "t must not go back"),
+                                       (0.002, np.full(3, np.nan), None, r"q has non-finite entries"),
+                                       (0.002, np.full(3, np.nan), (0.0, 0.0), r"q\[0\] must be finite"),
+                                       (0.002, q, 5.0, r"energies must be \(kinetic, potential\)"),
+                                       (0.002, q, (1, 2, 3), r"energies must be \(kinetic, potential\)")):
+            with pytest.raises(ValueError, match=match):
+                rec(t, qq, v, p, energies=energies)
+        with pytest.raises(ValueError, match=r"t must not go back: t\[1\]"):
+            rec.record_batch(np.array([0.3, 0.1]), np.stack([q, q]), np.zeros((2, 3)), np.zeros((2, 3)),
+                             np.zeros(2), np.zeros(2))
+    assert len(read_recording(path)) == 2  # the good samples kept
+
+
+def test_schedules_check_their_time_and_phase_and_show_the_digits_near_a_bound():
+    from qchain.inputs import Sine, Step, Table
+
+    with pytest.raises(ValueError, match=r"phase\[0\] must be >= -1000 and <= 1000 rad, got 1e\+300 rad"):
+        Sine([1.0] * 3, 1.0, phase=1e300)
+    for u in (Sine([1.0] * 3, 1.0), Table([0.0, 1.0], [[0.0] * 3, [1.0] * 3]), Step(0.5, [0.0] * 3, [1.0] * 3)):
+        for t in (float("nan"), float("inf")):
+            with pytest.raises(ValueError, match="t must be finite"):
+                u(t)
+    ch = arm(1)
+    with pytest.raises(ValueError, match=r"reaches 1000000001.0 Pa"):
+        simulate(ch, ch.neutral(), np.zeros(3), (0, 0.1), pressure=Sine([1.0] * 3, 1.0, offset=[1e9] * 3))
+
+
+def test_a_batch_index_is_no_boolean_and_a_logger_stream_must_seek():
+    ch = arm(1)
+    b = simulate_batch(ch, ch.neutral(), np.zeros(3), (0, 0.01), t_eval=[0.01], workers=1,
+                       pressure=np.zeros((2, 3)))
+    with pytest.raises(IndexError, match="rollout index must be an int"):
+        b[True]
+
+    class NoSeek(io.RawIOBase):
+        def writable(self):
+            return True
+
+        def write(self, data):
+            return len(data)
+
+    with pytest.raises(ValueError, match="a binary stream that can seek"):
+        RunLogger(arm_info(), NoSeek(), quiet=True)

@@ -136,8 +136,8 @@ def run(chain, m, method, q0, v0, t0, t1, *, dt, rtol, atol, t_eval, on_sample, 
                     status = -1
                     message = (f"step budget exceeded: budget.max_steps = {max_total_steps}, {taken} steps taken "
                                f"({int(cnt[steppers.NSTEPS])} accepted, {int(cnt[steppers.NREJECT])} rejected), "
-                               f"t reached = {t:.6g} s of {t1:.6g} s with method {method!r}; the model is "
-                               "probably stiff: use method='radau5' (or raise budget.max_steps)")
+                               f"t reached = {t:.6g} s of {t1:.6g} s with method {method!r}; "
+                               f"{_budget_hint(method)}")
                     break
                 steps = min(steps, max_total_steps - taken)
             w0 = _time.perf_counter()
@@ -189,6 +189,12 @@ def run(chain, m, method, q0, v0, t0, t1, *, dt, rtol, atol, t_eval, on_sample, 
     traj = _trajectory(chain, m, wk, out, cnt, status, message, energies, method, ev_log)
     traj.meta["compile_s"] = compile_s  # compiling or loading: a caller's wall time less this is the run's
     return traj
+
+
+def _budget_hint(method: str) -> str:
+    from ..simulate import step_budget_hint  # (qchain.simulate imports this module)
+
+    return step_budget_hint(method)
 
 
 def _hold_times(controllers, rate, t0, t1) -> np.ndarray:
@@ -310,6 +316,8 @@ def _cut(out, cnt, hit, method, chain, m, wk, it, c, inputs):
         k -= 1
     if out.every:
         q, v = _state_at(method, chain, m, it, c, hit)
+        if k > 0 and abs(out.t[k - 1] - hit) <= 1e-12 * max(1.0, abs(hit)):
+            k -= 1  # the event is at a step's end, already a sample: that sample, not a second one
         out.t[k], out.q[k], out.v[k], out.p[k] = hit, q, v, inputs(hit, q, v)[0]
         k += 1
     cnt[steppers.K_OUT] = k

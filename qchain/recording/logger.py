@@ -9,6 +9,7 @@ simulating process never waits for it except in :meth:`RunLogger.flush` and at t
 
 from __future__ import annotations
 
+import io
 import math
 import os
 import shutil
@@ -165,6 +166,11 @@ class RunLogger:
             if isinstance(mcap, (str, os.PathLike)):
                 mcap_path = Path(mcap)
             elif hasattr(mcap, "write"):
+                seekable = getattr(mcap, "seekable", None)
+                if not (callable(seekable) and seekable()) or isinstance(mcap, io.TextIOBase):
+                    raise ValueError(f"mcap must be a path, a binary stream that can seek (the MCAP writer goes back "
+                                     f"to its start) or None, got a {type(mcap).__name__} that "
+                                     f"{'is a text stream' if isinstance(mcap, io.TextIOBase) else 'cannot seek'}")
                 stream = mcap
             else:
                 raise ValueError(f"mcap must be a path, a binary stream or None, got {type(mcap).__name__}")
