@@ -134,7 +134,7 @@ class ChainRecorder:
         x = np.concatenate((q, v, p, energies))  # a copy: the caller may reuse its arrays
         if not np.isfinite(x[: lay.nq]).all():  # the frames need them (v, p and energies may be NaN: null)
             k = int(np.flatnonzero(~np.isfinite(x[: lay.nq]))[0])
-            raise ValueError(f"q[{k}] must be finite, got {x[k]!r} at t = {t!r} s")
+            raise ValueError(f"q[{k}] must be finite, got {float(x[k])!r} at t = {float(t)!r} s")
         ts.append(t)
         self._x.append(x)
         self._t_taken = t
@@ -156,7 +156,7 @@ class ChainRecorder:
         K = t.shape[0]
         if K > 1 and not (np.diff(t) >= 0.0).all():
             k = int(np.flatnonzero(~(np.diff(t) >= 0.0))[0])
-            raise ValueError(f"t must not go back: t[{k + 1}] = {t[k + 1]!r} s after t[{k}] = {t[k]!r} s")
+            raise ValueError(f"t must not go back: t[{k + 1}] = {float(t[k + 1])!r} s after t[{k}] = {float(t[k])!r} s")
         if K and self._t_taken is not None and t[0] <= self._t_taken:
             # a batch handed over again (a Ctrl-C inside this call, while it paced a batch
             # sample by sample): what was taken is not taken twice
