@@ -20,6 +20,7 @@ function with a bug) stops the batch with :class:`RolloutError` naming the rollo
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import pickle
 import socket
@@ -373,12 +374,17 @@ def simulate_batch(
         budget = DEFAULT_BUDGET
     elif not isinstance(budget, Budget):
         raise TypeError(f"budget must be a qchain.budget.Budget, got {type(budget).__name__}")
-    budget.check(run_cost_of(chain, t0, t1, method=method, dt=dt, max_step=max_step, t_eval=t_eval,
-                             inputs=(p_shared, tau_shared, *(p_each or ()), *(tau_each or ())),
-                             controller_rate=controller_rate))
+    cost = run_cost_of(chain, t0, t1, method=method, dt=dt, max_step=max_step, t_eval=t_eval,
+                       inputs=(p_shared, tau_shared, *(p_each or ()), *(tau_each or ())), controller_rate=controller_rate)
+    budget.check(cost)
     sizes = {name: len(x) for name, x in (("q0", Q0 if Q0.ndim == 2 else None), ("v0", V0 if V0.ndim == 2 else None),
                                           ("pressure", p_each), ("tau", tau_each)) if x is not None}
     B = _batch_size(sizes)
+    # the batch's results are held together: B rollouts' samples against the memory budget
+    held = B * (cost.memory - cost.matrix_memory) + cost.matrix_memory
+    if held > budget.max_memory:
+        budget.check(dataclasses.replace(cost, memory=held, memory_why=f"{B} rollouts x ({cost.memory_why})"),
+                     how="pass budget=qchain.budget.Budget(...) to allow more, or run fewer rollouts a call")
     for i in range(B):  # every start inside the model, checked here where it enters
         qi = Q0[i] if Q0.ndim == 2 else Q0
         vi = V0[i] if V0.ndim == 2 else V0

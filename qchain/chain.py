@@ -33,6 +33,8 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
+import itertools
+
 import numpy as np
 import pinocchio as pin
 
@@ -44,7 +46,7 @@ from .chain_checks import QUATERNION_TOLERANCE, ChainChecks, _finite  # noqa: F4
 from .chain_kinematics import _NO_POINTS, ChainKinematics, Frames
 from .dynamics_derivatives import _ZERO6, ForwardDynamicsDerivatives, InverseDynamicsDerivatives
 from .data import Data
-from .bounds import GRAVITY, POSITION, PSI, TIME
+from .bounds import GRAVITY, POSITION, PSI, SEGMENT_COUNT, TIME
 from .errors import (DomainError, NonFiniteError, SingularConfigurationError, as_bool, as_index, as_vector,
                      describe_value)
 from .segment import PAPER_SINGULAR_ANGLE, Segment
@@ -144,12 +146,15 @@ class Chain(KeepsReadOnly, ChainKinematics, ChainChecks):
             raise TypeError(f"segments must be a sequence (list or tuple, or a 1-d array) of qchain.Segment, got "
                             f"{describe_value(segments)}")
         try:
-            segs = tuple(segments)
+            segs = tuple(itertools.islice(segments, int(SEGMENT_COUNT.high) + 1))  # (an endless iterable ends)
         except TypeError as e:  # an object whose __iter__ refuses
             raise TypeError(f"segments must be a sequence of qchain.Segment, got {describe_value(segments)} ({e})"
                             ) from None
         if len(segs) == 0:
             raise ValueError("segments must hold at least one Segment, got none")
+        if len(segs) > SEGMENT_COUNT.high:
+            raise ValueError(f"segments must hold at most {SEGMENT_COUNT.high:g} Segments (qchain.bounds.SEGMENT_COUNT), "
+                             "got more")
         for j, s in enumerate(segs):
             if not isinstance(s, Segment):
                 raise TypeError(f"segments[{j}] must be a qchain.Segment, got {type(s).__name__}")
@@ -167,8 +172,8 @@ class Chain(KeepsReadOnly, ChainKinematics, ChainChecks):
             _check_placement("base_placement", base_placement)
         self.segments = segs
         self.base = base
-        self.gravity = np.array(GRAVITY.check_array("gravity", as_vector("gravity", gravity, 3)))  # its own copy
-        self.gravity.flags.writeable = False  # the passes use it (and its base-frame image) as given here
+        self._gravity = np.array(GRAVITY.check_array("gravity", as_vector("gravity", gravity, 3)))  # its own copy
+        self._gravity.flags.writeable = False  # the passes use it (and its base-frame image) as given here
         self._X_WB0 = pin.SE3.Identity() if base_placement is None else pin.SE3(base_placement)
         self.base_motion = base_motion
         n = len(segs)
@@ -457,6 +462,17 @@ class Chain(KeepsReadOnly, ChainKinematics, ChainChecks):
             A0 += st.A_B
         A0[:3] -= st.g_B
         return A0
+
+    @property
+    def gravity(self) -> np.ndarray:
+        """Gravity (3,) m/s^2, world frame; read-only (the passes keep its base-frame image:
+        make a new Chain for another gravity)."""
+        return self._gravity
+
+    @gravity.setter
+    def gravity(self, value) -> None:
+        raise AttributeError("Chain.gravity is read-only (the passes keep its base-frame image): make a new Chain "
+                             "with gravity=...")
 
     def create_data(self) -> Data:
         """A per-evaluation workspace for this chain (Pinocchio's ``model.createData()``): pass it

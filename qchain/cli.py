@@ -131,6 +131,12 @@ def _run(args, parser, session: _Session) -> int:
         raise BadInput("recording needs qchain.logging, which is not available")
     record = qlog is not None and not (args.no_record and not (args.mcap or args.serve or args.connect or args.rrd))
     notices: list[str] = []
+    if not args.no_plots:  # a recording where the plots' folder is, or above it: refused before either is made
+        folder = os.path.abspath(args.out if args.out is not None else scene.output_folder)
+        for flag, p in (("--mcap", args.mcap), ("--rrd", args.rrd)):
+            if p is not None and (folder == os.path.abspath(p) or folder.startswith(os.path.abspath(p) + os.sep)):
+                raise BadInput(f"{flag} {printable(_shown(p))} is the plots' folder {printable(_shown(folder))} or a "
+                               "folder above it: give the recording a file path of its own")
     if record or args.rrd:  # a recording's times end at 2**32 s: said before the model is built
         from .recording.records import T_MAX, T_MAX_WHY
 

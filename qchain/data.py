@@ -73,8 +73,14 @@ class Data:
         if isinstance(nv, (bool, np.bool_)) or not isinstance(nv, (int, np.integer)) or int(nv) not in (3 * n, 3 * n + 6):
             raise ValueError(f"nv must be 3 n = {3 * n} (a fixed or prescribed base) or 3 n + 6 = {3 * n + 6} (a "
                              f"floating base), got {nv!r}")
-        self.n = n
-        self.nv = int(nv)
+        object.__setattr__(self, "n", n)
+        object.__setattr__(self, "nv", int(nv))
+
+    def __setattr__(self, name: str, value) -> None:
+        # the compiled passes write into the arrays at the sizes checked against n and nv:
+        # a size changed or an array replaced would let them write outside it
+        raise AttributeError(f"Data.{name} cannot be set: a workspace's sizes and arrays are made by "
+                             "chain.create_data() (make a new one)")
 
     def __getattr__(self, name: str):
         if name.startswith("_"):

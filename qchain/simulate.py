@@ -471,6 +471,8 @@ def simulate(
         chain._check_locks(st.q_e, st.v_e)
     chain.kinetic_energy(q0, v0, t=t0)  # NonFiniteError naming the segment if the start overflows
     chain.potential_energy(q0, t=t0)
+    if any(s.coords == "paper" for s in chain.segments):  # a singular start (kappa = 0) is said here, by name
+        chain.forward_dynamics(q0, v0, np.zeros(chain.nu), t=t0)
     cfg = check_settings(chain, t0, t1, method=method, dt=dt, rtol=rtol, atol=atol, max_step=max_step,
                          first_step=first_step, wall_limit=wall_limit, t_eval=t_eval, energies=energies,
                          progress=progress, on_sample=on_sample, events=events, controller_rate=controller_rate)
@@ -619,9 +621,10 @@ def simulate(
                 nsteps += 1
                 bar.update(t)
         else:
-            t, q, v, status, message, nsteps = _run_adaptive(
-                ADAPTIVE[method], sysm, rec, bar, check_events, t0, t1, q, v, rtol, atol, max_step, first_step, method,
-                max_total_steps=budget.max_steps)
+            with np.errstate(under="ignore"):  # (scipy's first step takes nextafter(0, inf), an underflow)
+                t, q, v, status, message, nsteps = _run_adaptive(
+                    ADAPTIVE[method], sysm, rec, bar, check_events, t0, t1, q, v, rtol, atol, max_step, first_step,
+                    method, max_total_steps=budget.max_steps)
     except (_WallLimit, _Stop) as err:
         status, message = -1, str(err)
     except KeyboardInterrupt:

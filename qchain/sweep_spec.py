@@ -115,6 +115,16 @@ def parse_key(key: str) -> list:
     return out
 
 
+def keys_overlap(a: str, b: str) -> bool:
+    """Whether two scene keys can address the same value (``[*]`` matches every index; a
+    table's key overlaps the keys inside it)."""
+    for x, y in zip(parse_key(a), parse_key(b)):
+        if x == y or (x == "*" and isinstance(y, int)) or (y == "*" and isinstance(x, int)):
+            continue
+        return False
+    return True
+
+
 def _put(node, at, value) -> None:
     """``node[at] = value``, except that a table put over a table is merged into it key by
     key (a dotted assignment per leaf): ``simulation = {duration = 0.03}`` changes the
@@ -407,6 +417,10 @@ class SweepSpec:
             for k in a.keys:
                 if k in seen:
                     raise ValueError(f"the key {k!r} is on two axes ({seen[k]} and {a.name})")
+                for other, axis in seen.items():  # another spelling of it: segments[*] and segments[0]
+                    if axis != a.name and keys_overlap(k, other):
+                        raise ValueError(f"the keys {other!r} and {k!r} address the same value, on two axes "
+                                         f"({axis} and {a.name}): which run used which would be unknown")
                 seen[k] = a.name
         if not (isinstance(self.max_runs, int) and not isinstance(self.max_runs, bool)
                 and 1 <= self.max_runs <= MAX_RUNS_LIMIT):
@@ -508,7 +522,8 @@ def runs_problem(sampling: str, n: int | None, axes: list[Axis], max_runs: int) 
         total *= k
     if total <= max_runs:
         return None
-    return "axes", how, f"a grid of {total:.4g} runs: {' x '.join(sizes)} values"
+    shown = f"{total:.4g}" if total < 10**300 else f"more than 1e300"  # (a float of it would overflow)
+    return "axes", how, f"a grid of {shown} runs: {' x '.join(sizes)} values"
 
 
 def _takes_rng(cls) -> bool:

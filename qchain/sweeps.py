@@ -216,6 +216,9 @@ def _check_metric(key: str, value) -> None:
     """``TypeError`` naming the metric ``key`` and its type unless ``value`` is a number, a
     boolean, a string, None or a (nested) list of finite numbers: a value the run journal
     (JSON) and the summary table cannot hold makes its run a failed row, not a lost sweep."""
+    if not key or "\0" in key:
+        raise ValueError(f"the metrics function's name {key!r} is empty or holds a NUL character: a table column "
+                         "needs a name")
     if not _metric_ok(value):
         shown = type(value).__name__
         if isinstance(value, list):
@@ -564,6 +567,11 @@ def run_sweep(spec: SweepSpec, *, workers=None, client=None, progress: bool | No
         for i, res in results:
             if isinstance(res, Lost):
                 res = {"row": {"run": i, "success": False, "status": -2, "message": f"not run: {res.message}"}}
+            clash = sorted(set(res["row"]) & set(points[i]))
+            if clash:  # the metrics would overwrite the values the run was made with: the row says so instead
+                res = {"row": {"run": i, "success": False, "status": -2,
+                               "message": f"the metrics function's names {clash} are the sweep's axis keys: its "
+                                          "results are not kept (the run's axis values would be lost)"}}
             row = {**{"run": i}, **points[i], **res["row"]}
             if folder is not None:
                 folder.add(row, res)

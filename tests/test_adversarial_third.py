@@ -720,3 +720,86 @@ def test_a_batch_index_is_no_boolean_and_a_logger_stream_must_seek():
 
     with pytest.raises(ValueError, match="a binary stream that can seek"):
         RunLogger(arm_info(), NoSeek(), quiet=True)
+
+
+# --------------------------------------------------------------------------------------
+# a fifth pass's cases
+
+
+def test_a_workspace_cannot_be_relabelled_and_gravity_cannot_be_reassigned():
+    """d.n, d.nv = 8, 24 made a 2-segment workspace pass for 8 segments: a wrong answer, then
+    a segmentation fault; Chain.gravity = ... was taken by some passes and not others."""
+    ch = arm(2)
+    d = ch.create_data()
+    ch.mass_matrix(ch.neutral(), data=d)
+    for name, value in (("n", 8), ("nv", 24), ("M", np.zeros((1, 1)))):
+        with pytest.raises(AttributeError, match=rf"Data.{name} cannot be set"):
+            setattr(d, name, value)
+    with pytest.raises(AttributeError, match="Chain.gravity is read-only"):
+        ch.gravity = np.zeros(3)
+    import itertools
+
+    with pytest.raises(ValueError, match=r"segments must hold at most 1e\+06 Segments"):
+        Chain(itertools.repeat(Segment(**SEG)))
+
+
+def test_runs_that_once_failed_inside_scipy_or_numba_say_why_or_run():
+    import warnings
+
+    paper = Chain([Segment(**SEG, coords="paper")])
+    from qchain.errors import SingularConfigurationError
+
+    with pytest.raises(SingularConfigurationError, match="paper's \\(l, psi, kappa\\) coordinates are singular"):
+        simulate(paper, paper.neutral(), np.zeros(3), (0, 0.005))
+    ch = arm(2)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # numba's experimental-feature warning at every call stopped every run
+        for method in ("radau5", "dopri5", "rk4"):
+            assert simulate(ch, ch.neutral(), np.zeros(ch.nv), (0, 0.005), method=method, dt=1e-3).success
+    with np.errstate(all="raise"):  # scipy's own nextafter(0, inf) underflowed
+        assert simulate(ch, ch.neutral(), np.zeros(ch.nv), (0, 0.005), method="RK45").success
+
+
+def test_a_batch_is_checked_as_a_whole_against_the_memory_budget():
+    ch = arm(2)
+    with pytest.raises(BudgetError, match=r"budget.max_memory: .* \(1000000 rollouts x"):
+        simulate_batch(ch, np.broadcast_to(ch.neutral(), (10**6, ch.nq)), np.zeros(ch.nv), (0, 1),
+                       t_eval=np.linspace(0, 1, 1001), workers=1)
+
+
+def test_sweep_keys_metrics_and_huge_grids(tmp_path):
+    from qchain.sweep_spec import Axis, SweepSpec, runs_problem
+    from qchain.scene import parse_scene
+
+    sc = parse_scene(SCENE.replace("NAME", "sw"))
+    with pytest.raises(ValueError, match=r"address the same value, on two axes"):
+        SweepSpec(scene=sc, axes=[Axis("segments[0].youngs_modulus", values=(1e5,)),
+                                  Axis("segments[*].youngs_modulus", values=(1e9,))])
+    axes = [Axis(f"segments[{i}].damping", range=(0.0, 0.1), num=10**8) for i in range(40)]
+    key, expected, found = runs_problem("grid", None, axes, 1000)
+    assert key == "axes" and "more than 1e300" in found
+    from qchain.sweeps import run_sweep
+
+    spec = SweepSpec(scene=sc, axes=[Axis("segments[0].damping", values=(0.01, 0.02))],
+                     metrics=lambda scene, model, traj: {"segments[0].damping": -1.0}, folder=tmp_path / "m")
+    res = run_sweep(spec, workers=1)
+    table = res.table.to_pydict()
+    assert table["segments[0].damping"] == [0.01, 0.02] and not any(table["success"])
+    assert all("are the sweep's axis keys" in m for m in table["message"])
+
+
+def test_outputs_a_run_could_not_write_are_refused_before_it_starts(tmp_path, monkeypatch, capsys):
+    from qchain.cli import main
+
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "s.toml").write_text(SCENE.replace("NAME", "outs"))
+    for args, said in ((["--out", "o", "--mcap", "o"], "is the plots' folder"),
+                       (["--out", "o2/sub", "--mcap", "o2"], "or a folder above it"),
+                       (["--mcap", "r.mcap.journal", "--no-plots"], "the name of a recording's journal")):
+        assert main(["run", "s.toml", *args]) == 2
+        err = capsys.readouterr().err
+        assert said in err, err
+    assert not (tmp_path / "o").exists() and not (tmp_path / "o2").exists()
+    (tmp_path / "dl.mcap").symlink_to("nothere/x.mcap")
+    assert main(["run", "s.toml", "--no-plots", "--mcap", "dl.mcap"]) == 2
+    assert "whose folder does not exist" in capsys.readouterr().err

@@ -13,6 +13,7 @@ import functools
 import inspect
 import sys
 import time as _time
+import warnings
 
 import numpy as np
 
@@ -23,6 +24,11 @@ from .steppers import AT_STOP, FAILED, STEPS
 
 __all__ = ["run", "Interrupted", "STRETCH"]
 
+try:
+    from numba.core.errors import NumbaExperimentalFeatureWarning as _NumbaExperimental
+except ImportError:  # (another numba layout: nothing to silence by that name)
+    class _NumbaExperimental(Warning):
+        pass
 STRETCH = 0.05  #: s of wall time a compiled stretch aims at between looks from Python
 EPS = np.finfo(float).eps
 
@@ -93,7 +99,10 @@ def run(chain, m, method, q0, v0, t0, t1, *, dt, rtol, atol, t_eval, on_sample, 
     if out.every:
         cnt[steppers.EVERY] = 1
     t_prep = _time.perf_counter()
-    fs, advance = warmup.prepare(method, m, wk, it, out.arrays, c, energies=on_sample is not None and pass_energies)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", _NumbaExperimental)
+        fs, advance = warmup.prepare(method, m, wk, it, out.arrays, c,
+                                     energies=on_sample is not None and pass_energies)
     compile_s = _time.perf_counter() - t_prep
     hold_times = _hold_times(controllers, controller_rate, t0, t1)
     n_hold = 0
@@ -141,7 +150,9 @@ def run(chain, m, method, q0, v0, t0, t1, *, dt, rtol, atol, t_eval, on_sample, 
                     break
                 steps = min(steps, max_total_steps - taken)
             w0 = _time.perf_counter()
-            code = advance(fs, m, wk, it, out.arrays, c, t_stop, max_out, steps)
+            with warnings.catch_warnings():  # numba says at every call that first-class functions are
+                warnings.simplefilter("ignore", _NumbaExperimental)  # experimental: not the user's concern
+                code = advance(fs, m, wk, it, out.arrays, c, t_stop, max_out, steps)
             wall = _time.perf_counter() - w0
             if code == STEPS and not events:  # size the next stretch to about STRETCH s
                 max_steps = int(min(max(max_steps * min(4.0, STRETCH / max(wall, 1e-6)), 1), 1 << 20))

@@ -124,6 +124,12 @@ def check_outputs(mcap: str | os.PathLike | None, rrd: str | os.PathLike | None 
 
 def _check_output(name: str, p: Path, scene_path, min_free: int) -> list[str]:
     notices: list[str] = []
+    if p.name.endswith(JOURNAL_SUFFIX):  # a journal's name: another run's would be taken for it
+        raise LoggingError(f"{name} path {p} ends in {JOURNAL_SUFFIX!r}, the name of a recording's journal: choose "
+                           "another name")
+    if p.is_symlink() and not p.exists() and not Path(os.path.realpath(p)).parent.is_dir():
+        raise LoggingError(f"{name} path {p} is a link to {os.readlink(p)}, whose folder does not exist: give the "
+                           "file's own path (or make that folder)")
     if p.is_dir():
         raise LoggingError(f"{name} must be a file path, got the folder {p}")
     if scene_path is not None and (_same(p, Path(scene_path)) or
