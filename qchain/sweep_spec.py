@@ -522,7 +522,7 @@ def runs_problem(sampling: str, n: int | None, axes: list[Axis], max_runs: int) 
         total *= k
     if total <= max_runs:
         return None
-    shown = f"{total:.4g}" if total < 10**300 else f"more than 1e300"  # (a float of it would overflow)
+    shown = f"{total:.4g}" if total < 10**300 else "more than 1e300"  # (a float of it would overflow)
     return "axes", how, f"a grid of {shown} runs: {' x '.join(sizes)} values"
 
 
