@@ -158,11 +158,16 @@ class ChainRecorder:
             k = int(np.flatnonzero(~(np.diff(t) >= 0.0))[0])
             raise ValueError(f"t must not go back: t[{k + 1}] = {float(t[k + 1])!r} s after t[{k}] = {float(t[k])!r} s")
         if K and self._t_taken is not None and t[0] <= self._t_taken:
-            # a batch handed over again (a Ctrl-C inside this call, while it paced a batch
-            # sample by sample): what was taken is not taken twice
+            if t[0] != getattr(self, "_batch_t0", None):  # another run's samples (a recorder used twice)
+                raise ValueError(f"t must not go back: a batch from t = {float(t[0])!r} s after a sample at t = "
+                                 f"{self._t_taken!r} s (one recorder a run)")
+            # the same batch handed over again (a Ctrl-C inside this call, while it paced the
+            # batch sample by sample): what was taken is not taken twice
             a = int(np.searchsorted(t, self._t_taken, side="right"))
             t, q, v, p, kinetic, potential = t[a:], q[a:], v[a:], p[a:], kinetic[a:], potential[a:]
             K = t.shape[0]
+        elif K:
+            self._batch_t0 = float(t[0])
         if self.realtime:
             try:
                 for k in range(K):

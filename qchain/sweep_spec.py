@@ -71,6 +71,7 @@ from pathlib import Path
 import numpy as np
 
 from . import bounds as _B
+from .errors import describe_value
 from .scene import _TOP_KEYS, Problem, Scene, SceneError, _Checker, _show, _type_name, parse_scene
 
 __all__ = ["Axis", "SweepSpec", "SweepError", "load_sweep", "parse_key", "apply_values", "SAMPLINGS",
@@ -345,6 +346,9 @@ class Axis:
 
 def _as_axes(axes) -> list[Axis]:
     if isinstance(axes, dict):
+        for k, a in axes.items():
+            if not isinstance(a, Axis) and (isinstance(a, (str, bytes, dict)) or not hasattr(a, "__iter__")):
+                raise TypeError(f"axes[{k!r}] must be a list of values (or an Axis), got {describe_value(a)}")
         return [a if isinstance(a, Axis) else Axis(k, values=tuple(a)) for k, a in axes.items()]
     out = []
     for a in axes or []:

@@ -803,3 +803,63 @@ def test_outputs_a_run_could_not_write_are_refused_before_it_starts(tmp_path, mo
     (tmp_path / "dl.mcap").symlink_to("nothere/x.mcap")
     assert main(["run", "s.toml", "--no-plots", "--mcap", "dl.mcap"]) == 2
     assert "whose folder does not exist" in capsys.readouterr().err
+
+
+# --------------------------------------------------------------------------------------
+# a sixth pass's cases
+
+
+def test_a_recorder_used_for_two_runs_refuses_the_second_instead_of_splicing(tmp_path):
+    """record_batch took a second run's samples before the first's last time as a batch
+    handed over again, and dropped them: the recording spliced the two runs."""
+    from qchain.recorder import ChainRecorder
+
+    ch = arm(2)
+    q0, v0 = ch.neutral(), np.zeros(ch.nv)
+    with RunLogger(arm_info(2), tmp_path / "r.mcap", quiet=True, worker="thread") as log, \
+            ChainRecorder(log, ch) as rec:
+        simulate(ch, q0, v0, (0, 0.1), on_sample=rec, t_eval=np.linspace(0, 0.1, 11))
+        with pytest.raises(ValueError, match=r"t must not go back: a batch from t = 0.0 s .* \(one recorder a run\)"):
+            simulate(ch, q0, v0, (0, 0.2), on_sample=rec, t_eval=np.linspace(0, 0.2, 21))
+    np.testing.assert_allclose(read_recording(tmp_path / "r.mcap").t, np.linspace(0, 0.1, 11))
+
+
+def test_rrd_and_layout_outputs_never_replace_a_file_of_another_kind(whole, tmp_path, capsys):
+    from qchain.recording.replay import layout_main, replay_main
+
+    data, _, _, _ = whole
+    rec = tmp_path / "run.mcap"
+    rec.write_bytes(data)
+    other = tmp_path / "other.mcap"
+    other.write_bytes(data)
+    notes = tmp_path / "notes.txt"
+    notes.write_text("mine")
+    for target in (notes, other):
+        assert replay_main([str(rec), "--rrd", str(target)]) == 2
+        assert "is not a Rerun .rrd file; refusing to overwrite it" in capsys.readouterr().err
+        assert layout_main([str(rec), "-o", str(target)]) == 2
+        assert "is not a layout (JSON); refusing to overwrite it" in capsys.readouterr().err
+    assert notes.read_text() == "mine" and other.read_bytes() == data
+    assert replay_main([str(rec), "--rrd", str(tmp_path / "x.rrd")]) == 0
+    assert replay_main([str(rec), "--rrd", str(tmp_path / "x.rrd")]) == 0  # an earlier .rrd is replaced
+    assert layout_main([str(rec), "-o", str(tmp_path / "l.json")]) == 0
+    assert layout_main([str(rec), "-o", str(tmp_path / "l.json")]) == 0
+
+
+def test_the_sweep_api_checks_that_axis_values_are_a_list():
+    from qchain.sweeps import sweep
+
+    scene = ROOT / "examples" / "scenes" / "step_response.toml"
+    for bad in (0.1, None, "xy"):
+        with pytest.raises(TypeError, match=r"axes\['segments\[0\].length'\] must be a list of values"):
+            sweep(scene, {"segments[0].length": bad}, workers=1)
+
+
+def test_recover_leaves_a_complete_recording_as_it_is(whole, tmp_path, capsys):
+    from qchain.recording.replay import recover_main
+
+    data, _, _, _ = whole
+    path = tmp_path / "run.mcap"
+    path.write_bytes(data)
+    assert recover_main([str(path)]) == 0
+    assert "nothing to recover" in capsys.readouterr().out and path.read_bytes() == data

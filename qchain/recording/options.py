@@ -24,6 +24,8 @@ MIN_FREE_BYTES = 16 << 20
 
 #: What the journal of a recording adds to its file name (``run.mcap.journal``).
 JOURNAL_SUFFIX = ".journal"
+#: The first bytes of a Rerun .rrd file (its stream header)
+RRD_MAGIC = b"RRF"
 #: Bytes of a whole path the system takes where it does not say (Linux's PATH_MAX).
 _PATH_MAX = 4096
 
@@ -166,6 +168,10 @@ def _check_output(name: str, p: Path, scene_path, min_free: int) -> list[str]:
                 raise LoggingError(f"{p} exists and is not an MCAP recording; refusing to overwrite it")
             notices.append(f"replacing the earlier recording {p}")
     elif p.exists() and p.stat().st_size > 0:
+        with open(p, "rb") as fh:
+            head = fh.read(len(RRD_MAGIC))
+        if head != RRD_MAGIC:  # a recording, a scene, notes: not the user's to lose to a typo
+            raise LoggingError(f"{p} exists and is not a Rerun .rrd file; refusing to overwrite it")
         notices.append(f"replacing the earlier .rrd file {p}")
     return notices
 

@@ -321,7 +321,8 @@ def recover(path: str | os.PathLike, *, limits: ReadLimits | None = None) -> Rec
     """Make the recording of a killed run whole: read what the file and the run's journal
     hold together, write it as a complete recording in place of the file (atomically),
     remove the journal. Returns the recording as written. What the old file lacked (gaps
-    left by damage, non-finite values) is said in the new one's outcome message.
+    left by damage, non-finite values) is said in the new one's outcome message. A complete
+    file without a journal is left as it is (nothing to recover).
 
     Raises
     ------
@@ -358,6 +359,8 @@ def recover(path: str | os.PathLike, *, limits: ReadLimits | None = None) -> Rec
                                f"changed; recover {target}")
     # (without the file, from the journal alone: the writer never started)
     rec = read_recording(path, limits=limits)
+    if not (rec.truncated or rec.recovered or rec.gaps or os.path.lexists(jp)):
+        return rec  # a complete file and no journal: nothing to recover, the file is left as it is
     if rec.journal_unread:
         raise LoggingError(f"{path}: its journal {jp} cannot be (wholly) merged ({rec.journal_unread}); nothing was "
                            "changed (the journal would be lost): move it away to recover the file without it")
@@ -537,9 +540,13 @@ def recover_main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(argv)
     limits = _limits(parser, args)
     try:
+        before = os.stat(args.log).st_mtime_ns if os.path.exists(args.log) else None
         rec = recover(args.log, limits=limits)
     except _ERRORS as exc:
         return _error("recover", exc)
+    if before is not None and os.stat(args.log).st_mtime_ns == before:
+        print(printable(f"nothing to recover: {args.log} is complete and has no journal (left as it is)"))
+        return 0
     print("recovered " + "\n".join(map(printable, _summary(rec))))
     return 0
 
@@ -565,6 +572,11 @@ def layout_main(argv: Sequence[str] | None = None) -> int:
                 if os.path.abspath(args.out) == os.path.abspath(p) or (
                         args.out.exists() and p.exists() and os.path.samefile(args.out, p)):
                     raise LoggingError(f"-o {args.out} is the recording ({p}): it would be overwritten")
+            if args.out.is_file() and args.out.stat().st_size > 0:
+                with open(args.out, "rb") as fh:
+                    head = fh.read(64).lstrip()
+                if not head.startswith(b"{"):  # an earlier layout (JSON) is replaced; anything else is kept
+                    raise LoggingError(f"-o {args.out} exists and is not a layout (JSON); refusing to overwrite it")
             if args.out.is_dir():
                 raise LoggingError(f"-o must be a file path, got the folder {args.out}")
             from ..cli_checks import check_output_path
