@@ -280,8 +280,9 @@ def test_recover_and_layout_commands(short_scene, tmp_path, capsys):
     layout = json.loads((tmp_path / "layout.json").read_text())
     text = json.dumps(layout)
     assert '"segment 2 ux [1/m]"' in text and "/qchain/state.q[4]" in text and "/qchain/arm" in text
-    assert main(["recover", str(path)]) == 0  # a whole recording stays whole
-    assert "recovered" in capsys.readouterr().out
+    whole = path.read_bytes()
+    assert main(["recover", str(path)]) == 0  # a whole recording stays whole, untouched
+    assert "nothing to recover" in capsys.readouterr().out and path.read_bytes() == whole
     assert main(["recover", str(tmp_path / "none.mcap")]) == 2
 
 
