@@ -35,8 +35,7 @@ from .chain import Chain
 from . import bounds as _bounds
 from .errors import QchainError, as_bool, as_real_array, as_vector
 from .inputs import Schedule, as_input
-from .budget import DEFAULT as DEFAULT_BUDGET
-from .budget import Budget
+from .budget import Budget, as_budget
 from .simulate import (COMPILED, DEFAULT_METHOD, FIXED_STEP, METHODS, Event, _check_span, check_settings, run_cost_of,
                        simulate)
 from .trajectory import Trajectory
@@ -370,10 +369,7 @@ def simulate_batch(
     p_shared, p_each = _batched_input("pressure", pressure, chain.nu)
     tau_shared, tau_each = _batched_input("tau", tau, chain.nv)
     # a rollout's cost against the budget (qchain.budget), before anything runs
-    if budget is None:
-        budget = DEFAULT_BUDGET
-    elif not isinstance(budget, Budget):
-        raise TypeError(f"budget must be a qchain.budget.Budget, got {type(budget).__name__}")
+    budget = as_budget(budget)
     cost = run_cost_of(chain, t0, t1, method=method, dt=dt, max_step=max_step, t_eval=t_eval,
                        inputs=(p_shared, tau_shared, *(p_each or ()), *(tau_each or ())), controller_rate=controller_rate)
     budget.check(cost)

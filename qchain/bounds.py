@@ -200,6 +200,12 @@ PRESSURE_AMPLITUDE = Range(-1e9, 1e9, "Pa")  #: a sine's amplitude (its sign is 
 
 # -- time and the run
 TIME = Range(-1e12, 1e12, "s")  #: times of schedules
+
+
+def check_time(t, name: str = "t") -> float:
+    """A time ``t`` (s): a real number within :data:`TIME` (a float inside it passes at once:
+    a schedule or a chain's method checks every call)."""
+    return t if type(t) is float and -1e12 <= t <= 1e12 else TIME.check(name, t)
 DURATION = Range(1e-12, 1e12, "s")  #: a run's length (its cost is bounded by the budget; from 1e-12 s, which
 #: the solver can always step: qchain.simulate needs 64 float64 epsilons of max(1 s, |t0|, |t1|))
 STEP = Range(0.0, 1e12, "s", low_open=True)  #: dt, max_step, first_step

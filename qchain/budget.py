@@ -102,6 +102,17 @@ class Budget:
 DEFAULT = Budget()
 
 
+def as_budget(budget) -> Budget:
+    """``budget``, or :data:`DEFAULT` for None; ``TypeError`` naming it for anything else."""
+    if budget is None:
+        return DEFAULT
+    if not isinstance(budget, Budget):
+        from .errors import describe_value
+
+        raise TypeError(f"budget must be a qchain.budget.Budget, got {describe_value(budget)}")
+    return budget
+
+
 def _bytes(x: float) -> str:
     for unit, scale in (("TiB", 2**40), ("GiB", 2**30), ("MiB", 2**20), ("KiB", 2**10)):
         if x >= scale:

@@ -21,7 +21,7 @@ import numpy as np
 import pinocchio as pin
 
 from . import recursive
-from .bounds import POSITION, TIME
+from .bounds import POSITION, check_time
 from .errors import DomainError, NonFiniteError, QchainError, as_real_array, as_vector, describe_value
 from .segment import Segment
 from .segment import _paper_jacobian as paper_jacobian, _paper_to_curvature as paper_to_curvature
@@ -160,7 +160,7 @@ class ChainChecks:
 
     def _time(self, t, name: str = "t") -> float:
         """A time ``t`` (s): a real number within :data:`qchain.bounds.TIME`."""
-        return t if type(t) is float and -1e12 <= t <= 1e12 else TIME.check(name, t)
+        return check_time(t, name)
 
     def indefinite_error(self, method: str, q_e: np.ndarray, t=None) -> QchainError:
         """The error of a ``method`` whose articulated-body pass met an inertia block that is

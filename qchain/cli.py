@@ -230,11 +230,9 @@ def _run(args, parser, session: _Session) -> int:
             done = logger.close()
             if done.get("error"):
                 print(f"qchain run: error: the recording failed: {_one_line(done['error'])}", file=sys.stderr)
-                _say_journal(logger)
+            _say_recording(logger, done, sys.stdout)
+            if done.get("error"):
                 return EXIT_FAILED
-            if logger.mcap_path is not None:
-                reached = "no sample" if done.get("last_t") is None else f"t = {done['last_t']:.6g} s"
-                print(f"recorded {printable(_shown(logger.mcap_path))} ({done.get('n_records', 0)} samples, up to {reached})")
         else:
             try:
                 traj = scene.simulate(model=model, duration=duration, progress=progress)
@@ -245,13 +243,7 @@ def _run(args, parser, session: _Session) -> int:
     except (ValueError, QchainError) as err:  # the start state or an input outside the model, a full disk
         print(f"qchain run: error: {_one_line(err)}", file=sys.stderr)
         if logger is not None and logger.mcap_path is not None:
-            done = logger.close()
-            if done.get("error"):
-                _say_journal(logger)
-            else:
-                reached = "no sample" if done.get("last_t") is None else f"t = {done['last_t']:.6g} s"
-                print(f"recorded {printable(_shown(logger.mcap_path))} ({done.get('n_records', 0)} samples, up to "
-                      f"{reached})", file=sys.stderr)
+            _say_recording(logger, logger.close(), sys.stderr)
         return EXIT_FAILED
     session.phase = "end"
     wall = (time.perf_counter() if t1 is None else t1) - t0 - (traj.meta.get("compile_s", 0.0) if traj is not None
@@ -277,14 +269,21 @@ def _run(args, parser, session: _Session) -> int:
     return EXIT_OK if traj.success and not interrupted else EXIT_FAILED
 
 
-def _say_journal(logger) -> None:
-    """Where the records of a recording that could not be finished are: its journal, if it
-    stayed (``qchain replay`` reads it, ``qchain recover`` makes the file whole)."""
-    jp = getattr(logger, "journal_path", None)
-    if logger.mcap_path is not None and jp is not None and os.path.exists(jp):
-        mcap = printable(_shown(logger.mcap_path))
-        print(f"qchain run: the recording {mcap} is not finished; its records are in {printable(_shown(jp))} "
-              f"(`qchain replay {mcap}` reads them, `qchain recover {mcap}` makes the file whole)", file=sys.stderr)
+def _say_recording(logger, done: dict, stream) -> None:
+    """What became of the run's recording: ``recorded PATH (N samples, up to t = T s)`` on
+    ``stream``, or for one that could not be finished where its records are (its journal,
+    if it stayed: ``qchain replay`` reads it, ``qchain recover`` makes the file whole)."""
+    if logger.mcap_path is None:
+        return
+    mcap = printable(_shown(logger.mcap_path))
+    if done.get("error"):
+        jp = getattr(logger, "journal_path", None)
+        if jp is not None and os.path.exists(jp):
+            print(f"qchain run: the recording {mcap} is not finished; its records are in {printable(_shown(jp))} "
+                  f"(`qchain replay {mcap}` reads them, `qchain recover {mcap}` makes the file whole)", file=sys.stderr)
+        return
+    reached = "no sample" if done.get("last_t") is None else f"t = {done['last_t']:.6g} s"
+    print(f"recorded {mcap} ({done.get('n_records', 0)} samples, up to {reached})", file=stream)
 
 
 def _check_planned_outputs(args, scene, mcap) -> None:

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .bounds import ANGLE, FREQUENCY, PRESSURE, TIME, Range
+from .bounds import ANGLE, FREQUENCY, PRESSURE, TIME, Range, check_time
 from .errors import as_real_array, as_vector
 from .frozen import KeepsReadOnly
 
@@ -36,12 +36,6 @@ def _vec(name, x, size=None) -> np.ndarray:
     if x.ndim != 1:
         raise ValueError(f"{name} must be a 1-D array, got shape {x.shape}")
     return _frozen(as_vector(name, x, x.size if size is None else size))
-
-
-def _time(t):
-    """A schedule's time ``t`` (s) within :data:`qchain.bounds.TIME`: a value at NaN or an
-    infinite time would be NaN, or a silent end value."""
-    return t if type(t) is float and -1e12 <= t <= 1e12 else TIME.check("t", t)
 
 
 def _frozen(x: np.ndarray) -> np.ndarray:
@@ -119,7 +113,7 @@ class Step(Schedule):
         return self.after.size
 
     def __call__(self, t):
-        return (self.after if _time(t) >= self.time else self.before).copy()
+        return (self.after if check_time(t) >= self.time else self.before).copy()
 
     def extent(self):
         return np.minimum(self.before, self.after), np.maximum(self.before, self.after)
@@ -149,7 +143,7 @@ class Ramp(Schedule):
         return self.end.size
 
     def __call__(self, t):
-        s = min(max((_time(t) - self.t0) / (self.t1 - self.t0), 0.0), 1.0)
+        s = min(max((check_time(t) - self.t0) / (self.t1 - self.t0), 0.0), 1.0)
         return self.start + s * (self.end - self.start)
 
     def extent(self):
@@ -182,7 +176,7 @@ class Sine(Schedule):
         return self.amplitude.size
 
     def __call__(self, t):
-        return self.offset + self.amplitude * np.sin(2.0 * np.pi * self.frequency * _time(t) + self.phase)
+        return self.offset + self.amplitude * np.sin(2.0 * np.pi * self.frequency * check_time(t) + self.phase)
 
     def extent(self):
         """``offset -+ |amplitude|`` (a sine of frequency 0 is the constant
@@ -219,7 +213,7 @@ class Table(Schedule):
         return self.values.shape[1]
 
     def __call__(self, t):
-        i = int(np.searchsorted(self.times, _time(t), side="right"))
+        i = int(np.searchsorted(self.times, check_time(t), side="right"))
         if i == 0:
             return self.values[0].copy()
         if i >= self.times.size:

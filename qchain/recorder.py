@@ -104,6 +104,7 @@ class ChainRecorder:
         # the samples waiting: times, (q, v, p, kinetic, potential) copied into one array each
         self._t: list[float] = []
         self._t_taken: float | None = None  # the time of the last sample taken
+        self._batch_t0: float | None = None  # the first time of the last batch taken (record_batch)
         self._x: list[np.ndarray] = []
         self._wall0 = 0.0
 
@@ -158,7 +159,7 @@ class ChainRecorder:
             k = int(np.flatnonzero(~(np.diff(t) >= 0.0))[0])
             raise ValueError(f"t must not go back: t[{k + 1}] = {float(t[k + 1])!r} s after t[{k}] = {float(t[k])!r} s")
         if K and self._t_taken is not None and t[0] <= self._t_taken:
-            if t[0] != getattr(self, "_batch_t0", None):  # another run's samples (a recorder used twice)
+            if t[0] != self._batch_t0:  # another run's samples (a recorder used twice)
                 raise ValueError(f"t must not go back: a batch from t = {float(t[0])!r} s after a sample at t = "
                                  f"{self._t_taken!r} s (one recorder a run)")
             # the same batch handed over again (a Ctrl-C inside this call, while it paced the

@@ -263,7 +263,7 @@ def summary_lines(scene: Scene, model: SceneModel, traj, wall: float, message: s
     warning = None
     if model.max_bend is not None:
         sized = sorted({float(f"{x:.3g}") for x in model.max_bend})
-        line += f"; nodes sized for {_values(sized) if len(sized) > SUMMARY_LIST else ', '.join(f'{x:.3g}' for x in sized)}"
+        line += f"; nodes sized for {_values(sized)}"
         over = np.flatnonzero(reached > model.max_bend)
         if over.size:
             j = int(over[0])

@@ -48,8 +48,7 @@ import numpy as np
 import pinocchio as pin
 
 from . import bounds as B
-from .budget import DEFAULT as DEFAULT_BUDGET
-from .budget import Budget, input_frequency, run_cost
+from .budget import Budget, as_budget, input_frequency, run_cost
 from .chain import Chain
 from .engine import driver, system
 from .errors import QchainError, as_bool, as_real, as_real_array, as_vector, check_callable, describe_value
@@ -480,10 +479,7 @@ def simulate(
     wall_limit, t_eval, energies, progress, events = (cfg["wall_limit"], cfg["t_eval"], cfg["energies"],
                                                       cfg["progress"], cfg["events"])
     controller_rate = cfg["controller_rate"]
-    if budget is None:
-        budget = DEFAULT_BUDGET
-    elif not isinstance(budget, Budget):
-        raise TypeError(f"budget must be a qchain.budget.Budget, got {describe_value(budget)}")
+    budget = as_budget(budget)
     def cost(stable_step=None):
         return run_cost_of(chain, t0, t1, method=method, dt=dt, max_step=max_step, t_eval=t_eval,
                            inputs=(pressure, tau), controller_rate=controller_rate, stable_step=stable_step)
@@ -730,13 +726,6 @@ def _midpoint_step(sysm: _System, t, q, v, h, tol=1e-10, max_iter=50):
 STALL_STEP, STALL_STEPS = 1e-9, 1000
 
 
-def step_budget_hint(method: str) -> str:
-    """What a run that spent its step budget should try, by its method."""
-    if method in driver.EXPLICIT_STABILITY_EXTENT:
-        return "the model is probably stiff: use method='radau5' (or raise budget.max_steps)"
-    return "raise budget.max_steps (rejected steps count), or give max_step / controller_rate a longer interval"
-
-
 def _run_adaptive(name, sysm, rec, bar, check_events, t0, t1, q, v, rtol, atol, max_step, first_step, method,
                   max_total_steps=None):
     import scipy.integrate as si
@@ -766,8 +755,7 @@ def _run_adaptive(name, sysm, rec, bar, check_events, t0, t1, q, v, rtol, atol, 
     while True:
         if max_total_steps is not None and nsteps >= max_total_steps:
             status = -1
-            message = (f"step budget exceeded: budget.max_steps = {max_total_steps}, {nsteps} steps taken, t reached = "
-                       f"{t:.6g} s of {t1:.6g} s with method {method!r}; {step_budget_hint(method)}")
+            message = driver.step_budget_message(max_total_steps, f"{nsteps} steps taken", t, t1, method)
             break
         if tiny >= STALL_STEPS:
             status = -1

@@ -65,9 +65,18 @@ class _Outputs:
             setattr(self, name, b)
 
 
-def run(chain, m, method, q0, v0, t0, t1, *, dt, rtol, atol, t_eval, on_sample, pass_energies, events, bar,
-        max_step, first_step, energies, deadline, controllers, controller_rate, inputs,
-        max_total_steps: int | None = None) -> Trajectory:
+def run(*args, **kw) -> Trajectory:
+    """:func:`_run`, with numba's warning that first-class functions are experimental (which it
+    gives at every call of the engine) silenced for the run: not the user's concern, and a
+    ``warnings.simplefilter("error")`` would stop every run on it."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", _NumbaExperimental)
+        return _run(*args, **kw)
+
+
+def _run(chain, m, method, q0, v0, t0, t1, *, dt, rtol, atol, t_eval, on_sample, pass_energies, events, bar,
+         max_step, first_step, energies, deadline, controllers, controller_rate, inputs,
+         max_total_steps: int | None = None) -> Trajectory:
     """Integrate from ``(q0, v0)`` at ``t0`` to ``t1`` on the compiled engine (arguments as
     :func:`qchain.simulate.simulate`'s, validated there; ``m`` from :func:`system.pack`;
     ``controllers``: ``[(callable (t, q, v) -> (size,), params array to hold it in)]``;
@@ -99,10 +108,7 @@ def run(chain, m, method, q0, v0, t0, t1, *, dt, rtol, atol, t_eval, on_sample, 
     if out.every:
         cnt[steppers.EVERY] = 1
     t_prep = _time.perf_counter()
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", _NumbaExperimental)
-        fs, advance = warmup.prepare(method, m, wk, it, out.arrays, c,
-                                     energies=on_sample is not None and pass_energies)
+    fs, advance = warmup.prepare(method, m, wk, it, out.arrays, c, energies=on_sample is not None and pass_energies)
     compile_s = _time.perf_counter() - t_prep
     hold_times = _hold_times(controllers, controller_rate, t0, t1)
     n_hold = 0
@@ -143,16 +149,12 @@ def run(chain, m, method, q0, v0, t0, t1, *, dt, rtol, atol, t_eval, on_sample, 
                 taken = int(cnt[steppers.NSTEPS]) + int(cnt[steppers.NREJECT])
                 if taken >= max_total_steps:
                     status = -1
-                    message = (f"step budget exceeded: budget.max_steps = {max_total_steps}, {taken} steps taken "
-                               f"({int(cnt[steppers.NSTEPS])} accepted, {int(cnt[steppers.NREJECT])} rejected), "
-                               f"t reached = {t:.6g} s of {t1:.6g} s with method {method!r}; "
-                               f"{_budget_hint(method)}")
+                    message = step_budget_message(max_total_steps, f"{taken} steps taken ({int(cnt[steppers.NSTEPS])} "
+                                                  f"accepted, {int(cnt[steppers.NREJECT])} rejected)", t, t1, method)
                     break
                 steps = min(steps, max_total_steps - taken)
             w0 = _time.perf_counter()
-            with warnings.catch_warnings():  # numba says at every call that first-class functions are
-                warnings.simplefilter("ignore", _NumbaExperimental)  # experimental: not the user's concern
-                code = advance(fs, m, wk, it, out.arrays, c, t_stop, max_out, steps)
+            code = advance(fs, m, wk, it, out.arrays, c, t_stop, max_out, steps)
             wall = _time.perf_counter() - w0
             if code == STEPS and not events:  # size the next stretch to about STRETCH s
                 max_steps = int(min(max(max_steps * min(4.0, STRETCH / max(wall, 1e-6)), 1), 1 << 20))
@@ -202,10 +204,16 @@ def run(chain, m, method, q0, v0, t0, t1, *, dt, rtol, atol, t_eval, on_sample, 
     return traj
 
 
-def _budget_hint(method: str) -> str:
-    from ..simulate import step_budget_hint  # (qchain.simulate imports this module)
-
-    return step_budget_hint(method)
+def step_budget_message(max_steps: int, taken: str, t: float, t1: float, method: str) -> str:
+    """A run stopped at ``budget.max_steps`` (``taken``: the steps, in words), and what to try
+    by its method: an explicit one on a stiff model wants radau5; otherwise a larger budget,
+    or longer intervals (``max_step``, ``controller_rate``) than those that cut its steps."""
+    if method in EXPLICIT_STABILITY_EXTENT:
+        hint = "the model is probably stiff: use method='radau5' (or raise budget.max_steps)"
+    else:
+        hint = "raise budget.max_steps (rejected steps count), or give max_step / controller_rate a longer interval"
+    return (f"step budget exceeded: budget.max_steps = {max_steps}, {taken}, t reached = {t:.6g} s of {t1:.6g} s "
+            f"with method {method!r}; {hint}")
 
 
 def _hold_times(controllers, rate, t0, t1) -> np.ndarray:
@@ -411,6 +419,23 @@ def stability_limit(chain, q, v, p, tau, t, radius: float = RK4_STABILITY_RADIUS
     idx = np.flatnonzero(chain.active)
     if idx.size > STABILITY_MAX_NV:
         return None
+    key = tuple(np.asarray(x, dtype=float).tobytes() for x in (q, v, p, tau)) + (float(t),)
+    last = _LAST_RADIUS
+    if last and last[0] is chain and last[1] == key:  # (qchain run checks the budget, then simulate again)
+        rho = last[2]
+    else:
+        rho = _spectral_radius(chain, idx, q, v, p, tau, t)
+        _LAST_RADIUS[:] = [chain, key, rho]
+    return radius / rho if rho is not None and rho > 0 else None
+
+
+#: ``[chain, state key, spectral radius]`` of the last :func:`stability_limit` (the chain kept,
+#: so that its identity is not another's)
+_LAST_RADIUS: list = []
+
+
+def _spectral_radius(chain, idx, q, v, p, tau, t) -> float | None:
+    """The largest ``|eigenvalue|`` of the exact Jacobian of the free coordinates ``idx``."""
     from .. import derivatives
 
     if not len(derivatives.aba_derivatives.overloads) and warmup.is_cached(derivatives.aba_derivatives) is False:
@@ -424,8 +449,7 @@ def stability_limit(chain, q, v, p, tau, t, radius: float = RK4_STABILITY_RADIUS
     ix = np.ix_(idx, idx)
     n = idx.size
     J = np.block([[np.zeros((n, n)), np.eye(n)], [d.da_dq[ix], d.da_dv[ix]]])
-    rho = float(np.max(np.abs(np.linalg.eigvals(J))))
-    return radius / rho if rho > 0 else None
+    return float(np.max(np.abs(np.linalg.eigvals(J))))
 
 
 def unstable_message(message: str, h: float, limit: float | None) -> str:

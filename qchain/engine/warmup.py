@@ -65,17 +65,22 @@ def standin(method: str, planar_kernel: bool) -> tuple:
     """``(m, wk, it, out, c)`` of a one-segment chain: the argument types of every run's
     engine (the types do not depend on the chain's size, base or inputs), for compiling
     without the run's own chain."""
-    from ..chain import Chain
-    from ..segment import Segment
-
-    seg = Segment(length=0.1, radius=0.01, mass=0.01, chamber_area=1e-5, chamber_radius=0.005,
-                  youngs_modulus=1e5, nodes=1)
-    chain = Chain([seg], base="fixed", planar=planar_kernel)
+    chain = _standin_chain(planar_kernel)
     m = system.pack(chain, np.zeros(chain.nu), np.zeros(chain.nv))
     wk = system.workspace(chain)
     it = steppers.integrator(m[13].size, chain.nq)
     out = (np.zeros(1), np.zeros((1, chain.nq)), np.zeros((1, chain.nv)), np.zeros((1, chain.nu)))
     return m, wk, it, out, steppers.constants(method)
+
+
+def _standin_chain(planar: bool = False):
+    """A one-segment chain on a fixed base: what compiling needs of a chain (its types)."""
+    from ..chain import Chain
+    from ..segment import Segment
+
+    seg = Segment(length=0.1, radius=0.01, mass=0.01, chamber_area=1e-5, chamber_radius=0.005,
+                  youngs_modulus=1e5, nodes=1)
+    return Chain([seg], base="fixed", planar=planar)
 
 
 def _kernel_args(name: str, m, wk, it) -> tuple:
@@ -257,13 +262,9 @@ def compile_all(methods=None, stream=sys.stderr) -> None:
             m, wk, it, out, c = standin(method, planar_kernel)
             prepare(method, m, wk, it, out, c, energies=True, stream=stream)  # loads what the workers cached
     if any(m in ("dopri5", "rk4") for m in methods):  # the explicit methods' stability limit: the exact derivatives
-        from ..chain import Chain
-        from ..segment import Segment
         from . import driver
 
-        seg = Segment(length=0.1, radius=0.015, mass=0.05, chamber_area=4.5e-5, chamber_radius=0.0085,
-                      youngs_modulus=1e5)
-        ch = Chain([seg])
+        ch = _standin_chain()
         driver.stability_limit(ch, ch.neutral(), np.zeros(ch.nv), np.zeros(ch.nu), np.zeros(ch.nv), 0.0)
 
 

@@ -182,14 +182,15 @@ def _exact(buf, pos: int, length: int, opcode: int, budget: Budget | None) -> bo
     return stream.count == length
 
 
-def _footer_at_end(buf, start: int, size: int) -> Item | None:
-    """The file's footer where a complete file has it (its last 37 bytes: the record and the
-    closing magic), if it is intact and after ``start``, else None."""
+def _footer_pos(buf, start: int = len(MAGIC)) -> int | None:
+    """Where a complete file's footer record is (its last 37 bytes: the record and the closing
+    magic), if one is there at or after ``start``, else None."""
+    size = len(buf)
     fpos = size - len(MAGIC) - 29
     if fpos < start or bytes(buf[size - len(MAGIC):]) != MAGIC:
         return None
     opcode, length = _HEAD.unpack_from(buf, fpos)
-    return Item("footer", fpos, size, opcode) if opcode == Opcode.FOOTER and length == 20 else None
+    return fpos if opcode == Opcode.FOOTER and length == 20 else None
 
 
 def _followed(buf, end: int, size: int, final: bool) -> bool:
@@ -317,9 +318,9 @@ def scan(buf, start: int = len(MAGIC), final: bool = True, budget: Budget | None
                 else:
                     yield Item("record", pos, end, opcode)
                     if opcode == Opcode.DATA_END and final:
-                        footer = _footer_at_end(buf, end, size)
-                        if footer is not None:  # the summary between: read by its CRC (summary_records)
-                            yield footer
+                        fpos = _footer_pos(buf, end)
+                        if fpos is not None:  # the summary between: read by its CRC (summary_records)
+                            yield Item("footer", fpos, size, Opcode.FOOTER)
                             return
                 pos = end
                 continue
@@ -354,14 +355,8 @@ def summary_records(buf, budget: Budget | None = None):
     """``(chunk indexes, statistics or None)`` of a complete file's summary, if its footer
     and summary are intact (the summary's CRC matches), else None; the records parsed
     are counted in ``budget``."""
-    from mcap.records import ChunkIndex, Statistics
-
-    size = len(buf)
-    fpos = size - len(MAGIC) - 29
-    if fpos < len(MAGIC) or bytes(buf[size - len(MAGIC):]) != MAGIC:
-        return None
-    opcode, length = _HEAD.unpack_from(buf, fpos)
-    if opcode != Opcode.FOOTER or length != 20:
+    fpos = _footer_pos(buf)
+    if fpos is None:
         return None
     start, offsets, crc = struct.unpack_from("<QQI", buf, fpos + 9)
     if not (len(MAGIC) <= start <= fpos) or crc == 0:
