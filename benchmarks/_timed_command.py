@@ -32,8 +32,8 @@ def _write() -> None:  # registered first, so it runs after every later exit han
 
 atexit.register(_write)
 
-from qchain import cli  # noqa: E402
-from qchain.scene import Scene  # noqa: E402
+from qchain.cli import main as cli  # noqa: E402
+from qchain.scene.scene import Scene  # noqa: E402
 
 _mark("imported")
 

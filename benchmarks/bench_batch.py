@@ -11,8 +11,8 @@ Engines, timed side by side in rounds (each round runs every engine once, in a r
 order; the first round is not timed: pools started, engines loaded):
 
 * ``serial``   ``simulate_batch(workers=1)``: one core, in this process;
-* ``pool-1``   a :class:`qchain.workers.LocalPool` of 1 worker process;
-* ``pool-2``   a :class:`qchain.workers.LocalPool` of 2 worker processes;
+* ``pool-1``   a :class:`qchain.batch.workers.LocalPool` of 1 worker process;
+* ``pool-2``   a :class:`qchain.batch.workers.LocalPool` of 2 worker processes;
 * ``dask-2``   a ``dask.distributed.LocalCluster`` on 127.0.0.1, 2 worker processes of 1 thread.
 
 Figures: wall time of the whole ``simulate_batch`` call (median and min-max over rounds),
@@ -39,9 +39,9 @@ import numpy as np
 
 import _study
 from qchain import simulate_batch
-from qchain.inputs import Sine
+from qchain.sim.inputs import Sine
 from qchain.scene import load_scene
-from qchain.workers import LocalPool
+from qchain.batch.workers import LocalPool
 
 SCENE = Path(__file__).resolve().parents[1] / "examples" / "scenes" / "spatial_arm.toml"
 SETTING = dict(method="radau5", rtol=3e-2, atol=3e-4)
@@ -82,12 +82,12 @@ def tip_errors(model, batch, ref) -> np.ndarray:
 def result_encoding(sc, model, P, t_eval, n: int = 64, reps: int = 20) -> tuple[float, float]:
     """Milliseconds (median of ``reps``) a Dask worker spends encoding one chunk of ``n``
     rollouts' results: with Dask's own protocol (out-of-band, a frame per array) and as one
-    in-band pickle (what :class:`qchain.workers.DaskEngine` hands Dask instead)."""
+    in-band pickle (what :class:`qchain.batch.workers.DaskEngine` hands Dask instead)."""
     import pickle
 
     from distributed.protocol import dumps, to_serialize
 
-    from qchain.simulate import simulate
+    from qchain.sim.simulation import simulate
 
     # what a worker returns for a chunk: (Trajectory, wall seconds) a rollout
     res = [(simulate(model.chain, model.q0, model.v0, (0.0, 1.0), pressure=p, t_eval=t_eval, **SETTING), 0.0)

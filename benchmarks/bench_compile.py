@@ -58,7 +58,7 @@ from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
-MODULES = ("qchain.arc", "qchain.arc_derivatives", "qchain.slices", "qchain.recursive", "qchain.derivatives")
+MODULES = ("qchain.model.arc", "qchain.model.arc_derivatives", "qchain.model.slices", "qchain.algorithms.recursive", "qchain.algorithms.derivatives")
 
 
 # ----------------------------------------------------------------------------- worker
@@ -170,7 +170,7 @@ def _worker(out_path: str) -> None:
         for attr, obj in vars(mod).items():
             if isinstance(obj, numba.core.registry.CPUDispatcher) and obj.py_func.__module__ == modname:
                 sigs[f"{modname}.{attr}"] = [str(s) for s in obj.signatures]
-    import qchain.recursive as rec_mod
+    import qchain.algorithms.recursive as rec_mod
 
     cache_path = rec_mod.aba._cache._cache_path
     json.dump(dict(cache_path=cache_path, import_s=t_import, total_s=time.perf_counter() - t_start, steps=times,
@@ -287,7 +287,7 @@ def report_example(res: dict) -> None:
     print(f"  cold, instrumented: {r['wall_s']:6.2f} s wall; {len(r['compiles'])} top-level compiles "
           f"{sum(t for _, t in r['compiles']):.2f} s: " + ", ".join(
               f"{k.split('.', 1)[1]} {t:.1f} s" for k, t in sorted(r["compiles"], key=lambda kt: -kt[1])[:10]))
-    mine = ("qchain.arc", "qchain.arc_derivatives", "qchain.slices", "qchain.recursive", "qchain.derivatives")
+    mine = ("qchain.model.arc", "qchain.model.arc_derivatives", "qchain.model.slices", "qchain.algorithms.recursive", "qchain.algorithms.derivatives")
     own = sum(t for k, t in r["every"].items() if k.startswith(mine))
     eng = sum(t for k, t in r["every"].items() if k.startswith("qchain.") and not k.startswith(mine))
     print(f"    exclusive compile time: kernels ({', '.join(m.split('.')[1] for m in mine)}) {own:.1f} s, "

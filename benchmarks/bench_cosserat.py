@@ -56,7 +56,7 @@ import numpy as np
 import pinocchio as pin
 
 from qchain import Chain, Segment
-from qchain.simulate import simulate
+from qchain.sim.simulation import simulate
 
 SCENE = dict(L=0.3, r=0.01, rho=1100.0, E=5e6, nu=0.5, g=9.81)  # m, m, kg/m^3, Pa, -, m/s^2
 SAMPLE = 0.01  # s, tip sampling period

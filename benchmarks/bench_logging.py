@@ -393,7 +393,7 @@ def example_overhead(duration: float = 20.0, repeats: int = 10, workdir=None, wo
     waits that long first. Returns config -> summary with also the mean cost of a sample in
     the simulating process ("sample_us"), the wait in the logger's constructor ("start_s")
     and the wait for the files at the end ("close_s")."""
-    from qchain import cli
+    from qchain.cli import main as cli
 
     qlog = cli._logging_module()
     scene, model = _example_model()
@@ -453,7 +453,7 @@ def example_steady(block: float = 20.0, rounds: int = 40, workdir=None, configs=
     and is not counted. Returns config -> {"wall_s", "overhead", "overhead_ci", "overhead_q1",
     "overhead_q3", "cpu_overhead", "cpu_ci", "sample_us", "direct", "flush_ms",
     "writer_cpu", "steal_ms", "ratios", "cpu_ratios"} ("off": "wall_s", "steal_ms")."""
-    from qchain import cli
+    from qchain.cli import main as cli
 
     qlog = cli._logging_module()
     scene, model = _example_model()

@@ -2,7 +2,7 @@
 
 For n segments (fixed base, curvature coordinates) at the default node count and at 3 nodes,
 extensible and not, this prints the median microseconds per call of the compiled kernels
-``qchain.recursive.aba`` and ``qchain.planar.planar_aba`` called directly from Python with
+``qchain.algorithms.recursive.aba`` and ``qchain.algorithms.planar.planar_aba`` called directly from Python with
 the same arguments (their ratio), of ``pinocchio.aba`` on a rigid planar chain with the same
 number of free coordinates (an RY joint per segment, and a PZ joint if extensible, carrying a
 cylinder of the segment's mass, radius and length), and the same two kernels called in a
@@ -30,8 +30,9 @@ import numpy as np  # noqa: E402
 import pinocchio as pin  # noqa: E402
 
 import _study  # noqa: E402
-from qchain import Chain, Segment, recursive  # noqa: E402
-from qchain.planar import planar_aba, planar_workspace  # noqa: E402
+from qchain import Chain, Segment
+from qchain.algorithms import recursive  # noqa: E402
+from qchain.algorithms.planar import planar_aba, planar_workspace  # noqa: E402
 
 SEGMENT = dict(length=0.1, radius=0.015, mass=0.05, chamber_area=4.5e-5, chamber_radius=0.0085,
                youngs_modulus=1e5, damping=0.01)

@@ -14,7 +14,7 @@ simulated second (energies off, the engine compiled and loaded before timing), m
 repeats, and the same cost in calls of ``pinocchio.aba`` on a rigid chain with the same nv
 (RX, RY, PZ per segment), timed in the same run: "aba calls per simulated second".
 
-Every method of ``qchain.simulate.METHODS`` runs over a range of steps or tolerances:
+Every method of ``qchain.sim.simulation.METHODS`` runs over a range of steps or tolerances:
 the compiled ``radau5``, ``dopri5``, ``rk4``, ``midpoint`` and scipy's ``RK45``, ``DOP853``,
 ``Radau``, ``BDF`` (Python at every stage). A failed run (an explicit step above its
 stability limit) is listed with its message and left out of the chart.
@@ -35,7 +35,7 @@ import pinocchio as pin
 import _study
 from bench_chain import rigid_chain
 from qchain.scene import load_scene
-from qchain.simulate import METHODS, simulate
+from qchain.sim.simulation import METHODS, simulate
 
 SCENES = Path(__file__).resolve().parents[1] / "examples" / "scenes"
 BOUNDS = (1e-3, 1e-4)  # m

@@ -3,7 +3,7 @@
     python benchmarks/bench_recording_cost.py [--rounds 30] [--duration 20] [--scene examples/scenes/wave_arm.toml]
     python benchmarks/bench_recording_cost.py --journal   # the journal's chunk: mcap Writer vs hand-built
 
-The three-segment example as ``qchain run`` records it (:class:`qchain.recorder.ChainRecorder`
+The three-segment example as ``qchain run`` records it (:class:`qchain.recording.recorder.ChainRecorder`
 into a :class:`qchain.logging.RunLogger` writing an MCAP file through its journal and writer
 process), against the same simulation with no ``on_sample`` and with an ``on_sample`` that
 takes the samples as the recorder does (in batches, within its ``max_sim`` of simulated
@@ -41,7 +41,7 @@ from scipy.stats import bootstrap
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from qchain import cli  # noqa: E402
+from qchain.cli import main as cli  # noqa: E402
 from qchain.logging import RunLogger, prepare_writer  # noqa: E402
 from qchain.scene import load_scene  # noqa: E402
 

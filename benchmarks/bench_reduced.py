@@ -6,7 +6,7 @@ n = 10 segments, in three models of the same motion:
 
 * ``full``: every coordinate free (3 n = 30), the 3-D kernel;
 * ``planar``: ``uy`` locked (``Chain(planar=True)``, 20 free), the planar kernel
-  (:mod:`qchain.planar`);
+  (:mod:`qchain.algorithms.planar`);
 * ``planar, inextensible``: ``l`` locked too (10 free), the planar kernel.
 
 Per call: ``forward_dynamics(q, v, p, data=d, skip_checks=True)`` from Python (median of
@@ -30,7 +30,7 @@ import pinocchio as pin
 
 import _study
 from qchain import Chain, Segment
-from qchain.simulate import simulate
+from qchain.sim.simulation import simulate
 
 ROD = dict(L=0.2, r=0.02, rho=1000.0, E=5e5, g=9.81)
 N = 10

@@ -18,7 +18,7 @@ extrapolated the same way; the output gives the distances.
 
 qchain: n equal segments (``Chain(..., planar=True)``, ``extensible=False``; ``True`` as a
 variant, which converges to the extensible rod, EA = E A), damping 0, tiny unpressurised
-chambers (bench_cosserat's ``CHAMBER``), every method of ``qchain.simulate.METHODS`` (read at
+chambers (bench_cosserat's ``CHAMBER``), every method of ``qchain.sim.simulation.METHODS`` (read at
 run time): the fixed-step ones (``FIXED_STEP``) over steps dt = 5 ms / 2^j, the others over
 rtol = 1e-2, 1e-3, ... (atol = rtol / 100).
 
@@ -198,8 +198,8 @@ def _mujoco_once(N, integrator, dt, m, T, scene):
 
 
 def qchain_methods() -> tuple[tuple[str, ...], tuple[str, ...]]:
-    """``(METHODS, FIXED_STEP)`` of qchain.simulate as they are now."""
-    import qchain.simulate as qs
+    """``(METHODS, FIXED_STEP)`` of qchain.sim.simulation as they are now."""
+    import qchain.sim.simulation as qs
 
     return tuple(qs.METHODS), tuple(qs.FIXED_STEP)
 
@@ -210,7 +210,7 @@ def qchain_setting(method: str, value: float, fixed: tuple) -> dict:
 
 def qchain_warmup(configs) -> None:
     """A short run of every method on every ``(n, extensible)`` model: compiles what each compiles."""
-    from qchain.simulate import simulate
+    from qchain.sim.simulation import simulate
 
     methods, fixed = qchain_methods()
     for n, ext in configs:

@@ -2,7 +2,7 @@
 
 Scene: a horizontal cantilever under its own weight, L = 0.3 m, r = 10 mm,
 rho = 1100 kg/m^3, E = 5 MPa (a 27 % tip drop); qchain with n inextensible segments
-(planar), solved by ``qchain.statics.equilibrium``; reference: the Euler elastica (a
+(planar), solved by ``qchain.arm.statics.equilibrium``; reference: the Euler elastica (a
 Cosserat rod without shear and extension) by ``scipy.integrate.solve_bvp``
 (``qchain.reference``). Error: the tip distance (m); cost: wall time of the solve (median).
 
@@ -20,7 +20,7 @@ import pinocchio as pin
 import _study
 from qchain import Chain, Segment
 from qchain.reference import elastica_cantilever
-from qchain.statics import equilibrium
+from qchain.arm.statics import equilibrium
 
 L, R, E, RHO = 0.3, 0.01, 5e6, 1100.0
 

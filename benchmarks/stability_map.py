@@ -20,8 +20,8 @@ import numpy as np
 
 import _study
 from qchain import Chain, Segment
-from qchain.inputs import Ramp, Sine
-from qchain.simulate import simulate
+from qchain.sim.inputs import Ramp, Sine
+from qchain.sim.simulation import simulate
 
 SEG = dict(length=0.1, radius=0.015, mass=0.05, chamber_area=4.5e-5, chamber_radius=0.0085, youngs_modulus=1e5)
 FIXED_DT = 1e-3  # s, the step of the fixed-step methods in every scene

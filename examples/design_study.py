@@ -22,8 +22,8 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 import _common
-from qchain.sweep_spec import load_sweep
-from qchain.sweeps import run_sweep
+from qchain.batch.sweep_spec import load_sweep
+from qchain.batch.sweeps import run_sweep
 
 SWEEP = _common.SCENES.parent / "sweeps" / "design_study.toml"
 

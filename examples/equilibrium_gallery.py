@@ -1,5 +1,5 @@
 """A gallery of static shapes: the arm of ``scenes/equilibrium_gallery.toml`` under each
-pressure set of its table, solved with :func:`qchain.statics.equilibrium`.
+pressure set of its table, solved with :func:`qchain.arm.statics.equilibrium`.
 
 For every row of the scene's pressure table the script finds the shape where elastic,
 gravity and pressure forces balance, prints its bends, lengths and tip position, and draws
@@ -19,8 +19,8 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 import _common
-from qchain.inputs import Constant
-from qchain.statics import equilibrium
+from qchain.sim.inputs import Constant
+from qchain.arm.statics import equilibrium
 
 CHECK_ROW = 2  # the S-shape: segment 0 bent one way, segment 1 the other
 

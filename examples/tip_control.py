@@ -35,7 +35,7 @@ import numpy as np
 from scipy.optimize import lsq_linear
 
 import _common
-from qchain.statics import equilibrium
+from qchain.arm.statics import equilibrium
 
 KP = 20.0  # N/m, tip spring
 KD = 2.0  # N s/m, tip damper

@@ -1,42 +1,75 @@
 """qchain: quasi-Lagrangian dynamics of soft continuum arms (Olguin-Diaz et al.).
 
-The names below are imported on first use (PEP 562), so that ``import qchain`` stays light
-(no numpy, Pinocchio or numba): the recording's writer process imports
-:mod:`qchain.recording` without loading Pinocchio or numba, and the ``qchain`` command
-starts answering (``--version``, ``--help``, Ctrl-C) before the model's libraries load.
+Entry points (each imported on first use, PEP 562, so that ``import qchain`` loads no
+numpy, Pinocchio or numba and changes no global state):
+
+==============================================  =============================================
+the model                                       :class:`Segment`, :class:`Chain`, :class:`Data`,
+                                                :class:`LagrangianChain`, :class:`Frames`
+statics                                         :func:`equilibrium`
+time integration                                :func:`simulate`, :class:`Event`, :data:`METHODS`,
+                                                :class:`Trajectory`, :class:`Budget`,
+                                                :func:`compile_all`
+input schedules                                 :class:`Constant`, :class:`Step`, :class:`Ramp`,
+                                                :class:`Sine`, :class:`Table`, :class:`SineMotion`
+scene files                                     :class:`Scene`, :func:`load_scene`, :func:`parse_scene`
+batches and sweeps                              :func:`simulate_batch`, :class:`BatchTrajectory`,
+                                                :func:`sweep`, :func:`run_sweep`
+recordings                                      :class:`RunLogger`, :func:`read_recording`,
+                                                :func:`replay`, :func:`recover`
+errors                                          :class:`QchainError` and its kinds
+==============================================  =============================================
+
+The package reads top-down (``docs/architecture.md``): ``checks`` and ``errors`` at the
+bottom, then ``model`` (one segment's math), ``algorithms`` (the recursive passes and their
+derivatives), ``arm`` (:class:`Chain` and its methods), ``sim`` (integration and the compiled
+engine), ``scene`` and ``recording``, ``batch``, and ``cli`` on top. ``qchain.segment``,
+``qchain.chain``, ``qchain.recursive`` and ``qchain.logging`` are public faces over them.
 """
+
+import importlib
+import sys
 
 __version__ = "0.1.0"
 
-__all__ = ["Chain", "LagrangianChain", "Segment", "Scene", "SceneError", "load_scene", "QchainError", "DomainError",
-           "SingularConfigurationError", "NonFiniteError", "Budget", "BudgetError", "simulate_batch",
-           "BatchTrajectory", "sweep", "__version__"]
+#: Each public name and the module that defines it, relative to this package.
+_EXPORTS = {
+    "Segment": "model.segment",
+    "Chain": "arm.chain", "Frames": "arm.kinematics", "Data": "arm.data", "LagrangianChain": "arm.lagrangian",
+    "equilibrium": "arm.statics", "EquilibriumResult": "arm.statics",
+    "simulate": "sim.simulation", "Event": "sim.simulation", "METHODS": "sim.simulation",
+    "Trajectory": "sim.trajectory", "Budget": "sim.budget", "BudgetError": "sim.budget",
+    "compile_all": "sim.engine.compile",
+    "Constant": "sim.inputs", "Step": "sim.inputs", "Ramp": "sim.inputs", "Sine": "sim.inputs", "Table": "sim.inputs",
+    "SineMotion": "sim.inputs",
+    "Scene": "scene.scene", "SceneError": "scene.format", "load_scene": "scene.reading", "parse_scene": "scene.reading",
+    "simulate_batch": "batch.rollouts", "BatchTrajectory": "batch.rollouts", "RolloutError": "batch.rollouts",
+    "sweep": "batch.sweeps", "run_sweep": "batch.sweeps", "SweepResult": "batch.sweeps",
+    "RunLogger": "recording.logger", "read_recording": "recording.reader", "replay": "recording.replay",
+    "recover": "recording.replay",
+    "QchainError": "errors", "DomainError": "errors", "SingularConfigurationError": "errors",
+    "NonFiniteError": "errors",
+}
 
-_LAZY = {"Chain": ".chain", "LagrangianChain": ".lagrangian", "Scene": ".scene", "SceneError": ".scene",
-         "load_scene": ".scene", "Segment": ".segment", "BatchTrajectory": ".batch", "simulate_batch": ".batch",
-         "sweep": ".sweeps", "QchainError": ".errors", "DomainError": ".errors",
-         "SingularConfigurationError": ".errors", "NonFiniteError": ".errors", "Budget": ".budget",
-         "BudgetError": ".budget"}
+__all__ = [*_EXPORTS, "__version__"]
 
 
-def __getattr__(name: str):
-    if name in _LAZY:
-        import importlib
+def lazy_exports(package: str, exports: dict[str, str]):
+    """``(__getattr__, __dir__)`` for ``package`` (PEP 562): each name of ``exports`` is
+    imported from its module (relative to ``package``) on first use, then kept. Only the
+    names listed: no other attribute triggers an import."""
 
-        value = getattr(importlib.import_module(_LAZY[name], __name__), name)
-        globals()[name] = value
+    def getattr_(name: str):
+        if name not in exports:
+            raise AttributeError(f"module {package!r} has no attribute {name!r}")
+        value = getattr(importlib.import_module(f"{package}.{exports[name]}"), name)
+        setattr(sys.modules[package], name, value)
         return value
-    import importlib.util
 
-    if not name.startswith("_") and name.isidentifier():
-        try:
-            found = importlib.util.find_spec(f"{__name__}.{name}") is not None
-        except ImportError:
-            found = False
-        if found:
-            return importlib.import_module(f"{__name__}.{name}")  # a submodule, as an eager import made it
-    raise AttributeError(f"module 'qchain' has no attribute {name!r}")
+    def dir_():
+        return sorted(set(vars(sys.modules[package])) | set(exports))
+
+    return getattr_, dir_
 
 
-def __dir__():
-    return sorted(set(globals()) | set(_LAZY))
+__getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)

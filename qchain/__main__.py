@@ -9,7 +9,7 @@ def entry() -> int:
     """The ``qchain`` console script and ``python -m qchain``: :func:`qchain.cli.main`, imported
     here so that a Ctrl-C while it loads is one line, not a traceback."""
     try:
-        from .cli import main
+        from .cli.main import main
     except KeyboardInterrupt:  # Ctrl-C while Python loads the command: one line, no traceback
         print("qchain: interrupted during start-up (nothing was run)", file=sys.stderr)
         return 1

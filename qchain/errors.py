@@ -3,7 +3,7 @@
 Every check names the argument, the value it got and what it expected: booleans, strings,
 ``None`` and complex numbers are refused as numbers (``TypeError``), non-finite entries and
 wrong shapes as values (``ValueError``). Ranges of physical quantities are declared in
-:mod:`qchain.bounds`.
+:mod:`qchain.checks.bounds`.
 """
 
 from __future__ import annotations

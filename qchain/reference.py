@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.integrate import solve_bvp
 
-from .bounds import Range
+from .checks.bounds import Range
 from .errors import QchainError
 
 __all__ = ["ElasticaSolution", "elastica_cantilever"]

@@ -25,10 +25,10 @@ def pytest_sessionstart(session):
     runs: tests that start ``qchain`` processes then find numba's cache warm instead of each
     compiling it against their own timeouts on a busy machine."""
     from qchain import Chain, Segment
-    from qchain.engine import warmup
-    from qchain.simulate import COMPILED, FIXED_STEP, simulate
+    from qchain import compile_all
+    from qchain.sim.simulation import COMPILED, FIXED_STEP, simulate
 
-    warmup.compile_all(COMPILED)  # every part, cold ones in parallel worker processes
+    compile_all(COMPILED)  # every part, cold ones in parallel worker processes
     ch = Chain([Segment(length=0.1, radius=0.015, mass=0.05, chamber_area=4.5e-5, chamber_radius=0.0085,
                         youngs_modulus=1e5, damping=0.01)])
     for method in COMPILED:

@@ -19,13 +19,14 @@ from hypothesis import strategies as st
 
 from helpers import deadline
 from qchain import Chain, LagrangianChain, QchainError, Segment, simulate_batch
-from qchain import arc, spatial, statics
-from qchain import segment as segmod
-from qchain.data import Data
+from qchain.model import arc, spatial
+from qchain.arm import statics
+from qchain.model import segment as segmod
+from qchain.arm.data import Data
 from qchain.errors import NonFiniteError
-from qchain.inputs import Constant, Sine, Step, Table, as_input
+from qchain.sim.inputs import Constant, Sine, Step, Table, as_input
 from qchain.reference import elastica_cantilever
-from qchain.simulate import Event, simulate
+from qchain.sim.simulation import Event, simulate
 
 SEG = dict(length=0.1, radius=0.015, mass=0.05, chamber_area=4.5e-5, chamber_radius=0.0085, youngs_modulus=1e5,
            damping=0.01)
@@ -410,19 +411,20 @@ def test_chain_methods_refuse_bad_arrays_by_name(kind, method):
 
 
 def test_the_lagrangian_form_and_engine_entry_points_name_bad_arguments():
-    from qchain.engine import system, warmup
+    from qchain import compile_all
+    from qchain.sim.engine import system
 
     L = LagrangianChain(CHF)
     refused(lambda: L.forward_dynamics(np.r_[0.1, 0.2, 0.3, 0.1, 0.2, 0.3, QB], [True] * 9), "qd_L")
-    refused(lambda: warmup.compile_all(["bogus"]), "methods")
-    refused(lambda: warmup.compile_all("rk4"), "methods")
+    refused(lambda: compile_all(["bogus"]), "methods")
+    refused(lambda: compile_all("rk4"), "methods")
     refused(lambda: system.pack("chain", None, None), "chain")
 
 
 def test_a_failed_run_of_a_large_chain_does_not_spend_minutes_on_its_stability_limit():
     """A 1000-segment rk4 run that failed formed the 6000 x 6000 Jacobian for its message."""
     from helpers import deadline
-    from qchain.engine.driver import STABILITY_MAX_NV, stability_limit
+    from qchain.sim.engine.driver import STABILITY_MAX_NV, stability_limit
 
     big = Chain([S] * (STABILITY_MAX_NV // 3 + 1))
     with deadline(10, "stability_limit of a large chain"):
@@ -466,7 +468,7 @@ def test_masked_arrays_are_refused_by_name_or_taken_as_plain_arrays():
 def test_a_set_table_is_merged_into_the_scenes_table():
     """``set={'simulation': {'duration': ...}}`` changes the duration and keeps method and dt
     (it replaced the whole [simulation] table: the runs used the default method)."""
-    from qchain.sweep_spec import apply_values
+    from qchain.batch.sweep_spec import apply_values
 
     raw = {"simulation": {"duration": 0.2, "method": "rk4", "dt": 1e-3}, "segments": [{"damping": 0.1}]}
     out = apply_values(raw, {"simulation": {"duration": 0.03}})
@@ -477,7 +479,7 @@ def test_a_set_table_is_merged_into_the_scenes_table():
 
 
 def test_sweep_keys_take_ascii_digits_only():
-    from qchain.sweep_spec import parse_key
+    from qchain.batch.sweep_spec import parse_key
 
     assert parse_key("segments[0].damping") == ["segments", 0, "damping"]
     for key in ("segments[\u0660].damping", "segments[\uff11].damping"):
@@ -492,7 +494,7 @@ def bad_metric(scene, model, traj):
 def test_an_unserialisable_metric_fails_its_run_not_the_sweep(tmp_path):
     from helpers import SEGMENTS_TOML
     from qchain import sweep
-    from qchain.sweeps import _check_metric
+    from qchain.batch.sweeps import _check_metric
 
     base = tmp_path / "base.toml"
     base.write_text('name = "m"\n' + SEGMENTS_TOML + '[simulation]\nduration = 0.002\nmethod = "rk4"\ndt = 1e-3\n')
@@ -510,7 +512,7 @@ def test_an_unserialisable_metric_fails_its_run_not_the_sweep(tmp_path):
 
 
 def test_a_schedule_subclass_of_the_users_is_a_checked_function_of_time():
-    from qchain.inputs import Schedule
+    from qchain.sim.inputs import Schedule
 
     class U(Schedule):
         __call__ = lambda self, t: np.full(3, np.nan)  # noqa: E731
@@ -545,8 +547,8 @@ def test_a_0d_object_array_of_segments_is_refused_by_name():
 def test_an_explicit_adaptive_method_on_a_stiff_model_stops_at_the_step_budget():
     """Refused before it starts where the stability limit puts it over budget; where the
     limit (a lower bound of the steps) lets it start, stopped at budget.max_steps as it goes."""
-    from qchain.budget import Budget, BudgetError
-    from qchain.simulate import explicit_stability_limit
+    from qchain.sim.budget import Budget, BudgetError
+    from qchain.sim.simulation import explicit_stability_limit
 
     s = Segment(length=1e-5, radius=1e-3, mass=1e-9, chamber_area=1e-8, chamber_radius=5e-4, youngs_modulus=1e12)
     ch = Chain([s])

@@ -33,21 +33,9 @@ from mcap.records import Channel
 from mcap.writer import CompressionType, Writer
 
 from qchain.logging import (
-    TOPICS,
-    LoggingError,
-    LoggingWarning,
-    ReadLimits,
-    RecordingFormatError,
-    RunLogger,
-    check_outputs,
-    journal_path,
-    read_mcap,
-    read_recording,
-    recover,
-    recover_main,
-    replay,
-    replay_main,
-)
+    TOPICS, LoggingError, LoggingWarning, ReadLimits, RecordingFormatError, RunLogger, check_outputs, journal_path,
+    read_mcap, read_recording, recover, replay)
+from qchain.cli.recording import recover_main, replay_main
 from qchain.recording.mcap_sink import info_metadata
 from qchain.recording.records import seal
 from qchain.recording.scan import scan
@@ -474,7 +462,7 @@ def test_a_run_beside_a_peer_that_answers_garbage_keeps_every_record(tmp_path, m
 def test_layout_never_replaces_a_fifo_or_a_device(tmp_path, logged, kind, capsys):
     """Before: ``qchain layout r.mcap -o NODE`` made a temporary file and os.replace'd the
     FIFO or device node with it (``-o /dev/full`` as root). Now: refused, one line, exit 2."""
-    from qchain.recording.replay import layout_main
+    from qchain.cli.recording import layout_main
 
     data, _ = logged
     rec = tmp_path / "r.mcap"

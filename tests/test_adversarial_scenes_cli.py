@@ -17,12 +17,13 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from helpers import SEGMENTS_TOML, deadline
-from qchain import bounds as B
-from qchain.cli import main
-from qchain.cli_checks import BadInput, check_flag_values, check_viewer_url, flag_ranges
+from qchain.checks import bounds as B
+from qchain.cli.main import main
+from qchain.cli.checks import BadInput, check_flag_values, check_viewer_url, flag_ranges
 from qchain.scene import SceneError, load_scene, parse_scene
-from qchain.sweep_spec import (DEFAULT_MAX_RUNS, Axis, SweepError, SweepSpec, address_problem, apply_values,
-                               check_results_folder, load_sweep, runs_problem)
+from qchain.batch.sweep_spec import (
+    DEFAULT_MAX_RUNS, Axis, SweepError, SweepSpec, address_problem, apply_values, check_results_folder, load_sweep,
+    runs_problem)
 
 FAST = settings(max_examples=60, deadline=2000, derandomize=True, database=None)
 
@@ -213,7 +214,7 @@ def test_check_viewer_url_says_one_line_or_accepts_a_usable_url(url):
 
 
 def test_the_viewer_timeout_reaches_the_probe(scene, capsys, monkeypatch):
-    import qchain.cli as cli
+    import qchain.cli.main as cli
 
     seen = []
     monkeypatch.setattr(cli, "viewer_silence", lambda url, timeout: seen.append(timeout) or "nothing there")
@@ -465,7 +466,7 @@ def test_a_results_folder_a_sweep_cannot_resume_from_is_refused_before_any_run(t
 
 def test_the_python_sweep_refuses_engine_arguments_where_they_enter(tmp_path):
     from qchain import sweep
-    from qchain.workers import LocalPool, resolve_workers
+    from qchain.batch.workers import LocalPool, resolve_workers
 
     (tmp_path / "scene.toml").write_text(SCENE)
     axes = {"segments[0].damping": [0.01, 0.02]}
@@ -477,7 +478,7 @@ def test_the_python_sweep_refuses_engine_arguments_where_they_enter(tmp_path):
             sweep(tmp_path / "scene.toml", axes, folder=tmp_path / "res", **kw)
         assert words in str(exc.value), (kw, str(exc.value))
     assert not (tmp_path / "res").exists()
-    with pytest.raises(ValueError, match="<= 1024 or a qchain.workers.LocalPool, got an int 1000000000"):
+    with pytest.raises(ValueError, match="<= 1024 or a qchain.batch.workers.LocalPool, got an int 1000000000"):
         LocalPool(10**9)
     assert resolve_workers(2) == 2 and resolve_workers(-1) >= 1
 

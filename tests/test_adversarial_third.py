@@ -30,12 +30,12 @@ from logging_fixtures import arm_info, arm_records
 
 import qchain
 from qchain import Chain, Segment, simulate_batch
-from qchain.budget import BudgetError
+from qchain.sim.budget import BudgetError
 from qchain.logging import LoggingError, RecordingFormatError, RunLogger, read_recording, recover
 from qchain.recording.journal import JournalReader, JournalWriter, journal_path
 from qchain.recording.records import Batch
 from qchain.recording.scan import scan
-from qchain.simulate import simulate
+from qchain.sim.simulation import simulate
 
 ROOT = Path(__file__).parents[1]
 SEG = dict(length=0.1, radius=0.015, mass=0.05, chamber_area=4.5e-5, chamber_radius=0.0085, youngs_modulus=1e5,
@@ -290,7 +290,7 @@ def test_a_batch_taker_gets_read_only_views_and_t_eval_stays_the_callers():
 @pytest.mark.parametrize("how", ["deepcopy", "pickle"])
 def test_copies_of_a_model_keep_its_arrays_read_only(how):
     """numpy unpickles every array writeable: a copy's gravity could be set outside its bound."""
-    from qchain.inputs import Sine
+    from qchain.sim.inputs import Sine
 
     dup = copy.deepcopy if how == "deepcopy" else (lambda x: pickle.loads(pickle.dumps(x)))
     ch = dup(arm(floating=True) if "floating" in Chain.__init__.__code__.co_varnames else arm())
@@ -322,7 +322,7 @@ def test_a_first_step_below_the_span_resolution_is_refused_and_late_spans_say_wh
 
 
 def test_nodes_for_tolerance_takes_a_paper_coordinate_segment():
-    from qchain.segment import nodes_for_tolerance
+    from qchain.model.segment import nodes_for_tolerance
 
     s = Segment(**SEG, coords="paper", stiffness_matrix=np.eye(3), rest_q_e=[0.1, 500.0, 1.0])
     assert nodes_for_tolerance(s, 1.0, 1e-3) == nodes_for_tolerance(Segment(**SEG), 1.0, 1e-3)
@@ -363,14 +363,14 @@ def test_read_only_and_strided_arrays_do_not_compile_the_passes_again():
 
 
 def test_a_sweep_seed_and_an_integer_axis_are_checked():
-    from qchain.sweep_spec import Axis
+    from qchain.batch.sweep_spec import Axis
 
     with pytest.raises(ValueError, match=r"axis segments\[0\].count: an integer range needs a whole number in it, "
                                          r"got \[1.2, 1.8\]"):
         Axis("segments[0].count", range=(1.2, 1.8), num=3, integer=True)
     ax = Axis("segments[0].count", range=(1.2, 3.8), num=4, integer=True)
     assert ax.grid() == [2, 3] and all(1.2 <= x <= 3.8 for x in ax.grid())
-    from qchain.sweeps import sweep
+    from qchain.batch.sweeps import sweep
 
     with pytest.raises(ValueError, match=r"seed must be an int >= 0 and < 2\*\*128"):
         sweep(ROOT / "examples" / "scenes" / "step_response.toml", [Axis("segments[0].count", values=(1, 2))],
@@ -403,7 +403,7 @@ def qchain_run(args, cwd, env=None, seconds=120):
 def test_a_scene_name_with_dollars_is_plain_text_and_the_data_come_first(tmp_path, monkeypatch, capsys):
     """'$...$' in the name was matplotlib's mathtext: the plots failed after the run and
     trajectory.npz, written after them, was lost."""
-    from qchain.cli import main
+    from qchain.cli.main import main
 
     monkeypatch.chdir(tmp_path)
     (tmp_path / "s.toml").write_text(SCENE.replace("NAME", r"cost $\\undefinedmacro{x}$ at $x^$"))
@@ -423,7 +423,7 @@ def test_a_scene_name_with_dollars_is_plain_text_and_the_data_come_first(tmp_pat
 
 
 def test_run_flags_the_header_and_the_recording_agree(tmp_path, monkeypatch, capsys):
-    from qchain.cli import main
+    from qchain.cli.main import main
 
     monkeypatch.chdir(tmp_path)
     (tmp_path / "s.toml").write_text(SCENE.replace("NAME", "flags"))
@@ -480,8 +480,8 @@ def test_values_next_to_a_bound_are_shown_with_all_their_digits():
 def test_two_sweeps_on_one_folder_and_a_restart_that_keeps_what_is_not_its_own(tmp_path):
     """Two sweeps on one folder both computed every run; --restart removed a qchain run's
     runs/run-<time>.mcap from a sweep folder '.'."""
-    from qchain.sweep_spec import SweepError
-    from qchain.sweeps import _Folder
+    from qchain.batch.sweep_spec import SweepError
+    from qchain.batch.sweeps import _Folder
 
     a = _Folder(tmp_path)
     a.lock()
@@ -516,7 +516,7 @@ def test_recover_through_a_link_replaces_the_file_it_names(whole, tmp_path):
 
 
 def test_replay_checks_its_viewer_flags_as_run_does(whole, tmp_path, capsys):
-    from qchain.recording.replay import replay_main
+    from qchain.cli.recording import replay_main
 
     data, _, _, _ = whole
     path = tmp_path / "run.mcap"
@@ -594,7 +594,7 @@ def test_a_recorded_run_past_two_to_the_32_seconds_is_refused_before_the_build(t
     """Foxglove timestamps count seconds in 32 bits: a run of 7.5e9 s failed after the build
     (the writer's OverflowError), and recover then failed too; a sweep reported success
     with 5 of its 11 samples recorded."""
-    from qchain.cli import main
+    from qchain.cli.main import main
     from qchain.recording.records import T_MAX
 
     assert T_MAX == 2**32 - 1
@@ -607,19 +607,19 @@ def test_a_recorded_run_past_two_to_the_32_seconds_is_refused_before_the_build(t
         "scene:" not in err.out
     assert main(["run", "s.toml", "--no-plots", "--no-record", "--duration", "5e9", "--rrd", "x.rrd"]) == 2
     assert "--duration 5e+09 s: a recorded run lasts at most" in capsys.readouterr().err
-    from qchain.sweep_spec import Axis, SweepError, SweepSpec
+    from qchain.batch.sweep_spec import Axis, SweepError, SweepSpec
     from qchain.scene import load_scene
 
     spec = SweepSpec(scene=load_scene(tmp_path / "s.toml"), axes=[Axis("segments[0].damping", values=(0.01,))],
                      mcap=True, folder=tmp_path / "sw")
-    from qchain.sweeps import run_sweep
+    from qchain.batch.sweeps import run_sweep
 
     with pytest.raises(SweepError, match=r"simulation.duration: expected at most 4294967295 s for a recorded run"):
         run_sweep(spec, workers=1)
 
 
 def test_no_more_workers_start_than_there_are_tasks():
-    from qchain.workers import engine_for
+    from qchain.batch.workers import engine_for
 
     assert engine_for(1024, tasks=1) is None  # one run: in this process
     pool = engine_for(1024, tasks=2)
@@ -646,7 +646,7 @@ def test_a_noisy_controller_without_a_rate_stalls_and_says_so():
 
 @pytest.mark.parametrize("method", ["rk4", "midpoint"])
 def test_a_terminal_event_at_a_step_end_is_one_sample(method):
-    from qchain.simulate import Event
+    from qchain.sim.simulation import Event
 
     ch = arm(1)
     for root in (0.05, 0.02):
@@ -656,7 +656,7 @@ def test_a_terminal_event_at_a_step_end_is_one_sample(method):
 
 
 def test_the_step_budget_hint_fits_the_method():
-    from qchain.budget import Budget
+    from qchain.sim.budget import Budget
 
     ch = arm(1)
     r = simulate(ch, ch.neutral(), np.zeros(3), (0, 1), pressure=lambda t, q, v: np.full(3, 1e4 * math.sin(t)),
@@ -668,7 +668,7 @@ def test_the_step_budget_hint_fits_the_method():
 def test_a_recorder_checks_each_sample_where_it_enters(tmp_path):
     """A negative time or a NaN q was taken, then refused at the flush, taking the good
     samples buffered with it; times going back were recorded silently."""
-    from qchain.recorder import ChainRecorder
+    from qchain.recording.recorder import ChainRecorder
 
     ch = arm(1)
     q, v, p = ch.neutral(), np.zeros(3), np.zeros(3)
@@ -691,7 +691,7 @@ def test_a_recorder_checks_each_sample_where_it_enters(tmp_path):
 
 
 def test_schedules_check_their_time_and_phase_and_show_the_digits_near_a_bound():
-    from qchain.inputs import Sine, Step, Table
+    from qchain.sim.inputs import Sine, Step, Table
 
     with pytest.raises(ValueError, match=r"phase\[0\] must be >= -1000 and <= 1000 rad, got 1e\+300 rad"):
         Sine([1.0] * 3, 1.0, phase=1e300)
@@ -768,7 +768,7 @@ def test_a_batch_is_checked_as_a_whole_against_the_memory_budget():
 
 
 def test_sweep_keys_metrics_and_huge_grids(tmp_path):
-    from qchain.sweep_spec import Axis, SweepSpec, runs_problem
+    from qchain.batch.sweep_spec import Axis, SweepSpec, runs_problem
     from qchain.scene import parse_scene
 
     sc = parse_scene(SCENE.replace("NAME", "sw"))
@@ -778,7 +778,7 @@ def test_sweep_keys_metrics_and_huge_grids(tmp_path):
     axes = [Axis(f"segments[{i}].damping", range=(0.0, 0.1), num=10**8) for i in range(40)]
     key, expected, found = runs_problem("grid", None, axes, 1000)
     assert key == "axes" and "more than 1e300" in found
-    from qchain.sweeps import run_sweep
+    from qchain.batch.sweeps import run_sweep
 
     spec = SweepSpec(scene=sc, axes=[Axis("segments[0].damping", values=(0.01, 0.02))],
                      metrics=lambda scene, model, traj: {"segments[0].damping": -1.0}, folder=tmp_path / "m")
@@ -789,7 +789,7 @@ def test_sweep_keys_metrics_and_huge_grids(tmp_path):
 
 
 def test_outputs_a_run_could_not_write_are_refused_before_it_starts(tmp_path, monkeypatch, capsys):
-    from qchain.cli import main
+    from qchain.cli.main import main
 
     monkeypatch.chdir(tmp_path)
     (tmp_path / "s.toml").write_text(SCENE.replace("NAME", "outs"))
@@ -812,7 +812,7 @@ def test_outputs_a_run_could_not_write_are_refused_before_it_starts(tmp_path, mo
 def test_a_recorder_used_for_two_runs_refuses_the_second_instead_of_splicing(tmp_path):
     """record_batch took a second run's samples before the first's last time as a batch
     handed over again, and dropped them: the recording spliced the two runs."""
-    from qchain.recorder import ChainRecorder
+    from qchain.recording.recorder import ChainRecorder
 
     ch = arm(2)
     q0, v0 = ch.neutral(), np.zeros(ch.nv)
@@ -825,7 +825,7 @@ def test_a_recorder_used_for_two_runs_refuses_the_second_instead_of_splicing(tmp
 
 
 def test_rrd_and_layout_outputs_never_replace_a_file_of_another_kind(whole, tmp_path, capsys):
-    from qchain.recording.replay import layout_main, replay_main
+    from qchain.cli.recording import layout_main, replay_main
 
     data, _, _, _ = whole
     rec = tmp_path / "run.mcap"
@@ -847,7 +847,7 @@ def test_rrd_and_layout_outputs_never_replace_a_file_of_another_kind(whole, tmp_
 
 
 def test_the_sweep_api_checks_that_axis_values_are_a_list():
-    from qchain.sweeps import sweep
+    from qchain.batch.sweeps import sweep
 
     scene = ROOT / "examples" / "scenes" / "step_response.toml"
     for bad in (0.1, None, "xy"):
@@ -856,7 +856,7 @@ def test_the_sweep_api_checks_that_axis_values_are_a_list():
 
 
 def test_recover_leaves_a_complete_recording_as_it_is(whole, tmp_path, capsys):
-    from qchain.recording.replay import recover_main
+    from qchain.cli.recording import recover_main
 
     data, _, _, _ = whole
     path = tmp_path / "run.mcap"

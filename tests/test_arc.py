@@ -6,7 +6,7 @@ import pinocchio as pin
 import pytest
 
 from helpers import assert_regular_at_straight_pose
-from qchain.arc import arc_nodes, bend_functions, strain_twist
+from qchain.model.arc import arc_nodes, bend_functions, strain_twist
 
 CASES = [
     np.array([0.2, 3.0, -4.0]),  # 1 rad

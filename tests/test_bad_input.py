@@ -3,7 +3,7 @@
 Every bad value gets a clean error naming what it is about -- a ``SceneError`` with the
 dotted key, a ``ValueError``/``TypeError`` naming the argument, the value and the bound --
 never another exception type, never a hang, never a NaN result. The scene format is
-declared once (:mod:`qchain.scene_format`); the fuzz tests walk that declaration, so a key
+declared once (:mod:`qchain.scene.format`); the fuzz tests walk that declaration, so a key
 added there is fuzzed here without a new test.
 """
 
@@ -22,13 +22,13 @@ from hypothesis import strategies as st
 
 from helpers import deadline
 from qchain import Chain, QchainError, Segment
-from qchain import bounds as B
-from qchain import scene_format as F
-from qchain.budget import Budget, BudgetError
+from qchain.checks import bounds as B
+from qchain.scene import format as F
+from qchain.sim.budget import Budget, BudgetError
 from qchain.errors import NonFiniteError
-from qchain.inputs import Constant, Ramp, Sine, Step, Table
+from qchain.sim.inputs import Constant, Ramp, Sine, Step, Table
 from qchain.scene import SceneError, load_scene, parse_scene
-from qchain.simulate import simulate
+from qchain.sim.simulation import simulate
 
 ROOT = Path(__file__).parents[1]
 SEG = dict(length=0.1, radius=0.015, mass=0.05, chamber_area=4.5e-5, chamber_radius=0.0085, youngs_modulus=1e5,
@@ -159,7 +159,7 @@ def problems(text: str, path="scene.toml") -> SceneError:
 
 def test_docs_scene_format_is_generated_from_the_schema():
     doc = (ROOT / "docs" / "scene-format.md").read_text(encoding="utf-8")
-    assert doc == F.markdown(), "regenerate it: .venv/bin/python -m qchain.scene_format > docs/scene-format.md"
+    assert doc == F.markdown(), "regenerate it: .venv/bin/python -m qchain.scene.format > docs/scene-format.md"
 
 
 def test_the_format_docs_example_is_a_valid_scene():
@@ -170,7 +170,7 @@ def test_the_format_docs_example_is_a_valid_scene():
 
 
 def test_every_table_of_the_scene_module_is_declared():
-    from qchain import scene
+    from qchain.scene import scene
 
     assert scene._TOP_KEYS == F.TOP.keys()
     top_tables = {f.key for f in F.TOP.fields if f.kind in ("table", "tables")}
@@ -633,7 +633,7 @@ def test_simulate_refuses_bad_times_and_steps_by_name():
         (dict(first_step=-1.0), ValueError, r"first_step must be > 0 and <= 1e\+12 s"),
         (dict(wall_limit=True), TypeError, r"wall_limit must be a real number \(booleans"),
         (dict(t_eval=np.linspace(0, 1, 2_000_001)), BudgetError, r"budget.max_samples: expected at most 1000000"),
-        (dict(budget="big"), TypeError, r"budget must be a qchain.budget.Budget"),
+        (dict(budget="big"), TypeError, r"budget must be a qchain.sim.budget.Budget"),
     ]
     for kw, exc, match in cases:
         with deadline(20):
@@ -667,9 +667,9 @@ def test_a_run_that_turns_non_finite_stops_naming_quantity_segment_and_time(case
     """Pressures of 1e300 Pa overflow the accelerations at the first stage: the run stops
     with success = False and a message naming the quantity, the coordinate's segment and
     the time; every sample it kept is finite. (Such pressures are refused where they enter,
-    outside :data:`qchain.bounds.PRESSURE`; the range is lifted here to reach the check
+    outside :data:`qchain.checks.bounds.PRESSURE`; the range is lifted here to reach the check
     within the run, which guards against any overflow on the way.)"""
-    import qchain.inputs
+    import qchain.sim.inputs
 
     method = case.split()[1]
     coords = "paper" if case.startswith("python") else "curvature"
@@ -680,7 +680,7 @@ def test_a_run_that_turns_non_finite_stops_naming_quantity_segment_and_time(case
         q[2] = q[5] = 1.0  # away from the paper coordinates' singular straight pose
     with pytest.raises(ValueError, match=r"pressure\[0\] must be >= -101325 and <= 1e\+09 Pa, got 1e\+300 Pa"):
         simulate(ch, q, np.zeros(ch.nv), (0.0, 0.1), method=method, dt=1e-3, pressure=np.full(6, 1e300))
-    monkeypatch.setattr(qchain.inputs, "input_range", lambda name: None)
+    monkeypatch.setattr(qchain.sim.inputs, "input_range", lambda name: None)
     with deadline(60):
         tr = simulate(ch, q, np.zeros(ch.nv), (0.0, 0.1), method=method, dt=1e-3, pressure=np.full(6, 1e300))
     assert tr.meta["engine"] == ("python" if coords == "paper" else "compiled")
@@ -859,7 +859,7 @@ def test_a_controller_outside_the_range_stops_the_run_naming_the_call():
 
 
 def test_the_edges_of_the_ranges_are_accepted():
-    from qchain.inputs import FORCE, as_input, input_range
+    from qchain.sim.inputs import FORCE, as_input, input_range
 
     assert input_range("pressure") is B.PRESSURE and input_range("pressure[3]") is B.PRESSURE
     assert input_range("tau") is FORCE and input_range("tau(t)") is FORCE and input_range("gain") is None
@@ -877,7 +877,7 @@ def test_the_edges_of_the_ranges_are_accepted():
 
 
 def test_a_schedule_whose_values_are_not_known_ahead_is_checked_at_every_call():
-    from qchain.inputs import Schedule, as_input
+    from qchain.sim.inputs import Schedule, as_input
 
     class Surge(Step):  # changes __call__, keeps Step's extent: that extent says nothing of it
         def __call__(self, t):
@@ -911,7 +911,7 @@ def test_a_batch_names_the_rollout_whose_pressure_is_out_of_range():
 @settings(max_examples=200, deadline=None, derandomize=True, database=None)
 @given(data=st.data())
 def test_fuzzed_pressures_and_forces_give_a_clean_error_naming_the_argument(data):
-    from qchain.inputs import FORCE
+    from qchain.sim.inputs import FORCE
 
     name = data.draw(st.sampled_from(["pressure", "tau"]))
     rng = B.PRESSURE if name == "pressure" else FORCE

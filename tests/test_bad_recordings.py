@@ -34,21 +34,9 @@ from logging_fixtures import arm_info, arm_records
 from mcap.writer import CompressionType, Writer
 
 from qchain.logging import (
-    TOPICS,
-    LoggingError,
-    LoggingWarning,
-    ReadLimits,
-    RecordingFormatError,
-    RunLogger,
-    journal_path,
-    layout_main,
-    read_mcap,
-    read_recording,
-    recover,
-    recover_main,
-    replay,
-    replay_main,
-)
+    TOPICS, LoggingError, LoggingWarning, ReadLimits, RecordingFormatError, RunLogger, journal_path, read_mcap,
+    read_recording, recover, replay)
+from qchain.cli.recording import layout_main, recover_main, replay_main
 from qchain.recording.mcap_sink import info_metadata
 from qchain.recording.records import seal
 from qchain.recording.scan import scan
@@ -500,7 +488,7 @@ def test_a_fifo_from_the_command_line_ends(tmp_path):
     fifo = tmp_path / "run.mcap"
     os.mkfifo(fifo)
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
-    done = subprocess.run([sys.executable, "-m", "qchain.cli", "replay", str(fifo), "--rrd", str(tmp_path / "x.rrd")],
+    done = subprocess.run([sys.executable, "-m", "qchain", "replay", str(fifo), "--rrd", str(tmp_path / "x.rrd")],
                           capture_output=True, text=True, timeout=120, env=env, stdin=subprocess.DEVNULL)
     assert done.returncode == 2, done.stderr
     assert "FIFO" in done.stderr and "Traceback" not in done.stderr
@@ -718,7 +706,7 @@ def test_connect_to_a_peer_that_stops_halfway_is_cut_off(tmp_path):
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     try:
         t0 = time.monotonic()
-        proc = subprocess.Popen([sys.executable, "-m", "qchain.cli", "replay", str(p), "--connect", peer.url,
+        proc = subprocess.Popen([sys.executable, "-m", "qchain", "replay", str(p), "--connect", peer.url,
                                  "--timeout", "1.5"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                                 env=env, stdin=subprocess.DEVNULL, start_new_session=True)
         try:

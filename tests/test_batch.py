@@ -1,4 +1,4 @@
-"""Batched rollouts (qchain.simulate_batch) and the local worker pool (qchain.workers):
+"""Batched rollouts (qchain.simulate_batch) and the local worker pool (qchain.batch.workers):
 bit-identical to simulate at any worker count, failures kept to their rollout, lost workers."""
 
 import os
@@ -11,10 +11,10 @@ import pytest
 
 import batch_probe
 from qchain import Chain, Segment, simulate_batch
-from qchain.batch import RolloutError
-from qchain.inputs import Sine
-from qchain.simulate import simulate
-from qchain.workers import Lost, LocalPool, Payload, plan_chunks
+from qchain.batch.rollouts import RolloutError
+from qchain.sim.inputs import Sine
+from qchain.sim.simulation import simulate
+from qchain.batch.workers import Lost, LocalPool, Payload, plan_chunks
 
 SEG = dict(length=0.1, radius=0.015, mass=0.05, chamber_area=4.5e-5, chamber_radius=0.0085, youngs_modulus=1e5,
            damping=0.02)

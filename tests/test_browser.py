@@ -157,7 +157,7 @@ def test_live_viewer_frames_the_arm_and_stays_on_loopback(tmp_path):
         old.unlink()
 
     run = subprocess.Popen(
-        [sys.executable, "-m", "qchain.cli", "run", str(ROOT / "examples" / "scenes" / "wave_arm.toml"), "--serve",
+        [sys.executable, "-m", "qchain", "run", str(ROOT / "examples" / "scenes" / "wave_arm.toml"), "--serve",
          "--duration", "2", "--no-progress", "--no-plots", "--out", str(tmp_path / "out"),
          "--mcap", str(tmp_path / "run.mcap")],
         cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True,

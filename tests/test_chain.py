@@ -7,7 +7,7 @@ import pytest
 from helpers import SEGMENT_KW, rel
 from particles import brute_chain
 from qchain import Chain, DomainError, Segment, SingularConfigurationError
-from qchain.chain import Frames
+from qchain.arm.chain import Frames
 
 G_W = np.array([0.0, 0.0, -9.81])
 
@@ -300,8 +300,8 @@ def test_evenly_spaced_backbone_points_equal_each_point_s_own_arc_pose(rng):
     """``recursive.frames`` steps along a segment by one rigid arc step for evenly spaced
     points: each point within 1e-15 m of its own ``arc_pose`` placed by its root frame,
     straight, bent and nearly straight (the series branch), 2 to 41 points."""
-    from qchain.arc import arc_pose
-    from qchain.recursive import frames
+    from qchain.model.arc import arc_pose
+    from qchain.algorithms.recursive import frames
 
     q = np.array([[[0.2, 0.0, 0.0], [0.25, 7.0, -3.0], [0.15, 1e-9, 2e-9], [0.3, -12.0, 0.5]]])
     paper = np.zeros(4, dtype=np.bool_)

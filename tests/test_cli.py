@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from helpers import SHORT_SCENE
-from qchain.cli import main
+from qchain.cli.main import main
 from qchain.scene import load_scene
 
 EXAMPLES = Path(__file__).parents[1] / "examples" / "scenes"
@@ -70,7 +70,7 @@ def test_run_prints_the_summary_and_writes_the_outputs(short_scene, tmp_path, ca
 
 def test_summary_values_of_many_segments_are_summed_up_not_listed():
     """A 1000-segment run once printed 1000 numbers on its bends line."""
-    from qchain.run_outputs import SUMMARY_LIST, _values
+    from qchain.cli.outputs import SUMMARY_LIST, _values
 
     few = [0.1, 0.25, 0.5]
     assert _values(few) == "0.1, 0.25, 0.5"
@@ -134,7 +134,7 @@ def test_full_model_run(short_scene, tmp_path, capsys):
 def test_progress_bar_on_stderr(short_scene, monkeypatch, capsys):
     """``--progress`` shows simulate's bar (after a second of wall time: a fake clock here, 2 s a
     reading, as the compiled engine looks at the clock only a few times in a short run)."""
-    import qchain.simulate as sim
+    import qchain.sim.simulation as sim
 
     class Clock:
         t = 0.0
@@ -165,11 +165,11 @@ def test_run_records_an_mcap(short_scene, tmp_path, capsys):
 
 
 def test_the_module_runs_as_a_command(tmp_path):
-    r = subprocess.run([sys.executable, "-m", "qchain.cli", "info", str(EXAMPLES / "step_response.toml")],
+    r = subprocess.run([sys.executable, "-m", "qchain", "info", str(EXAMPLES / "step_response.toml")],
                        capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, r.stderr
     assert "nodes: 4 per segment from node_tolerance = 1e-08" in r.stdout
-    r = subprocess.run([sys.executable, "-m", "qchain.cli", "info", str(tmp_path / "none.toml")], capture_output=True,
+    r = subprocess.run([sys.executable, "-m", "qchain", "info", str(tmp_path / "none.toml")], capture_output=True,
                        text=True, timeout=300)
     assert r.returncode == 2 and "no such file" in r.stderr
 
@@ -328,7 +328,7 @@ def test_import_qchain_is_light_and_exports_the_error_and_budget_classes():
     code = ("import sys, qchain; print(sorted(m for m in ('numpy', 'pinocchio', 'numba', 'scipy', 'qchain.cli') "
             "if m in sys.modules))\n"
             "from qchain import NonFiniteError, Budget, BudgetError, QchainError, DomainError\n"
-            "import qchain.errors as E, qchain.budget as G\n"
+            "import qchain.errors as E, qchain.sim.budget as G\n"
             "print(NonFiniteError is E.NonFiniteError, Budget is G.Budget, BudgetError is G.BudgetError,\n"
             "      issubclass(NonFiniteError, QchainError), issubclass(DomainError, ValueError))\n"
             "print(all(n in qchain.__all__ and n in dir(qchain) for n in ('NonFiniteError', 'Budget', 'BudgetError')))")
@@ -338,7 +338,7 @@ def test_import_qchain_is_light_and_exports_the_error_and_budget_classes():
 
 
 def test_an_error_qchain_did_not_foresee_is_one_line_and_debug_shows_its_traceback(short_scene, monkeypatch, capsys):
-    import qchain.cli as cli
+    import qchain.cli.main as cli
 
     def boom(args):
         raise RuntimeError("boom\nsecond line")
@@ -361,7 +361,7 @@ def test_an_error_qchain_did_not_foresee_is_one_line_and_debug_shows_its_traceba
     (KeyboardInterrupt(), 1, "qchain info: interrupted during start-up (nothing was run)"),
 ])
 def test_foreseen_errors_are_one_line_with_their_exit_code(error, code, line, short_scene, monkeypatch, capsys):
-    import qchain.cli as cli
+    import qchain.cli.main as cli
 
     def fail(args):
         raise error
@@ -372,7 +372,7 @@ def test_foreseen_errors_are_one_line_with_their_exit_code(error, code, line, sh
 
 
 def test_a_closed_output_pipe_ends_the_command_quietly(short_scene, monkeypatch, capsys):
-    import qchain.cli as cli
+    import qchain.cli.main as cli
 
     def closed(args):
         raise BrokenPipeError(32, "Broken pipe")
@@ -490,7 +490,7 @@ def test_a_viewer_that_never_answers_does_not_hold_the_run(short_scene, tmp_path
     """``--connect`` to a port that accepts and never answers: the run goes on without it
     after CONNECT_TIMEOUT, says so in one line and records everything (before, the Rerun
     SDK waited for it without end, and the run never returned)."""
-    import qchain.cli as cli
+    import qchain.cli.main as cli
     from qchain.logging import read_recording
 
     monkeypatch.setattr(cli, "CONNECT_TIMEOUT", 0.5)
@@ -557,7 +557,7 @@ def test_the_viewer_probe_passes_a_rerun_viewer_and_refuses_what_is_not_one():
     import socket
     import threading
 
-    from qchain.cli import viewer_silence
+    from qchain.cli.main import viewer_silence
 
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
@@ -681,7 +681,7 @@ def sweep_file(tmp_path):
 
 
 def test_sweep_errors_are_one_line_with_their_exit_code(sweep_file, tmp_path, monkeypatch, capsys):
-    import qchain.sweeps as sweeps
+    import qchain.cli.sweep as sweeps
 
     blocker = tmp_path / "blocker"
     blocker.write_text("a file")

@@ -29,11 +29,12 @@ import dask_probe
 from dask_probe import read_log
 from helpers import deadline
 from qchain import simulate_batch, sweep
-from qchain.batch import RolloutError
+from qchain.batch.rollouts import RolloutError
 from qchain.scene import parse_scene
-from qchain.simulate import simulate
-from qchain.sweeps import load_sweep, main, run_sweep
-from qchain.workers import _DASK_FACTOR, ClusterLost, DaskEngine, Payload, plan_chunks
+from qchain.sim.simulation import simulate
+from qchain.batch.sweeps import load_sweep, run_sweep
+from qchain.cli.sweep import main
+from qchain.batch.workers import _DASK_FACTOR, ClusterLost, DaskEngine, Payload, plan_chunks
 from test_batch import T, T_EVAL, inputs, same, two_segment_arm
 from test_sweep import BASE, deterministic
 
@@ -334,7 +335,7 @@ def test_every_worker_lost_mid_sweep_ends_qchain_sweep_with_a_clear_error(own_cl
     the runs it finished, and leaves no process behind."""
     address, procs = own_cluster
     f = sweep_file(tmp_path)
-    cli = subprocess.Popen([sys.executable, "-c", "import sys; from qchain.sweeps import main; sys.exit(main(sys.argv[1:]))",
+    cli = subprocess.Popen([sys.executable, "-c", "import sys; from qchain.cli.sweep import main; sys.exit(main(sys.argv[1:]))",
                             str(f), "--dask", address, "--no-progress"], env=ENV, stdout=subprocess.PIPE,
                            stderr=subprocess.PIPE, text=True)
     family: set = set()  # the sweep's own child processes, seen while it ran

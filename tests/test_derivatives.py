@@ -8,8 +8,8 @@ import pytest
 
 from helpers import SEGMENT_KW, rel
 from qchain import Chain, Segment
-from qchain.arc import arc_node, bend_functions
-from qchain.arc_derivatives import arc_node_derivatives, bend_h
+from qchain.model.arc import arc_node, bend_functions
+from qchain.model.arc_derivatives import arc_node_derivatives, bend_h
 from test_chain import make_chain, random_state
 
 TOL = 1e-7  # relative (Frobenius); the bound is 1e-6, differences reach ~1e-9

@@ -7,10 +7,10 @@ import pinocchio as pin
 import pytest
 
 from qchain import Chain, Segment
-from qchain.engine import system
-from qchain.inputs import Sine
-from qchain.scene import SineMotion
-from qchain.simulate import COMPILED, FIXED_STEP, METHODS, Event, simulate
+from qchain.sim.engine import system
+from qchain.sim.inputs import Sine
+from qchain.scene.scene import SineMotion
+from qchain.sim.simulation import COMPILED, FIXED_STEP, METHODS, Event, simulate
 from test_simulate import SEG, hanging_arm, waving
 
 
@@ -269,7 +269,7 @@ def test_unchecked_forward_dynamics_without_pressure():
 
 
 def _engine_args(ch, pressure=None, tau=None):
-    from qchain.engine import steppers
+    from qchain.sim.engine import steppers
 
     m = system.pack(ch, np.zeros(ch.nu) if pressure is None else pressure, tau)
     wk = system.workspace(ch)
@@ -283,8 +283,8 @@ def test_every_model_has_the_stand_in_s_types(base):
     types must be those of every run, or a run would miss the cache and compile again."""
     import numba
 
-    from qchain.engine import warmup
-    from qchain.inputs import Ramp
+    from qchain.sim.engine import warmup
+    from qchain.sim.inputs import Ramp
 
     kw = dict(base_motion=SineMotion(kind="translation", axis=np.array([0.0, 0.0, 1.0]), amplitude=0.01, frequency=2.0,
                                      phase=0.0, mount=pin.SE3.Identity())) if base == "prescribed" else {}
@@ -301,7 +301,7 @@ def test_every_model_has_the_stand_in_s_types(base):
 
 
 def test_kernel_workspaces_carved_from_one_buffer_have_the_allocators_shapes():
-    """:data:`qchain.engine.system.KERNEL_NDIM` (the carving code's types) against the
+    """:data:`qchain.sim.engine.system.KERNEL_NDIM` (the carving code's types) against the
     allocators' arrays, and the carved views tile the buffer without overlap."""
     for n, nv in ((1, 3), (3, 9), (4, 18)):
         arrays = system._kernel_arrays(n, nv)

@@ -7,13 +7,11 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from qchain.engine.lie import dexp_inv, dexp_inv_apply, ff_difference, ff_integrate
-from qchain.engine.schedules import (
-    CONSTANT, ROTATION, SINE, TABLE, TRANSLATION,
-    base_motion_eval, input_eval, pack_base_motion, pack_input,
-)
-from qchain.inputs import Constant, Ramp, Schedule, Sine, Step, Table, as_input
-from qchain.scene import SineMotion
+from qchain.sim.engine.lie import dexp_inv, dexp_inv_apply, ff_difference, ff_integrate
+from qchain.sim.engine.schedules import (
+    CONSTANT, ROTATION, SINE, TABLE, TRANSLATION, base_motion_eval, input_eval, pack_base_motion, pack_input)
+from qchain.sim.inputs import Constant, Ramp, Schedule, Sine, Step, Table, as_input
+from qchain.scene.scene import SineMotion
 
 ANGLES = (0.0, 1e-9, 1e-4, 1.0, 3.0)  # |w| (rad) of the tangents checked against Pinocchio
 
@@ -53,7 +51,7 @@ def test_step(rng):
     for before in (None, [-1.0, 2.0]):
         u = Step(0.3, [5.0, 7.0], before)
         _check_exact(u, _around(0.3) + list(rng.uniform(-1, 1, 50)) + [-1e12, 1e12])  # (a schedule's times:
-        # within +-1e12 s, qchain.bounds.TIME)
+        # within +-1e12 s, qchain.checks.bounds.TIME)
 
 
 def test_ramp(rng):
@@ -266,12 +264,12 @@ def test_dexp_inv_apply(rng):
 
 
 def test_method_coefficients_are_scipy_s_bit_for_bit():
-    """:mod:`qchain.engine.tableaus` holds scipy's RK45 and Radau numbers (so a run needs no
+    """:mod:`qchain.sim.engine.tableaus` holds scipy's RK45 and Radau numbers (so a run needs no
     import of scipy.integrate)."""
     from scipy.integrate import RK45
     from scipy.integrate._ivp import radau as R
 
-    from qchain.engine import tableaus as T
+    from qchain.sim.engine import tableaus as T
 
     A = np.zeros((7, 7))
     A[:6, :5] = RK45.A

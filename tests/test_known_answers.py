@@ -7,7 +7,7 @@ import pinocchio as pin
 
 from qchain import Chain, Segment
 from qchain.reference import elastica_cantilever
-from qchain.statics import equilibrium
+from qchain.arm.statics import equilibrium
 
 L, R, E, RHO = 0.3, 0.01, 5e6, 1100.0  # m, m, Pa, kg/m^3
 

@@ -10,8 +10,8 @@ from scipy.integrate import solve_ivp
 
 from helpers import SEGMENT_KW, bent, rel
 from qchain import Chain, DomainError, LagrangianChain, Segment, SingularConfigurationError
-from qchain.lagrangian import ATTITUDE_SINGULAR_COS
-from qchain.simulate import simulate
+from qchain.arm.lagrangian import ATTITUDE_SINGULAR_COS
+from qchain.sim.simulation import simulate
 from test_chain import make_chain, random_state
 
 TOL = 1e-8  # identities between exact quantities, relative
@@ -198,7 +198,7 @@ T_EVAL = np.linspace(0.0, T_END, 5)
 def undamped_run():
     """A two-segment floating arm without damping or pressure, falling and tumbling, integrated
     in Lagrangian form (DOP853 on ``(q_L, qd_L)``) and as the quaternion free-flyer
-    (``qchain.simulate``, DOP853 on the Lie group), both at rtol = atol = 1e-12."""
+    (``qchain.sim.simulation``, DOP853 on the Lie group), both at rtol = atol = 1e-12."""
     segs = [Segment(**{**SEGMENT_KW, "length": 0.2 - 0.03 * j, "mass": 0.3 - 0.1 * j}) for j in range(2)]
     ch = Chain(segs, base="floating")
     assert all(s.damping == 0.0 and s.damping_matrix is None for s in segs)

@@ -22,25 +22,10 @@ from mcap.writer import Writer
 
 import qchain
 from qchain.logging import (
-    DEFAULT_FLUSH_INTERVAL,
-    TOPICS,
-    LoggingError,
-    LoggingWarning,
-    RecordingFormatError,
-    RecordLayout,
-    RunInfo,
-    RunLogger,
-    StepRecord,
-    add_logging_arguments,
-    default_mcap_path,
-    logger_from_args,
-    prepare_writer,
-    read_mcap,
-    read_recording,
-    replay,
-    replay_main,
-)
-from qchain.trajectory import Trajectory
+    DEFAULT_FLUSH_INTERVAL, TOPICS, LoggingError, LoggingWarning, RecordingFormatError, RecordLayout, RunInfo,
+    RunLogger, StepRecord, default_mcap_path, prepare_writer, read_mcap, read_recording, replay)
+from qchain.cli.recording import add_logging_arguments, logger_from_args, replay_main
+from qchain.sim.trajectory import Trajectory
 
 TESTS = Path(__file__).resolve().parent
 
@@ -477,7 +462,7 @@ def test_prepared_writer_is_taken_by_the_next_logger(tmp_path):
     _assert_records_equal(read_recording(tmp_path / "pre.mcap"), records)
     assert not (tmp_path / "pre.mcap.journal").exists()  # removed once the recording is whole
     code = ("import sys, qchain.recording.writer, qchain.recording.mcap_sink; "
-            "print(sorted(m for m in ('pinocchio', 'numba', 'scipy', 'qchain.chain') if m in sys.modules))")
+            "print(sorted(m for m in ('pinocchio', 'numba', 'scipy', 'qchain.arm.chain') if m in sys.modules))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert out.stdout.strip() == "[]", out.stderr
 

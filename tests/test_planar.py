@@ -5,8 +5,9 @@ import pinocchio as pin
 import pytest
 
 from helpers import SEGMENT_KW, rel
-from qchain import Chain, Segment, recursive
-from qchain.planar import planar_aba, planar_aba_moving, planar_rnea, planar_workspace
+from qchain import Chain, Segment
+from qchain.algorithms import recursive
+from qchain.algorithms.planar import planar_aba, planar_aba_moving, planar_rnea, planar_workspace
 
 NODES = [None, 3, 5, 2, 8]  # per segment, cycled: different node counts in one chain
 

@@ -9,8 +9,8 @@ import pytest
 from test_chain import make_chain
 
 from qchain.logging import RecordLayout, RunInfo, RunLogger, read_recording
-from qchain.recorder import ChainRecorder
-from qchain.simulate import simulate
+from qchain.recording.recorder import ChainRecorder
+from qchain.sim.simulation import simulate
 
 
 def _info(ch):
@@ -173,8 +173,8 @@ def test_ctrl_c_while_a_paced_batch_is_taken_records_no_sample_twice(monkeypatch
     them; a Ctrl-C in a pause ends the run, and the engine hands the batch over again. The
     samples already taken are not logged twice: the records are the trajectory's first
     samples, each once, in order."""
-    import qchain.recorder as recorder_module
-    from qchain.engine.driver import Interrupted
+    import qchain.recording.recorder as recorder_module
+    from qchain.sim.engine.driver import Interrupted
     from test_simulate import hanging_arm
 
     ch = hanging_arm(2)

@@ -26,9 +26,9 @@ import pytest
 from dataclasses import replace
 
 from qchain import Chain, Segment
-from qchain.inputs import Sine
+from qchain.sim.inputs import Sine
 from qchain.scene import load_scene, parse_scene
-from qchain.simulate import simulate
+from qchain.sim.simulation import simulate
 
 EXAMPLES = Path(__file__).parents[1] / "examples" / "scenes"
 

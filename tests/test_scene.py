@@ -11,9 +11,9 @@ import pytest
 
 from qchain import Chain, QchainError
 from qchain.scene import BEND_MARGIN, SceneError, SineMotion, load_scene, parse_scene
-from qchain.segment import DEFAULT_NODES, nodes_for_tolerance
-from qchain.statics import equilibrium
-from qchain.simulate import DEFAULT_METHOD
+from qchain.model.segment import DEFAULT_NODES, nodes_for_tolerance
+from qchain.arm.statics import equilibrium
+from qchain.sim.simulation import DEFAULT_METHOD
 
 EXAMPLE_SCENES = sorted((Path(__file__).parents[1] / "examples" / "scenes").glob("*.toml"))
 

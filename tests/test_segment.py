@@ -8,16 +8,9 @@ import pytest
 from helpers import SEGMENT_KW, assert_regular_at_straight_pose, bent, rel
 from particles import brute_segment, chamber_fibre_length, tip_plate_force_matrix
 from qchain import DomainError, QchainError, Segment, SingularConfigurationError
-from qchain.segment import (
-    DEFAULT_NODES,
-    PAPER_SINGULAR_ANGLE,
-    curvature_to_paper,
-    curvature_velocity_to_paper,
-    paper_jacobian,
-    paper_jacobian_dot,
-    paper_to_curvature,
-    paper_velocity_to_curvature,
-)
+from qchain.model.segment import (
+    DEFAULT_NODES, PAPER_SINGULAR_ANGLE, curvature_to_paper, curvature_velocity_to_paper, paper_jacobian,
+    paper_jacobian_dot, paper_to_curvature, paper_velocity_to_curvature)
 
 COORDS = ["curvature", "paper"]
 ANGLES = [0.3, 1.0, 2.0]

@@ -7,8 +7,8 @@ import pinocchio as pin
 import pytest
 
 from qchain import Chain, Segment
-from qchain.inputs import Ramp, Sine, Step, Table
-from qchain.simulate import METHODS, Event, simulate
+from qchain.sim.inputs import Ramp, Sine, Step, Table
+from qchain.sim.simulation import METHODS, Event, simulate
 
 SEG = dict(length=0.1, radius=0.015, mass=0.05, chamber_area=4.5e-5, chamber_radius=0.0085, youngs_modulus=1e5)
 
@@ -156,7 +156,7 @@ def test_inputs_events_samples_and_progress(capsys):
 def test_progress_lines_for_a_log_say_how_far_and_how_long(method, capsys, monkeypatch):
     """progress="lines" (qchain run's default off a terminal): plain lines, no carriage
     returns, each with the time reached, the fraction, the wall time and the time to go."""
-    import qchain.simulate as S
+    import qchain.sim.simulation as S
 
     monkeypatch.setattr(S, "LINES_AFTER", 0.0)
     monkeypatch.setattr(S, "LINES_EVERY", 0.0)
@@ -266,7 +266,7 @@ def test_ctrl_c_says_how_far_the_run_got_on_either_engine(method):
     ends it with its samples so far, and the message names the time they reach, not the
     start: the Python path is interrupted inside its adaptive loop, before it returns
     its time."""
-    from qchain.engine.driver import Interrupted
+    from qchain.sim.engine.driver import Interrupted
 
     ch = hanging_arm(1)
     seen = []

@@ -3,7 +3,7 @@
 import numpy as np
 import pinocchio as pin
 
-from qchain.spatial import ad_matrix, disk_inertia, force_cross, force_cross_bar, inv_adjoint, motion_cross
+from qchain.model.spatial import ad_matrix, disk_inertia, force_cross, force_cross_bar, inv_adjoint, motion_cross
 
 
 def test_motion_and_force_cross_match_pinocchio(rng):

@@ -11,7 +11,7 @@ sys.path.insert(0, str(Path(__file__).parents[1] / "benchmarks"))
 
 import stability_map  # noqa: E402
 
-from qchain.simulate import simulate  # noqa: E402
+from qchain.sim.simulation import simulate  # noqa: E402
 
 
 def test_default_method_passes_every_scene_and_failures_are_clear(tmp_path):
@@ -58,8 +58,8 @@ def test_explicit_stability_extents_bound_each_methods_stability_region():
     from scipy.integrate import RK45
     from scipy.integrate._ivp import dop853_coefficients as d853
 
-    from qchain.engine.driver import EXPLICIT_STABILITY_EXTENT as EXT
-    from qchain.engine.tableaus import DOPRI5_A
+    from qchain.sim.engine.driver import EXPLICIT_STABILITY_EXTENT as EXT
+    from qchain.sim.engine.tableaus import DOPRI5_A
 
     step = 0.004
     for name, A, b in (("dopri5", DOPRI5_A[:6, :6], DOPRI5_A[6, :6]), ("RK45", RK45.A, RK45.B),
@@ -72,7 +72,7 @@ def test_the_stability_limit_bounds_the_steps_dopri5_takes():
     """A ten-segment clamped rod: dopri5 takes at least duration / (its stability limit at the
     start) accepted steps, the lower bound the step budget is checked against."""
     from qchain import Chain, Segment
-    from qchain.simulate import explicit_stability_limit
+    from qchain.sim.simulation import explicit_stability_limit
 
     s = Segment(length=0.02, radius=0.01, mass=0.01, chamber_area=1e-5, chamber_radius=5e-3, youngs_modulus=5e5)
     ch = Chain([s] * 10)

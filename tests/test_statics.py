@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 
 from qchain import Chain, Segment
-from qchain.simulate import simulate
-from qchain.statics import equilibrium
+from qchain.sim.simulation import simulate
+from qchain.arm.statics import equilibrium
 
 SEG = dict(length=0.1, radius=0.015, mass=0.05, chamber_area=4.5e-5, chamber_radius=0.0085, youngs_modulus=1e5)
 PHI = np.array([0.0, 2 * np.pi / 3, -2 * np.pi / 3])

@@ -15,8 +15,9 @@ import pytest
 
 from qchain import sweep
 from qchain.scene import parse_scene
-from qchain.sweep_spec import Axis, SweepError, SweepSpec, apply_values, load_sweep, parse_key, validate_runs
-from qchain.sweeps import METRICS, TIMING_COLUMNS, main, summary_metrics
+from qchain.batch.sweep_spec import Axis, SweepError, SweepSpec, apply_values, load_sweep, parse_key, validate_runs
+from qchain.batch.sweeps import METRICS, TIMING_COLUMNS, summary_metrics
+from qchain.cli.sweep import main
 from test_batch import _alive
 from helpers import SEGMENTS_TOML
 
@@ -171,7 +172,7 @@ def test_a_killed_sweep_resumes_without_recomputing_finished_runs(base, tmp_path
                           f'"batch_probe:damping_logged"\n[set]\ndescription = "probe {log} 0.3"\n'
                           f'[[axes]]\nkey = "segments[0].damping"\nvalues = {dampings}\n')
     env = dict(os.environ, PYTHONPATH=f"{TESTS}{os.pathsep}{os.environ.get('PYTHONPATH', '')}")
-    cmd = [sys.executable, "-m", "qchain.cli", "sweep", str(sweep_file), "--no-progress"]
+    cmd = [sys.executable, "-m", "qchain", "sweep", str(sweep_file), "--no-progress"]
     journal = tmp_path / "out" / "runs.jsonl"
     proc = subprocess.Popen(cmd + ["--workers", "2"], env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
     try:

@@ -97,7 +97,7 @@ class RunLogger:
         ``"auto"`` takes a process for file outputs and a thread for a stream.
     flush_interval : float, s
         Simulation time a record may wait before it is on disk (the batches of ``log()``
-        and of :class:`~qchain.recorder.ChainRecorder` span at most this, and so do the
+        and of :class:`~qchain.recording.recorder.ChainRecorder` span at most this, and so do the
         recording's chunks).
     flush_wall_interval : float, s
         Wall time between the recording's chunk flushes.

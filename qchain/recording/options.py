@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import argparse
 import datetime as _dt
 import os
 import shutil
@@ -11,10 +10,9 @@ from pathlib import Path
 
 from .journal import journal_owner, journal_path
 from .records import LoggingError
-from .rerun_sink import DEFAULT_BIND
 from .scan import MAGIC
 
-__all__ = ["check_outputs", "check_output_name", "default_mcap_path", "add_logging_arguments", "MIN_FREE_BYTES",
+__all__ = ["check_outputs", "check_output_name", "default_mcap_path", "MIN_FREE_BYTES",
            "JOURNAL_SUFFIX"]
 
 #: Free bytes an output's folder must have before a run starts (a recording takes about
@@ -199,27 +197,3 @@ def default_mcap_path(scene_path: str | os.PathLike | None = None, runs_dir: str
         path = Path(f"{base}-{k}.mcap")
         k += 1
     return path
-
-
-def add_logging_arguments(parser: argparse.ArgumentParser) -> argparse._ArgumentGroup:
-    """Add ``--mcap OUT``, ``--serve``, ``--connect URL``, ``--rrd OUT``, ``--bind HOST``,
-    ``--rerun-rate HZ`` and ``--realtime`` to ``parser`` (one argument group, returned)."""
-    g = parser.add_argument_group(
-        "recording and viewing",
-        "Every run is recorded to an MCAP file (default runs/<scene>-<timestamp>.mcap); replay it with "
-        "`qchain replay FILE`, or open it in Foxglove (layout: `qchain layout FILE`).",
-    )
-    g.add_argument("--mcap", metavar="OUT", type=Path, default=None,
-                   help="MCAP recording path (default: runs/<scene-stem>-<YYYYmmdd-HHMMSS>.mcap)")
-    g.add_argument("--serve", action="store_true", help="serve a live Rerun web viewer on 127.0.0.1 and print its URL")
-    g.add_argument("--connect", metavar="URL", default=None,
-                   help="stream to a running Rerun viewer, e.g. rerun+http://127.0.0.1:9876/proxy")
-    g.add_argument("--rrd", metavar="OUT", type=Path, default=None, help="also write a Rerun .rrd file")
-    g.add_argument("--bind", default=DEFAULT_BIND, help="address --serve listens on (default 127.0.0.1: this machine "
-                   "only)")
-    g.add_argument("--rerun-rate", metavar="HZ", type=float, default=None,
-                   help="send the viewer/.rrd at most HZ samples a simulated second (default: all; the MCAP always "
-                        "gets all)")
-    g.add_argument("--realtime", action="store_true",
-                   help="pace the run to the wall clock (1 simulated second a second), to watch it live")
-    return g

@@ -29,7 +29,7 @@ import numpy as np
 from mcap.records import Channel, Message
 
 from ..errors import as_bool
-from ..trajectory import Trajectory
+from ..sim.trajectory import Trajectory
 from .bounded import DEFAULT_LIMITS, Budget, LimitExceeded, ReadLimits, loads, open_source
 from .journal import JournalReader, journal_owner, journal_path
 from .records import (
@@ -160,7 +160,7 @@ class Recording:
         return not self.truncated and not self.gaps
 
     def to_trajectory(self) -> Trajectory:
-        """The recording as a :class:`~qchain.trajectory.Trajectory`; ``meta`` keeps the
+        """The recording as a :class:`~qchain.sim.trajectory.Trajectory`; ``meta`` keeps the
         rest (``step``, ``backbone``, ``tip_frames``, ``base``, ``total_energy``, ``info``,
         ``path``, ``truncated``, ``stopped_at``, ``gaps``, ``outcome``)."""
         out = self.outcome
@@ -767,7 +767,7 @@ def _disorder(b: Batch) -> str:
 
 
 def read_mcap(path: str | os.PathLike | BinaryIO, *, limits: ReadLimits | None = None) -> Trajectory:
-    """Read a qchain MCAP recording as a :class:`~qchain.trajectory.Trajectory`.
+    """Read a qchain MCAP recording as a :class:`~qchain.sim.trajectory.Trajectory`.
 
     A truncated recording (a killed run) reads up to its last complete chunk and on from
     its journal if the run left one; the trajectory then has ``success=False``, a message

@@ -13,7 +13,6 @@ anything is written, and never the recording itself."""
 
 from __future__ import annotations
 
-import argparse
 import json
 import os
 import signal
@@ -21,24 +20,19 @@ import stat
 import subprocess
 import sys
 import tempfile
-import time
 import uuid
 import warnings
-from collections.abc import Sequence
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
-from ..text import printable
-from ..budget import RANGES
-from .bounded import DEFAULT_LIMITS, ReadLimits
+from .bounded import ReadLimits
 from .journal import journal_owner, journal_path
 from .reader import Recording, read_recording
 from .records import DEFAULT_FLUSH_INTERVAL, LoggingError, LoggingWarning
 from .rerun_sink import CONNECT_TIMEOUT, DEFAULT_BIND, probe_viewer
 
-__all__ = ["ReplaySession", "replay", "replay_main", "recover", "recover_main", "layout_main", "probe_viewer",
-           "CONNECT_TIMEOUT"]
+__all__ = ["ReplaySession", "replay", "recover", "probe_viewer", "CONNECT_TIMEOUT"]
 
 
 @dataclass
@@ -407,203 +401,3 @@ def _umask() -> int:
     mask = os.umask(0)
     os.umask(mask)
     return mask
-
-
-def _summary(rec: Recording) -> list[str]:
-    lines = []
-    if len(rec):
-        lines.append(f"{len(rec)} steps of {rec.path}, t = {rec.t[0]:.6g} .. {rec.t[-1]:.6g} s")
-    else:
-        lines.append(f"{rec.path} holds no complete step")
-    if rec.truncated:
-        where = f"t = {rec.t[-1]:.6g} s" if len(rec) else "its start"
-        lines.append(f"the recording is truncated: it stops at {where} ({rec.stop_reason})")
-    elif rec.outcome is not None:
-        lines.append(f"the run ended: {rec.outcome.get('message', '')}")
-    for g in rec.gaps:
-        lines.append(f"damaged: {g.describe()}")
-    shown = {g.reason for g in rec.gaps}
-    for d in rec.damage:
-        if d not in shown and "(no chunk there, per the summary: no record lost)" not in d:
-            lines.append(f"damaged: {d}")
-    for d in rec.nonfinite:
-        lines.append(f"non-finite values (null in the file, read as NaN): {d}")
-    if rec.disorder:
-        lines.append(rec.disorder)
-    return lines
-
-
-#: What the commands report as an error (exit code 2) rather than a traceback.
-_ERRORS = (LoggingError, OSError, ValueError, TypeError)
-
-
-def _error(prog: str, exc: BaseException) -> int:
-    print(f"qchain {prog}: error: {printable(exc)}", file=sys.stderr)
-    return 2
-
-
-def _add_limits(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--max-segments", type=int, default=DEFAULT_LIMITS.max_segments, metavar="N",
-                        help=f"segments a recording may declare (default {DEFAULT_LIMITS.max_segments}; a run whose "
-                             "budget allowed more needs it raised)")
-
-
-def _limits(parser: argparse.ArgumentParser, args) -> ReadLimits:
-    top = int(RANGES["max_segments"].high)
-    if not 1 <= args.max_segments <= top:
-        parser.error(f"argument --max-segments: expected an integer >= 1 and <= {top}, found {args.max_segments}")
-    return replace(DEFAULT_LIMITS, max_segments=args.max_segments)
-
-
-def replay_main(argv: Sequence[str] | None = None) -> int:
-    """``qchain replay LOG.mcap [--serve | --connect URL | --rrd OUT]``; returns the exit code.
-
-    Without a target the replay is served on 127.0.0.1 (``--serve``) until Ctrl-C.
-    Exit codes: 0 done, 1 a target not reached (a viewer that cannot be reached or does
-    not answer in time, said on standard error), 2 not a (readable) qchain recording, an
-    output that cannot be written, or bad arguments.
-    """
-    parser = argparse.ArgumentParser(prog="qchain replay", description="Re-log a qchain MCAP recording into Rerun "
-                                     "with its original simulation times.")
-    parser.add_argument("log", type=Path, help="the .mcap recording")
-    target = parser.add_mutually_exclusive_group()
-    target.add_argument("--serve", action="store_true", help="serve a web viewer on 127.0.0.1 (the default)")
-    target.add_argument("--connect", metavar="URL", help="send to a running Rerun viewer (rerun+http://HOST:PORT/proxy)")
-    from ..cli_checks import file_argument
-
-    target.add_argument("--rrd", metavar="OUT", type=file_argument, help="write a Rerun .rrd file")
-    parser.add_argument("--bind", default=DEFAULT_BIND, help="address to serve on (default 127.0.0.1: this machine only)")
-    parser.add_argument("--timeout", type=float, default=CONNECT_TIMEOUT, metavar="S",
-                        help=f"seconds a viewer at --connect has to answer and take the recording (default "
-                             f"{CONNECT_TIMEOUT:g})")
-    _add_limits(parser)
-    args = parser.parse_args(argv)
-    limits = _limits(parser, args)
-    serve = args.serve or not (args.connect or args.rrd)
-    from ..cli_errors import BadInput
-    from ..cli_checks import check_bind_address, check_viewer_url
-
-    try:  # the same checks as qchain run's, before the file is read
-        if not 0.0 < args.timeout <= 3600.0:
-            raise BadInput(f"argument --timeout: expected a number > 0 and <= 3600 (s), found {args.timeout!r}")
-        check_viewer_url("argument --connect", args.connect)
-        if serve:
-            check_bind_address("argument --bind", args.bind)
-    except BadInput as exc:
-        return _error("replay", exc)
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always", LoggingWarning)
-        try:
-            session = replay(args.log, serve=serve, connect=args.connect, rrd=args.rrd, bind=args.bind, quiet=True,
-                             timeout=args.timeout, limits=limits)
-        except _ERRORS as exc:
-            return _error("replay", exc)
-    for w in caught:
-        if issubclass(w.category, LoggingWarning) and not issubclass(w.category, _IncompleteWarning):
-            print(f"qchain replay: warning: {printable(str(w.message).removeprefix('qchain.logging: '))}",
-                  file=sys.stderr)
-    rec = session.recording
-    lines = _summary(rec)
-    sent = session.sent is not False
-    if len(rec):
-        lines[0] = ("replayed " if sent else "read ") + lines[0]
-    print("\n".join(map(printable, lines)))
-    if args.rrd:
-        print(f"wrote {printable(args.rrd)}")
-    if args.connect:
-        print(printable(f"sent to {args.connect}" if sent else f"not sent to {args.connect}: see the warning above"))
-    if serve:
-        if session.viewer_url:
-            print(f"open {session.viewer_url}  - Ctrl-C to stop", flush=True)
-        elif session.grpc_url:
-            print(f"connect a Rerun viewer to {session.grpc_url}  - Ctrl-C to stop", flush=True)
-        else:
-            print("no viewer could be served", file=sys.stderr)
-            return 1
-        try:
-            while True:
-                time.sleep(1.0)
-        except KeyboardInterrupt:
-            pass
-        finally:
-            session.close()
-    return 0 if sent else 1
-
-
-def recover_main(argv: Sequence[str] | None = None) -> int:
-    """``qchain recover LOG.mcap``: make a killed run's recording whole from its journal.
-    Exit codes: 0 done, 2 nothing to recover, not readable, or not writable."""
-    parser = argparse.ArgumentParser(prog="qchain recover", description="Make the recording of a killed run whole: "
-                                     "the records its journal (LOG.mcap.journal) holds are written into it.")
-    parser.add_argument("log", type=Path, help="the .mcap recording")
-    _add_limits(parser)
-    args = parser.parse_args(argv)
-    limits = _limits(parser, args)
-    try:
-        before = os.stat(args.log).st_mtime_ns if os.path.exists(args.log) else None
-        rec = recover(args.log, limits=limits)
-    except _ERRORS as exc:
-        return _error("recover", exc)
-    if before is not None and os.stat(args.log).st_mtime_ns == before:
-        print(printable(f"nothing to recover: {args.log} is complete and has no journal (left as it is)"))
-        return 0
-    print("recovered " + "\n".join(map(printable, _summary(rec))))
-    return 0
-
-
-def layout_main(argv: Sequence[str] | None = None) -> int:
-    """``qchain layout LOG.mcap [-o layout.json]``: the Foxglove layout of a recording.
-    Exit codes: 0 done, 2 not a readable recording, or an output that cannot be written."""
-    from .foxglove_layout import layout_json
-
-    parser = argparse.ArgumentParser(prog="qchain layout", description="Write the Foxglove layout of a recording "
-                                     "(3D arm, frame tree, named plots); import it in Foxglove's layout menu.")
-    parser.add_argument("log", type=Path, help="the .mcap recording")
-    from ..cli_checks import file_argument
-
-    parser.add_argument("-o", "--out", type=file_argument, default=None,
-                        help="output file (default: standard output)")
-    _add_limits(parser)
-    args = parser.parse_args(argv)
-    limits = _limits(parser, args)
-    try:
-        if args.out is not None:
-            for p in (args.log, journal_path(args.log)):
-                if os.path.abspath(args.out) == os.path.abspath(p) or (
-                        args.out.exists() and p.exists() and os.path.samefile(args.out, p)):
-                    raise LoggingError(f"-o {args.out} is the recording ({p}): it would be overwritten")
-            if args.out.is_file() and args.out.stat().st_size > 0:
-                with open(args.out, "rb") as fh:
-                    head = fh.read(64).lstrip()
-                if not head.startswith(b"{"):  # an earlier layout (JSON) is replaced; anything else is kept
-                    raise LoggingError(f"-o {args.out} exists and is not a layout (JSON); refusing to overwrite it")
-            if args.out.is_dir():
-                raise LoggingError(f"-o must be a file path, got the folder {args.out}")
-            from ..cli_checks import check_output_path
-            from ..cli_errors import BadInput
-            try:  # a device or a FIFO there is refused, never replaced (os.replace below would)
-                check_output_path("-o", args.out)
-            except BadInput as exc:
-                raise LoggingError(str(exc)) from None
-        rec = read_recording(args.log, limits=limits)
-        text = layout_json(rec.info, rec.q.shape[1], rec.v.shape[1], rec.p.shape[1])
-        if args.out is None:
-            print(text)
-        else:
-            tmp = None
-            try:
-                args.out.parent.mkdir(parents=True, exist_ok=True)
-                fd, tmp = tempfile.mkstemp(prefix=".layout-", dir=args.out.parent)  # short: see recover
-                with os.fdopen(fd, "w") as fh:
-                    fh.write(text + "\n")
-                os.replace(tmp, args.out)
-                tmp = None
-            except OSError as exc:
-                raise LoggingError(f"cannot write {args.out} ({exc.strerror or exc})") from None
-            finally:
-                if tmp is not None and os.path.exists(tmp):
-                    os.unlink(tmp)
-            print(f"wrote {printable(args.out)}")
-    except _ERRORS as exc:
-        return _error("layout", exc)
-    return 0

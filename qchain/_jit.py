@@ -1,0 +1,104 @@
+"""The engine's numba decorators, in one place.
+
+The engine runs without numba's reference counting (``_nrt=False``): with it every array
+view (a row of a workspace, a slice of the state) costs an atomic count and its release,
+which was half of a step's time. Such code cannot allocate arrays nor assign an array to a
+slice (loops do); what it calls is compiled the same way.
+
+The model's two big functions, the right-hand side and its exact Jacobian, are
+:func:`kernel` s: C callbacks (``numba.cfunc``) that the steppers receive as arguments and
+call through a pointer. numba otherwise links every compiled callee into its caller and
+types, optimises and emits it again there, so each stepper paid again for the whole model;
+a callback is compiled once, cached on its own, and can be compiled in another process at
+the same time as the rest (:mod:`qchain.sim.engine.warmup`).
+"""
+
+from __future__ import annotations
+
+import warnings
+
+import numba
+from numba.core import sigutils, types
+from numba.core.ccallback import CFunc
+from numba.core.errors import NumbaExperimentalFeatureWarning
+
+__all__ = ["ejit", "ejit_inner", "inline", "kernel", "Kernel", "OPTIONS"]
+
+#: the compiler options of every engine function
+OPTIONS = dict(error_model="numpy", _nrt=False)
+#: entry points, called from Python
+ejit = numba.njit(cache=True, **OPTIONS)
+#: called only from compiled code: the model and workspace tuples (dozens of arrays) get no
+#: CPython wrapper to unbox them (calling one from Python crashes the process)
+ejit_inner = numba.njit(cache=True, no_cpython_wrapper=True, **OPTIONS)
+#: inlined into the caller: a separately compiled function is linked into and optimised
+#: again with every caller, and a call passing the tuples copies them
+inline = numba.njit(cache=True, inline="always", **OPTIONS)
+
+# a stepper taking a callback is typed with numba's first-class function types
+warnings.filterwarnings("ignore", category=NumbaExperimentalFeatureWarning)
+
+
+class Kernel:
+    """A function of the model compiled to a C callback per argument types.
+
+    ``kernel(*args)`` is not a call: :meth:`compile` gives the callback (a ``numba.cfunc``
+    returning an int64 status) for the types of ``args``, loaded from numba's on-disk cache
+    or compiled and cached, once per process. Pass the callback to compiled code, which
+    calls it through its address (its numba type is ``FunctionType(signature)``).
+    """
+
+    def __init__(self, py_func):
+        self.py_func = py_func
+        self.__name__ = py_func.__name__
+        self.__qualname__ = py_func.__qualname__
+        self.__doc__ = py_func.__doc__
+        self.__module__ = py_func.__module__
+        self._compiled: dict = {}
+
+    def __repr__(self) -> str:
+        return f"<qchain kernel {self.__module__}.{self.__qualname__}>"
+
+    @staticmethod
+    def signature(*args):
+        """The callback's numba signature for example arguments ``args``."""
+        return types.int64(*(numba.typeof(a) for a in args))
+
+    def function_type(self, *args):
+        """The numba type of the callback for ``args`` (what a stepper is compiled for)."""
+        return types.FunctionType(self.signature(*args))
+
+    def _cfunc(self, sig) -> CFunc:
+        cf = CFunc(self.py_func, sigutils.normalize_signature(sig), locals={}, options=dict(OPTIONS))
+        cf.enable_caching()
+        return cf
+
+    def loaded(self, *args) -> bool:
+        """Whether this process has the callback for ``args``."""
+        return self.signature(*args) in self._compiled
+
+    def is_cached(self, *args) -> bool | None:
+        """Whether the on-disk cache holds the callback for ``args`` (None if that cannot be
+        told), without loading or compiling it."""
+        sig = self.signature(*args)
+        if sig in self._compiled:
+            return True
+        try:
+            return any(key[0] == sig for key in self._cfunc(sig)._cache._cache_file._load_index())
+        except Exception:  # numba's cache layout is not public API: no answer
+            return None
+
+    def compile(self, *args) -> CFunc:
+        """The callback for the types of ``args`` (loaded from the cache or compiled)."""
+        sig = self.signature(*args)
+        cf = self._compiled.get(sig)
+        if cf is None:
+            cf = self._cfunc(sig)
+            cf.compile()
+            self._compiled[sig] = cf
+        return cf
+
+
+def kernel(py_func) -> Kernel:
+    """Decorate a model function ``f(m, wk, ...) -> status`` as a :class:`Kernel`."""
+    return Kernel(py_func)

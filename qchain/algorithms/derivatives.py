@@ -1,0 +1,882 @@
+"""Exact derivatives of the chain's inverse dynamics (numba), in the manner of Carpentier and
+Mansard's RNEA derivatives, extended to the slices of a segment.
+
+Everything is in curvature coordinates ``(l, ux, uy)`` and uses the layout of
+:mod:`qchain.algorithms.recursive` (nodes ``alpha, w, offs``; ``q, qd, qdd`` (n, 3); the first root's
+twist ``V0`` and apparent acceleration ``A0 = a_root - (g_root, 0)``).
+
+Per segment (root frame ``j``), one pass over the slices gives the generalised force
+``Q_j = int Phi^T (I a + V x* I V)`` of :mod:`qchain.model.slices` and its derivatives at fixed root
+twist ``V_j`` and acceleration ``A_j``: ``dQ/dq_j`` (the slices move: ``dV = -S_c x V_r + dS_c
+qdot``, ``da = -S_c x A_r + dS_c qddot + K_c - (dS_c qdot) x V_r + (S qdot) x (S_c x V_r)``,
+with ``dS`` and ``K`` from :mod:`qchain.model.arc_derivatives`) and ``dQ/dxi_j`` (``dV = Phi``,
+``da = [-(S qdot) x Ad^-1, 2 Sd - S_c x V]``); the tip (slice ``alpha = 1``) gives the same
+variations of the next root's twist and acceleration.
+
+The chain then needs no per-column sweep. Backwards from the tip, the subtree beyond root
+``j`` has wrench/force sensitivities ``d(F_j, tau_j)/dA_j = Mh_j[:, :6]`` (the composite
+block of the mass matrix) and ``W_j = d(F_j, tau_j)/dV_j``. A variation of segment ``m``'s
+coordinates moves everything beyond tip ``m`` rigidly; in the first root's frame it is a pair
+of twists ``(sigma1, sigma2)`` shared by all that hangs there, so for ``i > m``
+
+    dtau_i = Y_i Ad(X_i)^-1 sigma2 + (W_i - Y_i ad(V_i)) Ad(X_i)^-1 sigma1,   Y_i = Mh_i[6:, :6],
+
+and for ``i < m`` ``dtau_i = J_i^T G_m`` with ``J_i`` the tip Jacobian and ``G_m`` the variation
+of the wrench at root ``m`` (first root's frame). The work is O(n * nodes) in the slices and
+O(n^2) small products in the assembly. A floating base adds its twist (``sigma1 = I``,
+``sigma2 = ad(V0)``) and attitude (gravity turns: ``sigma2 = (e_k x g_B, 0)``) columns and the
+rows of its wrench ``F0``.
+
+Arrays named ``...T`` hold derivatives by their first index: ``QqT[c]`` is ``dQ/dq_c``.
+``tests/test_derivatives.py`` holds every output to central differences of the model.
+
+Unchecked by design: compiled kernels whose arguments the checked API has validated
+(``docs/engine.md``, "Unchecked kernels"); call the checked API unless you guarantee them.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..model.arc import arc_node, jit, jit_helper, take1, take2, take3
+from .recursive import _chol as recursive_chol
+from .recursive import _load_xi
+from .recursive import _project as recursive_project
+from .recursive import aba as recursive_aba
+from .recursive import aba_workspace as recursive_aba_workspace
+from .recursive import internal_forces as recursive_internal_forces
+from ..model.arc_derivatives import arc_node_derivatives
+from ..model.slices import (
+    elastic_hessian_c, input_matrix_c, phi_matrix, phi_transpose_force, pressure_jacobian_c, rest_damping_c,
+    mass_finish, mass_node, slice_twist)
+
+__all__ = ["segment_derivatives", "tip_derivatives", "rnea_derivatives", "rnea_workspace", "aba_derivatives",
+           "aba_derivatives_workspace", "internal_forces_derivatives", "input_matrices"]
+
+
+@jit_helper
+def _cross(a, b, out):
+    """``out = a x b`` (motion cross product, 6-vectors ``[linear; angular]``)."""
+    out[0] = a[4] * b[2] - a[5] * b[1] + a[1] * b[5] - a[2] * b[4]
+    out[1] = a[5] * b[0] - a[3] * b[2] + a[2] * b[3] - a[0] * b[5]
+    out[2] = a[3] * b[1] - a[4] * b[0] + a[0] * b[4] - a[1] * b[3]
+    out[3] = a[4] * b[5] - a[5] * b[4]
+    out[4] = a[5] * b[3] - a[3] * b[5]
+    out[5] = a[3] * b[4] - a[4] * b[3]
+
+
+@jit_helper
+def _fcross(a, h, out):
+    """``out = a x* h`` (force cross product: ``(w x f, v x f + w x n)``)."""
+    out[0] = a[4] * h[2] - a[5] * h[1]
+    out[1] = a[5] * h[0] - a[3] * h[2]
+    out[2] = a[3] * h[1] - a[4] * h[0]
+    out[3] = a[1] * h[2] - a[2] * h[1] + a[4] * h[5] - a[5] * h[4]
+    out[4] = a[2] * h[0] - a[0] * h[2] + a[5] * h[3] - a[3] * h[5]
+    out[5] = a[0] * h[1] - a[1] * h[0] + a[3] * h[4] - a[4] * h[3]
+
+
+@jit_helper
+def _ad_twist(R, p, v, out):
+    """``out = Ad(X) v`` for ``X = (R, p)``: ``(R v_l + p x R v_a, R v_a)``."""
+    for r in range(3):
+        out[3 + r] = R[r, 0] * v[3] + R[r, 1] * v[4] + R[r, 2] * v[5]
+        out[r] = R[r, 0] * v[0] + R[r, 1] * v[1] + R[r, 2] * v[2]
+    w0, w1, w2 = out[3], out[4], out[5]
+    out[0] += p[1] * w2 - p[2] * w1
+    out[1] += p[2] * w0 - p[0] * w2
+    out[2] += p[0] * w1 - p[1] * w0
+
+
+@jit_helper
+def _ad_force(R, p, f, out):
+    """``out = Ad(X)^-T f``: a wrench in X's frame expressed in its parent, ``(R f_l, p x R f_l + R f_a)``."""
+    for r in range(3):
+        out[r] = R[r, 0] * f[0] + R[r, 1] * f[1] + R[r, 2] * f[2]
+        out[3 + r] = R[r, 0] * f[3] + R[r, 1] * f[4] + R[r, 2] * f[5]
+    l0, l1, l2 = out[0], out[1], out[2]
+    out[3] += p[1] * l2 - p[2] * l1
+    out[4] += p[2] * l0 - p[0] * l2
+    out[5] += p[0] * l1 - p[1] * l0
+
+
+@jit_helper
+def _force_variation(Id, V, hV, dV, da, t, h, df):
+    """``df = I da + dV x* (I V) + V x* (I dV)``: the slice force's variation (``I = diag(Id)``,
+    ``hV = I V``); ``t``, ``h`` (6,) are scratch."""
+    _fcross(dV, hV, df)
+    for r in range(6):
+        t[r] = Id[r] * dV[r]
+        df[r] += Id[r] * da[r]
+    _fcross(V, t, h)
+    for r in range(6):
+        df[r] += h[r]
+
+
+@jit_helper
+def _node_state(R, p, S, Sd, V0, A0, qd, qdd, Vr, Ar, rel, V, a, z3, t):
+    """Slice twist ``V`` and acceleration ``a`` (and ``Vr = Ad^-1 V0``, ``Ar = Ad^-1 A0``,
+    ``rel = S qdot``) at a node whose kinematics ``R, p, S, Sd`` are known; ``z3`` (3,) zeros,
+    ``t`` (6,) scratch."""
+    slice_twist(R, p, S, V0, z3, Vr)
+    slice_twist(R, p, S, A0, qdd, Ar)  # Ad^-1 A0 + S qdd
+    for r in range(6):
+        rel[r] = S[r, 0] * qd[0] + S[r, 1] * qd[1] + S[r, 2] * qd[2]
+        V[r] = Vr[r] + rel[r]
+    _cross(rel, Vr, t)
+    for r in range(6):
+        a[r] = Ar[r] + Sd[r, 0] * qd[0] + Sd[r, 1] * qd[1] + Sd[r, 2] * qd[2] - t[r]
+    # Ar without the S qdd part, for the variations
+    for r in range(6):
+        Ar[r] -= S[r, 0] * qdd[0] + S[r, 1] * qdd[1] + S[r, 2] * qdd[2]
+
+
+@jit_helper
+def _q_variation(c, S, dS, K, qd, qdd, Vr, Ar, rel, dV, da, t1, t2, h):
+    """``dV, da`` of a slice for a unit change of ``q_c`` (fixed root twist and acceleration);
+    ``t1, t2, h`` (6,) scratch."""
+    for r in range(6):
+        t2[r] = dS[c, r, 0] * qd[0] + dS[c, r, 1] * qd[1] + dS[c, r, 2] * qd[2]  # dS_c qd
+        da[r] = S[r, c]  # S_c, contiguous (a column view would compile _cross once more)
+    _cross(da, Vr, t1)  # S_c x Vr
+    for r in range(6):
+        dV[r] = -t1[r] + t2[r]
+    _cross(rel, t1, h)  # rel x (S_c x Vr)
+    _cross(da, Ar, t1)  # S_c x Ar
+    for r in range(6):
+        da[r] = h[r] + K[c, r] + dS[c, r, 0] * qdd[0] + dS[c, r, 1] * qdd[1] + dS[c, r, 2] * qdd[2]
+    _cross(t2, Vr, h)
+    for r in range(6):
+        da[r] -= h[r]
+    for r in range(6):
+        da[r] -= t1[r]
+
+
+@jit_helper
+def _qd_variation(c, S, Sd, V, dV, da, h):
+    """``dV, da`` of a slice for a unit change of ``qdot_c``: ``S_c`` and ``2 Sd_c - S_c x V``."""
+    for r in range(6):
+        dV[r] = S[r, c]
+    _cross(dV, V, h)
+    for r in range(6):
+        da[r] = 2.0 * Sd[r, c] - h[r]
+
+
+@jit
+def segment_derivatives(alpha, w, mass, radius, q, xi, xid, M, Q, QqT, QxT, sc):
+    """``Q = int Phi^T (I a + V x* I V) dalpha`` (9,) of one segment, ``M = M_xi`` (9, 9) and
+    the derivatives of ``Q``, in one pass over the nodes (as :func:`qchain.model.slices.segment_slices`).
+
+    ``QqT[c]`` (3, 9) ``= dQ/dq_c`` at fixed ``xi = (V_root, qdot)`` and ``xid = (A_root,
+    qddot)``; ``QxT[k]`` (9, 9) ``= dQ/dxi_k`` at fixed ``xid`` (``dQ/dxid = M_xi``).
+    """
+    _segment_derivatives(alpha, w, mass, radius, q, xi, xid, M, Q, QqT, QxT, sc)
+
+
+@jit_helper
+def _segment_derivatives(alpha, w, mass, radius, q, xi, xid, M, Q, QqT, QxT, sc):
+    """:func:`segment_derivatives`, the body the kernels call: compiled into them, without a
+    Python entry point (:data:`qchain.model.arc.jit_helper`)."""
+    o = 0
+    R, o = take2(sc, o, 3, 3)
+    p, o = take1(sc, o, 3)
+    S, o = take2(sc, o, 6, 3)
+    Sd, o = take2(sc, o, 6, 3)
+    dS, o = take3(sc, o, 3, 6, 3)
+    K, o = take2(sc, o, 3, 6)
+    Vr, o = take1(sc, o, 6)
+    Ar, o = take1(sc, o, 6)
+    rel, o = take1(sc, o, 6)
+    V, o = take1(sc, o, 6)
+    a, o = take1(sc, o, 6)
+    hV, o = take1(sc, o, 6)
+    f, o = take1(sc, o, 6)
+    dV, o = take1(sc, o, 6)
+    da, o = take1(sc, o, 6)
+    df, o = take1(sc, o, 6)
+    t1, o = take1(sc, o, 6)
+    t2, o = take1(sc, o, 6)
+    t3, o = take1(sc, o, 6)
+    Sc, o = take1(sc, o, 6)
+    E, o = take2(sc, o, 6, 6)
+    EA, o = take2(sc, o, 6, 6)
+    z3, o = take1(sc, o, 3)
+    z3[:] = 0.0
+    ixx = 0.25 * mass * radius * radius
+    Id, o = take1(sc, o, 6)
+    Id[:3] = mass
+    Id[3] = Id[4] = ixx
+    Id[5] = 2.0 * ixx
+    V0 = xi[:6]
+    qd = xi[6:]
+    A0 = xid[:6]
+    qdd = xid[6:]
+    QqT[:, :] = 0.0
+    QxT[:, :] = 0.0
+    M[:, :] = 0.0
+    Q[:] = 0.0
+    mp, o = take1(sc, o, 3)
+    mp[:] = 0.0
+    Irot, o = take2(sc, o, 3, 3)
+    Irot[:, :] = 0.0
+    wsum = 0.0
+    for k in range(alpha.shape[0]):
+        wk = w[k]
+        wsum += wk
+        arc_node(alpha[k], q[0], q[1], q[2], qd[0], qd[1], qd[2], R, p, S, Sd)
+        arc_node_derivatives(alpha[k], q[0], q[1], q[2], qd[0], qd[1], qd[2], dS, K)
+        _node_state(R, p, S, Sd, V0, A0, qd, qdd, Vr, Ar, rel, V, a, z3, t1)
+        for r in range(6):
+            hV[r] = Id[r] * V[r]
+        _fcross(V, hV, f)
+        for r in range(6):
+            f[r] += Id[r] * a[r]
+        phi_transpose_force(R, p, S, f, wk, Q)
+        mass_node(R, p, S, Id, wk, M, mp, Irot, t1)
+        for c in range(3):
+            _q_variation(c, S, dS, K, qd, qdd, Vr, Ar, rel, dV, da, t1, t2, t3)
+            _force_variation(Id, V, hV, dV, da, t1, t3, df)
+            # d(Phi^T f) = Phi^T df + [Ad^-T (S_c x* f); dS_c^T f]
+            for r in range(6):
+                Sc[r] = S[r, c]
+            _fcross(Sc, f, t2)
+            for r in range(6):
+                df[r] += t2[r]
+            phi_transpose_force(R, p, S, df, wk, QqT[c])
+            for cc in range(3):
+                acc = 0.0
+                for r in range(6):
+                    acc += dS[c, r, cc] * f[r] - S[r, cc] * t2[r]
+                QqT[c, 6 + cc] += wk * acc
+        # velocity columns through E = d f / d V_slice at fixed root acceleration:
+        # E = (I V) x*bar + (V x*) I - I ad(rel); root twist: df = E Ad^-1; qdot_c: df = E S_c +
+        # I (2 Sd_c - S_c x (V + rel))
+        _velocity_force_matrix(Id, V, hV, rel, E)
+        for c in range(3):
+            for r in range(6):
+                Sc[r] = S[r, c]
+                t2[r] = V[r] + rel[r]
+            _cross(Sc, t2, t1)
+            for r in range(6):
+                acc = Id[r] * (2.0 * Sd[r, c] - t1[r])
+                for s_ in range(6):
+                    acc += E[r, s_] * Sc[s_]
+                df[r] = acc
+            phi_transpose_force(R, p, S, df, wk, QxT[6 + c])
+        for r in range(6):  # E Ad^-1, Ad^-1 = [[R^T, -R^T [p]], [0, R^T]]
+            for c in range(3):
+                EA[r, c] = E[r, 0] * R[c, 0] + E[r, 1] * R[c, 1] + E[r, 2] * R[c, 2]
+                EA[r, 3 + c] = E[r, 3] * R[c, 0] + E[r, 4] * R[c, 1] + E[r, 5] * R[c, 2]
+            x0, x1, x2 = EA[r, 0], EA[r, 1], EA[r, 2]
+            # - (E R^T [p])[r, :] = - x [p] = p x x, x = (E R^T)[r, :3]
+            EA[r, 3] += p[1] * x2 - p[2] * x1
+            EA[r, 4] += p[2] * x0 - p[0] * x2
+            EA[r, 5] += p[0] * x1 - p[1] * x0
+        for kk in range(6):
+            for r in range(6):
+                df[r] = EA[r, kk]
+            phi_transpose_force(R, p, S, df, wk, QxT[kk])
+    mass_finish(M, mp, Irot, mass * wsum)
+
+
+@jit_helper
+def _velocity_force_matrix(Id, V, hV, rel, E):
+    """``E = d f / d V`` (6, 6) of a slice force ``f = I a + V x* I V`` whose acceleration moves
+    with its twist as ``da = -rel x dV``: ``[I V] x*bar + [V x*] I - I ad(rel)``."""
+    for r in range(6):
+        for c in range(6):
+            E[r, c] = 0.0
+    # [h] x*bar: a -> a x* h = [[0, -[f]], [-[f], -[n]]] a
+    f0, f1, f2, n0, n1, n2 = hV[0], hV[1], hV[2], hV[3], hV[4], hV[5]
+    _add_skew(E, 0, 3, f0, f1, f2, -1.0)
+    _add_skew(E, 3, 0, f0, f1, f2, -1.0)
+    _add_skew(E, 3, 3, n0, n1, n2, -1.0)
+    # [V x*] I = [[w^, 0], [v^, w^]] diag(Id)
+    _add_skew_cols(E, 0, 0, V[3], V[4], V[5], Id, 0)
+    _add_skew_cols(E, 3, 3, V[3], V[4], V[5], Id, 3)
+    _add_skew_cols(E, 3, 0, V[0], V[1], V[2], Id, 0)
+    # - I ad(rel) = - diag(Id) [[wr^, vr^], [0, wr^]]
+    _add_skew_rows(E, 0, 0, rel[3], rel[4], rel[5], Id, 0)
+    _add_skew_rows(E, 0, 3, rel[0], rel[1], rel[2], Id, 0)
+    _add_skew_rows(E, 3, 3, rel[3], rel[4], rel[5], Id, 3)
+
+
+@jit_helper
+def _add_skew(E, r0, c0, x, y, z, scale):
+    """``E[r0:r0+3, c0:c0+3] += scale [(x, y, z)]x``."""
+    E[r0, c0 + 1] -= scale * z
+    E[r0, c0 + 2] += scale * y
+    E[r0 + 1, c0] += scale * z
+    E[r0 + 1, c0 + 2] -= scale * x
+    E[r0 + 2, c0] -= scale * y
+    E[r0 + 2, c0 + 1] += scale * x
+
+
+@jit_helper
+def _add_skew_cols(E, r0, c0, x, y, z, Id, i0):
+    """``E[r0:r0+3, c0:c0+3] += [(x, y, z)]x diag(Id[i0:i0+3])``."""
+    E[r0, c0 + 1] -= z * Id[i0 + 1]
+    E[r0, c0 + 2] += y * Id[i0 + 2]
+    E[r0 + 1, c0] += z * Id[i0]
+    E[r0 + 1, c0 + 2] -= x * Id[i0 + 2]
+    E[r0 + 2, c0] -= y * Id[i0]
+    E[r0 + 2, c0 + 1] += x * Id[i0 + 1]
+
+
+@jit_helper
+def _add_skew_rows(E, r0, c0, x, y, z, Id, i0):
+    """``E[r0:r0+3, c0:c0+3] -= diag(Id[i0:i0+3]) [(x, y, z)]x``."""
+    E[r0, c0 + 1] += z * Id[i0]
+    E[r0, c0 + 2] -= y * Id[i0]
+    E[r0 + 1, c0] -= z * Id[i0 + 1]
+    E[r0 + 1, c0 + 2] += x * Id[i0 + 1]
+    E[r0 + 2, c0] += y * Id[i0 + 2]
+    E[r0 + 2, c0 + 1] -= x * Id[i0 + 2]
+
+
+@jit
+def tip_derivatives(q, qd, qdd, V0, A0, T, R1, p1, V1, A1, rel1, tipV, tipA, dS1, sc):
+    """The tip (slice ``alpha = 1``) of one segment and its variations.
+
+    Outputs: tip map ``T = Phi(1)`` (6, 9); tip placement ``R1`` (3, 3), ``p1`` (3,) in the
+    root frame; the next root's twist ``V1`` and acceleration ``A1`` (6,); ``rel1 = S(1) qdot``;
+    ``tipV[k], tipA[k]`` (6, 6): their variations for ``k < 3`` a unit ``q_k``, ``k >= 3`` a unit
+    ``qdot_(k-3)`` (fixed root twist and acceleration); ``dS1`` (3, 6, 3) ``= dS(1)/dq``.
+    """
+    _tip_derivatives(q, qd, qdd, V0, A0, T, R1, p1, V1, A1, rel1, tipV, tipA, dS1, sc)
+
+
+@jit_helper
+def _tip_derivatives(q, qd, qdd, V0, A0, T, R1, p1, V1, A1, rel1, tipV, tipA, dS1, sc):
+    """:func:`tip_derivatives`, the body the kernels call: compiled into them, without a
+    Python entry point (:data:`qchain.model.arc.jit_helper`)."""
+    o = 0
+    S, o = take2(sc, o, 6, 3)
+    Sd, o = take2(sc, o, 6, 3)
+    K, o = take2(sc, o, 3, 6)
+    Vr, o = take1(sc, o, 6)
+    Ar, o = take1(sc, o, 6)
+    t1, o = take1(sc, o, 6)
+    t2, o = take1(sc, o, 6)
+    t3, o = take1(sc, o, 6)
+    z3, o = take1(sc, o, 3)
+    z3[:] = 0.0
+    arc_node(1.0, q[0], q[1], q[2], qd[0], qd[1], qd[2], R1, p1, S, Sd)
+    arc_node_derivatives(1.0, q[0], q[1], q[2], qd[0], qd[1], qd[2], dS1, K)
+    phi_matrix(R1, p1, S, T)
+    _node_state(R1, p1, S, Sd, V0, A0, qd, qdd, Vr, Ar, rel1, V1, A1, z3, t1)
+    for c in range(3):
+        _q_variation(c, S, dS1, K, qd, qdd, Vr, Ar, rel1, tipV[c], tipA[c], t1, t2, t3)
+        _qd_variation(c, S, Sd, V1, tipV[3 + c], tipA[3 + c], t3)
+
+
+#: Names of :func:`rnea_workspace`'s arrays (``Data`` attributes), in order.
+RNEA_WORKSPACE = ("A", "R_0j", "p_0j", "QqT", "QxT", "rel1", "tipV", "tipA", "dS1", "G", "Ya", "Yv", "Ms", "Jw",
+                  "sig1", "sig2", "tau_c", "F0", "M", "dtau_dq", "dtau_dv")
+
+
+@jit
+def rnea_workspace(n, nv):
+    """Fresh arrays for :func:`rnea_derivatives` (shapes in :mod:`qchain.arm.data`), then its
+    outputs ``tau_c`` (n, 3), ``F0`` (6,), ``M``, ``dtau_dq``, ``dtau_dv`` (nv, nv)."""
+    return (np.zeros((n + 1, 6)), np.zeros((n + 1, 3, 3)), np.zeros((n + 1, 3)), np.zeros((n, 3, 9)),
+            np.zeros((n, 9, 9)), np.zeros((n, 6)), np.zeros((n, 6, 6)), np.zeros((n, 6, 6)), np.zeros((n, 3, 6, 3)),
+            np.zeros((n, 6, 6)), np.zeros((n, 3, 6)), np.zeros((n, 3, 6)), np.zeros((n, 3, 6)), np.zeros((n, 3, 6)),
+            np.zeros((n, 6, 6)), np.zeros((n, 6, 6)), np.zeros((n, 3)), np.zeros(6), np.zeros((nv, nv)),
+            np.zeros((nv, nv)), np.zeros((nv, nv)))
+
+
+@jit
+def rnea_derivatives(alpha, w, offs, mass, radius, q, qd, qdd, V0, A0, floating, g_B, ws, wd, sc):
+    """Inverse dynamics and its exact derivatives, curvature coordinates.
+
+    ``ws`` is :meth:`qchain.arm.data.Data.aba_workspace`, ``wd`` :meth:`~qchain.arm.data.Data.rnea_workspace`,
+    ``sc`` scratch (:data:`qchain.model.arc.SCRATCH`).
+    Writes its ``tau_c`` (n, 3) and ``F0`` (6,) as :func:`qchain.algorithms.recursive.rnea` does,
+    ``dtau_dq`` and ``dtau_dv`` (nv, nv): ``d(F0, tau)/d(q, v)`` (rows: the base wrench for a
+    floating base, then the segments; columns: the base's tangent ``(translation, rotation)``
+    / twist, then the segments), and ``M`` (nv, nv) ``= d(F0, tau)/da``. ``g_B`` (3,) is gravity
+    in the first root's frame (it turns with a floating base).
+    """
+    _rnea_derivatives(alpha, w, offs, mass, radius, q, qd, qdd, V0, A0, floating, g_B, ws, wd, sc)
+
+
+@jit_helper
+def _rnea_derivatives(alpha, w, offs, mass, radius, q, qd, qdd, V0, A0, floating, g_B, ws, wd, sc):
+    """:func:`rnea_derivatives`, the body the kernels call: compiled into them, without a
+    Python entry point (:data:`qchain.model.arc.jit_helper`)."""
+    n = q.shape[0]
+    off = 6 if floating else 0
+    V, T, _, Q, Mxi, _, _, _, _ = ws
+    (A, Rw, pw, QqT, QxT, rel1, tipV, tipA, dS1, G, Ya, Yv, Ms, Jw, sig1, sig2, tau, F0, M, dq, dv) = wd
+    # ---------------------------------------------------------------- forward
+    o = 0
+    R1, o = take2(sc, o, 3, 3)
+    p1, o = take1(sc, o, 3)
+    xi, o = take1(sc, o, 9)
+    xid, o = take1(sc, o, 9)
+    for r in range(6):
+        V[0, r] = V0[r]
+        A[0, r] = A0[r]
+    for r in range(3):
+        for s in range(3):
+            Rw[0, r, s] = 1.0 if r == s else 0.0
+    pw[0] = 0.0
+    for j in range(n):
+        _load_xi(xi, V[j], qd[j])
+        _load_xi(xid, A[j], qdd[j])
+        a0, a1 = offs[j], offs[j + 1]
+        _segment_derivatives(alpha[a0:a1], w[a0:a1], mass[j], radius[j], q[j], xi, xid, Mxi[j], Q[j], QqT[j], QxT[j],
+                             sc[o:])
+        _tip_derivatives(q[j], qd[j], qdd[j], V[j], A[j], T[j], R1, p1, V[j + 1], A[j + 1], rel1[j], tipV[j],
+                         tipA[j], dS1[j], sc[o:])
+        for r in range(3):
+            acc = pw[j, r]
+            for s in range(3):
+                acc += Rw[j, r, s] * p1[s]
+                Rw[j + 1, r, s] = Rw[j, r, 0] * R1[0, s] + Rw[j, r, 1] * R1[1, s] + Rw[j, r, 2] * R1[2, s]
+            pw[j + 1, r] = acc
+    # ---------------------------------------------------------------- backward
+    F, o = take1(sc, o, 6)
+    F[:] = 0.0
+    Ic, o = take2(sc, o, 6, 6)
+    Ic[:, :] = 0.0
+    WF, o = take2(sc, o, 6, 6)
+    WF[:, :] = 0.0
+    Mh, o = take2(sc, o, 9, 9)
+    Wj, o = take2(sc, o, 9, 6)
+    E, o = take2(sc, o, 6, 6)
+    ET, o = take2(sc, o, 6, 6)
+    IcT, o = take2(sc, o, 6, 9)
+    D, o = take2(sc, o, 6, 9)  # D[col] = d(F_j, tau_j)/d col, cols q_j then qd_j
+    dF, o = take1(sc, o, 6)
+    # G[m, col]: wrench variation at root m; Ya, Yv: subtree sensitivities; Ms[j, b]: wrench at
+    # root j per unit qdd_j,b; Jw[i, b]: twist of tip i per unit qd_i,b; all in root 0
+    t1, o = take1(sc, o, 6)
+    t2, o = take1(sc, o, 6)
+    vW, o = take1(sc, o, 6)
+    TF, o = take1(sc, o, 9)
+    dq[:, :] = 0.0
+    dv[:, :] = 0.0
+    M[:, :] = 0.0
+    for j in range(n - 1, -1, -1):
+        Tj = T[j]
+        i0 = off + 3 * j
+        # inverse dynamics: (F_j, tau_j) = Q_j + T^T F_{j+1}
+        for k in range(9):
+            acc = 0.0
+            for r in range(6):
+                acc += Tj[r, k] * F[r]
+            TF[k] = acc
+        # composite inertia Mh = M_xi + T^T Ic T and W_j = dQ/dV + T^T (WF - Ic ad(rel1)) T_V
+        # Ic ad(rel1): column s of ad(rel1) is rel1 x e_s
+        for s in range(6):
+            t1[:] = 0.0
+            t1[s] = 1.0
+            _cross(rel1[j], t1, t2)
+            for r in range(6):
+                acc = WF[r, s]
+                for k in range(6):
+                    acc -= Ic[r, k] * t2[k]
+                E[r, s] = acc
+        for r in range(6):
+            for s in range(6):
+                acc = 0.0
+                for k in range(6):
+                    acc += E[r, k] * Tj[k, s]
+                ET[r, s] = acc
+        recursive_project(Mxi[j], Tj, Ic, IcT, Mh)
+        for a in range(9):
+            for b in range(6):
+                acc = QxT[j, b, a]
+                for r in range(6):
+                    acc += Tj[r, a] * ET[r, b]
+                Wj[a, b] = acc
+        # columns of this segment: D[col] = intrinsic + T^T (WF dV1 + Ic dA1) (+ dT^T F for q)
+        for col in range(6):
+            if col < 3:
+                for k in range(9):
+                    D[col, k] = QqT[j, col, k]
+                for r in range(6):
+                    t2[r] = Tj[r, 6 + col]
+                _fcross(t2, F, t1)  # S1_c x* F
+                for r in range(6):
+                    acc = 0.0
+                    for k in range(6):
+                        acc += Tj[k, r] * t1[k]
+                    D[col, r] += acc
+                for b in range(3):
+                    acc = 0.0
+                    for r in range(6):
+                        acc += dS1[j, col, r, b] * F[r]
+                    D[col, 6 + b] += acc
+            else:
+                for k in range(9):
+                    D[col, k] = QxT[j, 6 + col - 3, k]
+            for r in range(6):
+                acc = 0.0
+                for k in range(6):
+                    acc += WF[r, k] * tipV[j, col, k] + Ic[r, k] * tipA[j, col, k]
+                dF[r] = acc
+            for k in range(9):
+                acc = 0.0
+                for r in range(6):
+                    acc += Tj[r, k] * dF[r]
+                D[col, k] += acc
+            for b in range(3):
+                if col < 3:
+                    dq[i0 + b, i0 + col] = D[col, 6 + b]
+                else:
+                    dv[i0 + b, i0 + col - 3] = D[col, 6 + b]
+            _ad_force(Rw[j], pw[j], D[col, :6], G[j, col])
+        # world-frame rows of the subtree sensitivities and the composite columns of M
+        for b in range(3):
+            for r in range(6):
+                t1[r] = Mh[6 + b, r]
+            _ad_force(Rw[j], pw[j], t1, Ya[j, b])
+            _fcross(V[j], t1, t2)
+            for r in range(6):
+                t2[r] += Wj[6 + b, r]
+            _ad_force(Rw[j], pw[j], t2, Yv[j, b])
+            for r in range(6):
+                t1[r] = Mh[r, 6 + b]
+            _ad_force(Rw[j], pw[j], t1, Ms[j, b])
+            for a in range(3):
+                M[i0 + a, i0 + b] = Mh[6 + a, 6 + b]
+            for r in range(6):
+                t2[r] = Tj[r, 6 + b]
+            _ad_twist(Rw[j + 1], pw[j + 1], t2, Jw[j, b])
+        _ad_twist(Rw[j + 1], pw[j + 1], V[j + 1], vW)
+        for col in range(6):
+            _ad_twist(Rw[j + 1], pw[j + 1], tipV[j, col], sig1[j, col])
+            _ad_twist(Rw[j + 1], pw[j + 1], tipA[j, col], sig2[j, col])
+            _cross(sig1[j, col], vW, t1)
+            for r in range(6):
+                sig2[j, col, r] -= t1[r]
+        # move one root inwards
+        for r in range(6):
+            F[r] = Q[j, r] + TF[r]
+            for s in range(6):
+                Ic[r, s] = Mh[r, s]
+                WF[r, s] = Wj[r, s]
+        for b in range(3):
+            tau[j, b] = Q[j, 6 + b] + TF[6 + b]
+    for r in range(6):
+        F0[r] = F[r]
+    # ---------------------------------------------------------------- assembly, O(n^2)
+    for i in range(n):
+        ri = off + 3 * i
+        for m in range(n):
+            cm = off + 3 * m
+            if m == i:
+                continue
+            for b in range(3):
+                for col in range(6):
+                    acc = 0.0
+                    if m < i:
+                        for r in range(6):
+                            acc += Ya[i, b, r] * sig2[m, col, r] + Yv[i, b, r] * sig1[m, col, r]
+                    else:
+                        for r in range(6):
+                            acc += Jw[i, b, r] * G[m, col, r]
+                    if col < 3:
+                        dq[ri + b, cm + col] = acc
+                    else:
+                        dv[ri + b, cm + col - 3] = acc
+            if m > i:
+                for a in range(3):
+                    for b in range(3):
+                        acc = 0.0
+                        for r in range(6):
+                            acc += Jw[i, a, r] * Ms[m, b, r]
+                        M[ri + a, cm + b] = acc
+                        M[cm + b, ri + a] = acc
+    if floating:
+        for m in range(n):
+            cm = off + 3 * m
+            for col in range(6):
+                for r in range(6):
+                    if col < 3:
+                        dq[r, cm + col] = G[m, col, r]
+                    else:
+                        dv[r, cm + col - 3] = G[m, col, r]
+            for b in range(3):
+                for r in range(6):
+                    M[r, cm + b] = Ms[m, b, r]
+                    M[cm + b, r] = Ms[m, b, r]
+        for r in range(6):
+            for s in range(6):
+                M[r, s] = Ic[r, s]
+                dv[r, s] = WF[r, s]
+        # attitude: gravity in the base frame turns, dA0 = (e_k x g_B, 0)
+        sg, o = take2(sc, o, 3, 6)
+        for k in range(3):
+            t1[:] = 0.0
+            t1[k] = 1.0
+            sg[k, :] = 0.0
+            sg[k, 0] = t1[1] * g_B[2] - t1[2] * g_B[1]
+            sg[k, 1] = t1[2] * g_B[0] - t1[0] * g_B[2]
+            sg[k, 2] = t1[0] * g_B[1] - t1[1] * g_B[0]
+            for r in range(6):
+                acc = 0.0
+                for s in range(3):
+                    acc += Ic[r, s] * sg[k, s]
+                dq[r, 3 + k] = acc
+        for i in range(n):
+            ri = off + 3 * i
+            for b in range(3):
+                _fcross(V0, Ya[i, b], t2)  # twist columns: Ya ad(V0) + Yv
+                for k in range(6):
+                    dv[ri + b, k] = Yv[i, b, k] - t2[k]
+                for k in range(3):
+                    acc = 0.0
+                    for s in range(3):
+                        acc += Ya[i, b, s] * sg[k, s]
+                    dq[ri + b, 3 + k] = acc
+
+
+@jit
+def internal_forces_derivatives(q, p, l0, EI, EA, beta, A_ch, r_ch, paper_act, dfq, dfv, sc):
+    """Derivatives of the internal forces ``f = B p - D qd - dU_el/dq`` of
+    :func:`qchain.algorithms.recursive.internal_forces` (material law, curvature coordinates):
+    ``dfq[j] = d(B p)/dq - d^2 U_el/dq^2`` and ``dfv[j] = -D`` (n, 3, 3)."""
+    _internal_forces_derivatives(q, p, l0, EI, EA, beta, A_ch, r_ch, paper_act, dfq, dfv, sc)
+
+
+@jit_helper
+def _internal_forces_derivatives(q, p, l0, EI, EA, beta, A_ch, r_ch, paper_act, dfq, dfv, sc):
+    """:func:`internal_forces_derivatives`, the body the kernels call: compiled into them, without a
+    Python entry point (:data:`qchain.model.arc.jit_helper`)."""
+    o = 0
+    Kp, o = take2(sc, o, 3, 3)
+    H, o = take2(sc, o, 3, 3)
+    D, o = take2(sc, o, 3, 3)
+    for j in range(q.shape[0]):
+        pressure_jacobian_c(q[j], p[j], A_ch[j], r_ch[j], paper_act[j], Kp, sc[o:])
+        elastic_hessian_c(q[j], l0[j], EI[j], EA[j], H)
+        rest_damping_c(l0[j], EI[j], EA[j], beta[j], D)
+        for a in range(3):
+            for b in range(3):
+                dfq[j, a, b] = Kp[a, b] - H[a, b]
+                dfv[j, a, b] = -D[a, b]
+
+
+@jit
+def input_matrices(q, A_ch, r_ch, paper_act, B, sc):
+    """``B[j]`` (3, 3) the input matrix of every segment (:func:`qchain.model.slices.input_matrix_c`)."""
+    _input_matrices(q, A_ch, r_ch, paper_act, B, sc)
+
+
+@jit_helper
+def _input_matrices(q, A_ch, r_ch, paper_act, B, sc):
+    """:func:`input_matrices`, the body the kernels call: compiled into them, without a
+    Python entry point (:data:`qchain.model.arc.jit_helper`)."""
+    for j in range(q.shape[0]):
+        input_matrix_c(q[j], A_ch[j], r_ch[j], paper_act[j], B[j], sc)
+
+
+#: Names of :func:`aba_derivatives_workspace`'s arrays (``Data`` attributes), in order.
+ABA_DERIVATIVES_WORKSPACE = ("f", "a_c", "A0", "a", "L", "rhs", "da_dq", "da_dv", "da_dtau", "da_dp", "dfq", "dfv",
+                             "B")
+
+
+@jit
+def aba_derivatives_workspace(n, nv):
+    """Fresh arrays for :func:`aba_derivatives` (shapes in :mod:`qchain.arm.data`)."""
+    return (np.zeros((n, 3)), np.zeros((n, 3)), np.zeros(6), np.zeros(nv), np.zeros((nv, nv)), np.zeros((nv, nv)),
+            np.zeros((nv, nv)), np.zeros((nv, nv)), np.zeros((nv, nv)), np.zeros((nv, 3 * n)), np.zeros((n, 3, 3)),
+            np.zeros((n, 3, 3)), np.zeros((n, 3, 3)))
+
+
+@jit_helper
+def _zero_locked(locked, off, X, rows, cols):
+    """Zero the rows and/or columns of ``X`` (nv, nv) at the locked coordinates ``locked``
+    (n, 3) (indices ``off + 3 j + b``)."""
+    nv = X.shape[0]
+    for k in range(off, nv):
+        if locked[(k - off) // 3, (k - off) % 3]:
+            for r in range(nv):
+                if rows:
+                    X[k, r] = 0.0
+                if cols:
+                    X[r, k] = 0.0
+
+
+@jit_helper
+def _copy2(src, dst):
+    """``dst[:, :] = src`` element by element (no compile of numba's slice-assignment checks)."""
+    for r in range(src.shape[0]):
+        for c in range(src.shape[1]):
+            dst[r, c] = src[r, c]
+
+
+@jit_helper
+def _matmul(A, B, out):
+    """``out = A B`` by loops (row by row, so the inner loop runs along rows of ``B`` and
+    ``out``): ``np.dot`` with ``out`` needs numba's reference counting, which the compiled
+    engine's callers run without."""
+    for r in range(A.shape[0]):
+        for c in range(B.shape[1]):
+            out[r, c] = 0.0
+        for k in range(A.shape[1]):
+            a = A[r, k]
+            if a != 0.0:
+                for c in range(B.shape[1]):
+                    out[r, c] += a * B[k, c]
+
+
+@jit_helper
+def _chol_inverse(L, k, Minv):
+    """``Minv = (L L^T)^-1`` (k, k) from the lower Cholesky factor ``L``, which is overwritten
+    by its own inverse (lower)."""
+    for j in range(k):
+        L[j, j] = 1.0 / L[j, j]
+        for i in range(j + 1, k):
+            acc = 0.0
+            for s in range(j, i):
+                acc -= L[i, s] * L[s, j]
+            L[i, j] = acc / L[i, i]
+        for i in range(j):
+            L[i, j] = 0.0
+    for i in range(k):
+        for j in range(i + 1):
+            acc = 0.0
+            for s in range(i, k):
+                acc += L[s, i] * L[s, j]
+            Minv[i, j] = acc
+            Minv[j, i] = acc
+
+
+@jit
+def aba_derivatives(alpha, w, offs, mass, radius, l0, EI, EA, beta, A_ch, r_ch, paper_act, locked, floating,
+                    q, qd, p, tau_ext, V0, A_B, g_B, ws, wd, wa, sc):
+    """Forward dynamics and its exact derivatives in one compiled call (curvature coordinates,
+    the material law).
+
+    ``a`` solves ``M a + C v + g + D v + dU_el/dq = B p + tau_ext`` (:func:`qchain.algorithms.recursive.aba`);
+    then ``da/dq = M^-1 (df/dq - dID/dq)``, ``da/dv = M^-1 (df/dv - dID/dv)``, ``da/dtau = M^-1``,
+    ``da/dp = M^-1 B`` with the inverse-dynamics derivatives of :func:`rnea_derivatives` at the
+    solved ``a``. ``locked`` (n, 3) coordinates get zero rows and columns. ``q, qd, p`` (n, 3);
+    ``tau_ext`` (nv,); ``V0`` (6,) the base twist, ``A_B`` (6,) the base's own acceleration
+    (a prescribed base; zeros otherwise), ``g_B`` (3,) gravity in the base frame. ``ws``, ``wd``,
+    ``wa``: :class:`qchain.arm.data.Data`'s aba, rnea-derivative and aba-derivative workspaces.
+    Returns 0, or 1 where an articulated block is not positive definite, 2 where ``M`` is not,
+    3 where ``a`` or a derivative is not finite.
+    """
+    n = q.shape[0]
+    off = 6 if floating else 0
+    f, qdd, A0, a = wa[0], wa[1], wa[2], wa[3]
+    recursive_internal_forces(q, qd, p, l0, EI, EA, beta, A_ch, r_ch, paper_act, f, sc)
+    for j in range(n):
+        for b in range(3):
+            f[j, b] += tau_ext[off + 3 * j + b]
+    o = 0
+    F0, o = take1(sc, o, 6)
+    F0[:] = 0.0
+    Aa, o = take1(sc, o, 6)
+    for r in range(6):
+        Aa[r] = A_B[r]
+        if floating:
+            F0[r] = tau_ext[r]
+    for r in range(3):
+        Aa[r] -= g_B[r]
+    if not recursive_aba(alpha, w, offs, mass, radius, q, qd, f, V0, Aa, floating, F0, qdd, A0, locked, ws, sc[o:]):
+        return 1
+    if floating:
+        for r in range(6):
+            a[r] = A0[r]
+        for r in range(3):
+            a[r] += g_B[r]
+    for j in range(n):
+        for b in range(3):
+            a[off + 3 * j + b] = qdd[j, b]
+    return _aba_derivatives_at(alpha, w, offs, mass, radius, l0, EI, EA, beta, A_ch, r_ch, paper_act, locked, floating,
+                               q, qd, p, qdd, A0, a, V0, g_B, ws, wd, wa, sc)
+
+
+@jit_helper
+def _aba_derivatives_at(alpha, w, offs, mass, radius, l0, EI, EA, beta, A_ch, r_ch, paper_act, locked, floating,
+                        q, qd, p, qdd, A0, a, V0, g_B, ws, wd, wa, sc):
+    """:func:`aba_derivatives` after its forward pass: the derivatives at the solved
+    accelerations ``qdd`` (n, 3), ``A0`` (6,) (the base's apparent acceleration: solved for a
+    floating base, the given one otherwise) and ``a`` (nv,). The compiled engine calls it
+    after its own right-hand side at the same state (:func:`qchain.sim.engine.system.jacobian`),
+    so the forward pass is neither computed nor compiled twice."""
+    n = q.shape[0]
+    off = 6 if floating else 0
+    nv = off + 3 * n
+    L, rhs, da_dq, da_dv, da_dtau, da_dp, dfq, dfv, B = wa[4], wa[5], wa[6], wa[7], wa[8], wa[9], wa[10], wa[11], wa[12]
+    M, dq, dv = wd[18], wd[19], wd[20]
+    _rnea_derivatives(alpha, w, offs, mass, radius, q, qd, qdd, V0, A0, floating, g_B, ws, wd, sc)
+    _internal_forces_derivatives(q, p, l0, EI, EA, beta, A_ch, r_ch, paper_act, dfq, dfv, sc)
+    _input_matrices(q, A_ch, r_ch, paper_act, B, sc)
+    # right-hand sides df - dID, the free block of M with locked coordinates decoupled
+    for r in range(nv):
+        for c in range(nv):
+            da_dq[r, c] = -dq[r, c]
+            da_dv[r, c] = -dv[r, c]
+            L[r, c] = M[r, c]
+    for j in range(n):
+        i0 = off + 3 * j
+        for a_ in range(3):
+            for b in range(3):
+                da_dq[i0 + a_, i0 + b] += dfq[j, a_, b]
+                da_dv[i0 + a_, i0 + b] += dfv[j, a_, b]
+    # locked coordinates: decoupled in M (unit diagonal), zero rows and columns in the results
+    _zero_locked(locked, off, L, True, True)
+    for k in range(off, nv):
+        if locked[(k - off) // 3, (k - off) % 3]:
+            L[k, k] = 1.0
+    if not recursive_chol(L, nv):
+        return 2
+    _chol_inverse(L, nv, da_dtau)
+    _zero_locked(locked, off, da_dtau, True, True)
+    _copy2(da_dq, rhs)
+    _matmul(da_dtau, rhs, da_dq)
+    _copy2(da_dv, rhs)
+    _matmul(da_dtau, rhs, da_dv)
+    _zero_locked(locked, off, da_dq, False, True)
+    _zero_locked(locked, off, da_dv, False, True)
+    for r in range(nv):
+        for j in range(n):
+            i0 = off + 3 * j
+            for i in range(3):
+                acc = 0.0
+                for b in range(3):
+                    acc += da_dtau[r, i0 + b] * B[j, b, i]
+                da_dp[r, 3 * j + i] = acc
+    # a non-finite entry anywhere (a blow-up) is reported, never returned silently
+    for r in range(nv):
+        if not np.isfinite(a[r]):
+            return 3
+        for c in range(nv):
+            if not (np.isfinite(da_dq[r, c]) and np.isfinite(da_dv[r, c])):
+                return 3
+    return 0
+
+
+@jit
+def aba_derivatives_fresh(alpha, w, offs, mass, radius, l0, EI, EA, beta, A_ch, r_ch, paper_act, locked, floating,
+                          q, qd, p, tau_ext, V0, A_B, g_B):
+    """:func:`aba_derivatives` in a workspace made here (no ``Data`` given): returns
+    ``(status, a, da_dq, da_dv, da_dp, da_dtau)`` and boxes only those."""
+    n = q.shape[0]
+    nv = (6 if floating else 0) + 3 * n
+    ws = recursive_aba_workspace(n, nv)
+    wd = rnea_workspace(n, nv)
+    wa = aba_derivatives_workspace(n, nv)
+    status = aba_derivatives(alpha, w, offs, mass, radius, l0, EI, EA, beta, A_ch, r_ch, paper_act, locked, floating,
+                             q, qd, p, tau_ext, V0, A_B, g_B, ws, wd, wa, ws[8])
+    return status, wa[3], wa[6], wa[7], wa[9], wa[8]
+
+
+@jit
+def rnea_derivatives_fresh(alpha, w, offs, mass, radius, q, qd, qdd, V0, A0, floating, g_B):
+    """:func:`rnea_derivatives` in a workspace made here: returns ``(tau_c, F0, dtau_dq,
+    dtau_dv, M)``."""
+    n = q.shape[0]
+    nv = (6 if floating else 0) + 3 * n
+    ws = recursive_aba_workspace(n, nv)
+    wd = rnea_workspace(n, nv)
+    _rnea_derivatives(alpha, w, offs, mass, radius, q, qd, qdd, V0, A0, floating, g_B, ws, wd, ws[8])
+    return wd[16], wd[17], wd[19], wd[20], wd[18]

@@ -1,0 +1,562 @@
+"""Recursive passes over a chain of segments (numba), in the manner of Pinocchio's algorithms.
+
+docs/model.md section 8 derives them: the chain form of the paper's eq. (9), assembled from
+each segment's eq. (6) block ``M_xi`` and slice Newton-Euler integral (section 4).
+
+The passes work on per-segment blocks and plain arrays, never on the ``Chain`` facade:
+
+* ``alpha, w`` (N,), ``offs`` (n + 1,): the Gauss nodes and weights of all segments,
+  segment ``j`` owning ``alpha[offs[j]:offs[j+1]]``;
+* ``mass, radius`` (n,): kg, m;
+* ``q, qd, qdd`` (n, 3): segment configurations and their derivatives in curvature
+  coordinates ``(l, ux, uy)`` (the ``Chain`` maps paper coordinates in and out);
+* ``V0, A0`` (6,): the first root's body twist and "apparent" acceleration in its own
+  frame, ``A0 = a_root - (R^T g, 0)``: gravity enters as an upward acceleration of the base
+  (Featherstone's device), so every pass includes it at no cost.
+
+Root ``j + 1`` is the tip of segment ``j``: its twist is ``T_j xi_j`` with the tip map
+``T_j = Phi_j(1) = [Ad(g_j(1))^-1, S_j(1)]`` (6 x 9), and its acceleration
+``T_j xidot_j + c_j`` with the tip bias acceleration ``c_j = Phidot_j(1) xi_j``.
+
+* :func:`rnea` -- recursive Newton-Euler over the slices, O(n * nodes);
+* :func:`crba` -- composite-body assembly of ``M = sum_j A_j^T M_xi_j A_j``, O(n^2);
+* :func:`aba` -- articulated-body forward dynamics on the 9 x 9 segment blocks, O(n);
+* :func:`frames` -- world frames of the roots and the tip and backbone points, for many
+  configurations in one call (drawing and logging).
+
+``tests/test_chain.py`` holds them to particle brute force, to each other
+(``nle == rnea(q, v, 0)``, ``aba == solve(crba, tau - nle)``) and to ``pinocchio.crba``.
+
+Unchecked by design: compiled kernels whose arguments the checked API has validated
+(``docs/engine.md``, "Unchecked kernels"); call the checked API unless you guarantee them.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..model.arc import SCRATCH, arc_node, arc_pose, jit, jit_helper, take1, take2
+from ..model.slices import (
+    _segment_slices, domain_violation, elastic_gradient_c, input_matrix_c, rest_damping_c, phi_matrix, slice_twist,
+    sub_motion_cross)
+
+__all__ = ["rnea", "crba", "aba", "tip_maps", "frames", "internal_forces", "first_invalid"]
+
+
+@jit_helper
+def _tip(q, qd, xi, T, c, sc):
+    """Tip map ``T = Phi(1)`` (6, 9) and tip bias acceleration ``c = Phidot(1) xi`` (6,)."""
+    o = 0
+    R, o = take2(sc, o, 3, 3)
+    p, o = take1(sc, o, 3)
+    S, o = take2(sc, o, 6, 3)
+    Sd, o = take2(sc, o, 6, 3)
+    arc_node(1.0, q[0], q[1], q[2], qd[0], qd[1], qd[2], R, p, S, Sd)
+    phi_matrix(R, p, S, T)
+    Vr, o = take1(sc, o, 6)
+    zero3, o = take1(sc, o, 3)
+    zero3[:] = 0.0
+    slice_twist(R, p, S, xi[:6], zero3, Vr)
+    rel, o = take1(sc, o, 6)
+    for r in range(6):
+        rel[r] = S[r, 0] * qd[0] + S[r, 1] * qd[1] + S[r, 2] * qd[2]
+        c[r] = Sd[r, 0] * qd[0] + Sd[r, 1] * qd[1] + Sd[r, 2] * qd[2]
+    sub_motion_cross(rel, Vr, c)
+
+
+@jit_helper
+def _matvec(T, x, out):
+    for r in range(T.shape[0]):
+        acc = 0.0
+        for k in range(T.shape[1]):
+            acc += T[r, k] * x[k]
+        out[r] = acc
+
+
+@jit_helper
+def _load_xi(xi, V, qd):
+    """``xi = (V, qd)`` (9,) from a twist (6,) and a segment velocity (3,), element by element:
+    an array-to-array slice assignment (``xi[:6] = V``) costs a compile of numba's shape-mismatch
+    error message (string formatting, seconds) and its code in every kernel library."""
+    for r in range(6):
+        xi[r] = V[r]
+    for r in range(3):
+        xi[6 + r] = qd[r]
+
+
+@jit
+def tip_maps(q, qd, V0, T, c, V):
+    """Forward velocity pass: tip maps ``T`` (n, 6, 9), tip biases ``c`` (n, 6) and root
+    twists ``V`` (n + 1, 6), ``V[0] = V0``, ``V[j + 1] = T_j xi_j`` (docs/model.md section 8)."""
+    n = q.shape[0]
+    sc = np.empty(SCRATCH)  # called from Python, once per call
+    xi, o = take1(sc, 0, 9)
+    for r in range(6):
+        V[0, r] = V0[r]
+    for j in range(n):
+        _load_xi(xi, V[j], qd[j])
+        _tip(q[j], qd[j], xi, T[j], c[j], sc[o:])
+        _matvec(T[j], xi, V[j + 1])
+
+
+@jit
+def rnea(alpha, w, offs, mass, radius, q, qd, qdd, V0, A0, tau, F0, ws, sc):
+    """Inverse dynamics ``tau = M qdd + C qd + g`` (n, 3) and the base wrench ``F0`` (6,): the
+    inertial and gravity terms of the paper's eq. (9) for the chain, by Newton-Euler over the
+    slices (docs/model.md section 8).
+
+    ``F0`` is the wrench (first root frame) the base exerts on the chain: the generalised
+    force of a floating base, the mount's reaction for a fixed or prescribed one. ``ws`` is
+    :meth:`qchain.arm.data.Data.aba_workspace`.
+    """
+    n = q.shape[0]
+    _, T, c, Q, _, _, _, _, _ = ws
+    o = 0
+    xi, o = take1(sc, o, 9)
+    xid, o = take1(sc, o, 9)
+    V, o = take1(sc, o, 6)
+    A, o = take1(sc, o, 6)
+    for r in range(6):
+        V[r] = V0[r]
+        A[r] = A0[r]
+    Mdummy, o = take2(sc, o, 1, 1)
+    F, o = take1(sc, o, 6)
+    out, o = take1(sc, o, 9)
+    for j in range(n):
+        _load_xi(xi, V, qd[j])
+        _load_xi(xid, A, qdd[j])
+        _segment_slices(alpha[offs[j] : offs[j + 1]], w[offs[j] : offs[j + 1]], mass[j], radius[j], q[j], xi, xid,
+                        False, Mdummy, Q[j], sc[o:])
+        _tip(q[j], qd[j], xi, T[j], c[j], sc[o:])
+        _matvec(T[j], xi, V)
+        _matvec(T[j], xid, A)
+        for r in range(6):
+            A[r] += c[j, r]
+    F[:] = 0.0
+    for j in range(n - 1, -1, -1):
+        out[:] = 0.0
+        for r in range(6):  # T^T F
+            for k in range(9):
+                out[k] += T[j, r, k] * F[r]
+        for r in range(6):
+            F[r] = Q[j, r] + out[r]
+        for r in range(3):
+            tau[j, r] = Q[j, 6 + r] + out[6 + r]
+    for r in range(6):
+        F0[r] = F[r]
+
+
+@jit_helper
+def _project(M, T, I, IT, out):
+    """``out = M + T^T I T`` (9, 9): a segment's 9x9 block with the inertia ``I`` (6, 6) of what
+    hangs beyond its tip carried to its root through the tip map ``T`` (6, 9); ``IT`` (6, 9)
+    receives ``I T``."""
+    for r in range(6):
+        for k in range(9):
+            acc = 0.0
+            for s in range(6):
+                acc += I[r, s] * T[s, k]
+            IT[r, k] = acc
+    for a in range(9):
+        for b in range(9):
+            acc = M[a, b]
+            for r in range(6):
+                acc += T[r, a] * IT[r, b]
+            out[a, b] = acc
+
+
+@jit
+def crba(alpha, w, offs, mass, radius, q, floating, H, ws, sc):
+    """Composite-body assembly of the joint-space inertia ``H`` (nv, nv), curvature coordinates
+    (``M = sum_j A_j^T M_xi_j A_j`` of the segments' eq. (6) blocks; docs/model.md section 8).
+
+    Backwards from the tip: the composite inertia ``Ic`` of everything beyond root ``j + 1``
+    gives ``Mh = M_xi_j + T_j^T Ic T_j`` (9 x 9): its ``qq`` block is ``H_jj``, its ``Vq``
+    block the wrench at root ``j`` per unit ``qddot_j``, carried inwards by ``T_i^T`` to give
+    ``H_ij`` (and, for a floating base, ``H_base,j``); its ``VV`` block is the next ``Ic``.
+    ``ws`` is :meth:`qchain.arm.data.Data.aba_workspace`.
+    """
+    n = q.shape[0]
+    off = 6 if floating else 0
+    T = ws[1]
+    o = 0
+    c, o = take1(sc, o, 6)
+    Mj, o = take2(sc, o, 9, 9)
+    Q, o = take1(sc, o, 9)
+    z9, o = take1(sc, o, 9)
+    z9[:] = 0.0
+    z3, o = take1(sc, o, 3)
+    z3[:] = 0.0
+    for j in range(n):
+        _tip(q[j], z3, z9, T[j], c, sc[o:])
+    Ic, o = take2(sc, o, 6, 6)
+    Ic[:, :] = 0.0
+    IcT, o = take2(sc, o, 6, 9)
+    Mh, o = take2(sc, o, 9, 9)
+    F, o = take2(sc, o, 6, 3)
+    Fn, o = take2(sc, o, 6, 3)
+    H[:, :] = 0.0
+    for j in range(n - 1, -1, -1):
+        _segment_slices(alpha[offs[j] : offs[j + 1]], w[offs[j] : offs[j + 1]], mass[j], radius[j], q[j], z9, z9,
+                        True, Mj, Q, sc[o:])
+        _project(Mj, T[j], Ic, IcT, Mh)
+        i0 = off + 3 * j
+        for a in range(3):
+            for b in range(3):
+                H[i0 + a, i0 + b] = Mh[6 + a, 6 + b]
+        for r in range(6):
+            for b in range(3):
+                F[r, b] = Mh[r, 6 + b]
+        for i in range(j - 1, -1, -1):
+            k0 = off + 3 * i
+            for a in range(9):
+                for b in range(3):
+                    acc = 0.0
+                    for r in range(6):
+                        acc += T[i, r, a] * F[r, b]
+                    if a >= 6:
+                        H[k0 + a - 6, i0 + b] = acc
+                        H[i0 + b, k0 + a - 6] = acc
+                    else:
+                        Fn[a, b] = acc
+            for a in range(6):
+                for b in range(3):
+                    F[a, b] = Fn[a, b]
+        if floating:
+            for r in range(6):
+                for b in range(3):
+                    H[r, i0 + b] = F[r, b]
+                    H[i0 + b, r] = F[r, b]
+        for r in range(6):
+            for s in range(6):
+                Ic[r, s] = Mh[r, s]
+    if floating:
+        for r in range(6):
+            for s in range(6):
+                H[r, s] = Ic[r, s]
+
+
+@jit_helper
+def _chol(A, k):
+    """In-place Cholesky ``A = L L^T`` of the leading ``k x k`` block (lower triangle). False if not SPD."""
+    for j in range(k):
+        d = A[j, j]
+        for s in range(j):
+            d -= A[j, s] * A[j, s]
+        if not d > 0.0:
+            return False
+        d = np.sqrt(d)
+        A[j, j] = d
+        for i in range(j + 1, k):
+            acc = A[i, j]
+            for s in range(j):
+                acc -= A[i, s] * A[j, s]
+            A[i, j] = acc / d
+    return True
+
+
+@jit_helper
+def _chol_solve(L, k, b):
+    """Solve ``L L^T x = b`` in place (``b`` of length k)."""
+    for i in range(k):
+        acc = b[i]
+        for s in range(i):
+            acc -= L[i, s] * b[s]
+        b[i] = acc / L[i, i]
+    for i in range(k - 1, -1, -1):
+        acc = b[i]
+        for s in range(i + 1, k):
+            acc -= L[s, i] * b[s]
+        b[i] = acc / L[i, i]
+
+
+@jit
+def aba(alpha, w, offs, mass, radius, q, qd, tau, V0, A0, floating, F0, qdd, A0_out, locked, ws, sc):
+    """Articulated-body forward dynamics: ``qdd`` (n, 3) from ``M qdd + C qd + g = tau`` (the
+    paper's eq. (9) for the chain; docs/model.md section 8).
+
+    ``tau`` (n, 3) is the total generalised force on the segment coordinates (pressure,
+    elastic, damping, external). ``locked`` (n, 3) bool holds coordinates still (ideal
+    constraints: their ``qdd`` is zero, their constraint forces are not computed). For a
+    fixed or prescribed base ``A0`` is the root's
+    apparent acceleration; for a floating base ``F0`` (6,) is the wrench applied to the base
+    and ``A0_out`` receives the solved apparent base acceleration. Returns False if an
+    articulated block is not positive definite (a singular configuration). ``ws`` is
+    :meth:`qchain.arm.data.Data.aba_workspace`.
+    """
+    n = q.shape[0]
+    _, T, c, b, Mall, Lq, U, u, _ = ws
+    o = 0
+    xi, o = take1(sc, o, 9)
+    z9, o = take1(sc, o, 9)
+    z9[:] = 0.0
+    V, o = take1(sc, o, 6)
+    for r in range(6):
+        V[r] = V0[r]
+    IA, o = take2(sc, o, 6, 6)
+    pA, o = take1(sc, o, 6)
+    DiUt, o = take2(sc, o, 3, 6)
+    IAT, o = take2(sc, o, 6, 9)
+    Mh, o = take2(sc, o, 9, 9)
+    bh, o = take1(sc, o, 9)
+    pc, o = take1(sc, o, 6)
+    col, o = take1(sc, o, 3)
+    A, o = take1(sc, o, 6)
+    L6, o = take2(sc, o, 6, 6)
+    xid, o = take1(sc, o, 9)
+    # pass 1: velocities, segment blocks and biases
+    for j in range(n):
+        _load_xi(xi, V, qd[j])
+        _segment_slices(alpha[offs[j] : offs[j + 1]], w[offs[j] : offs[j + 1]], mass[j], radius[j], q[j], xi, z9,
+                        True, Mall[j], b[j], sc[o:])
+        _tip(q[j], qd[j], xi, T[j], c[j], sc[o:])
+        _matvec(T[j], xi, V)
+    # pass 2: articulated inertias, backwards
+    IA[:, :] = 0.0
+    pA[:] = 0.0
+    for j in range(n - 1, -1, -1):
+        for r in range(6):
+            acc = pA[r]
+            for s in range(6):
+                acc += IA[r, s] * c[j, s]
+            pc[r] = acc
+        _project(Mall[j], T[j], IA, IAT, Mh)
+        for a in range(9):
+            acc = b[j, a]
+            for r in range(6):
+                acc += T[j, r, a] * pc[r]
+            bh[a] = acc
+        for a in range(3):
+            for e in range(3):
+                Lq[j, a, e] = Mh[6 + a, 6 + e]
+            u[j, a] = tau[j, a] - bh[6 + a]
+        for r in range(6):
+            for a in range(3):
+                U[j, r, a] = Mh[r, 6 + a]
+        for a in range(3):
+            if locked[j, a]:  # qdd_a = 0: decouple the row and column
+                for e in range(3):
+                    Lq[j, a, e] = 0.0
+                    Lq[j, e, a] = 0.0
+                Lq[j, a, a] = 1.0
+                u[j, a] = 0.0
+                for r in range(6):
+                    U[j, r, a] = 0.0
+        if not _chol(Lq[j], 3):
+            return False
+        # IA = Mh_VV - U D^-1 U^T ; pA = bh_V + U D^-1 u
+        for r in range(6):
+            for a in range(3):
+                col[a] = U[j, r, a]
+            _chol_solve(Lq[j], 3, col)
+            for a in range(3):
+                DiUt[a, r] = col[a]
+        for a in range(3):
+            col[a] = u[j, a]
+        _chol_solve(Lq[j], 3, col)
+        for r in range(6):
+            acc = bh[r]
+            for a in range(3):
+                acc += U[j, r, a] * col[a]
+            pA[r] = acc
+            for s in range(6):
+                acc = Mh[r, s]
+                for a in range(3):
+                    acc -= U[j, r, a] * DiUt[a, s]
+                IA[r, s] = acc
+    # pass 3: accelerations, forwards
+    if floating:
+        for r in range(6):
+            for s in range(6):
+                L6[r, s] = IA[r, s]
+        if not _chol(L6, 6):
+            return False
+        for r in range(6):
+            A[r] = F0[r] - pA[r]
+        _chol_solve(L6, 6, A)
+    else:
+        for r in range(6):
+            A[r] = A0[r]
+    for r in range(6):
+        A0_out[r] = A[r]
+    for j in range(n):
+        for a in range(3):
+            acc = u[j, a]
+            for r in range(6):
+                acc -= U[j, r, a] * A[r]
+            col[a] = acc
+        _chol_solve(Lq[j], 3, col)
+        for a in range(3):
+            qdd[j, a] = col[a]
+        _load_xi(xid, A, col)
+        _matvec(T[j], xid, A)
+        for r in range(6):
+            A[r] += c[j, r]
+    return True
+
+
+@jit_helper
+def _quaternion(R, out):
+    """Unit quaternion ``(x, y, z, w)`` of the rotation ``R`` (3, 3) into ``out`` (4,), with
+    ``w >= 0`` (Pinocchio's ``Quaternion(R).coeffs()`` up to that sign); each entry from the
+    largest of ``1 + trace`` and ``1 + 2 R_ii - trace``, the well-conditioned branch."""
+    tr = R[0, 0] + R[1, 1] + R[2, 2]
+    k = 0
+    best = 1.0 + tr
+    for i in range(3):
+        c = 1.0 + 2.0 * R[i, i] - tr
+        if c > best:
+            best = c
+            k = i + 1
+    s = 2.0 * np.sqrt(best)  # 4 |component k|
+    a = R[2, 1] - R[1, 2]  # 4 w x
+    b = R[0, 2] - R[2, 0]  # 4 w y
+    c = R[1, 0] - R[0, 1]  # 4 w z
+    d = R[0, 1] + R[1, 0]  # 4 x y
+    e = R[0, 2] + R[2, 0]  # 4 x z
+    f = R[1, 2] + R[2, 1]  # 4 y z
+    h = 0.25 * s * s
+    if k == 0:
+        x, y, z, w = a, b, c, h
+    elif k == 1:
+        x, y, z, w = h, d, e, a
+    elif k == 2:
+        x, y, z, w = d, h, f, b
+    else:
+        x, y, z, w = e, f, h, c
+    sign = -1.0 if w < 0.0 else 1.0
+    out[0] = sign * x / s
+    out[1] = sign * y / s
+    out[2] = sign * z / s
+    out[3] = sign * w / s
+
+
+@jit
+def frames(q, paper, R0, o0, alpha, R, o, quat, points):
+    """World frames of ``K`` configurations of an ``n``-segment chain in one call.
+
+    Parameters
+    ----------
+    q : (K, n, 3)            segment configurations: ``(l, ux, uy)``, or the paper's
+                             ``(l, psi, kappa)`` where ``paper`` is set.
+    paper : (n,) bool        segments in the paper's coordinates.
+    R0 : (K, 3, 3)           rotation of the first root (the base) in the world (or
+                             (1, 3, 3): the same for all).
+    o0 : (K, 3)              origin of the first root in the world (m) (or (1, 3)).
+    alpha : (P,)             slice coordinates in [0, 1] of the backbone points (P may be 0).
+    R : (K, n + 1, 3, 3) out world rotations of roots ``0..n-1`` and of the tip (index ``n``).
+    o : (K, n + 1, 3) out    their world origins (m).
+    quat : (K, n + 1, 4) out their rotations as unit quaternions ``(x, y, z, w)``, ``w >= 0``.
+    points : (K, n, P, 3) out world backbone points of each segment at ``alpha`` (m).
+    """
+    K = q.shape[0]
+    n = q.shape[1]
+    P = alpha.shape[0]
+    Rs = np.empty((3, 3))
+    ps = np.empty(3)
+    # Evenly spaced points from 0 to 1 (a drawn backbone's) follow one another by the same
+    # rigid step g(d), a constant-curvature arc's: one arc_pose a segment instead of one a
+    # point (the tip's end point is the tip frame's origin itself).
+    even = P >= 3 and alpha[0] == 0.0 and alpha[P - 1] == 1.0
+    d = alpha[1] if P >= 2 else 0.0
+    for i in range(P):
+        if even and abs(alpha[i] - i * d) > 4e-16:
+            even = False
+    Rd = np.empty((3, 3))
+    pd = np.empty(3)
+    Rw = np.empty((3, 3))
+    ow = np.empty(3)
+    for k in range(K):
+        k0 = min(k, R0.shape[0] - 1)
+        k1 = min(k, o0.shape[0] - 1)
+        for r in range(3):
+            o[k, 0, r] = o0[k1, r]
+            for c in range(3):
+                R[k, 0, r, c] = R0[k0, r, c]
+        for j in range(n):
+            l = q[k, j, 0]
+            if paper[j]:
+                ux = q[k, j, 2] * np.cos(q[k, j, 1])
+                uy = q[k, j, 2] * np.sin(q[k, j, 1])
+            else:
+                ux = q[k, j, 1]
+                uy = q[k, j, 2]
+            Rj = R[k, j]
+            oj = o[k, j]
+            arc_pose(1.0, l, ux, uy, Rs, ps)
+            for r in range(3):
+                o[k, j + 1, r] = oj[r] + Rj[r, 0] * ps[0] + Rj[r, 1] * ps[1] + Rj[r, 2] * ps[2]
+                for c in range(3):
+                    R[k, j + 1, r, c] = Rj[r, 0] * Rs[0, c] + Rj[r, 1] * Rs[1, c] + Rj[r, 2] * Rs[2, c]
+            if even:
+                arc_pose(d, l, ux, uy, Rd, pd)
+                for r in range(3):
+                    ow[r] = oj[r]
+                    points[k, j, 0, r] = oj[r]
+                    points[k, j, P - 1, r] = o[k, j + 1, r]
+                    for c in range(3):
+                        Rw[r, c] = Rj[r, c]
+                for i in range(1, P - 1):
+                    for r in range(3):
+                        ow[r] += Rw[r, 0] * pd[0] + Rw[r, 1] * pd[1] + Rw[r, 2] * pd[2]
+                        points[k, j, i, r] = ow[r]
+                    for r in range(3):
+                        a0, a1, a2 = Rw[r, 0], Rw[r, 1], Rw[r, 2]
+                        for c in range(3):
+                            Rw[r, c] = a0 * Rd[0, c] + a1 * Rd[1, c] + a2 * Rd[2, c]
+            else:
+                for i in range(P):
+                    arc_pose(alpha[i], l, ux, uy, Rs, ps)
+                    for r in range(3):
+                        points[k, j, i, r] = oj[r] + Rj[r, 0] * ps[0] + Rj[r, 1] * ps[1] + Rj[r, 2] * ps[2]
+        for j in range(n + 1):
+            _quaternion(R[k, j], quat[k, j])
+
+
+@jit
+def internal_forces(q, qd, p, l0, EI, EA, beta, A_ch, r_ch, paper_act, out, sc):
+    """``out = B p - D qd - dU_el/dq`` (n, 3), material law, curvature coordinates, with
+    ``D`` of :func:`qchain.model.slices.rest_damping_c` (:func:`qchain.model.slices.input_matrix_c`,
+    :func:`qchain.model.slices.elastic_gradient_c`). These terms are coordinate-free: paper
+    coordinates get ``J^T`` of them.
+    """
+    o = 0
+    B, o = take2(sc, o, 3, 3)
+    g, o = take1(sc, o, 3)
+    D, o = take2(sc, o, 3, 3)
+    for j in range(q.shape[0]):
+        input_matrix_c(q[j], A_ch[j], r_ch[j], paper_act[j], B, sc[o:])
+        elastic_gradient_c(q[j], l0[j], EI[j], EA[j], g)
+        rest_damping_c(l0[j], EI[j], EA[j], beta[j], D)
+        for a in range(3):
+            out[j, a] = -g[a] - D[a, 0] * qd[j, 0] - D[a, 1] * qd[j, 1] - D[a, 2] * qd[j, 2]
+            out[j, a] += B[a, 0] * p[j, 0] + B[a, 1] * p[j, 1] + B[a, 2] * p[j, 2]
+
+
+@jit
+def first_invalid(x, q, radius, paper):
+    """Index of the first segment whose configuration is outside the model, or -1.
+
+    Also -2 if ``x`` (any array checked alongside, e.g. the full q and v) has a
+    non-finite entry. ``q`` (n, 3) segment coordinates, or (K n, 3) for ``K``
+    configurations (row ``j`` is segment ``j % n``); ``radius`` (n,); ``paper`` (n,) bool.
+    """
+    for i in range(x.shape[0]):
+        if not np.isfinite(x[i]):
+            return -2
+    n = radius.shape[0]
+    for jk in range(q.shape[0]):
+        j = jk % n
+        if domain_violation(q[jk, 0], q[jk, 1], q[jk, 2], radius[j], paper[j]):
+            return jk
+    return -1
+
+
+@jit
+def aba_workspace(n, nv):
+    """Fresh arrays for :func:`aba`, :func:`rnea` and :func:`crba` (``Data.aba_workspace``):
+    root twists (n + 1, 6), tip maps (n, 6, 9), tip biases (n, 6), segment forces (n, 9),
+    segment blocks (n, 9, 9), the articulated factors (n, 3, 3), (n, 6, 3), (n, 3) and the
+    scratch (:data:`qchain.model.arc.SCRATCH`,) the passes carve their small temporaries from."""
+    return (np.zeros((n + 1, 6)), np.zeros((n, 6, 9)), np.zeros((n, 6)), np.zeros((n, 9)), np.zeros((n, 9, 9)),
+            np.zeros((n, 3, 3)), np.zeros((n, 6, 3)), np.zeros((n, 3)), np.zeros(SCRATCH))

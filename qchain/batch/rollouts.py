@@ -1,0 +1,489 @@
+"""Many rollouts of one chain at once: ``simulate_batch(chain, q0, v0, t_span, ...) -> BatchTrajectory``.
+
+Each rollout is a call of :func:`qchain.simulate` with the batch's arguments and its
+own initial state and inputs, run on the compiled engine in a pool of worker processes
+(:mod:`qchain.batch.workers`: every core of this machine by default, or a Dask cluster), and its
+result is bit for bit the one ``simulate`` gives with the same arguments, whatever the
+worker count or engine: every rollout is computed on its own, from its own copy of its
+inputs, by the same compiled code.
+
+Before the work fans out, this process compiles the method's engine (a cold numba cache,
+tens of seconds) or loads it, by a one-step run of the first rollout, so the workers only
+load it from the cache and never compile it all at the same time.
+
+A rollout that fails (it leaves the model's domain, blows up, a solver gives up) ends with
+``success = False`` and its message, its samples up to there are kept, and the others go
+on; a worker process that dies costs only its unfinished rollouts, which run again
+(:mod:`qchain.batch.workers`). An exception raised inside a rollout (a controller or an event
+function with a bug) stops the batch with :class:`RolloutError` naming the rollout.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import pickle
+import socket
+import sys
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..arm.chain import Chain
+from ..checks import bounds as _bounds
+from ..errors import QchainError, as_bool, as_real_array, as_vector
+from ..sim.inputs import Schedule, as_input
+from ..sim.budget import Budget, as_budget
+from ..sim.simulation import (
+    COMPILED, DEFAULT_METHOD, FIXED_STEP, METHODS, Event, _check_span, check_settings, run_cost_of, simulate)
+from ..sim.trajectory import Trajectory
+from .workers import DEFAULT_RETRIES, Lost, Payload, check_engine, dumps, engine_for
+
+__all__ = ["simulate_batch", "BatchTrajectory", "RolloutError"]
+
+
+class RolloutError(QchainError):
+    """A rollout of a batch raised an exception (``index``: which; ``detail``: what)."""
+
+    def __init__(self, index: int, detail: str):
+        super().__init__(f"rollout {index} raised {detail}")
+        self.index = index
+        self.detail = detail
+
+    def __reduce__(self):
+        return (RolloutError, (self.index, self.detail))
+
+
+@dataclass
+class BatchTrajectory:
+    """B rollouts on one time grid, rollout-major.
+
+    Attributes
+    ----------
+    t : (N,) s
+        Sample times shared by every rollout.
+    q : (B, N, nq), v : (B, N, nv), p : (B, N, 3 n) Pa
+        States and chamber pressures; after a rollout stopped early its entries are NaN
+        (``nsamples`` says how many it has).
+    kinetic_energy, potential_energy : (B, N) J
+    success : (B,) bool
+    status : (B,) int
+        0 finished, 1 stopped by a terminal event, -1 failed.
+    message : (B,) str
+        Why each rollout ended.
+    nfev, nsteps, nsamples : (B,) int
+        Dynamics evaluations, steps, samples recorded.
+    wall : (B,) s
+        Wall time of each rollout's ``simulate`` call in its worker (``meta["rollouts"][i]
+        ["compile_s"]`` of it went to compiling or loading the engine).
+    meta : dict
+        ``method``, ``engine`` ("serial", "local" or "dask"), ``workers``, ``wall_s`` (the
+        whole call), ``compile_s`` (this process's compile or load before fanning out),
+        ``t_span``, ``rollouts`` (each rollout's ``Trajectory.meta``, with ``worker``:
+        the ``host:pid`` that ran it).
+    """
+
+    t: np.ndarray
+    q: np.ndarray
+    v: np.ndarray
+    p: np.ndarray
+    kinetic_energy: np.ndarray
+    potential_energy: np.ndarray
+    success: np.ndarray
+    status: np.ndarray
+    message: np.ndarray
+    nfev: np.ndarray
+    nsteps: np.ndarray
+    nsamples: np.ndarray
+    wall: np.ndarray
+    meta: dict = field(default_factory=dict)
+
+    def __len__(self) -> int:
+        return int(self.q.shape[0])
+
+    def __getitem__(self, i: int) -> Trajectory:
+        """Rollout ``i`` as the :class:`~qchain.sim.trajectory.Trajectory` ``simulate`` returns."""
+        B = len(self)
+        if not isinstance(i, (int, np.integer)) or isinstance(i, (bool, np.bool_)) or not -B <= i < B:
+            raise IndexError(f"rollout index must be an int in [-{B}, {B}), got {i!r}")
+        i = int(i) % B
+        K = int(self.nsamples[i])
+        tr = Trajectory(t=self.t[:K].copy(), q=self.q[i, :K].copy(), v=self.v[i, :K].copy(), p=self.p[i, :K].copy(),
+                        kinetic_energy=self.kinetic_energy[i, :K].copy(),
+                        potential_energy=self.potential_energy[i, :K].copy(), success=bool(self.success[i]),
+                        message=str(self.message[i]), nfev=int(self.nfev[i]), status=int(self.status[i]))
+        tr.meta.update(self.meta["rollouts"][i])
+        return tr
+
+    def __iter__(self):
+        return (self[i] for i in range(len(self)))
+
+    @property
+    def total_energy(self) -> np.ndarray:
+        """``kinetic_energy + potential_energy`` (B, N) J."""
+        return self.kinetic_energy + self.potential_energy
+
+    @property
+    def valid(self) -> np.ndarray:
+        """(B, N) bool: which samples each rollout reached."""
+        return np.arange(self.t.size)[None, :] < self.nsamples[:, None]
+
+    @property
+    def n_failed(self) -> int:
+        return int(np.count_nonzero(~self.success))
+
+    @property
+    def simulated_seconds(self) -> float:
+        """Simulated time over all rollouts (s): the sum of each one's reached span."""
+        t0 = self.meta["t_span"][0]
+        ends = np.array([self.t[k - 1] if k else t0 for k in self.nsamples])
+        return float(np.sum(ends - t0))
+
+
+# ------------------------------------------------------------------------------ inputs
+
+
+def _batched_input(name: str, u, size: int) -> tuple[object, list | None]:
+    """``(shared, per_rollout)``: one input for every rollout, or a list of B of them."""
+    if u is None or isinstance(u, Schedule) or callable(u):
+        as_input(name, u, size)
+        return u, None
+    if isinstance(u, np.ndarray) or (isinstance(u, (list, tuple)) and not any(
+            x is None or isinstance(x, Schedule) or callable(x) for x in u)):
+        try:  # real numbers only: booleans, strings and complex numbers are refused by name
+            arr = as_real_array(name, u)
+        except ValueError:  # ragged: a sequence of B inputs of their own
+            arr = None
+        if arr is not None and arr.ndim == 1:
+            as_input(name, arr, size)  # its bounds too (a pressure within qchain.checks.bounds.PRESSURE)
+            return arr, None
+        if arr is not None and arr.ndim == 2:
+            if arr.shape[1] != size:
+                raise ValueError(f"{name} as an array of constants must have shape (B, {size}), got {arr.shape}")
+            for i in range(arr.shape[0]):
+                as_input(f"{name}[{i}]", arr[i], size)
+            return None, [arr[i] for i in range(arr.shape[0])]
+        if arr is not None:
+            raise ValueError(f"{name} must be one input, an array (B, {size}) of constants or a sequence of B inputs; "
+                             f"got an array of shape {arr.shape}")
+    if isinstance(u, (list, tuple)):
+        for i, x in enumerate(u):
+            as_input(f"{name}[{i}]", x, size)
+        return None, list(u)
+    raise TypeError(f"{name} must be None, a constant (3 n,), a schedule, a controller, an array (B, {size}) or a "
+                    f"sequence of B inputs; got {type(u).__name__}")
+
+
+def _states(name: str, x, size: int) -> np.ndarray:
+    arr = as_real_array(name, x)  # booleans, strings and complex numbers refused by name, never cast
+    if arr.ndim == 1:
+        return arr
+    if arr.ndim != 2 or arr.shape[1] != size:
+        raise ValueError(f"{name} must have shape (B, {size}) (or ({size},), the same for every rollout), "
+                         f"got shape {arr.shape}")
+    return arr
+
+
+def _batch_size(sizes: dict[str, int]) -> int:
+    if not sizes:
+        raise ValueError("simulate_batch needs a batch: q0 of shape (B, nq), v0 of shape (B, nv), or pressure or "
+                         "tau given per rollout (an array (B, size) or a sequence of B inputs)")
+    values = set(sizes.values())
+    if len(values) > 1:
+        desc = ", ".join(f"{k} has {b}" for k, b in sizes.items())
+        raise ValueError(f"the batched arguments disagree on the batch size B: {desc} rollouts")
+    B = values.pop()
+    if B < 1:
+        raise ValueError(f"the batch is empty: {', '.join(sizes)} give B = 0 rollouts")
+    return B
+
+
+def _as_item(u, what: str):
+    """A rollout's input as it travels: None, an array, or pickled (a schedule or a
+    controller: each rollout unpickles its own copy, so none sees another's state)."""
+    if u is None or isinstance(u, np.ndarray):
+        return u
+    return dumps(u, what)
+
+
+def _from_item(x):
+    return pickle.loads(x) if isinstance(x, bytes) else x
+
+
+# ------------------------------------------------------------------------------ the rollouts
+
+
+@dataclass
+class _Shared:
+    chain: Chain
+    t_span: tuple[float, float]
+    kw: dict  # simulate's keyword arguments shared by every rollout (inputs and events pickled)
+    each: dict  # "pressure", "tau": whether the items carry their own
+
+
+def _inputs(shared: _Shared, item) -> dict:
+    """simulate's keyword arguments for one rollout, with fresh copies of its inputs."""
+    _, _, _, p, tau = item
+    kw = dict(shared.kw)
+    kw["pressure"] = _from_item(p if shared.each["pressure"] else kw["pressure"])
+    kw["tau"] = _from_item(tau if shared.each["tau"] else kw["tau"])
+    kw["events"] = _from_item(kw["events"])
+    return kw
+
+
+def _rollouts(shared: _Shared, items: list) -> list:
+    """In a worker (or this process): run each ``(index, q0, v0, pressure, tau)``; returns
+    ``(Trajectory, wall seconds)`` each."""
+    out = []
+    for item in items:
+        i, q0, v0 = item[:3]
+        kw = _inputs(shared, item)
+        w0 = time.perf_counter()
+        try:
+            tr = simulate(shared.chain, q0, v0, shared.t_span, **kw)
+        except Exception as err:
+            raise RolloutError(i, f"{type(err).__name__}: {err}") from err
+        wall = time.perf_counter() - w0
+        tr.meta["worker"] = f"{socket.gethostname()}:{os.getpid()}"
+        out.append((tr, wall))
+    return out
+
+
+def _warm(shared: _Shared, item) -> float:
+    """A one-step run of ``item`` (compiles or loads the engine); returns its wall time."""
+    t0 = shared.t_span[0]
+    kw = _inputs(shared, item)
+    kw["t_eval"] = None
+    kw["wall_limit"] = None
+    span = kw["dt"] if kw["method"] in FIXED_STEP else 1e-6
+    w0 = time.perf_counter()
+    try:
+        simulate(shared.chain, item[1], item[2], (t0, t0 + span), **kw)
+    except Exception as err:  # what rollout item[0] would raise at its first step
+        raise RolloutError(item[0], f"{type(err).__name__}: {err}") from err
+    return time.perf_counter() - w0
+
+
+def _warm_first(shared_and_item) -> float:
+    shared, item = shared_and_item
+    return _warm(shared, item)
+
+
+def simulate_batch(
+    chain: Chain,
+    q0,
+    v0,
+    t_span: Sequence[float],
+    *,
+    pressure=None,
+    tau=None,
+    method: str = DEFAULT_METHOD,
+    dt: float | None = None,
+    rtol: float = 1e-6,
+    atol: float = 1e-8,
+    t_eval=None,
+    events: Sequence[Event] | None = None,
+    max_step: float = np.inf,
+    first_step: float | None = None,
+    energies: bool = True,
+    wall_limit: float | None = None,
+    controller_rate: float | None = None,
+    budget: Budget | None = None,
+    workers=None,
+    client=None,
+    retries: int = DEFAULT_RETRIES,
+    progress: bool = False,
+) -> BatchTrajectory:
+    """Run B rollouts of ``chain`` at once; each equals ``simulate`` with the same arguments.
+
+    Parameters
+    ----------
+    chain : Chain
+    q0 : (B, nq) or (nq,)
+        Initial configurations, one a rollout (or one for all).
+    v0 : (B, nv) or (nv,)
+        Initial velocities.
+    t_span : (t0, t1) s
+        Shared by every rollout.
+    pressure : input or per-rollout inputs
+        One input for every rollout (None, a constant (3 n,) Pa, a schedule of
+        :mod:`qchain.sim.inputs`, a controller ``(t, q, v) -> (3 n,)``), an array (B, 3 n) of
+        constants, or a sequence of B inputs.
+    tau : input or per-rollout inputs
+        External generalised forces, in the same forms with size nv.
+    method, dt, rtol, atol, events, max_step, first_step, energies, wall_limit, controller_rate, budget
+        As :func:`qchain.simulate`, shared by every rollout (a rollout's cost is
+        checked against ``budget`` here, before any runs).
+    t_eval : (N,) s
+        Output times, shared. Required for the adaptive methods (each rollout takes its
+        own steps); for ``rk4`` and ``midpoint`` without events the default is every step.
+    workers : int, None or LocalPool
+        Worker processes on this machine: None or -1 every core (default), 1 runs the
+        rollouts in this process one after the other, up to 1024
+        (:data:`qchain.checks.bounds.WORKERS`), or a :class:`qchain.batch.workers.LocalPool`.
+    client : dask.distributed.Client, str or DaskEngine, optional
+        Run on a Dask cluster instead (a client, or a scheduler address ``tcp://HOST:PORT``).
+    retries : int
+        Times a rollout runs again after the worker process running it died, 0 to 100
+        (:data:`qchain.checks.bounds.RETRIES`).
+    progress : bool
+        A progress bar (tqdm) on stderr, one step a finished rollout.
+
+    Returns
+    -------
+    BatchTrajectory
+        ``batch[i]`` is rollout ``i`` as a :class:`~qchain.sim.trajectory.Trajectory`.
+
+    Raises
+    ------
+    ValueError, TypeError
+        Bad arguments, naming the argument (and the rollout), before anything runs.
+    RolloutError
+        A rollout raised an exception (a controller or an event function failing).
+    """
+    if not isinstance(chain, Chain):
+        raise TypeError(f"chain must be a qchain.Chain, got {type(chain).__name__}")
+    if not isinstance(method, str) or method not in METHODS:
+        raise ValueError(f"method must be one of {METHODS}, got {method!r}")
+    t0, t1 = _check_span(t_span)  # the checks of simulate, here where the arguments enter
+    retries = check_engine(workers, client, retries)
+    for name, val, rng in (("rtol", rtol, _bounds.RTOL), ("atol", atol, _bounds.ATOL)):
+        if isinstance(val, (int, float, np.integer, np.floating)) and not isinstance(val, (bool, np.bool_)) and val <= 0:
+            raise ValueError(f"{name} must be > 0, got {val!r} (it must be {rng.what()})")
+    progress = as_bool("progress", progress)
+    cfg = check_settings(chain, t0, t1, method=method, dt=dt, rtol=rtol, atol=atol, max_step=max_step,
+                         first_step=first_step, wall_limit=wall_limit, t_eval=t_eval, energies=energies,
+                         progress=False, on_sample=None, events=events, controller_rate=controller_rate)
+    dt, rtol, atol, max_step, first_step = cfg["dt"], cfg["rtol"], cfg["atol"], cfg["max_step"], cfg["first_step"]
+    wall_limit, t_eval, energies, events = cfg["wall_limit"], cfg["t_eval"], cfg["energies"], cfg["events"]
+    controller_rate = cfg["controller_rate"]
+    if t_eval is None and (method not in FIXED_STEP or events):
+        raise ValueError(f"t_eval is required for method {method!r}{' with events' if events else ''}: each rollout "
+                         "takes its own steps, and a batch shares one time grid; give the output times (N,) s")
+    if t_eval is not None:
+        t_eval = np.array(t_eval)  # the batch's own copy (BatchTrajectory.t is made from it)
+    Q0 = _states("q0", q0, chain.nq)
+    V0 = _states("v0", v0, chain.nv)
+    p_shared, p_each = _batched_input("pressure", pressure, chain.nu)
+    tau_shared, tau_each = _batched_input("tau", tau, chain.nv)
+    # a rollout's cost against the budget (qchain.sim.budget), before anything runs
+    budget = as_budget(budget)
+    cost = run_cost_of(chain, t0, t1, method=method, dt=dt, max_step=max_step, t_eval=t_eval,
+                       inputs=(p_shared, tau_shared, *(p_each or ()), *(tau_each or ())), controller_rate=controller_rate)
+    budget.check(cost)
+    sizes = {name: len(x) for name, x in (("q0", Q0 if Q0.ndim == 2 else None), ("v0", V0 if V0.ndim == 2 else None),
+                                          ("pressure", p_each), ("tau", tau_each)) if x is not None}
+    B = _batch_size(sizes)
+    # the batch's results are held together: B rollouts' samples against the memory budget
+    held = B * (cost.memory - cost.matrix_memory) + cost.matrix_memory
+    if held > budget.max_memory:
+        budget.check(dataclasses.replace(cost, memory=held, memory_why=f"{B} rollouts x ({cost.memory_why})"),
+                     how="pass budget=qchain.sim.budget.Budget(...) to allow more, or run fewer rollouts a call")
+    for i in range(B):  # every start inside the model, checked here where it enters
+        qi = Q0[i] if Q0.ndim == 2 else Q0
+        vi = V0[i] if V0.ndim == 2 else V0
+        try:
+            qi = chain._q(qi, f"q0[{i}]")
+            vi = as_vector(f"v0[{i}]", vi, chain.nv)
+            st = chain._state(qi, vi, t=t0)
+            if chain._any_locked:
+                chain._check_locks(st.q_e, st.v_e)
+        except (QchainError, ValueError) as err:
+            raise ValueError(f"rollout {i}: q0[{i}], v0[{i}]: {err}") from err
+
+    kw = dict(method=method, dt=dt, rtol=rtol, atol=atol, t_eval=t_eval, max_step=max_step, first_step=first_step,
+              energies=energies, wall_limit=wall_limit, controller_rate=controller_rate, budget=budget,
+              pressure=_as_item(p_shared, "pressure"), tau=_as_item(tau_shared, "tau"), events=_as_item(events, "events"))
+    items = [(i, Q0[i] if Q0.ndim == 2 else Q0, V0[i] if V0.ndim == 2 else V0,
+              None if p_each is None else _as_item(p_each[i], f"pressure[{i}]"),
+              None if tau_each is None else _as_item(tau_each[i], f"tau[{i}]")) for i in range(B)]
+    shared = _Shared(chain=chain, t_span=(t0, t1), kw=kw, each={"pressure": p_each is not None, "tau": tau_each is not None})
+
+    w_start = time.perf_counter()
+    engine = engine_for(workers, client, tasks=B)
+    compile_s = 0.0
+    results: list = [None] * B
+    bar = _bar(B, progress)
+    try:
+        if engine is None:
+            name, n_workers = "serial", 1
+            for k, item in enumerate(items):
+                results[k] = _rollouts(shared, [item])[0]
+                bar.update(1)
+        else:
+            name, n_workers = engine.kind, engine.workers
+            payload = Payload.of(shared, "the chain and the shared inputs")
+            if method in COMPILED:  # compile or load the engine here once; the workers load it from the cache
+                compile_s = _warm(shared, items[0])
+                engine.warm(_warm_first, Payload.of((shared, items[0])), key=_engine_key(chain, method))
+            for i, res in engine.map(_rollouts, payload, items, retries=retries):
+                results[i] = res
+                bar.update(1)
+    finally:
+        bar.close()
+        if engine is not None and isinstance(client, str):  # a client this call connected
+            engine.close()
+    wall_s = time.perf_counter() - w_start
+    return _assemble(chain, results, t_eval, (t0, t1), dict(method=method, engine=name, workers=n_workers,
+                                                                wall_s=wall_s, compile_s=compile_s, t_span=(t0, t1)))
+
+
+def _engine_key(chain: Chain, method: str):
+    return ("rollout", method, bool(chain.planar))
+
+
+def _bar(total: int, enabled: bool):
+    if enabled:
+        from tqdm import tqdm
+
+        return tqdm(total=total, unit="rollout", file=sys.stderr, smoothing=0.1)
+    return _NoBar()
+
+
+class _NoBar:
+    def update(self, n=1):
+        pass
+
+    def close(self):
+        pass
+
+
+def _assemble(chain: Chain, results: list, t_eval, t_span, meta: dict) -> BatchTrajectory:
+    B = len(results)
+    trajs = [None if isinstance(r, Lost) else r[0] for r in results]
+    if t_eval is not None:
+        t = t_eval.copy()
+    else:  # a fixed step: every rollout's samples are the same grid, up to where it stopped
+        t = max((tr.t for tr in trajs if tr is not None), key=len, default=np.zeros(0))
+    N = t.size
+    q = np.full((B, N, chain.nq), np.nan)
+    v = np.full((B, N, chain.nv), np.nan)
+    p = np.full((B, N, chain.nu), np.nan)
+    ke = np.full((B, N), np.nan)
+    pe = np.full((B, N), np.nan)
+    success = np.zeros(B, bool)
+    status = np.full(B, -1, int)
+    message = np.empty(B, object)
+    nfev = np.zeros(B, int)
+    nsteps = np.zeros(B, int)
+    nsamples = np.zeros(B, int)
+    wall = np.full(B, np.nan)
+    rollouts = []
+    for i, (r, tr) in enumerate(zip(results, trajs)):
+        if tr is None:
+            message[i] = f"not run: {r.message}"
+            rollouts.append({"method": meta["method"], "lost": r.message, "attempts": r.attempts})
+            continue
+        K = len(tr.t)
+        if not np.array_equal(tr.t, t[:K]):  # the batch's one time grid is every rollout's
+            raise AssertionError(f"rollout {i} was sampled at other times than the batch's grid")
+        q[i, :K], v[i, :K], p[i, :K] = tr.q, tr.v, tr.p
+        ke[i, :K], pe[i, :K] = tr.kinetic_energy, tr.potential_energy
+        success[i], status[i], message[i] = tr.success, tr.status, tr.message
+        nfev[i], nsteps[i], nsamples[i], wall[i] = tr.nfev, tr.meta.get("nsteps", 0), K, r[1]
+        rollouts.append(dict(tr.meta))
+    meta["rollouts"] = rollouts
+    return BatchTrajectory(t=t, q=q, v=v, p=p, kinetic_energy=ke, potential_energy=pe, success=success, status=status,
+                           message=message, nfev=nfev, nsteps=nsteps, nsamples=nsamples, wall=wall, meta=meta)

@@ -1,0 +1,288 @@
+"""The command line's errors: one line on stderr with the right exit code, never a
+traceback (``--debug`` shows it); warnings one line each; Ctrl-C reported once.
+
+Exit codes: :data:`EXIT_OK` 0, :data:`EXIT_FAILED` 1 (the run failed or stopped),
+:data:`EXIT_USAGE` 2 (bad input, refused before anything ran); docs/cli.md.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+import traceback
+
+from ..checks.text import printable
+
+EXIT_OK, EXIT_FAILED, EXIT_USAGE = 0, 1, 2
+DEBUG_HINT = "(run with --debug for the traceback)"
+
+# --------------------------------------------------------------------------------------
+# errors: one line, the right exit code
+
+
+class BadInput(Exception):
+    """Input the command refuses before anything runs (exit code 2); the message says why."""
+
+
+class _Session:
+    """What :func:`main` knows of the command while it runs, for its error lines.
+
+    ``phase`` is ``"start"`` until the simulation starts (an error then is the input's:
+    exit code 2), ``"run"`` while it runs and ``"end"`` after it (exit code 1).
+    """
+
+    def __init__(self, command: str):
+        self.command = command
+        self.phase = "start"
+        self.reached: float | None = None
+        self.sigints = 0  # Ctrl-C seen (some library code swallows the KeyboardInterrupt: see check_interrupt)
+        self.reported = 0  # of them, said already
+
+    def on_sigint(self, signum, frame):
+        """The SIGINT handler while the command runs: Python's own, counting."""
+        self.sigints += 1
+        raise KeyboardInterrupt
+
+    def check_interrupt(self) -> None:
+        """Raise ``KeyboardInterrupt`` if Ctrl-C came during start-up and was swallowed
+        (an exception in a ctypes callback, such as llvmlite's while numba loads the
+        engine, is printed and dropped): start-up stops at the next check instead of
+        running anyway."""
+        if self.sigints > self.reported and self.phase == "start":
+            raise KeyboardInterrupt
+
+    @property
+    def prog(self) -> str:
+        return f"qchain {self.command}" if self.command else "qchain"
+
+    def where(self) -> str:
+        if self.phase == "start":
+            return " during start-up (nothing was run)"
+        if self.reached is not None:
+            return f" at t = {self.reached:.6g} s"
+        return ""
+
+
+def _instance(err: BaseException, module: str, name: str) -> bool:
+    """Whether ``err`` is a ``module.name`` (without importing the module: an error of a
+    module never imported is not one of its classes)."""
+    cls = getattr(sys.modules.get(module), name, None)
+    return isinstance(cls, type) and isinstance(err, cls)
+
+
+def _one_line(text: str, limit: int = 2000) -> str:
+    text = printable(" ".join(str(text).split()))  # lines folded into one, then what a terminal would act on escaped
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
+def report_error(prog: str, err: BaseException, debug: bool = False, started: bool = False) -> int:
+    """Print the error line of ``err`` on stderr (and its traceback first with ``debug``);
+    return the exit code.
+
+    Parameters
+    ----------
+    prog : str
+        ``"qchain run"``: what the line starts with.
+    err : Exception
+    debug : bool
+        Print the traceback too.
+    started : bool
+        The run had started: an error is the run's (1), not the input's (2).
+
+    Returns
+    -------
+    int
+        2 for bad input (a scene or sweep file, a budget, a usage error, a value refused
+        before the run started), 1 otherwise.
+    """
+    if debug:
+        traceback.print_exception(err)
+    if isinstance(err, BadInput) or _instance(err, "qchain.scene.format", "SceneError") or \
+            _instance(err, "qchain.sim.budget", "BudgetError"):
+        code, text, foreseen = EXIT_USAGE, str(err), True  # a scene file's problems: one a line
+    elif isinstance(err, ValueError) or _instance(err, "qchain.errors", "QchainError"):
+        code, text, foreseen = (EXIT_FAILED if started else EXIT_USAGE), _one_line(err), True
+    elif isinstance(err, OSError):
+        code, text, foreseen = EXIT_FAILED, _one_line(err), True
+    elif isinstance(err, MemoryError):
+        code, text, foreseen = EXIT_FAILED, "out of memory", True
+    else:
+        code, text, foreseen = EXIT_FAILED, _one_line(f"{type(err).__name__}: {err}"), False
+    if not str(text).strip():
+        text = type(err).__name__
+    line = f"{prog}: error: {text}"
+    if not foreseen and not debug:
+        line += f" {DEBUG_HINT}"
+    print(line, file=sys.stderr, flush=True)
+    return code
+
+
+def take_debug(argv: list[str]) -> tuple[list[str], bool]:
+    """``argv`` without its ``--debug`` flags (before a ``--``), and whether there was one."""
+    if "--debug" not in argv:
+        return argv, False
+    stop = argv.index("--") if "--" in argv else len(argv)
+    debug = "--debug" in argv[:stop]
+    return [a for a in argv[:stop] if a != "--debug"] + argv[stop:], debug
+
+
+def _exit_code(exc: SystemExit, prog: str = "qchain") -> int:
+    if exc.code is None:
+        return EXIT_OK
+    if isinstance(exc.code, int):
+        return exc.code
+    print(f"{prog}: error: {_one_line(exc.code)}", file=sys.stderr)  # sys.exit("message")
+    return EXIT_USAGE
+
+
+def guarded(prog: str, body, debug: bool = False, session: _Session | None = None) -> int:
+    """``body()``'s exit code, with every exception turned into one line on stderr and its
+    exit code (:func:`report_error`); Ctrl-C is one line and exit code 1.
+
+    Parameters
+    ----------
+    prog : str
+        What the lines start with (``"qchain sweep"``).
+    body : callable () -> int or None
+    debug : bool
+        Print tracebacks too.
+    session : _Session, optional
+        Where the command is (start-up, running): the exit code of an error and the words
+        of an interrupt.
+    """
+    session = session or _Session(prog.removeprefix("qchain").strip())
+    try:
+        code = int(body() or 0)
+        session.check_interrupt()
+        return code
+    except SystemExit as exc:  # argparse: --help, --version (0) and usage errors (2)
+        return _exit_code(exc, prog)
+    except KeyboardInterrupt as exc:
+        session.reported = session.sigints
+        if debug:
+            traceback.print_exception(exc)
+        print(f"{prog}: interrupted{session.where()}", file=sys.stderr, flush=True)
+        return EXIT_FAILED
+    except BrokenPipeError:  # the reader of stdout went away (qchain info x | head): nothing to say
+        try:
+            devnull = os.open(os.devnull, os.O_WRONLY)
+            os.dup2(devnull, sys.stdout.fileno())  # no second error when Python flushes stdout at exit
+        except (OSError, ValueError, AttributeError):
+            pass
+        return EXIT_FAILED
+    except Exception as err:  # noqa: BLE001 - the one place every error becomes a line
+        return report_error(prog, err, debug, started=session.phase != "start")
+
+
+def _forget_unhandled_interrupt() -> None:
+    """Let the process end with its exit code after a Ctrl-C it handled.
+
+    CPython remembers a ``KeyboardInterrupt`` that left code run through ``PyRun_String``
+    (Boost.Python runs such code while Pinocchio loads) and, although the command caught
+    it later, ends the process by SIGINT at exit instead of with the exit code; running a
+    statement through the same function makes it forget.
+    """
+    try:
+        import ctypes
+
+        ctypes.pythonapi.PyRun_SimpleString(b"pass")
+    except Exception:  # noqa: BLE001 - not CPython: nothing to forget
+        pass
+
+
+def _show_warnings(prog: str):
+    """A ``warnings.showwarning`` that prints ``prog: warning: MESSAGE``, one line."""
+
+    def show(message, category, filename, lineno, file=None, line=None):
+        text = str(message).removeprefix("qchain.logging: ")
+        try:
+            print(f"{prog}: warning: {_one_line(text)}", file=sys.stderr if file is None else file, flush=True)
+        except (OSError, ValueError):
+            pass
+
+    return show
+
+
+def _tolerant_streams() -> set[str]:
+    """Let stdout and stderr print any path (a file name that is not UTF-8, a character the
+    locale's encoding lacks, e.g. under ``LC_ALL=C``: shown escaped instead of raising
+    ``UnicodeEncodeError``), and give a closed stdout or stderr (``>&-``) a place to go
+    (``os.devnull``), so that printing never stops a run. Returns the names of those that
+    were closed."""
+    closed = set()
+    for fd, name in ((1, "stdout"), (2, "stderr")):
+        try:
+            os.fstat(fd)
+        except OSError:  # closed: a file opened later (the recording) must not take its number
+            closed.add(name)
+            try:
+                null = os.open(os.devnull, os.O_WRONLY)
+                if null != fd:
+                    os.dup2(null, fd)
+                    os.close(null)
+            except OSError:
+                pass
+        if getattr(sys, name) is None:
+            try:
+                setattr(sys, name, open(os.devnull, "w", encoding="utf-8"))
+            except OSError:
+                pass
+    for stream in (sys.stdout, sys.stderr):
+        if getattr(stream, "errors", None) not in (None, "backslashreplace") and hasattr(stream, "reconfigure"):
+            try:
+                stream.reconfigure(errors="backslashreplace")
+            except (ValueError, OSError, AttributeError, TypeError):
+                pass
+    return closed
+
+
+class SummaryOutput:
+    """``sys.stdout`` while a command runs: the same stream, except that an error writing to
+    it (a closed pipe, ``/dev/full``: EPIPE, ENOSPC) does not stop the command or lose its
+    recording. It is said once on stderr (``PROG: warning: standard output: ... (the rest of
+    the summary is not shown)``) and what is printed after it is dropped."""
+
+    def __init__(self, stream, prog: str = "qchain"):
+        self._stream = stream
+        self._prog = prog
+        self.failed: OSError | None = None
+
+    def _fail(self, err: OSError) -> None:
+        if self.failed is None:
+            self.failed = err
+            try:
+                print(f"{self._prog}: warning: standard output: {err.strerror or err} (the rest of the summary is "
+                      "not shown)", file=sys.stderr, flush=True)
+            except (OSError, ValueError):
+                pass
+        try:  # what is left in the stream's buffer goes nowhere, also when Python exits
+            fd = self._stream.fileno()
+            null = os.open(os.devnull, os.O_WRONLY)
+            os.dup2(null, fd)
+            os.close(null)
+        except (OSError, ValueError, AttributeError):
+            pass
+
+    def write(self, text):
+        if self.failed is not None:
+            return len(text)
+        try:
+            return self._stream.write(text)
+        except OSError as err:
+            self._fail(err)
+            return len(text)
+
+    def writelines(self, lines):
+        for line in lines:
+            self.write(line)
+
+    def flush(self):
+        if self.failed is not None:
+            return
+        try:
+            self._stream.flush()
+        except OSError as err:
+            self._fail(err)
+
+    def __getattr__(self, name):
+        return getattr(self._stream, name)

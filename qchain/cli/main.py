@@ -1,0 +1,519 @@
+"""The ``qchain`` command: run a scene file, describe the model it builds, replay a recording.
+
+::
+
+    qchain run SCENE.toml [--duration S] [--out DIR] [--full] [--no-plots] [--no-record]
+                          [--progress | --no-progress] [--mcap OUT] [--serve | --connect URL] [--rrd OUT]
+                          [--rerun-rate HZ] [--viewer-timeout S]
+    qchain info SCENE.toml [--full]
+    qchain replay LOG.mcap [--serve | --connect URL | --rrd OUT]
+    qchain sweep SWEEP.toml [--workers N | --dask ADDRESS] [--out DIR] [--restart] [--dry-run] (qchain.batch.sweeps)
+    qchain recover LOG.mcap
+    qchain layout LOG.mcap [-o layout.json]
+    qchain bench [--quick] [--out DIR]
+    qchain --version
+    python -m qchain ...                    (the same command)
+
+``--debug``, anywhere on the line, prints the traceback of an error as well as its line.
+
+``run`` builds the scene's model (:meth:`qchain.scene.Scene.build`), integrates it,
+writes the plots and ``trajectory.npz`` the scene's ``[output]`` asks for, and prints a
+summary: the final tip pose (position in mm, orientation as roll-pitch-yaw in degrees and
+as a quaternion), the energies, the wall time, the real-time factor (simulated seconds per
+wall-clock second), the number of dynamics evaluations and how the run ended. A progress
+bar goes to stderr for runs longer than a second of wall time when stderr is a terminal
+(``--progress`` forces it); to a log or a pipe, a plain line once a run has taken 10 s and
+every 30 s after, with the time still to go (``--no-progress`` turns both off). Every output sample is recorded to an MCAP file (``--no-record``
+turns that off) and can be streamed to Rerun. Every output path (the recording, the
+``.rrd`` file, the folder of the plots and ``trajectory.npz``) is checked before the model
+is built, and a recording that cannot be written stops the run with an error (never a run
+without its recording); a viewer named by ``--connect`` must answer within
+:data:`CONNECT_TIMEOUT` seconds (``--viewer-timeout``), or the run goes on without it, with a
+warning. Numeric flags are checked against their ranges (:func:`qchain.cli.checks.flag_ranges`)
+and a ``--connect`` URL that cannot name a viewer is refused, before the scene is read. The
+summary's wall time is the simulation's (not finishing the recording).
+``recover`` makes the recording of a killed run whole from its journal; ``layout`` writes a
+recording's Foxglove layout.
+
+Errors are one line on stderr, ``qchain COMMAND: error: ...`` (a scene file with several
+problems lists them one a line under it), never a traceback; an error qchain did not
+foresee adds ``(run with --debug for the traceback)``. Warnings are one line each,
+``qchain COMMAND: warning: ...``.
+
+Exit codes
+----------
+0
+    Success (also ``--help`` and ``--version``).
+1
+    The run failed or stopped: the arm left the model's domain, the solver failed, a
+    recording or output could not be written while running, Ctrl-C (at any moment, start-up
+    included), or an error qchain did not foresee.
+2
+    Bad input, refused before anything ran: bad usage, a scene or sweep file with problems,
+    a run over its budget, an output path that cannot be used.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import re
+import sys
+import time
+import warnings
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from .checks import (
+    CONNECT_TIMEOUT, file_argument, path_argument, _recording_stem, _shown, check_bind_address, check_flag_values,
+    check_output_folder, check_output_path, check_viewer_url, viewer_silence)
+from .errors import (
+    EXIT_FAILED, EXIT_OK, EXIT_USAGE, BadInput, _one_line, _Session, guarded, report_error, take_debug)
+from .command import command
+from .outputs import OutputError, planned_outputs, summary_lines, tip_positions, write_outputs
+from ..checks.text import printable
+
+if TYPE_CHECKING:  # the model's libraries load when a command needs them: Ctrl-C and --version answer at once
+    from ..scene.scene import Scene, SceneModel
+
+__all__ = ["main", "command", "write_outputs", "tip_positions", "summary_lines", "version", "report_error", "guarded",
+           "take_debug", "check_output_path", "check_output_folder", "viewer_silence", "BadInput", "EXIT_OK",
+           "EXIT_FAILED", "EXIT_USAGE", "CONNECT_TIMEOUT"]
+
+#: The commands; the first word of the command line names one.
+COMMANDS = ("run", "info", "replay", "recover", "layout", "sweep")
+
+
+def version() -> str:
+    """The installed qchain's version (``X.Y.Z``)."""
+    from importlib.metadata import PackageNotFoundError
+    from importlib.metadata import version as dist_version
+
+    try:
+        return dist_version("qchain")
+    except PackageNotFoundError:  # a source tree on sys.path, not installed
+        from .. import __version__
+
+        return __version__
+
+
+def _logging_module():
+    """:mod:`qchain.cli.recording`, or None where it (or what it needs) is not installed."""
+    try:
+        from . import recording as qlog
+    except ImportError:
+        return None
+    return qlog
+
+
+# --------------------------------------------------------------------------------------
+# commands
+
+
+def _run(args, parser, session: _Session) -> int:
+    from ..errors import QchainError
+    from ..scene.scene import SceneError
+    from ..scene.reading import load_scene
+
+    from ..sim.budget import BudgetError
+
+    scene = load_scene(args.scene)
+    duration = scene.duration if args.duration is None else args.duration  # its range: check_flag_values
+    if scene.method in ("rk4", "midpoint") and scene.dt > duration:
+        parser.commands["run"].error(f"argument --duration: expected a duration >= the scene's step dt = {scene.dt:g} s, found "
+                     f"{duration:g} s")
+    try:  # a --duration beyond the budget is refused before anything is built
+        scene.check_budget(duration)
+    except BudgetError as err:
+        if args.duration is None:
+            raise
+        raise BadInput(f"--duration {duration:g} s: {err}") from None
+    qlog = _logging_module()
+    if qlog is None and (args.mcap or args.serve or args.connect or args.rrd):
+        raise BadInput("recording needs qchain.logging, which is not available")
+    record = qlog is not None and not (args.no_record and not (args.mcap or args.serve or args.connect or args.rrd))
+    notices: list[str] = []
+    if not args.no_plots:  # a recording where the plots' folder is, or above it: refused before either is made
+        folder = os.path.abspath(args.out if args.out is not None else scene.output_folder)
+        for flag, p in (("--mcap", args.mcap), ("--rrd", args.rrd)):
+            if p is not None and (folder == os.path.abspath(p) or folder.startswith(os.path.abspath(p) + os.sep)):
+                raise BadInput(f"{flag} {printable(_shown(p))} is the plots' folder {printable(_shown(folder))} or a "
+                               "folder above it: give the recording a file path of its own")
+    if record or args.rrd:  # a recording's times end at 2**32 s: said before the model is built
+        from ..recording.records import T_MAX, T_MAX_WHY
+
+        if duration > T_MAX:
+            src = "--duration" if args.duration is not None else f"{printable(_shown(args.scene))}: simulation.duration"
+            raise BadInput(f"{src} {duration:g} s: a recorded run lasts at most {T_MAX:.10g} s ({T_MAX_WHY}); run "
+                           "it with --no-record (and no --rrd, --serve or --connect)")
+    if record:
+        if args.mcap is None and not args.no_record:
+            args.mcap = qlog.default_mcap_path(f"{_recording_stem(scene.path)}.toml")
+        mcap = None if args.no_record and not args.mcap else args.mcap
+        check_output_path("--mcap", mcap, extra=".journal")
+        check_output_path("--rrd", args.rrd)
+        try:  # before anything is built: a bad path is said at once
+            notices = qlog.check_outputs(mcap, args.rrd, scene.path)
+        except qlog.LoggingError as err:
+            raise BadInput(str(err)) from None
+    if not args.no_plots:  # the plots' and trajectory.npz's folder: made, writable, with room
+        try:
+            scene.check_output(args.out)
+        except SceneError as err:
+            if args.out is None or not err.problems:
+                raise
+            p = err.problems[0]
+            raise BadInput(f"--out {_shown(args.out)}: expected {p.expected}, found {p.found}") from None
+    _check_planned_outputs(args, scene, mcap if record else None)
+    if args.connect and qlog is not None:  # a viewer that never answers would hold the run without end
+        why = viewer_silence(args.connect, timeout=_viewer_timeout(args))
+        if why is not None:
+            print(f"qchain run: warning: no Rerun viewer answers at {args.connect} ({why}); the run goes on without "
+                  "it", file=sys.stderr)
+            args.connect = None
+            record = not (args.no_record and not (args.mcap or args.serve or args.rrd))
+    for notice in notices:
+        print(f"qchain run: {notice}", file=sys.stderr)
+    if record:
+        qlog.prepare_writer()  # the log writer starts up on the other core while the model is built
+    session.check_interrupt()
+    model = scene.build(reduce=False if args.full else None)
+    session.check_interrupt()
+    try:  # an explicit method on a stiff model: refused before anything is recorded
+        scene.check_budget(duration, model)
+    except BudgetError as err:
+        raise BadInput(f"{printable(_shown(args.scene))}: {err}") from None
+    _print_lines(scene.describe(model, duration=duration, folder=args.out, plots=not args.no_plots))
+    sys.stdout.flush()
+    progress = (True if sys.stderr.isatty() else "lines") if args.progress is None else args.progress
+
+    logger = None
+    on_sample = None
+    if record:
+        with warnings.catch_warnings():  # the notices were printed above; other warnings are lines
+            for notice in notices:
+                warnings.filterwarnings("ignore", message=re.escape(f"qchain.logging: {notice}"))
+            try:
+                logger, on_sample = _make_logger(qlog, args, scene, model, duration=duration,
+                                                 viewer_timeout=_viewer_timeout(args))
+            except (QchainError, OSError, ValueError) as err:
+                print(f"qchain run: error: the recording could not start: {_one_line(err)}", file=sys.stderr)
+                return EXIT_FAILED
+    t0 = time.perf_counter()
+    t1 = None  # when the simulation ended: the wall time excludes finishing the recording (a slow viewer)
+    traj = None
+    interrupted = False
+    try:
+        session.check_interrupt()
+    except KeyboardInterrupt:
+        if logger is not None:
+            with logger, on_sample:
+                logger.set_outcome(False, "interrupted by the user (Ctrl-C) before the first sample")
+        raise
+    session.phase = "run"
+    try:
+        if logger is not None:
+            with logger, on_sample:  # the recorder logs its last samples before the logger finishes
+                try:
+                    traj = scene.simulate(model=model, duration=duration, on_sample=on_sample, progress=progress)
+                except KeyboardInterrupt as err:
+                    traj = getattr(err, "trajectory", None)
+                    interrupted = True
+                t1 = time.perf_counter()
+                if traj is not None:  # samples computed but not handed over (an interrupt between the two)
+                    session.reached = float(traj.t[-1]) if len(traj.t) else None
+                    for k in range(on_sample.taken, len(traj.t)):
+                        on_sample(traj.t[k], traj.q[k], traj.v[k], traj.p[k],
+                                  energies=(traj.kinetic_energy[k], traj.potential_energy[k]))
+                    message = _interrupt_message(traj) if interrupted else traj.message
+                    logger.set_outcome(traj.success and not interrupted, message, traj.status, traj.nfev)
+                else:
+                    logger.set_outcome(False, "interrupted by the user (Ctrl-C) before the first sample")
+            done = logger.close()
+            if done.get("error"):
+                print(f"qchain run: error: the recording failed: {_one_line(done['error'])}", file=sys.stderr)
+            _say_recording(logger, done, sys.stdout)
+            if done.get("error"):
+                return EXIT_FAILED
+        else:
+            try:
+                traj = scene.simulate(model=model, duration=duration, progress=progress)
+            except KeyboardInterrupt as err:
+                traj = getattr(err, "trajectory", None)
+                interrupted = True
+            t1 = time.perf_counter()
+    except (ValueError, QchainError) as err:  # the start state or an input outside the model, a full disk
+        print(f"qchain run: error: {_one_line(err)}", file=sys.stderr)
+        if logger is not None and logger.mcap_path is not None:
+            _say_recording(logger, logger.close(), sys.stderr)
+        return EXIT_FAILED
+    session.phase = "end"
+    wall = (time.perf_counter() if t1 is None else t1) - t0 - (traj.meta.get("compile_s", 0.0) if traj is not None
+                                                               else 0.0)
+    if traj is None:
+        print("run: interrupted before the first sample", file=sys.stderr)
+        return EXIT_FAILED
+    session.reached = float(traj.t[-1]) if len(traj.t) else None
+    if interrupted and len(traj.t):
+        print(f"run: interrupted at t = {traj.t[-1]:.6g} s", file=sys.stderr)
+    _print_lines(summary_lines(scene, model, traj, wall, message=_interrupt_message(traj) if interrupted else None))
+    if not args.no_plots and len(traj.t):
+        folder = Path(args.out) if args.out is not None else scene.output_folder
+        try:
+            written = write_outputs(scene, model, traj, folder)
+        except OutputError as err:
+            for path in err.written:
+                print(f"wrote {printable(_shown(path))}")
+            print(f"qchain run: error: {_one_line(err)}", file=sys.stderr)
+            return EXIT_FAILED
+        for path in written:
+            print(f"wrote {printable(_shown(path))}")
+    return EXIT_OK if traj.success and not interrupted else EXIT_FAILED
+
+
+def _say_recording(logger, done: dict, stream) -> None:
+    """What became of the run's recording: ``recorded PATH (N samples, up to t = T s)`` on
+    ``stream``, or for one that could not be finished where its records are (its journal,
+    if it stayed: ``qchain replay`` reads it, ``qchain recover`` makes the file whole)."""
+    if logger.mcap_path is None:
+        return
+    mcap = printable(_shown(logger.mcap_path))
+    if done.get("error"):
+        jp = getattr(logger, "journal_path", None)
+        if jp is not None and os.path.exists(jp):
+            print(f"qchain run: the recording {mcap} is not finished; its records are in {printable(_shown(jp))} "
+                  f"(`qchain replay {mcap}` reads them, `qchain recover {mcap}` makes the file whole)", file=sys.stderr)
+        return
+    reached = "no sample" if done.get("last_t") is None else f"t = {done['last_t']:.6g} s"
+    print(f"recorded {mcap} ({done.get('n_records', 0)} samples, up to {reached})", file=stream)
+
+
+def _check_planned_outputs(args, scene, mcap) -> None:
+    """Refuse, before the run, a plot or ``trajectory.npz`` path that is not a regular file
+    (a folder, a device, a FIFO: :func:`check_output_path`), and two outputs of the run that
+    are the same file (a recording ``--mcap o/trajectory.npz`` the plots would overwrite).
+
+    Raises
+    ------
+    BadInput
+        naming the flags (or ``output.folder``) and the path.
+    """
+    outputs: list[tuple[str, object]] = []
+    if mcap is not None:
+        outputs += [("--mcap", mcap), ("--mcap (its journal)", os.fspath(mcap) + ".journal")]
+    if args.rrd is not None:
+        outputs.append(("--rrd", args.rrd))
+    if not args.no_plots:
+        flag = "--out" if args.out is not None else "output.folder"
+        for path in planned_outputs(scene, args.out):
+            check_output_path(f"{flag} {_shown(path.parent)}: output", path)
+            outputs.append((f"{flag} {_shown(path.parent)} (its {path.name})", path))
+    seen: dict[str, str] = {}
+    for what, path in outputs:
+        try:
+            key = os.path.realpath(os.fspath(path))
+        except (OSError, ValueError):
+            continue
+        if key in seen:
+            raise BadInput(f"{what} path {_shown(path)} is the same file as {seen[key]}: the run would write both "
+                           "there; choose another path")
+        seen[key] = what
+
+
+def _print_lines(lines) -> None:
+    """Print lines that hold text from outside (a scene's name, path, description; a run's
+    message) one printed line each: control characters escaped (:func:`qchain.checks.text.printable`)."""
+    for line in lines:
+        print(printable(line))
+
+
+def _viewer_timeout(args) -> float:
+    """s a Rerun viewer has to answer (``--viewer-timeout``, default :data:`CONNECT_TIMEOUT`)."""
+    t = getattr(args, "viewer_timeout", None)
+    return CONNECT_TIMEOUT if t is None else float(t)
+
+
+def _check_run_flags(args) -> None:
+    """The flags of ``qchain run`` that argparse cannot check alone (numbers in their ranges:
+    :func:`qchain.cli.checks.check_flag_values`, in :func:`_dispatch`): the viewer's URL,
+    the address to serve on, flags that exclude each other. Raises :class:`BadInput`."""
+    if getattr(args, "serve", False) and getattr(args, "connect", None) is not None:
+        raise BadInput("argument --connect: not allowed with --serve (they exclude each other: serve a viewer here, "
+                       "or stream to a running one)")
+    check_viewer_url("argument --connect", getattr(args, "connect", None))
+    if getattr(args, "serve", False):
+        check_bind_address("argument --bind", getattr(args, "bind", None))
+
+
+def _interrupt_message(traj) -> str:
+    """How an interrupted run ended, with the time its samples reach."""
+    if len(traj.t):
+        return f"interrupted by the user (Ctrl-C) at t = {traj.t[-1]:.6g} s"
+    return "interrupted by the user (Ctrl-C) before the first sample"
+
+
+def _make_logger(qlog, args, scene: Scene, model: SceneModel, duration: float | None = None, **logger_kwargs):
+    """The run logger and the ``on_sample`` callback that feeds it one record a sample, a
+    :class:`qchain.recording.recorder.ChainRecorder` (``logger_kwargs`` go to
+    :class:`qchain.logging.RunLogger`). Enter both: ``with logger, recorder: ...``."""
+    from ..recording.recorder import ChainRecorder, series_names
+
+    ch = model.chain
+    q_names, v_names = series_names(ch)
+    stem = _recording_stem(scene.path) if scene.path else None
+    info = qlog.RunInfo(
+        n_segments=ch.n,
+        radii=[s.radius for s in ch.segments],
+        chamber_radii=[s.chamber_radius for s in ch.segments],
+        scene=scene.text,
+        scene_path=_shown(scene.path) if scene.path else None,  # stored as UTF-8 text
+        params={
+            "base": ch.base,
+            "gravity": ch.gravity,
+            "nodes": model.nodes,
+            "planar": ch.planar,
+            "extensible": [s.extensible for s in ch.segments],
+            "reductions": model.reductions,
+            "method": scene.method,
+            "segments": [{k: getattr(s, k) for k in ("length", "radius", "mass", "chamber_area", "chamber_radius",
+                                                       "youngs_modulus", "damping", "coords", "actuation")}
+                         for s in ch.segments],
+        },
+        name=scene.name or stem or "qchain run",
+        q_names=q_names,
+        v_names=v_names,
+        duration=duration if duration is not None else scene.duration,
+    )
+    if args.no_record and not args.mcap:
+        logger = qlog.RunLogger(info, None, serve=args.serve, connect=args.connect, rrd=args.rrd,
+                                bind=args.bind, linger=args.serve, **logger_kwargs)
+    else:
+        logger = qlog.logger_from_args(args, info, **logger_kwargs)
+    return logger, ChainRecorder(logger, ch, realtime=bool(getattr(args, "realtime", False)))
+
+
+def _info(args) -> int:
+    from ..scene.reading import load_scene
+
+    scene = load_scene(args.scene)
+    model = scene.build(reduce=False if args.full else None)
+    _print_lines(scene.describe(model))
+    return EXIT_OK
+
+
+def _parser(qlog) -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="qchain", description="Simulate soft continuum arms described in TOML "
+                                     "scene files (format: docs/scene-format.md). Exit codes: 0 success, 1 the run "
+                                     "failed or was interrupted, 2 bad input or usage.")
+    parser.add_argument("--version", action="version", version=f"qchain {version()}")
+    parser.add_argument("--debug", action="store_true", help="print the traceback of an error too (anywhere on the "
+                        "command line)")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    run = sub.add_parser("run", help="run a scene and write its outputs", description="Run a scene file: build the "
+                         "smallest model that represents it, integrate, print a summary, write plots.")
+    run.add_argument("scene", type=Path, help="the scene file (.toml)")
+    run.add_argument("--duration", type=float, default=None, metavar="S", help="simulated time (s), instead of the scene's")
+    run.add_argument("--out", type=Path, default=None, metavar="DIR", help="output folder, instead of the scene's")
+    run.add_argument("--full", action="store_true", help="no automatic reductions (as model.reduce = false)")
+    run.add_argument("--no-plots", action="store_true", help="write no plots and no trajectory.npz")
+    bar = run.add_mutually_exclusive_group()
+    bar.add_argument("--progress", dest="progress", action="store_true", default=None,
+                     help="progress bar on stderr (default: when stderr is a terminal; else a line every 30 s "
+                          "once a run has taken 10 s)")
+    bar.add_argument("--no-progress", dest="progress", action="store_false", help="no progress bar")
+    if qlog is not None:
+        run.add_argument("--no-record", action="store_true", help="write no MCAP recording (unless --mcap is given)")
+        g = qlog.add_logging_arguments(run)
+        g.add_argument("--viewer-timeout", type=float, default=None, metavar="S",
+                       help=f"seconds a Rerun viewer (--connect, --serve) has to answer before it is given up, with a "
+                            f"warning (default {CONNECT_TIMEOUT:g})")
+    else:  # the same flags, refused with a clear message at run time
+        run.set_defaults(no_record=True, mcap=None, serve=False, connect=None, rrd=None, bind="127.0.0.1",
+                         realtime=False, rerun_rate=None, viewer_timeout=None)
+    info = sub.add_parser("info", help="describe the model a scene builds", description="Describe the model a scene "
+                          "file builds: sizes, reductions and why, nodes, method.")
+    info.add_argument("scene", type=Path, help="the scene file (.toml)")
+    info.add_argument("--full", action="store_true", help="the model without automatic reductions")
+    if qlog is not None:
+        sub.add_parser("replay", help="replay an MCAP recording in Rerun (qchain replay --help)", add_help=False)
+        sub.add_parser("recover", help="make a killed run's recording whole (qchain recover --help)",
+                       add_help=False)
+        sub.add_parser("layout", help="write a recording's Foxglove layout (qchain layout --help)", add_help=False)
+    sub.add_parser("sweep", help="run a scene over axes of its values, on every core or a Dask cluster "
+                   "(qchain sweep --help)", add_help=False)
+    parser.commands = {"run": run, "info": info}  # (their usage errors: _dispatch)
+    for p in (run, info):  # every path argument: not empty (Path("") is the working folder), no NUL
+        for action in p._actions:
+            if action.type is Path:
+                action.type = file_argument if action.dest in ("mcap", "rrd") else path_argument
+    return parser
+
+
+def _dispatch(argv: list[str], session: _Session, debug: bool) -> int:
+    if argv[:1] in (["--version"], ["-V"]) and len(argv) == 1:  # at once, before the libraries load
+        print(f"qchain {version()}")
+        return EXIT_OK
+    try:
+        os.getcwd()
+    except OSError as exc:  # relative paths (the scene, runs/, out/) would fail later, naming nothing
+        raise BadInput(f"the working folder cannot be used ({exc.strerror or exc}: deleted?): change to an existing "
+                       "folder") from None
+    if argv and argv[0] in ("run", "info", "sweep") and \
+            os.environ.get("NUMBA_DISABLE_JIT", "0").strip() not in ("", "0"):
+        raise BadInput(f"NUMBA_DISABLE_JIT={os.environ['NUMBA_DISABLE_JIT'][:20]} is set: qchain's engine is "
+                       "numba-compiled (and would take hours as Python); unset it")
+    if argv and argv[0] == "sweep":
+        from .sweep import main as sweep_main
+
+        return sweep_main(argv[1:], debug=debug, session=session)
+    qlog = _logging_module()
+    handed = {"replay": "replay_main", "recover": "recover_main", "layout": "layout_main"}
+    if argv and argv[0] in handed and qlog is not None:
+        session.phase = "run"  # qchain.logging says its errors and their exit codes itself
+        return int(getattr(qlog, handed[argv[0]])(argv[1:]) or 0)
+    parser = _parser(qlog)
+    args = parser.parse_args(argv)
+    try:
+        check_flag_values(args)
+    except BadInput as err:  # as argparse says a bad value: the command's usage, then the line
+        parser.commands[args.command].error(str(err))
+    _check_run_flags(args)
+    if args.command == "run":
+        return _run(args, parser, session)
+    return _info(args)
+
+
+def _result_on_stdout(argv: list[str]) -> bool:
+    """Whether the command's standard output is its result (``info``; ``layout`` without
+    ``-o``), not a summary of files it wrote: an output that cannot be written fails it."""
+    if not argv:
+        return False
+    if argv[0] == "info":
+        return True
+    return argv[0] == "layout" and not any(a in ("-o", "--out") or a.startswith("--out=") or
+                                           (a.startswith("-o") and len(a) > 2) for a in argv[1:])
+
+
+def main(argv=None) -> int:
+    """Entry point of the ``qchain`` command (and ``python -m qchain``).
+
+    Parameters
+    ----------
+    argv : list of str, optional
+        The arguments (default ``sys.argv[1:]``); ``--debug`` anywhere before a ``--``
+        prints tracebacks too.
+
+    Returns
+    -------
+    int
+        The exit code: 0 success, 1 the run failed or was interrupted (or an error qchain
+        did not foresee), 2 bad input or usage (see the module docstring).
+    """
+    argv, debug = take_debug([os.fspath(a) for a in (sys.argv[1:] if argv is None else argv)])
+    name = argv[0] if argv and argv[0] in COMMANDS else ""
+    return command(name, lambda session: _dispatch(argv, session, debug), debug,
+                   result_on_stdout=_result_on_stdout(argv))
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,278 @@
+"""What ``qchain run`` writes and prints: the plots and ``trajectory.npz`` a scene's
+``[output]`` asks for, and the run summary (tip pose, energies, wall time, real-time
+factor, how the run ended)."""
+
+from __future__ import annotations
+
+import math
+import sys
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    import numpy as np
+
+    from ..scene.scene import Scene, SceneModel
+
+# --------------------------------------------------------------------------------------
+# outputs
+
+
+def tip_positions(model: SceneModel, traj) -> np.ndarray:
+    """World tip positions (N, 3) m of a trajectory."""
+    import numpy as np
+
+    ch = model.chain
+    return np.array([ch.tip_placement(q, t=t).translation for t, q in zip(traj.t, traj.q)])
+
+
+def planned_outputs(scene: Scene, folder: Path | None = None) -> list[Path]:
+    """The files :func:`write_outputs` will write for ``scene`` into ``folder`` (default the
+    scene's ``output.folder``): its plots (``NAME.png``; ``momentum.png`` for a floating base
+    only) and ``trajectory.npz`` if ``output.save``. Checked before the run."""
+    folder = Path(scene.output_folder if folder is None else folder)
+    floating = getattr(getattr(scene, "base", None), "type", None) == "floating"
+    names = [f"{name}.png" for name in scene.plots if name != "momentum" or floating]
+    if scene.save:
+        names.append("trajectory.npz")
+    return [folder / name for name in names]
+
+
+def write_outputs(scene: Scene, model: SceneModel, traj, folder: Path, plots=None, save: bool | None = None) -> list[Path]:
+    """Write the plots (PNG) and ``trajectory.npz`` of a run into ``folder``; return the paths.
+
+    Parameters
+    ----------
+    plots : sequence of str, optional
+        Names from :data:`qchain.scene.PLOTS`; default the scene's ``output.plots``.
+    save : bool, optional
+        Write ``trajectory.npz`` (``t, q, v, p, kinetic_energy, potential_energy, tip``
+        and ``success``, ``message``); default the scene's ``output.save``.
+    """
+    import os
+    import secrets
+
+    import numpy as np
+
+    plots = scene.plots if plots is None else tuple(plots)
+    save = scene.save if save is None else save
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    written: list[Path] = []
+    failed: list[str] = []
+    t = traj.t
+    tip = tip_positions(model, traj) if len(t) else np.zeros((0, 3))
+    if save:  # the data first (the plots may fail), whole or not at all: a temporary file renamed
+        path = folder / "trajectory.npz"
+        tmp = folder / f".trajectory-{os.getpid()}-{secrets.token_hex(4)}.npz"
+        try:
+            fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)  # the umask's mode, as a plain open
+            with os.fdopen(fd, "wb") as fh:
+                np.savez_compressed(fh, t=t, q=traj.q, v=traj.v, p=traj.p, kinetic_energy=traj.kinetic_energy,
+                                    potential_energy=traj.potential_energy, tip=tip, success=traj.success,
+                                    message=traj.message)
+            os.replace(tmp, path)
+            written.append(path)
+        except OSError as exc:
+            failed.append(f"{path} ({exc.strerror or exc})")
+        finally:
+            if os.path.exists(tmp):
+                os.unlink(tmp)
+    if not plots:
+        _raise_failed(failed, written)
+        return written
+    if "matplotlib" not in sys.modules:  # Agg is chosen below: a bad MPLBACKEND in the environment is moot
+        os.environ.pop("MPLBACKEND", None)
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    # the scene's name as plain text: '$' would start matplotlib's mathtext (and "$x^$" fail)
+    title = (scene.name or (scene.path.stem if scene.path else "scene")).replace("$", r"\$")
+
+    def finish(fig, name):
+        path = folder / name
+        try:
+            fig.tight_layout()
+            fig.savefig(path, dpi=110)
+            written.append(path)
+        except (OSError, ValueError, RuntimeError) as exc:  # a full disk, a file size limit, a renderer's error
+            failed.append(f"{path} ({getattr(exc, 'strerror', None) or f'{type(exc).__name__}: {exc}'})")
+            try:
+                os.unlink(path)  # no half-written PNG left behind
+            except OSError:
+                pass
+        finally:
+            plt.close(fig)
+
+    if "tip" in plots:
+        fig, ax = plt.subplots(figsize=(8, 4))
+        for k, c in enumerate("xyz"):
+            ax.plot(t, tip[:, k] * 1e3, label=c)
+        ax.set_xlabel("t (s)")
+        ax.set_ylabel("tip position, world (mm)")
+        ax.set_title(f"{title}: tip position")
+        ax.legend()
+        ax.grid(alpha=0.3)
+        finish(fig, "tip.png")
+    if "arm" in plots:
+        fig = plot_arm(model, traj, tip, title)
+        finish(fig, "arm.png")
+    if "energy" in plots:
+        fig, ax = plt.subplots(figsize=(8, 4))
+        ax.plot(t, traj.kinetic_energy, label="kinetic")
+        ax.plot(t, traj.potential_energy, label="potential (gravity + elastic)")
+        ax.plot(t, traj.total_energy, "k", label="total")
+        ax.set_xlabel("t (s)")
+        ax.set_ylabel("energy (J)")
+        ax.set_title(f"{title}: energies")
+        ax.legend()
+        ax.grid(alpha=0.3)
+        finish(fig, "energy.png")
+    if "pressure" in plots:
+        fig, ax = plt.subplots(figsize=(8, 4))
+        for k in range(traj.p.shape[1]):
+            ax.plot(t, traj.p[:, k] / 1e3, label=f"segment {k // 3}, chamber {k % 3 + 1}")
+        ax.set_xlabel("t (s)")
+        ax.set_ylabel("pressure (kPa)")
+        ax.set_title(f"{title}: chamber pressures")
+        ax.legend(fontsize=7, ncol=3)
+        ax.grid(alpha=0.3)
+        finish(fig, "pressure.png")
+    if "momentum" in plots and model.chain.floating and len(t):
+        h = momenta(model, traj)
+        fig, ax = plt.subplots(figsize=(8, 4))
+        for k, name in enumerate(["px", "py", "pz", "Lx", "Ly", "Lz"]):
+            ax.plot(t, h[:, k] - h[0, k], label=name)
+        ax.set_xlabel("t (s)")
+        ax.set_ylabel("momentum drift h(t) - h(0) (kg m/s, kg m^2/s)")
+        ax.set_title(f"{title}: world momentum drift (max {np.abs(h - h[0]).max():.2e})")
+        ax.legend(ncol=2)
+        ax.grid(alpha=0.3)
+        finish(fig, "momentum.png")
+    _raise_failed(failed, written)
+    return written
+
+
+class OutputError(OSError):
+    """Outputs of a run that could not be written (each named, with why); ``written`` lists
+    those that were."""
+
+    def __init__(self, message: str, written: list):
+        super().__init__(message)
+        self.written = written
+
+
+def _raise_failed(failed: list[str], written: list) -> None:
+    if failed:
+        raise OutputError(f"could not write {'; '.join(failed)}", written)
+
+
+def momenta(model: SceneModel, traj) -> np.ndarray:
+    """World momentum (N, 6) of a trajectory: linear (kg m/s), angular about the origin (kg m^2/s)."""
+    import numpy as np
+
+    ch = model.chain
+    return np.array([ch.momentum(q, v, t=t) for t, q, v in zip(traj.t, traj.q, traj.v)])
+
+
+def plot_arm(model: SceneModel, traj, tip: np.ndarray, title: str, snapshots: int = 8):
+    """Side (x-z) and top (x-y) views of the arm at ``snapshots`` times, with the tip path."""
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    ch = model.chain
+    fig, axes = plt.subplots(1, 2, figsize=(11, 5))
+    N = len(traj.t)
+    idx = np.unique(np.linspace(0, N - 1, min(snapshots, N)).round().astype(int)) if N else []
+    cmap = plt.get_cmap("viridis")
+    for (a, b), ax, view in (((0, 2), axes[0], "side view (x-z)"), ((0, 1), axes[1], "top view (x-y)")):
+        ax.plot(tip[:, a] * 1e3, tip[:, b] * 1e3, color="0.6", lw=1, label="tip path")
+        for n_, k in enumerate(idx):
+            pts = ch.backbone(traj.q[k], 16, t=traj.t[k]).reshape(-1, 3) * 1e3
+            c = cmap(n_ / max(1, len(idx) - 1))
+            ax.plot(pts[:, a], pts[:, b], color=c, lw=3, label=f"t = {traj.t[k]:.2f} s")
+            ax.plot(pts[0, a], pts[0, b], "ks", ms=4)
+        ax.set_aspect("equal", adjustable="datalim")
+        ax.set_xlabel(f"{'xyz'[a]} (mm)")
+        ax.set_ylabel(f"{'xyz'[b]} (mm)")
+        ax.set_title(view)
+        ax.grid(alpha=0.3)
+    axes[0].legend(fontsize=7)
+    fig.suptitle(f"{title}: arm snapshots")
+    return fig
+
+
+# --------------------------------------------------------------------------------------
+# summary
+
+
+#: the most values a summary line lists one by one (a longer list is summed up)
+SUMMARY_LIST = 12
+
+
+def _values(x) -> str:
+    """Values a segment, listed (``0.1, 0.2``), or for more than :data:`SUMMARY_LIST` segments
+    summed up: the largest, which segment, the median and the smallest."""
+    import numpy as np
+
+    x = np.asarray(x, dtype=float)
+    if x.size <= SUMMARY_LIST:
+        return ", ".join(f"{v:.3g}" for v in x)
+    j = int(np.argmax(x))
+    return (f"{x.size} segments, largest {x[j]:.3g} (segment {j}), median {float(np.median(x)):.3g}, smallest "
+            f"{float(np.min(x)):.3g}")
+
+
+def summary_lines(scene: Scene, model: SceneModel, traj, wall: float, message: str | None = None) -> list[str]:
+    """The run summary ``qchain run`` prints.
+
+    Parameters
+    ----------
+    scene, model : the run's scene and the model built from it
+    traj : Trajectory
+    wall : float, s
+        Wall time of the run (compiling excluded).
+    message : str, optional
+        How the run ended, instead of ``traj.message`` (e.g. an interrupt, with the time
+        the samples reach); a run with a message of its own is not a success.
+    """
+    import numpy as np
+    import pinocchio as pin
+
+    ok = traj.success and message is None
+    lines = [f"run: {'success' if ok else 'FAILED'}: {traj.message if message is None else message}"]
+    if len(traj.t) == 0:
+        return lines + ["no samples were recorded"]
+    t_end = float(traj.t[-1])
+    rtf = t_end / wall if wall > 0 else math.inf
+    lines.append(f"simulated {t_end:.6g} s in {wall:.3g} s wall time: {rtf:.3g} x real time; nfev = {traj.nfev}, "
+                 f"{len(traj.t)} samples, method {scene.method} ({traj.meta.get('engine', 'python')} engine)")
+    if traj.meta.get("compile_s", 0.0) > 0.05:
+        lines.append(f"  compiled or loaded the engine first in {traj.meta['compile_s']:.3g} s (not in the wall time)")
+    X = model.chain.tip_placement(traj.q[-1], t=t_end)
+    p = X.translation * 1e3
+    rpy = np.degrees(pin.rpy.matrixToRpy(X.rotation))
+    quat = pin.Quaternion(X.rotation).coeffs()  # x, y, z, w
+    lines.append(f"final tip (t = {t_end:.6g} s, world): position ({p[0]:.3f}, {p[1]:.3f}, {p[2]:.3f}) mm")
+    lines.append(f"  orientation rpy ({rpy[0]:.3f}, {rpy[1]:.3f}, {rpy[2]:.3f}) deg, quaternion xyzw "
+                 f"({quat[0]:.6f}, {quat[1]:.6f}, {quat[2]:.6f}, {quat[3]:.6f})")
+    reached = scene.bends(model.chain, traj)
+    line = f"largest bends reached (rad): {_values(reached)}"
+    warning = None
+    if model.max_bend is not None:
+        sized = sorted({float(f"{x:.3g}") for x in model.max_bend})
+        line += f"; nodes sized for {_values(sized)}"
+        over = np.flatnonzero(reached > model.max_bend)
+        if over.size:
+            j = int(over[0])
+            warning = (f"warning: segment {j} bent {reached[j]:.3g} rad, more than the {model.max_bend[j]:.3g} rad its "
+                       f"{model.nodes[j]} nodes were sized for: set model.max_bend in the scene")
+    lines.append(line)
+    if warning is not None:
+        lines.append(warning)
+    ke, pe = traj.kinetic_energy, traj.potential_energy
+    lines.append(f"energies (J): kinetic {ke[-1]:.6g}, potential {pe[-1]:.6g} (gravity + elastic), total "
+                 f"{ke[-1] + pe[-1]:.6g}; at the start total {ke[0] + pe[0]:.6g}")
+    return lines

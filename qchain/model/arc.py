@@ -1,0 +1,319 @@
+"""Closed-form kinematics of a constant-strain (constant-curvature, extensible) slice.
+
+This is the per-node kernel of the model (docs/model.md section 2), compiled with numba
+because it runs at every quadrature node of every segment in every dynamics call.
+A segment in curvature coordinates ``q = (l, ux, uy)`` has the constant strain twist
+``X = l * xi_u`` with the unit-length strain ``xi_u = (0, 0, 1, -uy, ux, 0)``
+(Pinocchio's ``[linear; angular]``). Slice ``alpha`` in [0, 1] sits at
+``g(alpha) = exp6(alpha X)``, arc length ``s = alpha l`` along the backbone: the paper's
+constant-curvature kinematics, eq. (1a), (1b) at the tip and their slice version in its
+section III-C, ``R = Rz(psi) Ry(kappa s) Rz(psi)^T``, ``d = Rz(psi) d_xz(s, kappa)``.
+
+Because ``xi_u`` has zero pitch, ``A = ad(xi_u)`` obeys ``A^3 = -kappa^2 A`` with
+``kappa^2 = ux^2 + uy^2``, so every exponential is a quadratic polynomial in ``A``
+whose coefficients are the entire functions
+
+    f0(x) = sin(x)/x,   f1(x) = (1 - cos x)/x^2,   f2(x) = (x - sin x)/x^3
+
+of the bending angle ``x = s kappa``, and their derivatives ``g_n(x) = f_n'(x)/x``
+(also entire). They are evaluated by their Taylor series for ``x < 2`` and in closed form
+otherwise, so nothing divides by the curvature and the straight pose is a regular point
+(docs/model.md section 1: why curvature coordinates need no clamp at ``kappa = 0``).
+With ``a1 = s f0, a2 = s^2 f1, a3 = s^3 f2``:
+
+* ``R(s) = I + a1 [w] + a2 [w]^2`` with ``w = (-uy, ux, 0)``; ``p(s) = (a2 ux, a2 uy, a1)``;
+* slice Jacobian ``S(alpha) = alpha Jexp6(alpha X) dX/dq`` (slice body frame), columns
+  ``alpha xi_u`` and ``F(s) eta_j`` with ``F(s) = s I - a2 A + a3 A^2
+  = int_0^s Ad(exp(-sigma xi_u)) dsigma`` and ``eta_j = d xi_u / d u_j``;
+* its exact time derivative ``Sdot = sum_j qdot_j dS/dq_j`` (what ``C_xi`` needs): the
+  ``l`` part is ``alpha ldot Ad(g)^-1 eta_j``, the ``u`` part differentiates ``a2, a3``
+  (``d a2 = s^4 g1 (u . udot)``, ``d a3 = s^5 g2 (u . udot)``) and ``A``.
+
+``tests/test_arc.py`` holds ``g``, ``Ad(g)^-1`` and ``S`` equal to Pinocchio's ``exp6``,
+``SE3.action`` and ``Jexp6`` to 1e-14, and ``Sdot`` to finite differences.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import cached_property
+from math import factorial
+
+import numba
+import numpy as np
+from numba.extending import register_jitable
+
+from ..errors import as_batch, as_real_array
+from .spatial import _inv_adjoint as inv_adjoint
+
+__all__ = ["ArcNodes", "arc_nodes", "bend_functions", "strain_twist", "arc_node", "arc_pose"]
+
+_SERIES_BELOW = 2.0  # rad; at x = 2 the 16-term series is exact to 1e-25
+_NTERMS = 16
+_F_COEF = np.array([[(-1) ** k / factorial(2 * k + n + 1) for k in range(_NTERMS)] for n in range(3)])
+_G_COEF = np.array(
+    [[(-1) ** k * 2 * k / factorial(2 * k + n + 1) for k in range(1, _NTERMS + 1)] for n in range(3)]
+)
+
+jit = numba.njit(cache=True, fastmath=False, error_model="numpy")
+
+#: The kernels' private helpers (what only compiled code calls). numba types a constant argument
+#: (a size, an offset, a flag) as a literal and compiles a ``jit`` function once more for every
+#: distinct one (``take2`` had ten specialisations, each a full compile); a ``register_jitable``
+#: function is typed with the non-literal types first, so it is compiled once per argument types
+#: (and per set of its callers' compiler flags: ``jit`` callers, helper callers, callers without
+#: reference counting). It gets no CPython or C wrapper and no cache files of its own (it is
+#: compiled into its callers, which are cached), which makes it cheaper to compile than a ``jit``
+#: function. Called from Python it runs as plain Python.
+jit_helper = register_jitable(fastmath=False, error_model="numpy", no_cfunc_wrapper=True)
+
+
+@jit
+def _bend(x):
+    """``(f0, f1, f2, g0, g1, g2)`` at bending angle ``x >= 0`` (rad)."""
+    if x < _SERIES_BELOW:
+        t = x * x
+        f0 = _F_COEF[0, _NTERMS - 1]
+        f1 = _F_COEF[1, _NTERMS - 1]
+        f2 = _F_COEF[2, _NTERMS - 1]
+        g0 = _G_COEF[0, _NTERMS - 1]
+        g1 = _G_COEF[1, _NTERMS - 1]
+        g2 = _G_COEF[2, _NTERMS - 1]
+        for k in range(_NTERMS - 2, -1, -1):
+            f0 = f0 * t + _F_COEF[0, k]
+            f1 = f1 * t + _F_COEF[1, k]
+            f2 = f2 * t + _F_COEF[2, k]
+            g0 = g0 * t + _G_COEF[0, k]
+            g1 = g1 * t + _G_COEF[1, k]
+            g2 = g2 * t + _G_COEF[2, k]
+        return f0, f1, f2, g0, g1, g2
+    s = np.sin(x)
+    c = np.cos(x)
+    x2 = x * x
+    return (
+        s / x,
+        (1.0 - c) / x2,
+        (x - s) / (x2 * x),
+        (x * c - s) / (x2 * x),
+        (x * s - 2.0 * (1.0 - c)) / (x2 * x2),
+        (x * (1.0 - c) - 3.0 * (x - s)) / (x2 * x2 * x),
+    )
+
+
+@jit_helper
+def _mcross(a, b):
+    """Motion cross product ``a x b`` of 6-tuples ``[linear; angular]``."""
+    return (
+        a[4] * b[2] - a[5] * b[1] + a[1] * b[5] - a[2] * b[4],
+        a[5] * b[0] - a[3] * b[2] + a[2] * b[3] - a[0] * b[5],
+        a[3] * b[1] - a[4] * b[0] + a[0] * b[4] - a[1] * b[3],
+        a[4] * b[5] - a[5] * b[4],
+        a[5] * b[3] - a[3] * b[5],
+        a[3] * b[4] - a[4] * b[3],
+    )
+
+
+@jit_helper
+def _write_pose(a1, a2, ux, uy, R, p):
+    """``R = I + a1 [w] + a2 [w]^2`` with ``w = (-uy, ux, 0)`` (``[w]^2 = w w^T - |w|^2 I``)
+    and ``p = (a2 ux, a2 uy, a1)``, into ``R`` (3, 3) and ``p`` (3,)."""
+    k2 = ux * ux + uy * uy
+    wx, wy = -uy, ux
+    R[0, 0] = 1.0 + a2 * (wx * wx - k2)
+    R[0, 1] = a2 * wx * wy
+    R[0, 2] = a1 * wy
+    R[1, 0] = a2 * wx * wy
+    R[1, 1] = 1.0 + a2 * (wy * wy - k2)
+    R[1, 2] = -a1 * wx
+    R[2, 0] = -a1 * wy
+    R[2, 1] = a1 * wx
+    R[2, 2] = 1.0 - a2 * k2
+    p[0] = a2 * ux
+    p[1] = a2 * uy
+    p[2] = a1
+
+
+@jit
+def arc_pose(alpha, l, ux, uy, R, p):
+    """Slice placement only (the ``R``, ``p`` of :func:`arc_node`), for drawing: slice
+    ``alpha`` of a segment at ``(l, ux, uy)`` (m, 1/m, 1/m) into ``R`` (3, 3) and ``p`` (3,) (m)."""
+    s = alpha * l
+    f0, f1, _, _, _, _ = _bend(s * np.sqrt(ux * ux + uy * uy))
+    _write_pose(s * f0, s * s * f1, ux, uy, R, p)
+
+
+@jit
+def arc_node(alpha, l, ux, uy, ld, uxd, uyd, R, p, S, Sd):
+    """Slice kinematics at one node (numba; also callable from Python): ``g(alpha)``, ``S(alpha)``
+    and ``dS/dt`` of docs/model.md section 2 (the paper's eq. (1) at ``s = alpha l``).
+
+    Parameters
+    ----------
+    alpha : float            slice coordinate in [0, 1].
+    l, ux, uy : float        configuration (m, 1/m, 1/m).
+    ld, uxd, uyd : float     velocity for ``Sd`` (zeros if not wanted).
+    R : (3, 3) out           slice rotation in the root frame.
+    p : (3,) out             slice centre in the root frame (m).
+    S : (6, 3) out           slice Jacobian (slice body frame).
+    Sd : (6, 3) out          ``dS/dt`` along ``(ld, uxd, uyd)``.
+    """
+    s = alpha * l
+    k2 = ux * ux + uy * uy
+    f0, f1, f2, g0, g1, g2 = _bend(s * np.sqrt(k2))
+    s2 = s * s
+    a1 = s * f0
+    a2 = s2 * f1
+    a3 = s2 * s * f2
+    ud = ux * uxd + uy * uyd
+    da2 = s2 * s2 * g1 * ud
+    da3 = s2 * s2 * s * g2 * ud
+    _write_pose(a1, a2, ux, uy, R, p)
+    xi = (0.0, 0.0, 1.0, -uy, ux, 0.0)
+    xid = (0.0, 0.0, 0.0, -uyd, uxd, 0.0)
+    for r in range(6):
+        S[r, 0] = alpha * xi[r]
+        Sd[r, 0] = alpha * xid[r]
+    for i in range(2):
+        if i == 0:
+            eta = (0.0, 0.0, 0.0, 0.0, 1.0, 0.0)
+        else:
+            eta = (0.0, 0.0, 0.0, -1.0, 0.0, 0.0)
+        Ae = _mcross(xi, eta)
+        AAe = _mcross(xi, Ae)
+        t1 = _mcross(xid, eta)  # xid x eta
+        t2 = _mcross(xid, Ae)  # xid x (A eta)
+        t3 = _mcross(xi, t1)  # xi x (xid x eta)
+        # Ad(g)^-1 eta = (-R^T (p x e), R^T e), e = eta[3:]
+        e0, e1, e2 = eta[3], eta[4], eta[5]
+        c0 = p[1] * e2 - p[2] * e1
+        c1 = p[2] * e0 - p[0] * e2
+        c2 = p[0] * e1 - p[1] * e0
+        for r in range(3):
+            lin = -(R[0, r] * c0 + R[1, r] * c1 + R[2, r] * c2)
+            ang = R[0, r] * e0 + R[1, r] * e1 + R[2, r] * e2
+            S[r, 1 + i] = s * eta[r] - a2 * Ae[r] + a3 * AAe[r]
+            S[3 + r, 1 + i] = s * eta[3 + r] - a2 * Ae[3 + r] + a3 * AAe[3 + r]
+            Sd[r, 1 + i] = alpha * ld * lin - da2 * Ae[r] - a2 * t1[r] + da3 * AAe[r] + a3 * (t2[r] + t3[r])
+            Sd[3 + r, 1 + i] = (
+                alpha * ld * ang - da2 * Ae[3 + r] - a2 * t1[3 + r] + da3 * AAe[3 + r] + a3 * (t2[3 + r] + t3[3 + r])
+            )
+
+
+@jit
+def _arc_nodes_kernel(alpha, q, qd, R, p, S, Sd):
+    for k in range(alpha.shape[0]):
+        arc_node(alpha[k], q[k, 0], q[k, 1], q[k, 2], qd[k, 0], qd[k, 1], qd[k, 2], R[k], p[k], S[k], Sd[k])
+
+
+@jit
+def _bend_kernel(x, out):
+    for k in range(x.shape[0]):
+        r = _bend(x[k])
+        for n in range(6):
+            out[n, k] = r[n]
+
+
+def bend_functions(x, derivatives: bool = False):
+    """The entire functions ``(f0, f1, f2)`` (and ``(g0, g1, g2)`` with ``derivatives``) of
+    bending angles ``x`` (rad; even functions, so any finite real), each of the shape of
+    ``x``. At ``x = 0``: ``f = (1, 1/2, 1/6)``, ``g = (-1/3, -1/12, -1/60)``.
+    ``x`` must be real and finite (``TypeError``/``ValueError`` naming it)."""
+    x = as_real_array("x", x)
+    if not np.all(np.isfinite(x)):
+        raise ValueError(f"x must be finite, got non-finite entries at flat indices "
+                         f"{np.flatnonzero(~np.isfinite(x.ravel())).tolist()[:10]}")
+    xa = np.ascontiguousarray(np.atleast_1d(x).ravel())
+    out = np.empty((6, xa.size))
+    _bend_kernel(xa, out)
+    out = out.reshape((6,) + np.shape(x))
+    return (out[:3], out[3:]) if derivatives else out[:3]
+
+
+def strain_twist(q: np.ndarray) -> np.ndarray:
+    """Unit-length strain twist ``xi_u = (0, 0, 1, -uy, ux, 0)``, ``(..., 3)`` -> ``(..., 6)``
+    (``q`` real and finite, else ``TypeError``/``ValueError`` naming it)."""
+    q = as_batch("q", q, 3)
+    xi = np.zeros(q.shape[:-1] + (6,))
+    xi[..., 2] = 1.0
+    xi[..., 3] = -q[..., 2]
+    xi[..., 4] = q[..., 1]
+    return xi
+
+
+@dataclass(frozen=True)
+class ArcNodes:
+    """Slice kinematics at N nodes, in curvature coordinates ``q = (l, ux, uy)``.
+
+    Attributes
+    ----------
+    R : (N, 3, 3)  rotation of the slice frame in the root frame.
+    p : (N, 3)     slice centre in the root frame (m).
+    Ad_inv : (N, 6, 6)  ``Ad(g)^-1``: root-frame twist -> slice-frame twist.
+    S : (N, 6, 3)  slice Jacobian: slice body twist per unit ``qdot`` (columns l, ux, uy).
+    Sdot : (N, 6, 3)  ``dS/dt`` along the given ``qdot`` (zeros without one).
+    """
+
+    R: np.ndarray
+    p: np.ndarray
+    S: np.ndarray
+    Sdot: np.ndarray
+
+    @cached_property
+    def Ad_inv(self) -> np.ndarray:
+        """``Ad(g)^-1`` (N, 6, 6), formed on first use."""
+        return inv_adjoint(self.R, self.p)
+
+
+def arc_nodes(alpha, q, qdot=None) -> ArcNodes:
+    """Slice kinematics at nodes ``alpha`` (N,) for configurations ``q`` (N, 3) or (3,).
+
+    ``qdot`` ((N, 3) or (3,)) adds the exact time derivative ``Sdot`` of the Jacobian.
+    Every argument must be real and finite, ``alpha`` a number or 1-D (``TypeError`` or
+    ``ValueError`` naming the argument); the kinematics is that of any curvature (a
+    segment's own domain, ``|kappa| r_s < 1``, is checked by :class:`qchain.Segment`).
+    """
+    alpha = np.atleast_1d(as_real_array("alpha", alpha))
+    if alpha.ndim != 1 or not np.all(np.isfinite(alpha)):
+        raise ValueError(f"alpha must be a finite number or 1-D array of them, got shape {alpha.shape}"
+                         + ("" if alpha.ndim != 1 else " with non-finite entries"))
+    alpha = np.ascontiguousarray(alpha)
+    N = alpha.shape[0]
+    q = _per_node("q", q, N)
+    qd = np.zeros((N, 3)) if qdot is None else _per_node("qdot", qdot, N)
+    R = np.empty((N, 3, 3))
+    p = np.empty((N, 3))
+    S = np.empty((N, 6, 3))
+    Sd = np.empty((N, 6, 3))
+    _arc_nodes_kernel(alpha, q, qd, R, p, S, Sd)
+    return ArcNodes(R=R, p=p, S=S, Sdot=Sd)
+
+
+def _per_node(name: str, x, N: int) -> np.ndarray:
+    """``x`` (3,) or (N, 3), real and finite, as a C-contiguous (N, 3) float array."""
+    x = as_batch(name, x, 3)
+    if x.shape not in ((3,), (N, 3)):
+        raise ValueError(f"{name} must have shape (3,) or ({N}, 3) (one a node), got {x.shape}")
+    return np.ascontiguousarray(np.broadcast_to(x, (N, 3)))
+
+
+#: Floats of per-call scratch a compiled pass carves its small temporaries from
+#: (:func:`take1`): the deepest nest of passes uses under a thousand.
+SCRATCH = 2048
+
+
+@jit_helper
+def take1(sc, o, k):
+    """``(sc[o:o+k], o + k)``: a vector of scratch, no allocation."""
+    return sc[o : o + k], o + k
+
+
+@jit_helper
+def take2(sc, o, r, c):
+    """A (r, c) matrix of scratch from offset ``o`` and the next offset."""
+    return sc[o : o + r * c].reshape((r, c)), o + r * c
+
+
+@jit_helper
+def take3(sc, o, a, b, c):
+    """An (a, b, c) array of scratch from offset ``o`` and the next offset."""
+    return sc[o : o + a * b * c].reshape((a, b, c)), o + a * b * c

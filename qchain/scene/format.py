@@ -1,0 +1,792 @@
+"""The scene file format, declared once: every table and key with its type, unit, range,
+default and meaning, and the checker that applies them.
+
+:mod:`qchain.scene` validates a file with the :class:`_Checker` here, reading each key's
+declaration (:data:`TABLES`) instead of repeating its type and bounds; the ranges are
+:mod:`qchain.checks.bounds`' and the run budget :mod:`qchain.sim.budget`'s, the same that
+:class:`qchain.Segment` and :func:`qchain.simulate` check. ``docs/scene-format.md``
+is generated from this module (:func:`markdown`) and a test keeps it up to date::
+
+    .venv/bin/python -m qchain.scene.format > docs/scene-format.md
+
+Before TOML is parsed, the text is checked for size (:data:`MAX_SCENE_BYTES`) and for
+nesting depth (:data:`MAX_DEPTH`): the parser recurses once a level, and a file nested a
+few hundred deep would end in a ``RecursionError`` instead of a message.
+"""
+
+from __future__ import annotations
+
+import difflib
+import math
+import re
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..checks import bounds as B
+from ..checks.bounds import Range
+from ..sim.budget import DEFAULT as DEFAULT_BUDGET
+from ..sim.budget import RANGES as BUDGET_RANGES
+from ..errors import QchainError
+from ..checks.text import printable
+from ..model.segment import DEFAULT_NODES
+from ..sim.simulation import DEFAULT_METHOD, FIXED_STEP, METHODS
+
+__all__ = [
+    "Field",
+    "Table",
+    "TABLES",
+    "Problem",
+    "SceneError",
+    "PLOTS",
+    "PRESSURE_KINDS",
+    "MAX_DEPTH",
+    "MAX_SCENE_BYTES",
+    "MAX_STRETCH",
+    "EXAMPLE",
+    "nesting_problem",
+    "markdown",
+]
+
+#: Plots a scene may ask for.
+PLOTS = ("tip", "arm", "energy", "pressure", "momentum")
+#: Deepest nesting of arrays and inline tables a scene file may have (a scene needs 3).
+MAX_DEPTH = 32
+#: Largest scene file (bytes).
+MAX_SCENE_BYTES = 8 * 2**20
+#: Largest initial stretch ``l / l0`` of a segment in a scene.
+MAX_STRETCH = 10.0
+#: Problems a :class:`SceneError`'s message lists (``problems`` holds them all).
+MAX_LISTED = 50
+#: Longest path component of ``output.folder`` (bytes, UTF-8): most file systems' limit.
+MAX_NAME_BYTES = 255
+#: Longest ``output.folder`` (bytes, UTF-8): Linux's ``PATH_MAX`` less its NUL.
+MAX_PATH_BYTES = 4095
+
+
+# --------------------------------------------------------------------------------------
+# the declaration
+
+
+@dataclass(frozen=True)
+class Field:
+    """One key of a scene table.
+
+    Attributes
+    ----------
+    key : str
+    kind : str
+        ``number``, ``integer``, ``boolean``, ``string``, ``path``, ``choice``, ``vector``
+        (``size`` numbers), ``per_segment`` (3 numbers a segment, flat or nested),
+        ``number_or_per_segment``, ``times`` (strictly increasing), ``rows`` (per-segment
+        vectors, one a time), ``names`` (an array of ``choices``), ``table`` or ``tables``
+        (an array of tables).
+    doc : str
+        What the key means (Markdown).
+    range : Range, optional
+        Bounds of the number, or of every entry of an array.
+    default : str
+        The default, as the documentation states it ("" for a required key or none).
+    required : bool
+    choices : tuple of str
+    size : int, optional
+        Entries of a ``vector``.
+    when : tuple of str
+        The ``type`` values of its table the key belongs to (empty: all).
+    """
+
+    key: str
+    kind: str
+    doc: str
+    range: Range | None = None
+    default: str = ""
+    required: bool = False
+    choices: tuple = ()
+    size: int | None = None
+    when: tuple = ()
+
+    def type_text(self) -> str:
+        k = self.kind
+        if k == "vector":
+            return f"array of {self.size} numbers"
+        if k == "per_segment":
+            return "3 numbers a segment"
+        if k == "number_or_per_segment":
+            return "number, or 3 a segment"
+        if k == "times":
+            return "array of numbers, increasing"
+        if k == "rows":
+            return "array of pressure vectors"
+        if k == "names":
+            return "array of strings"
+        if k == "tables":
+            return "array of tables"
+        if k == "choice":
+            return "string"
+        if k == "path":
+            return "string (a folder path)"
+        return k
+
+    def range_text(self) -> str:
+        if self.choices:
+            return ", ".join(f'`"{c}"`' for c in self.choices)
+        if self.range is not None:
+            r = self.range
+            parts = []
+            if r.low is not None:
+                parts.append(f"{'>' if r.low_open else '>='} {_num(r.low)}")
+            if r.high is not None:
+                parts.append(f"{'<' if r.high_open else '<='} {_num(r.high)}")
+            return " and ".join(parts)
+        return ""
+
+
+@dataclass(frozen=True)
+class Table:
+    """A table of a scene file: its dotted ``path`` (``""`` for the top level, ``segments[]``
+    for an array of tables), what it is, and its fields."""
+
+    path: str
+    doc: str
+    fields: tuple[Field, ...]
+    required: bool = False
+
+    def __getitem__(self, key: str) -> Field:
+        for f in self.fields:
+            if f.key == key:
+                return f
+        raise KeyError(key)
+
+    def keys(self, kind: str | None = None) -> tuple[str, ...]:
+        """The keys of the table (those of a ``type`` of it, if ``kind`` is given)."""
+        return tuple(f.key for f in self.fields if kind is None or not f.when or kind in f.when)
+
+
+def _num(x: float) -> str:
+    return "inf" if x == math.inf else f"{x:g}"
+
+
+PRESSURE_KINDS = ("constant", "step", "ramp", "sine", "table")
+
+TOP = Table("", "The top level of the file.", (
+    Field("name", "string", "Free text: the scene's name (plot titles, recordings).", default='""'),
+    Field("description", "string", "Free text.", default='""'),
+    Field("gravity", "vector", "Gravity, world frame.", B.GRAVITY, default="[0, 0, -9.81]", size=3),
+    Field("model", "table", "How the model is built (below)."),
+    Field("segments", "tables", "The segments, base to tip (below).", required=True),
+    Field("base", "table", "The base: fixed, floating or prescribed (below)."),
+    Field("pressure", "table", "Chamber pressures (below).", default="none: all chambers at 0 Pa"),
+    Field("initial", "table", "The initial state (below)."),
+    Field("simulation", "table", "Duration, method, tolerances (below).", required=True),
+    Field("output", "table", "Samples, folder, plots (below)."),
+    Field("budget", "table", "What a run may cost before it is refused (below)."),
+))
+
+MODEL = Table("model", "How the model is built (\"Model reduction\" in `qchain/scene.py`).", (
+    Field("reduce", "boolean", "Automatic reductions (planar, node count) on.", default="true"),
+    Field("node_tolerance", "number", "Relative `M_xi` accuracy the node count of each segment is sized for.",
+          B.NODE_TOLERANCE, default="none: `nodes` or the default node count"),
+    Field("max_bend", "number", "The bend (rad) the node count is sized for; needs `node_tolerance`.", B.MAX_BEND,
+          default="estimated from the static bends under the peak pressures"),
+))
+
+SEGMENT = Table("segments[]", "One table a segment, base to tip: `[[segments]]`.", (
+    Field("count", "integer", "Copies of this segment; all of them count against `budget.max_segments`.",
+          Range(1, None, integer=True), default="1"),
+    Field("length", "number", "Rest length `l0`.", B.LENGTH, required=True),
+    Field("radius", "number", "Outer radius `r_s`.", B.RADIUS, required=True),
+    Field("mass", "number", "Mass, spread evenly over every cross-section.", B.MASS, required=True),
+    Field("chamber_area", "number", "Cross-section of each chamber; the chambers must fit: "
+          "`chamber_radius + sqrt(chamber_area / pi) <= radius`.", B.CHAMBER_AREA, required=True),
+    Field("chamber_radius", "number", "Distance of the chamber centres from the axis.", B.CHAMBER_RADIUS,
+          required=True),
+    Field("youngs_modulus", "number", "Young's modulus `E`.", B.YOUNGS_MODULUS, required=True),
+    Field("damping", "number", "Stiffness-proportional damping `beta` of `D = beta K(q0)`.", B.DAMPING, default="0"),
+    Field("coords", "choice", "Deformation coordinates: `(l, ux, uy)` or the paper's `(l, psi, kappa)`.",
+          choices=("curvature", "paper"), default='"curvature"'),
+    Field("actuation", "choice", "Input matrix: chamber-volume work or the paper's tip-plate forces.",
+          choices=("volume", "paper"), default='"volume"'),
+    Field("extensible", "boolean", "`false` holds `l` at `l0` (the axial mode dropped).", default="true"),
+    Field("nodes", "integer", "Gauss-Legendre nodes along the segment; overrides `node_tolerance`.", B.NODES,
+          default=f"{DEFAULT_NODES}, or sized from `model.node_tolerance`"),
+))
+
+BASE = Table("base", "The base the first segment is mounted on.", (
+    Field("type", "choice", "Fixed mount, free-floating body, or a mount moved by `base.motion`.",
+          choices=("fixed", "floating", "prescribed"), default='"fixed"'),
+    Field("position", "vector", "World position: the mount (fixed, prescribed) or the start (floating).",
+          B.POSITION, default="[0, 0, 0]", size=3),
+    Field("rpy", "vector", "Roll-pitch-yaw, `R = Rz(yaw) Ry(pitch) Rx(roll)`.", B.ANGLE, default="[0, 0, 0]",
+          size=3),
+    Field("velocity", "vector", "Initial linear velocity, base frame.", B.VELOCITY, default="[0, 0, 0]", size=3,
+          when=("floating",)),
+    Field("angular_velocity", "vector", "Initial angular velocity, base frame.", B.ANGULAR_VELOCITY,
+          default="[0, 0, 0]", size=3, when=("floating",)),
+    Field("motion", "table", "The mount's motion (below).", required=True, when=("prescribed",)),
+))
+
+MOTION = Table("base.motion", "A prescribed base's sinusoidal motion `s(t) = amplitude sin(2 pi frequency t + "
+               "phase)` along or about `axis` (mount frame).", (
+    Field("type", "choice", "A shift along `axis`, or a turn about it through the mount origin.",
+          choices=("translation", "rotation"), required=True),
+    Field("axis", "vector", "Direction, mount frame, normalised (not zero).", B.DIRECTION, required=True, size=3),
+    Field("amplitude", "number", "m (translation) or rad (rotation).", B.AMPLITUDE, required=True),
+    Field("frequency", "number", "Hz.", B.FREQUENCY, required=True),
+    Field("phase", "number", "rad.", B.ANGLE, default="0"),
+))
+
+PRESSURE = Table("pressure", "Gauge chamber pressures, one of five kinds (`type`). A pressure vector holds 3 "
+                 "numbers a segment (chambers 1 to 3), flat or as one array of 3 a segment.", (
+    Field("type", "choice", "The kind of schedule.", choices=PRESSURE_KINDS, required=True),
+    Field("value", "per_segment", "`constant`: the pressures.", B.PRESSURE, required=True, when=("constant",)),
+    Field("time", "number", "`step`: when the step happens.", B.TIME, required=True, when=("step",)),
+    Field("after", "per_segment", "`step`: pressures from `time` on.", B.PRESSURE, required=True, when=("step",)),
+    Field("before", "per_segment", "`step`: pressures before `time`.", B.PRESSURE, default="zeros",
+          when=("step",)),
+    Field("t0", "number", "`ramp`: start of the ramp.", B.TIME, required=True, when=("ramp",)),
+    Field("t1", "number", "`ramp`: its end, `> t0`.", B.TIME, required=True, when=("ramp",)),
+    Field("end", "per_segment", "`ramp`: pressures from `t1` on.", B.PRESSURE, required=True, when=("ramp",)),
+    Field("start", "per_segment", "`ramp`: pressures until `t0`.", B.PRESSURE, default="zeros", when=("ramp",)),
+    Field("amplitude", "per_segment", "`sine`: `offset + amplitude sin(2 pi frequency t + phase + j "
+          "segment_phase)` in segment `j`; `offset - abs(amplitude)` must stay above a vacuum.", B.PRESSURE_AMPLITUDE,
+          required=True, when=("sine",)),
+    Field("offset", "per_segment", "`sine`: the mean pressures.", B.PRESSURE, default="zeros", when=("sine",)),
+    Field("frequency", "number_or_per_segment", "`sine`: Hz, one for all chambers or one a chamber.", B.FREQUENCY,
+          required=True, when=("sine",)),
+    Field("phase", "number_or_per_segment", "`sine`: rad, one for all chambers or one a chamber.", B.ANGLE,
+          default="0", when=("sine",)),
+    Field("segment_phase", "number", "`sine`: rad added `j` times to segment `j`'s chambers.", B.ANGLE, default="0",
+          when=("sine",)),
+    Field("times", "times", "`table`: strictly increasing times.", B.TIME, required=True, when=("table",)),
+    Field("values", "rows", "`table`: one pressure vector a time; piecewise linear between them, held outside.",
+          B.PRESSURE, required=True, when=("table",)),
+))
+
+INITIAL = Table("initial", "The initial state; a floating base starts at `base.position`, `base.rpy`, "
+                "`base.velocity`, `base.angular_velocity`.", (
+    Field("q_e", "per_segment", f"Segment coordinates, each in the segment's own `coords`: inside the model "
+          f"(`l > 0`, `abs(kappa) r_s < 1`, `kappa >= 0` in paper coordinates), `l <= {MAX_STRETCH:g} l0`, "
+          "`l = l0` if inextensible.", default="the straight rest pose `(l0, 0, 0)`"),
+    Field("v", "per_segment", "Their rates (0 for `l` if inextensible).", B.RATE, default="zeros"),
+))
+
+SIMULATION = Table("simulation", "The run.", (
+    Field("duration", "number", "Length of the run.", B.DURATION, required=True),
+    Field("method", "choice", "Integration method (`qchain/simulate.py`), any case.", choices=METHODS,
+          default=f'"{DEFAULT_METHOD}"'),
+    Field("rtol", "number", "Relative tolerance of the adaptive methods.", B.RTOL, default="1e-6"),
+    Field("atol", "number", "Absolute tolerance of the adaptive methods.", B.ATOL, default="1e-8"),
+    Field("dt", "number", f"Step of the fixed-step methods ({', '.join(FIXED_STEP)}): required there, refused by "
+          "the others; `<= duration`.", B.STEP),
+    Field("max_step", "number", "Largest step of the adaptive methods (refused by the fixed-step ones).", B.STEP,
+          default="unbounded"),
+))
+
+OUTPUT = Table("output", "What a run writes (`qchain run`).", (
+    Field("sample_rate", "number", "Samples of the trajectory a second.", B.SAMPLE_RATE, default="100"),
+    Field("folder", "path", "Where the plots and `trajectory.npz` go, relative to the working directory: not "
+          f"empty, no NUL character, no path component over {MAX_NAME_BYTES} bytes, at most {MAX_PATH_BYTES} bytes in "
+          "all.", default='"out/<file stem>"'),
+    Field("plots", "names", "Plots to draw (`momentum` only with a floating base).", choices=PLOTS,
+          default='["tip"]'),
+    Field("save", "boolean", "Write `trajectory.npz` (t, q, v, p, energies).", default="true"),
+))
+
+BUDGET = Table("budget", "What a run may cost (`qchain/budget.py`): a scene whose run would exceed one of these "
+               "is refused before it starts, naming the bound; raise it here to allow more.", (
+    Field("max_steps", "integer", "Integrator steps: `duration / dt`, `duration / max_step`, or 2 a period of the "
+          "fastest sine input or base motion.", BUDGET_RANGES["max_steps"], default=str(DEFAULT_BUDGET.max_steps)),
+    Field("max_samples", "integer", "Output samples, `duration * sample_rate + 1`.", BUDGET_RANGES["max_samples"],
+          default=str(DEFAULT_BUDGET.max_samples)),
+    Field("max_memory", "number", "Bytes of output arrays and solver matrices (an estimate).",
+          BUDGET_RANGES["max_memory"], default=f"{DEFAULT_BUDGET.max_memory:.0f} (2 GiB)"),
+    Field("max_segments", "integer", "Segments, `count` expanded.", BUDGET_RANGES["max_segments"],
+          default=str(DEFAULT_BUDGET.max_segments)),
+))
+
+#: Every table of the format, in the order of the documentation.
+TABLES = (TOP, MODEL, SEGMENT, BASE, MOTION, PRESSURE, INITIAL, SIMULATION, OUTPUT, BUDGET)
+
+
+# --------------------------------------------------------------------------------------
+# problems and the error
+
+
+@dataclass(frozen=True)
+class Problem:
+    """One problem of a scene file: the dotted ``key``, what was ``expected``, what was ``found``."""
+
+    key: str
+    expected: str
+    found: str
+
+    def __str__(self) -> str:
+        return f"{self.key}: expected {self.expected}, found {self.found}"
+
+
+class SceneError(QchainError, ValueError):
+    """A scene file that cannot be used; ``problems`` lists every problem found.
+
+    The message names the file and, for each problem, the key, what was expected and
+    what was found.
+    """
+
+    def __init__(self, path: str, problems: list[Problem]):
+        self.path = str(path)
+        self.problems = list(problems)
+        where = self.path if len(self.path) <= 200 else f"{self.path[:100]}...{self.path[-97:]}"  # a 4 KB path: cut
+        where = printable(where)  # a problem a line: a newline or escape sequence in a name stays in its line
+        if len(self.problems) == 1:
+            msg = f"{where}: {printable(self.problems[0])}"
+        else:
+            shown = self.problems[:MAX_LISTED]
+            msg = f"{where}: {len(self.problems)} problems:\n" + "\n".join(f"  {printable(p)}" for p in shown)
+            if len(self.problems) > MAX_LISTED:
+                msg += f"\n  ... and {len(self.problems) - MAX_LISTED} more (SceneError.problems lists them all)"
+        super().__init__(msg)
+
+
+_MISSING = object()
+
+
+def _type_name(v) -> str:
+    if isinstance(v, bool):
+        return "a boolean"
+    if isinstance(v, int):
+        return "an integer"
+    if isinstance(v, float):
+        return "a float"
+    if isinstance(v, str):
+        return "a string"
+    if isinstance(v, list):
+        return "an array"
+    if isinstance(v, dict):
+        return "a table"
+    return f"a {type(v).__name__}"
+
+
+def _show(v, limit: int = 60) -> str:
+    """A TOML-like rendering of a value, cut at ``limit`` characters (built only that far,
+    so a huge or deeply nested value costs no more than a small one)."""
+    out: list[str] = []
+    size = 0
+
+    def emit(s: str) -> bool:
+        nonlocal size
+        out.append(s)
+        size += len(s)
+        return size > limit
+
+    def walk(x, depth: int) -> bool:
+        if depth > 8:
+            return emit("...")
+        if isinstance(x, bool):
+            return emit("true" if x else "false")
+        if isinstance(x, str):
+            return emit('"' + x[: limit + 1] + '"')
+        if isinstance(x, float):
+            return emit(repr(x))
+        if isinstance(x, int):
+            return emit(str(x) if x.bit_length() < 200 else f"{str(x)[:limit]}...")
+        if isinstance(x, list):
+            if emit("["):
+                return True
+            for i, y in enumerate(x):
+                if (i and emit(", ")) or walk(y, depth + 1):
+                    return True
+            return emit("]")
+        if isinstance(x, dict):
+            if emit("{"):
+                return True
+            for i, (k, y) in enumerate(x.items()):
+                if (i and emit(", ")) or emit(f"{k} = ") or walk(y, depth + 1):
+                    return True
+            return emit("}")
+        return emit(str(x)[: limit + 1])
+
+    walk(v, 0)
+    s = "".join(out)
+    return s if len(s) <= limit else s[: limit - 3] + "..."
+
+
+def _is_number(v) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool)
+
+
+def _as_float(v) -> float | None:
+    """``float(v)`` of a TOML number, None for an integer too large for a float."""
+    try:
+        return float(v)
+    except OverflowError:
+        return None
+
+
+# --------------------------------------------------------------------------------------
+# before parsing
+
+_TOKENS = re.compile(r'"""[\s\S]*?"""|\'\'\'[\s\S]*?\'\'\'|"(?:[^"\\\n]|\\.)*"|\'[^\'\n]*\'|#[^\n]*|[\[\]{}]')
+
+
+def nesting_problem(text: str) -> Problem | None:
+    """A :class:`Problem` if ``text`` is larger than :data:`MAX_SCENE_BYTES` or nests arrays
+    and inline tables deeper than :data:`MAX_DEPTH` (outside strings and comments), else None."""
+    if len(text) > MAX_SCENE_BYTES:
+        return Problem("(file)", f"a scene file of at most {MAX_SCENE_BYTES} bytes", f"{len(text)} characters")
+    depth = 0
+    for m in _TOKENS.finditer(text):
+        c = m.group()
+        if c == "[" or c == "{":
+            depth += 1
+            if depth > MAX_DEPTH:
+                line = text.count("\n", 0, m.start()) + 1
+                return Problem("(file)", f"arrays and inline tables nested at most {MAX_DEPTH} deep",
+                               f"deeper nesting at line {line}")
+        elif c == "]" or c == "}":
+            depth = max(depth - 1, 0)
+    return None
+
+
+# --------------------------------------------------------------------------------------
+# the checker
+
+
+class _Checker:
+    """Walks the parsed TOML, collecting :class:`Problem` s instead of stopping at the first."""
+
+    def __init__(self):
+        self.problems: list[Problem] = []
+
+    def add(self, key: str, expected: str, found: str) -> None:
+        self.problems.append(Problem(key, expected, found))
+
+    def keys(self, d: dict, path: str, allowed) -> None:
+        allowed = list(allowed)
+        for k in d:
+            if k not in allowed:
+                close = (difflib.get_close_matches(k, allowed, n=1, cutoff=0.7)
+                         if len(k) < 100 and len(self.problems) < MAX_LISTED else [])  # hints where they are shown
+                hint = f" (did you mean {close[0]!r}?)" if close else ""
+                self.add(f"{path}.{k}" if path else k, f"one of the keys {', '.join(allowed)}{hint}",
+                         f"the unknown key {_show(k)}" if len(k) > 40 else f"the unknown key {k!r}")
+
+    def table(self, d: dict, key: str, path: str, required: bool = False) -> dict | None:
+        v = d.get(key, _MISSING)
+        if v is _MISSING:
+            if required:
+                self.add(path, "a table", "nothing")
+            return None
+        if not isinstance(v, dict):
+            self.add(path, "a table", f"{_type_name(v)} {_show(v)}")
+            return None
+        return v
+
+    def field(self, d: dict, f: Field, path: str, default=None):
+        """The value of the declared field ``f`` of table ``d`` (scalar kinds), checked
+        against its declaration; ``default`` when it is missing (or wrong)."""
+        if f.kind == "number":
+            return self.number(d, f.key, path, f.range.unit if f.range else "", default=default, required=f.required,
+                               bounds=f.range)
+        if f.kind == "integer":
+            r = f.range or Range(1, None, integer=True)
+            return self.integer(d, f.key, path, default=default, minimum=int(r.low),
+                                maximum=None if r.high is None else int(r.high))
+        if f.kind == "boolean":
+            return self.boolean(d, f.key, path, default)
+        if f.kind == "string":
+            return self.string(d, f.key, path, default)
+        if f.kind == "choice":
+            return self.choice(d, f.key, path, f.choices, default=default, required=f.required)
+        if f.kind == "vector":
+            if f.key not in d and f.required:
+                self.add(path, f"an array of {f.size} numbers", "nothing (the key is required)")
+                return None
+            return self.vector(d, f.key, path, f.size, f.range.unit if f.range else "", default=default, bounds=f.range)
+        raise ValueError(f"field {f.key}: kind {f.kind!r} is not a scalar kind")  # pragma: no cover
+
+    def number(self, d: dict, key: str, path: str, unit: str = "", *, default=None, required: bool = False,
+               minimum: float | None = None, strict: bool = True, maximum: float | None = None,
+               bounds: Range | None = None):
+        """A finite real number inside ``bounds`` (or above ``minimum``: ``> minimum`` if
+        ``strict``, else ``>=``; at most ``maximum``)."""
+        if bounds is None:
+            bounds = Range(minimum, maximum, low_open=strict)
+        v = d.get(key, _MISSING)
+        u = f" ({unit})" if unit else ""
+        what = Range(bounds.low, bounds.high, low_open=bounds.low_open, high_open=bounds.high_open).what() + u
+        if v is _MISSING:
+            if required:
+                self.add(path, what, "nothing (the key is required)")
+            return default
+        if not _is_number(v):
+            self.add(path, what, f"{_type_name(v)} {_show(v)}")
+            return default
+        x = _as_float(v)
+        if x is None:
+            self.add(path, what, f"an integer too large for a float, {_show(v)}")
+            return default
+        if not math.isfinite(x):
+            self.add(path, what.replace("a number", "a finite number", 1), _show(v))
+            return default
+        if not bounds.contains(x):
+            self.add(path, what, _show(v))
+            return default
+        return x + 0.0  # -0.0 is 0 (no "-0" in messages and descriptions)
+
+    def integer(self, d: dict, key: str, path: str, *, default=None, minimum: int = 1, maximum: int | None = None):
+        v = d.get(key, _MISSING)
+        if v is _MISSING:
+            return default
+        what = f"an integer >= {minimum}" + (f" and <= {maximum}" if maximum is not None else "")
+        if not isinstance(v, int) or isinstance(v, bool):
+            self.add(path, what, f"{_type_name(v)} {_show(v)}")
+            return default
+        if v < minimum or (maximum is not None and v > maximum):
+            self.add(path, what, _show(v))
+            return default
+        return int(v)
+
+    def boolean(self, d: dict, key: str, path: str, default: bool) -> bool:
+        v = d.get(key, _MISSING)
+        if v is _MISSING:
+            return default
+        if not isinstance(v, bool):
+            self.add(path, "true or false", f"{_type_name(v)} {_show(v)}")
+            return default
+        return v
+
+    def string(self, d: dict, key: str, path: str, default: str | None = None) -> str | None:
+        v = d.get(key, _MISSING)
+        if v is _MISSING:
+            return default
+        if not isinstance(v, str):
+            self.add(path, "a string", f"{_type_name(v)} {_show(v)}")
+            return default
+        return v
+
+    def path(self, d: dict, key: str, path: str, default: str) -> str | None:
+        """A folder path: a non-empty string with no NUL and no component over
+        :data:`MAX_NAME_BYTES` bytes."""
+        v = self.string(d, key, path, default)
+        if v is None:
+            return None
+        if not v.strip():
+            self.add(path, "a folder path", _show(v))
+            return None
+        if "\0" in v:
+            self.add(path, "a folder path without a NUL character", _show(v.replace("\0", "\\0")))
+            return None
+        size = len(v.encode("utf-8", "surrogatepass"))
+        if size > MAX_PATH_BYTES:
+            self.add(path, f"a folder path of at most {MAX_PATH_BYTES} bytes", f"{size} bytes, {_show(v)}")
+            return None
+        for part in re.split(r"[/\\]", v):
+            if len(part.encode("utf-8", "surrogatepass")) > MAX_NAME_BYTES:
+                self.add(path, f"path components of at most {MAX_NAME_BYTES} bytes",
+                         f"a component of {len(part.encode('utf-8', 'surrogatepass'))} bytes, {_show(part)}")
+                return None
+        return v
+
+    def choice(self, d: dict, key: str, path: str, choices, default=None, required: bool = False,
+               ignore_case: bool = False):
+        v = d.get(key, _MISSING)
+        options = ", ".join(f'"{c}"' for c in choices)
+        if v is _MISSING:
+            if required:
+                self.add(path, f"one of {options}", "nothing (the key is required)")
+            return default
+        if isinstance(v, str):
+            for c in choices:
+                if v == c or (ignore_case and v.lower() == c.lower()):
+                    return c
+        close = difflib.get_close_matches(v, list(choices), n=1, cutoff=0.7) if isinstance(v, str) and len(v) < 100 \
+            else []
+        hint = f" (did you mean {close[0]!r}?)" if close else ""
+        self.add(path, f"one of {options}{hint}", f"{_type_name(v)} {_show(v)}")
+        return default
+
+    def _numbers(self, v, path: str, what: str, bounds: Range | None = None) -> np.ndarray | None:
+        """A flat list of finite numbers (inside ``bounds``), or None (with a problem)."""
+        if not isinstance(v, list):
+            self.add(path, what, f"{_type_name(v)} {_show(v)}")
+            return None
+        for i, x in enumerate(v):
+            fx = _as_float(x) if _is_number(x) else None
+            if fx is None or not math.isfinite(fx):
+                self.add(f"{path}[{i}]", "a finite number", f"{_type_name(x)} {_show(x)}")
+                return None
+        arr = np.array(v, dtype=float) + 0.0  # -0.0 is 0
+        if bounds is not None:
+            bad = bounds.outside(arr)
+            if bad.any():
+                i = int(np.flatnonzero(bad)[0])
+                self.add(f"{path}[{i}]", bounds.what(), _show(v[i]))
+                return None
+        return arr
+
+    def vector(self, d: dict, key: str, path: str, size: int, unit: str = "", default=None,
+               bounds: Range | None = None):
+        v = d.get(key, _MISSING)
+        if v is _MISSING:
+            return None if default is None else np.array(default, dtype=float)
+        what = f"an array of {size} numbers{f' ({unit})' if unit else ''}"
+        arr = self._numbers(v, path, what, bounds)
+        if arr is None:
+            return None if default is None else np.array(default, dtype=float)
+        if arr.size != size:
+            self.add(path, what, f"{arr.size} numbers {_show(v)}")
+            return None if default is None else np.array(default, dtype=float)
+        return arr
+
+    def per_segment(self, v, path: str, n: int | None, unit: str = "", width: int = 3,
+                    bounds: Range | None = None) -> np.ndarray | None:
+        """``n * width`` numbers, flat or as ``n`` lists of ``width``; shape (n, width)."""
+        what = (f"{width * n} numbers ({width} a segment x {n} segment{'s' if n != 1 else ''}), flat or as {n} "
+                f"arrays of {width}{f', {unit}' if unit else ''}") if n is not None else "numbers"
+        if not isinstance(v, list):
+            self.add(path, what, f"{_type_name(v)} {_show(v)}")
+            return None
+        if n is None:  # the segment count is unknown (bad segments): check the entries only
+            return None
+        if v and all(isinstance(x, list) for x in v):
+            if len(v) != n:
+                self.add(path, what, f"{len(v)} arrays {_show(v)}")
+                return None
+            out = np.empty((n, width))
+            for j, row in enumerate(v):
+                arr = self._numbers(row, f"{path}[{j}]", f"an array of {width} numbers", bounds)
+                if arr is None:
+                    return None
+                if arr.size != width:
+                    self.add(f"{path}[{j}]", f"an array of {width} numbers (segment {j})", f"{arr.size} numbers {_show(row)}")
+                    return None
+                out[j] = arr
+            return out
+        if len(v) != n * width:
+            if all(_is_number(x) for x in v):
+                self.add(path, what, f"{len(v)} numbers {_show(v)}")
+                return None
+        arr = self._numbers(v, path, what, bounds)
+        if arr is None:
+            return None
+        if arr.size != n * width:
+            self.add(path, what, f"{arr.size} numbers {_show(v)}")
+            return None
+        return arr.reshape(n, width)
+
+
+# --------------------------------------------------------------------------------------
+# the documentation
+
+EXAMPLE = '''\
+name = "three-segment wave"
+gravity = [0.0, 0.0, -9.81]
+
+[model]
+node_tolerance = 1e-8
+
+[[segments]]
+count = 3
+length = 0.1
+radius = 0.015
+mass = 0.05
+chamber_area = 4.5e-5
+chamber_radius = 0.0085
+youngs_modulus = 1e5
+damping = 0.01
+
+[base]
+type = "fixed"
+position = [0.0, 0.0, 0.5]
+rpy = [3.141592653589793, 0.0, 0.0]
+
+[pressure]
+type = "sine"
+amplitude = [20e3, 0, 0,  20e3, 0, 0,  20e3, 0, 0]
+offset = [20e3, 0, 0,  20e3, 0, 0,  20e3, 0, 0]
+frequency = 0.5
+segment_phase = -1.0
+
+[initial]
+q_e = [[0.1, 0.0, 0.0], [0.1, 0.0, 0.0], [0.1, 0.0, 0.0]]
+
+[simulation]
+duration = 2.0
+method = "radau5"
+rtol = 1e-6
+atol = 1e-8
+
+[output]
+sample_rate = 100.0
+folder = "out/wave"
+plots = ["tip", "arm"]
+'''
+
+
+def _cell(s: str) -> str:
+    return s.replace("|", "\\|")
+
+
+def markdown() -> str:
+    """``docs/scene-format.md``: the format as tables of keys, generated from :data:`TABLES`."""
+    out = [
+        "# Scene file format",
+        "",
+        "<!-- Generated from qchain/scene_format.py by `python -m qchain.scene.format > docs/scene-format.md`;",
+        "     tests/test_bad_input.py checks that this file is up to date. Do not edit by hand. -->",
+        "",
+        "A scene file is TOML describing a soft arm, its inputs and a run (`qchain run SCENE.toml`,",
+        "`qchain.load_scene(path)`). Units are SI throughout: m, kg, s, Pa, rad, Hz. Every key is",
+        "optional unless marked **required**; a key a table does not know, a value of the wrong type,",
+        "a number outside its range, NaN or infinity, and a boolean where a number belongs are",
+        "refused: `load_scene` raises one `SceneError` listing every problem as",
+        "`file: key: expected ..., found ...` with the dotted key (`segments[1].radius`,",
+        "`pressure.values[2]`).",
+        "",
+        f"A file is at most {MAX_SCENE_BYTES} bytes of UTF-8 and nests arrays and inline tables at most",
+        f"{MAX_DEPTH} deep. Ranges are `qchain/bounds.py`'s, the same that `qchain.Segment` and",
+        "`qchain.simulate` check; they are far wider than any soft arm needs and keep every",
+        "product of them finite.",
+        "",
+        "## Example",
+        "",
+        "```toml",
+        EXAMPLE.rstrip("\n"),
+        "```",
+        "",
+    ]
+    for t in TABLES:
+        title = "Top level" if not t.path else (f"`[[{t.path[:-2]}]]`" if t.path.endswith("[]") else f"`[{t.path}]`")
+        out += [f"## {title}", "", t.doc, ""]
+        has_when = any(f.when for f in t.fields)
+        head = "| key | type | unit | range | default |" + (" with `type` |" if has_when else "") + " meaning |"
+        out += [head, "|" + "---|" * (head.count("|") - 1)]
+        for f in t.fields:
+            unit = f.range.unit if f.range is not None else ""
+            default = "**required**" if f.required else (f.default or "none")
+            row = f"| `{f.key}` | {f.type_text()} | {_cell(unit)} | {_cell(f.range_text())} | {_cell(default)} |"
+            if has_when:
+                row += f" {', '.join(f.when) if f.when else 'all'} |"
+            out.append(row + f" {_cell(f.doc)} |")
+        out.append("")
+    out += [
+        "## Checks across keys",
+        "",
+        "* the chambers fit: `chamber_radius + sqrt(chamber_area / pi) <= radius`;",
+        "* `max_bend` only with `node_tolerance`;",
+        "* `base.velocity` and `base.angular_velocity` only with a floating base, `base.motion` only (and",
+        "  always) with a prescribed one; `plots = [\"momentum\"]` only with a floating base;",
+        "* pressures at or above a vacuum, -101325 Pa gauge, at all times (a sine's `offset - abs(amplitude)`);",
+        "* `dt` with a fixed-step method only and `<= duration`; `max_step` with an adaptive one only;",
+        "* the initial state inside the model, its mass matrix and energies finite;",
+        "* the run within its budget: `[budget]` above, whose message names the key that makes the",
+        "  cost (`simulation.dt`, `simulation.max_step`, `pressure.frequency`, `base.motion.frequency`,",
+        "  `output.sample_rate`, `segments[i].count`) and the bound to raise.",
+        "",
+    ]
+    return "\n".join(out)
+
+
+if __name__ == "__main__":  # pragma: no cover - the documentation's generator
+    import sys
+
+    sys.stdout.write(markdown())

@@ -1,0 +1,374 @@
+"""Building a scene's model: the smallest :class:`~qchain.arm.chain.Chain` that represents a
+scene, and what it dropped and why (:class:`SceneModel`).
+
+The reductions (``extensible = false``, planar, the node count from
+``model.node_tolerance``) are described in "Model reduction" in the docstring of
+:mod:`qchain.scene`. :class:`ModelBuilder` holds them as methods of
+:class:`~qchain.scene.Scene`, which inherits them; it reads the scene's parts and has no
+state of its own.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import pinocchio as pin
+
+from ..arm.chain import Chain
+from ..sim.inputs import Schedule
+from .parts import _vec_str
+from ..model.segment import CHAMBER_ANGLES, DEFAULT_NODES
+
+__all__ = ["SceneModel", "ModelBuilder", "BEND_MARGIN", "BEND_SAMPLES"]
+
+#: Safety factor on the estimated static bend (the overshoot of an undamped step response).
+BEND_MARGIN = 2.0
+#: Even samples of the run at which the pressure schedule is scanned for the bend estimate.
+BEND_SAMPLES = 65
+
+
+@dataclass(eq=False)
+class SceneModel:
+    """The model a scene needs, ready to simulate.
+
+    Attributes
+    ----------
+    chain : Chain
+    q0 : (nq,), v0 : (nv,)
+        Initial state in the chain's layout.
+    pressure : Schedule or None
+        Chamber pressures ``t -> (3 n,)`` Pa.
+    nodes : list of int
+        Gauss nodes of each segment.
+    max_bend : (n,) rad or None
+        Bend each segment was sized for (with ``node_tolerance``).
+    reductions : list of str
+        What was dropped and why.
+    kept : list of str
+        Reductions that did not apply, and why not.
+    reduced : bool
+        Whether the automatic reductions were on.
+    """
+
+    chain: Chain
+    q0: np.ndarray
+    v0: np.ndarray
+    pressure: Schedule | None
+    nodes: list[int]
+    max_bend: np.ndarray | None
+    reductions: list[str]
+    kept: list[str]
+    reduced: bool
+
+
+def _ranges(idx) -> str:
+    """``[0, 1, 2, 5]`` -> ``"segments 0-2, 5"``."""
+    idx = sorted(idx)
+    parts = []
+    start = prev = idx[0]
+    for i in idx[1:] + [None]:
+        if i is not None and i == prev + 1:
+            prev = i
+            continue
+        parts.append(f"{start}" if start == prev else f"{start}-{prev}")
+        if i is not None:
+            start = prev = i
+    word = "segment" if len(idx) == 1 else "segments"
+    return f"{word} {', '.join(parts)}"
+
+
+def _fmt(x: float) -> str:
+    return f"{x:.3g}"
+
+
+def _list_or_one(xs) -> str:
+    xs = list(xs)
+    return f"{xs[0]} per segment" if all(x == xs[0] for x in xs) else ", ".join(str(x) for x in xs)
+
+
+def _chambers_2_3_differ(spec: dict, n: int) -> str | None:
+    """Why chambers 2 and 3 of some segment do not get the same pressure at all times, or None."""
+    t = spec.get("type")
+    if t is None:
+        return None
+    i2 = np.arange(n) * 3 + 1
+    i3 = i2 + 1
+
+    def differ(name):
+        a = np.atleast_2d(spec[name])
+        bad = np.flatnonzero(np.any(a[:, i2] != a[:, i3], axis=0))
+        return None if bad.size == 0 else f"pressure.{name}: chambers 2 and 3 differ in {_ranges(bad.tolist())}"
+
+    names = {"constant": ["value"], "step": ["before", "after"], "ramp": ["start", "end"], "table": ["values"]}
+    if t in names:
+        for name in names[t]:
+            why = differ(name)
+            if why:
+                return why
+        return None
+    # sine: equal offsets, and equal sine terms (both zero, or equal amplitude, frequency, phase)
+    why = differ("offset")
+    if why:
+        return why
+    A, f, ph = spec["amplitude"], spec["frequency"], spec["phase"]
+    bad = []
+    for j in range(n):
+        a, b = i2[j], i3[j]
+        zero = lambda k: A[k] == 0.0 or (f[k] == 0.0 and math.sin(ph[k]) == 0.0)  # noqa: E731
+        if zero(a) and zero(b):
+            continue
+        same_phase = abs(math.remainder(ph[a] - ph[b], 2 * math.pi)) <= 1e-12
+        if not (A[a] == A[b] and f[a] == f[b] and same_phase):
+            bad.append(j)
+    return None if not bad else f"pressure: the sines of chambers 2 and 3 differ in {_ranges(bad)}"
+
+
+class ModelBuilder:
+    """Model building and reduction of :class:`~qchain.scene.Scene` (its base class; see the
+    module docstring)."""
+
+    def build(self, reduce: bool | None = None, controlled: bool = False) -> SceneModel:
+        """Build the model; see "Model reduction" in the docstring of :mod:`qchain.scene`.
+
+        Parameters
+        ----------
+        reduce : bool, optional
+            Automatic reductions (planar, node count) on or off; default the file's
+            ``model.reduce``.
+        controlled : bool
+            The pressures will come from a controller, not from the file: the planar
+            reduction, which needs chambers 2 and 3 equal at all times, is not made.
+        """
+        reduce = self.reduce if reduce is None else bool(reduce)
+        reductions: list[str] = []
+        kept: list[str] = []
+        locked = [j for j, s in enumerate(self.segments) if not s.extensible]
+        if locked:
+            reductions.append(f"{_ranges(locked)}: l locked at l0 (extensible = false): axial mode dropped")
+        if self.base.type == "fixed":
+            reductions.append("fixed base: no base coordinates")
+        planar = False
+        why_not = "the pressures come from a controller" if controlled else self.planar_obstacle()
+        if not reduce:
+            kept.append("planar: not tried (reduce = false)")
+        elif why_not is None:
+            planar = True
+            reductions.append(
+                "planar: uy locked at 0 in every segment: gravity, pressures (p2 == p3), initial state and base "
+                "motion symmetric about the base x-z plane"
+            )
+        else:
+            kept.append(f"planar: not applicable: {why_not}")
+        self._start_compiling(planar, controlled)
+        nodes, max_bend, note = self._nodes(reduce, planar)
+        (reductions if max_bend is not None else kept).append(note)  # sized from node_tolerance, or not
+        segs = [s.segment(nodes=k) for s, k in zip(self.segments, nodes)]
+        chain = self._chain(segs, planar)
+        q0, v0 = self._initial_state(chain)
+        # the start state's energies, which a run checks first (its kernels load here, with
+        # the model, not in the run's time)
+        chain.kinetic_energy(q0, v0)
+        chain.potential_energy(q0)
+        return SceneModel(chain=chain, q0=q0, v0=v0, pressure=self.pressure, nodes=nodes, max_bend=max_bend,
+                          reductions=reductions, kept=kept, reduced=reduce)
+
+    def _start_compiling(self, planar: bool, controlled: bool) -> None:
+        """On a cold cache, set the engine's compile going in worker processes while the model
+        is built (the node count's static solves compile kernels of their own here)."""
+        from ..sim.simulation import COMPILED
+
+        if self.method in COMPILED and not controlled and all(s.coords == "curvature" for s in self.segments):
+            from ..sim.engine import warmup
+
+            warmup.start(self.method, planar_kernel=planar and self.base.type != "floating")
+
+    @functools.cached_property
+    def model(self) -> SceneModel:
+        """The model with the file's own ``reduce`` setting (built once)."""
+        return self.build()
+
+    @property
+    def reductions(self) -> list[str]:
+        """What :attr:`model` dropped and why (human-readable)."""
+        return self.model.reductions
+
+    def _chain(self, segs, planar: bool) -> Chain:
+        g = self.gravity
+        if self.base.type == "fixed":
+            return Chain(segs, base="fixed", gravity=g, base_placement=self.base.placement, planar=planar)
+        if self.base.type == "floating":
+            return Chain(segs, base="floating", gravity=g, planar=planar)
+        return Chain(segs, base="prescribed", gravity=g, base_motion=self.base.motion, planar=planar)
+
+    def _initial_state(self, chain: Chain) -> tuple[np.ndarray, np.ndarray]:
+        q = np.empty(chain.nq)
+        v = np.empty(chain.nv)
+        if chain.floating:
+            q[:7] = pin.SE3ToXYZQUAT(self.base.placement)
+            v[:3] = self.base.velocity
+            v[3:6] = self.base.angular_velocity
+        o, ov = (7, 6) if chain.floating else (0, 0)
+        q[o:] = self.q_e0.ravel()
+        v[ov:] = self.v_e0.ravel()
+        return q, v
+
+    def planar_obstacle(self) -> str | None:
+        """Why the scene is not symmetric about the base's x-z plane, or None if it is."""
+        paper = [j for j, s in enumerate(self.segments) if s.coords != "curvature"]
+        if paper:
+            return f"{_ranges(paper)} in paper coordinates (uy is not one of their coordinates)"
+        R0 = self.base.placement.rotation
+        g_B = R0.T @ self.gravity
+        if abs(g_B[1]) > 1e-12 * max(1.0, float(np.linalg.norm(self.gravity))):
+            return f"gravity has a component {g_B[1]:.6g} m/s^2 along the base y axis"
+        bad = [j for j in range(self.n) if self.q_e0[j, 2] != 0.0 or self.v_e0[j, 2] != 0.0]
+        if bad:
+            return f"{_ranges(bad)}: initial uy or its rate is not 0"
+        why = _chambers_2_3_differ(self.pressure_spec, self.n)
+        if why:
+            return why
+        b = self.base
+        if b.type == "floating" and (b.velocity[1] != 0.0 or b.angular_velocity[0] != 0.0 or b.angular_velocity[2] != 0.0):
+            return "the floating base's initial twist leaves the x-z plane (velocity y, or angular velocity x or z, not 0)"
+        if b.type == "prescribed" and b.motion is not None:
+            ax = b.motion.axis
+            if b.motion.kind == "translation" and ax[1] != 0.0 and b.motion.amplitude != 0.0:
+                return f"the base translates along {_vec_str(ax)}, out of the x-z plane"
+            if b.motion.kind == "rotation" and (ax[0] != 0.0 or ax[2] != 0.0) and b.motion.amplitude != 0.0:
+                return f"the base turns about {_vec_str(ax)}, not the y axis"
+        return None
+
+    def _nodes(self, reduce: bool, planar: bool):
+        """Node counts, the bends they were sized for, and a note saying how."""
+        explicit = [s.nodes for s in self.segments]
+        if not reduce or self.node_tolerance is None:
+            nodes = [DEFAULT_NODES if k is None else k for k in explicit]
+            why = "reduce = false" if (reduce is False and self.node_tolerance is not None) else "no node_tolerance"
+            return nodes, None, f"node count: {_list_or_one(nodes)} ({why}; default {DEFAULT_NODES})"
+        from ..model.segment import nodes_for_tolerance
+
+        if self.max_bend is not None:
+            theta = np.full(self.n, self.max_bend)
+            how = f"max_bend = {_fmt(self.max_bend)} rad"
+        else:
+            theta, how = self.estimate_bend(planar)
+        nodes = []
+        for j, s in enumerate(self.segments):
+            if s.nodes is not None:
+                nodes.append(s.nodes)
+            else:
+                nodes.append(nodes_for_tolerance(s.segment(nodes=DEFAULT_NODES), float(theta[j]), self.node_tolerance))
+        fixed = [j for j, s in enumerate(self.segments) if s.nodes is not None]
+        extra = f"; {_ranges(fixed)} keep their own nodes" if fixed else ""
+        bend = _fmt(theta[0]) if np.all(theta == theta[0]) else ", ".join(_fmt(x) for x in theta)
+        note = (f"nodes: {_list_or_one(nodes)} from node_tolerance = {self.node_tolerance:g} at max bend {bend} rad "
+                f"({how}){extra}")
+        return nodes, theta, note
+
+    def estimate_bend(self, planar: bool = False) -> tuple[np.ndarray, str]:
+        """Largest bending angle of each segment the scene is expected to reach (rad, (n,)),
+        and how it was found. See "Model reduction" in the docstring of :mod:`qchain.scene`."""
+        from ..arm.statics import equilibrium
+
+        segs = [s.segment(nodes=DEFAULT_NODES) for s in self.segments]
+        conditions = self._static_conditions()
+        candidates = self._pressure_candidates()
+        static = np.zeros(self.n)
+        failed = None
+        for placement, g in conditions:
+            ch = Chain(segs, base="fixed", gravity=g, base_placement=placement, planar=planar)
+            q_guess = None
+            for p in candidates:
+                res = equilibrium(ch, p, q0=q_guess)
+                if not res.success:
+                    res = equilibrium(ch, p)
+                if not res.success:
+                    failed = (p, res.message)
+                    break
+                q_guess = res.q
+                static = np.maximum(static, self._bends(ch, res.q))
+            if failed:
+                break
+        initial = self._bends(None, None)
+        ch0 = Chain(segs, base="fixed", gravity=np.zeros(3))  # deformation rates only: rigid motion bends nothing
+        T0 = ch0.kinetic_energy(self.q_e0.ravel(), self.v_e0.ravel())
+        EI = np.array([s.segment(nodes=1).bending_stiffness for s in self.segments])
+        l0 = np.array([s.length for s in self.segments])
+        kin = np.sqrt(2.0 * T0 * l0 / EI)
+        if failed:
+            r = np.array([s.radius for s in self.segments])
+            p, msg = failed
+            return l0 / r, (f"equilibrium failed at p = {_vec_str(p)} Pa ({msg}): sized for the largest bend the "
+                            f"model allows, l0/r_s")
+        theta = np.full(self.n, BEND_MARGIN * max(static.max(), initial.max()) + kin.max())
+        parts = [f"{BEND_MARGIN:g} x the largest static bend under peak pressures"]
+        if initial.max() > static.max():
+            parts = [f"{BEND_MARGIN:g} x the largest initial bend"]
+        if T0 > 0:
+            parts.append(f"+ {_fmt(kin.max())} rad for the initial kinetic energy {T0:.3g} J")
+        return theta, " ".join(parts) + ", any segment"
+
+    def bends(self, chain: Chain, traj) -> np.ndarray:
+        """Largest bending angle ``|kappa| l`` (rad) each segment reached in a trajectory, (n,)."""
+        out = np.zeros(self.n)
+        for q in traj.q:
+            out = np.maximum(out, self._bends(chain, q))
+        return out
+
+    def _bends(self, chain, q) -> np.ndarray:
+        """Bending angle ``kappa l`` of each segment at ``q`` (or at the initial state)."""
+        out = np.empty(self.n)
+        for j, s in enumerate(self.segments):
+            qe = self.q_e0[j] if q is None else q[chain.q_slice(j)]
+            kappa = qe[2] if s.coords == "paper" else math.hypot(qe[1], qe[2])
+            out[j] = abs(kappa) * qe[0]
+        return out
+
+    def _static_conditions(self) -> list[tuple[pin.SE3, np.ndarray]]:
+        """(base placement, gravity) pairs the static bend is estimated under."""
+        b = self.base
+        if b.type == "fixed":
+            return [(b.placement, self.gravity)]
+        if b.type == "floating":
+            return [(b.placement, np.zeros(3))]
+        m = b.motion
+        if m.kind == "translation":
+            a = m.peak_acceleration() * (m.mount.rotation @ m.axis)
+            return [(m(0.0)[0], self.gravity), (m(0.0)[0], self.gravity + a), (m(0.0)[0], self.gravity - a)]
+        return [(m(0.0)[0], self.gravity), (m.placement_at(m.amplitude), self.gravity),
+                (m.placement_at(-m.amplitude), self.gravity)]
+
+    def _pressure_candidates(self) -> list[np.ndarray]:
+        """Pressure vectors at which the static bend is solved (see "Model reduction" in the
+        docstring of :mod:`qchain.scene`)."""
+        n = self.n
+        if self.pressure is None:
+            return [np.zeros(3 * n)]
+        T = self.duration
+        times = list(np.linspace(0.0, T, BEND_SAMPLES))
+        spec = self.pressure_spec
+        if spec["type"] == "step" and 0.0 <= spec["time"] <= T:
+            times.append(spec["time"])
+        elif spec["type"] == "ramp":
+            times += [t for t in (spec["t0"], spec["t1"]) if 0.0 <= t <= T]
+        elif spec["type"] == "table":
+            times += [t for t in spec["times"] if 0.0 <= t <= T]
+        elif spec["type"] == "sine":  # the extremes of every chamber's sine inside the run
+            f = spec["frequency"]
+            ph = spec["phase"]
+            for k in range(3 * n):
+                if f[k] > 0:
+                    period = 1.0 / f[k]
+                    for target in (0.25, 0.75):
+                        t0 = ((target - ph[k] / (2 * math.pi)) % 1.0) * period
+                        times += list(np.arange(t0, T, period)[:64])
+        P = np.array([self.pressure(t) for t in sorted(set(times))])
+        c = np.exp(1j * np.asarray(CHAMBER_ANGLES))
+        drive = np.abs(P.reshape(len(P), n, 3) @ c)  # (K, n): bending drive per segment (arbitrary units)
+        pick = set(int(k) for k in np.argmax(drive, axis=0))
+        pick.add(int(np.argmax(drive.sum(axis=1))))
+        pick.add(int(np.argmin(drive.sum(axis=1))))
+        return [P[k] for k in sorted(pick)]

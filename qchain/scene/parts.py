@@ -1,0 +1,65 @@
+"""The parts of a scene: its segments (:class:`SegmentSpec`), its base (:class:`BaseSpec`)
+and a prescribed base's motion (:class:`SineMotion`), as :func:`qchain.scene.load_scene`
+reads them from a file; and how a vector of theirs reads in a message.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import pinocchio as pin
+
+from ..model.segment import Segment
+from ..sim.inputs import SineMotion
+
+__all__ = ["SegmentSpec", "SineMotion", "BaseSpec"]
+
+
+@dataclass(frozen=True)
+class SegmentSpec:
+    """One segment of a scene (after ``count`` is expanded); ``source`` is its table's key."""
+
+    length: float
+    radius: float
+    mass: float
+    chamber_area: float
+    chamber_radius: float
+    youngs_modulus: float
+    damping: float = 0.0
+    coords: str = "curvature"
+    actuation: str = "volume"
+    extensible: bool = True
+    nodes: int | None = None
+    source: str = ""
+
+    def segment(self, nodes: int | None = None) -> Segment:
+        """The :class:`qchain.Segment` with ``nodes`` Gauss nodes (default: the spec's own)."""
+        return Segment(
+            length=self.length, radius=self.radius, mass=self.mass, chamber_area=self.chamber_area,
+            chamber_radius=self.chamber_radius, youngs_modulus=self.youngs_modulus, damping=self.damping,
+            coords=self.coords, actuation=self.actuation, extensible=self.extensible,
+            nodes=self.nodes if nodes is None else nodes,
+        )
+
+
+@dataclass(frozen=True, eq=False)
+class BaseSpec:
+    """The base of a scene: ``type`` and the placement, initial twist or motion it needs."""
+
+    type: str = "fixed"
+    position: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    rpy: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    velocity: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    angular_velocity: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    motion: SineMotion | None = None
+
+    @property
+    def placement(self) -> pin.SE3:
+        """The mount (fixed, prescribed) or initial (floating) placement ``X_WB`` in the world."""
+        return pin.SE3(pin.rpy.rpyToMatrix(*self.rpy), np.array(self.position, dtype=float))
+
+
+def _vec_str(v) -> str:
+    """A vector as scene messages show it: ``(1, 0.5, 0)``."""
+    return "(" + ", ".join(f"{x:.6g}" for x in v) + ")"

@@ -1,0 +1,358 @@
+"""Scene files: a soft arm, its inputs and a run, described in TOML.
+
+``load_scene(path) -> Scene`` reads and validates a file; ``Scene.build()`` makes the
+smallest model that represents the scene (and says what it dropped and why);
+``Scene.simulate()`` runs it. ``qchain run SCENE.toml`` and ``qchain info SCENE.toml``
+(:mod:`qchain.cli`) do the same from the command line. Units are SI throughout: m, kg,
+s, Pa, rad, Hz.
+
+This module holds :class:`Scene` (its run and its description) and re-exports the rest:
+the file is read in :mod:`qchain.scene.reading`, the parts of a scene
+(:class:`SegmentSpec`, :class:`BaseSpec`, :class:`SineMotion`) are in
+:mod:`qchain.scene.parts`, and the model is built and reduced in :mod:`qchain.scene.model`.
+
+File format
+-----------
+Declared once, in :mod:`qchain.scene.format` (every key's type, unit, range, default and
+meaning); ``docs/scene-format.md`` is generated from it and holds an example. Vectors of
+pressures, coordinates and velocities hold one entry per segment and chamber/coordinate,
+flat (``3 n`` numbers) or nested (``n`` arrays of 3), ``n`` the number of segments after
+``count`` is expanded.
+
+Errors
+------
+:func:`load_scene` checks the whole file and raises one :class:`SceneError` listing every
+problem, each as ``key: expected ..., found ...`` with the dotted key (``segments[1].radius``,
+``pressure.values[2]``): unknown keys (with the closest known one), wrong types (booleans
+are not numbers), numbers outside their range (:mod:`qchain.checks.bounds`), NaN and infinities,
+vectors of the wrong length, decreasing table times, unknown methods and kinds, initial
+states outside the model, a fixed-step method without ``dt``, files too large or nested
+too deep, and a run that would exceed its budget (:mod:`qchain.sim.budget`: steps, samples,
+memory, segments), named by the key that makes the cost.
+
+Model reduction
+---------------
+``Scene.build()`` builds the smallest model that represents the scene and lists, in
+``SceneModel.reductions``, what it dropped and why (``Scene.reductions`` for the scene's
+own setting); ``SceneModel.kept`` says which reductions did not apply and why not.
+
+* ``extensible = false`` (the file's choice, applied with or without ``reduce``): ``l`` is
+  held at ``l0`` and the axial mode, the stiffest, is dropped.
+* planar (automatic): ``uy`` is held at 0 in every segment when the scene is symmetric
+  about the base's x-z plane, where the reduction is exact: every segment in curvature
+  coordinates; gravity in that plane (expressed in the base frame at the start); chambers
+  2 and 3 of every segment given the same pressure at all times (equal schedule
+  parameters); ``uy = 0`` and ``uy' = 0`` at the start; a base motion in that plane (a
+  translation along an axis with no y component, a rotation about the y axis; a floating
+  base with no initial y velocity and no x or z angular velocity).
+* nodes (automatic, with ``model.node_tolerance``): each segment gets the fewest Gauss
+  nodes whose ``M_xi`` is within ``node_tolerance`` of a converged one
+  (:func:`qchain.model.segment.nodes_for_tolerance`) at the largest bend the scene reaches:
+  ``model.max_bend`` if given, else the estimate ``BEND_MARGIN`` (2) times the largest of
+  the initial bends and the static bends (:func:`qchain.arm.statics.equilibrium`) under the
+  scene's peak pressures, plus ``sqrt(2 T0 l0 / EI)``, the bend that would store all the
+  initial kinetic energy ``T0`` of the deformation rates (base held still); one angle, the
+  largest over the segments, for all segments, since a moving arm carries its bends from
+  segment to segment. The factor 2 is the overshoot of an undamped step response. The static shapes are solved with the base held at its start placement, for
+  the pressures at the times where each segment's bending drive is largest (and
+  smallest), over 65 even samples of the run and the schedule's corner times; a floating
+  base is solved in zero gravity (a free-falling arm carries no gravity load); a
+  translating base adds its peak acceleration to gravity in both directions, a rotating
+  one is solved at both ends of its swing. Strongly driven scenes (resonance, fast base
+  motion) can bend more: give ``max_bend`` there. ``qchain run`` prints the bends a run
+  reached beside the one the nodes were sized for, and warns when a run went further.
+  Without ``node_tolerance`` the segments keep ``nodes`` or
+  :data:`qchain.model.segment.DEFAULT_NODES`.
+
+``model.reduce = false`` (or ``Scene.build(reduce=False)``) turns the automatic reductions
+off: same layout, all coordinates free, the default node count, for comparison.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from . import format as F
+from ..checks.bounds import DURATION, VACUUM_GAUGE
+from ..sim.budget import Budget, BudgetError
+from ..sim.engine.driver import EXPLICIT_STABILITY_EXTENT
+from ..sim.inputs import Schedule
+from .format import PLOTS, Problem, SceneError, _Checker, _show, _type_name  # noqa: F401 (re-exported)
+from .model import BEND_MARGIN, BEND_SAMPLES, ModelBuilder, SceneModel, _list_or_one  # noqa: F401 (re-exported)
+from .parts import BaseSpec, SegmentSpec, SineMotion, _vec_str
+from .cost import _cost, _frequency
+from ..sim.simulation import FIXED_STEP, METHODS
+
+__all__ = [
+    "Scene",
+    "SceneModel",
+    "SceneError",
+    "Problem",
+    "SegmentSpec",
+    "BaseSpec",
+    "SineMotion",
+    "METHODS",
+    "PLOTS",
+    "BEND_MARGIN",
+    "VACUUM_GAUGE",
+]
+
+_TOP_KEYS = F.TOP.keys()
+
+
+# --------------------------------------------------------------------------------------
+# the scene
+
+
+@dataclass(eq=False)
+class Scene(ModelBuilder):
+    """A validated scene file. Build the model with :meth:`build`, run it with :meth:`simulate`.
+
+    Attributes
+    ----------
+    path : Path or None
+        The file (None for a scene parsed from text).
+    text : str
+        The file's content.
+    name, description : str
+    segments : list of SegmentSpec
+        One entry per segment, base to tip (``count`` expanded).
+    base : BaseSpec
+    gravity : (3,) m/s^2, world frame
+    pressure : Schedule or None
+        Chamber pressures ``t -> (3 n,)`` Pa.
+    pressure_spec : dict
+        The pressure table as parsed (``type`` and arrays of shape (3 n,) or (K, 3 n)).
+    q_e0, v_e0 : (n, 3)
+        Initial segment coordinates and rates (segment coordinates).
+    duration : float, s
+    method : str
+        One of :data:`METHODS`.
+    rtol, atol : float
+    dt : float or None, s
+    max_step : float, s (``inf`` when not given)
+    reduce : bool
+    node_tolerance, max_bend : float or None
+    sample_rate : float, Hz
+    output_folder : Path
+    plots : tuple of str
+    save : bool
+    budget : Budget
+        What a run may cost (:mod:`qchain.sim.budget`; the file's ``[budget]`` table).
+    """
+
+    path: Path | None
+    text: str
+    name: str
+    description: str
+    segments: list[SegmentSpec]
+    base: BaseSpec
+    gravity: np.ndarray
+    pressure: Schedule | None
+    pressure_spec: dict
+    q_e0: np.ndarray
+    v_e0: np.ndarray
+    duration: float
+    method: str
+    rtol: float
+    atol: float
+    dt: float | None
+    max_step: float
+    reduce: bool
+    node_tolerance: float | None
+    max_bend: float | None
+    sample_rate: float
+    output_folder: Path
+    plots: tuple[str, ...]
+    save: bool
+    budget: Budget = field(default_factory=Budget)
+
+    @property
+    def n(self) -> int:
+        """Number of segments."""
+        return len(self.segments)
+
+    # ------------------------------------------------------------------ run
+
+    def sample_times(self, duration: float | None = None) -> np.ndarray:
+        """Output times ``k / sample_rate`` from 0 up to the run's end (included), s; a
+        :class:`qchain.sim.budget.BudgetError` if there would be more than the budget allows."""
+        T = self.duration if duration is None else DURATION.check("duration", duration)
+        self.check_budget(T)
+        k = np.arange(0, int(math.floor(T * self.sample_rate * (1 + 1e-12))) + 1)
+        t = k / self.sample_rate
+        t = t[t < T - 1e-9 * max(1.0, T)]
+        return np.append(t, T)
+
+    def simulate(self, *, reduce: bool | None = None, model: SceneModel | None = None,
+                 duration: float | None = None, pressure=None, on_sample=None, progress: bool | str = False,
+                 controller_rate: float | None = None):
+        """Run the scene; returns a :class:`qchain.sim.trajectory.Trajectory` sampled at
+        :meth:`sample_times`.
+
+        Parameters
+        ----------
+        reduce : bool, optional
+            Build with or without the automatic reductions (ignored if ``model`` is given).
+        model : SceneModel, optional
+            A model built before (:meth:`build`); default :attr:`model` or a new build.
+        duration : float, s, optional
+            Override the file's duration.
+        pressure : callable ``(t, q, v) -> (3 n,)`` or Schedule, optional
+            Pressures instead of the file's (e.g. a controller; build the model with
+            ``controlled=True`` then).
+        on_sample : callable ``(t, q, v, p)``, optional
+            Called at every output sample.
+        progress : bool or "lines"
+            Progress on stderr (:func:`qchain.simulate`'s ``progress``).
+        controller_rate : float, Hz, optional
+            Sample a controller ``pressure`` at this rate and hold it (zero-order hold): the
+            run stays in compiled code between samples (:func:`qchain.simulate`).
+        """
+        from ..sim.simulation import simulate
+
+        T = self.duration if duration is None else DURATION.check("duration", duration)
+        self.check_budget(T)
+        if self.method in FIXED_STEP and self.dt > T:
+            raise ValueError(f"duration must be >= the scene's step dt = {self.dt:g} s, got {T:g} s")
+        if model is None:
+            model = self.model if reduce is None or reduce == self.reduce else self.build(reduce)
+        try:
+            return simulate(
+                model.chain, model.q0, model.v0, (0.0, T), pressure=model.pressure if pressure is None else pressure,
+                method=self.method, dt=self.dt,
+                rtol=self.rtol, atol=self.atol, t_eval=self.sample_times(T), on_sample=on_sample, progress=progress,
+                max_step=self.max_step, controller_rate=controller_rate, budget=self.budget,
+            )
+        except BudgetError as err:  # said as a scene's budget: raised in its [budget] table
+            if err.cost is None:
+                raise
+            self.budget.check(err.cost, how="raise it in the scene's [budget] table")
+            raise
+
+    def cost(self, duration: float | None = None, model: SceneModel | None = None):
+        """What a run of the scene (``duration`` s, default the file's) costs:
+        :class:`qchain.sim.budget.Cost`. With the built ``model``, an explicit adaptive method's
+        steps include its stability limit at the start
+        (:func:`qchain.sim.simulation.explicit_stability_limit`)."""
+        T = self.duration if duration is None else duration
+        stable = None
+        if model is not None and self.method in EXPLICIT_STABILITY_EXTENT:
+            from ..sim.simulation import explicit_stability_limit
+
+            stable = explicit_stability_limit(model.chain, self.method, model.q0, model.v0, 0.0, model.pressure)
+        return _cost(self.n, self.base.type, self.method, self.dt, self.max_step, T, self.sample_rate,
+                     _frequency(self.pressure_spec, self.base), stable_step=stable)
+
+    def check_budget(self, duration: float | None = None, model: SceneModel | None = None) -> None:
+        """Raise :class:`qchain.sim.budget.BudgetError` if a run of ``duration`` s (default the
+        file's) would exceed :attr:`budget`, naming the bound and how to raise it; with the
+        built ``model`` the steps include an explicit method's stability limit."""
+        self.budget.check(self.cost(duration, model), how="raise it in the scene's [budget] table")
+
+    def check_output(self, folder: str | os.PathLike | None = None) -> Path:
+        """Make sure a run can write its outputs to ``folder`` (default ``output.folder``)
+        before it starts: the folder is made, must be a writable folder (not a file, not
+        read-only) on a file system with room for the trajectory; returns it.
+
+        Raises
+        ------
+        SceneError
+            naming ``output.folder``, the folder and what is wrong with it.
+        """
+        import shutil
+        import tempfile
+
+        p = Path(self.output_folder if folder is None else folder)
+
+        def fail(expected, found):
+            raise SceneError(str(self.path) if self.path else "<scene>", [Problem("output.folder", expected, found)])
+
+        if "\0" in str(p):
+            fail("a folder path without a NUL character", _show(str(p).replace("\0", "\\0")))
+        try:
+            for parent in [p, *p.parents]:
+                if parent.exists() and not parent.is_dir():
+                    fail("a folder (or a path where one can be made)", f"{parent} is a file")
+            p.mkdir(parents=True, exist_ok=True)
+            with tempfile.TemporaryFile(dir=p) as fh:
+                fh.write(b"qchain")
+        except OSError as err:  # also a path too long, a loop of links (from exists() too)
+            shown = str(p) if len(str(p)) <= 120 else str(p)[:117] + "..."
+            fail("a folder qchain can write in", f"{shown}: {err.strerror or err}")
+        cost = self.cost()
+        need = cost.samples * 8.0 * (6 + 4 * 3 * self.n) + 2**20 * (len(self.plots) + 1)
+        free = shutil.disk_usage(p).free
+        if free < need:
+            fail(f"room for the outputs, about {need / 2**20:.3g} MiB", f"{free / 2**20:.3g} MiB free in {p}")
+        return p
+
+    # ------------------------------------------------------------------ report
+
+    def describe(self, model: SceneModel | None = None, duration: float | None = None,
+                 folder: str | os.PathLike | None = None, plots: bool = True) -> list[str]:
+        """Lines describing the scene and the model it builds (``qchain info``); ``duration``,
+        ``folder`` and ``plots`` (False: none written) are a run's own where it overrides
+        the file's (``qchain run --duration --out --no-plots``)."""
+        m = self.model if model is None else model
+        ch = m.chain
+        lines = [f"scene: {self.path if self.path else '<text>'}" + (f" ({self.name})" if self.name else "")]
+        if self.description:
+            lines.append(f"  {self.description}")
+        kinds = sorted({(s.coords, s.actuation) for s in self.segments})
+        lines.append(f"segments: {self.n} ({'; '.join(f'{c} coordinates, {a} actuation' for c, a in kinds)})")
+        b = self.base
+        if b.type == "fixed":
+            lines.append(f"base: fixed at {_vec_str(b.position)} m, rpy {_vec_str(b.rpy)} rad")
+        elif b.type == "floating":
+            lines.append(f"base: floating, starts at {_vec_str(b.position)} m, rpy {_vec_str(b.rpy)} rad, "
+                         f"velocity {_vec_str(b.velocity)} m/s, angular velocity {_vec_str(b.angular_velocity)} rad/s")
+        else:
+            mo = b.motion
+            unit = "m" if mo.kind == "translation" else "rad"
+            lines.append(f"base: prescribed {mo.kind} along/about {_vec_str(mo.axis)} (mount frame), amplitude "
+                         f"{mo.amplitude:g} {unit}, {mo.frequency:g} Hz, phase {mo.phase:g} rad; mount at "
+                         f"{_vec_str(b.position)} m, rpy {_vec_str(b.rpy)} rad")
+        lines.append(f"gravity: {_vec_str(self.gravity)} m/s^2")
+        lines.append(f"model: nq = {ch.nq}, nv = {ch.nv}, free dofs = {ch.nv_active}, pressure inputs = {ch.nu}, "
+                     f"nodes = {_list_or_one(m.nodes)}")
+        lines.append(f"reductions ({'on' if m.reduced else 'off'}):")
+        lines += [f"  - {r}" for r in m.reductions] or ["  - none"]
+        if m.kept:
+            lines.append("not reduced:")
+            lines += [f"  - {k}" for k in m.kept]
+        lines.append(f"pressure: {_pressure_summary(self.pressure_spec)}")
+        meth = f"{self.method}, dt = {self.dt:g} s" if self.method in FIXED_STEP else \
+            f"{self.method}, rtol = {self.rtol:g}, atol = {self.atol:g}" + \
+            (f", max_step = {self.max_step:g} s" if math.isfinite(self.max_step) else "")
+        lines.append(f"simulation: {self.duration if duration is None else duration:g} s, {meth}")
+        if plots:
+            lines.append(f"output: {self.sample_rate:g} Hz to {self.output_folder if folder is None else folder}, "
+                         f"plots: {', '.join(self.plots) if self.plots else 'none'}"
+                         f"{', trajectory.npz' if self.save else ''}")
+        else:
+            lines.append(f"output: {self.sample_rate:g} Hz, no plots and no trajectory.npz")
+        return lines
+
+
+def _pressure_summary(spec: dict) -> str:
+    t = spec.get("type")
+    if t is None:
+        return "none (all chambers at 0 Pa)"
+    if t == "constant":
+        return f"constant, peak {np.max(np.abs(spec['value'])):.4g} Pa"
+    if t == "step":
+        return f"step at {spec['time']:g} s, to peak {np.max(np.abs(spec['after'])):.4g} Pa"
+    if t == "ramp":
+        return f"ramp {spec['t0']:g} s -> {spec['t1']:g} s, to peak {np.max(np.abs(spec['end'])):.4g} Pa"
+    if t == "sine":
+        f = spec["frequency"]
+        fs = f"{f[0]:g} Hz" if np.all(f == f[0]) else f"{f.min():g}-{f.max():g} Hz"
+        return (f"sine, {fs}, amplitude up to {np.max(np.abs(spec['amplitude'])):.4g} Pa, segment phase "
+                f"{spec['segment_phase']:g} rad")
+    return f"table of {len(spec['times'])} times, {spec['times'][0]:g} s -> {spec['times'][-1]:g} s"

@@ -1,0 +1,515 @@
+"""The first-order system a compiled stepper integrates, packed for numba.
+
+A run's state is ``y = (delta, v_A)`` (2 nA,) over the ``nA`` free velocity coordinates
+``idx = flatnonzero(chain.active)``: locked coordinates (``planar``, inextensible segments)
+are not in ``y`` at all, so every stepper works, factorises and controls errors on the free
+coordinates only. The configuration is ``q = q_chart (+) delta``: additive for the segment
+coordinates, ``ff_integrate`` (Pinocchio's free-flyer ``integrate``, on SE(3)) for a floating
+base, whose chart is moved to the current placement when it has turned far
+(:data:`RECENTER`); then
+
+    d(delta)/dt = dexp^-1(delta_B) v_B (base),  v_A (segments),   dv_A/dt = a_A(t, q, v).
+
+:func:`pack` turns a :class:`qchain.Chain` and its inputs into the tuple ``m`` (model,
+never written by a pass) and :func:`workspace` the tuple ``wk`` (everything a pass writes),
+both plain tuples of arrays so that one compiled specialisation serves every chain.
+
+``m`` (in order): ``alpha, w (N,), offs (n + 1,)`` nodes; ``mass, radius, l0, EI, EA, beta,
+A_ch, r_ch (n,)``; ``paper_act (n,) bool``; ``locked (n, 3) bool``; ``idx (nA,) int64``;
+``kind (4,) int64`` = (base: 0 fixed, 1 floating, 2 prescribed; planar kernel 0/1; nq; nv);
+``g_W (3,)`` world gravity (m/s^2); ``R_WB (3, 3), p_WB (3,)`` a fixed base's placement;
+``bm_i, bm_p`` a prescribed base's motion (:func:`qchain.sim.engine.schedules.pack_base_motion`);
+``p_i, p_p`` the pressure input and ``t_i, t_p`` the generalised-force input
+(:func:`qchain.sim.engine.schedules.pack_input`); ``layout (K + 1, 5) int64`` where the kernel
+workspaces lie in ``wk``'s buffer (:func:`_layout`).
+
+Status codes returned by every pass: :data:`OK`, :data:`DOMAIN` (a segment left the model's
+domain: ``|kappa| r >= 1`` or ``l <= 0``; ``info[1]`` its index), :data:`SINGULAR` (an
+articulated inertia not positive definite), :data:`NONFINITE`.
+
+Unchecked by design: compiled kernels whose arguments the checked API has validated
+(``docs/engine.md``, "Unchecked kernels"); call the checked API unless you guarantee them.
+"""
+
+from __future__ import annotations
+
+import functools
+
+import numpy as np
+
+from ...algorithms import derivatives, planar, recursive
+from ...model.arc import SCRATCH, arc_node, take1, take2
+from ...model.slices import slice_twist
+from . import lie, schedules
+from ..._jit import ejit, ejit_inner, inline, kernel
+
+__all__ = ["pack", "workspace", "rhs", "rhs_planar", "rhs_spatial", "jacobian", "configuration", "energies", "energies_batch", "inputs", "RECENTER",
+           "OK", "DOMAIN", "SINGULAR", "NONFINITE"]
+
+OK, DOMAIN, SINGULAR, NONFINITE = 0, 1, 2, 3
+RECENTER = 0.5  #: rad or m of base chart coordinates before the chart is moved
+
+
+def pack(chain, pressure, tau) -> tuple | None:
+    """The model tuple ``m`` of ``chain`` with compiled ``pressure`` and ``tau`` inputs, or None
+    where the compiled engine cannot serve it (paper coordinates, the linear law, a Python
+    controller or a Python ``base_motion``). A ``planar`` chain whose base stays in its x-z
+    plane runs on :func:`qchain.algorithms.planar.planar_aba_moving` (2-D cost, the same accelerations)."""
+    from ...arm.chain import Chain
+
+    if not isinstance(chain, Chain):
+        raise TypeError(f"chain must be a qchain.Chain, got {type(chain).__name__}")
+    if chain._any_paper or chain._has_linear:
+        return None
+    p = schedules.pack_input(pressure, chain.nu, "pressure")
+    f = schedules.pack_input(tau, chain.nv, "tau")
+    if p is None or f is None:
+        return None
+    base = {"fixed": 0, "floating": 1, "prescribed": 2}[chain.base]
+    planar_kernel = chain.planar and base != 1
+    if base == 2:
+        bm = schedules.pack_base_motion(chain.base_motion)
+        if bm is None:
+            return None
+        axis = bm[1][:3]
+        in_plane = axis[1] == 0.0 if bm[0][0] == schedules.TRANSLATION else axis[0] == axis[2] == 0.0
+        planar_kernel = planar_kernel and in_plane
+    else:
+        bm = (np.zeros(1, dtype=np.int64), np.zeros(1))
+    X = chain.base_placement
+    kind = np.array([base, int(planar_kernel), chain.nq, chain.nv], dtype=np.int64)
+    return (chain._alpha, chain._w, chain._offs, chain._mass, chain._radius, chain._l0, chain._EI, chain._EA,
+            chain._beta, chain._A_ch, chain._r_ch, chain._paper_act, chain._locked,
+            np.flatnonzero(chain.active).astype(np.int64), kind, np.array(chain.gravity, dtype=float),
+            np.array(X.rotation), np.array(X.translation), bm[0], bm[1], p[0], p[1], f[0], f[1],
+            _layout(chain.n, chain.nv))
+
+
+#: the kernel workspaces carved from one buffer (:func:`_layout`), in order: the aba,
+#: rnea-derivative and aba-derivative workspaces of :class:`qchain.arm.data.Data` and the planar
+#: kernel's; each array's number of dimensions (the carving code's types; their shapes come
+#: from the allocators, and ``tests/test_engine.py`` checks the two agree)
+KERNEL_NDIM = ((2, 3, 2, 2, 3, 3, 3, 2, 1),
+               (2, 3, 2, 3, 3, 2, 3, 3, 4, 3, 3, 3, 3, 3, 3, 3, 2, 1, 2, 2, 2),
+               (2, 2, 1, 1, 2, 2, 2, 2, 2, 2, 3, 3, 3),
+               (3, 2, 2, 3, 3, 3, 2, 1))
+
+
+def _kernel_arrays(n: int, nv: int) -> list[np.ndarray]:
+    # the compiled allocators' own code, run by numpy: the arrays (and so the shapes) the
+    # kernels are written for, without loading four cached functions before the first step
+    return [*recursive.aba_workspace.py_func(n, nv), *derivatives.rnea_workspace.py_func(n, nv),
+            *derivatives.aba_derivatives_workspace.py_func(n, nv), *planar.planar_workspace.py_func(n)]
+
+
+@functools.lru_cache(maxsize=64)
+def _layout(n: int, nv: int) -> np.ndarray:
+    """``(K, 5) int64``: each kernel workspace array's offset in the buffer and its shape
+    (trailing dimensions 1); the last row's offset is the buffer's size. Shared by every
+    model of that size: never written."""
+    arrays = _kernel_arrays(n, nv)
+    table = np.ones((len(arrays) + 1, 5), dtype=np.int64)
+    o = 0
+    for i, a in enumerate(arrays):
+        table[i, 0] = o
+        table[i, 1 : 1 + a.ndim] = a.shape
+        o += a.size
+    table[-1, 0] = o
+    return table
+
+
+def workspace(chain) -> tuple:
+    """The arrays the passes write for ``chain`` (one run, one thread), in order: ``q (nq,)``,
+    ``v (nv,)``, ``q_chart (nq,)``, ``p (nu,)`` Pa, ``tau (nv,)``, ``f (n, 3)`` internal plus
+    external forces, ``A0 (6,)`` apparent base acceleration, ``a (nv,)``, ``qdd (n, 3)``,
+    ``B (4, 6)`` the base's state (:func:`_base_state`), ``info (4,) int64`` (status, segment),
+    the kernels' workspaces as one buffer (:data:`KERNEL_NDIM`, carved by :func:`kernel_workspace`),
+    a scratch array, ``R_WB (3, 3)``. Few arrays: numba's compile time grows with the number
+    of arrays a compiled function passes around."""
+    n, nv, nq = chain.n, chain.nv, chain.nq
+    return (np.zeros(nq), np.zeros(nv), np.zeros(nq), np.zeros(3 * n), np.zeros(nv), np.zeros((n, 3)), np.zeros(6),
+            np.zeros(nv), np.zeros((n, 3)), np.zeros((4, 6)), np.zeros(4, dtype=np.int64),
+            np.zeros(_layout(n, nv)[-1, 0]), np.zeros(SCRATCH), np.zeros((3, 3)))
+
+
+@inline
+def _v1(buf, tb, i):
+    o = tb[i, 0]
+    return buf[o : o + tb[i, 1]]
+
+
+@inline
+def _v2(buf, tb, i):
+    o = tb[i, 0]
+    return buf[o : o + tb[i, 1] * tb[i, 2]].reshape((tb[i, 1], tb[i, 2]))
+
+
+@inline
+def _v3(buf, tb, i):
+    o = tb[i, 0]
+    return buf[o : o + tb[i, 1] * tb[i, 2] * tb[i, 3]].reshape((tb[i, 1], tb[i, 2], tb[i, 3]))
+
+
+@inline
+def _v4(buf, tb, i):
+    o = tb[i, 0]
+    return buf[o : o + tb[i, 1] * tb[i, 2] * tb[i, 3] * tb[i, 4]].reshape((tb[i, 1], tb[i, 2], tb[i, 3], tb[i, 4]))
+
+
+@inline
+def aba_ws(m, wk):
+    """The aba workspace (:func:`qchain.algorithms.recursive.aba_workspace`) carved from ``wk``'s buffer."""
+    b, t = wk[11], m[24]
+    return (_v2(b, t, 0), _v3(b, t, 1), _v2(b, t, 2), _v2(b, t, 3), _v3(b, t, 4), _v3(b, t, 5), _v3(b, t, 6),
+            _v2(b, t, 7), _v1(b, t, 8))
+
+
+@inline
+def rnea_ws(m, wk):
+    """The rnea-derivative workspace (:func:`qchain.algorithms.derivatives.rnea_workspace`), carved."""
+    b, t = wk[11], m[24]
+    return (_v2(b, t, 9), _v3(b, t, 10), _v2(b, t, 11), _v3(b, t, 12), _v3(b, t, 13), _v2(b, t, 14), _v3(b, t, 15),
+            _v3(b, t, 16), _v4(b, t, 17), _v3(b, t, 18), _v3(b, t, 19), _v3(b, t, 20), _v3(b, t, 21), _v3(b, t, 22),
+            _v3(b, t, 23), _v3(b, t, 24), _v2(b, t, 25), _v1(b, t, 26), _v2(b, t, 27), _v2(b, t, 28), _v2(b, t, 29))
+
+
+@inline
+def aba_derivatives_ws(m, wk):
+    """The aba-derivative workspace (:func:`qchain.algorithms.derivatives.aba_derivatives_workspace`), carved."""
+    b, t = wk[11], m[24]
+    return (_v2(b, t, 30), _v2(b, t, 31), _v1(b, t, 32), _v1(b, t, 33), _v2(b, t, 34), _v2(b, t, 35), _v2(b, t, 36),
+            _v2(b, t, 37), _v2(b, t, 38), _v2(b, t, 39), _v3(b, t, 40), _v3(b, t, 41), _v3(b, t, 42))
+
+
+@inline
+def planar_ws(m, wk):
+    """The planar kernel's workspace (:func:`qchain.algorithms.planar.planar_workspace`), carved."""
+    b, t = wk[11], m[24]
+    return (_v3(b, t, 43), _v2(b, t, 44), _v2(b, t, 45), _v3(b, t, 46), _v3(b, t, 47), _v3(b, t, 48), _v2(b, t, 49),
+            _v1(b, t, 50))
+
+
+@inline
+def copy(dst, src):
+    """``dst[:] = src`` (1-D) as a loop: the engine runs without numba's reference counting
+    (``_nrt=False``: no atomic count per array view, most of a call's cost otherwise), which
+    has no array-to-array assignment."""
+    for i in range(dst.shape[0]):
+        dst[i] = src[i]
+
+
+@inline
+def _base_state(m, wk, t, q, v):
+    """Fill ``B = wk[9]`` (4, 6): ``B[0]`` the base twist ``V0``, ``B[1]`` its own acceleration
+    ``A_B`` (prescribed), ``B[2, :3]`` gravity in the base frame ``g_B``, ``B[3, :3]`` the base
+    origin in the world; ``R = wk[13]`` the base rotation ``R_WB``."""
+    kind = m[14]
+    g_W = m[15]
+    B = wk[9]
+    R = wk[13]
+    B[1, :] = 0.0
+    if kind[0] == 0:
+        B[0, :] = 0.0
+        for r in range(3):
+            copy(R[r], m[16][r])
+        copy(B[3, :3], m[17])
+    elif kind[0] == 1:
+        copy(B[0], v[:6])
+        _rotation(q[3:7], R)
+        copy(B[3, :3], q[:3])
+    else:
+        schedules.base_motion_eval(m[18], m[19], t, R, B[3, :3], B[0], B[1])
+    for r in range(3):
+        B[2, r] = R[0, r] * g_W[0] + R[1, r] * g_W[1] + R[2, r] * g_W[2]
+
+
+@inline
+def _rotation(quat, R):
+    """``R`` (3, 3) of the unit quaternion ``(x, y, z, w)``."""
+    x, y, z, w = quat[0], quat[1], quat[2], quat[3]
+    R[0, 0] = 1.0 - 2.0 * (y * y + z * z)
+    R[0, 1] = 2.0 * (x * y - z * w)
+    R[0, 2] = 2.0 * (x * z + y * w)
+    R[1, 0] = 2.0 * (x * y + z * w)
+    R[1, 1] = 1.0 - 2.0 * (x * x + z * z)
+    R[1, 2] = 2.0 * (y * z - x * w)
+    R[2, 0] = 2.0 * (x * z - y * w)
+    R[2, 1] = 2.0 * (y * z + x * w)
+    R[2, 2] = 1.0 - 2.0 * (x * x + y * y)
+
+
+@inline
+def configuration(m, wk, qc, y):
+    """``q = qc (+) delta`` into ``wk[0]`` and the full ``v`` into ``wk[1]`` from ``y``, with
+    ``qc`` (nq,) the chart's centre."""
+    idx = m[13]
+    kind = m[14]
+    nA = idx.shape[0]
+    q, v = wk[0], wk[1]
+    v[:] = 0.0
+    for i in range(nA):
+        v[idx[i]] = y[nA + i]
+    if kind[0] == 1:
+        lie.ff_integrate(qc[:7], y[:6], q[:7])
+        for i in range(7, q.shape[0]):
+            q[i] = qc[i]
+        for i in range(6, nA):
+            q[idx[i] + 1] = qc[idx[i] + 1] + y[i]
+    else:
+        copy(q, qc)
+        for i in range(nA):
+            q[idx[i]] += y[i]
+
+
+@inline
+def check(m, wk, q):
+    """Domain check of the segment coordinates; sets ``info`` and returns the status."""
+    info = wk[10]
+    n = m[4].shape[0]
+    off = m[14][2] - 3 * n
+    for i in range(q.shape[0]):
+        if not np.isfinite(q[i]):
+            info[0] = NONFINITE
+            return NONFINITE
+    qe = q[off:].reshape(n, 3)
+    j = recursive.first_invalid(m[4][:0], qe, m[4], m[11])  # a contiguous empty first argument: one type
+    if j >= 0:
+        info[0] = DOMAIN
+        info[1] = j
+        return DOMAIN
+    return OK
+
+
+@inline
+def inputs(m, wk, t):
+    """Pressure ``wk[3]`` and generalised force ``wk[4]`` at ``t``."""
+    schedules.input_eval(m[20], m[21], t, wk[3])
+    schedules.input_eval(m[22], m[23], t, wk[4])
+
+
+@inline
+def _forces(m, wk, t):
+    """What the forward dynamics at ``(t, wk.q, wk.v)`` needs before the articulated-body
+    pass: the domain check, the inputs, the base's state, the internal plus external forces
+    ``f = wk[5]`` and the apparent base acceleration ``A0 = wk[6]`` (gravity folded in), the
+    base wrench in ``wk[9][3]``; returns the status."""
+    l0, EI, EA, beta, A_ch, r_ch, paper_act = m[5], m[6], m[7], m[8], m[9], m[10], m[11]
+    kind = m[14]
+    q, v = wk[0], wk[1]
+    p, tau, f, A0, B = wk[3], wk[4], wk[5], wk[6], wk[9]
+    n = m[3].shape[0]
+    qoff = kind[2] - 3 * n
+    voff = kind[3] - 3 * n
+    status = check(m, wk, q)
+    if status != OK:
+        return status
+    inputs(m, wk, t)
+    _base_state(m, wk, t, q, v)
+    recursive.internal_forces(q[qoff:].reshape(n, 3), v[voff:].reshape(n, 3), p.reshape(n, 3), l0, EI, EA, beta,
+                              A_ch, r_ch, paper_act, f, wk[12])
+    for j in range(n):
+        for b in range(3):
+            f[j, b] += tau[voff + 3 * j + b]
+    F0 = B[3]  # reused: the base wrench (floating); the origin row is not needed past here
+    for r in range(6):
+        A0[r] = B[1, r]
+        F0[r] = tau[r] if kind[0] == 1 else 0.0
+    for r in range(3):
+        A0[r] -= B[2, r]
+    return OK
+
+
+@inline
+def _rates(m, wk, y, out, ok):
+    """After the articulated-body pass (``ok``: it succeeded): ``a = wk[7]`` (nv,) and
+    ``out = dy/dt``; returns the status."""
+    kind = m[14]
+    idx = m[13]
+    a, qdd, B = wk[7], wk[8], wk[9]
+    A0 = wk[6]
+    n = m[3].shape[0]
+    voff = kind[3] - 3 * n
+    if not ok:
+        wk[10][0] = SINGULAR
+        return SINGULAR
+    if kind[0] == 1:
+        for r in range(6):
+            a[r] = A0[r]
+        for r in range(3):
+            a[r] += B[2, r]
+    for j in range(n):
+        for b in range(3):
+            a[voff + 3 * j + b] = qdd[j, b]
+    for i in range(a.shape[0]):
+        if not np.isfinite(a[i]):
+            wk[10][0] = NONFINITE
+            return NONFINITE
+    nA = idx.shape[0]
+    for i in range(nA):
+        out[nA + i] = a[idx[i]]
+    position_rate(m, y, out)
+    return OK
+
+
+@inline
+def _segment_states(m, wk):
+    """The segment coordinates and velocities of ``wk.q``, ``wk.v`` as ``(n, 3)`` views."""
+    n = m[3].shape[0]
+    kind = m[14]
+    return wk[0][kind[2] - 3 * n:].reshape(n, 3), wk[1][kind[3] - 3 * n:].reshape(n, 3)
+
+
+@kernel
+def rhs_planar(m, wk, t, y, out):
+    """``out = dy/dt`` (2 nA,) at ``(t, y)`` of a chain on the planar kernel (``m[14][1] == 1``,
+    :func:`qchain.algorithms.planar.planar_aba_moving`); returns the status (``out`` undefined unless OK).
+    A C callback (:func:`~qchain._jit.kernel`)."""
+    configuration(m, wk, wk[2], y)
+    status = _forces(m, wk, t)
+    if status != OK:
+        return status
+    q_c, v_c = _segment_states(m, wk)
+    pw = planar_ws(m, wk)
+    ok = planar.planar_aba_moving(m[0], m[1], m[2], m[3], m[4], q_c, v_c, wk[5], wk[9][0], wk[6], wk[8], m[12], pw,
+                                  pw[7])
+    return _rates(m, wk, y, out, ok)
+
+
+@kernel
+def rhs_spatial(m, wk, t, y, out):
+    """``out = dy/dt`` (2 nA,) at ``(t, y)`` on the 3-D articulated-body pass
+    (:func:`qchain.algorithms.recursive.aba`); as :func:`rhs_planar`."""
+    configuration(m, wk, wk[2], y)
+    status = _forces(m, wk, t)
+    if status != OK:
+        return status
+    q_c, v_c = _segment_states(m, wk)
+    A0 = wk[6]
+    ok = recursive.aba(m[0], m[1], m[2], m[3], m[4], q_c, v_c, wk[5], wk[9][0], A0, m[14][0] == 1, wk[9][3], wk[8], A0,
+                       m[12], aba_ws(m, wk), wk[12])
+    return _rates(m, wk, y, out, ok)
+
+
+def rhs(m):
+    """The right-hand side :class:`~qchain._jit.Kernel` for the model tuple ``m``."""
+    return rhs_planar if m[14][1] == 1 else rhs_spatial
+
+
+@inline
+def position_rate(m, y, out):
+    """The kinematic rows ``out[:nA] = d(delta)/dt``: ``v_A``, with ``dexp^-1(delta_B) v_B`` for a
+    floating base's six."""
+    nA = y.shape[0] // 2
+    for i in range(nA):
+        out[i] = y[nA + i]
+    if m[14][0] == 1:
+        lie.dexp_inv_apply(y[:6], y[nA : nA + 6], out[:6])
+
+
+@kernel
+def jacobian(m, wk, t, y, Jq, Jv):
+    """The exact Jacobian blocks of ``dv_A/dt``: ``Jq = da_A/d(delta)`` and ``Jv = da_A/dv_A``
+    (nA, nA) at ``(t, y)`` (configuration derivatives along ``integrate``, exact at
+    ``delta_B = 0``); returns the status. Called right after the right-hand side at the same
+    ``(t, y)``, whose forward pass it reuses from ``wk`` (:func:`qchain.algorithms.derivatives._aba_derivatives_at`):
+    the forward dynamics are neither computed nor compiled a second time. A C callback
+    (:func:`~qchain._jit.kernel`)."""
+    idx = m[13]
+    kind = m[14]
+    nA = idx.shape[0]
+    B = wk[9]
+    wa = aba_derivatives_ws(m, wk)
+    n = m[3].shape[0]
+    q_c, v_c = _segment_states(m, wk)
+    a = wa[3]
+    copy(a, wk[7])
+    status = derivatives._aba_derivatives_at(m[0], m[1], m[2], m[3], m[4], m[5], m[6], m[7], m[8], m[9], m[10], m[11],
+                                             m[12], kind[0] == 1, q_c, v_c, wk[3].reshape(n, 3), wk[8], wk[6], a,
+                                             B[0], B[2, :3], aba_ws(m, wk), rnea_ws(m, wk), wa, wk[12])
+    if status != 0:
+        wk[10][0] = SINGULAR if status < 3 else NONFINITE
+        return wk[10][0]
+    da_dq, da_dv = wa[6], wa[7]
+    for r in range(nA):
+        for c in range(nA):
+            Jq[r, c] = da_dq[idx[r], idx[c]]
+            Jv[r, c] = da_dv[idx[r], idx[c]]
+    return OK
+
+
+@ejit_inner
+def energies(m, wk, t, q, v):
+    """``(kinetic, potential)`` (J) at ``(t, q, v)``: ``1/2 sum_j xi_j^T M_xi_j xi_j`` (the
+    base's own motion included), gravity about the world origin plus the elastic energy.
+    One pass over the segments' nodes: the kinetic energy as the quadrature of eq. (6)'s
+    integrand itself, ``1/2 sum_k w_k V_k^T I_d V_k`` with the slice twists ``V_k = Phi_k xi``
+    (equal to ``1/2 xi^T M_xi xi`` without forming the 9 x 9 ``M_xi``), the node positions
+    for gravity, the tip twist and frame for the next segment's root. ``q``, ``v`` full
+    (nq,), (nv,). Compiled callers only (no CPython wrapper): from Python,
+    :func:`energies_batch`."""
+    alpha, w, offs, mass, radius, l0, EI, EA = m[0], m[1], m[2], m[3], m[4], m[5], m[6], m[7]
+    kind = m[14]
+    g_W = m[15]
+    n = mass.shape[0]
+    qoff = kind[2] - 3 * n
+    voff = kind[3] - 3 * n
+    B = wk[9]
+    sc = wk[12]
+    _base_state(m, wk, t, q, v)
+    o = 0
+    V, o = take1(sc, o, 6)
+    Vn, o = take1(sc, o, 6)
+    qd, o = take1(sc, o, 3)
+    R, o = take2(sc, o, 3, 3)
+    p, o = take1(sc, o, 3)
+    S, o = take2(sc, o, 6, 3)
+    Sd, o = take2(sc, o, 6, 3)
+    Rj, o = take2(sc, o, 3, 3)
+    oj, o = take1(sc, o, 3)
+    Rn, o = take2(sc, o, 3, 3)
+    copy(V, B[0])
+    for r in range(3):
+        copy(Rj[r], wk[13][r])
+    copy(oj, B[3, :3])
+    kin = 0.0
+    pot = 0.0
+    for j in range(n):
+        l = q[qoff + 3 * j]
+        ux = q[qoff + 3 * j + 1]
+        uy = q[qoff + 3 * j + 2]
+        for b in range(3):
+            qd[b] = v[voff + 3 * j + b]
+        mj = mass[j]
+        ixx = 0.25 * mj * radius[j] * radius[j]
+        izz = 0.5 * mj * radius[j] * radius[j]
+        gx = g_W[0] * Rj[0, 0] + g_W[1] * Rj[1, 0] + g_W[2] * Rj[2, 0]  # gravity in the root frame
+        gy = g_W[0] * Rj[0, 1] + g_W[1] * Rj[1, 1] + g_W[2] * Rj[2, 1]
+        gz = g_W[0] * Rj[0, 2] + g_W[1] * Rj[1, 2] + g_W[2] * Rj[2, 2]
+        go = g_W[0] * oj[0] + g_W[1] * oj[1] + g_W[2] * oj[2]
+        for k in range(offs[j], offs[j + 1]):
+            arc_node(alpha[k], l, ux, uy, 0.0, 0.0, 0.0, R, p, S, Sd)
+            slice_twist(R, p, S, V, qd, Vn)
+            kin += 0.5 * w[k] * (mj * (Vn[0] * Vn[0] + Vn[1] * Vn[1] + Vn[2] * Vn[2])
+                                 + ixx * (Vn[3] * Vn[3] + Vn[4] * Vn[4]) + izz * Vn[5] * Vn[5])
+            pot -= mj * w[k] * (go + gx * p[0] + gy * p[1] + gz * p[2])
+        pot += 0.5 * EI[j] * (ux * ux + uy * uy) * l * l / l0[j] + 0.5 * EA[j] * (l - l0[j]) ** 2 / l0[j]
+        # the tip: the next segment's root twist (its body frame) and frame
+        arc_node(1.0, l, ux, uy, 0.0, 0.0, 0.0, R, p, S, Sd)
+        slice_twist(R, p, S, V, qd, Vn)
+        copy(V, Vn)
+        for r in range(3):
+            oj[r] += Rj[r, 0] * p[0] + Rj[r, 1] * p[1] + Rj[r, 2] * p[2]
+        for r in range(3):
+            for cc in range(3):
+                Rn[r, cc] = Rj[r, 0] * R[0, cc] + Rj[r, 1] * R[1, cc] + Rj[r, 2] * R[2, cc]
+        for r in range(3):
+            copy(Rj[r], Rn[r])
+    return kin, pot
+
+
+@ejit
+def energies_batch(m, wk, t, q, v, kinetic, potential):
+    """:func:`energies` of ``K`` samples: ``t (K,)``, ``q (K, nq)``, ``v (K, nv)`` into
+    ``kinetic``, ``potential`` (K,) (J)."""
+    for k in range(t.shape[0]):
+        kinetic[k], potential[k] = energies(m, wk, t[k], q[k], v[k])
