@@ -58,7 +58,8 @@ from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
-MODULES = ("qchain.model.arc", "qchain.model.arc_derivatives", "qchain.model.slices", "qchain.algorithms.recursive", "qchain.algorithms.derivatives")
+MODULES = ("qchain.model.arc", "qchain.model.slices", "qchain.algorithms.recursive", "qchain.algorithms.rnea_derivatives",
+           "qchain.algorithms.aba_derivatives")
 
 
 # ----------------------------------------------------------------------------- worker
@@ -287,7 +288,8 @@ def report_example(res: dict) -> None:
     print(f"  cold, instrumented: {r['wall_s']:6.2f} s wall; {len(r['compiles'])} top-level compiles "
           f"{sum(t for _, t in r['compiles']):.2f} s: " + ", ".join(
               f"{k.split('.', 1)[1]} {t:.1f} s" for k, t in sorted(r["compiles"], key=lambda kt: -kt[1])[:10]))
-    mine = ("qchain.model.arc", "qchain.model.arc_derivatives", "qchain.model.slices", "qchain.algorithms.recursive", "qchain.algorithms.derivatives")
+    mine = ("qchain.model.arc", "qchain.model.slices", "qchain.algorithms.recursive", "qchain.algorithms.rnea_derivatives",
+            "qchain.algorithms.aba_derivatives")
     own = sum(t for k, t in r["every"].items() if k.startswith(mine))
     eng = sum(t for k, t in r["every"].items() if k.startswith("qchain.") and not k.startswith(mine))
     print(f"    exclusive compile time: kernels ({', '.join(m.split('.')[1] for m in mine)}) {own:.1f} s, "

@@ -395,7 +395,7 @@ def example_overhead(duration: float = 20.0, repeats: int = 10, workdir=None, wo
     and the wait for the files at the end ("close_s")."""
     from qchain.cli import main as cli
 
-    qlog = cli._logging_module()
+    from qchain.cli import recording as qlog
     scene, model = _example_model()
     with tempfile.TemporaryDirectory(dir=workdir) as tmp:
         def run(c, i):
@@ -410,11 +410,11 @@ def example_overhead(duration: float = 20.0, repeats: int = 10, workdir=None, wo
             d = Path(tmp) / f"{c}-{i}"
             d.mkdir()
             argv = ["run", str(scene.path), *[a.format(d=d) for a in EXAMPLE_CONFIGS[c]], "--no-progress"]
-            args = cli._parser(qlog).parse_args(argv)
+            args = cli._parser().parse_args(argv)
             spent = [0.0, 0]
             s0, c0 = _steal_s(), time.process_time()
             t0 = time.perf_counter()
-            logger, recorder = cli._make_logger(qlog, args, scene, model, worker=worker)
+            logger, recorder = cli._make_logger(args, scene, model, worker=worker)
 
             def on_sample(t, q, v, p, energies=None):
                 s = time.perf_counter()
@@ -455,7 +455,7 @@ def example_steady(block: float = 20.0, rounds: int = 40, workdir=None, configs=
     "writer_cpu", "steal_ms", "ratios", "cpu_ratios"} ("off": "wall_s", "steal_ms")."""
     from qchain.cli import main as cli
 
-    qlog = cli._logging_module()
+    from qchain.cli import recording as qlog
     scene, model = _example_model()
     configs = ["off", *configs]
     res = {c: {"wall": [], "cpu": [], "spent": [], "samples": [], "flush": [], "writer": [], "steal": []}
@@ -466,9 +466,9 @@ def example_steady(block: float = 20.0, rounds: int = 40, workdir=None, configs=
             for c in configs[1:]:
                 d = Path(tmp) / c
                 d.mkdir()
-                args = cli._parser(qlog).parse_args(["run", str(scene.path), *[a.format(d=d) for a in EXAMPLE_CONFIGS[c]],
+                args = cli._parser().parse_args(["run", str(scene.path), *[a.format(d=d) for a in EXAMPLE_CONFIGS[c]],
                                                      "--no-progress"])
-                loggers[c], recorders[c] = cli._make_logger(qlog, args, scene, model)
+                loggers[c], recorders[c] = cli._make_logger(args, scene, model)
             for log in loggers.values():
                 log.flush()  # the writers are up (Rerun imported and started)
             offset = {c: 0.0 for c in configs}

@@ -104,13 +104,14 @@ def main(argv=None) -> int:
         return 0
     scene = load_scene(args.scene)
     model = scene.build()
-    qlog = cli._logging_module()
+    from qchain.cli import recording as qlog
+    from qchain.recording.records import DEFAULT_FLUSH_INTERVAL
     folder = Path(tempfile.mkdtemp(prefix="qchain-bench-"))
 
     class NoOp:
         """Takes the samples as the recorder does (:meth:`record_batch`) and drops them."""
 
-        max_sim = qlog.DEFAULT_FLUSH_INTERVAL
+        max_sim = DEFAULT_FLUSH_INTERVAL
 
         def __call__(self, t, q, v, p, energies=None):
             pass
@@ -141,7 +142,7 @@ def main(argv=None) -> int:
                 ns = argparse.Namespace(no_record=False, mcap=folder / f"r{rnd}.mcap", serve=False, connect=None,
                                         rrd=None, bind="127.0.0.1", rerun_rate=None, realtime=False)
                 c_open = time.process_time()
-                logger, rec = cli._make_logger(qlog, ns, scene, model, duration=args.duration)
+                logger, rec = cli._make_logger(ns, scene, model, duration=args.duration)
                 c0 = time.process_time()
                 with logger:
                     with rec:

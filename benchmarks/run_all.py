@@ -1,4 +1,4 @@
-"""Every benchmark chart in one go: what ``qchain bench`` runs.
+"""Every benchmark chart in one go.
 
 Writes into ``--out`` (default ``out/bench``): ``work_precision.{csv,png}``,
 ``cosserat_release.{csv,png}`` (PyElastica part only with the ``bench`` extra installed),
@@ -7,7 +7,7 @@ Writes into ``--out`` (default ``out/bench``): ``work_precision.{csv,png}``,
 ``static_cantilever.{csv,png}``,
 ``scaling.{csv,png}``, ``derivatives.csv``, ``stability_map.{csv,png}``. ``--quick`` shortens every study.
 
-Run: ``python benchmarks/run_all.py [--quick] [--out DIR]`` or ``qchain bench [--quick]``.
+Run: ``.venv/bin/python benchmarks/run_all.py [--quick] [--out DIR] [--only STUDY ...]``.
 """
 
 from __future__ import annotations
@@ -22,7 +22,7 @@ HERE = Path(__file__).resolve().parent
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog="qchain bench", description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(prog="run_all.py", description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="short runs (a few minutes in all)")
     ap.add_argument("--out", type=Path, default=Path("out/bench"), help="folder for the CSV and PNG files")
     ap.add_argument("--only", nargs="+",

@@ -1,8 +1,9 @@
 """Shared pieces of the example scripts: their flags, their scene files, their figures.
 
 Every example takes ``--duration S`` (simulated time instead of the scene's), ``--out DIR``
-(output folder, default ``out/<example>``) and ``--quick`` (a short run for tests and a
-first look).
+(output folder, default ``out/<example>``), ``--quick`` (a short run for tests and a first
+look) and ``--scene FILE`` (another scene file in place of ``scenes/<example>.toml``, e.g. a
+copy with other segments: the script's analysis assumes the kind of arm its own scene has).
 """
 
 from __future__ import annotations
@@ -16,14 +17,18 @@ matplotlib.use("Agg")
 
 import numpy as np  # noqa: E402
 
-from qchain.scene import Scene, load_scene  # noqa: E402
+from qchain import Scene, load_scene  # noqa: E402
 
 SCENES = Path(__file__).resolve().parent / "scenes"
 
 
-def parser(doc: str, name: str) -> argparse.ArgumentParser:
-    """The shared flags; ``doc`` is the example's module docstring."""
+def parser(doc: str, name: str, scene_flag: bool = True) -> argparse.ArgumentParser:
+    """The shared flags; ``doc`` is the example's module docstring; ``scene_flag``: whether
+    the example runs a scene file (``--scene``, default ``scenes/<name>.toml``)."""
     p = argparse.ArgumentParser(description=doc.strip().splitlines()[0], prog=f"{name}.py")
+    if scene_flag:
+        p.add_argument("--scene", type=Path, default=SCENES / f"{name}.toml", metavar="FILE",
+                       help=f"scene file (default: examples/scenes/{name}.toml)")
     p.add_argument("--duration", type=float, default=None, metavar="S",
                    help="simulated time (s); default the scene's")
     p.add_argument("--out", type=Path, default=Path("out") / name, metavar="DIR", help="output folder")
@@ -31,9 +36,11 @@ def parser(doc: str, name: str) -> argparse.ArgumentParser:
     return p
 
 
-def scene(name: str) -> Scene:
-    """The example's scene file ``examples/scenes/<name>.toml``."""
-    return load_scene(SCENES / f"{name}.toml")
+def scene(name: str, args=None) -> Scene:
+    """The example's scene: ``args.scene`` (``--scene``) if given, else the file
+    ``examples/scenes/<name>.toml``."""
+    path = getattr(args, "scene", None) or SCENES / f"{name}.toml"
+    return load_scene(path)
 
 
 def duration(args, sc: Scene, quick: float) -> float:
@@ -70,7 +77,7 @@ def run(doc: str, name: str, argv, quick: float):
     import time
 
     args = parser(doc, name).parse_args(argv)
-    sc = scene(name)
+    sc = scene(name, args)
     model = sc.build()
     T = duration(args, sc, quick=quick)
     print("\n".join(sc.describe(model)))

@@ -1,9 +1,10 @@
 """Bend one soft segment with its three chambers and draw the shapes.
 
 For a few pressure sets, solve the static balance of one upright segment under gravity,
-``dU_el/dq_e + G_e(q_e) = B(q_e) p``, and plot the backbones (3-D and top view) into a PNG.
+``dU_el/dq_e + G_e(q_e) = B(q_e) p``, and plot the backbones (3-D and top view) into
+``bend_segment.png``. No scene file: the segment is built in Python (``SEGMENT``).
 
-Run: ``python examples/bend_segment.py [--out out/bend_segment.png]``
+Run: ``.venv/bin/python examples/bend_segment.py [--out DIR] [--quick]``
 """
 
 from __future__ import annotations
@@ -53,19 +54,23 @@ def static_shape(seg: Segment, p: np.ndarray) -> np.ndarray:
     return sol.x
 
 
-def main(argv=None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--out", type=Path, default=Path("out/bend_segment.png"), help="PNG to write")
+def main(argv=None) -> dict:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0], prog="bend_segment.py")
+    parser.add_argument("--out", type=Path, default=Path("out") / "bend_segment", metavar="DIR", help="output folder")
+    parser.add_argument("--quick", action="store_true", help="three pressure sets (tests, first look)")
     args = parser.parse_args(argv)
 
     seg = Segment(**SEGMENT)
     alpha = np.linspace(0.0, 1.0, 41)
+    sets = dict(list(PRESSURE_SETS.items())[::2]) if args.quick else PRESSURE_SETS
+    shapes = {}
     fig = plt.figure(figsize=(11, 5))
     ax3 = fig.add_subplot(1, 2, 1, projection="3d")
     ax2 = fig.add_subplot(1, 2, 2)
     print(f"{'pressures (kPa)':>24}  {'l (mm)':>7} {'bend (deg)':>10} {'azimuth (deg)':>13}  tip (mm)")
-    for label, p in PRESSURE_SETS.items():
+    for label, p in sets.items():
         q = static_shape(seg, np.array(p))
+        shapes[label] = q
         pts = seg.backbone(q, alpha) * 1e3
         tip = seg.tip_placement(q).translation * 1e3
         l, ux, uy = q
@@ -93,9 +98,12 @@ def main(argv=None) -> None:
     ax2.set_ylabel("y (mm)")
     ax2.set_title("top view (dashed: chambers 1-3 at 0, 120, -120 deg)")
     fig.tight_layout()
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(args.out, dpi=120)
-    print(f"wrote {args.out}")
+    args.out.mkdir(parents=True, exist_ok=True)
+    png = args.out / "bend_segment.png"
+    fig.savefig(png, dpi=120)
+    plt.close(fig)
+    print(f"wrote {png}")
+    return {"png": png, "shapes": shapes}
 
 
 if __name__ == "__main__":

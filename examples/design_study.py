@@ -13,17 +13,20 @@ count and pressure level, and the tip's paths seen from above for the largest ch
 the sweep's folder (``summary.parquet``, the trajectories) is ``<out>/sweep``; running the
 example again resumes it (nothing is computed twice).
 
-Run: ``python examples/design_study.py [--quick] [--out DIR] [--workers N | --dask ADDRESS]``
+Run: ``.venv/bin/python examples/design_study.py [--quick] [--duration S] [--out DIR] [--sweep FILE]
+[--workers N | --dask ADDRESS]``
 """
 
 from __future__ import annotations
+
+from pathlib import Path
 
 import matplotlib.pyplot as plt
 import numpy as np
 
 import _common
+from qchain import run_sweep
 from qchain.batch.sweep_spec import load_sweep
-from qchain.batch.sweeps import run_sweep
 
 SWEEP = _common.SCENES.parent / "sweeps" / "design_study.toml"
 
@@ -41,12 +44,14 @@ def workspace_metrics(scene, model, traj) -> dict:
 
 
 def main(argv=None) -> dict:
-    p = _common.parser(__doc__, "design_study")
+    p = _common.parser(__doc__, "design_study", scene_flag=False)
+    p.add_argument("--sweep", type=Path, default=SWEEP, metavar="FILE",
+                   help="sweep file (default: examples/sweeps/design_study.toml)")
     engine = p.add_mutually_exclusive_group()
     engine.add_argument("--workers", type=int, default=None, metavar="N", help="local worker processes (default: all)")
     engine.add_argument("--dask", default=None, metavar="ADDRESS", help="a Dask scheduler, e.g. tcp://127.0.0.1:8786")
     args = p.parse_args(argv)
-    spec = load_sweep(SWEEP)
+    spec = load_sweep(args.sweep)
     if args.quick:  # two chamber radii, two counts, one level, a short turn
         spec.axes = [a if a.keys[0] != "segments[0].chamber_radius" else type(a)(a.key, values=(0.005, 0.011))
                      for a in spec.axes]

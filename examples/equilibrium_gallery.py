@@ -1,5 +1,5 @@
 """A gallery of static shapes: the arm of ``scenes/equilibrium_gallery.toml`` under each
-pressure set of its table, solved with :func:`qchain.arm.statics.equilibrium`.
+pressure set of its table, solved with :func:`qchain.equilibrium`.
 
 For every row of the scene's pressure table the script finds the shape where elastic,
 gravity and pressure forces balance, prints its bends, lengths and tip position, and draws
@@ -8,7 +8,7 @@ dynamics: starting from rest under a gallery pressure set held constant, the dam
 must come to rest on that static shape; the distance left after ``--duration`` seconds
 (default 3 s) is printed.
 
-Run: ``python examples/equilibrium_gallery.py [--duration S] [--out DIR] [--quick]``
+Run: ``.venv/bin/python examples/equilibrium_gallery.py [--duration S] [--out DIR] [--quick] [--scene FILE]``
 """
 
 from __future__ import annotations
@@ -19,15 +19,14 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 import _common
-from qchain.sim.inputs import Constant
-from qchain.arm.statics import equilibrium
+from qchain import Constant, equilibrium
 
 CHECK_ROW = 2  # the S-shape: segment 0 bent one way, segment 1 the other
 
 
 def main(argv=None) -> dict:
     args = _common.parser(__doc__, "equilibrium_gallery").parse_args(argv)
-    sc = _common.scene("equilibrium_gallery")
+    sc = _common.scene("equilibrium_gallery", args)
     model = sc.build()
     ch = model.chain
     rows = sc.pressure_spec["values"]

@@ -7,7 +7,7 @@ origin must stay exactly what they were at the start; what is left is the integr
 error. Prints the drift of both, relative to their size, and writes ``momentum.png``
 (drift against time) and ``floating_arm.png`` (the arm's path).
 
-Run: ``python examples/floating_arm.py [--duration S] [--out DIR] [--quick]``
+Run: ``.venv/bin/python examples/floating_arm.py [--duration S] [--out DIR] [--quick] [--scene FILE]``
 """
 
 from __future__ import annotations

@@ -5,7 +5,7 @@ The scene (``scenes/moving_base.toml``) hangs two idle segments from a mount tha
 acceleration). The arm is driven only through its base. Prints the tip's sway against the
 mount's and writes ``moving_base.png``: mount and tip against time, and snapshots.
 
-Run: ``python examples/moving_base.py [--duration S] [--out DIR] [--quick]``
+Run: ``.venv/bin/python examples/moving_base.py [--duration S] [--out DIR] [--quick] [--scene FILE]``
 """
 
 from __future__ import annotations

@@ -2,21 +2,20 @@
 
 The scene (``scenes/step_response.toml``) holds one upright, damped segment under gravity.
 The run starts from the straight pose; at ``t = 0.05 s`` chamber 1 jumps to 40 kPa and the
-segment swings over to its new static shape, which :func:`qchain.arm.statics.equilibrium`
+segment swings over to its new static shape, which :func:`qchain.equilibrium`
 gives independently: the script prints the overshoot and the distance left to it at the
 end, and plots the tip against time (``tip_response.png``).
 
-Run: ``python examples/step_response.py [--duration S] [--out DIR] [--quick]``
+Run: ``.venv/bin/python examples/step_response.py [--duration S] [--out DIR] [--quick] [--scene FILE]``
 """
 
 from __future__ import annotations
-
 
 import matplotlib.pyplot as plt
 import numpy as np
 
 import _common
-from qchain.arm.statics import equilibrium
+from qchain import equilibrium
 
 
 def main(argv=None) -> dict:

@@ -23,7 +23,7 @@ reachable with admissible pressures); ``--target X Y Z`` (mm, world) picks anoth
 Writes ``tip_control.png``: the tip error (log scale), the tip against the target, the
 pressures.
 
-Run: ``python examples/tip_control.py [--duration S] [--out DIR] [--quick] [--target X Y Z]``
+Run: ``.venv/bin/python examples/tip_control.py [--duration S] [--out DIR] [--quick] [--scene FILE] [--target X Y Z]``
 """
 
 from __future__ import annotations
@@ -35,7 +35,7 @@ import numpy as np
 from scipy.optimize import lsq_linear
 
 import _common
-from qchain.arm.statics import equilibrium
+from qchain import equilibrium
 
 KP = 20.0  # N/m, tip spring
 KD = 2.0  # N s/m, tip damper
@@ -79,7 +79,7 @@ def main(argv=None) -> dict:
     par.add_argument("--target", type=float, nargs=3, default=None, metavar=("X", "Y", "Z"),
                      help="tip target, world, mm (default: the tip of a static shape)")
     args = par.parse_args(argv)
-    sc = _common.scene("tip_control")
+    sc = _common.scene("tip_control", args)
     model = sc.build(controlled=True)
     ch = model.chain
     print("\n".join(sc.describe(model)))

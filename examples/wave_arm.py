@@ -7,11 +7,10 @@ symmetric about the base's x-z plane and the model is built planar (reported bel
 Writes ``wave_arm.png``: the arm at a few instants with the tip's path (side view), and
 the tip against time.
 
-Run: ``python examples/wave_arm.py [--duration S] [--out DIR] [--quick]``
+Run: ``.venv/bin/python examples/wave_arm.py [--duration S] [--out DIR] [--quick] [--scene FILE]``
 """
 
 from __future__ import annotations
-
 
 import matplotlib.pyplot as plt
 import numpy as np

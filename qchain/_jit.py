@@ -15,6 +15,7 @@ the same time as the rest (:mod:`qchain.sim.engine.warmup`).
 
 from __future__ import annotations
 
+import contextlib
 import warnings
 
 import numba
@@ -22,7 +23,7 @@ from numba.core import sigutils, types
 from numba.core.ccallback import CFunc
 from numba.core.errors import NumbaExperimentalFeatureWarning
 
-__all__ = ["ejit", "ejit_inner", "inline", "kernel", "Kernel", "OPTIONS"]
+__all__ = ["ejit", "ejit_inner", "inline", "kernel", "Kernel", "OPTIONS", "first_class_functions"]
 
 #: the compiler options of every engine function
 OPTIONS = dict(error_model="numpy", _nrt=False)
@@ -35,8 +36,18 @@ ejit_inner = numba.njit(cache=True, no_cpython_wrapper=True, **OPTIONS)
 #: again with every caller, and a call passing the tuples copies them
 inline = numba.njit(cache=True, inline="always", **OPTIONS)
 
-# a stepper taking a callback is typed with numba's first-class function types
-warnings.filterwarnings("ignore", category=NumbaExperimentalFeatureWarning)
+
+@contextlib.contextmanager
+def first_class_functions():
+    """A context in which numba's warning that first-class function types are experimental
+    is silenced: a stepper taking the callbacks is typed with them, and numba warns wherever
+    a tuple of them is typed (compiling, or typing the arguments of a call). Not the user's
+    concern, and a ``warnings.simplefilter("error")`` would stop every run on it; silenced
+    where the engine types them, not by a filter set at import (importing qchain changes no
+    global state)."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", NumbaExperimentalFeatureWarning)
+        yield
 
 
 class Kernel:

@@ -1,37 +1,53 @@
-"""Error classes and the input checks that raise them where input enters.
+"""Every exception class qchain raises on purpose, grouped by the layer that raises it.
 
-Every check names the argument, the value it got and what it expected: booleans, strings,
-``None`` and complex numbers are refused as numbers (``TypeError``), non-finite entries and
-wrong shapes as values (``ValueError``). Ranges of physical quantities are declared in
-:mod:`qchain.checks.bounds`.
+The modules that raise them import them from here (and keep their names, so that
+``from qchain.scene.format import SceneError`` still works: it is the same class).
+:class:`QchainError` is the base of most; three are not, for their callers' sake:
+:class:`BadInput` (the command line's usage errors), :class:`OutputError` (an ``OSError``)
+and :class:`LoggingWarning` (a warning).
+
+Standard library only: the recording's writer process and the command line's error path
+import this module before (or without) numpy. The argument converters that raise
+``TypeError``/``ValueError`` are :mod:`qchain.checks.convert`'s.
 """
 
 from __future__ import annotations
 
-import numbers
-
-import numpy as np
-
 __all__ = [
     "QchainError",
+    # the model (model, arm)
     "DomainError",
     "SingularConfigurationError",
     "NonFiniteError",
-    "as_real",
-    "as_real_array",
-    "as_vector",
-    "as_matrix",
-    "check_positive",
-    "describe_value",
-    "as_batch",
-    "as_bool",
-    "as_index",
-    "check_callable",
+    # simulation (sim)
+    "BudgetError",
+    # scene files (scene)
+    "SceneError",
+    "MAX_LISTED",
+    # recordings (recording)
+    "LoggingError",
+    "RecordingFormatError",
+    "LimitExceeded",
+    "LoggingWarning",
+    # batches and sweeps (batch)
+    "RolloutError",
+    "SweepError",
+    "ClusterLost",
+    # the command line (cli)
+    "BadInput",
+    "OutputError",
+    # message text
+    "printable",
 ]
 
 
 class QchainError(Exception):
     """Base class of every error qchain raises on purpose."""
+
+
+# --------------------------------------------------------------------------------------
+# The model (qchain.model, qchain.arm): configurations and results
+# --------------------------------------------------------------------------------------
 
 
 class DomainError(QchainError, ValueError):
@@ -52,206 +68,142 @@ class NonFiniteError(QchainError, ValueError):
     non-finite leaves the model silently."""
 
 
-def describe_value(value, limit: int = 60) -> str:
-    """``"a str 'abc'"``: the type and a short rendering of ``value``, for messages."""
-    if isinstance(value, (bool, np.bool_)):
-        kind = "a boolean"
-    elif value is None:
-        return "None"
-    elif isinstance(value, np.ndarray):
-        kind = f"an array of dtype {value.dtype} and shape {value.shape}"
-    else:
-        tn = type(value).__name__
-        kind = f"{'an' if tn[:1] in 'aeiou' else 'a'} {tn}"
+# --------------------------------------------------------------------------------------
+# Simulation (qchain.sim)
+# --------------------------------------------------------------------------------------
+
+
+class BudgetError(QchainError, ValueError):
+    """A run that would exceed its :class:`~qchain.sim.budget.Budget`; the message names the
+    budget and how to raise it; ``cost`` is the run's :class:`~qchain.sim.budget.Cost`."""
+
+    def __init__(self, message: str, cost=None):  # cost: a qchain.sim.budget.Cost (a layer above) or None
+        super().__init__(message)
+        self.cost = cost
+
+
+# --------------------------------------------------------------------------------------
+# Scene files (qchain.scene)
+# --------------------------------------------------------------------------------------
+
+#: Problems a :class:`SceneError`'s message lists (``problems`` holds them all).
+MAX_LISTED = 50
+
+
+class SceneError(QchainError, ValueError):
+    """A scene file that cannot be used; ``problems`` lists every problem found
+    (:class:`~qchain.scene.format.Problem`).
+
+    The message names the file and, for each problem, the key, what was expected and
+    what was found.
+    """
+
+    def __init__(self, path: str, problems: list):
+        self.path = str(path)
+        self.problems = list(problems)
+        where = self.path if len(self.path) <= 200 else f"{self.path[:100]}...{self.path[-97:]}"  # a 4 KB path: cut
+        where = printable(where)  # a problem a line: a newline or escape sequence in a name stays in its line
+        if len(self.problems) == 1:
+            msg = f"{where}: {printable(self.problems[0])}"
+        else:
+            shown = self.problems[:MAX_LISTED]
+            msg = f"{where}: {len(self.problems)} problems:\n" + "\n".join(f"  {printable(p)}" for p in shown)
+            if len(self.problems) > MAX_LISTED:
+                msg += f"\n  ... and {len(self.problems) - MAX_LISTED} more (SceneError.problems lists them all)"
+        super().__init__(msg)
+
+
+# --------------------------------------------------------------------------------------
+# Recordings (qchain.recording)
+# --------------------------------------------------------------------------------------
+
+
+class LoggingError(QchainError):
+    """The run log could not be written (a writer that cannot start, a bad output path)."""
+
+
+class RecordingFormatError(LoggingError, ValueError):
+    """A file that is not a (readable) qchain MCAP recording; the message names the file."""
+
+
+class LimitExceeded(RecordingFormatError):
+    """A reading limit exceeded at byte ``offset`` (the reader prefixes the file's name)."""
+
+    def __init__(self, message: str, offset: int):
+        super().__init__(message)
+        self.offset = offset
+
+
+class LoggingWarning(UserWarning):
+    """Something of the logging did not work out (a viewer out of reach); the run goes on."""
+
+
+# --------------------------------------------------------------------------------------
+# Batches and sweeps (qchain.batch)
+# --------------------------------------------------------------------------------------
+
+
+class RolloutError(QchainError):
+    """A rollout of a batch raised an exception (``index``: which; ``detail``: what)."""
+
+    def __init__(self, index: int, detail: str):
+        super().__init__(f"rollout {index} raised {detail}")
+        self.index = index
+        self.detail = detail
+
+    def __reduce__(self):
+        return (RolloutError, (self.index, self.detail))
+
+
+class SweepError(SceneError):
+    """A sweep (file or arguments) that cannot be run; ``problems`` lists every problem,
+    each naming the key, what was expected and what was found."""
+
+
+class ClusterLost(QchainError, RuntimeError):
+    """A Dask cluster had no worker, or its scheduler could not be reached, for longer than
+    the engine's ``lost_timeout`` (or the client closed): the items not finished were not
+    computed. A sweep with a results folder keeps every run it finished and resumes the
+    rest when started again."""
+
+
+# --------------------------------------------------------------------------------------
+# The command line (qchain.cli)
+# --------------------------------------------------------------------------------------
+
+
+class BadInput(Exception):
+    """Input the command refuses before anything runs (exit code 2); the message says why."""
+
+
+class OutputError(OSError):
+    """Outputs of a run that could not be written (each named, with why); ``written`` lists
+    those that were."""
+
+    def __init__(self, message: str, written: list):
+        super().__init__(message)
+        self.written = written
+
+
+# --------------------------------------------------------------------------------------
+# Message text
+# --------------------------------------------------------------------------------------
+# Defined here, below every layer, because SceneError's message needs it; the layers above
+# take it from qchain.checks.text.
+
+_CONTROL = {c: f"\\x{c:02x}" for c in [*range(0x20), 0x7F, *range(0x80, 0xA0)] if c != 0x09}
+_CONTROL.update({0x0A: "\\n", 0x0D: "\\r"})
+
+
+def printable(text: str) -> str:
+    """``text`` as one line any terminal shows as it is: control characters (a newline, an
+    escape sequence from a file's name or its outcome message) and bytes that are not
+    UTF-8 (a file name's, kept as surrogates) escaped."""
+    text = str(text).translate(_CONTROL)
     try:
-        text = repr(value) if not isinstance(value, np.ndarray) or value.size <= 12 else \
-            np.array2string(value.ravel()[:6], separator=", ")[:-1] + ", ...]"
-    except Exception:  # noqa: BLE001 - a value whose repr fails is still described by its type
-        text = "?"
-    if len(text) > limit:
-        text = text[: limit - 3] + "..."
-    return f"{kind} {text}"
-
-
-def _refuse(name: str, value, what: str):
-    raise TypeError(f"{name} must be {what}, got {describe_value(value)}")
-
-
-def _bool_inside(value, depth: int = 0) -> bool:
-    """Whether a (nested) list or tuple holds a boolean: numpy would turn it into 1.0."""
-    if depth > 32:
-        return False
-    for x in value:
-        if isinstance(x, (bool, np.bool_)):
-            return True
-        if isinstance(x, (list, tuple)) and _bool_inside(x, depth + 1):
-            return True
-    return False
-
-
-def as_real(name: str, value) -> float:
-    """A real number as a ``float``: ``TypeError`` for booleans, strings, ``None``, complex
-    numbers and other non-numbers, ``ValueError`` for NaN and infinities; both name ``name``."""
-    if isinstance(value, (bool, np.bool_)):
-        _refuse(name, value, "a real number (booleans are not numbers)")
-    if isinstance(value, np.ndarray) and type(value) is not np.ndarray:
-        value = _plain(name, value)
-    if isinstance(value, np.ndarray) and value.shape == () and value.dtype.kind in "fiu":
-        value = value[()]
-    if isinstance(value, (complex, np.complexfloating)):
-        _refuse(name, value, "a real number (complex numbers are refused, not cut to their real part)")
-    if not isinstance(value, numbers.Real):
-        _refuse(name, value, "a real number")
-    try:
-        x = float(value)
-    except (TypeError, ValueError, OverflowError):
-        raise ValueError(f"{name} must be a real number representable as a float, got "
-                         f"{describe_value(value)}") from None
-    if not np.isfinite(x):
-        raise ValueError(f"{name} must be finite, got {x}")
-    return x
-
-
-def as_real_array(name: str, value) -> np.ndarray:
-    """``value`` as a float array of real numbers (any shape), without numpy's silent
-    conversions: booleans, strings, ``None``, complex numbers and objects are refused
-    (``TypeError`` naming ``name``), ragged nestings too (``ValueError``). Finiteness is
-    not checked here (:func:`as_vector` does). A numpy masked array with a masked entry is
-    refused (its masked entries would be used silently), an unmasked one and any other
-    ndarray subclass (``np.matrix``) become a plain ndarray: compiled code takes no subclass."""
-    if isinstance(value, np.ndarray) and type(value) is not np.ndarray:
-        value = _plain(name, value)
-    if isinstance(value, np.ndarray):
-        kind = value.dtype.kind
-        if kind == "f":
-            return value if value.dtype == np.float64 else value.astype(np.float64)
-        if kind in "iu":
-            return value.astype(np.float64)
-    elif isinstance(value, (list, tuple)):
-        if _bool_inside(value):
-            _refuse(name, value, "an array of real numbers (booleans are not numbers)")
-    elif isinstance(value, (bool, np.bool_, str, bytes)) or value is None:
-        _refuse(name, value, "an array of real numbers")
-    elif isinstance(value, numbers.Real) and not isinstance(value, (complex, np.complexfloating)):
-        return np.asarray(_float(name, value))
-    try:
-        arr = np.asarray(value)
-        if type(arr) is not np.ndarray:
-            arr = _plain(name, arr)
-    except (ValueError, TypeError):
-        raise ValueError(f"{name} must be a rectangular array of real numbers, got {describe_value(value)} "
-                         "(rows of different lengths?)") from None
-    kind = arr.dtype.kind
-    if kind in "iu":
-        return arr.astype(np.float64)
-    if kind == "f":
-        return arr.astype(np.float64, copy=False)
-    if kind == "b":
-        _refuse(name, value, "an array of real numbers (booleans are not numbers)")
-    if kind == "c":
-        _refuse(name, value, "an array of real numbers (complex numbers are refused, not cut to their real part)")
-    if kind == "O":  # numbers of other types (Fraction, Decimal), or something that is not a number
-        flat = arr.ravel()
-        for i, x in enumerate(flat):
-            if isinstance(x, (bool, np.bool_, complex, np.complexfloating)) or not isinstance(x, numbers.Real):
-                where = f"{name}[{i}]" if arr.ndim == 1 else f"{name} (entry {i} in row-major order)"
-                _refuse(where, x, "a real number")
-        return np.array([_float(name, x) for x in flat]).reshape(arr.shape)
-    _refuse(name, value, "an array of real numbers")
-
-
-def _plain(name: str, value) -> np.ndarray:
-    """A plain ndarray holding the data of an ndarray subclass; ``ValueError`` naming ``name``
-    for a masked array with any masked entry."""
-    if isinstance(value, np.ma.MaskedArray):
-        mask = np.ma.getmaskarray(value)
-        if mask.any():
-            bad = np.flatnonzero(mask.ravel()).tolist()
-            raise ValueError(f"{name} has masked entries at flat indices {bad[:10]} (a masked array must have "
-                             f"no masked entry: fill them, e.g. with .filled(), or pass a plain array), got "
-                             f"{describe_value(value)}")
-        value = np.ma.getdata(value)
-    return np.asarray(value).view(np.ndarray) if isinstance(value, np.ndarray) else np.asarray(value)
-
-
-def _float(name: str, x) -> float:
-    """``float(x)``; an integer too large for a float is a ``ValueError`` naming ``name``."""
-    try:
-        return float(x)
-    except OverflowError:
-        raise ValueError(f"{name} must hold real numbers representable as floats (|x| <= 1.8e308), got "
-                         f"{describe_value(x)}") from None
-
-
-def as_vector(name: str, value, size: int) -> np.ndarray:
-    """Return ``value`` as a float array of shape ``(size,)``; raise ``TypeError`` for
-    entries that are not real numbers and ``ValueError`` naming ``name``, the expected and
-    the actual shape, or the non-finite entries."""
-    arr = as_real_array(name, value)
-    if arr.shape != (size,):
-        raise ValueError(f"{name} must have shape ({size},), got shape {arr.shape}")
-    if not np.all(np.isfinite(arr)):
-        bad = np.flatnonzero(~np.isfinite(arr)).tolist()
-        raise ValueError(f"{name} has non-finite entries at indices {bad[:10]}: {describe_value(arr)}")
-    return arr
-
-
-def as_matrix(name: str, value, shape: tuple[int, int]) -> np.ndarray:
-    """Like :func:`as_vector` for a matrix of the given shape."""
-    arr = as_real_array(name, value)
-    if arr.shape != shape:
-        raise ValueError(f"{name} must have shape {shape}, got shape {arr.shape}")
-    if not np.all(np.isfinite(arr)):
-        raise ValueError(f"{name} has non-finite entries")
-    return arr
-
-
-def check_positive(name: str, value, unit: str, allow_zero: bool = False) -> float:
-    """A finite real ``> 0`` (or ``>= 0`` with ``allow_zero``); ``ValueError`` naming the bound."""
-    v = as_real(name, value)
-    if allow_zero and v < 0.0:
-        raise ValueError(f"{name} must be >= 0 {unit}, got {v} {unit}".replace("  ", " "))
-    if not allow_zero and v <= 0.0:
-        raise ValueError(f"{name} must be > 0 {unit}, got {v} {unit}".replace("  ", " "))
-    return v
-
-
-def as_batch(name: str, value, last: int) -> np.ndarray:
-    """``value`` as a finite float array of shape ``(..., last)`` (a batch of vectors of
-    ``last`` entries): ``TypeError`` for entries that are not real numbers, ``ValueError``
-    naming ``name`` for another shape or non-finite entries."""
-    arr = as_real_array(name, value)
-    if arr.ndim == 0 or arr.shape[-1] != last:
-        raise ValueError(f"{name} must have shape ({last},) or (..., {last}), got shape {arr.shape}")
-    if not np.all(np.isfinite(arr)):
-        bad = np.flatnonzero(~np.isfinite(arr.ravel())).tolist()
-        raise ValueError(f"{name} has non-finite entries at flat indices {bad[:10]}: {describe_value(arr)}")
-    return arr
-
-
-def as_bool(name: str, value) -> bool:
-    """``True`` or ``False`` (Python or numpy booleans); ``TypeError`` naming ``name`` for
-    anything else (``"no"``, ``0.5`` and ``None`` are not booleans, whatever their truth)."""
-    if isinstance(value, (bool, np.bool_)):
-        return bool(value)
-    raise TypeError(f"{name} must be True or False, got {describe_value(value)}")
-
-
-def as_index(name: str, value, size: int) -> int:
-    """An integer ``0 <= value < size`` (Python or numpy integers, not booleans); ``TypeError``
-    or ``ValueError`` naming ``name``, the value and the bound."""
-    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)):
-        raise TypeError(f"{name} must be an integer >= 0 and < {size}, got {describe_value(value)}")
-    i = int(value)
-    if not 0 <= i < size:
-        raise ValueError(f"{name} must be an integer >= 0 and < {size}, got {i}")
-    return i
-
-
-def check_callable(name: str, value, optional: bool = True):
-    """``value`` if it is callable (or None with ``optional``); ``TypeError`` naming ``name``."""
-    if value is None and optional:
-        return None
-    if not callable(value):
-        raise TypeError(f"{name} must be {'None or ' if optional else ''}a callable, got {describe_value(value)}")
-    return value
+        text.encode("utf-8")
+    except UnicodeEncodeError:
+        text = "".join(f"\\x{ord(ch) - 0xDC00:02x}" if 0xDC80 <= ord(ch) <= 0xDCFF
+                       else ch.encode("utf-8", "backslashreplace").decode("ascii") if 0xD800 <= ord(ch) <= 0xDFFF
+                       else ch for ch in text)
+    return text

@@ -1,23 +1,30 @@
 """Batched rollouts (qchain.simulate_batch) and the local worker pool (qchain.batch.workers):
-bit-identical to simulate at any worker count, failures kept to their rollout, lost workers."""
+bit-identical to simulate at any worker count, failures kept to their rollout, lost workers;
+batch arrays, run settings and worker counts checked before anything runs."""
 
+import io
 import os
 import signal
 import threading
 import time
+from decimal import Decimal
 
 import numpy as np
 import pytest
 
 import batch_probe
+from helpers import deadline
+from logging_fixtures import arm_info
 from qchain import Chain, Segment, simulate_batch
 from qchain.batch.rollouts import RolloutError
+from qchain.batch.workers import LocalPool, Lost, Payload, plan_chunks
+from qchain.logging import RunLogger
+from qchain.sim.budget import BudgetError
 from qchain.sim.inputs import Sine
 from qchain.sim.simulation import simulate
-from qchain.batch.workers import Lost, LocalPool, Payload, plan_chunks
+from support import CH1, SEGMENT, pressure_arm, refused, soft_arm
 
-SEG = dict(length=0.1, radius=0.015, mass=0.05, chamber_area=4.5e-5, chamber_radius=0.0085, youngs_modulus=1e5,
-           damping=0.02)
+SEG = dict(SEGMENT, damping=0.02)
 T = (0.0, 0.3)
 T_EVAL = np.linspace(0.0, 0.3, 16)
 
@@ -57,6 +64,7 @@ def same(tr, ref):
             and tr.status == ref.status and tr.message == ref.message and tr.nfev == ref.nfev)
 
 
+@pytest.mark.slow
 def test_rollouts_are_bit_identical_to_simulate_at_any_worker_count(arm, pool):
     B = 7
     q0, v0, P = inputs(arm, B)
@@ -136,6 +144,8 @@ def test_bad_arguments_are_named_where_they_enter(arm):
         simulate_batch(arm, q0, v0, T, rtol=-1, **kw)
     with pytest.raises(ValueError, match=r"t_span must be \(t0, t1\)"):
         simulate_batch(arm, q0, v0, (0.0, np.nan), **kw)
+    with pytest.raises(ValueError, match=r"got 'radau': did you mean 'radau5' \(compiled\) or 'Radau' \(scipy's\)\?"):
+        simulate_batch(arm, q0, v0, T, method="radau", **kw)
 
 
 def test_a_rollout_that_raises_stops_the_batch_naming_it(arm, pool):
@@ -155,6 +165,7 @@ def test_plan_chunks_cover_every_item_once_and_shrink():
         assert sizes == sorted(sizes, reverse=True) and sizes[-1] == 1 and max(sizes) <= 64
 
 
+@pytest.mark.slow
 def test_a_killed_worker_costs_only_its_unfinished_items(tmp_path, pool):
     log = tmp_path / "ran.log"
     items = list(range(24))
@@ -191,6 +202,7 @@ def test_an_item_that_kills_every_worker_it_meets_is_given_up(pool):
     assert all(results[i] == -i for i in range(8) if i != 3)
 
 
+@pytest.mark.slow
 def test_a_worker_that_died_between_batches_is_replaced(pool):
     pid = pool.pids()[1]
     os.kill(pid, signal.SIGKILL)
@@ -211,3 +223,141 @@ def _alive(pid: int) -> bool:
             return fh.read().rsplit(")", 1)[-1].split()[0] != "Z"
     except OSError:
         return False
+
+
+# --------------------------------------------------------------------------------------
+# Bad input (issue 18): refused where it enters, naming the argument, the value and the bound;
+# never a foreign traceback, a hang, a crash, a silent NaN or lost data.
+
+def test_run_settings_are_checked_alike_in_simulate_and_simulate_batch():
+    q0 = np.tile(CH1.neutral(), (2, 1))
+    z = np.zeros(3)
+    te = [0.0, 0.01]
+    cases = [(dict(t_span="0 1"), "t_span"), (dict(t_span=(False, True)), "t_span"),
+             (dict(t_span=(Decimal(0), Decimal("0.01"))), "t_span"), (dict(t_span=(0.0, 1e-300)), "t_span"),
+             (dict(t_eval=[0.0, 0.005 + 0j]), "t_eval"), (dict(rtol="1e-6"), "rtol"), (dict(rtol=np.ones(2)), "rtol"),
+             (dict(atol="x"), "atol"), (dict(method="rk4", dt="1e-3"), "dt"), (dict(method="rk4", dt=1 + 0j), "dt"),
+             (dict(energies="no"), "energies"), (dict(events=3), "events"), (dict(events=[lambda t, q, v: 1]), "events")]
+    for kw, name in cases:
+        span = kw.pop("t_span", (0.0, 0.01))
+        refused(lambda: simulate(CH1, CH1.neutral(), z, span, **kw), name)
+        refused(lambda: simulate_batch(CH1, q0, z, span, **{"t_eval": te, "workers": 1, **kw}), name)
+    refused(lambda: simulate(CH1, CH1.neutral(), z, (0, 0.01), progress="yes"), "progress")
+    refused(lambda: simulate(CH1, CH1.neutral(), z, (0, 0.01), on_sample=3), "on_sample")
+    refused(lambda: simulate_batch(CH1, q0, z, (0, 0.01), t_eval=te, workers=1, progress="yes"), "progress")
+
+
+@pytest.mark.parametrize("workers", [10**9, 10**30, 0, -2, True, 2.0, "2"])
+def test_absurd_worker_counts_are_refused_at_once(workers):
+    """``workers=10**9`` made a pool of a billion slots (a hang, then the process killed)."""
+    q0 = np.tile(CH1.neutral(), (2, 1))
+    t0 = time.perf_counter()
+    with deadline(20):
+        refused(lambda: simulate_batch(CH1, q0, np.zeros(3), (0, 0.01), t_eval=[0, 0.01], workers=workers), "workers")
+    assert time.perf_counter() - t0 < 5.0
+    refused(lambda: simulate_batch(CH1, q0, np.zeros(3), (0, 0.01), t_eval=[0, 0.01], workers=1, retries=10**30),
+            "retries")
+
+
+@pytest.mark.parametrize("name, value", [("q0", np.ones((2, 3), bool)), ("q0", np.tile([0.1, 0, 0], (2, 1)) + 1e-3j),
+                                         ("q0", "abc"), ("pressure", np.zeros((2, 3), bool)),
+                                         ("pressure", np.zeros(3) + 1j), ("tau", np.zeros((2, 3), bool))])
+def test_batch_arrays_are_never_cast_from_booleans_strings_or_complex_numbers(name, value):
+    kw = dict(q0=np.tile(CH1.neutral(), (2, 1)), v0=np.zeros(3), t_span=(0, 0.01), t_eval=[0, 0.01], workers=1)
+    kw[name] = value
+    refused(lambda: simulate_batch(CH1, kw.pop("q0"), kw.pop("v0"), kw.pop("t_span"), **kw), name)
+
+
+def test_valid_batch_layouts_give_the_plain_result():
+    q0 = np.tile(CH1.neutral(), (2, 1))
+    ref = simulate_batch(CH1, q0, np.zeros(3), (0, 0.01), pressure=np.full((2, 3), 1e4), t_eval=[0, 0.01], workers=1)
+    ro = np.full((2, 3), 1e4)
+    ro.flags.writeable = False
+    for Q, P in ((np.asfortranarray(q0), np.full((2, 3), 1e4)), (q0.astype(">f8"), ro), (q0, [[10000] * 3] * 2)):
+        b = simulate_batch(CH1, Q, np.zeros(3), (0, 0.01), pressure=P, t_eval=[0, 0.01], workers=1)
+        assert np.array_equal(b.q, ref.q)
+
+
+def test_a_batch_checks_each_rollouts_cost_and_inputs_before_anything_runs():
+    ch = soft_arm()
+    q, v = ch.neutral(), np.zeros(ch.nv)
+    with pytest.raises(BudgetError, match=r"duration 1 s / dt 1e-300 s"):
+        simulate_batch(ch, q, v, (0, 1), method="rk4", dt=1e-300, workers=1)
+    with pytest.raises(ValueError, match=r"pressure\[1\]\[0\] must be >= -101325 and <= 1e\+09 Pa, got 2e\+09 Pa"):
+        simulate_batch(ch, q, v, (0, 0.1), pressure=np.array([np.zeros(9), np.full(9, 2e9)]), t_eval=[0.1],
+                       workers=1)
+    with pytest.raises(ValueError, match=r"client must be a scheduler address 'tcp://HOST:PORT', got 'not a url'"):
+        simulate_batch(ch, q, v, (0, 0.1), t_eval=[0.1], client="not a url")
+
+
+def test_a_batch_taker_gets_read_only_views_and_t_eval_stays_the_callers():
+    class Taker:
+        max_sim = 0.05
+
+        def __call__(self, t, q, v, p):
+            pass
+
+        def record_batch(self, t, q, v, p, ke, pe):
+            for a in (t, q, v, p):
+                with pytest.raises(ValueError, match="read-only"):
+                    a[...] = -1.0
+            self.n = getattr(self, "n", 0) + len(t)
+
+    ch = soft_arm()
+    te = np.linspace(0, 0.2, 11)
+    keep = te.copy()
+    taker = Taker()
+    tr = simulate(ch, ch.neutral(), np.zeros(ch.nv), (0, 0.2), t_eval=te, on_sample=taker)
+    np.testing.assert_array_equal(te, keep)
+    np.testing.assert_array_equal(tr.t, keep)
+    assert taker.n == 11 and tr.t.base is not te
+    taker.max_sim = "soon"
+    with pytest.raises(TypeError, match=r"on_sample.max_sim must be a real number"):
+        simulate(ch, ch.neutral(), np.zeros(ch.nv), (0, 0.2), t_eval=te, on_sample=taker)
+
+
+def test_no_more_workers_start_than_there_are_tasks():
+    from qchain.batch.workers import engine_for
+
+    assert engine_for(1024, tasks=1) is None  # one run: in this process
+    pool = engine_for(1024, tasks=2)
+    try:
+        assert pool.workers == 2
+    finally:
+        pool.close()
+
+
+def test_a_batch_index_is_no_boolean_and_a_logger_stream_must_seek():
+    ch = soft_arm(1)
+    b = simulate_batch(ch, ch.neutral(), np.zeros(3), (0, 0.01), t_eval=[0.01], workers=1,
+                       pressure=np.zeros((2, 3)))
+    with pytest.raises(IndexError, match="rollout index must be an int"):
+        b[True]
+
+    class NoSeek(io.RawIOBase):
+        def writable(self):
+            return True
+
+        def write(self, data):
+            return len(data)
+
+    with pytest.raises(ValueError, match="a binary stream that can seek"):
+        RunLogger(arm_info(), NoSeek(), quiet=True)
+
+
+def test_a_batch_is_checked_as_a_whole_against_the_memory_budget():
+    ch = soft_arm(2)
+    with pytest.raises(BudgetError, match=r"budget.max_memory: .* \(1000000 rollouts x"):
+        simulate_batch(ch, np.broadcast_to(ch.neutral(), (10**6, ch.nq)), np.zeros(ch.nv), (0, 1),
+                       t_eval=np.linspace(0, 1, 1001), workers=1)
+
+
+def test_a_batch_names_the_rollout_whose_pressure_is_out_of_range():
+    from qchain import simulate_batch
+
+    ch = pressure_arm()
+    P = [np.full(6, 1e4), np.full(6, 1e4), Sine(np.full(6, 3e5), 1.0)]
+    with deadline(60):
+        with pytest.raises(ValueError, match=r"pressure\[2\]\[0\] must stay >= -101325"):
+            simulate_batch(ch, np.tile(ch.neutral(), (3, 1)), np.zeros((3, 6)), (0.0, 0.1), pressure=P, workers=1,
+                           t_eval=np.linspace(0.0, 0.1, 11))

@@ -10,11 +10,13 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).parents[1] / "benchmarks"))
 
 import bench_cosserat as bc  # noqa: E402
+import pytest
 
 T = 0.15  # s: the tip has fallen about 6 cm, with a bent, not yet swinging, shape
 TOL = dict(rtol=1e-6, atol=1e-8)  # DOP853 here is step-limited by stability: integration error ~1e-10 m
 
 
+@pytest.mark.slow
 def test_released_cantilever_converges_with_the_segment_count():
     ref = bc.qchain_run(16, T, "DOP853", **TOL)
     assert ref["ok"], ref["status"]

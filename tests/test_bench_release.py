@@ -52,6 +52,7 @@ def test_the_model_is_the_rod():
     np.testing.assert_allclose(model.body_inertia[1:, 1], m * (STIFF["r"] ** 2 / 4 + h * h / 12), rtol=1e-10)
 
 
+@pytest.mark.slow
 def test_static_deflection_matches_euler_bernoulli(static_tip):
     z, speed = static_tip
     assert speed < 1e-6  # at rest

@@ -22,7 +22,11 @@ import urllib.request
 from pathlib import Path
 
 import numpy as np
+import pytest
+
 from qchain.logging import SEGMENT_COLORS
+
+pytestmark = pytest.mark.slow  # see tests/README.md
 
 ROOT = Path(__file__).resolve().parent.parent
 ARTIFACTS = ROOT / "test-artifacts"

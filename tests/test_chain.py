@@ -1,13 +1,27 @@
-"""The n-segment chain against particle brute force, Pinocchio, conservation laws and itself."""
+"""The n-segment chain against particle brute force, Pinocchio, conservation laws and itself;
+its methods, workspaces and kinematics refuse bad arrays by name and never return NaN."""
+
+import copy
+import math
+import pickle
+import time
+from decimal import Decimal
 
 import numpy as np
 import pinocchio as pin
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
+import qchain
 from helpers import SEGMENT_KW, rel
 from particles import brute_chain
-from qchain import Chain, DomainError, Segment, SingularConfigurationError
+from qchain import Chain, DomainError, QchainError, Segment, SingularConfigurationError
 from qchain.arm.chain import Frames
+from qchain.arm.data import Data
+from qchain.errors import NonFiniteError
+from qchain.sim.simulation import Event, simulate
+from support import CH1, CH2, CHF, FEW, QB, S, SEGMENT, RaisingFloat, refused, soft_arm, soft_segment
 
 G_W = np.array([0.0, 0.0, -9.81])
 
@@ -48,6 +62,7 @@ BASES = [
 ]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("coords", ["curvature", "paper"])
 @pytest.mark.parametrize("base, kw", BASES, ids=[b for b, _ in BASES])
 def test_mass_matrix_and_nle_match_particle_brute_force(coords, base, kw, rng):
@@ -124,6 +139,7 @@ def test_frozen_shape_composite_inertia_and_bias_match_pinocchio(rng):
     assert rel(ch.nonlinear_effects(q, v)[:6], nle_pin) < 1e-12
 
 
+@pytest.mark.slow
 def test_zero_gravity_floating_arm_conserves_momentum_under_pressure(rng):
     ch = make_chain("curvature", "floating", gravity=np.zeros(3))
     q, v = random_state(ch, rng, bend=4.0)
@@ -162,6 +178,7 @@ def rk4_chart(ch, q0, v0, acc, T, dt):
     return ch.integrate(q0, y[: ch.nv]), y[ch.nv :]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("base", ["fixed", "floating"])
 def test_energy_is_conserved_without_damping_and_pressure(base, rng):
     segs = [Segment(**SEGMENT_KW), Segment(**SEGMENT_KW, coords="paper"), Segment(**SEGMENT_KW)]
@@ -404,3 +421,288 @@ def test_input_errors():
         Chain(ch.segments, base="prescribed")
     with pytest.raises(TypeError, match=r"segments\[1\] must be a qchain.Segment"):
         Chain([ch.segments[0], "x"])
+
+
+# --------------------------------------------------------------------------------------
+# Bad input (issue 18): refused where it enters, naming the argument, the value and the bound;
+# never a foreign traceback, a hang, a crash, a silent NaN or lost data.
+
+Q2 = np.r_[QB, 0.1, -3.0, 4.0]
+V2 = np.array([0.01, 1.0, -0.5, 0.0, 0.3, 0.2])
+P2 = np.full(6, 1e4)
+
+
+def prescribed(motion):
+    return Chain([S], base="prescribed", base_motion=motion)
+
+
+STILL = prescribed(lambda t: (pin.SE3.Identity(), np.zeros(6), np.zeros(6)))
+NOT_REAL = [True, np.True_, "0.1", None, 0.1 + 0j, {"a": 1}, object(), RaisingFloat(), Decimal("0.1"), np.array([0.1])]
+NOT_FINITE_OR_HUGE = [math.nan, math.inf, -math.inf, 2**70, 10**400, 1e300]
+
+
+@pytest.mark.parametrize("value", NOT_REAL + NOT_FINITE_OR_HUGE, ids=repr)
+def test_times_are_checked_where_they_enter_even_where_they_do_not_matter(value):
+    """A fixed base ignores ``t``, a prescribed one calls ``base_motion(t)``: either way a
+    time that is not a real number within +-1e12 s is refused by name (it was ignored, or
+    reached ``float()`` and the user's callable)."""
+    refused(lambda: CH2.kinetic_energy(Q2, V2, t=value), "t")
+    refused(lambda: STILL.base_state(value), "t")
+    refused(lambda: STILL.tip_placement(QB, value), "t")
+    if any(value is x for x in NOT_REAL) or isinstance(value, float) and not math.isfinite(value) or value is NOT_FINITE_OR_HUGE[4]:
+        refused(lambda: Event(lambda t, q, v: 1.0, direction=value), "direction")  # its sign is what counts
+
+
+def test_integrate_and_difference_never_return_non_finite_configurations():
+    for bad in ([np.nan, 9, -2.5, 0.1, -2.7, 4.2], [0.1, 9, -2.5, 0.1, -2.7, np.inf]):
+        refused(lambda: CH2.integrate(bad, V2), "q")
+        refused(lambda: CH2.difference(bad, Q2), "q0")
+        refused(lambda: CH2.difference(Q2, bad), "q1")
+    with pytest.raises(NonFiniteError, match=r"Chain.integrate: q \(\+\) v dt is not finite .* q\[0\]"):
+        CH2.integrate(Q2, np.full(6, 1e300), 1e10)
+    with pytest.raises(NonFiniteError, match="Chain.difference"):
+        CH2.difference(np.full(6, -1e308), np.full(6, 1e308))
+    refused(lambda: CH2.integrate(Q2, V2, 2**70), "dt")
+    qf = CHF.neutral()
+    assert np.all(np.isfinite(CHF.integrate(qf, np.ones(9), 0.5)))
+
+
+def test_a_missing_velocity_is_named_not_a_numba_typing_error():
+    msg = refused(lambda: CH2.tip_velocity(Q2, None), "v", TypeError)
+    assert "Chain.tip_velocity" in msg
+
+
+def test_indices_and_workspaces_are_checked():
+    refused(lambda: CH2.coordinate_name(-5), "i")
+    refused(lambda: CH2.coordinate_name(True), "i")
+    refused(lambda: CH2.coordinate_name(20.0), "i")
+    assert CH2.coordinate_name(0) == "segment 0, l"
+    refused(lambda: CH2.q_slice(2), "j")
+    refused(lambda: CH2.v_slice(-1), "j")
+    for n in (True, 0, -5, 10**30, 20.0, "3", None):
+        refused(lambda n=n: Data(n, 3), "n")
+    refused(lambda: Data(2, 7), "nv")
+    other = Chain([S, S, S]).create_data()
+    for call in (lambda d: CH2.forward_dynamics(Q2, V2, P2, data=d), lambda d: CH2.mass_matrix(Q2, data=d),
+                 lambda d: CH2.forward_dynamics_derivatives(Q2, V2, P2, data=d),
+                 lambda d: CH2.inverse_dynamics_derivatives(Q2, V2, V2, data=d),
+                 lambda d: CH2.mass_matrix_derivative(Q2, data=d),
+                 lambda d: CH2.forward_dynamics(Q2, V2, P2, data=d, skip_checks=True)):
+        refused(lambda: call(other), "data", ValueError)
+        refused(lambda: call(object()), "data", TypeError)
+    d = CH2.create_data()
+    assert np.array_equal(CH2.forward_dynamics(Q2, V2, P2, data=d), CH2.forward_dynamics(Q2, V2, P2))
+
+
+def test_frames_batch_checks_the_arrays_it_writes_into_even_on_the_unchecked_path():
+    """A float32 ``out`` crashed the process (the compiled pass wrote float64 into it)."""
+    Q = np.tile(Q2, (4, 1))
+    good = CH2.frames_batch(Q, 5)
+    for out in (tuple(a.astype(np.float32) for a in good), CH2.frames_batch(Q[:2], 5), CH2.frames_batch(Q, 3),
+                tuple(np.asfortranarray(a) if a.ndim > 2 else a for a in good)):
+        refused(lambda out=out: CH2.frames_batch(Q, 5, skip_checks=True, out=out), "out", ValueError)
+    refused(lambda: CH2.frames_batch(Q, 5, skip_checks=True, out=([1], [2], [3], [4])), "out")
+    mine = tuple(np.empty_like(a) for a in good)
+    got = CH2.frames_batch(Q.astype(">f8"), 5, skip_checks=True, out=mine)  # big-endian Q: converted, not a crash
+    assert all(np.array_equal(a, b) for a, b in zip(got, good))
+    Qp = np.tile(QB, (3, 1))
+    refused(lambda: STILL.frames_batch(Qp, 4, t=[0.0, 1.0]), "t")
+    refused(lambda: STILL.frames_batch(Qp, 4, t=np.nan), "t")
+    refused(lambda: STILL.frames_batch(Qp, 4, t="x"), "t")
+
+
+def test_a_singular_inertia_names_the_segment_and_its_coordinates():
+    for q in ([1e-300, 0.0, 0.0], [5e-324, 1.0, 0.0]):
+        for call in (lambda: CH1.forward_dynamics(q, np.ones(3)),
+                     lambda: CH1.forward_dynamics_derivatives(q, np.ones(3), np.full(3, 1e4))):
+            msg = refused(call, "segment 0", QchainError)
+            assert "not positive definite" in msg and "q[0:3]" in msg, msg
+
+
+def test_placements_must_be_rotations_within_the_declared_positions():
+    refused(lambda: Chain([S], base_placement=pin.SE3(2 * np.eye(3), np.zeros(3))), "base_placement.rotation")
+    refused(lambda: Chain([S], base_placement=pin.SE3(np.eye(3), np.array([1e300, 0, 0]))), "base_placement")
+    skewed = prescribed(lambda t: (pin.SE3(2 * np.eye(3), np.zeros(3)), np.zeros(6), np.zeros(6)))
+    refused(lambda: skewed.forward_dynamics(QB, np.zeros(3)), "base_motion")
+    refused(lambda: simulate(skewed, QB, np.zeros(3), (0, 0.01)), "base_motion")
+    refused(lambda: CHF.mass_matrix(np.r_[1e300, 0, 0, 0, 0, 0, 1.0, QB]), "base position")
+    refused(lambda: Chain(S), "segments", TypeError)
+    refused(lambda: Chain(None), "segments", TypeError)
+
+
+def test_the_base_placement_is_given_as_a_copy():
+    """It was the chain's own SE3: changing it left the passes' gravity in the base frame stale."""
+    X = pin.SE3(pin.rpy.rpyToMatrix(0.3, 0.0, 0.0), np.array([0.0, 0.0, 1.0]))
+    ch = Chain([S], base_placement=X)
+    q = ch.neutral()
+    g0 = ch.generalized_gravity(q)
+    got = ch.base_placement
+    got.rotation = np.eye(3)
+    X.rotation = np.eye(3)
+    again = ch.generalized_gravity(q)
+    assert np.array_equal(g0, again)
+    assert np.allclose(ch.base_placement.rotation, pin.rpy.rpyToMatrix(0.3, 0.0, 0.0), atol=0, rtol=0)
+
+
+@FEW
+@given(kind=st.sampled_from(["bool", "str", "complex", "nan", "short", "2-D", "object"]),
+       method=st.sampled_from(["integrate", "difference", "tip_velocity", "momentum", "coriolis_matrix",
+                               "inverse_dynamics_derivatives", "pressure_stiffness", "mass_matrix_derivative"]))
+def test_chain_methods_refuse_bad_arrays_by_name(kind, method):
+    bad = {"bool": np.ones(6, bool), "str": ["0.1"] * 6, "complex": Q2 + 0j, "nan": np.r_[np.nan, Q2[1:]],
+           "short": Q2[:5], "2-D": Q2[None], "object": np.array([0.1, object(), 0, 0, 0, 0], dtype=object)}[kind]
+    call = {"integrate": lambda: CH2.integrate(bad, V2), "difference": lambda: CH2.difference(bad, Q2),
+            "tip_velocity": lambda: CH2.tip_velocity(bad, V2), "momentum": lambda: CH2.momentum(bad, V2),
+            "coriolis_matrix": lambda: CH2.coriolis_matrix(bad, V2),
+            "inverse_dynamics_derivatives": lambda: CH2.inverse_dynamics_derivatives(bad, V2, V2),
+            "pressure_stiffness": lambda: CH2.pressure_stiffness(bad, P2),
+            "mass_matrix_derivative": lambda: CH2.mass_matrix_derivative(bad)}[method]
+    refused(call, "q0" if method == "difference" else "q")
+
+
+@pytest.mark.filterwarnings("ignore:the matrix subclass:PendingDeprecationWarning")
+def test_masked_arrays_are_refused_by_name_or_taken_as_plain_arrays():
+    """A masked array with a masked entry is refused where it enters (it reached numba, or
+    its masked entries were used silently); an unmasked one, or an np.matrix row, is a plain
+    array for compiled code."""
+    from qchain.checks.convert import as_batch, as_matrix, as_real, as_real_array, as_vector
+
+    masked = np.ma.masked_array(QB, mask=[0, 1, 0])
+    for call in (lambda: simulate(CH1, masked, np.zeros(3), (0, 0.01)),
+                 lambda: as_vector("q0", masked, 3), lambda: as_real_array("q0", masked),
+                 lambda: as_batch("q0", masked, 3), lambda: as_matrix("q0", masked.reshape(1, 3), (1, 3))):
+        assert "masked entries" in refused(call, "q0")
+    refused(lambda: Chain([S], gravity=np.ma.masked_array([0, 0, -9.81], mask=[0, 0, 1])), "gravity")
+    refused(lambda: simulate(CH1, QB, np.zeros(3), (0, 0.01), t_eval=np.ma.masked_array([0, 0.005], mask=[0, 1])),
+            "t_eval")
+    refused(lambda: simulate(CH1, QB, np.zeros(3), (0, 0.01), pressure=np.ma.masked_array(np.ones(3), mask=[0, 1, 0])),
+            "pressure")
+    refused(lambda: simulate(CH1, QB, np.zeros(3), (0, 0.01),
+                             pressure=lambda t, q, v: np.ma.masked_array(np.ones(3), mask=[0, 1, 0])), "pressure")
+    refused(lambda: as_real("t", np.ma.masked_array(1.0, mask=True)), "t")
+    for plain in (np.ma.masked_array(QB), np.ma.masked_array(QB, mask=[0, 0, 0])):
+        a = as_vector("q0", plain, 3)
+        assert type(a) is np.ndarray and np.array_equal(a, QB)
+        r = simulate(CH1, plain, np.zeros(3), (0, 0.01))
+        assert r.success and np.array_equal(r.q[-1], simulate(CH1, QB, np.zeros(3), (0, 0.01)).q[-1])
+    assert type(as_real_array("x", np.matrix([[1.0, 2.0]]))) is np.ndarray
+    refused(lambda: simulate(CH1, np.matrix(QB), np.zeros(3), (0, 0.01)), "q0")
+
+
+def test_a_0d_object_array_of_segments_is_refused_by_name():
+    msg = refused(lambda: Chain(np.array(S, dtype=object)), "segments")
+    assert "sequence" in msg
+    assert Chain(np.array([S, S], dtype=object)).n == 2
+
+
+@pytest.mark.parametrize("how", ["deepcopy", "pickle"])
+def test_copies_of_a_model_keep_its_arrays_read_only(how):
+    """numpy unpickles every array writeable: a copy's gravity could be set outside its bound."""
+    from qchain.sim.inputs import Sine
+
+    dup = copy.deepcopy if how == "deepcopy" else (lambda x: pickle.loads(pickle.dumps(x)))
+    ch = dup(soft_arm(floating=True) if "floating" in Chain.__init__.__code__.co_varnames else soft_arm())
+    for a in (ch.gravity, ch.active, ch.segments[0].alpha_weights, ch.segments[0].disk_inertia):
+        assert not a.flags.writeable
+        with pytest.raises(ValueError, match="read-only"):
+            a[...] = 0.0
+    s = dup(Sine([1.0] * 9, 2.0))
+    assert not s.amplitude.flags.writeable
+    q, v, p = ch.neutral(), np.zeros(ch.nv), np.zeros(ch.nu)
+    np.testing.assert_array_equal(ch.forward_dynamics(q, v, p), soft_arm().forward_dynamics(q, v, p))
+
+
+def test_kinematics_arguments_are_checked_where_they_enter():
+    ch = soft_arm()
+    q = ch.neutral()
+    Q = np.stack([q, q])
+    ch.backbone(q, 20)
+    for bad in ([20], np.array(20.0), 20.0, True):
+        with pytest.raises(ValueError, match=r"points_per_segment must be an int >= 2 and <= 10000"):
+            ch.backbone(q, bad)
+    for t in (float("nan"), "soon"):
+        with pytest.raises((TypeError, ValueError), match=r"\bt\b"):
+            ch.frames_batch(Q, t=t)
+    for flag in (np.array([True, False]), "no"):
+        with pytest.raises(TypeError, match=r"skip_checks must be True or False"):
+            ch.forward_dynamics(q, np.zeros(ch.nv), np.zeros(ch.nu), skip_checks=flag)
+    for segs in ({Segment(**SEGMENT)}, {0: Segment(**SEGMENT)}):
+        with pytest.raises(TypeError, match=r"segments must be a sequence"):
+            Chain(segs)
+    assert not hasattr(qchain, "no_such.sub") and not hasattr(qchain, "..x") and hasattr(qchain, "cli")
+
+
+def test_read_only_and_strided_arrays_do_not_compile_the_passes_again():
+    ch = soft_arm()
+    q, v, p, tau = ch.neutral(), np.zeros(ch.nv), np.zeros(ch.nu), np.zeros(ch.nv)
+    ch.forward_dynamics_derivatives(q, v, p, tau)
+    q2 = np.zeros(2 * ch.nq)
+    q2[::2] = q
+    for a in (q, v, p, tau):
+        a.flags.writeable = False
+    t0 = time.perf_counter()
+    ch.forward_dynamics_derivatives(q2[::2], v, p, tau)
+    ch.forward_dynamics(q, v, p)
+    assert time.perf_counter() - t0 < 2.0  # a compile of the passes takes 8-20 s
+
+
+@pytest.mark.slow
+def test_a_workspace_cannot_be_relabelled_and_gravity_cannot_be_reassigned():
+    """d.n, d.nv = 8, 24 made a 2-segment workspace pass for 8 segments: a wrong answer, then
+    a segmentation fault; Chain.gravity = ... was taken by some passes and not others."""
+    ch = soft_arm(2)
+    d = ch.create_data()
+    ch.mass_matrix(ch.neutral(), data=d)
+    for name, value in (("n", 8), ("nv", 24), ("M", np.zeros((1, 1)))):
+        with pytest.raises(AttributeError, match=rf"Data.{name} cannot be set"):
+            setattr(d, name, value)
+    with pytest.raises(AttributeError, match="Chain.gravity is read-only"):
+        ch.gravity = np.zeros(3)
+    import itertools
+
+    with pytest.raises(ValueError, match=r"segments must hold at most 1e\+06 Segments"):
+        Chain(itertools.repeat(Segment(**SEGMENT)))
+
+
+def test_configurations_that_overflow_raise_instead_of_returning_nan():
+    seg = soft_segment()
+    with pytest.raises(NonFiniteError, match=r"Segment.mass_matrix: the mass matrix M_xi is not finite at q_e = "
+                                             r"\(1e\+300, 0, 0\)"):
+        seg.mass_matrix([1e300, 0, 0])
+    with pytest.raises(NonFiniteError, match=r"elastic energy"):
+        seg.elastic_energy([1e300, 0, 0])
+    with pytest.raises(NonFiniteError, match=r"kinetic energy"):
+        seg.kinetic_energy(seg.neutral(), [1e200] * 9)
+    ch = Chain([seg, seg, seg])
+    q = ch.neutral()
+    q[6] = 1e300
+    for call in (lambda: ch.mass_matrix(q), lambda: ch.potential_energy(q), lambda: ch.elastic_force(q),
+                 lambda: ch.forward_dynamics(q, np.zeros(ch.nv), t=0.25)):
+        with pytest.raises(NonFiniteError, match=r"is not finite.*segment 2 \(q\[6:9\] = \(1e\+300, 0, 0\)"):
+            call()
+    with pytest.raises(NonFiniteError, match=r"Chain.forward_dynamics: the acceleration is not finite at t = 0.25 s"):
+        ch.forward_dynamics(q, np.zeros(ch.nv), t=0.25)
+    assert issubclass(NonFiniteError, QchainError) and issubclass(NonFiniteError, ValueError)
+
+
+def test_complex_boolean_and_string_states_are_refused_by_name():
+    seg = soft_segment()
+    with pytest.raises(TypeError, match=r"q_e must be an array of real numbers \(complex numbers are refused, not cut"):
+        seg.mass_matrix([0.1, 1 + 2j, 0.0])
+    with pytest.raises(TypeError, match=r"q_e must be an array of real numbers \(complex"):
+        seg.mass_matrix(np.array([0.1, 1, 0], dtype=complex))
+    with pytest.raises(TypeError, match=r"q_e must be an array of real numbers \(booleans are not numbers\)"):
+        seg.mass_matrix([0.1, True, 0.0])
+    ch = Chain([seg])
+    with pytest.raises(TypeError, match=r"q must be an array of real numbers, got a str 'abc'"):
+        ch.mass_matrix("abc")
+    with pytest.raises(TypeError, match=r"v must be an array of real numbers, got a list \[0, 'x', 0\]"):
+        ch.forward_dynamics(ch.neutral(), [0, "x", 0])
+    with pytest.raises(TypeError, match=r"p must be an array of real numbers"):
+        ch.forward_dynamics(ch.neutral(), np.zeros(3), p=[1e4, 0j, 0])
+    with pytest.raises(ValueError, match=r"q must be a rectangular array of real numbers"):
+        ch.mass_matrix([[0.1, 0], [0]])
+    with pytest.raises(ValueError, match=r"gravity\[2\] must be >= -10000 and <= 10000 m/s\^2, got 1e\+300"):
+        Chain([seg], gravity=[0, 0, 1e300])
+    with pytest.raises(TypeError, match=r"gravity must be an array of real numbers \(booleans"):
+        Chain([seg], gravity=[0, 0, True])

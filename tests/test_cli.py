@@ -41,6 +41,7 @@ def test_info(capsys):
     assert "free dofs = 9" in out and "planar: not tried (reduce = false)" in out and "reductions (off):" in out
 
 
+@pytest.mark.slow
 def test_run_prints_the_summary_and_writes_the_outputs(short_scene, tmp_path, capsys):
     out_dir = tmp_path / "results"
     code = main(["run", str(short_scene), "--out", str(out_dir), "--no-record", "--no-progress"])
@@ -151,6 +152,7 @@ def test_progress_bar_on_stderr(short_scene, monkeypatch, capsys):
     assert "real time" not in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_run_records_an_mcap(short_scene, tmp_path, capsys):
     from qchain.logging import read_mcap
 
@@ -164,6 +166,7 @@ def test_run_records_an_mcap(short_scene, tmp_path, capsys):
     assert rec.success
 
 
+@pytest.mark.slow
 def test_the_module_runs_as_a_command(tmp_path):
     r = subprocess.run([sys.executable, "-m", "qchain", "info", str(EXAMPLES / "step_response.toml")],
                        capture_output=True, text=True, timeout=300)
@@ -248,6 +251,7 @@ def test_a_path_another_run_is_writing_is_refused(short_scene, tmp_path, capsys)
     assert f"qchain recover {path}" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_an_existing_file_that_is_not_a_recording_is_not_overwritten(short_scene, tmp_path, capsys):
     notes = tmp_path / "notes.mcap"
     notes.write_text("my notes")
@@ -261,6 +265,7 @@ def test_an_existing_file_that_is_not_a_recording_is_not_overwritten(short_scene
     assert f"qchain run: replacing the earlier recording {rec}" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_realtime_paces_the_run_to_the_wall_clock(short_scene, tmp_path, capsys):
     t0 = time.perf_counter()
     assert main(["run", str(short_scene), "--mcap", str(tmp_path / "rt.mcap"), "--no-plots", "--no-progress",
@@ -304,6 +309,7 @@ def qchain(*args, timeout=300, **kw) -> subprocess.CompletedProcess:
                           **kw)
 
 
+@pytest.mark.slow
 def test_version_and_python_dash_m_qchain(tmp_path, capsys):
     from importlib.metadata import version
 
@@ -441,6 +447,7 @@ def test_recording_paths_a_run_could_not_use_are_refused_before_the_run(short_sc
     assert sorted(os.listdir(tmp_path)) == ["short.toml"]  # nothing written
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name, stem", [("bad\udcffname.toml", "bad_name"), ("a" * 235 + ".toml", "a" * 100)])
 def test_a_scene_file_with_any_name_gives_a_usable_recording(name, stem, tmp_path, monkeypatch, capsys):
     """A file name that is not UTF-8 or is 240 characters long (exit 0 and no usable
@@ -486,6 +493,7 @@ def _silent_peer():
     return f"rerun+http://127.0.0.1:{srv.getsockname()[1]}/proxy", close
 
 
+@pytest.mark.slow
 def test_a_viewer_that_never_answers_does_not_hold_the_run(short_scene, tmp_path, monkeypatch, capsys):
     """``--connect`` to a port that accepts and never answers: the run goes on without it
     after CONNECT_TIMEOUT, says so in one line and records everything (before, the Rerun
@@ -532,6 +540,7 @@ def _processes_with(tag: str) -> list[int]:
     return found
 
 
+@pytest.mark.slow
 def test_a_viewer_that_never_answers_leaves_no_process_behind(short_scene, tmp_path):
     import uuid
 
@@ -552,6 +561,7 @@ def test_a_viewer_that_never_answers_leaves_no_process_behind(short_scene, tmp_p
     assert _processes_with(tag) == []
 
 
+@pytest.mark.slow
 def test_the_viewer_probe_passes_a_rerun_viewer_and_refuses_what_is_not_one():
     import http.server
     import socket
@@ -612,6 +622,7 @@ def _maps(pid: int) -> str:
         return ""
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("loading", ["libboost_python", "llvmlite"])
 def test_ctrl_c_during_start_up_is_one_line_and_exit_code_1(loading, short_scene, tmp_path):
     """Ctrl-C while the command loads Pinocchio (Boost.Python) or numba (llvmlite, whose
@@ -638,6 +649,7 @@ def _journal_grows(path: Path, seconds: float):
     return grown
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("method", ["RK45", "dopri5"])
 def test_ctrl_c_in_a_run_reports_the_time_its_samples_reach(method, tmp_path):
     """Ctrl-C a second into a run paced to the wall clock: the summary, the line on stderr,
@@ -717,6 +729,7 @@ def test_sweep_errors_are_one_line_with_their_exit_code(sweep_file, tmp_path, mo
     assert "2 runs (0 finished before, 2 computed now" in capsys.readouterr().out
 
 
+@pytest.mark.slow
 def test_ctrl_c_in_a_running_sweep_is_said_once(sweep_file, tmp_path):
     """Ctrl-C while ``qchain sweep`` runs: one line saying where the finished runs are, exit
     code 1 (not a second "interrupted" line from the ``qchain`` command around it)."""

@@ -38,6 +38,8 @@ from qchain.batch.workers import _DASK_FACTOR, ClusterLost, DaskEngine, Payload,
 from test_batch import T, T_EVAL, inputs, same, two_segment_arm
 from test_sweep import BASE, deterministic
 
+pytestmark = pytest.mark.slow  # see tests/README.md
+
 TESTS = Path(__file__).parent
 DEADLINE = 120  # s, for any one test of this file
 

@@ -8,8 +8,7 @@ import pytest
 
 from helpers import SEGMENT_KW, rel
 from qchain import Chain, Segment
-from qchain.model.arc import arc_node, bend_functions
-from qchain.model.arc_derivatives import arc_node_derivatives, bend_h
+from qchain.model.arc import arc_node, arc_node_derivatives, bend_functions, bend_h
 from test_chain import make_chain, random_state
 
 TOL = 1e-7  # relative (Frobenius); the issue's bound is 1e-6, differences reach ~1e-9
@@ -258,6 +257,7 @@ def test_bad_acceleration_is_refused_where_it_enters():
 # ---------------------------------------------------------------- workspace and fast path
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("base", [b for b, _ in CASES])
 def test_data_workspace_and_unchecked_fast_path(base, rng):
     """With ``data`` the passes write in it (the result's arrays are its arrays, reused call

@@ -30,6 +30,7 @@ def test_method_lists():
     assert "radau5" in COMPILED and "dopri5" in COMPILED
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("method, kw, tol", [
     ("rk4", dict(dt=2e-4), 1e-7),
     ("midpoint", dict(dt=2e-4), 5e-5),
@@ -82,6 +83,7 @@ def test_adaptive_tolerance_proportionality():
         assert errs[1] < errs[0] / 20, (method, errs)
 
 
+@pytest.mark.slow
 def test_radau5_uses_the_exact_jacobian_sparingly_on_a_stiff_arm():
     """A stiff, damped arm (E = 5 MPa): radau5 takes far fewer steps than the explicit pair
     at the same tolerance, with Jacobians on a fraction of its steps."""
@@ -116,6 +118,7 @@ def test_floating_base_on_the_lie_group_conserves_momentum():
             assert np.linalg.norm(ch.momentum(q, v) - h0) < bound * np.linalg.norm(h0), method
 
 
+@pytest.mark.slow
 def test_floating_base_equals_the_python_path():
     ch = Chain([Segment(**SEG, damping=0.01) for _ in range(2)], base="floating")
     q0 = ch.neutral()
@@ -129,6 +132,7 @@ def test_floating_base_equals_the_python_path():
     assert np.abs(tr.potential_energy - [ch.potential_energy(q) for q in tr.q]).max() < 1e-12
 
 
+@pytest.mark.slow
 def test_prescribed_sine_motion_runs_compiled_and_equals_the_python_callable():
     mount = pin.SE3(pin.rpy.rpyToMatrix(np.pi, 0.0, 0.0), np.array([0.0, 0.0, 0.5]))
     motion = SineMotion(kind="rotation", axis=np.array([0.0, 1.0, 0.0]), amplitude=0.3, frequency=1.5, phase=0.2,
@@ -151,7 +155,7 @@ def test_planar_chain_runs_on_the_planar_kernel_and_equals_the_full_chain():
     planar = Chain(segs, gravity=(0, 0, 9.81), planar=True)
     full = Chain(segs, gravity=(0, 0, 9.81))
     P = Sine(amplitude=np.tile([2e4, -1e4, -1e4], 3), frequency=2.0, offset=np.full(9, 2e4))
-    assert system.pack(planar, P, None)[14][1] == 1 and system.pack(full, P, None)[14][1] == 0
+    assert system.pack(planar, P, None).planar_kernel == 1 and system.pack(full, P, None).planar_kernel == 0
     q0 = planar.neutral()
     kw = dict(pressure=P, method="radau5", rtol=1e-9, atol=1e-11, t_eval=np.linspace(0, 0.4, 9))
     a, b = simulate(planar, q0, np.zeros(9), (0, 0.4), **kw), simulate(full, q0, np.zeros(9), (0, 0.4), **kw)
@@ -273,7 +277,7 @@ def _engine_args(ch, pressure=None, tau=None):
 
     m = system.pack(ch, np.zeros(ch.nu) if pressure is None else pressure, tau)
     wk = system.workspace(ch)
-    it = steppers.integrator(m[13].size, ch.nq)
+    it = steppers.integrator(m.idx.size, ch.nq)
     return m, wk, it
 
 
@@ -377,3 +381,51 @@ def test_the_compiled_energies_pass_equals_the_chain_s_mass_matrix_energies(base
     np.testing.assert_allclose(ke, ke_ref, rtol=1e-12)
     np.testing.assert_allclose(pe, pe_ref, rtol=1e-12, atol=1e-12 * np.abs(pe_ref).max())
     assert min(ke_ref) > 0 and np.ptp(pe_ref) > 0
+
+
+@pytest.mark.slow
+def test_importing_qchain_sets_no_warnings_filter():
+    """numba's warning that first-class function types are experimental is silenced where the
+    engine types its callbacks (``qchain._jit.first_class_functions``), not by a filter set at
+    import: importing qchain and its engine leaves ``warnings.filters`` as it was (the
+    third-party modules that set their own imported first)."""
+    import subprocess
+    import sys
+
+    code = ("import warnings, numpy, numba, pinocchio, scipy, scipy.optimize, scipy.linalg\n"
+            "before = list(warnings.filters)\n"
+            "import qchain, qchain.sim.engine.compile, qchain.sim.engine.driver, qchain.sim.engine.warmup\n"
+            "new = [f for f in warnings.filters if f not in before]\n"
+            "assert not new, new\n")
+    subprocess.run([sys.executable, "-c", code], check=True, timeout=120)
+
+
+def test_a_run_and_its_preparation_pass_under_an_error_filter_and_leave_the_filters_alone():
+    """With every warning an error, the engine's preparation (as ``compile_all`` calls it) and a
+    run succeed, and the caller's filters are unchanged afterwards."""
+    import warnings
+
+    from qchain.sim.engine import warmup
+
+    ch = hanging_arm(2)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        before = list(warnings.filters)
+        for method in ("radau5", "dopri5"):
+            warmup.prepare(method, *warmup.standin(method, False), stream=None)
+        tr = simulate(ch, ch.neutral(), np.zeros(ch.nv), (0, 0.05), pressure=waving(ch), method="radau5")
+        assert tr.success and warnings.filters == before
+
+
+def test_the_engine_model_holds_the_chain_s_kernel_arrays_by_name():
+    """:func:`system.pack` names each of :meth:`Chain.kernel_arrays` as the chain does and holds
+    the chain's own arrays; a chain the compiled passes cannot evaluate has none."""
+    ch = hanging_arm(2, planar=True)
+    m = system.pack(ch, None, None)
+    arrays = ch.kernel_arrays()
+    assert isinstance(m, system.EngineModel) and set(arrays) < set(m._fields)
+    assert all(getattr(m, k) is a for k, a in arrays.items())
+    assert (m.base, m.planar_kernel, m.nq, m.nv) == (system.FIXED, 1, ch.nq, ch.nv)
+    assert np.array_equal(m.idx, np.flatnonzero(ch.active))
+    paper = Chain([Segment(**SEG, coords="paper")])
+    assert paper.kernel_arrays() is None and system.pack(paper, None, None) is None

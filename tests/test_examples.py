@@ -52,6 +52,7 @@ def test_wave_arm(examples, tmp_path):
     assert np.ptp(tip[:, 0]) > 0.005
 
 
+@pytest.mark.slow
 def test_floating_arm(examples, tmp_path, capsys):
     out = examples("floating_arm").main(["--quick", "--out", str(tmp_path)])
     assert out["trajectory"].success
@@ -98,8 +99,41 @@ def test_tip_control(examples, tmp_path, capsys):
     assert "tip error" in capsys.readouterr().out
 
 
+@pytest.mark.slow
 def test_an_example_runs_as_a_script(tmp_path):
     r = subprocess.run([sys.executable, str(EXAMPLES / "moving_base.py"), "--duration", "0.05", "--out", str(tmp_path)],
                        capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, r.stderr
     assert f"wrote {tmp_path / 'moving_base.png'}" in r.stdout and is_png(tmp_path / "moving_base.png")
+
+
+def test_an_example_runs_another_scene(examples, tmp_path):
+    """``--scene FILE`` replaces the example's own scene: here a mount shaken half as far."""
+    text = (EXAMPLES / "scenes" / "moving_base.toml").read_text()
+    assert text.count("amplitude = 0.02 ") == 1
+    scene = tmp_path / "half.toml"
+    scene.write_text(text.replace("amplitude = 0.02 ", "amplitude = 0.01 "))
+    out = examples("moving_base").main(["--quick", "--out", str(tmp_path), "--scene", str(scene)])
+    t = out["trajectory"].t
+    assert np.allclose(out["mount"][:, 0], 0.01 * np.sin(2 * np.pi * 1.5 * t), rtol=0, atol=1e-15)
+
+
+def test_bend_segment(examples, tmp_path, capsys):
+    out = examples("bend_segment").main(["--quick", "--out", str(tmp_path)])
+    assert is_png(out["png"]) and out["png"].parent == tmp_path
+    q_rest, q_bent = out["shapes"]["rest"], out["shapes"]["chamber 1, 80 kPa"]
+    assert math.hypot(*q_rest[1:]) < 1e-9 < math.hypot(*q_bent[1:])  # (l, ux, uy): only pressure bends it
+    assert "wrote" in capsys.readouterr().out
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", sorted(p.stem for p in EXAMPLES.glob("*.py") if not p.stem.startswith("_")))
+def test_every_example_has_the_promised_flags(name):
+    """The README promises ``--quick`` and ``--out DIR`` of every example, ``--scene FILE`` of
+    each that runs a scene file of ``examples/scenes/``."""
+    r = subprocess.run([sys.executable, str(EXAMPLES / f"{name}.py"), "--help"], capture_output=True, text=True,
+                       timeout=120)
+    assert r.returncode == 0, r.stderr
+    assert "--quick" in r.stdout and "--out DIR" in r.stdout, r.stdout
+    if (EXAMPLES / "scenes" / f"{name}.toml").is_file():
+        assert "--scene FILE" in r.stdout, r.stdout

@@ -2,12 +2,16 @@
 the Euler elastica (a Cosserat rod without shear and extension) at second order in 1/n.
 The pure-end-moment arc is in tests/test_statics.py."""
 
+import math
+from decimal import Decimal
+
 import numpy as np
 import pinocchio as pin
 
 from qchain import Chain, Segment
-from qchain.reference import elastica_cantilever
 from qchain.arm.statics import equilibrium
+from qchain.reference import elastica_cantilever
+from support import RaisingFloat, refused
 
 L, R, E, RHO = 0.3, 0.01, 5e6, 1100.0  # m, m, Pa, kg/m^3
 
@@ -36,3 +40,15 @@ def test_static_cantilever_converges_to_the_elastica_at_second_order():
     # measured: 6.6e-3, 1.6e-3, 4.1e-4, 1.0e-4 m; rates 2.01, 2.00, 2.00
     assert np.all((rates > 1.9) & (rates < 2.1)), (errs, rates)
     assert errs[-1] < 2e-4
+
+
+# --------------------------------------------------------------------------------------
+# Bad input (issue 18): refused where it enters, naming the argument, the value and the bound;
+# never a foreign traceback, a hang, a crash, a silent NaN or lost data.
+
+def test_the_elastica_reference_checks_its_parameters():
+    for v in (True, "1", Decimal("1"), RaisingFloat(), 0.0, -1.0, math.nan, 10**400):
+        refused(lambda v=v: elastica_cantilever(v, 1.0, 1.0), "length")
+        refused(lambda v=v: elastica_cantilever(1.0, v, 1.0), "EI")
+    refused(lambda: elastica_cantilever(1.0, 1.0, math.inf), "weight_per_length")
+    assert abs(elastica_cantilever(1.0, 1.0, 1.0).tip[0] - 0.9912) < 1e-3

@@ -12,6 +12,7 @@ from helpers import SEGMENT_KW, bent, rel
 from qchain import Chain, DomainError, LagrangianChain, Segment, SingularConfigurationError
 from qchain.arm.lagrangian import ATTITUDE_SINGULAR_COS
 from qchain.sim.simulation import simulate
+from support import CHF, QB, refused
 from test_chain import make_chain, random_state
 
 TOL = 1e-8  # identities between exact quantities, relative
@@ -215,6 +216,7 @@ def undamped_run():
     return L, sol, ref
 
 
+@pytest.mark.slow
 def test_lagrangian_trajectory_equals_the_free_flyer_s(undamped_run):
     L, sol, ref = undamped_run
     ch = L.chain
@@ -295,3 +297,18 @@ def test_inputs_are_checked_where_they_enter():
     moving = Chain(ch.segments, base="prescribed", base_motion=lambda t: (pin.SE3.Identity(), np.zeros(6), np.zeros(6)))
     with pytest.raises(ValueError, match="base='floating' or 'fixed', got base='prescribed'"):
         LagrangianChain(moving)
+
+
+# --------------------------------------------------------------------------------------
+# Bad input (issue 18): refused where it enters, naming the argument, the value and the bound;
+# never a foreign traceback, a hang, a crash, a silent NaN or lost data.
+
+def test_the_lagrangian_form_and_engine_entry_points_name_bad_arguments():
+    from qchain import compile_all
+    from qchain.sim.engine import system
+
+    L = LagrangianChain(CHF)
+    refused(lambda: L.forward_dynamics(np.r_[0.1, 0.2, 0.3, 0.1, 0.2, 0.3, QB], [True] * 9), "qd_L")
+    refused(lambda: compile_all(["bogus"]), "methods")
+    refused(lambda: compile_all("rk4"), "methods")
+    refused(lambda: system.pack("chain", None, None), "chain")

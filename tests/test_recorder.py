@@ -1,4 +1,5 @@
-"""ChainRecorder: a simulated chain's samples as step records, frames computed in batches."""
+"""ChainRecorder: a simulated chain's samples as step records, frames computed in batches;
+each sample checked where it enters, one recorder for one run."""
 
 from __future__ import annotations
 
@@ -6,11 +7,13 @@ import io
 
 import numpy as np
 import pytest
-from test_chain import make_chain
 
+from logging_fixtures import arm_info
 from qchain.logging import RecordLayout, RunInfo, RunLogger, read_recording
 from qchain.recording.recorder import ChainRecorder
 from qchain.sim.simulation import simulate
+from support import soft_arm
+from test_chain import make_chain
 
 
 def _info(ch):
@@ -29,6 +32,7 @@ class _Rows:
         self.calls.append((rows.copy(), layout))
 
 
+@pytest.mark.slow
 def test_recorded_run_equals_the_trajectory_and_the_chain_frames():
     """Every sample of a simulation, logged through the recorder and read back from the MCAP:
     t, q, v, p and the energies as simulate returned them, step = sample index, and the
@@ -196,3 +200,47 @@ def test_ctrl_c_while_a_paced_batch_is_taken_records_no_sample_twice(monkeypatch
     t = np.concatenate([rows[:, 0] for rows, _ in log.calls])
     assert len(t) == rec.n_samples == rec.taken and len(t) >= 6
     np.testing.assert_array_equal(t, traj.t[: len(t)])  # each once, in order
+
+
+# --------------------------------------------------------------------------------------
+# Bad input (issue 18): refused where it enters, naming the argument, the value and the bound;
+# never a foreign traceback, a hang, a crash, a silent NaN or lost data.
+
+def test_a_recorder_checks_each_sample_where_it_enters(tmp_path):
+    """A negative time or a NaN q was taken, then refused at the flush, taking the good
+    samples buffered with it; times going back were recorded silently."""
+    from qchain.recording.recorder import ChainRecorder
+
+    ch = soft_arm(1)
+    q, v, p = ch.neutral(), np.zeros(3), np.zeros(3)
+    path = tmp_path / "r.mcap"
+    with RunLogger(arm_info(1), path, quiet=True, worker="thread") as log, ChainRecorder(log, ch) as rec:
+        rec(0.0, q, v, p)
+        rec(0.001, q, v, p)
+        for t, qq, energies, match in ((-1.0, q, None, "t must be a time >= 0"),
+                                       (0.0005, q, None, "t must not go back"),
+                                       (0.002, np.full(3, np.nan), None, r"q has non-finite entries"),
+                                       (0.002, np.full(3, np.nan), (0.0, 0.0), r"q\[0\] must be finite"),
+                                       (0.002, q, 5.0, r"energies must be \(kinetic, potential\)"),
+                                       (0.002, q, (1, 2, 3), r"energies must be \(kinetic, potential\)")):
+            with pytest.raises(ValueError, match=match):
+                rec(t, qq, v, p, energies=energies)
+        with pytest.raises(ValueError, match=r"t must not go back: t\[1\]"):
+            rec.record_batch(np.array([0.3, 0.1]), np.stack([q, q]), np.zeros((2, 3)), np.zeros((2, 3)),
+                             np.zeros(2), np.zeros(2))
+    assert len(read_recording(path)) == 2  # the good samples kept
+
+
+def test_a_recorder_used_for_two_runs_refuses_the_second_instead_of_splicing(tmp_path):
+    """record_batch took a second run's samples before the first's last time as a batch
+    handed over again, and dropped them: the recording spliced the two runs."""
+    from qchain.recording.recorder import ChainRecorder
+
+    ch = soft_arm(2)
+    q0, v0 = ch.neutral(), np.zeros(ch.nv)
+    with RunLogger(arm_info(2), tmp_path / "r.mcap", quiet=True, worker="thread") as log, \
+            ChainRecorder(log, ch) as rec:
+        simulate(ch, q0, v0, (0, 0.1), on_sample=rec, t_eval=np.linspace(0, 0.1, 11))
+        with pytest.raises(ValueError, match=r"t must not go back: a batch from t = 0.0 s .* \(one recorder a run\)"):
+            simulate(ch, q0, v0, (0, 0.2), on_sample=rec, t_eval=np.linspace(0, 0.2, 21))
+    np.testing.assert_allclose(read_recording(tmp_path / "r.mcap").t, np.linspace(0, 0.1, 11))

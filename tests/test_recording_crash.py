@@ -1,4 +1,5 @@
-"""Nothing recorded is lost: ``qchain run`` killed outright, interrupted, or writing to a full disk.
+"""Nothing recorded is lost: ``qchain run`` (or a RunLogger driver) killed outright, interrupted,
+or writing to a full disk.
 
 Each test starts the real command in processes of its own. They must pass on a machine whose
 cores are all busy with other work (``/work/shared/tools/under-load -- pytest ...``): that is
@@ -18,9 +19,14 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from mcap.reader import make_reader
 
-from qchain.logging import journal_path, read_recording
+from logging_fixtures import arm_info, arm_record, arm_records, write_driver
+from qchain.logging import RecordingFormatError, RunLogger, journal_path, read_recording
 from qchain.scene import load_scene
+from test_logging import _assert_records_equal
+
+pytestmark = pytest.mark.slow  # see tests/README.md
 
 ROOT = Path(__file__).resolve().parents[1]
 WAVE = ROOT / "examples" / "scenes" / "wave_arm.toml"
@@ -33,7 +39,7 @@ SAMPLE_DT = 0.02  # the wave arm's samples (50 Hz)
 # bound on where the simulation is when it is killed)
 DRIVER = r'''
 import os, sys
-import qchain.recorder as rec
+import qchain.recording.recorder as rec
 fd = os.open(sys.argv[1], os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
 call = rec.ChainRecorder.__call__
 def reported(self, t, q, v, p, energies=None):
@@ -46,7 +52,7 @@ def reported_batch(self, t, q, v, p, kinetic, potential, **kw):  # the compiled 
     if len(t):
         os.write(fd, b"".join(b"%r\n" % float(x) for x in t))
 rec.ChainRecorder.record_batch = reported_batch
-from qchain.cli import main
+from qchain.cli.main import main
 sys.exit(main(sys.argv[2:]))
 '''
 
@@ -205,3 +211,128 @@ def test_a_full_disk_stops_the_run_with_a_clear_error(tmp_path):
     rec = read_recording(mcap)
     assert 0 < len(rec) and rec.t[-1] > 1.0
     np.testing.assert_array_equal(rec.step, np.arange(len(rec)))
+
+
+# --------------------------------------------------------------------------------------
+# Hostile input (issue 18): what once ended in a foreign traceback, a hang, a crash, a silent
+# NaN or lost data, kept fixed.
+
+def test_a_killed_writer_with_a_complete_recording_is_a_warning(tmp_path):
+    """The writer process killed mid-run: the recording is finished from the journal,
+    complete; that was 'error: the recording failed' and exit code 1."""
+    import signal
+
+    path = tmp_path / "run.mcap"
+    log = RunLogger(arm_info(), path, flush_interval=0.05, quiet=True, worker="process")
+    records = arm_records(200, dt=1e-3)
+    for r in records[:100]:
+        log.log(r)
+    log.flush(60.0)
+    os.kill(log._proc.pid, signal.SIGKILL)
+    log._proc.wait(30)
+    for r in records[100:]:
+        log.log(r)
+    with pytest.warns(Warning, match="the recording was finished from the journal, complete"):
+        done = log.close()
+    assert done["error"] is None and done["n_records"] == 200
+    rec = read_recording(path)
+    assert len(rec) == 200 and not rec.truncated and not rec.gaps
+
+
+TESTS = Path(__file__).resolve().parent
+
+
+def _start_driver(tmp_path, pace=0.02, n_max=10**7):
+    driver = tmp_path / "driver.py"
+    write_driver(driver, TESTS)
+    path = tmp_path / "run.mcap"
+    proc = subprocess.Popen(
+        [sys.executable, str(driver), str(path), str(n_max), str(pace)],
+        stdout=subprocess.PIPE,
+        text=True,
+        start_new_session=True,
+    )
+    return proc, path
+
+
+def _wait_for_sim_time(proc, t_min, timeout=20.0):
+    """Read the driver's progress lines until it reports sim time >= t_min; returns
+    (the last reported time, the writer's pid)."""
+    deadline = time.monotonic() + timeout
+    t_seen, writer = -1.0, None
+    while time.monotonic() < deadline:
+        line = proc.stdout.readline()
+        assert line, "the driver ended early"
+        if line.startswith("writer"):
+            writer = int(line.split()[1])
+        elif line.startswith("t "):
+            t_seen = float(line.split()[1])
+            if t_seen >= t_min:
+                return t_seen, writer
+    raise AssertionError("the driver did not get far enough in time")
+
+
+@pytest.mark.slow
+def test_sigkill_mid_run_leaves_a_readable_log(tmp_path):
+    # the simulation and its writer process both killed: the file ends mid-stream
+    proc, path = _start_driver(tmp_path)
+    try:
+        t_seen, writer = _wait_for_sim_time(proc, 0.6)
+        os.kill(writer, signal.SIGKILL)
+        os.kill(proc.pid, signal.SIGKILL)
+    finally:
+        proc.wait(10)
+        proc.stdout.close()
+    rec = read_recording(path)
+    assert rec.truncated and rec.outcome is None
+    assert len(rec) > 0 and np.all(np.diff(rec.t) > 0)
+    # at most a fraction of a second of simulation time lost (chunks close every 0.1 s)
+    assert rec.t[-1] >= t_seen - 0.3
+    _assert_records_equal(rec, [arm_record(k * 1e-3, k) for k in range(len(rec))])
+
+
+@pytest.mark.slow
+def test_sigkill_of_the_simulation_alone_still_finishes_the_file(tmp_path):
+    proc, path = _start_driver(tmp_path)
+    try:
+        t_seen, writer = _wait_for_sim_time(proc, 0.3)
+        os.kill(proc.pid, signal.SIGKILL)
+    finally:
+        proc.wait(10)
+        proc.stdout.close()
+    deadline = time.monotonic() + 20
+    rec = None
+    while time.monotonic() < deadline:  # the writer sees its pipe close and finishes
+        try:
+            rec = read_recording(path)
+        except (RecordingFormatError, FileNotFoundError):  # a writer still starting: its file comes
+            pass
+        if rec is not None and not rec.truncated:
+            break
+        time.sleep(0.05)
+    assert rec is not None and not rec.truncated
+    assert rec.outcome["success"] == "false" and "without closing its log" in rec.outcome["message"]
+    assert rec.t[-1] >= t_seen - 0.06
+
+
+@pytest.mark.slow
+def test_sigint_leaves_a_complete_log(tmp_path):
+    proc, path = _start_driver(tmp_path)
+    try:
+        t_seen, _ = _wait_for_sim_time(proc, 0.3)
+        os.kill(proc.pid, signal.SIGINT)
+        proc.wait(30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        proc.stdout.close()
+    assert proc.returncode != 0  # the KeyboardInterrupt went on after the log was closed
+    with open(path, "rb") as fh:
+        summary = make_reader(fh).get_summary()
+    assert summary is not None and summary.statistics.message_count > 0
+    rec = read_recording(path)
+    assert not rec.truncated and rec.t[-1] >= t_seen
+    assert rec.outcome["success"] == "false"
+    assert rec.outcome["message"] == f"interrupted (KeyboardInterrupt) at t = {rec.t[-1]:.6g} s"
+    assert rec.outcome["n_records"] == str(len(rec))

@@ -144,6 +144,7 @@ def test_inextensible_equals_the_linear_law_on_l_equals_l0():
         assert np.allclose(mat.elastic_stiffness(q)[1:, 1:], lin.elastic_stiffness(q)[1:, 1:], rtol=1e-14, atol=0)
 
 
+@pytest.mark.slow
 def test_inextensible_is_the_limit_of_a_stiff_axial_direction():
     ch_i, tr_i, tip_i = _run([Segment(**SEG, damping=BETA, extensible=False) for _ in range(3)])
     assert ch_i.nv_active == 6

@@ -14,18 +14,16 @@ from qchain.scene import BEND_MARGIN, SceneError, SineMotion, load_scene, parse_
 from qchain.model.segment import DEFAULT_NODES, nodes_for_tolerance
 from qchain.arm.statics import equilibrium
 from qchain.sim.simulation import DEFAULT_METHOD
+from support import SEGMENT
 
 EXAMPLE_SCENES = sorted((Path(__file__).parents[1] / "examples" / "scenes").glob("*.toml"))
-
-SEG = dict(length=0.1, radius=0.015, mass=0.05, chamber_area=4.5e-5, chamber_radius=0.0085, youngs_modulus=1e5,
-           damping=0.01)
 
 
 def base_scene():
     """A valid two-segment scene as a dict (written to TOML by :func:`to_toml`)."""
     return {
         "name": "test",
-        "segments": [dict(SEG), dict(SEG, length=0.08)],
+        "segments": [dict(SEGMENT), dict(SEGMENT, length=0.08)],
         "pressure": {"type": "constant", "value": [1e4, 0, 0, 0, 2e4, 2e4]},
         "simulation": {"duration": 0.1},
     }
@@ -123,6 +121,18 @@ def test_method_names_ignore_case(tmp_path):
     d = base_scene()
     d["simulation"]["method"] = "dop853"
     assert load_scene(write(tmp_path, d)).method == "DOP853"
+
+
+@pytest.mark.parametrize("given, method, solver", [("radau", "Radau", "scipy's solve_ivp in Python"),
+                                                   ("RADAU5", "radau5", "(compiled)")])
+def test_a_scene_says_which_solver_its_method_is(tmp_path, given, method, solver):
+    """``radau`` is scipy's Radau, not the compiled radau5: what ``qchain info`` and ``qchain
+    run`` print says which."""
+    d = base_scene()
+    d["simulation"]["method"] = given
+    scene = load_scene(write(tmp_path, d))
+    line = next(x for x in scene.describe(scene.build()) if x.startswith("simulation:"))
+    assert scene.method == method and solver in line, line
 
 
 def test_flat_and_nested_vectors_agree(tmp_path):
@@ -361,7 +371,7 @@ def test_sine_motion_twist_and_acceleration_are_exact(kind):
 def _segment(**kw):
     from qchain import Segment
 
-    return Segment(**{**SEG, **kw})
+    return Segment(**{**SEGMENT, **kw})
 
 
 def test_prescribed_scene_builds_the_motion(tmp_path):

@@ -1,16 +1,33 @@
-"""One segment against independent references (docs/model.md section 11)."""
+"""One segment against independent references (docs/model.md section 11); its parameters and
+the coordinate maps refuse bad values by name, and the declared box gives finite dynamics."""
 
 import dataclasses
+import math
+from decimal import Decimal
+from fractions import Fraction
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from helpers import SEGMENT_KW, assert_regular_at_straight_pose, bent, rel
 from particles import brute_segment, chamber_fibre_length, tip_plate_force_matrix
-from qchain import DomainError, QchainError, Segment, SingularConfigurationError
+from qchain import Chain, DomainError, QchainError, Segment, SingularConfigurationError
+from qchain.model import arc, spatial
+from qchain.model import segment as segmod
 from qchain.model.segment import (
-    DEFAULT_NODES, PAPER_SINGULAR_ANGLE, curvature_to_paper, curvature_velocity_to_paper, paper_jacobian,
-    paper_jacobian_dot, paper_to_curvature, paper_velocity_to_curvature)
+    DEFAULT_NODES,
+    PAPER_SINGULAR_ANGLE,
+    curvature_to_paper,
+    curvature_velocity_to_paper,
+    paper_jacobian,
+    paper_jacobian_dot,
+    paper_to_curvature,
+    paper_velocity_to_curvature,
+)
+from qchain.sim.simulation import simulate
+from support import CH1, FEW, QB, S, SEGMENT, refused, segments_in_range, soft_segment
 
 COORDS = ["curvature", "paper"]
 ANGLES = [0.3, 1.0, 2.0]
@@ -351,3 +368,143 @@ def test_configuration_errors():
     with pytest.raises(ValueError, match=r"alpha must be in \[0, 1\]"):
         seg.slice_placement(seg.neutral(), 1.5)
     assert issubclass(DomainError, QchainError) and issubclass(SingularConfigurationError, QchainError)
+
+
+# --------------------------------------------------------------------------------------
+# Bad input (issue 18): refused where it enters, naming the argument, the value and the bound;
+# never a foreign traceback, a hang, a crash, a silent NaN or lost data.
+
+HELPERS = [
+    ("segment.paper_to_curvature", segmod.paper_to_curvature, (np.array([0.1, 0.3, 5.0]),), "q_p"),
+    ("segment.curvature_to_paper", segmod.curvature_to_paper, (QB,), "q_c"),
+    ("segment.paper_jacobian", segmod.paper_jacobian, (np.array([0.1, 0.3, 5.0]),), "q_p"),
+    ("segment.paper_jacobian_dot", segmod.paper_jacobian_dot, (np.array([0.1, 0.3, 5.0]), np.ones(3)), "q_p"),
+    ("spatial.skew", spatial.skew, (np.array([1.0, 2.0, 3.0]),), "w"),
+    ("spatial.ad_matrix", spatial.ad_matrix, (np.arange(6.0),), "a"),
+    ("spatial.force_cross_bar", spatial.force_cross_bar, (np.arange(6.0),), "h"),
+    ("spatial.quaternion_to_rotation", spatial.quaternion_to_rotation, (np.array([0.1, 0.2, 0.3, 0.9]),), "quat"),
+    ("arc.strain_twist", arc.strain_twist, (QB,), "q"),
+    ("arc.bend_functions", arc.bend_functions, (np.array([0.0, 0.5, 3.0]),), "x"),
+]
+BAD_ENTRIES = st.sampled_from([True, np.True_, None, "1", 1j, math.nan, math.inf, -math.inf, 10**400, Decimal("1")])
+
+
+@FEW
+@given(which=st.sampled_from(HELPERS), bad=BAD_ENTRIES, where=st.integers(0, 2))
+def test_public_helpers_refuse_bad_entries_by_name(which, bad, where):
+    """The coordinate maps and spatial algebra took anything numpy would cast: booleans,
+    None (an object array), strings of digits, complex numbers (imaginary part dropped),
+    NaN (returned as NaN), integers too large for a float (OverflowError)."""
+    _, fn, args, name = which
+    first = list(np.asarray(args[0], dtype=object))
+    first[where] = bad
+    msg = refused(lambda: fn(first, *args[1:]), name)
+    assert name in msg
+
+
+@pytest.mark.parametrize("which", HELPERS, ids=[h[0] for h in HELPERS])
+def test_public_helpers_give_the_same_result_for_every_valid_layout(which):
+    _, fn, args, name = which
+    ref = fn(*args)
+    a = np.asarray(args[0], dtype=float)
+    wide = np.zeros(2 * a.size)
+    wide[::2] = a
+    ro = a.copy()
+    ro.flags.writeable = False
+    for form in (a.astype(">f8"), wide[::2], ro, list(a), np.array([Fraction(x) for x in a], dtype=object)):
+        assert np.array_equal(fn(form, *args[1:]), ref)
+    assert np.array_equal(fn(a.astype(np.float32), *args[1:]), fn(a.astype(np.float32).astype(float), *args[1:]))
+    for bad_shape in () if fn is arc.bend_functions else (a[:-1], np.zeros(0), a[:, None]):  # angles: any shape
+        refused(lambda bad_shape=bad_shape: fn(bad_shape, *args[1:]), name, ValueError)
+
+
+def test_helpers_at_their_singular_points_refuse_instead_of_returning_nan():
+    with pytest.raises(QchainError, match="kappa"):
+        segmod.curvature_velocity_to_paper(np.array([0.1, 1e-320, 0.0]), np.ones(3))  # kappa^2 underflows: was inf
+    refused(lambda: spatial.quaternion_to_rotation(np.zeros(4)), "quat")
+    refused(lambda: spatial.disk_inertia(1.0, math.nan), "radius")
+    refused(lambda: arc.arc_nodes([math.nan], QB), "alpha")
+    refused(lambda: arc.arc_nodes([0.5], QB + 1j), "q")
+    refused(lambda: spatial.motion_cross(np.ones(6), np.ones(5)), "b")
+    assert np.allclose(arc.bend_functions(-1.0), arc.bend_functions(1.0))  # even: any real angle
+
+
+def test_a_model_owns_copies_of_its_arrays():
+    K = np.diag([10.0, 1.0, 1.0])
+    r = np.array([0.1, 0.0, 0.0])
+    seg = Segment(**SEGMENT, stiffness_matrix=K, rest_q_e=r)
+    K[0, 1], r[0] = 123.0, -5.0  # after the checks: not symmetric, not a configuration
+    assert seg.stiffness_matrix[0, 1] == 0.0 and seg.rest_q_e[0] == 0.1
+    with pytest.raises(ValueError):
+        seg.stiffness_matrix[0, 0] = 1.0
+    with pytest.raises(ValueError):
+        CH1.gravity[2] = 1e300  # read-only: the dynamics use a base-frame copy made at construction
+    refused(lambda: Segment(**SEGMENT, stiffness_matrix=np.eye(3), rest_q_e=[-0.1, 0, 0]), "rest_q_e")
+    q = QB.copy()
+    assert not np.shares_memory(S.check_configuration(q), q) and not np.shares_memory(S.to_curvature(q), q)
+
+
+def test_paper_psi_is_bounded_where_it_enters():
+    sp = Segment(**SEGMENT, coords="paper")
+    msg = refused(lambda: simulate(Chain([sp]), np.array([0.1, 1e300, 2.0]), np.zeros(3), (0, 0.01)), "psi")
+    assert "1000" in msg
+    refused(lambda: Segment(**SEGMENT, coords="paper", rest_q_e=[0.1, -2e3, 2.0]), "psi")
+    assert simulate(Chain([sp]), np.array([0.1, 0.5, 2.0]), np.zeros(3), (0, 0.002)).success
+
+
+def test_nodes_for_tolerance_takes_a_paper_coordinate_segment():
+    from qchain.model.segment import nodes_for_tolerance
+
+    s = Segment(**SEGMENT, coords="paper", stiffness_matrix=np.eye(3), rest_q_e=[0.1, 500.0, 1.0])
+    assert nodes_for_tolerance(s, 1.0, 1e-3) == nodes_for_tolerance(Segment(**SEGMENT), 1.0, 1e-3)
+
+
+@settings(max_examples=200, deadline=None, derandomize=True, database=None)
+@given(seg=segments_in_range(), bend=st.floats(0.0, 0.95), psi=st.floats(-3.2, 3.2),
+       rate=st.floats(-1.0, 1.0), p=st.floats(-1e5, 1e6))
+def test_segments_anywhere_in_the_declared_box_give_finite_dynamics(seg, bend, psi, rate, p):
+    """The declared ranges are ones the model is finite over: a two-segment chain anywhere
+    in the box, bent up to 0.95 of the domain, moving and pressurised, has finite mass
+    matrix, energies and accelerations (or refuses a singular articulated inertia by name)."""
+    s = Segment(**seg)
+    ch = Chain([s, s])
+    kappa = bend / seg["radius"]
+    q = ch.neutral()
+    q[1], q[2] = kappa * math.cos(psi), kappa * math.sin(psi)
+    v = np.full(ch.nv, rate)
+    assert np.all(np.isfinite(ch.mass_matrix(q)))
+    assert math.isfinite(ch.kinetic_energy(q, v)) and math.isfinite(ch.potential_energy(q))
+    try:
+        a = ch.forward_dynamics(q, v, np.full(6, p))
+    except QchainError as err:  # a clean refusal is allowed, a NaN is not
+        assert "not positive definite" in str(err) or "not finite" in str(err), str(err)
+    else:
+        assert np.all(np.isfinite(a))
+
+
+@pytest.mark.parametrize("name", ["length", "radius", "mass", "chamber_area", "chamber_radius", "youngs_modulus",
+                                  "damping"])
+def test_booleans_strings_and_complex_numbers_are_not_segment_parameters(name):
+    with pytest.raises(TypeError, match=rf"{name} must be a real number \(booleans are not numbers\), got a boolean "
+                                        "True"):
+        soft_segment(**{name: True})
+    with pytest.raises(TypeError, match=rf"{name} must be a real number, got a str '0.01'"):
+        soft_segment(**{name: "0.01"})
+    with pytest.raises(TypeError, match=rf"{name} must be a real number \(complex numbers are refused"):
+        soft_segment(**{name: 0.01 + 0j})
+    with pytest.raises(TypeError, match=rf"{name} must be a real number, got None"):
+        soft_segment(**{name: None})
+
+
+@pytest.mark.parametrize("kw, match", [
+    (dict(length=1e300), r"length must be >= 1e-05 and <= 100 m, got 1e\+300 m"),
+    (dict(radius=1e300), r"radius must be >= 1e-06 and <= 10 m, got 1e\+300 m"),
+    (dict(youngs_modulus=1e300), r"youngs_modulus must be >= 1 and <= 1e\+12 Pa"),
+    (dict(mass=float("inf")), r"mass must be finite, got inf"),
+    (dict(nodes=10**6), r"nodes must be an integer >= 1 and <= 100, got 1000000"),
+])
+def test_absurd_segment_magnitudes_are_refused_with_the_bound(kw, match):
+    with pytest.raises(ValueError, match=match):
+        soft_segment(**kw)
+    with pytest.raises(TypeError, match=r"nodes must be an integer"):
+        soft_segment(nodes=True)

@@ -1,14 +1,27 @@
-"""Integrators: convergence orders, long-run energy behaviour, Lie-group base, clean stops."""
+"""Integrators: convergence orders, long-run energy behaviour, Lie-group base, clean stops;
+simulate's arguments (times, steps, budgets, controllers, events) checked where they enter."""
 
+import math
 import re
+import subprocess
+import sys
+import textwrap
+import time
 
 import numpy as np
 import pinocchio as pin
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
-from qchain import Chain, Segment
+from helpers import deadline
+from qchain import Chain, Segment, simulate_batch
+from qchain.checks import bounds as B
+from qchain.errors import NonFiniteError
+from qchain.sim.budget import Budget, BudgetError
 from qchain.sim.inputs import Ramp, Sine, Step, Table
 from qchain.sim.simulation import METHODS, Event, simulate
+from support import CH1, CH2, NOT_NUMBERS, ROOT, S, SEGMENT, outside, refused, soft_arm, soft_segment
 
 SEG = dict(length=0.1, radius=0.015, mass=0.05, chamber_area=4.5e-5, chamber_radius=0.0085, youngs_modulus=1e5)
 
@@ -82,6 +95,7 @@ def test_midpoint_keeps_energy_bounded_where_rk4_drifts():
     assert np.all(np.diff(out["rk4"][::20]) > 0)  # a steady drift
 
 
+@pytest.mark.slow
 def test_floating_base_stays_on_the_lie_group_and_keeps_momentum():
     ch = Chain([Segment(**SEG) for _ in range(2)], base="floating", gravity=np.zeros(3))
     q0 = ch.neutral()
@@ -210,6 +224,25 @@ def test_argument_errors():
     assert set(METHODS) == {"rk4", "midpoint", "dopri5", "radau5", "RK45", "DOP853", "Radau", "BDF"}
 
 
+def test_method_names_are_matched_exactly():
+    """A method is named exactly, case included: "radau" is neither the compiled "radau5" nor
+    scipy's "Radau" (an order of magnitude slower), so it is refused, naming both; a name with no
+    close method is refused without a guess."""
+    ch = hanging_arm(1)
+    q, v = ch.neutral(), np.zeros(3)
+    for name, hint in (("radau", "did you mean 'radau5' (compiled) or 'Radau' (scipy's)?"),
+                       ("Radau5", "did you mean 'radau5' (compiled) or 'Radau' (scipy's)?"),
+                       ("RK4", "did you mean 'rk4' (compiled) or 'RK45' (scipy's)?"),
+                       ("dopri", "did you mean 'dopri5' (compiled)?"),
+                       ("bdf", "did you mean 'BDF' (scipy's)?")):
+        with pytest.raises(ValueError, match=re.escape(f"method must be one of {METHODS}, got {name!r}: {hint}")):
+            simulate(ch, q, v, (0, 1), method=name)
+    for name in ("euler", 5, None):
+        with pytest.raises(ValueError, match=re.escape(f"method must be one of {METHODS}, got {name!r}")) as err:
+            simulate(ch, q, v, (0, 1), method=name)
+        assert str(err.value).endswith(f"got {name!r}"), err.value
+
+
 def test_locked_coordinates_are_held_and_reduce_the_state():
     """An inextensible segment keeps l = l0; a planar chain keeps uy = 0 — in the integrator
     and in the model (forward dynamics on the reduced coordinates equals P^T M P a = P^T (f - h))."""
@@ -283,3 +316,360 @@ def test_ctrl_c_says_how_far_the_run_got_on_either_engine(method):
     assert tr.status == -1 and tr.meta["engine"] == ("python" if method == "RK45" else "compiled")
     reached = float(tr.message.rsplit("t = ", 1)[1].split(" s")[0])
     assert reached >= 0.1 and reached >= tr.t[-1] - 1e-12, tr.message
+
+
+# --------------------------------------------------------------------------------------
+# Bad input (issue 18): refused where it enters, naming the argument, the value and the bound;
+# never a foreign traceback, a hang, a crash, a silent NaN or lost data.
+
+@pytest.mark.parametrize("ctl", [lambda: np.zeros(3), lambda t, q: np.zeros(3)], ids=["no argument", "two"])
+def test_a_controller_of_the_wrong_arity_is_named_where_it_enters(ctl):
+    for kw in (dict(method="RK45"), dict(controller_rate=1e3)):
+        msg = refused(lambda: simulate(CH1, CH1.neutral(), np.zeros(3), (0, 0.01), pressure=ctl, **kw), "pressure",
+                      TypeError)
+        assert "(t, q, v)" in msg
+
+
+@pytest.mark.parametrize("ret", [math.nan, "1", np.ones(2), None, 1j], ids=repr)
+@pytest.mark.parametrize("method", ["radau5", "RK45"])
+def test_an_event_function_must_return_a_finite_real(ret, method):
+    """NaN never crosses zero (the event was silently never seen); the others failed in a
+    comparison naming nothing."""
+    def level(t, q, v):
+        return ret
+
+    msg = refused(lambda: simulate(CH1, CH1.neutral(), np.zeros(3), (0, 0.01), method=method, events=[Event(level)]),
+                  "event 'level'")
+    assert "t = 0 s" in msg
+    refused(lambda: Event(level, terminal="no"), "terminal")
+    refused(lambda: Event(level, name=3), "name")
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("method", ["radau5", "rk4", "RK45"])
+def test_callables_get_copies_of_the_state(method):
+    """A controller, an event function and ``on_sample`` that write into the arrays they get
+    change neither the caller's q0, nor the run, nor the recorded samples (on the Python
+    path the run went outside the model, and a private exception escaped)."""
+    def careless(t, q, v):
+        q[:] = 0.0
+        v[:] = 1e3
+        return np.full(6, 1e4)
+
+    def ev(t, q, v):
+        q[:] = -1.0
+        return 1.0
+
+    def cb(t, q, v, p):
+        q[:] = 7.0
+        p[:] = 7.0
+
+    kw = dict(method=method, dt=1e-3, t_eval=[0, 0.005, 0.01])
+    if method != "RK45":
+        kw["controller_rate"] = 1e3
+    ref = simulate(CH2, CH2.neutral(), np.zeros(6), (0, 0.01), pressure=lambda t, q, v: np.full(6, 1e4), **kw)
+    q0 = CH2.neutral()
+    tr = simulate(CH2, q0, np.zeros(6), (0, 0.01), pressure=careless, events=[Event(ev)], on_sample=cb, **kw)
+    assert np.array_equal(q0, CH2.neutral()) and tr.success
+    assert np.allclose(tr.q, ref.q, rtol=1e-12, atol=1e-15) and np.allclose(tr.p, ref.p)
+
+
+def test_inputs_and_outputs_share_no_memory():
+    q0, v0, P, te = CH2.neutral(), np.zeros(6), np.full(6, 1e4), np.linspace(0, 0.01, 3)
+    keep = [x.copy() for x in (q0, v0, P, te)]
+    tr = simulate(CH2, q0, v0, (0, 0.01), pressure=P, t_eval=te)
+    assert all(np.array_equal(a, b) for a, b in zip((q0, v0, P, te), keep))
+    assert not any(np.shares_memory(o, i) for o in (tr.t, tr.q, tr.v, tr.p) for i in (q0, v0, P, te))
+
+
+def test_a_failed_run_of_a_large_chain_does_not_spend_minutes_on_its_stability_limit():
+    """A 1000-segment rk4 run that failed formed the 6000 x 6000 Jacobian for its message."""
+    from helpers import deadline
+    from qchain.sim.engine.driver import STABILITY_MAX_NV, stability_limit
+
+    big = Chain([S] * (STABILITY_MAX_NV // 3 + 1))
+    with deadline(10, "stability_limit of a large chain"):
+        assert stability_limit(big, big.neutral(), np.zeros(big.nv), np.zeros(big.nu), np.zeros(big.nv), 0.0) is None
+    small = Chain([S] * 2)
+    lim = stability_limit(small, small.neutral(), np.zeros(small.nv), np.zeros(small.nu), np.zeros(small.nv), 0.0)
+    assert lim is not None and 0 < lim < 1
+
+
+def test_an_explicit_adaptive_method_on_a_stiff_model_stops_at_the_step_budget():
+    """Refused before it starts where the stability limit puts it over budget; where the
+    limit (a lower bound of the steps) lets it start, stopped at budget.max_steps as it goes."""
+    from qchain.sim.budget import Budget, BudgetError
+    from qchain.sim.simulation import explicit_stability_limit
+
+    s = Segment(length=1e-5, radius=1e-3, mass=1e-9, chamber_area=1e-8, chamber_radius=5e-4, youngs_modulus=1e12)
+    ch = Chain([s])
+    t = time.perf_counter()
+    with pytest.raises(BudgetError, match=r"budget.max_steps: expected at most 10000000 steps, found .* steps \("
+                       r"duration 0.02 s / dopri5's stability limit of the step at the start, about .* s: the model "
+                       r"is stiff for an explicit method, use method 'radau5'\)"):
+        simulate(ch, s.neutral(), np.zeros(3), (0, 0.02), method="dopri5")
+    h = explicit_stability_limit(ch, "dopri5", s.neutral(), np.zeros(3), 0.0)
+    r = simulate(ch, s.neutral(), np.zeros(3), (0, 2000 * h), method="dopri5", budget=Budget(max_steps=5000))
+    assert time.perf_counter() - t < 60
+    assert not r.success and "budget.max_steps = 5000" in r.message and "radau5" in r.message, r.message
+
+
+def test_controller_rate_counts_in_the_run_budget():
+    """controller_rate=1e9 built every instant (a 7.45 GiB array) or made 1e8 Python calls."""
+    ch = soft_arm()
+    q, v, p = ch.neutral(), np.zeros(ch.nv), np.zeros(ch.nu)
+    match = r"budget.max_steps: .* \(duration 1 s x controller_rate 1e\+0[89] Hz: a step ends at every controller"
+    for rate in (1e8, 1e9):
+        with pytest.raises(BudgetError, match=match):
+            simulate(ch, q, v, (0, 1), pressure=lambda t, q, v: p, controller_rate=rate)
+        with pytest.raises(BudgetError, match=match):
+            simulate_batch(ch, q, v, (0, 1), pressure=lambda t, q, v: p, controller_rate=rate, t_eval=[1.0], workers=1)
+
+
+def test_a_first_step_below_the_span_resolution_is_refused_and_late_spans_say_why():
+    ch = soft_arm()
+    q, v = ch.neutral(), np.zeros(ch.nv)
+    with pytest.raises(ValueError, match=r"first_step must be >= 4.44e-15 s \(20 float64 spacings of max\(1 s, "
+                                         r"\|t0\|, \|t1\|\)\), got 1e-300 s"):
+        simulate(ch, q, v, (0, 1), first_step=1e-300)
+    for method in ("radau5", "dopri5"):  # once: "the step size fell below its floor" at once
+        r = simulate(ch, q, v, (1e11, 1e11 + 0.05), method=method, t_eval=[1e11 + 0.05])
+        assert r.success, (method, r.message)
+    # at 1e12 s float64 times are 1.2e-4 s apart: step times rounded by 1 % of a step spoil an
+    # error estimate of 1e-8; the run stops at its start saying so (not "singular" alone)
+    for span in ((1e12 - 0.05, 1e12), (-1e12, -1e12 + 0.05)):
+        r = simulate(ch, q, v, span, method="radau5", t_eval=[span[1]])
+        assert r.success or ("10 float64 spacings of t (0.00122 s)" in r.message
+                             and "shift t_span toward 0" in r.message), r.message
+
+
+@pytest.mark.slow
+def test_a_noisy_controller_without_a_rate_stalls_and_says_so():
+    """It once took 30 s for 6.5e-7 s of 0.01 s (hours to the step budget); now the run
+    stops after 1000 steps shorter than 1e-9 s, naming controller_rate."""
+    ch = soft_arm(1)
+    rng = np.random.default_rng(0)
+    t0 = time.perf_counter()
+    r = simulate(ch, ch.neutral(), np.zeros(3), (0, 0.01), pressure=lambda t, q, v: 1e4 + rng.normal(0, 10, 3),
+                 t_eval=[0, 0.005, 0.01])
+    assert time.perf_counter() - t0 < 60
+    assert not r.success and "stalled" in r.message and "controller_rate" in r.message, r.message
+    held = simulate(ch, ch.neutral(), np.zeros(3), (0, 0.01), pressure=lambda t, q, v: 1e4 + rng.normal(0, 10, 3),
+                    t_eval=[0, 0.005, 0.01], controller_rate=1000.0)
+    assert held.success
+
+
+@pytest.mark.parametrize("method", ["rk4", "midpoint"])
+def test_a_terminal_event_at_a_step_end_is_one_sample(method):
+    from qchain.sim.simulation import Event
+
+    ch = soft_arm(1)
+    for root in (0.05, 0.02):
+        r = simulate(ch, ch.neutral(), np.zeros(3), (0, 0.05), method=method, dt=0.01,
+                     events=[Event(lambda t, q, v, root=root: t - root, terminal=True)])
+        np.testing.assert_allclose(r.t, np.arange(0, root + 1e-9, 0.01))
+
+
+def test_the_step_budget_hint_fits_the_method():
+    from qchain.sim.budget import Budget
+
+    ch = soft_arm(1)
+    r = simulate(ch, ch.neutral(), np.zeros(3), (0, 1), pressure=lambda t, q, v: np.full(3, 1e4 * math.sin(t)),
+                 controller_rate=100.0, budget=Budget(max_steps=100))
+    assert not r.success and "budget.max_steps = 100" in r.message
+    assert "use method='radau5'" not in r.message and "rejected steps count" in r.message, r.message
+
+
+def test_runs_that_once_failed_inside_scipy_or_numba_say_why_or_run():
+    import warnings
+
+    paper = Chain([Segment(**SEGMENT, coords="paper")])
+    from qchain.errors import SingularConfigurationError
+
+    with pytest.raises(SingularConfigurationError, match="paper's \\(l, psi, kappa\\) coordinates are singular"):
+        simulate(paper, paper.neutral(), np.zeros(3), (0, 0.005))
+    ch = soft_arm(2)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # numba's experimental-feature warning at every call stopped every run
+        for method in ("radau5", "dopri5", "rk4"):
+            assert simulate(ch, ch.neutral(), np.zeros(ch.nv), (0, 0.005), method=method, dt=1e-3).success
+    with np.errstate(all="raise"):  # scipy's own nextafter(0, inf) underflowed
+        assert simulate(ch, ch.neutral(), np.zeros(ch.nv), (0, 0.005), method="RK45").success
+
+
+def test_simulate_refuses_bad_times_and_steps_by_name():
+    ch = Chain([soft_segment()])
+    q, v = ch.neutral(), np.zeros(3)
+    cases = [
+        (dict(t_eval=[0.0, np.nan, 0.5]), ValueError, r"t_eval\[1\] must be finite, got nan"),
+        (dict(t_eval=[0.0, 0.5, 0.4]), ValueError, r"t_eval must be strictly increasing"),
+        (dict(t_eval=[0.0, 2.0]), ValueError, r"t_eval must be inside t_span"),
+        (dict(t_eval="0 1"), TypeError, r"t_eval must be an array of real numbers, got a str"),
+        (dict(method="rk4", dt=True), TypeError, r"dt must be a real number \(booleans are not numbers\)"),
+        (dict(method="rk4", dt="1e-3"), TypeError, r"dt must be a real number, got a str '1e-3'"),
+        (dict(method="rk4", dt=1e-300), BudgetError, r"budget.max_steps: expected at most 10000000 steps, found "
+                                                     r"1e\+300 steps \(duration 1 s / dt 1e-300 s\).*budget=qchain"),
+        (dict(max_step=1e-300), BudgetError, r"duration 1 s / max_step 1e-300 s"),
+        (dict(rtol="1e-6"), TypeError, r"rtol must be a real number, got a str"),
+        (dict(rtol=0.0), ValueError, r"rtol must be >= 1e-15 and <= 1, got 0"),
+        (dict(atol=np.nan), ValueError, r"atol must be finite, got nan"),
+        (dict(first_step=-1.0), ValueError, r"first_step must be > 0 and <= 1e\+12 s"),
+        (dict(wall_limit=True), TypeError, r"wall_limit must be a real number \(booleans"),
+        (dict(t_eval=np.linspace(0, 1, 2_000_001)), BudgetError, r"budget.max_samples: expected at most 1000000"),
+        (dict(budget="big"), TypeError, r"budget must be a qchain.sim.budget.Budget"),
+    ]
+    for kw, exc, match in cases:
+        with deadline(20):
+            with pytest.raises(exc, match=match):
+                simulate(ch, q, v, (0.0, 1.0), **kw)
+    with pytest.raises(TypeError, match=r"t_span must be an array of real numbers \(complex"):
+        simulate(ch, q, v, (0.0, 1.0 + 0j))
+    with pytest.raises(ValueError, match=r"t_span\[1\] must be >= -1e\+12 and <= 1e\+12 s"):
+        simulate(ch, q, v, (0.0, 1e300))
+    with pytest.raises(BudgetError, match=r"2 steps a period of the fastest input, 10000 Hz, over 1000 s"):
+        simulate(ch, q, v, (0.0, 1000.0), pressure=Sine(np.full(3, 1e3), 1e4))
+    with pytest.raises(ValueError, match=r"frequency\[0\] must be >= 0 and <= 10000 Hz, got 1e\+300"):
+        Sine(np.full(3, 1e3), 1e300)
+
+
+def test_raising_the_budget_of_simulate_lets_the_run_through():
+    ch = Chain([soft_segment()])
+    q, v = ch.neutral(), np.zeros(3)
+    with pytest.raises(BudgetError, match=r"budget.max_steps: expected at most 100 steps, found 200 steps"):
+        simulate(ch, q, v, (0.0, 0.02), method="rk4", dt=1e-4, budget=Budget(max_steps=100))
+    tr = simulate(ch, q, v, (0.0, 0.02), method="rk4", dt=1e-4, budget=Budget(max_steps=1000))
+    assert tr.success and len(tr.t) == 201
+    with pytest.raises(ValueError, match=r"Budget.max_steps must be an integer >= 1 and <= 1e\+15, got 0"):
+        Budget(max_steps=0)
+    with pytest.raises(TypeError, match=r"Budget.max_steps must be an integer >= 1 and <= 1e\+15, got a boolean True"):
+        Budget(max_steps=True)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("case", ["compiled rk4", "compiled midpoint", "python rk4"])
+def test_a_run_that_turns_non_finite_stops_naming_quantity_segment_and_time(case, monkeypatch):
+    """Pressures of 1e300 Pa overflow the accelerations at the first stage: the run stops
+    with success = False and a message naming the quantity, the coordinate's segment and
+    the time; every sample it kept is finite. (Such pressures are refused where they enter,
+    outside :data:`qchain.checks.bounds.PRESSURE`; the range is lifted here to reach the check
+    within the run, which guards against any overflow on the way.)"""
+    import qchain.sim.inputs
+
+    method = case.split()[1]
+    coords = "paper" if case.startswith("python") else "curvature"
+    seg = soft_segment(coords=coords)
+    ch = Chain([seg, seg])
+    q = ch.neutral()
+    if coords == "paper":
+        q[2] = q[5] = 1.0  # away from the paper coordinates' singular straight pose
+    with pytest.raises(ValueError, match=r"pressure\[0\] must be >= -101325 and <= 1e\+09 Pa, got 1e\+300 Pa"):
+        simulate(ch, q, np.zeros(ch.nv), (0.0, 0.1), method=method, dt=1e-3, pressure=np.full(6, 1e300))
+    monkeypatch.setattr(qchain.sim.inputs, "input_range", lambda name: None)
+    with deadline(60):
+        tr = simulate(ch, q, np.zeros(ch.nv), (0.0, 0.1), method=method, dt=1e-3, pressure=np.full(6, 1e300))
+    assert tr.meta["engine"] == ("python" if coords == "paper" else "compiled")
+    assert not tr.success and tr.status == -1
+    assert "non-finite" in tr.message or "not finite" in tr.message, tr.message
+    assert "segment 0" in tr.message and "t = " in tr.message, tr.message
+    assert np.all(np.isfinite(tr.q)) and np.all(np.isfinite(tr.v)) and len(tr.t) >= 1
+
+
+def test_simulate_refuses_a_start_that_overflows_naming_the_segment():
+    seg = soft_segment()
+    ch = Chain([seg, seg])
+    q = ch.neutral()
+    q[3] = 1e300
+    with pytest.raises(NonFiniteError, match=r"not finite at t = 0 s: segment 1 \(q\[3:6\] = \(1e\+300, 0, 0\)"):
+        simulate(ch, q, np.zeros(6), (0.0, 1.0))
+    with pytest.raises(NonFiniteError, match=r"segment 0 .* its kinetic energy inf J"):
+        simulate(ch, ch.neutral(), np.full(6, 1e200), (0.0, 1.0))
+
+
+@settings(max_examples=200, deadline=None, derandomize=True, database=None)
+@given(data=st.data())
+def test_fuzzed_simulate_arguments_give_a_clean_error_naming_the_argument(data):
+    ch = Chain([soft_segment()])
+    q, v = ch.neutral(), np.zeros(3)
+    name = data.draw(st.sampled_from(["dt", "rtol", "atol", "max_step", "first_step", "wall_limit",
+                                      "controller_rate"]))
+    rng = {"dt": B.STEP, "rtol": B.RTOL, "atol": B.ATOL, "max_step": B.STEP, "first_step": B.STEP,
+           "wall_limit": B.WALL_LIMIT, "controller_rate": B.SAMPLE_RATE}[name]
+    value = data.draw(st.one_of(outside(rng).filter(lambda x: not (name == "max_step" and x == math.inf)),
+                                NOT_NUMBERS, st.complex_numbers(),
+                                st.none() if name in ("dt", "rtol", "atol", "max_step") else st.nothing()))
+    kw = {name: value}
+    if name == "dt":
+        kw["method"] = "rk4"
+    if name == "controller_rate":
+        kw["pressure"] = lambda t, q, v: np.zeros(3)
+    with deadline(20):
+        with pytest.raises((ValueError, TypeError)) as exc:
+            simulate(ch, q, v, (0.0, 0.01), **kw)
+    assert name in str(exc.value), str(exc.value)
+    assert "could not convert" not in str(exc.value)
+
+
+HANG_SCRIPT = textwrap.dedent('''
+    import sys, time
+    import numpy as np
+    from qchain.scene import SceneError, parse_scene
+    from qchain.sim.budget import BudgetError
+    from qchain import Chain, Segment
+    from qchain import simulate
+    from qchain.sim.inputs import Sine
+    SCENE = """
+    [[segments]]
+    length = 0.1
+    radius = 0.015
+    mass = 0.05
+    chamber_area = 4.5e-5
+    chamber_radius = 0.0085
+    youngs_modulus = 1e5
+    {seg}
+    [simulation]
+    duration = {duration}
+    {sim}
+    {rest}
+    """
+    cases = {
+        "count": dict(seg="count = 1000000000000"),
+        "max_step": dict(sim="max_step = 1e-300"),
+        "dt": dict(sim='method = "rk4"\\ndt = 1e-300'),
+        "rate": dict(rest="[output]\\nsample_rate = 1e9"),
+        "frequency": dict(rest='[pressure]\\ntype = "sine"\\namplitude = [1e3, 0, 0]\\nfrequency = 1e300'),
+        "velocity": dict(rest='[base]\\ntype = "floating"\\nvelocity = [1e300, 0, 0]'),
+        "duration": dict(duration="1e300"),
+    }
+    for name, kw in cases.items():
+        t0 = time.perf_counter()
+        text = SCENE.format(**{**dict(seg="", sim="", rest="", duration="1.0"), **kw})
+        try:
+            parse_scene(text, name + ".toml").simulate()
+            print(name, "RAN")
+        except SceneError as err:
+            print(name, "refused", f"{time.perf_counter() - t0:.3f}", err.problems[0].key)
+    ch = Chain([Segment(length=0.1, radius=0.015, mass=0.05, chamber_area=4.5e-5, chamber_radius=0.0085,
+                        youngs_modulus=1e5)])
+    for name, kw in {"api_dt": dict(method="rk4", dt=1e-300), "api_max_step": dict(max_step=1e-300)}.items():
+        try:
+            simulate(ch, ch.neutral(), np.zeros(3), (0.0, 1.0), **kw)
+            print(name, "RAN")
+        except BudgetError:
+            print(name, "refused")
+''')
+
+
+@pytest.mark.slow
+def test_former_hangs_are_refused_before_they_start():
+    with deadline(200):
+        out = subprocess.run([sys.executable, "-c", HANG_SCRIPT], capture_output=True, text=True, timeout=180,
+                             cwd=ROOT)
+    assert out.returncode == 0, out.stderr
+    lines = dict(line.split(" ", 1) for line in out.stdout.strip().splitlines())
+    expect = {"count": "segments[0].count", "max_step": "simulation.max_step", "dt": "simulation.dt",
+              "rate": "output.sample_rate", "frequency": "pressure.frequency", "velocity": "base.velocity[0]",
+              "duration": "simulation.duration"}
+    for name, key in expect.items():
+        words = lines[name].split()
+        assert words[0] == "refused" and words[2] == key, out.stdout
+    assert lines["api_dt"] == "refused" and lines["api_max_step"] == "refused", out.stdout

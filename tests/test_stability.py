@@ -6,6 +6,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 sys.path.insert(0, str(Path(__file__).parents[1] / "benchmarks"))
 
@@ -14,6 +15,7 @@ import stability_map  # noqa: E402
 from qchain.sim.simulation import simulate  # noqa: E402
 
 
+@pytest.mark.slow
 def test_default_method_passes_every_scene_and_failures_are_clear(tmp_path):
     default = simulate.__kwdefaults__["method"]
     rows = [("default", default, "curvature"), ("rk4 (dt=1ms)", "rk4", "curvature"), ("paper", default, "paper")]
@@ -51,6 +53,7 @@ def _region_extent(A: np.ndarray, b: np.ndarray, half: float, step: float) -> fl
     return float(np.abs(Z[stable]).max())
 
 
+@pytest.mark.slow
 def test_explicit_stability_extents_bound_each_methods_stability_region():
     """EXPLICIT_STABILITY_EXTENT bounds every stable h |lambda| from above (so duration over
     the stability limit is a lower bound of the steps) and is within 0.05 of the region's

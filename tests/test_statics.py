@@ -1,11 +1,16 @@
-"""Static equilibrium against closed forms and against the end of a long damped run."""
+"""Static equilibrium against closed forms and against the end of a long damped run; its
+inputs checked where they enter."""
+
+import math
 
 import numpy as np
 import pytest
 
 from qchain import Chain, Segment
-from qchain.sim.simulation import simulate
+from qchain.arm import statics
 from qchain.arm.statics import equilibrium
+from qchain.sim.simulation import simulate
+from support import CH1, refused
 
 SEG = dict(length=0.1, radius=0.015, mass=0.05, chamber_area=4.5e-5, chamber_radius=0.0085, youngs_modulus=1e5)
 PHI = np.array([0.0, 2 * np.pi / 3, -2 * np.pi / 3])
@@ -48,6 +53,7 @@ def test_pure_end_moment_gives_an_exact_arc():
         assert np.allclose(np.linalg.norm(pts - centre, axis=1), abs(seg.bending_stiffness / M), rtol=1e-12)
 
 
+@pytest.mark.slow
 def test_hanging_arm_equilibrium_matches_the_end_of_a_damped_run():
     ch = Chain([Segment(**SEG, damping=0.2) for _ in range(3)], gravity=(0, 0, 9.81))  # hanging
     p = np.array([3e4, 0, 0, 0, 2e4, 0, 1e4, 1e4, 0])
@@ -71,3 +77,16 @@ def test_equilibrium_argument_errors():
         equilibrium(ch, [1.0])
     with pytest.raises(ValueError, match=r"tip_wrench must have shape \(6,\)"):
         equilibrium(ch, tip_wrench=[1.0, 2.0])
+
+
+# --------------------------------------------------------------------------------------
+# Bad input (issue 18): refused where it enters, naming the argument, the value and the bound;
+# never a foreign traceback, a hang, a crash, a silent NaN or lost data.
+
+def test_statics_checks_its_inputs_where_they_enter():
+    refused(lambda: statics.equilibrium(CH1, None, [math.nan, 0, 0]), "q0")
+    refused(lambda: statics.equilibrium(CH1, np.full(3, 1e300)), "p")
+    refused(lambda: statics.equilibrium(CH1, None, None, np.full(6, 1e300)), "tip_wrench")
+    refused(lambda: statics.equilibrium(CH1, continuation="no"), "continuation")
+    refused(lambda: statics.equilibrium(CH1, None, [0.1, 1e3, 0]), "segment 0")
+    assert statics.equilibrium(CH1, np.full(3, 1e4)).success

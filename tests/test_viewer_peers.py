@@ -24,11 +24,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from helpers import Peer, SHORT_SCENE, descendants, session_members
+from helpers import SHORT_SCENE, Peer, children, closed_port_url, deadline, descendants, session_members
 from logging_fixtures import arm_info, arm_records
-from qchain.logging import LoggingError, LoggingWarning, RunLogger, check_outputs, read_recording
+from qchain.cli.recording import replay_main
+from qchain.logging import LoggingError, LoggingWarning, RunLogger, check_outputs, journal_path, read_recording
 from qchain.recording import replay, rerun_sink
 from qchain.recording.writer import TEARDOWN_LIMIT, RemoteViewer
+from support import craft, good_states, write
 
 ROOT = Path(__file__).resolve().parents[1]
 TESTS = Path(__file__).resolve().parent
@@ -177,6 +179,7 @@ def test_one_probe_asks_for_the_viewers_http2_answer(silent_peer, stalling_peer)
 # --------------------------------------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_api_a_peer_that_never_answers(tmp_path, silent_peer):
     """Refused by the probe within viewer_timeout: one warning, the recording complete, no
     process left (before, a plain TCP check let it through and the writer hung in Rerun's
@@ -193,6 +196,7 @@ def test_api_a_peer_that_never_answers(tmp_path, silent_peer):
     assert wait_gone(lambda: descendants() - before) == set()
 
 
+@pytest.mark.slow
 def test_api_a_peer_that_stalls_after_the_handshake(tmp_path, stalling_peer):
     """The probe passes, the Rerun SDK then waits for the peer: the writer says "finished"
     first, gives the viewer viewer_timeout s, warns once and ends within its teardown
@@ -210,6 +214,7 @@ def test_api_a_peer_that_stalls_after_the_handshake(tmp_path, stalling_peer):
     assert wait_gone(lambda: descendants() - before) == set()
 
 
+@pytest.mark.slow
 def test_api_stalled_peer_and_rrd_the_rrd_is_complete(tmp_path, stalling_peer):
     """A .rrd beside a stalled viewer has a stream of its own: it is finalised (footer and
     all) before the run's end is confirmed, whatever the viewer does."""
@@ -232,6 +237,7 @@ def test_api_stalled_peer_and_rrd_the_rrd_is_complete(tmp_path, stalling_peer):
     assert wait_gone(lambda: descendants() - before) == set()
 
 
+@pytest.mark.slow
 def test_api_interrupted_run_with_a_stalled_peer(tmp_path, stalling_peer):
     """Ctrl-C in the run (a KeyboardInterrupt through the logger's block): the recording is
     finished with the outcome saying so, the viewer warned of, nothing left behind."""
@@ -267,6 +273,7 @@ def test_api_a_real_viewer_takes_the_run(tmp_path, rerun_server):
     assert wait_gone(lambda: descendants() - before) == set()
 
 
+@pytest.mark.slow
 def test_api_in_memory_stream_with_a_stalled_peer_exits(tmp_path, stalling_peer):
     """The thread writer (an in-memory stream) feeds the viewer in the simulating process
     itself: close() is bounded, and the interpreter's exit too (Rerun's own exit handler
@@ -307,6 +314,7 @@ for w in caught:
     assert wait_gone(lambda: session_members(proc.pid)) == set()
 
 
+@pytest.mark.slow
 def test_api_killed_run_with_a_stalled_peer(tmp_path, stalling_peer):
     """The simulating process killed (SIGKILL) while its writer feeds a stalled viewer: the
     writer finishes the recording from the journal and ends on its own, within its
@@ -407,6 +415,7 @@ def test_remote_viewer_never_blocks_its_caller(monkeypatch):
 # --------------------------------------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_cli_a_peer_that_never_answers(tmp_path, scene, silent_peer):
     rc, out, err, took, sid = qchain_cli("run", scene, "--connect", silent_peer.url, "--mcap", tmp_path / "r.mcap",
                                          "--no-plots", "--no-progress", cwd=tmp_path)
@@ -419,6 +428,7 @@ def test_cli_a_peer_that_never_answers(tmp_path, scene, silent_peer):
     assert wait_gone(lambda: session_members(sid)) == set()
 
 
+@pytest.mark.slow
 def test_cli_a_peer_that_stalls_after_the_handshake(tmp_path, scene, stalling_peer):
     """The command's probe passes (the peer answers), the writer's viewer then stalls: one
     warning line, the recording complete, and no process of the command left (its session
@@ -436,6 +446,7 @@ def test_cli_a_peer_that_stalls_after_the_handshake(tmp_path, scene, stalling_pe
     assert wait_gone(lambda: session_members(sid)) == set()
 
 
+@pytest.mark.slow
 def test_cli_interrupted_with_a_stalled_peer(tmp_path, scene, stalling_peer):
     """Ctrl-C (SIGINT to the command's process group, as a terminal sends it; the writer has
     a group of its own) in a run paced to the wall clock: it ends, the recording says it was
@@ -545,3 +556,141 @@ def test_text_that_is_not_utf8_is_refused_before_anything_is_made(tmp_path, monk
                                            r"'utf-8' codec can't encode"):
         RunLogger(arm_info(), path, quiet=True)
     assert os.listdir(tmp_path) == []
+
+
+# --------------------------------------------------------------------------------------
+# Hostile input (issue 18): what once ended in a foreign traceback, a hang, a crash, a silent
+# NaN or lost data, kept fixed.
+
+@pytest.mark.slow
+@pytest.mark.parametrize("mode", ["garbage", "reset", "closed"])
+def test_a_run_beside_a_peer_that_answers_garbage_keeps_every_record(tmp_path, mode):
+    """RunLogger(connect=...) to a peer that answers garbage, resets, or a closed port: one
+    warning, the recording complete, the run's summary clean."""
+    peer = None if mode == "closed" else Peer(mode=mode)
+    url = closed_port_url() if peer is None else peer.url
+    path = tmp_path / "run.mcap"
+    try:
+        with deadline(120, f"a run beside a {mode} peer"), warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            with RunLogger(arm_info(), path, connect=url, viewer_timeout=2.0, quiet=True) as log:
+                for r in arm_records(150):
+                    log.log(r)
+    finally:
+        if peer is not None:
+            peer.close()
+    said = [str(w.message) for w in caught if issubclass(w.category, LoggingWarning)]
+    assert len(said) == 1 and url in said[0] and "the MCAP log is still written" in said[0], said
+    rec = read_recording(path)
+    assert len(rec) == 150 and rec.complete and not journal_path(path).exists()
+
+
+@pytest.mark.slow
+def test_the_web_front_says_nothing_of_a_client_that_sends_garbage(capfd):
+    """A local client sending a request with a huge Content-Length and hanging up once put
+    socketserver's traceback (BrokenPipeError) on a serving run's stderr."""
+    import socket
+    import struct
+
+    from qchain.recording.web_viewer import LoopbackFront
+
+    upstream = socket.create_server(("127.0.0.1", 0))  # answers nothing: the requests never get that far
+    front = LoopbackFront("127.0.0.1", 0, upstream.getsockname()[1], 1)
+    try:
+        for payload in (b"POST / HTTP/1.1\r\nHost: x\r\nContent-Length: 99999999999\r\n\r\nabc",
+                        b"\x16\x03\x01garbage\r\n\r\n", b"GET /" + b"a" * 70000 + b" HTTP/1.1\r\n\r\n") * 3:
+            c = socket.create_connection(("127.0.0.1", front.port), timeout=5)
+            c.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, struct.pack("ii", 1, 0))  # hang up with a reset
+            c.sendall(payload)
+            c.close()
+        time.sleep(1.0)  # the server's threads answer into the reset connections
+    finally:
+        front.close()
+        upstream.close()
+    err = capfd.readouterr().err
+    assert "Traceback" not in err and "Exception occurred" not in err, err
+
+
+@pytest.mark.slow
+def test_connect_to_a_peer_that_never_answers_times_out(tmp_path, capsys):
+    """A peer that accepts and never answers: a warning after the timeout, exit code 1, no
+    process left."""
+    p = write(tmp_path, craft())
+    peer = Peer(answer=False)
+    before = children()
+    try:
+        t0 = time.monotonic()
+        assert replay_main([str(p), "--connect", peer.url, "--timeout", "1"]) == 1
+        elapsed = time.monotonic() - t0
+    finally:
+        peer.close()
+    assert 0.9 < elapsed < 10.0
+    assert "did not answer within 1 s" in capsys.readouterr().err
+    assert children() <= before
+
+
+@pytest.mark.slow
+def test_connect_to_a_peer_that_stops_halfway_is_cut_off(tmp_path):
+    """A peer that answers the connection, then takes no data (the Rerun SDK would wait for
+    it forever, even at exit): ``qchain replay`` warns and ends, and leaves no process."""
+    data = craft(good_states(200), chunks=4)  # more than an HTTP/2 window of data
+    p = write(tmp_path, data)
+    peer = Peer(answer=True)
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    try:
+        t0 = time.monotonic()
+        proc = subprocess.Popen([sys.executable, "-m", "qchain", "replay", str(p), "--connect", peer.url,
+                                 "--timeout", "1.5"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                                env=env, stdin=subprocess.DEVNULL, start_new_session=True)
+        try:
+            out, err = proc.communicate(timeout=90)
+        except subprocess.TimeoutExpired:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.communicate()
+            raise AssertionError("qchain replay --connect did not end") from None
+        elapsed = time.monotonic() - t0
+    finally:
+        peer.close()
+    assert proc.returncode == 1, err
+    assert "did not take the recording within 1.5 s" in err and "Traceback" not in err
+    assert elapsed < 45.0
+    # no process of that command outlives it: its session is empty
+    leftover = []
+    for entry in os.listdir("/proc"):
+        if entry.isdigit():
+            try:
+                with open(f"/proc/{entry}/stat") as fh:
+                    fields = fh.read().rsplit(")", 1)[1].split()
+            except OSError:
+                continue
+            if int(fields[4]) == proc.pid and fields[0] != "Z":  # session id
+                leftover.append(int(entry))
+    assert not leftover
+
+
+def test_connect_to_a_real_viewer_sends(tmp_path, capsys):
+    """A Rerun gRPC server on 127.0.0.1 answers the probe and takes the recording."""
+    import rerun as rr
+
+    s = socket.socket()
+    s.bind(("127.0.0.1", 0))
+    port = s.getsockname()[1]
+    s.close()
+    server = rr.RecordingStream("qchain-test-viewer")
+    server.set_sinks(rr.GrpcServerSink(bind_ip="127.0.0.1", port=port))
+    p = write(tmp_path, craft())
+    before = children()
+    try:
+        deadline = time.monotonic() + 20
+        while time.monotonic() < deadline:
+            try:
+                socket.create_connection(("127.0.0.1", port), timeout=1).close()
+                break
+            except OSError:
+                time.sleep(0.05)
+        assert replay_main([str(p), "--connect", f"rerun+http://127.0.0.1:{port}/proxy", "--timeout", "20"]) == 0
+    finally:
+        server.disconnect()
+    out = capsys.readouterr()
+    assert "replayed 6 steps" in out.out and "sent to" in out.out and "warning" not in out.err
+    assert children() <= before

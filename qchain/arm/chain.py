@@ -47,8 +47,8 @@ from .kinematics import _NO_POINTS, ChainKinematics, Frames
 from .dynamics_derivatives import _ZERO6, ForwardDynamicsDerivatives, InverseDynamicsDerivatives
 from .data import Data
 from ..checks.bounds import GRAVITY, POSITION, PSI, SEGMENT_COUNT, TIME
-from ..errors import (
-    DomainError, NonFiniteError, SingularConfigurationError, as_bool, as_index, as_vector, describe_value)
+from ..checks.convert import as_bool, as_index, as_vector, describe_value
+from ..errors import DomainError, NonFiniteError, SingularConfigurationError
 from ..model.segment import PAPER_SINGULAR_ANGLE, Segment
 from ..model.segment import _paper_jacobian as paper_jacobian, _paper_jacobian_dot as paper_jacobian_dot
 from ..model.segment import _paper_to_curvature as paper_to_curvature
@@ -189,15 +189,10 @@ class Chain(KeepsReadOnly, ChainKinematics, ChainChecks):
         self._offs = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
         self._alpha = np.concatenate([s.alpha_nodes for s in segs])
         self._w = np.concatenate([s.alpha_weights for s in segs])
-        arr = lambda f: np.array([f(s) for s in segs], dtype=float)  # noqa: E731
-        self._mass = arr(lambda s: s.mass)
-        self._radius = arr(lambda s: s.radius)
-        self._l0 = arr(lambda s: s.length)
-        self._EI = arr(lambda s: s.bending_stiffness)
-        self._EA = arr(lambda s: s.axial_stiffness)
-        self._beta = arr(lambda s: s.damping)
-        self._A_ch = arr(lambda s: s.chamber_area)
-        self._r_ch = arr(lambda s: s.chamber_radius)
+        for name, attr in (("_mass", "mass"), ("_radius", "radius"), ("_l0", "length"), ("_EI", "bending_stiffness"),
+                           ("_EA", "axial_stiffness"), ("_beta", "damping"), ("_A_ch", "chamber_area"),
+                           ("_r_ch", "chamber_radius")):
+            setattr(self, name, np.array([getattr(s, attr) for s in segs], dtype=float))
         self._paper_act = np.array([s.actuation == "paper" for s in segs])
         self._paper = np.array([s.coords == "paper" for s in segs])
         self._any_paper = bool(self._paper.any())
@@ -237,6 +232,24 @@ class Chain(KeepsReadOnly, ChainKinematics, ChainChecks):
         """World placement ``X_WB`` of a fixed base (a copy: the chain's passes keep
         quantities made from it, so it is set once, at construction)."""
         return pin.SE3(self._X_WB0)
+
+    def kernel_arrays(self) -> dict[str, np.ndarray] | None:
+        """The flat per-node and per-segment arrays the compiled passes take, by name (the
+        chain's own arrays, not copies: never write them), or None where compiled code
+        cannot evaluate the chain's segment forces (paper coordinates or the paper's literal
+        linear law in some segment, evaluated in Python by the :class:`Segment`).
+
+        ``N`` nodes over all segments, ``n`` segments: ``alpha (N,)`` the nodes' arc
+        parameters in [0, 1], ``w (N,)`` their quadrature weights, ``offs (n + 1,) int64``
+        segment ``j``'s nodes ``offs[j]:offs[j + 1]``; ``mass`` (kg), ``radius`` (m), ``l0``
+        rest length (m), ``EI`` (N m^2), ``EA`` (N), ``beta`` damping (s), ``A_ch`` chamber
+        area (m^2), ``r_ch`` chamber radius (m), all ``(n,)``; ``paper_act (n,) bool`` the
+        paper's actuation law; ``locked (n, 3) bool`` coordinates held still."""
+        if self._any_paper or self._has_linear:
+            return None
+        return dict(alpha=self._alpha, w=self._w, offs=self._offs, mass=self._mass, radius=self._radius, l0=self._l0,
+                    EI=self._EI, EA=self._EA, beta=self._beta, A_ch=self._A_ch, r_ch=self._r_ch,
+                    paper_act=self._paper_act, locked=self._locked)
 
     def q_slice(self, j: int) -> slice:
         """Indices of segment ``j``'s ``q_e`` in ``q`` (``0 <= j < n``)."""
@@ -318,12 +331,11 @@ class Chain(KeepsReadOnly, ChainKinematics, ChainChecks):
             q_c = q_e.copy()
             J = np.broadcast_to(np.eye(3), (self.n, 3, 3)).copy()
             for j in np.flatnonzero(self._paper):
+                sl = self.q_slice(j)
                 if not PSI.contains(q_e[j, 1]):  # qchain.checks.bounds.PSI
-                    sl = self.q_slice(j)
                     raise DomainError(f"segment {j} (q[{sl.start}:{sl.stop}]): bending plane angle psi = "
                                       f"{q_e[j, 1]:.6g} rad must be {PSI.text()} (qchain.checks.bounds.PSI)")
                 if nonsingular and q_e[j, 2] * q_e[j, 0] < PAPER_SINGULAR_ANGLE:
-                    sl = self.q_slice(j)
                     raise SingularConfigurationError(
                         f"segment {j} (q[{sl.start}:{sl.stop}]): bending angle kappa*l = {q_e[j, 2] * q_e[j, 0]:.3e} rad "
                         f"is below {PAPER_SINGULAR_ANGLE:g} rad, where the paper's (l, psi, kappa) coordinates are "
@@ -721,7 +733,7 @@ class Chain(KeepsReadOnly, ChainKinematics, ChainChecks):
         Returns ``tau`` (nv,), ``dtau_dq``, ``dtau_dv`` and ``dtau_da`` (``= M``), each (nv, nv);
         the q-derivative is taken along :meth:`integrate` (a floating base's tangent space).
         Compiled analytic passes over the segments and their slices
-        (:mod:`qchain.algorithms.derivatives`), no finite differences. With ``data``
+        (:mod:`qchain.algorithms.rnea_derivatives`), no finite differences. With ``data``
         (:meth:`create_data`) the pass writes in it and, in curvature coordinates, the
         returned matrices are its arrays (overwritten by the next call).
         """

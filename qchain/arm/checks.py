@@ -18,12 +18,13 @@ from __future__ import annotations
 import functools
 
 import numpy as np
-import pinocchio as pin
 
 from ..algorithms import recursive
 from ..checks.bounds import POSITION, check_time
-from ..errors import DomainError, NonFiniteError, QchainError, as_real_array, as_vector, describe_value
-from ..model.segment import Segment
+from ..checks.results import finite_result
+from ..checks.convert import as_real_array, as_vector, describe_value
+from ..errors import DomainError, NonFiniteError, QchainError
+from ..model.segment import Segment, _short as _vec3  # a vector in a message: (1, 0.5, 0)
 from ..model.segment import _paper_jacobian as paper_jacobian, _paper_to_curvature as paper_to_curvature
 
 __all__ = ["ChainChecks", "QUATERNION_TOLERANCE"]
@@ -32,44 +33,27 @@ __all__ = ["ChainChecks", "QUATERNION_TOLERANCE"]
 QUATERNION_TOLERANCE = 1e-6
 
 
-def _vec3(x) -> str:
-    return "(" + ", ".join(f"{float(v):.6g}" for v in x) + ")"
-
-
-def _all_finite(x) -> bool:
-    """Whether a result (array, number, placement, or a tuple or list of them) is finite."""
-    if isinstance(x, np.ndarray):
-        return bool(np.isfinite(x).all())
-    if isinstance(x, float):
-        return np.isfinite(x)
-    if isinstance(x, pin.SE3):
-        return bool(np.all(np.isfinite(x.homogeneous)))
-    if isinstance(x, (tuple, list)):
-        return all(_all_finite(y) for y in x)
-    return True
-
-
 def _finite(quantity: str, has_v: bool = False):
     """Decorator of a :class:`~qchain.arm.chain.Chain` method ``(self, q, [v,] ...)``: a result that
     is not finite raises :class:`~qchain.errors.NonFiniteError` naming the quantity, the segment
     whose state overflows and the time (:meth:`ChainChecks.nonfinite_error`) instead of being
-    returned; so does a segment's own :class:`~qchain.errors.NonFiniteError` inside."""
+    returned; so does a segment's own :class:`~qchain.errors.NonFiniteError` inside. The
+    ``skip_checks=True`` fast path is not checked."""
+
+    def error(self, method, quantity, q, args, kwargs):
+        v = args[0] if has_v and args else kwargs.get("v")
+        return self.nonfinite_error(method, quantity, q, v, kwargs.get("t"))
 
     def wrap(fn):
+        checked = finite_result(quantity, error, inner=True)(fn)
+
         @functools.wraps(fn)
         def method(self, q, *args, **kwargs):
             if kwargs.get("skip_checks"):
                 return fn(self, q, *args, **kwargs)
-            v = args[0] if has_v and args else kwargs.get("v")
-            if has_v and v is None:  # None means "no velocities" inside; here it is a missing argument
+            if has_v and (args[0] if args else kwargs.get("v")) is None:  # None means "no velocities" inside
                 raise TypeError(f"Chain.{fn.__name__}: v must be an array of real numbers of shape ({self.nv},), got None")
-            try:
-                out = fn(self, q, *args, **kwargs)
-            except NonFiniteError:
-                raise self.nonfinite_error(fn.__name__, quantity, q, v, kwargs.get("t")) from None
-            if not _all_finite(out):
-                raise self.nonfinite_error(fn.__name__, quantity, q, v, kwargs.get("t"))
-            return out
+            return checked(self, q, *args, **kwargs)
 
         return method
 
@@ -189,7 +173,7 @@ class ChainChecks:
     def _vec(self, name: str, x, size: int) -> np.ndarray:
         """Fast shape check; finiteness is checked with the domain
         (:meth:`~qchain.arm.chain.Chain._state`). A float array passes straight; anything else is
-        converted by :func:`qchain.errors.as_real_array`, which refuses booleans, strings and
+        converted by :func:`qchain.checks.convert.as_real_array`, which refuses booleans, strings and
         complex numbers by name."""
         if not (type(x) is np.ndarray and x.dtype == np.float64):
             x = as_real_array(name, x)

@@ -46,7 +46,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..algorithms import derivatives, planar, recursive
+from ..algorithms import aba_derivatives, planar, recursive, rnea_derivatives
 
 __all__ = ["Data"]
 
@@ -55,8 +55,8 @@ __all__ = ["Data"]
 # compiled passes also call when no Data is given, so shapes are defined once
 _GROUPS = {
     "aba": (recursive.aba_workspace, ("V", "T", "c", "Q", "M_xi", "Lq", "U", "u", "scratch")),
-    "rnea_derivatives": (derivatives.rnea_workspace, derivatives.RNEA_WORKSPACE),
-    "aba_derivatives": (derivatives.aba_derivatives_workspace, derivatives.ABA_DERIVATIVES_WORKSPACE),
+    "rnea_derivatives": (rnea_derivatives.rnea_workspace, rnea_derivatives.RNEA_WORKSPACE),
+    "aba_derivatives": (aba_derivatives.aba_derivatives_workspace, aba_derivatives.ABA_DERIVATIVES_WORKSPACE),
     "planar": (lambda n, nv: planar.planar_workspace(n), planar.PLANAR_WORKSPACE),
 }
 
@@ -97,12 +97,12 @@ class Data:
         return self._tuple("_ws", _GROUPS["aba"][1])
 
     def rnea_workspace(self) -> tuple:
-        """The arrays :func:`qchain.algorithms.derivatives.rnea_derivatives` works in, in its order."""
-        return self._tuple("_wd", derivatives.RNEA_WORKSPACE)
+        """The arrays :func:`qchain.algorithms.rnea_derivatives.rnea_derivatives` works in, in its order."""
+        return self._tuple("_wd", rnea_derivatives.RNEA_WORKSPACE)
 
     def aba_derivatives_workspace(self) -> tuple:
-        """The arrays :func:`qchain.algorithms.derivatives.aba_derivatives` writes, in its order."""
-        return self._tuple("_wa", derivatives.ABA_DERIVATIVES_WORKSPACE)
+        """The arrays :func:`qchain.algorithms.aba_derivatives.aba_derivatives` writes, in its order."""
+        return self._tuple("_wa", aba_derivatives.ABA_DERIVATIVES_WORKSPACE)
 
     def planar_workspace(self) -> tuple:
         """The arrays :func:`qchain.algorithms.planar.planar_aba` works in, in its order."""

@@ -1,7 +1,7 @@
 """Derivatives of a chain's dynamics in its own coordinates (what :class:`qchain.Chain`'s
 ``*_derivatives`` methods return).
 
-The compiled passes (:mod:`qchain.algorithms.derivatives`) work in curvature coordinates. Segments in
+The compiled passes (:mod:`~qchain.algorithms.rnea_derivatives`) work in curvature coordinates. Segments in
 the paper's ``(l, psi, kappa)`` get the chain rule through ``q_c = phi(q_e)``,
 ``v_c = J v_e``, ``a_c = J a_e + Jdot v_e``, ``tau_e = J^T tau_c`` (closed-form ``dJ/dq`` and
 ``d(Jdot v)/dq`` of :mod:`qchain.model.segment`). Forward-dynamics derivatives follow from the
@@ -23,7 +23,7 @@ from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 
-from ..algorithms import derivatives, recursive
+from ..algorithms import aba_derivatives, recursive, rnea_derivatives
 from ..model.arc import SCRATCH
 from ..errors import QchainError
 from ..model.segment import _paper_bias_derivative as paper_bias_derivative
@@ -90,9 +90,9 @@ def _curvature_id_derivatives(ch: Chain, st: _State, qdd_c: np.ndarray, A0: np.n
     args = (ch._alpha, ch._w, ch._offs, ch._mass, ch._radius, st.q_c, np.ascontiguousarray(st.v_c),
             np.ascontiguousarray(qdd_c), V0, A0, ch.floating, g_B)
     if data is None:
-        tau, F0, dq, dv, M = derivatives.rnea_derivatives_fresh(*args)
+        tau, F0, dq, dv, M = rnea_derivatives.rnea_derivatives_fresh(*args)
     else:
-        derivatives.rnea_derivatives(*args, data.aba_workspace(), data.rnea_workspace(), data.scratch)
+        rnea_derivatives.rnea_derivatives(*args, data.aba_workspace(), data.rnea_workspace(), data.scratch)
         tau, F0, dq, dv, M = data.tau_c, data.F0, data.dtau_dq, data.dtau_dv, data.M
     tau = tau.ravel()
     full = np.concatenate([F0, tau]) if ch.floating else tau.copy()
@@ -147,20 +147,17 @@ def _internal_derivatives(ch: Chain, st: _State, p3: np.ndarray):
     """``df/dq``, ``df/dv`` (nv, nv) and ``B`` (nv, 3 n) of the internal forces ``B p - D v -
     dU_el/dq`` in the chain's coordinates (zero on the base)."""
     n, nv = ch.n, ch.nv
-    dfq_c = np.empty((n, 3, 3))
-    dfv_c = np.empty((n, 3, 3))
-    derivatives.internal_forces_derivatives(st.q_c, p3, ch._l0, ch._EI, ch._EA, ch._beta, ch._A_ch, ch._r_ch,
+    dfq_c, dfv_c = np.empty((n, 3, 3)), np.empty((n, 3, 3))
+    rnea_derivatives.internal_forces_derivatives(st.q_c, p3, ch._l0, ch._EI, ch._EA, ch._beta, ch._A_ch, ch._r_ch,
                                             ch._paper_act, dfq_c, dfv_c, np.empty(SCRATCH))
     Bc = np.empty((n, 3, 3))
-    derivatives.input_matrices(st.q_c, ch._A_ch, ch._r_ch, ch._paper_act, Bc, np.empty(SCRATCH))
+    aba_derivatives.input_matrices(st.q_c, ch._A_ch, ch._r_ch, ch._paper_act, Bc, np.empty(SCRATCH))
     f_c = None
     if ch._any_paper:
         f_c = np.empty((n, 3))
         recursive.internal_forces(st.q_c, np.ascontiguousarray(st.v_c), p3, ch._l0, ch._EI, ch._EA, ch._beta,
                                   ch._A_ch, ch._r_ch, ch._paper_act, f_c, np.empty(SCRATCH))
-    dfq = np.zeros((nv, nv))
-    dfv = np.zeros((nv, nv))
-    B = np.zeros((nv, ch.nu))
+    dfq, dfv, B = np.zeros((nv, nv)), np.zeros((nv, nv)), np.zeros((nv, ch.nu))
     for j, s in enumerate(ch.segments):
         sl = ch.v_slice(j)
         qe = st.q_e[j]
@@ -206,9 +203,7 @@ def forward_dynamics_derivatives(ch: Chain, st: _State, p3: np.ndarray, tau, t: 
     except np.linalg.LinAlgError:
         raise ch.indefinite_error("forward_dynamics_derivatives", st.q_e, t) from None
     Minv = cho_solve(c, np.eye(int(free.sum())), check_finite=False)
-    da_dq = np.zeros((nv, nv))
-    da_dv = np.zeros((nv, nv))
-    da_dtau = np.zeros((nv, nv))
+    da_dq, da_dv, da_dtau = np.zeros((nv, nv)), np.zeros((nv, nv)), np.zeros((nv, nv))
     da_dq[ix] = Minv @ (dfq - idd.dtau_dq)[ix]
     da_dv[ix] = Minv @ (dfv - idd.dtau_dv)[ix]
     da_dtau[ix] = Minv
@@ -224,7 +219,7 @@ def _checked(out: ForwardDynamicsDerivatives, t: float) -> ForwardDynamicsDeriva
 
 def compiled_forward_dynamics_derivatives(ch: Chain, q_c, v_c, p3, tau, V0, A_B, g_B, t, data: Data | None,
                                           check: bool = True) -> ForwardDynamicsDerivatives:
-    """The one compiled call (:func:`qchain.algorithms.derivatives.aba_derivatives`) for chains in
+    """The one compiled call (:func:`qchain.algorithms.aba_derivatives.aba_derivatives`) for chains in
     curvature coordinates with the material law; the result's arrays are ``data``'s where it
     is given."""
     tau_ext = np.zeros(ch.nv) if tau is None else tau
@@ -232,9 +227,9 @@ def compiled_forward_dynamics_derivatives(ch: Chain, q_c, v_c, p3, tau, V0, A_B,
     args = (ch._alpha, ch._w, ch._offs, ch._mass, ch._radius, ch._l0, ch._EI, ch._EA, ch._beta, ch._A_ch, ch._r_ch,
             ch._paper_act, ch._locked, ch.floating, q_c, v_c, p3, tau_ext, V0, A_B, g_B)
     if data is None:
-        status, *out = derivatives.aba_derivatives_fresh(*args)
+        status, *out = aba_derivatives.aba_derivatives_fresh(*args)
     else:
-        status = derivatives.aba_derivatives(*args, data.aba_workspace(), data.rnea_workspace(),
+        status = aba_derivatives.aba_derivatives(*args, data.aba_workspace(), data.rnea_workspace(),
                                              data.aba_derivatives_workspace(), data.scratch)
         out = (data.a, data.da_dq, data.da_dv, data.da_dp, data.da_dtau)
     if status and check:

@@ -20,7 +20,8 @@ import pinocchio as pin
 from ..algorithms import recursive
 from ..model.arc import arc_nodes
 from .checks import QUATERNION_TOLERANCE, _finite
-from ..errors import NonFiniteError, QchainError, as_bool, as_real_array, describe_value
+from ..checks.convert import as_bool, as_real_array, describe_value
+from ..errors import NonFiniteError, QchainError
 from ..model.spatial import _quaternion_to_rotation as quaternion_to_rotation
 
 if TYPE_CHECKING:
@@ -248,11 +249,7 @@ class ChainKinematics:
         if reference == "world":
             return X.action @ J_local
         if reference == "local_world_aligned":
-            R = X.rotation
-            out = np.empty_like(J_local)
-            out[:3] = R @ J_local[:3]
-            out[3:] = R @ J_local[3:]
-            return out
+            return np.concatenate([X.rotation @ J_local[:3], X.rotation @ J_local[3:]])
         raise ValueError(f"reference must be 'local', 'local_world_aligned' or 'world', got {reference!r}")
 
     @_finite("tip twist", has_v=True)

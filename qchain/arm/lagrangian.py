@@ -37,7 +37,8 @@ import numpy as np
 import pinocchio as pin
 
 from .chain import Chain
-from ..errors import QchainError, SingularConfigurationError, as_vector
+from ..checks.convert import as_vector
+from ..errors import QchainError, SingularConfigurationError
 from ..model.segment import PAPER_SINGULAR_ANGLE
 from ..model.spatial import quaternion_to_rotation, skew
 
@@ -183,10 +184,7 @@ class LagrangianChain:
             self._check_attitude(theta[1], f"{name}[4]")
         R = pin.rpy.rpyToMatrix(theta)
         lJ = pin.rpy.computeRpyJacobian(theta, _LOCAL)
-        q = np.empty(self.chain.nq)
-        q[:3] = q_L[:3]
-        q[3:7] = _rpy_quaternion(theta)
-        q[7:] = q_L[6:]
+        q = np.concatenate([q_L[:3], _rpy_quaternion(theta), q_L[6:]])
         T = np.eye(self.nv)
         T[:3, :3] = R.T
         T[3:6, 3:6] = lJ
@@ -246,8 +244,7 @@ class LagrangianChain:
         """``Tdot = dT/dt`` (nv, nv) along ``qd_L``, closed form: ``d(R^T)/dt = -[w]x R^T``
         with ``w = lJ_theta thetadot`` (rad/s, base frame), ``d(lJ_theta)/dt`` from
         ``pinocchio.rpy.computeRpyJacobianTimeDerivative``. Zero for a fixed base."""
-        pose = self._pose(q_L, nonsingular=False)
-        return self._Tdot(pose, self._qd(qd_L))
+        return self._Tdot(self._pose(q_L, nonsingular=False), self._qd(qd_L))
 
     def _Tinv(self, pose: _Pose) -> np.ndarray:
         Ti = np.eye(self.nv)
@@ -264,8 +261,7 @@ class LagrangianChain:
         ``v = qd_L``.
         """
         pose = self._pose(q_L, nonsingular=False)
-        qd = self._qd(qd_L)
-        return pose.q.copy(), pose.T @ qd
+        return pose.q.copy(), pose.T @ self._qd(qd_L)
 
     def from_chain_state(self, q, v) -> tuple[np.ndarray, np.ndarray]:
         """The Lagrangian ``(q_L (nv,), qd_L (nv,))`` of a chain state ``(q (nq,), v (nv,))``.
@@ -378,9 +374,8 @@ class LagrangianChain:
         base (pressure is internal: no net force on ``(d, theta)``). ``p`` (3 n,) Pa, segment
         by segment, chambers 1..3, default zero."""
         pose = self._pose(q_L)
-        qd = self._qd(qd_L)
         # T = I on the segment block and the chain's internal forces vanish on the base
-        return self.chain.internal_forces(pose.q, pose.T @ qd, p)
+        return self.chain.internal_forces(pose.q, pose.T @ self._qd(qd_L), p)
 
     def lagrangian_force(self, q_L, tau_xi) -> np.ndarray:
         """``tau = T^T tau_xi`` (nv,): a generalised force of the chain in Lagrangian form.

@@ -20,7 +20,8 @@ import numpy as np
 
 from ..checks.bounds import FORCE, PRESSURE, TIME, Range
 from .chain import Chain
-from ..errors import QchainError, as_bool, as_vector
+from ..checks.convert import as_bool, as_vector
+from ..errors import QchainError
 
 __all__ = ["equilibrium", "EquilibriumResult"]
 
@@ -95,9 +96,7 @@ def equilibrium(chain: Chain, p=None, q0=None, tip_wrench=None, *, t: float = 0.
         chain._state(q0, t=t)  # inside the model (DomainError naming the segment)
     if chain._any_paper and not chain._linear[chain._paper].any():
         # the balance is coordinate-free: solve it where it is regular and map the result back
-        twin = Chain([dataclasses.replace(s, coords="curvature") for s in chain.segments], base=chain.base,
-                     gravity=chain.gravity, base_placement=chain.base_placement if chain.base == "fixed" else None,
-                     base_motion=chain.base_motion, planar=chain.planar)
+        twin = _scaled(chain, 1.0, [dataclasses.replace(s, coords="curvature") for s in chain.segments])
         q0c = None
         if q0 is not None:
             q0c = chain._q(q0, "q0").copy()
@@ -129,9 +128,9 @@ def equilibrium(chain: Chain, p=None, q0=None, tip_wrench=None, *, t: float = 0.
     return EquilibriumResult(q, True, "converged (load continuation)", r.iterations, r.residual, total)
 
 
-def _scaled(chain: Chain, lam: float) -> Chain:
-    """The same chain with gravity scaled by ``lam``."""
-    return Chain(chain.segments, base=chain.base, gravity=lam * chain.gravity,
+def _scaled(chain: Chain, lam: float, segments=None) -> Chain:
+    """The same chain with gravity scaled by ``lam`` (and other ``segments``, if given)."""
+    return Chain(chain.segments if segments is None else segments, base=chain.base, gravity=lam * chain.gravity,
                  base_placement=chain.base_placement if chain.base == "fixed" else None,
                  base_motion=chain.base_motion, planar=chain.planar)
 

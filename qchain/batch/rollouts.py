@@ -33,27 +33,16 @@ import numpy as np
 
 from ..arm.chain import Chain
 from ..checks import bounds as _bounds
-from ..errors import QchainError, as_bool, as_real_array, as_vector
+from ..checks.convert import as_bool, as_real_array
+from ..errors import QchainError, RolloutError
 from ..sim.inputs import Schedule, as_input
 from ..sim.budget import Budget, as_budget
 from ..sim.simulation import (
-    COMPILED, DEFAULT_METHOD, FIXED_STEP, METHODS, Event, _check_span, check_settings, run_cost_of, simulate)
+    COMPILED, DEFAULT_METHOD, FIXED_STEP, Event, _check_start, check_run, check_settings, run_cost_of, simulate)
 from ..sim.trajectory import Trajectory
 from .workers import DEFAULT_RETRIES, Lost, Payload, check_engine, dumps, engine_for
 
 __all__ = ["simulate_batch", "BatchTrajectory", "RolloutError"]
-
-
-class RolloutError(QchainError):
-    """A rollout of a batch raised an exception (``index``: which; ``detail``: what)."""
-
-    def __init__(self, index: int, detail: str):
-        super().__init__(f"rollout {index} raised {detail}")
-        self.index = index
-        self.detail = detail
-
-    def __reduce__(self):
-        return (RolloutError, (self.index, self.detail))
 
 
 @dataclass
@@ -178,9 +167,7 @@ def _batched_input(name: str, u, size: int) -> tuple[object, list | None]:
 
 def _states(name: str, x, size: int) -> np.ndarray:
     arr = as_real_array(name, x)  # booleans, strings and complex numbers refused by name, never cast
-    if arr.ndim == 1:
-        return arr
-    if arr.ndim != 2 or arr.shape[1] != size:
+    if arr.ndim != 1 and (arr.ndim != 2 or arr.shape[1] != size):
         raise ValueError(f"{name} must have shape (B, {size}) (or ({size},), the same for every rollout), "
                          f"got shape {arr.shape}")
     return arr
@@ -251,8 +238,10 @@ def _rollouts(shared: _Shared, items: list) -> list:
     return out
 
 
-def _warm(shared: _Shared, item) -> float:
-    """A one-step run of ``item`` (compiles or loads the engine); returns its wall time."""
+def _warm(shared_and_item: tuple) -> float:
+    """A one-step run of ``(shared, item)`` (compiles or loads the engine); returns its wall
+    time. Here and in a worker (:meth:`qchain.batch.workers.DaskEngine.warm`)."""
+    shared, item = shared_and_item
     t0 = shared.t_span[0]
     kw = _inputs(shared, item)
     kw["t_eval"] = None
@@ -264,11 +253,6 @@ def _warm(shared: _Shared, item) -> float:
     except Exception as err:  # what rollout item[0] would raise at its first step
         raise RolloutError(item[0], f"{type(err).__name__}: {err}") from err
     return time.perf_counter() - w0
-
-
-def _warm_first(shared_and_item) -> float:
-    shared, item = shared_and_item
-    return _warm(shared, item)
 
 
 def simulate_batch(
@@ -343,35 +327,92 @@ def simulate_batch(
     RolloutError
         A rollout raised an exception (a controller or an event function failing).
     """
-    if not isinstance(chain, Chain):
-        raise TypeError(f"chain must be a qchain.Chain, got {type(chain).__name__}")
-    if not isinstance(method, str) or method not in METHODS:
-        raise ValueError(f"method must be one of {METHODS}, got {method!r}")
-    t0, t1 = _check_span(t_span)  # the checks of simulate, here where the arguments enter
+    t0, t1, retries, progress, cfg = _check_shared_settings(
+        chain, t_span, method=method, workers=workers, client=client, retries=retries, progress=progress, dt=dt,
+        rtol=rtol, atol=atol, max_step=max_step, first_step=first_step, wall_limit=wall_limit, t_eval=t_eval,
+        energies=energies, events=events, controller_rate=controller_rate)
+    Q0 = _states("q0", q0, chain.nq)
+    V0 = _states("v0", v0, chain.nv)
+    p_in = _batched_input("pressure", pressure, chain.nu)  # (shared, per_rollout)
+    tau_in = _batched_input("tau", tau, chain.nv)
+    budget, B = _check_budget(chain, t0, t1, method, cfg, budget, Q0, V0, p_in, tau_in)
+    _check_starts(chain, Q0, V0, B, t0)
+    shared, items = _share(chain, (t0, t1), method, cfg, budget, Q0, V0, p_in, tau_in, B)
+    w_start = time.perf_counter()
+    results, name, n_workers, compile_s = _run_all(shared, items, workers=workers, client=client, retries=retries,
+                                                   progress=progress)
+    wall_s = time.perf_counter() - w_start
+    return _assemble(chain, results, cfg["t_eval"], (t0, t1), dict(method=method, engine=name, workers=n_workers,
+                                                                   wall_s=wall_s, compile_s=compile_s, t_span=(t0, t1)))
+
+
+def _check_shared_settings(chain: Chain, t_span, *, method: str, workers, client, retries, progress, rtol, atol,
+                           **settings) -> tuple[float, float, int, bool, dict]:
+    """Step 1 of :func:`simulate_batch`: the checks of :func:`qchain.simulate` on the shared
+    settings, here where they enter (each error names the argument), and the engine's.
+
+    Parameters
+    ----------
+    chain, t_span, method, workers, client, retries, progress, rtol, atol
+        As :func:`simulate_batch`.
+    **settings
+        ``dt``, ``max_step``, ``first_step``, ``wall_limit``, ``t_eval``, ``energies``,
+        ``events``, ``controller_rate``, checked by :func:`qchain.sim.simulation.check_settings`.
+
+    Returns
+    -------
+    (t0, t1, retries, progress, cfg)
+        The span (s), the retries and the progress flag checked, and the settings
+        normalised (``cfg["t_eval"]`` the batch's own copy).
+
+    Raises
+    ------
+    ValueError
+        Also for an adaptive method (or events) without ``t_eval``: the batch shares one
+        time grid.
+    """
+    t0, t1 = check_run(chain, method, t_span)  # the checks of simulate, here where the arguments enter
     retries = check_engine(workers, client, retries)
     for name, val, rng in (("rtol", rtol, _bounds.RTOL), ("atol", atol, _bounds.ATOL)):
         if isinstance(val, (int, float, np.integer, np.floating)) and not isinstance(val, (bool, np.bool_)) and val <= 0:
             raise ValueError(f"{name} must be > 0, got {val!r} (it must be {rng.what()})")
     progress = as_bool("progress", progress)
-    cfg = check_settings(chain, t0, t1, method=method, dt=dt, rtol=rtol, atol=atol, max_step=max_step,
-                         first_step=first_step, wall_limit=wall_limit, t_eval=t_eval, energies=energies,
-                         progress=False, on_sample=None, events=events, controller_rate=controller_rate)
-    dt, rtol, atol, max_step, first_step = cfg["dt"], cfg["rtol"], cfg["atol"], cfg["max_step"], cfg["first_step"]
-    wall_limit, t_eval, energies, events = cfg["wall_limit"], cfg["t_eval"], cfg["energies"], cfg["events"]
-    controller_rate = cfg["controller_rate"]
-    if t_eval is None and (method not in FIXED_STEP or events):
-        raise ValueError(f"t_eval is required for method {method!r}{' with events' if events else ''}: each rollout "
-                         "takes its own steps, and a batch shares one time grid; give the output times (N,) s")
-    if t_eval is not None:
-        t_eval = np.array(t_eval)  # the batch's own copy (BatchTrajectory.t is made from it)
-    Q0 = _states("q0", q0, chain.nq)
-    V0 = _states("v0", v0, chain.nv)
-    p_shared, p_each = _batched_input("pressure", pressure, chain.nu)
-    tau_shared, tau_each = _batched_input("tau", tau, chain.nv)
-    # a rollout's cost against the budget (qchain.sim.budget), before anything runs
+    cfg = check_settings(chain, t0, t1, method=method, rtol=rtol, atol=atol, progress=False, on_sample=None,
+                         **settings)
+    if cfg["t_eval"] is None and (method not in FIXED_STEP or cfg["events"]):
+        raise ValueError(f"t_eval is required for method {method!r}{' with events' if cfg['events'] else ''}: each "
+                         "rollout takes its own steps, and a batch shares one time grid; give the output times (N,) s")
+    if cfg["t_eval"] is not None:
+        cfg["t_eval"] = np.array(cfg["t_eval"])  # the batch's own copy (BatchTrajectory.t is made from it)
+    return t0, t1, retries, progress, cfg
+
+
+def _row(X: np.ndarray, i: int) -> np.ndarray:
+    """Rollout ``i``'s row of a batched state ``(B, size)``, or the state ``(size,)`` all share."""
+    return X[i] if X.ndim == 2 else X
+
+
+def _check_budget(chain: Chain, t0: float, t1: float, method: str, cfg: dict, budget, Q0: np.ndarray,
+                  V0: np.ndarray, p: tuple, tau: tuple) -> tuple[Budget, int]:
+    """Step 2 of :func:`simulate_batch`: a rollout's cost against the budget
+    (:mod:`qchain.sim.budget`), the batch size B the batched arguments agree on, and the B
+    rollouts' samples, held together, against the budget's memory; before anything runs.
+
+    Parameters
+    ----------
+    Q0 : (B, nq) or (nq,), V0 : (B, nv) or (nv,)
+    p, tau : (shared, per_rollout)
+        As :func:`_batched_input` returns them.
+
+    Returns
+    -------
+    (Budget, B)
+    """
     budget = as_budget(budget)
-    cost = run_cost_of(chain, t0, t1, method=method, dt=dt, max_step=max_step, t_eval=t_eval,
-                       inputs=(p_shared, tau_shared, *(p_each or ()), *(tau_each or ())), controller_rate=controller_rate)
+    (p_shared, p_each), (tau_shared, tau_each) = p, tau
+    cost = run_cost_of(chain, t0, t1, method=method, dt=cfg["dt"], max_step=cfg["max_step"], t_eval=cfg["t_eval"],
+                       inputs=(p_shared, tau_shared, *(p_each or ()), *(tau_each or ())),
+                       controller_rate=cfg["controller_rate"])
     budget.check(cost)
     sizes = {name: len(x) for name, x in (("q0", Q0 if Q0.ndim == 2 else None), ("v0", V0 if V0.ndim == 2 else None),
                                           ("pressure", p_each), ("tau", tau_each)) if x is not None}
@@ -381,31 +422,54 @@ def simulate_batch(
     if held > budget.max_memory:
         budget.check(dataclasses.replace(cost, memory=held, memory_why=f"{B} rollouts x ({cost.memory_why})"),
                      how="pass budget=qchain.sim.budget.Budget(...) to allow more, or run fewer rollouts a call")
-    for i in range(B):  # every start inside the model, checked here where it enters
-        qi = Q0[i] if Q0.ndim == 2 else Q0
-        vi = V0[i] if V0.ndim == 2 else V0
+    return budget, B
+
+
+def _check_starts(chain: Chain, Q0: np.ndarray, V0: np.ndarray, B: int, t0: float) -> None:
+    """Every rollout's start ``(q0[i], v0[i])`` inside the model at ``t0`` (s), its locks
+    held, checked here where it enters (``ValueError`` naming the rollout)."""
+    for i in range(B):
         try:
-            qi = chain._q(qi, f"q0[{i}]")
-            vi = as_vector(f"v0[{i}]", vi, chain.nv)
-            st = chain._state(qi, vi, t=t0)
-            if chain._any_locked:
-                chain._check_locks(st.q_e, st.v_e)
+            _check_start(chain, _row(Q0, i), _row(V0, i), t0, (f"q0[{i}]", f"v0[{i}]"), energies=False)
         except (QchainError, ValueError) as err:
             raise ValueError(f"rollout {i}: q0[{i}], v0[{i}]: {err}") from err
 
-    kw = dict(method=method, dt=dt, rtol=rtol, atol=atol, t_eval=t_eval, max_step=max_step, first_step=first_step,
-              energies=energies, wall_limit=wall_limit, controller_rate=controller_rate, budget=budget,
-              pressure=_as_item(p_shared, "pressure"), tau=_as_item(tau_shared, "tau"), events=_as_item(events, "events"))
-    items = [(i, Q0[i] if Q0.ndim == 2 else Q0, V0[i] if V0.ndim == 2 else V0,
+
+def _share(chain: Chain, t_span: tuple[float, float], method: str, cfg: dict, budget: Budget, Q0: np.ndarray,
+           V0: np.ndarray, p: tuple, tau: tuple, B: int) -> tuple[_Shared, list]:
+    """Step 3 of :func:`simulate_batch`: what every rollout shares (the chain, the span,
+    simulate's keyword arguments, the shared inputs and the events pickled) and the B items
+    ``(index, q0 (nq,), v0 (nv,), pressure, tau)``, a rollout's own inputs pickled in it."""
+    (p_shared, p_each), (tau_shared, tau_each) = p, tau
+    kw = {k: x for k, x in cfg.items() if k not in ("progress", "events")}  # (a rollout shows no progress)
+    kw.update(method=method, budget=budget, pressure=_as_item(p_shared, "pressure"), tau=_as_item(tau_shared, "tau"),
+              events=_as_item(cfg["events"], "events"))
+    items = [(i, _row(Q0, i), _row(V0, i),
               None if p_each is None else _as_item(p_each[i], f"pressure[{i}]"),
               None if tau_each is None else _as_item(tau_each[i], f"tau[{i}]")) for i in range(B)]
-    shared = _Shared(chain=chain, t_span=(t0, t1), kw=kw, each={"pressure": p_each is not None, "tau": tau_each is not None})
+    shared = _Shared(chain=chain, t_span=t_span, kw=kw, each={"pressure": p_each is not None, "tau": tau_each is not None})
+    return shared, items
 
-    w_start = time.perf_counter()
+
+def _run_all(shared: _Shared, items: list, *, workers, client, retries: int, progress: bool):
+    """Step 4 of :func:`simulate_batch`: run the rollouts, in this process one after the
+    other or on the engine :func:`qchain.batch.workers.engine_for` picks (the method's
+    compiled engine compiled or loaded here first, by a one-step run of the first rollout).
+
+    Returns
+    -------
+    (results, engine name, workers, compile_s)
+        ``results[i]``: rollout ``i``'s ``(Trajectory, wall s)``, or a
+        :class:`qchain.batch.workers.Lost`; ``compile_s``: the warm-up's wall time (s).
+    """
+    chain, method = shared.chain, shared.kw["method"]
+    B = len(items)
     engine = engine_for(workers, client, tasks=B)
     compile_s = 0.0
     results: list = [None] * B
-    bar = _bar(B, progress)
+    from tqdm import tqdm
+
+    bar = tqdm(total=B, unit="rollout", file=sys.stderr, smoothing=0.1, disable=not progress)
     try:
         if engine is None:
             name, n_workers = "serial", 1
@@ -416,8 +480,8 @@ def simulate_batch(
             name, n_workers = engine.kind, engine.workers
             payload = Payload.of(shared, "the chain and the shared inputs")
             if method in COMPILED:  # compile or load the engine here once; the workers load it from the cache
-                compile_s = _warm(shared, items[0])
-                engine.warm(_warm_first, Payload.of((shared, items[0])), key=_engine_key(chain, method))
+                compile_s = _warm((shared, items[0]))
+                engine.warm(_warm, Payload.of((shared, items[0])), key=("rollout", method, bool(chain.planar)))
             for i, res in engine.map(_rollouts, payload, items, retries=retries):
                 results[i] = res
                 bar.update(1)
@@ -425,29 +489,7 @@ def simulate_batch(
         bar.close()
         if engine is not None and isinstance(client, str):  # a client this call connected
             engine.close()
-    wall_s = time.perf_counter() - w_start
-    return _assemble(chain, results, t_eval, (t0, t1), dict(method=method, engine=name, workers=n_workers,
-                                                                wall_s=wall_s, compile_s=compile_s, t_span=(t0, t1)))
-
-
-def _engine_key(chain: Chain, method: str):
-    return ("rollout", method, bool(chain.planar))
-
-
-def _bar(total: int, enabled: bool):
-    if enabled:
-        from tqdm import tqdm
-
-        return tqdm(total=total, unit="rollout", file=sys.stderr, smoothing=0.1)
-    return _NoBar()
-
-
-class _NoBar:
-    def update(self, n=1):
-        pass
-
-    def close(self):
-        pass
+    return results, name, n_workers, compile_s
 
 
 def _assemble(chain: Chain, results: list, t_eval, t_span, meta: dict) -> BatchTrajectory:
@@ -458,18 +500,10 @@ def _assemble(chain: Chain, results: list, t_eval, t_span, meta: dict) -> BatchT
     else:  # a fixed step: every rollout's samples are the same grid, up to where it stopped
         t = max((tr.t for tr in trajs if tr is not None), key=len, default=np.zeros(0))
     N = t.size
-    q = np.full((B, N, chain.nq), np.nan)
-    v = np.full((B, N, chain.nv), np.nan)
-    p = np.full((B, N, chain.nu), np.nan)
-    ke = np.full((B, N), np.nan)
-    pe = np.full((B, N), np.nan)
-    success = np.zeros(B, bool)
-    status = np.full(B, -1, int)
-    message = np.empty(B, object)
-    nfev = np.zeros(B, int)
-    nsteps = np.zeros(B, int)
-    nsamples = np.zeros(B, int)
-    wall = np.full(B, np.nan)
+    q, v, p = (np.full((B, N, size), np.nan) for size in (chain.nq, chain.nv, chain.nu))
+    ke, pe, wall = np.full((B, N), np.nan), np.full((B, N), np.nan), np.full(B, np.nan)
+    success, status, message = np.zeros(B, bool), np.full(B, -1, int), np.empty(B, object)
+    nfev, nsteps, nsamples = np.zeros(B, int), np.zeros(B, int), np.zeros(B, int)
     rollouts = []
     for i, (r, tr) in enumerate(zip(results, trajs)):
         if tr is None:

@@ -72,9 +72,11 @@ import numpy as np
 
 from ..checks.addresses import host_ok
 from ..checks import bounds as _B
-from ..errors import describe_value
+from ..checks.convert import describe_value
+from ..checks.paths import has_nul, show_nul
+from ..errors import SweepError
 from ..scene.scene import _TOP_KEYS, Problem, Scene, SceneError, _Checker, _show, _type_name
-from ..scene.reading import parse_scene
+from ..scene.reading import load_scene, parse_scene, read_toml
 
 __all__ = ["Axis", "SweepSpec", "SweepError", "load_sweep", "parse_key", "apply_values", "SAMPLINGS",
            "check_results_folder", "address_problem", "DEFAULT_MAX_RUNS"]
@@ -89,11 +91,6 @@ _FILE_KEYS = ("scene", "name", "folder", "metrics", "sampling", "set", "axes", "
 _AXIS_KEYS = ("key", "keys", "values", "range", "num", "log", "integer")
 _KEY = re.compile(r"([A-Za-z_][A-Za-z0-9_]*)((?:\[(?:[0-9]+|\*)\])*)")
 _EACH = "each_segment"
-
-
-class SweepError(SceneError):
-    """A sweep (file or arguments) that cannot be run; ``problems`` lists every problem,
-    each naming the key, what was expected and what was found."""
 
 
 # ------------------------------------------------------------------------------ keys
@@ -111,8 +108,7 @@ def parse_key(key: str) -> list:
             raise ValueError(f"a scene key must be dotted names with [index] or [*], like 'segments[0].radius'; "
                              f"{key!r} has {part!r}")
         out.append(m.group(1))
-        for idx in re.findall(r"\[([0-9]+|\*)\]", m.group(2)):
-            out.append("*" if idx == "*" else int(idx))
+        out += ["*" if idx == "*" else int(idx) for idx in re.findall(r"\[([0-9]+|\*)\]", m.group(2))]
     if out[0] not in _TOP_KEYS:
         raise ValueError(f"{key!r} does not start with a scene key ({', '.join(_TOP_KEYS)})")
     return out
@@ -326,9 +322,7 @@ class Axis:
             return self.values[min(int(u * len(self.values)), len(self.values) - 1)]
         lo, hi = self.range
         if self.integer:
-            a, b = math.ceil(lo), math.floor(hi)
-            if b < a:
-                raise ValueError(f"axis {self.name}: no whole number in the range [{lo:g}, {hi:g}]")
+            a, b = math.ceil(lo), math.floor(hi)  # a <= b: checked when the axis was made
             return int(min(a + math.floor(u * (b - a + 1)), b))
         if self.log:
             return float(math.exp(math.log(lo) + u * (math.log(hi) - math.log(lo))))
@@ -458,13 +452,8 @@ class SweepSpec:
         if not self.axes:
             return [{}]
         if self.sampling == "grid":
-            out = []
-            for combo in itertools.product(*(a.grid() for a in self.axes)):
-                d: dict = {}
-                for a, v in zip(self.axes, combo):
-                    d.update(a.assign(v))
-                out.append(d)
-            return out
+            return [{k: x for a, v in zip(self.axes, combo) for k, x in a.assign(v).items()}
+                    for combo in itertools.product(*(a.grid() for a in self.axes))]
         d = len(self.axes)
         if self.sampling == "random":
             U = np.random.default_rng(self.seed).random((self.n, d))
@@ -483,11 +472,7 @@ class SweepSpec:
         import tomli_w
 
         raw = self.base_table()
-        out = []
-        for point in self.points():
-            table = apply_values(raw, {**self.set, **point})
-            out.append((point, tomli_w.dumps(table)))
-        return out
+        return [(point, tomli_w.dumps(apply_values(raw, {**self.set, **point}))) for point in self.points()]
 
     def fingerprint(self, runs: list[tuple[dict, str]]) -> str:
         """A hash of what the runs compute (their scene texts) and what they write."""
@@ -501,8 +486,7 @@ class SweepSpec:
     def describe(self) -> list[str]:
         lines = [f"sweep {self.name}: base scene {self.scene.path or '<text>'}, {self.sampling} sampling"
                  + (f", n = {self.n}, seed = {self.seed}" if self.sampling != "grid" else "")]
-        for k, v in self.set.items():
-            lines.append(f"  set {k} = {_show(v)}")
+        lines += [f"  set {k} = {_show(v)}" for k, v in self.set.items()]
         for a in self.axes:
             what = (f"{len(a.values)} values {_show(list(a.values))}" if a.values is not None else
                     f"range [{a.range[0]:g}, {a.range[1]:g}]{' log' if a.log else ''}{' integer' if a.integer else ''}"
@@ -663,9 +647,7 @@ def _metrics_problem(name: str) -> str | None:
 
 
 def _metrics_name(fn) -> str | None:
-    if fn is None:
-        return None
-    if isinstance(fn, str):
+    if fn is None or isinstance(fn, str):
         return fn
     return f"{getattr(fn, '__module__', '?')}:{getattr(fn, '__qualname__', repr(fn))}"
 
@@ -702,9 +684,6 @@ def validate_runs(spec: SweepSpec, runs: list[tuple[dict, str]]) -> list[Scene]:
 
 def load_sweep(path) -> SweepSpec:
     """Read and validate a sweep file; one :class:`SweepError` lists every problem."""
-    from ..scene.reading import load_scene
-    from ..scene.reading import read_toml
-
     path = Path(path)
     _, raw = read_toml(path, "sweep file", SweepError)  # a regular file, bounded in size and nesting
     ck = _Checker()
@@ -713,8 +692,8 @@ def load_sweep(path) -> SweepSpec:
     scene = None
     if scene_name is None:
         ck.add("scene", "the base scene file (a path relative to this file)", "nothing (the key is required)")
-    elif "\0" in scene_name or not scene_name.strip():
-        ck.add("scene", "the base scene file (a path relative to this file)", _show(scene_name.replace("\0", "\\0")))
+    elif has_nul(scene_name) or not scene_name.strip():
+        ck.add("scene", "the base scene file (a path relative to this file)", _show(show_nul(scene_name)))
     else:
         sp = (path.parent / scene_name)
         try:
@@ -723,10 +702,10 @@ def load_sweep(path) -> SweepSpec:
             for p in err.problems:
                 ck.add(f"scene ({_show(str(sp), 120)}): {p.key}", p.expected, p.found)
     name = ck.string(raw, "name", "name", path.stem)
-    if name is not None and (not name.strip() or "\0" in name or "/" in name or "\\" in name or name in (".", "..")
+    if name is not None and (not name.strip() or has_nul(name) or "/" in name or "\\" in name or name in (".", "..")
                              or len(name.encode("utf-8", "surrogatepass")) > 200):
         ck.add("name", "a name for the sweep (it names the default folder out/sweeps/NAME): not empty, no NUL, / or "
-               "\\, at most 200 bytes", _show(name.replace("\0", "\\0")))
+               "\\, at most 200 bytes", _show(show_nul(name)))
         name = None
     folder = ck.path(raw, "folder", "folder", None) if "folder" in raw else None
     metrics = ck.string(raw, "metrics", "metrics", None)
@@ -737,8 +716,7 @@ def load_sweep(path) -> SweepSpec:
         if why is not None:
             ck.add("metrics", "'module:function' naming a function (scene, model, traj) -> dict that can be imported",
                    f"{_show(metrics)}: {why}")
-    st = ck.table(raw, "sampling", "sampling") or {}
-    ck.keys(st, "sampling", ("kind", "n", "seed", "max_runs"))
+    st = ck.section(raw, "sampling", ("kind", "n", "seed", "max_runs"))
     kind = ck.choice(st, "kind", "sampling.kind", SAMPLINGS, default="grid")
     n = ck.integer(st, "n", "sampling.n", default=None, minimum=1)
     seed = ck.integer(st, "seed", "sampling.seed", default=0, minimum=0)
@@ -794,12 +772,10 @@ def load_sweep(path) -> SweepSpec:
                              range=None if rng is None else tuple(rng), num=num, log=log, integer=integer))
         except ValueError as err:
             ck.add(where, "a valid axis", str(err))
-    ot = ck.table(raw, "output", "output") or {}
-    ck.keys(ot, "output", ("trajectories", "mcap"))
+    ot = ck.section(raw, "output", ("trajectories", "mcap"))
     trajectories = ck.boolean(ot, "trajectories", "output.trajectories", False)
     mcap = ck.boolean(ot, "mcap", "output.mcap", False)
-    et = ck.table(raw, "engine", "engine") or {}
-    ck.keys(et, "engine", ("workers", "dask", "retries"))
+    et = ck.section(raw, "engine", ("workers", "dask", "retries"))
     # the ranges qchain.simulate_batch takes (qchain.checks.bounds)
     workers = ck.integer(et, "workers", "engine.workers", default=None, minimum=int(_B.WORKERS.low),
                          maximum=int(_B.WORKERS.high))

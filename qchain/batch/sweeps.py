@@ -46,8 +46,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import describe_value
-from ..scene.scene import Scene
+from ..checks.convert import describe_value
+from ..scene.scene import Problem, Scene
 from ..scene.reading import load_scene, parse_scene
 from .sweep_spec import (
     Axis, SweepError, SweepSpec, _metrics_name, _plain, check_results_folder, load_sweep,
@@ -116,17 +116,14 @@ def summary_metrics(scene: Scene, model, traj) -> dict:
         tip = ch.frames_batch(traj.q, 2, t=traj.t).translation[:, -1]  # (K, 3) world
         lo, hi = tip.min(axis=0), tip.max(axis=0)
         ke, pe = traj.kinetic_energy, traj.potential_energy
-        out.update({f"tip_final_{c}": float(tip[-1, k]) for k, c in enumerate("xyz")})
-        out.update({f"tip_min_{c}": float(lo[k]) for k, c in enumerate("xyz")})
-        out.update({f"tip_max_{c}": float(hi[k]) for k, c in enumerate("xyz")})
+        for which, at in (("final", tip[-1]), ("min", lo), ("max", hi)):
+            out.update({f"tip_{which}_{c}": float(at[k]) for k, c in enumerate("xyz")})
         out["tip_reach"] = float(np.max(np.linalg.norm(tip - tip[0], axis=1)))
         out["bend_max"] = float(np.max(scene.bends(ch, traj)))
         out.update(kinetic_final=float(ke[-1]), potential_final=float(pe[-1]), kinetic_max=float(np.max(ke)),
                    energy_start=float(ke[0] + pe[0]), energy_final=float(ke[-1] + pe[-1]))
-    else:
-        for name in METRICS:
-            if name.startswith(("tip_", "kinetic", "potential", "energy", "bend")):
-                out[name] = nan
+    else:  # no samples: the metrics of the samples are NaN
+        out.update({k: nan for k in METRICS if k.startswith(("tip_", "kinetic", "potential", "energy", "bend"))})
     return out
 
 
@@ -140,10 +137,8 @@ def _model_key(text: str) -> str:
     raw = tomllib.loads(text)
     for k in ("name", "description", "output"):
         raw.pop(k, None)
-    sim = dict(raw.get("simulation", {}))
-    for k in ("method", "rtol", "atol", "dt", "max_step"):
-        sim.pop(k, None)
-    raw["simulation"] = sim
+    raw["simulation"] = {k: v for k, v in raw.get("simulation", {}).items()
+                         if k not in ("method", "rtol", "atol", "dt", "max_step")}
     return hashlib.sha256(json.dumps(raw, sort_keys=True, default=str).encode()).hexdigest()
 
 
@@ -200,9 +195,7 @@ def _one(shared: _Shared, i: int, text: str) -> dict:
 
 
 def _metric_ok(v, depth: int = 0) -> bool:
-    if v is None or isinstance(v, (bool, str)):
-        return True
-    if isinstance(v, (int, float)):
+    if v is None or isinstance(v, (bool, str, int, float)):
         return True
     if isinstance(v, list) and depth < 8:
         return all(isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
@@ -218,9 +211,7 @@ def _check_metric(key: str, value) -> None:
         raise ValueError(f"the metrics function's name {key!r} is empty or holds a NUL character: a table column "
                          "needs a name")
     if not _metric_ok(value):
-        shown = type(value).__name__
-        if isinstance(value, list):
-            shown = "list holding something other than finite numbers"
+        shown = "list holding something other than finite numbers" if isinstance(value, list) else type(value).__name__
         raise TypeError(f"the metrics function's value {key!r} is a {shown} ({describe_value(value, 40)}); "
                         "a metric must be a number, a boolean, a string, None or a list of finite numbers")
 
@@ -312,12 +303,10 @@ class _Folder:
         if self.manifest.is_file():
             old = json.loads(self.manifest.read_text())
             if old.get("fingerprint") != manifest["fingerprint"]:
-                what = []
-                for k in ("runs", "trajectories", "mcap", "metrics"):
-                    if old.get(k) != manifest.get(k):
-                        what.append(f"{k}: {old.get(k)!r} there, {manifest.get(k)!r} now")
+                what = [f"{k}: {old.get(k)!r} there, {manifest.get(k)!r} now"
+                        for k in ("runs", "trajectories", "mcap", "metrics") if old.get(k) != manifest.get(k)]
                 why = "; ".join(what) or "the runs' scenes differ"
-                raise SweepError(str(self.folder), [_problem(
+                raise SweepError(str(self.folder), [Problem(
                     "folder", "the results of this same sweep to resume, or an empty folder",
                     f"the results of another sweep ({why}); use another folder, or restart (--restart) to clear it")])
         else:
@@ -341,8 +330,8 @@ class _Folder:
             try:
                 rows.append(json.loads(line))
             except json.JSONDecodeError as err:
-                raise SweepError(str(self.journal), [_problem(f"line {n + 1}", "one JSON object a finished run",
-                                                              f"{err}")]) from None
+                raise SweepError(str(self.journal), [Problem(f"line {n + 1}", "one JSON object a finished run",
+                                                           f"{err}")]) from None
         return rows
 
     def path(self, i: int, ext: str) -> Path:
@@ -376,7 +365,7 @@ class _Folder:
         except OSError:
             holder = os.pread(fd, 32, 0).decode("ascii", "replace").strip()
             os.close(fd)
-            raise SweepError(str(self.folder), [_problem(
+            raise SweepError(str(self.folder), [Problem(
                 "folder", "a folder no other sweep is writing",
                 f"another sweep{f' (pid {holder})' if holder.isdigit() else ''} is writing it: wait for it to end "
                 "(then run this one to resume), or use another folder")]) from None
@@ -391,12 +380,6 @@ class _Folder:
         if self._lock is not None:
             os.close(self._lock)  # (the lock goes with it)
             self._lock = None
-
-
-def _problem(key, expected, found):
-    from ..scene.scene import Problem
-
-    return Problem(key, expected, found)
 
 
 def _atomic_write(path: Path, data: bytes) -> None:
@@ -542,12 +525,10 @@ def run_sweep(spec: SweepSpec, *, workers=None, client=None, progress: bool | No
     shared = _Shared(metrics=spec.metrics, trajectories=spec.trajectories, mcap=spec.mcap,
                      scene_path=str(spec.scene.path) if spec.scene.path else None)
     show = stream is not None and (stream.isatty() if progress is None else progress)
-    bar = None
-    if show:
-        from tqdm import tqdm
+    from tqdm import tqdm
 
-        bar = tqdm(total=len(runs), initial=resumed, unit="run", file=stream, smoothing=0.1,
-                   desc=f"sweep {spec.name}")
+    bar = tqdm(total=len(runs), initial=resumed, unit="run", file=stream, smoothing=0.1, desc=f"sweep {spec.name}",
+               disable=not show)
     kept: dict = {}
     complete = False
     try:
@@ -577,8 +558,7 @@ def run_sweep(spec: SweepSpec, *, workers=None, client=None, progress: bool | No
             elif "trajectory" in res:
                 kept[i] = res["trajectory"]
             done[i] = row
-            if bar is not None:
-                bar.update(1)
+            bar.update(1)
         complete = True
     except ClusterLost as err:
         if folder is None:
@@ -586,8 +566,7 @@ def run_sweep(spec: SweepSpec, *, workers=None, client=None, progress: bool | No
         raise ClusterLost(f"{err}; the {len(done)} of {len(runs)} runs finished are in {spec.folder} (run the sweep "
                           "again to compute the rest)") from None
     finally:
-        if bar is not None:
-            bar.close()
+        bar.close()
         if engine is not None and isinstance(client, str):  # a client this call connected
             engine.close()
         if folder is not None:

@@ -39,6 +39,7 @@ from __future__ import annotations
 
 import asyncio
 import atexit
+import contextlib
 import math
 import os
 import pickle
@@ -57,7 +58,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..checks import bounds
-from ..errors import QchainError, describe_value
+from ..checks.convert import describe_value
+from ..errors import ClusterLost
 
 __all__ = ["LocalPool", "DaskEngine", "ClusterLost", "Lost", "Payload", "plan_chunks", "resolve_workers", "check_engine",
            "engine_for",
@@ -263,17 +265,13 @@ def _worker_init(parent: int) -> None:
     threading.Thread(target=watch, name="qchain-parent-watch", daemon=True).start()
 
 
-def _pid() -> int:
-    return os.getpid()
-
-
 class _Slot:
     """One worker process: an executor of one process and the chunks sent to it, oldest first."""
 
     def __init__(self, ctx):
         self.executor = ProcessPoolExecutor(max_workers=1, mp_context=ctx, initializer=_worker_init,
                                             initargs=(os.getpid(),))
-        self.pid_future = self.executor.submit(_pid)
+        self.pid_future = self.executor.submit(os.getpid)
         self.sent: list = []  # futures, in the order sent
 
     @property
@@ -289,10 +287,8 @@ class _Slot:
         except Exception:
             pid = None
         if pid is not None:
-            try:
+            with contextlib.suppress(ProcessLookupError, PermissionError):
                 os.kill(pid, signal.SIGKILL)
-            except (ProcessLookupError, PermissionError):
-                pass
         self.executor.shutdown(wait=False, cancel_futures=True)
 
 
@@ -414,8 +410,7 @@ class LocalPool:
         pid = slot.pid_future.result()
         # every chunk the dead process had is failed; wait until the executor says so
         wait(slot.sent)
-        done = []
-        again = []
+        done, again = [], []
         running = True  # the oldest chunk that failed was the one running
         for fut in slot.sent:
             _, chunk = owner.pop(fut)
@@ -482,13 +477,6 @@ def _close_default() -> None:  # pragma: no cover - interpreter shutdown
 
 
 # ------------------------------------------------------------------------------ dask
-
-
-class ClusterLost(QchainError, RuntimeError):
-    """A Dask cluster had no worker, or its scheduler could not be reached, for longer than
-    the engine's ``lost_timeout`` (or the client closed): the items not finished were not
-    computed. A sweep with a results folder keeps every run it finished and resumes the
-    rest when started again."""
 
 
 #: seconds a :class:`DaskEngine` waits while its cluster has no worker or its scheduler does
@@ -697,7 +685,6 @@ class DaskEngine:
         def killed(chunk: list, err) -> Iterator[tuple[int, object]]:
             for i in chunk:
                 attempts[i] += 1
-            for i in chunk:
                 if attempts[i] > retries:
                     yield i, Lost(f"the Dask workers running it died ({err})", attempts[i])
                 else:
@@ -789,10 +776,8 @@ def _quiet_gathers_given_up(client) -> None:
         if type(context.get("exception")).__name__ != "AllExit":
             loop.default_exception_handler(context)
 
-    try:
+    with contextlib.suppress(AttributeError):  # a loop without one
         client.loop.asyncio_loop.set_exception_handler(handler)
-    except AttributeError:  # pragma: no cover - a loop without one
-        pass
 
 
 def _takes_n_workers(client) -> bool:

@@ -2,7 +2,7 @@
 
 A :class:`Range` is what a number may be: its bounds, open or closed, its unit, whether it
 must be an integer. The constants below are the ranges the model is checked at (finite
-results over the whole box, ``tests/test_bad_input.py``), far wider than any soft arm
+results over the whole box, ``tests/test_segment.py``), far wider than any soft arm
 needs but small enough that no product of them overflows: a value outside one is a typo
 or an attack, and is refused where it enters, by :class:`qchain.Segment`,
 :func:`qchain.simulate` and the scene checker (:mod:`qchain.scene.format`, whose
@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import as_real, describe_value
+from .convert import as_real, describe_value
 
 __all__ = [
     "Range",
@@ -174,7 +174,7 @@ class Range:
 #: Lowest gauge pressure a chamber can hold (Pa): a vacuum.
 VACUUM_GAUGE = -101325.0
 
-# -- a segment (tests/test_bad_input.py checks finite dynamics over the whole box)
+# -- a segment (tests/test_segment.py checks finite dynamics over the whole box)
 LENGTH = Range(1e-5, 1e2, "m")  #: rest length l0
 RADIUS = Range(1e-6, 10.0, "m")  #: outer radius r_s
 MASS = Range(1e-9, 1e6, "kg")  #: segment mass

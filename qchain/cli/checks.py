@@ -14,6 +14,7 @@ from pathlib import Path
 from urllib.parse import urlsplit
 
 from ..checks.addresses import host_ok as _host_ok
+from ..checks.paths import file_in_the_way, file_kind, has_nul, show_nul
 from .errors import BadInput
 
 #: s a Rerun viewer named by ``--connect`` has to answer the connection (its HTTP/2 settings).
@@ -51,12 +52,7 @@ def check_flag_values(args, ranges: dict | None = None) -> None:
         if value is None:
             continue
         if not (isinstance(value, (int, float)) and math.isfinite(value) and rng.contains(value)):
-            raise BadInput(f"argument {flag}: expected {rng.what()}, found {_found(value, rng)}")
-
-
-def _found(value, rng) -> str:
-    """``value`` as an error line shows it (:meth:`qchain.checks.bounds.Range.shown`)."""
-    return rng.shown(value)
+            raise BadInput(f"argument {flag}: expected {rng.what()}, found {rng.shown(value)}")
 
 
 def check_viewer_url(flag: str, url) -> None:
@@ -142,18 +138,6 @@ def _recording_stem(scene_path) -> str:
     return text if text.strip(". ") else "run"
 
 
-def _name_max(folder: Path) -> int:
-    """The longest file name (bytes) the file system of ``folder`` (or its nearest existing
-    parent) takes."""
-    for p in [folder, *folder.parents]:
-        try:
-            if p.exists():
-                return int(os.pathconf(p, "PC_NAME_MAX"))
-        except (OSError, ValueError):
-            break
-    return 255
-
-
 def check_output_path(flag: str, path, extra: str = "") -> None:
     """Refuse an output file path the run could not use, before the run: a NUL character,
     a name that is not UTF-8 text (a recording stores its path and Rerun takes UTF-8), a
@@ -167,18 +151,17 @@ def check_output_path(flag: str, path, extra: str = "") -> None:
     """
     if path is None:
         return
-    text = os.fspath(path)
-    if isinstance(text, bytes):
-        text = os.fsdecode(text)
-    if "\0" in text:
-        shown = text.replace("\0", "\\0")
-        raise BadInput(f"{flag} path {shown} contains a NUL character")
+    text = os.fsdecode(path)
+    if has_nul(text):
+        raise BadInput(f"{flag} path {show_nul(text)} contains a NUL character")
     try:
         text.encode("utf-8")
     except UnicodeEncodeError:
         raise BadInput(f"{flag} path {_shown(text)} is not UTF-8 text; choose a name of UTF-8 characters") from None
+    from ..recording.options import fs_limits  # (the recording's libraries load when a path is checked)
+
     p = Path(text)
-    limit = _name_max(p.parent if str(p.parent) else Path("."))
+    limit = fs_limits(Path(os.path.abspath(p)).parent)[0]
     size = len(os.fsencode(p.name))
     if size + len(extra.encode()) > limit:
         name = _shown(p.name)
@@ -209,8 +192,7 @@ def _existing_output_problem(flag: str, p: Path) -> None:
     mode = st.st_mode
     if stat.S_ISREG(mode):
         return
-    kind = ("a folder" if stat.S_ISDIR(mode) else "a FIFO" if stat.S_ISFIFO(mode) else "a device"
-            if stat.S_ISCHR(mode) or stat.S_ISBLK(mode) else "a socket" if stat.S_ISSOCK(mode) else "not a file")
+    kind = file_kind(mode, other="not a file")
     raise BadInput(f"{flag} path {shown} is {kind}: expected a regular file (or a path where one can be made)")
 
 
@@ -226,13 +208,12 @@ def check_output_folder(what: str, folder) -> Path:
     import tempfile
 
     text = os.fspath(folder)
-    if "\0" in text:
-        shown = text.replace("\0", "\\0")
-        raise BadInput(f"{what} {shown} contains a NUL character")
+    if has_nul(text):
+        raise BadInput(f"{what} {show_nul(text)} contains a NUL character")
     p = Path(text)
-    for parent in [p, *p.parents]:
-        if parent.exists() and not parent.is_dir():
-            raise BadInput(f"{what} {_shown(p)} cannot be made: {_shown(parent)} is a file")
+    blocker = file_in_the_way(p)
+    if blocker is not None:
+        raise BadInput(f"{what} {_shown(p)} cannot be made: {_shown(blocker)} is a file")
     try:
         p.mkdir(parents=True, exist_ok=True)
         with tempfile.TemporaryFile(dir=p) as fh:

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import sys
 import warnings
+from contextlib import suppress
 
 from .errors import (
     EXIT_FAILED, EXIT_OK, SummaryOutput, _forget_unhandled_interrupt, _Session, _show_warnings, _tolerant_streams,
@@ -53,10 +54,8 @@ def command(name: str, body, debug: bool = False, session: _Session | None = Non
             warnings.showwarning = _show_warnings(session.prog)
             code = guarded(session.prog, lambda: body(session), debug, session)
     finally:
-        try:
+        with suppress(OSError, ValueError):
             sys.stdout.flush()  # (a write error here is the wrapper's to say)
-        except (OSError, ValueError):
-            pass
         sys.stdout = stdout
         sys.unraisablehook = hook
         if sig is not None:

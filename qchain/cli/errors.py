@@ -10,18 +10,16 @@ from __future__ import annotations
 import os
 import sys
 import traceback
+from contextlib import suppress
 
 from ..checks.text import printable
+from ..errors import BadInput, BudgetError, QchainError, SceneError
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE = 0, 1, 2
 DEBUG_HINT = "(run with --debug for the traceback)"
 
 # --------------------------------------------------------------------------------------
 # errors: one line, the right exit code
-
-
-class BadInput(Exception):
-    """Input the command refuses before anything runs (exit code 2); the message says why."""
 
 
 class _Session:
@@ -63,13 +61,6 @@ class _Session:
         return ""
 
 
-def _instance(err: BaseException, module: str, name: str) -> bool:
-    """Whether ``err`` is a ``module.name`` (without importing the module: an error of a
-    module never imported is not one of its classes)."""
-    cls = getattr(sys.modules.get(module), name, None)
-    return isinstance(cls, type) and isinstance(err, cls)
-
-
 def _one_line(text: str, limit: int = 2000) -> str:
     text = printable(" ".join(str(text).split()))  # lines folded into one, then what a terminal would act on escaped
     return text if len(text) <= limit else text[: limit - 3] + "..."
@@ -97,10 +88,9 @@ def report_error(prog: str, err: BaseException, debug: bool = False, started: bo
     """
     if debug:
         traceback.print_exception(err)
-    if isinstance(err, BadInput) or _instance(err, "qchain.scene.format", "SceneError") or \
-            _instance(err, "qchain.sim.budget", "BudgetError"):
+    if isinstance(err, (BadInput, SceneError, BudgetError)):
         code, text, foreseen = EXIT_USAGE, str(err), True  # a scene file's problems: one a line
-    elif isinstance(err, ValueError) or _instance(err, "qchain.errors", "QchainError"):
+    elif isinstance(err, (ValueError, QchainError)):
         code, text, foreseen = (EXIT_FAILED if started else EXIT_USAGE), _one_line(err), True
     elif isinstance(err, OSError):
         code, text, foreseen = EXIT_FAILED, _one_line(err), True
@@ -164,14 +154,19 @@ def guarded(prog: str, body, debug: bool = False, session: _Session | None = Non
         print(f"{prog}: interrupted{session.where()}", file=sys.stderr, flush=True)
         return EXIT_FAILED
     except BrokenPipeError:  # the reader of stdout went away (qchain info x | head): nothing to say
-        try:
-            devnull = os.open(os.devnull, os.O_WRONLY)
-            os.dup2(devnull, sys.stdout.fileno())  # no second error when Python flushes stdout at exit
-        except (OSError, ValueError, AttributeError):
-            pass
+        with suppress(OSError, ValueError, AttributeError):  # no second error when Python flushes stdout at exit
+            _to_devnull(sys.stdout.fileno())
         return EXIT_FAILED
     except Exception as err:  # noqa: BLE001 - the one place every error becomes a line
         return report_error(prog, err, debug, started=session.phase != "start")
+
+
+def _to_devnull(fd: int) -> None:
+    """Point the file descriptor ``fd`` at ``os.devnull``: what is written there goes nowhere."""
+    null = os.open(os.devnull, os.O_WRONLY)
+    if null != fd:
+        os.dup2(null, fd)
+        os.close(null)
 
 
 def _forget_unhandled_interrupt() -> None:
@@ -182,12 +177,10 @@ def _forget_unhandled_interrupt() -> None:
     it later, ends the process by SIGINT at exit instead of with the exit code; running a
     statement through the same function makes it forget.
     """
-    try:
+    with suppress(Exception):  # not CPython: nothing to forget
         import ctypes
 
         ctypes.pythonapi.PyRun_SimpleString(b"pass")
-    except Exception:  # noqa: BLE001 - not CPython: nothing to forget
-        pass
 
 
 def _show_warnings(prog: str):
@@ -195,10 +188,8 @@ def _show_warnings(prog: str):
 
     def show(message, category, filename, lineno, file=None, line=None):
         text = str(message).removeprefix("qchain.logging: ")
-        try:
+        with suppress(OSError, ValueError):
             print(f"{prog}: warning: {_one_line(text)}", file=sys.stderr if file is None else file, flush=True)
-        except (OSError, ValueError):
-            pass
 
     return show
 
@@ -215,24 +206,15 @@ def _tolerant_streams() -> set[str]:
             os.fstat(fd)
         except OSError:  # closed: a file opened later (the recording) must not take its number
             closed.add(name)
-            try:
-                null = os.open(os.devnull, os.O_WRONLY)
-                if null != fd:
-                    os.dup2(null, fd)
-                    os.close(null)
-            except OSError:
-                pass
+            with suppress(OSError):
+                _to_devnull(fd)
         if getattr(sys, name) is None:
-            try:
+            with suppress(OSError):
                 setattr(sys, name, open(os.devnull, "w", encoding="utf-8"))
-            except OSError:
-                pass
     for stream in (sys.stdout, sys.stderr):
         if getattr(stream, "errors", None) not in (None, "backslashreplace") and hasattr(stream, "reconfigure"):
-            try:
+            with suppress(ValueError, OSError, AttributeError, TypeError):
                 stream.reconfigure(errors="backslashreplace")
-            except (ValueError, OSError, AttributeError, TypeError):
-                pass
     return closed
 
 
@@ -250,18 +232,12 @@ class SummaryOutput:
     def _fail(self, err: OSError) -> None:
         if self.failed is None:
             self.failed = err
-            try:
+            with suppress(OSError, ValueError):
                 print(f"{self._prog}: warning: standard output: {err.strerror or err} (the rest of the summary is "
                       "not shown)", file=sys.stderr, flush=True)
-            except (OSError, ValueError):
-                pass
-        try:  # what is left in the stream's buffer goes nowhere, also when Python exits
-            fd = self._stream.fileno()
-            null = os.open(os.devnull, os.O_WRONLY)
-            os.dup2(null, fd)
-            os.close(null)
-        except (OSError, ValueError, AttributeError):
-            pass
+        # what is left in the stream's buffer goes nowhere, also when Python exits
+        with suppress(OSError, ValueError, AttributeError):
+            _to_devnull(self._stream.fileno())
 
     def write(self, text):
         if self.failed is not None:

@@ -10,7 +10,6 @@
     qchain sweep SWEEP.toml [--workers N | --dask ADDRESS] [--out DIR] [--restart] [--dry-run] (qchain.batch.sweeps)
     qchain recover LOG.mcap
     qchain layout LOG.mcap [-o layout.json]
-    qchain bench [--quick] [--out DIR]
     qchain --version
     python -m qchain ...                    (the same command)
 
@@ -97,28 +96,91 @@ def version() -> str:
         return __version__
 
 
-def _logging_module():
-    """:mod:`qchain.cli.recording`, or None where it (or what it needs) is not installed."""
-    try:
-        from . import recording as qlog
-    except ImportError:
-        return None
-    return qlog
-
-
 # --------------------------------------------------------------------------------------
 # commands
 
 
 def _run(args, parser, session: _Session) -> int:
-    from ..errors import QchainError
-    from ..scene.scene import SceneError
-    from ..scene.reading import load_scene
+    """``qchain run``: check the scene and every output, reach the viewer, build the model,
+    start the recording, integrate, then print the summary and write the plots.
 
+    Parameters
+    ----------
+    args : argparse.Namespace
+        The ``run`` command line, its flags checked (:func:`_check_run_flags`); ``args.mcap``
+        and ``args.connect`` are updated (the default recording, a viewer that is silent).
+    parser : argparse.ArgumentParser
+        The command's parser (:func:`_parser`), for usage errors.
+    session : _Session
+        The command's harness: Ctrl-C checks during start-up, the phase, the time reached.
+
+    Returns
+    -------
+    int
+        :data:`EXIT_OK`, or :data:`EXIT_FAILED`: the run failed or was interrupted, its
+        recording could not start or finish, an output could not be written.
+
+    Raises
+    ------
+    BadInput
+        A scene, flag or output path refused before the model is built (a model over its
+        budget: before anything is recorded).
+    KeyboardInterrupt
+        Ctrl-C during start-up (a recording started is closed with that outcome first).
+    """
+    from . import recording as qlog
+
+    scene, duration = _load_run_scene(args, parser)
+    record, notices = _check_run_outputs(args, scene, duration)
+    if args.connect:  # a viewer that never answers would hold the run without end
+        record = _reach_viewer(args, record)
+    for notice in notices:
+        print(f"qchain run: {notice}", file=sys.stderr)
+    if record:
+        qlog.prepare_writer()  # the log writer starts up on the other core while the model is built
+    model = _build_run_model(args, scene, duration, session)
+    progress = (True if sys.stderr.isatty() else "lines") if args.progress is None else args.progress
+    logger = on_sample = None
+    if record:
+        started = _start_recording(args, scene, model, duration, notices)
+        if started is None:
+            return EXIT_FAILED
+        logger, on_sample = started
+    ran = _simulate(scene, model, duration, progress, logger, on_sample, session)
+    if ran is None:
+        return EXIT_FAILED
+    traj, interrupted, wall = ran
+    return _report_run(args, scene, model, traj, interrupted, wall, session)
+
+
+def _load_run_scene(args, parser) -> tuple[Scene, float]:
+    """The run's scene and duration, the duration checked against the scene's step and
+    budget (its range: :func:`qchain.cli.checks.check_flag_values`).
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        ``args.scene`` (path) and ``args.duration`` (s, or None: the scene's).
+    parser : argparse.ArgumentParser
+        Its ``run`` subparser says a duration shorter than the step as a usage error.
+
+    Returns
+    -------
+    scene : Scene
+    duration : float, s
+
+    Raises
+    ------
+    SceneError
+        The scene file's problems.
+    BadInput, BudgetError
+        A ``--duration`` (BadInput) or the scene's own duration (BudgetError) beyond the budget.
+    """
+    from ..scene.reading import load_scene
     from ..sim.budget import BudgetError
 
     scene = load_scene(args.scene)
-    duration = scene.duration if args.duration is None else args.duration  # its range: check_flag_values
+    duration = scene.duration if args.duration is None else args.duration
     if scene.method in ("rk4", "midpoint") and scene.dt > duration:
         parser.commands["run"].error(f"argument --duration: expected a duration >= the scene's step dt = {scene.dt:g} s, found "
                      f"{duration:g} s")
@@ -128,10 +190,40 @@ def _run(args, parser, session: _Session) -> int:
         if args.duration is None:
             raise
         raise BadInput(f"--duration {duration:g} s: {err}") from None
-    qlog = _logging_module()
-    if qlog is None and (args.mcap or args.serve or args.connect or args.rrd):
-        raise BadInput("recording needs qchain.logging, which is not available")
-    record = qlog is not None and not (args.no_record and not (args.mcap or args.serve or args.connect or args.rrd))
+    return scene, duration
+
+
+def _check_run_outputs(args, scene: Scene, duration: float) -> tuple[bool, list[str]]:
+    """Check every output of the run before the model is built: the recording (its time
+    range, path, journal and ``.rrd``), the plots' folder, the plots and ``trajectory.npz``.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        The ``run`` flags; ``args.mcap`` is set to the default recording path when the run
+        records and none is given.
+    scene : Scene
+    duration : float, s
+
+    Returns
+    -------
+    record : bool
+        Whether the run records (to a file, a viewer or an ``.rrd``).
+    notices : list of str
+        What :func:`qchain.cli.recording.check_outputs` has to say of the paths (printed
+        by the caller, and not repeated as warnings).
+
+    Raises
+    ------
+    BadInput
+        An output that cannot be used, naming its flag and path.
+    SceneError
+        The scene's own ``output.folder`` cannot be used.
+    """
+    from ..scene.scene import SceneError
+    from . import recording as qlog
+
+    record = not (args.no_record and not (args.mcap or args.serve or args.connect or args.rrd))
     notices: list[str] = []
     if not args.no_plots:  # a recording where the plots' folder is, or above it: refused before either is made
         folder = os.path.abspath(args.out if args.out is not None else scene.output_folder)
@@ -146,6 +238,7 @@ def _run(args, parser, session: _Session) -> int:
             src = "--duration" if args.duration is not None else f"{printable(_shown(args.scene))}: simulation.duration"
             raise BadInput(f"{src} {duration:g} s: a recorded run lasts at most {T_MAX:.10g} s ({T_MAX_WHY}); run "
                            "it with --no-record (and no --rrd, --serve or --connect)")
+    mcap = None
     if record:
         if args.mcap is None and not args.no_record:
             args.mcap = qlog.default_mcap_path(f"{_recording_stem(scene.path)}.toml")
@@ -164,18 +257,61 @@ def _run(args, parser, session: _Session) -> int:
                 raise
             p = err.problems[0]
             raise BadInput(f"--out {_shown(args.out)}: expected {p.expected}, found {p.found}") from None
-    _check_planned_outputs(args, scene, mcap if record else None)
-    if args.connect and qlog is not None:  # a viewer that never answers would hold the run without end
-        why = viewer_silence(args.connect, timeout=_viewer_timeout(args))
-        if why is not None:
-            print(f"qchain run: warning: no Rerun viewer answers at {args.connect} ({why}); the run goes on without "
-                  "it", file=sys.stderr)
-            args.connect = None
-            record = not (args.no_record and not (args.mcap or args.serve or args.rrd))
-    for notice in notices:
-        print(f"qchain run: {notice}", file=sys.stderr)
-    if record:
-        qlog.prepare_writer()  # the log writer starts up on the other core while the model is built
+    _check_planned_outputs(args, scene, mcap)
+    return record, notices
+
+
+def _reach_viewer(args, record: bool) -> bool:
+    """Whether the run still records once the viewer of ``--connect`` is tried: one that
+    does not answer within ``--viewer-timeout`` s is given up (``args.connect = None``),
+    with a warning, and the run goes on without it.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        ``args.connect`` (a URL), ``args.viewer_timeout`` and the other recording flags.
+    record : bool
+        Whether the run records with the viewer.
+
+    Returns
+    -------
+    bool
+        Whether it records without it, if it was given up; else ``record``.
+    """
+    why = viewer_silence(args.connect, timeout=_viewer_timeout(args))
+    if why is not None:
+        print(f"qchain run: warning: no Rerun viewer answers at {args.connect} ({why}); the run goes on without "
+              "it", file=sys.stderr)
+        args.connect = None
+        record = not (args.no_record and not (args.mcap or args.serve or args.rrd))
+    return record
+
+
+def _build_run_model(args, scene: Scene, duration: float, session: _Session) -> SceneModel:
+    """Build the scene's model (``--full``: no reductions), check it against the budget,
+    and print its description.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        ``args.full``, ``args.out``, ``args.no_plots``, ``args.scene``.
+    scene : Scene
+    duration : float, s
+    session : _Session
+        Ctrl-C swallowed while the libraries load stops the start-up before and after the build.
+
+    Returns
+    -------
+    SceneModel
+
+    Raises
+    ------
+    BadInput
+        An explicit method on a model too stiff for it (before anything is recorded).
+    KeyboardInterrupt
+    """
+    from ..sim.budget import BudgetError
+
     session.check_interrupt()
     model = scene.build(reduce=False if args.full else None)
     session.check_interrupt()
@@ -185,24 +321,71 @@ def _run(args, parser, session: _Session) -> int:
         raise BadInput(f"{printable(_shown(args.scene))}: {err}") from None
     _print_lines(scene.describe(model, duration=duration, folder=args.out, plots=not args.no_plots))
     sys.stdout.flush()
-    progress = (True if sys.stderr.isatty() else "lines") if args.progress is None else args.progress
+    return model
 
-    logger = None
-    on_sample = None
-    if record:
-        with warnings.catch_warnings():  # the notices were printed above; other warnings are lines
-            for notice in notices:
-                warnings.filterwarnings("ignore", message=re.escape(f"qchain.logging: {notice}"))
-            try:
-                logger, on_sample = _make_logger(qlog, args, scene, model, duration=duration,
-                                                 viewer_timeout=_viewer_timeout(args))
-            except (QchainError, OSError, ValueError) as err:
-                print(f"qchain run: error: the recording could not start: {_one_line(err)}", file=sys.stderr)
-                return EXIT_FAILED
+
+def _start_recording(args, scene: Scene, model: SceneModel, duration: float, notices: list[str]):
+    """Start the run's logger and recorder (:func:`_make_logger`).
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        The recording flags.
+    scene : Scene
+    model : SceneModel
+    duration : float, s
+    notices : list of str
+        Said already (:func:`_check_run_outputs`): not repeated as warnings.
+
+    Returns
+    -------
+    (RunLogger, ChainRecorder) or None
+        None when the recording could not start (the error is printed: the run fails,
+        never runs without its recording).
+    """
+    from ..errors import QchainError
+
+    with warnings.catch_warnings():  # the notices were printed already; other warnings are lines
+        for notice in notices:
+            warnings.filterwarnings("ignore", message=re.escape(f"qchain.logging: {notice}"))
+        try:
+            return _make_logger(args, scene, model, duration=duration, viewer_timeout=_viewer_timeout(args))
+        except (QchainError, OSError, ValueError) as err:
+            print(f"qchain run: error: the recording could not start: {_one_line(err)}", file=sys.stderr)
+            return None
+
+
+def _simulate(scene: Scene, model: SceneModel, duration: float, progress, logger, on_sample, session: _Session):
+    """Integrate the model, recorded when ``logger`` is given; Ctrl-C ends the run with the
+    samples it has.
+
+    Parameters
+    ----------
+    scene : Scene
+    model : SceneModel
+    duration : float, s
+    progress : bool or "lines"
+        The progress display (:meth:`qchain.scene.Scene.simulate`).
+    logger, on_sample : RunLogger and ChainRecorder, or None
+        The recording (:func:`_start_recording`), or None (no recording).
+    session : _Session
+        Its phase becomes ``"run"`` as the integration starts, ``"end"`` after it.
+
+    Returns
+    -------
+    (Trajectory or None, bool, float) or None
+        The trajectory (None: interrupted before the first sample), whether Ctrl-C ended
+        it, and the wall time (s) of the simulation without its compilation; None when the
+        run failed and said so (an input outside the model, a recording that failed).
+
+    Raises
+    ------
+    KeyboardInterrupt
+        Ctrl-C swallowed during start-up (the recording gets that outcome first).
+    """
+    from ..errors import QchainError
+
     t0 = time.perf_counter()
-    t1 = None  # when the simulation ended: the wall time excludes finishing the recording (a slow viewer)
-    traj = None
-    interrupted = False
     try:
         session.check_interrupt()
     except KeyboardInterrupt:
@@ -211,45 +394,98 @@ def _run(args, parser, session: _Session) -> int:
                 logger.set_outcome(False, "interrupted by the user (Ctrl-C) before the first sample")
         raise
     session.phase = "run"
-    try:
+    try:  # t1: when the simulation ended; the wall time excludes finishing the recording (a slow viewer)
         if logger is not None:
-            with logger, on_sample:  # the recorder logs its last samples before the logger finishes
-                try:
-                    traj = scene.simulate(model=model, duration=duration, on_sample=on_sample, progress=progress)
-                except KeyboardInterrupt as err:
-                    traj = getattr(err, "trajectory", None)
-                    interrupted = True
-                t1 = time.perf_counter()
-                if traj is not None:  # samples computed but not handed over (an interrupt between the two)
-                    session.reached = float(traj.t[-1]) if len(traj.t) else None
-                    for k in range(on_sample.taken, len(traj.t)):
-                        on_sample(traj.t[k], traj.q[k], traj.v[k], traj.p[k],
-                                  energies=(traj.kinetic_energy[k], traj.potential_energy[k]))
-                    message = _interrupt_message(traj) if interrupted else traj.message
-                    logger.set_outcome(traj.success and not interrupted, message, traj.status, traj.nfev)
-                else:
-                    logger.set_outcome(False, "interrupted by the user (Ctrl-C) before the first sample")
-            done = logger.close()
-            if done.get("error"):
-                print(f"qchain run: error: the recording failed: {_one_line(done['error'])}", file=sys.stderr)
-            _say_recording(logger, done, sys.stdout)
-            if done.get("error"):
-                return EXIT_FAILED
+            ran = _simulate_recorded(scene, model, duration, progress, logger, on_sample, session)
+            if ran is None:
+                return None
+            traj, interrupted, t1 = ran
         else:
-            try:
-                traj = scene.simulate(model=model, duration=duration, progress=progress)
-            except KeyboardInterrupt as err:
-                traj = getattr(err, "trajectory", None)
-                interrupted = True
-            t1 = time.perf_counter()
+            traj, interrupted, t1 = _integrate(scene, model, duration, progress)
     except (ValueError, QchainError) as err:  # the start state or an input outside the model, a full disk
         print(f"qchain run: error: {_one_line(err)}", file=sys.stderr)
         if logger is not None and logger.mcap_path is not None:
             _say_recording(logger, logger.close(), sys.stderr)
-        return EXIT_FAILED
+        return None
     session.phase = "end"
-    wall = (time.perf_counter() if t1 is None else t1) - t0 - (traj.meta.get("compile_s", 0.0) if traj is not None
-                                                               else 0.0)
+    wall = t1 - t0 - (traj.meta.get("compile_s", 0.0) if traj is not None else 0.0)
+    return traj, interrupted, wall
+
+
+def _integrate(scene: Scene, model: SceneModel, duration: float, progress, on_sample=None):
+    """Integrate the model (``on_sample`` takes every sample); Ctrl-C ends the run with the
+    samples it has. Returns the trajectory (None: interrupted before the first sample),
+    whether Ctrl-C ended it, and when it ended (:func:`time.perf_counter`, s)."""
+    try:
+        traj = scene.simulate(model=model, duration=duration, on_sample=on_sample, progress=progress)
+        interrupted = False
+    except KeyboardInterrupt as err:
+        traj, interrupted = getattr(err, "trajectory", None), True
+    return traj, interrupted, time.perf_counter()
+
+
+def _simulate_recorded(scene: Scene, model: SceneModel, duration: float, progress, logger, on_sample,
+                       session: _Session):
+    """Integrate the model with every sample recorded, then finish the recording and say
+    what became of it (:func:`_say_recording`).
+
+    Parameters
+    ----------
+    scene, model, duration, progress, session
+        As :func:`_simulate`.
+    logger, on_sample : RunLogger, ChainRecorder
+        The recording (:func:`_start_recording`); samples computed but not handed over
+        (an interrupt between the two) are handed over before the outcome is set.
+
+    Returns
+    -------
+    (Trajectory or None, bool, float) or None
+        The trajectory, whether Ctrl-C ended it, and when it ended
+        (:func:`time.perf_counter`, s); None when the recording failed (said).
+    """
+    with logger, on_sample:  # the recorder logs its last samples before the logger finishes
+        traj, interrupted, t1 = _integrate(scene, model, duration, progress, on_sample)
+        if traj is not None:  # samples computed but not handed over (an interrupt between the two)
+            session.reached = float(traj.t[-1]) if len(traj.t) else None
+            for k in range(on_sample.taken, len(traj.t)):
+                on_sample(traj.t[k], traj.q[k], traj.v[k], traj.p[k],
+                          energies=(traj.kinetic_energy[k], traj.potential_energy[k]))
+            message = _interrupt_message(traj) if interrupted else traj.message
+            logger.set_outcome(traj.success and not interrupted, message, traj.status, traj.nfev)
+        else:
+            logger.set_outcome(False, "interrupted by the user (Ctrl-C) before the first sample")
+    done = logger.close()
+    if done.get("error"):
+        print(f"qchain run: error: the recording failed: {_one_line(done['error'])}", file=sys.stderr)
+    _say_recording(logger, done, sys.stdout)
+    return None if done.get("error") else (traj, interrupted, t1)
+
+
+def _report_run(args, scene: Scene, model: SceneModel, traj, interrupted: bool, wall: float,
+                session: _Session) -> int:
+    """Print how the run ended and its summary (:func:`summary_lines`), and write its plots
+    and ``trajectory.npz`` (:func:`write_outputs`, unless ``--no-plots``).
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        ``args.out``, ``args.no_plots``.
+    scene : Scene
+    model : SceneModel
+    traj : Trajectory or None
+        None: interrupted before the first sample.
+    interrupted : bool
+        Ctrl-C ended the run.
+    wall : float, s
+        The simulation's wall time.
+    session : _Session
+        Told the time the run reached.
+
+    Returns
+    -------
+    int
+        :data:`EXIT_OK` for a run that succeeded and wrote its outputs, else :data:`EXIT_FAILED`.
+    """
     if traj is None:
         print("run: interrupted before the first sample", file=sys.stderr)
         return EXIT_FAILED
@@ -352,11 +588,12 @@ def _interrupt_message(traj) -> str:
     return "interrupted by the user (Ctrl-C) before the first sample"
 
 
-def _make_logger(qlog, args, scene: Scene, model: SceneModel, duration: float | None = None, **logger_kwargs):
+def _make_logger(args, scene: Scene, model: SceneModel, duration: float | None = None, **logger_kwargs):
     """The run logger and the ``on_sample`` callback that feeds it one record a sample, a
     :class:`qchain.recording.recorder.ChainRecorder` (``logger_kwargs`` go to
     :class:`qchain.logging.RunLogger`). Enter both: ``with logger, recorder: ...``."""
     from ..recording.recorder import ChainRecorder, series_names
+    from . import recording as qlog
 
     ch = model.chain
     q_names, v_names = series_names(ch)
@@ -401,7 +638,12 @@ def _info(args) -> int:
     return EXIT_OK
 
 
-def _parser(qlog) -> argparse.ArgumentParser:
+def _parser() -> argparse.ArgumentParser:
+    """The parser of ``qchain``: ``run`` (with the recording flags of
+    :func:`qchain.cli.recording.add_logging_arguments`) and ``info``; ``replay``, ``recover``,
+    ``layout`` and ``sweep`` are listed only, and parse their own arguments."""
+    from . import recording as qlog
+
     parser = argparse.ArgumentParser(prog="qchain", description="Simulate soft continuum arms described in TOML "
                                      "scene files (format: docs/scene-format.md). Exit codes: 0 success, 1 the run "
                                      "failed or was interrupted, 2 bad input or usage.")
@@ -421,24 +663,18 @@ def _parser(qlog) -> argparse.ArgumentParser:
                      help="progress bar on stderr (default: when stderr is a terminal; else a line every 30 s "
                           "once a run has taken 10 s)")
     bar.add_argument("--no-progress", dest="progress", action="store_false", help="no progress bar")
-    if qlog is not None:
-        run.add_argument("--no-record", action="store_true", help="write no MCAP recording (unless --mcap is given)")
-        g = qlog.add_logging_arguments(run)
-        g.add_argument("--viewer-timeout", type=float, default=None, metavar="S",
-                       help=f"seconds a Rerun viewer (--connect, --serve) has to answer before it is given up, with a "
-                            f"warning (default {CONNECT_TIMEOUT:g})")
-    else:  # the same flags, refused with a clear message at run time
-        run.set_defaults(no_record=True, mcap=None, serve=False, connect=None, rrd=None, bind="127.0.0.1",
-                         realtime=False, rerun_rate=None, viewer_timeout=None)
+    run.add_argument("--no-record", action="store_true", help="write no MCAP recording (unless --mcap is given)")
+    g = qlog.add_logging_arguments(run)
+    g.add_argument("--viewer-timeout", type=float, default=None, metavar="S",
+                   help=f"seconds a Rerun viewer (--connect, --serve) has to answer before it is given up, with a "
+                        f"warning (default {CONNECT_TIMEOUT:g})")
     info = sub.add_parser("info", help="describe the model a scene builds", description="Describe the model a scene "
                           "file builds: sizes, reductions and why, nodes, method.")
     info.add_argument("scene", type=Path, help="the scene file (.toml)")
     info.add_argument("--full", action="store_true", help="the model without automatic reductions")
-    if qlog is not None:
-        sub.add_parser("replay", help="replay an MCAP recording in Rerun (qchain replay --help)", add_help=False)
-        sub.add_parser("recover", help="make a killed run's recording whole (qchain recover --help)",
-                       add_help=False)
-        sub.add_parser("layout", help="write a recording's Foxglove layout (qchain layout --help)", add_help=False)
+    sub.add_parser("replay", help="replay an MCAP recording in Rerun (qchain replay --help)", add_help=False)
+    sub.add_parser("recover", help="make a killed run's recording whole (qchain recover --help)", add_help=False)
+    sub.add_parser("layout", help="write a recording's Foxglove layout (qchain layout --help)", add_help=False)
     sub.add_parser("sweep", help="run a scene over axes of its values, on every core or a Dask cluster "
                    "(qchain sweep --help)", add_help=False)
     parser.commands = {"run": run, "info": info}  # (their usage errors: _dispatch)
@@ -466,12 +702,15 @@ def _dispatch(argv: list[str], session: _Session, debug: bool) -> int:
         from .sweep import main as sweep_main
 
         return sweep_main(argv[1:], debug=debug, session=session)
-    qlog = _logging_module()
+
+    # imported here, not with the module: `qchain --version` answers without the recording's libraries
+    from . import recording as qlog
+
     handed = {"replay": "replay_main", "recover": "recover_main", "layout": "layout_main"}
-    if argv and argv[0] in handed and qlog is not None:
+    if argv and argv[0] in handed:
         session.phase = "run"  # qchain.logging says its errors and their exit codes itself
         return int(getattr(qlog, handed[argv[0]])(argv[1:]) or 0)
-    parser = _parser(qlog)
+    parser = _parser()
     args = parser.parse_args(argv)
     try:
         check_flag_values(args)

@@ -6,8 +6,11 @@ from __future__ import annotations
 
 import math
 import sys
+from contextlib import suppress
 from pathlib import Path
 from typing import TYPE_CHECKING
+
+from ..errors import OutputError
 
 if TYPE_CHECKING:
     import numpy as np
@@ -91,7 +94,13 @@ def write_outputs(scene: Scene, model: SceneModel, traj, folder: Path, plots=Non
     # the scene's name as plain text: '$' would start matplotlib's mathtext (and "$x^$" fail)
     title = (scene.name or (scene.path.stem if scene.path else "scene")).replace("$", r"\$")
 
-    def finish(fig, name):
+    def finish(fig, name, ax=None, ylabel="", what="", **legend):
+        if ax is not None:  # a plot over time: its labels, legend and grid
+            ax.set_xlabel("t (s)")
+            ax.set_ylabel(ylabel)
+            ax.set_title(f"{title}: {what}")
+            ax.legend(**legend)
+            ax.grid(alpha=0.3)
         path = folder / name
         try:
             fig.tight_layout()
@@ -99,10 +108,8 @@ def write_outputs(scene: Scene, model: SceneModel, traj, folder: Path, plots=Non
             written.append(path)
         except (OSError, ValueError, RuntimeError) as exc:  # a full disk, a file size limit, a renderer's error
             failed.append(f"{path} ({getattr(exc, 'strerror', None) or f'{type(exc).__name__}: {exc}'})")
-            try:
+            with suppress(OSError):
                 os.unlink(path)  # no half-written PNG left behind
-            except OSError:
-                pass
         finally:
             plt.close(fig)
 
@@ -110,12 +117,7 @@ def write_outputs(scene: Scene, model: SceneModel, traj, folder: Path, plots=Non
         fig, ax = plt.subplots(figsize=(8, 4))
         for k, c in enumerate("xyz"):
             ax.plot(t, tip[:, k] * 1e3, label=c)
-        ax.set_xlabel("t (s)")
-        ax.set_ylabel("tip position, world (mm)")
-        ax.set_title(f"{title}: tip position")
-        ax.legend()
-        ax.grid(alpha=0.3)
-        finish(fig, "tip.png")
+        finish(fig, "tip.png", ax, "tip position, world (mm)", "tip position")
     if "arm" in plots:
         fig = plot_arm(model, traj, tip, title)
         finish(fig, "arm.png")
@@ -124,44 +126,21 @@ def write_outputs(scene: Scene, model: SceneModel, traj, folder: Path, plots=Non
         ax.plot(t, traj.kinetic_energy, label="kinetic")
         ax.plot(t, traj.potential_energy, label="potential (gravity + elastic)")
         ax.plot(t, traj.total_energy, "k", label="total")
-        ax.set_xlabel("t (s)")
-        ax.set_ylabel("energy (J)")
-        ax.set_title(f"{title}: energies")
-        ax.legend()
-        ax.grid(alpha=0.3)
-        finish(fig, "energy.png")
+        finish(fig, "energy.png", ax, "energy (J)", "energies")
     if "pressure" in plots:
         fig, ax = plt.subplots(figsize=(8, 4))
         for k in range(traj.p.shape[1]):
             ax.plot(t, traj.p[:, k] / 1e3, label=f"segment {k // 3}, chamber {k % 3 + 1}")
-        ax.set_xlabel("t (s)")
-        ax.set_ylabel("pressure (kPa)")
-        ax.set_title(f"{title}: chamber pressures")
-        ax.legend(fontsize=7, ncol=3)
-        ax.grid(alpha=0.3)
-        finish(fig, "pressure.png")
+        finish(fig, "pressure.png", ax, "pressure (kPa)", "chamber pressures", fontsize=7, ncol=3)
     if "momentum" in plots and model.chain.floating and len(t):
         h = momenta(model, traj)
         fig, ax = plt.subplots(figsize=(8, 4))
         for k, name in enumerate(["px", "py", "pz", "Lx", "Ly", "Lz"]):
             ax.plot(t, h[:, k] - h[0, k], label=name)
-        ax.set_xlabel("t (s)")
-        ax.set_ylabel("momentum drift h(t) - h(0) (kg m/s, kg m^2/s)")
-        ax.set_title(f"{title}: world momentum drift (max {np.abs(h - h[0]).max():.2e})")
-        ax.legend(ncol=2)
-        ax.grid(alpha=0.3)
-        finish(fig, "momentum.png")
+        finish(fig, "momentum.png", ax, "momentum drift h(t) - h(0) (kg m/s, kg m^2/s)",
+               f"world momentum drift (max {np.abs(h - h[0]).max():.2e})", ncol=2)
     _raise_failed(failed, written)
     return written
-
-
-class OutputError(OSError):
-    """Outputs of a run that could not be written (each named, with why); ``written`` lists
-    those that were."""
-
-    def __init__(self, message: str, written: list):
-        super().__init__(message)
-        self.written = written
 
 
 def _raise_failed(failed: list[str], written: list) -> None:

@@ -18,12 +18,11 @@ from pathlib import Path
 from ..checks.text import printable
 from ..recording.bounded import DEFAULT_LIMITS, ReadLimits
 from ..recording.foxglove_layout import layout_json
-from ..recording.journal import journal_path
 from ..recording.logger import RunLogger
 from ..recording.reader import Recording, read_recording
 from ..recording.records import LoggingError, LoggingWarning, RunInfo
 from ..recording.writer import prepare_writer
-from ..recording.options import check_outputs, default_mcap_path
+from ..recording.options import check_outputs, default_mcap_path, refuse_recording
 from ..recording.replay import _IncompleteWarning, recover, replay
 from ..recording.rerun_sink import CONNECT_TIMEOUT, DEFAULT_BIND
 from ..sim.budget import RANGES
@@ -70,17 +69,21 @@ def _error(prog: str, exc: BaseException) -> int:
     return 2
 
 
-def _add_limits(parser: argparse.ArgumentParser) -> None:
+def _parse(prog: str, description: str, argv, add=None) -> tuple[argparse.Namespace, ReadLimits]:
+    """The command line of a command on a recording: the recording, the flags ``add(parser)``
+    adds, ``--max-segments``; returns the arguments and the reading limits they ask for."""
+    parser = argparse.ArgumentParser(prog=prog, description=description)
+    parser.add_argument("log", type=Path, help="the .mcap recording")
+    if add is not None:
+        add(parser)
     parser.add_argument("--max-segments", type=int, default=DEFAULT_LIMITS.max_segments, metavar="N",
                         help=f"segments a recording may declare (default {DEFAULT_LIMITS.max_segments}; a run whose "
                              "budget allowed more needs it raised)")
-
-
-def _limits(parser: argparse.ArgumentParser, args) -> ReadLimits:
+    args = parser.parse_args(argv)
     top = int(RANGES["max_segments"].high)
     if not 1 <= args.max_segments <= top:
         parser.error(f"argument --max-segments: expected an integer >= 1 and <= {top}, found {args.max_segments}")
-    return replace(DEFAULT_LIMITS, max_segments=args.max_segments)
+    return args, replace(DEFAULT_LIMITS, max_segments=args.max_segments)
 
 
 def replay_main(argv: Sequence[str] | None = None) -> int:
@@ -91,20 +94,20 @@ def replay_main(argv: Sequence[str] | None = None) -> int:
     not answer in time, said on standard error), 2 not a (readable) qchain recording, an
     output that cannot be written, or bad arguments.
     """
-    parser = argparse.ArgumentParser(prog="qchain replay", description="Re-log a qchain MCAP recording into Rerun "
-                                     "with its original simulation times.")
-    parser.add_argument("log", type=Path, help="the .mcap recording")
-    target = parser.add_mutually_exclusive_group()
-    target.add_argument("--serve", action="store_true", help="serve a web viewer on 127.0.0.1 (the default)")
-    target.add_argument("--connect", metavar="URL", help="send to a running Rerun viewer (rerun+http://HOST:PORT/proxy)")
-    target.add_argument("--rrd", metavar="OUT", type=file_argument, help="write a Rerun .rrd file")
-    parser.add_argument("--bind", default=DEFAULT_BIND, help="address to serve on (default 127.0.0.1: this machine only)")
-    parser.add_argument("--timeout", type=float, default=CONNECT_TIMEOUT, metavar="S",
-                        help=f"seconds a viewer at --connect has to answer and take the recording (default "
-                             f"{CONNECT_TIMEOUT:g})")
-    _add_limits(parser)
-    args = parser.parse_args(argv)
-    limits = _limits(parser, args)
+    def add(parser):
+        target = parser.add_mutually_exclusive_group()
+        target.add_argument("--serve", action="store_true", help="serve a web viewer on 127.0.0.1 (the default)")
+        target.add_argument("--connect", metavar="URL",
+                            help="send to a running Rerun viewer (rerun+http://HOST:PORT/proxy)")
+        target.add_argument("--rrd", metavar="OUT", type=file_argument, help="write a Rerun .rrd file")
+        parser.add_argument("--bind", default=DEFAULT_BIND,
+                            help="address to serve on (default 127.0.0.1: this machine only)")
+        parser.add_argument("--timeout", type=float, default=CONNECT_TIMEOUT, metavar="S",
+                            help=f"seconds a viewer at --connect has to answer and take the recording (default "
+                                 f"{CONNECT_TIMEOUT:g})")
+
+    args, limits = _parse("qchain replay", "Re-log a qchain MCAP recording into Rerun with its original simulation "
+                          "times.", argv, add)
     serve = args.serve or not (args.connect or args.rrd)
 
     try:  # the same checks as qchain run's, before the file is read
@@ -157,12 +160,8 @@ def replay_main(argv: Sequence[str] | None = None) -> int:
 def recover_main(argv: Sequence[str] | None = None) -> int:
     """``qchain recover LOG.mcap``: make a killed run's recording whole from its journal.
     Exit codes: 0 done, 2 nothing to recover, not readable, or not writable."""
-    parser = argparse.ArgumentParser(prog="qchain recover", description="Make the recording of a killed run whole: "
-                                     "the records its journal (LOG.mcap.journal) holds are written into it.")
-    parser.add_argument("log", type=Path, help="the .mcap recording")
-    _add_limits(parser)
-    args = parser.parse_args(argv)
-    limits = _limits(parser, args)
+    args, limits = _parse("qchain recover", "Make the recording of a killed run whole: the records its journal "
+                          "(LOG.mcap.journal) holds are written into it.", argv)
     try:
         before = os.stat(args.log).st_mtime_ns if os.path.exists(args.log) else None
         rec = recover(args.log, limits=limits)
@@ -178,20 +177,13 @@ def recover_main(argv: Sequence[str] | None = None) -> int:
 def layout_main(argv: Sequence[str] | None = None) -> int:
     """``qchain layout LOG.mcap [-o layout.json]``: the Foxglove layout of a recording.
     Exit codes: 0 done, 2 not a readable recording, or an output that cannot be written."""
-    parser = argparse.ArgumentParser(prog="qchain layout", description="Write the Foxglove layout of a recording "
-                                     "(3D arm, frame tree, named plots); import it in Foxglove's layout menu.")
-    parser.add_argument("log", type=Path, help="the .mcap recording")
-    parser.add_argument("-o", "--out", type=file_argument, default=None,
-                        help="output file (default: standard output)")
-    _add_limits(parser)
-    args = parser.parse_args(argv)
-    limits = _limits(parser, args)
+    args, limits = _parse("qchain layout", "Write the Foxglove layout of a recording (3D arm, frame tree, named "
+                          "plots); import it in Foxglove's layout menu.", argv, lambda parser: parser.add_argument(
+                              "-o", "--out", type=file_argument, default=None,
+                              help="output file (default: standard output)"))
     try:
         if args.out is not None:
-            for p in (args.log, journal_path(args.log)):
-                if os.path.abspath(args.out) == os.path.abspath(p) or (
-                        args.out.exists() and p.exists() and os.path.samefile(args.out, p)):
-                    raise LoggingError(f"-o {args.out} is the recording ({p}): it would be overwritten")
+            refuse_recording(args.out, args.log, f"-o {args.out} is the recording")
             if args.out.is_file() and args.out.stat().st_size > 0:
                 with open(args.out, "rb") as fh:
                     head = fh.read(64).lstrip()

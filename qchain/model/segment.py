@@ -35,8 +35,6 @@ Conventions
 
 from __future__ import annotations
 
-import functools
-import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -44,13 +42,15 @@ import pinocchio as pin
 
 from ..checks import bounds as B
 from .arc import SCRATCH, arc_nodes, strain_twist
-from ..errors import (
-    DomainError, NonFiniteError, SingularConfigurationError, as_matrix, as_real, as_real_array, as_vector)
+from ..checks.convert import as_matrix, as_real, as_real_array, as_vector
+from ..errors import DomainError, NonFiniteError, SingularConfigurationError
 from .slices import (
     CHAMBER_ANGLES, domain_violation, elastic_gradient_c, elastic_hessian_c, input_matrix_c, pressure_jacobian_c,
     rest_damping_c, segment_mass, segment_newton_euler)
 from .spatial import _ad_matrix as ad_matrix, _disk_inertia as disk_inertia, _force_cross_bar as force_cross_bar
 from ..checks.frozen import KeepsReadOnly
+from ..checks.arguments import checked
+from ..checks.results import finite_result
 
 __all__ = [
     "Segment",
@@ -82,14 +82,6 @@ COORDS = ("curvature", "paper")
 ACTUATIONS = ("volume", "paper")
 
 
-def _is_finite(x) -> bool:
-    if isinstance(x, pin.SE3):
-        x = x.homogeneous
-    if isinstance(x, float):
-        return math.isfinite(x)
-    return bool(np.isfinite(x).all())
-
-
 def _short(x) -> str:
     try:
         a = np.asarray(x, dtype=float).ravel()
@@ -98,27 +90,21 @@ def _short(x) -> str:
     return "(" + ", ".join(f"{v:.6g}" for v in a[:9]) + (", ..." if a.size > 9 else "") + ")"
 
 
+def _nonfinite(self, method: str, quantity: str, q_e, args, kwargs) -> NonFiniteError:
+    """The error of a :class:`Segment` method whose result is not finite (:func:`_finite`)."""
+    more = "".join(f", {_short(a)}" for a in args)
+    return NonFiniteError(
+        f"Segment.{method}: the {quantity} is not finite at q_e = {_short(q_e)}{more} "
+        f"(segment of length {self.length:g} m, radius {self.radius:g} m, mass {self.mass:g} kg): "
+        "the configuration's or rates' magnitudes overflow double precision"
+    )
+
+
 def _finite(quantity: str):
     """Decorator of a :class:`Segment` method ``(self, q_e, ...)``: a result that is not
     finite raises :class:`~qchain.errors.NonFiniteError` naming the quantity, the method
     and its arguments instead of being returned."""
-
-    def wrap(fn):
-        @functools.wraps(fn)
-        def method(self, q_e, *args, **kwargs):
-            out = fn(self, q_e, *args, **kwargs)
-            if not _is_finite(out):
-                more = "".join(f", {_short(a)}" for a in args)
-                raise NonFiniteError(
-                    f"Segment.{fn.__name__}: the {quantity} is not finite at q_e = {_short(q_e)}{more} "
-                    f"(segment of length {self.length:g} m, radius {self.radius:g} m, mass {self.mass:g} kg): "
-                    "the configuration's or rates' magnitudes overflow double precision"
-                )
-            return out
-
-        return method
-
-    return wrap
+    return finite_result(quantity, _nonfinite)
 
 
 # ---------------------------------------------------------------------------------------
@@ -126,7 +112,10 @@ def _finite(quantity: str):
 
 
 def _paper_to_curvature(q_p: np.ndarray) -> np.ndarray:
-    """``(l, psi, kappa) -> (l, ux, uy) = (l, kappa cos psi, kappa sin psi)`` (docs/model.md section 1)."""
+    """``(l, psi, kappa) -> (l, ux, uy) = (l, kappa cos psi, kappa sin psi)`` (docs/model.md section 1).
+
+    Like every coordinate map of this module, it takes finite real (3,) arrays
+    (``TypeError``/``ValueError`` naming the argument otherwise)."""
     l, psi, kappa = q_p
     return np.array([l, kappa * np.cos(psi), kappa * np.sin(psi)])
 
@@ -191,71 +180,19 @@ def _paper_velocity_to_curvature(q_p: np.ndarray, qd_p: np.ndarray) -> np.ndarra
     return _paper_jacobian(q_p) @ qd_p
 
 
-def _curvature_velocity_to_paper(q_c: np.ndarray, qd_c: np.ndarray) -> np.ndarray:
-    """Inverse of :func:`paper_velocity_to_curvature`; needs ``kappa > 0``.
-
-    Raises
-    ------
-    SingularConfigurationError
-        where ``kappa`` is zero (``psidot`` is undefined there).
-    """
-    if not q_c[1] * q_c[1] + q_c[2] * q_c[2] > 0.0:  # kappa = 0, or so small that kappa^2 underflows
-        raise SingularConfigurationError(
-            "curvature_velocity_to_paper: kappa = 0, psidot is undefined in the paper's "
-            "(l, psi, kappa) coordinates; use coords='curvature'"
-        )
-    l, ux, uy = q_c
-    _, uxd, uyd = qd_c
-    k2 = ux * ux + uy * uy
-    return np.array([qd_c[0], (ux * uyd - uy * uxd) / k2, (ux * uxd + uy * uyd) / np.sqrt(k2)])
-
-
 def _q3(name: str, x) -> np.ndarray:
     """A finite real (3,) array named ``name`` in errors."""
     return as_vector(name, x, 3)
 
 
-def paper_to_curvature(q_p) -> np.ndarray:
-    """``(l, psi, kappa) -> (l, ux, uy) = (l, kappa cos psi, kappa sin psi)`` (docs/model.md section 1).
-
-    Like every coordinate map of this module, it takes finite real (3,) arrays
-    (``TypeError``/``ValueError`` naming the argument otherwise)."""
-    return _paper_to_curvature(_q3("q_p", q_p))
-
-
-def curvature_to_paper(q_c) -> np.ndarray:
-    """``(l, ux, uy) -> (l, psi, kappa)`` with ``psi = atan2(uy, ux)`` in (-pi, pi].
-
-    At ``ux = uy = 0`` the azimuth is undefined; ``psi = 0`` is returned.
-    """
-    return _curvature_to_paper(_q3("q_c", q_c))
-
-
-def paper_jacobian(q_p) -> np.ndarray:
-    """``J = d(l, ux, uy) / d(l, psi, kappa)``, shape (3, 3); ``det J = -kappa``, which is why
-    the paper's coordinates are singular at ``kappa = 0`` (docs/model.md section 1)."""
-    return _paper_jacobian(_q3("q_p", q_p))
-
-
-def paper_jacobian_dot(q_p, qd_p) -> np.ndarray:
-    """Time derivative of :func:`paper_jacobian` along ``qd_p``, shape (3, 3)."""
-    return _paper_jacobian_dot(_q3("q_p", q_p), _q3("qd_p", qd_p))
-
-
-def paper_jacobian_derivative(q_p) -> np.ndarray:
-    """``dJ[c] = d paper_jacobian / d q_p[c]`` (3, 3, 3), ``c`` over ``(l, psi, kappa)``."""
-    return _paper_jacobian_derivative(_q3("q_p", q_p))
-
-
-def paper_bias_derivative(q_p, qd_p) -> np.ndarray:
-    """``d(Jdot qd_p)/d q_p`` (3, 3) at fixed ``qd_p``: the configuration derivative of the
-    velocity-product term of ``qdd_c = J qdd_p + Jdot qd_p``."""
-    return _paper_bias_derivative(_q3("q_p", q_p), _q3("qd_p", qd_p))
-
-
-def paper_velocity_to_curvature(q_p, qd_p) -> np.ndarray:
-    """``(ldot, psidot, kappadot) -> (ldot, uxdot, uydot) = J qd_p``."""
-    return _paper_velocity_to_curvature(_q3("q_p", q_p), _q3("qd_p", qd_p))
+# the checked entry points: finite real (3,) arrays, TypeError/ValueError naming the argument
+paper_to_curvature = checked(_paper_to_curvature, q_p=_q3)
+curvature_to_paper = checked(_curvature_to_paper, q_c=_q3)
+paper_jacobian = checked(_paper_jacobian, q_p=_q3)
+paper_jacobian_dot = checked(_paper_jacobian_dot, q_p=_q3, qd_p=_q3)
+paper_jacobian_derivative = checked(_paper_jacobian_derivative, q_p=_q3)
+paper_bias_derivative = checked(_paper_bias_derivative, q_p=_q3, qd_p=_q3)
+paper_velocity_to_curvature = checked(_paper_velocity_to_curvature, q_p=_q3, qd_p=_q3)
 
 
 def curvature_velocity_to_paper(q_c, qd_c) -> np.ndarray:
@@ -267,7 +204,14 @@ def curvature_velocity_to_paper(q_c, qd_c) -> np.ndarray:
         where ``kappa`` is zero, or so small that ``kappa^2`` underflows (``psidot`` is
         undefined there).
     """
-    out = _curvature_velocity_to_paper(_q3("q_c", q_c), _q3("qd_c", qd_c))
+    (_, ux, uy), (ldot, uxd, uyd) = _q3("q_c", q_c), _q3("qd_c", qd_c)
+    k2 = ux * ux + uy * uy
+    if not k2 > 0.0:  # kappa = 0, or so small that kappa^2 underflows
+        raise SingularConfigurationError(
+            "curvature_velocity_to_paper: kappa = 0, psidot is undefined in the paper's "
+            "(l, psi, kappa) coordinates; use coords='curvature'"
+        )
+    out = np.array([ldot, (ux * uyd - uy * uxd) / k2, (ux * uxd + uy * uyd) / np.sqrt(k2)])
     if not np.all(np.isfinite(out)):
         raise NonFiniteError(f"curvature_velocity_to_paper: the paper rates overflow at q_c = {_short(q_c)}, "
                              f"qd_c = {_short(qd_c)}")
@@ -383,18 +327,15 @@ class Segment(KeepsReadOnly):
             raise ValueError(f"actuation must be one of {ACTUATIONS}, got {self.actuation!r}")
         n = DEFAULT_NODES if self.nodes is None else B.NODES.check("nodes", self.nodes)
         s(self, "node_count", int(n))
-        if self.stiffness_matrix is not None:
-            K = np.array(as_matrix("stiffness_matrix", self.stiffness_matrix, (3, 3)))  # a copy of its own
-            if not np.allclose(K, K.T, rtol=1e-12, atol=0.0):
-                raise ValueError("stiffness_matrix must be symmetric")
-            s(self, "stiffness_matrix", K)
-        if self.damping_matrix is not None:
-            D = np.array(as_matrix("damping_matrix", self.damping_matrix, (3, 3)))
-            if not np.allclose(D, D.T, rtol=1e-12, atol=0.0):
-                raise ValueError("damping_matrix must be symmetric")
-            if np.linalg.eigvalsh(D).min() < -1e-12 * max(1.0, np.abs(D).max()):
+        for name in ("stiffness_matrix", "damping_matrix"):
+            if getattr(self, name) is None:
+                continue
+            X = np.array(as_matrix(name, getattr(self, name), (3, 3)))  # a copy of its own
+            if not np.allclose(X, X.T, rtol=1e-12, atol=0.0):
+                raise ValueError(f"{name} must be symmetric")
+            if name == "damping_matrix" and np.linalg.eigvalsh(X).min() < -1e-12 * max(1.0, np.abs(X).max()):
                 raise ValueError("damping_matrix must be positive semi-definite")
-            s(self, "damping_matrix", D)
+            s(self, name, X)
         if self.rest_q_e is not None:  # a configuration of this segment: inside its domain
             s(self, "rest_q_e", self.check_configuration(self.rest_q_e, name="rest_q_e"))
         s(self, "bending_stiffness", self.youngs_modulus * np.pi * self.radius**4 / 4.0)
@@ -445,8 +386,7 @@ class Segment(KeepsReadOnly):
 
     def to_curvature(self, q_e) -> np.ndarray:
         """The configuration in curvature coordinates ``(l, ux, uy)`` (3,)."""
-        q = self.check_configuration(q_e)
-        return _paper_to_curvature(q) if self.coords == "paper" else q
+        return self._curvature(q_e)[0]
 
     def from_curvature(self, q_c) -> np.ndarray:
         """A curvature-coordinate configuration in the segment's coordinates (3,)."""
@@ -455,8 +395,7 @@ class Segment(KeepsReadOnly):
 
     def coordinate_jacobian(self, q_e) -> np.ndarray:
         """``d q_c / d q_e`` (3, 3): identity in curvature coordinates, :func:`paper_jacobian` else."""
-        q = self.check_configuration(q_e)
-        return _paper_jacobian(q) if self.coords == "paper" else np.eye(3)
+        return self._curvature(q_e)[1]
 
     def _curvature(self, q_e, nonsingular: bool = False):
         """``(q_c, J)``: the configuration in curvature coordinates and ``J = dq_c/dq_e``.

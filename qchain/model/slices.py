@@ -25,8 +25,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .arc import SCRATCH, arc_node, jit, jit_helper, take1, take2, take3
-from .arc_derivatives import arc_node_derivatives
+from .arc import SCRATCH, arc_node, arc_node_derivatives, jit, jit_helper, take1, take2, take3
 
 __all__ = ["CHAMBER_ANGLES", "input_matrix_c", "pressure_jacobian_c", "elastic_gradient_c", "elastic_hessian_c",
            "rest_damping_c", "domain_violation", "segment_slices", "segment_mass", "segment_newton_euler", "phi_transpose_force", "phi_matrix", "slice_twist"]

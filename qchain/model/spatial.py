@@ -7,16 +7,18 @@ numpy call; ``tests/test_spatial.py`` holds each of them equal to Pinocchio's ow
 ``Motion.action``, ``Motion.cross``, ``SE3.action`` and ``Inertia.matrix``.
 
 Every public function checks its arguments where they enter (real, finite, the trailing
-dimension it needs; :func:`qchain.errors.as_batch`) and raises ``TypeError``/``ValueError``
-naming the argument; the model's own passes call the unchecked ``_``-prefixed twins on
-values they have already validated.
+dimension it needs; :func:`qchain.checks.convert.as_batch`) and raises ``TypeError``/``ValueError``
+naming the argument (:func:`qchain.checks.arguments.checked` makes each from its kernel); the
+model's own passes call the unchecked ``_``-prefixed kernels on values they have already
+validated.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from ..errors import as_batch, as_real
+from ..checks.arguments import checked
+from ..checks.convert import as_batch, as_real
 
 __all__ = [
     "skew",
@@ -146,56 +148,24 @@ def _quaternion_to_rotation(quat: np.ndarray) -> np.ndarray:
 # ----------------------------------------------------------------------------- checked entry points
 
 
-def skew(w) -> np.ndarray:
-    """Cross-product matrices ``[w x]``, shape ``(..., 3)`` -> ``(..., 3, 3)``."""
-    return _skew(as_batch("w", w, 3))
+def _batch(size: int):
+    """A converter of arrays ``(..., size)`` for :func:`~qchain.checks.arguments.checked`."""
+    return lambda name, x: as_batch(name, x, size)
 
 
-def motion_cross(a, b) -> np.ndarray:
-    """Motion cross product ``a x b = ad(a) b`` (Pinocchio ``Motion.cross(Motion)``).
-
-    ``a = (v, w)``, ``b = (u, x)``: ``a x b = (w x u + v x x, w x x)``; shapes ``(..., 6)``.
-    """
-    a, b = as_batch("a", a, 6), as_batch("b", b, 6)
-    _broadcast("a", a, "b", b)
-    return _motion_cross(a, b)
+def _broadcasting(na: str, nb: str):
+    """A joint check that two batches' shapes broadcast together."""
+    return lambda a, b: _broadcast(na, a, nb, b)
 
 
-def force_cross(a, h) -> np.ndarray:
-    """Force cross product ``a x* h = -ad(a)^T h`` (Pinocchio ``Motion.cross(Force)``).
-
-    ``a = (v, w)``, ``h = (f, n)``: ``a x* h = (w x f, v x f + w x n)``; shapes ``(..., 6)``.
-    """
-    a, h = as_batch("a", a, 6), as_batch("h", h, 6)
-    _broadcast("a", a, "h", h)
-    return _force_cross(a, h)
+skew = checked(_skew, w=_batch(3))
+motion_cross = checked(_motion_cross, a=_batch(6), b=_batch(6), joint=_broadcasting("a", "b"))
+force_cross = checked(_force_cross, a=_batch(6), h=_batch(6), joint=_broadcasting("a", "h"))
+ad_matrix = checked(_ad_matrix, a=_batch(6))
+force_cross_bar = checked(_force_cross_bar, h=_batch(6))
+inv_adjoint = checked(_inv_adjoint, R=_batch(3), p=_batch(3), joint=lambda R, p: _pose_shapes(R, p))
 
 
-def ad_matrix(a) -> np.ndarray:
-    """Matrix of ``b -> a x b``: ``[[w^, v^], [0, w^]]``, ``(..., 6)`` -> ``(..., 6, 6)``."""
-    return _ad_matrix(as_batch("a", a, 6))
-
-
-def force_cross_bar(h) -> np.ndarray:
-    """Matrix of ``a -> a x* h`` for a fixed force ``h = (f, n)``: ``[[0, -f^], [-f^, -n^]]``.
-
-    It is skew-symmetric, which is what makes ``C_xi + C_xi^T = dM_xi/dt`` hold for
-    the Coriolis factorisation in :mod:`qchain.model.segment`. Shape ``(..., 6)`` -> ``(..., 6, 6)``.
-    """
-    return _force_cross_bar(as_batch("h", h, 6))
-
-
-def inv_adjoint(R, p) -> np.ndarray:
-    """``Ad(g)^-1`` for ``g = (R, p)``: maps a twist in g's parent frame to g's frame.
-
-    ``[[R^T, -R^T p^], [0, R^T]]`` (Pinocchio ``SE3.inverse().action``);
-    ``R`` of shape ``(..., 3, 3)``, ``p`` of shape ``(..., 3)`` -> ``(..., 6, 6)``.
-    """
-    R, p = as_batch("R", R, 3), as_batch("p", p, 3)
-    if R.ndim < 2 or R.shape[-2] != 3 or R.shape[:-2] != p.shape[:-1]:
-        raise ValueError(f"inv_adjoint: R must have shape (..., 3, 3) and p (..., 3) with the same leading shape, got "
-                         f"R {R.shape} and p {p.shape}")
-    return _inv_adjoint(R, p)
 
 
 def quaternion_to_rotation(quat) -> np.ndarray:
@@ -215,3 +185,9 @@ def _broadcast(na: str, a: np.ndarray, nb: str, b: np.ndarray) -> None:
         np.broadcast_shapes(a.shape, b.shape)
     except ValueError:
         raise ValueError(f"{na} and {nb} must have shapes that broadcast, got {a.shape} and {b.shape}") from None
+
+
+def _pose_shapes(R: np.ndarray, p: np.ndarray) -> None:
+    if R.ndim < 2 or R.shape[-2] != 3 or R.shape[:-2] != p.shape[:-1]:
+        raise ValueError(f"inv_adjoint: R must have shape (..., 3, 3) and p (..., 3) with the same leading shape, got "
+                         f"R {R.shape} and p {p.shape}")

@@ -7,7 +7,7 @@ A recording may come from anywhere, so everything that reads one (:func:`read_re
   folder is refused before anything waits on it) and reads exactly the size it had, or
   reads a binary stream up to :attr:`ReadLimits.max_stream_bytes`; anything else is a
   ``TypeError`` naming the argument.
-* :class:`Budget` counts the bytes a reading processes (decompressed chunk data, records
+* :class:`ReadBudget` counts the bytes a reading processes (decompressed chunk data, records
   parsed, bytes examined while resynchronising after damage) and the records inside chunks,
   against limits proportional to the file's size: a file cannot make its reader do much
   more than read it. :func:`decompress` never produces more than the budget allows, whatever
@@ -27,11 +27,12 @@ import os
 import stat
 from dataclasses import dataclass
 
-from .records import RecordingFormatError
+from ..checks.paths import file_kind
+from ..errors import LimitExceeded, RecordingFormatError
 
 _MAGIC = b"\x89MCAP0\r\n"
 
-__all__ = ["ReadLimits", "DEFAULT_LIMITS", "Budget", "LimitExceeded", "open_source", "open_regular", "decompress",
+__all__ = ["ReadLimits", "DEFAULT_LIMITS", "ReadBudget", "LimitExceeded", "open_source", "open_regular", "decompress",
            "loads", "depth"]
 
 
@@ -91,19 +92,11 @@ class ReadLimits:
 DEFAULT_LIMITS = ReadLimits()
 
 
-class LimitExceeded(RecordingFormatError):
-    """A reading limit exceeded at byte ``offset`` (the reader prefixes the file's name)."""
-
-    def __init__(self, message: str, offset: int):
-        super().__init__(message)
-        self.offset = offset
-
-
 def _mib(n: float) -> str:
     return f"{n / (1 << 20):.4g} MiB"
 
 
-class Budget:
+class ReadBudget:
     """Bytes processed and records parsed while reading one file of ``size`` bytes."""
 
     def __init__(self, size: int, limits: ReadLimits = DEFAULT_LIMITS):
@@ -151,15 +144,6 @@ class Budget:
 # --------------------------------------------------------------------------------------
 
 
-def _kind(mode: int) -> str:
-    for test, word in ((stat.S_ISDIR, "a folder"), (stat.S_ISFIFO, "a FIFO (named pipe)"),
-                       (stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device"),
-                       (stat.S_ISSOCK, "a socket")):
-        if test(mode):
-            return word
-    return "not a regular file"
-
-
 def open_regular(path: str) -> int:
     """A read-only file descriptor of the regular file ``path``.
 
@@ -184,11 +168,11 @@ def open_regular(path: str) -> int:
     except ValueError as exc:  # a NUL byte in the path
         raise RecordingFormatError(f"{path!r}: not a usable path ({exc})") from None
     if fd < 0:
-        raise RecordingFormatError(f"{path}: {_kind(mode)}, not a recording file: refused")
+        raise RecordingFormatError(f"{path}: {file_kind(mode, detailed=True)}, not a recording file: refused")
     try:
         st = os.fstat(fd)
         if not stat.S_ISREG(st.st_mode):
-            raise RecordingFormatError(f"{path}: {_kind(st.st_mode)}, not a recording file: refused")
+            raise RecordingFormatError(f"{path}: {file_kind(st.st_mode, detailed=True)}, not a recording file: refused")
     except BaseException:
         os.close(fd)
         raise
@@ -301,7 +285,7 @@ def open_source(source, argument: str, function: str, limits: ReadLimits = DEFAU
 # --------------------------------------------------------------------------------------
 
 
-def decompress(compression: str, data: bytes, declared: int, budget: Budget | None, offset: int):
+def decompress(compression: str, data: bytes, declared: int, budget: ReadBudget | None, offset: int):
     """The chunk data ``data`` decompressed (bytes or bytearray), never more than the budget
     allows, whatever size the chunk declares or the data's own headers say.
 

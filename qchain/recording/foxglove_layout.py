@@ -35,17 +35,14 @@ def foxglove_layout(info: RunInfo, nq: int, nv: int, n_p: int):
     n = info.n_segments
     qn = info.names("q", nq)
     s0 = max(0, nq - 3 * n)
-    q_tabs = []
-    if s0:
-        q_tabs.append(fl.TabItem(title="base", content=_plot(fl, "base coordinates",
-                                                             [(f"{st}.q[{i}]", qn[i]) for i in range(s0)])))
-    for i in range(n):
-        idx = range(s0 + 3 * i, min(s0 + 3 * i + 3, nq))
-        q_tabs.append(fl.TabItem(title=f"segment {i + 1}", content=_plot(
-            fl, f"segment {i + 1} coordinates", [(f"{st}.q[{j}]", qn[j]) for j in idx])))
-    vn = info.names("v", nv)
-    q_tabs.append(fl.TabItem(title="velocities", content=_plot(fl, "velocities",
-                                                               [(f"{st}.v[{j}]", vn[j]) for j in range(nv)])))
+
+    def tab(title: str, what: str, key: str, names: list[str], idx):
+        return fl.TabItem(title=title, content=_plot(fl, what, [(f"{st}.{key}[{j}]", names[j]) for j in idx]))
+
+    q_tabs = [tab("base", "base coordinates", "q", qn, range(s0))] if s0 else []
+    q_tabs += [tab(f"segment {i + 1}", f"segment {i + 1} coordinates", "q", qn,
+                   range(s0 + 3 * i, min(s0 + 3 * i + 3, nq))) for i in range(n)]
+    q_tabs.append(tab("velocities", "velocities", "v", info.names("v", nv), range(nv)))
     pn = info.names("p", n_p)
     pressures = _plot(fl, "chamber pressures [Pa]", [(f"{st}.p[{j}]", pn[j]) for j in range(n_p)])
     energy = _plot(fl, "energy [J]", [(f"{st}.{k}", f"{k} [J]") for k in ("kinetic", "potential", "total")])

@@ -23,13 +23,14 @@ import os
 import stat
 import struct
 import zlib
+from contextlib import suppress
 from pathlib import Path
 
 import numpy as np
 from mcap.records import Channel, Message
 from mcap.writer import CompressionType, IndexType, Writer
 
-from .bounded import Budget, ReadLimits, loads, open_regular
+from .bounded import ReadBudget, ReadLimits, loads, open_regular
 from .records import LoggingError, RecordingFormatError, RecordLayout, ns, seal, unseal
 from .scan import MAGIC, scan
 
@@ -77,13 +78,11 @@ def journal_owner(path: str | os.PathLike) -> int | None:
         except OSError as exc:
             if exc.errno not in (errno.EWOULDBLOCK, errno.EAGAIN):
                 raise
-            try:
+            with suppress(OSError, ValueError):
                 head = os.pread(fd, 1 << 16, 0)
-                for item in scan(head, final=False, budget=Budget(len(head))):
+                for item in scan(head, final=False, budget=ReadBudget(len(head))):
                     if item.kind == "metadata" and item.record.name == "qchain.journal":
                         return int(item.record.metadata.get("pid", "0"))
-            except (OSError, ValueError):
-                pass
             return 0
         fcntl.flock(fd, fcntl.LOCK_UN)
         return None
@@ -186,14 +185,10 @@ class JournalWriter:
     def release(self, remove: bool) -> None:
         """Close the file (the lock goes with it); ``remove`` deletes it first."""
         if remove:
-            try:
+            with suppress(FileNotFoundError):
                 self.path.unlink()
-            except FileNotFoundError:
-                pass
-        try:
+        with suppress(OSError):
             self._fh.close()
-        except OSError:
-            pass
 
 
 class JournalReader:
@@ -232,7 +227,7 @@ class JournalReader:
             raise RecordingFormatError(f"{self.path}: the journal is {size} bytes, more than the "
                                        f"{limits.max_file_bytes} bytes a recording may have "
                                        "(ReadLimits.max_file_bytes allows more): refused")
-        self._budget = None if limits is None else Budget(size, limits)
+        self._budget = None if limits is None else ReadBudget(size, limits)
         self._buf = bytearray()
         self._base = 0  # file offset of _buf[0]
         self._pos = len(MAGIC)  # next record's offset in the file

@@ -22,6 +22,7 @@ import time
 import uuid
 import warnings
 import weakref
+from contextlib import suppress
 from pathlib import Path
 from typing import BinaryIO
 
@@ -40,7 +41,7 @@ from .records import (
     StepRecord,
     default_base,
 )
-from .rerun_sink import CONNECT_TIMEOUT, DEFAULT_BIND
+from .rerun_sink import CONNECT_TIMEOUT, DEFAULT_BIND, _reap
 from .writer import DEFAULT_RERUN_LATENCY, TEARDOWN_LIMIT, WRITER_POLL, ThreadWriter, launch, take_spare
 
 __all__ = ["RunLogger", "DEFAULT_MAX_QUEUE", "WRITER_SILENCE"]
@@ -50,18 +51,15 @@ DEFAULT_MAX_QUEUE = 4096
 #: s without a word from the writer process (it says it is alive every second while it
 #: finishes) after which the recording is finished here from the journal instead.
 WRITER_SILENCE = 30.0
-_F8 = np.dtype(np.float64)
 _COLUMNS = ("step", "q", "v", "p", "kinetic", "potential", "total", "backbone", "tip_frames")
 _OPEN: weakref.WeakSet = weakref.WeakSet()
 
 
 def _close_open_loggers() -> None:  # pragma: no cover - interpreter shutdown
     for lg in list(_OPEN):
-        try:
+        with suppress(Exception):
             lg.linger = False
             lg.close(success=False, status=-1, message="the process exited without closing its log")
-        except Exception:
-            pass
 
 
 import atexit  # noqa: E402
@@ -208,7 +206,6 @@ class RunLogger:
         self._buf_t0 = 0.0
         self._buf_wall = 0.0
         self._tmpdir: str | None = None
-        self._inbox: list = []  # the writer's messages taken while looking for another
         self.viewer_timeout = float(viewer_timeout)
         cfg = {
             "info": info.to_json(), "mcap": None if mcap_path is None else str(mcap_path), "serve": bool(serve),
@@ -222,8 +219,7 @@ class RunLogger:
             warn = lambda m: warnings.warn(f"qchain.logging: {m}", LoggingWarning, stacklevel=2)  # noqa: E731
             self._thread = ThreadWriter(cfg, stream, warn, max_queue)
             self.viewer_url = self._thread.sinks.viewer_url
-            rr = self._thread.sinks.rerun
-            self.grpc_url = rr.grpc_url if rr is not None else None
+            self.grpc_url = getattr(self._thread.sinks.rerun, "grpc_url", None)
         else:
             # (a viewer at connect has viewer_timeout to answer before the writer is ready)
             self._start_process(cfg, startup_timeout + (float(viewer_timeout) if connect else 0.0),
@@ -246,14 +242,10 @@ class RunLogger:
         try:
             self._journal = JournalWriter(jp, info_metadata(self.info, self.recording_id),
                                           None if self.mcap_path is None else str(self.mcap_path))
-        except LoggingError:
-            raise
         except (OSError, ValueError) as exc:  # nothing is left behind: a journal made here is removed
             if not existed:
-                try:
+                with suppress(OSError):
                     os.unlink(jp)
-                except OSError:
-                    pass
             if self._tmpdir is not None:
                 shutil.rmtree(self._tmpdir, ignore_errors=True)
             why = exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc)
@@ -276,8 +268,6 @@ class RunLogger:
     def _recv(self, timeout: float, idle: float | None = None):
         """The writer's next message (its warnings warned on the way), or None: ``timeout``
         s in all, ``idle`` s without a word from it (signs of life count), or it is gone."""
-        if self._inbox:
-            return self._inbox.pop(0)
         start = last = time.monotonic()
         while True:
             now = time.monotonic()
@@ -295,13 +285,11 @@ class RunLogger:
                 return None
             now = time.monotonic()
             if self._proc.poll() is not None or now >= start + timeout or (idle is not None and now >= last + idle):
-                try:
+                with suppress(EOFError, OSError):
                     while self._conn.poll(0):
                         msg = self._conn.recv()
                         if not self._absorb(msg):
                             return msg
-                except (EOFError, OSError):
-                    pass
                 return None
 
     def _take_ready(self, timeout: float, starting: bool = False) -> None:
@@ -377,9 +365,8 @@ class RunLogger:
         """
         if self._closed:
             raise LoggingError("log() on a closed RunLogger")
-        lay = self._layout
-        if lay is None:
-            lay = self._init_layout(record)
+        if self._layout is None:
+            self._init_layout(record)
         t = record.t
         if not (t >= 0.0 and t < math.inf):
             raise ValueError(f"record.t must be finite and >= 0 s, got {t!r} at step {record.step}")
@@ -614,20 +601,17 @@ class RunLogger:
             "error": self._broken,
             "warning": self._notice,
         }
-        if self._broken is not None:
-            warnings.warn(f"qchain.logging: {self._broken}", LoggingWarning, stacklevel=2)
-        elif self._notice is not None:
-            warnings.warn(f"qchain.logging: {self._notice}", LoggingWarning, stacklevel=2)
+        said = self._broken if self._broken is not None else self._notice
+        if said is not None:
+            warnings.warn(f"qchain.logging: {said}", LoggingWarning, stacklevel=2)
         return self._final
 
     def _wait_while_serving(self, alive) -> None:
         print(f"qchain: the run is over; still serving the viewer at {self.viewer_url} - press Ctrl-C to stop",
               file=sys.stderr, flush=True)
-        try:
+        with suppress(KeyboardInterrupt):
             while alive():
                 time.sleep(0.5)
-        except KeyboardInterrupt:
-            pass
 
     def _close_process(self, outcome: dict) -> dict:
         from .mcap_sink import outcome_entries
@@ -713,11 +697,9 @@ class RunLogger:
         (then ``_broken`` says why)."""
         if self.mcap_path is None or not self.journal_path.exists():
             return {}
-        try:
+        with suppress(OSError, subprocess.TimeoutExpired):
             self._proc.kill()
             self._proc.wait(10)
-        except (OSError, subprocess.TimeoutExpired):
-            pass
         from .mcap_sink import McapSink
 
         try:
@@ -746,29 +728,11 @@ class RunLogger:
     def __exit__(self, exc_type, exc, tb) -> None:
         if exc_type is None:
             self.close()
-        elif issubclass(exc_type, KeyboardInterrupt):
-            self.linger = False
-            self.close(success=False, status=-1, message=self._interrupted_message())
+            return
+        self.linger = False
+        if issubclass(exc_type, KeyboardInterrupt):
+            last = float(self._buf[-1][0]) if self._buf else self.last_t
+            message = "interrupted (KeyboardInterrupt)" + ("" if last is None else f" at t = {last:.6g} s")
         else:
-            self.linger = False
-            self.close(success=False, status=-1, message=f"the simulation raised {exc_type.__name__}: {exc}")
-
-    def _interrupted_message(self) -> str:
-        where = "" if self.last_t is None and not self._buf else f" at t = {self._last_time():.6g} s"
-        return f"interrupted (KeyboardInterrupt){where}"
-
-    def _last_time(self) -> float:
-        if self._buf:
-            return float(self._buf[-1][0])
-        return float(self.last_t)
-
-
-def _reap(proc: subprocess.Popen, kill_after: float | None = 30.0) -> None:
-    """Wait for the writer's exit (it ends on its own, within its deadlines); kill it after
-    ``kill_after`` s (None: a writer left to finish a recording is not cut short)."""
-    try:
-        proc.wait(kill_after)
-    except subprocess.TimeoutExpired:
-        proc.kill()
-        proc.wait()
-
+            message = f"the simulation raised {exc_type.__name__}: {exc}"
+        self.close(success=False, status=-1, message=message)

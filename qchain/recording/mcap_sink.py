@@ -33,6 +33,7 @@ import datetime as _dt
 import json
 import os
 import time
+from contextlib import suppress
 from typing import BinaryIO
 
 import numpy as np
@@ -147,14 +148,9 @@ class McapSink:
         self._dumps = orjson.dumps
         self._opt = orjson.OPT_SERIALIZE_NUMPY
         self.info = info
-        if isinstance(out, (str, os.PathLike)):
-            self.path: str | None = os.fspath(out)
-            self._stream = open(self.path, "wb")
-            self._owns = True
-        else:
-            self.path = None
-            self._stream = out
-            self._owns = False
+        self._owns = isinstance(out, (str, os.PathLike))  # a file this sink opens (and closes)
+        self.path: str | None = os.fspath(out) if self._owns else None
+        self._stream = open(self.path, "wb") if self._owns else out
         # chunks are cut here, at step boundaries (flush), never by size inside a step
         self._w = Writer(self._stream, chunk_size=1 << 40, compression=CompressionType.ZSTD)
         self._w.start(profile="", library=f"qchain {info.qchain_version}")
@@ -180,7 +176,6 @@ class McapSink:
         self._static = None
         self.n_records = 0
         self.last_t: float | None = None
-        self.last_step: int | None = None
         self.finished = False
 
     def _statics(self, n: int):
@@ -250,7 +245,7 @@ class McapSink:
                 last_flush_t = t
         self._last_flush_t = last_flush_t
         self.n_records += K
-        self.last_t, self.last_step = ts[-1], steps[-1]
+        self.last_t = ts[-1]
         self.tick()
 
     def tick(self) -> None:
@@ -276,10 +271,8 @@ class McapSink:
     def abandon(self) -> None:
         """Close a file this sink opened without finishing it (its chunks stay readable)."""
         if self._owns and not self._stream.closed:
-            try:
+            with suppress(OSError):
                 self._stream.close()
-            except OSError:
-                pass
 
 
 def outcome_entries(outcome: dict, n_records: int, last_t: float | None) -> dict[str, str]:

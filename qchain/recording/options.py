@@ -8,6 +8,7 @@ import shutil
 import tempfile
 from pathlib import Path
 
+from ..checks.paths import has_nul, show_nul
 from .journal import journal_owner, journal_path
 from .records import LoggingError
 from .scan import MAGIC
@@ -35,7 +36,7 @@ def _shown(path: str, limit: int = 120) -> str:
     return text if len(text) <= limit else f"{text[:limit - 30]}...{text[-27:]}"
 
 
-def _limits(folder: Path) -> tuple[int, int]:
+def fs_limits(folder: Path) -> tuple[int, int]:
     """NAME_MAX and PATH_MAX (bytes) of the file system of ``folder`` or its nearest
     existing parent (255 and 4096 where it does not say)."""
     for p in [folder, *folder.parents]:
@@ -59,18 +60,16 @@ def check_output_name(what: str, path: str | os.PathLike, suffix: str = "") -> P
     LoggingError
         naming ``what``, the path and the limit.
     """
-    text = os.fspath(path)
-    if isinstance(text, bytes):
-        text = os.fsdecode(text)
-    if "\0" in text:
-        raise LoggingError(f"{what} path {_shown(text.replace(chr(0), '?'))} contains a NUL character")
+    text = os.fsdecode(path)
+    if has_nul(text):
+        raise LoggingError(f"{what} path {_shown(show_nul(text, '?'))} contains a NUL character")
     try:
         text.encode("utf-8")
     except UnicodeEncodeError:
         raise LoggingError(f"{what} path {_shown(text)} is not UTF-8 text (a recording stores its path as UTF-8): "
                            "choose a name of UTF-8 characters") from None
     p = Path(text)
-    name_max, path_max = _limits(Path(os.path.abspath(p)).parent)
+    name_max, path_max = fs_limits(Path(os.path.abspath(p)).parent)
     for part in p.parent.parts:
         size = len(os.fsencode(part))
         if size > name_max:
@@ -94,6 +93,15 @@ def _same(a: Path, b: Path) -> bool:
         return a.exists() and b.exists() and os.path.samefile(a, b)
     except OSError:
         return False
+
+
+def refuse_recording(out: str | os.PathLike, recording: str | os.PathLike, what: str) -> None:
+    """Refuse an output path that is the recording ``recording`` or its journal: a
+    :class:`LoggingError` ``WHAT (PATH): it would be overwritten``."""
+    for p in (Path(recording), journal_path(recording)):
+        if os.path.abspath(out) == os.path.abspath(p) or (Path(out).exists() and p.exists()
+                                                           and os.path.samefile(out, p)):
+            raise LoggingError(f"{what} ({p}): it would be overwritten")
 
 
 def check_outputs(mcap: str | os.PathLike | None, rrd: str | os.PathLike | None = None,
@@ -123,7 +131,6 @@ def check_outputs(mcap: str | os.PathLike | None, rrd: str | os.PathLike | None 
 
 
 def _check_output(name: str, p: Path, scene_path, min_free: int) -> list[str]:
-    notices: list[str] = []
     if p.name.endswith(JOURNAL_SUFFIX):  # a journal's name: another run's would be taken for it
         raise LoggingError(f"{name} path {p} ends in {JOURNAL_SUFFIX!r}, the name of a recording's journal: choose "
                            "another name")
@@ -159,19 +166,15 @@ def _check_output(name: str, p: Path, scene_path, min_free: int) -> list[str]:
             if os.path.lexists(j):
                 raise LoggingError(f"{j} holds the records of a run that was killed while writing {q}: "
                                    f"`qchain recover {q}` makes that recording whole (or remove the journal)")
-        if p.exists() and p.stat().st_size > 0:
-            with open(p, "rb") as fh:
-                head = fh.read(len(MAGIC))
-            if head != MAGIC:
-                raise LoggingError(f"{p} exists and is not an MCAP recording; refusing to overwrite it")
-            notices.append(f"replacing the earlier recording {p}")
-    elif p.exists() and p.stat().st_size > 0:
+    magic, kind, earlier = (MAGIC, "an MCAP recording", "recording") if name == "mcap" else \
+        (RRD_MAGIC, "a Rerun .rrd file", ".rrd file")
+    if p.exists() and p.stat().st_size > 0:
         with open(p, "rb") as fh:
-            head = fh.read(len(RRD_MAGIC))
-        if head != RRD_MAGIC:  # a recording, a scene, notes: not the user's to lose to a typo
-            raise LoggingError(f"{p} exists and is not a Rerun .rrd file; refusing to overwrite it")
-        notices.append(f"replacing the earlier .rrd file {p}")
-    return notices
+            head = fh.read(len(magic))
+        if head != magic:  # a recording, a scene, notes: not the user's to lose to a typo
+            raise LoggingError(f"{p} exists and is not {kind}; refusing to overwrite it")
+        return [f"replacing the earlier {earlier} {p}"]
+    return []
 
 
 def default_mcap_path(scene_path: str | os.PathLike | None = None, runs_dir: str | os.PathLike = "runs",

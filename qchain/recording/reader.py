@@ -28,9 +28,9 @@ from typing import BinaryIO
 import numpy as np
 from mcap.records import Channel, Message
 
-from ..errors import as_bool
+from ..checks.convert import as_bool
 from ..sim.trajectory import Trajectory
-from .bounded import DEFAULT_LIMITS, Budget, LimitExceeded, ReadLimits, loads, open_source
+from .bounded import DEFAULT_LIMITS, LimitExceeded, ReadBudget, ReadLimits, loads, open_source
 from .journal import JournalReader, journal_owner, journal_path
 from .records import (
     FORMAT_NAME,
@@ -40,15 +40,14 @@ from .records import (
     LoggingError,
     RecordingFormatError,
     T_MAX,
+    RecordLayout,
     RunInfo,
     unseal,
 )
 from .scan import MAGIC, scan, summary_records
+from .states import STEP_MAX, _decode_states, _series_max
 
 __all__ = ["Recording", "Gap", "read_recording", "read_mcap", "T_MAX", "STEP_MAX"]
-
-#: Largest step number (a journal row holds it as a float64, exact up to 2**53).
-STEP_MAX = 1 << 53
 
 
 @dataclass
@@ -151,8 +150,7 @@ class Recording:
         return int(self.t.shape[0])
 
     def batch(self) -> Batch:
-        return Batch(self.t, self.step, self.q, self.v, self.p, self.energy, self.base, self.backbone,
-                     self.tip_frames)
+        return Batch(*(getattr(self, f) for f in Batch.__dataclass_fields__))
 
     @property
     def complete(self) -> bool:
@@ -174,14 +172,10 @@ class Recording:
             success = out.get("success") == "true"
             status = int(out.get("status", 0 if success else -1))
             message = out.get("message", "")
-        if self.gaps:
-            success = False
-            message = (message + "; " if message else "") + "; ".join(g.describe() for g in self.gaps)
-        if self.nonfinite:
-            message = (message + "; " if message else "") + "non-finite values recorded (null in the file, read " \
-                f"as NaN): {'; '.join(self.nonfinite)}"
-        if self.disorder:
-            message = (message + "; " if message else "") + self.disorder
+        success = success and not self.gaps
+        nonfinite = f"non-finite values recorded (null in the file, read as NaN): {'; '.join(self.nonfinite)}" \
+            if self.nonfinite else ""
+        message = "; ".join(filter(None, [message, *(g.describe() for g in self.gaps), nonfinite, self.disorder]))
         return Trajectory(
             t=self.t,
             q=self.q,
@@ -218,126 +212,6 @@ class Recording:
 # --------------------------------------------------------------------------------------
 # Checking what a file says
 # --------------------------------------------------------------------------------------
-
-_STATE_KEYS = ("t", "step", "q", "v", "p", "kinetic", "potential", "total", "base", "tips", "backbone")
-_STATE_KEYSET = frozenset(_STATE_KEYS)
-#: A state message holds no string but its keys: this many '"' bytes.
-_STATE_QUOTES = 2 * len(_STATE_KEYS)
-_BLOCK = 4096  # state messages decoded at once (the dicts of a block only are held)
-#: Levels of list nesting of each field of a state (0: a number).
-_NDIM = {"q": 1, "v": 1, "p": 1, "kinetic": 0, "potential": 0, "total": 0, "base": 1, "tips": 2, "backbone": 3}
-
-
-def _series_max(n: int) -> int:
-    """Most entries q, v or p may have for n segments: 3 a segment and a floating base's 7."""
-    return 3 * n + 7
-
-
-def _state_error(name: str, offset: int, what: str) -> RecordingFormatError:
-    return RecordingFormatError(f"{name}: the state message in the chunk at byte {offset}: {what}")
-
-
-def _parse_state(data: bytes, offset: int, name: str) -> dict:
-    import orjson
-
-    try:
-        s = orjson.loads(data)
-    except orjson.JSONDecodeError as exc:
-        raise _state_error(name, offset, f"not valid JSON ({exc})") from None
-    if type(s) is not dict or s.keys() != _STATE_KEYSET:
-        found = ", ".join(sorted(s)) if isinstance(s, dict) else f"a JSON {type(s).__name__}"
-        raise _state_error(name, offset, f"expected the fields {', '.join(_STATE_KEYS)}; found {found}")
-    if data.count(b'"') != _STATE_QUOTES or b"true" in data or b"false" in data:
-        raise _state_error(name, offset, "a value that is not a number, a list of numbers or null")
-    step = s["step"]
-    if type(step) is not int or not 0 <= step <= STEP_MAX:
-        raise _state_error(name, offset, f"step must be a whole number from 0 to 2**53, found {step!r}")
-    t = s["t"]
-    if type(t) not in (int, float) or not 0.0 <= t <= T_MAX:
-        raise _state_error(name, offset, f"t must be a time from 0 to {T_MAX:g} s, found {t!r}")
-    return s
-
-
-def _column(states: list[dict], offsets: list[int], key: str, shape: tuple | None, name: str) -> np.ndarray:
-    """The field ``key`` of every state as one array (N, *shape); ``shape`` None: the first
-    state's, if it has the field's nesting."""
-    ndim = _NDIM[key]
-    try:
-        arr = np.array([s[key] for s in states], dtype=float)
-    except (ValueError, TypeError):
-        arr = None
-    if arr is not None and arr.ndim == ndim + 1 and (shape is None or arr.shape[1:] == shape):
-        return arr
-    for s, off in zip(states, offsets):  # the first state at fault
-        try:
-            x = np.array(s[key], dtype=float)
-        except (ValueError, TypeError) as exc:
-            raise _state_error(name, off, f"{key} is not {'a number' if ndim == 0 else 'a list of numbers'} "
-                                          f"(or lists of them, {ndim} deep) ({exc})") from None
-        if x.ndim != ndim:
-            raise _state_error(name, off, f"{key} is nested {x.ndim} deep, expected {ndim}")
-        if shape is None:
-            shape = x.shape
-        elif x.shape != shape:
-            raise _state_error(name, off, f"{key} has the shape {x.shape}, the others {shape}")
-    raise _state_error(name, offsets[0], f"{key}: shapes that disagree")  # not reached
-
-
-def _dims_error(name: str, offset: int, dims: dict, n: int) -> str | None:
-    """Why the shapes of a record do not fit a recording of n segments, or None."""
-    top = _series_max(n)
-    for key in ("q", "v", "p"):
-        if dims[key][0] > top:
-            return f"{key} has {dims[key][0]} entries; {n} segment(s) have at most {top}"
-    if dims["base"] != (7,):
-        return f"base has the shape {dims['base']}, expected (7,)"
-    if dims["tips"] != (n, 7):
-        return f"tips has the shape {dims['tips']}, expected ({n}, 7) for {n} segment(s)"
-    bb = dims["backbone"]
-    if bb[0] != n or bb[2] != 3 or bb[1] < 1:
-        return f"backbone has the shape {bb}, expected ({n}, P, 3) with P >= 1 for {n} segment(s)"
-    return None
-
-
-#: Bytes of Python objects a parsed JSON number costs (a float and its list slot, with the
-#: lists around; measured with tracemalloc on orjson): charged to the reading budget before a
-#: message is parsed, so a few KiB of "[0.0,0.0,0.0]," compressed never grow into gigabytes
-PARSED_NUMBER_BYTES = 56
-
-
-def _decode_states(msgs: list[tuple[int, bytes]], info: RunInfo, name: str, budget: Budget | None = None) -> Batch:
-    """The ``/qchain/state`` messages ``(chunk offset, JSON)`` as checked columns; each
-    message's numbers (its commas) are charged to ``budget`` before it is parsed."""
-    n = info.n_segments
-    if not msgs:
-        return Batch(np.zeros(0), np.zeros(0, np.int64), np.zeros((0, 0)), np.zeros((0, 0)), np.zeros((0, 3 * n)),
-                     np.zeros((0, 3)), np.zeros((0, 7)), np.zeros((0, n, 0, 3)), np.zeros((0, n, 7)))
-    dims: dict | None = None
-    parts = []
-    for a in range(0, len(msgs), _BLOCK):
-        block = msgs[a : a + _BLOCK]
-        offsets = [off for off, _ in block]
-        if budget is not None:
-            for off, data in block:
-                budget.spend(PARSED_NUMBER_BYTES * data.count(b","), off, "the numbers of its state messages")
-        states = [_parse_state(data, off, name) for off, data in block]
-        cols = {}
-        for key in _NDIM:
-            cols[key] = _column(states, offsets, key, None if dims is None else dims[key], name)
-        if dims is None:
-            dims = {key: col.shape[1:] for key, col in cols.items()}
-            why = _dims_error(name, offsets[0], dims, n)
-            if why:
-                raise _state_error(name, offsets[0], why)
-        N = len(states)
-        parts.append(Batch(
-            t=np.array([s["t"] for s in states], dtype=float),
-            step=np.array([s["step"] for s in states], dtype=np.int64),
-            q=cols["q"], v=cols["v"], p=cols["p"],
-            energy=np.stack([cols["kinetic"], cols["potential"], cols["total"]], axis=1).reshape(N, 3),
-            base=cols["base"], backbone=cols["backbone"], tip_frames=cols["tips"]))
-        del states, cols
-    return parts[0] if len(parts) == 1 else Batch.concatenate(parts)
 
 
 def _check_rows(rows: np.ndarray, lay, info: RunInfo, where: str) -> str | None:
@@ -402,9 +276,9 @@ def _outcome_problem(e: dict[str, str]) -> str | None:
     return None
 
 
-def _info_of(meta: dict[str, str], name: str, offset: int | None, limits: ReadLimits) -> RunInfo:
-    """The :class:`RunInfo` of the ``qchain`` metadata, checked."""
-    where = f"{name}: its qchain metadata record" + (f" at byte {offset}" if offset is not None else "")
+def _info_of(meta: dict[str, str], where: str, limits: ReadLimits) -> RunInfo:
+    """The :class:`RunInfo` of the ``qchain`` metadata (``where``: its record, as messages
+    name it), checked."""
     try:
         data = loads(meta["info"], "the run information", limits)
     except KeyError:
@@ -484,53 +358,151 @@ def read_recording(source: str | os.PathLike | BinaryIO, journal: bool = True, *
         raise RecordingFormatError(f"{name}: {exc}") from None
 
 
+@dataclass
+class _Found:
+    """What reading a recording found, step by step (:func:`_scan_file`, :func:`_read_journal`,
+    :func:`_run_info`), for :func:`_read` to assemble.
+
+    Attributes
+    ----------
+    damage : list of str
+        Everything found damaged, in the order found.
+    meta, meta_offset : dict or None, int or None
+        The first intact ``qchain`` metadata record and its byte (the journal's: no byte).
+    outcome : dict or None
+        The last usable ``qchain.outcome`` metadata record (else the journal's).
+    complete : bool
+        The footer was read.
+    stop_reason : str
+        Why the file ends early.
+    state_channels, other_channels : set of int
+        Ids of the channels of the state topic, and of the other topics.
+    declared : dict of int to str
+        Channel id -> the topic of its first declaration.
+    redeclared : set of int
+        Channels declared again as another topic (said once each).
+    chunk_times : list of (int, int), ns
+        (message start, end time) of every chunk read.
+    stream : list of tuple
+        In file order: ("m", channel id, message data, chunk offset) and ("d", damage
+        item); messages are kept until the end when their channel's record was lost (a
+        damaged first chunk): the sealed metadata names the channel ids too.
+    journal_rows, journal_layout : (K, width) ndarray or None, RecordLayout or None
+        The rows of a killed run's journal to merge, and their layout.
+    journal_unread : str
+        Why the journal, or some of its records, was not read or merged ("" when it was).
+    """
+
+    damage: list = field(default_factory=list)
+    meta: dict | None = None
+    meta_offset: int | None = None
+    outcome: dict | None = None
+    complete: bool = False
+    stop_reason: str = ""
+    state_channels: set = field(default_factory=set)
+    other_channels: set = field(default_factory=set)
+    declared: dict = field(default_factory=dict)
+    redeclared: set = field(default_factory=set)
+    chunk_times: list = field(default_factory=list)
+    stream: list = field(default_factory=list)
+    journal_rows: np.ndarray | None = None
+    journal_layout: RecordLayout | None = None
+    journal_unread: str = ""
+
+
 def _read(name: str, buf: bytearray, jpath, limits: ReadLimits) -> Recording:
+    """Read a recording's bytes, and its journal, as a :class:`Recording` (the work of
+    :func:`read_recording`): open it within ``limits``, scan its records, assemble the
+    arrays, say the damage and the gaps.
+
+    Parameters
+    ----------
+    name : str
+        The file, as messages name it.
+    buf : bytearray
+        Its bytes (empty: the writer never started, the journal holds it all).
+    jpath : path or None
+        Its journal, to read too (None: there is none, or it is not asked for).
+    limits : ReadLimits
+
+    Returns
+    -------
+    Recording
+
+    Raises
+    ------
+    RecordingFormatError
+    LimitExceeded
+        Reading would cost more than ``limits`` allow (the caller names the file).
+    """
     if len(buf) == 0 and jpath is None:
         raise RecordingFormatError(f"{name}: the file is empty, not a qchain MCAP recording")
     head = bytes(buf[: len(MAGIC)])
     if len(buf) and head != MAGIC[: len(head)]:
         raise RecordingFormatError(f"{name}: not an MCAP file (it starts with {head!r}, an MCAP file with "
                                    f"{MAGIC!r})")
-    damage: list[str] = []
-    meta = None
-    meta_offset = None
-    outcome = None
-    complete = False
-    stop_reason = ""
-    state_channels: set[int] = set()
-    other_channels: set[int] = set()
-    declared: dict[int, str] = {}  # channel id -> topic of its first declaration
-    redeclared: set[int] = set()
-    chunk_times: list[tuple[int, int]] = []  # (message start, end time) of every chunk read
-    # in file order: ("m", channel id, message data, chunk offset) and ("d", damage item);
-    # messages are kept until the end when their channel's record was lost (a damaged first
-    # chunk): the sealed metadata names the channel ids too
-    stream: list[tuple] = []
-    budget = Budget(len(buf), limits)
+    budget = ReadBudget(len(buf), limits)
+    found = _scan_file(buf, budget)
+    file_complete = found.complete and found.outcome is not None  # footer, summary and outcome: nothing to add
+    _read_journal(found, name, jpath, limits)
+    info = _run_info(found, name, jpath, len(buf), limits)
+    b, gaps, index, stats = _assemble(found, info, name, buf, budget)
+    b, gaps, recovered = _merge_journal(found, b, gaps, info, name, jpath, file_complete)
+    if not gaps and not recovered:
+        gap = _missing(b, name, found.outcome, stats, found.state_channels, index, found.chunk_times)
+        if gap is not None:
+            gaps.append(gap)
+            found.damage.append(gap.reason)
+    return Recording(
+        path=name, info=info, t=b.t, step=b.step, q=b.q, v=b.v, p=b.p, energy=b.energy, base=b.base,
+        backbone=b.backbone, tip_frames=b.tip_frames, outcome=found.outcome, truncated=not found.complete,
+        stop_reason="" if found.complete else found.stop_reason, metadata=found.meta, gaps=gaps,
+        damage=found.damage, recovered=recovered, nonfinite=_nonfinite(b), journal_unread=found.journal_unread,
+        disorder=_disorder(b),
+    )
+
+
+def _scan_file(buf: bytearray, budget: ReadBudget) -> _Found:
+    """Scan the file's records (:func:`qchain.recording.scan.scan`): channels, messages,
+    ``qchain`` and ``qchain.outcome`` metadata (their seals checked), damage, where it ends.
+
+    Parameters
+    ----------
+    buf : bytearray
+        The file's bytes.
+    budget : ReadBudget
+        What the scan may still cost.
+
+    Returns
+    -------
+    _Found
+    """
+    found = _Found()
+    damage = found.damage
     for item in scan(buf, budget=budget) if len(buf) >= len(MAGIC) else ():
         if item.kind == "chunk":
-            chunk_times.append((item.chunk.message_start_time, item.chunk.message_end_time))
+            found.chunk_times.append((item.chunk.message_start_time, item.chunk.message_end_time))
             if item.reason:
                 damage.append(item.reason)
             for rec in item.records:
                 if isinstance(rec, Channel):
-                    first = declared.setdefault(rec.id, rec.topic)
+                    first = found.declared.setdefault(rec.id, rec.topic)
                     if first == rec.topic:
-                        (state_channels if rec.topic == TOPICS["state"] else other_channels).add(rec.id)
-                    elif rec.id not in redeclared:
-                        redeclared.add(rec.id)
+                        (found.state_channels if rec.topic == TOPICS["state"] else found.other_channels).add(rec.id)
+                    elif rec.id not in found.redeclared:
+                        found.redeclared.add(rec.id)
                         damage.append(f"the chunk at byte {item.offset} declares channel {rec.id} again as "
                                       f"{rec.topic[:80]!r}, first declared as {first[:80]!r}: the first declaration "
                                       "is used")
-                elif isinstance(rec, Message) and rec.channel_id not in other_channels:
-                    stream.append(("m", rec.channel_id, rec.data, item.offset))
+                elif isinstance(rec, Message) and rec.channel_id not in found.other_channels:
+                    found.stream.append(("m", rec.channel_id, rec.data, item.offset))
         elif item.kind == "metadata":
             entries = unseal(item.record.metadata)
             if item.record.name == "qchain":
                 if entries is None:
                     damage.append(f"the qchain metadata record at byte {item.offset} fails its checksum: not used")
-                elif meta is None:
-                    meta, meta_offset = entries, item.offset
+                elif found.meta is None:
+                    found.meta, found.meta_offset = entries, item.offset
             elif item.record.name == "qchain.outcome":
                 why = None if entries is None else _outcome_problem(entries)
                 if entries is None:
@@ -540,79 +512,121 @@ def _read(name: str, buf: bytearray, jpath, limits: ReadLimits) -> Recording:
                     damage.append(f"the qchain.outcome metadata record at byte {item.offset} is not usable ({why}): "
                                   "not used")
                 else:
-                    outcome = entries
+                    found.outcome = entries
         elif item.kind == "footer":
-            complete = True
+            found.complete = True
         elif item.kind == "damage":
-            stream.append(("d", item))
+            found.stream.append(("d", item))
             damage.append(item.reason)
         elif item.kind == "end":
-            stop_reason = item.reason
+            found.stop_reason = item.reason
     if len(buf) < len(MAGIC):
-        stop_reason = "the file ends before its first record"
-    elif not complete and not stop_reason:
-        stop_reason = "the file ends before its footer"
-    # a killed run's journal (a live run's is still being written: not read)
-    jr = None
-    journal_rows = None
-    journal_unread = ""
-    file_complete = complete and outcome is not None  # footer, summary and outcome: nothing to add
-    if jpath is not None and journal_owner(jpath) is None:
+        found.stop_reason = "the file ends before its first record"
+    elif not found.complete and not found.stop_reason:
+        found.stop_reason = "the file ends before its footer"
+    return found
+
+
+def _read_journal(found: _Found, name: str, jpath, limits: ReadLimits) -> None:
+    """Read a killed run's journal into ``found`` (its rows; the metadata and the outcome
+    the file lacks; its damage); a live run's, still being written, is not read.
+
+    Parameters
+    ----------
+    found : _Found
+        What the file holds (:func:`_scan_file`), completed in place.
+    name : str
+        The file, as messages name it.
+    jpath : path or None
+        The journal (None: none).
+    limits : ReadLimits
+
+    Raises
+    ------
+    RecordingFormatError
+        Reading the journal would exceed ``limits``.
+    """
+    if jpath is None or journal_owner(jpath) is not None:
+        return
+    try:
+        jr = JournalReader(jpath, limits)
         try:
-            jr = JournalReader(jpath, limits)
-            try:
-                blocks = jr.poll(final=True)
-            finally:
-                jr.close()
-        except FileNotFoundError:
-            jr = None
-        except LimitExceeded as exc:
-            raise RecordingFormatError(f"{jpath} (the journal of {name}): {exc}") from None
-        except LoggingError as exc:  # not a regular file, not a journal, too big
-            damage.append(f"journal: {exc}; not read")
-            journal_unread = str(exc)
-            jr = None
-        if jr is not None:
-            # a journal is merged only into its own run's file: the recording_id both carry
-            # (in their qchain metadata) must agree; a journal without one (an older run's)
-            # is taken only beside a file that is not complete (see below)
-            file_id = (meta or {}).get("recording_id", "")
-            journal_id = (jr.metadata or {}).get("recording_id", "")
-            if file_id and journal_id and file_id != journal_id:
-                journal_unread = (f"the journal {jpath} is another run's (its recording_id {journal_id[:40]!r}, the "
-                                  f"file's {file_id[:40]!r}): not merged")
-                jr = None
-        if jr is not None:
-            if meta is None and jr.metadata is not None:
-                meta = jr.metadata
-            if jr.layout is not None and blocks:
-                journal_rows = np.concatenate(blocks)
-            if outcome is None and jr.outcome is not None and _outcome_problem(jr.outcome) is None:
-                outcome = jr.outcome
-            damage.extend(f"journal: {d}" for d in jr.damage)
-            if jr.lost:  # what it holds is read, but it is not whole: recover keeps it
-                journal_unread = "; ".join(jr.lost[:3]) + (f" (and {len(jr.lost) - 3} more)" if len(jr.lost) > 3
-                                                           else "")
-    if meta is None and len(buf) == 0:
+            blocks = jr.poll(final=True)
+        finally:
+            jr.close()
+    except FileNotFoundError:
+        return
+    except LimitExceeded as exc:
+        raise RecordingFormatError(f"{jpath} (the journal of {name}): {exc}") from None
+    except LoggingError as exc:  # not a regular file, not a journal, too big
+        found.damage.append(f"journal: {exc}; not read")
+        found.journal_unread = str(exc)
+        return
+    # a journal is merged only into its own run's file: the recording_id both carry (in
+    # their qchain metadata) must agree; a journal without one (an older run's) is taken
+    # only beside a file that is not complete (see _merge_journal)
+    file_id = (found.meta or {}).get("recording_id", "")
+    journal_id = (jr.metadata or {}).get("recording_id", "")
+    if file_id and journal_id and file_id != journal_id:
+        found.journal_unread = (f"the journal {jpath} is another run's (its recording_id {journal_id[:40]!r}, the "
+                                f"file's {file_id[:40]!r}): not merged")
+        return
+    if found.meta is None and jr.metadata is not None:
+        found.meta = jr.metadata
+    if jr.layout is not None and blocks:
+        found.journal_rows, found.journal_layout = np.concatenate(blocks), jr.layout
+    if found.outcome is None and jr.outcome is not None and _outcome_problem(jr.outcome) is None:
+        found.outcome = jr.outcome
+    found.damage.extend(f"journal: {d}" for d in jr.damage)
+    if jr.lost:  # what it holds is read, but it is not whole: recover keeps it
+        found.journal_unread = "; ".join(jr.lost[:3]) + (f" (and {len(jr.lost) - 3} more)" if len(jr.lost) > 3
+                                                         else "")
+
+
+def _run_info(found: _Found, name: str, jpath, size: int, limits: ReadLimits) -> RunInfo:
+    """The run's :class:`RunInfo` from the ``qchain`` metadata found, its format and version
+    checked; the state channels it names are added to ``found``.
+
+    Parameters
+    ----------
+    found : _Found
+        The file's and the journal's records (:func:`_read_journal`).
+    name : str
+        The file, as messages name it.
+    jpath : path or None
+        Its journal.
+    size : int
+        The file's size (bytes; 0: only the journal holds the run).
+    limits : ReadLimits
+
+    Raises
+    ------
+    RecordingFormatError
+        No intact qchain metadata (saying why: damaged, cut before it, another program's
+        file), another format version, run information that is not of the expected form.
+    """
+    meta, damage = found.meta, found.damage
+    if meta is None and size == 0:
         raise RecordingFormatError(f"{name}: no recording file, and its journal {jpath} holds no qchain recording ("
                                    f"{'; '.join(damage) or 'no qchain metadata'})")
     if meta is None or meta.get("format") != FORMAT_NAME:
         if any("qchain metadata" in d for d in damage):
             raise RecordingFormatError(f"{name}: its qchain metadata record is damaged (checksum mismatch) and "
                                        "no intact copy was found")
-        if stop_reason or damage:
+        if found.stop_reason or damage:
             raise RecordingFormatError(
                 f"{name}: an MCAP file without a qchain header record (cut before it, or written by another "
-                f"program; reading stopped: {stop_reason or damage[0]})")
+                f"program; reading stopped: {found.stop_reason or damage[0]})")
         raise RecordingFormatError(
             f"{name}: an MCAP file, but not a qchain recording (no 'qchain' metadata record with format "
             f"{FORMAT_NAME!r})")
-    where = f"{name}: its qchain metadata record" + (f" at byte {meta_offset}" if meta_offset is not None else "")
+    where = f"{name}: its qchain metadata record" + (f" at byte {found.meta_offset}" if found.meta_offset is not None
+                                                      else "")
     version = meta.get("format_version", "0")
     if version != str(FORMAT_VERSION):
         raise RecordingFormatError(f"{name}: qchain recording format version {version[:40]!r}; this qchain reads "
                                    f"version {FORMAT_VERSION}")
-    info = _info_of(meta, name, meta_offset, limits)
+    info = _info_of(meta, where, limits)
     if "channels" in meta:
         try:
             channels = loads(meta["channels"], "its channel list", limits)
@@ -623,27 +637,53 @@ def _read(name: str, buf: bytearray, jpath, limits: ReadLimits) -> Recording:
             named = {int(k) for k in channels if k.isascii() and k.isdigit() and len(k) < 6}
         except ValueError as exc:
             raise RecordingFormatError(f"{where}: {exc}") from None
-        state_channels |= ids - other_channels
+        found.state_channels |= ids - found.other_channels
         for k in named:
-            declared.setdefault(k, "")
+            found.declared.setdefault(k, "")
+    return info
+
+
+def _assemble(found: _Found, info: RunInfo, name: str, buf: bytearray, budget: ReadBudget):
+    """The file's state messages as checked arrays, and the gaps its damage leaves.
+
+    Parameters
+    ----------
+    found : _Found
+        What was read (:func:`_run_info`); its ``stream`` is emptied, messages on channels
+        no record declares are said as damage.
+    info : RunInfo
+    name : str
+        The file, as messages name it.
+    buf : bytearray
+        The file's bytes (for its summary, if it is complete).
+    budget : ReadBudget
+
+    Returns
+    -------
+    b : Batch
+        The file's records, in file order.
+    gaps : list of Gap
+    index, stats : list of ChunkIndex or None, Statistics or None
+        The summary's chunk index and statistics (None: the file is not complete).
+    """
     msgs: list[tuple[int, bytes]] = []
     events: list[tuple[int, object]] = []  # (position in msgs, damage item)
     undeclared: dict[int, int] = {}  # channel id -> messages on it, never declared
-    for entry in stream:
+    for entry in found.stream:
         if entry[0] == "m":
-            if entry[1] in state_channels:
+            if entry[1] in found.state_channels:
                 msgs.append((entry[3], entry[2]))
-            elif entry[1] not in declared:
+            elif entry[1] not in found.declared:
                 undeclared[entry[1]] = undeclared.get(entry[1], 0) + 1
         else:
             events.append((len(msgs), entry[1]))
-    del stream
+    found.stream = []
+    damage = found.damage
     if undeclared:
         damage.append(f"{sum(undeclared.values())} message(s) on channel(s) "
                       f"{', '.join(map(str, sorted(undeclared)[:10]))} that no channel record declares: not read")
-    summary = summary_records(buf, budget) if complete else None
+    summary = summary_records(buf, budget) if found.complete else None
     index, stats = summary if summary is not None else (None, None)
-    del buf
     b = _decode_states(msgs, info, name, budget)
     del msgs
     gaps = []
@@ -651,74 +691,126 @@ def _read(name: str, buf: bytearray, jpath, limits: ReadLimits) -> Recording:
         if index is not None and not any(item.offset <= c.chunk_start_offset < item.end for c in index):
             damage[damage.index(item.reason)] = item.reason + " (no chunk there, per the summary: no record lost)"
             continue  # an index record, say: the summary shows no chunk was in the damaged bytes
-        before = b.t[pos] if pos < len(b) else None
-        after = b.t[pos - 1] if pos > 0 else None
-        gaps.append(Gap(None if after is None else float(after), None if before is None else float(before),
-                        None if pos == 0 else int(b.step[pos - 1]), None if pos >= len(b) else int(b.step[pos]),
-                        item.offset, item.end, item.reason))
-    recovered = 0
-    if journal_rows is not None:
-        why = _check_rows(journal_rows, jr.layout, info, str(jpath))
+        gaps.append(_gap_before(b, pos, item.offset, item.end, item.reason))
+    return b, gaps, index, stats
+
+
+def _merge_journal(found: _Found, b: Batch, gaps: list, info: RunInfo, name: str, jpath, file_complete: bool):
+    """Merge the journal's rows the file lacks (after its last record, and inside its gaps)
+    into its records; rows that do not fit are said, and the journal kept, not merged.
+
+    Parameters
+    ----------
+    found : _Found
+        ``journal_rows`` to merge; ``journal_unread``, ``damage`` and ``stop_reason`` are
+        updated.
+    b : Batch
+        The file's records.
+    gaps : list of Gap
+        The file's gaps; those the journal fills are said as damage instead.
+    info : RunInfo
+    name : str
+        The file, as messages name it.
+    jpath : path or None
+        The journal.
+    file_complete : bool
+        The file has its footer, summary and outcome: nothing is appended after its last.
+
+    Returns
+    -------
+    b : Batch
+        The records, the journal's merged in step order.
+    gaps : list of Gap
+    recovered : int
+        Rows read from the journal.
+
+    Raises
+    ------
+    RecordingFormatError
+        The journal's rows do not fit, and the file holds no record and no footer.
+    """
+    rows, lay = found.journal_rows, found.journal_layout
+    if rows is not None:
+        why = _check_rows(rows, lay, info, str(jpath))
         if why is None and len(b):
-            if (b.q.shape[1], b.v.shape[1], b.p.shape[1], b.backbone.shape[2]) != \
-                    (jr.layout.nq, jr.layout.nv, jr.layout.n_p, jr.layout.P):
-                why = f"its rows have the layout {jr.layout.to_json()}, the recording's records another"
+            if (b.q.shape[1], b.v.shape[1], b.p.shape[1], b.backbone.shape[2]) != (lay.nq, lay.nv, lay.n_p, lay.P):
+                why = f"its rows have the layout {lay.to_json()}, the recording's records another"
         if why is not None:  # the file's own records still read; the journal is said, kept, not merged
-            if not len(b) and not complete:
+            if not len(b) and not found.complete:
                 raise RecordingFormatError(f"{jpath} (the journal of {name}): {why}")
-            journal_unread = f"{jpath} (the journal of {name}): {why}: not merged"
-            damage.append(journal_unread)
-            journal_rows = None
-    if journal_rows is not None:
-        inside = np.zeros(len(journal_rows), dtype=bool)
-        if len(b):  # records the file lacks: after its last, and inside it (a damaged chunk's)
-            last, last_t = int(b.step[-1]), float(b.t[-1])
-            after = (journal_rows[:, 1] > last) & (journal_rows[:, 0] >= last_t)
-            have = np.isin(journal_rows[:, 1], b.step)
-            inside = ~after & (journal_rows[:, 1] < last) & ~have
-            odd = ~(after | inside | have)  # a later step at an earlier time: no place for it
-            if odd.any():
-                journal_unread = (f"{int(odd.sum())} rows of the journal {jpath} have steps after the file's last "
-                                  f"({last}) but times before its last ({last_t:.6g} s): not merged")
-            if file_complete and after.any():  # never appended to a complete file: said instead
-                journal_unread = (f"the file is complete (its outcome and summary are there), yet its journal "
-                                  f"{jpath} holds {int(after.sum())} records after its last: not merged")
-                after[:] = False
-            journal_rows = journal_rows[after | inside]
-            inside = inside[after | inside]
-        recovered = len(journal_rows)
-        if recovered:
-            filled = int(inside.sum())
-            jb = Batch.from_rows(journal_rows, jr.layout)
-            b = jb if len(b) == 0 else Batch.concatenate([b, jb])
-            if filled:  # the file's records and the journal's in step order
-                b = b.take(np.argsort(b.step, kind="stable"))
-            if gaps:  # a gap whose steps the journal holds is filled: said as damage, not as a gap
-                have = set(b.step.tolist())
-                kept = []
-                for g in gaps:
-                    lo = -1 if g.after_step is None else g.after_step
-                    hi = g.before_step if g.before_step is not None else (max(have) + 1 if lo + 1 in have else lo + 1)
-                    if hi > lo + 1 and all(k in have for k in range(lo + 1, hi)):
-                        damage[damage.index(g.reason)] = f"{g.reason} (its records read from the run's journal {jpath})"
-                    else:
-                        kept.append(g)
-                gaps = kept
-            if recovered > filled and not complete:
-                stop_reason = (stop_reason + "; " if stop_reason else "") + \
-                    f"{recovered - filled} records after it read from the run's journal {jpath}"
-    if not gaps and not recovered:
-        gap = _missing(b, name, outcome, stats, state_channels, index, chunk_times)
-        if gap is not None:
-            gaps.append(gap)
-            damage.append(gap.reason)
-    disorder = _disorder(b)
-    return Recording(
-        path=name, info=info, t=b.t, step=b.step, q=b.q, v=b.v, p=b.p, energy=b.energy, base=b.base,
-        backbone=b.backbone, tip_frames=b.tip_frames, outcome=outcome, truncated=not complete,
-        stop_reason="" if complete else stop_reason, metadata=meta, gaps=gaps, damage=damage, recovered=recovered,
-        nonfinite=_nonfinite(b), journal_unread=journal_unread, disorder=disorder,
-    )
+            found.journal_unread = f"{jpath} (the journal of {name}): {why}: not merged"
+            found.damage.append(found.journal_unread)
+            rows = None
+    if rows is None:
+        return b, gaps, 0
+    inside = np.zeros(len(rows), dtype=bool)
+    if len(b):  # records the file lacks: after its last, and inside it (a damaged chunk's)
+        last, last_t = int(b.step[-1]), float(b.t[-1])
+        after = (rows[:, 1] > last) & (rows[:, 0] >= last_t)
+        have = np.isin(rows[:, 1], b.step)
+        inside = ~after & (rows[:, 1] < last) & ~have
+        odd = ~(after | inside | have)  # a later step at an earlier time: no place for it
+        if odd.any():
+            found.journal_unread = (f"{int(odd.sum())} rows of the journal {jpath} have steps after the file's last "
+                                    f"({last}) but times before its last ({last_t:.6g} s): not merged")
+        if file_complete and after.any():  # never appended to a complete file: said instead
+            found.journal_unread = (f"the file is complete (its outcome and summary are there), yet its journal "
+                                    f"{jpath} holds {int(after.sum())} records after its last: not merged")
+            after[:] = False
+        rows = rows[after | inside]
+        inside = inside[after | inside]
+    recovered = len(rows)
+    if recovered:
+        filled = int(inside.sum())
+        jb = Batch.from_rows(rows, lay)
+        b = jb if len(b) == 0 else Batch.concatenate([b, jb])
+        if filled:  # the file's records and the journal's in step order
+            b = b.take(np.argsort(b.step, kind="stable"))
+        if gaps:  # a gap whose steps the journal holds is filled: said as damage, not as a gap
+            gaps = _unfilled(gaps, b, found.damage, jpath)
+        if recovered > filled and not found.complete:
+            found.stop_reason = (found.stop_reason + "; " if found.stop_reason else "") + \
+                f"{recovered - filled} records after it read from the run's journal {jpath}"
+    return b, gaps, recovered
+
+
+def _gap_before(b: Batch, k: int, offset: int, end: int, reason: str) -> Gap:
+    """The gap between the records ``k - 1`` and ``k`` of ``b`` (``k`` 0: before the first;
+    ``len(b)``: after the last) of the damaged bytes ``offset`` .. ``end``."""
+    first, last = k == 0, k >= len(b)
+    return Gap(None if first else float(b.t[k - 1]), None if last else float(b.t[k]),
+               None if first else int(b.step[k - 1]), None if last else int(b.step[k]), offset, end, reason)
+
+
+def _unfilled(gaps: list, b: Batch, damage: list, jpath) -> list:
+    """The gaps the journal's records do not fill: a gap whose steps are all in ``b`` now
+    is said as damage instead (its entry in ``damage`` names the journal).
+
+    Parameters
+    ----------
+    gaps : list of Gap
+        The file's gaps.
+    b : Batch
+        The file's records and the journal's, merged.
+    damage : list of str
+        Holds each gap's reason; a filled gap's is rewritten in place.
+    jpath : path
+        The journal.
+
+    Returns
+    -------
+    list of Gap
+    """
+    have = set(b.step.tolist())
+    kept = []
+    for g in gaps:
+        lo = -1 if g.after_step is None else g.after_step
+        hi = g.before_step if g.before_step is not None else (max(have) + 1 if lo + 1 in have else lo + 1)
+        if hi > lo + 1 and all(k in have for k in range(lo + 1, hi)):
+            damage[damage.index(g.reason)] = f"{g.reason} (its records read from the run's journal {jpath})"
+        else:
+            kept.append(g)
+    return kept
 
 
 def _missing(b: Batch, name: str, outcome, stats, state_channels: set, index, chunk_times) -> Gap | None:
@@ -746,11 +838,9 @@ def _missing(b: Batch, name: str, outcome, stats, state_channels: set, index, ch
         if span in have or np.any((read_ns >= span[0]) & (read_ns <= span[1])):
             continue
         k = int(np.searchsorted(read_ns, span[0]))  # the first record read after the missing chunk
-        return Gap(None if k == 0 else float(b.t[k - 1]), None if k >= len(b) else float(b.t[k]),
-                   None if k == 0 else int(b.step[k - 1]), None if k >= len(b) else int(b.step[k]),
-                   int(c.chunk_start_offset), int(c.chunk_start_offset + c.chunk_length),
-                   f"{why} (the summary lists a chunk of t = {span[0] / 1e9:.6g} .. {span[1] / 1e9:.6g} s that the "
-                   "file does not hold)")
+        return _gap_before(b, k, int(c.chunk_start_offset), int(c.chunk_start_offset + c.chunk_length),
+                           f"{why} (the summary lists a chunk of t = {span[0] / 1e9:.6g} .. {span[1] / 1e9:.6g} s "
+                           "that the file does not hold)")
     return Gap(None, None, None, None, 0, 0, f"{why}, where is not known")
 
 

@@ -12,13 +12,14 @@ import math
 import os
 import zlib
 from collections.abc import Sequence
+from contextlib import suppress
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
 from .. import __version__
-from ..errors import QchainError
+from ..errors import LoggingError, LoggingWarning, RecordingFormatError
 
 __all__ = [
     "StepRecord",
@@ -66,17 +67,6 @@ SEGMENT_COLORS = ((255, 140, 0), (230, 95, 0), (255, 185, 50))
 #: seconds are a 32-bit unsigned number (and their nanoseconds a 64-bit MCAP log time)
 T_MAX = float(2**32 - 1)
 T_MAX_WHY = "Foxglove timestamps count whole seconds in 32 bits"
-
-class LoggingError(QchainError):
-    """The run log could not be written (a writer that cannot start, a bad output path)."""
-
-
-class RecordingFormatError(LoggingError, ValueError):
-    """A file that is not a (readable) qchain MCAP recording; the message names the file."""
-
-
-class LoggingWarning(UserWarning):
-    """Something of the logging did not work out (a viewer out of reach); the run goes on."""
 
 
 def ns(t: float) -> int:
@@ -199,11 +189,9 @@ def _utf8(name: str, text: str) -> str:
 
 def _escaped(path: str) -> str:
     """A path as UTF-8 text: bytes of its name that are not UTF-8 escaped as ``\\xNN``."""
-    try:
+    with suppress(UnicodeEncodeError):
         path.encode("utf-8")
         return path
-    except UnicodeEncodeError:
-        pass
     try:
         return os.fsencode(path).decode("utf-8", "backslashreplace")
     except UnicodeError:  # surrogates os.fsdecode does not make
@@ -271,11 +259,9 @@ class RunInfo:
         if self.n_segments < 1:
             raise ValueError(f"n_segments must be >= 1, got {self.n_segments}")
         self.n_segments = int(self.n_segments)
-        self.radii = [float(r) for r in self._vector("radii", self.radii, self.n_segments)]
+        self.radii = self._vector("radii", self.radii, self.n_segments)
         if self.chamber_radii is not None:
-            self.chamber_radii = [
-                float(r) for r in self._vector("chamber_radii", self.chamber_radii, self.n_segments)
-            ]
+            self.chamber_radii = self._vector("chamber_radii", self.chamber_radii, self.n_segments)
         angles = np.asarray(self.chamber_angles, dtype=float)
         if angles.shape != (3,) or not np.all(np.isfinite(angles)):
             raise ValueError(f"chamber_angles must be 3 finite angles (rad), got {self.chamber_angles!r}")
@@ -288,12 +274,7 @@ class RunInfo:
         _utf8("scene", self.scene)
         self._scene_file = None
         if self.scene_path is not None:
-            path = os.fspath(self.scene_path)
-            if isinstance(path, bytes):
-                path = os.fsdecode(path)  # undecodable bytes become lone surrogates
-            if not isinstance(path, str):
-                raise ValueError(f"scene_path must be a path (str, bytes or os.PathLike) or None, got "
-                                 f"{type(self.scene_path).__name__}")
+            path = os.fsdecode(self.scene_path)  # undecodable bytes become lone surrogates
             self._scene_file = path
             self.scene_path = _escaped(path)
         if not isinstance(self.params, dict):
@@ -322,13 +303,13 @@ class RunInfo:
         return self._scene_file if getattr(self, "_scene_file", None) is not None else self.scene_path
 
     @staticmethod
-    def _vector(name: str, value, n: int) -> np.ndarray:
+    def _vector(name: str, value, n: int) -> list[float]:
         arr = np.asarray(value, dtype=float)
         if arr.shape != (n,):
             raise ValueError(f"{name} must have shape ({n},) (one a segment), got shape {arr.shape}")
         if not np.all(np.isfinite(arr)) or np.any(arr <= 0.0):
             raise ValueError(f"{name} must be finite and > 0 m, got {arr.tolist()}")
-        return arr
+        return [float(r) for r in arr]
 
     def names(self, kind: str, count: int) -> list[str]:
         """Series names of ``q``, ``v`` (with units when known), ``p`` or ``energy``."""
@@ -345,22 +326,10 @@ class RunInfo:
         raise ValueError(f"kind must be 'q', 'v', 'p' or 'energy', got {kind!r}")
 
     def to_json(self) -> dict:
-        """The information as a JSON-ready dict (inverse of :meth:`from_json`)."""
-        return {
-            "n_segments": self.n_segments,
-            "radii": list(self.radii),
-            "scene": self.scene,
-            "scene_path": self.scene_path,
-            "params": self.params,
-            "qchain_version": self.qchain_version,
-            "chamber_radii": None if self.chamber_radii is None else list(self.chamber_radii),
-            "chamber_angles": list(self.chamber_angles),
-            "pressure_ref": self.pressure_ref,
-            "name": self.name,
-            "q_names": self.q_names,
-            "v_names": self.v_names,
-            "duration": self.duration,
-        }
+        """The information as a JSON-ready dict (inverse of :meth:`from_json`): every field,
+        its sequences as lists of their own."""
+        out = {f: getattr(self, f) for f in self.__dataclass_fields__}
+        return {k: list(v) if isinstance(v, (list, tuple)) else v for k, v in out.items()}
 
     @classmethod
     def from_json(cls, data: dict) -> RunInfo:
@@ -476,10 +445,6 @@ class Batch:
             backbone=col("backbone").reshape(K, lay.n, lay.P, 3),
             tip_frames=col("tip_frames").reshape(K, lay.n, 7),
         )
-
-    @classmethod
-    def from_bytes(cls, data: bytes, lay: RecordLayout) -> Batch:
-        return cls.from_rows(np.frombuffer(data, dtype=np.float64).reshape(-1, lay.row_width), lay)
 
     def rows(self) -> np.ndarray:
         """The batch as rows of its layout (the inverse of :meth:`from_rows`)."""

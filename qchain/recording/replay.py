@@ -22,6 +22,7 @@ import sys
 import tempfile
 import uuid
 import warnings
+from contextlib import suppress
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -30,7 +31,7 @@ from .bounded import ReadLimits
 from .journal import journal_owner, journal_path
 from .reader import Recording, read_recording
 from .records import DEFAULT_FLUSH_INTERVAL, LoggingError, LoggingWarning
-from .rerun_sink import CONNECT_TIMEOUT, DEFAULT_BIND, probe_viewer
+from .rerun_sink import CONNECT_TIMEOUT, DEFAULT_BIND, RerunSink, _bounded, _die_with_parent, probe_viewer
 
 __all__ = ["ReplaySession", "replay", "recover", "probe_viewer", "CONNECT_TIMEOUT"]
 
@@ -107,48 +108,46 @@ def _send_main() -> None:
     Prints ``sent`` or ``failed: WHY`` on its standard output and ends with ``os._exit``
     (the Rerun SDK would wait for a stalled viewer forever at interpreter exit)."""
     parent, path, url, timeout, limits = int(sys.argv[1]), sys.argv[2], sys.argv[3], float(sys.argv[4]), sys.argv[5]
-    if sys.platform.startswith("linux"):
-        try:
-            import ctypes
-
-            ctypes.CDLL(None).prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG: die with the parent
-        except (OSError, AttributeError):
-            pass
+    _die_with_parent(signal.SIGKILL)
     if os.getppid() != parent:  # the parent is gone already
         os._exit(1)
-    from .rerun_sink import RerunSink
-
     code, line = 1, "failed: nothing sent"
     try:
         rec = read_recording(path, limits=ReadLimits(**json.loads(limits)))
-        info = rec.info
-        if info.duration is None and len(rec):
-            info.duration = float(rec.t[-1]) if rec.t[-1] > 0 else None
         problems: list[str] = []
-        sink = RerunSink(info, connect=url, recording_id=rec.metadata.get("recording_id") or str(uuid.uuid4()),
-                         warn=problems.append)
+        sink = _rerun_sink(rec, connect=url, warn=problems.append)
         if sink.rec is None:
             line = "failed: " + ("; ".join(problems) or "no connection")
         else:
-            b = rec.batch()
-            for a in range(0, len(rec), 2000):
-                sink.write_batch(b.take(slice(a, a + 2000)))
+            _write_all(rec, sink, 2000)
             try:
                 sink.rec.flush(timeout_sec=timeout)
                 code, line = 0, "sent"
             except RuntimeError:
                 line = f"failed: the viewer did not take the recording within {timeout:g} s"
             else:  # close the connection cleanly, if that is quick
-                import threading
-
-                closer = threading.Thread(target=sink.rec.disconnect, daemon=True)
-                closer.start()
-                closer.join(2.0)
+                _bounded(sink.rec.disconnect, 2.0, "qchain-replay-disconnect")
     except Exception as exc:  # reported to the parent, which warns
         line = f"failed: {type(exc).__name__}: {exc}"
     sys.stdout.write(line.replace("\n", " ") + "\n")
     sys.stdout.flush()
     os._exit(code)
+
+
+def _rerun_sink(rec: Recording, **kwargs) -> RerunSink:
+    """A :class:`RerunSink` for the recording ``rec`` (its id; its plots' time axis the
+    recording's times where the run did not say its duration)."""
+    info = rec.info
+    if info.duration is None and len(rec):
+        info.duration = float(rec.t[-1]) if rec.t[-1] > 0 else None
+    return RerunSink(info, recording_id=rec.metadata.get("recording_id") or str(uuid.uuid4()), **kwargs)
+
+
+def _write_all(rec: Recording, sink: RerunSink, batch: int) -> None:
+    """Every record of ``rec`` to ``sink``, ``batch`` records a ``send_columns`` batch."""
+    b = rec.batch()
+    for a in range(0, len(rec), batch):
+        sink.write_batch(b.take(slice(a, a + batch)))
 
 
 def _send(path: str, url: str, timeout: float, limits: ReadLimits) -> str | None:
@@ -180,13 +179,9 @@ def _send(path: str, url: str, timeout: float, limits: ReadLimits) -> str | None
 
 def _check_rrd(rrd, recording_path) -> None:
     """Refuse an ``.rrd`` path that cannot be written, or that is the recording itself."""
-    from .options import check_outputs
+    from .options import check_outputs, refuse_recording
 
-    if recording_path is not None:
-        for p in (Path(recording_path), journal_path(recording_path)):
-            if os.path.abspath(rrd) == os.path.abspath(p) or (Path(rrd).exists() and p.exists()
-                                                               and os.path.samefile(rrd, p)):
-                raise LoggingError(f"--rrd {rrd} is the recording being replayed ({p}): it would be overwritten")
+    refuse_recording(rrd, recording_path, f"--rrd {rrd} is the recording being replayed")
     try:
         mode = os.stat(rrd).st_mode
     except OSError:
@@ -271,28 +266,18 @@ def replay(path: str | os.PathLike, serve: bool = False, connect: str | None = N
     session = ReplaySession(recording, problems=problems, sent=sent)
     if not (serve or rrd):
         return session
-    from .rerun_sink import RerunSink
-
-    info = recording.info
-    if info.duration is None and len(recording):
-        info.duration = float(recording.t[-1]) if recording.t[-1] > 0 else None
     sink = None
     try:
-        sink = RerunSink(info, serve=serve, rrd=rrd, bind=bind, grpc_port=grpc_port, web_port=web_port,
-                         recording_id=recording.metadata.get("recording_id") or str(uuid.uuid4()), warn=problem)
-        b = recording.batch()
-        step = max(1, int(batch))
-        for a in range(0, len(recording), step):
-            sink.write_batch(b.take(slice(a, a + step)))
+        sink = _rerun_sink(recording, serve=serve, rrd=rrd, bind=bind, grpc_port=grpc_port, web_port=web_port,
+                           warn=problem)
+        _write_all(recording, sink, max(1, int(batch)))
         sink.finish()
-    except RuntimeError as exc:  # the Rerun SDK's errors: a file that cannot be written, ...
+    except BaseException as exc:
         if sink is not None:
             sink.close()
-        raise LoggingError(f"the replay into Rerun failed ({exc})" + (f"; {rrd} is not complete" if rrd else "")) \
-            from None
-    except BaseException:
-        if sink is not None:
-            sink.close()
+        if isinstance(exc, RuntimeError):  # the Rerun SDK's errors: a file that cannot be written, ...
+            raise LoggingError(f"the replay into Rerun failed ({exc})" + (f"; {rrd} is not complete" if rrd
+                                                                          else "")) from None
         raise
     session.viewer_url, session.grpc_url = sink.viewer_url, sink.grpc_url
     session._sink = sink if sink.serving else None
@@ -342,8 +327,9 @@ def recover(path: str | os.PathLike, *, limits: ReadLimits | None = None) -> Rec
                            "ends or is killed")
     if not os.path.lexists(path) and not os.path.lexists(jp):
         raise FileNotFoundError(f"{path}: no such recording, and no journal of a run writing it")
-    if os.path.islink(path):  # the file a link names is replaced: it must be no journal, nor have one of its own
-        target = Path(os.path.realpath(path))
+    # a link is kept: the file it names is replaced (in that file's folder)
+    target = Path(os.path.realpath(path)) if os.path.islink(path) else path
+    if target is not path:  # the file a link names is replaced: it must be no journal, nor have one of its own
         if os.path.lexists(jp) and target == Path(os.path.realpath(jp)):
             raise LoggingError(f"{path} is a link to its own journal {jp}: nothing was changed (recover a path of its "
                                "own: move the journal to NAME.mcap.journal and recover NAME.mcap)")
@@ -368,8 +354,6 @@ def recover(path: str | os.PathLike, *, limits: ReadLimits | None = None) -> Rec
     try:
         # a short name of its own (not the file's name plus a suffix: that can pass the file
         # system's limit for a name check_outputs accepts), hidden, in the same folder
-        # a link is kept: the file it names is replaced (in that file's folder)
-        target = Path(os.path.realpath(path)) if os.path.islink(path) else path
         fd, tmp = tempfile.mkstemp(prefix=".recovering-", dir=target.parent)
         os.close(fd)
         sink = McapSink(tmp, rec.info, recording_id=rec.metadata.get("recording_id", str(uuid.uuid4())),
@@ -381,10 +365,8 @@ def recover(path: str | os.PathLike, *, limits: ReadLimits | None = None) -> Rec
                          "nfev": int(out.get("nfev", 0) or 0)})
         finally:
             sink.abandon()
-        try:  # the file's own mode (mkstemp's is 0600)
+        with suppress(OSError):  # the file's own mode (mkstemp's is 0600)
             os.chmod(tmp, stat.S_IMODE(os.stat(target).st_mode) if os.path.exists(target) else 0o666 & ~_umask())
-        except OSError:
-            pass
         os.replace(tmp, target)
     except OSError as exc:
         raise LoggingError(f"cannot write the recovered recording of {path} ({exc.strerror or exc}); the file and its "

@@ -24,7 +24,9 @@ import signal
 import socket
 import subprocess
 import sys
+import threading
 import time
+from contextlib import suppress
 from pathlib import Path
 from urllib.parse import quote, urlsplit
 
@@ -55,14 +57,12 @@ def quiet_env(env: dict | None = None) -> dict:
         import tempfile
 
         own = Path(tempfile.gettempdir()) / f"qchain-rerun-config-{os.getuid()}"
-        try:
+        with suppress(OSError):  # no config folder of our own: the variables above still hold
             (own / "rerun").mkdir(parents=True, exist_ok=True)
             f = own / "rerun" / "analytics.json"
             if not f.exists():
                 f.write_text(json.dumps({"analytics_enabled": False, "opt_in_metadata": {}}))
             env["XDG_CONFIG_HOME"] = str(own)
-        except OSError:  # no config folder of our own: the variables above still hold
-            pass
     return env
 
 
@@ -212,10 +212,9 @@ def probe_viewer(url: str, timeout: float = CONNECT_TIMEOUT) -> str | None:
 
             ctx = ssl.create_default_context()
             ctx.set_alpn_protocols(["h2"])
-            try:
+            # it answered (a certificate problem is the SDK's to report, within the deadline)
+            with suppress(ssl.SSLError):
                 ctx.wrap_socket(sock, server_hostname=host).close()
-            except ssl.SSLError:
-                return None  # it answered (a certificate problem is the SDK's to report, within the deadline)
             return None
         sock.sendall(_H2_PREFACE)
         got = b""
@@ -251,7 +250,6 @@ def bound_rerun_exit(limit: float = 5.0) -> None:
     if _EXIT_BOUNDED:
         return
     import atexit
-    import threading
 
     import rerun as rr
 
@@ -268,27 +266,45 @@ def bound_rerun_exit(limit: float = 5.0) -> None:
 
 def rerun_cli() -> str | None:
     """Path of the ``rerun`` program shipped in the rerun-sdk wheel (or on PATH)."""
-    try:
+    with suppress(ImportError):
         import rerun_cli as _rc
 
         exe = Path(_rc.__file__).parent / ("rerun.exe" if os.name == "nt" else "rerun")
         if exe.exists():
             return str(exe)
-    except ImportError:
-        pass
     import shutil
 
     return shutil.which("rerun")
 
 
-def _die_with_parent() -> None:  # runs in the forked child before exec
+def _die_with_parent(sig: int = signal.SIGTERM) -> None:  # in a child: the web viewer's before exec, replay's sender
     if sys.platform.startswith("linux"):
-        try:
+        with suppress(OSError, AttributeError):
             import ctypes
 
-            ctypes.CDLL(None).prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
-        except (OSError, AttributeError):
-            pass
+            ctypes.CDLL(None).prctl(1, sig)  # PR_SET_PDEATHSIG
+
+
+def _reap(proc: subprocess.Popen, kill_after: float | None = 30.0) -> None:
+    """Wait for a child's exit (it ends on its own, within its deadlines); kill it after
+    ``kill_after`` s (None: one left to finish a recording is not cut short)."""
+    try:
+        proc.wait(kill_after)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.wait()
+
+
+def _bounded(fn, limit: float, name: str) -> None:
+    """Run ``fn()`` on a daemon thread and wait for it at most ``limit`` s (its exceptions
+    are dropped: this is for taking leave)."""
+    def run():
+        with suppress(Exception):
+            fn()
+
+    th = threading.Thread(target=run, name=name, daemon=True)
+    th.start()
+    th.join(limit)
 
 
 class RerunSink:
@@ -377,11 +393,7 @@ class RerunSink:
             front.close()
         if self.web is not None and self.web.poll() is None:
             self.web.terminate()
-            try:
-                self.web.wait(5.0)
-            except subprocess.TimeoutExpired:
-                self.web.kill()
-                self.web.wait()
+            _reap(self.web, 5.0)
         self.web = None
 
     # -- static part ---------------------------------------------------------------------
@@ -427,20 +439,23 @@ class RerunSink:
         """Index of the first segment coordinate (after the base's)."""
         return max(0, b.q.shape[1] - 3 * self.info.n_segments)
 
-    def _reach(self, b: Batch) -> float:
+    @staticmethod
+    def _drawn_lengths(b: Batch) -> np.ndarray:
+        """Lengths (n,) m of the segments as the first record's backbone draws them."""
         n, P = b.backbone.shape[1], b.backbone.shape[2]
+        return np.linalg.norm(np.diff(np.nan_to_num(b.backbone[0]), axis=1), axis=2).sum(axis=1) if P > 1 \
+            else np.zeros(n)
+
+    def _reach(self, b: Batch) -> float:
         lengths = self.info.params.get("segments") if isinstance(self.info.params, dict) else None
-        if isinstance(lengths, list) and len(lengths) == n and all("length" in s for s in lengths):
+        if isinstance(lengths, list) and len(lengths) == b.backbone.shape[1] and all("length" in s for s in lengths):
             return float(sum(float(s["length"]) for s in lengths))
-        bb0 = np.nan_to_num(b.backbone[0])
-        seg = np.linalg.norm(np.diff(bb0, axis=1), axis=2).sum(axis=1) if P > 1 else np.zeros(n)
-        return max(float(seg.sum()), 8.0 * float(np.sum(self.info.radii)))
+        return max(float(self._drawn_lengths(b).sum()), 8.0 * float(np.sum(self.info.radii)))
 
     def _start(self, b: Batch) -> None:
         rr, rec, info = self.rr, self.rec, self.info
-        n, P = b.backbone.shape[1], b.backbone.shape[2]
-        bb0 = np.nan_to_num(b.backbone[0])
-        seg_len = np.linalg.norm(np.diff(bb0, axis=1), axis=2).sum(axis=1) if P > 1 else np.zeros(n)
+        n = b.backbone.shape[1]
+        seg_len = self._drawn_lengths(b)
         seg_len = np.where(seg_len > 0, seg_len, 4.0 * np.asarray(info.radii))
         self._arrow_scale = 0.5 * seg_len / info.pressure_ref  # m/Pa, (n,)
         radii = np.asarray(info.radii)
@@ -525,12 +540,10 @@ class RerunSink:
         if not self.serving:
             self.rec.disconnect()
         else:
-            try:
+            with suppress(Exception):  # pragma: no cover - best effort
                 import rerun_bindings
 
                 rerun_bindings.finalize_deferred_sinks(recording=self.rec.to_native())
-            except Exception:  # pragma: no cover - best effort
-                pass
 
     def close(self) -> None:
         if self.rec is not None:
@@ -547,10 +560,9 @@ class RerunSink:
         rec = self.rec
         if rec is not None and rec not in _ABANDONED:
             _ABANDONED.append(rec)
-            try:  # also through the interpreter's teardown, which clears module globals
+            # also through the interpreter's teardown, which clears module globals
+            with suppress(ImportError, AttributeError, OSError):  # (not CPython: nothing to keep it with)
                 import ctypes
 
                 ctypes.pythonapi.Py_IncRef(ctypes.py_object(rec))
-            except (ImportError, AttributeError, OSError):  # pragma: no cover - not CPython
-                pass
         bound_rerun_exit()

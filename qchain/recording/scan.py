@@ -8,7 +8,7 @@ damage and searches forward for the next record it can trust: a chunk whose unco
 data match its CRC, or a metadata record whose qchain seal matches. Every byte between is
 reported as damaged; nothing after it is lost.
 
-Given a :class:`~qchain.recording.bounded.Budget`, a scan processes at most the bytes and
+Given a :class:`~qchain.recording.bounded.ReadBudget`, a scan processes at most the bytes and
 records it allows (:class:`~qchain.recording.bounded.LimitExceeded` past them): a chunk is
 decompressed to at most what the budget has left whatever sizes it declares, the records
 inside are counted, and the search past damage costs the bytes it examines and is linear
@@ -31,10 +31,10 @@ from mcap.opcode import Opcode
 from mcap.records import (Attachment, AttachmentIndex, Channel, Chunk, ChunkIndex, DataEnd, Footer, Header, Message,
                           MessageIndex, Metadata, MetadataIndex, Schema, Statistics, SummaryOffset)
 
-from .bounded import Budget, LimitExceeded, decompress
+from .bounded import LimitExceeded, ReadBudget, decompress
 from .records import unseal
 
-__all__ = ["MAGIC", "Item", "scan", "summary_chunks", "summary_records"]
+__all__ = ["MAGIC", "Item", "scan", "summary_records"]
 
 MAGIC = b"\x89MCAP0\r\n"
 _HEAD = struct.Struct("<BQ")
@@ -75,7 +75,7 @@ class Item:
     reason: str = ""
 
 
-def _records(data: bytes, budget: Budget | None, offset: int) -> list:
+def _records(data: bytes, budget: ReadBudget | None, offset: int) -> list:
     """The records inside a chunk's uncompressed ``data`` (the library's record classes);
     records of an opcode the format does not know are skipped, as the library does."""
     out = []
@@ -111,7 +111,7 @@ def _records(data: bytes, budget: Budget | None, offset: int) -> list:
     return out
 
 
-def _chunk(buf, pos: int, length: int, budget: Budget | None = None) -> tuple[Chunk, list, str]:
+def _chunk(buf, pos: int, length: int, budget: ReadBudget | None = None) -> tuple[Chunk, list, str]:
     """The chunk record at ``pos`` (its body ``length`` bytes), its records and a note (a
     damaged size field whose data are intact); raises ValueError on any damage,
     :class:`LimitExceeded` past the budget."""
@@ -157,7 +157,7 @@ def _chunk(buf, pos: int, length: int, budget: Budget | None = None) -> tuple[Ch
     return chunk, records, note
 
 
-def _metadata(buf, pos: int, length: int, budget: Budget | None = None) -> Metadata:
+def _metadata(buf, pos: int, length: int, budget: ReadBudget | None = None) -> Metadata:
     if budget is not None:
         budget.spend(length, pos)
     try:
@@ -166,7 +166,7 @@ def _metadata(buf, pos: int, length: int, budget: Budget | None = None) -> Metad
         raise ValueError(f"{type(exc).__name__}: {exc}") from None
 
 
-def _exact(buf, pos: int, length: int, opcode: int, budget: Budget | None) -> bool:
+def _exact(buf, pos: int, length: int, opcode: int, budget: ReadBudget | None) -> bool:
     """Whether the record at ``pos`` parses (the mcap library's record class) to exactly its
     ``length`` bytes; a message outside a chunk (its data are the rest of it) counts as such."""
     cls = _CLASSES.get(opcode)
@@ -205,7 +205,7 @@ def _followed(buf, end: int, size: int, final: bool) -> bool:
     return opcode in _KNOWN and (end + 9 + length <= size or not final)
 
 
-def _trusted_at(buf, pos: int, size: int, budget: Budget | None = None) -> Item | None:
+def _trusted_at(buf, pos: int, size: int, budget: ReadBudget | None = None) -> Item | None:
     """The record at ``pos`` if it is one a resynchronisation may trust, else None."""
     if size - pos < 9:
         return None
@@ -213,33 +213,28 @@ def _trusted_at(buf, pos: int, size: int, budget: Budget | None = None) -> Item 
     end = pos + 9 + length
     if end > size:
         return None
-    if opcode == Opcode.CHUNK:
-        try:
+    try:  # a record that does not parse is none to trust (a reading limit passed is said, never skipped)
+        if opcode == Opcode.CHUNK:
             chunk, records, note = _chunk(buf, pos, length, budget)
-        except ValueError as exc:
-            if isinstance(exc, LimitExceeded):
-                raise
-            return None
-        return Item("chunk", pos, end, opcode, records=records, chunk=chunk, reason=note)
-    if opcode == Opcode.METADATA and length < 1 << 28:
-        try:
+            return Item("chunk", pos, end, opcode, records=records, chunk=chunk, reason=note)
+        if opcode == Opcode.METADATA and length < 1 << 28:
             rec = _metadata(buf, pos, length, budget)
-        except ValueError as exc:
-            if isinstance(exc, LimitExceeded):
-                raise
+            if rec.name.startswith("qchain"):
+                if budget is not None:
+                    budget.spend(length, pos)  # the seal's check
+                if unseal(rec.metadata) is not None:
+                    return Item("metadata", pos, end, opcode, record=rec)
             return None
-        if rec.name.startswith("qchain"):
-            if budget is not None:
-                budget.spend(length, pos)  # the seal's check
-            if unseal(rec.metadata) is not None:
-                return Item("metadata", pos, end, opcode, record=rec)
+    except LimitExceeded:
+        raise
+    except ValueError:
         return None
     if opcode == Opcode.FOOTER and length == 20 and bytes(buf[end : end + 8]) == MAGIC:
         return Item("footer", pos, end + 8, opcode)
     return None
 
 
-def _resync(buf, start: int, size: int, budget: Budget | None = None) -> Item | None:
+def _resync(buf, start: int, size: int, budget: ReadBudget | None = None) -> Item | None:
     """The first trusted record at or after ``start`` (linear in the bytes searched)."""
     for m in _CANDIDATE.finditer(buf, start, size):
         item = _trusted_at(buf, m.start(), size, budget)
@@ -248,7 +243,7 @@ def _resync(buf, start: int, size: int, budget: Budget | None = None) -> Item | 
     return None
 
 
-def scan(buf, start: int = len(MAGIC), final: bool = True, budget: Budget | None = None):
+def scan(buf, start: int = len(MAGIC), final: bool = True, budget: ReadBudget | None = None):
     """Items of the MCAP data in ``buf`` (bytes, bytearray or mmap) from ``start`` on.
 
     Parameters
@@ -261,7 +256,7 @@ def scan(buf, start: int = len(MAGIC), final: bool = True, budget: Budget | None
         The file is complete as it stands. If False (a file still being written), a record
         not complete yet ends the scan without an ``"end"`` item; the last item's ``end`` is
         where to resume.
-    budget : Budget or None
+    budget : ReadBudget or None
         What the scan may process (None: no limit, for a file this process wrote).
 
     Raises
@@ -344,14 +339,7 @@ def scan(buf, start: int = len(MAGIC), final: bool = True, budget: Budget | None
 
 
 
-def summary_chunks(buf) -> list | None:
-    """The chunk indexes of a complete file's summary, if its footer and summary are intact
-    (the summary's CRC matches), else None."""
-    found = summary_records(buf)
-    return None if found is None else found[0]
-
-
-def summary_records(buf, budget: Budget | None = None):
+def summary_records(buf, budget: ReadBudget | None = None):
     """``(chunk indexes, statistics or None)`` of a complete file's summary, if its footer
     and summary are intact (the summary's CRC matches), else None; the records parsed
     are counted in ``budget``."""

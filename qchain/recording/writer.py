@@ -31,6 +31,7 @@ import subprocess
 import sys
 import threading
 import time
+from contextlib import suppress
 from multiprocessing.connection import Connection
 from pathlib import Path
 from typing import BinaryIO
@@ -38,6 +39,7 @@ from typing import BinaryIO
 import numpy as np
 
 from .records import Batch, RecordLayout, RunInfo
+from .rerun_sink import _bounded, _reap
 
 __all__ = ["Sinks", "RemoteViewer", "ThreadWriter", "launch", "prepare_writer", "take_spare", "WRITER_POLL",
            "TEARDOWN_LIMIT", "BEAT_INTERVAL"]
@@ -50,21 +52,6 @@ DEFAULT_RERUN_LATENCY = 0.2
 TEARDOWN_LIMIT = 5.0
 #: s between two signs of life of the writer while it finishes a recording.
 BEAT_INTERVAL = 1.0
-
-
-def _bounded(fn, limit: float, name: str) -> bool:
-    """Run ``fn()`` on a daemon thread; True if it returned within ``limit`` s (its
-    exceptions are dropped: this is for taking leave)."""
-    def run():
-        try:
-            fn()
-        except Exception:
-            pass
-
-    th = threading.Thread(target=run, name=name, daemon=True)
-    th.start()
-    th.join(limit)
-    return not th.is_alive()
 
 
 class RemoteViewer:
@@ -525,12 +512,10 @@ def process_main(fd: int) -> int:
     """Entry point of the writer process; ``fd`` is its end of the control socket pair."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the simulating process decides when to stop
     conn = Connection(fd)
-    try:
+    with suppress(ImportError):
         import foxglove.messages  # noqa: F401  (imports first: they take most of the start-up)
         import mcap.writer  # noqa: F401
         import orjson  # noqa: F401
-    except ImportError:
-        pass
     try:
         kind, cfg = conn.recv()
     except (EOFError, OSError):
@@ -566,13 +551,12 @@ def process_main(fd: int) -> int:
         _send(conn, ("error", {"message": f"{type(exc).__name__}: {exc}"}))
         return 2
     sinks.warn = warn_live
-    web = sinks.rerun.web if sinks.rerun is not None else None
     # the simulating process may be gone already (killed while this process started): then
     # the journal holds everything it logged, and the recording is finished from it below
     alive = _send(conn, ("ready", {"viewer_url": sinks.viewer_url,
-                                   "grpc_url": sinks.rerun.grpc_url if sinks.rerun is not None else None,
+                                   "grpc_url": getattr(sinks.rerun, "grpc_url", None),
                                    "warnings": startup, "pid": os.getpid(),
-                                   "web_pid": web.pid if web is not None else None}))
+                                   "web_pid": getattr(getattr(sinks.rerun, "web", None), "pid", None)}))
     poll = float(cfg.get("poll", WRITER_POLL))
     outcome = None
     try:
@@ -619,11 +603,8 @@ def process_main(fd: int) -> int:
         _bounded(sinks.close, TEARDOWN_LIMIT, "qchain-rerun-close")
         return 1
     journal.close()
-    if cfg.get("remove_journal", True):
-        try:
-            Path(cfg["journal"]).unlink()
-        except FileNotFoundError:
-            pass
+    with suppress(FileNotFoundError):
+        Path(cfg["journal"]).unlink()
     # the recording is complete: said before anything of Rerun's that may wait for a peer
     summary["viewer_pending"] = sinks.viewer_pending
     alive = _send(conn, ("finished", summary)) and alive
@@ -631,11 +612,9 @@ def process_main(fd: int) -> int:
         taken = sinks.finish_viewer() is None
         alive = alive and not gone.is_set() and _send(conn, ("viewer", {"taken": taken}))
     if alive:  # a served viewer stays up until the simulating process lets go
-        try:
+        with suppress(EOFError, OSError):
             while True:
                 conn.recv()
-        except (EOFError, OSError):
-            pass
     gone.set()
     _bounded(sinks.close, TEARDOWN_LIMIT, "qchain-rerun-close")  # then os._exit, whatever Rerun still waits for
     return 0
@@ -692,11 +671,7 @@ def take_spare() -> tuple[subprocess.Popen, Connection] | None:
 def _stop_spares() -> None:  # pragma: no cover - interpreter shutdown
     for p, c in _SPARES:
         c.close()  # the writer sees EOF before its configuration and exits
-        try:
-            p.wait(5.0)
-        except subprocess.TimeoutExpired:
-            p.kill()
-            p.wait()
+        _reap(p, 5.0)
     _SPARES.clear()
 
 
@@ -710,8 +685,6 @@ if __name__ == "__main__":
         _code = process_main(int(sys.argv[1]))
     finally:  # never the interpreter's exit: Rerun's exit handler waits for a stalled peer without end
         for _f in (sys.stdout, sys.stderr):
-            try:
+            with suppress(Exception):
                 _f.flush()
-            except Exception:
-                pass
         os._exit(_code)

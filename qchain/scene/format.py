@@ -19,22 +19,22 @@ from __future__ import annotations
 import difflib
 import math
 import re
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from ..checks import bounds as B
 from ..checks.bounds import Range
+from ..checks.paths import has_nul, show_nul
 from ..sim.budget import DEFAULT as DEFAULT_BUDGET
 from ..sim.budget import RANGES as BUDGET_RANGES
-from ..errors import QchainError
-from ..checks.text import printable
+from ..errors import MAX_LISTED, SceneError
 from ..model.segment import DEFAULT_NODES
 from ..sim.simulation import DEFAULT_METHOD, FIXED_STEP, METHODS
 
 __all__ = [
     "Field",
-    "Table",
+    "KeyTable",
     "TABLES",
     "Problem",
     "SceneError",
@@ -56,8 +56,6 @@ MAX_DEPTH = 32
 MAX_SCENE_BYTES = 8 * 2**20
 #: Largest initial stretch ``l / l0`` of a segment in a scene.
 MAX_STRETCH = 10.0
-#: Problems a :class:`SceneError`'s message lists (``problems`` holds them all).
-MAX_LISTED = 50
 #: Longest path component of ``output.folder`` (bytes, UTF-8): most file systems' limit.
 MAX_NAME_BYTES = 255
 #: Longest ``output.folder`` (bytes, UTF-8): Linux's ``PATH_MAX`` less its NUL.
@@ -66,6 +64,13 @@ MAX_PATH_BYTES = 4095
 
 # --------------------------------------------------------------------------------------
 # the declaration
+
+
+#: how the documentation names each kind of :class:`Field` (a kind not here: its own name)
+_TYPE_TEXTS = {"per_segment": "3 numbers a segment", "number_or_per_segment": "number, or 3 a segment",
+               "times": "array of numbers, increasing", "rows": "array of pressure vectors",
+               "names": "array of strings", "tables": "array of tables", "choice": "string",
+               "path": "string (a folder path)"}
 
 
 @dataclass(frozen=True)
@@ -106,43 +111,20 @@ class Field:
     when: tuple = ()
 
     def type_text(self) -> str:
-        k = self.kind
-        if k == "vector":
+        if self.kind == "vector":
             return f"array of {self.size} numbers"
-        if k == "per_segment":
-            return "3 numbers a segment"
-        if k == "number_or_per_segment":
-            return "number, or 3 a segment"
-        if k == "times":
-            return "array of numbers, increasing"
-        if k == "rows":
-            return "array of pressure vectors"
-        if k == "names":
-            return "array of strings"
-        if k == "tables":
-            return "array of tables"
-        if k == "choice":
-            return "string"
-        if k == "path":
-            return "string (a folder path)"
-        return k
+        return _TYPE_TEXTS.get(self.kind, self.kind)
 
     def range_text(self) -> str:
         if self.choices:
             return ", ".join(f'`"{c}"`' for c in self.choices)
-        if self.range is not None:
-            r = self.range
-            parts = []
-            if r.low is not None:
-                parts.append(f"{'>' if r.low_open else '>='} {_num(r.low)}")
-            if r.high is not None:
-                parts.append(f"{'<' if r.high_open else '<='} {_num(r.high)}")
-            return " and ".join(parts)
+        if self.range is not None and (self.range.low is not None or self.range.high is not None):
+            return replace(self.range, unit="").text()  # the bounds alone: the unit has its own column
         return ""
 
 
 @dataclass(frozen=True)
-class Table:
+class KeyTable:
     """A table of a scene file: its dotted ``path`` (``""`` for the top level, ``segments[]``
     for an array of tables), what it is, and its fields."""
 
@@ -162,13 +144,9 @@ class Table:
         return tuple(f.key for f in self.fields if kind is None or not f.when or kind in f.when)
 
 
-def _num(x: float) -> str:
-    return "inf" if x == math.inf else f"{x:g}"
-
-
 PRESSURE_KINDS = ("constant", "step", "ramp", "sine", "table")
 
-TOP = Table("", "The top level of the file.", (
+TOP = KeyTable("", "The top level of the file.", (
     Field("name", "string", "Free text: the scene's name (plot titles, recordings).", default='""'),
     Field("description", "string", "Free text.", default='""'),
     Field("gravity", "vector", "Gravity, world frame.", B.GRAVITY, default="[0, 0, -9.81]", size=3),
@@ -182,7 +160,7 @@ TOP = Table("", "The top level of the file.", (
     Field("budget", "table", "What a run may cost before it is refused (below)."),
 ))
 
-MODEL = Table("model", "How the model is built (\"Model reduction\" in `qchain/scene.py`).", (
+MODEL = KeyTable("model", "How the model is built (\"Model reduction\" in `qchain/scene/scene.py`).", (
     Field("reduce", "boolean", "Automatic reductions (planar, node count) on.", default="true"),
     Field("node_tolerance", "number", "Relative `M_xi` accuracy the node count of each segment is sized for.",
           B.NODE_TOLERANCE, default="none: `nodes` or the default node count"),
@@ -190,7 +168,7 @@ MODEL = Table("model", "How the model is built (\"Model reduction\" in `qchain/s
           default="estimated from the static bends under the peak pressures"),
 ))
 
-SEGMENT = Table("segments[]", "One table a segment, base to tip: `[[segments]]`.", (
+SEGMENT = KeyTable("segments[]", "One table a segment, base to tip: `[[segments]]`.", (
     Field("count", "integer", "Copies of this segment; all of them count against `budget.max_segments`.",
           Range(1, None, integer=True), default="1"),
     Field("length", "number", "Rest length `l0`.", B.LENGTH, required=True),
@@ -211,7 +189,7 @@ SEGMENT = Table("segments[]", "One table a segment, base to tip: `[[segments]]`.
           default=f"{DEFAULT_NODES}, or sized from `model.node_tolerance`"),
 ))
 
-BASE = Table("base", "The base the first segment is mounted on.", (
+BASE = KeyTable("base", "The base the first segment is mounted on.", (
     Field("type", "choice", "Fixed mount, free-floating body, or a mount moved by `base.motion`.",
           choices=("fixed", "floating", "prescribed"), default='"fixed"'),
     Field("position", "vector", "World position: the mount (fixed, prescribed) or the start (floating).",
@@ -225,7 +203,7 @@ BASE = Table("base", "The base the first segment is mounted on.", (
     Field("motion", "table", "The mount's motion (below).", required=True, when=("prescribed",)),
 ))
 
-MOTION = Table("base.motion", "A prescribed base's sinusoidal motion `s(t) = amplitude sin(2 pi frequency t + "
+MOTION = KeyTable("base.motion", "A prescribed base's sinusoidal motion `s(t) = amplitude sin(2 pi frequency t + "
                "phase)` along or about `axis` (mount frame).", (
     Field("type", "choice", "A shift along `axis`, or a turn about it through the mount origin.",
           choices=("translation", "rotation"), required=True),
@@ -235,7 +213,7 @@ MOTION = Table("base.motion", "A prescribed base's sinusoidal motion `s(t) = amp
     Field("phase", "number", "rad.", B.ANGLE, default="0"),
 ))
 
-PRESSURE = Table("pressure", "Gauge chamber pressures, one of five kinds (`type`). A pressure vector holds 3 "
+PRESSURE = KeyTable("pressure", "Gauge chamber pressures, one of five kinds (`type`). A pressure vector holds 3 "
                  "numbers a segment (chambers 1 to 3), flat or as one array of 3 a segment.", (
     Field("type", "choice", "The kind of schedule.", choices=PRESSURE_KINDS, required=True),
     Field("value", "per_segment", "`constant`: the pressures.", B.PRESSURE, required=True, when=("constant",)),
@@ -262,7 +240,7 @@ PRESSURE = Table("pressure", "Gauge chamber pressures, one of five kinds (`type`
           B.PRESSURE, required=True, when=("table",)),
 ))
 
-INITIAL = Table("initial", "The initial state; a floating base starts at `base.position`, `base.rpy`, "
+INITIAL = KeyTable("initial", "The initial state; a floating base starts at `base.position`, `base.rpy`, "
                 "`base.velocity`, `base.angular_velocity`.", (
     Field("q_e", "per_segment", f"Segment coordinates, each in the segment's own `coords`: inside the model "
           f"(`l > 0`, `abs(kappa) r_s < 1`, `kappa >= 0` in paper coordinates), `l <= {MAX_STRETCH:g} l0`, "
@@ -270,10 +248,11 @@ INITIAL = Table("initial", "The initial state; a floating base starts at `base.p
     Field("v", "per_segment", "Their rates (0 for `l` if inextensible).", B.RATE, default="zeros"),
 ))
 
-SIMULATION = Table("simulation", "The run.", (
+SIMULATION = KeyTable("simulation", "The run.", (
     Field("duration", "number", "Length of the run.", B.DURATION, required=True),
-    Field("method", "choice", "Integration method (`qchain/simulate.py`), any case.", choices=METHODS,
-          default=f'"{DEFAULT_METHOD}"'),
+    Field("method", "choice", "Integration method (`qchain/sim/simulation.py`), any case: the first four are "
+          "compiled, the rest scipy's `solve_ivp` in Python (`radau` is scipy's Radau, not `radau5`); `qchain info` "
+          "says which.", choices=METHODS, default=f'"{DEFAULT_METHOD}"'),
     Field("rtol", "number", "Relative tolerance of the adaptive methods.", B.RTOL, default="1e-6"),
     Field("atol", "number", "Absolute tolerance of the adaptive methods.", B.ATOL, default="1e-8"),
     Field("dt", "number", f"Step of the fixed-step methods ({', '.join(FIXED_STEP)}): required there, refused by "
@@ -282,7 +261,7 @@ SIMULATION = Table("simulation", "The run.", (
           default="unbounded"),
 ))
 
-OUTPUT = Table("output", "What a run writes (`qchain run`).", (
+OUTPUT = KeyTable("output", "What a run writes (`qchain run`).", (
     Field("sample_rate", "number", "Samples of the trajectory a second.", B.SAMPLE_RATE, default="100"),
     Field("folder", "path", "Where the plots and `trajectory.npz` go, relative to the working directory: not "
           f"empty, no NUL character, no path component over {MAX_NAME_BYTES} bytes, at most {MAX_PATH_BYTES} bytes in "
@@ -292,7 +271,7 @@ OUTPUT = Table("output", "What a run writes (`qchain run`).", (
     Field("save", "boolean", "Write `trajectory.npz` (t, q, v, p, energies).", default="true"),
 ))
 
-BUDGET = Table("budget", "What a run may cost (`qchain/budget.py`): a scene whose run would exceed one of these "
+BUDGET = KeyTable("budget", "What a run may cost (`qchain/sim/budget.py`): a scene whose run would exceed one of these "
                "is refused before it starts, naming the bound; raise it here to allow more.", (
     Field("max_steps", "integer", "Integrator steps: `duration / dt`, `duration / max_step`, or 2 a period of the "
           "fastest sine input or base motion.", BUDGET_RANGES["max_steps"], default=str(DEFAULT_BUDGET.max_steps)),
@@ -324,44 +303,14 @@ class Problem:
         return f"{self.key}: expected {self.expected}, found {self.found}"
 
 
-class SceneError(QchainError, ValueError):
-    """A scene file that cannot be used; ``problems`` lists every problem found.
-
-    The message names the file and, for each problem, the key, what was expected and
-    what was found.
-    """
-
-    def __init__(self, path: str, problems: list[Problem]):
-        self.path = str(path)
-        self.problems = list(problems)
-        where = self.path if len(self.path) <= 200 else f"{self.path[:100]}...{self.path[-97:]}"  # a 4 KB path: cut
-        where = printable(where)  # a problem a line: a newline or escape sequence in a name stays in its line
-        if len(self.problems) == 1:
-            msg = f"{where}: {printable(self.problems[0])}"
-        else:
-            shown = self.problems[:MAX_LISTED]
-            msg = f"{where}: {len(self.problems)} problems:\n" + "\n".join(f"  {printable(p)}" for p in shown)
-            if len(self.problems) > MAX_LISTED:
-                msg += f"\n  ... and {len(self.problems) - MAX_LISTED} more (SceneError.problems lists them all)"
-        super().__init__(msg)
-
-
 _MISSING = object()
 
 
 def _type_name(v) -> str:
-    if isinstance(v, bool):
-        return "a boolean"
-    if isinstance(v, int):
-        return "an integer"
-    if isinstance(v, float):
-        return "a float"
-    if isinstance(v, str):
-        return "a string"
-    if isinstance(v, list):
-        return "an array"
-    if isinstance(v, dict):
-        return "a table"
+    for kind, name in ((bool, "a boolean"), (int, "an integer"), (float, "a float"), (str, "a string"),
+                       (list, "an array"), (dict, "a table")):  # bool before int: a bool is an int
+        if isinstance(v, kind):
+            return name
     return f"a {type(v).__name__}"
 
 
@@ -469,16 +418,16 @@ class _Checker:
                 self.add(f"{path}.{k}" if path else k, f"one of the keys {', '.join(allowed)}{hint}",
                          f"the unknown key {_show(k)}" if len(k) > 40 else f"the unknown key {k!r}")
 
+    def section(self, d: dict, key: str, allowed) -> dict:
+        """The optional table ``d[key]`` (``{}`` if missing or wrong), its keys checked against ``allowed``."""
+        t = self.table(d, key, key) or {}
+        self.keys(t, key, allowed)
+        return t
+
     def table(self, d: dict, key: str, path: str, required: bool = False) -> dict | None:
-        v = d.get(key, _MISSING)
-        if v is _MISSING:
-            if required:
-                self.add(path, "a table", "nothing")
-            return None
-        if not isinstance(v, dict):
-            self.add(path, "a table", f"{_type_name(v)} {_show(v)}")
-            return None
-        return v
+        if required and key not in d:
+            self.add(path, "a table", "nothing")
+        return self._typed(d, key, path, None, dict, "a table")
 
     def field(self, d: dict, f: Field, path: str, default=None):
         """The value of the declared field ``f`` of table ``d`` (scalar kinds), checked
@@ -504,15 +453,10 @@ class _Checker:
         raise ValueError(f"field {f.key}: kind {f.kind!r} is not a scalar kind")  # pragma: no cover
 
     def number(self, d: dict, key: str, path: str, unit: str = "", *, default=None, required: bool = False,
-               minimum: float | None = None, strict: bool = True, maximum: float | None = None,
-               bounds: Range | None = None):
-        """A finite real number inside ``bounds`` (or above ``minimum``: ``> minimum`` if
-        ``strict``, else ``>=``; at most ``maximum``)."""
-        if bounds is None:
-            bounds = Range(minimum, maximum, low_open=strict)
+               bounds: Range):
+        """A finite real number inside ``bounds``."""
         v = d.get(key, _MISSING)
-        u = f" ({unit})" if unit else ""
-        what = Range(bounds.low, bounds.high, low_open=bounds.low_open, high_open=bounds.high_open).what() + u
+        what = replace(bounds, unit="", integer=False).what() + (f" ({unit})" if unit else "")
         if v is _MISSING:
             if required:
                 self.add(path, what, "nothing (the key is required)")
@@ -546,20 +490,18 @@ class _Checker:
         return int(v)
 
     def boolean(self, d: dict, key: str, path: str, default: bool) -> bool:
-        v = d.get(key, _MISSING)
-        if v is _MISSING:
-            return default
-        if not isinstance(v, bool):
-            self.add(path, "true or false", f"{_type_name(v)} {_show(v)}")
-            return default
-        return v
+        return self._typed(d, key, path, default, bool, "true or false")
 
     def string(self, d: dict, key: str, path: str, default: str | None = None) -> str | None:
+        return self._typed(d, key, path, default, str, "a string")
+
+    def _typed(self, d: dict, key: str, path: str, default, kind: type, what: str):
+        """``d[key]`` if it is a ``kind`` (``what`` in the problem otherwise), ``default`` if missing or not."""
         v = d.get(key, _MISSING)
         if v is _MISSING:
             return default
-        if not isinstance(v, str):
-            self.add(path, "a string", f"{_type_name(v)} {_show(v)}")
+        if not isinstance(v, kind):
+            self.add(path, what, f"{_type_name(v)} {_show(v)}")
             return default
         return v
 
@@ -572,8 +514,8 @@ class _Checker:
         if not v.strip():
             self.add(path, "a folder path", _show(v))
             return None
-        if "\0" in v:
-            self.add(path, "a folder path without a NUL character", _show(v.replace("\0", "\\0")))
+        if has_nul(v):
+            self.add(path, "a folder path without a NUL character", _show(show_nul(v)))
             return None
         size = len(v.encode("utf-8", "surrogatepass"))
         if size > MAX_PATH_BYTES:
@@ -626,16 +568,12 @@ class _Checker:
     def vector(self, d: dict, key: str, path: str, size: int, unit: str = "", default=None,
                bounds: Range | None = None):
         v = d.get(key, _MISSING)
-        if v is _MISSING:
-            return None if default is None else np.array(default, dtype=float)
         what = f"an array of {size} numbers{f' ({unit})' if unit else ''}"
-        arr = self._numbers(v, path, what, bounds)
-        if arr is None:
-            return None if default is None else np.array(default, dtype=float)
-        if arr.size != size:
+        arr = None if v is _MISSING else self._numbers(v, path, what, bounds)
+        if arr is not None and arr.size != size:
             self.add(path, what, f"{arr.size} numbers {_show(v)}")
-            return None if default is None else np.array(default, dtype=float)
-        return arr
+            arr = None
+        return arr if arr is not None or default is None else np.array(default, dtype=float)
 
     def per_segment(self, v, path: str, n: int | None, unit: str = "", width: int = 3,
                     bounds: Range | None = None) -> np.ndarray | None:
@@ -665,13 +603,8 @@ class _Checker:
             if all(_is_number(x) for x in v):
                 self.add(path, what, f"{len(v)} numbers {_show(v)}")
                 return None
-        arr = self._numbers(v, path, what, bounds)
-        if arr is None:
-            return None
-        if arr.size != n * width:
-            self.add(path, what, f"{arr.size} numbers {_show(v)}")
-            return None
-        return arr.reshape(n, width)
+        arr = self._numbers(v, path, what, bounds)  # (a list of numbers of another length is said above)
+        return None if arr is None else arr.reshape(n, width)
 
 
 # --------------------------------------------------------------------------------------
@@ -731,8 +664,8 @@ def markdown() -> str:
     out = [
         "# Scene file format",
         "",
-        "<!-- Generated from qchain/scene_format.py by `python -m qchain.scene.format > docs/scene-format.md`;",
-        "     tests/test_bad_input.py checks that this file is up to date. Do not edit by hand. -->",
+        "<!-- Generated from qchain/scene/format.py by `.venv/bin/python -m qchain.scene.format > docs/scene-format.md`;",
+        "     tests/test_scene_values.py checks that this file is up to date. Do not edit by hand. -->",
         "",
         "A scene file is TOML describing a soft arm, its inputs and a run (`qchain run SCENE.toml`,",
         "`qchain.load_scene(path)`). Units are SI throughout: m, kg, s, Pa, rad, Hz. Every key is",
@@ -743,7 +676,7 @@ def markdown() -> str:
         "`pressure.values[2]`).",
         "",
         f"A file is at most {MAX_SCENE_BYTES} bytes of UTF-8 and nests arrays and inline tables at most",
-        f"{MAX_DEPTH} deep. Ranges are `qchain/bounds.py`'s, the same that `qchain.Segment` and",
+        f"{MAX_DEPTH} deep. Ranges are `qchain/checks/bounds.py`'s, the same that `qchain.Segment` and",
         "`qchain.simulate` check; they are far wider than any soft arm needs and keep every",
         "product of them finite.",
         "",

@@ -11,6 +11,7 @@ state of its own.
 from __future__ import annotations
 
 import functools
+import itertools
 import math
 from dataclasses import dataclass
 
@@ -20,7 +21,7 @@ import pinocchio as pin
 from ..arm.chain import Chain
 from ..sim.inputs import Schedule
 from .parts import _vec_str
-from ..model.segment import CHAMBER_ANGLES, DEFAULT_NODES
+from ..model.segment import CHAMBER_ANGLES, DEFAULT_NODES, nodes_for_tolerance
 
 __all__ = ["SceneModel", "ModelBuilder", "BEND_MARGIN", "BEND_SAMPLES"]
 
@@ -67,15 +68,9 @@ class SceneModel:
 def _ranges(idx) -> str:
     """``[0, 1, 2, 5]`` -> ``"segments 0-2, 5"``."""
     idx = sorted(idx)
-    parts = []
-    start = prev = idx[0]
-    for i in idx[1:] + [None]:
-        if i is not None and i == prev + 1:
-            prev = i
-            continue
-        parts.append(f"{start}" if start == prev else f"{start}-{prev}")
-        if i is not None:
-            start = prev = i
+    # runs of consecutive indices: constant index - position within each
+    runs = [[i for _, i in g] for _, g in itertools.groupby(enumerate(idx), lambda ki: ki[1] - ki[0])]
+    parts = [f"{r[0]}" if len(r) == 1 else f"{r[0]}-{r[-1]}" for r in runs]
     word = "segment" if len(idx) == 1 else "segments"
     return f"{word} {', '.join(parts)}"
 
@@ -103,16 +98,13 @@ def _chambers_2_3_differ(spec: dict, n: int) -> str | None:
         return None if bad.size == 0 else f"pressure.{name}: chambers 2 and 3 differ in {_ranges(bad.tolist())}"
 
     names = {"constant": ["value"], "step": ["before", "after"], "ramp": ["start", "end"], "table": ["values"]}
-    if t in names:
-        for name in names[t]:
-            why = differ(name)
-            if why:
-                return why
+    for name in names.get(t, ["offset"]):
+        why = differ(name)
+        if why:
+            return why
+    if t != "sine":
         return None
-    # sine: equal offsets, and equal sine terms (both zero, or equal amplitude, frequency, phase)
-    why = differ("offset")
-    if why:
-        return why
+    # sine: equal offsets (above), and equal sine terms (both zero, or equal amplitude, frequency, phase)
     A, f, ph = spec["amplitude"], spec["frequency"], spec["phase"]
     bad = []
     for j in range(n):
@@ -196,24 +188,15 @@ class ModelBuilder:
         return self.model.reductions
 
     def _chain(self, segs, planar: bool) -> Chain:
-        g = self.gravity
-        if self.base.type == "fixed":
-            return Chain(segs, base="fixed", gravity=g, base_placement=self.base.placement, planar=planar)
-        if self.base.type == "floating":
-            return Chain(segs, base="floating", gravity=g, planar=planar)
-        return Chain(segs, base="prescribed", gravity=g, base_motion=self.base.motion, planar=planar)
+        kind = self.base.type
+        kw = ({"base_placement": self.base.placement} if kind == "fixed" else
+              {"base_motion": self.base.motion} if kind == "prescribed" else {})
+        return Chain(segs, base=kind, gravity=self.gravity, planar=planar, **kw)
 
     def _initial_state(self, chain: Chain) -> tuple[np.ndarray, np.ndarray]:
-        q = np.empty(chain.nq)
-        v = np.empty(chain.nv)
-        if chain.floating:
-            q[:7] = pin.SE3ToXYZQUAT(self.base.placement)
-            v[:3] = self.base.velocity
-            v[3:6] = self.base.angular_velocity
-        o, ov = (7, 6) if chain.floating else (0, 0)
-        q[o:] = self.q_e0.ravel()
-        v[ov:] = self.v_e0.ravel()
-        return q, v
+        q_B, v_B = ((pin.SE3ToXYZQUAT(self.base.placement), [*self.base.velocity, *self.base.angular_velocity])
+                    if chain.floating else ([], []))  # a floating base's pose and twist first
+        return np.concatenate([q_B, self.q_e0.ravel()]), np.concatenate([v_B, self.v_e0.ravel()])
 
     def planar_obstacle(self) -> str | None:
         """Why the scene is not symmetric about the base's x-z plane, or None if it is."""
@@ -248,19 +231,14 @@ class ModelBuilder:
             nodes = [DEFAULT_NODES if k is None else k for k in explicit]
             why = "reduce = false" if (reduce is False and self.node_tolerance is not None) else "no node_tolerance"
             return nodes, None, f"node count: {_list_or_one(nodes)} ({why}; default {DEFAULT_NODES})"
-        from ..model.segment import nodes_for_tolerance
-
         if self.max_bend is not None:
             theta = np.full(self.n, self.max_bend)
             how = f"max_bend = {_fmt(self.max_bend)} rad"
         else:
             theta, how = self.estimate_bend(planar)
-        nodes = []
-        for j, s in enumerate(self.segments):
-            if s.nodes is not None:
-                nodes.append(s.nodes)
-            else:
-                nodes.append(nodes_for_tolerance(s.segment(nodes=DEFAULT_NODES), float(theta[j]), self.node_tolerance))
+        nodes = [s.nodes if s.nodes is not None else
+                 nodes_for_tolerance(s.segment(nodes=DEFAULT_NODES), float(theta[j]), self.node_tolerance)
+                 for j, s in enumerate(self.segments)]
         fixed = [j for j, s in enumerate(self.segments) if s.nodes is not None]
         extra = f"; {_ranges(fixed)} keep their own nodes" if fixed else ""
         bend = _fmt(theta[0]) if np.all(theta == theta[0]) else ", ".join(_fmt(x) for x in theta)
@@ -304,9 +282,8 @@ class ModelBuilder:
             return l0 / r, (f"equilibrium failed at p = {_vec_str(p)} Pa ({msg}): sized for the largest bend the "
                             f"model allows, l0/r_s")
         theta = np.full(self.n, BEND_MARGIN * max(static.max(), initial.max()) + kin.max())
-        parts = [f"{BEND_MARGIN:g} x the largest static bend under peak pressures"]
-        if initial.max() > static.max():
-            parts = [f"{BEND_MARGIN:g} x the largest initial bend"]
+        parts = [f"{BEND_MARGIN:g} x the largest "
+                 + ("initial bend" if initial.max() > static.max() else "static bend under peak pressures")]
         if T0 > 0:
             parts.append(f"+ {_fmt(kin.max())} rad for the initial kinetic energy {T0:.3g} J")
         return theta, " ".join(parts) + ", any segment"

@@ -5,7 +5,7 @@ reads them from a file; and how a vector of theirs reads in a message.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 
 import numpy as np
 import pinocchio as pin
@@ -35,12 +35,8 @@ class SegmentSpec:
 
     def segment(self, nodes: int | None = None) -> Segment:
         """The :class:`qchain.Segment` with ``nodes`` Gauss nodes (default: the spec's own)."""
-        return Segment(
-            length=self.length, radius=self.radius, mass=self.mass, chamber_area=self.chamber_area,
-            chamber_radius=self.chamber_radius, youngs_modulus=self.youngs_modulus, damping=self.damping,
-            coords=self.coords, actuation=self.actuation, extensible=self.extensible,
-            nodes=self.nodes if nodes is None else nodes,
-        )
+        kw = {f.name: getattr(self, f.name) for f in fields(self) if f.name != "source"}  # Segment's own names
+        return Segment(**{**kw, "nodes": self.nodes if nodes is None else nodes})
 
 
 @dataclass(frozen=True, eq=False)

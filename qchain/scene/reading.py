@@ -21,8 +21,9 @@ import pinocchio as pin
 
 from . import format as F
 from ..checks.bounds import VACUUM_GAUGE
-from ..sim.budget import Budget
-from ..errors import describe_value
+from ..sim.budget import DEFAULT, Budget
+from ..checks.convert import describe_value
+from ..checks.paths import file_kind
 from ..sim.inputs import Constant, Ramp, Schedule, Sine, Step, Table
 from .format import _MISSING, PLOTS, Problem, SceneError, _Checker, _is_number, _show, _type_name
 from .cost import _cost, _frequency
@@ -57,9 +58,7 @@ def _file_problem(p: Path, what: str = "scene file") -> Problem | None:
     if stat.S_ISDIR(st.st_mode):
         return Problem("(file)", f"a {what}", "a folder")
     if not stat.S_ISREG(st.st_mode):
-        kind = ("a FIFO" if stat.S_ISFIFO(st.st_mode) else "a device" if stat.S_ISCHR(st.st_mode) or
-                stat.S_ISBLK(st.st_mode) else "a socket" if stat.S_ISSOCK(st.st_mode) else "not a regular file")
-        return Problem("(file)", f"a regular {what}", kind)
+        return Problem("(file)", f"a regular {what}", file_kind(st.st_mode))
     if st.st_size > F.MAX_SCENE_BYTES:
         return Problem("(file)", f"a {what} of at most {F.MAX_SCENE_BYTES} bytes", f"{st.st_size} bytes")
     return None
@@ -89,15 +88,20 @@ def read_toml(path: str | os.PathLike, what: str = "scene file", error=SceneErro
     SceneError (or ``error``, a subclass)
         naming the file and what is wrong with it, as ``(file): expected ..., found ...``.
     """
-    p = Path(path)
-    text = _read_text(p, what, error)
+    text = _read_text(Path(path), what, error)
+    return text, _parse_toml(text, str(Path(path)), error)
+
+
+def _parse_toml(text: str, where: str, error) -> dict:
+    """The table of the TOML ``text`` nested at most :data:`qchain.scene.format.MAX_DEPTH` deep,
+    or ``error`` (:class:`SceneError` or a subclass) naming ``where`` and the problem."""
     bad = F.nesting_problem(text)
     if bad is not None:
-        raise error(str(p), [bad])
+        raise error(where, [bad])
     try:
-        return text, tomllib.loads(text)
+        return tomllib.loads(text)
     except tomllib.TOMLDecodeError as err:
-        raise error(str(p), [Problem("(file)", "valid TOML", f"a syntax error: {err}")]) from None
+        raise error(where, [Problem("(file)", "valid TOML", f"a syntax error: {err}")]) from None
 
 
 def load_scene(path: str | os.PathLike) -> Scene:
@@ -145,25 +149,16 @@ def parse_scene(text: str, path: str | os.PathLike | None = None) -> Scene:
             raise SceneError(where, [Problem("(file)", "UTF-8 text", str(err))]) from None
     if not isinstance(text, str):
         raise TypeError(f"parse_scene: text must be the TOML text of a scene (a str), got {describe_value(text)}")
-    bad = F.nesting_problem(text)
-    if bad is not None:
-        raise SceneError(where, [bad])
-    try:
-        raw = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as err:
-        raise SceneError(where, [Problem("(file)", "valid TOML", f"a syntax error: {err}")]) from None
+    raw = _parse_toml(text, where, SceneError)
     ck = _Checker()
     ck.keys(raw, "", F.TOP.keys())
     name = ck.field(raw, F.TOP["name"], "name", "") or ""
     description = ck.field(raw, F.TOP["description"], "description", "") or ""
-    gravity = ck.field(raw, F.TOP["gravity"], "gravity", default=(0.0, 0.0, -9.81))
-    if gravity is None:
-        gravity = np.array([0.0, 0.0, -9.81])
+    gravity = ck.field(raw, F.TOP["gravity"], "gravity", default=(0.0, 0.0, -9.81))  # (the default if wrong)
     budget = _budget(ck, raw)
 
     # model
-    mt = ck.table(raw, "model", "model") or {}
-    ck.keys(mt, "model", F.MODEL.keys())
+    mt = ck.section(raw, "model", F.MODEL.keys())
     reduce = ck.field(mt, F.MODEL["reduce"], "model.reduce", True)
     node_tol = ck.field(mt, F.MODEL["node_tolerance"], "model.node_tolerance")
     max_bend = ck.field(mt, F.MODEL["max_bend"], "model.max_bend")
@@ -202,8 +197,7 @@ def parse_scene(text: str, path: str | os.PathLike | None = None) -> Scene:
 
     # output
     O = F.OUTPUT
-    ot = ck.table(raw, "output", "output") or {}
-    ck.keys(ot, "output", O.keys())
+    ot = ck.section(raw, "output", O.keys())
     rate = ck.field(ot, O["sample_rate"], "output.sample_rate", 100.0)
     stem = Path(path).stem if path is not None else "scene"
     folder = ck.path(ot, "folder", "output.folder", f"out/{stem}")
@@ -241,11 +235,8 @@ def parse_scene(text: str, path: str | os.PathLike | None = None) -> Scene:
 
 
 def _budget(ck: _Checker, raw: dict) -> Budget:
-    bt = ck.table(raw, "budget", "budget") or {}
-    ck.keys(bt, "budget", F.BUDGET.keys())
-    d = Budget()
-    vals = {k: ck.field(bt, F.BUDGET[k], f"budget.{k}", getattr(d, k)) for k in F.BUDGET.keys()}
-    return Budget(**vals)
+    bt = ck.section(raw, "budget", F.BUDGET.keys())
+    return Budget(**{k: ck.field(bt, F.BUDGET[k], f"budget.{k}", getattr(DEFAULT, k)) for k in F.BUDGET.keys()})
 
 
 def _cost_key(budget_key: str, cost, method: str, pspec: dict, base) -> str:
@@ -293,36 +284,28 @@ def _segments(ck: _Checker, raw: dict, budget: Budget) -> list[SegmentSpec] | No
             ck.add("segments", f"{expected} (budget.{key}; raise it in [budget] to allow more)",
                    f"{found}, with the {total} segments up to {path}")
             return None
-        vals = {}
-        for k in ("length", "radius", "mass", "chamber_area", "chamber_radius", "youngs_modulus"):
-            vals[k] = ck.field(s, T[k], f"{path}.{k}")
-        vals["damping"] = ck.field(s, T["damping"], f"{path}.damping", 0.0)
-        vals["coords"] = ck.field(s, T["coords"], f"{path}.coords", "curvature")
-        vals["actuation"] = ck.field(s, T["actuation"], f"{path}.actuation", "volume")
-        vals["extensible"] = ck.field(s, T["extensible"], f"{path}.extensible", True)
-        vals["nodes"] = ck.field(s, T["nodes"], f"{path}.nodes")
+        vals = {k: ck.field(s, T[k], f"{path}.{k}", default) for k, default in (
+            ("length", None), ("radius", None), ("mass", None), ("chamber_area", None), ("chamber_radius", None),
+            ("youngs_modulus", None), ("damping", 0.0), ("coords", "curvature"), ("actuation", "volume"),
+            ("extensible", True), ("nodes", None))}
+        if len(ck.problems) == start:  # the values are good one by one: now together
+            r, rc, A = vals["radius"], vals["chamber_radius"], vals["chamber_area"]
+            outer = rc + math.sqrt(A / math.pi)
+            if outer > r:
+                ck.add(f"{path}.chamber_radius", f"chambers inside the segment: chamber_radius + sqrt(chamber_area/pi) "
+                       f"<= radius = {r:g} m", f"{rc:g} + {math.sqrt(A / math.pi):.6g} = {outer:.6g} m")
+            else:
+                spec = SegmentSpec(**vals, source=path)
+                try:
+                    spec.segment(nodes=spec.nodes)
+                except (ValueError, TypeError) as err:  # anything the constructor checks beyond the above
+                    ck.add(path, "a valid segment", str(err))
         if len(ck.problems) > start:
             ok = False
             start = len(ck.problems)
             continue
-        r, rc, A = vals["radius"], vals["chamber_radius"], vals["chamber_area"]
-        outer = rc + math.sqrt(A / math.pi)
-        if outer > r:
-            ck.add(f"{path}.chamber_radius", f"chambers inside the segment: chamber_radius + sqrt(chamber_area/pi) "
-                   f"<= radius = {r:g} m", f"{rc:g} + {math.sqrt(A / math.pi):.6g} = {outer:.6g} m")
-            ok = False
-            start = len(ck.problems)
-            continue
-        spec = SegmentSpec(**vals, source=path)
-        try:
-            spec.segment(nodes=spec.nodes)
-        except (ValueError, TypeError) as err:  # anything the constructor checks beyond the above
-            ck.add(path, "a valid segment", str(err))
-            ok = False
-            start = len(ck.problems)
-            continue
-        for c in range(count or 1):
-            out.append(replace(spec, source=path if count == 1 else f"{path} (copy {c + 1} of {count})"))
+        out += [replace(spec, source=path if count == 1 else f"{path} (copy {c + 1} of {count})")
+                for c in range(count or 1)]
     return out if ok else None
 
 
@@ -338,10 +321,8 @@ def _base(ck: _Checker, raw: dict) -> BaseSpec | None:
             ck.add(f"base.{k}", f"only the keys {', '.join(allowed)} with base.type = {kind!r}", f"the key {k!r}")
     ck.keys(bt, "base", T.keys())
     start = len(ck.problems)
-    pos = ck.field(bt, T["position"], "base.position", default=(0.0, 0.0, 0.0))
-    rpy = ck.field(bt, T["rpy"], "base.rpy", default=(0.0, 0.0, 0.0))
-    vel = ck.field(bt, T["velocity"], "base.velocity", default=(0.0, 0.0, 0.0))
-    ang = ck.field(bt, T["angular_velocity"], "base.angular_velocity", default=(0.0, 0.0, 0.0))
+    pos, rpy, vel, ang = (ck.field(bt, T[k], f"base.{k}", default=(0.0, 0.0, 0.0))
+                          for k in ("position", "rpy", "velocity", "angular_velocity"))
     motion = None
     mount = pin.SE3(pin.rpy.rpyToMatrix(*rpy), pos) if rpy is not None and pos is not None else pin.SE3.Identity()
     if kind == "prescribed":
@@ -497,17 +478,12 @@ def _pressure(ck: _Checker, raw: dict, n: int | None) -> tuple[Schedule | None, 
         spec["values"] = None if rows is None or not rows else np.array(rows)
     if len(ck.problems) > start or n is None:
         return None, {}
+    cls, keys = {"constant": (Constant, ("value",)), "step": (Step, ("time", "after", "before")),
+                 "ramp": (Ramp, ("t0", "t1", "end", "start")),
+                 "sine": (Sine, ("amplitude", "frequency", "phase", "offset")),
+                 "table": (Table, ("times", "values"))}[kind]
     try:
-        if kind == "constant":
-            sched = Constant(spec["value"])
-        elif kind == "step":
-            sched = Step(spec["time"], spec["after"], spec["before"])
-        elif kind == "ramp":
-            sched = Ramp(spec["t0"], spec["t1"], spec["end"], spec["start"])
-        elif kind == "sine":
-            sched = Sine(spec["amplitude"], spec["frequency"], spec["phase"], spec["offset"])
-        else:
-            sched = Table(spec["times"], spec["values"])
+        sched = cls(*(spec[k] for k in keys))
     except (ValueError, TypeError) as err:  # pragma: no cover - the checks above cover the schedules' own
         ck.add("pressure", "a valid schedule", str(err))
         return None, {}
@@ -517,12 +493,8 @@ def _pressure(ck: _Checker, raw: dict, n: int | None) -> tuple[Schedule | None, 
 def _valid_rows(values: list, n: int | None, rng) -> list | None:
     """``values`` as a list of ``(3 n,)`` arrays if every row is a flat array of ``3 n`` finite
     numbers inside ``rng``, else None (the row-by-row check then names the first problem)."""
-    if n is None or not values:
-        return None
-    w = 3 * n
-    if not all(type(r) is list and len(r) == w for r in values):
-        return None
-    if not {type(x) for r in values for x in r} <= {int, float}:
+    if (n is None or not values or not all(type(r) is list and len(r) == 3 * n for r in values)
+            or not {type(x) for r in values for x in r} <= {int, float}):
         return None
     try:
         arr = np.array(values, dtype=float)
@@ -535,23 +507,18 @@ def _valid_rows(values: list, n: int | None, rng) -> list | None:
 
 def _initial(ck: _Checker, raw: dict, segments: list[SegmentSpec] | None):
     T = F.INITIAL
-    it = ck.table(raw, "initial", "initial") or {}
-    ck.keys(it, "initial", T.keys())
+    it = ck.section(raw, "initial", T.keys())
     n = None if segments is None else len(segments)
     q = v = None
     if "q_e" in it:
         q = ck.per_segment(it["q_e"], "initial.q_e", n)
     if "v" in it:
         v = ck.per_segment(it["v"], "initial.v", n, bounds=T["v"].range)
-    if segments is None:
+    if segments is None or (q is None and "q_e" in it) or (v is None and "v" in it):  # (a problem said above)
         return None, None
     if q is None:
-        if "q_e" in it:
-            return None, None
         q = np.array([[s.length, 0.0, 0.0] for s in segments])
     if v is None:
-        if "v" in it:
-            return None, None
         v = np.zeros((n, 3))
     given = "q_e" in it
     for j, s in enumerate(segments):

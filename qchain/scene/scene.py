@@ -79,6 +79,7 @@ import numpy as np
 
 from . import format as F
 from ..checks.bounds import DURATION, VACUUM_GAUGE
+from ..checks.paths import file_in_the_way, has_nul, show_nul
 from ..sim.budget import Budget, BudgetError
 from ..sim.engine.driver import EXPLICIT_STABILITY_EXTENT
 from ..sim.inputs import Schedule
@@ -86,7 +87,7 @@ from .format import PLOTS, Problem, SceneError, _Checker, _show, _type_name  # n
 from .model import BEND_MARGIN, BEND_SAMPLES, ModelBuilder, SceneModel, _list_or_one  # noqa: F401 (re-exported)
 from .parts import BaseSpec, SegmentSpec, SineMotion, _vec_str
 from .cost import _cost, _frequency
-from ..sim.simulation import FIXED_STEP, METHODS
+from ..sim.simulation import COMPILED, FIXED_STEP, METHODS, explicit_stability_limit, simulate
 
 __all__ = [
     "Scene",
@@ -214,8 +215,6 @@ class Scene(ModelBuilder):
             Sample a controller ``pressure`` at this rate and hold it (zero-order hold): the
             run stays in compiled code between samples (:func:`qchain.simulate`).
         """
-        from ..sim.simulation import simulate
-
         T = self.duration if duration is None else DURATION.check("duration", duration)
         self.check_budget(T)
         if self.method in FIXED_STEP and self.dt > T:
@@ -243,8 +242,6 @@ class Scene(ModelBuilder):
         T = self.duration if duration is None else duration
         stable = None
         if model is not None and self.method in EXPLICIT_STABILITY_EXTENT:
-            from ..sim.simulation import explicit_stability_limit
-
             stable = explicit_stability_limit(model.chain, self.method, model.q0, model.v0, 0.0, model.pressure)
         return _cost(self.n, self.base.type, self.method, self.dt, self.max_step, T, self.sample_rate,
                      _frequency(self.pressure_spec, self.base), stable_step=stable)
@@ -273,12 +270,12 @@ class Scene(ModelBuilder):
         def fail(expected, found):
             raise SceneError(str(self.path) if self.path else "<scene>", [Problem("output.folder", expected, found)])
 
-        if "\0" in str(p):
-            fail("a folder path without a NUL character", _show(str(p).replace("\0", "\\0")))
+        if has_nul(str(p)):
+            fail("a folder path without a NUL character", _show(show_nul(str(p))))
         try:
-            for parent in [p, *p.parents]:
-                if parent.exists() and not parent.is_dir():
-                    fail("a folder (or a path where one can be made)", f"{parent} is a file")
+            blocker = file_in_the_way(p)
+            if blocker is not None:
+                fail("a folder (or a path where one can be made)", f"{blocker} is a file")
             p.mkdir(parents=True, exist_ok=True)
             with tempfile.TemporaryFile(dir=p) as fh:
                 fh.write(b"qchain")
@@ -330,7 +327,8 @@ class Scene(ModelBuilder):
         meth = f"{self.method}, dt = {self.dt:g} s" if self.method in FIXED_STEP else \
             f"{self.method}, rtol = {self.rtol:g}, atol = {self.atol:g}" + \
             (f", max_step = {self.max_step:g} s" if math.isfinite(self.max_step) else "")
-        lines.append(f"simulation: {self.duration if duration is None else duration:g} s, {meth}")
+        kind = "compiled" if self.method in COMPILED else "scipy's solve_ivp in Python: radau5 and dopri5 are compiled"
+        lines.append(f"simulation: {self.duration if duration is None else duration:g} s, {meth} ({kind})")
         if plots:
             lines.append(f"output: {self.sample_rate:g} Hz to {self.output_folder if folder is None else folder}, "
                          f"plots: {', '.join(self.plots) if self.plots else 'none'}"

@@ -30,7 +30,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..checks.bounds import Range
-from ..errors import QchainError
+from ..errors import BudgetError
 
 __all__ = ["Budget", "BudgetError", "Cost", "DEFAULT", "RANGES", "run_cost", "input_frequency"]
 
@@ -41,15 +41,6 @@ RANGES = {
     "max_memory": Range(0.0, 2.0**60, "bytes", low_open=True),
     "max_segments": Range(1, 10**6, integer=True),
 }
-
-
-class BudgetError(QchainError, ValueError):
-    """A run that would exceed its :class:`Budget`; the message names the budget and how to
-    raise it; ``cost`` is the run's :class:`Cost`."""
-
-    def __init__(self, message: str, cost: "Cost | None" = None):
-        super().__init__(message)
-        self.cost = cost
 
 
 @dataclass(frozen=True)
@@ -107,7 +98,7 @@ def as_budget(budget) -> Budget:
     if budget is None:
         return DEFAULT
     if not isinstance(budget, Budget):
-        from ..errors import describe_value
+        from ..checks.convert import describe_value
 
         raise TypeError(f"budget must be a qchain.sim.budget.Budget, got {describe_value(budget)}")
     return budget

@@ -18,7 +18,7 @@ import numpy as np
 import pinocchio as pin
 
 from ..checks.bounds import ANGLE, FORCE, FREQUENCY, PRESSURE, TIME, Range, check_time
-from ..errors import as_real_array, as_vector
+from ..checks.convert import as_real_array, as_vector
 from ..checks.frozen import KeepsReadOnly
 
 __all__ = ["Schedule", "Constant", "Step", "Ramp", "Sine", "Table", "as_input", "input_range", "FORCE", "SineMotion"]
@@ -291,6 +291,15 @@ def _arity(name: str, u) -> int:
                     f"callable {getattr(u, '__qualname__', type(u).__name__)}{sig} that takes neither")
 
 
+def _checked(label: str, call: Callable, size: int, rng: Range | None) -> Callable:
+    """``(t, q, v) -> call(t, q, v)`` checked at every call as a finite ``(size,)`` array
+    (inside ``rng``), errors naming ``label``."""
+    if rng is None:
+        return lambda t, q, v: as_vector(label, call(t, q, v), size)
+    check = _range_check(rng, label)
+    return lambda t, q, v: check(as_vector(label, call(t, q, v), size))
+
+
 def as_input(name: str, u, size: int, bound: Range | None | str = "auto"
              ) -> Callable[[float, np.ndarray, np.ndarray], np.ndarray]:
     """``(t, q, v) -> (size,)`` from ``None`` (zeros), a constant array, a :class:`Schedule` or a
@@ -335,27 +344,15 @@ def as_input(name: str, u, size: int, bound: Range | None | str = "auto"
             if usize != size:
                 raise ValueError(f"{name} schedule gives {usize} values, the model needs {size}")
         if usize is None or _extent(u) is None:  # a schedule of the user's: its values are checked as they come
-            label = f"{name}(t)"
-            if rng is None:
-                return lambda t, q, v: as_vector(label, u(t), size)
-            check = _range_check(rng, label)
-            return lambda t, q, v: check(as_vector(label, u(t), size))
+            return _checked(f"{name}(t)", lambda t, q, v: u(t), size, rng)
         if rng is not None:
             _check_extent(name, rng, u)
         return lambda t, q, v: u(t)
     if callable(u):
-        nargs = _arity(name, u)
-        if nargs == 1:
-            label = f"{name}(t)"
-            if rng is None:
-                return lambda t, q, v: as_vector(label, u(t), size)
-            check = _range_check(rng, label)
-            return lambda t, q, v: check(as_vector(label, u(t), size))
-        label = f"{name}(t, q, v)"  # the controller gets copies of the state: its writes stay its own
-        if rng is None:
-            return lambda t, q, v: as_vector(label, u(t, _copy(q), _copy(v)), size)
-        check = _range_check(rng, label)
-        return lambda t, q, v: check(as_vector(label, u(t, _copy(q), _copy(v)), size))
+        if _arity(name, u) == 1:
+            return _checked(f"{name}(t)", lambda t, q, v: u(t), size, rng)
+        # the controller gets copies of the state: its writes stay its own
+        return _checked(f"{name}(t, q, v)", lambda t, q, v: u(t, _copy(q), _copy(v)), size, rng)
     c = _frozen(as_vector(name, u, size))
     if rng is not None:
         rng.check_array(name, c)

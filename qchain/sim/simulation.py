@@ -1,6 +1,7 @@
 """Time integration of a chain: ``simulate(chain, q0, v0, t_span, ...) -> Trajectory``.
 
-Methods, chosen by name (``METHODS``); the first four run on the compiled engine
+Methods, chosen by name (``METHODS``, matched exactly, case included: ``"radau"`` is refused,
+naming ``"radau5"`` and ``"Radau"``); the first four run on the compiled engine
 (:mod:`qchain.sim.engine`): whole stretches of steps in compiled code, Python entered only
 for output samples, controller instants, events and progress.
 
@@ -25,8 +26,8 @@ that are constants or schedules (:mod:`qchain.sim.inputs`), a fixed or floating 
 prescribed :class:`qchain.sim.inputs.SineMotion`, and Python controllers sampled at
 ``controller_rate`` (zero-order hold). Anything else (paper coordinates, the linear law, a
 controller called at every stage, a Python ``base_motion``) runs the same method names on
-the Python steppers (``dopri5`` as scipy's RK45, ``radau5`` as scipy's Radau);
-``Trajectory.meta["engine"]`` says which ran.
+the Python steppers of :mod:`qchain.sim.python_backend` (``dopri5`` as scipy's RK45,
+``radau5`` as scipy's Radau); ``Trajectory.meta["engine"]`` says which ran.
 
 A floating base is always advanced on the Lie group: the state is ``(delta, v)`` with
 ``q = chain.integrate(q_chart, delta)`` in a chart re-centred as the base turns, never by
@@ -39,19 +40,20 @@ naming the segment, the coordinate and the time; the trajectory up to that point
 
 from __future__ import annotations
 
-import inspect
+import difflib
 import sys
 import time as _time
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
 
 import numpy as np
-import pinocchio as pin
 
 from ..checks import bounds as B
 from .budget import Budget, as_budget, input_frequency, run_cost
 from ..arm.chain import Chain
+from . import python_backend
 from .engine import driver, system
-from ..errors import QchainError, as_bool, as_real, as_real_array, as_vector, check_callable, describe_value
+from ..checks.convert import as_bool, as_real, as_real_array, as_vector, check_callable, describe_value
 from .inputs import Schedule, _copy, as_input
 from .trajectory import Trajectory
 
@@ -61,12 +63,10 @@ FIXED_STEP = ("rk4", "midpoint")
 #: the methods that form the exact Jacobian (a dense, O(nv^3) computation) and factor it
 JACOBIAN_METHODS = ("radau5", "midpoint", "Radau", "BDF")
 COMPILED = ("radau5", "dopri5", "rk4", "midpoint")
-# scipy's solver classes by name (imported where a Python-path run needs them: scipy's import
-# is a third of qchain's); dopri5 and radau5 stand in for the compiled two on that path
-ADAPTIVE = {"RK45": "RK45", "DOP853": "DOP853", "Radau": "Radau", "BDF": "BDF", "dopri5": "RK45", "radau5": "Radau"}
+#: the method names, matched exactly (:func:`check_method`); scipy's run on
+#: :mod:`qchain.sim.python_backend`
 METHODS = COMPILED + ("RK45", "DOP853", "Radau", "BDF")
 DEFAULT_METHOD = "radau5"
-_RECENTER = 0.5  # rad/m of base chart coordinates before the chart is moved
 
 
 class Event:
@@ -90,18 +90,6 @@ class Event:
         if not (type(g) is float and g - g == 0.0):
             g = as_real(f"event {self.name!r}: fun(t, q, v) at t = {float(t):.6g} s", g)
         return g
-
-
-class _DomainExit(Exception):
-    pass
-
-
-class _WallLimit(Exception):
-    pass
-
-
-class _Stop(Exception):
-    """Ends a Python-path run with ``success = False`` and this message, the samples kept."""
 
 
 class _Progress:
@@ -152,96 +140,20 @@ class _Progress:
 LINES_AFTER, LINES_EVERY = 10.0, 30.0
 
 
-class _System:
-    """The first-order system in a chart: ``y = (delta_A, v_A)`` over the active coordinates."""
-
-    def __init__(self, chain: Chain, P, Tq):
-        self.ch = chain
-        self.P, self.Tq = P, Tq
-        self.idx = np.flatnonzero(chain.active)
-        self.nA = self.idx.size
-        self.nfev = 0
-        self.njev = 0
-        self.error: str | None = None
-        self.q_chart = None
-        self.data = chain.create_data()  # the passes' workspace, made once for the run
-
-    def full(self, xA: np.ndarray) -> np.ndarray:
-        x = np.zeros(self.ch.nv)
-        x[self.idx] = xA
-        return x
-
-    def q_of(self, yd: np.ndarray) -> np.ndarray:
-        ch = self.ch
-        if ch.floating:
-            return ch.integrate(self.q_chart, self.full(yd))
-        q = self.q_chart.copy()  # additive for a fixed or prescribed base (no quaternion)
-        q[self.idx] += yd
-        return q
-
-    def delta_dot(self, yd: np.ndarray, v: np.ndarray) -> np.ndarray:
-        dd = v.copy()
-        if self.ch.floating:
-            d = self.full(yd)[:6]
-            if np.any(d):
-                dd[:6] = np.linalg.solve(pin.Jexp6(pin.Motion(d)), v[:6])
-        return dd[self.idx]
-
-    deadline = None
-
-    def accel(self, t, q, v) -> np.ndarray:
-        if self.deadline is not None and _time.perf_counter() > self.deadline:
-            raise _WallLimit(f"wall-clock limit reached at t = {t:.6g} s")
-        p = self.P(t, q, v)
-        tau = self.Tq(t, q, v)
-        self.nfev += 1
-        return self.ch.forward_dynamics(q, v, p, tau, t=t, data=self.data)
-
-    def rhs(self, t, y):
-        yd, yv = y[: self.nA], y[self.nA :]
-        if not np.all(np.isfinite(y)):
-            return np.full_like(y, np.nan)
-        try:
-            q = self.q_of(yd)
-            v = self.full(yv)
-            a = self.accel(t, q, v)
-        except QchainError as err:  # domain exit or singular coordinates at a trial point
-            self.error = f"{err} (at t = {t:.6g} s)"
-            return np.full_like(y, np.nan)
-        return np.concatenate([self.delta_dot(yd, v), a[self.idx]])
-
-    def stiffness_jacobian(self, t, y):
-        """``[[0, I], [-M^-1 K, -M^-1 D]]`` on the active coordinates (elastic + damping): the
-        stiff part of the Jacobian: scipy's Radau and BDF's Newton matrix on the Python path
-        (the compiled ``radau5`` and ``midpoint`` use the exact one)."""
-        self.njev += 1
-        yd, yv = y[: self.nA], y[self.nA :]
-        n = self.nA
-        J = np.zeros((2 * n, 2 * n))
-        J[:n, n:] = np.eye(n)
-        try:
-            q = self.q_of(yd)
-            v = self.full(yv)
-            M, K, D = self.mkd(q, v)
-        except QchainError:
-            return J
-        from scipy.linalg import cho_factor, cho_solve
-
-        c = cho_factor(M)
-        J[n:, :n] = -cho_solve(c, K)
-        J[n:, n:] = -cho_solve(c, D)
-        return J
-
-    def mkd(self, q, v):
-        """Mass, elastic stiffness and damping matrices on the active coordinates."""
-        ch = self.ch
-        ix = np.ix_(self.idx, self.idx)
-        return ch.mass_matrix(q)[ix], ch.elastic_stiffness(q)[ix], ch.dissipation_matrix(q)[ix]
-
 
 #: The shortest span a run may have, relative to ``max(1 s, |t0|, |t1|)``: below it the
 #: times of the steps are not distinct in double precision.
 SPAN_RESOLUTION = 64 * np.finfo(float).eps
+
+
+def check_run(chain, method, t_span) -> tuple[float, float]:
+    """The checks :func:`simulate` and :func:`qchain.batch.simulate_batch` begin with, in this
+    order: ``chain`` a :class:`Chain`, ``method`` one of :data:`METHODS`, ``t_span``; returns
+    ``(t0, t1)`` (s)."""
+    if not isinstance(chain, Chain):
+        raise TypeError(f"chain must be a qchain.Chain, got {type(chain).__name__}")
+    check_method(method)
+    return _check_span(t_span)
 
 
 def _check_span(t_span):
@@ -328,13 +240,6 @@ def _check_t_eval(t_eval, t0: float, t1: float) -> np.ndarray:
     return t
 
 
-def _state_entry(chain: Chain, q, v) -> str:
-    """The first non-finite entry of a state, in words (``"v[4] (segment 1, ux)"``)."""
-    for name, x, vel in (("q", q, False), ("v", v, True)):
-        bad = np.flatnonzero(~np.isfinite(np.asarray(x, dtype=float)))
-        if bad.size:
-            return f"{name}[{int(bad[0])}] ({chain.coordinate_name(int(bad[0]), velocity=vel)})"
-    return "the state"
 
 
 def run_cost_of(chain: Chain, t0: float, t1: float, *, method: str, dt, max_step, t_eval, inputs=(),
@@ -458,421 +363,208 @@ def simulate(
         ``message``, ``nfev``, ``status`` (0 finished, 1 terminal event, -1 failed) and
         ``meta`` (``method``, ``nsteps``, ``njev``, ``events``: list of (name, t)).
     """
-    if not isinstance(chain, Chain):
-        raise TypeError(f"chain must be a qchain.Chain, got {type(chain).__name__}")
-    if not isinstance(method, str) or method not in METHODS:
-        raise ValueError(f"method must be one of {METHODS}, got {method!r}")
-    t0, t1 = _check_span(t_span)
-    q0 = chain._q(q0, "q0")
-    v0 = as_vector("v0", v0, chain.nv)
+    run = _check_arguments(chain, q0, v0, t_span, pressure=pressure, tau=tau, method=method, budget=budget,
+                           on_sample=on_sample, dt=dt, rtol=rtol, atol=atol, max_step=max_step, first_step=first_step,
+                           wall_limit=wall_limit, t_eval=t_eval, energies=energies, progress=progress, events=events,
+                           controller_rate=controller_rate)
+    deadline = None if run.wall_limit is None else _time.perf_counter() + float(run.wall_limit)
+    bar = _Progress(run.t0, run.t1, run.progress)
+    _announce_dense_jacobians(run)
+    m = _choose_backend(run)
+    if m is not None:
+        return _run_compiled(run, m, bar, deadline)
+    return python_backend.run(run, bar, deadline)
+
+
+def check_method(method) -> str:
+    """``method`` if it is one of :data:`METHODS`, matched exactly (case included: ``"radau"``
+    is neither ``"radau5"`` nor ``"Radau"``, methods an order of magnitude apart in speed).
+
+    Raises
+    ------
+    ValueError
+        Naming the argument and the value, and the close names among :data:`METHODS`
+        (:func:`difflib.get_close_matches`, case ignored), the compiled ones first, each
+        said to be compiled or scipy's: ``method must be one of (...), got 'radau': did you
+        mean 'radau5' (compiled) or 'Radau' (scipy's)?``
+    """
+    if isinstance(method, str) and method in METHODS:
+        return method
+    hint = ""
+    if isinstance(method, str) and len(method) < 100:
+        by_lower = {m.lower(): m for m in METHODS}
+        close = [by_lower[c] for c in difflib.get_close_matches(method.lower(), list(by_lower), n=3)]
+        close.sort(key=lambda m: m not in COMPILED)  # stable: by closeness within each kind
+        kind = {m: "compiled" if m in COMPILED else "scipy's" for m in close}
+        names = [f"{m!r} ({kind[m]})" for m in close]
+        if names:
+            hint = ": did you mean " + (names[0] if len(names) == 1 else ", ".join(names[:-1]) + " or " + names[-1]) + "?"
+    raise ValueError(f"method must be one of {METHODS}, got {method!r}{hint}")
+
+
+@dataclass
+class _Run:
+    """A run's arguments as :func:`simulate` checked them (floats, ``t_eval (K,)`` s a float
+    array, ``events`` a list, ``budget`` a :class:`Budget`), and what they make: the inputs as
+    functions ``P_in(t, q, v) -> (3 n,) Pa``, ``T_in(t, q, v) -> (nv,)``, and ``held``, the
+    controllers sampled at ``controller_rate``: ``(name, input, size)`` each."""
+
+    chain: Chain
+    q0: np.ndarray
+    v0: np.ndarray
+    t0: float
+    t1: float
+    method: str
+    pressure: object
+    tau: object
+    on_sample: Callable | None
+    budget: Budget
+    dt: float | None
+    rtol: float
+    atol: float
+    max_step: float
+    first_step: float | None
+    wall_limit: float | None
+    t_eval: np.ndarray | None
+    energies: bool
+    progress: bool | str
+    events: list
+    controller_rate: float | None
+    P_in: Callable | None = None
+    T_in: Callable | None = None
+    held: list = field(default_factory=list)
+
+    def cost(self, stable_step: float | None = None):
+        """The run's :class:`qchain.sim.budget.Cost` (:func:`run_cost_of`), with an explicit
+        method's stability limit ``stable_step`` (s) if given."""
+        return run_cost_of(self.chain, self.t0, self.t1, method=self.method, dt=self.dt, max_step=self.max_step,
+                           t_eval=self.t_eval, inputs=(self.pressure, self.tau), controller_rate=self.controller_rate,
+                           stable_step=stable_step)
+
+
+def _check_arguments(chain, q0, v0, t_span, *, pressure, tau, method, budget, on_sample, **settings) -> _Run:
+    """Step 1 of :func:`simulate`: check its arguments where they enter, in a fixed order (the
+    first bad one is the one said), and the run's cost against the budget before it starts.
+
+    Parameters
+    ----------
+    chain, q0, v0, t_span, pressure, tau, method, budget, on_sample
+        As :func:`simulate`.
+    **settings
+        The rest of :func:`simulate`'s keywords (``dt``, ``rtol``, ... ``controller_rate``),
+        checked by :func:`check_settings`.
+
+    Returns
+    -------
+    _Run
+        The checked arguments, the inputs as functions and the held controllers.
+    """
+    t0, t1 = check_run(chain, method, t_span)
+    q0, v0 = _check_start(chain, q0, v0, t0)
+    cfg = check_settings(chain, t0, t1, method=method, on_sample=on_sample, **settings)
+    run = _Run(chain=chain, q0=q0, v0=v0, t0=t0, t1=t1, method=method, pressure=pressure, tau=tau,
+               on_sample=on_sample, budget=as_budget(budget), **cfg)
+    run.budget.check(run.cost())
+    run.P_in, run.T_in = as_input("pressure", pressure, chain.nu), as_input("tau", tau, chain.nv)  # checked here
+    if method in driver.EXPLICIT_STABILITY_EXTENT:  # a stiff model: refused before hours of tiny steps
+        run.budget.check(run.cost(explicit_stability_limit(chain, method, q0, v0, t0, pressure, tau)))
+    if run.controller_rate is not None:
+        for name, u, size in (("pressure", pressure, chain.nu), ("tau", tau, chain.nv)):
+            if callable(u) and not isinstance(u, Schedule):
+                run.held.append((name, as_input(name, u, size), size))
+        if not run.held:
+            raise ValueError("controller_rate is given but neither pressure nor tau is a controller (t, q, v) -> array")
+    return run
+
+
+def _check_start(chain: Chain, q0, v0, t0: float, names=("q0", "v0"), energies: bool = True
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """The initial state ``q0 (nq,)``, ``v0 (nv,)`` as float arrays (called ``names`` in
+    errors), checked inside the model at ``t0`` (s): its locks held, and with ``energies`` its
+    energies finite and a paper-coordinate start not singular; each error names the segment
+    and the coordinate."""
+    q0 = chain._q(q0, names[0])
+    v0 = as_vector(names[1], v0, chain.nv)
     st = chain._state(q0, v0, t=t0)  # raises at the input if the start is outside the model
     if chain._any_locked:
         chain._check_locks(st.q_e, st.v_e)
+    if not energies:
+        return q0, v0
     chain.kinetic_energy(q0, v0, t=t0)  # NonFiniteError naming the segment if the start overflows
     chain.potential_energy(q0, t=t0)
     if any(s.coords == "paper" for s in chain.segments):  # a singular start (kappa = 0) is said here, by name
         chain.forward_dynamics(q0, v0, np.zeros(chain.nu), t=t0)
-    cfg = check_settings(chain, t0, t1, method=method, dt=dt, rtol=rtol, atol=atol, max_step=max_step,
-                         first_step=first_step, wall_limit=wall_limit, t_eval=t_eval, energies=energies,
-                         progress=progress, on_sample=on_sample, events=events, controller_rate=controller_rate)
-    dt, rtol, atol, max_step, first_step = cfg["dt"], cfg["rtol"], cfg["atol"], cfg["max_step"], cfg["first_step"]
-    wall_limit, t_eval, energies, progress, events = (cfg["wall_limit"], cfg["t_eval"], cfg["energies"],
-                                                      cfg["progress"], cfg["events"])
-    controller_rate = cfg["controller_rate"]
-    budget = as_budget(budget)
-    def cost(stable_step=None):
-        return run_cost_of(chain, t0, t1, method=method, dt=dt, max_step=max_step, t_eval=t_eval,
-                           inputs=(pressure, tau), controller_rate=controller_rate, stable_step=stable_step)
+    return q0, v0
 
-    budget.check(cost())
-    P_in, T_in = as_input("pressure", pressure, chain.nu), as_input("tau", tau, chain.nv)  # checked where they enter
-    if method in driver.EXPLICIT_STABILITY_EXTENT:  # a stiff model: refused before hours of tiny steps
-        budget.check(cost(explicit_stability_limit(chain, method, q0, v0, t0, pressure, tau)))
-    controllers = []
-    if controller_rate is not None:
-        held = []
-        for name, u, size in (("pressure", pressure, chain.nu), ("tau", tau, chain.nv)):
-            if callable(u) and not isinstance(u, Schedule):
-                held.append((name, as_input(name, u, size), size))
-        if not held:
-            raise ValueError("controller_rate is given but neither pressure nor tau is a controller (t, q, v) -> array")
-    deadline = None if wall_limit is None else _time.perf_counter() + float(wall_limit)
-    bar = _Progress(t0, t1, progress)
-    n_free = int(np.count_nonzero(chain.active))
-    if progress and method in JACOBIAN_METHODS and n_free > driver.STABILITY_MAX_NV:
-        sys.stderr.write(f"qchain: {method} on {n_free} free coordinates: each exact Jacobian is dense "
-                         f"{chain.nv} x {chain.nv} work, O(nv^3) (seconds to minutes each for nv in the thousands, "
-                         "docs/engine.md); progress is shown after each step\n")
+
+def _announce_dense_jacobians(run: _Run) -> None:
+    """With a progress display, say on stderr that a method forming the exact Jacobian on
+    more than :data:`qchain.sim.engine.driver.STABILITY_MAX_NV` free coordinates is slow
+    (each Jacobian dense ``nv x nv`` work, O(nv^3)) before the first step is taken."""
+    n_free = int(np.count_nonzero(run.chain.active))
+    if run.progress and run.method in JACOBIAN_METHODS and n_free > driver.STABILITY_MAX_NV:
+        sys.stderr.write(f"qchain: {run.method} on {n_free} free coordinates: each exact Jacobian is dense "
+                         f"{run.chain.nv} x {run.chain.nv} work, O(nv^3) (seconds to minutes each for nv in the "
+                         "thousands, docs/engine.md); progress is shown after each step\n")
         sys.stderr.flush()
-    if method in COMPILED:
-        pk, tk = pressure, tau
-        if controller_rate is not None:
-            for name, _, size in held:
-                if name == "pressure":
-                    pk = np.zeros(size)
-                else:
-                    tk = np.zeros(size)
-        m = system.pack(chain, pk, tk)
+
+
+def _choose_backend(run: _Run):
+    """Step 2 of :func:`simulate`: the compiled engine's packed model
+    (:func:`qchain.sim.engine.system.pack`) where it serves the run (a method of
+    :data:`COMPILED`, the chain and the inputs it can take), else None for
+    :mod:`qchain.sim.python_backend`. A held controller is packed as zeros (its output is
+    written into the packed model at its instants).
+
+    Raises
+    ------
+    ValueError
+        ``controller_rate`` given for a run the compiled engine does not serve.
+    """
+    if run.method in COMPILED:
+        zeros = {name: np.zeros(size) for name, _, size in run.held}
+        m = system.pack(run.chain, zeros.get("pressure", run.pressure), zeros.get("tau", run.tau))
         if m is not None:
-            p_of, tau_of = P_in, T_in
-            if controller_rate is not None:
-                slots = {"pressure": m[21], "tau": m[23]}
-                controllers = [(fn, slots[name]) for name, fn, _ in held]
-                names = {name for name, _, _ in held}
-                if "pressure" in names:  # the held output, not another call of the controller
-                    p_of = lambda t, q, v: m[21].copy()  # noqa: E731
-                if "tau" in names:
-                    tau_of = lambda t, q, v: m[23].copy()  # noqa: E731
-            pass_energies = False
-            if on_sample is not None and energies:
-                try:
-                    pass_energies = "energies" in inspect.signature(on_sample).parameters
-                except (TypeError, ValueError):
-                    pass
-            try:
-                traj = driver.run(chain, m, method, q0, v0, t0, t1, dt=dt, rtol=rtol, atol=atol, t_eval=t_eval,
-                                  on_sample=on_sample, pass_energies=pass_energies, events=events,
-                                  bar=bar if progress else None, max_step=max_step, first_step=first_step,
-                                  energies=energies, deadline=deadline, controllers=controllers,
-                                  controller_rate=controller_rate,
-                                  inputs=lambda t, q, v: (p_of(t, q, v), tau_of(t, q, v)),
-                                  max_total_steps=budget.max_steps)
-            except driver.Interrupted as err:
-                bar.close(err.trajectory.t[-1] if len(err.trajectory.t) else t0)
-                raise
-            bar.close(traj.t[-1] if len(traj.t) else t0)
-            return traj
-    if controller_rate is not None:
+            return m
+    if run.controller_rate is not None:
         raise ValueError("controller_rate needs the compiled engine: a chain in curvature coordinates with the "
                          "material law, schedules or constants for the other input, no Python base_motion")
-    sysm = _System(chain, P_in, T_in)
-    sysm.deadline = deadline
-    rec = _Recorder(chain, sysm, t_eval, on_sample, energies)
-    status, message = 0, "The end of the time span was reached."
-    ev_log: list[tuple[str, float]] = []
-    nsteps = 0
-    q, v, t = q0.copy(), v0.copy(), t0
-    try:
-        rec.start(t, q, v)
-    except _Stop as err:  # the first sample's energies overflow: a run of no steps, its message says why
-        traj = rec.trajectory(-1, str(err), sysm.nfev)
-        traj.meta.update(method=method, engine="python", nsteps=0, njev=0, events=[])
-        return traj
-    g_prev = [e(t, q, v) for e in events]
-
-    def check_events(t_a, t_b, interp):
-        """Root-find sign changes of the events over [t_a, t_b]; return the first terminal time."""
-        nonlocal g_prev
-        g_now = []
-        hit = None
-        for k, e in enumerate(events):
-            qb, vb = interp(t_b)
-            gb = e(t_b, qb, vb)
-            g_now.append(gb)
-            ga = g_prev[k]
-            rising, falling = ga < 0 <= gb, ga > 0 >= gb
-            if (rising and e.direction >= 0) or (falling and e.direction <= 0):
-                from scipy.optimize import brentq
-
-                te = brentq(lambda s: e(s, *interp(s)), t_a, t_b, xtol=1e-12 * max(1.0, abs(t_b)))
-                ev_log.append((e.name, te))
-                if e.terminal and (hit is None or te < hit):
-                    hit = te
-        g_prev = g_now
-        return hit
-
-    try:
-        if method in FIXED_STEP:
-            step = _rk4_step if method == "rk4" else _midpoint_step
-            nsteps_total = int(np.ceil((t1 - t0) / dt - 1e-9))
-            h_stable = (driver.stability_limit(chain, q0, v0, sysm.P(t0, q0, v0), sysm.Tq(t0, q0, v0), t0)
-                        if method == "rk4" else None)
-            for k in range(nsteps_total):
-                h = min(dt, t1 - t)
-                sysm.q_chart = q
-                try:
-                    q1, v1 = step(sysm, t, q, v, h)
-                except _DomainExit as err:
-                    status, message = -1, driver.unstable_message(str(err), h, h_stable)
-                    break
-                if not (np.all(np.isfinite(q1)) and np.all(np.isfinite(v1))):
-                    status, message = -1, driver.unstable_message(
-                        f"non-finite state {_state_entry(chain, q1, v1)} at t = {t + h:.6g} s", h, h_stable)
-                    break
-                try:
-                    chain._state(q1, v1, t=t + h)
-                except QchainError as err:
-                    status, message = -1, driver.unstable_message(f"{err} (at t = {t + h:.6g} s)", h, h_stable)
-                    break
-                t_new = t0 + (k + 1) * dt if k + 1 < nsteps_total else t1
-                interp = _linear_interp(chain, t, q, v, t_new, q1, v1)
-                hit = check_events(t, t_new, interp) if events else None
-                if hit is not None:
-                    rec.advance(t, t_new, interp, t_stop=hit)
-                    t, (q, v) = hit, interp(hit)
-                    status, message = 1, f"A termination event occurred at t = {hit:.6g} s."
-                    break
-                rec.advance(t, t_new, interp)
-                t, q, v = t_new, q1, v1
-                nsteps += 1
-                bar.update(t)
-        else:
-            with np.errstate(under="ignore"):  # (scipy's first step takes nextafter(0, inf), an underflow)
-                t, q, v, status, message, nsteps = _run_adaptive(
-                    ADAPTIVE[method], sysm, rec, bar, check_events, t0, t1, q, v, rtol, atol, max_step, first_step,
-                    method, max_total_steps=budget.max_steps)
-    except (_WallLimit, _Stop) as err:
-        status, message = -1, str(err)
-    except KeyboardInterrupt:
-        # an adaptive run is interrupted inside _run_adaptive: its samples say how far it got
-        t = max(t, rec.T[-1]) if rec.T else t
-        status, message = -1, f"interrupted by the user at t = {t:.6g} s"
-        bar.close(t)
-        traj = rec.trajectory(status, message, sysm.nfev)
-        traj.meta.update(method=method, engine="python", nsteps=nsteps, njev=sysm.njev, events=ev_log)
-        raise driver.Interrupted(traj) from None
-    bar.close(t)
-    traj = rec.trajectory(status, message, sysm.nfev)
-    traj.meta.update(method=method, engine="python", nsteps=nsteps, njev=sysm.njev, events=ev_log)
-    return traj
+    return None
 
 
-def _linear_interp(chain, ta, qa, va, tb, qb, vb):
-    """Interpolation on a fixed step: Hermite-free linear in the Lie algebra (exact at the ends)."""
-    dq = chain.difference(qa, qb)
+def _run_compiled(run: _Run, m, bar: _Progress, deadline: float | None) -> Trajectory:
+    """Step 3 of :func:`simulate` on the compiled engine (:func:`qchain.sim.engine.driver.run`,
+    which builds the :class:`Trajectory`): the packed model ``m``, the held controllers
+    written into its input slots at their instants, samples' inputs read from those slots.
 
-    def interp(s):
-        w = (s - ta) / (tb - ta) if tb > ta else 1.0
-        return chain.integrate(qa, w * dq), (1 - w) * va + w * vb
-
-    return interp
-
-
-def _rk4_step(sysm: _System, t, q, v, h):
-    nA = sysm.nA
-    y = np.concatenate([np.zeros(nA), v[sysm.idx]])
-    k1 = sysm.rhs(t, y)
-    k2 = sysm.rhs(t + h / 2, y + h / 2 * k1)
-    k3 = sysm.rhs(t + h / 2, y + h / 2 * k2)
-    k4 = sysm.rhs(t + h, y + h * k3)
-    y1 = y + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
-    if not np.all(np.isfinite(y1)):
-        if sysm.error:
-            raise _DomainExit(f"{sysm.error}, in a stage of the step from t = {t:.6g} s (dt = {h:g} s)")
-        bad = int(np.flatnonzero(~np.isfinite(y1))[0])
-        which = sysm.ch.coordinate_name(int(sysm.idx[bad % nA]))
-        raise _DomainExit(f"non-finite state ({'velocity' if bad >= nA else 'position'} of {which}) at "
-                          f"t = {t + h:.6g} s")
-    return sysm.q_of(y1[:nA]), sysm.full(y1[nA:])
-
-
-def _midpoint_step(sysm: _System, t, q, v, h, tol=1e-10, max_iter=50):
-    """Implicit midpoint: ``v_m = v + h/2 a(q (+) h/2 v_m, v_m)``, ``q1 = q (+) h v_m``, ``v1 = 2 v_m - v``.
-
-    The residual ``R(v_m)`` is solved by quasi-Newton iterations: the matrix starts from
-    the model's ``M^-1 (M + h/2 D + h^2/4 K)`` (exact elastic stiffness and damping) and is
-    corrected by Broyden updates, kept from step to step and rebuilt when the iteration
-    slows down; the first guess is ``v + h/2 a_prev``.
+    Parameters
+    ----------
+    run : _Run
+    m : qchain.sim.engine.system.EngineModel
+        The packed model (:func:`_choose_backend`).
+    bar : _Progress
+    deadline : float or None
+        ``time.perf_counter()`` (s) at which the run stops (``wall_limit``).
     """
-    ch = sysm.ch
-    idx = sysm.idx
-    vA = v[idx]
-    a_prev = getattr(sysm, "_mp_a", None)
-    vm = vA + 0.5 * h * a_prev if a_prev is not None else vA.copy()
-    B = getattr(sysm, "_mp_B", None)
-    if B is not None and B[1] != h:
-        B = None
-    B = None if B is None else B[0]
-    R_old = dx = None
-    for it in range(max_iter):
-        vmf = sysm.full(vm)
-        qm = ch.integrate(q, 0.5 * h * vmf)
-        try:
-            a = sysm.accel(t + h / 2, qm, vmf)
-        except QchainError as err:
-            raise _DomainExit(f"{err} (at t = {t + h / 2:.6g} s)") from None
-        R = vm - vA - 0.5 * h * a[idx]
-        if not np.all(np.isfinite(R)):
-            bad = int(np.flatnonzero(~np.isfinite(R))[0])
-            raise _DomainExit(f"non-finite midpoint velocity of {ch.coordinate_name(int(idx[bad]))} at "
-                              f"t = {t + h / 2:.6g} s")
-        if np.max(np.abs(R)) <= tol * (1.0 + np.max(np.abs(vm))):
-            break
-        if R_old is not None:
-            dR = R - R_old
-            B = B + np.outer(dR - B @ dx, dx) / (dx @ dx)  # Broyden: learns what M, D, K leave out
-        if B is None or it == 8:
-            try:
-                M, K, D = sysm.mkd(qm, vmf)
-            except QchainError as err:
-                raise _DomainExit(f"{err} (at t = {t + h / 2:.6g} s)") from None
-            B = np.linalg.solve(M, M + 0.5 * h * D + 0.25 * h * h * K)
-        dx = -np.linalg.solve(B, R)
-        vm = vm + dx
-        R_old = R
-    else:
-        raise _DomainExit(f"implicit midpoint: Newton did not converge in {max_iter} iterations at t = {t:.6g} s "
-                          "(reduce dt)")
-    sysm._mp_a = a[idx]
-    sysm._mp_B = (B, h) if B is not None else getattr(sysm, "_mp_B", None)
-    vmf = sysm.full(vm)
-    return ch.integrate(q, h * vmf), sysm.full(2 * vm - vA)
-
-
-#: An adaptive run on the Python steppers stops as stalled after STALL_STEPS accepted steps in
-#: a row each shorter than STALL_STEP x max(1 s, |t|): no smooth model of an arm needs them
-#: (an explicit method's stability limit below it is refused before the run by the budget),
-#: a noisy controller drives the step to them and would take hours to reach the step budget
-STALL_STEP, STALL_STEPS = 1e-9, 1000
-
-
-def _run_adaptive(name, sysm, rec, bar, check_events, t0, t1, q, v, rtol, atol, max_step, first_step, method,
-                  max_total_steps=None):
-    import scipy.integrate as si
-
-    cls = getattr(si, name)
-    nA = sysm.nA
-    implicit = name in ("Radau", "BDF")
-    nsteps = 0
-    t = t0
-    status, message = 0, "The end of the time span was reached."
-
-    def new_solver(t_start, q_start, v_start, h0):
-        sysm.q_chart = q_start
-        y0 = np.concatenate([np.zeros(nA), v_start[sysm.idx]])
-        kw = dict(rtol=rtol, atol=atol, max_step=max_step)
-        if h0 is not None:
-            kw["first_step"] = min(h0, t1 - t_start)
-        if implicit:
-            kw["jac"] = sysm.stiffness_jacobian
-        return cls(sysm.rhs, t_start, y0, t1, **kw)
-
-    # scipy's own first-step guess probes y0 + h f(y0), which can leave the model's domain
-    # (or the paper coordinates' regular set) and return NaN; start small instead: the
-    # controllers grow the step by up to 10x per step.
-    solver = new_solver(t, q, v, first_step if first_step is not None else min(1e-4, (t1 - t0) / 10))
-    tiny = 0  # accepted steps in a row below STALL_STEP
-    while True:
-        if max_total_steps is not None and nsteps >= max_total_steps:
-            status = -1
-            message = driver.step_budget_message(max_total_steps, f"{nsteps} steps taken", t, t1, method)
-            break
-        if tiny >= STALL_STEPS:
-            status = -1
-            message = (f"{method} stalled: {STALL_STEPS} steps in a row shorter than {STALL_STEP:g} x max(1 s, |t|), "
-                       f"t reached = {t:.6g} s of {t1:.6g} s; the right-hand side is not smooth in time (a controller "
-                       "whose output is noisy or keeps state between calls, a discontinuous input): give "
-                       "controller_rate to hold the controller between its instants, or use a fixed-step method")
-            break
-        msg = solver.step()
-        if solver.status == "failed":
-            status = -1
-            message = sysm.error or f"{method} failed at t = {solver.t:.6g} s: {msg}"
-            break
-        sysm.error = None
-        dense = solver.dense_output()
-        chart = sysm.q_chart
-        t_prev, t_new = solver.t_old, solver.t
-        y = solver.y
-
-        def interp(s, dense=dense, chart=chart):
-            ys = dense(s)
-            return sysm.ch.integrate(chart, sysm.full(ys[:nA])), sysm.full(ys[nA:])
-
-        if not np.all(np.isfinite(y)):
-            bad = int(np.flatnonzero(~np.isfinite(y))[0])
-            which = sysm.ch.coordinate_name(int(sysm.idx[bad % nA]))
-            status, message = -1, (f"non-finite state ({'velocity' if bad >= nA else 'position'} of {which}) at "
-                                   f"t = {t_new:.6g} s")
-            break
-        hit = check_events(t_prev, t_new, interp)
-        if hit is not None:
-            rec.advance(t_prev, t_new, interp, t_stop=hit)
-            t = hit
-            q, v = interp(hit)
-            status, message = 1, f"A termination event occurred at t = {hit:.6g} s."
-            break
-        rec.advance(t_prev, t_new, interp)
-        nsteps += 1
-        tiny = tiny + 1 if t_new - t_prev < STALL_STEP * max(1.0, abs(t_new)) else 0
-        t = t_new
-        q, v = interp(t_new)
-        bar.update(t)
-        if solver.status == "finished":
-            break
-        if sysm.ch.floating and np.max(np.abs(y[:6])) > _RECENTER:
-            solver = new_solver(t, q, v, solver.step_size)
-    return t, q, v, status, message, nsteps
-
-
-class _Recorder:
-    """Collects output samples (every step, or at ``t_eval``) and hands them to ``on_sample``."""
-
-    def __init__(self, chain, sysm, t_eval, on_sample, energies):
-        self.ch, self.sysm = chain, sysm
-        self.t_eval = t_eval
-        self.k = 0  # next t_eval index
-        self.on_sample = on_sample
-        self.energies = energies
-        self._pass_energies = False  # on_sample(..., energies=(kinetic, potential)) if it takes them
-        if on_sample is not None and energies:
-            try:
-                self._pass_energies = "energies" in inspect.signature(on_sample).parameters
-            except (TypeError, ValueError):
-                pass
-        self.T, self.Q, self.V, self.Pp, self.KE, self.PE = [], [], [], [], [], []
-
-    def _add(self, t, q, v):
-        p = self.sysm.P(t, q, v)
-        if self.energies:
-            try:
-                ke, pe = self.ch.kinetic_energy(q, v, t=t), self.ch.potential_energy(q, t=t)
-            except QchainError as err:  # a state whose energies overflow ends the run, the samples before it kept
-                raise _Stop(f"{err} (a sample's energies)") from None
-        self.T.append(t)
-        self.Q.append(q)
-        self.V.append(v)
-        self.Pp.append(np.array(p, dtype=float))
-        if self.energies:
-            self.KE.append(ke)
-            self.PE.append(pe)
-        if self.on_sample is not None:
-            # its own copies: what it does with them cannot change the recorded samples or the run
-            if self._pass_energies:
-                self.on_sample(t, q.copy(), v.copy(), self.Pp[-1].copy(), energies=(self.KE[-1], self.PE[-1]))
-            else:
-                self.on_sample(t, q.copy(), v.copy(), self.Pp[-1].copy())
-
-    def start(self, t, q, v):
-        if self.t_eval is None:
-            self._add(t, q, v)
-        else:
-            while self.k < self.t_eval.size and self.t_eval[self.k] <= t:
-                self._add(self.t_eval[self.k], q, v)
-                self.k += 1
-
-    def advance(self, ta, tb, interp, t_stop=None):
-        end = tb if t_stop is None else t_stop
-        if self.t_eval is None:
-            self._add(end, *interp(end))
-            return
-        while self.k < self.t_eval.size and self.t_eval[self.k] <= end:
-            s = self.t_eval[self.k]
-            self._add(s, *interp(s))
-            self.k += 1
-
-    def trajectory(self, status, message, nfev) -> Trajectory:
-        ch = self.ch
-        N = len(self.T)
-        return Trajectory(
-            t=np.array(self.T),
-            q=np.array(self.Q).reshape(N, ch.nq),
-            v=np.array(self.V).reshape(N, ch.nv),
-            p=np.array(self.Pp).reshape(N, ch.nu),
-            kinetic_energy=np.array(self.KE) if self.energies else np.full(N, np.nan),
-            potential_energy=np.array(self.PE) if self.energies else np.full(N, np.nan),
-            success=status >= 0,
-            message=message,
-            nfev=nfev,
-            status=status,
-        )
+    p_of, tau_of = run.P_in, run.T_in
+    controllers = []
+    if run.controller_rate is not None:
+        slots = {"pressure": m.p_params, "tau": m.tau_params}
+        controllers = [(fn, slots[name]) for name, fn, _ in run.held]
+        # a sample's input is the held output, not another call of the controller
+        held = {name: (lambda t, q, v, slot=slots[name]: slot.copy()) for name, _, _ in run.held}
+        p_of, tau_of = held.get("pressure", p_of), held.get("tau", tau_of)
+    try:
+        traj = driver.run(run.chain, m, run.method, run.q0, run.v0, run.t0, run.t1, dt=run.dt, rtol=run.rtol,
+                          atol=run.atol, t_eval=run.t_eval, on_sample=run.on_sample,
+                          pass_energies=python_backend.takes_energies(run.on_sample, run.energies),
+                          events=run.events, bar=bar if run.progress else None, max_step=run.max_step,
+                          first_step=run.first_step, energies=run.energies, deadline=deadline,
+                          controllers=controllers, controller_rate=run.controller_rate,
+                          inputs=lambda t, q, v: (p_of(t, q, v), tau_of(t, q, v)),
+                          max_total_steps=run.budget.max_steps)
+    except driver.Interrupted as err:
+        bar.close(err.trajectory.t[-1] if len(err.trajectory.t) else run.t0)
+        raise
+    bar.close(traj.t[-1] if len(traj.t) else run.t0)
+    return traj

@@ -13,10 +13,10 @@ import functools
 import inspect
 import sys
 import time as _time
-import warnings
 
 import numpy as np
 
+from ..._jit import first_class_functions
 from ...errors import QchainError
 from ..trajectory import Trajectory
 from . import steppers, system, warmup
@@ -24,11 +24,6 @@ from .steppers import AT_STOP, FAILED, STEPS
 
 __all__ = ["run", "Interrupted", "STRETCH"]
 
-try:
-    from numba.core.errors import NumbaExperimentalFeatureWarning as _NumbaExperimental
-except ImportError:  # (another numba layout: nothing to silence by that name)
-    class _NumbaExperimental(Warning):
-        pass
 STRETCH = 0.05  #: s of wall time a compiled stretch aims at between looks from Python
 EPS = np.finfo(float).eps
 
@@ -69,8 +64,7 @@ def run(*args, **kw) -> Trajectory:
     """:func:`_run`, with numba's warning that first-class functions are experimental (which it
     gives at every call of the engine) silenced for the run: not the user's concern, and a
     ``warnings.simplefilter("error")`` would stop every run on it."""
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", _NumbaExperimental)
+    with first_class_functions():
         return _run(*args, **kw)
 
 
@@ -85,14 +79,14 @@ def _run(chain, m, method, q0, v0, t0, t1, *, dt, rtol, atol, t_eval, on_sample,
     ``max_total_steps``: the budget's ``max_steps``, enforced as the run goes for the adaptive
     methods (steps taken, rejected ones included): a stiff model that drives an explicit
     method's step to nothing stops (status -1) instead of running for hours."""
-    idx = m[13]
+    idx = m.idx
     nA = idx.size
     c = steppers.constants(method)
     fixed = method in ("rk4", "midpoint")
     wk = system.workspace(chain)
     it = steppers.integrator(nA, chain.nq)
-    y, tf, cnt = it[0], it[4], it[5]
-    wk[2][:] = q0
+    y, tf, cnt = it.y, it.tf, it.cnt
+    wk.q_chart[:] = q0
     y[nA:] = v0[idx]
     tf[steppers.T] = tf[steppers.T0] = t0
     tf[steppers.DT] = dt if fixed else 0.0
@@ -184,7 +178,7 @@ def _run(chain, m, method, q0, v0, t0, t1, *, dt, rtol, atol, t_eval, on_sample,
             if code == AT_STOP:
                 if t >= t1:
                     break
-                q, v = _state(chain, m, wk[2], y)
+                q, v = _state(chain, m, wk.q_chart, y)
                 hold(t, q, v)
                 n_hold += 1
                 for r in range(cnt[steppers.K_OUT] - 1, -1, -1):  # a sample at the instant shows the new hold
@@ -286,7 +280,7 @@ def _read_only(a: np.ndarray) -> np.ndarray:
 def _state(chain, m, q_chart, y):
     """``(q, v)`` of the engine state ``y`` in the chart at ``q_chart`` (Python's
     :func:`system.configuration`)."""
-    idx = m[13]
+    idx = m.idx
     nA = idx.size
     v = np.zeros(chain.nv)
     v[idx] = y[nA:]
@@ -301,9 +295,9 @@ def _state(chain, m, q_chart, y):
 
 def _state_at(method, chain, m, it, c, s):
     """``(q, v)`` at time ``s`` in the last step (its dense output)."""
-    ys = it[12][steppers.Y_OUT]
+    ys = it.tmp[steppers.Y_OUT]
     steppers.dense(steppers.CODES[method], it, c, s, ys)
-    return _state(chain, m, it[14], ys)
+    return _state(chain, m, it.qc, ys)
 
 
 def _events(events, g_prev, ev_log, method, chain, m, wk, it, c):
@@ -311,7 +305,7 @@ def _events(events, g_prev, ev_log, method, chain, m, wk, it, c):
     the first terminal event's time or None."""
     from scipy.optimize import brentq
 
-    tf = it[4]
+    tf = it.tf
     ta, tb = tf[steppers.T_OLD], tf[steppers.T]
     hit = None
     for kk, e in enumerate(events):
@@ -345,25 +339,25 @@ def _cut(out, cnt, hit, method, chain, m, wk, it, c, inputs):
 def _failure(chain, wk, it, method, q0, v0, t0, inputs) -> str:
     """The message of a failed run: what failed, where and when; for a fixed step above the
     stability limit, that limit."""
-    cnt, tf = it[5], it[4]
+    cnt, tf = it.cnt, it.tf
     code = int(cnt[steppers.STATUS])
     t = tf[steppers.T]
     # (T_FAIL is set where the right-hand side failed; a failure found in a step's stage
     # values leaves an earlier, rejected trial's there)
     t_fail = tf[steppers.T_FAIL] if tf[steppers.T_FAIL] >= t else t
     at = f"(at t = {t_fail:.6g} s, in the step from t = {t:.6g} s)"
-    q_bad = wk[0].copy()
+    q_bad = wk.q.copy()
     if code == system.DOMAIN:
         try:
             chain._state(q_bad)
-            what = f"segment {int(wk[10][1])} left the model's domain"
+            what = f"segment {int(wk.info[1])} left the model's domain"
         except QchainError as err:
             what = str(err)
         msg = f"{what} {at}"
     elif code == system.SINGULAR:
         n = chain.n
-        culprit = chain._overflowing_segment(wk[0][chain.nq - 3 * n :].reshape(n, 3),
-                                             wk[1][chain.nv - 3 * n :].reshape(n, 3))
+        culprit = chain._overflowing_segment(wk.q[chain.nq - 3 * n :].reshape(n, 3),
+                                             wk.v[chain.nv - 3 * n :].reshape(n, 3))
         msg = f"an articulated inertia is not positive definite{f' ({culprit})' if culprit else ''} {at}"
     elif code == system.NONFINITE:
         msg = f"{_nonfinite_what(chain, wk)} {at}"
@@ -382,8 +376,8 @@ def _failure(chain, wk, it, method, q0, v0, t0, inputs) -> str:
 
 def _nonfinite_what(chain, wk) -> str:
     """Which quantity of the last evaluation was not finite, and whose: the configuration
-    ``wk[0]``, the velocity ``wk[1]`` or the acceleration ``wk[7]`` (the first entry)."""
-    for name, x, vel in (("configuration", wk[0], False), ("velocity", wk[1], True), ("acceleration", wk[7], True)):
+    ``wk.q``, the velocity ``wk.v`` or the acceleration ``wk.a`` (the first entry)."""
+    for name, x, vel in (("configuration", wk.q, False), ("velocity", wk.v, True), ("acceleration", wk.a, True)):
         bad = np.flatnonzero(~np.isfinite(x))
         if bad.size:
             i = int(bad[0])
@@ -436,9 +430,9 @@ _LAST_RADIUS: list = []
 
 def _spectral_radius(chain, idx, q, v, p, tau, t) -> float | None:
     """The largest ``|eigenvalue|`` of the exact Jacobian of the free coordinates ``idx``."""
-    from ...algorithms import derivatives
+    from ...algorithms.aba_derivatives import aba_derivatives
 
-    if not len(derivatives.aba_derivatives.overloads) and warmup.is_cached(derivatives.aba_derivatives) is False:
+    if not len(aba_derivatives.overloads) and warmup.is_cached(aba_derivatives) is False:
         print("qchain: compiling the exact derivatives for this machine (the stability limit of an explicit "
               "method's step): about 20 s, once after install or an update (cached for later runs)",
               file=sys.stderr, flush=True)

@@ -39,7 +39,7 @@ import math
 import numpy as np
 
 from ...model.arc import jit
-from ...errors import as_vector
+from ...checks.convert import as_vector
 from ..inputs import Constant, Ramp, Schedule, Sine, SineMotion, Step, Table
 
 __all__ = [

@@ -1,7 +1,8 @@
 """Compiled time steppers: whole stretches of a run without returning to Python.
 
 Each ``advance_<method>(m, wk, it, out, c, t_stop, max_out, max_steps)`` takes steps of the
-system of :mod:`qchain.sim.engine.system` from the integrator state ``it`` until
+system of :mod:`qchain.sim.engine.system` (the model ``m``, an :class:`~qchain.sim.engine.system.EngineModel`,
+and the workspace ``wk``) from the integrator state ``it`` (an :class:`Integrator`) until
 
 * it reaches ``t_stop`` exactly (the last step is cut to end there: the span's end, a
   controller instant) -> :data:`AT_STOP`;
@@ -38,6 +39,8 @@ Unchecked by design: compiled kernels whose arguments the checked API has valida
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 
 from . import system
@@ -45,7 +48,7 @@ from . import tableaus as T_
 from ..._jit import ejit, ejit_inner  # helpers compiled once, not inlined: each inlined copy is typed again
 from .linalg import lu_factor, lu_solve
 
-__all__ = ["integrator", "constants", "dense", "CODES", "advance_rk4", "advance_midpoint", "advance_dopri5", "advance_radau5",
+__all__ = ["Integrator", "integrator", "constants", "dense", "CODES", "advance_rk4", "advance_midpoint", "advance_dopri5", "advance_radau5",
            "ADVANCE", "AT_STOP", "OUTPUT", "STEPS", "FAILED", "TOO_SMALL", "NEWTON"]
 
 AT_STOP, OUTPUT, STEPS, FAILED = 0, 1, 2, 3
@@ -56,9 +59,16 @@ T, H, T_OLD, H_LAST, RTOL, ATOL, MAX_STEP, DT, T0, H_ABS_OLD, ERR_OLD, NEWTON_TO
 # cnt: its counters and flags
 NSTEPS, NFEV, NJEV, NLU, NREJECT, JAC_CURRENT, LU_OK, F_OK, K_OUT, DENSE_OK, PRED_OK, STATUS, NNEWTON, LAST_ST, EVERY, \
     EMITTED = range(16)
-# rows of the scratch it[12]: the step's end state in the dense output's chart, an output sample, the
-# right-hand side evaluated before a Jacobian
+# rows of the scratch it.tmp (one (12, N) array: numba's compile time grows with the number of
+# arrays passed around), named by each method's use of them: the step's end state in the dense
+# output's chart, an output sample, the right-hand side evaluated before a Jacobian (every method)
 Y_END, Y_OUT, JAC_F = 10, 11, 9
+SCALE, TRIAL = 0, 1  # radau5's error weights atol + rtol |y|; a trial state (midpoint: the unknown Y)
+DP_NEW, DP_ERR = 2, 3  # dopri5: the trial step's end state, its error estimate
+MP_F, MP_RES = 2, 4  # midpoint: the right-hand side at the midpoint, Newton's residual
+# radau5: Newton's real-system increment, the step's end state, its error estimate, a solve's
+# scratch, the error estimate's stage part
+RD_NEWTON, RD_NEW, RD_ERR, RD_SOLVE, RD_ZE = 2, 3, 4, 5, 7
 
 RK4, MIDPOINT, DOPRI5, RADAU5 = range(4)
 CODES = {"rk4": RK4, "midpoint": MIDPOINT, "dopri5": DOPRI5, "radau5": RADAU5}
@@ -77,18 +87,64 @@ def constants(method: str) -> tuple:
     return (np.zeros((1, 1)),)
 
 
-def integrator(nA: int, nq: int) -> tuple:
-    """A fresh integrator state for ``nA`` free coordinates (state size ``N = 2 nA``):
-    ``y, y_old, f (N,)``, stages ``K (15, N)``, floats ``tf (16,)``, counters ``cnt (16,)``,
-    ``Jq, Jv, LUr (nA, nA)``, ``piv_r (nA,)``, ``LUc (nA, nA) complex``, ``piv_c``,
-    scratch ``tmp (12, N)``, ``ctmp (4, nA) complex``, the dense output's chart ``qc (nq,)``."""
+class Integrator(NamedTuple):
+    """An integrator's state (:func:`integrator`) for ``nA`` free coordinates, state size
+    ``N = 2 nA``: named arrays, which numba compiles with attribute access; the scalars it
+    updates live in ``tf`` and ``cnt`` (a tuple's fields are not assignable).
+
+    Attributes
+    ----------
+    y, y_old : (N,) float
+        The state ``(delta, v_A)`` now and at the last step's start.
+    f : (N,) float
+        The right-hand side at ``y`` (first same as last; ``cnt[F_OK]`` says it is current).
+    K : (15, N) float
+        Stages, the dense output's coefficients, radau5's collocation values.
+    tf : (16,) float
+        The floats, indexed by :data:`T`, :data:`H`, ... (s, tolerances, rates).
+    cnt : (16,) int64
+        Counters and flags, indexed by :data:`NSTEPS`, :data:`NFEV`, ...
+    Jq, Jv : (nA, nA) float
+        The exact Jacobian blocks ``da_A/d(delta)`` (1/s^2) and ``da_A/dv_A`` (1/s).
+    LUr, piv_r : (nA, nA) float, (nA,) int64
+        The real Newton matrix's LU factors and pivots.
+    LUc, piv_c : (nA, nA) complex, (nA,) int64
+        radau5's complex Newton matrix's.
+    tmp : (12, N) float
+        Scratch rows (:data:`TRIAL`, :data:`Y_END`, ...).
+    ctmp : (4, nA) complex
+        radau5's complex scratch.
+    qc : (nq,) float
+        The chart the dense output is in.
+    """
+
+    y: np.ndarray
+    y_old: np.ndarray
+    f: np.ndarray
+    K: np.ndarray
+    tf: np.ndarray
+    cnt: np.ndarray
+    Jq: np.ndarray
+    Jv: np.ndarray
+    LUr: np.ndarray
+    piv_r: np.ndarray
+    LUc: np.ndarray
+    piv_c: np.ndarray
+    tmp: np.ndarray
+    ctmp: np.ndarray
+    qc: np.ndarray
+
+
+def integrator(nA: int, nq: int) -> Integrator:
+    """A fresh :class:`Integrator` for ``nA`` free coordinates and ``nq`` configuration ones."""
     N = 2 * nA
     tf = np.zeros(16)
     tf[JAC_T] = -1.0
-    return (np.zeros(N), np.zeros(N), np.zeros(N), np.zeros((15, N)), tf, np.zeros(16, dtype=np.int64),
-            np.zeros((nA, nA)), np.zeros((nA, nA)), np.zeros((nA, nA)), np.zeros(nA, dtype=np.int64),
-            np.zeros((nA, nA), dtype=np.complex128), np.zeros(nA, dtype=np.int64), np.zeros((12, N)),
-            np.zeros((4, nA), dtype=np.complex128), np.zeros(nq))
+    return Integrator(y=np.zeros(N), y_old=np.zeros(N), f=np.zeros(N), K=np.zeros((15, N)), tf=tf,
+                      cnt=np.zeros(16, dtype=np.int64), Jq=np.zeros((nA, nA)), Jv=np.zeros((nA, nA)),
+                      LUr=np.zeros((nA, nA)), piv_r=np.zeros(nA, dtype=np.int64),
+                      LUc=np.zeros((nA, nA), dtype=np.complex128), piv_c=np.zeros(nA, dtype=np.int64),
+                      tmp=np.zeros((12, N)), ctmp=np.zeros((4, nA), dtype=np.complex128), qc=np.zeros(nq))
 
 
 # ------------------------------------------------------------------------------- shared
@@ -96,11 +152,11 @@ def integrator(nA: int, nq: int) -> tuple:
 
 @ejit_inner
 def _f(fs, m, wk, it, t, y, out):
-    it[5][NFEV] += 1
+    it.cnt[NFEV] += 1
     st = fs[0](m, wk, t, y, out)
     if st != 0:  # where and why the last evaluation failed, for the message if the run stops
-        it[4][T_FAIL] = t
-        it[5][LAST_ST] = st
+        it.tf[T_FAIL] = t
+        it.cnt[LAST_ST] = st
     return st
 
 
@@ -108,7 +164,7 @@ def _f(fs, m, wk, it, t, y, out):
 def _jacobian(fs, m, wk, it, t, y, Jq, Jv):
     """The exact Jacobian at ``(t, y)``: the right-hand side first (the Jacobian kernel reuses
     its forward pass; its result goes to a scratch row, not counted in ``nfev``)."""
-    st = fs[0](m, wk, t, y, it[12][JAC_F])
+    st = fs[0](m, wk, t, y, it.tmp[JAC_F])
     if st != 0:
         return st
     return fs[1](m, wk, t, y, Jq, Jv)
@@ -127,7 +183,7 @@ def _norm(e, y0, y1, rtol, atol):
 @ejit  # also called from Python (events root-find on the dense output)
 def dense(method, it, c, s, yout):
     """The last step's dense output at time ``s`` into ``yout`` (N,)."""
-    y, yold, K, tf = it[12][Y_END], it[1], it[3], it[4]
+    y, yold, K, tf = it.tmp[Y_END], it.y_old, it.K, it.tf
     hl = tf[H_LAST]
     x = (s - tf[T_OLD]) / hl if hl > 0.0 else 1.0
     N = y.shape[0]
@@ -153,21 +209,21 @@ def _emit(method, m, wk, it, out, c, budget):
     """Write the outputs that fall in the last accepted step (up to ``budget``); returns how
     many were written."""
     t_out, Qo, Vo, Po = out
-    cnt, tf = it[5], it[4]
+    cnt, tf = it.cnt, it.tf
     if cnt[DENSE_OK] == 0:
         return 0
     t = tf[T]
-    ys = it[12][Y_OUT]
+    ys = it.tmp[Y_OUT]
     k = cnt[K_OUT]
     wrote = 0
     if cnt[EVERY] == 1:  # a sample at the end of every step (no t_eval)
         if cnt[EMITTED] != cnt[NSTEPS] and budget > 0 and k < t_out.shape[0]:
             t_out[k] = t
-            system.configuration(m, wk, it[14], it[12][Y_END])
-            system.copy(Qo[k], wk[0])
-            system.copy(Vo[k], wk[1])
+            system.configuration(m, wk, it.qc, it.tmp[Y_END])
+            system.copy(Qo[k], wk.q)
+            system.copy(Vo[k], wk.v)
             system.inputs(m, wk, t)
-            system.copy(Po[k], wk[3])
+            system.copy(Po[k], wk.p)
             cnt[K_OUT] = k + 1
             cnt[EMITTED] = cnt[NSTEPS]
             return 1
@@ -175,14 +231,14 @@ def _emit(method, m, wk, it, out, c, budget):
     while k < t_out.shape[0] and wrote < budget and t_out[k] <= t:
         s = t_out[k]
         if s == t:
-            system.copy(ys, it[12][Y_END])
+            system.copy(ys, it.tmp[Y_END])
         else:
             dense(method, it, c, s, ys)
-        system.configuration(m, wk, it[14], ys)
-        system.copy(Qo[k], wk[0])
-        system.copy(Vo[k], wk[1])
+        system.configuration(m, wk, it.qc, ys)
+        system.copy(Qo[k], wk.q)
+        system.copy(Vo[k], wk.v)
         system.inputs(m, wk, s)
-        system.copy(Po[k], wk[3])
+        system.copy(Po[k], wk.p)
         k += 1
         wrote += 1
     cnt[K_OUT] = k
@@ -194,26 +250,26 @@ def _accepted(m, wk, it, t, h, t_new, fixed):
     """After an accepted step from ``t`` to ``t_new`` (length ``h``): record it for the dense
     output, count it and move the chart where the base has turned far (every step for the
     fixed-step methods, whose steps start at ``delta = 0``)."""
-    tf = it[4]
+    tf = it.tf
     tf[T_OLD] = t
     tf[H_LAST] = h
     tf[T] = t_new
-    cnt = it[5]
+    cnt = it.cnt
     cnt[NSTEPS] += 1
     cnt[DENSE_OK] = 1
-    system.copy(it[14], wk[2])  # the chart the dense output is in
-    y = it[0]
-    system.copy(it[12][Y_END], y)
+    system.copy(it.qc, wk.q_chart)  # the chart the dense output is in
+    y = it.y
+    system.copy(it.tmp[Y_END], y)
     nA = y.shape[0] // 2
     move = fixed
-    if m[14][0] == 1 and not fixed:
+    if m.base == system.FLOATING and not fixed:
         for i in range(6):
             if abs(y[i]) > system.RECENTER:
                 move = True
     if move:
-        system.configuration(m, wk, wk[2], y)
-        system.copy(wk[2], wk[0])
-        # the dense output stays valid in its own chart (it[14]); y restarts at delta = 0
+        system.configuration(m, wk, wk.q_chart, y)
+        system.copy(wk.q_chart, wk.q)
+        # the dense output stays valid in its own chart (it.qc); y restarts at delta = 0
         for i in range(nA):
             y[i] = 0.0
         cnt[F_OK] = 0
@@ -224,10 +280,10 @@ def _accepted(m, wk, it, t, h, t_new, fixed):
 def _end_state(m, wk, it, t, y):
     """The status of the configuration at ``y`` at time ``t`` (a fixed step's end is checked
     before it is accepted, so a run stops on the last valid state)."""
-    system.configuration(m, wk, wk[2], y)
-    st = system.check(m, wk, wk[0])
+    system.configuration(m, wk, wk.q_chart, y)
+    st = system.check(m, wk, wk.q)
     if st != 0:
-        it[4][T_FAIL] = t
+        it.tf[T_FAIL] = t
     return st
 
 
@@ -237,7 +293,7 @@ def _trial_end(it, t, t_stop):
     capped by ``max_step`` and cut to end at ``t_stop`` (never leaving a sliver under a
     hundredth of a step before it); NaN, with the reason in ``cnt[STATUS]``, where the step
     has shrunk below its floor (the last failed evaluation's status if one made it shrink)."""
-    tf, cnt = it[4], it[5]
+    tf, cnt = it.tf, it.cnt
     h = tf[H]
     if h < 10.0 * abs(np.nextafter(t, np.inf) - t):
         cnt[STATUS] = cnt[LAST_ST] if cnt[LAST_ST] != 0 else TOO_SMALL
@@ -267,13 +323,13 @@ def _before_step(fs, m, wk, it, t_stop, steps, max_steps, need_f):
     """What an ``advance`` does before a step: the code to return at ``t_stop`` or after
     ``max_steps``, :data:`FAILED` if ``f`` at the step's start (``need_f``) cannot be had,
     else -1 (take the step)."""
-    tf, cnt = it[4], it[5]
+    tf, cnt = it.tf, it.cnt
     if tf[T] >= t_stop:
         return AT_STOP
     if steps >= max_steps:
         return STEPS
     if need_f and cnt[F_OK] == 0:
-        st = _f(fs, m, wk, it, tf[T], it[0], it[2])
+        st = _f(fs, m, wk, it, tf[T], it.y, it.f)
         if st != 0:
             cnt[STATUS] = st
             return FAILED
@@ -283,10 +339,10 @@ def _before_step(fs, m, wk, it, t_stop, steps, max_steps, need_f):
 
 @ejit
 def advance_rk4(fs, m, wk, it, out, c, t_stop, max_out, max_steps):
-    y, yold, K, tf, cnt = it[0], it[1], it[3], it[4], it[5]
+    y, yold, K, tf, cnt = it.y, it.y_old, it.K, it.tf, it.cnt
     N = y.shape[0]
     nA = N // 2
-    yt = it[12][1]
+    yt = it.tmp[TRIAL]
     wrote = _emit(RK4, m, wk, it, out, c, max_out)
     steps = 0
     while wrote < max_out:
@@ -331,7 +387,7 @@ def advance_rk4(fs, m, wk, it, out, c, t_stop, max_out, max_steps):
 @ejit_inner
 def _midpoint_matrix(fs, m, wk, it, t, y, h):
     """Factor ``I - h/2 Jv - h^2/4 Jq`` at ``(t, y)`` with the exact Jacobian."""
-    Jq, Jv, LU, piv, cnt = it[6], it[7], it[8], it[9], it[5]
+    Jq, Jv, LU, piv, cnt = it.Jq, it.Jv, it.LUr, it.piv_r, it.cnt
     nA = Jq.shape[0]
     cnt[NJEV] += 1
     st = _jacobian(fs, m, wk, it, t, y, Jq, Jv)
@@ -344,7 +400,7 @@ def _midpoint_matrix(fs, m, wk, it, t, y, h):
     cnt[NLU] += 1
     if not lu_factor(LU, piv):
         return system.SINGULAR
-    it[4][H_LU] = h  # the step the factorisation is for
+    it.tf[H_LU] = h  # the step the factorisation is for
     cnt[LU_OK] = 1
     return 0
 
@@ -354,10 +410,10 @@ def advance_midpoint(fs, m, wk, it, out, c, t_stop, max_out, max_steps):
     """Implicit midpoint: ``Y = y + h/2 f(Y)``, ``y1 = 2 Y - y``; with ``Y = (h/2 V, V)`` from
     ``delta = 0`` the unknown is the midpoint velocity ``V``; ``q1 = q (+) h V``,
     ``v1 = 2 V - v``."""
-    y, yold, K, tf, cnt = it[0], it[1], it[3], it[4], it[5]
+    y, yold, K, tf, cnt = it.y, it.y_old, it.K, it.tf, it.cnt
     N = y.shape[0]
     nA = N // 2
-    Y, F, R = it[12][1], it[12][2], it[12][4]
+    Y, F, R = it.tmp[TRIAL], it.tmp[MP_F], it.tmp[MP_RES]
     wrote = _emit(MIDPOINT, m, wk, it, out, c, max_out)
     steps = 0
     tol = 1e-10
@@ -407,7 +463,7 @@ def advance_midpoint(fs, m, wk, it, out, c, t_stop, max_out, max_steps):
             elif fresh and itn - itn_fresh >= MIDPOINT_MAXITER:
                 break
             res_old = res
-            lu_solve(it[8], it[9], R[:nA])
+            lu_solve(it.LUr, it.piv_r, R[:nA])
             for i in range(nA):
                 Y[nA + i] -= R[i]
         if not converged:
@@ -439,9 +495,9 @@ def advance_midpoint(fs, m, wk, it, out, c, t_stop, max_out, max_steps):
 @ejit
 def advance_dopri5(fs, m, wk, it, out, c, t_stop, max_out, max_steps):
     A, C, E, P = c
-    y, yold, f, K, tf, cnt = it[0], it[1], it[2], it[3], it[4], it[5]
+    y, yold, f, K, tf, cnt = it.y, it.y_old, it.f, it.K, it.tf, it.cnt
     N = y.shape[0]
-    yt, yn, err = it[12][1], it[12][2], it[12][3]
+    yt, yn, err = it.tmp[TRIAL], it.tmp[DP_NEW], it.tmp[DP_ERR]
     wrote = _emit(DOPRI5, m, wk, it, out, c, max_out)
     steps = 0
     rtol, atol = tf[RTOL], tf[ATOL]
@@ -522,7 +578,7 @@ def advance_dopri5(fs, m, wk, it, out, c, t_stop, max_out, max_steps):
 def _radau_factor(it, h, mu):
     """Factor the real and complex Newton matrices of half size at step ``h``:
     ``c^2 I - c Jv - Jq`` with ``c = mu_real / h`` and ``c = mu_complex / h``."""
-    Jq, Jv, LUr, pr, LUc, pc, cnt = it[6], it[7], it[8], it[9], it[10], it[11], it[5]
+    Jq, Jv, LUr, pr, LUc, pc, cnt = it.Jq, it.Jv, it.LUr, it.piv_r, it.LUc, it.piv_c, it.cnt
     nA = Jq.shape[0]
     cr = mu[0] / h
     cc = complex(mu[1], mu[2]) / h
@@ -559,14 +615,14 @@ def _radau_newton(fs, m, wk, it, c, t, h, scale):
     """Simplified Newton for the collocation system (Hairer and Wanner IV.8): returns
     ``(converged, iterations, rate)``; ``Z = K[0:3]``, ``F = K[3:6]``, ``W = K[6:9]``."""
     C, E, Tm, TI, P, mu = c
-    y, K, tf = it[0], it[3], it[4]
+    y, K, tf = it.y, it.K, it.tf
     N = y.shape[0]
     nA = N // 2
     Z, F, W = K[0:3], K[3:6], K[6:9]
-    yt = it[12][1]
-    fr = it[12][2]
-    ct = it[13]
-    Jq = it[6]
+    yt = it.tmp[TRIAL]
+    fr = it.tmp[RD_NEWTON]
+    ct = it.ctmp
+    Jq = it.Jq
     cr = mu[0] / h
     cc = complex(mu[1], mu[2]) / h
     tol = tf[NEWTON_TOL]
@@ -591,8 +647,8 @@ def _radau_newton(fs, m, wk, it, c, t, h, scale):
                 g = complex(TI[1, 0] * F[0, j] + TI[1, 1] * F[1, j] + TI[1, 2] * F[2, j],
                             TI[2, 0] * F[0, j] + TI[2, 1] * F[1, j] + TI[2, 2] * F[2, j])
                 ct[part, i] = g - cc * complex(W[1, j], W[2, j])
-        _radau_solve(it, cr, it[8], it[9], fr[:nA], fr[nA:], Jq, it[12][5][:nA])
-        _radau_solve(it, cc, it[10], it[11], ct[0], ct[1], Jq, ct[2])
+        _radau_solve(it, cr, it.LUr, it.piv_r, fr[:nA], fr[nA:], Jq, it.tmp[RD_SOLVE][:nA])
+        _radau_solve(it, cc, it.LUc, it.piv_c, ct[0], ct[1], Jq, ct[2])
         acc = 0.0
         for i in range(N):
             part = i // nA
@@ -622,22 +678,22 @@ def _radau_newton(fs, m, wk, it, c, t, h, scale):
 
 @ejit_inner
 def _radau_jacobian(fs, m, wk, it, t):
-    it[5][NJEV] += 1
-    st = _jacobian(fs, m, wk, it, t, it[0], it[6], it[7])
-    it[5][JAC_CURRENT] = 1
-    it[5][LU_OK] = 0
+    it.cnt[NJEV] += 1
+    st = _jacobian(fs, m, wk, it, t, it.y, it.Jq, it.Jv)
+    it.cnt[JAC_CURRENT] = 1
+    it.cnt[LU_OK] = 0
     return st
 
 
 @ejit
 def advance_radau5(fs, m, wk, it, out, c, t_stop, max_out, max_steps):
     C, E, Tm, TI, P, mu = c
-    y, yold, f, K, tf, cnt = it[0], it[1], it[2], it[3], it[4], it[5]
+    y, yold, f, K, tf, cnt = it.y, it.y_old, it.f, it.K, it.tf, it.cnt
     N = y.shape[0]
     nA = N // 2
     Z, Q, Z0 = K[0:3], K[9:12], K[12:15]
-    scale, yn, err, yt = it[12][0], it[12][3], it[12][4], it[12][1]
-    Jq = it[6]
+    scale, yn, err, yt = it.tmp[SCALE], it.tmp[RD_NEW], it.tmp[RD_ERR], it.tmp[TRIAL]
+    Jq = it.Jq
     rtol, atol = tf[RTOL], tf[ATOL]
     wrote = _emit(RADAU5, m, wk, it, out, c, max_out)
     steps = 0
@@ -704,10 +760,10 @@ def advance_radau5(fs, m, wk, it, out, c, t_stop, max_out, max_steps):
             # error estimate: (mu_real/h - J)^-1 (f + (E . Z) / h)
             for i in range(N):
                 err[i] = f[i] + (E[0] * Z[0, i] + E[1] * Z[1, i] + E[2] * Z[2, i]) / h
-            ze = it[12][7]
+            ze = it.tmp[RD_ZE]
             for i in range(N):
                 ze[i] = err[i] - f[i]
-            _radau_solve(it, mu[0] / h, it[8], it[9], err[:nA], err[nA:], Jq, it[12][5][:nA])
+            _radau_solve(it, mu[0] / h, it.LUr, it.piv_r, err[:nA], err[nA:], Jq, it.tmp[RD_SOLVE][:nA])
             acc = 0.0
             for i in range(N):
                 acc += (err[i] / scale[i]) ** 2
@@ -719,7 +775,7 @@ def advance_radau5(fs, m, wk, it, out, c, t_stop, max_out, max_steps):
                 if _f(fs, m, wk, it, t, yt, err) == 0:
                     for i in range(N):
                         err[i] += ze[i]
-                    _radau_solve(it, mu[0] / h, it[8], it[9], err[:nA], err[nA:], Jq, it[12][5][:nA])
+                    _radau_solve(it, mu[0] / h, it.LUr, it.piv_r, err[:nA], err[nA:], Jq, it.tmp[RD_SOLVE][:nA])
                     acc = 0.0
                     for i in range(N):
                         acc += (err[i] / scale[i]) ** 2

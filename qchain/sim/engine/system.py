@@ -10,18 +10,10 @@ base, whose chart is moved to the current placement when it has turned far
 
     d(delta)/dt = dexp^-1(delta_B) v_B (base),  v_A (segments),   dv_A/dt = a_A(t, q, v).
 
-:func:`pack` turns a :class:`qchain.Chain` and its inputs into the tuple ``m`` (model,
-never written by a pass) and :func:`workspace` the tuple ``wk`` (everything a pass writes),
-both plain tuples of arrays so that one compiled specialisation serves every chain.
-
-``m`` (in order): ``alpha, w (N,), offs (n + 1,)`` nodes; ``mass, radius, l0, EI, EA, beta,
-A_ch, r_ch (n,)``; ``paper_act (n,) bool``; ``locked (n, 3) bool``; ``idx (nA,) int64``;
-``kind (4,) int64`` = (base: 0 fixed, 1 floating, 2 prescribed; planar kernel 0/1; nq; nv);
-``g_W (3,)`` world gravity (m/s^2); ``R_WB (3, 3), p_WB (3,)`` a fixed base's placement;
-``bm_i, bm_p`` a prescribed base's motion (:func:`qchain.sim.engine.schedules.pack_base_motion`);
-``p_i, p_p`` the pressure input and ``t_i, t_p`` the generalised-force input
-(:func:`qchain.sim.engine.schedules.pack_input`); ``layout (K + 1, 5) int64`` where the kernel
-workspaces lie in ``wk``'s buffer (:func:`_layout`).
+:func:`pack` turns a :class:`qchain.Chain` and its inputs into an :class:`EngineModel` ``m``
+(never written by a pass) and :func:`workspace` a :class:`Workspace` ``wk`` (everything a
+pass writes): named tuples of arrays, which numba compiles with attribute access, so that
+one compiled specialisation serves every chain.
 
 Status codes returned by every pass: :data:`OK`, :data:`DOMAIN` (a segment left the model's
 domain: ``|kappa| r >= 1`` or ``l <= 0``; ``info[1]`` its index), :data:`SINGULAR` (an
@@ -34,40 +26,173 @@ Unchecked by design: compiled kernels whose arguments the checked API has valida
 from __future__ import annotations
 
 import functools
+from typing import NamedTuple
 
 import numpy as np
 
-from ...algorithms import derivatives, planar, recursive
+from ...algorithms import aba_derivatives, planar, recursive, rnea_derivatives
 from ...model.arc import SCRATCH, arc_node, take1, take2
 from ...model.slices import slice_twist
 from . import lie, schedules
 from ..._jit import ejit, ejit_inner, inline, kernel
 
-__all__ = ["pack", "workspace", "rhs", "rhs_planar", "rhs_spatial", "jacobian", "configuration", "energies", "energies_batch", "inputs", "RECENTER",
-           "OK", "DOMAIN", "SINGULAR", "NONFINITE"]
+__all__ = ["EngineModel", "Workspace", "pack", "workspace", "rhs", "rhs_planar", "rhs_spatial", "jacobian",
+           "configuration", "energies", "energies_batch", "inputs", "RECENTER", "OK", "DOMAIN", "SINGULAR", "NONFINITE",
+           "FIXED", "FLOATING", "PRESCRIBED"]
 
 OK, DOMAIN, SINGULAR, NONFINITE = 0, 1, 2, 3
+FIXED, FLOATING, PRESCRIBED = 0, 1, 2  #: :attr:`EngineModel.base`
 RECENTER = 0.5  #: rad or m of base chart coordinates before the chart is moved
 
 
-def pack(chain, pressure, tau) -> tuple | None:
-    """The model tuple ``m`` of ``chain`` with compiled ``pressure`` and ``tau`` inputs, or None
-    where the compiled engine cannot serve it (paper coordinates, the linear law, a Python
+class EngineModel(NamedTuple):
+    """The model a compiled pass reads, never writes (:func:`pack`); ``N`` nodes over all
+    segments, ``n`` segments, ``nA`` free velocity coordinates.
+
+    Attributes
+    ----------
+    alpha : (N,) float
+        The nodes' arc parameters in [0, 1] (:meth:`qchain.Chain.kernel_arrays`, as the
+        fields up to ``locked``).
+    w : (N,) float
+        Their quadrature weights (sum 1 a segment).
+    offs : (n + 1,) int64
+        Segment ``j``'s nodes are ``offs[j]:offs[j + 1]``.
+    mass, radius, l0 : (n,) float
+        Segment mass (kg), radius (m), rest length (m).
+    EI, EA : (n,) float
+        Bending (N m^2) and axial (N) stiffness.
+    beta : (n,) float
+        Stiffness-proportional damping (s).
+    A_ch, r_ch : (n,) float
+        Chamber area (m^2) and the chambers' distance from the axis (m).
+    paper_act : (n,) bool
+        The paper's actuation law.
+    locked : (n, 3) bool
+        Coordinates held still (``planar``, inextensible segments).
+    idx : (nA,) int64
+        The free velocity coordinates, ``flatnonzero(chain.active)``.
+    base : int
+        :data:`FIXED`, :data:`FLOATING` or :data:`PRESCRIBED`.
+    planar_kernel : int
+        1: the forward dynamics run on :func:`qchain.algorithms.planar.planar_aba_moving`.
+    nq, nv : int
+        Configuration and velocity sizes.
+    g_W : (3,) float
+        World gravity (m/s^2).
+    R_WB0, p_WB0 : (3, 3), (3,) float
+        A fixed base's placement in the world (m).
+    bm_ints, bm_params : (k,) int64, (k',) float
+        A prescribed base's motion (:func:`qchain.sim.engine.schedules.pack_base_motion`).
+    p_ints, p_params : (k,) int64, (k',) float
+        The pressure input (Pa; :func:`qchain.sim.engine.schedules.pack_input`); a held
+        controller's output is written into ``p_params`` at its instants.
+    tau_ints, tau_params : (k,) int64, (k',) float
+        The generalised-force input, likewise.
+    layout : (K + 1, 5) int64
+        Where the kernel workspaces lie in :attr:`Workspace.buf` (:func:`_layout`).
+    """
+
+    alpha: np.ndarray
+    w: np.ndarray
+    offs: np.ndarray
+    mass: np.ndarray
+    radius: np.ndarray
+    l0: np.ndarray
+    EI: np.ndarray
+    EA: np.ndarray
+    beta: np.ndarray
+    A_ch: np.ndarray
+    r_ch: np.ndarray
+    paper_act: np.ndarray
+    locked: np.ndarray
+    idx: np.ndarray
+    base: int
+    planar_kernel: int
+    nq: int
+    nv: int
+    g_W: np.ndarray
+    R_WB0: np.ndarray
+    p_WB0: np.ndarray
+    bm_ints: np.ndarray
+    bm_params: np.ndarray
+    p_ints: np.ndarray
+    p_params: np.ndarray
+    tau_ints: np.ndarray
+    tau_params: np.ndarray
+    layout: np.ndarray
+
+
+class Workspace(NamedTuple):
+    """The arrays the passes write (:func:`workspace`; one run, one thread). Few arrays:
+    numba's compile time grows with the number of arrays a compiled function passes around.
+
+    Attributes
+    ----------
+    q, v : (nq,), (nv,) float
+        The configuration and velocity of the last evaluation.
+    q_chart : (nq,) float
+        The chart's centre: ``q = q_chart (+) delta``.
+    p : (nu,) float
+        Pressures (Pa).
+    tau : (nv,) float
+        Generalised force input.
+    f : (n, 3) float
+        Internal plus external generalised forces on the segment coordinates.
+    A0 : (6,) float
+        The apparent base acceleration (gravity folded in).
+    a : (nv,) float
+        The acceleration.
+    qdd : (n, 3) float
+        The segment coordinates' acceleration.
+    B : (4, 6) float
+        The base's state (:func:`_base_state`).
+    info : (4,) int64
+        Status and the segment it concerns.
+    buf : (size,) float
+        The kernels' workspaces in one buffer (:data:`KERNEL_NDIM`, carved by
+        :func:`aba_ws` and its siblings).
+    scratch : (SCRATCH,) float
+        The model passes' scratch.
+    R_WB : (3, 3) float
+        The base's rotation in the world.
+    """
+
+    q: np.ndarray
+    v: np.ndarray
+    q_chart: np.ndarray
+    p: np.ndarray
+    tau: np.ndarray
+    f: np.ndarray
+    A0: np.ndarray
+    a: np.ndarray
+    qdd: np.ndarray
+    B: np.ndarray
+    info: np.ndarray
+    buf: np.ndarray
+    scratch: np.ndarray
+    R_WB: np.ndarray
+
+
+def pack(chain, pressure, tau) -> EngineModel | None:
+    """The :class:`EngineModel` of ``chain`` with compiled ``pressure`` and ``tau`` inputs, or
+    None where the compiled engine cannot serve it (paper coordinates, the linear law, a Python
     controller or a Python ``base_motion``). A ``planar`` chain whose base stays in its x-z
     plane runs on :func:`qchain.algorithms.planar.planar_aba_moving` (2-D cost, the same accelerations)."""
     from ...arm.chain import Chain
 
     if not isinstance(chain, Chain):
         raise TypeError(f"chain must be a qchain.Chain, got {type(chain).__name__}")
-    if chain._any_paper or chain._has_linear:
+    arrays = chain.kernel_arrays()
+    if arrays is None:
         return None
     p = schedules.pack_input(pressure, chain.nu, "pressure")
     f = schedules.pack_input(tau, chain.nv, "tau")
     if p is None or f is None:
         return None
-    base = {"fixed": 0, "floating": 1, "prescribed": 2}[chain.base]
-    planar_kernel = chain.planar and base != 1
-    if base == 2:
+    base = {"fixed": FIXED, "floating": FLOATING, "prescribed": PRESCRIBED}[chain.base]
+    planar_kernel = chain.planar and base != FLOATING
+    if base == PRESCRIBED:
         bm = schedules.pack_base_motion(chain.base_motion)
         if bm is None:
             return None
@@ -77,12 +202,11 @@ def pack(chain, pressure, tau) -> tuple | None:
     else:
         bm = (np.zeros(1, dtype=np.int64), np.zeros(1))
     X = chain.base_placement
-    kind = np.array([base, int(planar_kernel), chain.nq, chain.nv], dtype=np.int64)
-    return (chain._alpha, chain._w, chain._offs, chain._mass, chain._radius, chain._l0, chain._EI, chain._EA,
-            chain._beta, chain._A_ch, chain._r_ch, chain._paper_act, chain._locked,
-            np.flatnonzero(chain.active).astype(np.int64), kind, np.array(chain.gravity, dtype=float),
-            np.array(X.rotation), np.array(X.translation), bm[0], bm[1], p[0], p[1], f[0], f[1],
-            _layout(chain.n, chain.nv))
+    return EngineModel(**arrays, idx=np.flatnonzero(chain.active).astype(np.int64), base=base,
+                       planar_kernel=int(planar_kernel), nq=chain.nq, nv=chain.nv,
+                       g_W=np.array(chain.gravity, dtype=float), R_WB0=np.array(X.rotation),
+                       p_WB0=np.array(X.translation), bm_ints=bm[0], bm_params=bm[1], p_ints=p[0], p_params=p[1],
+                       tau_ints=f[0], tau_params=f[1], layout=_layout(chain.n, chain.nv))
 
 
 #: the kernel workspaces carved from one buffer (:func:`_layout`), in order: the aba,
@@ -98,8 +222,8 @@ KERNEL_NDIM = ((2, 3, 2, 2, 3, 3, 3, 2, 1),
 def _kernel_arrays(n: int, nv: int) -> list[np.ndarray]:
     # the compiled allocators' own code, run by numpy: the arrays (and so the shapes) the
     # kernels are written for, without loading four cached functions before the first step
-    return [*recursive.aba_workspace.py_func(n, nv), *derivatives.rnea_workspace.py_func(n, nv),
-            *derivatives.aba_derivatives_workspace.py_func(n, nv), *planar.planar_workspace.py_func(n)]
+    return [*recursive.aba_workspace.py_func(n, nv), *rnea_derivatives.rnea_workspace.py_func(n, nv),
+            *aba_derivatives.aba_derivatives_workspace.py_func(n, nv), *planar.planar_workspace.py_func(n)]
 
 
 @functools.lru_cache(maxsize=64)
@@ -118,18 +242,13 @@ def _layout(n: int, nv: int) -> np.ndarray:
     return table
 
 
-def workspace(chain) -> tuple:
-    """The arrays the passes write for ``chain`` (one run, one thread), in order: ``q (nq,)``,
-    ``v (nv,)``, ``q_chart (nq,)``, ``p (nu,)`` Pa, ``tau (nv,)``, ``f (n, 3)`` internal plus
-    external forces, ``A0 (6,)`` apparent base acceleration, ``a (nv,)``, ``qdd (n, 3)``,
-    ``B (4, 6)`` the base's state (:func:`_base_state`), ``info (4,) int64`` (status, segment),
-    the kernels' workspaces as one buffer (:data:`KERNEL_NDIM`, carved by :func:`kernel_workspace`),
-    a scratch array, ``R_WB (3, 3)``. Few arrays: numba's compile time grows with the number
-    of arrays a compiled function passes around."""
+def workspace(chain) -> Workspace:
+    """A fresh :class:`Workspace` for ``chain``, zeros."""
     n, nv, nq = chain.n, chain.nv, chain.nq
-    return (np.zeros(nq), np.zeros(nv), np.zeros(nq), np.zeros(3 * n), np.zeros(nv), np.zeros((n, 3)), np.zeros(6),
-            np.zeros(nv), np.zeros((n, 3)), np.zeros((4, 6)), np.zeros(4, dtype=np.int64),
-            np.zeros(_layout(n, nv)[-1, 0]), np.zeros(SCRATCH), np.zeros((3, 3)))
+    return Workspace(q=np.zeros(nq), v=np.zeros(nv), q_chart=np.zeros(nq), p=np.zeros(3 * n), tau=np.zeros(nv),
+                     f=np.zeros((n, 3)), A0=np.zeros(6), a=np.zeros(nv), qdd=np.zeros((n, 3)), B=np.zeros((4, 6)),
+                     info=np.zeros(4, dtype=np.int64), buf=np.zeros(_layout(n, nv)[-1, 0]), scratch=np.zeros(SCRATCH),
+                     R_WB=np.zeros((3, 3)))
 
 
 @inline
@@ -159,15 +278,15 @@ def _v4(buf, tb, i):
 @inline
 def aba_ws(m, wk):
     """The aba workspace (:func:`qchain.algorithms.recursive.aba_workspace`) carved from ``wk``'s buffer."""
-    b, t = wk[11], m[24]
+    b, t = wk.buf, m.layout
     return (_v2(b, t, 0), _v3(b, t, 1), _v2(b, t, 2), _v2(b, t, 3), _v3(b, t, 4), _v3(b, t, 5), _v3(b, t, 6),
             _v2(b, t, 7), _v1(b, t, 8))
 
 
 @inline
 def rnea_ws(m, wk):
-    """The rnea-derivative workspace (:func:`qchain.algorithms.derivatives.rnea_workspace`), carved."""
-    b, t = wk[11], m[24]
+    """The rnea-derivative workspace (:func:`qchain.algorithms.rnea_derivatives.rnea_workspace`), carved."""
+    b, t = wk.buf, m.layout
     return (_v2(b, t, 9), _v3(b, t, 10), _v2(b, t, 11), _v3(b, t, 12), _v3(b, t, 13), _v2(b, t, 14), _v3(b, t, 15),
             _v3(b, t, 16), _v4(b, t, 17), _v3(b, t, 18), _v3(b, t, 19), _v3(b, t, 20), _v3(b, t, 21), _v3(b, t, 22),
             _v3(b, t, 23), _v3(b, t, 24), _v2(b, t, 25), _v1(b, t, 26), _v2(b, t, 27), _v2(b, t, 28), _v2(b, t, 29))
@@ -175,8 +294,8 @@ def rnea_ws(m, wk):
 
 @inline
 def aba_derivatives_ws(m, wk):
-    """The aba-derivative workspace (:func:`qchain.algorithms.derivatives.aba_derivatives_workspace`), carved."""
-    b, t = wk[11], m[24]
+    """The aba-derivative workspace (:func:`qchain.algorithms.aba_derivatives.aba_derivatives_workspace`), carved."""
+    b, t = wk.buf, m.layout
     return (_v2(b, t, 30), _v2(b, t, 31), _v1(b, t, 32), _v1(b, t, 33), _v2(b, t, 34), _v2(b, t, 35), _v2(b, t, 36),
             _v2(b, t, 37), _v2(b, t, 38), _v2(b, t, 39), _v3(b, t, 40), _v3(b, t, 41), _v3(b, t, 42))
 
@@ -184,7 +303,7 @@ def aba_derivatives_ws(m, wk):
 @inline
 def planar_ws(m, wk):
     """The planar kernel's workspace (:func:`qchain.algorithms.planar.planar_workspace`), carved."""
-    b, t = wk[11], m[24]
+    b, t = wk.buf, m.layout
     return (_v3(b, t, 43), _v2(b, t, 44), _v2(b, t, 45), _v3(b, t, 46), _v3(b, t, 47), _v3(b, t, 48), _v2(b, t, 49),
             _v1(b, t, 50))
 
@@ -200,25 +319,24 @@ def copy(dst, src):
 
 @inline
 def _base_state(m, wk, t, q, v):
-    """Fill ``B = wk[9]`` (4, 6): ``B[0]`` the base twist ``V0``, ``B[1]`` its own acceleration
+    """Fill ``B = wk.B`` (4, 6): ``B[0]`` the base twist ``V0``, ``B[1]`` its own acceleration
     ``A_B`` (prescribed), ``B[2, :3]`` gravity in the base frame ``g_B``, ``B[3, :3]`` the base
-    origin in the world; ``R = wk[13]`` the base rotation ``R_WB``."""
-    kind = m[14]
-    g_W = m[15]
-    B = wk[9]
-    R = wk[13]
+    origin in the world; ``R = wk.R_WB`` the base rotation ``R_WB``."""
+    g_W = m.g_W
+    B = wk.B
+    R = wk.R_WB
     B[1, :] = 0.0
-    if kind[0] == 0:
+    if m.base == FIXED:
         B[0, :] = 0.0
         for r in range(3):
-            copy(R[r], m[16][r])
-        copy(B[3, :3], m[17])
-    elif kind[0] == 1:
+            copy(R[r], m.R_WB0[r])
+        copy(B[3, :3], m.p_WB0)
+    elif m.base == FLOATING:
         copy(B[0], v[:6])
         _rotation(q[3:7], R)
         copy(B[3, :3], q[:3])
     else:
-        schedules.base_motion_eval(m[18], m[19], t, R, B[3, :3], B[0], B[1])
+        schedules.base_motion_eval(m.bm_ints, m.bm_params, t, R, B[3, :3], B[0], B[1])
     for r in range(3):
         B[2, r] = R[0, r] * g_W[0] + R[1, r] * g_W[1] + R[2, r] * g_W[2]
 
@@ -240,16 +358,15 @@ def _rotation(quat, R):
 
 @inline
 def configuration(m, wk, qc, y):
-    """``q = qc (+) delta`` into ``wk[0]`` and the full ``v`` into ``wk[1]`` from ``y``, with
+    """``q = qc (+) delta`` into ``wk.q`` and the full ``v`` into ``wk.v`` from ``y``, with
     ``qc`` (nq,) the chart's centre."""
-    idx = m[13]
-    kind = m[14]
+    idx = m.idx
     nA = idx.shape[0]
-    q, v = wk[0], wk[1]
+    q, v = wk.q, wk.v
     v[:] = 0.0
     for i in range(nA):
         v[idx[i]] = y[nA + i]
-    if kind[0] == 1:
+    if m.base == FLOATING:
         lie.ff_integrate(qc[:7], y[:6], q[:7])
         for i in range(7, q.shape[0]):
             q[i] = qc[i]
@@ -264,15 +381,15 @@ def configuration(m, wk, qc, y):
 @inline
 def check(m, wk, q):
     """Domain check of the segment coordinates; sets ``info`` and returns the status."""
-    info = wk[10]
-    n = m[4].shape[0]
-    off = m[14][2] - 3 * n
+    info = wk.info
+    n = m.radius.shape[0]
+    off = m.nq - 3 * n
     for i in range(q.shape[0]):
         if not np.isfinite(q[i]):
             info[0] = NONFINITE
             return NONFINITE
     qe = q[off:].reshape(n, 3)
-    j = recursive.first_invalid(m[4][:0], qe, m[4], m[11])  # a contiguous empty first argument: one type
+    j = recursive.first_invalid(m.radius[:0], qe, m.radius, m.paper_act)  # a contiguous empty first argument: one type
     if j >= 0:
         info[0] = DOMAIN
         info[1] = j
@@ -282,38 +399,37 @@ def check(m, wk, q):
 
 @inline
 def inputs(m, wk, t):
-    """Pressure ``wk[3]`` and generalised force ``wk[4]`` at ``t``."""
-    schedules.input_eval(m[20], m[21], t, wk[3])
-    schedules.input_eval(m[22], m[23], t, wk[4])
+    """Pressure ``wk.p`` and generalised force ``wk.tau`` at ``t``."""
+    schedules.input_eval(m.p_ints, m.p_params, t, wk.p)
+    schedules.input_eval(m.tau_ints, m.tau_params, t, wk.tau)
 
 
 @inline
 def _forces(m, wk, t):
     """What the forward dynamics at ``(t, wk.q, wk.v)`` needs before the articulated-body
     pass: the domain check, the inputs, the base's state, the internal plus external forces
-    ``f = wk[5]`` and the apparent base acceleration ``A0 = wk[6]`` (gravity folded in), the
-    base wrench in ``wk[9][3]``; returns the status."""
-    l0, EI, EA, beta, A_ch, r_ch, paper_act = m[5], m[6], m[7], m[8], m[9], m[10], m[11]
-    kind = m[14]
-    q, v = wk[0], wk[1]
-    p, tau, f, A0, B = wk[3], wk[4], wk[5], wk[6], wk[9]
-    n = m[3].shape[0]
-    qoff = kind[2] - 3 * n
-    voff = kind[3] - 3 * n
+    ``f = wk.f`` and the apparent base acceleration ``A0 = wk.A0`` (gravity folded in), the
+    base wrench in ``wk.B[3]``; returns the status."""
+    l0, EI, EA, beta, A_ch, r_ch, paper_act = m.l0, m.EI, m.EA, m.beta, m.A_ch, m.r_ch, m.paper_act
+    q, v = wk.q, wk.v
+    p, tau, f, A0, B = wk.p, wk.tau, wk.f, wk.A0, wk.B
+    n = m.mass.shape[0]
+    qoff = m.nq - 3 * n
+    voff = m.nv - 3 * n
     status = check(m, wk, q)
     if status != OK:
         return status
     inputs(m, wk, t)
     _base_state(m, wk, t, q, v)
     recursive.internal_forces(q[qoff:].reshape(n, 3), v[voff:].reshape(n, 3), p.reshape(n, 3), l0, EI, EA, beta,
-                              A_ch, r_ch, paper_act, f, wk[12])
+                              A_ch, r_ch, paper_act, f, wk.scratch)
     for j in range(n):
         for b in range(3):
             f[j, b] += tau[voff + 3 * j + b]
     F0 = B[3]  # reused: the base wrench (floating); the origin row is not needed past here
     for r in range(6):
         A0[r] = B[1, r]
-        F0[r] = tau[r] if kind[0] == 1 else 0.0
+        F0[r] = tau[r] if m.base == FLOATING else 0.0
     for r in range(3):
         A0[r] -= B[2, r]
     return OK
@@ -321,18 +437,17 @@ def _forces(m, wk, t):
 
 @inline
 def _rates(m, wk, y, out, ok):
-    """After the articulated-body pass (``ok``: it succeeded): ``a = wk[7]`` (nv,) and
+    """After the articulated-body pass (``ok``: it succeeded): ``a = wk.a`` (nv,) and
     ``out = dy/dt``; returns the status."""
-    kind = m[14]
-    idx = m[13]
-    a, qdd, B = wk[7], wk[8], wk[9]
-    A0 = wk[6]
-    n = m[3].shape[0]
-    voff = kind[3] - 3 * n
+    idx = m.idx
+    a, qdd, B = wk.a, wk.qdd, wk.B
+    A0 = wk.A0
+    n = m.mass.shape[0]
+    voff = m.nv - 3 * n
     if not ok:
-        wk[10][0] = SINGULAR
+        wk.info[0] = SINGULAR
         return SINGULAR
-    if kind[0] == 1:
+    if m.base == FLOATING:
         for r in range(6):
             a[r] = A0[r]
         for r in range(3):
@@ -342,7 +457,7 @@ def _rates(m, wk, y, out, ok):
             a[voff + 3 * j + b] = qdd[j, b]
     for i in range(a.shape[0]):
         if not np.isfinite(a[i]):
-            wk[10][0] = NONFINITE
+            wk.info[0] = NONFINITE
             return NONFINITE
     nA = idx.shape[0]
     for i in range(nA):
@@ -354,24 +469,23 @@ def _rates(m, wk, y, out, ok):
 @inline
 def _segment_states(m, wk):
     """The segment coordinates and velocities of ``wk.q``, ``wk.v`` as ``(n, 3)`` views."""
-    n = m[3].shape[0]
-    kind = m[14]
-    return wk[0][kind[2] - 3 * n:].reshape(n, 3), wk[1][kind[3] - 3 * n:].reshape(n, 3)
+    n = m.mass.shape[0]
+    return wk.q[m.nq - 3 * n:].reshape(n, 3), wk.v[m.nv - 3 * n:].reshape(n, 3)
 
 
 @kernel
 def rhs_planar(m, wk, t, y, out):
-    """``out = dy/dt`` (2 nA,) at ``(t, y)`` of a chain on the planar kernel (``m[14][1] == 1``,
+    """``out = dy/dt`` (2 nA,) at ``(t, y)`` of a chain on the planar kernel (``m.planar_kernel == 1``,
     :func:`qchain.algorithms.planar.planar_aba_moving`); returns the status (``out`` undefined unless OK).
     A C callback (:func:`~qchain._jit.kernel`)."""
-    configuration(m, wk, wk[2], y)
+    configuration(m, wk, wk.q_chart, y)
     status = _forces(m, wk, t)
     if status != OK:
         return status
     q_c, v_c = _segment_states(m, wk)
     pw = planar_ws(m, wk)
-    ok = planar.planar_aba_moving(m[0], m[1], m[2], m[3], m[4], q_c, v_c, wk[5], wk[9][0], wk[6], wk[8], m[12], pw,
-                                  pw[7])
+    ok = planar.planar_aba_moving(m.alpha, m.w, m.offs, m.mass, m.radius, q_c, v_c, wk.f, wk.B[0], wk.A0, wk.qdd,
+                                  m.locked, pw, pw[7])
     return _rates(m, wk, y, out, ok)
 
 
@@ -379,20 +493,20 @@ def rhs_planar(m, wk, t, y, out):
 def rhs_spatial(m, wk, t, y, out):
     """``out = dy/dt`` (2 nA,) at ``(t, y)`` on the 3-D articulated-body pass
     (:func:`qchain.algorithms.recursive.aba`); as :func:`rhs_planar`."""
-    configuration(m, wk, wk[2], y)
+    configuration(m, wk, wk.q_chart, y)
     status = _forces(m, wk, t)
     if status != OK:
         return status
     q_c, v_c = _segment_states(m, wk)
-    A0 = wk[6]
-    ok = recursive.aba(m[0], m[1], m[2], m[3], m[4], q_c, v_c, wk[5], wk[9][0], A0, m[14][0] == 1, wk[9][3], wk[8], A0,
-                       m[12], aba_ws(m, wk), wk[12])
+    A0 = wk.A0
+    ok = recursive.aba(m.alpha, m.w, m.offs, m.mass, m.radius, q_c, v_c, wk.f, wk.B[0], A0, m.base == FLOATING, wk.B[3],
+                       wk.qdd, A0, m.locked, aba_ws(m, wk), wk.scratch)
     return _rates(m, wk, y, out, ok)
 
 
 def rhs(m):
-    """The right-hand side :class:`~qchain._jit.Kernel` for the model tuple ``m``."""
-    return rhs_planar if m[14][1] == 1 else rhs_spatial
+    """The right-hand side :class:`~qchain._jit.Kernel` for the model ``m`` (:class:`EngineModel`)."""
+    return rhs_planar if m.planar_kernel == 1 else rhs_spatial
 
 
 @inline
@@ -402,7 +516,7 @@ def position_rate(m, y, out):
     nA = y.shape[0] // 2
     for i in range(nA):
         out[i] = y[nA + i]
-    if m[14][0] == 1:
+    if m.base == FLOATING:
         lie.dexp_inv_apply(y[:6], y[nA : nA + 6], out[:6])
 
 
@@ -411,24 +525,24 @@ def jacobian(m, wk, t, y, Jq, Jv):
     """The exact Jacobian blocks of ``dv_A/dt``: ``Jq = da_A/d(delta)`` and ``Jv = da_A/dv_A``
     (nA, nA) at ``(t, y)`` (configuration derivatives along ``integrate``, exact at
     ``delta_B = 0``); returns the status. Called right after the right-hand side at the same
-    ``(t, y)``, whose forward pass it reuses from ``wk`` (:func:`qchain.algorithms.derivatives._aba_derivatives_at`):
+    ``(t, y)``, whose forward pass it reuses from ``wk`` (:func:`qchain.algorithms.aba_derivatives._aba_derivatives_at`):
     the forward dynamics are neither computed nor compiled a second time. A C callback
     (:func:`~qchain._jit.kernel`)."""
-    idx = m[13]
-    kind = m[14]
+    idx = m.idx
     nA = idx.shape[0]
-    B = wk[9]
+    B = wk.B
     wa = aba_derivatives_ws(m, wk)
-    n = m[3].shape[0]
+    n = m.mass.shape[0]
     q_c, v_c = _segment_states(m, wk)
     a = wa[3]
-    copy(a, wk[7])
-    status = derivatives._aba_derivatives_at(m[0], m[1], m[2], m[3], m[4], m[5], m[6], m[7], m[8], m[9], m[10], m[11],
-                                             m[12], kind[0] == 1, q_c, v_c, wk[3].reshape(n, 3), wk[8], wk[6], a,
-                                             B[0], B[2, :3], aba_ws(m, wk), rnea_ws(m, wk), wa, wk[12])
+    copy(a, wk.a)
+    status = aba_derivatives._aba_derivatives_at(m.alpha, m.w, m.offs, m.mass, m.radius, m.l0, m.EI, m.EA, m.beta,
+                                                 m.A_ch, m.r_ch, m.paper_act, m.locked, m.base == FLOATING, q_c, v_c,
+                                                 wk.p.reshape(n, 3), wk.qdd, wk.A0, a, B[0], B[2, :3], aba_ws(m, wk),
+                                                 rnea_ws(m, wk), wa, wk.scratch)
     if status != 0:
-        wk[10][0] = SINGULAR if status < 3 else NONFINITE
-        return wk[10][0]
+        wk.info[0] = SINGULAR if status < 3 else NONFINITE
+        return wk.info[0]
     da_dq, da_dv = wa[6], wa[7]
     for r in range(nA):
         for c in range(nA):
@@ -447,14 +561,13 @@ def energies(m, wk, t, q, v):
     for gravity, the tip twist and frame for the next segment's root. ``q``, ``v`` full
     (nq,), (nv,). Compiled callers only (no CPython wrapper): from Python,
     :func:`energies_batch`."""
-    alpha, w, offs, mass, radius, l0, EI, EA = m[0], m[1], m[2], m[3], m[4], m[5], m[6], m[7]
-    kind = m[14]
-    g_W = m[15]
+    alpha, w, offs, mass, radius, l0, EI, EA = m.alpha, m.w, m.offs, m.mass, m.radius, m.l0, m.EI, m.EA
+    g_W = m.g_W
     n = mass.shape[0]
-    qoff = kind[2] - 3 * n
-    voff = kind[3] - 3 * n
-    B = wk[9]
-    sc = wk[12]
+    qoff = m.nq - 3 * n
+    voff = m.nv - 3 * n
+    B = wk.B
+    sc = wk.scratch
     _base_state(m, wk, t, q, v)
     o = 0
     V, o = take1(sc, o, 6)
@@ -469,7 +582,7 @@ def energies(m, wk, t, q, v):
     Rn, o = take2(sc, o, 3, 3)
     copy(V, B[0])
     for r in range(3):
-        copy(Rj[r], wk[13][r])
+        copy(Rj[r], wk.R_WB[r])
     copy(oj, B[3, :3])
     kin = 0.0
     pot = 0.0

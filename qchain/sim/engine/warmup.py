@@ -31,7 +31,7 @@ import time
 import numpy as np
 
 from . import steppers, system
-from ..._jit import Kernel
+from ..._jit import Kernel, first_class_functions
 
 __all__ = ["prepare", "prepare_energies", "start", "parts", "is_cached", "announce", "loaded", "callbacks",
            "EXPECTED_COMPILE_S", "IMPLICIT"]
@@ -68,7 +68,7 @@ def standin(method: str, planar_kernel: bool) -> tuple:
     chain = _standin_chain(planar_kernel)
     m = system.pack(chain, np.zeros(chain.nu), np.zeros(chain.nv))
     wk = system.workspace(chain)
-    it = steppers.integrator(m[13].size, chain.nq)
+    it = steppers.integrator(m.idx.size, chain.nq)
     out = (np.zeros(1), np.zeros((1, chain.nq)), np.zeros((1, chain.nv)), np.zeros((1, chain.nu)))
     return m, wk, it, out, steppers.constants(method)
 
@@ -85,8 +85,8 @@ def _standin_chain(planar: bool = False):
 
 def _kernel_args(name: str, m, wk, it) -> tuple:
     if name == "jacobian":
-        return (m, wk, 0.0, it[0], it[6], it[7])
-    return (m, wk, 0.0, it[0], it[2])
+        return (m, wk, 0.0, it.y, it.Jq, it.Jv)
+    return (m, wk, 0.0, it.y, it.f)
 
 
 def _kernels(method: str, m) -> list[Kernel]:
@@ -103,7 +103,8 @@ def _advance_types(method: str, m, wk, it, out, c) -> tuple:
     import numba
     from numba.core import types
 
-    fs = types.Tuple(tuple(k.function_type(*_kernel_args(k.__name__, m, wk, it)) for k in _kernels(method, m)))
+    with first_class_functions():  # (numba warns where it types a tuple of callbacks)
+        fs = types.Tuple(tuple(k.function_type(*_kernel_args(k.__name__, m, wk, it)) for k in _kernels(method, m)))
     return (fs,) + tuple(numba.typeof(a) for a in (m, wk, it, out, c)) + (types.float64, types.int64, types.int64)
 
 
@@ -213,7 +214,7 @@ def prepare(method: str, m, wk, it, out, c, energies: bool = False, stream=sys.s
     if loaded(method) and all(k.loaded(*_kernel_args(k.__name__, m, wk, it)) for k in _kernels(method, m)):
         fs = callbacks(method, m, wk, it)
     else:
-        start(method, bool(m[14][1] == 1), energies, stream)
+        start(method, bool(m.planar_kernel == 1), energies, stream)
         _wait()
         fs = callbacks(method, m, wk, it)  # loaded from the cache, or compiled here if a worker failed
     if energies:
@@ -223,7 +224,8 @@ def prepare(method: str, m, wk, it, out, c, energies: bool = False, stream=sys.s
     # Python at every call (a quarter of a millisecond), the entry point only unboxes it
     types = _advance_types(method, m, wk, it, out, c)
     if types not in advance.overloads:  # other argument types than the stand-in's (a read-only t_eval)
-        advance.compile(types)
+        with first_class_functions():
+            advance.compile(types)
     entry = advance.overloads[types].entry_point
     _ready[key] = fs, entry
     return fs, entry
@@ -233,10 +235,13 @@ _ready: dict = {}  # (method, right-hand side, argument fingerprint) -> callback
 
 
 def _fingerprint(x) -> tuple:
-    """What numba's types of the nested tuple of arrays ``x`` depend on (dtype, dimensions,
-    layout, writeable), at a fraction of the cost of ``numba.typeof``."""
+    """What numba's types of the nested (named) tuple of arrays and ints ``x`` depend on (the
+    tuple's class; dtype, dimensions, layout, writeable), at a fraction of the cost of
+    ``numba.typeof``."""
     if isinstance(x, tuple):
-        return tuple(_fingerprint(a) for a in x)
+        return (type(x),) + tuple(_fingerprint(a) for a in x)
+    if not isinstance(x, np.ndarray):  # an int field of the model: int64 whatever its value
+        return type(x)
     f = x.flags
     return x.dtype.num, x.ndim, f.c_contiguous, f.f_contiguous, f.writeable, f.aligned
 
@@ -252,7 +257,7 @@ def prepare_energies(m, wk, stream=sys.stderr) -> float:
               f"install or an update (cached for later runs)", file=stream, flush=True)
     t0 = time.perf_counter()
     e = np.zeros(0)
-    system.energies_batch(m, wk, e, np.zeros((0, wk[0].size)), np.zeros((0, wk[1].size)), e, e.copy())
+    system.energies_batch(m, wk, e, np.zeros((0, wk.q.size)), np.zeros((0, wk.v.size)), e, e.copy())
     return time.perf_counter() - t0
 
 
@@ -262,7 +267,8 @@ def _main(argv: list[str]) -> int:
     m, wk, it, out, c = standin(method, variant == "planar")
     for name in names:
         if name == "advance":
-            steppers.ADVANCE[method].compile(_advance_types(method, m, wk, it, out, c))
+            with first_class_functions():
+                steppers.ADVANCE[method].compile(_advance_types(method, m, wk, it, out, c))
         elif name == "energies":
             prepare_energies(m, wk, stream=None)
         else:

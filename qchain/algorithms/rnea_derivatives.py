@@ -1,5 +1,5 @@
 """Exact derivatives of the chain's inverse dynamics (numba), in the manner of Carpentier and
-Mansard's RNEA derivatives, extended to the slices of a segment.
+Mansard's RNEA derivatives (Pinocchio's ``rnea-derivatives``), extended to the slices of a segment.
 
 Everything is in curvature coordinates ``(l, ux, uy)`` and uses the layout of
 :mod:`qchain.algorithms.recursive` (nodes ``alpha, w, offs``; ``q, qd, qdd`` (n, 3); the first root's
@@ -9,7 +9,7 @@ Per segment (root frame ``j``), one pass over the slices gives the generalised f
 ``Q_j = int Phi^T (I a + V x* I V)`` of :mod:`qchain.model.slices` and its derivatives at fixed root
 twist ``V_j`` and acceleration ``A_j``: ``dQ/dq_j`` (the slices move: ``dV = -S_c x V_r + dS_c
 qdot``, ``da = -S_c x A_r + dS_c qddot + K_c - (dS_c qdot) x V_r + (S qdot) x (S_c x V_r)``,
-with ``dS`` and ``K`` from :mod:`qchain.model.arc_derivatives`) and ``dQ/dxi_j`` (``dV = Phi``,
+with ``dS`` and ``K`` from :func:`qchain.model.arc.arc_node_derivatives`) and ``dQ/dxi_j`` (``dV = Phi``,
 ``da = [-(S qdot) x Ad^-1, 2 Sd - S_c x V]``); the tip (slice ``alpha = 1``) gives the same
 variations of the next root's twist and acceleration.
 
@@ -28,7 +28,8 @@ O(n^2) small products in the assembly. A floating base adds its twist (``sigma1 
 rows of its wrench ``F0``.
 
 Arrays named ``...T`` hold derivatives by their first index: ``QqT[c]`` is ``dQ/dq_c``.
-``tests/test_derivatives.py`` holds every output to central differences of the model.
+``tests/test_derivatives.py`` holds every output to central differences of the model. The
+forward-dynamics derivatives built on these passes are :mod:`qchain.algorithms.aba_derivatives`'s.
 
 Unchecked by design: compiled kernels whose arguments the checked API has validated
 (``docs/engine.md``, "Unchecked kernels"); call the checked API unless you guarantee them.
@@ -38,20 +39,16 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..model.arc import arc_node, jit, jit_helper, take1, take2, take3
-from .recursive import _chol as recursive_chol
+from ..model.arc import arc_node, arc_node_derivatives, jit, jit_helper, jit_inline, take1, take2, take3
+from ..model.slices import (
+    elastic_hessian_c, mass_finish, mass_node, phi_matrix, phi_transpose_force, pressure_jacobian_c, rest_damping_c,
+    slice_twist)
 from .recursive import _load_xi
 from .recursive import _project as recursive_project
-from .recursive import aba as recursive_aba
 from .recursive import aba_workspace as recursive_aba_workspace
-from .recursive import internal_forces as recursive_internal_forces
-from ..model.arc_derivatives import arc_node_derivatives
-from ..model.slices import (
-    elastic_hessian_c, input_matrix_c, phi_matrix, phi_transpose_force, pressure_jacobian_c, rest_damping_c,
-    mass_finish, mass_node, slice_twist)
 
-__all__ = ["segment_derivatives", "tip_derivatives", "rnea_derivatives", "rnea_workspace", "aba_derivatives",
-           "aba_derivatives_workspace", "internal_forces_derivatives", "input_matrices"]
+__all__ = ["segment_derivatives", "tip_derivatives", "rnea_derivatives", "rnea_workspace",
+           "internal_forces_derivatives"]
 
 
 @jit_helper
@@ -404,17 +401,46 @@ def rnea_derivatives(alpha, w, offs, mass, radius, q, qd, qdd, V0, A0, floating,
 @jit_helper
 def _rnea_derivatives(alpha, w, offs, mass, radius, q, qd, qdd, V0, A0, floating, g_B, ws, wd, sc):
     """:func:`rnea_derivatives`, the body the kernels call: compiled into them, without a
-    Python entry point (:data:`qchain.model.arc.jit_helper`)."""
+    Python entry point (:data:`qchain.model.arc.jit_helper`). Its passes, :func:`_forward_pass`,
+    :func:`_backward_pass`, :func:`_assemble` and, for a floating base, :func:`_floating_base`,
+    are inlined into it (:data:`qchain.model.arc.jit_inline`): the same code as one function."""
     n = q.shape[0]
     off = 6 if floating else 0
     V, T, _, Q, Mxi, _, _, _, _ = ws
     (A, Rw, pw, QqT, QxT, rel1, tipV, tipA, dS1, G, Ya, Yv, Ms, Jw, sig1, sig2, tau, F0, M, dq, dv) = wd
-    # ---------------------------------------------------------------- forward
     o = 0
     R1, o = take2(sc, o, 3, 3)
     p1, o = take1(sc, o, 3)
     xi, o = take1(sc, o, 9)
     xid, o = take1(sc, o, 9)
+    _forward_pass(alpha, w, offs, mass, radius, q, qd, qdd, V0, A0, V, T, Q, Mxi, A, Rw, pw, QqT, QxT, rel1, tipV,
+                  tipA, dS1, R1, p1, xi, xid, sc[o:])
+    # the subtree beyond the current root: its wrench F, composite inertia Ic, W = dF/dV
+    F, o = take1(sc, o, 6)
+    F[:] = 0.0
+    Ic, o = take2(sc, o, 6, 6)
+    Ic[:, :] = 0.0
+    WF, o = take2(sc, o, 6, 6)
+    WF[:, :] = 0.0
+    dq[:, :] = 0.0
+    dv[:, :] = 0.0
+    M[:, :] = 0.0
+    _backward_pass(n, off, V, T, Q, Mxi, Rw, pw, QqT, QxT, rel1, tipV, tipA, dS1, G, Ya, Yv, Ms, Jw, sig1, sig2, tau,
+                   M, dq, dv, F, Ic, WF, sc[o:])
+    for r in range(6):
+        F0[r] = F[r]
+    _assemble(n, off, G, Ya, Yv, Ms, Jw, sig1, sig2, M, dq, dv)
+    if floating:
+        _floating_base(n, off, V0, g_B, G, Ya, Yv, Ms, M, dq, dv, Ic, WF, sc[o:])
+
+
+@jit_inline
+def _forward_pass(alpha, w, offs, mass, radius, q, qd, qdd, V0, A0, V, T, Q, Mxi, A, Rw, pw, QqT, QxT, rel1, tipV,
+                  tipA, dS1, R1, p1, xi, xid, sc):
+    """Root to tip: every segment's ``Q``, ``M_xi`` and their derivatives
+    (:func:`segment_derivatives`), its tip and the tip's variations (:func:`tip_derivatives`),
+    the roots' twists ``V``, accelerations ``A`` and placements ``Rw, pw`` in the first root's
+    frame. ``R1`` (3, 3), ``p1`` (3,), ``xi``, ``xid`` (9,) and ``sc`` are scratch."""
     for r in range(6):
         V[0, r] = V0[r]
         A[0, r] = A0[r]
@@ -422,27 +448,33 @@ def _rnea_derivatives(alpha, w, offs, mass, radius, q, qd, qdd, V0, A0, floating
         for s in range(3):
             Rw[0, r, s] = 1.0 if r == s else 0.0
     pw[0] = 0.0
-    for j in range(n):
+    for j in range(q.shape[0]):
         _load_xi(xi, V[j], qd[j])
         _load_xi(xid, A[j], qdd[j])
         a0, a1 = offs[j], offs[j + 1]
         _segment_derivatives(alpha[a0:a1], w[a0:a1], mass[j], radius[j], q[j], xi, xid, Mxi[j], Q[j], QqT[j], QxT[j],
-                             sc[o:])
+                             sc)
         _tip_derivatives(q[j], qd[j], qdd[j], V[j], A[j], T[j], R1, p1, V[j + 1], A[j + 1], rel1[j], tipV[j],
-                         tipA[j], dS1[j], sc[o:])
+                         tipA[j], dS1[j], sc)
         for r in range(3):
             acc = pw[j, r]
             for s in range(3):
                 acc += Rw[j, r, s] * p1[s]
                 Rw[j + 1, r, s] = Rw[j, r, 0] * R1[0, s] + Rw[j, r, 1] * R1[1, s] + Rw[j, r, 2] * R1[2, s]
             pw[j + 1, r] = acc
-    # ---------------------------------------------------------------- backward
-    F, o = take1(sc, o, 6)
-    F[:] = 0.0
-    Ic, o = take2(sc, o, 6, 6)
-    Ic[:, :] = 0.0
-    WF, o = take2(sc, o, 6, 6)
-    WF[:, :] = 0.0
+
+
+@jit_inline
+def _backward_pass(n, off, V, T, Q, Mxi, Rw, pw, QqT, QxT, rel1, tipV, tipA, dS1, G, Ya, Yv, Ms, Jw, sig1, sig2, tau,
+                   M, dq, dv, F, Ic, WF, sc):
+    """Tip to root: the inverse dynamics ``tau`` and, per segment ``j``, its own blocks of
+    ``dq``, ``dv``, ``M`` and what the assembly needs, in the first root's frame: ``G[m, col]``
+    the wrench variation at root ``m``; ``Ya``, ``Yv`` the subtree sensitivities; ``Ms[j, b]``
+    the wrench at root ``j`` per unit ``qdd_j,b``; ``Jw[i, b]`` the twist of tip ``i`` per unit
+    ``qd_i,b``; ``sig1``, ``sig2`` the twists a variation of segment ``j`` moves its subtree by.
+    ``F``, ``Ic``, ``WF`` come in zero and leave as the whole chain's (the base's) wrench,
+    composite inertia and ``dF/dV``; ``sc`` is scratch."""
+    o = 0
     Mh, o = take2(sc, o, 9, 9)
     Wj, o = take2(sc, o, 9, 6)
     E, o = take2(sc, o, 6, 6)
@@ -450,15 +482,10 @@ def _rnea_derivatives(alpha, w, offs, mass, radius, q, qd, qdd, V0, A0, floating
     IcT, o = take2(sc, o, 6, 9)
     D, o = take2(sc, o, 6, 9)  # D[col] = d(F_j, tau_j)/d col, cols q_j then qd_j
     dF, o = take1(sc, o, 6)
-    # G[m, col]: wrench variation at root m; Ya, Yv: subtree sensitivities; Ms[j, b]: wrench at
-    # root j per unit qdd_j,b; Jw[i, b]: twist of tip i per unit qd_i,b; all in root 0
     t1, o = take1(sc, o, 6)
     t2, o = take1(sc, o, 6)
     vW, o = take1(sc, o, 6)
     TF, o = take1(sc, o, 9)
-    dq[:, :] = 0.0
-    dv[:, :] = 0.0
-    M[:, :] = 0.0
     for j in range(n - 1, -1, -1):
         Tj = T[j]
         i0 = off + 3 * j
@@ -468,61 +495,9 @@ def _rnea_derivatives(alpha, w, offs, mass, radius, q, qd, qdd, V0, A0, floating
             for r in range(6):
                 acc += Tj[r, k] * F[r]
             TF[k] = acc
-        # composite inertia Mh = M_xi + T^T Ic T and W_j = dQ/dV + T^T (WF - Ic ad(rel1)) T_V
-        # Ic ad(rel1): column s of ad(rel1) is rel1 x e_s
-        for s in range(6):
-            t1[:] = 0.0
-            t1[s] = 1.0
-            _cross(rel1[j], t1, t2)
-            for r in range(6):
-                acc = WF[r, s]
-                for k in range(6):
-                    acc -= Ic[r, k] * t2[k]
-                E[r, s] = acc
-        for r in range(6):
-            for s in range(6):
-                acc = 0.0
-                for k in range(6):
-                    acc += E[r, k] * Tj[k, s]
-                ET[r, s] = acc
-        recursive_project(Mxi[j], Tj, Ic, IcT, Mh)
-        for a in range(9):
-            for b in range(6):
-                acc = QxT[j, b, a]
-                for r in range(6):
-                    acc += Tj[r, a] * ET[r, b]
-                Wj[a, b] = acc
-        # columns of this segment: D[col] = intrinsic + T^T (WF dV1 + Ic dA1) (+ dT^T F for q)
+        _subtree_blocks(Tj, Mxi[j], QxT[j], rel1[j], Ic, WF, E, ET, IcT, Mh, Wj, t1, t2)
+        _segment_columns(Tj, QqT[j], QxT[j], dS1[j], tipV[j], tipA[j], F, Ic, WF, D, dF, t1, t2)
         for col in range(6):
-            if col < 3:
-                for k in range(9):
-                    D[col, k] = QqT[j, col, k]
-                for r in range(6):
-                    t2[r] = Tj[r, 6 + col]
-                _fcross(t2, F, t1)  # S1_c x* F
-                for r in range(6):
-                    acc = 0.0
-                    for k in range(6):
-                        acc += Tj[k, r] * t1[k]
-                    D[col, r] += acc
-                for b in range(3):
-                    acc = 0.0
-                    for r in range(6):
-                        acc += dS1[j, col, r, b] * F[r]
-                    D[col, 6 + b] += acc
-            else:
-                for k in range(9):
-                    D[col, k] = QxT[j, 6 + col - 3, k]
-            for r in range(6):
-                acc = 0.0
-                for k in range(6):
-                    acc += WF[r, k] * tipV[j, col, k] + Ic[r, k] * tipA[j, col, k]
-                dF[r] = acc
-            for k in range(9):
-                acc = 0.0
-                for r in range(6):
-                    acc += Tj[r, k] * dF[r]
-                D[col, k] += acc
             for b in range(3):
                 if col < 3:
                     dq[i0 + b, i0 + col] = D[col, 6 + b]
@@ -561,9 +536,82 @@ def _rnea_derivatives(alpha, w, offs, mass, radius, q, qd, qdd, V0, A0, floating
                 WF[r, s] = Wj[r, s]
         for b in range(3):
             tau[j, b] = Q[j, 6 + b] + TF[6 + b]
+
+
+@jit_inline
+def _subtree_blocks(Tj, Mxi, QxT, rel1, Ic, WF, E, ET, IcT, Mh, Wj, t1, t2):
+    """Composite inertia ``Mh = M_xi + T^T Ic T`` (9, 9) and ``Wj = dQ/dV + T^T (WF - Ic
+    ad(rel1)) T_V`` (9, 6) of the subtree from root ``j`` on, from its segment's ``T``, ``M_xi``,
+    ``QxT`` and tip ``rel1`` and the subtree beyond's ``Ic``, ``WF``; ``E``, ``ET``, ``IcT``,
+    ``t1``, ``t2`` scratch."""
+    # Ic ad(rel1): column s of ad(rel1) is rel1 x e_s
+    for s in range(6):
+        t1[:] = 0.0
+        t1[s] = 1.0
+        _cross(rel1, t1, t2)
+        for r in range(6):
+            acc = WF[r, s]
+            for k in range(6):
+                acc -= Ic[r, k] * t2[k]
+            E[r, s] = acc
     for r in range(6):
-        F0[r] = F[r]
-    # ---------------------------------------------------------------- assembly, O(n^2)
+        for s in range(6):
+            acc = 0.0
+            for k in range(6):
+                acc += E[r, k] * Tj[k, s]
+            ET[r, s] = acc
+    recursive_project(Mxi, Tj, Ic, IcT, Mh)
+    for a in range(9):
+        for b in range(6):
+            acc = QxT[b, a]
+            for r in range(6):
+                acc += Tj[r, a] * ET[r, b]
+            Wj[a, b] = acc
+
+
+@jit_inline
+def _segment_columns(Tj, QqT, QxT, dS1, tipV, tipA, F, Ic, WF, D, dF, t1, t2):
+    """``D[col]`` (9,) ``= d(F_j, tau_j)/d col`` for this segment's own coordinates (``col < 3``
+    ``q_col``, else ``qd_(col-3)``): intrinsic + ``T^T (WF dV1 + Ic dA1)`` (+ ``dT^T F`` for
+    ``q``), with ``F``, ``Ic``, ``WF`` the subtree beyond its tip's; ``dF``, ``t1``, ``t2`` scratch."""
+    for col in range(6):
+        if col < 3:
+            for k in range(9):
+                D[col, k] = QqT[col, k]
+            for r in range(6):
+                t2[r] = Tj[r, 6 + col]
+            _fcross(t2, F, t1)  # S1_c x* F
+            for r in range(6):
+                acc = 0.0
+                for k in range(6):
+                    acc += Tj[k, r] * t1[k]
+                D[col, r] += acc
+            for b in range(3):
+                acc = 0.0
+                for r in range(6):
+                    acc += dS1[col, r, b] * F[r]
+                D[col, 6 + b] += acc
+        else:
+            for k in range(9):
+                D[col, k] = QxT[6 + col - 3, k]
+        for r in range(6):
+            acc = 0.0
+            for k in range(6):
+                acc += WF[r, k] * tipV[col, k] + Ic[r, k] * tipA[col, k]
+            dF[r] = acc
+        for k in range(9):
+            acc = 0.0
+            for r in range(6):
+                acc += Tj[r, k] * dF[r]
+            D[col, k] += acc
+
+
+@jit_inline
+def _assemble(n, off, G, Ya, Yv, Ms, Jw, sig1, sig2, M, dq, dv):
+    """The blocks between segments, O(n^2) small products: for ``i > m`` a variation of segment
+    ``m`` moves segment ``i`` rigidly (``dtau_i = Ya_i sig2_m + Yv_i sig1_m``), for ``i < m`` it
+    changes the wrench at root ``m`` (``dtau_i = J_i^T G_m``); ``M``'s off-diagonal blocks
+    ``J_i^T Ms_m``."""
     for i in range(n):
         ri = off + 3 * i
         for m in range(n):
@@ -591,48 +639,57 @@ def _rnea_derivatives(alpha, w, offs, mass, radius, q, qd, qdd, V0, A0, floating
                             acc += Jw[i, a, r] * Ms[m, b, r]
                         M[ri + a, cm + b] = acc
                         M[cm + b, ri + a] = acc
-    if floating:
-        for m in range(n):
-            cm = off + 3 * m
-            for col in range(6):
-                for r in range(6):
-                    if col < 3:
-                        dq[r, cm + col] = G[m, col, r]
-                    else:
-                        dv[r, cm + col - 3] = G[m, col, r]
-            for b in range(3):
-                for r in range(6):
-                    M[r, cm + b] = Ms[m, b, r]
-                    M[cm + b, r] = Ms[m, b, r]
-        for r in range(6):
-            for s in range(6):
-                M[r, s] = Ic[r, s]
-                dv[r, s] = WF[r, s]
-        # attitude: gravity in the base frame turns, dA0 = (e_k x g_B, 0)
-        sg, o = take2(sc, o, 3, 6)
-        for k in range(3):
-            t1[:] = 0.0
-            t1[k] = 1.0
-            sg[k, :] = 0.0
-            sg[k, 0] = t1[1] * g_B[2] - t1[2] * g_B[1]
-            sg[k, 1] = t1[2] * g_B[0] - t1[0] * g_B[2]
-            sg[k, 2] = t1[0] * g_B[1] - t1[1] * g_B[0]
+
+
+@jit_inline
+def _floating_base(n, off, V0, g_B, G, Ya, Yv, Ms, M, dq, dv, Ic, WF, sc):
+    """A floating base's rows (its wrench ``F0``) and columns (twist ``sigma1 = I``,
+    ``sigma2 = ad(V0)``; attitude: gravity in the base frame turns, ``sigma2 = (e_k x g_B, 0)``),
+    with ``Ic``, ``WF`` the whole chain's composite inertia and ``dF/dV``; ``sc`` scratch."""
+    o = 0
+    t1, o = take1(sc, o, 6)
+    t2, o = take1(sc, o, 6)
+    sg, o = take2(sc, o, 3, 6)
+    for m in range(n):
+        cm = off + 3 * m
+        for col in range(6):
             for r in range(6):
+                if col < 3:
+                    dq[r, cm + col] = G[m, col, r]
+                else:
+                    dv[r, cm + col - 3] = G[m, col, r]
+        for b in range(3):
+            for r in range(6):
+                M[r, cm + b] = Ms[m, b, r]
+                M[cm + b, r] = Ms[m, b, r]
+    for r in range(6):
+        for s in range(6):
+            M[r, s] = Ic[r, s]
+            dv[r, s] = WF[r, s]
+    # attitude: gravity in the base frame turns, dA0 = (e_k x g_B, 0)
+    for k in range(3):
+        t1[:] = 0.0
+        t1[k] = 1.0
+        sg[k, :] = 0.0
+        sg[k, 0] = t1[1] * g_B[2] - t1[2] * g_B[1]
+        sg[k, 1] = t1[2] * g_B[0] - t1[0] * g_B[2]
+        sg[k, 2] = t1[0] * g_B[1] - t1[1] * g_B[0]
+        for r in range(6):
+            acc = 0.0
+            for s in range(3):
+                acc += Ic[r, s] * sg[k, s]
+            dq[r, 3 + k] = acc
+    for i in range(n):
+        ri = off + 3 * i
+        for b in range(3):
+            _fcross(V0, Ya[i, b], t2)  # twist columns: Ya ad(V0) + Yv
+            for k in range(6):
+                dv[ri + b, k] = Yv[i, b, k] - t2[k]
+            for k in range(3):
                 acc = 0.0
                 for s in range(3):
-                    acc += Ic[r, s] * sg[k, s]
-                dq[r, 3 + k] = acc
-        for i in range(n):
-            ri = off + 3 * i
-            for b in range(3):
-                _fcross(V0, Ya[i, b], t2)  # twist columns: Ya ad(V0) + Yv
-                for k in range(6):
-                    dv[ri + b, k] = Yv[i, b, k] - t2[k]
-                for k in range(3):
-                    acc = 0.0
-                    for s in range(3):
-                        acc += Ya[i, b, s] * sg[k, s]
-                    dq[ri + b, 3 + k] = acc
+                    acc += Ya[i, b, s] * sg[k, s]
+                dq[ri + b, 3 + k] = acc
 
 
 @jit
@@ -659,215 +716,6 @@ def _internal_forces_derivatives(q, p, l0, EI, EA, beta, A_ch, r_ch, paper_act, 
             for b in range(3):
                 dfq[j, a, b] = Kp[a, b] - H[a, b]
                 dfv[j, a, b] = -D[a, b]
-
-
-@jit
-def input_matrices(q, A_ch, r_ch, paper_act, B, sc):
-    """``B[j]`` (3, 3) the input matrix of every segment (:func:`qchain.model.slices.input_matrix_c`)."""
-    _input_matrices(q, A_ch, r_ch, paper_act, B, sc)
-
-
-@jit_helper
-def _input_matrices(q, A_ch, r_ch, paper_act, B, sc):
-    """:func:`input_matrices`, the body the kernels call: compiled into them, without a
-    Python entry point (:data:`qchain.model.arc.jit_helper`)."""
-    for j in range(q.shape[0]):
-        input_matrix_c(q[j], A_ch[j], r_ch[j], paper_act[j], B[j], sc)
-
-
-#: Names of :func:`aba_derivatives_workspace`'s arrays (``Data`` attributes), in order.
-ABA_DERIVATIVES_WORKSPACE = ("f", "a_c", "A0", "a", "L", "rhs", "da_dq", "da_dv", "da_dtau", "da_dp", "dfq", "dfv",
-                             "B")
-
-
-@jit
-def aba_derivatives_workspace(n, nv):
-    """Fresh arrays for :func:`aba_derivatives` (shapes in :mod:`qchain.arm.data`)."""
-    return (np.zeros((n, 3)), np.zeros((n, 3)), np.zeros(6), np.zeros(nv), np.zeros((nv, nv)), np.zeros((nv, nv)),
-            np.zeros((nv, nv)), np.zeros((nv, nv)), np.zeros((nv, nv)), np.zeros((nv, 3 * n)), np.zeros((n, 3, 3)),
-            np.zeros((n, 3, 3)), np.zeros((n, 3, 3)))
-
-
-@jit_helper
-def _zero_locked(locked, off, X, rows, cols):
-    """Zero the rows and/or columns of ``X`` (nv, nv) at the locked coordinates ``locked``
-    (n, 3) (indices ``off + 3 j + b``)."""
-    nv = X.shape[0]
-    for k in range(off, nv):
-        if locked[(k - off) // 3, (k - off) % 3]:
-            for r in range(nv):
-                if rows:
-                    X[k, r] = 0.0
-                if cols:
-                    X[r, k] = 0.0
-
-
-@jit_helper
-def _copy2(src, dst):
-    """``dst[:, :] = src`` element by element (no compile of numba's slice-assignment checks)."""
-    for r in range(src.shape[0]):
-        for c in range(src.shape[1]):
-            dst[r, c] = src[r, c]
-
-
-@jit_helper
-def _matmul(A, B, out):
-    """``out = A B`` by loops (row by row, so the inner loop runs along rows of ``B`` and
-    ``out``): ``np.dot`` with ``out`` needs numba's reference counting, which the compiled
-    engine's callers run without."""
-    for r in range(A.shape[0]):
-        for c in range(B.shape[1]):
-            out[r, c] = 0.0
-        for k in range(A.shape[1]):
-            a = A[r, k]
-            if a != 0.0:
-                for c in range(B.shape[1]):
-                    out[r, c] += a * B[k, c]
-
-
-@jit_helper
-def _chol_inverse(L, k, Minv):
-    """``Minv = (L L^T)^-1`` (k, k) from the lower Cholesky factor ``L``, which is overwritten
-    by its own inverse (lower)."""
-    for j in range(k):
-        L[j, j] = 1.0 / L[j, j]
-        for i in range(j + 1, k):
-            acc = 0.0
-            for s in range(j, i):
-                acc -= L[i, s] * L[s, j]
-            L[i, j] = acc / L[i, i]
-        for i in range(j):
-            L[i, j] = 0.0
-    for i in range(k):
-        for j in range(i + 1):
-            acc = 0.0
-            for s in range(i, k):
-                acc += L[s, i] * L[s, j]
-            Minv[i, j] = acc
-            Minv[j, i] = acc
-
-
-@jit
-def aba_derivatives(alpha, w, offs, mass, radius, l0, EI, EA, beta, A_ch, r_ch, paper_act, locked, floating,
-                    q, qd, p, tau_ext, V0, A_B, g_B, ws, wd, wa, sc):
-    """Forward dynamics and its exact derivatives in one compiled call (curvature coordinates,
-    the material law).
-
-    ``a`` solves ``M a + C v + g + D v + dU_el/dq = B p + tau_ext`` (:func:`qchain.algorithms.recursive.aba`);
-    then ``da/dq = M^-1 (df/dq - dID/dq)``, ``da/dv = M^-1 (df/dv - dID/dv)``, ``da/dtau = M^-1``,
-    ``da/dp = M^-1 B`` with the inverse-dynamics derivatives of :func:`rnea_derivatives` at the
-    solved ``a``. ``locked`` (n, 3) coordinates get zero rows and columns. ``q, qd, p`` (n, 3);
-    ``tau_ext`` (nv,); ``V0`` (6,) the base twist, ``A_B`` (6,) the base's own acceleration
-    (a prescribed base; zeros otherwise), ``g_B`` (3,) gravity in the base frame. ``ws``, ``wd``,
-    ``wa``: :class:`qchain.arm.data.Data`'s aba, rnea-derivative and aba-derivative workspaces.
-    Returns 0, or 1 where an articulated block is not positive definite, 2 where ``M`` is not,
-    3 where ``a`` or a derivative is not finite.
-    """
-    n = q.shape[0]
-    off = 6 if floating else 0
-    f, qdd, A0, a = wa[0], wa[1], wa[2], wa[3]
-    recursive_internal_forces(q, qd, p, l0, EI, EA, beta, A_ch, r_ch, paper_act, f, sc)
-    for j in range(n):
-        for b in range(3):
-            f[j, b] += tau_ext[off + 3 * j + b]
-    o = 0
-    F0, o = take1(sc, o, 6)
-    F0[:] = 0.0
-    Aa, o = take1(sc, o, 6)
-    for r in range(6):
-        Aa[r] = A_B[r]
-        if floating:
-            F0[r] = tau_ext[r]
-    for r in range(3):
-        Aa[r] -= g_B[r]
-    if not recursive_aba(alpha, w, offs, mass, radius, q, qd, f, V0, Aa, floating, F0, qdd, A0, locked, ws, sc[o:]):
-        return 1
-    if floating:
-        for r in range(6):
-            a[r] = A0[r]
-        for r in range(3):
-            a[r] += g_B[r]
-    for j in range(n):
-        for b in range(3):
-            a[off + 3 * j + b] = qdd[j, b]
-    return _aba_derivatives_at(alpha, w, offs, mass, radius, l0, EI, EA, beta, A_ch, r_ch, paper_act, locked, floating,
-                               q, qd, p, qdd, A0, a, V0, g_B, ws, wd, wa, sc)
-
-
-@jit_helper
-def _aba_derivatives_at(alpha, w, offs, mass, radius, l0, EI, EA, beta, A_ch, r_ch, paper_act, locked, floating,
-                        q, qd, p, qdd, A0, a, V0, g_B, ws, wd, wa, sc):
-    """:func:`aba_derivatives` after its forward pass: the derivatives at the solved
-    accelerations ``qdd`` (n, 3), ``A0`` (6,) (the base's apparent acceleration: solved for a
-    floating base, the given one otherwise) and ``a`` (nv,). The compiled engine calls it
-    after its own right-hand side at the same state (:func:`qchain.sim.engine.system.jacobian`),
-    so the forward pass is neither computed nor compiled twice."""
-    n = q.shape[0]
-    off = 6 if floating else 0
-    nv = off + 3 * n
-    L, rhs, da_dq, da_dv, da_dtau, da_dp, dfq, dfv, B = wa[4], wa[5], wa[6], wa[7], wa[8], wa[9], wa[10], wa[11], wa[12]
-    M, dq, dv = wd[18], wd[19], wd[20]
-    _rnea_derivatives(alpha, w, offs, mass, radius, q, qd, qdd, V0, A0, floating, g_B, ws, wd, sc)
-    _internal_forces_derivatives(q, p, l0, EI, EA, beta, A_ch, r_ch, paper_act, dfq, dfv, sc)
-    _input_matrices(q, A_ch, r_ch, paper_act, B, sc)
-    # right-hand sides df - dID, the free block of M with locked coordinates decoupled
-    for r in range(nv):
-        for c in range(nv):
-            da_dq[r, c] = -dq[r, c]
-            da_dv[r, c] = -dv[r, c]
-            L[r, c] = M[r, c]
-    for j in range(n):
-        i0 = off + 3 * j
-        for a_ in range(3):
-            for b in range(3):
-                da_dq[i0 + a_, i0 + b] += dfq[j, a_, b]
-                da_dv[i0 + a_, i0 + b] += dfv[j, a_, b]
-    # locked coordinates: decoupled in M (unit diagonal), zero rows and columns in the results
-    _zero_locked(locked, off, L, True, True)
-    for k in range(off, nv):
-        if locked[(k - off) // 3, (k - off) % 3]:
-            L[k, k] = 1.0
-    if not recursive_chol(L, nv):
-        return 2
-    _chol_inverse(L, nv, da_dtau)
-    _zero_locked(locked, off, da_dtau, True, True)
-    _copy2(da_dq, rhs)
-    _matmul(da_dtau, rhs, da_dq)
-    _copy2(da_dv, rhs)
-    _matmul(da_dtau, rhs, da_dv)
-    _zero_locked(locked, off, da_dq, False, True)
-    _zero_locked(locked, off, da_dv, False, True)
-    for r in range(nv):
-        for j in range(n):
-            i0 = off + 3 * j
-            for i in range(3):
-                acc = 0.0
-                for b in range(3):
-                    acc += da_dtau[r, i0 + b] * B[j, b, i]
-                da_dp[r, 3 * j + i] = acc
-    # a non-finite entry anywhere (a blow-up) is reported, never returned silently
-    for r in range(nv):
-        if not np.isfinite(a[r]):
-            return 3
-        for c in range(nv):
-            if not (np.isfinite(da_dq[r, c]) and np.isfinite(da_dv[r, c])):
-                return 3
-    return 0
-
-
-@jit
-def aba_derivatives_fresh(alpha, w, offs, mass, radius, l0, EI, EA, beta, A_ch, r_ch, paper_act, locked, floating,
-                          q, qd, p, tau_ext, V0, A_B, g_B):
-    """:func:`aba_derivatives` in a workspace made here (no ``Data`` given): returns
-    ``(status, a, da_dq, da_dv, da_dp, da_dtau)`` and boxes only those."""
-    n = q.shape[0]
-    nv = (6 if floating else 0) + 3 * n
-    ws = recursive_aba_workspace(n, nv)
-    wd = rnea_workspace(n, nv)
-    wa = aba_derivatives_workspace(n, nv)
-    status = aba_derivatives(alpha, w, offs, mass, radius, l0, EI, EA, beta, A_ch, r_ch, paper_act, locked, floating,
-                             q, qd, p, tau_ext, V0, A_B, g_B, ws, wd, wa, ws[8])
-    return status, wa[3], wa[6], wa[7], wa[9], wa[8]
 
 
 @jit

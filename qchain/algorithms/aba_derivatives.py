@@ -1,0 +1,239 @@
+"""Exact derivatives of the chain's forward dynamics (numba), as Pinocchio's ``aba-derivatives``:
+one compiled call solves the accelerations (:func:`qchain.algorithms.recursive.aba`) and
+differentiates them through the inverse-dynamics derivatives at the solved accelerations
+(:mod:`qchain.algorithms.rnea_derivatives`), ``da/dq = M^-1 (df/dq - dID/dq)``,
+``da/dv = M^-1 (df/dv - dID/dv)``, ``da/dtau = M^-1``, ``da/dp = M^-1 B``, with the derivatives
+of the internal forces ``f`` (:func:`~qchain.algorithms.rnea_derivatives.internal_forces_derivatives`)
+and the input matrices ``B`` (:func:`input_matrices`). Curvature coordinates and the layout of
+:mod:`qchain.algorithms.recursive`.
+
+``tests/test_derivatives.py`` holds every output to central differences of the model.
+
+Unchecked by design: compiled kernels whose arguments the checked API has validated
+(``docs/engine.md``, "Unchecked kernels"); call the checked API unless you guarantee them.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..model.arc import jit, jit_helper, take1
+from ..model.slices import input_matrix_c
+from .recursive import _chol as recursive_chol
+from .recursive import aba as recursive_aba
+from .recursive import aba_workspace as recursive_aba_workspace
+from .recursive import internal_forces as recursive_internal_forces
+from .rnea_derivatives import _internal_forces_derivatives, _rnea_derivatives, rnea_workspace
+
+__all__ = ["aba_derivatives", "aba_derivatives_workspace", "input_matrices"]
+
+
+
+@jit
+def input_matrices(q, A_ch, r_ch, paper_act, B, sc):
+    """``B[j]`` (3, 3) the input matrix of every segment (:func:`qchain.model.slices.input_matrix_c`)."""
+    _input_matrices(q, A_ch, r_ch, paper_act, B, sc)
+
+
+@jit_helper
+def _input_matrices(q, A_ch, r_ch, paper_act, B, sc):
+    """:func:`input_matrices`, the body the kernels call: compiled into them, without a
+    Python entry point (:data:`qchain.model.arc.jit_helper`)."""
+    for j in range(q.shape[0]):
+        input_matrix_c(q[j], A_ch[j], r_ch[j], paper_act[j], B[j], sc)
+
+
+#: Names of :func:`aba_derivatives_workspace`'s arrays (``Data`` attributes), in order.
+ABA_DERIVATIVES_WORKSPACE = ("f", "a_c", "A0", "a", "L", "rhs", "da_dq", "da_dv", "da_dtau", "da_dp", "dfq", "dfv",
+                             "B")
+
+
+@jit
+def aba_derivatives_workspace(n, nv):
+    """Fresh arrays for :func:`aba_derivatives` (shapes in :mod:`qchain.arm.data`)."""
+    return (np.zeros((n, 3)), np.zeros((n, 3)), np.zeros(6), np.zeros(nv), np.zeros((nv, nv)), np.zeros((nv, nv)),
+            np.zeros((nv, nv)), np.zeros((nv, nv)), np.zeros((nv, nv)), np.zeros((nv, 3 * n)), np.zeros((n, 3, 3)),
+            np.zeros((n, 3, 3)), np.zeros((n, 3, 3)))
+
+
+@jit_helper
+def _zero_locked(locked, off, X, rows, cols):
+    """Zero the rows and/or columns of ``X`` (nv, nv) at the locked coordinates ``locked``
+    (n, 3) (indices ``off + 3 j + b``)."""
+    nv = X.shape[0]
+    for k in range(off, nv):
+        if locked[(k - off) // 3, (k - off) % 3]:
+            for r in range(nv):
+                if rows:
+                    X[k, r] = 0.0
+                if cols:
+                    X[r, k] = 0.0
+
+
+@jit_helper
+def _copy2(src, dst):
+    """``dst[:, :] = src`` element by element (no compile of numba's slice-assignment checks)."""
+    for r in range(src.shape[0]):
+        for c in range(src.shape[1]):
+            dst[r, c] = src[r, c]
+
+
+@jit_helper
+def _matmul(A, B, out):
+    """``out = A B`` by loops (row by row, so the inner loop runs along rows of ``B`` and
+    ``out``): ``np.dot`` with ``out`` needs numba's reference counting, which the compiled
+    engine's callers run without."""
+    for r in range(A.shape[0]):
+        for c in range(B.shape[1]):
+            out[r, c] = 0.0
+        for k in range(A.shape[1]):
+            a = A[r, k]
+            if a != 0.0:
+                for c in range(B.shape[1]):
+                    out[r, c] += a * B[k, c]
+
+
+@jit_helper
+def _chol_inverse(L, k, Minv):
+    """``Minv = (L L^T)^-1`` (k, k) from the lower Cholesky factor ``L``, which is overwritten
+    by its own inverse (lower)."""
+    for j in range(k):
+        L[j, j] = 1.0 / L[j, j]
+        for i in range(j + 1, k):
+            acc = 0.0
+            for s in range(j, i):
+                acc -= L[i, s] * L[s, j]
+            L[i, j] = acc / L[i, i]
+        for i in range(j):
+            L[i, j] = 0.0
+    for i in range(k):
+        for j in range(i + 1):
+            acc = 0.0
+            for s in range(i, k):
+                acc += L[s, i] * L[s, j]
+            Minv[i, j] = acc
+            Minv[j, i] = acc
+
+
+@jit
+def aba_derivatives(alpha, w, offs, mass, radius, l0, EI, EA, beta, A_ch, r_ch, paper_act, locked, floating,
+                    q, qd, p, tau_ext, V0, A_B, g_B, ws, wd, wa, sc):
+    """Forward dynamics and its exact derivatives in one compiled call (curvature coordinates,
+    the material law).
+
+    ``a`` solves ``M a + C v + g + D v + dU_el/dq = B p + tau_ext`` (:func:`qchain.algorithms.recursive.aba`);
+    then ``da/dq = M^-1 (df/dq - dID/dq)``, ``da/dv = M^-1 (df/dv - dID/dv)``, ``da/dtau = M^-1``,
+    ``da/dp = M^-1 B`` with the inverse-dynamics derivatives of
+    :func:`qchain.algorithms.rnea_derivatives.rnea_derivatives` at the
+    solved ``a``. ``locked`` (n, 3) coordinates get zero rows and columns. ``q, qd, p`` (n, 3);
+    ``tau_ext`` (nv,); ``V0`` (6,) the base twist, ``A_B`` (6,) the base's own acceleration
+    (a prescribed base; zeros otherwise), ``g_B`` (3,) gravity in the base frame. ``ws``, ``wd``,
+    ``wa``: :class:`qchain.arm.data.Data`'s aba, rnea-derivative and aba-derivative workspaces.
+    Returns 0, or 1 where an articulated block is not positive definite, 2 where ``M`` is not,
+    3 where ``a`` or a derivative is not finite.
+    """
+    n = q.shape[0]
+    off = 6 if floating else 0
+    f, qdd, A0, a = wa[0], wa[1], wa[2], wa[3]
+    recursive_internal_forces(q, qd, p, l0, EI, EA, beta, A_ch, r_ch, paper_act, f, sc)
+    for j in range(n):
+        for b in range(3):
+            f[j, b] += tau_ext[off + 3 * j + b]
+    o = 0
+    F0, o = take1(sc, o, 6)
+    F0[:] = 0.0
+    Aa, o = take1(sc, o, 6)
+    for r in range(6):
+        Aa[r] = A_B[r]
+        if floating:
+            F0[r] = tau_ext[r]
+    for r in range(3):
+        Aa[r] -= g_B[r]
+    if not recursive_aba(alpha, w, offs, mass, radius, q, qd, f, V0, Aa, floating, F0, qdd, A0, locked, ws, sc[o:]):
+        return 1
+    if floating:
+        for r in range(6):
+            a[r] = A0[r]
+        for r in range(3):
+            a[r] += g_B[r]
+    for j in range(n):
+        for b in range(3):
+            a[off + 3 * j + b] = qdd[j, b]
+    return _aba_derivatives_at(alpha, w, offs, mass, radius, l0, EI, EA, beta, A_ch, r_ch, paper_act, locked, floating,
+                               q, qd, p, qdd, A0, a, V0, g_B, ws, wd, wa, sc)
+
+
+@jit_helper
+def _aba_derivatives_at(alpha, w, offs, mass, radius, l0, EI, EA, beta, A_ch, r_ch, paper_act, locked, floating,
+                        q, qd, p, qdd, A0, a, V0, g_B, ws, wd, wa, sc):
+    """:func:`aba_derivatives` after its forward pass: the derivatives at the solved
+    accelerations ``qdd`` (n, 3), ``A0`` (6,) (the base's apparent acceleration: solved for a
+    floating base, the given one otherwise) and ``a`` (nv,). The compiled engine calls it
+    after its own right-hand side at the same state (:func:`qchain.sim.engine.system.jacobian`),
+    so the forward pass is neither computed nor compiled twice."""
+    n = q.shape[0]
+    off = 6 if floating else 0
+    nv = off + 3 * n
+    L, rhs, da_dq, da_dv, da_dtau, da_dp, dfq, dfv, B = wa[4], wa[5], wa[6], wa[7], wa[8], wa[9], wa[10], wa[11], wa[12]
+    M, dq, dv = wd[18], wd[19], wd[20]
+    _rnea_derivatives(alpha, w, offs, mass, radius, q, qd, qdd, V0, A0, floating, g_B, ws, wd, sc)
+    _internal_forces_derivatives(q, p, l0, EI, EA, beta, A_ch, r_ch, paper_act, dfq, dfv, sc)
+    _input_matrices(q, A_ch, r_ch, paper_act, B, sc)
+    # right-hand sides df - dID, the free block of M with locked coordinates decoupled
+    for r in range(nv):
+        for c in range(nv):
+            da_dq[r, c] = -dq[r, c]
+            da_dv[r, c] = -dv[r, c]
+            L[r, c] = M[r, c]
+    for j in range(n):
+        i0 = off + 3 * j
+        for a_ in range(3):
+            for b in range(3):
+                da_dq[i0 + a_, i0 + b] += dfq[j, a_, b]
+                da_dv[i0 + a_, i0 + b] += dfv[j, a_, b]
+    # locked coordinates: decoupled in M (unit diagonal), zero rows and columns in the results
+    _zero_locked(locked, off, L, True, True)
+    for k in range(off, nv):
+        if locked[(k - off) // 3, (k - off) % 3]:
+            L[k, k] = 1.0
+    if not recursive_chol(L, nv):
+        return 2
+    _chol_inverse(L, nv, da_dtau)
+    _zero_locked(locked, off, da_dtau, True, True)
+    _copy2(da_dq, rhs)
+    _matmul(da_dtau, rhs, da_dq)
+    _copy2(da_dv, rhs)
+    _matmul(da_dtau, rhs, da_dv)
+    _zero_locked(locked, off, da_dq, False, True)
+    _zero_locked(locked, off, da_dv, False, True)
+    for r in range(nv):
+        for j in range(n):
+            i0 = off + 3 * j
+            for i in range(3):
+                acc = 0.0
+                for b in range(3):
+                    acc += da_dtau[r, i0 + b] * B[j, b, i]
+                da_dp[r, 3 * j + i] = acc
+    # a non-finite entry anywhere (a blow-up) is reported, never returned silently
+    for r in range(nv):
+        if not np.isfinite(a[r]):
+            return 3
+        for c in range(nv):
+            if not (np.isfinite(da_dq[r, c]) and np.isfinite(da_dv[r, c])):
+                return 3
+    return 0
+
+
+@jit
+def aba_derivatives_fresh(alpha, w, offs, mass, radius, l0, EI, EA, beta, A_ch, r_ch, paper_act, locked, floating,
+                          q, qd, p, tau_ext, V0, A_B, g_B):
+    """:func:`aba_derivatives` in a workspace made here (no ``Data`` given): returns
+    ``(status, a, da_dq, da_dv, da_dp, da_dtau)`` and boxes only those."""
+    n = q.shape[0]
+    nv = (6 if floating else 0) + 3 * n
+    ws = recursive_aba_workspace(n, nv)
+    wd = rnea_workspace(n, nv)
+    wa = aba_derivatives_workspace(n, nv)
+    status = aba_derivatives(alpha, w, offs, mass, radius, l0, EI, EA, beta, A_ch, r_ch, paper_act, locked, floating,
+                             q, qd, p, tau_ext, V0, A_B, g_B, ws, wd, wa, ws[8])
+    return status, wa[3], wa[6], wa[7], wa[9], wa[8]

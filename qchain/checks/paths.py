@@ -1,0 +1,66 @@
+"""Paths from outside (scene keys, command-line arguments, output names) checked before use.
+
+Two checks every layer that takes a path makes, each written once here; the messages that
+report them stay the callers' (they name the key or flag):
+
+* a NUL character, which no system call takes (``os.stat`` raises ``ValueError``) and
+  which a terminal does not show: :func:`has_nul`, and :func:`show_nul` for the message;
+* what a path that is not a regular file is (a folder, a FIFO, a device, a socket), from
+  its ``st_mode``, in words: :func:`file_kind`; and, for a folder to be made, a file where
+  one of its folders must be: :func:`file_in_the_way`.
+
+Standard library only: the command line's checks run before numpy loads.
+"""
+
+from __future__ import annotations
+
+import stat
+from pathlib import Path
+
+__all__ = ["has_nul", "show_nul", "file_kind", "file_in_the_way"]
+
+#: (test of st_mode, the word, the detailed word) of each kind of file that is not a regular one.
+_KINDS = (
+    (stat.S_ISDIR, "a folder", "a folder"),
+    (stat.S_ISFIFO, "a FIFO", "a FIFO (named pipe)"),
+    (stat.S_ISCHR, "a device", "a character device"),
+    (stat.S_ISBLK, "a device", "a block device"),
+    (stat.S_ISSOCK, "a socket", "a socket"),
+)
+
+
+def has_nul(path: str) -> bool:
+    """Whether the path ``path`` holds a NUL character (no system call takes one)."""
+    return "\0" in path
+
+
+def show_nul(path: str, mark: str = "\\0") -> str:
+    """``path`` with each NUL character written as ``mark`` (``\\0`` by default), for a
+    message: a terminal shows nothing where a NUL is."""
+    return path.replace("\0", mark)
+
+
+def file_kind(mode: int, detailed: bool = False, other: str = "not a regular file") -> str:
+    """What a file of ``st_mode`` ``mode`` is, in words for a message: ``"a folder"``,
+    ``"a FIFO"``, ``"a device"`` or ``"a socket"`` (``detailed``: ``"a FIFO (named pipe)"``,
+    ``"a character device"``, ``"a block device"``), else ``other`` (a regular file too:
+    callers ask only of a file that is not one)."""
+    for test, word, detailed_word in _KINDS:
+        if test(mode):
+            return detailed_word if detailed else word
+    return other
+
+
+def file_in_the_way(folder: Path) -> Path | None:
+    """The first of ``folder`` and its parents that exists and is not a folder (a file
+    where a folder must be, so ``folder`` cannot be made), or None.
+
+    Raises
+    ------
+    OSError
+        What ``Path.exists`` raises (a path too long, permission denied); callers say it.
+    """
+    for parent in [folder, *folder.parents]:
+        if parent.exists() and not parent.is_dir():
+            return parent
+    return None
