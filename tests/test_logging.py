@@ -467,6 +467,24 @@ def test_prepared_writer_is_taken_by_the_next_logger(tmp_path):
     assert out.stdout.strip() == "[]", out.stderr
 
 
+def test_a_prepared_writer_writes_a_relative_path_where_the_run_is(tmp_path, monkeypatch):
+    """A spare writer started in one working folder, taken by a run in another: the run's
+    relative recording path is the run's (it was written beside the spare's folder)."""
+    from qchain.recording import writer as qwriter
+
+    (tmp_path / "a").mkdir()
+    (tmp_path / "b").mkdir()
+    monkeypatch.chdir(tmp_path / "a")
+    prepare_writer()
+    pid = qwriter._SPARES[-1][0].pid
+    monkeypatch.chdir(tmp_path / "b")
+    records = arm_records(20)
+    log = _log_all(records, mcap="m.mcap")
+    assert log.worker_pid == pid
+    _assert_records_equal(read_recording(tmp_path / "b" / "m.mcap"), records)
+    assert not (tmp_path / "a" / "m.mcap").exists()
+
+
 @pytest.mark.skipif(not hasattr(signal, "SIGSTOP"), reason="needs SIGSTOP")
 def test_a_file_logger_does_not_wait_for_its_writer(tmp_path):
     """The simulating process only appends to the journal: a stopped writer holds nothing

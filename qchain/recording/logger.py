@@ -251,6 +251,8 @@ class RunLogger:
             why = exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc)
             raise LoggingError(f"the recording's journal {jp} cannot be written ({why})") from None
         cfg["journal"] = str(jp)
+        with suppress(OSError):  # (a deleted working folder: relative paths fail as they would here)
+            cfg["cwd"] = os.getcwd()
         self._proc, self._conn = take_spare() or launch()
         self.worker_pid = self._proc.pid
         self._conn.send(("config", cfg))

@@ -523,6 +523,9 @@ def process_main(fd: int) -> int:
     if kind != "config":
         _send(conn, ("error", {"message": "the log writer got no configuration"}))
         return 2
+    if cfg.get("cwd"):  # a spare writer started in another working folder: relative paths are the run's
+        with suppress(OSError):
+            os.chdir(cfg["cwd"])
     from .journal import JournalReader
 
     startup: list[str] = []
