@@ -44,6 +44,26 @@ def test_a_scene_name_with_dollars_is_plain_text_and_the_data_come_first(tmp_pat
     assert sorted(p.name for p in (tmp_path / "o2").iterdir()) == ["trajectory.npz"]
 
 
+def test_rerun_rate_holds_without_a_recording_too(tmp_path, monkeypatch):
+    """``--rerun-rate`` with ``--no-record`` and a viewer or .rrd only: the logger gets the
+    rate as it does when the run is recorded."""
+    from qchain.cli import recording as qlog
+
+    made = []
+    real = qlog.RunLogger
+
+    def spy(*args, **kwargs):
+        made.append(kwargs.get("rerun_rate"))
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(qlog, "RunLogger", spy)
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "s.toml").write_text(ONE_SEGMENT_SCENE.replace("NAME", "rate"))
+    for flags in (["--no-record", "--rrd", "v.rrd"], ["--mcap", "r.mcap"]):
+        assert main(["run", "s.toml", "--duration", "0.01", "--no-plots", "--rerun-rate", "25", *flags]) == 0
+    assert made == [25.0, 25.0] and (tmp_path / "v.rrd").stat().st_size > 0
+
+
 def test_run_flags_the_header_and_the_recording_agree(tmp_path, monkeypatch, capsys):
     from qchain.cli.main import main
 

@@ -621,9 +621,9 @@ def _make_logger(args, scene: Scene, model: SceneModel, duration: float | None =
         v_names=v_names,
         duration=duration if duration is not None else scene.duration,
     )
-    if args.no_record and not args.mcap:
-        logger = qlog.RunLogger(info, None, serve=args.serve, connect=args.connect, rrd=args.rrd,
-                                bind=args.bind, linger=args.serve, **logger_kwargs)
+    if args.no_record and not args.mcap:  # a viewer or .rrd only: the same rate as with a recording
+        logger = qlog.RunLogger(info, None, serve=args.serve, connect=args.connect, rrd=args.rrd, bind=args.bind,
+                                linger=args.serve, **{"rerun_rate": args.rerun_rate, **logger_kwargs})
     else:
         logger = qlog.logger_from_args(args, info, **logger_kwargs)
     return logger, ChainRecorder(logger, ch, realtime=bool(getattr(args, "realtime", False)))
