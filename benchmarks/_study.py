@@ -33,3 +33,34 @@ def save(fig, path: Path) -> None:
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
+
+
+def read_csv(path: Path) -> list[dict]:
+    """Rows of a CSV written by ``write_csv``: numbers as float, ``True``/``False`` as bool, the rest as str
+    (an empty cell stays ``""``)."""
+    def value(s: str):
+        if s in ("True", "False"):
+            return s == "True"
+        try:
+            return float(s)
+        except ValueError:
+            return s
+
+    with open(path, newline="") as fh:
+        return [{k: value(v) for k, v in row.items()} for row in csv.DictReader(fh)]
+
+
+def threshold(ax, value: float, text: str, axis: str = "x", color: str = "gray") -> None:
+    """A dotted threshold line on ``ax`` with its meaning written along it.
+
+    ``axis="x"``: a vertical line at ``x = value``, the text up its left side near the top;
+    ``axis="y"``: a horizontal line at ``y = value``, the text above it at the right end.
+    """
+    if axis == "x":
+        ax.axvline(value, color=color, lw=0.9, ls=":")
+        ax.text(value, 0.98, text + " ", transform=ax.get_xaxis_transform(), rotation=90, ha="right", va="top",
+                fontsize=8, color=color)
+    else:
+        ax.axhline(value, color=color, lw=0.9, ls=":")
+        ax.text(0.99, value, text, transform=ax.get_yaxis_transform(), ha="right", va="bottom", fontsize=8,
+                color=color)

@@ -139,28 +139,71 @@ def run(quick: bool = False, out_dir: Path = Path("out/bench")) -> list[dict]:
 
 
 def plot(rows, path):
+    """Work-precision chart: one row of panels a scene, compiled methods left and scipy's right.
+
+    Parameters
+    ----------
+    rows : list of dict or path
+        The study's rows, or the ``work_precision.csv`` they were written to.
+    path : path
+        The PNG to write.
+
+    Cost is wall milliseconds per simulated second (left axis); the right axis gives the same cost in
+    ``pinocchio.aba`` calls on the equal-nv rigid chain, one scale a scene (the CSV's
+    ``wall_per_sim_s / aba_calls_per_sim_s`` is the scene's seconds per aba call). Dotted lines: the
+    headline's error bounds; circled: the cheapest run within each bound.
+    """
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    if not isinstance(rows, list):
+        rows = _study.read_csv(Path(rows))
     scenes = list(dict.fromkeys(r["scene"] for r in rows))
-    fig, axes = plt.subplots(1, len(scenes), figsize=(7 * len(scenes), 5.5), squeeze=False)
-    for ax, name in zip(axes[0], scenes):
-        for k, method in enumerate(METHODS):
-            pts = sorted((r["tip_error_m"], r["aba_calls_per_sim_s"]) for r in rows
-                         if r["scene"] == name and r["method"] == method and r["success"])
-            if pts:
-                x, y = zip(*pts)
-                ax.loglog(x, y, marker="o", label=method, ls="-" if k < 4 else "--")
-        for b in BOUNDS:
-            ax.axvline(b, color="gray", lw=0.8)
+    groups = (("compiled", [m for m in METHODS if _engine(rows, m) == "compiled"]),
+              ("scipy", [m for m in METHODS if _engine(rows, m) != "compiled"]))
+    colors = dict(zip(METHODS, plt.rcParams["axes.prop_cycle"].by_key()["color"]))
+    fig, axes = plt.subplots(len(scenes), 2, figsize=(12, 4.6 * len(scenes)), squeeze=False, sharex=True,
+                             sharey="row")
+    for row_axes, name in zip(axes, scenes):
+        here = [r for r in rows if r["scene"] == name and r["success"]]
+        aba_s = float(np.median([r["wall_per_sim_s"] / r["aba_calls_per_sim_s"] for r in here]))
+        best = {b: cheapest_within(here, b) for b in BOUNDS}
+        for ax, (group, methods) in zip(row_axes, groups):
+            for method in methods:
+                pts = sorted((r["tip_error_m"], 1e3 * r["wall_per_sim_s"]) for r in here if r["method"] == method)
+                if pts:
+                    x, y = zip(*pts)
+                    ax.loglog(x, y, marker="o", ms=4, color=colors[method], label=method)
+            circled = [r for r in best.values() if r is not None and r["method"] in methods]
+            for r in circled:
+                ax.plot(r["tip_error_m"], 1e3 * r["wall_per_sim_s"], "o", ms=13, mfc="none", mec="k", mew=1.2)
+            if circled:
+                ax.plot([], [], "o", ms=9, mfc="none", mec="k", label="cheapest within a bound")
+            for b in BOUNDS:
+                _study.threshold(ax, b, f"{b * 1e3:g} mm")
+            ax.set_title(f"{name}: {group} methods", fontsize=10)
+            ax.grid(True, which="both", alpha=0.3)
+            ax.legend(fontsize=8, loc="lower left")
+            if group == "scipy":  # the row shares its y axis: one aba scale on the right serves both panels
+                sec = ax.secondary_yaxis("right", functions=(lambda ms, k=aba_s: ms * 1e-3 / k,
+                                                             lambda calls, k=aba_s: calls * k * 1e3))
+                sec.set_ylabel(f"pinocchio.aba calls per simulated s ({aba_s * 1e6:.2g} us a call)")
+        row_axes[0].set_ylabel("wall time per simulated second (ms)")
+    for ax in axes[-1]:
         ax.set_xlabel("largest tip error against the converged run (m)")
-        ax.set_ylabel("cost per simulated second (pinocchio.aba calls, equal nv)")
-        ax.set_title(f"{name}: compiled (solid) and scipy (dashed) methods")
-        ax.grid(True, which="both", alpha=0.3)
-        ax.legend(fontsize=8)
     _study.save(fig, path)
+
+
+def _engine(rows, method):
+    """The ``engine`` column of a method's rows (``compiled`` or ``python``)."""
+    return next((r["engine"] for r in rows if r["method"] == method), "")
+
+
+def replot(csv_path, png_path):
+    """Redraw ``work_precision.png`` from a written ``work_precision.csv`` (no runs)."""
+    plot(_study.read_csv(Path(csv_path)), png_path)
 
 
 def main(argv=None):

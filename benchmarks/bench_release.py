@@ -449,61 +449,66 @@ def print_table(rows: list[dict]) -> None:
           f"*: within {ACCURACY * 1e3:g} mm RMS and converged in time to {CONVERGED * 1e3:g} mm)")
 
 
+def frontier(runs: list[dict]) -> list[dict]:
+    """The runs no other run beats in both RMS error and cost, in order of falling error.
+
+    Parameters
+    ----------
+    runs : list of dict
+        Rows with finite ``rms_error_m`` (m) and ``wall_per_sim_s`` (s/s).
+    """
+    front = []
+    for r in sorted(runs, key=lambda r: (r["wall_per_sim_s"], r["rms_error_m"])):
+        if not front or r["rms_error_m"] < front[-1]["rms_error_m"]:
+            front.append(r)
+    return front
+
+
 def plot(rows: list[dict], path: Path, T: float, ref_note: str, best: dict) -> None:
+    """Cost against accuracy, qchain left and MuJoCo right, one line a model size.
+
+    Each line joins a model size's frontier: the runs (of any method and setting) that no other run
+    of that size beats in both RMS error and cost; grey dots are the other runs. Filled: converged in
+    time to ``CONVERGED``; hollow: not, or not measured. Circled: each code's headline run (``best``).
+    ``T`` and ``ref_note`` describe the scene and reference (in the README's caption, not the chart).
+    """
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, ax = plt.subplots(figsize=(12.5, 7))
     sweeps = [r for r in rows if r["role"] == "sweep" and r["ok"] and np.isfinite(r["rms_error_m"])
               and r["rms_error_m"] > 0 and np.isfinite(r["wall_per_sim_s"])]
-    styles = {}
-    qcolors = itertools.cycle(["tab:blue", "tab:green", "tab:purple", "tab:cyan", "tab:olive", "tab:gray", "navy",
-                               "darkgreen", "black"])
-    mcolors = itertools.cycle(["tab:red", "tab:orange", "tab:brown", "tab:pink", "gold"])
-    for r in sweeps:
-        key = (r["code"], r["method"])
-        if key not in styles:
-            styles[key] = next(qcolors) if r["code"] == "qchain" else next(mcolors)
-    models = list(dict.fromkeys((r["code"], r["model"]) for r in sweeps))
-    marks = {}
-    qm, mm = itertools.cycle("os^Dvp"), itertools.cycle("<>hXP*")
-    for code, model in models:
-        marks[(code, model)] = next(qm) if code == "qchain" else next(mm)
-    for (code, method), color in styles.items():
-        for _, model in [k for k in models if k[0] == code]:
-            pts = sorted(((r["rms_error_m"], r["wall_per_sim_s"], r["time_conv_m"] <= CONVERGED) for r in sweeps
-                          if r["code"] == code and r["method"] == method and r["model"] == model), key=lambda p: p[1])
-            if not pts:
-                continue
-            x, y, conv = zip(*pts)
-            ax.plot(x, y, color=color, lw=0.8, alpha=0.6, ls="-" if code == "qchain" else "--")
-            for xk, yk, ck in pts:
-                ax.plot(xk, yk, marker=marks[(code, model)], color=color, ms=6, ls="",
-                        mfc=color if ck else "none")
-    for (code, method), color in styles.items():
-        ax.plot([], [], color=color, lw=2, ls="-" if code == "qchain" else "--", label=f"{code} {method}")
-    for (code, model), mk in marks.items():
-        ax.plot([], [], marker=mk, color="k", ls="", mfc="none", label=f"{code} {model}")
-    for code, r in best.items():
+    fig, axes = plt.subplots(1, 2, figsize=(12.5, 5.6), sharex=True, sharey=True)
+    for ax, code, who in zip(axes, ("qchain", "mujoco"), ("qchain: n segments", "MuJoCo: N links")):
+        mine = [r for r in sweeps if r["code"] == code]
+        models = list(dict.fromkeys(r["model"] for r in mine))
+        colors = plt.cm.viridis(np.linspace(0.0, 0.85, max(len(models), 1)))
+        ax.plot([r["rms_error_m"] for r in mine], [r["wall_per_sim_s"] for r in mine], ".", color="0.75", ms=4,
+                zorder=1, label="other runs")
+        for model, color in zip(models, colors):
+            front = frontier([r for r in mine if r["model"] == model])
+            ax.plot([r["rms_error_m"] for r in front], [r["wall_per_sim_s"] for r in front], "-", color=color,
+                    lw=1.5, zorder=2, label=model)
+            for r in front:
+                conv = np.isfinite(r["time_conv_m"]) and r["time_conv_m"] <= CONVERGED
+                ax.plot(r["rms_error_m"], r["wall_per_sim_s"], "o", color=color, ms=5, mfc=color if conv else "white",
+                        zorder=3)
+        r = best.get(code)
         if r is not None:
-            ax.plot(r["rms_error_m"], r["wall_per_sim_s"], marker="o", ms=16, mfc="none", mec="k", mew=1.5)
-            ax.annotate(f"{code} cheapest: {r['model']} {r['method']} {r['setting']}\n{r['wall_per_sim_s']:.3g} s/s",
-                        (r["rms_error_m"], r["wall_per_sim_s"]), textcoords="offset points", xytext=(10, -18),
-                        fontsize=7)
-    ax.axvline(ACCURACY, color="gray", lw=0.8, ls=":")
-    ax.set_xscale("log")
-    ax.set_yscale("log")
-    ax.set_xlabel("RMS tip error against the reference over [0, T] (m)")
-    ax.set_ylabel("wall time per simulated second (s/s)")
-    s = SCENE
-    ax.set_title(f"cantilever released under gravity: L = {s['L']:g} m, r = {s['r']:g} m, rho = {s['rho']:g} kg/m^3, "
-                 f"E = {s['E']:g} Pa, undamped, T = {T:g} s\nreference: {ref_note}\nfilled: converged in time to "
-                 f"{CONVERGED * 1e3:g} mm RMS (hollow: not, or not measured); circled: each code's cheapest run within "
-                 f"{ACCURACY * 1e3:g} mm RMS and converged", fontsize=9)
-    ax.grid(True, which="both", alpha=0.3)
-    ax.legend(fontsize=7, loc="center left", bbox_to_anchor=(1.01, 0.5))
+            ax.plot(r["rms_error_m"], r["wall_per_sim_s"], "o", ms=15, mfc="none", mec="k", mew=1.5, zorder=4)
+            ax.annotate(f"cheapest: {r['model']} {r['method']} {r['setting']}\n{r['wall_per_sim_s']:.3g} s/s",
+                        (r["rms_error_m"], r["wall_per_sim_s"]), textcoords="offset points", xytext=(10, -22),
+                        fontsize=8)
+        _study.threshold(ax, ACCURACY, f"{ACCURACY * 1e3:g} mm RMS (headline bound)")
+        ax.plot([], [], "o", color="k", mfc="white", ms=5, label=f"hollow: not converged to {CONVERGED * 1e3:g} mm")
+        ax.set_xscale("log")
+        ax.set_yscale("log")
+        ax.set_title(f"{who}, best runs per size", fontsize=10)
+        ax.set_xlabel("RMS tip error against the reference (m)")
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend(fontsize=8, loc="lower left")
+    axes[0].set_ylabel("wall time per simulated second (s)")
     _study.save(fig, path)
 
 

@@ -24,7 +24,8 @@ from ..checks.bounds import POSITION, check_time
 from ..checks.results import finite_result
 from ..checks.convert import as_real_array, as_vector, describe_value
 from ..errors import DomainError, NonFiniteError, QchainError
-from ..model.segment import Segment, _short as _vec3  # a vector in a message: (1, 0.5, 0)
+from ..checks.text import show_vector
+from ..model.segment import Segment
 from ..model.segment import _paper_jacobian as paper_jacobian, _paper_to_curvature as paper_to_curvature
 
 __all__ = ["ChainChecks", "QUATERNION_TOLERANCE"]
@@ -96,8 +97,8 @@ class ChainChecks:
                                         (f"elastic energy {U:.3g} J", np.isfinite(U))) if not ok]
                 if what:
                     sl, vs = self.q_slice(j), self.v_slice(j)
-                    rates = "" if v_e is None else f", v[{vs.start}:{vs.stop}] = {_vec3(v_e[j])}"
-                    return (f"segment {j} (q[{sl.start}:{sl.stop}] = {_vec3(q_e[j])}{rates}) overflows double "
+                    rates = "" if v_e is None else f", v[{vs.start}:{vs.stop}] = {show_vector(v_e[j])}"
+                    return (f"segment {j} (q[{sl.start}:{sl.stop}] = {show_vector(q_e[j])}{rates}) overflows double "
                             f"precision: its {' and '.join(what)}")
         return None
 
@@ -165,7 +166,7 @@ class ChainChecks:
                     sl = self.q_slice(j)
                     return QchainError(
                         f"Chain.{method}: an articulated inertia block is not positive definite{at}: segment {j} "
-                        f"(q[{sl.start}:{sl.stop}] = {_vec3(q_e[j])}) has a singular mass matrix M_xi in double "
+                        f"(q[{sl.start}:{sl.stop}] = {show_vector(q_e[j])}) has a singular mass matrix M_xi in double "
                         f"precision (length l = {float(q_e[j][0]):.3g} m against rest length {s.length:g} m)")
         return QchainError(f"Chain.{method}: an articulated inertia block is not positive definite{at} "
                            f"(q = {np.array2string(np.ravel(q_e), precision=6)})")

@@ -1,12 +1,38 @@
-"""Text from outside (file names, recorded messages) shown to a person on one line.
+"""Values shown to a person in messages, on one line: text from outside (file names,
+recorded messages: :func:`printable`), paths (:func:`show_path`) and vectors
+(:func:`show_vector`). How a value and its type read in an argument error is
+:func:`qchain.checks.convert.describe_value`; a declared range, :meth:`qchain.checks.bounds.Range.text`.
 
-Standard library only: the command line's error path imports it before numpy loads.
+Standard library only at import: the command line's error path imports it before numpy loads.
 :func:`printable` is defined in :mod:`qchain.errors` (a :class:`~qchain.errors.SceneError`'s
 message needs it, and that module is below this one); this is where the layers take it from.
 """
 
 from __future__ import annotations
 
+import os
+
 from ..errors import printable
 
-__all__ = ["printable"]
+__all__ = ["printable", "show_path", "show_vector"]
+
+
+def show_path(path, limit: int | None = None) -> str:
+    """A path as text any terminal shows (bytes that are not UTF-8 escaped), its middle left
+    out beyond ``limit`` characters."""
+    text = os.fsencode(path).decode("utf-8", "backslashreplace") if isinstance(path, (str, bytes, os.PathLike)) \
+        else str(path)
+    return text if limit is None or len(text) <= limit else f"{text[:limit - 30]}...{text[-27:]}"
+
+
+def show_vector(x, most: int | None = None) -> str:
+    """A vector as messages show it, ``(1, 0.5, 0)``: each entry to 6 significant digits (the
+    first ``most`` entries, then ``...``); what is no array of numbers, as its repr (60 characters)."""
+    import numpy as np  # (here: where a vector is shown, numpy is loaded)
+
+    try:
+        a = np.asarray(x, dtype=float).ravel()
+    except (TypeError, ValueError):
+        return repr(x)[:60]
+    cut = most is not None and a.size > most
+    return "(" + ", ".join(f"{v:.6g}" for v in (a[:most] if cut else a)) + (", ..." if cut else "") + ")"

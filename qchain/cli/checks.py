@@ -14,6 +14,7 @@ from pathlib import Path
 from urllib.parse import urlsplit
 
 from ..checks.addresses import host_ok as _host_ok
+from ..checks.text import show_path
 from ..checks.paths import file_in_the_way, file_kind, has_nul, show_nul
 from .errors import BadInput
 
@@ -114,11 +115,6 @@ def check_bind_address(flag: str, host) -> None:
 # paths and viewers, checked before the run
 
 
-def _shown(path) -> str:
-    """A path as text that any terminal shows (bytes that are not UTF-8 escaped)."""
-    return os.fsencode(path).decode("utf-8", "backslashreplace")
-
-
 def _fs_encodable(c: str) -> bool:
     """Whether the file system's encoding (ASCII in a C locale without UTF-8 mode) takes ``c``."""
     try:
@@ -157,14 +153,14 @@ def check_output_path(flag: str, path, extra: str = "") -> None:
     try:
         text.encode("utf-8")
     except UnicodeEncodeError:
-        raise BadInput(f"{flag} path {_shown(text)} is not UTF-8 text; choose a name of UTF-8 characters") from None
+        raise BadInput(f"{flag} path {show_path(text)} is not UTF-8 text; choose a name of UTF-8 characters") from None
     from ..recording.options import fs_limits  # (the recording's libraries load when a path is checked)
 
     p = Path(text)
     limit = fs_limits(Path(os.path.abspath(p)).parent)[0]
     size = len(os.fsencode(p.name))
     if size + len(extra.encode()) > limit:
-        name = _shown(p.name)
+        name = show_path(p.name)
         name = name if len(name) <= 40 else name[:37] + "..."
         beside = f" and its {extra} file beside it needs {len(extra.encode())} more" if extra else ""
         raise BadInput(f"{flag} file name {name} is {size} bytes long{beside}: a file name may have at most {limit} "
@@ -179,7 +175,7 @@ def _existing_output_problem(flag: str, p: Path) -> None:
     (the recording's own checks, :func:`qchain.logging.check_outputs`, say the rest)."""
     import stat
 
-    shown = _shown(p)
+    shown = show_path(p)
     shown = shown if len(shown) <= 120 else shown[:117] + "..."
     try:
         st = os.stat(p)
@@ -213,13 +209,13 @@ def check_output_folder(what: str, folder) -> Path:
     p = Path(text)
     blocker = file_in_the_way(p)
     if blocker is not None:
-        raise BadInput(f"{what} {_shown(p)} cannot be made: {_shown(blocker)} is a file")
+        raise BadInput(f"{what} {show_path(p)} cannot be made: {show_path(blocker)} is a file")
     try:
         p.mkdir(parents=True, exist_ok=True)
         with tempfile.TemporaryFile(dir=p) as fh:
             fh.write(b"qchain")
     except OSError as err:
-        raise BadInput(f"{what} {_shown(p)} cannot be written: {err.strerror or err}") from None
+        raise BadInput(f"{what} {show_path(p)} cannot be written: {err.strerror or err}") from None
     return p
 
 

@@ -64,13 +64,13 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from .checks import (
-    CONNECT_TIMEOUT, file_argument, path_argument, _recording_stem, _shown, check_bind_address, check_flag_values,
+    CONNECT_TIMEOUT, file_argument, path_argument, _recording_stem, check_bind_address, check_flag_values,
     check_output_folder, check_output_path, check_viewer_url, viewer_silence)
 from .errors import (
     EXIT_FAILED, EXIT_OK, EXIT_USAGE, BadInput, _one_line, _Session, guarded, report_error, take_debug)
 from .command import command
 from .outputs import OutputError, planned_outputs, summary_lines, tip_positions, write_outputs
-from ..checks.text import printable
+from ..checks.text import printable, show_path
 
 if TYPE_CHECKING:  # the model's libraries load when a command needs them: Ctrl-C and --version answer at once
     from ..scene.scene import Scene, SceneModel
@@ -229,13 +229,13 @@ def _check_run_outputs(args, scene: Scene, duration: float) -> tuple[bool, list[
         folder = os.path.abspath(args.out if args.out is not None else scene.output_folder)
         for flag, p in (("--mcap", args.mcap), ("--rrd", args.rrd)):
             if p is not None and (folder == os.path.abspath(p) or folder.startswith(os.path.abspath(p) + os.sep)):
-                raise BadInput(f"{flag} {printable(_shown(p))} is the plots' folder {printable(_shown(folder))} or a "
+                raise BadInput(f"{flag} {printable(show_path(p))} is the plots' folder {printable(show_path(folder))} or a "
                                "folder above it: give the recording a file path of its own")
     if record or args.rrd:  # a recording's times end at 2**32 s: said before the model is built
         from ..recording.records import T_MAX, T_MAX_WHY
 
         if duration > T_MAX:
-            src = "--duration" if args.duration is not None else f"{printable(_shown(args.scene))}: simulation.duration"
+            src = "--duration" if args.duration is not None else f"{printable(show_path(args.scene))}: simulation.duration"
             raise BadInput(f"{src} {duration:g} s: a recorded run lasts at most {T_MAX:.10g} s ({T_MAX_WHY}); run "
                            "it with --no-record (and no --rrd, --serve or --connect)")
     mcap = None
@@ -256,7 +256,7 @@ def _check_run_outputs(args, scene: Scene, duration: float) -> tuple[bool, list[
             if args.out is None or not err.problems:
                 raise
             p = err.problems[0]
-            raise BadInput(f"--out {_shown(args.out)}: expected {p.expected}, found {p.found}") from None
+            raise BadInput(f"--out {show_path(args.out)}: expected {p.expected}, found {p.found}") from None
     _check_planned_outputs(args, scene, mcap)
     return record, notices
 
@@ -318,7 +318,7 @@ def _build_run_model(args, scene: Scene, duration: float, session: _Session) -> 
     try:  # an explicit method on a stiff model: refused before anything is recorded
         scene.check_budget(duration, model)
     except BudgetError as err:
-        raise BadInput(f"{printable(_shown(args.scene))}: {err}") from None
+        raise BadInput(f"{printable(show_path(args.scene))}: {err}") from None
     _print_lines(scene.describe(model, duration=duration, folder=args.out, plots=not args.no_plots))
     sys.stdout.flush()
     return model
@@ -499,11 +499,11 @@ def _report_run(args, scene: Scene, model: SceneModel, traj, interrupted: bool, 
             written = write_outputs(scene, model, traj, folder)
         except OutputError as err:
             for path in err.written:
-                print(f"wrote {printable(_shown(path))}")
+                print(f"wrote {printable(show_path(path))}")
             print(f"qchain run: error: {_one_line(err)}", file=sys.stderr)
             return EXIT_FAILED
         for path in written:
-            print(f"wrote {printable(_shown(path))}")
+            print(f"wrote {printable(show_path(path))}")
     return EXIT_OK if traj.success and not interrupted else EXIT_FAILED
 
 
@@ -513,11 +513,11 @@ def _say_recording(logger, done: dict, stream) -> None:
     if it stayed: ``qchain replay`` reads it, ``qchain recover`` makes the file whole)."""
     if logger.mcap_path is None:
         return
-    mcap = printable(_shown(logger.mcap_path))
+    mcap = printable(show_path(logger.mcap_path))
     if done.get("error"):
         jp = getattr(logger, "journal_path", None)
         if jp is not None and os.path.exists(jp):
-            print(f"qchain run: the recording {mcap} is not finished; its records are in {printable(_shown(jp))} "
+            print(f"qchain run: the recording {mcap} is not finished; its records are in {printable(show_path(jp))} "
                   f"(`qchain replay {mcap}` reads them, `qchain recover {mcap}` makes the file whole)", file=sys.stderr)
         return
     reached = "no sample" if done.get("last_t") is None else f"t = {done['last_t']:.6g} s"
@@ -542,8 +542,8 @@ def _check_planned_outputs(args, scene, mcap) -> None:
     if not args.no_plots:
         flag = "--out" if args.out is not None else "output.folder"
         for path in planned_outputs(scene, args.out):
-            check_output_path(f"{flag} {_shown(path.parent)}: output", path)
-            outputs.append((f"{flag} {_shown(path.parent)} (its {path.name})", path))
+            check_output_path(f"{flag} {show_path(path.parent)}: output", path)
+            outputs.append((f"{flag} {show_path(path.parent)} (its {path.name})", path))
     seen: dict[str, str] = {}
     for what, path in outputs:
         try:
@@ -551,7 +551,7 @@ def _check_planned_outputs(args, scene, mcap) -> None:
         except (OSError, ValueError):
             continue
         if key in seen:
-            raise BadInput(f"{what} path {_shown(path)} is the same file as {seen[key]}: the run would write both "
+            raise BadInput(f"{what} path {show_path(path)} is the same file as {seen[key]}: the run would write both "
                            "there; choose another path")
         seen[key] = what
 
@@ -603,7 +603,7 @@ def _make_logger(args, scene: Scene, model: SceneModel, duration: float | None =
         radii=[s.radius for s in ch.segments],
         chamber_radii=[s.chamber_radius for s in ch.segments],
         scene=scene.text,
-        scene_path=_shown(scene.path) if scene.path else None,  # stored as UTF-8 text
+        scene_path=show_path(scene.path) if scene.path else None,  # stored as UTF-8 text
         params={
             "base": ch.base,
             "gravity": ch.gravity,

@@ -51,6 +51,7 @@ from .spatial import _ad_matrix as ad_matrix, _disk_inertia as disk_inertia, _fo
 from ..checks.frozen import KeepsReadOnly
 from ..checks.arguments import checked
 from ..checks.results import finite_result
+from ..checks.text import show_vector
 
 __all__ = [
     "Segment",
@@ -82,19 +83,11 @@ COORDS = ("curvature", "paper")
 ACTUATIONS = ("volume", "paper")
 
 
-def _short(x) -> str:
-    try:
-        a = np.asarray(x, dtype=float).ravel()
-    except (TypeError, ValueError):
-        return repr(x)[:60]
-    return "(" + ", ".join(f"{v:.6g}" for v in a[:9]) + (", ..." if a.size > 9 else "") + ")"
-
-
 def _nonfinite(self, method: str, quantity: str, q_e, args, kwargs) -> NonFiniteError:
     """The error of a :class:`Segment` method whose result is not finite (:func:`_finite`)."""
-    more = "".join(f", {_short(a)}" for a in args)
+    more = "".join(f", {show_vector(a, 9)}" for a in args)
     return NonFiniteError(
-        f"Segment.{method}: the {quantity} is not finite at q_e = {_short(q_e)}{more} "
+        f"Segment.{method}: the {quantity} is not finite at q_e = {show_vector(q_e, 9)}{more} "
         f"(segment of length {self.length:g} m, radius {self.radius:g} m, mass {self.mass:g} kg): "
         "the configuration's or rates' magnitudes overflow double precision"
     )
@@ -213,8 +206,8 @@ def curvature_velocity_to_paper(q_c, qd_c) -> np.ndarray:
         )
     out = np.array([ldot, (ux * uyd - uy * uxd) / k2, (ux * uxd + uy * uyd) / np.sqrt(k2)])
     if not np.all(np.isfinite(out)):
-        raise NonFiniteError(f"curvature_velocity_to_paper: the paper rates overflow at q_c = {_short(q_c)}, "
-                             f"qd_c = {_short(qd_c)}")
+        raise NonFiniteError(f"curvature_velocity_to_paper: the paper rates overflow at q_c = {show_vector(q_c, 9)}, "
+                             f"qd_c = {show_vector(qd_c, 9)}")
     return out
 
 

@@ -9,6 +9,7 @@ import tempfile
 from pathlib import Path
 
 from ..checks.paths import has_nul, show_nul
+from ..checks.text import show_path
 from .journal import journal_owner, journal_path
 from .records import LoggingError
 from .scan import MAGIC
@@ -27,13 +28,6 @@ JOURNAL_SUFFIX = ".journal"
 RRD_MAGIC = b"RRF"
 #: Bytes of a whole path the system takes where it does not say (Linux's PATH_MAX).
 _PATH_MAX = 4096
-
-
-def _shown(path: str, limit: int = 120) -> str:
-    """A path as text any terminal shows (bytes that are not UTF-8 escaped), its middle
-    left out beyond ``limit`` characters."""
-    text = os.fsencode(path).decode("utf-8", "backslashreplace") if isinstance(path, str) else str(path)
-    return text if len(text) <= limit else f"{text[:limit - 30]}...{text[-27:]}"
 
 
 def fs_limits(folder: Path) -> tuple[int, int]:
@@ -62,27 +56,27 @@ def check_output_name(what: str, path: str | os.PathLike, suffix: str = "") -> P
     """
     text = os.fsdecode(path)
     if has_nul(text):
-        raise LoggingError(f"{what} path {_shown(show_nul(text, '?'))} contains a NUL character")
+        raise LoggingError(f"{what} path {show_path(show_nul(text, '?'), 120)} contains a NUL character")
     try:
         text.encode("utf-8")
     except UnicodeEncodeError:
-        raise LoggingError(f"{what} path {_shown(text)} is not UTF-8 text (a recording stores its path as UTF-8): "
+        raise LoggingError(f"{what} path {show_path(text, 120)} is not UTF-8 text (a recording stores its path as UTF-8): "
                            "choose a name of UTF-8 characters") from None
     p = Path(text)
     name_max, path_max = fs_limits(Path(os.path.abspath(p)).parent)
     for part in p.parent.parts:
         size = len(os.fsencode(part))
         if size > name_max:
-            raise LoggingError(f"{what} path {_shown(text)}: its folder name {_shown(part, 60)} is {size} bytes long, "
+            raise LoggingError(f"{what} path {show_path(text, 120)}: its folder name {show_path(part, 60)} is {size} bytes long, "
                                f"more than the {name_max} bytes a name may have there")
     size, extra = len(os.fsencode(p.name)), len(suffix.encode())
     if size + extra > name_max:
         beside = f" and its {suffix} file beside it needs {extra} more" if suffix else ""
-        raise LoggingError(f"{what} path {_shown(text)}: its file name is {size} bytes long{beside}, more than the "
+        raise LoggingError(f"{what} path {show_path(text, 120)}: its file name is {size} bytes long{beside}, more than the "
                            f"{name_max} bytes a file name may have there; choose a shorter name")
     whole = len(os.fsencode(os.path.abspath(p))) + extra
     if whole >= path_max:
-        raise LoggingError(f"{what} path {_shown(text)} is {whole} bytes long as an absolute path"
+        raise LoggingError(f"{what} path {show_path(text, 120)} is {whole} bytes long as an absolute path"
                            f"{' with its ' + suffix + ' suffix' if suffix else ''}, more than the {path_max - 1} bytes "
                            "a path may have; choose a shorter one")
     return p
@@ -126,7 +120,7 @@ def check_outputs(mcap: str | os.PathLike | None, rrd: str | os.PathLike | None 
         try:
             notices += _check_output(name, p, scene_path, min_free)
         except OSError as exc:  # what the system says of the path, as one line naming it
-            raise LoggingError(f"cannot use {name} path {_shown(str(p))}: {exc.strerror or exc}") from None
+            raise LoggingError(f"cannot use {name} path {show_path(str(p), 120)}: {exc.strerror or exc}") from None
     return notices
 
 

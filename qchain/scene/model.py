@@ -20,7 +20,7 @@ import pinocchio as pin
 
 from ..arm.chain import Chain
 from ..sim.inputs import Schedule
-from .parts import _vec_str
+from ..checks.text import show_vector
 from ..model.segment import CHAMBER_ANGLES, DEFAULT_NODES, nodes_for_tolerance
 
 __all__ = ["SceneModel", "ModelBuilder", "BEND_MARGIN", "BEND_SAMPLES"]
@@ -219,9 +219,9 @@ class ModelBuilder:
         if b.type == "prescribed" and b.motion is not None:
             ax = b.motion.axis
             if b.motion.kind == "translation" and ax[1] != 0.0 and b.motion.amplitude != 0.0:
-                return f"the base translates along {_vec_str(ax)}, out of the x-z plane"
+                return f"the base translates along {show_vector(ax)}, out of the x-z plane"
             if b.motion.kind == "rotation" and (ax[0] != 0.0 or ax[2] != 0.0) and b.motion.amplitude != 0.0:
-                return f"the base turns about {_vec_str(ax)}, not the y axis"
+                return f"the base turns about {show_vector(ax)}, not the y axis"
         return None
 
     def _nodes(self, reduce: bool, planar: bool):
@@ -279,7 +279,7 @@ class ModelBuilder:
         if failed:
             r = np.array([s.radius for s in self.segments])
             p, msg = failed
-            return l0 / r, (f"equilibrium failed at p = {_vec_str(p)} Pa ({msg}): sized for the largest bend the "
+            return l0 / r, (f"equilibrium failed at p = {show_vector(p)} Pa ({msg}): sized for the largest bend the "
                             f"model allows, l0/r_s")
         theta = np.full(self.n, BEND_MARGIN * max(static.max(), initial.max()) + kin.max())
         parts = [f"{BEND_MARGIN:g} x the largest "

@@ -54,8 +54,3 @@ class BaseSpec:
     def placement(self) -> pin.SE3:
         """The mount (fixed, prescribed) or initial (floating) placement ``X_WB`` in the world."""
         return pin.SE3(pin.rpy.rpyToMatrix(*self.rpy), np.array(self.position, dtype=float))
-
-
-def _vec_str(v) -> str:
-    """A vector as scene messages show it: ``(1, 0.5, 0)``."""
-    return "(" + ", ".join(f"{x:.6g}" for x in v) + ")"

@@ -27,7 +27,8 @@ from ..checks.paths import file_kind
 from ..sim.inputs import Constant, Ramp, Schedule, Sine, Step, Table
 from .format import _MISSING, PLOTS, Problem, SceneError, _Checker, _is_number, _show, _type_name
 from .cost import _cost, _frequency
-from .parts import BaseSpec, SegmentSpec, SineMotion, _vec_str
+from ..checks.text import show_vector
+from .parts import BaseSpec, SegmentSpec, SineMotion
 from ..model.segment import Segment
 from ..sim.simulation import DEFAULT_METHOD, FIXED_STEP, METHODS  # a scene may name any method, without case
 
@@ -525,15 +526,15 @@ def _initial(ck: _Checker, raw: dict, segments: list[SegmentSpec] | None):
         if s.coords == "paper" and q[j, 2] == 0.0:  # psi has no meaning at kappa = 0: the paper coordinates' Jacobian is singular
             ck.add(f"initial.q_e[{j}][2]", "kappa > 0 in paper coordinates (at kappa = 0, the straight pose, the bending "
                    "direction psi is undefined; use coords = \"curvature\" for segment "
-                   f"{j} to start straight)", f"{_vec_str(q[j])}" if given else
-                   f"nothing (the default straight pose {_vec_str(q[j])})")
+                   f"{j} to start straight)", f"{show_vector(q[j])}" if given else
+                   f"nothing (the default straight pose {show_vector(q[j])})")
             continue
         seg = s.segment(nodes=1)
         try:
             seg.check_configuration(q[j], name=f"segment {j}")
         except ValueError as err:
             ck.add(f"initial.q_e[{j}]", "a configuration inside the model (l > 0, |kappa| r_s < 1"
-                   f"{', kappa >= 0' if s.coords == 'paper' else ''})", f"{_vec_str(q[j])}: {err}")
+                   f"{', kappa >= 0' if s.coords == 'paper' else ''})", f"{show_vector(q[j])}: {err}")
             continue
         if q[j, 0] > F.MAX_STRETCH * s.length:
             top = F.MAX_STRETCH * s.length
@@ -564,7 +565,7 @@ def _nonfinite_state(seg: Segment, q: np.ndarray, v: np.ndarray) -> str | None:
         T = 0.5 * float(xi @ M @ xi)
         U = seg.elastic_energy(q)
     if not np.all(np.isfinite(M)):
-        return f"a non-finite mass matrix at q_e = {_vec_str(q)}"
+        return f"a non-finite mass matrix at q_e = {show_vector(q)}"
     if not (math.isfinite(T) and math.isfinite(U)):
-        return f"kinetic energy {T:g} J, elastic energy {U:g} J at q_e = {_vec_str(q)}, v = {_vec_str(v)}"
+        return f"kinetic energy {T:g} J, elastic energy {U:g} J at q_e = {show_vector(q)}, v = {show_vector(v)}"
     return None

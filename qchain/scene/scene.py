@@ -85,7 +85,8 @@ from ..sim.engine.driver import EXPLICIT_STABILITY_EXTENT
 from ..sim.inputs import Schedule
 from .format import PLOTS, Problem, SceneError, _Checker, _show, _type_name  # noqa: F401 (re-exported)
 from .model import BEND_MARGIN, BEND_SAMPLES, ModelBuilder, SceneModel, _list_or_one  # noqa: F401 (re-exported)
-from .parts import BaseSpec, SegmentSpec, SineMotion, _vec_str
+from ..checks.text import show_vector
+from .parts import BaseSpec, SegmentSpec, SineMotion
 from .cost import _cost, _frequency
 from ..sim.simulation import COMPILED, FIXED_STEP, METHODS, explicit_stability_limit, simulate
 
@@ -305,17 +306,17 @@ class Scene(ModelBuilder):
         lines.append(f"segments: {self.n} ({'; '.join(f'{c} coordinates, {a} actuation' for c, a in kinds)})")
         b = self.base
         if b.type == "fixed":
-            lines.append(f"base: fixed at {_vec_str(b.position)} m, rpy {_vec_str(b.rpy)} rad")
+            lines.append(f"base: fixed at {show_vector(b.position)} m, rpy {show_vector(b.rpy)} rad")
         elif b.type == "floating":
-            lines.append(f"base: floating, starts at {_vec_str(b.position)} m, rpy {_vec_str(b.rpy)} rad, "
-                         f"velocity {_vec_str(b.velocity)} m/s, angular velocity {_vec_str(b.angular_velocity)} rad/s")
+            lines.append(f"base: floating, starts at {show_vector(b.position)} m, rpy {show_vector(b.rpy)} rad, "
+                         f"velocity {show_vector(b.velocity)} m/s, angular velocity {show_vector(b.angular_velocity)} rad/s")
         else:
             mo = b.motion
             unit = "m" if mo.kind == "translation" else "rad"
-            lines.append(f"base: prescribed {mo.kind} along/about {_vec_str(mo.axis)} (mount frame), amplitude "
+            lines.append(f"base: prescribed {mo.kind} along/about {show_vector(mo.axis)} (mount frame), amplitude "
                          f"{mo.amplitude:g} {unit}, {mo.frequency:g} Hz, phase {mo.phase:g} rad; mount at "
-                         f"{_vec_str(b.position)} m, rpy {_vec_str(b.rpy)} rad")
-        lines.append(f"gravity: {_vec_str(self.gravity)} m/s^2")
+                         f"{show_vector(b.position)} m, rpy {show_vector(b.rpy)} rad")
+        lines.append(f"gravity: {show_vector(self.gravity)} m/s^2")
         lines.append(f"model: nq = {ch.nq}, nv = {ch.nv}, free dofs = {ch.nv_active}, pressure inputs = {ch.nu}, "
                      f"nodes = {_list_or_one(m.nodes)}")
         lines.append(f"reductions ({'on' if m.reduced else 'off'}):")
