@@ -50,17 +50,21 @@ def read_csv(path: Path) -> list[dict]:
         return [{k: value(v) for k, v in row.items()} for row in csv.DictReader(fh)]
 
 
-def threshold(ax, value: float, text: str, axis: str = "x", color: str = "gray") -> None:
+def threshold(ax, value: float, text: str, axis: str = "x", at: float = 0.98, below: bool = False,
+              color: str = "gray") -> None:
     """A dotted threshold line on ``ax`` with its meaning written along it.
 
-    ``axis="x"``: a vertical line at ``x = value``, the text up its left side near the top;
-    ``axis="y"``: a horizontal line at ``y = value``, the text above it at the right end.
+    ``axis="x"``: a vertical line at ``x = value``, the text up its left side (right side if ``below``);
+    ``axis="y"``: a horizontal line at ``y = value``, the text above it (under it if ``below``).
+    ``at`` is where along the line the text sits, as a fraction of the axes: the text ends there when
+    ``at > 0.5`` and starts there otherwise.
     """
+    far = at > 0.5
     if axis == "x":
         ax.axvline(value, color=color, lw=0.9, ls=":")
-        ax.text(value, 0.98, text + " ", transform=ax.get_xaxis_transform(), rotation=90, ha="right", va="top",
-                fontsize=8, color=color)
+        ax.text(value, at, f" {text} ", transform=ax.get_xaxis_transform(), rotation=90,
+                ha="left" if below else "right", va="top" if far else "bottom", fontsize=8, color=color)
     else:
         ax.axhline(value, color=color, lw=0.9, ls=":")
-        ax.text(0.99, value, text, transform=ax.get_yaxis_transform(), ha="right", va="bottom", fontsize=8,
-                color=color)
+        ax.text(at, value, f" {text} ", transform=ax.get_yaxis_transform(), ha="right" if far else "left",
+                va="top" if below else "bottom", fontsize=8, color=color)

@@ -22,6 +22,7 @@ stability limit) is listed with its message and left out of the chart.
 Headline: per scene, the cheapest setting within 1 mm and within 0.1 mm.
 
 Run: ``python benchmarks/bench_precision.py [--quick] [--out DIR]``
+Redraw the chart from a written CSV (no runs): ``python benchmarks/replot.py [DIR]``.
 """
 
 from __future__ import annotations
@@ -182,7 +183,7 @@ def plot(rows, path):
             if circled:
                 ax.plot([], [], "o", ms=9, mfc="none", mec="k", label="cheapest within a bound")
             for b in BOUNDS:
-                _study.threshold(ax, b, f"{b * 1e3:g} mm")
+                _study.threshold(ax, b, f"{b * 1e3:g} mm bound")
             ax.set_title(f"{name}: {group} methods", fontsize=10)
             ax.grid(True, which="both", alpha=0.3)
             ax.legend(fontsize=8, loc="lower left")

@@ -42,6 +42,7 @@ ratio column divides every cost by that MuJoCo run's.
 
 Run: ``python benchmarks/bench_release.py [--quick] [--out DIR] [--n 5 10 20] [--N 5 10 20 40 80]``
 Writes ``release.csv`` and ``release.png`` into ``--out`` (default ``out/bench``).
+Redraw the chart from a written CSV (no runs): ``python benchmarks/replot.py [DIR]``.
 """
 
 from __future__ import annotations

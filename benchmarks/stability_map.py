@@ -184,17 +184,25 @@ def plot(cells: list[Cell], path: Path) -> None:
     scenes_ = list(dict.fromkeys(c.scene for c in cells))
     rows = list(dict.fromkeys(c.row for c in cells))
     grid = np.zeros((len(rows), len(scenes_)))
-    fig, ax = plt.subplots(figsize=(1.6 * len(scenes_) + 3, 0.6 * len(rows) + 2))
+    fig, ax = plt.subplots(figsize=(1.15 * len(scenes_) + 2.5, 0.5 * len(rows) + 1.8))
     for c in cells:
         i, j = rows.index(c.row), scenes_.index(c.scene)
         grid[i, j] = 1.0 if c.passed else 0.0
-        txt = f"{c.wall:.1f} s" if c.passed else f"fail\nt={c.t_end:.3g}"
-        ax.text(j, i, txt, ha="center", va="center", fontsize=7)
+        txt = f"{c.wall:.1f} s" if c.passed else f"fail\nt={c.t_end:.3g} s"
+        ax.text(j, i, txt, ha="center", va="center", fontsize=8)
     ax.imshow(grid, cmap=matplotlib.colors.ListedColormap(["#e8847c", "#8cd08c"]), vmin=0, vmax=1, aspect="auto")
     ax.set_xticks(range(len(scenes_)), scenes_, rotation=35, ha="right", fontsize=8)
     ax.set_yticks(range(len(rows)), rows, fontsize=8)
-    ax.set_title("stability map: green passed (wall time), red failed (sim time reached); reasons in the CSV")
+    ax.set_title("stability map: green passed (wall time), red failed (sim time reached)", fontsize=10)
     _study.save(fig, path)
+
+
+def replot(csv_path: Path, png_path: Path) -> None:
+    """Redraw ``stability_map.png`` from a written ``stability_map.csv`` (no runs)."""
+    with open(csv_path, newline="") as fh:
+        cells = [Cell(r["scene"], r["method"], r["passed"] == "True", float(r["t_end_s"]), float(r["wall_s"]),
+                      r["reason"]) for r in csv.DictReader(fh)]
+    plot(cells, png_path)
 
 
 def main(argv=None):
