@@ -79,18 +79,11 @@ Unchecked by design: compiled kernels whose arguments the checked API has valida
 
 from __future__ import annotations
 
-import numba
 import numpy as np
 
-from ..model.arc import SCRATCH, _bend, jit
+from ..model.arc import SCRATCH, _bend, jit, jit_inline as _inline
 
 __all__ = ["planar_aba", "planar_aba_moving", "planar_rnea", "planar_workspace"]
-
-#: :data:`qchain.model.arc.jit`'s options, inlined by numba into the caller: the helpers take arrays,
-#: and a compiled call with array arguments costs atomic reference counts (a third of a
-#: one-segment call) that numba prunes only within one function
-_inline = numba.njit(cache=True, fastmath=False, error_model="numpy", inline="always")
-
 
 @_inline
 def _node(alpha, l, ux):

@@ -97,10 +97,9 @@ jit = numba.njit(cache=True, fastmath=False, error_model="numpy")
 #: compiled into its callers, which are cached), which makes it cheaper to compile than a ``jit``
 #: function. Called from Python it runs as plain Python.
 jit_helper = register_jitable(fastmath=False, error_model="numpy", no_cfunc_wrapper=True)
-#: A helper numba inlines into its caller's code before typing (:data:`jit`'s options), for a pass
-#: cut out of a long kernel: a compiled call with array arguments costs atomic reference counts,
-#: which numba prunes only within one function (``_rnea_derivatives``' passes as ``jit_helper``
-#: calls cost 4-6 % of ``rnea_derivatives`` at 10 and 30 segments; inlined, within noise).
+#: A helper numba inlines into its caller's code before typing (:data:`jit`'s options): the
+#: helpers take arrays, and a compiled call with array arguments costs atomic reference counts,
+#: which numba prunes only within one function (the planar passes, ``_rnea_derivatives``' pieces).
 jit_inline = numba.njit(cache=True, fastmath=False, error_model="numpy", inline="always")
 
 
