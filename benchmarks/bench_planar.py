@@ -68,18 +68,18 @@ def planar_state(ch: Chain, rng):
 
 
 @numba.njit
-def _aba_loop(K, alpha, w, offs, mass, radius, q, qd, tau, V0, A0, F0, qdd, A0_out, locked, ws, sc):
+def _aba_loop(K, arr, q, qd, tau, V0, A0, F0, qdd, A0_out, ws, sc):
     ok = True
     for _ in range(K):
-        ok &= recursive.aba(alpha, w, offs, mass, radius, q, qd, tau, V0, A0, False, F0, qdd, A0_out, locked, ws, sc)
+        ok &= recursive.aba(arr, q, qd, tau, V0, A0, False, F0, qdd, A0_out, ws, sc)
     return ok
 
 
 @numba.njit
-def _planar_loop(K, alpha, w, offs, mass, radius, q, qd, tau, A0, qdd, locked, ws, sc):
+def _planar_loop(K, arr, q, qd, tau, A0, qdd, ws, sc):
     ok = True
     for _ in range(K):
-        ok &= planar_aba(alpha, w, offs, mass, radius, q, qd, tau, A0, qdd, locked, ws, sc)
+        ok &= planar_aba(arr, q, qd, tau, A0, qdd, ws, sc)
     return ok
 
 
@@ -110,10 +110,10 @@ def run(ns, repeats: int, set_ms: float):
                 pw = planar_workspace(n)
                 qdd_a = np.zeros((n, 3))
                 qdd_p = np.zeros((n, 3))
-                common = (ch._alpha, ch._w, ch._offs, ch._mass, ch._radius, q_c, v_c, f)
-                a_args = (*common, V0, A0, False, F0, qdd_a, A0_out, ch._locked, ws, ws[8])
-                p_args = (*common, A0, qdd_p, ch._locked, pw, pw[-1])
-                la_args = (*common, V0, A0, F0, qdd_a, A0_out, ch._locked, ws, ws[8])
+                common = (ch.kernel_arrays(), q_c, v_c, f)
+                a_args = (*common, V0, A0, False, F0, qdd_a, A0_out, ws, ws[8])
+                p_args = (*common, A0, qdd_p, pw, pw[-1])
+                la_args = (*common, V0, A0, F0, qdd_a, A0_out, ws, ws[8])
                 model = rigid_planar_chain(n, extensible)
                 data = model.createData()
                 qr = rng.uniform(-1, 1, model.nq)

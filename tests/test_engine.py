@@ -7,6 +7,7 @@ import pinocchio as pin
 import pytest
 
 from qchain import Chain, Segment
+from qchain.algorithms.arrays import ChainArrays
 from qchain.sim.engine import system
 from qchain.sim.inputs import Sine
 from qchain.scene.scene import SineMotion
@@ -423,8 +424,8 @@ def test_the_engine_model_holds_the_chain_s_kernel_arrays_by_name():
     ch = hanging_arm(2, planar=True)
     m = system.pack(ch, None, None)
     arrays = ch.kernel_arrays()
-    assert isinstance(m, system.EngineModel) and set(arrays) < set(m._fields)
-    assert all(getattr(m, k) is a for k, a in arrays.items())
+    assert isinstance(m, system.EngineModel) and isinstance(arrays, ChainArrays) and m.arrays is arrays
+    assert all(getattr(arrays, k) is getattr(ch, "_" + k) for k in arrays._fields)
     assert (m.base, m.planar_kernel, m.nq, m.nv) == (system.FIXED, 1, ch.nq, ch.nv)
     assert np.array_equal(m.idx, np.flatnonzero(ch.active))
     paper = Chain([Segment(**SEG, coords="paper")])

@@ -30,9 +30,10 @@ __all__ = ["aba_derivatives", "aba_derivatives_workspace", "input_matrices"]
 
 
 @jit
-def input_matrices(q, A_ch, r_ch, paper_act, B, sc):
-    """``B[j]`` (3, 3) the input matrix of every segment (:func:`qchain.model.slices.input_matrix_c`)."""
-    _input_matrices(q, A_ch, r_ch, paper_act, B, sc)
+def input_matrices(arr, q, B, sc):
+    """``B[j]`` (3, 3) the input matrix of every segment (:func:`qchain.model.slices.input_matrix_c`);
+    ``arr`` the model's :class:`~qchain.algorithms.arrays.ChainArrays`."""
+    _input_matrices(q, arr.A_ch, arr.r_ch, arr.paper_act, B, sc)
 
 
 @jit_helper
@@ -116,8 +117,7 @@ def _chol_inverse(L, k, Minv):
 
 
 @jit
-def aba_derivatives(alpha, w, offs, mass, radius, l0, EI, EA, beta, A_ch, r_ch, paper_act, locked, floating,
-                    q, qd, p, tau_ext, V0, A_B, g_B, ws, wd, wa, sc):
+def aba_derivatives(arr, floating, q, qd, p, tau_ext, V0, A_B, g_B, ws, wd, wa, sc):
     """Forward dynamics and its exact derivatives in one compiled call (curvature coordinates,
     the material law).
 
@@ -125,7 +125,8 @@ def aba_derivatives(alpha, w, offs, mass, radius, l0, EI, EA, beta, A_ch, r_ch, 
     then ``da/dq = M^-1 (df/dq - dID/dq)``, ``da/dv = M^-1 (df/dv - dID/dv)``, ``da/dtau = M^-1``,
     ``da/dp = M^-1 B`` with the inverse-dynamics derivatives of
     :func:`qchain.algorithms.rnea_derivatives.rnea_derivatives` at the
-    solved ``a``. ``locked`` (n, 3) coordinates get zero rows and columns. ``q, qd, p`` (n, 3);
+    solved ``a``. ``arr`` is the model's :class:`~qchain.algorithms.arrays.ChainArrays`, whose
+    ``locked`` (n, 3) coordinates get zero rows and columns. ``q, qd, p`` (n, 3);
     ``tau_ext`` (nv,); ``V0`` (6,) the base twist, ``A_B`` (6,) the base's own acceleration
     (a prescribed base; zeros otherwise), ``g_B`` (3,) gravity in the base frame. ``ws``, ``wd``,
     ``wa``: :class:`qchain.arm.data.Data`'s aba, rnea-derivative and aba-derivative workspaces.
@@ -135,7 +136,7 @@ def aba_derivatives(alpha, w, offs, mass, radius, l0, EI, EA, beta, A_ch, r_ch, 
     n = q.shape[0]
     off = 6 if floating else 0
     f, qdd, A0, a = wa[0], wa[1], wa[2], wa[3]
-    recursive_internal_forces(q, qd, p, l0, EI, EA, beta, A_ch, r_ch, paper_act, f, sc)
+    recursive_internal_forces(arr, q, qd, p, f, sc)
     for j in range(n):
         for b in range(3):
             f[j, b] += tau_ext[off + 3 * j + b]
@@ -149,7 +150,7 @@ def aba_derivatives(alpha, w, offs, mass, radius, l0, EI, EA, beta, A_ch, r_ch, 
             F0[r] = tau_ext[r]
     for r in range(3):
         Aa[r] -= g_B[r]
-    if not recursive_aba(alpha, w, offs, mass, radius, q, qd, f, V0, Aa, floating, F0, qdd, A0, locked, ws, sc[o:]):
+    if not recursive_aba(arr, q, qd, f, V0, Aa, floating, F0, qdd, A0, ws, sc[o:]):
         return 1
     if floating:
         for r in range(6):
@@ -159,24 +160,24 @@ def aba_derivatives(alpha, w, offs, mass, radius, l0, EI, EA, beta, A_ch, r_ch, 
     for j in range(n):
         for b in range(3):
             a[off + 3 * j + b] = qdd[j, b]
-    return _aba_derivatives_at(alpha, w, offs, mass, radius, l0, EI, EA, beta, A_ch, r_ch, paper_act, locked, floating,
-                               q, qd, p, qdd, A0, a, V0, g_B, ws, wd, wa, sc)
+    return _aba_derivatives_at(arr, floating, q, qd, p, qdd, A0, a, V0, g_B, ws, wd, wa, sc)
 
 
 @jit_helper
-def _aba_derivatives_at(alpha, w, offs, mass, radius, l0, EI, EA, beta, A_ch, r_ch, paper_act, locked, floating,
-                        q, qd, p, qdd, A0, a, V0, g_B, ws, wd, wa, sc):
+def _aba_derivatives_at(arr, floating, q, qd, p, qdd, A0, a, V0, g_B, ws, wd, wa, sc):
     """:func:`aba_derivatives` after its forward pass: the derivatives at the solved
     accelerations ``qdd`` (n, 3), ``A0`` (6,) (the base's apparent acceleration: solved for a
     floating base, the given one otherwise) and ``a`` (nv,). The compiled engine calls it
     after its own right-hand side at the same state (:func:`qchain.sim.engine.system.jacobian`),
     so the forward pass is neither computed nor compiled twice."""
+    l0, EI, EA, beta, A_ch, r_ch, paper_act, locked = (arr.l0, arr.EI, arr.EA, arr.beta, arr.A_ch, arr.r_ch,
+                                                         arr.paper_act, arr.locked)
     n = q.shape[0]
     off = 6 if floating else 0
     nv = off + 3 * n
     L, rhs, da_dq, da_dv, da_dtau, da_dp, dfq, dfv, B = wa[4], wa[5], wa[6], wa[7], wa[8], wa[9], wa[10], wa[11], wa[12]
     M, dq, dv = wd[18], wd[19], wd[20]
-    _rnea_derivatives(alpha, w, offs, mass, radius, q, qd, qdd, V0, A0, floating, g_B, ws, wd, sc)
+    _rnea_derivatives(arr, q, qd, qdd, V0, A0, floating, g_B, ws, wd, sc)
     _internal_forces_derivatives(q, p, l0, EI, EA, beta, A_ch, r_ch, paper_act, dfq, dfv, sc)
     _input_matrices(q, A_ch, r_ch, paper_act, B, sc)
     # right-hand sides df - dID, the free block of M with locked coordinates decoupled
@@ -225,8 +226,7 @@ def _aba_derivatives_at(alpha, w, offs, mass, radius, l0, EI, EA, beta, A_ch, r_
 
 
 @jit
-def aba_derivatives_fresh(alpha, w, offs, mass, radius, l0, EI, EA, beta, A_ch, r_ch, paper_act, locked, floating,
-                          q, qd, p, tau_ext, V0, A_B, g_B):
+def aba_derivatives_fresh(arr, floating, q, qd, p, tau_ext, V0, A_B, g_B):
     """:func:`aba_derivatives` in a workspace made here (no ``Data`` given): returns
     ``(status, a, da_dq, da_dv, da_dp, da_dtau)`` and boxes only those."""
     n = q.shape[0]
@@ -234,6 +234,5 @@ def aba_derivatives_fresh(alpha, w, offs, mass, radius, l0, EI, EA, beta, A_ch, 
     ws = recursive_aba_workspace(n, nv)
     wd = rnea_workspace(n, nv)
     wa = aba_derivatives_workspace(n, nv)
-    status = aba_derivatives(alpha, w, offs, mass, radius, l0, EI, EA, beta, A_ch, r_ch, paper_act, locked, floating,
-                             q, qd, p, tau_ext, V0, A_B, g_B, ws, wd, wa, ws[8])
+    status = aba_derivatives(arr, floating, q, qd, p, tau_ext, V0, A_B, g_B, ws, wd, wa, ws[8])
     return status, wa[3], wa[6], wa[7], wa[9], wa[8]

@@ -237,7 +237,8 @@ def _tip(l, ux, ld, uxd, vx, vz, vw, T, c, j):
 
 
 @_inline
-def _planar_aba(alpha, w, offs, mass, radius, q, qd, tau, v0x, v0z, v0w, A0, qdd, locked, ws, sc):
+def _planar_aba(arr, q, qd, tau, v0x, v0z, v0w, A0, qdd, ws, sc):
+    alpha, w, offs, mass, radius, locked = arr.alpha, arr.w, arr.offs, arr.mass, arr.radius, arr.locked
     n = q.shape[0]
     T, c, b, M, Di, U, u = ws[0], ws[1], ws[2], ws[3], ws[4], ws[5], ws[6]
     # pass 1: segment blocks, biases and tip maps, forwards
@@ -359,41 +360,44 @@ def _planar_aba(alpha, w, offs, mass, radius, q, qd, tau, v0x, v0z, v0w, A0, qdd
 
 
 @jit
-def planar_aba(alpha, w, offs, mass, radius, q, qd, tau, A0, qdd, locked, ws, sc):
+def planar_aba(arr, q, qd, tau, A0, qdd, ws, sc):
     """Articulated-body forward dynamics of a planar chain: ``qdd`` (n, 3) from
     ``M qdd + C qd + g = tau``, equal to :func:`qchain.algorithms.recursive.aba` on a fixed base.
 
     Parameters are those of ``recursive.aba`` for a fixed (non-floating) base at rest:
-    ``alpha, w`` (N,) nodes and weights, ``offs`` (n + 1,) int64, ``mass, radius`` (n,),
+    ``arr`` the model's :class:`~qchain.algorithms.arrays.ChainArrays` (of which ``alpha, w``
+    (N,) nodes and weights, ``offs`` (n + 1,) int64, ``mass, radius`` (n,) and ``locked`` are read),
     ``q, qd`` (n, 3) in curvature coordinates with ``q[:, 2] == qd[:, 2] == 0``, ``tau`` (n, 3)
     generalised forces (column 2 ignored), ``A0`` (6,) the base's apparent acceleration
     (gravity included; only its in-plane components 0, 2, 4 matter), ``qdd`` (n, 3) out
-    (``qdd[:, 2] = 0``), ``locked`` (n, 3) bool (columns 0 and 1 honoured, column 2 locked by
+    (``qdd[:, 2] = 0``), ``arr.locked`` (n, 3) bool (columns 0 and 1 honoured, column 2 locked by
     definition), ``ws`` from :func:`planar_workspace` and ``sc`` its scratch (``ws[-1]``, or
     any float array of :data:`qchain.model.arc.SCRATCH`). Returns False where an articulated block
     is not positive definite.
     """
-    return _planar_aba(alpha, w, offs, mass, radius, q, qd, tau, 0.0, 0.0, 0.0, A0, qdd, locked, ws, sc)
+    return _planar_aba(arr, q, qd, tau, 0.0, 0.0, 0.0, A0, qdd, ws, sc)
 
 
 @jit
-def planar_aba_moving(alpha, w, offs, mass, radius, q, qd, tau, V0, A0, qdd, locked, ws, sc):
+def planar_aba_moving(arr, q, qd, tau, V0, A0, qdd, ws, sc):
     """:func:`planar_aba` for a base moving in its x-z plane (a prescribed base): ``V0`` (6,)
     is the base's body twist, of which only the in-plane components 0, 2, 4 are used (the
     reduction is exact only if the others are zero)."""
-    return _planar_aba(alpha, w, offs, mass, radius, q, qd, tau, V0[0], V0[2], V0[4], A0, qdd, locked, ws, sc)
+    return _planar_aba(arr, q, qd, tau, V0[0], V0[2], V0[4], A0, qdd, ws, sc)
 
 
 @jit
-def planar_rnea(alpha, w, offs, mass, radius, q, qd, qdd, A0, tau, F0, ws, sc):
+def planar_rnea(arr, q, qd, qdd, A0, tau, F0, ws, sc):
     """Inverse dynamics of a planar chain on a fixed base: ``tau = M qdd + C qd + g`` (n, 3)
     and the base wrench ``F0`` (6,), equal to :func:`qchain.algorithms.recursive.rnea` with ``V0 = 0``.
 
     ``q, qd, qdd`` (n, 3) in curvature coordinates with zero ``uy`` column; ``A0`` (6,) the
     base's apparent acceleration (components 0, 2, 4 used). ``tau[:, 2]`` and the out-of-plane
     components of ``F0`` are set to zero (they vanish for a planar state, see the module
-    docstring). ``ws`` from :func:`planar_workspace`; ``sc`` is not used.
+    docstring). ``arr`` the model's :class:`~qchain.algorithms.arrays.ChainArrays`; ``ws`` from
+    :func:`planar_workspace`; ``sc`` is not used.
     """
+    alpha, w, offs, mass, radius = arr.alpha, arr.w, arr.offs, arr.mass, arr.radius
     n = q.shape[0]
     T, c, b, M = ws[0], ws[1], ws[2], ws[3]
     vx = vz = vw = 0.0

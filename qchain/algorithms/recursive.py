@@ -5,9 +5,10 @@ each segment's eq. (6) block ``M_xi`` and slice Newton-Euler integral (section 4
 
 The passes work on per-segment blocks and plain arrays, never on the ``Chain`` facade:
 
-* ``alpha, w`` (N,), ``offs`` (n + 1,): the Gauss nodes and weights of all segments,
-  segment ``j`` owning ``alpha[offs[j]:offs[j+1]]``;
-* ``mass, radius`` (n,): kg, m;
+* ``arr``, first argument: the model's :class:`~qchain.algorithms.arrays.ChainArrays`, of which
+  the passes read ``alpha, w`` (N,), ``offs`` (n + 1,): the Gauss nodes and weights of all
+  segments, segment ``j`` owning ``alpha[offs[j]:offs[j+1]]``; ``mass, radius`` (n,): kg, m;
+  ``locked`` (:func:`aba`); the material arrays (:func:`internal_forces`);
 * ``q, qd, qdd`` (n, 3): segment configurations and their derivatives in curvature
   coordinates ``(l, ux, uy)`` (the ``Chain`` maps paper coordinates in and out);
 * ``V0, A0`` (6,): the first root's body twist and "apparent" acceleration in its own
@@ -100,15 +101,17 @@ def tip_maps(q, qd, V0, T, c, V):
 
 
 @jit
-def rnea(alpha, w, offs, mass, radius, q, qd, qdd, V0, A0, tau, F0, ws, sc):
+def rnea(arr, q, qd, qdd, V0, A0, tau, F0, ws, sc):
     """Inverse dynamics ``tau = M qdd + C qd + g`` (n, 3) and the base wrench ``F0`` (6,): the
     inertial and gravity terms of the paper's eq. (9) for the chain, by Newton-Euler over the
     slices (docs/model.md section 8).
 
     ``F0`` is the wrench (first root frame) the base exerts on the chain: the generalised
     force of a floating base, the mount's reaction for a fixed or prescribed one. ``ws`` is
-    :meth:`qchain.arm.data.Data.aba_workspace`.
+    :meth:`qchain.arm.data.Data.aba_workspace`; ``arr`` the model's
+    :class:`~qchain.algorithms.arrays.ChainArrays`.
     """
+    alpha, w, offs, mass, radius = arr.alpha, arr.w, arr.offs, arr.mass, arr.radius
     n = q.shape[0]
     _, T, c, Q, _, _, _, _, _ = ws
     o = 0
@@ -166,7 +169,7 @@ def _project(M, T, I, IT, out):
 
 
 @jit
-def crba(alpha, w, offs, mass, radius, q, floating, H, ws, sc):
+def crba(arr, q, floating, H, ws, sc):
     """Composite-body assembly of the joint-space inertia ``H`` (nv, nv), curvature coordinates
     (``M = sum_j A_j^T M_xi_j A_j`` of the segments' eq. (6) blocks; docs/model.md section 8).
 
@@ -174,8 +177,10 @@ def crba(alpha, w, offs, mass, radius, q, floating, H, ws, sc):
     gives ``Mh = M_xi_j + T_j^T Ic T_j`` (9 x 9): its ``qq`` block is ``H_jj``, its ``Vq``
     block the wrench at root ``j`` per unit ``qddot_j``, carried inwards by ``T_i^T`` to give
     ``H_ij`` (and, for a floating base, ``H_base,j``); its ``VV`` block is the next ``Ic``.
-    ``ws`` is :meth:`qchain.arm.data.Data.aba_workspace`.
+    ``ws`` is :meth:`qchain.arm.data.Data.aba_workspace`; ``arr`` the model's
+    :class:`~qchain.algorithms.arrays.ChainArrays`.
     """
+    alpha, w, offs, mass, radius = arr.alpha, arr.w, arr.offs, arr.mass, arr.radius
     n = q.shape[0]
     off = 6 if floating else 0
     T = ws[1]
@@ -271,19 +276,22 @@ def _chol_solve(L, k, b):
 
 
 @jit
-def aba(alpha, w, offs, mass, radius, q, qd, tau, V0, A0, floating, F0, qdd, A0_out, locked, ws, sc):
+def aba(arr, q, qd, tau, V0, A0, floating, F0, qdd, A0_out, ws, sc):
     """Articulated-body forward dynamics: ``qdd`` (n, 3) from ``M qdd + C qd + g = tau`` (the
     paper's eq. (9) for the chain; docs/model.md section 8).
 
     ``tau`` (n, 3) is the total generalised force on the segment coordinates (pressure,
-    elastic, damping, external). ``locked`` (n, 3) bool holds coordinates still (ideal
+    elastic, damping, external). ``arr.locked`` (n, 3) bool holds coordinates still (ideal
     constraints: their ``qdd`` is zero, their constraint forces are not computed). For a
     fixed or prescribed base ``A0`` is the root's
     apparent acceleration; for a floating base ``F0`` (6,) is the wrench applied to the base
     and ``A0_out`` receives the solved apparent base acceleration. Returns False if an
     articulated block is not positive definite (a singular configuration). ``ws`` is
-    :meth:`qchain.arm.data.Data.aba_workspace`.
+    :meth:`qchain.arm.data.Data.aba_workspace`; ``arr`` the model's
+    :class:`~qchain.algorithms.arrays.ChainArrays`.
     """
+    alpha, w, offs, mass, radius = arr.alpha, arr.w, arr.offs, arr.mass, arr.radius
+    locked = arr.locked
     n = q.shape[0]
     _, T, c, b, Mall, Lq, U, u, _ = ws
     o = 0
@@ -514,12 +522,13 @@ def frames(q, paper, R0, o0, alpha, R, o, quat, points):
 
 
 @jit
-def internal_forces(q, qd, p, l0, EI, EA, beta, A_ch, r_ch, paper_act, out, sc):
+def internal_forces(arr, q, qd, p, out, sc):
     """``out = B p - D qd - dU_el/dq`` (n, 3), material law, curvature coordinates, with
     ``D`` of :func:`qchain.model.slices.rest_damping_c` (:func:`qchain.model.slices.input_matrix_c`,
     :func:`qchain.model.slices.elastic_gradient_c`). These terms are coordinate-free: paper
-    coordinates get ``J^T`` of them.
+    coordinates get ``J^T`` of them. ``arr``: the model's :class:`~qchain.algorithms.arrays.ChainArrays`.
     """
+    l0, EI, EA, beta, A_ch, r_ch, paper_act = arr.l0, arr.EI, arr.EA, arr.beta, arr.A_ch, arr.r_ch, arr.paper_act
     o = 0
     B, o = take2(sc, o, 3, 3)
     g, o = take1(sc, o, 3)

@@ -2,7 +2,7 @@
 Mansard's RNEA derivatives (Pinocchio's ``rnea-derivatives``), extended to the slices of a segment.
 
 Everything is in curvature coordinates ``(l, ux, uy)`` and uses the layout of
-:mod:`qchain.algorithms.recursive` (nodes ``alpha, w, offs``; ``q, qd, qdd`` (n, 3); the first root's
+:mod:`qchain.algorithms.recursive` (the model's :class:`~qchain.algorithms.arrays.ChainArrays` ``arr``; ``q, qd, qdd`` (n, 3); the first root's
 twist ``V0`` and apparent acceleration ``A0 = a_root - (g_root, 0)``).
 
 Per segment (root frame ``j``), one pass over the slices gives the generalised force
@@ -384,10 +384,11 @@ def rnea_workspace(n, nv):
 
 
 @jit
-def rnea_derivatives(alpha, w, offs, mass, radius, q, qd, qdd, V0, A0, floating, g_B, ws, wd, sc):
+def rnea_derivatives(arr, q, qd, qdd, V0, A0, floating, g_B, ws, wd, sc):
     """Inverse dynamics and its exact derivatives, curvature coordinates.
 
-    ``ws`` is :meth:`qchain.arm.data.Data.aba_workspace`, ``wd`` :meth:`~qchain.arm.data.Data.rnea_workspace`,
+    ``arr`` is the model's :class:`~qchain.algorithms.arrays.ChainArrays`,
+    ``ws`` :meth:`qchain.arm.data.Data.aba_workspace`, ``wd`` :meth:`~qchain.arm.data.Data.rnea_workspace`,
     ``sc`` scratch (:data:`qchain.model.arc.SCRATCH`).
     Writes its ``tau_c`` (n, 3) and ``F0`` (6,) as :func:`qchain.algorithms.recursive.rnea` does,
     ``dtau_dq`` and ``dtau_dv`` (nv, nv): ``d(F0, tau)/d(q, v)`` (rows: the base wrench for a
@@ -395,15 +396,16 @@ def rnea_derivatives(alpha, w, offs, mass, radius, q, qd, qdd, V0, A0, floating,
     / twist, then the segments), and ``M`` (nv, nv) ``= d(F0, tau)/da``. ``g_B`` (3,) is gravity
     in the first root's frame (it turns with a floating base).
     """
-    _rnea_derivatives(alpha, w, offs, mass, radius, q, qd, qdd, V0, A0, floating, g_B, ws, wd, sc)
+    _rnea_derivatives(arr, q, qd, qdd, V0, A0, floating, g_B, ws, wd, sc)
 
 
 @jit_helper
-def _rnea_derivatives(alpha, w, offs, mass, radius, q, qd, qdd, V0, A0, floating, g_B, ws, wd, sc):
+def _rnea_derivatives(arr, q, qd, qdd, V0, A0, floating, g_B, ws, wd, sc):
     """:func:`rnea_derivatives`, the body the kernels call: compiled into them, without a
     Python entry point (:data:`qchain.model.arc.jit_helper`). Its passes, :func:`_forward_pass`,
     :func:`_backward_pass`, :func:`_assemble` and, for a floating base, :func:`_floating_base`,
     are inlined into it (:data:`qchain.model.arc.jit_inline`): the same code as one function."""
+    alpha, w, offs, mass, radius = arr.alpha, arr.w, arr.offs, arr.mass, arr.radius
     n = q.shape[0]
     off = 6 if floating else 0
     V, T, _, Q, Mxi, _, _, _, _ = ws
@@ -693,11 +695,13 @@ def _floating_base(n, off, V0, g_B, G, Ya, Yv, Ms, M, dq, dv, Ic, WF, sc):
 
 
 @jit
-def internal_forces_derivatives(q, p, l0, EI, EA, beta, A_ch, r_ch, paper_act, dfq, dfv, sc):
+def internal_forces_derivatives(arr, q, p, dfq, dfv, sc):
     """Derivatives of the internal forces ``f = B p - D qd - dU_el/dq`` of
     :func:`qchain.algorithms.recursive.internal_forces` (material law, curvature coordinates):
-    ``dfq[j] = d(B p)/dq - d^2 U_el/dq^2`` and ``dfv[j] = -D`` (n, 3, 3)."""
-    _internal_forces_derivatives(q, p, l0, EI, EA, beta, A_ch, r_ch, paper_act, dfq, dfv, sc)
+    ``dfq[j] = d(B p)/dq - d^2 U_el/dq^2`` and ``dfv[j] = -D`` (n, 3, 3); ``arr`` the model's
+    :class:`~qchain.algorithms.arrays.ChainArrays`."""
+    _internal_forces_derivatives(q, p, arr.l0, arr.EI, arr.EA, arr.beta, arr.A_ch, arr.r_ch, arr.paper_act, dfq, dfv,
+                                 sc)
 
 
 @jit_helper
@@ -719,12 +723,12 @@ def _internal_forces_derivatives(q, p, l0, EI, EA, beta, A_ch, r_ch, paper_act, 
 
 
 @jit
-def rnea_derivatives_fresh(alpha, w, offs, mass, radius, q, qd, qdd, V0, A0, floating, g_B):
+def rnea_derivatives_fresh(arr, q, qd, qdd, V0, A0, floating, g_B):
     """:func:`rnea_derivatives` in a workspace made here: returns ``(tau_c, F0, dtau_dq,
     dtau_dv, M)``."""
     n = q.shape[0]
     nv = (6 if floating else 0) + 3 * n
     ws = recursive_aba_workspace(n, nv)
     wd = rnea_workspace(n, nv)
-    _rnea_derivatives(alpha, w, offs, mass, radius, q, qd, qdd, V0, A0, floating, g_B, ws, wd, ws[8])
+    _rnea_derivatives(arr, q, qd, qdd, V0, A0, floating, g_B, ws, wd, ws[8])
     return wd[16], wd[17], wd[19], wd[20], wd[18]

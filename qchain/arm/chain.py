@@ -41,6 +41,7 @@ import pinocchio as pin
 from . import dynamics_derivatives as _derivs
 from ..algorithms import planar as _planar
 from ..algorithms import recursive
+from ..algorithms.arrays import ChainArrays
 from ..model.arc import SCRATCH, arc_nodes
 from .checks import QUATERNION_TOLERANCE, ChainChecks, _finite  # noqa: F401 (QUATERNION_TOLERANCE re-exported)
 from .kinematics import _NO_POINTS, ChainKinematics, Frames
@@ -214,6 +215,10 @@ class Chain(KeepsReadOnly, ChainKinematics, ChainChecks):
         self._lock_values = np.zeros((n, 3))
         self._lock_values[:, 0] = self._l0
         self._any_locked = bool(self._locked.any())
+        # the same arrays as one structure, the compiled passes' first argument
+        self._arrays = ChainArrays(alpha=self._alpha, w=self._w, offs=self._offs, mass=self._mass,
+                                   radius=self._radius, l0=self._l0, EI=self._EI, EA=self._EA, beta=self._beta,
+                                   A_ch=self._A_ch, r_ch=self._r_ch, paper_act=self._paper_act, locked=self._locked)
         self.active = np.ones(self.nv, dtype=bool)
         self.active[self._voff :] = ~self._locked.ravel()
         self.active.flags.writeable = False
@@ -233,9 +238,10 @@ class Chain(KeepsReadOnly, ChainKinematics, ChainChecks):
         quantities made from it, so it is set once, at construction)."""
         return pin.SE3(self._X_WB0)
 
-    def kernel_arrays(self) -> dict[str, np.ndarray] | None:
-        """The flat per-node and per-segment arrays the compiled passes take, by name (the
-        chain's own arrays, not copies: never write them), or None where compiled code
+    def kernel_arrays(self) -> ChainArrays | None:
+        """The flat per-node and per-segment arrays the compiled passes take, as one named
+        structure (:class:`qchain.algorithms.arrays.ChainArrays`; the chain's own arrays, not
+        copies: never write them), or None where compiled code
         cannot evaluate the chain's segment forces (paper coordinates or the paper's literal
         linear law in some segment, evaluated in Python by the :class:`Segment`).
 
@@ -247,9 +253,7 @@ class Chain(KeepsReadOnly, ChainKinematics, ChainChecks):
         paper's actuation law; ``locked (n, 3) bool`` coordinates held still."""
         if self._any_paper or self._has_linear:
             return None
-        return dict(alpha=self._alpha, w=self._w, offs=self._offs, mass=self._mass, radius=self._radius, l0=self._l0,
-                    EI=self._EI, EA=self._EA, beta=self._beta, A_ch=self._A_ch, r_ch=self._r_ch,
-                    paper_act=self._paper_act, locked=self._locked)
+        return self._arrays
 
     def q_slice(self, j: int) -> slice:
         """Indices of segment ``j``'s ``q_e`` in ``q`` (``0 <= j < n``)."""
@@ -500,10 +504,9 @@ class Chain(KeepsReadOnly, ChainKinematics, ChainChecks):
         if self._planar_kernel:
             pw = _planar.planar_workspace(self.n) if data is None else data.planar_workspace()
             A0_out[:] = A0
-            return _planar.planar_aba(self._alpha, self._w, self._offs, self._mass, self._radius, q_c, v_c, f_c, A0,
-                                     qdd_c, self._locked, pw, pw[7])
-        return recursive.aba(self._alpha, self._w, self._offs, self._mass, self._radius, q_c, v_c, f_c, V0, A0,
-                             self.floating, F0, qdd_c, A0_out, self._locked, *self._ws_sc(data))
+            return _planar.planar_aba(self._arrays, q_c, v_c, f_c, A0, qdd_c, pw, pw[7])
+        return recursive.aba(self._arrays, q_c, v_c, f_c, V0, A0, self.floating, F0, qdd_c, A0_out,
+                             *self._ws_sc(data))
 
     def _ws_sc(self, data: Data | None) -> tuple:
         """``(workspace, scratch)`` arguments of the compiled passes."""
@@ -518,8 +521,7 @@ class Chain(KeepsReadOnly, ChainKinematics, ChainChecks):
         data = self._data(data)
         H = np.empty((self.nv, self.nv)) if data is None else data.M
         ws = self._ws(data)
-        recursive.crba(self._alpha, self._w, self._offs, self._mass, self._radius, st.q_c, self.floating, H, ws,
-                       ws[8])
+        recursive.crba(self._arrays, st.q_c, self.floating, H, ws, ws[8])
         T = self._lift(st)
         return H if T is None else T.T @ H @ T
 
@@ -527,7 +529,7 @@ class Chain(KeepsReadOnly, ChainKinematics, ChainChecks):
         tau_c = np.empty((self.n, 3))
         F0 = np.empty(6)
         recursive.rnea(
-            self._alpha, self._w, self._offs, self._mass, self._radius, st.q_c, np.ascontiguousarray(st.v_c),
+            self._arrays, st.q_c, np.ascontiguousarray(st.v_c),
             self._acc_c(st, a_e), st.V0, self._A0(st, a_base), tau_c, F0, *self._ws_sc(None),
         )
         tau = self._force_e(st, tau_c).ravel()
@@ -626,8 +628,7 @@ class Chain(KeepsReadOnly, ChainKinematics, ChainChecks):
         """Internal forces in segment coordinates (n, 3)."""
         f_c = np.empty((self.n, 3))
         recursive.internal_forces(
-            st.q_c, np.ascontiguousarray(st.v_c), p, self._l0, self._EI, self._EA, self._beta, self._A_ch,
-            self._r_ch, self._paper_act, f_c, np.empty(SCRATCH),
+            self._arrays, st.q_c, np.ascontiguousarray(st.v_c), p, f_c, np.empty(SCRATCH),
         )
         f = self._force_e(st, f_c)
         if self._has_linear:
@@ -667,8 +668,7 @@ class Chain(KeepsReadOnly, ChainKinematics, ChainChecks):
     def _forward_dynamics_unchecked(self, q, v, p, tau, t, data):
         q_c, v_c, p3, V0, A_B, g_B = self._unchecked_inputs(q, v, p, t, data)
         f = data.f
-        recursive.internal_forces(q_c, v_c, p3, self._l0, self._EI, self._EA, self._beta, self._A_ch, self._r_ch,
-                                  self._paper_act, f, data.scratch)
+        recursive.internal_forces(self._arrays, q_c, v_c, p3, f, data.scratch)
         F0 = _ZERO6
         if tau is not None:
             f += tau[self._voff :].reshape(self.n, 3)

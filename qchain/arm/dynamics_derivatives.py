@@ -87,7 +87,7 @@ def _curvature_id_derivatives(ch: Chain, st: _State, qdd_c: np.ndarray, A0: np.n
     """The compiled pass: ``(tau_c (nv,), dq_c, dv_c, M_c)`` in curvature coordinates (views
     into ``data`` where given, except ``tau_c``)."""
     V0 = _ZERO6 if st.V0 is None else st.V0
-    args = (ch._alpha, ch._w, ch._offs, ch._mass, ch._radius, st.q_c, np.ascontiguousarray(st.v_c),
+    args = (ch._arrays, st.q_c, np.ascontiguousarray(st.v_c),
             np.ascontiguousarray(qdd_c), V0, A0, ch.floating, g_B)
     if data is None:
         tau, F0, dq, dv, M = rnea_derivatives.rnea_derivatives_fresh(*args)
@@ -148,15 +148,13 @@ def _internal_derivatives(ch: Chain, st: _State, p3: np.ndarray):
     dU_el/dq`` in the chain's coordinates (zero on the base)."""
     n, nv = ch.n, ch.nv
     dfq_c, dfv_c = np.empty((n, 3, 3)), np.empty((n, 3, 3))
-    rnea_derivatives.internal_forces_derivatives(st.q_c, p3, ch._l0, ch._EI, ch._EA, ch._beta, ch._A_ch, ch._r_ch,
-                                            ch._paper_act, dfq_c, dfv_c, np.empty(SCRATCH))
+    rnea_derivatives.internal_forces_derivatives(ch._arrays, st.q_c, p3, dfq_c, dfv_c, np.empty(SCRATCH))
     Bc = np.empty((n, 3, 3))
-    aba_derivatives.input_matrices(st.q_c, ch._A_ch, ch._r_ch, ch._paper_act, Bc, np.empty(SCRATCH))
+    aba_derivatives.input_matrices(ch._arrays, st.q_c, Bc, np.empty(SCRATCH))
     f_c = None
     if ch._any_paper:
         f_c = np.empty((n, 3))
-        recursive.internal_forces(st.q_c, np.ascontiguousarray(st.v_c), p3, ch._l0, ch._EI, ch._EA, ch._beta,
-                                  ch._A_ch, ch._r_ch, ch._paper_act, f_c, np.empty(SCRATCH))
+        recursive.internal_forces(ch._arrays, st.q_c, np.ascontiguousarray(st.v_c), p3, f_c, np.empty(SCRATCH))
     dfq, dfv, B = np.zeros((nv, nv)), np.zeros((nv, nv)), np.zeros((nv, ch.nu))
     for j, s in enumerate(ch.segments):
         sl = ch.v_slice(j)
@@ -224,8 +222,7 @@ def compiled_forward_dynamics_derivatives(ch: Chain, q_c, v_c, p3, tau, V0, A_B,
     is given."""
     tau_ext = np.zeros(ch.nv) if tau is None else tau
     A_B = _ZERO6 if A_B is None else A_B
-    args = (ch._alpha, ch._w, ch._offs, ch._mass, ch._radius, ch._l0, ch._EI, ch._EA, ch._beta, ch._A_ch, ch._r_ch,
-            ch._paper_act, ch._locked, ch.floating, q_c, v_c, p3, tau_ext, V0, A_B, g_B)
+    args = (ch._arrays, ch.floating, q_c, v_c, p3, tau_ext, V0, A_B, g_B)
     if data is None:
         status, *out = aba_derivatives.aba_derivatives_fresh(*args)
     else:

@@ -31,6 +31,7 @@ from typing import NamedTuple
 import numpy as np
 
 from ...algorithms import aba_derivatives, planar, recursive, rnea_derivatives
+from ...algorithms.arrays import ChainArrays
 from ...model.arc import SCRATCH, arc_node, take1, take2
 from ...model.slices import slice_twist
 from . import lie, schedules
@@ -51,25 +52,10 @@ class EngineModel(NamedTuple):
 
     Attributes
     ----------
-    alpha : (N,) float
-        The nodes' arc parameters in [0, 1] (:meth:`qchain.Chain.kernel_arrays`, as the
-        fields up to ``locked``).
-    w : (N,) float
-        Their quadrature weights (sum 1 a segment).
-    offs : (n + 1,) int64
-        Segment ``j``'s nodes are ``offs[j]:offs[j + 1]``.
-    mass, radius, l0 : (n,) float
-        Segment mass (kg), radius (m), rest length (m).
-    EI, EA : (n,) float
-        Bending (N m^2) and axial (N) stiffness.
-    beta : (n,) float
-        Stiffness-proportional damping (s).
-    A_ch, r_ch : (n,) float
-        Chamber area (m^2) and the chambers' distance from the axis (m).
-    paper_act : (n,) bool
-        The paper's actuation law.
-    locked : (n, 3) bool
-        Coordinates held still (``planar``, inextensible segments).
+    arrays : ChainArrays
+        The chain's per-node and per-segment arrays (:meth:`qchain.Chain.kernel_arrays`, a
+        :class:`qchain.algorithms.arrays.ChainArrays`: ``alpha, w, offs, mass, radius, l0, EI, EA,
+        beta, A_ch, r_ch, paper_act, locked``), the first argument of every pass.
     idx : (nA,) int64
         The free velocity coordinates, ``flatnonzero(chain.active)``.
     base : int
@@ -93,19 +79,7 @@ class EngineModel(NamedTuple):
         Where the kernel workspaces lie in :attr:`Workspace.buf` (:func:`_layout`).
     """
 
-    alpha: np.ndarray
-    w: np.ndarray
-    offs: np.ndarray
-    mass: np.ndarray
-    radius: np.ndarray
-    l0: np.ndarray
-    EI: np.ndarray
-    EA: np.ndarray
-    beta: np.ndarray
-    A_ch: np.ndarray
-    r_ch: np.ndarray
-    paper_act: np.ndarray
-    locked: np.ndarray
+    arrays: ChainArrays
     idx: np.ndarray
     base: int
     planar_kernel: int
@@ -202,7 +176,7 @@ def pack(chain, pressure, tau) -> EngineModel | None:
     else:
         bm = (np.zeros(1, dtype=np.int64), np.zeros(1))
     X = chain.base_placement
-    return EngineModel(**arrays, idx=np.flatnonzero(chain.active).astype(np.int64), base=base,
+    return EngineModel(arrays=arrays, idx=np.flatnonzero(chain.active).astype(np.int64), base=base,
                        planar_kernel=int(planar_kernel), nq=chain.nq, nv=chain.nv,
                        g_W=np.array(chain.gravity, dtype=float), R_WB0=np.array(X.rotation),
                        p_WB0=np.array(X.translation), bm_ints=bm[0], bm_params=bm[1], p_ints=p[0], p_params=p[1],
@@ -382,14 +356,14 @@ def configuration(m, wk, qc, y):
 def check(m, wk, q):
     """Domain check of the segment coordinates; sets ``info`` and returns the status."""
     info = wk.info
-    n = m.radius.shape[0]
+    n = m.arrays.radius.shape[0]
     off = m.nq - 3 * n
     for i in range(q.shape[0]):
         if not np.isfinite(q[i]):
             info[0] = NONFINITE
             return NONFINITE
     qe = q[off:].reshape(n, 3)
-    j = recursive.first_invalid(m.radius[:0], qe, m.radius, m.paper_act)  # a contiguous empty first argument: one type
+    j = recursive.first_invalid(m.arrays.radius[:0], qe, m.arrays.radius, m.arrays.paper_act)  # a contiguous empty first argument: one type
     if j >= 0:
         info[0] = DOMAIN
         info[1] = j
@@ -410,10 +384,9 @@ def _forces(m, wk, t):
     pass: the domain check, the inputs, the base's state, the internal plus external forces
     ``f = wk.f`` and the apparent base acceleration ``A0 = wk.A0`` (gravity folded in), the
     base wrench in ``wk.B[3]``; returns the status."""
-    l0, EI, EA, beta, A_ch, r_ch, paper_act = m.l0, m.EI, m.EA, m.beta, m.A_ch, m.r_ch, m.paper_act
     q, v = wk.q, wk.v
     p, tau, f, A0, B = wk.p, wk.tau, wk.f, wk.A0, wk.B
-    n = m.mass.shape[0]
+    n = m.arrays.mass.shape[0]
     qoff = m.nq - 3 * n
     voff = m.nv - 3 * n
     status = check(m, wk, q)
@@ -421,8 +394,8 @@ def _forces(m, wk, t):
         return status
     inputs(m, wk, t)
     _base_state(m, wk, t, q, v)
-    recursive.internal_forces(q[qoff:].reshape(n, 3), v[voff:].reshape(n, 3), p.reshape(n, 3), l0, EI, EA, beta,
-                              A_ch, r_ch, paper_act, f, wk.scratch)
+    recursive.internal_forces(m.arrays, q[qoff:].reshape(n, 3), v[voff:].reshape(n, 3), p.reshape(n, 3), f,
+                              wk.scratch)
     for j in range(n):
         for b in range(3):
             f[j, b] += tau[voff + 3 * j + b]
@@ -442,7 +415,7 @@ def _rates(m, wk, y, out, ok):
     idx = m.idx
     a, qdd, B = wk.a, wk.qdd, wk.B
     A0 = wk.A0
-    n = m.mass.shape[0]
+    n = m.arrays.mass.shape[0]
     voff = m.nv - 3 * n
     if not ok:
         wk.info[0] = SINGULAR
@@ -469,7 +442,7 @@ def _rates(m, wk, y, out, ok):
 @inline
 def _segment_states(m, wk):
     """The segment coordinates and velocities of ``wk.q``, ``wk.v`` as ``(n, 3)`` views."""
-    n = m.mass.shape[0]
+    n = m.arrays.mass.shape[0]
     return wk.q[m.nq - 3 * n:].reshape(n, 3), wk.v[m.nv - 3 * n:].reshape(n, 3)
 
 
@@ -484,8 +457,7 @@ def rhs_planar(m, wk, t, y, out):
         return status
     q_c, v_c = _segment_states(m, wk)
     pw = planar_ws(m, wk)
-    ok = planar.planar_aba_moving(m.alpha, m.w, m.offs, m.mass, m.radius, q_c, v_c, wk.f, wk.B[0], wk.A0, wk.qdd,
-                                  m.locked, pw, pw[7])
+    ok = planar.planar_aba_moving(m.arrays, q_c, v_c, wk.f, wk.B[0], wk.A0, wk.qdd, pw, pw[7])
     return _rates(m, wk, y, out, ok)
 
 
@@ -499,8 +471,8 @@ def rhs_spatial(m, wk, t, y, out):
         return status
     q_c, v_c = _segment_states(m, wk)
     A0 = wk.A0
-    ok = recursive.aba(m.alpha, m.w, m.offs, m.mass, m.radius, q_c, v_c, wk.f, wk.B[0], A0, m.base == FLOATING, wk.B[3],
-                       wk.qdd, A0, m.locked, aba_ws(m, wk), wk.scratch)
+    ok = recursive.aba(m.arrays, q_c, v_c, wk.f, wk.B[0], A0, m.base == FLOATING, wk.B[3], wk.qdd, A0, aba_ws(m, wk),
+                       wk.scratch)
     return _rates(m, wk, y, out, ok)
 
 
@@ -532,14 +504,13 @@ def jacobian(m, wk, t, y, Jq, Jv):
     nA = idx.shape[0]
     B = wk.B
     wa = aba_derivatives_ws(m, wk)
-    n = m.mass.shape[0]
+    n = m.arrays.mass.shape[0]
     q_c, v_c = _segment_states(m, wk)
     a = wa[3]
     copy(a, wk.a)
-    status = aba_derivatives._aba_derivatives_at(m.alpha, m.w, m.offs, m.mass, m.radius, m.l0, m.EI, m.EA, m.beta,
-                                                 m.A_ch, m.r_ch, m.paper_act, m.locked, m.base == FLOATING, q_c, v_c,
-                                                 wk.p.reshape(n, 3), wk.qdd, wk.A0, a, B[0], B[2, :3], aba_ws(m, wk),
-                                                 rnea_ws(m, wk), wa, wk.scratch)
+    status = aba_derivatives._aba_derivatives_at(m.arrays, m.base == FLOATING, q_c, v_c, wk.p.reshape(n, 3), wk.qdd,
+                                                 wk.A0, a, B[0], B[2, :3], aba_ws(m, wk), rnea_ws(m, wk), wa,
+                                                 wk.scratch)
     if status != 0:
         wk.info[0] = SINGULAR if status < 3 else NONFINITE
         return wk.info[0]
@@ -561,7 +532,8 @@ def energies(m, wk, t, q, v):
     for gravity, the tip twist and frame for the next segment's root. ``q``, ``v`` full
     (nq,), (nv,). Compiled callers only (no CPython wrapper): from Python,
     :func:`energies_batch`."""
-    alpha, w, offs, mass, radius, l0, EI, EA = m.alpha, m.w, m.offs, m.mass, m.radius, m.l0, m.EI, m.EA
+    ar = m.arrays
+    alpha, w, offs, mass, radius, l0, EI, EA = ar.alpha, ar.w, ar.offs, ar.mass, ar.radius, ar.l0, ar.EI, ar.EA
     g_W = m.g_W
     n = mass.shape[0]
     qoff = m.nq - 3 * n
