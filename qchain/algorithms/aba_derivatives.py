@@ -18,6 +18,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..model.arc import jit, jit_helper, take1
+from .arrays import AbaDerivativesWorkspace
 from ..model.slices import input_matrix_c
 from .recursive import _chol as recursive_chol
 from .recursive import aba as recursive_aba
@@ -45,16 +46,16 @@ def _input_matrices(q, A_ch, r_ch, paper_act, B, sc):
 
 
 #: Names of :func:`aba_derivatives_workspace`'s arrays (``Data`` attributes), in order.
-ABA_DERIVATIVES_WORKSPACE = ("f", "a_c", "A0", "a", "L", "rhs", "da_dq", "da_dv", "da_dtau", "da_dp", "dfq", "dfv",
-                             "B")
+ABA_DERIVATIVES_WORKSPACE = AbaDerivativesWorkspace._fields
 
 
 @jit
 def aba_derivatives_workspace(n, nv):
     """Fresh arrays for :func:`aba_derivatives` (shapes in :mod:`qchain.arm.data`)."""
-    return (np.zeros((n, 3)), np.zeros((n, 3)), np.zeros(6), np.zeros(nv), np.zeros((nv, nv)), np.zeros((nv, nv)),
-            np.zeros((nv, nv)), np.zeros((nv, nv)), np.zeros((nv, nv)), np.zeros((nv, 3 * n)), np.zeros((n, 3, 3)),
-            np.zeros((n, 3, 3)), np.zeros((n, 3, 3)))
+    return AbaDerivativesWorkspace(np.zeros((n, 3)), np.zeros((n, 3)), np.zeros(6), np.zeros(nv), np.zeros((nv, nv)),
+                                   np.zeros((nv, nv)), np.zeros((nv, nv)), np.zeros((nv, nv)), np.zeros((nv, nv)),
+                                   np.zeros((nv, 3 * n)), np.zeros((n, 3, 3)), np.zeros((n, 3, 3)),
+                                   np.zeros((n, 3, 3)))
 
 
 @jit_helper
@@ -135,7 +136,7 @@ def aba_derivatives(arr, floating, q, qd, p, tau_ext, V0, A_B, g_B, ws, wd, wa, 
     """
     n = q.shape[0]
     off = 6 if floating else 0
-    f, qdd, A0, a = wa[0], wa[1], wa[2], wa[3]
+    f, qdd, A0, a = wa.f, wa.a_c, wa.A0, wa.a
     recursive_internal_forces(arr, q, qd, p, f, sc)
     for j in range(n):
         for b in range(3):
@@ -175,8 +176,9 @@ def _aba_derivatives_at(arr, floating, q, qd, p, qdd, A0, a, V0, g_B, ws, wd, wa
     n = q.shape[0]
     off = 6 if floating else 0
     nv = off + 3 * n
-    L, rhs, da_dq, da_dv, da_dtau, da_dp, dfq, dfv, B = wa[4], wa[5], wa[6], wa[7], wa[8], wa[9], wa[10], wa[11], wa[12]
-    M, dq, dv = wd[18], wd[19], wd[20]
+    L, rhs, da_dq, da_dv, da_dtau, da_dp = wa.L, wa.rhs, wa.da_dq, wa.da_dv, wa.da_dtau, wa.da_dp
+    dfq, dfv, B = wa.dfq, wa.dfv, wa.B
+    M, dq, dv = wd.M, wd.dtau_dq, wd.dtau_dv
     _rnea_derivatives(arr, q, qd, qdd, V0, A0, floating, g_B, ws, wd, sc)
     _internal_forces_derivatives(q, p, l0, EI, EA, beta, A_ch, r_ch, paper_act, dfq, dfv, sc)
     _input_matrices(q, A_ch, r_ch, paper_act, B, sc)
@@ -234,5 +236,5 @@ def aba_derivatives_fresh(arr, floating, q, qd, p, tau_ext, V0, A_B, g_B):
     ws = recursive_aba_workspace(n, nv)
     wd = rnea_workspace(n, nv)
     wa = aba_derivatives_workspace(n, nv)
-    status = aba_derivatives(arr, floating, q, qd, p, tau_ext, V0, A_B, g_B, ws, wd, wa, ws[8])
-    return status, wa[3], wa[6], wa[7], wa[9], wa[8]
+    status = aba_derivatives(arr, floating, q, qd, p, tau_ext, V0, A_B, g_B, ws, wd, wa, ws.scratch)
+    return status, wa.a, wa.da_dq, wa.da_dv, wa.da_dp, wa.da_dtau

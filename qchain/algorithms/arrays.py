@@ -1,7 +1,16 @@
-"""The model's per-node and per-segment arrays, as one named structure the compiled passes take
-first: :class:`ChainArrays`, a ``typing.NamedTuple`` (numba compiles it with attribute access,
-at no run-time cost). Declared once: :class:`qchain.Chain` builds it, every pass of
-:mod:`qchain.algorithms` reads it, and the engine's model (``qchain.sim.engine.system``) holds it."""
+"""The named structures the compiled passes take, each a ``typing.NamedTuple`` (numba compiles
+them with attribute access, at no run-time cost).
+
+:class:`ChainArrays`: the model's per-node and per-segment arrays, every pass's first argument.
+Declared once: :class:`qchain.Chain` builds it, every pass of :mod:`qchain.algorithms` reads it,
+and the engine's model (``qchain.sim.engine.system``) holds it.
+
+The workspaces, made by the passes' allocators (``recursive.aba_workspace``,
+``rnea_derivatives.rnea_workspace``, ``aba_derivatives.aba_derivatives_workspace``,
+``planar.planar_workspace``), by :class:`qchain.arm.data.Data` (whose attributes bear the
+fields' names) or carved from the engine's buffer: :class:`AbaWorkspace`,
+:class:`RneaWorkspace`, :class:`AbaDerivativesWorkspace`, :class:`PlanarWorkspace`. The arrays'
+shapes are in :mod:`qchain.arm.data`'s docstring and in the allocators."""
 
 from __future__ import annotations
 
@@ -9,7 +18,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-__all__ = ["ChainArrays"]
+__all__ = ["ChainArrays", "AbaWorkspace", "RneaWorkspace", "AbaDerivativesWorkspace", "PlanarWorkspace"]
 
 
 class ChainArrays(NamedTuple):
@@ -51,3 +60,83 @@ class ChainArrays(NamedTuple):
     r_ch: np.ndarray
     paper_act: np.ndarray
     locked: np.ndarray
+
+
+class AbaWorkspace(NamedTuple):
+    """What :func:`~qchain.algorithms.recursive.aba`, ``rnea`` and ``crba`` write: root twists
+    ``V``, tip maps ``T``, tip biases ``c``, segment forces ``Q``, segment blocks ``M_xi``, the
+    articulated factors ``Lq, U, u`` and the ``scratch`` the passes carve small temporaries from."""
+
+    V: np.ndarray
+    T: np.ndarray
+    c: np.ndarray
+    Q: np.ndarray
+    M_xi: np.ndarray
+    Lq: np.ndarray
+    U: np.ndarray
+    u: np.ndarray
+    scratch: np.ndarray
+
+
+class RneaWorkspace(NamedTuple):
+    """What :func:`~qchain.algorithms.rnea_derivatives.rnea_derivatives` writes: its
+    intermediate arrays, then its outputs ``tau_c`` (n, 3), ``F0`` (6,), ``M``, ``dtau_dq``,
+    ``dtau_dv`` (nv, nv)."""
+
+    A: np.ndarray
+    R_0j: np.ndarray
+    p_0j: np.ndarray
+    QqT: np.ndarray
+    QxT: np.ndarray
+    rel1: np.ndarray
+    tipV: np.ndarray
+    tipA: np.ndarray
+    dS1: np.ndarray
+    G: np.ndarray
+    Ya: np.ndarray
+    Yv: np.ndarray
+    Ms: np.ndarray
+    Jw: np.ndarray
+    sig1: np.ndarray
+    sig2: np.ndarray
+    tau_c: np.ndarray
+    F0: np.ndarray
+    M: np.ndarray
+    dtau_dq: np.ndarray
+    dtau_dv: np.ndarray
+
+
+class AbaDerivativesWorkspace(NamedTuple):
+    """What :func:`~qchain.algorithms.aba_derivatives.aba_derivatives` writes: the forces
+    ``f``, the accelerations ``a_c`` (n, 3), ``A0`` (6,), ``a`` (nv,), the factor ``L``, the
+    right-hand sides ``rhs``, the derivatives ``da_dq, da_dv, da_dtau, da_dp`` and the
+    per-segment ``dfq, dfv, B``."""
+
+    f: np.ndarray
+    a_c: np.ndarray
+    A0: np.ndarray
+    a: np.ndarray
+    L: np.ndarray
+    rhs: np.ndarray
+    da_dq: np.ndarray
+    da_dv: np.ndarray
+    da_dtau: np.ndarray
+    da_dp: np.ndarray
+    dfq: np.ndarray
+    dfv: np.ndarray
+    B: np.ndarray
+
+
+class PlanarWorkspace(NamedTuple):
+    """What :func:`~qchain.algorithms.planar.planar_aba` writes: tip maps ``pT``, tip biases
+    ``pc``, segment forces ``pb``, segment blocks ``pM``, the articulated factors ``pDinv, pU,
+    pu`` and the scratch ``pscratch``."""
+
+    pT: np.ndarray
+    pc: np.ndarray
+    pb: np.ndarray
+    pM: np.ndarray
+    pDinv: np.ndarray
+    pU: np.ndarray
+    pu: np.ndarray
+    pscratch: np.ndarray

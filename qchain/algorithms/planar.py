@@ -81,6 +81,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .arrays import PlanarWorkspace
 from ..model.arc import SCRATCH, _bend, jit, jit_inline as _inline
 
 __all__ = ["planar_aba", "planar_aba_moving", "planar_rnea", "planar_workspace"]
@@ -240,7 +241,7 @@ def _tip(l, ux, ld, uxd, vx, vz, vw, T, c, j):
 def _planar_aba(arr, q, qd, tau, v0x, v0z, v0w, A0, qdd, ws, sc):
     alpha, w, offs, mass, radius, locked = arr.alpha, arr.w, arr.offs, arr.mass, arr.radius, arr.locked
     n = q.shape[0]
-    T, c, b, M, Di, U, u = ws[0], ws[1], ws[2], ws[3], ws[4], ws[5], ws[6]
+    T, c, b, M, Di, U, u = ws.pT, ws.pc, ws.pb, ws.pM, ws.pDinv, ws.pU, ws.pu
     # pass 1: segment blocks, biases and tip maps, forwards
     vx, vz, vw = v0x, v0z, v0w
     for j in range(n):
@@ -371,7 +372,7 @@ def planar_aba(arr, q, qd, tau, A0, qdd, ws, sc):
     generalised forces (column 2 ignored), ``A0`` (6,) the base's apparent acceleration
     (gravity included; only its in-plane components 0, 2, 4 matter), ``qdd`` (n, 3) out
     (``qdd[:, 2] = 0``), ``arr.locked`` (n, 3) bool (columns 0 and 1 honoured, column 2 locked by
-    definition), ``ws`` from :func:`planar_workspace` and ``sc`` its scratch (``ws[-1]``, or
+    definition), ``ws`` from :func:`planar_workspace` and ``sc`` its scratch (``ws.pscratch``, or
     any float array of :data:`qchain.model.arc.SCRATCH`). Returns False where an articulated block
     is not positive definite.
     """
@@ -399,7 +400,7 @@ def planar_rnea(arr, q, qd, qdd, A0, tau, F0, ws, sc):
     """
     alpha, w, offs, mass, radius = arr.alpha, arr.w, arr.offs, arr.mass, arr.radius
     n = q.shape[0]
-    T, c, b, M = ws[0], ws[1], ws[2], ws[3]
+    T, c, b, M = ws.pT, ws.pc, ws.pb, ws.pM
     vx = vz = vw = 0.0
     ax = A0[0]
     az = A0[2]
@@ -439,7 +440,7 @@ def planar_rnea(arr, q, qd, qdd, A0, tau, F0, ws, sc):
 
 
 #: Names of :func:`planar_workspace`'s arrays (``qchain.arm.data.Data`` attributes), in order.
-PLANAR_WORKSPACE = ("pT", "pc", "pb", "pM", "pDinv", "pU", "pu", "pscratch")
+PLANAR_WORKSPACE = PlanarWorkspace._fields
 
 
 @jit
@@ -447,5 +448,5 @@ def planar_workspace(n):
     """Fresh arrays for :func:`planar_aba`: tip maps (n, 3, 5), tip biases (n, 3), segment
     forces (n, 5), segment blocks (n, 5, 5), the articulated factors ``D^-1`` (n, 2, 2),
     ``U`` (n, 3, 2), ``u`` (n, 2), and the scratch (:data:`qchain.model.arc.SCRATCH`,)."""
-    return (np.zeros((n, 3, 5)), np.zeros((n, 3)), np.zeros((n, 5)), np.zeros((n, 5, 5)), np.zeros((n, 2, 2)),
-            np.zeros((n, 3, 2)), np.zeros((n, 2)), np.zeros(SCRATCH))
+    return PlanarWorkspace(np.zeros((n, 3, 5)), np.zeros((n, 3)), np.zeros((n, 5)), np.zeros((n, 5, 5)),
+                           np.zeros((n, 2, 2)), np.zeros((n, 3, 2)), np.zeros((n, 2)), np.zeros(SCRATCH))

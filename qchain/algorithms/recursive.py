@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .arrays import AbaWorkspace
 from ..model.arc import SCRATCH, arc_node, arc_pose, jit, jit_helper, take1, take2
 from ..model.slices import (
     _segment_slices, domain_violation, elastic_gradient_c, input_matrix_c, rest_damping_c, phi_matrix, slice_twist,
@@ -113,7 +114,7 @@ def rnea(arr, q, qd, qdd, V0, A0, tau, F0, ws, sc):
     """
     alpha, w, offs, mass, radius = arr.alpha, arr.w, arr.offs, arr.mass, arr.radius
     n = q.shape[0]
-    _, T, c, Q, _, _, _, _, _ = ws
+    T, c, Q = ws.T, ws.c, ws.Q
     o = 0
     xi, o = take1(sc, o, 9)
     xid, o = take1(sc, o, 9)
@@ -183,7 +184,7 @@ def crba(arr, q, floating, H, ws, sc):
     alpha, w, offs, mass, radius = arr.alpha, arr.w, arr.offs, arr.mass, arr.radius
     n = q.shape[0]
     off = 6 if floating else 0
-    T = ws[1]
+    T = ws.T
     o = 0
     c, o = take1(sc, o, 6)
     Mj, o = take2(sc, o, 9, 9)
@@ -293,7 +294,7 @@ def aba(arr, q, qd, tau, V0, A0, floating, F0, qdd, A0_out, ws, sc):
     alpha, w, offs, mass, radius = arr.alpha, arr.w, arr.offs, arr.mass, arr.radius
     locked = arr.locked
     n = q.shape[0]
-    _, T, c, b, Mall, Lq, U, u, _ = ws
+    T, c, b, Mall, Lq, U, u = ws.T, ws.c, ws.Q, ws.M_xi, ws.Lq, ws.U, ws.u
     o = 0
     xi, o = take1(sc, o, 9)
     z9, o = take1(sc, o, 9)
@@ -567,5 +568,6 @@ def aba_workspace(n, nv):
     root twists (n + 1, 6), tip maps (n, 6, 9), tip biases (n, 6), segment forces (n, 9),
     segment blocks (n, 9, 9), the articulated factors (n, 3, 3), (n, 6, 3), (n, 3) and the
     scratch (:data:`qchain.model.arc.SCRATCH`,) the passes carve their small temporaries from."""
-    return (np.zeros((n + 1, 6)), np.zeros((n, 6, 9)), np.zeros((n, 6)), np.zeros((n, 9)), np.zeros((n, 9, 9)),
-            np.zeros((n, 3, 3)), np.zeros((n, 6, 3)), np.zeros((n, 3)), np.zeros(SCRATCH))
+    return AbaWorkspace(np.zeros((n + 1, 6)), np.zeros((n, 6, 9)), np.zeros((n, 6)), np.zeros((n, 9)),
+                        np.zeros((n, 9, 9)), np.zeros((n, 3, 3)), np.zeros((n, 6, 3)), np.zeros((n, 3)),
+                        np.zeros(SCRATCH))

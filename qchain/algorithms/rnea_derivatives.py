@@ -43,6 +43,7 @@ from ..model.arc import arc_node, arc_node_derivatives, jit, jit_helper, jit_inl
 from ..model.slices import (
     elastic_hessian_c, mass_finish, mass_node, phi_matrix, phi_transpose_force, pressure_jacobian_c, rest_damping_c,
     slice_twist)
+from .arrays import RneaWorkspace
 from .recursive import _load_xi
 from .recursive import _project as recursive_project
 from .recursive import aba_workspace as recursive_aba_workspace
@@ -368,19 +369,18 @@ def _tip_derivatives(q, qd, qdd, V0, A0, T, R1, p1, V1, A1, rel1, tipV, tipA, dS
 
 
 #: Names of :func:`rnea_workspace`'s arrays (``Data`` attributes), in order.
-RNEA_WORKSPACE = ("A", "R_0j", "p_0j", "QqT", "QxT", "rel1", "tipV", "tipA", "dS1", "G", "Ya", "Yv", "Ms", "Jw",
-                  "sig1", "sig2", "tau_c", "F0", "M", "dtau_dq", "dtau_dv")
+RNEA_WORKSPACE = RneaWorkspace._fields
 
 
 @jit
 def rnea_workspace(n, nv):
     """Fresh arrays for :func:`rnea_derivatives` (shapes in :mod:`qchain.arm.data`), then its
     outputs ``tau_c`` (n, 3), ``F0`` (6,), ``M``, ``dtau_dq``, ``dtau_dv`` (nv, nv)."""
-    return (np.zeros((n + 1, 6)), np.zeros((n + 1, 3, 3)), np.zeros((n + 1, 3)), np.zeros((n, 3, 9)),
-            np.zeros((n, 9, 9)), np.zeros((n, 6)), np.zeros((n, 6, 6)), np.zeros((n, 6, 6)), np.zeros((n, 3, 6, 3)),
-            np.zeros((n, 6, 6)), np.zeros((n, 3, 6)), np.zeros((n, 3, 6)), np.zeros((n, 3, 6)), np.zeros((n, 3, 6)),
-            np.zeros((n, 6, 6)), np.zeros((n, 6, 6)), np.zeros((n, 3)), np.zeros(6), np.zeros((nv, nv)),
-            np.zeros((nv, nv)), np.zeros((nv, nv)))
+    return RneaWorkspace(np.zeros((n + 1, 6)), np.zeros((n + 1, 3, 3)), np.zeros((n + 1, 3)), np.zeros((n, 3, 9)),
+                         np.zeros((n, 9, 9)), np.zeros((n, 6)), np.zeros((n, 6, 6)), np.zeros((n, 6, 6)),
+                         np.zeros((n, 3, 6, 3)), np.zeros((n, 6, 6)), np.zeros((n, 3, 6)), np.zeros((n, 3, 6)),
+                         np.zeros((n, 3, 6)), np.zeros((n, 3, 6)), np.zeros((n, 6, 6)), np.zeros((n, 6, 6)),
+                         np.zeros((n, 3)), np.zeros(6), np.zeros((nv, nv)), np.zeros((nv, nv)), np.zeros((nv, nv)))
 
 
 @jit
@@ -408,8 +408,10 @@ def _rnea_derivatives(arr, q, qd, qdd, V0, A0, floating, g_B, ws, wd, sc):
     alpha, w, offs, mass, radius = arr.alpha, arr.w, arr.offs, arr.mass, arr.radius
     n = q.shape[0]
     off = 6 if floating else 0
-    V, T, _, Q, Mxi, _, _, _, _ = ws
-    (A, Rw, pw, QqT, QxT, rel1, tipV, tipA, dS1, G, Ya, Yv, Ms, Jw, sig1, sig2, tau, F0, M, dq, dv) = wd
+    V, T, Q, Mxi = ws.V, ws.T, ws.Q, ws.M_xi
+    A, Rw, pw, QqT, QxT, rel1, tipV, tipA = wd.A, wd.R_0j, wd.p_0j, wd.QqT, wd.QxT, wd.rel1, wd.tipV, wd.tipA
+    dS1, G, Ya, Yv, Ms, Jw, sig1, sig2 = wd.dS1, wd.G, wd.Ya, wd.Yv, wd.Ms, wd.Jw, wd.sig1, wd.sig2
+    tau, F0, M, dq, dv = wd.tau_c, wd.F0, wd.M, wd.dtau_dq, wd.dtau_dv
     o = 0
     R1, o = take2(sc, o, 3, 3)
     p1, o = take1(sc, o, 3)
@@ -730,5 +732,5 @@ def rnea_derivatives_fresh(arr, q, qd, qdd, V0, A0, floating, g_B):
     nv = (6 if floating else 0) + 3 * n
     ws = recursive_aba_workspace(n, nv)
     wd = rnea_workspace(n, nv)
-    _rnea_derivatives(arr, q, qd, qdd, V0, A0, floating, g_B, ws, wd, ws[8])
-    return wd[16], wd[17], wd[19], wd[20], wd[18]
+    _rnea_derivatives(arr, q, qd, qdd, V0, A0, floating, g_B, ws, wd, ws.scratch)
+    return wd.tau_c, wd.F0, wd.dtau_dq, wd.dtau_dv, wd.M

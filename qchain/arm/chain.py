@@ -504,14 +504,14 @@ class Chain(KeepsReadOnly, ChainKinematics, ChainChecks):
         if self._planar_kernel:
             pw = _planar.planar_workspace(self.n) if data is None else data.planar_workspace()
             A0_out[:] = A0
-            return _planar.planar_aba(self._arrays, q_c, v_c, f_c, A0, qdd_c, pw, pw[7])
+            return _planar.planar_aba(self._arrays, q_c, v_c, f_c, A0, qdd_c, pw, pw.pscratch)
         return recursive.aba(self._arrays, q_c, v_c, f_c, V0, A0, self.floating, F0, qdd_c, A0_out,
                              *self._ws_sc(data))
 
     def _ws_sc(self, data: Data | None) -> tuple:
         """``(workspace, scratch)`` arguments of the compiled passes."""
         ws = self._ws(data)
-        return ws, ws[8]
+        return ws, ws.scratch
 
     @_finite("mass matrix")
     def mass_matrix(self, q, data: Data | None = None) -> np.ndarray:
@@ -521,7 +521,7 @@ class Chain(KeepsReadOnly, ChainKinematics, ChainChecks):
         data = self._data(data)
         H = np.empty((self.nv, self.nv)) if data is None else data.M
         ws = self._ws(data)
-        recursive.crba(self._arrays, st.q_c, self.floating, H, ws, ws[8])
+        recursive.crba(self._arrays, st.q_c, self.floating, H, ws, ws.scratch)
         T = self._lift(st)
         return H if T is None else T.T @ H @ T
 

@@ -47,17 +47,19 @@ from __future__ import annotations
 import numpy as np
 
 from ..algorithms import aba_derivatives, planar, recursive, rnea_derivatives
+from ..algorithms.arrays import AbaDerivativesWorkspace, AbaWorkspace, PlanarWorkspace, RneaWorkspace
 
 __all__ = ["Data"]
 
 
 # (allocator, names): a group's arrays are made by one compiled allocator, which the
-# compiled passes also call when no Data is given, so shapes are defined once
+# compiled passes also call when no Data is given, so shapes are defined once; the names are
+# the fields of the group's workspace (qchain.algorithms.arrays)
 _GROUPS = {
-    "aba": (recursive.aba_workspace, ("V", "T", "c", "Q", "M_xi", "Lq", "U", "u", "scratch")),
-    "rnea_derivatives": (rnea_derivatives.rnea_workspace, rnea_derivatives.RNEA_WORKSPACE),
-    "aba_derivatives": (aba_derivatives.aba_derivatives_workspace, aba_derivatives.ABA_DERIVATIVES_WORKSPACE),
-    "planar": (lambda n, nv: planar.planar_workspace(n), planar.PLANAR_WORKSPACE),
+    "aba": (recursive.aba_workspace, AbaWorkspace._fields),
+    "rnea_derivatives": (rnea_derivatives.rnea_workspace, RneaWorkspace._fields),
+    "aba_derivatives": (aba_derivatives.aba_derivatives_workspace, AbaDerivativesWorkspace._fields),
+    "planar": (lambda n, nv: planar.planar_workspace(n), PlanarWorkspace._fields),
 }
 
 
@@ -92,26 +94,26 @@ class Data:
                 return self.__dict__[name]
         raise AttributeError(f"Data has no array {name!r}")
 
-    def aba_workspace(self) -> tuple:
-        """The arrays :func:`qchain.algorithms.recursive.aba`, ``rnea`` and ``crba`` work in, in their order."""
-        return self._tuple("_ws", _GROUPS["aba"][1])
+    def aba_workspace(self) -> AbaWorkspace:
+        """The arrays :func:`qchain.algorithms.recursive.aba`, ``rnea`` and ``crba`` work in, by name."""
+        return self._tuple("_ws", AbaWorkspace)
 
-    def rnea_workspace(self) -> tuple:
-        """The arrays :func:`qchain.algorithms.rnea_derivatives.rnea_derivatives` works in, in its order."""
-        return self._tuple("_wd", rnea_derivatives.RNEA_WORKSPACE)
+    def rnea_workspace(self) -> RneaWorkspace:
+        """The arrays :func:`qchain.algorithms.rnea_derivatives.rnea_derivatives` works in, by name."""
+        return self._tuple("_wd", RneaWorkspace)
 
-    def aba_derivatives_workspace(self) -> tuple:
-        """The arrays :func:`qchain.algorithms.aba_derivatives.aba_derivatives` writes, in its order."""
-        return self._tuple("_wa", aba_derivatives.ABA_DERIVATIVES_WORKSPACE)
+    def aba_derivatives_workspace(self) -> AbaDerivativesWorkspace:
+        """The arrays :func:`qchain.algorithms.aba_derivatives.aba_derivatives` writes, by name."""
+        return self._tuple("_wa", AbaDerivativesWorkspace)
 
-    def planar_workspace(self) -> tuple:
-        """The arrays :func:`qchain.algorithms.planar.planar_aba` works in, in its order."""
-        return self._tuple("_wp", planar.PLANAR_WORKSPACE)
+    def planar_workspace(self) -> PlanarWorkspace:
+        """The arrays :func:`qchain.algorithms.planar.planar_aba` works in, by name."""
+        return self._tuple("_wp", PlanarWorkspace)
 
-    def _tuple(self, key: str, names: tuple) -> tuple:
+    def _tuple(self, key: str, kind: type):
         t = self.__dict__.get(key)
         if t is None:
-            t = self.__dict__[key] = tuple(getattr(self, k) for k in names)
+            t = self.__dict__[key] = kind(*(getattr(self, k) for k in kind._fields))
         return t
 
     def __repr__(self) -> str:

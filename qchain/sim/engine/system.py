@@ -31,7 +31,7 @@ from typing import NamedTuple
 import numpy as np
 
 from ...algorithms import aba_derivatives, planar, recursive, rnea_derivatives
-from ...algorithms.arrays import ChainArrays
+from ...algorithms.arrays import AbaDerivativesWorkspace, AbaWorkspace, ChainArrays, PlanarWorkspace, RneaWorkspace
 from ...model.arc import SCRATCH, arc_node, take1, take2
 from ...model.slices import slice_twist
 from . import lie, schedules
@@ -253,33 +253,35 @@ def _v4(buf, tb, i):
 def aba_ws(m, wk):
     """The aba workspace (:func:`qchain.algorithms.recursive.aba_workspace`) carved from ``wk``'s buffer."""
     b, t = wk.buf, m.layout
-    return (_v2(b, t, 0), _v3(b, t, 1), _v2(b, t, 2), _v2(b, t, 3), _v3(b, t, 4), _v3(b, t, 5), _v3(b, t, 6),
-            _v2(b, t, 7), _v1(b, t, 8))
+    return AbaWorkspace(_v2(b, t, 0), _v3(b, t, 1), _v2(b, t, 2), _v2(b, t, 3), _v3(b, t, 4), _v3(b, t, 5),
+                        _v3(b, t, 6), _v2(b, t, 7), _v1(b, t, 8))
 
 
 @inline
 def rnea_ws(m, wk):
     """The rnea-derivative workspace (:func:`qchain.algorithms.rnea_derivatives.rnea_workspace`), carved."""
     b, t = wk.buf, m.layout
-    return (_v2(b, t, 9), _v3(b, t, 10), _v2(b, t, 11), _v3(b, t, 12), _v3(b, t, 13), _v2(b, t, 14), _v3(b, t, 15),
-            _v3(b, t, 16), _v4(b, t, 17), _v3(b, t, 18), _v3(b, t, 19), _v3(b, t, 20), _v3(b, t, 21), _v3(b, t, 22),
-            _v3(b, t, 23), _v3(b, t, 24), _v2(b, t, 25), _v1(b, t, 26), _v2(b, t, 27), _v2(b, t, 28), _v2(b, t, 29))
+    return RneaWorkspace(_v2(b, t, 9), _v3(b, t, 10), _v2(b, t, 11), _v3(b, t, 12), _v3(b, t, 13), _v2(b, t, 14),
+                         _v3(b, t, 15), _v3(b, t, 16), _v4(b, t, 17), _v3(b, t, 18), _v3(b, t, 19), _v3(b, t, 20),
+                         _v3(b, t, 21), _v3(b, t, 22), _v3(b, t, 23), _v3(b, t, 24), _v2(b, t, 25), _v1(b, t, 26),
+                         _v2(b, t, 27), _v2(b, t, 28), _v2(b, t, 29))
 
 
 @inline
 def aba_derivatives_ws(m, wk):
     """The aba-derivative workspace (:func:`qchain.algorithms.aba_derivatives.aba_derivatives_workspace`), carved."""
     b, t = wk.buf, m.layout
-    return (_v2(b, t, 30), _v2(b, t, 31), _v1(b, t, 32), _v1(b, t, 33), _v2(b, t, 34), _v2(b, t, 35), _v2(b, t, 36),
-            _v2(b, t, 37), _v2(b, t, 38), _v2(b, t, 39), _v3(b, t, 40), _v3(b, t, 41), _v3(b, t, 42))
+    return AbaDerivativesWorkspace(_v2(b, t, 30), _v2(b, t, 31), _v1(b, t, 32), _v1(b, t, 33), _v2(b, t, 34),
+                                   _v2(b, t, 35), _v2(b, t, 36), _v2(b, t, 37), _v2(b, t, 38), _v2(b, t, 39),
+                                   _v3(b, t, 40), _v3(b, t, 41), _v3(b, t, 42))
 
 
 @inline
 def planar_ws(m, wk):
     """The planar kernel's workspace (:func:`qchain.algorithms.planar.planar_workspace`), carved."""
     b, t = wk.buf, m.layout
-    return (_v3(b, t, 43), _v2(b, t, 44), _v2(b, t, 45), _v3(b, t, 46), _v3(b, t, 47), _v3(b, t, 48), _v2(b, t, 49),
-            _v1(b, t, 50))
+    return PlanarWorkspace(_v3(b, t, 43), _v2(b, t, 44), _v2(b, t, 45), _v3(b, t, 46), _v3(b, t, 47), _v3(b, t, 48),
+                           _v2(b, t, 49), _v1(b, t, 50))
 
 
 @inline
@@ -457,7 +459,7 @@ def rhs_planar(m, wk, t, y, out):
         return status
     q_c, v_c = _segment_states(m, wk)
     pw = planar_ws(m, wk)
-    ok = planar.planar_aba_moving(m.arrays, q_c, v_c, wk.f, wk.B[0], wk.A0, wk.qdd, pw, pw[7])
+    ok = planar.planar_aba_moving(m.arrays, q_c, v_c, wk.f, wk.B[0], wk.A0, wk.qdd, pw, pw.pscratch)
     return _rates(m, wk, y, out, ok)
 
 
@@ -506,7 +508,7 @@ def jacobian(m, wk, t, y, Jq, Jv):
     wa = aba_derivatives_ws(m, wk)
     n = m.arrays.mass.shape[0]
     q_c, v_c = _segment_states(m, wk)
-    a = wa[3]
+    a = wa.a
     copy(a, wk.a)
     status = aba_derivatives._aba_derivatives_at(m.arrays, m.base == FLOATING, q_c, v_c, wk.p.reshape(n, 3), wk.qdd,
                                                  wk.A0, a, B[0], B[2, :3], aba_ws(m, wk), rnea_ws(m, wk), wa,
@@ -514,7 +516,7 @@ def jacobian(m, wk, t, y, Jq, Jv):
     if status != 0:
         wk.info[0] = SINGULAR if status < 3 else NONFINITE
         return wk.info[0]
-    da_dq, da_dv = wa[6], wa[7]
+    da_dq, da_dv = wa.da_dq, wa.da_dv
     for r in range(nA):
         for c in range(nA):
             Jq[r, c] = da_dq[idx[r], idx[c]]
