@@ -55,7 +55,7 @@ def call_planar(ch, q, v, p, tau, V0=None):
     A0[:3] = -ch._g_B
     ws = planar_workspace(n)
     qdd = np.full((n, 3), np.nan)
-    args = (ch._arrays, q_c, v_c, f)
+    args = (ch.kernel_arrays(), q_c, v_c, f)
     if V0 is None:
         ok = planar_aba(*args, A0, qdd, ws, ws[-1])
     else:
@@ -113,7 +113,7 @@ def test_out_of_plane_inputs_are_ignored(rng):
     q_c, v_c = q.reshape(n, 3), v.reshape(n, 3)
     f = (ch.internal_forces(q, v, p)).reshape(n, 3)
     A0 = np.array([1.0, 0.0, 9.0, 0.0, 0.5, 0.0])
-    args = (ch._arrays, q_c, v_c)
+    args = (ch.kernel_arrays(), q_c, v_c)
     ws = recursive.aba_workspace(n, 3 * n)
     pw = planar_workspace(n)
     out = []
@@ -123,8 +123,8 @@ def test_out_of_plane_inputs_are_ignored(rng):
         fo = f.copy()
         fo[:, 2] += odd[0]
         qa, qp = np.empty((n, 3)), np.empty((n, 3))
-        assert recursive.aba(*args, fo, np.zeros(6), A, False, np.zeros(6), qa, np.empty(6), ws, ws[8])
-        assert planar_aba(*args, fo, A, qp, pw, pw[-1])
+        assert recursive.aba(*args, fo, np.zeros(6), A, False, np.zeros(6), qa, np.empty(6), ws, ws.scratch)
+        assert planar_aba(*args, fo, A, qp, pw, pw.pscratch)
         assert rel(qp, qa) < 1e-12
         out.append(qp.copy())
     assert np.array_equal(out[0], out[1])
@@ -145,10 +145,10 @@ def test_moving_base_in_plane(rng):
         q_c, v_c = q.reshape(n, 3), v.reshape(n, 3)
         ws = recursive.aba_workspace(n, 3 * n)
         qa = np.empty((n, 3))
-        assert recursive.aba(ch._arrays, q_c, v_c, f, V0, A0, False, np.zeros(6), qa, np.empty(6), ws, ws[8])
+        assert recursive.aba(ch.kernel_arrays(), q_c, v_c, f, V0, A0, False, np.zeros(6), qa, np.empty(6), ws, ws.scratch)
         pw = planar_workspace(n)
         qp = np.empty((n, 3))
-        assert planar_aba_moving(ch._arrays, q_c, v_c, f, V0, A0, qp, pw, pw[-1])
+        assert planar_aba_moving(ch.kernel_arrays(), q_c, v_c, f, V0, A0, qp, pw, pw.pscratch)
         assert rel(qp, qa) < 1e-12
 
 
@@ -162,9 +162,9 @@ def test_not_positive_definite_returns_false(rng):
     ws = recursive.aba_workspace(3, 9)
     tau = np.zeros((3, 3))
     A0 = np.array([0.0, 0.0, 9.81, 0.0, 0.0, 0.0])
-    args = (ch._arrays._replace(mass=mass), q_c, v_c, tau)
-    assert not recursive.aba(*args, np.zeros(6), A0, False, np.zeros(6), np.empty((3, 3)), np.empty(6), ws, ws[8])
-    assert not planar_aba(*args, A0, np.empty((3, 3)), pw, pw[-1])
+    args = (ch.kernel_arrays()._replace(mass=mass), q_c, v_c, tau)
+    assert not recursive.aba(*args, np.zeros(6), A0, False, np.zeros(6), np.empty((3, 3)), np.empty(6), ws, ws.scratch)
+    assert not planar_aba(*args, A0, np.empty((3, 3)), pw, pw.pscratch)
 
 
 def test_workspace_reuse_is_clean(rng):
@@ -176,10 +176,10 @@ def test_workspace_reuse_is_clean(rng):
     q, v, p = planar_state(ch, rng)
     f = ch.internal_forces(q, v, p).reshape(3, 3)
     A0 = np.array([0.0, 0.0, 9.81, 0.0, 0.0, 0.0])
-    args = (ch._arrays, q.reshape(3, 3), v.reshape(3, 3), f, A0)
+    args = (ch.kernel_arrays(), q.reshape(3, 3), v.reshape(3, 3), f, A0)
     q1 = np.empty((3, 3))
     q2 = np.empty((3, 3))
-    assert planar_aba(*args, q1, pw, pw[-1])
+    assert planar_aba(*args, q1, pw, pw.pscratch)
     fresh = planar_workspace(3)
     assert planar_aba(*args, q2, fresh, fresh[-1])
     assert np.array_equal(q1, q2) and np.all(np.isfinite(q1))
@@ -194,13 +194,13 @@ def test_planar_rnea_equals_rnea_and_inverts_planar_aba(n, rng):
     a_c = rng.normal(size=(n, 3)) * ch._locked.__invert__()
     A0 = np.zeros(6)
     A0[:3] = -ch._g_B
-    args = (ch._arrays, q_c, v_c)
+    args = (ch.kernel_arrays(), q_c, v_c)
     ws = recursive.aba_workspace(n, 3 * n)
     tau_r, F_r = np.empty((n, 3)), np.empty(6)
-    recursive.rnea(*args, a_c, np.zeros(6), A0, tau_r, F_r, ws, ws[8])
+    recursive.rnea(*args, a_c, np.zeros(6), A0, tau_r, F_r, ws, ws.scratch)
     pw = planar_workspace(n)
     tau_p, F_p = np.full((n, 3), np.nan), np.full(6, np.nan)
-    planar_rnea(*args, a_c, A0, tau_p, F_p, pw, pw[-1])
+    planar_rnea(*args, a_c, A0, tau_p, F_p, pw, pw.pscratch)
     assert rel(tau_p[:, :2], tau_r[:, :2]) < 1e-12
     assert np.abs(tau_r[:, 2]).max() <= 1e-12 * np.abs(tau_r).max() and np.all(tau_p[:, 2] == 0.0)
     assert rel(F_p, F_r) < 1e-12
@@ -208,9 +208,9 @@ def test_planar_rnea_equals_rnea_and_inverts_planar_aba(n, rng):
     # here: l is stiff against ux; recursive.aba(recursive.rnea) is no closer), the forces on
     # the free coordinates to rounding
     qdd = np.empty((n, 3))
-    assert planar_aba(*args, tau_p, A0, qdd, pw, pw[-1])
+    assert planar_aba(*args, tau_p, A0, qdd, pw, pw.pscratch)
     assert rel(qdd, a_c) < 1e-10
     tau2 = np.empty((n, 3))
-    planar_rnea(*args, qdd, A0, tau2, F_p, pw, pw[-1])
+    planar_rnea(*args, qdd, A0, tau2, F_p, pw, pw.pscratch)
     free = ~ch._locked
     assert rel(tau2[free], tau_p[free]) < 1e-13

@@ -18,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..model.arc import jit, jit_helper, take1
-from .arrays import AbaDerivativesWorkspace
+from .arrays import AbaDerivativesWorkspace, AbaWorkspace, ChainArrays, RneaWorkspace
 from ..model.slices import input_matrix_c
 from .recursive import _chol as recursive_chol
 from .recursive import aba as recursive_aba
@@ -34,6 +34,7 @@ __all__ = ["aba_derivatives", "aba_derivatives_workspace", "input_matrices"]
 def input_matrices(arr, q, B, sc):
     """``B[j]`` (3, 3) the input matrix of every segment (:func:`qchain.model.slices.input_matrix_c`);
     ``arr`` the model's :class:`~qchain.algorithms.arrays.ChainArrays`."""
+    arr = ChainArrays(*arr)  # a plain tuple from Python (arrays.py), named here
     _input_matrices(q, arr.A_ch, arr.r_ch, arr.paper_act, B, sc)
 
 
@@ -134,6 +135,10 @@ def aba_derivatives(arr, floating, q, qd, p, tau_ext, V0, A_B, g_B, ws, wd, wa, 
     Returns 0, or 1 where an articulated block is not positive definite, 2 where ``M`` is not,
     3 where ``a`` or a derivative is not finite.
     """
+    arr = ChainArrays(*arr)  # a plain tuple from Python (arrays.py), named here
+    ws = AbaWorkspace(*ws)
+    wd = RneaWorkspace(*wd)
+    wa = AbaDerivativesWorkspace(*wa)
     n = q.shape[0]
     off = 6 if floating else 0
     f, qdd, A0, a = wa.f, wa.a_c, wa.A0, wa.a
@@ -231,6 +236,7 @@ def _aba_derivatives_at(arr, floating, q, qd, p, qdd, A0, a, V0, g_B, ws, wd, wa
 def aba_derivatives_fresh(arr, floating, q, qd, p, tau_ext, V0, A_B, g_B):
     """:func:`aba_derivatives` in a workspace made here (no ``Data`` given): returns
     ``(status, a, da_dq, da_dv, da_dp, da_dtau)`` and boxes only those."""
+    arr = ChainArrays(*arr)  # a plain tuple from Python (arrays.py), named here
     n = q.shape[0]
     nv = (6 if floating else 0) + 3 * n
     ws = recursive_aba_workspace(n, nv)

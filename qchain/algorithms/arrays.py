@@ -10,7 +10,13 @@ The workspaces, made by the passes' allocators (``recursive.aba_workspace``,
 ``planar.planar_workspace``), by :class:`qchain.arm.data.Data` (whose attributes bear the
 fields' names) or carved from the engine's buffer: :class:`AbaWorkspace`,
 :class:`RneaWorkspace`, :class:`AbaDerivativesWorkspace`, :class:`PlanarWorkspace`. The arrays'
-shapes are in :mod:`qchain.arm.data`'s docstring and in the allocators."""
+shapes are in :mod:`qchain.arm.data`'s docstring and in the allocators.
+
+A pass takes each structure either named or as the plain tuple of its fields, and names it on
+entry (``arr = ChainArrays(*arr)``, free in compiled code). Python callers pass the plain
+tuple: numba's dispatcher types a tuple of arrays in C but a NamedTuple field by field in
+Python, about a microsecond a call for ``ChainArrays`` (``benchmarks/bench_chain.py`` is the
+figure that would show it). Compiled callers (the engine) pass the named structures."""
 
 from __future__ import annotations
 

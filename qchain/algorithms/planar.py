@@ -81,7 +81,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .arrays import PlanarWorkspace
+from .arrays import ChainArrays, PlanarWorkspace
 from ..model.arc import SCRATCH, _bend, jit, jit_inline as _inline
 
 __all__ = ["planar_aba", "planar_aba_moving", "planar_rnea", "planar_workspace"]
@@ -376,6 +376,8 @@ def planar_aba(arr, q, qd, tau, A0, qdd, ws, sc):
     any float array of :data:`qchain.model.arc.SCRATCH`). Returns False where an articulated block
     is not positive definite.
     """
+    arr = ChainArrays(*arr)  # a plain tuple from Python (arrays.py), named here
+    ws = PlanarWorkspace(*ws)
     return _planar_aba(arr, q, qd, tau, 0.0, 0.0, 0.0, A0, qdd, ws, sc)
 
 
@@ -384,6 +386,8 @@ def planar_aba_moving(arr, q, qd, tau, V0, A0, qdd, ws, sc):
     """:func:`planar_aba` for a base moving in its x-z plane (a prescribed base): ``V0`` (6,)
     is the base's body twist, of which only the in-plane components 0, 2, 4 are used (the
     reduction is exact only if the others are zero)."""
+    arr = ChainArrays(*arr)  # a plain tuple from Python (arrays.py), named here
+    ws = PlanarWorkspace(*ws)
     return _planar_aba(arr, q, qd, tau, V0[0], V0[2], V0[4], A0, qdd, ws, sc)
 
 
@@ -398,6 +402,8 @@ def planar_rnea(arr, q, qd, qdd, A0, tau, F0, ws, sc):
     docstring). ``arr`` the model's :class:`~qchain.algorithms.arrays.ChainArrays`; ``ws`` from
     :func:`planar_workspace`; ``sc`` is not used.
     """
+    arr = ChainArrays(*arr)  # a plain tuple from Python (arrays.py), named here
+    ws = PlanarWorkspace(*ws)
     alpha, w, offs, mass, radius = arr.alpha, arr.w, arr.offs, arr.mass, arr.radius
     n = q.shape[0]
     T, c, b, M = ws.pT, ws.pc, ws.pb, ws.pM

@@ -36,7 +36,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .arrays import AbaWorkspace
+from .arrays import AbaWorkspace, ChainArrays
 from ..model.arc import SCRATCH, arc_node, arc_pose, jit, jit_helper, take1, take2
 from ..model.slices import (
     _segment_slices, domain_violation, elastic_gradient_c, input_matrix_c, rest_damping_c, phi_matrix, slice_twist,
@@ -112,6 +112,8 @@ def rnea(arr, q, qd, qdd, V0, A0, tau, F0, ws, sc):
     :meth:`qchain.arm.data.Data.aba_workspace`; ``arr`` the model's
     :class:`~qchain.algorithms.arrays.ChainArrays`.
     """
+    arr = ChainArrays(*arr)  # a plain tuple from Python (arrays.py), named here
+    ws = AbaWorkspace(*ws)
     alpha, w, offs, mass, radius = arr.alpha, arr.w, arr.offs, arr.mass, arr.radius
     n = q.shape[0]
     T, c, Q = ws.T, ws.c, ws.Q
@@ -181,6 +183,8 @@ def crba(arr, q, floating, H, ws, sc):
     ``ws`` is :meth:`qchain.arm.data.Data.aba_workspace`; ``arr`` the model's
     :class:`~qchain.algorithms.arrays.ChainArrays`.
     """
+    arr = ChainArrays(*arr)  # a plain tuple from Python (arrays.py), named here
+    ws = AbaWorkspace(*ws)
     alpha, w, offs, mass, radius = arr.alpha, arr.w, arr.offs, arr.mass, arr.radius
     n = q.shape[0]
     off = 6 if floating else 0
@@ -291,6 +295,8 @@ def aba(arr, q, qd, tau, V0, A0, floating, F0, qdd, A0_out, ws, sc):
     :meth:`qchain.arm.data.Data.aba_workspace`; ``arr`` the model's
     :class:`~qchain.algorithms.arrays.ChainArrays`.
     """
+    arr = ChainArrays(*arr)  # a plain tuple from Python (arrays.py), named here
+    ws = AbaWorkspace(*ws)
     alpha, w, offs, mass, radius = arr.alpha, arr.w, arr.offs, arr.mass, arr.radius
     locked = arr.locked
     n = q.shape[0]
@@ -529,6 +535,7 @@ def internal_forces(arr, q, qd, p, out, sc):
     :func:`qchain.model.slices.elastic_gradient_c`). These terms are coordinate-free: paper
     coordinates get ``J^T`` of them. ``arr``: the model's :class:`~qchain.algorithms.arrays.ChainArrays`.
     """
+    arr = ChainArrays(*arr)  # a plain tuple from Python (arrays.py), named here
     l0, EI, EA, beta, A_ch, r_ch, paper_act = arr.l0, arr.EI, arr.EA, arr.beta, arr.A_ch, arr.r_ch, arr.paper_act
     o = 0
     B, o = take2(sc, o, 3, 3)

@@ -43,7 +43,7 @@ from ..model.arc import arc_node, arc_node_derivatives, jit, jit_helper, jit_inl
 from ..model.slices import (
     elastic_hessian_c, mass_finish, mass_node, phi_matrix, phi_transpose_force, pressure_jacobian_c, rest_damping_c,
     slice_twist)
-from .arrays import RneaWorkspace
+from .arrays import AbaWorkspace, ChainArrays, RneaWorkspace
 from .recursive import _load_xi
 from .recursive import _project as recursive_project
 from .recursive import aba_workspace as recursive_aba_workspace
@@ -396,6 +396,9 @@ def rnea_derivatives(arr, q, qd, qdd, V0, A0, floating, g_B, ws, wd, sc):
     / twist, then the segments), and ``M`` (nv, nv) ``= d(F0, tau)/da``. ``g_B`` (3,) is gravity
     in the first root's frame (it turns with a floating base).
     """
+    arr = ChainArrays(*arr)  # a plain tuple from Python (arrays.py), named here
+    ws = AbaWorkspace(*ws)
+    wd = RneaWorkspace(*wd)
     _rnea_derivatives(arr, q, qd, qdd, V0, A0, floating, g_B, ws, wd, sc)
 
 
@@ -702,6 +705,7 @@ def internal_forces_derivatives(arr, q, p, dfq, dfv, sc):
     :func:`qchain.algorithms.recursive.internal_forces` (material law, curvature coordinates):
     ``dfq[j] = d(B p)/dq - d^2 U_el/dq^2`` and ``dfv[j] = -D`` (n, 3, 3); ``arr`` the model's
     :class:`~qchain.algorithms.arrays.ChainArrays`."""
+    arr = ChainArrays(*arr)  # a plain tuple from Python (arrays.py), named here
     _internal_forces_derivatives(q, p, arr.l0, arr.EI, arr.EA, arr.beta, arr.A_ch, arr.r_ch, arr.paper_act, dfq, dfv,
                                  sc)
 
@@ -728,6 +732,7 @@ def _internal_forces_derivatives(q, p, l0, EI, EA, beta, A_ch, r_ch, paper_act, 
 def rnea_derivatives_fresh(arr, q, qd, qdd, V0, A0, floating, g_B):
     """:func:`rnea_derivatives` in a workspace made here: returns ``(tau_c, F0, dtau_dq,
     dtau_dv, M)``."""
+    arr = ChainArrays(*arr)  # a plain tuple from Python (arrays.py), named here
     n = q.shape[0]
     nv = (6 if floating else 0) + 3 * n
     ws = recursive_aba_workspace(n, nv)

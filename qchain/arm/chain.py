@@ -215,10 +215,13 @@ class Chain(KeepsReadOnly, ChainKinematics, ChainChecks):
         self._lock_values = np.zeros((n, 3))
         self._lock_values[:, 0] = self._l0
         self._any_locked = bool(self._locked.any())
-        # the same arrays as one structure, the compiled passes' first argument
-        self._arrays = ChainArrays(alpha=self._alpha, w=self._w, offs=self._offs, mass=self._mass,
+        # the same arrays as one structure (kernel_arrays), and as the plain tuple of its fields
+        # that the Python-side calls pass (numba types a plain tuple of arrays in C, a
+        # NamedTuple field by field in Python: a microsecond a call; the passes name it again)
+        self._named_arrays = ChainArrays(alpha=self._alpha, w=self._w, offs=self._offs, mass=self._mass,
                                    radius=self._radius, l0=self._l0, EI=self._EI, EA=self._EA, beta=self._beta,
                                    A_ch=self._A_ch, r_ch=self._r_ch, paper_act=self._paper_act, locked=self._locked)
+        self._arrays = tuple(self._named_arrays)
         self.active = np.ones(self.nv, dtype=bool)
         self.active[self._voff :] = ~self._locked.ravel()
         self.active.flags.writeable = False
@@ -253,7 +256,7 @@ class Chain(KeepsReadOnly, ChainKinematics, ChainChecks):
         paper's actuation law; ``locked (n, 3) bool`` coordinates held still."""
         if self._any_paper or self._has_linear:
             return None
-        return self._arrays
+        return self._named_arrays
 
     def q_slice(self, j: int) -> slice:
         """Indices of segment ``j``'s ``q_e`` in ``q`` (``0 <= j < n``)."""
@@ -495,8 +498,6 @@ class Chain(KeepsReadOnly, ChainKinematics, ChainChecks):
         as ``data=`` to the dynamics methods so a loop of calls allocates no arrays."""
         return Data(self.n, self.nv)
 
-    def _ws(self, data: Data | None) -> tuple:
-        return recursive.aba_workspace(self.n, self.nv) if data is None else data.aba_workspace()
 
     def _aba(self, q_c, v_c, f_c, V0, A0, F0, qdd_c, A0_out, data: Data | None) -> bool:
         """The articulated-body pass: :func:`qchain.algorithms.planar.planar_aba` for a planar chain on a
@@ -504,14 +505,15 @@ class Chain(KeepsReadOnly, ChainKinematics, ChainChecks):
         if self._planar_kernel:
             pw = _planar.planar_workspace(self.n) if data is None else data.planar_workspace()
             A0_out[:] = A0
-            return _planar.planar_aba(self._arrays, q_c, v_c, f_c, A0, qdd_c, pw, pw.pscratch)
+            return _planar.planar_aba(self._arrays, q_c, v_c, f_c, A0, qdd_c, tuple(pw), pw.pscratch)
         return recursive.aba(self._arrays, q_c, v_c, f_c, V0, A0, self.floating, F0, qdd_c, A0_out,
                              *self._ws_sc(data))
 
     def _ws_sc(self, data: Data | None) -> tuple:
-        """``(workspace, scratch)`` arguments of the compiled passes."""
-        ws = self._ws(data)
-        return ws, ws.scratch
+        """``(workspace, scratch)`` arguments of the compiled passes, the workspace as the plain
+        tuple of its fields (as ``_arrays``: the pass names it again)."""
+        ws = recursive.aba_workspace(self.n, self.nv) if data is None else data.aba_workspace()
+        return tuple(ws), ws.scratch
 
     @_finite("mass matrix")
     def mass_matrix(self, q, data: Data | None = None) -> np.ndarray:
@@ -520,8 +522,7 @@ class Chain(KeepsReadOnly, ChainKinematics, ChainChecks):
         st = self._state(q, nonsingular=True)
         data = self._data(data)
         H = np.empty((self.nv, self.nv)) if data is None else data.M
-        ws = self._ws(data)
-        recursive.crba(self._arrays, st.q_c, self.floating, H, ws, ws.scratch)
+        recursive.crba(self._arrays, st.q_c, self.floating, H, *self._ws_sc(data))
         T = self._lift(st)
         return H if T is None else T.T @ H @ T
 

@@ -92,7 +92,8 @@ def _curvature_id_derivatives(ch: Chain, st: _State, qdd_c: np.ndarray, A0: np.n
     if data is None:
         tau, F0, dq, dv, M = rnea_derivatives.rnea_derivatives_fresh(*args)
     else:
-        rnea_derivatives.rnea_derivatives(*args, data.aba_workspace(), data.rnea_workspace(), data.scratch)
+        rnea_derivatives.rnea_derivatives(*args, tuple(data.aba_workspace()), tuple(data.rnea_workspace()),
+                                           data.scratch)
         tau, F0, dq, dv, M = data.tau_c, data.F0, data.dtau_dq, data.dtau_dv, data.M
     tau = tau.ravel()
     full = np.concatenate([F0, tau]) if ch.floating else tau.copy()
@@ -226,8 +227,8 @@ def compiled_forward_dynamics_derivatives(ch: Chain, q_c, v_c, p3, tau, V0, A_B,
     if data is None:
         status, *out = aba_derivatives.aba_derivatives_fresh(*args)
     else:
-        status = aba_derivatives.aba_derivatives(*args, data.aba_workspace(), data.rnea_workspace(),
-                                             data.aba_derivatives_workspace(), data.scratch)
+        status = aba_derivatives.aba_derivatives(*args, tuple(data.aba_workspace()), tuple(data.rnea_workspace()),
+                                                 tuple(data.aba_derivatives_workspace()), data.scratch)
         out = (data.a, data.da_dq, data.da_dv, data.da_dp, data.da_dtau)
     if status and check:
         if status in (1, 2):  # name the segment whose inertia is singular, and its coordinates
