@@ -44,6 +44,7 @@ from ..algorithms import recursive
 from ..algorithms.arrays import ChainArrays
 from ..model.arc import SCRATCH, arc_nodes
 from .checks import QUATERNION_TOLERANCE, ChainChecks, _finite  # noqa: F401 (QUATERNION_TOLERANCE re-exported)
+from .contact import ChainContact
 from .kinematics import _NO_POINTS, ChainKinematics, Frames
 from .dynamics_derivatives import _ZERO6, ForwardDynamicsDerivatives, InverseDynamicsDerivatives
 from .data import Data
@@ -92,7 +93,7 @@ def _check_placement(name: str, X) -> None:
     POSITION.check_array(f"{name}.translation", H[:3, 3])
 
 
-class Chain(KeepsReadOnly, ChainKinematics, ChainChecks):
+class Chain(KeepsReadOnly, ChainKinematics, ChainContact, ChainChecks):
     """A soft arm of ``n`` segments.
 
     Parameters
@@ -537,17 +538,21 @@ class Chain(KeepsReadOnly, ChainKinematics, ChainChecks):
         return np.concatenate([F0, tau]) if self.floating else tau
 
     @_finite("generalised force M a + C v + g", has_v=True)
-    def inverse_dynamics(self, q, v, a, t: float = 0.0) -> np.ndarray:
+    def inverse_dynamics(self, q, v, a, t: float = 0.0, env=None) -> np.ndarray:
         """``M a + C v + g`` (nv,) by recursive Newton-Euler over the slices (Pinocchio's ``rnea``;
         docs/model.md sections 4 and 8): the inertial and gravity terms of eq. (9).
 
         No elastic, damping or pressure terms. For a floating base the first six entries
         are the wrench on the base (base frame). For a prescribed base the base's own
-        motion at time ``t`` is included.
+        motion at time ``t`` is included. With ``env`` (a :class:`qchain.contact.Environment`)
+        its generalised force is subtracted: what the arm's own forces must supply.
         """
         st = self._state(q, v, t=t, nonsingular=True)
         a = as_vector("a", a, self.nv)
-        return self._rnea(st, a[self._voff :].reshape(self.n, 3), a[:6] if self.floating else None)
+        out = self._rnea(st, a[self._voff :].reshape(self.n, 3), a[:6] if self.floating else None)
+        if env is not None:
+            out = out - self.environment_force(q, v, env, t)
+        return out
 
     def nonlinear_effects(self, q, v, t: float = 0.0) -> np.ndarray:
         """``C(q, v) v + g(q)`` (nv,) ``== inverse_dynamics(q, v, 0)`` (Pinocchio's ``nle``)."""
@@ -640,7 +645,7 @@ class Chain(KeepsReadOnly, ChainKinematics, ChainChecks):
         return f
 
     def forward_dynamics(self, q, v, p=None, tau=None, t: float = 0.0, data: Data | None = None,
-                         skip_checks: bool = False) -> np.ndarray:
+                         skip_checks: bool = False, env=None) -> np.ndarray:
         """Accelerations ``a`` (nv,) of ``M a + C v + g + D v + dU_el/dq = B p + tau``.
 
         The paper's eq. (9) for the chain (docs/model.md section 6), solved by the
@@ -650,9 +655,14 @@ class Chain(KeepsReadOnly, ChainKinematics, ChainChecks):
         ``tau[:6]`` is a wrench on the base in the base frame). ``data`` (:meth:`create_data`)
         is the workspace the pass writes in. ``skip_checks=True``
         is the unchecked fast path (:meth:`forward_dynamics_derivatives`): it returns
-        ``data.a``, overwritten by the next call with that ``data``.
+        ``data.a``, overwritten by the next call with that ``data``. ``env`` (a
+        :class:`qchain.contact.Environment`) adds its contact forces and loads to ``tau``
+        (:meth:`environment_force`).
         """
         data = self._data(data)
+        if env is not None:
+            te = self.environment_force(q, v, env, t)
+            tau = te if tau is None else self._vec("tau", tau, self.nv) + te
         if as_bool("skip_checks", skip_checks):
             return self._forward_dynamics_unchecked(q, v, p, tau, t, data)
         st, p3, tau = self._dynamics_inputs(q, v, p, tau, t)

@@ -56,6 +56,15 @@ __all__ = [
     "SEGMENT_COUNT",
     "WORKERS",
     "RETRIES",
+    "EXTENT",
+    "CONTACT_STIFFNESS",
+    "CONTACT_EXPONENT",
+    "CONTACT_DAMPING",
+    "FRICTION",
+    "SLIP_VELOCITY",
+    "RESTITUTION",
+    "IMPACT_SPEED",
+    "CONTACT_NODES",
 ]
 
 
@@ -224,3 +233,14 @@ RETRIES = Range(0, 100, integer=True)  #: runs of a rollout again after its work
 #: coordinate): wider than what 1 GPa in the largest chamber of :mod:`this module` makes
 #: (3e13), small enough that no product with the model's quantities overflows.
 FORCE = Range(-1e15, 1e15)
+
+# -- contact (qchain.contact): obstacles and the contact law
+EXTENT = Range(0.0, 1e4, "m", low_open=True)  #: an obstacle's radius, half-extent or length
+CONTACT_STIFFNESS = Range(0.0, 1e15, "N/m^(1+exponent)", low_open=True)  #: normal force per metre of tube
+CONTACT_EXPONENT = Range(1.0, 3.0)  #: the power of the penetration in the normal force
+CONTACT_DAMPING = Range(0.0, 1e4, "s/m")  #: Hunt-Crossley damping c of f = k d^e (1 + c d')
+FRICTION = Range(0.0, 10.0)  #: a Coulomb coefficient (static or dynamic)
+SLIP_VELOCITY = Range(0.0, 1e2, "m/s", low_open=True)  #: a friction regularisation or Stribeck speed
+RESTITUTION = Range(0.0, 1.0, low_open=True)  #: a coefficient of restitution
+IMPACT_SPEED = Range(0.0, 1e3, "m/s", low_open=True)  #: the impact speed a restitution is set at
+CONTACT_NODES = Range(1, 64, integer=True)  #: contact points along a segment

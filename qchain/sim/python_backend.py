@@ -195,7 +195,10 @@ def run(r, bar, deadline: float | None) -> Trajectory:
         On Ctrl-C, carrying the trajectory up to there.
     """
     method = r.method
-    sysm = _System(r.chain, r.P_in, r.T_in, deadline)
+    T_in = r.T_in
+    if r.env is not None:  # the environment's forces join the external ones
+        T_in = lambda t, q, v: r.T_in(t, q, v) + r.chain.environment_force(q, v, r.env, t)  # noqa: E731
+    sysm = _System(r.chain, r.P_in, T_in, deadline)
     rec = _Recorder(r.chain, sysm, r.t_eval, r.on_sample, r.energies)
     # how far the run has got: time t (s), state q (nq,), v (nv,) and accepted steps, kept where an
     # exception that ends the run (a wall-clock limit, Ctrl-C) finds them

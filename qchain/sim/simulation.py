@@ -292,6 +292,7 @@ def simulate(
     wall_limit: float | None = None,
     controller_rate: float | None = None,
     budget: Budget | None = None,
+    env=None,
 ) -> Trajectory:
     """Integrate ``M a + C v + g + D v + dU/dq = B p + tau`` from ``(q0, v0)`` over ``t_span``.
 
@@ -343,6 +344,10 @@ def simulate(
         a run whose steps (``duration / dt``, ``duration / max_step``, 2 a period of the
         fastest sine input or base motion), samples or memory would exceed it is refused
         before it starts (:class:`qchain.sim.budget.BudgetError`).
+    env : qchain.contact.Environment, optional
+        Obstacles, the contact law and point loads (docs/contact.md): their generalised
+        force joins ``tau``. Runs on ``dopri5``, ``rk4`` and scipy's methods (``radau5`` and
+        ``midpoint`` are refused until the exact Jacobian holds the contact derivatives).
 
     Every number is a real (``bool``, strings and complex numbers raise ``TypeError``)
     inside its range (:mod:`qchain.checks.bounds`; else ``ValueError`` naming the argument, the
@@ -364,7 +369,7 @@ def simulate(
         ``meta`` (``method``, ``nsteps``, ``njev``, ``events``: list of (name, t)).
     """
     run = _check_arguments(chain, q0, v0, t_span, pressure=pressure, tau=tau, method=method, budget=budget,
-                           on_sample=on_sample, dt=dt, rtol=rtol, atol=atol, max_step=max_step, first_step=first_step,
+                           on_sample=on_sample, env=env, dt=dt, rtol=rtol, atol=atol, max_step=max_step, first_step=first_step,
                            wall_limit=wall_limit, t_eval=t_eval, energies=energies, progress=progress, events=events,
                            controller_rate=controller_rate)
     deadline = None if run.wall_limit is None else _time.perf_counter() + float(run.wall_limit)
@@ -430,6 +435,7 @@ class _Run:
     progress: bool | str
     events: list
     controller_rate: float | None
+    env: object = None
     P_in: Callable | None = None
     T_in: Callable | None = None
     held: list = field(default_factory=list)
@@ -442,13 +448,14 @@ class _Run:
                            stable_step=stable_step)
 
 
-def _check_arguments(chain, q0, v0, t_span, *, pressure, tau, method, budget, on_sample, **settings) -> _Run:
+def _check_arguments(chain, q0, v0, t_span, *, pressure, tau, method, budget, on_sample, env=None,
+                     **settings) -> _Run:
     """Step 1 of :func:`simulate`: check its arguments where they enter, in a fixed order (the
     first bad one is the one said), and the run's cost against the budget before it starts.
 
     Parameters
     ----------
-    chain, q0, v0, t_span, pressure, tau, method, budget, on_sample
+    chain, q0, v0, t_span, pressure, tau, method, budget, on_sample, env
         As :func:`simulate`.
     **settings
         The rest of :func:`simulate`'s keywords (``dt``, ``rtol``, ... ``controller_rate``),
@@ -463,7 +470,7 @@ def _check_arguments(chain, q0, v0, t_span, *, pressure, tau, method, budget, on
     q0, v0 = _check_start(chain, q0, v0, t0)
     cfg = check_settings(chain, t0, t1, method=method, on_sample=on_sample, **settings)
     run = _Run(chain=chain, q0=q0, v0=v0, t0=t0, t1=t1, method=method, pressure=pressure, tau=tau,
-               on_sample=on_sample, budget=as_budget(budget), **cfg)
+               on_sample=on_sample, budget=as_budget(budget), env=_check_env(chain, method, env), **cfg)
     run.budget.check(run.cost())
     run.P_in, run.T_in = as_input("pressure", pressure, chain.nu), as_input("tau", tau, chain.nv)  # checked here
     if method in driver.EXPLICIT_STABILITY_EXTENT:  # a stiff model: refused before hours of tiny steps
@@ -509,6 +516,24 @@ def _announce_dense_jacobians(run: _Run) -> None:
         sys.stderr.flush()
 
 
+def _check_env(chain: Chain, method: str, env):
+    """``env`` (None or a :class:`qchain.contact.Environment`) checked against the chain and
+    the method: the exact Jacobians of ``radau5`` and ``midpoint`` do not hold the contact
+    forces' derivatives yet, and a Newton iteration on a Jacobian without them fails at the
+    first stiff contact."""
+    if env is None:
+        return None
+    from ..contact.environment import Environment
+
+    if not isinstance(env, Environment):
+        raise TypeError(f"env must be a qchain.contact.Environment, got {type(env).__name__}")
+    env.check_segments(chain.n)
+    if method in ("radau5", "midpoint"):
+        raise ValueError(f"method {method!r} cannot run with env yet: its exact Jacobian lacks the contact "
+                         "forces' derivatives; use 'dopri5' or 'rk4' (compiled) or scipy's 'Radau' or 'BDF'")
+    return env
+
+
 def _choose_backend(run: _Run):
     """Step 2 of :func:`simulate`: the compiled engine's packed model
     (:func:`qchain.sim.engine.system.pack`) where it serves the run (a method of
@@ -523,7 +548,7 @@ def _choose_backend(run: _Run):
     """
     if run.method in COMPILED:
         zeros = {name: np.zeros(size) for name, _, size in run.held}
-        m = system.pack(run.chain, zeros.get("pressure", run.pressure), zeros.get("tau", run.tau))
+        m = system.pack(run.chain, zeros.get("pressure", run.pressure), zeros.get("tau", run.tau), run.env)
         if m is not None:
             return m
     if run.controller_rate is not None:

@@ -31,6 +31,8 @@ from typing import NamedTuple
 import numpy as np
 
 from ...algorithms import aba_derivatives, planar, recursive, rnea_derivatives
+from ...contact.environment import Environment, PackedEnvironment
+from ...contact.forces import contact_forces, load_forces
 from ...algorithms.arrays import AbaDerivativesWorkspace, AbaWorkspace, ChainArrays, PlanarWorkspace, RneaWorkspace
 from ...model.arc import SCRATCH, arc_node, take1, take2
 from ...model.slices import slice_twist
@@ -77,6 +79,9 @@ class EngineModel(NamedTuple):
         The generalised-force input, likewise.
     layout : (K + 1, 5) int64
         Where the kernel workspaces lie in :attr:`Workspace.buf` (:func:`_layout`).
+    env : PackedEnvironment
+        Obstacles, contact law and point loads (:meth:`qchain.contact.Environment.packed`);
+        none of either costs nothing.
     """
 
     arrays: ChainArrays
@@ -95,6 +100,7 @@ class EngineModel(NamedTuple):
     tau_ints: np.ndarray
     tau_params: np.ndarray
     layout: np.ndarray
+    env: PackedEnvironment
 
 
 class Workspace(NamedTuple):
@@ -130,6 +136,9 @@ class Workspace(NamedTuple):
         The model passes' scratch.
     R_WB : (3, 3) float
         The base's rotation in the world.
+    W : (n + 2, 6) float
+        The environment pass's root wrenches (rows ``0..n``) and its wrench on the base (row
+        ``n + 1``, base frame).
     """
 
     q: np.ndarray
@@ -146,9 +155,10 @@ class Workspace(NamedTuple):
     buf: np.ndarray
     scratch: np.ndarray
     R_WB: np.ndarray
+    W: np.ndarray
 
 
-def pack(chain, pressure, tau) -> EngineModel | None:
+def pack(chain, pressure, tau, env=None) -> EngineModel | None:
     """The :class:`EngineModel` of ``chain`` with compiled ``pressure`` and ``tau`` inputs, or
     None where the compiled engine cannot serve it (paper coordinates, the linear law, a Python
     controller or a Python ``base_motion``). A ``planar`` chain whose base stays in its x-z
@@ -176,11 +186,12 @@ def pack(chain, pressure, tau) -> EngineModel | None:
     else:
         bm = (np.zeros(1, dtype=np.int64), np.zeros(1))
     X = chain.base_placement
+    env = (env or Environment()).packed()
     return EngineModel(arrays=arrays, idx=np.flatnonzero(chain.active).astype(np.int64), base=base,
                        planar_kernel=int(planar_kernel), nq=chain.nq, nv=chain.nv,
                        g_W=np.array(chain.gravity, dtype=float), R_WB0=np.array(X.rotation),
                        p_WB0=np.array(X.translation), bm_ints=bm[0], bm_params=bm[1], p_ints=p[0], p_params=p[1],
-                       tau_ints=f[0], tau_params=f[1], layout=_layout(chain.n, chain.nv))
+                       tau_ints=f[0], tau_params=f[1], layout=_layout(chain.n, chain.nv), env=env)
 
 
 #: the kernel workspaces carved from one buffer (:func:`_layout`), in order: the aba,
@@ -222,7 +233,7 @@ def workspace(chain) -> Workspace:
     return Workspace(q=np.zeros(nq), v=np.zeros(nv), q_chart=np.zeros(nq), p=np.zeros(3 * n), tau=np.zeros(nv),
                      f=np.zeros((n, 3)), A0=np.zeros(6), a=np.zeros(nv), qdd=np.zeros((n, 3)), B=np.zeros((4, 6)),
                      info=np.zeros(4, dtype=np.int64), buf=np.zeros(_layout(n, nv)[-1, 0]), scratch=np.zeros(SCRATCH),
-                     R_WB=np.zeros((3, 3)))
+                     R_WB=np.zeros((3, 3)), W=np.zeros((n + 2, 6)))
 
 
 @inline
@@ -401,13 +412,33 @@ def _forces(m, wk, t):
     for j in range(n):
         for b in range(3):
             f[j, b] += tau[voff + 3 * j + b]
+    _environment(m, wk, q[qoff:].reshape(n, 3), v[voff:].reshape(n, 3), f)
     F0 = B[3]  # reused: the base wrench (floating); the origin row is not needed past here
+    F_env = wk.W[n + 1]
     for r in range(6):
         A0[r] = B[1, r]
-        F0[r] = tau[r] if m.base == FLOATING else 0.0
+        F0[r] = tau[r] + F_env[r] if m.base == FLOATING else 0.0
     for r in range(3):
         A0[r] -= B[2, r]
     return OK
+
+
+@inline
+def _environment(m, wk, q_c, v_c, f):
+    """Add the environment's generalised forces to ``f`` (n, 3) and its wrench on the base to
+    ``wk.W[n + 1]`` (zeroed first); nothing to do without obstacles or loads."""
+    env = m.env
+    n = q_c.shape[0]
+    W = wk.W
+    F_env = W[n + 1]
+    for r in range(6):
+        F_env[r] = 0.0
+    if env.kind.shape[0] > 0:
+        contact_forces(m.arrays, env.kind, env.prm, env.law, env.calpha, q_c, v_c, wk.R_WB, wk.B[3, :3], wk.B[0],
+                       f, F_env, W[: n + 1], W[:0], wk.scratch)
+    if env.seg.shape[0] > 0:
+        load_forces(env.seg, env.alpha, env.wrench, env.local, q_c, wk.R_WB, wk.B[3, :3], f, F_env, W[: n + 1],
+                    wk.scratch)
 
 
 @inline

@@ -1,0 +1,64 @@
+"""Contact and point loads on a :class:`qchain.arm.chain.Chain` (:class:`ChainContact`, a base
+class of ``Chain``): the generalised force an :class:`qchain.contact.Environment` exerts at a
+state, and which contacts are active (:mod:`qchain.contact.forces` computes both)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..contact.environment import Contacts, Environment
+from ..contact.forces import RECORD, contact_forces, load_forces
+from ..model.arc import SCRATCH
+
+__all__ = ["ChainContact"]
+
+
+def _check_env(env) -> Environment:
+    if not isinstance(env, Environment):
+        raise TypeError(f"env must be a qchain.contact.Environment, got {type(env).__name__}")
+    return env
+
+
+class ChainContact:
+    """The :class:`~qchain.contact.Environment` methods of :class:`~qchain.arm.chain.Chain`."""
+
+    def _environment_force(self, st, env: Environment, cap: int = 0):
+        """``(tau (nv,), records (c, RECORD))``: the environment's generalised force at the
+        validated state ``st`` (with velocity) and its first ``cap`` contact records."""
+        env.check_segments(self.n)
+        pk = env.packed()
+        tau_c = np.zeros((self.n, 3))
+        F0 = np.zeros(6)
+        W = np.zeros((self.n + 1, 6))
+        sc = np.empty(SCRATCH)
+        R_WB = np.ascontiguousarray(st.X_WB.rotation)
+        p_WB = np.ascontiguousarray(st.X_WB.translation)
+        rec = np.zeros((cap, RECORD))
+        count = 0
+        if pk.kind.size:
+            v_c = np.ascontiguousarray(st.v_c)
+            count = contact_forces(self._arrays, pk.kind, pk.prm, pk.law, pk.calpha, st.q_c, v_c, R_WB, p_WB,
+                                   np.ascontiguousarray(st.V0), tau_c, F0, W, rec, sc)
+        if pk.seg.size:
+            load_forces(pk.seg, pk.alpha, pk.wrench, pk.local, st.q_c, R_WB, p_WB, tau_c, F0, W, sc)
+        tau = self._force_e(st, tau_c).ravel()
+        if self.floating:
+            tau = np.concatenate([F0, tau])
+        return tau, rec[: min(count, cap)], count
+
+    def environment_force(self, q, v, env: Environment, t: float = 0.0) -> np.ndarray:
+        """The generalised force (nv,) of the environment ``env`` on the arm at ``(q, v)``: its
+        contact forces and point loads, ``sum J_i^T F_i`` over the points they act at (the
+        chain's coordinates; a floating base's part is the wrench on the base, base frame)."""
+        env = _check_env(env)
+        return self._environment_force(self._state(q, v, t=t), env)[0]
+
+    def contacts(self, q, v, env: Environment, t: float = 0.0) -> Contacts:
+        """The active contacts of the arm with ``env``'s obstacles at ``(q, v)``: where, how
+        deep, which obstacle, the force on the arm (:class:`qchain.contact.Contacts`), and
+        their generalised force with the loads'."""
+        env = _check_env(env)
+        st = self._state(q, v, t=t)
+        cap = self.n * env.nodes * max(1, len(env.obstacles))
+        tau, rec, _ = self._environment_force(st, env, cap)
+        return Contacts.from_records(rec, tau)

@@ -1,0 +1,292 @@
+"""Contact and load forces on a chain as generalised forces (numba): the compiled passes
+behind :class:`qchain.contact.Environment`.
+
+The arm's body is the tube of radius ``r_s`` around the backbone. Each segment carries
+``K`` contact points at the slice coordinates ``calpha`` (midpoints, ``(i + 1/2) / K``); each
+stands for ``l0 / K`` of rest length, as a ball of radius ``r_s`` (the tube as a chain of
+balls: a flat obstacle meets it within ``r_s (1 - cos(l0 / (2 K r_s)))``-deep ripples, a
+fraction of the penetration at rest for ``K`` as :mod:`qchain.contact.environment` picks it).
+
+**Law** (``law`` (8,): ``k, e, c, mu_s, mu_d, eps, v_s, 0``; docs/contact.md). A point with
+backbone position ``x`` at signed distance ``phi(x)`` from an obstacle with outward normal
+``n`` penetrates by ``d = r_s - phi`` and, where ``d > 0``, takes at its surface point
+``x_c = x - r_s n``
+
+* the normal force ``f_n = l k d^e max(0, 1 + c d')`` (Hunt and Crossley's, per rest length
+  ``l`` of tube: N), ``d' = -n . v_c`` the rate of penetration;
+* the friction force ``f_t = -mu(s) f_n v_t / sqrt(s^2 + eps^2)``, ``v_t`` the sliding velocity
+  of the surface point (``s = |v_t|``), ``mu(s) = mu_d + (mu_s - mu_d) exp(-(s / v_s)^2)``:
+  Coulomb's law regularised below the speed ``eps`` (m/s), static to dynamic over ``v_s``.
+
+**Generalised forces.** A world force ``F`` at ``x_c`` is the slice wrench
+``w = (R^T F, R^T ((x_c - x) x F))`` (slice frame, ``[linear; angular]``); the segment's
+coordinates get ``S(alpha)^T w`` and its root the wrench ``Ad(g(alpha))^-T w``
+(:func:`qchain.model.slices.phi_transpose_force`), which a backward pass carries root to root
+by the tip maps, as in :func:`qchain.algorithms.recursive.rnea`. The result is ``J^T F`` for
+the Jacobian ``J`` of the material point at ``x_c``: exactly the virtual work of ``F``.
+
+Unchecked kernels (:mod:`qchain.contact.environment` checks what enters); no allocation, so
+the engine calls them without reference counting.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..algorithms.arrays import ChainArrays
+from ..model.arc import arc_node, arc_pose, jit, take1, take2
+from ..model.slices import phi_transpose_force, slice_twist
+from .distance import PARAMS, signed_distance
+
+__all__ = ["LAW", "RECORD", "contact_forces", "load_forces"]
+
+#: entries of the packed contact law
+LAW = 8
+#: columns of a contact record: segment, alpha, obstacle, penetration (m), point (3, m, world),
+#: normal (3, world), force on the arm (3, N, world), sliding speed (m/s)
+RECORD = 15
+
+
+@jit
+def _root_step(q, qd, Rj, oj, Vj, R1, p1, S1, Sd1, tmp):
+    """Root ``j`` -> root ``j + 1`` in place: world rotation ``Rj``, origin ``oj`` and body twist
+    ``Vj`` of the next root (the tip of segment ``j`` at ``q``, ``qd``)."""
+    arc_node(1.0, q[0], q[1], q[2], qd[0], qd[1], qd[2], R1, p1, S1, Sd1)
+    slice_twist(R1, p1, S1, Vj, qd, tmp)
+    for r in range(6):
+        Vj[r] = tmp[r]
+    for r in range(3):
+        oj[r] += Rj[r, 0] * p1[0] + Rj[r, 1] * p1[1] + Rj[r, 2] * p1[2]
+    for r in range(3):
+        a0, a1, a2 = Rj[r, 0], Rj[r, 1], Rj[r, 2]
+        for c in range(3):
+            Rj[r, c] = a0 * R1[0, c] + a1 * R1[1, c] + a2 * R1[2, c]
+
+
+@jit
+def _add_phi_t(R, p, S, f, wgt, W_root, tau_j, g9):
+    """``(W_root, tau_j) += wgt Phi^T f``: the root wrench (6,) and the segment's generalised
+    force (3,) of the slice wrench ``f`` (6,) (``g9`` (9,) scratch)."""
+    for r in range(9):
+        g9[r] = 0.0
+    phi_transpose_force(R, p, S, f, wgt, g9)
+    for r in range(6):
+        W_root[r] += g9[r]
+    for c in range(3):
+        tau_j[c] += g9[6 + c]
+
+
+@jit
+def _backward(q, W, tau, F0, R1, p1, S1, Sd1, g9):
+    """Carry the root wrenches ``W`` (n + 1, 6) inwards by the tip maps ``Phi_j(1)^T``:
+    ``tau[j] += S_j(1)^T W[j + 1]``, ``W[j] += Ad(g_j(1))^-T W[j + 1]``; then ``F0 += W[0]``
+    (the wrench on the base, base frame)."""
+    n = q.shape[0]
+    for j in range(n - 1, -1, -1):
+        arc_node(1.0, q[j, 0], q[j, 1], q[j, 2], 0.0, 0.0, 0.0, R1, p1, S1, Sd1)
+        _add_phi_t(R1, p1, S1, W[j + 1], 1.0, W[j], tau[j], g9)
+    for r in range(6):
+        F0[r] += W[0, r]
+
+
+@jit
+def _mat3(A, B, out):
+    """``out = A B`` (3, 3)."""
+    for r in range(3):
+        for c in range(3):
+            out[r, c] = A[r, 0] * B[0, c] + A[r, 1] * B[1, c] + A[r, 2] * B[2, c]
+
+
+@jit
+def _point(Rj, oj, p, x):
+    """``x = oj + Rj p``: a point of the root frame ``(Rj, oj)`` in the world."""
+    for r in range(3):
+        x[r] = oj[r] + Rj[r, 0] * p[0] + Rj[r, 1] * p[1] + Rj[r, 2] * p[2]
+
+
+@jit
+def _world_wrench_to_slice(Rs, F, arm, f6):
+    """``f6 = (Rs^T F, Rs^T (arm x F))``: the world force ``F`` (3,) at ``x + arm`` as a wrench
+    at the slice origin ``x``, slice frame ``Rs`` (3, 3)."""
+    mx = arm[1] * F[2] - arm[2] * F[1]
+    my = arm[2] * F[0] - arm[0] * F[2]
+    mz = arm[0] * F[1] - arm[1] * F[0]
+    for r in range(3):
+        f6[r] = Rs[0, r] * F[0] + Rs[1, r] * F[1] + Rs[2, r] * F[2]
+        f6[3 + r] = Rs[0, r] * mx + Rs[1, r] * my + Rs[2, r] * mz
+
+
+@jit
+def law_force(law, ell, d, nrm, vc, F):
+    """The world force ``F`` (3,) on the arm from a contact of penetration ``d > 0`` (m), outward
+    normal ``nrm`` (3,), surface-point velocity ``vc`` (3, m/s) and rest length ``ell`` (m);
+    returns the sliding speed (m/s). The law is the module docstring's."""
+    k, e, c, mu_s, mu_d, eps, v_s = law[0], law[1], law[2], law[3], law[4], law[5], law[6]
+    vn = vc[0] * nrm[0] + vc[1] * nrm[1] + vc[2] * nrm[2]
+    fn = ell * k * d ** e * max(0.0, 1.0 - c * vn)  # d' = -vn
+    vt0, vt1, vt2 = vc[0] - vn * nrm[0], vc[1] - vn * nrm[1], vc[2] - vn * nrm[2]
+    s2 = vt0 * vt0 + vt1 * vt1 + vt2 * vt2
+    s = np.sqrt(s2)
+    mu = mu_d + (mu_s - mu_d) * np.exp(-s2 / (v_s * v_s))
+    ft = mu * fn / np.sqrt(s2 + eps * eps)
+    F[0] = fn * nrm[0] - ft * vt0
+    F[1] = fn * nrm[1] - ft * vt1
+    F[2] = fn * nrm[2] - ft * vt2
+    return s
+
+
+@jit
+def contact_forces(arr, kind, prm, law, calpha, q, qd, R_WB, p_WB, V0, tau, F0, W, rec, sc):
+    """Add the contact forces' generalised forces to ``tau`` (n, 3) and their wrench on the
+    base (base frame) to ``F0`` (6,); returns the number of active contacts.
+
+    Parameters
+    ----------
+    arr : ChainArrays (or the plain tuple of its fields)
+    kind : (m,) int64, prm : (m, PARAMS)   the obstacles (:mod:`qchain.contact.distance`).
+    law : (LAW,)                           the packed law (module docstring).
+    calpha : (K,)                          contact points' slice coordinates in (0, 1).
+    q, qd : (n, 3)                         curvature coordinates and their rates.
+    R_WB, p_WB : (3, 3), (3,)              the base (first root) placement in the world.
+    V0 : (6,)                              the base's body twist.
+    W : (n + 1, 6)                         work array (root wrenches).
+    rec : (cap, RECORD)                    the first ``cap`` contacts are written here (cap may be 0).
+    sc : scratch (``SCRATCH``).
+    """
+    arr = ChainArrays(*arr)  # a plain tuple from Python (algorithms/arrays.py), named here
+    n = q.shape[0]
+    m = kind.shape[0]
+    K = calpha.shape[0]
+    o = 0
+    Rj, o = take2(sc, o, 3, 3)
+    oj, o = take1(sc, o, 3)
+    Vj, o = take1(sc, o, 6)
+    R1, o = take2(sc, o, 3, 3)
+    p1, o = take1(sc, o, 3)
+    S1, o = take2(sc, o, 6, 3)
+    Sd1, o = take2(sc, o, 6, 3)
+    Rs, o = take2(sc, o, 3, 3)
+    x, o = take1(sc, o, 3)
+    nrm, o = take1(sc, o, 3)
+    Vs, o = take1(sc, o, 6)
+    vc, o = take1(sc, o, 3)
+    arm, o = take1(sc, o, 3)
+    F, o = take1(sc, o, 3)
+    f6, o = take1(sc, o, 6)
+    g9, o = take1(sc, o, 9)
+    tmp, o = take1(sc, o, 6)
+    near, o = take1(sc, o, m)
+    for r in range(3):
+        oj[r] = p_WB[r]
+        for c in range(3):
+            Rj[r, c] = R_WB[r, c]
+    for r in range(6):
+        Vj[r] = V0[r]
+    for j in range(n + 1):
+        for r in range(6):
+            W[j, r] = 0.0
+    count = 0
+    for j in range(n):
+        l, ux, uy = q[j, 0], q[j, 1], q[j, 2]
+        r_s = arr.radius[j]
+        # broad phase: every point of the arc lies within l / 2 of its middle, and a signed
+        # distance is 1-Lipschitz, so an obstacle farther than l / 2 + r_s from it is not touched
+        arc_pose(0.5, l, ux, uy, R1, p1)
+        _point(Rj, oj, p1, x)
+        reach = 0.5 * abs(l) + r_s
+        any_near = False
+        for b in range(m):
+            near[b] = 1.0 if signed_distance(kind[b], prm[b], x, nrm) < reach else 0.0
+            any_near = any_near or near[b] > 0.0
+        if any_near:
+            ell = arr.l0[j] / K
+            for i in range(K):
+                a = calpha[i]
+                arc_node(a, l, ux, uy, qd[j, 0], qd[j, 1], qd[j, 2], R1, p1, S1, Sd1)
+                _point(Rj, oj, p1, x)
+                _mat3(Rj, R1, Rs)
+                slice_twist(R1, p1, S1, Vj, qd[j], Vs)
+                for b in range(m):
+                    if near[b] == 0.0:
+                        continue
+                    d = r_s - signed_distance(kind[b], prm[b], x, nrm)
+                    if d <= 0.0:
+                        continue
+                    # the surface point x - r_s n: its world velocity v + w x arm
+                    for r in range(3):
+                        arm[r] = -r_s * nrm[r]
+                    for r in range(3):
+                        vc[r] = Rs[r, 0] * Vs[0] + Rs[r, 1] * Vs[1] + Rs[r, 2] * Vs[2]
+                        tmp[r] = Rs[r, 0] * Vs[3] + Rs[r, 1] * Vs[4] + Rs[r, 2] * Vs[5]
+                    vc[0] += tmp[1] * arm[2] - tmp[2] * arm[1]
+                    vc[1] += tmp[2] * arm[0] - tmp[0] * arm[2]
+                    vc[2] += tmp[0] * arm[1] - tmp[1] * arm[0]
+                    slide = law_force(law, ell, d, nrm, vc, F)
+                    _world_wrench_to_slice(Rs, F, arm, f6)
+                    _add_phi_t(R1, p1, S1, f6, 1.0, W[j], tau[j], g9)
+                    if count < rec.shape[0]:
+                        row = rec[count]
+                        row[0], row[1], row[2], row[3] = j, a, b, d
+                        for r in range(3):
+                            row[4 + r] = x[r] + arm[r]
+                            row[7 + r] = nrm[r]
+                            row[10 + r] = F[r]
+                        row[13] = slide
+                        row[14] = 0.0
+                    count += 1
+        _root_step(q[j], qd[j], Rj, oj, Vj, R1, p1, S1, Sd1, tmp)
+    _backward(q, W, tau, F0, R1, p1, S1, Sd1, g9)
+    return count
+
+
+@jit
+def load_forces(seg, alpha, wrench, local, q, R_WB, p_WB, tau, F0, W, sc):
+    """Add the generalised forces of point loads to ``tau`` (n, 3) and their base wrench to
+    ``F0`` (6,).
+
+    Load ``i`` is the wrench ``wrench[i]`` (6,: force N, moment N m) at the backbone point
+    ``alpha[i]`` of segment ``seg[i]``, in the world frame, or in the slice's own frame
+    where ``local[i]`` (a follower load). ``q`` (n, 3) curvature coordinates; ``W`` (n + 1, 6)
+    work array; ``sc`` scratch.
+    """
+    n = q.shape[0]
+    L = seg.shape[0]
+    o = 0
+    Rj, o = take2(sc, o, 3, 3)
+    oj, o = take1(sc, o, 3)
+    Vj, o = take1(sc, o, 6)
+    R1, o = take2(sc, o, 3, 3)
+    p1, o = take1(sc, o, 3)
+    S1, o = take2(sc, o, 6, 3)
+    Sd1, o = take2(sc, o, 6, 3)
+    Rs, o = take2(sc, o, 3, 3)
+    f6, o = take1(sc, o, 6)
+    g9, o = take1(sc, o, 9)
+    tmp, o = take1(sc, o, 6)
+    zero3, o = take1(sc, o, 3)
+    for r in range(3):
+        zero3[r] = 0.0
+        oj[r] = p_WB[r]
+        for c in range(3):
+            Rj[r, c] = R_WB[r, c]
+    for r in range(6):
+        Vj[r] = 0.0
+    for j in range(n + 1):
+        for r in range(6):
+            W[j, r] = 0.0
+    for j in range(n):
+        for i in range(L):
+            if seg[i] != j:
+                continue
+            arc_node(alpha[i], q[j, 0], q[j, 1], q[j, 2], 0.0, 0.0, 0.0, R1, p1, S1, Sd1)
+            if local[i]:
+                for r in range(6):
+                    f6[r] = wrench[i, r]
+            else:
+                _mat3(Rj, R1, Rs)
+                _world_wrench_to_slice(Rs, wrench[i, :3], zero3, f6)
+                for r in range(3):
+                    f6[3 + r] += Rs[0, r] * wrench[i, 3] + Rs[1, r] * wrench[i, 4] + Rs[2, r] * wrench[i, 5]
+            _add_phi_t(R1, p1, S1, f6, 1.0, W[j], tau[j], g9)
+        _root_step(q[j], zero3, Rj, oj, Vj, R1, p1, S1, Sd1, tmp)
+    _backward(q, W, tau, F0, R1, p1, S1, Sd1, g9)

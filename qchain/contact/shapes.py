@@ -1,0 +1,141 @@
+"""Obstacles, checked where they are made: half-spaces (ground, walls), spheres, capsules,
+cylinders (poles) and boxes, fixed in the world frame (m).
+
+Each is a frozen dataclass whose :meth:`row` gives the kernels' parameter row
+(:mod:`qchain.contact.distance`); a bad argument raises naming the parameter, the value and
+the bound (:mod:`qchain.checks.bounds`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..checks.bounds import EXTENT, POSITION
+from ..checks.convert import as_matrix, as_vector
+from .distance import BOX, CAPSULE, CYLINDER, HALFSPACE, PARAMS, SPHERE
+
+__all__ = ["HalfSpace", "Sphere", "Capsule", "Cylinder", "Box", "Obstacle"]
+
+
+def _point(owner: str, name: str, value) -> np.ndarray:
+    x = as_vector(f"{owner}.{name}", value, 3)
+    POSITION.check_array(f"{owner}.{name}", x)
+    return x
+
+
+def _row(kind: int, *parts) -> tuple[int, np.ndarray]:
+    row = np.zeros(PARAMS)
+    flat = np.concatenate([np.ravel(p) for p in parts])
+    row[: flat.size] = flat
+    return kind, row
+
+
+@dataclass(frozen=True)
+class HalfSpace:
+    """The solid below a plane: ``point`` (3,) on it, ``normal`` (3,) pointing out of the solid
+    (normalised). ``HalfSpace()`` is the ground ``z <= 0``."""
+
+    point: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    normal: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, 1.0]))
+
+    def __post_init__(self):
+        object.__setattr__(self, "point", _point("HalfSpace", "point", self.point))
+        nrm = as_vector("HalfSpace.normal", self.normal, 3)
+        size = float(np.linalg.norm(nrm))
+        if not size > 1e-12:
+            raise ValueError(f"HalfSpace.normal must be a nonzero direction, got {nrm.tolist()} (norm {size:g})")
+        object.__setattr__(self, "normal", nrm / size)
+
+    def row(self):
+        return _row(HALFSPACE, self.point, self.normal)
+
+
+@dataclass(frozen=True)
+class Sphere:
+    """A ball: ``center`` (3,) m, ``radius`` m."""
+
+    center: np.ndarray
+    radius: float
+
+    def __post_init__(self):
+        object.__setattr__(self, "center", _point("Sphere", "center", self.center))
+        object.__setattr__(self, "radius", EXTENT.check("Sphere.radius", self.radius))
+
+    def row(self):
+        return _row(SPHERE, self.center, [self.radius])
+
+
+def _axis(owner: str, a, b) -> tuple[np.ndarray, np.ndarray]:
+    a = _point(owner, "a", a)
+    b = _point(owner, "b", b)
+    L = float(np.linalg.norm(b - a))
+    if not L >= 1e-9:
+        raise ValueError(f"{owner}: the axis end points a and b must differ (>= 1e-09 m apart), got |b - a| = {L:g} m "
+                         f"(a = {a.tolist()}, b = {b.tolist()})")
+    return a, b
+
+
+@dataclass(frozen=True)
+class Capsule:
+    """The points within ``radius`` (m) of the segment from ``a`` to ``b`` (3,) (m)."""
+
+    a: np.ndarray
+    b: np.ndarray
+    radius: float
+
+    def __post_init__(self):
+        a, b = _axis("Capsule", self.a, self.b)
+        object.__setattr__(self, "a", a)
+        object.__setattr__(self, "b", b)
+        object.__setattr__(self, "radius", EXTENT.check("Capsule.radius", self.radius))
+
+    def row(self):
+        return _row(CAPSULE, self.a, self.b, [self.radius])
+
+
+@dataclass(frozen=True)
+class Cylinder:
+    """A solid cylinder (a pole) with flat ends: axis from ``a`` to ``b`` (3,) (m), ``radius`` (m)."""
+
+    a: np.ndarray
+    b: np.ndarray
+    radius: float
+
+    def __post_init__(self):
+        a, b = _axis("Cylinder", self.a, self.b)
+        object.__setattr__(self, "a", a)
+        object.__setattr__(self, "b", b)
+        object.__setattr__(self, "radius", EXTENT.check("Cylinder.radius", self.radius))
+
+    def row(self):
+        return _row(CYLINDER, self.a, self.b, [self.radius])
+
+
+@dataclass(frozen=True)
+class Box:
+    """A box: ``center`` (3,) m, ``half_extents`` (3,) m, ``rotation`` (3, 3) box-to-world
+    (orthonormal, det +1; identity by default)."""
+
+    center: np.ndarray
+    half_extents: np.ndarray
+    rotation: np.ndarray = field(default_factory=lambda: np.eye(3))
+
+    def __post_init__(self):
+        object.__setattr__(self, "center", _point("Box", "center", self.center))
+        h = as_vector("Box.half_extents", self.half_extents, 3)
+        EXTENT.check_array("Box.half_extents", h)
+        object.__setattr__(self, "half_extents", h)
+        R = as_matrix("Box.rotation", self.rotation, (3, 3))
+        err = float(np.abs(R.T @ R - np.eye(3)).max())
+        if err > 1e-9 or np.linalg.det(R) < 0.0:
+            raise ValueError(f"Box.rotation must be a rotation matrix (R^T R = I within 1e-09, det +1), got "
+                             f"|R^T R - I| = {err:.3g}, det = {np.linalg.det(R):.6g}")
+        object.__setattr__(self, "rotation", R)
+
+    def row(self):
+        return _row(BOX, self.center, self.half_extents, self.rotation)
+
+
+Obstacle = HalfSpace | Sphere | Capsule | Cylinder | Box

@@ -1,0 +1,264 @@
+"""Contact and point loads (qchain.contact): the obstacles' signed distances against
+independent geometry, the generalised forces against the virtual work of the forces, the law
+against its formula, the engine against scipy's steppers, and every bad input refused where
+it enters."""
+
+import numpy as np
+import pinocchio as pin
+import pytest
+
+import qchain
+from qchain import Chain, Segment
+from qchain.contact import Box, Capsule, ContactLaw, Cylinder, Environment, HalfSpace, PointLoad, Sphere
+from qchain.contact import hunt_crossley_damping
+from qchain.contact.distance import signed_distance
+from support import SEGMENT
+
+RNG = np.random.default_rng(7)
+
+
+def _bent_arm(n=3, base="fixed", seed=1):
+    ch = Chain([Segment(**SEGMENT) for _ in range(n)], base=base)
+    rng = np.random.default_rng(seed)
+    q = ch.neutral()
+    for j in range(n):
+        q[ch.q_slice(j)] = [0.1, *rng.uniform(-8, 8, 2)]
+    return ch, q, rng.normal(size=ch.nv)
+
+
+def _rotation(seed):
+    return pin.rpy.rpyToMatrix(*np.random.default_rng(seed).uniform(-3, 3, 3))
+
+
+SHAPES = [
+    HalfSpace([0.1, -0.2, 0.3], [1.0, 2.0, -0.5]),
+    Sphere([0.1, 0.0, -0.1], 0.2),
+    Capsule([0.0, 0.0, 0.0], [0.3, -0.1, 0.2], 0.05),
+    Cylinder([0.0, 0.1, 0.0], [0.1, -0.2, 0.3], 0.08),
+    Box([0.05, 0.0, 0.1], [0.1, 0.2, 0.05], _rotation(3)),
+]
+
+
+def _surface_residual(ob, y) -> float:
+    """How far the point ``y`` is from ``ob``'s surface, by each shape's own definition."""
+    if isinstance(ob, HalfSpace):
+        return abs((y - ob.point) @ ob.normal)
+    if isinstance(ob, Sphere):
+        return abs(np.linalg.norm(y - ob.center) - ob.radius)
+    if isinstance(ob, (Capsule, Cylinder)):
+        u = ob.b - ob.a
+        L = np.linalg.norm(u)
+        u = u / L
+        s = (y - ob.a) @ u
+        rho = np.linalg.norm((y - ob.a) - s * u)
+        if isinstance(ob, Capsule):
+            t = np.clip(s, 0, L)
+            return abs(np.linalg.norm(y - (ob.a + t * u)) - ob.radius)
+        # on the side (rho = R, 0 <= s <= L) or on a cap (s = 0 or L, rho <= R)
+        side = abs(rho - ob.radius) + max(0.0, -s) + max(0.0, s - L)
+        cap = min(abs(s), abs(s - L)) + max(0.0, rho - ob.radius)
+        return min(side, cap)
+    yl = ob.rotation.T @ (y - ob.center)
+    over = np.maximum(np.abs(yl) - ob.half_extents, 0.0)
+    on_face = np.min(np.abs(np.abs(yl) - ob.half_extents))
+    return np.linalg.norm(over) + on_face
+
+
+@pytest.mark.parametrize("ob", SHAPES, ids=lambda o: type(o).__name__)
+def test_signed_distance_projects_onto_the_surface_with_a_unit_gradient(ob):
+    kind, prm = ob.row()
+    n = np.empty(3)
+    checked = 0
+    for x in RNG.uniform(-0.5, 0.5, (300, 3)):
+        phi = signed_distance(kind, prm, x, n)
+        assert abs(np.linalg.norm(n) - 1.0) < 1e-12
+        # the nearest surface point is x - phi n, and it lies on the surface
+        assert _surface_residual(ob, x - phi * n) < 1e-10
+        # the normal is the gradient (central differences, away from kinks)
+        h = 1e-7
+        g = np.array([(signed_distance(kind, prm, x + h * e, np.empty(3))
+                       - signed_distance(kind, prm, x - h * e, np.empty(3))) / (2 * h) for e in np.eye(3)])
+        if np.linalg.norm(g - n) < 1e-5:
+            checked += 1
+    assert checked > 250  # the gradient is the normal almost everywhere (the medial set is thin)
+
+
+@pytest.mark.parametrize("ob", SHAPES[1:], ids=lambda o: type(o).__name__)
+def test_signed_distance_outside_is_the_distance_to_dense_surface_samples(ob):
+    # an independent nearest point: the closest of many points of the surface, found by
+    # projecting random points onto it with the shape's own residual as the judge
+    kind, prm = ob.row()
+    n = np.empty(3)
+    pts = RNG.uniform(-0.6, 0.6, (20000, 3))
+    surf = []
+    for y in pts:
+        phi = signed_distance(kind, prm, y, n)
+        s = y - phi * n
+        if _surface_residual(ob, s) < 1e-10:
+            surf.append(s)
+    surf = np.array(surf)
+    for x in RNG.uniform(-0.6, 0.6, (40, 3)):
+        phi = signed_distance(kind, prm, x, n)
+        if phi <= 0:
+            continue
+        nearest = np.min(np.linalg.norm(surf - x, axis=1))
+        assert phi <= nearest + 1e-12  # no surface point nearer than phi ...
+        assert nearest - phi < 0.02  # ... and the samples come close to it
+
+
+@pytest.mark.parametrize("base", ["fixed", "floating"])
+def test_a_point_load_is_its_virtual_work(base):
+    ch, q, v = _bent_arm(base=base)
+    F, Mo = np.array([0.3, -0.2, 0.5]), np.array([0.01, 0.02, -0.03])
+    for local in (False, True):
+        tau = ch.environment_force(q, v, Environment(loads=[PointLoad(1, 0.5, force=F, moment=Mo, local=local)]))
+        fr = ch.frames(q, points_per_segment=3)
+        h = 1e-6
+        work = np.empty(ch.nv)
+        R = _slice_rotation(ch, q, 1, 0.5)
+        Fw, Mw = (R @ F, R @ Mo) if local else (F, Mo)
+        for i in range(ch.nv):
+            dq = np.zeros(ch.nv)
+            dq[i] = h
+            qp, qm = ch.integrate(q, dq), ch.integrate(q, -dq)
+            dx = (ch.backbone(qp, 3)[1, 1] - ch.backbone(qm, 3)[1, 1]) / (2 * h)
+            dR = (_slice_rotation(ch, qp, 1, 0.5) - _slice_rotation(ch, qm, 1, 0.5)) / (2 * h)
+            w = dR @ R.T  # [omega]x of the rotation's rate
+            work[i] = Fw @ dx + Mw @ np.array([w[2, 1], w[0, 2], w[1, 0]])
+        assert fr is not None
+        np.testing.assert_allclose(tau, work, rtol=0, atol=1e-8 * np.abs(work).max())
+
+
+def _slice_rotation(ch, q, j, alpha):
+    """World rotation of slice ``alpha`` of segment ``j``, from the root placement and the arc."""
+    from qchain.model.arc import arc_nodes
+
+    X = ch.placements(q)[j]
+    node = arc_nodes(np.array([alpha]), np.asarray(q[ch.q_slice(j)], dtype=float))
+    return X.rotation @ node.R[0]
+
+
+def test_contact_forces_are_point_loads_at_the_contacts_and_follow_the_law():
+    ch, q, v = _bent_arm()
+    B = ch.backbone(q, 11)
+    c = B[1, 5]
+    law = ContactLaw(stiffness=2e5, exponent=1.5, damping=2.0, mu_static=0.6, mu_dynamic=0.4,
+                     slip_velocity=1e-3, stribeck_velocity=1e-2)
+    r_s = SEGMENT["radius"]
+    for ob in [Sphere(c + [0.03, 0, 0], 0.02), HalfSpace(c + [0, 0, 0.01], [0, 0, -1]),
+               Capsule(c + [0.02, -0.1, 0], c + [0.02, 0.1, 0], 0.01), Cylinder(c + [0, -0.1, 0.02], c + [0, 0.1, 0.02], 0.01),
+               Box(c + [0, 0, -0.03], [0.2, 0.2, 0.02])]:
+        env = Environment([ob], law, nodes=8)
+        C = ch.contacts(q, v, env)
+        assert len(C.segment) > 0
+        loads = []
+        for k in range(len(C.segment)):
+            xb = C.point[k] + r_s * C.normal[k]  # the backbone point behind the contact point
+            loads.append(PointLoad(int(C.segment[k]), float(C.alpha[k]), force=C.force[k],
+                                   moment=np.cross(C.point[k] - xb, C.force[k])))
+            # the law, from the record's penetration, normal and the surface point's velocity
+            kind, prm = ob.row()
+            nrm = np.empty(3)
+            d = r_s - signed_distance(kind, prm, xb, nrm)
+            assert d == pytest.approx(C.penetration[k], abs=1e-15)
+            np.testing.assert_allclose(nrm, C.normal[k], atol=1e-15)
+        tl = ch.environment_force(q, v, Environment(loads=loads))
+        np.testing.assert_allclose(C.tau, tl, rtol=0, atol=1e-12 * np.abs(tl).max())
+        ell = SEGMENT["length"] / 8
+        fn = C.force @ np.array(C.normal.T).T if False else np.einsum("ij,ij->i", C.force, C.normal)
+        assert np.all(fn >= 0)
+        # without damping and friction, each normal force is l k d^e exactly
+        C0 = ch.contacts(q, v, Environment([ob], ContactLaw(stiffness=2e5, exponent=1.5), nodes=8))
+        np.testing.assert_allclose(np.linalg.norm(C0.force, axis=1), ell * 2e5 * C0.penetration ** 1.5, rtol=1e-13)
+        # friction opposes sliding and is at most mu_static times the normal force
+        ft = C.force - fn[:, None] * C.normal
+        assert np.all(np.linalg.norm(ft, axis=1) <= 0.6 * fn + 1e-15)
+
+
+def test_a_far_obstacle_changes_nothing():
+    ch, q, v = _bent_arm()
+    p = np.full(ch.nu, 1e4)
+    env = Environment([Sphere([5.0, 5.0, 5.0], 0.5), HalfSpace([0, 0, -3.0])])
+    assert len(ch.contacts(q, v, env).segment) == 0
+    np.testing.assert_array_equal(ch.forward_dynamics(q, v, p, env=env), ch.forward_dynamics(q, v, p))
+
+
+def test_forward_and_inverse_dynamics_take_the_environment():
+    ch, q, v = _bent_arm()
+    c = ch.backbone(q, 11)[2, 5]
+    env = Environment([Sphere(c + [0.025, 0, 0], 0.02)], ContactLaw(damping=1.0, mu_static=0.3, mu_dynamic=0.2),
+                      loads=[PointLoad(2, 1.0, force=[0, 0, -0.5])])
+    p = np.full(ch.nu, 2e4)
+    te = ch.environment_force(q, v, env)
+    assert np.abs(te).max() > 0
+    a = ch.forward_dynamics(q, v, p, env=env)
+    np.testing.assert_allclose(a, ch.forward_dynamics(q, v, p, tau=te), rtol=0, atol=1e-12)
+    # inverse dynamics: M a + C v + g - tau_env equals the arm's own forces at that acceleration
+    lhs = ch.inverse_dynamics(q, v, a, env=env)
+    np.testing.assert_allclose(lhs, ch.internal_forces(q, v, p), rtol=0, atol=1e-9 * np.abs(lhs).max())
+
+
+@pytest.mark.parametrize("base", ["fixed", "floating"])
+def test_the_engine_runs_contact_as_scipy_does(base):
+    X = pin.SE3(pin.rpy.rpyToMatrix(np.pi / 2, 0, 0), np.array([0, 0, 0.05]))
+    ch = Chain([Segment(**SEGMENT) for _ in range(2)], base=base, **({"base_placement": X} if base == "fixed" else {}))
+    q0 = ch.neutral()
+    if base == "floating":
+        q0[:7] = pin.SE3ToXYZQUAT(X)
+    env = Environment([HalfSpace()], ContactLaw(stiffness=1e5, damping=2.0, mu_static=0.5, mu_dynamic=0.4),
+                      loads=[PointLoad(1, 1.0, force=[0.0, 0.0, -0.05])])
+    kw = dict(env=env, rtol=1e-8, atol=1e-10, t_eval=np.linspace(0, 0.1, 3))
+    a = qchain.simulate(ch, q0, np.zeros(ch.nv), (0, 0.1), method="dopri5", **kw)
+    b = qchain.simulate(ch, q0, np.zeros(ch.nv), (0, 0.1), method="RK45", **kw)
+    assert a.success and b.success and a.meta["engine"] != "python" and b.meta["engine"] == "python"
+    assert len(ch.contacts(a.q[-1], a.v[-1], env).segment) > 0
+    np.testing.assert_allclose(a.q, b.q, rtol=0, atol=1e-6)
+
+
+# -- bad input, refused where it enters, naming the parameter, the value and the bound
+
+@pytest.mark.parametrize("make, words", [
+    (lambda: ContactLaw(stiffness=-1.0), "ContactLaw.stiffness must be > 0"),
+    (lambda: ContactLaw(exponent=0.5), "ContactLaw.exponent must be >= 1"),
+    (lambda: ContactLaw(damping=-0.1), "ContactLaw.damping must be >= 0"),
+    (lambda: ContactLaw(mu_static=-0.2), "ContactLaw.mu_static must be >= 0"),
+    (lambda: ContactLaw(mu_static=0.2, mu_dynamic=0.5), "ContactLaw.mu_dynamic must be <= mu_static = 0.2, got 0.5"),
+    (lambda: ContactLaw(slip_velocity=0.0), "ContactLaw.slip_velocity must be > 0"),
+    (lambda: ContactLaw(stiffness=float("nan")), "ContactLaw.stiffness"),
+    (lambda: HalfSpace(normal=[0, 0, 0]), "HalfSpace.normal must be a nonzero direction"),
+    (lambda: Sphere([0, 0, 0], -1.0), "Sphere.radius must be > 0"),
+    (lambda: Sphere([0, 0, np.inf], 1.0), "Sphere.center"),
+    (lambda: Capsule([0, 0, 0], [0, 0, 0], 0.1), "Capsule: the axis end points a and b must differ"),
+    (lambda: Cylinder([0, 0, 0], [0, 0, 1], 0.0), "Cylinder.radius must be > 0"),
+    (lambda: Box([0, 0, 0], [0.1, -0.1, 0.1]), "Box.half_extents[1] must be > 0"),
+    (lambda: Box([0, 0, 0], [0.1, 0.1, 0.1], 2 * np.eye(3)), "Box.rotation must be a rotation matrix"),
+    (lambda: Environment(["ground"]), "Environment.obstacles[0] must be a HalfSpace"),
+    (lambda: Environment(nodes=0), "Environment.nodes must be an integer >= 1"),
+    (lambda: Environment(loads=[3]), "Environment.loads[0] must be a PointLoad"),
+    (lambda: PointLoad(0, 1.5), "PointLoad.alpha must be >= 0 and <= 1, got 1.5"),
+    (lambda: PointLoad(-1, 0.5), "PointLoad.segment must be a segment index >= 0, got -1"),
+    (lambda: PointLoad(0, 0.5, force=[1, 2]), "PointLoad.force must have shape (3,)"),
+    (lambda: hunt_crossley_damping(0.0, 1.0), "restitution must be > 0"),
+    (lambda: hunt_crossley_damping(0.5, -1.0), "impact_speed must be > 0"),
+])
+def test_bad_contact_input_is_refused_by_name(make, words):
+    with pytest.raises((TypeError, ValueError)) as err:
+        make()
+    assert words in str(err.value)
+
+
+def test_an_environment_that_does_not_fit_the_run_is_refused():
+    ch, q, v = _bent_arm(n=2)
+    with pytest.raises(ValueError, match=r"Environment.loads\[0\].segment must be < 2 \(the chain's segments\), got 5"):
+        ch.environment_force(q, v, Environment(loads=[PointLoad(5, 0.5)]))
+    with pytest.raises(TypeError, match="env must be a qchain.contact.Environment, got list"):
+        ch.forward_dynamics(q, v, env=[HalfSpace()])
+    with pytest.raises(TypeError, match="env must be a qchain.contact.Environment, got str"):
+        qchain.simulate(ch, q, v, (0, 0.01), method="dopri5", env="ground")
+    with pytest.raises(ValueError, match="method 'radau5' cannot run with env yet"):
+        qchain.simulate(ch, q, v, (0, 0.01), env=Environment([HalfSpace()]))
+
+
+def test_hunt_crossley_damping_is_the_flores_coefficient():
+    assert hunt_crossley_damping(0.8, 2.0) == pytest.approx(8 * 0.2 / (5 * 0.8 * 2.0), rel=1e-15)
+    assert hunt_crossley_damping(1.0, 1.0) == 0.0
