@@ -255,10 +255,87 @@ def test_an_environment_that_does_not_fit_the_run_is_refused():
         ch.forward_dynamics(q, v, env=[HalfSpace()])
     with pytest.raises(TypeError, match="env must be a qchain.contact.Environment, got str"):
         qchain.simulate(ch, q, v, (0, 0.01), method="dopri5", env="ground")
-    with pytest.raises(ValueError, match="method 'radau5' cannot run with env yet"):
-        qchain.simulate(ch, q, v, (0, 0.01), env=Environment([HalfSpace()]))
 
 
 def test_hunt_crossley_damping_is_the_flores_coefficient():
     assert hunt_crossley_damping(0.8, 2.0) == pytest.approx(8 * 0.2 / (5 * 0.8 * 2.0), rel=1e-15)
     assert hunt_crossley_damping(1.0, 1.0) == 0.0
+
+
+def _contact_scene(base):
+    ch, q, v = _bent_arm(base=base)
+    if base == "floating":
+        q[:7] = pin.SE3ToXYZQUAT(pin.SE3(pin.rpy.rpyToMatrix(0.3, -0.2, 0.5), np.array([0.01, 0.02, -0.03])))
+    c = ch.backbone(q, 11)[1, 5]
+    law = ContactLaw(stiffness=2e5, damping=2.0, mu_static=0.6, mu_dynamic=0.4, slip_velocity=0.05,
+                     stribeck_velocity=0.2)
+    loads = [PointLoad(1, 0.3, [0.1, 0.2, 0.3], [0.01, 0, 0.02]), PointLoad(2, 1.0, [0, 0, -1], local=True)]
+    obstacles = [HalfSpace(c + [0, 0, 0.01], [0.2, 0.1, -1]), Sphere(c + [0.03, 0, 0], 0.02),
+                 Capsule(c + [0.02, -0.1, 0], c + [0.02, 0.1, 0], 0.01), Cylinder(c + [0, -0.1, 0.02], c + [0, 0.1, 0.02], 0.01),
+                 Box(c + [0, 0, -0.03], [0.2, 0.2, 0.02], pin.rpy.rpyToMatrix(0.1, 0.2, 0.3))]
+    return ch, q, v, law, loads, obstacles
+
+
+@pytest.mark.parametrize("base", ["fixed", "floating"])
+def test_environment_derivatives_match_central_differences(base):
+    ch, q, v, law, loads, obstacles = _contact_scene(base)
+    h = 1e-7
+    for ob in obstacles:
+        env = Environment([ob], law, loads=loads, nodes=8)
+        assert len(ch.contacts(q, v, env).segment) > 0
+        dq, dv = ch.environment_force_derivatives(q, v, env)
+        Fq, Fv = np.empty_like(dq), np.empty_like(dv)
+        for i in range(ch.nv):
+            e = np.zeros(ch.nv)
+            e[i] = h
+            Fq[:, i] = (ch.environment_force(ch.integrate(q, e), v, env)
+                        - ch.environment_force(ch.integrate(q, -e), v, env)) / (2 * h)
+            Fv[:, i] = (ch.environment_force(q, v + e, env) - ch.environment_force(q, v - e, env)) / (2 * h)
+        # central differences of h = 1e-7 carry about 1e-9 relative error
+        np.testing.assert_allclose(dq, Fq, rtol=0, atol=1e-8 * np.abs(Fq).max())
+        np.testing.assert_allclose(dv, Fv, rtol=0, atol=1e-8 * max(np.abs(Fv).max(), 1.0))
+
+
+def test_forward_dynamics_derivatives_include_the_environment():
+    ch, q, v, law, loads, obstacles = _contact_scene("floating")
+    env = Environment([obstacles[0]], law, loads=loads, nodes=8)
+    p = np.full(ch.nu, 1e4)
+    d = ch.forward_dynamics_derivatives(q, v, p, env=env)
+    np.testing.assert_allclose(d.a, ch.forward_dynamics(q, v, p, env=env), rtol=0, atol=1e-12 * np.abs(d.a).max())
+
+    def fd(f, h):  # fourth-order central differences: the stiff contact's higher derivatives are large
+        return (8 * (f(h) - f(-h)) - (f(2 * h) - f(-2 * h))) / (12 * h)
+
+    # steps where truncation and round-off meet (about 1e-10 of the largest entry)
+    for i in range(ch.nv):
+        e = np.eye(ch.nv)[i]
+        fq = fd(lambda s: ch.forward_dynamics(ch.integrate(q, s * e), v, p, env=env), 1e-5)
+        fv = fd(lambda s: ch.forward_dynamics(q, v + s * e, p, env=env), 1e-4)
+        np.testing.assert_allclose(d.da_dq[:, i], fq, rtol=0, atol=1e-8 * np.abs(d.da_dq).max())
+        np.testing.assert_allclose(d.da_dv[:, i], fv, rtol=0, atol=1e-8 * np.abs(d.da_dv).max())
+
+
+def test_environment_derivatives_refuse_paper_coordinates():
+    ch = Chain([Segment(**SEGMENT, coords="paper")])
+    q = np.array([0.1, 0.3, 5.0])
+    with pytest.raises(ValueError, match="environment_force_derivatives needs every segment in curvature coordinates"):
+        ch.environment_force_derivatives(q, np.zeros(3), Environment([HalfSpace()]))
+
+
+@pytest.mark.parametrize("base", ["fixed", "floating"])
+def test_implicit_methods_run_contact_with_its_exact_jacobian(base):
+    X = pin.SE3(pin.rpy.rpyToMatrix(np.pi / 2, 0, 0), np.array([0, 0, 0.05]))
+    ch = Chain([Segment(**SEGMENT) for _ in range(2)], base=base, **({"base_placement": X} if base == "fixed" else {}))
+    q0 = ch.neutral()
+    if base == "floating":
+        q0[:7] = pin.SE3ToXYZQUAT(X)
+    env = Environment([HalfSpace()], ContactLaw(stiffness=1e5, damping=2.0, mu_static=0.5, mu_dynamic=0.4),
+                      loads=[PointLoad(1, 1.0, force=[0.0, 0.0, -0.05])])
+    ref = qchain.simulate(ch, q0, np.zeros(ch.nv), (0, 0.1), method="dopri5", env=env, rtol=1e-9, atol=1e-11,
+                          t_eval=[0.1])
+    r5 = qchain.simulate(ch, q0, np.zeros(ch.nv), (0, 0.1), method="radau5", env=env, rtol=1e-7, atol=1e-9,
+                         t_eval=[0.1])
+    mp = qchain.simulate(ch, q0, np.zeros(ch.nv), (0, 0.1), method="midpoint", env=env, dt=5e-5, t_eval=[0.1])
+    assert r5.success and mp.success and r5.meta["njev"] > 0
+    np.testing.assert_allclose(r5.q[-1], ref.q[-1], rtol=0, atol=1e-5)
+    np.testing.assert_allclose(mp.q[-1], ref.q[-1], rtol=0, atol=1e-3)

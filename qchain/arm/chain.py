@@ -754,7 +754,7 @@ class Chain(KeepsReadOnly, ChainKinematics, ChainContact, ChainChecks):
 
     @_finite("forward dynamics derivatives", has_v=True)
     def forward_dynamics_derivatives(self, q, v, p=None, tau=None, t: float = 0.0, data: Data | None = None,
-                                     skip_checks: bool = False) -> ForwardDynamicsDerivatives:
+                                     skip_checks: bool = False, env=None) -> ForwardDynamicsDerivatives:
         """Exact derivatives of :meth:`forward_dynamics` (Pinocchio's ``computeABADerivatives``).
 
         Returns ``a`` (nv,), ``da_dq``, ``da_dv`` (nv, nv) (q along :meth:`integrate`),
@@ -768,9 +768,17 @@ class Chain(KeepsReadOnly, ChainKinematics, ChainContact, ChainChecks):
         of integrators and batches (MuJoCo's ``skip_checks``): the inputs are taken as valid
         -- shapes, finiteness, the model's domain, a unit quaternion, locked values are not
         checked -- and the result is not checked for non-finite entries. It needs ``data``
-        and a chain in curvature coordinates with the material law.
+        and a chain in curvature coordinates with the material law. ``env`` (a
+        :class:`qchain.contact.Environment`) adds its forces and their exact derivatives
+        (:meth:`environment_force_derivatives`): ``da/dq += M^-1 d tau_env/dq``, likewise ``v``.
         """
         data = self._data(data)
+        if env is not None:
+            te = self.environment_force(q, v, env, t)
+            dq, dv = self.environment_force_derivatives(q, v, env, t)
+            out = self.forward_dynamics_derivatives(q, v, p, te if tau is None else self._vec("tau", tau, self.nv) + te,
+                                                    t, data, skip_checks)
+            return out._replace(da_dq=out.da_dq + out.da_dtau @ dq, da_dv=out.da_dv + out.da_dtau @ dv)
         if as_bool("skip_checks", skip_checks):
             return self._forward_dynamics_derivatives_unchecked(q, v, p, tau, t, data)
         st, p3, tau = self._dynamics_inputs(q, v, p, tau, t)

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..contact.derivatives import environment_derivatives
 from ..contact.environment import Contacts, Environment
 from ..contact.forces import RECORD, contact_forces, load_forces
 from ..model.arc import SCRATCH
@@ -52,6 +53,31 @@ class ChainContact:
         chain's coordinates; a floating base's part is the wrench on the base, base frame)."""
         env = _check_env(env)
         return self._environment_force(self._state(q, v, t=t), env)[0]
+
+    def environment_force_derivatives(self, q, v, env: Environment, t: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+        """Exact ``(d tau_env/dq, d tau_env/dv)`` (nv, nv) of :meth:`environment_force` (q along
+        :meth:`integrate`), by tangent passes through the contact and load passes
+        (:mod:`qchain.contact.derivatives`). At a contact's onset and where its damping term
+        reaches zero the law has a kink: the result is the derivative of the branch the state
+        is on. Chains in curvature coordinates (the paper's ``(l, psi, kappa)`` are refused)."""
+        env = _check_env(env)
+        if self._any_paper:
+            raise ValueError("environment_force_derivatives needs every segment in curvature coordinates "
+                             "(coords='curvature'); the paper's (l, psi, kappa) are not supported here")
+        st = self._state(q, v, t=t)
+        env.check_segments(self.n)
+        return self._environment_derivatives(st, env.packed())
+
+    def _environment_derivatives(self, st, pk) -> tuple[np.ndarray, np.ndarray]:
+        nv, n = self.nv, self.n
+        dq, dv = np.zeros((nv, nv)), np.zeros((nv, nv))
+        if pk.kind.size or pk.seg.size:
+            environment_derivatives(self._arrays, pk.kind, pk.prm, pk.law, pk.calpha, pk.seg, pk.alpha, pk.wrench,
+                                    pk.local, self.floating, st.q_c, np.ascontiguousarray(st.v_c),
+                                    np.ascontiguousarray(st.X_WB.rotation), np.ascontiguousarray(st.X_WB.translation),
+                                    np.ascontiguousarray(st.V0), dq, dv, np.zeros((n + 1, 6)), np.zeros((n + 1, 6)),
+                                    np.zeros((3, n, 3)), np.zeros((3, 6)), np.empty(SCRATCH))
+        return dq, dv
 
     def contacts(self, q, v, env: Environment, t: float = 0.0) -> Contacts:
         """The active contacts of the arm with ``env``'s obstacles at ``(q, v)``: where, how

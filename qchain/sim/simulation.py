@@ -346,8 +346,7 @@ def simulate(
         before it starts (:class:`qchain.sim.budget.BudgetError`).
     env : qchain.contact.Environment, optional
         Obstacles, the contact law and point loads (docs/contact.md): their generalised
-        force joins ``tau``. Runs on ``dopri5``, ``rk4`` and scipy's methods (``radau5`` and
-        ``midpoint`` are refused until the exact Jacobian holds the contact derivatives).
+        force joins ``tau`` (with its exact derivatives in the implicit methods' Jacobian).
 
     Every number is a real (``bool``, strings and complex numbers raise ``TypeError``)
     inside its range (:mod:`qchain.checks.bounds`; else ``ValueError`` naming the argument, the
@@ -470,7 +469,7 @@ def _check_arguments(chain, q0, v0, t_span, *, pressure, tau, method, budget, on
     q0, v0 = _check_start(chain, q0, v0, t0)
     cfg = check_settings(chain, t0, t1, method=method, on_sample=on_sample, **settings)
     run = _Run(chain=chain, q0=q0, v0=v0, t0=t0, t1=t1, method=method, pressure=pressure, tau=tau,
-               on_sample=on_sample, budget=as_budget(budget), env=_check_env(chain, method, env), **cfg)
+               on_sample=on_sample, budget=as_budget(budget), env=_check_env(chain, env), **cfg)
     run.budget.check(run.cost())
     run.P_in, run.T_in = as_input("pressure", pressure, chain.nu), as_input("tau", tau, chain.nv)  # checked here
     if method in driver.EXPLICIT_STABILITY_EXTENT:  # a stiff model: refused before hours of tiny steps
@@ -516,11 +515,8 @@ def _announce_dense_jacobians(run: _Run) -> None:
         sys.stderr.flush()
 
 
-def _check_env(chain: Chain, method: str, env):
-    """``env`` (None or a :class:`qchain.contact.Environment`) checked against the chain and
-    the method: the exact Jacobians of ``radau5`` and ``midpoint`` do not hold the contact
-    forces' derivatives yet, and a Newton iteration on a Jacobian without them fails at the
-    first stiff contact."""
+def _check_env(chain: Chain, env):
+    """``env``: None or a :class:`qchain.contact.Environment` that fits ``chain``."""
     if env is None:
         return None
     from ..contact.environment import Environment
@@ -528,9 +524,6 @@ def _check_env(chain: Chain, method: str, env):
     if not isinstance(env, Environment):
         raise TypeError(f"env must be a qchain.contact.Environment, got {type(env).__name__}")
     env.check_segments(chain.n)
-    if method in ("radau5", "midpoint"):
-        raise ValueError(f"method {method!r} cannot run with env yet: its exact Jacobian lacks the contact "
-                         "forces' derivatives; use 'dopri5' or 'rk4' (compiled) or scipy's 'Radau' or 'BDF'")
     return env
 
 

@@ -32,6 +32,7 @@ import numpy as np
 
 from ...algorithms import aba_derivatives, planar, recursive, rnea_derivatives
 from ...contact.environment import Environment, PackedEnvironment
+from ...contact.derivatives import environment_derivatives
 from ...contact.forces import contact_forces, load_forces
 from ...algorithms.arrays import AbaDerivativesWorkspace, AbaWorkspace, ChainArrays, PlanarWorkspace, RneaWorkspace
 from ...model.arc import SCRATCH, arc_node, take1, take2
@@ -136,9 +137,13 @@ class Workspace(NamedTuple):
         The model passes' scratch.
     R_WB : (3, 3) float
         The base's rotation in the world.
-    W : (n + 2, 6) float
-        The environment pass's root wrenches (rows ``0..n``) and its wrench on the base (row
-        ``n + 1``, base frame).
+    W : (2, n + 2, 6) float
+        The environment pass's root wrenches (``W[0, 0..n]``) and its wrench on the base
+        (``W[0, n + 1]``, base frame); ``W[1]`` their changes in a tangent pass.
+    Jenv : (2, nv, nv) float
+        The environment's ``d tau/dq`` and ``d tau/dv`` (:mod:`qchain.contact.derivatives`).
+    Denv : (3, n, 3), Eenv : (3, 6) float
+        The tangent passes' directions and results.
     """
 
     q: np.ndarray
@@ -156,6 +161,9 @@ class Workspace(NamedTuple):
     scratch: np.ndarray
     R_WB: np.ndarray
     W: np.ndarray
+    Jenv: np.ndarray
+    Denv: np.ndarray
+    Eenv: np.ndarray
 
 
 def pack(chain, pressure, tau, env=None) -> EngineModel | None:
@@ -233,7 +241,8 @@ def workspace(chain) -> Workspace:
     return Workspace(q=np.zeros(nq), v=np.zeros(nv), q_chart=np.zeros(nq), p=np.zeros(3 * n), tau=np.zeros(nv),
                      f=np.zeros((n, 3)), A0=np.zeros(6), a=np.zeros(nv), qdd=np.zeros((n, 3)), B=np.zeros((4, 6)),
                      info=np.zeros(4, dtype=np.int64), buf=np.zeros(_layout(n, nv)[-1, 0]), scratch=np.zeros(SCRATCH),
-                     R_WB=np.zeros((3, 3)), W=np.zeros((n + 2, 6)))
+                     R_WB=np.zeros((3, 3)), W=np.zeros((2, n + 2, 6)),
+                     Jenv=np.zeros((2, nv, nv)), Denv=np.zeros((3, n, 3)), Eenv=np.zeros((3, 6)))
 
 
 @inline
@@ -414,7 +423,7 @@ def _forces(m, wk, t):
             f[j, b] += tau[voff + 3 * j + b]
     _environment(m, wk, q[qoff:].reshape(n, 3), v[voff:].reshape(n, 3), f)
     F0 = B[3]  # reused: the base wrench (floating); the origin row is not needed past here
-    F_env = wk.W[n + 1]
+    F_env = wk.W[0, n + 1]
     for r in range(6):
         A0[r] = B[1, r]
         F0[r] = tau[r] + F_env[r] if m.base == FLOATING else 0.0
@@ -429,7 +438,7 @@ def _environment(m, wk, q_c, v_c, f):
     ``wk.W[n + 1]`` (zeroed first); nothing to do without obstacles or loads."""
     env = m.env
     n = q_c.shape[0]
-    W = wk.W
+    W = wk.W[0]
     F_env = W[n + 1]
     for r in range(6):
         F_env[r] = 0.0
@@ -439,6 +448,31 @@ def _environment(m, wk, q_c, v_c, f):
     if env.seg.shape[0] > 0:
         load_forces(env.seg, env.alpha, env.wrench, env.local, q_c, wk.R_WB, wk.B[3, :3], f, F_env, W[: n + 1],
                     wk.scratch)
+
+
+@inline
+def _environment_jacobian(m, wk, t, q_c, v_c, Minv, da_dq, da_dv):
+    """``da_dq += M^-1 d tau_env/dq`` and ``da_dv += M^-1 d tau_env/dv`` (nv, nv), the
+    environment's exact derivatives (:func:`qchain.contact.derivatives.environment_derivatives`)
+    at the state of the last right-hand side (whose base origin row ``B[3]`` holds the base
+    wrench by now: the base's state is made again)."""
+    _base_state(m, wk, t, wk.q, wk.v)
+    env = m.env
+    n = q_c.shape[0]
+    nv = m.nv
+    Jq, Jv = wk.Jenv[0], wk.Jenv[1]
+    environment_derivatives(m.arrays, env.kind, env.prm, env.law, env.calpha, env.seg, env.alpha, env.wrench,
+                            env.local, m.base == FLOATING, q_c, v_c, wk.R_WB, wk.B[3, :3], wk.B[0], Jq, Jv,
+                            wk.W[0, : n + 1], wk.W[1, : n + 1], wk.Denv, wk.Eenv, wk.scratch)
+    for r in range(nv):
+        for c in range(nv):
+            aq = 0.0
+            av = 0.0
+            for k in range(nv):
+                aq += Minv[r, k] * Jq[k, c]
+                av += Minv[r, k] * Jv[k, c]
+            da_dq[r, c] += aq
+            da_dv[r, c] += av
 
 
 @inline
@@ -548,6 +582,8 @@ def jacobian(m, wk, t, y, Jq, Jv):
         wk.info[0] = SINGULAR if status < 3 else NONFINITE
         return wk.info[0]
     da_dq, da_dv = wa.da_dq, wa.da_dv
+    if m.env.kind.shape[0] > 0 or m.env.seg.shape[0] > 0:
+        _environment_jacobian(m, wk, t, q_c, v_c, wa.da_dtau, da_dq, da_dv)
     for r in range(nA):
         for c in range(nA):
             Jq[r, c] = da_dq[idx[r], idx[c]]
