@@ -259,6 +259,47 @@ def _wrench_tangent(Rs, F, dF, arm, darm, eta, w, dw, t3, u3):
 
 
 @jit
+def _contact_point(kind, prm, law, ell, r_s, x, dx, Rs, Vs, dVs, eta, w, dw, t):
+    """The slice wrench ``w`` (6,) of a contact point's force and its change ``dw`` along the
+    point's pose variation ``eta`` (its backbone point moving by ``dx``) and twist change
+    ``dVs``; False where the point does not touch the obstacle. ``t`` scratch (40,)."""
+    nrm, dn, arm, darm = t[0:3], t[3:6], t[6:9], t[9:12]
+    vc, dvc, om, dom = t[12:15], t[15:18], t[18:21], t[21:24]
+    F, dF, t3, u3 = t[24:27], t[27:30], t[30:33], t[33:36]
+    d = r_s - signed_distance(kind, prm, x, nrm)
+    if d <= 0.0:
+        return False
+    _normal_tangent(kind, prm, x, nrm, dx, dn, t[36:45])
+    dd = -(nrm[0] * dx[0] + nrm[1] * dx[1] + nrm[2] * dx[2])
+    for r in range(3):
+        arm[r] = -r_s * nrm[r]
+        darm[r] = -r_s * dn[r]
+    # world velocities of the backbone point and the frame, and their changes
+    _rx(Rs, Vs[0:3], vc)
+    _rx(Rs, Vs[3:6], om)
+    _cross(eta[3:6], Vs[0:3], t3)
+    for r in range(3):
+        t3[r] += dVs[r]
+    _rx(Rs, t3, dvc)
+    _cross(eta[3:6], Vs[3:6], t3)
+    for r in range(3):
+        t3[r] += dVs[3 + r]
+    _rx(Rs, t3, dom)
+    # the surface point's velocity v + w x arm, and its change
+    _cross(om, arm, t3)
+    _cross(dom, arm, u3)
+    for r in range(3):
+        vc[r] += t3[r]
+        dvc[r] += u3[r]
+    _cross(om, darm, t3)
+    for r in range(3):
+        dvc[r] += t3[r]
+    _law_tangent(law, ell, d, dd, nrm, dn, vc, dvc, F, dF)
+    _wrench_tangent(Rs, F, dF, arm, darm, eta, w, dw, t3, u3)
+    return True
+
+
+@jit
 def environment_tangent(arr, kind, prm, law, calpha, seg, lalpha, wrench, local, q, qd, dq, dqd, R_WB, p_WB,
                         V0, eta0, dV0, dtau, dF0, W, dW, sc):
     """The change ``dtau`` (n, 3) of the environment's generalised force on the segment
@@ -292,16 +333,6 @@ def environment_tangent(arr, kind, prm, law, calpha, seg, lalpha, wrench, local,
     Rs, o = take2(sc, o, 3, 3)
     x, o = take1(sc, o, 3)
     dx, o = take1(sc, o, 3)
-    nrm, o = take1(sc, o, 3)
-    dn, o = take1(sc, o, 3)
-    arm, o = take1(sc, o, 3)
-    darm, o = take1(sc, o, 3)
-    vc, o = take1(sc, o, 3)
-    dvc, o = take1(sc, o, 3)
-    om, o = take1(sc, o, 3)
-    dom, o = take1(sc, o, 3)
-    F, o = take1(sc, o, 3)
-    dF, o = take1(sc, o, 3)
     w, o = take1(sc, o, 6)
     dw, o = take1(sc, o, 6)
     g9, o = take1(sc, o, 9)
@@ -309,7 +340,7 @@ def environment_tangent(arr, kind, prm, law, calpha, seg, lalpha, wrench, local,
     t3, o = take1(sc, o, 3)
     u3, o = take1(sc, o, 3)
     z3, o = take1(sc, o, 3)
-    tmp9, o = take1(sc, o, 9)
+    tmp, o = take1(sc, o, 45)
     near, o = take1(sc, o, m)
     for r in range(3):
         oj[r] = p_WB[r]
@@ -335,7 +366,7 @@ def environment_tangent(arr, kind, prm, law, calpha, seg, lalpha, wrench, local,
             _point(Rj, oj, pn, x)
             reach = 0.5 * abs(l) + r_s
             for b in range(m):
-                near[b] = 1.0 if signed_distance(kind[b], prm[b], x, nrm) < reach else 0.0
+                near[b] = 1.0 if signed_distance(kind[b], prm[b], x, tmp) < reach else 0.0
                 any_near = any_near or near[b] > 0.0
         nodes = K if any_near else 0
         ell = arr.l0[j] / K
@@ -375,36 +406,8 @@ def environment_tangent(arr, kind, prm, law, calpha, seg, lalpha, wrench, local,
             for b in range(m):
                 if near[b] == 0.0:
                     continue
-                d = r_s - signed_distance(kind[b], prm[b], x, nrm)
-                if d <= 0.0:
-                    continue
-                _normal_tangent(kind[b], prm[b], x, nrm, dx, dn, tmp9)
-                dd = -(nrm[0] * dx[0] + nrm[1] * dx[1] + nrm[2] * dx[2])
-                for r in range(3):
-                    arm[r] = -r_s * nrm[r]
-                    darm[r] = -r_s * dn[r]
-                # world velocities of the backbone point and the frame, and their changes
-                _rx(Rs, Vs[0:3], vc)
-                _rx(Rs, Vs[3:6], om)
-                _cross(eta_s[3:6], Vs[0:3], t3)
-                for r in range(3):
-                    t3[r] += dVs[r]
-                _rx(Rs, t3, dvc)
-                _cross(eta_s[3:6], Vs[3:6], t3)
-                for r in range(3):
-                    t3[r] += dVs[3 + r]
-                _rx(Rs, t3, dom)
-                _cross(om, arm, t3)
-                _cross(dom, arm, u3)
-                for r in range(3):
-                    vc[r] += t3[r]
-                    dvc[r] += u3[r]
-                _cross(om, darm, t3)
-                for r in range(3):
-                    dvc[r] += t3[r]
-                _law_tangent(law, ell, d, dd, nrm, dn, vc, dvc, F, dF)
-                _wrench_tangent(Rs, F, dF, arm, darm, eta_s, w, dw, t3, u3)
-                _accumulate(Rn, pn, Sn, dS, dq[j], w, dw, zeta, W[j], dW[j], dtau[j], g9, t6, t3)
+                if _contact_point(kind[b], prm[b], law, ell, r_s, x, dx, Rs, Vs, dVs, eta_s, w, dw, tmp):
+                    _accumulate(Rn, pn, Sn, dS, dq[j], w, dw, zeta, W[j], dW[j], dtau[j], g9, t6, t3)
         # to the next root
         arc_node(1.0, l, ux, uy, qd[j, 0], qd[j, 1], qd[j, 2], Rn, pn, Sn, Sdn)
         arc_node_derivatives(1.0, l, ux, uy, qd[j, 0], qd[j, 1], qd[j, 2], dS, Kn)
