@@ -339,3 +339,38 @@ def test_implicit_methods_run_contact_with_its_exact_jacobian(base):
     assert r5.success and mp.success and r5.meta["njev"] > 0
     np.testing.assert_allclose(r5.q[-1], ref.q[-1], rtol=0, atol=1e-5)
     np.testing.assert_allclose(mp.q[-1], ref.q[-1], rtol=0, atol=1e-3)
+
+
+def _contact_energy(ch, q, env):
+    """``U_c = sum l k d^(e+1) / (e+1)`` over the active contacts: the potential of the
+    frictionless, undamped law (computed from the penetrations, not from the forces)."""
+    law = env.law
+    C = ch.contacts(q, np.zeros(ch.nv), env)
+    ell = np.array([s.length for s in ch.segments])[C.segment] / env.nodes
+    return float(np.sum(ell * law.stiffness * C.penetration ** (law.exponent + 1) / (law.exponent + 1)))
+
+
+def test_statics_on_the_ground_is_a_minimum_of_the_total_potential():
+    # a cantilever drooping onto the ground: with a frictionless, undamped law the static
+    # shape minimises gravity + elastic + contact energy, an independent statement of it
+    X = pin.SE3(pin.rpy.rpyToMatrix(np.pi / 2, 0, 0), np.array([0, 0, 0.02]))
+    ch = Chain([Segment(**dict(SEGMENT, youngs_modulus=2e4)) for _ in range(2)], base_placement=X)
+    env = Environment([HalfSpace()], ContactLaw(stiffness=1e5), nodes=8)
+    free = qchain.equilibrium(ch)
+    assert free.success and ch.backbone(free.q, 5)[1, -1, 2] < 0  # without the ground it sinks below it
+    res = qchain.equilibrium(ch, env=env)
+    assert res.success, res.message
+    q = res.q
+    assert len(ch.contacts(q, np.zeros(ch.nv), env).segment) > 0
+
+    def E(q):
+        return ch.potential_energy(q) + _contact_energy(ch, q, env)
+
+    h = 1e-7
+    grad = np.array([(E(ch.integrate(q, h * e)) - E(ch.integrate(q, -h * e))) / (2 * h) for e in np.eye(ch.nv)])
+    gscale = np.abs(ch.generalized_gravity(q)).max()
+    assert np.abs(grad).max() < 1e-6 * gscale
+    rng = np.random.default_rng(3)
+    for _ in range(20):
+        d = rng.normal(size=ch.nv) * np.array([1e-4, 0.1, 0.1] * 2)
+        assert E(ch.integrate(q, d)) > E(q)

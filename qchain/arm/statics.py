@@ -1,4 +1,4 @@
-"""Static equilibrium of a chain under constant pressures, gravity and a tip load.
+"""Static equilibrium of a chain under constant pressures, gravity, a tip load and contact.
 
 ``equilibrium(chain, p)`` solves ``B(q) p + J_tip(q)^T w - dU_el/dq - g(q) = 0`` (the paper's
 eq. (9) at rest; docs/model.md sections 5, 6 and 9) for the free (not locked) segment
@@ -48,13 +48,17 @@ class EquilibriumResult:
     nfev: int
 
 
-def _stiffness(chain: Chain, q: np.ndarray, p: np.ndarray) -> np.ndarray:
-    """Newton matrix of ``-F``: elastic minus pressure stiffness (both exact)."""
-    return chain.elastic_stiffness(q) - chain.pressure_stiffness(q, p)
+def _stiffness(chain: Chain, q: np.ndarray, p: np.ndarray, env=None) -> np.ndarray:
+    """Newton matrix of ``-F``: elastic minus pressure stiffness, minus the environment's
+    (all exact)."""
+    K = chain.elastic_stiffness(q) - chain.pressure_stiffness(q, p)
+    if env is not None:
+        K = K - chain.environment_force_derivatives(q, np.zeros(chain.nv), env)[0]
+    return K
 
 
 def equilibrium(chain: Chain, p=None, q0=None, tip_wrench=None, *, t: float = 0.0, tol: float = 1e-10,
-                max_iter: int = 200, continuation: bool = True) -> EquilibriumResult:
+                max_iter: int = 200, continuation: bool = True, env=None) -> EquilibriumResult:
     """Static shape of ``chain`` under pressures ``p`` (3 n,) Pa and gravity.
 
     Parameters
@@ -78,6 +82,11 @@ def equilibrium(chain: Chain, p=None, q0=None, tip_wrench=None, *, t: float = 0.
     continuation : bool
         If Newton fails from ``q0``, follow the solution from the unloaded shape as
         gravity, pressures and tip load grow from zero (steps halved on failure).
+    env : qchain.contact.Environment, optional
+        Obstacles and point loads: their generalised force at rest joins the balance, and
+        its exact stiffness (:meth:`qchain.Chain.environment_force_derivatives`) the Newton
+        matrix. At rest the regularised friction is zero (it needs sliding to act): a
+        static shape holds by normal forces and loads alone.
     """
     if not isinstance(chain, Chain):
         raise TypeError(f"chain must be a qchain.Chain, got {type(chain).__name__}")
@@ -102,11 +111,12 @@ def equilibrium(chain: Chain, p=None, q0=None, tip_wrench=None, *, t: float = 0.
             q0c = chain._q(q0, "q0").copy()
             for j, s in enumerate(chain.segments):
                 q0c[chain.q_slice(j)] = s.to_curvature(q0c[chain.q_slice(j)])
-        res = equilibrium(twin, p, q0c, tip_wrench, t=t, tol=tol, max_iter=max_iter, continuation=continuation)
+        res = equilibrium(twin, p, q0c, tip_wrench, t=t, tol=tol, max_iter=max_iter, continuation=continuation,
+                          env=env)
         for j, s in enumerate(chain.segments):
             res.q[chain.q_slice(j)] = s.from_curvature(res.q[chain.q_slice(j)])
         return res
-    res = _solve(chain, p, q0, tip_wrench, t, tol, max_iter)
+    res = _solve(chain, p, q0, tip_wrench, t, tol, max_iter, env)
     if res.success or not continuation:
         return res
     p = np.zeros(chain.nu) if p is None else as_vector("p", p, chain.nu)
@@ -115,7 +125,7 @@ def equilibrium(chain: Chain, p=None, q0=None, tip_wrench=None, *, t: float = 0.
     while lam < 1.0:
         trial = min(1.0, lam + step)
         scaled = _scaled(chain, trial)
-        r = _solve(scaled, trial * p, q, trial * w, t, tol, max_iter)
+        r = _solve(scaled, trial * p, q, trial * w, t, tol, max_iter, env)
         total += r.nfev
         if r.success:
             lam, q = trial, r.q
@@ -135,7 +145,7 @@ def _scaled(chain: Chain, lam: float, segments=None) -> Chain:
                  base_motion=chain.base_motion, planar=chain.planar)
 
 
-def _solve(chain, p, q0, tip_wrench, t, tol, max_iter) -> EquilibriumResult:
+def _solve(chain, p, q0, tip_wrench, t, tol, max_iter, env=None) -> EquilibriumResult:
     p = np.zeros(chain.nu) if p is None else as_vector("p", p, chain.nu)
     q = chain.neutral() if q0 is None else chain._q(q0, "q0").copy()
     w = None if tip_wrench is None else as_vector("tip_wrench", tip_wrench, 6)
@@ -149,6 +159,8 @@ def _solve(chain, p, q0, tip_wrench, t, tol, max_iter) -> EquilibriumResult:
         f = chain.internal_forces(q, zero_v, p) - chain.generalized_gravity(q, t=t)
         if w is not None:
             f += chain.tip_jacobian(q, "local_world_aligned", t=t).T @ w
+        if env is not None:
+            f += chain.environment_force(q, zero_v, env, t)
         return f[idx]
 
     def with_step(q, dx):
@@ -162,7 +174,7 @@ def _solve(chain, p, q0, tip_wrench, t, tol, max_iter) -> EquilibriumResult:
         raise QchainError(f"equilibrium: the starting guess is not a valid configuration: {err}") from None
     scale = max(np.max(np.abs(r)), np.max(np.abs(chain.elastic_force(q)[idx])), 1e-12)
     scale = max(scale, np.max(np.abs(chain.input_matrix(q)[idx] @ p)) if p.any() else 0.0)
-    W = _stiffness(chain, q, p)[np.ix_(idx, idx)]  # of -F
+    W = _stiffness(chain, q, p, env)[np.ix_(idx, idx)]  # of -F
     col = np.sqrt(np.abs(np.diag(W))) + 1e-300  # residual scaling: N vs N m^2 per coordinate
     fresh = True
     it = 0
@@ -172,7 +184,7 @@ def _solve(chain, p, q0, tip_wrench, t, tol, max_iter) -> EquilibriumResult:
         try:
             dx = np.linalg.solve(W, r)
         except np.linalg.LinAlgError:
-            W = _stiffness(chain, q, p)[np.ix_(idx, idx)]
+            W = _stiffness(chain, q, p, env)[np.ix_(idx, idx)]
             dx = np.linalg.lstsq(W, r, rcond=None)[0]
         step = 1.0
         while True:
@@ -190,7 +202,7 @@ def _solve(chain, p, q0, tip_wrench, t, tol, max_iter) -> EquilibriumResult:
             if fresh:
                 return EquilibriumResult(q, False, "line search failed: no decrease along the Newton step",
                                          it, float(np.max(np.abs(r))), nfev)
-            W = _stiffness(chain, q, p)[np.ix_(idx, idx)]  # drop the Broyden history and retry
+            W = _stiffness(chain, q, p, env)[np.ix_(idx, idx)]  # drop the Broyden history and retry
             fresh = True
             continue
         fresh = False
@@ -198,7 +210,7 @@ def _solve(chain, p, q0, tip_wrench, t, tol, max_iter) -> EquilibriumResult:
         y_ = -(r_new - r)  # change of -F
         W = W + np.outer(y_ - W @ s_, s_) / (s_ @ s_)  # good Broyden update
         if it % 10 == 0:  # refresh the exact part now and then
-            W = _stiffness(chain, q_new, p)[np.ix_(idx, idx)]
+            W = _stiffness(chain, q_new, p, env)[np.ix_(idx, idx)]
         q, r = q_new, r_new
     return EquilibriumResult(q, False, f"no convergence in {max_iter} iterations", it,
                              float(np.max(np.abs(r))), nfev)
