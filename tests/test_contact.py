@@ -374,3 +374,19 @@ def test_statics_on_the_ground_is_a_minimum_of_the_total_potential():
     for _ in range(20):
         d = rng.normal(size=ch.nv) * np.array([1e-4, 0.1, 0.1] * 2)
         assert E(ch.integrate(q, d)) > E(q)
+
+
+def test_a_run_says_when_the_contact_time_scale_limits_its_steps():
+    X = pin.SE3(pin.rpy.rpyToMatrix(np.pi / 2, 0, 0), np.array([0, 0, 0.05]))
+    ch = Chain([Segment(**SEGMENT) for _ in range(2)], base_placement=X)
+    env = Environment([HalfSpace()], ContactLaw(stiffness=1e5, exponent=1.0), nodes=8)
+    # the period of one contact point (mass m = 0.05 / 8 kg) on its stiffness l k, l = 0.1 / 8 m
+    T = env.time_scale(ch)
+    assert T == pytest.approx(2 * np.pi * np.sqrt((0.05 / 8) / (0.1 / 8 * 1e5)), rel=1e-12)
+    q0 = ch.neutral()
+    stiff = qchain.simulate(ch, q0, np.zeros(ch.nv), (0, 0.2), method="dopri5", env=env)
+    assert stiff.meta["contact_time_scale"] == T and stiff.meta["step_limited_by_contact"]
+    far = Environment([HalfSpace([0, 0, -1.0])], ContactLaw(stiffness=1e5, exponent=1.0), nodes=8)
+    free = qchain.simulate(ch, q0, np.zeros(ch.nv), (0, 0.2), method="radau5", env=far)
+    assert not free.meta["step_limited_by_contact"]
+    assert "contact_time_scale" not in qchain.simulate(ch, q0, np.zeros(ch.nv), (0, 0.01), method="radau5").meta

@@ -189,6 +189,25 @@ class Environment:
         object.__setattr__(self, "loads", loads)
         object.__setattr__(self, "nodes", CONTACT_NODES.check("Environment.nodes", self.nodes))
 
+    def time_scale(self, chain) -> float | None:
+        """The contact's time scale (s), the shortest over the chain's segments: the period
+        ``2 pi sqrt(m / k_eff)`` of one contact point's mass ``m = mass / nodes`` on the law's
+        stiffness at the penetration where it carries its own weight,
+        ``k_eff = e l k d*^(e - 1)``, ``l k d*^e = m g``; None without obstacles. An explicit
+        method's step cannot exceed a fraction of it in contact; an implicit one's can."""
+        if not self.obstacles:
+            return None
+        law = self.law
+        g = max(float(np.linalg.norm(chain.gravity)), 1e-3)  # weightless: a milli-g rest load
+        periods = []
+        for s in chain.segments:
+            m = s.mass / self.nodes
+            ell = s.length / self.nodes
+            d = (m * g / (ell * law.stiffness)) ** (1.0 / law.exponent)
+            k_eff = law.exponent * ell * law.stiffness * d ** (law.exponent - 1.0)
+            periods.append(2.0 * np.pi * np.sqrt(m / k_eff))
+        return float(min(periods))
+
     def check_segments(self, n: int) -> None:
         """Refuse a load on a segment the chain of ``n`` segments does not have."""
         for i, ld in enumerate(self.loads):

@@ -375,9 +375,26 @@ def simulate(
     bar = _Progress(run.t0, run.t1, run.progress)
     _announce_dense_jacobians(run)
     m = _choose_backend(run)
-    if m is not None:
-        return _run_compiled(run, m, bar, deadline)
-    return python_backend.run(run, bar, deadline)
+    traj = _run_compiled(run, m, bar, deadline) if m is not None else python_backend.run(run, bar, deadline)
+    _note_contact_steps(run, traj)
+    return traj
+
+
+def _note_contact_steps(run: _Run, traj: Trajectory) -> None:
+    """Say in ``traj.meta`` whether the contact's time scale limited the steps:
+    ``contact_time_scale`` (s, :meth:`qchain.contact.Environment.time_scale`) and
+    ``step_limited_by_contact``: the arm touched an obstacle (at one of up to 200 samples) and
+    the mean step was below a quarter of that time scale (an explicit method in contact, or an
+    implicit one at a tolerance that resolves the contact's vibration)."""
+    if run.env is None or not run.env.obstacles:
+        return
+    T = run.env.time_scale(run.chain)
+    traj.meta["contact_time_scale"] = T
+    steps = traj.meta.get("nsteps") or 0
+    span = (traj.t[-1] - run.t0) if len(traj.t) else 0.0
+    picks = np.unique(np.linspace(0, len(traj.t) - 1, min(len(traj.t), 200)).astype(int)) if len(traj.t) else []
+    touched = any(len(run.chain.contacts(traj.q[k], traj.v[k], run.env, traj.t[k]).segment) for k in picks)
+    traj.meta["step_limited_by_contact"] = bool(touched and steps and span / steps < 0.25 * T)
 
 
 def check_method(method) -> str:
