@@ -43,26 +43,10 @@ def _parser() -> argparse.ArgumentParser:
 
 
 def main(argv=None, *, debug: bool | None = None, session=None) -> int:
-    """``qchain sweep SWEEP.toml [...]``; returns the exit code.
-
-    Parameters
-    ----------
-    argv : list of str, optional
-        The arguments after ``sweep`` (default ``sys.argv[1:]``).
-    debug : bool, optional
-        Print the traceback of an error too; default: whether ``argv`` holds ``--debug``.
-    session : optional
-        The ``qchain`` command's session when it hands ``sweep`` over (:func:`qchain.cli.command`).
-
-    Returns
-    -------
-    int
-        0 the sweep completed (failed runs are results, listed); 1 it stopped early
-        (Ctrl-C, an engine error, a results folder that could not be written while
-        running); 2 bad input, refused before any run: usage, a sweep file or a run's
-        scene with problems, a results folder that cannot be used or holds another sweep.
-        Errors are one line on stderr (:func:`qchain.cli.report_error`), never a traceback.
-    """
+    """``qchain sweep SWEEP.toml [...]`` (``argv``: the arguments after ``sweep``; ``debug``
+    default: whether ``argv`` holds ``--debug``; ``session``: the ``qchain`` command's) -> the
+    exit code: 0 the sweep completed (failed runs are results), 1 it stopped early, 2 bad input
+    refused before any run (``docs/cli.md``)."""
     argv = [os.fspath(a) for a in (sys.argv[1:] if argv is None else argv)]
     if debug is None:
         argv, debug = take_debug(argv)
