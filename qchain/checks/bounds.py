@@ -90,26 +90,23 @@ class Range:
     high_open: bool = False
     integer: bool = False
 
-    def text(self) -> str:
-        """The bounds as words: ``"> 0 and <= 100 m"``."""
+    def _bounds(self) -> str:
+        """``"> 0 and <= 100"``, or ``""`` without bounds."""
         parts = []
         if self.low is not None:
             parts.append(f"{'>' if self.low_open else '>='} {_num(self.low)}")
         if self.high is not None:
             parts.append(f"{'<' if self.high_open else '<='} {_num(self.high)}")
-        s = " and ".join(parts) if parts else "any value"
-        return f"{s} {self.unit}".rstrip()
+        return " and ".join(parts)
+
+    def text(self) -> str:
+        """The bounds as words: ``"> 0 and <= 100 m"``."""
+        return f"{self._bounds() or 'any value'} {self.unit}".rstrip()
 
     def what(self) -> str:
         """``"a number > 0 and <= 100 (m)"`` or ``"an integer >= 1 and <= 100"``."""
-        kind = "an integer" if self.integer else "a number"
-        parts = []
-        if self.low is not None:
-            parts.append(f"{'>' if self.low_open else '>='} {_num(self.low)}")
-        if self.high is not None:
-            parts.append(f"{'<' if self.high_open else '<='} {_num(self.high)}")
-        bound = f" {' and '.join(parts)}" if parts else ""
-        return f"{kind}{bound}{f' ({self.unit})' if self.unit else ''}"
+        bound = f" {self._bounds()}" if self._bounds() else ""
+        return f"{'an integer' if self.integer else 'a number'}{bound}{f' ({self.unit})' if self.unit else ''}"
 
     def contains(self, x: float) -> bool:
         """Whether the finite number ``x`` is inside (the type is not checked)."""
