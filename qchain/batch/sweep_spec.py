@@ -127,7 +127,7 @@ def keys_overlap(a: str, b: str) -> bool:
 def _put(node, at, value) -> None:
     """``node[at] = value``, except that a table put over a table is merged into it key by
     key (a dotted assignment per leaf): ``simulation = {duration = 0.03}`` changes the
-    duration and keeps the scene's method and dt (it replaced the whole table)."""
+    duration and keeps the scene's method and dt."""
     here = node.get(at) if isinstance(node, dict) else node[at]
     if isinstance(value, dict) and isinstance(here, dict) and value and set(value) != {_EACH} \
             and set(here) != {_EACH}:

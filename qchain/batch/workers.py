@@ -35,8 +35,7 @@ from ..checks.convert import describe_value
 from ..errors import ClusterLost
 
 __all__ = ["LocalPool", "DaskEngine", "ClusterLost", "Lost", "Payload", "plan_chunks", "resolve_workers", "check_engine",
-           "engine_for",
-           "default_pool", "dumps", "DEFAULT_RETRIES", "DEFAULT_LOST_TIMEOUT"]
+           "engine_for", "default_pool", "dumps", "DEFAULT_RETRIES", "DEFAULT_LOST_TIMEOUT"]
 
 #: times an item is sent again after the worker running it died
 DEFAULT_RETRIES = 3
@@ -426,9 +425,7 @@ def _close_default() -> None:  # pragma: no cover - interpreter shutdown
 # ------------------------------------------------------------------------------ dask
 
 
-#: seconds a :class:`DaskEngine` waits while its cluster has no worker or its scheduler does
-#: not answer, before it raises :class:`ClusterLost` (dask config ``qchain.lost-timeout``,
-#: e.g. the environment variable ``DASK_QCHAIN__LOST_TIMEOUT=600``)
+#: s without a worker or an answer before :class:`ClusterLost` (docs/sweeps.md, "Lost cluster")
 DEFAULT_LOST_TIMEOUT = 300.0
 _POLL = 0.25  #: s, the longest the Dask engine sleeps between looks at its tasks
 _CHECK = 1.0  #: s between asking the scheduler for its workers while tasks are outstanding

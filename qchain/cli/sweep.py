@@ -12,8 +12,7 @@ from ..batch.sweep_spec import address_problem, load_sweep, validate_runs
 from ..batch.sweeps import run_sweep
 from ..checks import bounds as _bounds
 from ..checks.text import printable
-from .checks import path_argument
-from .checks import check_output_folder
+from .checks import check_output_folder, path_argument
 from .command import command
 from .errors import BadInput, take_debug
 
@@ -82,12 +81,10 @@ def _main(argv: list[str], session) -> int:
     if spec.folder is not None:  # before any run: a folder that cannot take the results is said at once
         check_output_folder("the results folder", spec.folder)
     sys.stdout.flush()
-    workers, client = args.workers, args.dask
-    if workers is None and client is None:
-        workers, client = spec.workers, spec.dask
     session.phase = "run"
-    try:
-        res = run_sweep(spec, workers=workers, client=client, progress=args.progress, restart=args.restart, runs=runs)
+    try:  # (run_sweep takes the file's engine where neither flag is given)
+        res = run_sweep(spec, workers=args.workers, client=args.dask, progress=args.progress, restart=args.restart,
+                        runs=runs)
     except KeyboardInterrupt:
         where = f"; the finished runs are in {spec.folder} (run the same command again to continue)" \
             if spec.folder is not None else ""
