@@ -1,16 +1,9 @@
 """The ranges of qchain's physical parameters and run settings, declared once.
 
-A :class:`Range` is what a number may be: its bounds, open or closed, its unit, whether it
-must be an integer. The constants below are the ranges the model is checked at (finite
-results over the whole box, ``tests/test_segment.py``), far wider than any soft arm
-needs but small enough that no product of them overflows: a value outside one is a typo
-or an attack, and is refused where it enters, by :class:`qchain.Segment`,
-:func:`qchain.simulate` and the scene checker (:mod:`qchain.scene.format`, whose
-table of keys and the generated ``docs/scene-format.md`` quote them).
-
-What a whole run may cost (steps, samples, memory, segments) is a budget, not a range:
-:mod:`qchain.sim.budget`.
-"""
+A :class:`Range` is what a number may be (bounds, open or closed, unit, integer or not). The
+ranges are those the model is checked at (finite results over the whole box,
+``tests/test_segment.py``): far wider than any soft arm needs, small enough that no product
+of them overflows. What a whole run may cost is a budget, not a range: :mod:`qchain.sim.budget`."""
 
 from __future__ import annotations
 
@@ -21,42 +14,10 @@ import numpy as np
 
 from .convert import as_real, describe_value
 
-__all__ = [
-    "Range",
-    "LENGTH",
-    "RADIUS",
-    "MASS",
-    "CHAMBER_AREA",
-    "CHAMBER_RADIUS",
-    "YOUNGS_MODULUS",
-    "DAMPING",
-    "NODES",
-    "GRAVITY",
-    "POSITION",
-    "ANGLE",
-    "PSI",
-    "VELOCITY",
-    "ANGULAR_VELOCITY",
-    "RATE",
-    "DIRECTION",
-    "AMPLITUDE",
-    "FREQUENCY",
-    "PRESSURE",
-    "PRESSURE_AMPLITUDE",
-    "TIME",
-    "DURATION",
-    "STEP",
-    "RTOL",
-    "ATOL",
-    "SAMPLE_RATE",
-    "NODE_TOLERANCE",
-    "MAX_BEND",
-    "WALL_LIMIT",
-    "VACUUM_GAUGE",
-    "SEGMENT_COUNT",
-    "WORKERS",
-    "RETRIES",
-]
+__all__ = ["Range", "LENGTH", "RADIUS", "MASS", "CHAMBER_AREA", "CHAMBER_RADIUS", "YOUNGS_MODULUS", "DAMPING", "NODES",
+           "GRAVITY", "POSITION", "ANGLE", "PSI", "VELOCITY", "ANGULAR_VELOCITY", "RATE", "DIRECTION", "AMPLITUDE",
+           "FREQUENCY", "PRESSURE", "PRESSURE_AMPLITUDE", "TIME", "DURATION", "STEP", "RTOL", "ATOL", "SAMPLE_RATE",
+           "NODE_TOLERANCE", "MAX_BEND", "WALL_LIMIT", "VACUUM_GAUGE", "SEGMENT_COUNT", "WORKERS", "RETRIES"]
 
 
 def _num(x: float) -> str:
