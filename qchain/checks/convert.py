@@ -12,17 +12,8 @@ import numbers
 
 import numpy as np
 
-__all__ = [
-    "as_real",
-    "as_real_array",
-    "as_vector",
-    "as_matrix",
-    "describe_value",
-    "as_batch",
-    "as_bool",
-    "as_index",
-    "check_callable",
-]
+__all__ = ["as_real", "as_real_array", "as_vector", "as_matrix", "describe_value", "as_batch", "as_bool", "as_index",
+           "check_callable"]
 
 
 def describe_value(value, limit: int = 60) -> str:

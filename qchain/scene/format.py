@@ -25,21 +25,8 @@ from ..errors import MAX_LISTED, SceneError
 from ..model.segment import DEFAULT_NODES
 from ..sim.simulation import DEFAULT_METHOD, FIXED_STEP, METHODS
 
-__all__ = [
-    "Field",
-    "KeyTable",
-    "TABLES",
-    "Problem",
-    "SceneError",
-    "PLOTS",
-    "PRESSURE_KINDS",
-    "MAX_DEPTH",
-    "MAX_SCENE_BYTES",
-    "MAX_STRETCH",
-    "EXAMPLE",
-    "nesting_problem",
-    "markdown",
-]
+__all__ = ["Field", "KeyTable", "TABLES", "Problem", "SceneError", "PLOTS", "PRESSURE_KINDS", "MAX_DEPTH",
+           "MAX_SCENE_BYTES", "MAX_STRETCH", "EXAMPLE", "nesting_problem", "markdown"]
 
 #: Plots a scene may ask for.
 PLOTS = ("tip", "arm", "energy", "pressure", "momentum")

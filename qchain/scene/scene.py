@@ -71,19 +71,8 @@ from .parts import BaseSpec, SegmentSpec, SineMotion
 from .cost import _cost, _frequency
 from ..sim.simulation import COMPILED, FIXED_STEP, METHODS, explicit_stability_limit, simulate
 
-__all__ = [
-    "Scene",
-    "SceneModel",
-    "SceneError",
-    "Problem",
-    "SegmentSpec",
-    "BaseSpec",
-    "SineMotion",
-    "METHODS",
-    "PLOTS",
-    "BEND_MARGIN",
-    "VACUUM_GAUGE",
-]
+__all__ = ["Scene", "SceneModel", "SceneError", "Problem", "SegmentSpec", "BaseSpec", "SineMotion", "METHODS", "PLOTS",
+           "BEND_MARGIN", "VACUUM_GAUGE"]
 
 _TOP_KEYS = F.TOP.keys()
 
