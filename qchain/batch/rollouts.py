@@ -1,22 +1,7 @@
-"""Many rollouts of one chain at once: ``simulate_batch(chain, q0, v0, t_span, ...) -> BatchTrajectory``.
-
-Each rollout is a call of :func:`qchain.simulate` with the batch's arguments and its
-own initial state and inputs, run on the compiled engine in a pool of worker processes
-(:mod:`qchain.batch.workers`: every core of this machine by default, or a Dask cluster), and its
-result is bit for bit the one ``simulate`` gives with the same arguments, whatever the
-worker count or engine: every rollout is computed on its own, from its own copy of its
-inputs, by the same compiled code.
-
-Before the work fans out, this process compiles the method's engine (a cold numba cache,
-tens of seconds) or loads it, by a one-step run of the first rollout, so the workers only
-load it from the cache and never compile it all at the same time.
-
-A rollout that fails (it leaves the model's domain, blows up, a solver gives up) ends with
-``success = False`` and its message, its samples up to there are kept, and the others go
-on; a worker process that dies costs only its unfinished rollouts, which run again
-(:mod:`qchain.batch.workers`). An exception raised inside a rollout (a controller or an event
-function with a bug) stops the batch with :class:`RolloutError` naming the rollout.
-"""
+"""Many rollouts of one chain at once: ``simulate_batch(chain, q0, v0, t_span, ...) -> BatchTrajectory``,
+each rollout bit for bit what :func:`qchain.simulate` gives with the same arguments, on the
+engines of :mod:`qchain.batch.workers`. Behaviour, failures and guarantees: ``docs/sweeps.md``
+("Batched rollouts")."""
 
 from __future__ import annotations
 
@@ -122,13 +107,6 @@ class BatchTrajectory:
     @property
     def n_failed(self) -> int:
         return int(np.count_nonzero(~self.success))
-
-    @property
-    def simulated_seconds(self) -> float:
-        """Simulated time over all rollouts (s): the sum of each one's reached span."""
-        t0 = self.meta["t_span"][0]
-        ends = np.array([self.t[k - 1] if k else t0 for k in self.nsamples])
-        return float(np.sum(ends - t0))
 
 
 # ------------------------------------------------------------------------------ inputs
@@ -285,12 +263,9 @@ def simulate_batch(
     Parameters
     ----------
     chain : Chain
-    q0 : (B, nq) or (nq,)
-        Initial configurations, one a rollout (or one for all).
-    v0 : (B, nv) or (nv,)
-        Initial velocities.
+    q0 : (B, nq) or (nq,), v0 : (B, nv) or (nv,)
+        Initial states, one a rollout (or one for all).
     t_span : (t0, t1) s
-        Shared by every rollout.
     pressure : input or per-rollout inputs
         One input for every rollout (None, a constant (3 n,) Pa, a schedule of
         :mod:`qchain.sim.inputs`, a controller ``(t, q, v) -> (3 n,)``), an array (B, 3 n) of
@@ -298,35 +273,25 @@ def simulate_batch(
     tau : input or per-rollout inputs
         External generalised forces, in the same forms with size nv.
     method, dt, rtol, atol, events, max_step, first_step, energies, wall_limit, controller_rate, budget
-        As :func:`qchain.simulate`, shared by every rollout (a rollout's cost is
-        checked against ``budget`` here, before any runs).
+        As :func:`qchain.simulate`, shared (a rollout's cost is checked here, before any runs).
     t_eval : (N,) s
-        Output times, shared. Required for the adaptive methods (each rollout takes its
-        own steps); for ``rk4`` and ``midpoint`` without events the default is every step.
+        The batch's one time grid: required for the adaptive methods; for ``rk4`` and
+        ``midpoint`` without events the default is every step.
     workers : int, None or LocalPool
-        Worker processes on this machine: None or -1 every core (default), 1 runs the
-        rollouts in this process one after the other, up to 1024
-        (:data:`qchain.checks.bounds.WORKERS`), or a :class:`qchain.batch.workers.LocalPool`.
+        None or -1 every core (default), 1 this process, up to 1024 (:data:`qchain.checks.bounds.WORKERS`).
     client : dask.distributed.Client, str or DaskEngine, optional
-        Run on a Dask cluster instead (a client, or a scheduler address ``tcp://HOST:PORT``).
+        A Dask cluster instead (a client or a scheduler address ``tcp://HOST:PORT``).
     retries : int
-        Times a rollout runs again after the worker process running it died, 0 to 100
-        (:data:`qchain.checks.bounds.RETRIES`).
+        Runs of a rollout again after its worker process died, 0 to 100.
     progress : bool
-        A progress bar (tqdm) on stderr, one step a finished rollout.
+        A progress bar (tqdm) on stderr.
 
     Returns
     -------
     BatchTrajectory
-        ``batch[i]`` is rollout ``i`` as a :class:`~qchain.sim.trajectory.Trajectory`.
-
-    Raises
-    ------
-    ValueError, TypeError
-        Bad arguments, naming the argument (and the rollout), before anything runs.
-    RolloutError
-        A rollout raised an exception (a controller or an event function failing).
-    """
+        ``batch[i]`` is rollout ``i`` as a :class:`~qchain.sim.trajectory.Trajectory`. Bad
+        arguments raise ``ValueError``/``TypeError`` naming the argument (and the rollout)
+        before anything runs; an exception inside a rollout, :class:`RolloutError`."""
     t0, t1, retries, progress, cfg = _check_shared_settings(
         chain, t_span, method=method, workers=workers, client=client, retries=retries, progress=progress, dt=dt,
         rtol=rtol, atol=atol, max_step=max_step, first_step=first_step, wall_limit=wall_limit, t_eval=t_eval,
@@ -348,29 +313,10 @@ def simulate_batch(
 
 def _check_shared_settings(chain: Chain, t_span, *, method: str, workers, client, retries, progress, rtol, atol,
                            **settings) -> tuple[float, float, int, bool, dict]:
-    """Step 1 of :func:`simulate_batch`: the checks of :func:`qchain.simulate` on the shared
-    settings, here where they enter (each error names the argument), and the engine's.
-
-    Parameters
-    ----------
-    chain, t_span, method, workers, client, retries, progress, rtol, atol
-        As :func:`simulate_batch`.
-    **settings
-        ``dt``, ``max_step``, ``first_step``, ``wall_limit``, ``t_eval``, ``energies``,
-        ``events``, ``controller_rate``, checked by :func:`qchain.sim.simulation.check_settings`.
-
-    Returns
-    -------
-    (t0, t1, retries, progress, cfg)
-        The span (s), the retries and the progress flag checked, and the settings
-        normalised (``cfg["t_eval"]`` the batch's own copy).
-
-    Raises
-    ------
-    ValueError
-        Also for an adaptive method (or events) without ``t_eval``: the batch shares one
-        time grid.
-    """
+    """Step 1 of :func:`simulate_batch`: :func:`qchain.simulate`'s checks of the shared settings
+    and the engine's, where they enter; returns ``(t0, t1, retries, progress, cfg)``
+    (``cfg["t_eval"]`` the batch's own copy). An adaptive method (or events) needs ``t_eval``:
+    the batch shares one time grid."""
     t0, t1 = check_run(chain, method, t_span)  # the checks of simulate, here where the arguments enter
     retries = check_engine(workers, client, retries)
     for name, val, rng in (("rtol", rtol, _bounds.RTOL), ("atol", atol, _bounds.ATOL)):
@@ -394,20 +340,9 @@ def _row(X: np.ndarray, i: int) -> np.ndarray:
 
 def _check_budget(chain: Chain, t0: float, t1: float, method: str, cfg: dict, budget, Q0: np.ndarray,
                   V0: np.ndarray, p: tuple, tau: tuple) -> tuple[Budget, int]:
-    """Step 2 of :func:`simulate_batch`: a rollout's cost against the budget
-    (:mod:`qchain.sim.budget`), the batch size B the batched arguments agree on, and the B
-    rollouts' samples, held together, against the budget's memory; before anything runs.
-
-    Parameters
-    ----------
-    Q0 : (B, nq) or (nq,), V0 : (B, nv) or (nv,)
-    p, tau : (shared, per_rollout)
-        As :func:`_batched_input` returns them.
-
-    Returns
-    -------
-    (Budget, B)
-    """
+    """Step 2 of :func:`simulate_batch`: a rollout's cost and the B rollouts' samples, held
+    together, against the budget, and the batch size B the batched arguments agree on; returns
+    ``(budget, B)``."""
     budget = as_budget(budget)
     (p_shared, p_each), (tau_shared, tau_each) = p, tau
     cost = run_cost_of(chain, t0, t1, method=method, dt=cfg["dt"], max_step=cfg["max_step"], t_eval=cfg["t_eval"],
@@ -452,16 +387,10 @@ def _share(chain: Chain, t_span: tuple[float, float], method: str, cfg: dict, bu
 
 
 def _run_all(shared: _Shared, items: list, *, workers, client, retries: int, progress: bool):
-    """Step 4 of :func:`simulate_batch`: run the rollouts, in this process one after the
-    other or on the engine :func:`qchain.batch.workers.engine_for` picks (the method's
-    compiled engine compiled or loaded here first, by a one-step run of the first rollout).
-
-    Returns
-    -------
-    (results, engine name, workers, compile_s)
-        ``results[i]``: rollout ``i``'s ``(Trajectory, wall s)``, or a
-        :class:`qchain.batch.workers.Lost`; ``compile_s``: the warm-up's wall time (s).
-    """
+    """Step 4 of :func:`simulate_batch`: run the rollouts here one after the other or on the
+    engine :func:`qchain.batch.workers.engine_for` picks (the method's engine compiled or loaded
+    here first); returns ``(results, engine name, workers, compile_s)``, ``results[i]`` a
+    ``(Trajectory, wall s)`` or a :class:`qchain.batch.workers.Lost`."""
     chain, method = shared.chain, shared.kw["method"]
     B = len(items)
     engine = engine_for(workers, client, tasks=B)

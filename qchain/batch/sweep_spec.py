@@ -127,7 +127,7 @@ def keys_overlap(a: str, b: str) -> bool:
 def _put(node, at, value) -> None:
     """``node[at] = value``, except that a table put over a table is merged into it key by
     key (a dotted assignment per leaf): ``simulation = {duration = 0.03}`` changes the
-    duration and keeps the scene's method and dt (it replaced the whole table)."""
+    duration and keeps the scene's method and dt."""
     here = node.get(at) if isinstance(node, dict) else node[at]
     if isinstance(value, dict) and isinstance(here, dict) and value and set(value) != {_EACH} \
             and set(here) != {_EACH}:
@@ -464,14 +464,11 @@ class SweepSpec:
             U = qmc.LatinHypercube(d=d, **kw).random(self.n)
         return [{k: v for a, u in zip(self.axes, row) for k, v in a.assign(a.pick(float(u))).items()} for row in U]
 
-    def base_table(self) -> dict:
-        return tomllib.loads(self.scene.text)
-
     def run_texts(self) -> list[tuple[dict, str]]:
         """``(axis values, scene TOML text)`` of every run."""
         import tomli_w
 
-        raw = self.base_table()
+        raw = tomllib.loads(self.scene.text)
         return [(point, tomli_w.dumps(apply_values(raw, {**self.set, **point}))) for point in self.points()]
 
     def fingerprint(self, runs: list[tuple[dict, str]]) -> str:
@@ -522,16 +519,13 @@ def _takes_rng(cls) -> bool:
     return "rng" in inspect.signature(cls.__init__).parameters
 
 
-#: Schemes of a Dask scheduler's address (``distributed.comm``).
-DASK_SCHEMES = ("tcp", "tls", "ws", "wss", "ucx", "inproc")
-
-
 def address_problem(address: str) -> str | None:
     """What is wrong with a Dask scheduler's address (``[SCHEME://]HOST:PORT``: a known
     scheme, a host that is an IP address or a DNS name, a port from 1 to 65535), or None.
     ``qchain sweep --dask`` can check its value with it too."""
     from urllib.parse import urlsplit
 
+    from .workers import SCHEDULER_SCHEMES
 
     text = str(address)
     if not text.strip() or any(c.isspace() or not c.isprintable() for c in text):
@@ -543,8 +537,8 @@ def address_problem(address: str) -> str | None:
         port = parts.port
     except ValueError as err:
         return f"a bad port ({err})"
-    if parts.scheme not in DASK_SCHEMES:
-        return f"the scheme {parts.scheme!r} is not one of {', '.join(DASK_SCHEMES)}"
+    if parts.scheme not in SCHEDULER_SCHEMES:
+        return f"the scheme {parts.scheme!r} is not one of {', '.join(SCHEDULER_SCHEMES)}"
     if parts.scheme == "inproc":
         return None
     if not parts.hostname or not host_ok(parts.hostname):
@@ -555,16 +549,9 @@ def address_problem(address: str) -> str | None:
 
 
 def check_results_folder(folder, n_runs: int | None = None) -> None:
-    """Refuse a results folder a sweep cannot resume from, before any run (the files of
-    :mod:`qchain.batch.sweeps`' results folder): ``sweep.json`` a JSON object with a ``fingerprint``;
-    ``runs.jsonl`` one JSON object a line with a whole ``run`` number (below ``n_runs``);
-    ``summary.parquet`` a file; ``runs`` a folder. A missing file is fine (a new sweep).
-
-    Raises
-    ------
-    SweepError
-        listing every problem, each naming the file, what it should be and what it is.
-    """
+    """Refuse, before any run, a results folder a sweep cannot resume from (``sweep.json``,
+    ``runs.jsonl`` with run numbers below ``n_runs``, ``summary.parquet``, ``runs/``; a missing
+    file is fine): one :class:`SweepError` listing every problem."""
     import os
     import stat
 

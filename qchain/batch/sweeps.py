@@ -1,33 +1,10 @@
-"""Parameter sweeps: ``sweep(scene, axes, ...)`` and ``qchain sweep SWEEP.toml``.
+"""Parameter sweeps: ``sweep(scene, axes, ...)`` and :func:`run_sweep` (``qchain sweep SWEEP.toml``).
 
-A sweep (:mod:`qchain.batch.sweep_spec`: a base scene, axes over any of its values, grid, random
-or Latin-hypercube samples) runs each of its scenes as ``qchain run`` would (the model the
-scene builds, its method and tolerances, its output samples) on a pool of worker processes
-or a Dask cluster (:mod:`qchain.batch.workers`), and collects per-run summary metrics in one
-table (:data:`METRICS`, plus the axes' values and any ``metrics=`` function's), optionally
-with each run's trajectory and MCAP recording.
-
-Results folder
---------------
-::
-
-    sweep.json          what the sweep is (its runs' fingerprint, axes, sampling, outputs)
-    runs.jsonl          one line a finished run, appended (and flushed) as each run finishes
-    summary.parquet     the table, sorted by run, written at the end (also after a failure
-                        or Ctrl-C, with the runs finished so far)
-    runs/run-NNNNN.npz  with trajectories: t, q, v, p, kinetic_energy, potential_energy,
-                        tip, success, message (as ``qchain run``'s trajectory.npz)
-    runs/run-NNNNN.mcap with mcap: the run's recording (``qchain replay`` plays it)
-
-Resuming: a sweep started again on the same folder reads ``runs.jsonl`` and runs only what
-is not there, so a killed sweep continues where it stopped and never computes a finished
-run again (a run's files are written before its line). The folder must hold the same
-sweep (same runs, same outputs) or the run stops with an error saying so;
-``restart=True`` (``--restart``) clears it first.
-
-Results are the same whatever the engine and worker count: every run is computed on its
-own by the same code; only ``wall_s``, ``build_s`` and ``worker`` differ.
-"""
+Each run of a :class:`qchain.batch.sweep_spec.SweepSpec` is run as ``qchain run`` would run
+its scene, on the engines of :mod:`qchain.batch.workers`, into one table of per-run metrics
+(:data:`METRICS`, the axes' values, a ``metrics=`` function's). The results folder
+(``sweep.json``, ``runs.jsonl``, ``summary.parquet``, ``runs/``), resuming and
+``restart``: ``docs/sweeps.md`` ("Results folder and resuming")."""
 
 from __future__ import annotations
 
@@ -583,40 +560,30 @@ def sweep(scene, axes, *, sampling: str = "grid", n: int | None = None, seed: in
           folder=None, trajectories: bool = False, mcap: bool = False, metrics=None, workers=None, client=None,
           retries: int = DEFAULT_RETRIES, progress: bool | None = None, restart: bool = False,
           name: str | None = None) -> SweepResult:
-    """Run a scene over axes of its values; one row of summary metrics a run.
+    """Run a scene over axes of its values; one row of summary metrics a run (``docs/sweeps.md``).
 
     Parameters
     ----------
     scene : Scene or path
-        The base scene (:func:`qchain.load_scene`).
     axes : dict {key: values} or list of Axis
         Dotted scene keys and their values (:class:`qchain.batch.sweep_spec.Axis` for ranges,
         log spacing, whole numbers and linked keys).
-    sampling : "grid", "random" or "lhs"
-        Every combination, or ``n`` random or Latin-hypercube samples drawn with ``seed``.
+    sampling, n, seed
+        ``"grid"`` (every combination), or ``n`` ``"random"`` or ``"lhs"`` samples drawn with ``seed``.
     set : dict, optional
-        {dotted key: value} for every run; ``{"each_segment": [...]}`` stands for the list
-        repeated once a segment.
+        {dotted key: value} for every run (``{"each_segment": [...]}``: the list once a segment).
     folder : path, optional
-        Results folder (manifest, journal, ``summary.parquet``, per-run files): a sweep
-        started again on it resumes. None keeps the results in memory only.
+        Results folder, resumed when started again; None keeps the results in memory only.
     trajectories, mcap : bool
         Also keep each run's trajectory (npz) and MCAP recording.
     metrics : callable or "module:function", optional
-        ``(scene, model, traj) -> dict`` of more per-run metrics; defined at module level
-        so worker processes can import it.
+        ``(scene, model, traj) -> dict`` of more per-run metrics, defined at module level.
     workers, client, retries
-        The engine, as for :func:`qchain.simulate_batch`: local worker processes (default
-        every core; 1 runs in this process) or a Dask client or scheduler address.
+        The engine, as for :func:`qchain.simulate_batch`.
     progress : bool, optional
         A progress bar on stderr (default: when stderr is a terminal).
     restart : bool
-        Clear the folder's earlier results of this sweep first.
-
-    Returns
-    -------
-    SweepResult
-    """
+        Clear the folder's earlier results of this sweep first."""
     if not isinstance(scene, Scene):
         scene = load_scene(scene)
     spec = SweepSpec(scene=scene, axes=axes, sampling=sampling, n=n, seed=seed, set=set or {},

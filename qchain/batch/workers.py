@@ -1,39 +1,12 @@
-"""Where batches and sweeps run: worker processes on this machine, or a Dask cluster.
+"""Where batches and sweeps run: worker processes on this machine (:class:`LocalPool`, the
+default) or a Dask cluster (:class:`DaskEngine`).
 
 :func:`qchain.simulate_batch` and :func:`qchain.sweep` hand their work here as *items* (the
 arguments of one rollout or one sweep run), a module-level function ``fn(shared, items) ->
-list`` that runs a list of items and returns one result each, and ``shared``: what every
-item needs (the model, the method, the tolerances). ``shared`` is pickled once; a worker
-unpickles it once and keeps it for the items that follow.
-
-Engines
--------
-:class:`LocalPool` (the default)
-    One worker process a core (``spawn``: a fresh interpreter, no state copied from the
-    caller), started at first use and kept alive across calls, so each loads the compiled
-    engine once. No server: each worker is a ``concurrent.futures.ProcessPoolExecutor`` of
-    one process, so the pool knows which process ran which items.
-:class:`DaskEngine`
-    The same items as tasks on a ``dask.distributed`` cluster (``Client`` or its address).
-
-Items go to workers in chunks, large first and shrinking towards the end (guided
-scheduling, :func:`plan_chunks`; twice as large on Dask, whose tasks cost more): a chunk
-pays one round trip, and the small last chunks keep every worker busy to the end. Results do not depend on the chunking: each item is
-computed on its own.
-
-Lost workers
-------------
-A worker process that dies (killed, out of memory, a crash in compiled code) costs only the
-items it had not finished: its chunk is split into single items and sent again, on the
-local pool at once (a new process takes the dead one's place), on Dask after the
-scheduler's own retries (``distributed.scheduler.allowed-failures``). An item whose worker
-died more than ``retries`` times is given up: its result is a :class:`Lost` saying so, and
-the other items go on. Results already received are never computed again.
-
-On Dask every wait is bounded: a cluster left without workers, or whose scheduler does not
-answer, for ``lost_timeout`` seconds (dask config ``qchain.lost-timeout``, default 300 s)
-ends the work with :class:`ClusterLost` instead of waiting for ever.
-"""
+list`` returning one result an item, and ``shared``: what every item needs, pickled once and
+kept by each worker. Items go out in guided chunks (:func:`plan_chunks`); results do not
+depend on the chunking. Engines, lost workers (:class:`Lost`) and lost clusters
+(:class:`ClusterLost`, ``qchain.lost-timeout``): ``docs/sweeps.md`` ("Engines")."""
 
 from __future__ import annotations
 
@@ -62,8 +35,7 @@ from ..checks.convert import describe_value
 from ..errors import ClusterLost
 
 __all__ = ["LocalPool", "DaskEngine", "ClusterLost", "Lost", "Payload", "plan_chunks", "resolve_workers", "check_engine",
-           "engine_for",
-           "default_pool", "dumps", "DEFAULT_RETRIES", "DEFAULT_LOST_TIMEOUT"]
+           "engine_for", "default_pool", "dumps", "DEFAULT_RETRIES", "DEFAULT_LOST_TIMEOUT"]
 
 #: times an item is sent again after the worker running it died
 DEFAULT_RETRIES = 3
@@ -80,14 +52,8 @@ _DASK_FACTOR = 2
 
 
 def dumps(obj, what: str) -> bytes:
-    """``obj`` pickled for a worker process (pickle; cloudpickle, where installed, for what
-    pickle cannot take: lambdas, closures, functions defined in ``__main__``).
-
-    Raises
-    ------
-    TypeError
-        Naming ``what`` when neither can pickle it.
-    """
+    """``obj`` pickled for a worker process (cloudpickle, where installed, for what pickle cannot
+    take: lambdas, closures, ``__main__``'s functions); ``TypeError`` naming ``what`` otherwise."""
     try:
         return pickle.dumps(obj, protocol=pickle.HIGHEST_PROTOCOL)
     except (pickle.PicklingError, AttributeError, TypeError) as err:
@@ -199,17 +165,9 @@ def resolve_workers(workers) -> int:
 
 
 def check_engine(workers, client, retries) -> int:
-    """Check where a batch or a sweep's engine arguments enter, before anything starts:
-    ``workers`` None, -1 (every core), an int within :data:`qchain.checks.bounds.WORKERS` or a
-    :class:`LocalPool`; ``client`` None, a scheduler address, a Dask client or a
-    :class:`DaskEngine`; ``retries`` an int within :data:`qchain.checks.bounds.RETRIES`. Returns
-    ``retries`` as an int.
-
-    Raises
-    ------
-    TypeError, ValueError
-        naming the argument, the value and the bound.
-    """
+    """Check a batch's or a sweep's ``workers``, ``client`` and ``retries`` where they enter
+    (``TypeError``/``ValueError`` naming the argument, the value and the bound); returns
+    ``retries`` as an int."""
     if not (workers is None or isinstance(workers, (LocalPool, DaskEngine))):
         resolve_workers(workers)
     if client is not None and not (isinstance(client, (str, DaskEngine)) or hasattr(client, "submit")):
@@ -293,22 +251,10 @@ class _Slot:
 
 
 class LocalPool:
-    """Worker processes on this machine, kept alive across calls.
-
-    Parameters
-    ----------
-    workers : int or None
-        Number of worker processes; None or -1: one a core this process may use
-        (``os.sched_getaffinity``).
-
-    Notes
-    -----
-    Use it as a context manager, or :meth:`close` it; :func:`default_pool` keeps one for
-    the whole session (what ``simulate_batch`` and ``sweep`` use when given no engine).
-    Workers start with ``spawn`` (about 1 s each to import qchain and load the compiled
-    engine, in parallel); they ignore Ctrl-C and exit when the process that started them
-    is gone.
-    """
+    """Worker processes on this machine (``spawn``), kept alive across calls; ``workers``: None
+    or -1 one a core this process may use. A context manager, or :meth:`close` it;
+    :func:`default_pool` keeps one for the session. Workers ignore Ctrl-C and exit when the
+    process that started them is gone."""
 
     kind = "local"
 
@@ -479,9 +425,7 @@ def _close_default() -> None:  # pragma: no cover - interpreter shutdown
 # ------------------------------------------------------------------------------ dask
 
 
-#: seconds a :class:`DaskEngine` waits while its cluster has no worker or its scheduler does
-#: not answer, before it raises :class:`ClusterLost` (dask config ``qchain.lost-timeout``,
-#: e.g. the environment variable ``DASK_QCHAIN__LOST_TIMEOUT=600``)
+#: s without a worker or an answer before :class:`ClusterLost` (docs/sweeps.md, "Lost cluster")
 DEFAULT_LOST_TIMEOUT = 300.0
 _POLL = 0.25  #: s, the longest the Dask engine sleeps between looks at its tasks
 _CHECK = 1.0  #: s between asking the scheduler for its workers while tasks are outstanding
@@ -517,31 +461,10 @@ def _lost_timeout(value) -> float | None:
 
 
 class DaskEngine:
-    """Items as tasks on a ``dask.distributed`` cluster.
-
-    Parameters
-    ----------
-    client : distributed.Client or str
-        A client, or a scheduler address (``tcp://HOST:PORT``) to connect to (closed again
-        by :meth:`close`).
-    lost_timeout : float, str or None, optional
-        Seconds :meth:`map` waits while the cluster has no worker (all died, or none joined
-        yet) or its scheduler does not answer, before it raises :class:`ClusterLost`.
-        Default: the dask config ``qchain.lost-timeout``, else 300 s; None waits for ever.
-
-    Notes
-    -----
-    The compiled engine holds Python's lock while it runs, so a worker runs one item at a
-    time whatever its thread count: start workers as one process a core with one thread
-    each (``dask worker ADDRESS --nworkers N --nthreads 1``). Before the first items of a
-    kind reach a cluster, one worker of each machine other than this one compiles or
-    loads the engine (:meth:`warm`), so workers sharing a cache do not all compile it at
-    once.
-
-    Every wait is on this engine's own client and bounded: :meth:`map` looks at its tasks
-    at least every quarter second and asks the scheduler for its workers every second
-    while tasks are outstanding.
-    """
+    """Items as tasks on a ``dask.distributed`` cluster: ``client`` a client or a scheduler
+    address (connected here, closed by :meth:`close`); ``lost_timeout`` s without a worker or an
+    answer before :class:`ClusterLost` (default the dask config ``qchain.lost-timeout``, else
+    300 s; None waits for ever). Start workers with ``--nthreads 1``: the engine holds the GIL."""
 
     kind = "dask"
 
@@ -647,17 +570,11 @@ class DaskEngine:
 
     def map(self, fn: Callable, payload: Payload, items: Sequence, *, retries: int = DEFAULT_RETRIES
             ) -> Iterator[tuple[int, object]]:
-        """As :meth:`LocalPool.map`, on the cluster.
-
-        A worker that dies costs the tasks it had not handed back: the scheduler runs them
-        again (up to ``distributed.scheduler.allowed-failures`` deaths); then (Dask's
-        ``KilledWorker``) qchain splits the chunk into single items and sends them again,
-        ``retries`` times, before it gives an item up as :class:`Lost`. Tasks the scheduler
-        forgot (this client lost its connection to it) are sent again once the client is
-        connected again. Raises :class:`ClusterLost` when the cluster has had no worker, or
-        its scheduler has not answered, for ``lost_timeout`` seconds; an exception raised by
-        ``fn`` itself is raised here. Closing the iterator early releases the tasks still
-        outstanding (the scheduler cancels them)."""
+        """As :meth:`LocalPool.map`, on the cluster. Chunks of dead workers go again, as single
+        items, after the scheduler's own retries (``KilledWorker``); tasks the scheduler forgot go
+        again once the client reconnects; :class:`ClusterLost` after ``lost_timeout`` s without a
+        worker or an answer; ``fn``'s own exception is raised here. Closing the iterator early
+        releases the outstanding tasks."""
         from distributed import KilledWorker
 
         threads = list(self._wait_for_threads().values())

@@ -1,16 +1,9 @@
 """The ranges of qchain's physical parameters and run settings, declared once.
 
-A :class:`Range` is what a number may be: its bounds, open or closed, its unit, whether it
-must be an integer. The constants below are the ranges the model is checked at (finite
-results over the whole box, ``tests/test_segment.py``), far wider than any soft arm
-needs but small enough that no product of them overflows: a value outside one is a typo
-or an attack, and is refused where it enters, by :class:`qchain.Segment`,
-:func:`qchain.simulate` and the scene checker (:mod:`qchain.scene.format`, whose
-table of keys and the generated ``docs/scene-format.md`` quote them).
-
-What a whole run may cost (steps, samples, memory, segments) is a budget, not a range:
-:mod:`qchain.sim.budget`.
-"""
+A :class:`Range` is what a number may be (bounds, open or closed, unit, integer or not). The
+ranges are those the model is checked at (finite results over the whole box,
+``tests/test_segment.py``): far wider than any soft arm needs, small enough that no product
+of them overflows. What a whole run may cost is a budget, not a range: :mod:`qchain.sim.budget`."""
 
 from __future__ import annotations
 
@@ -21,51 +14,12 @@ import numpy as np
 
 from .convert import as_real, describe_value
 
-__all__ = [
-    "Range",
-    "LENGTH",
-    "RADIUS",
-    "MASS",
-    "CHAMBER_AREA",
-    "CHAMBER_RADIUS",
-    "YOUNGS_MODULUS",
-    "DAMPING",
-    "NODES",
-    "GRAVITY",
-    "POSITION",
-    "ANGLE",
-    "PSI",
-    "VELOCITY",
-    "ANGULAR_VELOCITY",
-    "RATE",
-    "DIRECTION",
-    "AMPLITUDE",
-    "FREQUENCY",
-    "PRESSURE",
-    "PRESSURE_AMPLITUDE",
-    "TIME",
-    "DURATION",
-    "STEP",
-    "RTOL",
-    "ATOL",
-    "SAMPLE_RATE",
-    "NODE_TOLERANCE",
-    "MAX_BEND",
-    "WALL_LIMIT",
-    "VACUUM_GAUGE",
-    "SEGMENT_COUNT",
-    "WORKERS",
-    "RETRIES",
-    "EXTENT",
-    "CONTACT_STIFFNESS",
-    "CONTACT_EXPONENT",
-    "CONTACT_DAMPING",
-    "FRICTION",
-    "SLIP_VELOCITY",
-    "RESTITUTION",
-    "IMPACT_SPEED",
-    "CONTACT_NODES",
-]
+__all__ = ["Range", "LENGTH", "RADIUS", "MASS", "CHAMBER_AREA", "CHAMBER_RADIUS", "YOUNGS_MODULUS", "DAMPING", "NODES",
+           "GRAVITY", "POSITION", "ANGLE", "PSI", "VELOCITY", "ANGULAR_VELOCITY", "RATE", "DIRECTION", "AMPLITUDE",
+           "FREQUENCY", "PRESSURE", "PRESSURE_AMPLITUDE", "TIME", "DURATION", "STEP", "RTOL", "ATOL", "SAMPLE_RATE",
+           "NODE_TOLERANCE", "MAX_BEND", "WALL_LIMIT", "VACUUM_GAUGE", "SEGMENT_COUNT", "WORKERS", "RETRIES",
+           "EXTENT", "CONTACT_STIFFNESS", "CONTACT_EXPONENT", "CONTACT_DAMPING", "FRICTION", "SLIP_VELOCITY",
+           "RESTITUTION", "IMPACT_SPEED", "CONTACT_NODES"]
 
 
 def _num(x: float) -> str:
@@ -99,26 +53,23 @@ class Range:
     high_open: bool = False
     integer: bool = False
 
-    def text(self) -> str:
-        """The bounds as words: ``"> 0 and <= 100 m"``."""
+    def _bounds(self) -> str:
+        """``"> 0 and <= 100"``, or ``""`` without bounds."""
         parts = []
         if self.low is not None:
             parts.append(f"{'>' if self.low_open else '>='} {_num(self.low)}")
         if self.high is not None:
             parts.append(f"{'<' if self.high_open else '<='} {_num(self.high)}")
-        s = " and ".join(parts) if parts else "any value"
-        return f"{s} {self.unit}".rstrip()
+        return " and ".join(parts)
+
+    def text(self) -> str:
+        """The bounds as words: ``"> 0 and <= 100 m"``."""
+        return f"{self._bounds() or 'any value'} {self.unit}".rstrip()
 
     def what(self) -> str:
         """``"a number > 0 and <= 100 (m)"`` or ``"an integer >= 1 and <= 100"``."""
-        kind = "an integer" if self.integer else "a number"
-        parts = []
-        if self.low is not None:
-            parts.append(f"{'>' if self.low_open else '>='} {_num(self.low)}")
-        if self.high is not None:
-            parts.append(f"{'<' if self.high_open else '<='} {_num(self.high)}")
-        bound = f" {' and '.join(parts)}" if parts else ""
-        return f"{kind}{bound}{f' ({self.unit})' if self.unit else ''}"
+        bound = f" {self._bounds()}" if self._bounds() else ""
+        return f"{'an integer' if self.integer else 'a number'}{bound}{f' ({self.unit})' if self.unit else ''}"
 
     def contains(self, x: float) -> bool:
         """Whether the finite number ``x`` is inside (the type is not checked)."""

@@ -12,18 +12,8 @@ import numbers
 
 import numpy as np
 
-__all__ = [
-    "as_real",
-    "as_real_array",
-    "as_vector",
-    "as_matrix",
-    "check_positive",
-    "describe_value",
-    "as_batch",
-    "as_bool",
-    "as_index",
-    "check_callable",
-]
+__all__ = ["as_real", "as_real_array", "as_vector", "as_matrix", "describe_value", "as_batch", "as_bool", "as_index",
+           "check_callable"]
 
 
 def describe_value(value, limit: int = 60) -> str:
@@ -178,16 +168,6 @@ def as_matrix(name: str, value, shape: tuple[int, int]) -> np.ndarray:
     if not np.all(np.isfinite(arr)):
         raise ValueError(f"{name} has non-finite entries")
     return arr
-
-
-def check_positive(name: str, value, unit: str, allow_zero: bool = False) -> float:
-    """A finite real ``> 0`` (or ``>= 0`` with ``allow_zero``); ``ValueError`` naming the bound."""
-    v = as_real(name, value)
-    if allow_zero and v < 0.0:
-        raise ValueError(f"{name} must be >= 0 {unit}, got {v} {unit}".replace("  ", " "))
-    if not allow_zero and v <= 0.0:
-        raise ValueError(f"{name} must be > 0 {unit}, got {v} {unit}".replace("  ", " "))
-    return v
 
 
 def as_batch(name: str, value, last: int) -> np.ndarray:

@@ -1,16 +1,7 @@
-"""Paths from outside (scene keys, command-line arguments, output names) checked before use.
-
-Two checks every layer that takes a path makes, each written once here; the messages that
-report them stay the callers' (they name the key or flag):
-
-* a NUL character, which no system call takes (``os.stat`` raises ``ValueError``) and
-  which a terminal does not show: :func:`has_nul`, and :func:`show_nul` for the message;
-* what a path that is not a regular file is (a folder, a FIFO, a device, a socket), from
-  its ``st_mode``, in words: :func:`file_kind`; and, for a folder to be made, a file where
-  one of its folders must be: :func:`file_in_the_way`.
-
-Standard library only: the command line's checks run before numpy loads.
-"""
+"""Paths from outside checked before use, each check written once (the messages stay the
+callers', naming their key or flag): a NUL character (:func:`has_nul`, :func:`show_nul`),
+what a path that is not a regular file is (:func:`file_kind`), a file where a folder must be
+(:func:`file_in_the_way`). Standard library only: the command line's checks run before numpy loads."""
 
 from __future__ import annotations
 
@@ -52,14 +43,8 @@ def file_kind(mode: int, detailed: bool = False, other: str = "not a regular fil
 
 
 def file_in_the_way(folder: Path) -> Path | None:
-    """The first of ``folder`` and its parents that exists and is not a folder (a file
-    where a folder must be, so ``folder`` cannot be made), or None.
-
-    Raises
-    ------
-    OSError
-        What ``Path.exists`` raises (a path too long, permission denied); callers say it.
-    """
+    """The first of ``folder`` and its parents that exists and is not a folder, or None;
+    raises what ``Path.exists`` raises."""
     for parent in [folder, *folder.parents]:
         if parent.exists() and not parent.is_dir():
             return parent

@@ -1,12 +1,6 @@
-"""Values shown to a person in messages, on one line: text from outside (file names,
-recorded messages: :func:`printable`), paths (:func:`show_path`) and vectors
-(:func:`show_vector`). How a value and its type read in an argument error is
-:func:`qchain.checks.convert.describe_value`; a declared range, :meth:`qchain.checks.bounds.Range.text`.
-
-Standard library only at import: the command line's error path imports it before numpy loads.
-:func:`printable` is defined in :mod:`qchain.errors` (a :class:`~qchain.errors.SceneError`'s
-message needs it, and that module is below this one); this is where the layers take it from.
-"""
+"""Values shown in messages, on one line: text from outside (:func:`printable`, defined in
+:mod:`qchain.errors`, which a ``SceneError`` needs), paths (:func:`show_path`), vectors
+(:func:`show_vector`). Standard library only at import (the command line's error path)."""
 
 from __future__ import annotations
 

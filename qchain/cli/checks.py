@@ -27,9 +27,8 @@ VIEWER_SCHEMES = ("rerun+http", "rerun+https", "rerun", "http", "https")
 
 
 def flag_ranges() -> dict:
-    """``{argparse dest: (flag, Range)}``: the numeric flags of ``qchain run`` and the ranges
-    (:mod:`qchain.checks.bounds`) their values must be in, declared once; :func:`check_flag_values`
-    applies them."""
+    """``{argparse dest: (flag, Range)}``: the numeric flags of ``qchain run`` and their ranges
+    (:mod:`qchain.checks.bounds`), declared once."""
     from ..checks.bounds import DURATION, SAMPLE_RATE, Range
 
     return {
@@ -40,14 +39,8 @@ def flag_ranges() -> dict:
 
 
 def check_flag_values(args, ranges: dict | None = None) -> None:
-    """Refuse a numeric flag whose value is outside its range (NaN and infinities too).
-
-    Raises
-    ------
-    BadInput
-        ``argument FLAG: expected a number > 0 and <= 1e+12 (s), found nan``: the flag, its
-        bound and the value given.
-    """
+    """Refuse a numeric flag outside its range, NaN and infinities too (:class:`BadInput`
+    naming the flag, the bound and the value)."""
     for dest, (flag, rng) in (flag_ranges() if ranges is None else ranges).items():
         value = getattr(args, dest, None)
         if value is None:
@@ -57,15 +50,8 @@ def check_flag_values(args, ranges: dict | None = None) -> None:
 
 
 def check_viewer_url(flag: str, url) -> None:
-    """Refuse a viewer URL that cannot name one (before the run; a URL that names a viewer
-    which does not answer is a warning, :func:`viewer_silence`): a supported scheme
-    (:data:`VIEWER_SCHEMES`), a host (an IP address or a DNS name) and a port from 1 to 65535.
-
-    Raises
-    ------
-    BadInput
-        naming ``flag``, the URL and what is wrong.
-    """
+    """Refuse a viewer URL that cannot name one: a scheme of :data:`VIEWER_SCHEMES`, a host (an
+    IP address or a DNS name) and a port from 1 to 65535 (:class:`BadInput` naming ``flag``)."""
     if url is None:
         return
     text = str(url)
@@ -90,14 +76,8 @@ def check_viewer_url(flag: str, url) -> None:
 
 
 def check_bind_address(flag: str, host) -> None:
-    """Refuse an address to listen on that is neither an IPv4 address nor a host name with
-    one (:func:`qchain.recording.rerun_sink.listen_address`, where the server takes it).
-
-    Raises
-    ------
-    BadInput
-        naming ``flag`` and the address.
-    """
+    """Refuse an address to listen on that is neither an IPv4 address nor a host name with one
+    (:class:`BadInput` naming ``flag``)."""
     if host is None:
         return
     shown = str(host) if len(str(host)) <= 80 else str(host)[:77] + "..."
@@ -135,16 +115,9 @@ def _recording_stem(scene_path) -> str:
 
 
 def check_output_path(flag: str, path, extra: str = "") -> None:
-    """Refuse an output file path the run could not use, before the run: a NUL character,
-    a name that is not UTF-8 text (a recording stores its path and Rerun takes UTF-8), a
-    file name longer than the file system takes (with ``extra``, the suffix of a file
-    written beside it, e.g. ``.journal``).
-
-    Raises
-    ------
-    BadInput
-        naming ``flag``, the path and what is wrong.
-    """
+    """Refuse an output file path the run could not use: a NUL character, a name that is not
+    UTF-8, a file name longer than the file system takes (with ``extra``, the suffix of a file
+    written beside it), a path that is not a regular file (:class:`BadInput` naming ``flag``)."""
     if path is None:
         return
     text = os.fsdecode(path)
@@ -193,14 +166,8 @@ def _existing_output_problem(flag: str, p: Path) -> None:
 
 
 def check_output_folder(what: str, folder) -> Path:
-    """Make sure ``folder`` can take a command's outputs before anything runs: no NUL
-    character, no file where a folder must be, made if missing, writable; returns it.
-
-    Raises
-    ------
-    BadInput
-        naming ``what`` (e.g. ``"the results folder"``), the folder and what is wrong.
-    """
+    """Make ``folder`` ready for a command's outputs (no NUL, no file in the way, made,
+    writable) and return it; :class:`BadInput` naming ``what`` otherwise."""
     import tempfile
 
     text = os.fspath(folder)
@@ -220,27 +187,22 @@ def check_output_folder(what: str, folder) -> Path:
 
 
 def viewer_silence(url: str, timeout: float = CONNECT_TIMEOUT) -> str | None:
-    """None when a Rerun viewer answers at ``url`` within ``timeout`` s, else why not, in
-    words (:func:`qchain.recording.rerun_sink.probe_viewer`, which the recording and
-    ``qchain replay`` use too). The Rerun SDK waits for a peer that accepts and never
-    answers without end, so ``qchain run --connect`` asks first."""
+    """None when a Rerun viewer answers at ``url`` within ``timeout`` s, else why not
+    (:func:`qchain.recording.rerun_sink.probe_viewer`)."""
     from ..recording.rerun_sink import probe_viewer  # (loads no Rerun: the command starts at once)
 
     return probe_viewer(url, timeout)
 
 
 def path_argument(text: str) -> Path:
-    """A path argument: argparse says ``argument --out: expected a path, found an empty
-    string`` for an empty one (``Path("")`` would be the working folder); the checks of
-    each output (:mod:`qchain.cli.checks`) say the rest."""
+    """A path argument, not empty (``Path("")`` would be the working folder)."""
     if not text:
         raise argparse.ArgumentTypeError("expected a path, found an empty string")
     return Path(text)
 
 
 def file_argument(text: str) -> Path:
-    """An output file's path argument: :func:`path_argument`, and not ending in ``/`` (a
-    folder's name: ``Path`` would drop the slash and write a file of the folder's name)."""
+    """An output file's path argument: :func:`path_argument`, not ending in ``/``."""
     if text.endswith(os.sep) or (os.altsep and text.endswith(os.altsep)):
         raise argparse.ArgumentTypeError(f"expected a file's path, found {text!r}, which ends in {os.sep!r} (a "
                                          "folder's name)")

@@ -17,22 +17,10 @@ __all__ = ["command"]
 
 def command(name: str, body, debug: bool = False, session: _Session | None = None,
             result_on_stdout: bool = False) -> int:
-    """Run ``body(session)`` as the command ``qchain NAME`` and return its exit code: every
-    exception one line on stderr (:func:`guarded`), warnings one line each, Ctrl-C one line
-    at any moment (also where a library drops the ``KeyboardInterrupt``).
-
-    Parameters
-    ----------
-    name : str
-        The command (``"run"``, ``"sweep"``); ``""`` for none.
-    body : callable (session) -> int or None
-    debug : bool
-        Print tracebacks too.
-    session : optional
-        The session of the command this one runs inside (``qchain sweep`` from ``qchain``).
-    result_on_stdout : bool
-        Standard output is the command's result: exit code 1 when it could not be written.
-    """
+    """Run ``body(session)`` as ``qchain NAME`` (``""`` for none) and return its exit code:
+    exceptions, warnings and Ctrl-C (at any moment) one line each on stderr; ``debug`` prints
+    tracebacks; ``session``: the command this one runs inside (``sweep`` from ``qchain``);
+    ``result_on_stdout``: exit code 1 when standard output could not be written."""
     if session is not None:
         return guarded(session.prog, lambda: body(session), debug, session)
     session = _Session(name)

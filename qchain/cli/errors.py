@@ -1,9 +1,6 @@
-"""The command line's errors: one line on stderr with the right exit code, never a
-traceback (``--debug`` shows it); warnings one line each; Ctrl-C reported once.
-
-Exit codes: :data:`EXIT_OK` 0, :data:`EXIT_FAILED` 1 (the run failed or stopped),
-:data:`EXIT_USAGE` 2 (bad input, refused before anything ran); docs/cli.md.
-"""
+"""The command line's errors: one line on stderr with its exit code (:data:`EXIT_OK`,
+:data:`EXIT_FAILED`, :data:`EXIT_USAGE`: ``docs/cli.md``), never a traceback (``--debug``
+shows it); warnings one line each; Ctrl-C reported once."""
 
 from __future__ import annotations
 
@@ -23,11 +20,9 @@ DEBUG_HINT = "(run with --debug for the traceback)"
 
 
 class _Session:
-    """What :func:`main` knows of the command while it runs, for its error lines.
-
-    ``phase`` is ``"start"`` until the simulation starts (an error then is the input's:
-    exit code 2), ``"run"`` while it runs and ``"end"`` after it (exit code 1).
-    """
+    """What the command knows of itself while it runs, for its error lines: ``phase``
+    ``"start"`` until the simulation starts (an error is the input's: exit code 2), then
+    ``"run"`` and ``"end"`` (exit code 1)."""
 
     def __init__(self, command: str):
         self.command = command
@@ -67,25 +62,9 @@ def _one_line(text: str, limit: int = 2000) -> str:
 
 
 def report_error(prog: str, err: BaseException, debug: bool = False, started: bool = False) -> int:
-    """Print the error line of ``err`` on stderr (and its traceback first with ``debug``);
-    return the exit code.
-
-    Parameters
-    ----------
-    prog : str
-        ``"qchain run"``: what the line starts with.
-    err : Exception
-    debug : bool
-        Print the traceback too.
-    started : bool
-        The run had started: an error is the run's (1), not the input's (2).
-
-    Returns
-    -------
-    int
-        2 for bad input (a scene or sweep file, a budget, a usage error, a value refused
-        before the run started), 1 otherwise.
-    """
+    """Print ``prog: error: ...`` for ``err`` on stderr (its traceback first with ``debug``) and
+    return the exit code: 2 for bad input (and a value refused before the run ``started``), 1
+    otherwise."""
     if debug:
         traceback.print_exception(err)
     if isinstance(err, (BadInput, SceneError, BudgetError)):
@@ -126,20 +105,9 @@ def _exit_code(exc: SystemExit, prog: str = "qchain") -> int:
 
 
 def guarded(prog: str, body, debug: bool = False, session: _Session | None = None) -> int:
-    """``body()``'s exit code, with every exception turned into one line on stderr and its
-    exit code (:func:`report_error`); Ctrl-C is one line and exit code 1.
-
-    Parameters
-    ----------
-    prog : str
-        What the lines start with (``"qchain sweep"``).
-    body : callable () -> int or None
-    debug : bool
-        Print tracebacks too.
-    session : _Session, optional
-        Where the command is (start-up, running): the exit code of an error and the words
-        of an interrupt.
-    """
+    """``body()``'s exit code, every exception one line on stderr and its exit code
+    (:func:`report_error`), Ctrl-C one line and exit code 1; ``session`` says where the command
+    is (start-up, running)."""
     session = session or _Session(prog.removeprefix("qchain").strip())
     try:
         code = int(body() or 0)
@@ -170,13 +138,9 @@ def _to_devnull(fd: int) -> None:
 
 
 def _forget_unhandled_interrupt() -> None:
-    """Let the process end with its exit code after a Ctrl-C it handled.
-
-    CPython remembers a ``KeyboardInterrupt`` that left code run through ``PyRun_String``
-    (Boost.Python runs such code while Pinocchio loads) and, although the command caught
-    it later, ends the process by SIGINT at exit instead of with the exit code; running a
-    statement through the same function makes it forget.
-    """
+    """Let the process end with its exit code after a Ctrl-C it handled: CPython remembers a
+    ``KeyboardInterrupt`` that left code run through ``PyRun_String`` (Boost.Python's, while
+    Pinocchio loads) and would end the process by SIGINT; running a statement through it forgets."""
     with suppress(Exception):  # not CPython: nothing to forget
         import ctypes
 

@@ -1,56 +1,6 @@
-"""The ``qchain`` command: run a scene file, describe the model it builds, replay a recording.
-
-::
-
-    qchain run SCENE.toml [--duration S] [--out DIR] [--full] [--no-plots] [--no-record]
-                          [--progress | --no-progress] [--mcap OUT] [--serve | --connect URL] [--rrd OUT]
-                          [--rerun-rate HZ] [--viewer-timeout S]
-    qchain info SCENE.toml [--full]
-    qchain replay LOG.mcap [--serve | --connect URL | --rrd OUT]
-    qchain sweep SWEEP.toml [--workers N | --dask ADDRESS] [--out DIR] [--restart] [--dry-run] (qchain.batch.sweeps)
-    qchain recover LOG.mcap
-    qchain layout LOG.mcap [-o layout.json]
-    qchain --version
-    python -m qchain ...                    (the same command)
-
-``--debug``, anywhere on the line, prints the traceback of an error as well as its line.
-
-``run`` builds the scene's model (:meth:`qchain.scene.Scene.build`), integrates it,
-writes the plots and ``trajectory.npz`` the scene's ``[output]`` asks for, and prints a
-summary: the final tip pose (position in mm, orientation as roll-pitch-yaw in degrees and
-as a quaternion), the energies, the wall time, the real-time factor (simulated seconds per
-wall-clock second), the number of dynamics evaluations and how the run ended. A progress
-bar goes to stderr for runs longer than a second of wall time when stderr is a terminal
-(``--progress`` forces it); to a log or a pipe, a plain line once a run has taken 10 s and
-every 30 s after, with the time still to go (``--no-progress`` turns both off). Every output sample is recorded to an MCAP file (``--no-record``
-turns that off) and can be streamed to Rerun. Every output path (the recording, the
-``.rrd`` file, the folder of the plots and ``trajectory.npz``) is checked before the model
-is built, and a recording that cannot be written stops the run with an error (never a run
-without its recording); a viewer named by ``--connect`` must answer within
-:data:`CONNECT_TIMEOUT` seconds (``--viewer-timeout``), or the run goes on without it, with a
-warning. Numeric flags are checked against their ranges (:func:`qchain.cli.checks.flag_ranges`)
-and a ``--connect`` URL that cannot name a viewer is refused, before the scene is read. The
-summary's wall time is the simulation's (not finishing the recording).
-``recover`` makes the recording of a killed run whole from its journal; ``layout`` writes a
-recording's Foxglove layout.
-
-Errors are one line on stderr, ``qchain COMMAND: error: ...`` (a scene file with several
-problems lists them one a line under it), never a traceback; an error qchain did not
-foresee adds ``(run with --debug for the traceback)``. Warnings are one line each,
-``qchain COMMAND: warning: ...``.
-
-Exit codes
-----------
-0
-    Success (also ``--help`` and ``--version``).
-1
-    The run failed or stopped: the arm left the model's domain, the solver failed, a
-    recording or output could not be written while running, Ctrl-C (at any moment, start-up
-    included), or an error qchain did not foresee.
-2
-    Bad input, refused before anything ran: bad usage, a scene or sweep file with problems,
-    a run over its budget, an output path that cannot be used.
-"""
+"""The ``qchain`` command: ``run`` and ``info`` here, the dispatch of ``replay``, ``recover``,
+``layout`` and ``sweep``. Commands, flags, what is checked before a run, errors and exit
+codes (0 success, 1 the run failed or stopped, 2 bad input): ``docs/cli.md``."""
 
 from __future__ import annotations
 
@@ -102,32 +52,9 @@ def version() -> str:
 
 def _run(args, parser, session: _Session) -> int:
     """``qchain run``: check the scene and every output, reach the viewer, build the model,
-    start the recording, integrate, then print the summary and write the plots.
-
-    Parameters
-    ----------
-    args : argparse.Namespace
-        The ``run`` command line, its flags checked (:func:`_check_run_flags`); ``args.mcap``
-        and ``args.connect`` are updated (the default recording, a viewer that is silent).
-    parser : argparse.ArgumentParser
-        The command's parser (:func:`_parser`), for usage errors.
-    session : _Session
-        The command's harness: Ctrl-C checks during start-up, the phase, the time reached.
-
-    Returns
-    -------
-    int
-        :data:`EXIT_OK`, or :data:`EXIT_FAILED`: the run failed or was interrupted, its
-        recording could not start or finish, an output could not be written.
-
-    Raises
-    ------
-    BadInput
-        A scene, flag or output path refused before the model is built (a model over its
-        budget: before anything is recorded).
-    KeyboardInterrupt
-        Ctrl-C during start-up (a recording started is closed with that outcome first).
-    """
+    start the recording, integrate, then print the summary and write the plots. Returns
+    :data:`EXIT_OK` or :data:`EXIT_FAILED`; raises :class:`BadInput` for input refused before
+    the model is built, ``KeyboardInterrupt`` for Ctrl-C during start-up."""
     from . import recording as qlog
 
     scene, duration = _load_run_scene(args, parser)
@@ -154,28 +81,8 @@ def _run(args, parser, session: _Session) -> int:
 
 
 def _load_run_scene(args, parser) -> tuple[Scene, float]:
-    """The run's scene and duration, the duration checked against the scene's step and
-    budget (its range: :func:`qchain.cli.checks.check_flag_values`).
-
-    Parameters
-    ----------
-    args : argparse.Namespace
-        ``args.scene`` (path) and ``args.duration`` (s, or None: the scene's).
-    parser : argparse.ArgumentParser
-        Its ``run`` subparser says a duration shorter than the step as a usage error.
-
-    Returns
-    -------
-    scene : Scene
-    duration : float, s
-
-    Raises
-    ------
-    SceneError
-        The scene file's problems.
-    BadInput, BudgetError
-        A ``--duration`` (BadInput) or the scene's own duration (BudgetError) beyond the budget.
-    """
+    """The run's scene and its duration (s), checked against the scene's step and budget;
+    a ``--duration`` beyond the budget is :class:`BadInput`."""
     from ..scene.reading import load_scene
     from ..sim.budget import BudgetError
 
@@ -194,32 +101,10 @@ def _load_run_scene(args, parser) -> tuple[Scene, float]:
 
 
 def _check_run_outputs(args, scene: Scene, duration: float) -> tuple[bool, list[str]]:
-    """Check every output of the run before the model is built: the recording (its time
-    range, path, journal and ``.rrd``), the plots' folder, the plots and ``trajectory.npz``.
-
-    Parameters
-    ----------
-    args : argparse.Namespace
-        The ``run`` flags; ``args.mcap`` is set to the default recording path when the run
-        records and none is given.
-    scene : Scene
-    duration : float, s
-
-    Returns
-    -------
-    record : bool
-        Whether the run records (to a file, a viewer or an ``.rrd``).
-    notices : list of str
-        What :func:`qchain.cli.recording.check_outputs` has to say of the paths (printed
-        by the caller, and not repeated as warnings).
-
-    Raises
-    ------
-    BadInput
-        An output that cannot be used, naming its flag and path.
-    SceneError
-        The scene's own ``output.folder`` cannot be used.
-    """
+    """Check every output of the run before the model is built (the recording, the plots'
+    folder, the plots and ``trajectory.npz``); sets ``args.mcap`` to the default recording.
+    Returns whether the run records and the notices :func:`qchain.cli.recording.check_outputs`
+    has to say of the paths (printed by the caller, not repeated as warnings)."""
     from ..scene.scene import SceneError
     from . import recording as qlog
 
@@ -262,22 +147,8 @@ def _check_run_outputs(args, scene: Scene, duration: float) -> tuple[bool, list[
 
 
 def _reach_viewer(args, record: bool) -> bool:
-    """Whether the run still records once the viewer of ``--connect`` is tried: one that
-    does not answer within ``--viewer-timeout`` s is given up (``args.connect = None``),
-    with a warning, and the run goes on without it.
-
-    Parameters
-    ----------
-    args : argparse.Namespace
-        ``args.connect`` (a URL), ``args.viewer_timeout`` and the other recording flags.
-    record : bool
-        Whether the run records with the viewer.
-
-    Returns
-    -------
-    bool
-        Whether it records without it, if it was given up; else ``record``.
-    """
+    """Whether the run still records once the viewer of ``--connect`` is tried: one that does
+    not answer within ``--viewer-timeout`` s is given up with a warning (``args.connect = None``)."""
     why = viewer_silence(args.connect, timeout=_viewer_timeout(args))
     if why is not None:
         print(f"qchain run: warning: no Rerun viewer answers at {args.connect} ({why}); the run goes on without "
@@ -288,28 +159,8 @@ def _reach_viewer(args, record: bool) -> bool:
 
 
 def _build_run_model(args, scene: Scene, duration: float, session: _Session) -> SceneModel:
-    """Build the scene's model (``--full``: no reductions), check it against the budget,
-    and print its description.
-
-    Parameters
-    ----------
-    args : argparse.Namespace
-        ``args.full``, ``args.out``, ``args.no_plots``, ``args.scene``.
-    scene : Scene
-    duration : float, s
-    session : _Session
-        Ctrl-C swallowed while the libraries load stops the start-up before and after the build.
-
-    Returns
-    -------
-    SceneModel
-
-    Raises
-    ------
-    BadInput
-        An explicit method on a model too stiff for it (before anything is recorded).
-    KeyboardInterrupt
-    """
+    """Build the scene's model (``--full``: no reductions), check it against the budget
+    (:class:`BadInput`) and print its description."""
     from ..sim.budget import BudgetError
 
     session.check_interrupt()
@@ -325,24 +176,8 @@ def _build_run_model(args, scene: Scene, duration: float, session: _Session) -> 
 
 
 def _start_recording(args, scene: Scene, model: SceneModel, duration: float, notices: list[str]):
-    """Start the run's logger and recorder (:func:`_make_logger`).
-
-    Parameters
-    ----------
-    args : argparse.Namespace
-        The recording flags.
-    scene : Scene
-    model : SceneModel
-    duration : float, s
-    notices : list of str
-        Said already (:func:`_check_run_outputs`): not repeated as warnings.
-
-    Returns
-    -------
-    (RunLogger, ChainRecorder) or None
-        None when the recording could not start (the error is printed: the run fails,
-        never runs without its recording).
-    """
+    """The run's logger and recorder (:func:`_make_logger`), or None when the recording could
+    not start (said: the run never runs without its recording); ``notices`` are not repeated."""
     from ..errors import QchainError
 
     with warnings.catch_warnings():  # the notices were printed already; other warnings are lines
@@ -357,32 +192,8 @@ def _start_recording(args, scene: Scene, model: SceneModel, duration: float, not
 
 def _simulate(scene: Scene, model: SceneModel, duration: float, progress, logger, on_sample, session: _Session):
     """Integrate the model, recorded when ``logger`` is given; Ctrl-C ends the run with the
-    samples it has.
-
-    Parameters
-    ----------
-    scene : Scene
-    model : SceneModel
-    duration : float, s
-    progress : bool or "lines"
-        The progress display (:meth:`qchain.scene.Scene.simulate`).
-    logger, on_sample : RunLogger and ChainRecorder, or None
-        The recording (:func:`_start_recording`), or None (no recording).
-    session : _Session
-        Its phase becomes ``"run"`` as the integration starts, ``"end"`` after it.
-
-    Returns
-    -------
-    (Trajectory or None, bool, float) or None
-        The trajectory (None: interrupted before the first sample), whether Ctrl-C ended
-        it, and the wall time (s) of the simulation without its compilation; None when the
-        run failed and said so (an input outside the model, a recording that failed).
-
-    Raises
-    ------
-    KeyboardInterrupt
-        Ctrl-C swallowed during start-up (the recording gets that outcome first).
-    """
+    samples it has. Returns ``(trajectory or None, interrupted, wall s)``, the wall time without
+    compiling; None when the run failed and said so."""
     from ..errors import QchainError
 
     t0 = time.perf_counter()
@@ -413,9 +224,8 @@ def _simulate(scene: Scene, model: SceneModel, duration: float, progress, logger
 
 
 def _integrate(scene: Scene, model: SceneModel, duration: float, progress, on_sample=None):
-    """Integrate the model (``on_sample`` takes every sample); Ctrl-C ends the run with the
-    samples it has. Returns the trajectory (None: interrupted before the first sample),
-    whether Ctrl-C ended it, and when it ended (:func:`time.perf_counter`, s)."""
+    """Integrate; returns the trajectory (None: interrupted before the first sample), whether
+    Ctrl-C ended it, and when it ended (:func:`time.perf_counter`, s)."""
     try:
         traj = scene.simulate(model=model, duration=duration, on_sample=on_sample, progress=progress)
         interrupted = False
@@ -426,23 +236,9 @@ def _integrate(scene: Scene, model: SceneModel, duration: float, progress, on_sa
 
 def _simulate_recorded(scene: Scene, model: SceneModel, duration: float, progress, logger, on_sample,
                        session: _Session):
-    """Integrate the model with every sample recorded, then finish the recording and say
-    what became of it (:func:`_say_recording`).
-
-    Parameters
-    ----------
-    scene, model, duration, progress, session
-        As :func:`_simulate`.
-    logger, on_sample : RunLogger, ChainRecorder
-        The recording (:func:`_start_recording`); samples computed but not handed over
-        (an interrupt between the two) are handed over before the outcome is set.
-
-    Returns
-    -------
-    (Trajectory or None, bool, float) or None
-        The trajectory, whether Ctrl-C ended it, and when it ended
-        (:func:`time.perf_counter`, s); None when the recording failed (said).
-    """
+    """:func:`_integrate` with every sample recorded (samples computed but not handed over are
+    handed over before the outcome is set), then finish the recording and say what became of it;
+    None when the recording failed."""
     with logger, on_sample:  # the recorder logs its last samples before the logger finishes
         traj, interrupted, t1 = _integrate(scene, model, duration, progress, on_sample)
         if traj is not None:  # samples computed but not handed over (an interrupt between the two)
@@ -463,29 +259,8 @@ def _simulate_recorded(scene: Scene, model: SceneModel, duration: float, progres
 
 def _report_run(args, scene: Scene, model: SceneModel, traj, interrupted: bool, wall: float,
                 session: _Session) -> int:
-    """Print how the run ended and its summary (:func:`summary_lines`), and write its plots
-    and ``trajectory.npz`` (:func:`write_outputs`, unless ``--no-plots``).
-
-    Parameters
-    ----------
-    args : argparse.Namespace
-        ``args.out``, ``args.no_plots``.
-    scene : Scene
-    model : SceneModel
-    traj : Trajectory or None
-        None: interrupted before the first sample.
-    interrupted : bool
-        Ctrl-C ended the run.
-    wall : float, s
-        The simulation's wall time.
-    session : _Session
-        Told the time the run reached.
-
-    Returns
-    -------
-    int
-        :data:`EXIT_OK` for a run that succeeded and wrote its outputs, else :data:`EXIT_FAILED`.
-    """
+    """Print how the run ended and its summary, write its plots and ``trajectory.npz`` (unless
+    ``--no-plots``); returns the exit code."""
     if traj is None:
         print("run: interrupted before the first sample", file=sys.stderr)
         return EXIT_FAILED
@@ -525,15 +300,8 @@ def _say_recording(logger, done: dict, stream) -> None:
 
 
 def _check_planned_outputs(args, scene, mcap) -> None:
-    """Refuse, before the run, a plot or ``trajectory.npz`` path that is not a regular file
-    (a folder, a device, a FIFO: :func:`check_output_path`), and two outputs of the run that
-    are the same file (a recording ``--mcap o/trajectory.npz`` the plots would overwrite).
-
-    Raises
-    ------
-    BadInput
-        naming the flags (or ``output.folder``) and the path.
-    """
+    """Refuse a plot or ``trajectory.npz`` path that is not a regular file, and two outputs of
+    the run that are the same file (:class:`BadInput` naming the flags and the path)."""
     outputs: list[tuple[str, object]] = []
     if mcap is not None:
         outputs += [("--mcap", mcap), ("--mcap (its journal)", os.fspath(mcap) + ".journal")]
@@ -557,8 +325,7 @@ def _check_planned_outputs(args, scene, mcap) -> None:
 
 
 def _print_lines(lines) -> None:
-    """Print lines that hold text from outside (a scene's name, path, description; a run's
-    message) one printed line each: control characters escaped (:func:`qchain.checks.text.printable`)."""
+    """Print lines holding text from outside one printed line each (control characters escaped)."""
     for line in lines:
         print(printable(line))
 
@@ -570,9 +337,8 @@ def _viewer_timeout(args) -> float:
 
 
 def _check_run_flags(args) -> None:
-    """The flags of ``qchain run`` that argparse cannot check alone (numbers in their ranges:
-    :func:`qchain.cli.checks.check_flag_values`, in :func:`_dispatch`): the viewer's URL,
-    the address to serve on, flags that exclude each other. Raises :class:`BadInput`."""
+    """The flags of ``qchain run`` argparse cannot check alone: the viewer's URL, the address to
+    serve on, flags that exclude each other (:class:`BadInput`)."""
     if getattr(args, "serve", False) and getattr(args, "connect", None) is not None:
         raise BadInput("argument --connect: not allowed with --serve (they exclude each other: serve a viewer here, "
                        "or stream to a running one)")
@@ -589,9 +355,8 @@ def _interrupt_message(traj) -> str:
 
 
 def _make_logger(args, scene: Scene, model: SceneModel, duration: float | None = None, **logger_kwargs):
-    """The run logger and the ``on_sample`` callback that feeds it one record a sample, a
-    :class:`qchain.recording.recorder.ChainRecorder` (``logger_kwargs`` go to
-    :class:`qchain.logging.RunLogger`). Enter both: ``with logger, recorder: ...``."""
+    """The run logger (``logger_kwargs`` go to :class:`qchain.logging.RunLogger`) and the
+    ``on_sample`` recorder that feeds it; enter both: ``with logger, recorder: ...``."""
     from ..recording.recorder import ChainRecorder, series_names
     from . import recording as qlog
 
@@ -639,9 +404,8 @@ def _info(args) -> int:
 
 
 def _parser() -> argparse.ArgumentParser:
-    """The parser of ``qchain``: ``run`` (with the recording flags of
-    :func:`qchain.cli.recording.add_logging_arguments`) and ``info``; ``replay``, ``recover``,
-    ``layout`` and ``sweep`` are listed only, and parse their own arguments."""
+    """The parser of ``qchain``: ``run`` and ``info``; ``replay``, ``recover``, ``layout`` and
+    ``sweep`` are listed only, and parse their own arguments."""
     from . import recording as qlog
 
     parser = argparse.ArgumentParser(prog="qchain", description="Simulate soft continuum arms described in TOML "
@@ -723,8 +487,8 @@ def _dispatch(argv: list[str], session: _Session, debug: bool) -> int:
 
 
 def _result_on_stdout(argv: list[str]) -> bool:
-    """Whether the command's standard output is its result (``info``; ``layout`` without
-    ``-o``), not a summary of files it wrote: an output that cannot be written fails it."""
+    """Whether standard output is the command's result (``info``; ``layout`` without ``-o``):
+    an output that cannot be written then fails it."""
     if not argv:
         return False
     if argv[0] == "info":
@@ -734,20 +498,8 @@ def _result_on_stdout(argv: list[str]) -> bool:
 
 
 def main(argv=None) -> int:
-    """Entry point of the ``qchain`` command (and ``python -m qchain``).
-
-    Parameters
-    ----------
-    argv : list of str, optional
-        The arguments (default ``sys.argv[1:]``); ``--debug`` anywhere before a ``--``
-        prints tracebacks too.
-
-    Returns
-    -------
-    int
-        The exit code: 0 success, 1 the run failed or was interrupted (or an error qchain
-        did not foresee), 2 bad input or usage (see the module docstring).
-    """
+    """Entry point of ``qchain`` and ``python -m qchain``: ``argv`` (default ``sys.argv[1:]``;
+    ``--debug`` anywhere before a ``--``) -> the exit code."""
     argv, debug = take_debug([os.fspath(a) for a in (sys.argv[1:] if argv is None else argv)])
     name = argv[0] if argv and argv[0] in COMMANDS else ""
     return command(name, lambda session: _dispatch(argv, session, debug), debug,

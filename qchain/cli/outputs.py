@@ -1,6 +1,5 @@
-"""What ``qchain run`` writes and prints: the plots and ``trajectory.npz`` a scene's
-``[output]`` asks for, and the run summary (tip pose, energies, wall time, real-time
-factor, how the run ended)."""
+"""What ``qchain run`` writes and prints: the plots and ``trajectory.npz`` of a scene's
+``[output]``, and the run summary."""
 
 from __future__ import annotations
 
@@ -42,16 +41,9 @@ def planned_outputs(scene: Scene, folder: Path | None = None) -> list[Path]:
 
 
 def write_outputs(scene: Scene, model: SceneModel, traj, folder: Path, plots=None, save: bool | None = None) -> list[Path]:
-    """Write the plots (PNG) and ``trajectory.npz`` of a run into ``folder``; return the paths.
-
-    Parameters
-    ----------
-    plots : sequence of str, optional
-        Names from :data:`qchain.scene.PLOTS`; default the scene's ``output.plots``.
-    save : bool, optional
-        Write ``trajectory.npz`` (``t, q, v, p, kinetic_energy, potential_energy, tip``
-        and ``success``, ``message``); default the scene's ``output.save``.
-    """
+    """Write the plots (PNG, ``plots`` default the scene's) and ``trajectory.npz`` (``save``
+    default the scene's: t, q, v, p, energies, tip, success, message) into ``folder``; return the
+    paths."""
     import os
     import secrets
 
@@ -205,18 +197,8 @@ def _values(x) -> str:
 
 
 def summary_lines(scene: Scene, model: SceneModel, traj, wall: float, message: str | None = None) -> list[str]:
-    """The run summary ``qchain run`` prints.
-
-    Parameters
-    ----------
-    scene, model : the run's scene and the model built from it
-    traj : Trajectory
-    wall : float, s
-        Wall time of the run (compiling excluded).
-    message : str, optional
-        How the run ended, instead of ``traj.message`` (e.g. an interrupt, with the time
-        the samples reach); a run with a message of its own is not a success.
-    """
+    """The run summary ``qchain run`` prints; ``wall`` s excludes compiling; ``message``, how the
+    run ended instead of ``traj.message`` (an interrupt), makes it no success."""
     import numpy as np
     import pinocchio as pin
 

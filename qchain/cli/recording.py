@@ -245,26 +245,11 @@ def add_logging_arguments(parser: argparse.ArgumentParser) -> argparse._Argument
 
 def logger_from_args(args: argparse.Namespace, info: RunInfo, default_mcap_path: str | os.PathLike | None = None,
                      **kwargs) -> RunLogger:
-    """Build the :class:`RunLogger` the flags of :func:`add_logging_arguments` ask for.
-
-    Parameters
-    ----------
-    args : argparse.Namespace
-    info : RunInfo
-    default_mcap_path : path or None
-        The recording path when ``--mcap`` is not given; ``None`` takes
-        :func:`default_mcap_path` of ``info.scene_path``.
-    **kwargs
-        Passed on to :class:`RunLogger`. With ``--serve`` the logger lingers (keeps the
-        viewer served after the run until Ctrl-C) unless ``linger=False`` is passed.
-
-    Raises
-    ------
-    ValueError
-        ``--serve`` together with ``--connect``.
-    LoggingError
-        An output path that cannot be used (see :func:`check_outputs`).
-    """
+    """The :class:`RunLogger` the flags of :func:`add_logging_arguments` ask for: the recording
+    at ``--mcap``, else ``default_mcap_path``, else :func:`default_mcap_path` of
+    ``info.scene_path``; ``kwargs`` go to :class:`RunLogger` (with ``--serve`` it lingers unless
+    ``linger=False``). ``ValueError`` for ``--serve`` with ``--connect``, :class:`LoggingError`
+    for an output path that cannot be used."""
     serve = bool(getattr(args, "serve", False))
     connect = getattr(args, "connect", None)
     if serve and connect:

@@ -12,8 +12,7 @@ from ..batch.sweep_spec import address_problem, load_sweep, validate_runs
 from ..batch.sweeps import run_sweep
 from ..checks import bounds as _bounds
 from ..checks.text import printable
-from .checks import path_argument
-from .checks import check_output_folder
+from .checks import check_output_folder, path_argument
 from .command import command
 from .errors import BadInput, take_debug
 
@@ -43,26 +42,10 @@ def _parser() -> argparse.ArgumentParser:
 
 
 def main(argv=None, *, debug: bool | None = None, session=None) -> int:
-    """``qchain sweep SWEEP.toml [...]``; returns the exit code.
-
-    Parameters
-    ----------
-    argv : list of str, optional
-        The arguments after ``sweep`` (default ``sys.argv[1:]``).
-    debug : bool, optional
-        Print the traceback of an error too; default: whether ``argv`` holds ``--debug``.
-    session : optional
-        The ``qchain`` command's session when it hands ``sweep`` over (:func:`qchain.cli.command`).
-
-    Returns
-    -------
-    int
-        0 the sweep completed (failed runs are results, listed); 1 it stopped early
-        (Ctrl-C, an engine error, a results folder that could not be written while
-        running); 2 bad input, refused before any run: usage, a sweep file or a run's
-        scene with problems, a results folder that cannot be used or holds another sweep.
-        Errors are one line on stderr (:func:`qchain.cli.report_error`), never a traceback.
-    """
+    """``qchain sweep SWEEP.toml [...]`` (``argv``: the arguments after ``sweep``; ``debug``
+    default: whether ``argv`` holds ``--debug``; ``session``: the ``qchain`` command's) -> the
+    exit code: 0 the sweep completed (failed runs are results), 1 it stopped early, 2 bad input
+    refused before any run (``docs/cli.md``)."""
     argv = [os.fspath(a) for a in (sys.argv[1:] if argv is None else argv)]
     if debug is None:
         argv, debug = take_debug(argv)
@@ -98,12 +81,10 @@ def _main(argv: list[str], session) -> int:
     if spec.folder is not None:  # before any run: a folder that cannot take the results is said at once
         check_output_folder("the results folder", spec.folder)
     sys.stdout.flush()
-    workers, client = args.workers, args.dask
-    if workers is None and client is None:
-        workers, client = spec.workers, spec.dask
     session.phase = "run"
-    try:
-        res = run_sweep(spec, workers=workers, client=client, progress=args.progress, restart=args.restart, runs=runs)
+    try:  # (run_sweep takes the file's engine where neither flag is given)
+        res = run_sweep(spec, workers=args.workers, client=args.dask, progress=args.progress, restart=args.restart,
+                        runs=runs)
     except KeyboardInterrupt:
         where = f"; the finished runs are in {spec.folder} (run the same command again to continue)" \
             if spec.folder is not None else ""

@@ -1,18 +1,11 @@
-"""The scene file format, declared once: every table and key with its type, unit, range,
-default and meaning, and the checker that applies them.
-
-:mod:`qchain.scene` validates a file with the :class:`_Checker` here, reading each key's
-declaration (:data:`TABLES`) instead of repeating its type and bounds; the ranges are
-:mod:`qchain.checks.bounds`' and the run budget :mod:`qchain.sim.budget`'s, the same that
-:class:`qchain.Segment` and :func:`qchain.simulate` check. ``docs/scene-format.md``
-is generated from this module (:func:`markdown`) and a test keeps it up to date::
+"""The scene file format, declared once (:data:`TABLES`: every key's type, unit, range,
+default and meaning; the ranges :mod:`qchain.checks.bounds`'), and the :class:`_Checker` that
+applies it. ``docs/scene-format.md`` is generated from it (:func:`markdown`)::
 
     .venv/bin/python -m qchain.scene.format > docs/scene-format.md
 
-Before TOML is parsed, the text is checked for size (:data:`MAX_SCENE_BYTES`) and for
-nesting depth (:data:`MAX_DEPTH`): the parser recurses once a level, and a file nested a
-few hundred deep would end in a ``RecursionError`` instead of a message.
-"""
+The text is checked for size (:data:`MAX_SCENE_BYTES`) and nesting (:data:`MAX_DEPTH`) before
+TOML is parsed: the parser recurses once a level (a ``RecursionError``, not a message)."""
 
 from __future__ import annotations
 
@@ -32,21 +25,8 @@ from ..errors import MAX_LISTED, SceneError
 from ..model.segment import DEFAULT_NODES
 from ..sim.simulation import DEFAULT_METHOD, FIXED_STEP, METHODS
 
-__all__ = [
-    "Field",
-    "KeyTable",
-    "TABLES",
-    "Problem",
-    "SceneError",
-    "PLOTS",
-    "PRESSURE_KINDS",
-    "MAX_DEPTH",
-    "MAX_SCENE_BYTES",
-    "MAX_STRETCH",
-    "EXAMPLE",
-    "nesting_problem",
-    "markdown",
-]
+__all__ = ["Field", "KeyTable", "TABLES", "Problem", "SceneError", "PLOTS", "PRESSURE_KINDS", "MAX_DEPTH",
+           "MAX_SCENE_BYTES", "MAX_STRETCH", "EXAMPLE", "nesting_problem", "markdown"]
 
 #: Plots a scene may ask for.
 PLOTS = ("tip", "arm", "energy", "pressure", "momentum")

@@ -1,12 +1,6 @@
 """Building a scene's model: the smallest :class:`~qchain.arm.chain.Chain` that represents a
-scene, and what it dropped and why (:class:`SceneModel`).
-
-The reductions (``extensible = false``, planar, the node count from
-``model.node_tolerance``) are described in "Model reduction" in the docstring of
-:mod:`qchain.scene`. :class:`ModelBuilder` holds them as methods of
-:class:`~qchain.scene.Scene`, which inherits them; it reads the scene's parts and has no
-state of its own.
-"""
+scene, and what it dropped and why (:class:`SceneModel`; "Model reduction" in the docstring of
+:mod:`qchain.scene`). :class:`~qchain.scene.Scene` inherits the methods of :class:`ModelBuilder`."""
 
 from __future__ import annotations
 
@@ -123,17 +117,9 @@ class ModelBuilder:
     module docstring)."""
 
     def build(self, reduce: bool | None = None, controlled: bool = False) -> SceneModel:
-        """Build the model; see "Model reduction" in the docstring of :mod:`qchain.scene`.
-
-        Parameters
-        ----------
-        reduce : bool, optional
-            Automatic reductions (planar, node count) on or off; default the file's
-            ``model.reduce``.
-        controlled : bool
-            The pressures will come from a controller, not from the file: the planar
-            reduction, which needs chambers 2 and 3 equal at all times, is not made.
-        """
+        """Build the model ("Model reduction" in :mod:`qchain.scene`): ``reduce`` default the file's
+        ``model.reduce``; ``controlled``: the pressures will come from a controller, so no planar
+        reduction (it needs chambers 2 and 3 equal at all times)."""
         reduce = self.reduce if reduce is None else bool(reduce)
         reductions: list[str] = []
         kept: list[str] = []

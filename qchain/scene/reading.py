@@ -1,10 +1,7 @@
-"""Reading a scene file: :func:`load_scene` and :func:`parse_scene` check the whole TOML
-text against its declaration (:mod:`qchain.scene.format`) and the run budget
-(:mod:`qchain.sim.budget`), table by table, and make a :class:`~qchain.scene.Scene` or raise
-one :class:`~qchain.scene.format.SceneError` listing every problem ("Errors" in the
-docstring of :mod:`qchain.scene`). The cost of a scene's run (:func:`_cost`) is reckoned
-here from the file's values.
-"""
+"""Reading a scene file: :func:`load_scene` and :func:`parse_scene` check the whole TOML text
+against its declaration (:mod:`qchain.scene.format`) and the run budget, and make a
+:class:`~qchain.scene.Scene` or raise one :class:`~qchain.scene.format.SceneError` listing
+every problem (``docs/scene-format.md``)."""
 
 from __future__ import annotations
 
@@ -79,16 +76,10 @@ def _read_text(p: Path, what: str, error) -> str:
 
 
 def read_toml(path: str | os.PathLike, what: str = "scene file", error=SceneError) -> tuple[str, dict]:
-    """The text of the TOML file ``path`` and its table, read within the limits of a scene
-    file (a regular file of at most :data:`qchain.scene.format.MAX_SCENE_BYTES` bytes of
-    UTF-8, nested at most :data:`qchain.scene.format.MAX_DEPTH` deep): a FIFO, a device or a
-    file too large or too deep is refused before it is read or parsed.
-
-    Raises
-    ------
-    SceneError (or ``error``, a subclass)
-        naming the file and what is wrong with it, as ``(file): expected ..., found ...``.
-    """
+    """The text of the TOML file ``path`` and its table, read within a scene file's limits (a
+    regular file of at most :data:`qchain.scene.format.MAX_SCENE_BYTES` bytes of UTF-8, nested at
+    most :data:`qchain.scene.format.MAX_DEPTH` deep); ``error`` (a :class:`SceneError` subclass)
+    names the file and the problem otherwise."""
     text = _read_text(Path(path), what, error)
     return text, _parse_toml(text, str(Path(path)), error)
 
@@ -106,22 +97,9 @@ def _parse_toml(text: str, where: str, error) -> dict:
 
 
 def load_scene(path: str | os.PathLike) -> Scene:
-    """Read and validate a scene file (TOML); ``docs/scene-format.md`` gives the format.
-
-    Parameters
-    ----------
-    path : str or os.PathLike
-        A regular file of at most :data:`qchain.scene.format.MAX_SCENE_BYTES` bytes of UTF-8.
-
-    Raises
-    ------
-    TypeError
-        ``path`` is not a path.
-    SceneError
-        listing every problem (file, dotted key, what was expected, what was found), for
-        a file that cannot be read (missing, a folder, a FIFO or device, too large, not
-        UTF-8), is not valid TOML, or does not describe a scene.
-    """
+    """Read and validate a scene file (TOML, ``docs/scene-format.md``): ``TypeError`` if ``path``
+    is not a path, one :class:`SceneError` listing every problem of a file that cannot be read,
+    is not TOML or does not describe a scene."""
     if not isinstance(path, (str, os.PathLike)):
         raise TypeError(f"load_scene: path must be a str or os.PathLike naming a scene file, got "
                         f"{describe_value(path)}")
@@ -130,16 +108,8 @@ def load_scene(path: str | os.PathLike) -> Scene:
 
 
 def parse_scene(text: str, path: str | os.PathLike | None = None) -> Scene:
-    """Validate the TOML ``text`` of a scene; ``path`` names it in errors and sets the
-    default output folder (``out/<stem>``).
-
-    Raises
-    ------
-    TypeError
-        ``text`` is not a ``str`` (or UTF-8 ``bytes``), or ``path`` not a path.
-    SceneError
-        every problem of the scene (see :func:`load_scene`).
-    """
+    """Validate the TOML ``text`` (a ``str``, or UTF-8 ``bytes``) of a scene; ``path`` names it in
+    errors and sets the default output folder (``out/<stem>``). Raises as :func:`load_scene`."""
     if path is not None and not isinstance(path, (str, os.PathLike)):
         raise TypeError(f"parse_scene: path must be None, a str or os.PathLike, got {describe_value(path)}")
     where = str(path) if path is not None else "<scene>"

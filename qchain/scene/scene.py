@@ -6,29 +6,10 @@ smallest model that represents the scene (and says what it dropped and why);
 (:mod:`qchain.cli`) do the same from the command line. Units are SI throughout: m, kg,
 s, Pa, rad, Hz.
 
-This module holds :class:`Scene` (its run and its description) and re-exports the rest:
-the file is read in :mod:`qchain.scene.reading`, the parts of a scene
-(:class:`SegmentSpec`, :class:`BaseSpec`, :class:`SineMotion`) are in
-:mod:`qchain.scene.parts`, and the model is built and reduced in :mod:`qchain.scene.model`.
-
-File format
------------
-Declared once, in :mod:`qchain.scene.format` (every key's type, unit, range, default and
-meaning); ``docs/scene-format.md`` is generated from it and holds an example. Vectors of
-pressures, coordinates and velocities hold one entry per segment and chamber/coordinate,
-flat (``3 n`` numbers) or nested (``n`` arrays of 3), ``n`` the number of segments after
-``count`` is expanded.
-
-Errors
-------
-:func:`load_scene` checks the whole file and raises one :class:`SceneError` listing every
-problem, each as ``key: expected ..., found ...`` with the dotted key (``segments[1].radius``,
-``pressure.values[2]``): unknown keys (with the closest known one), wrong types (booleans
-are not numbers), numbers outside their range (:mod:`qchain.checks.bounds`), NaN and infinities,
-vectors of the wrong length, decreasing table times, unknown methods and kinds, initial
-states outside the model, a fixed-step method without ``dt``, files too large or nested
-too deep, and a run that would exceed its budget (:mod:`qchain.sim.budget`: steps, samples,
-memory, segments), named by the key that makes the cost.
+This module holds :class:`Scene` (its run and its description) and re-exports the rest
+(:mod:`qchain.scene.reading`, :mod:`qchain.scene.parts`, :mod:`qchain.scene.model`). The file
+format, declared in :mod:`qchain.scene.format`, and the errors :func:`load_scene` raises (one
+:class:`SceneError` listing every problem): ``docs/scene-format.md``.
 
 Model reduction
 ---------------
@@ -90,19 +71,8 @@ from .parts import BaseSpec, SegmentSpec, SineMotion
 from .cost import _cost, _frequency
 from ..sim.simulation import COMPILED, FIXED_STEP, METHODS, explicit_stability_limit, simulate
 
-__all__ = [
-    "Scene",
-    "SceneModel",
-    "SceneError",
-    "Problem",
-    "SegmentSpec",
-    "BaseSpec",
-    "SineMotion",
-    "METHODS",
-    "PLOTS",
-    "BEND_MARGIN",
-    "VACUUM_GAUGE",
-]
+__all__ = ["Scene", "SceneModel", "SceneError", "Problem", "SegmentSpec", "BaseSpec", "SineMotion", "METHODS", "PLOTS",
+           "BEND_MARGIN", "VACUUM_GAUGE"]
 
 _TOP_KEYS = F.TOP.keys()
 
@@ -254,15 +224,8 @@ class Scene(ModelBuilder):
         self.budget.check(self.cost(duration, model), how="raise it in the scene's [budget] table")
 
     def check_output(self, folder: str | os.PathLike | None = None) -> Path:
-        """Make sure a run can write its outputs to ``folder`` (default ``output.folder``)
-        before it starts: the folder is made, must be a writable folder (not a file, not
-        read-only) on a file system with room for the trajectory; returns it.
-
-        Raises
-        ------
-        SceneError
-            naming ``output.folder``, the folder and what is wrong with it.
-        """
+        """Make sure a run can write its outputs to ``folder`` (default ``output.folder``): made, a
+        writable folder with room for them; returns it, or a :class:`SceneError` naming ``output.folder``."""
         import shutil
         import tempfile
 
