@@ -390,3 +390,52 @@ def test_a_run_says_when_the_contact_time_scale_limits_its_steps():
     free = qchain.simulate(ch, q0, np.zeros(ch.nv), (0, 0.2), method="radau5", env=far)
     assert not free.meta["step_limited_by_contact"]
     assert "contact_time_scale" not in qchain.simulate(ch, q0, np.zeros(ch.nv), (0, 0.01), method="radau5").meta
+
+
+def test_a_moving_obstacle_is_where_its_motion_puts_it_and_pushes_by_relative_velocity():
+    from qchain.contact import Motion
+
+    ch, q, v = _bent_arm()
+    c = ch.backbone(q, 11)[1, 5]
+    law = ContactLaw(stiffness=2e5, damping=3.0, mu_static=0.5, mu_dynamic=0.4, slip_velocity=0.05)
+    mo = Motion(velocity=[0.1, 0.0, -0.2], amplitude=[0.0, 0.01, 0.0], frequency=2.0, phase=0.3)
+    t = 0.137
+    u = mo.velocity * t + mo.amplitude * np.sin(2 * np.pi * 2.0 * t + 0.3)
+    udot = mo.velocity + mo.amplitude * 2 * np.pi * 2.0 * np.cos(2 * np.pi * 2.0 * t + 0.3)
+    moving = Environment([Sphere(c + [0.03, 0, 0] - u, 0.02, motion=mo)], law, nodes=8)
+    # the same sphere at rest where the motion has carried it, the arm moving by -u' instead:
+    # the penetrations agree, and the forces too, the law acting on the relative velocity
+    fixed = Environment([Sphere(c + [0.03, 0, 0], 0.02)], law, nodes=8)
+    Cm = ch.contacts(q, v, moving, t=t)
+    assert len(Cm.segment) > 0
+    Cf = ch.contacts(q, v, fixed, t=t)
+    np.testing.assert_allclose(Cm.penetration, Cf.penetration, rtol=0, atol=1e-15)
+    assert np.abs(Cm.force - Cf.force).max() > 1e-3  # the obstacle's velocity matters ...
+    # ... exactly as a world-frame velocity added to every contact point's would
+    for k in range(len(Cm.segment)):
+        vn = (Cm.force[k] @ Cm.normal[k])
+        assert vn >= 0
+    dq, dv = ch.environment_force_derivatives(q, v, moving, t=t)
+    h = 1e-7
+    Fq = np.array([(ch.environment_force(ch.integrate(q, h * e), v, moving, t)
+                    - ch.environment_force(ch.integrate(q, -h * e), v, moving, t)) / (2 * h) for e in np.eye(ch.nv)]).T
+    np.testing.assert_allclose(dq, Fq, rtol=0, atol=1e-8 * np.abs(Fq).max())
+    with pytest.raises(TypeError, match="Sphere.motion must be a qchain.contact.Motion or None, got dict"):
+        Sphere([0, 0, 0], 0.1, motion={"velocity": [1, 0, 0]})
+    with pytest.raises(ValueError, match="Motion.frequency must be >= 0"):
+        Motion(frequency=-1.0)
+
+
+def test_the_engine_moves_obstacles_as_the_python_path_does():
+    from qchain.contact import Motion
+
+    X = pin.SE3(pin.rpy.rpyToMatrix(np.pi / 2, 0, 0), np.array([0, 0, 0.05]))
+    ch = Chain([Segment(**SEGMENT) for _ in range(2)], base_placement=X)
+    env = Environment([HalfSpace([0, 0, -0.05], motion=Motion(velocity=[0.05, 0, 0.4]))],
+                      ContactLaw(stiffness=1e5, damping=2.0, mu_static=0.5, mu_dynamic=0.4))
+    kw = dict(env=env, rtol=1e-8, atol=1e-10, t_eval=np.linspace(0, 0.2, 11))
+    a = qchain.simulate(ch, ch.neutral(), np.zeros(ch.nv), (0, 0.2), method="radau5", **kw)
+    b = qchain.simulate(ch, ch.neutral(), np.zeros(ch.nv), (0, 0.2), method="Radau", **kw)
+    touching = [len(ch.contacts(q, v, env, t=t).segment) for t, q, v in zip(a.t, a.q, a.v)]
+    assert a.success and b.success and touching[0] == 0 and max(touching) > 0  # the rising ground meets the arm
+    np.testing.assert_allclose(a.q, b.q, rtol=0, atol=1e-5)

@@ -8,10 +8,18 @@ import numpy as np
 
 from ..contact.derivatives import environment_derivatives
 from ..contact.environment import Contacts, Environment
+from ..contact.distance import move
 from ..contact.forces import RECORD, contact_forces, load_forces
 from ..model.arc import SCRATCH
 
 __all__ = ["ChainContact"]
+
+
+def _moved(pk, t: float):
+    """The packed obstacles at time ``t``: ``(prm (m, PARAMS), vel (m, 3))``."""
+    prm, vel = np.empty_like(pk.prm), np.empty((pk.kind.size, 3))
+    move(pk.kind, pk.prm, pk.motion, float(t), prm, vel)
+    return prm, vel
 
 
 def _check_env(env) -> Environment:
@@ -23,7 +31,7 @@ def _check_env(env) -> Environment:
 class ChainContact:
     """The :class:`~qchain.contact.Environment` methods of :class:`~qchain.arm.chain.Chain`."""
 
-    def _environment_force(self, st, env: Environment, cap: int = 0):
+    def _environment_force(self, st, env: Environment, cap: int = 0, t: float = 0.0):
         """``(tau (nv,), records (c, RECORD))``: the environment's generalised force at the
         validated state ``st`` (with velocity) and its first ``cap`` contact records."""
         env.check_segments(self.n)
@@ -38,7 +46,8 @@ class ChainContact:
         count = 0
         if pk.kind.size:
             v_c = np.ascontiguousarray(st.v_c)
-            count = contact_forces(self._arrays, pk.kind, pk.prm, pk.law, pk.calpha, st.q_c, v_c, R_WB, p_WB,
+            prm, vel = _moved(pk, t)
+            count = contact_forces(self._arrays, pk.kind, prm, vel, pk.law, pk.calpha, st.q_c, v_c, R_WB, p_WB,
                                    np.ascontiguousarray(st.V0), tau_c, F0, W, rec, sc)
         if pk.seg.size:
             load_forces(pk.seg, pk.alpha, pk.wrench, pk.local, st.q_c, R_WB, p_WB, tau_c, F0, W, sc)
@@ -52,7 +61,7 @@ class ChainContact:
         contact forces and point loads, ``sum J_i^T F_i`` over the points they act at (the
         chain's coordinates; a floating base's part is the wrench on the base, base frame)."""
         env = _check_env(env)
-        return self._environment_force(self._state(q, v, t=t), env)[0]
+        return self._environment_force(self._state(q, v, t=t), env, 0, t)[0]
 
     def environment_force_derivatives(self, q, v, env: Environment, t: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
         """Exact ``(d tau_env/dq, d tau_env/dv)`` (nv, nv) of :meth:`environment_force` (q along
@@ -66,13 +75,14 @@ class ChainContact:
                              "(coords='curvature'); the paper's (l, psi, kappa) are not supported here")
         st = self._state(q, v, t=t)
         env.check_segments(self.n)
-        return self._environment_derivatives(st, env.packed())
+        return self._environment_derivatives(st, env.packed(), t)
 
-    def _environment_derivatives(self, st, pk) -> tuple[np.ndarray, np.ndarray]:
+    def _environment_derivatives(self, st, pk, t: float) -> tuple[np.ndarray, np.ndarray]:
         nv, n = self.nv, self.n
         dq, dv = np.zeros((nv, nv)), np.zeros((nv, nv))
         if pk.kind.size or pk.seg.size:
-            environment_derivatives(self._arrays, pk.kind, pk.prm, pk.law, pk.calpha, pk.seg, pk.alpha, pk.wrench,
+            prm, vel = _moved(pk, t)
+            environment_derivatives(self._arrays, pk.kind, prm, vel, pk.law, pk.calpha, pk.seg, pk.alpha, pk.wrench,
                                     pk.local, self.floating, st.q_c, np.ascontiguousarray(st.v_c),
                                     np.ascontiguousarray(st.X_WB.rotation), np.ascontiguousarray(st.X_WB.translation),
                                     np.ascontiguousarray(st.V0), dq, dv, np.zeros((n + 1, 6)), np.zeros((n + 1, 6)),
@@ -86,5 +96,5 @@ class ChainContact:
         env = _check_env(env)
         st = self._state(q, v, t=t)
         cap = self.n * env.nodes * max(1, len(env.obstacles))
-        tau, rec, _ = self._environment_force(st, env, cap)
+        tau, rec, _ = self._environment_force(st, env, cap, t)
         return Contacts.from_records(rec, tau)

@@ -48,12 +48,12 @@ class EquilibriumResult:
     nfev: int
 
 
-def _stiffness(chain: Chain, q: np.ndarray, p: np.ndarray, env=None) -> np.ndarray:
+def _stiffness(chain: Chain, q: np.ndarray, p: np.ndarray, env=None, t: float = 0.0) -> np.ndarray:
     """Newton matrix of ``-F``: elastic minus pressure stiffness, minus the environment's
     (all exact)."""
     K = chain.elastic_stiffness(q) - chain.pressure_stiffness(q, p)
     if env is not None:
-        K = K - chain.environment_force_derivatives(q, np.zeros(chain.nv), env)[0]
+        K = K - chain.environment_force_derivatives(q, np.zeros(chain.nv), env, t)[0]
     return K
 
 
@@ -174,7 +174,7 @@ def _solve(chain, p, q0, tip_wrench, t, tol, max_iter, env=None) -> EquilibriumR
         raise QchainError(f"equilibrium: the starting guess is not a valid configuration: {err}") from None
     scale = max(np.max(np.abs(r)), np.max(np.abs(chain.elastic_force(q)[idx])), 1e-12)
     scale = max(scale, np.max(np.abs(chain.input_matrix(q)[idx] @ p)) if p.any() else 0.0)
-    W = _stiffness(chain, q, p, env)[np.ix_(idx, idx)]  # of -F
+    W = _stiffness(chain, q, p, env, t)[np.ix_(idx, idx)]  # of -F
     col = np.sqrt(np.abs(np.diag(W))) + 1e-300  # residual scaling: N vs N m^2 per coordinate
     fresh = True
     it = 0
@@ -184,7 +184,7 @@ def _solve(chain, p, q0, tip_wrench, t, tol, max_iter, env=None) -> EquilibriumR
         try:
             dx = np.linalg.solve(W, r)
         except np.linalg.LinAlgError:
-            W = _stiffness(chain, q, p, env)[np.ix_(idx, idx)]
+            W = _stiffness(chain, q, p, env, t)[np.ix_(idx, idx)]
             dx = np.linalg.lstsq(W, r, rcond=None)[0]
         step = 1.0
         while True:
@@ -202,7 +202,7 @@ def _solve(chain, p, q0, tip_wrench, t, tol, max_iter, env=None) -> EquilibriumR
             if fresh:
                 return EquilibriumResult(q, False, "line search failed: no decrease along the Newton step",
                                          it, float(np.max(np.abs(r))), nfev)
-            W = _stiffness(chain, q, p, env)[np.ix_(idx, idx)]  # drop the Broyden history and retry
+            W = _stiffness(chain, q, p, env, t)[np.ix_(idx, idx)]  # drop the Broyden history and retry
             fresh = True
             continue
         fresh = False
@@ -210,7 +210,7 @@ def _solve(chain, p, q0, tip_wrench, t, tol, max_iter, env=None) -> EquilibriumR
         y_ = -(r_new - r)  # change of -F
         W = W + np.outer(y_ - W @ s_, s_) / (s_ @ s_)  # good Broyden update
         if it % 10 == 0:  # refresh the exact part now and then
-            W = _stiffness(chain, q_new, p, env)[np.ix_(idx, idx)]
+            W = _stiffness(chain, q_new, p, env, t)[np.ix_(idx, idx)]
         q, r = q_new, r_new
     return EquilibriumResult(q, False, f"no convergence in {max_iter} iterations", it,
                              float(np.max(np.abs(r))), nfev)

@@ -6,7 +6,7 @@ forces (:mod:`~qchain.contact.forces`). docs/contact.md is the user's guide."""
 from .. import lazy_exports
 
 _EXPORTS = {
-    "HalfSpace": "shapes", "Sphere": "shapes", "Capsule": "shapes", "Cylinder": "shapes", "Box": "shapes",
+    "HalfSpace": "shapes", "Sphere": "shapes", "Capsule": "shapes", "Cylinder": "shapes", "Box": "shapes", "Motion": "shapes",
     "ContactLaw": "environment", "PointLoad": "environment", "Environment": "environment",
     "Contacts": "environment", "hunt_crossley_damping": "environment",
 }

@@ -259,10 +259,11 @@ def _wrench_tangent(Rs, F, dF, arm, darm, eta, w, dw, t3, u3):
 
 
 @jit
-def _contact_point(kind, prm, law, ell, r_s, x, dx, Rs, Vs, dVs, eta, w, dw, t):
+def _contact_point(kind, prm, vel, law, ell, r_s, x, dx, Rs, Vs, dVs, eta, w, dw, t):
     """The slice wrench ``w`` (6,) of a contact point's force and its change ``dw`` along the
     point's pose variation ``eta`` (its backbone point moving by ``dx``) and twist change
-    ``dVs``; False where the point does not touch the obstacle. ``t`` scratch (40,)."""
+    ``dVs``; False where the point does not touch the obstacle. ``vel`` (3,) the obstacle's
+    velocity. ``t`` scratch (45,)."""
     nrm, dn, arm, darm = t[0:3], t[3:6], t[6:9], t[9:12]
     vc, dvc, om, dom = t[12:15], t[15:18], t[18:21], t[21:24]
     F, dF, t3, u3 = t[24:27], t[27:30], t[30:33], t[33:36]
@@ -289,7 +290,7 @@ def _contact_point(kind, prm, law, ell, r_s, x, dx, Rs, Vs, dVs, eta, w, dw, t):
     _cross(om, arm, t3)
     _cross(dom, arm, u3)
     for r in range(3):
-        vc[r] += t3[r]
+        vc[r] += t3[r] - vel[r]  # relative to the obstacle (whose motion does not depend on the arm's)
         dvc[r] += u3[r]
     _cross(om, darm, t3)
     for r in range(3):
@@ -300,7 +301,7 @@ def _contact_point(kind, prm, law, ell, r_s, x, dx, Rs, Vs, dVs, eta, w, dw, t):
 
 
 @jit
-def environment_tangent(arr, kind, prm, law, calpha, seg, lalpha, wrench, local, q, qd, dq, dqd, R_WB, p_WB,
+def environment_tangent(arr, kind, prm, vel, law, calpha, seg, lalpha, wrench, local, q, qd, dq, dqd, R_WB, p_WB,
                         V0, eta0, dV0, dtau, dF0, W, dW, sc):
     """The change ``dtau`` (n, 3) of the environment's generalised force on the segment
     coordinates and ``dF0`` (6,) of its wrench on the base along the direction ``(dq, dqd)``
@@ -406,7 +407,7 @@ def environment_tangent(arr, kind, prm, law, calpha, seg, lalpha, wrench, local,
             for b in range(m):
                 if near[b] == 0.0:
                     continue
-                if _contact_point(kind[b], prm[b], law, ell, r_s, x, dx, Rs, Vs, dVs, eta_s, w, dw, tmp):
+                if _contact_point(kind[b], prm[b], vel[b], law, ell, r_s, x, dx, Rs, Vs, dVs, eta_s, w, dw, tmp):
                     _accumulate(Rn, pn, Sn, dS, dq[j], w, dw, zeta, W[j], dW[j], dtau[j], g9, t6, t3)
         # to the next root
         arc_node(1.0, l, ux, uy, qd[j, 0], qd[j, 1], qd[j, 2], Rn, pn, Sn, Sdn)
@@ -433,7 +434,7 @@ def environment_tangent(arr, kind, prm, law, calpha, seg, lalpha, wrench, local,
 
 
 @jit
-def environment_derivatives(arr, kind, prm, law, calpha, seg, lalpha, wrench, local, floating, q, qd, R_WB, p_WB,
+def environment_derivatives(arr, kind, prm, vel, law, calpha, seg, lalpha, wrench, local, floating, q, qd, R_WB, p_WB,
                             V0, dtau_dq, dtau_dv, W, dW, D, E, sc):
     """``dtau_dq``, ``dtau_dv`` (nv, nv): the derivatives of the environment's generalised force
     (the chain's order: a floating base's wrench first) with respect to the configuration
@@ -466,7 +467,7 @@ def environment_derivatives(arr, kind, prm, law, calpha, seg, lalpha, wrench, lo
                     dq[k // 3, k % 3] = 1.0
                 else:
                     dqd[k // 3, k % 3] = 1.0
-            environment_tangent(arr, kind, prm, law, calpha, seg, lalpha, wrench, local, q, qd, dq, dqd, R_WB, p_WB,
+            environment_tangent(arr, kind, prm, vel, law, calpha, seg, lalpha, wrench, local, q, qd, dq, dqd, R_WB, p_WB,
                                 V0, eta0, dV0, dtau, dF0, W, dW, sc)
             for r in range(off):
                 out[r, i] = dF0[r]

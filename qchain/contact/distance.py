@@ -143,3 +143,26 @@ def signed_distance(kind, prm, x, n):
     if kind == CYLINDER:
         return _cylinder(prm, x, n)
     return _box(prm, x, n)
+
+
+#: numbers per obstacle motion row: velocity (3, m/s), amplitude (3, m), frequency (Hz), phase (rad)
+MOTION = 8
+
+
+@jit
+def move(kind, prm, motion, t, prm_t, vel):
+    """The obstacles at time ``t`` (s): ``prm_t`` (m, PARAMS) their rows translated by
+    ``u(t) = v t + A sin(2 pi f t + phase)`` and ``vel`` (m, 3) their velocity ``u'(t)``
+    (world frame), from the motion rows ``motion`` (m, MOTION) (zeros: at rest)."""
+    for b in range(kind.shape[0]):
+        mo = motion[b]
+        w = 2.0 * np.pi * mo[6]
+        s, c = np.sin(w * t + mo[7]), np.cos(w * t + mo[7])
+        for r in range(PARAMS):
+            prm_t[b, r] = prm[b, r]
+        for r in range(3):
+            u = mo[r] * t + mo[3 + r] * s
+            vel[b, r] = mo[r] + mo[3 + r] * w * c
+            prm_t[b, r] += u  # the point, centre or first end point
+            if kind[b] == CAPSULE or kind[b] == CYLINDER:
+                prm_t[b, 3 + r] += u  # the second end point

@@ -16,7 +16,7 @@ import numpy as np
 from ..checks.bounds import (CONTACT_DAMPING, CONTACT_EXPONENT, CONTACT_NODES, CONTACT_STIFFNESS, FRICTION,
                              IMPACT_SPEED, RESTITUTION, SLIP_VELOCITY)
 from ..checks.convert import as_bool, as_real, as_vector
-from .distance import PARAMS
+from .distance import MOTION, PARAMS
 from .forces import LAW, RECORD
 from .shapes import Box, Capsule, Cylinder, HalfSpace, Sphere
 
@@ -220,22 +220,25 @@ class Environment:
         rows = [ob.row() for ob in self.obstacles]
         kind = np.array([k for k, _ in rows], dtype=np.int64)
         prm = np.array([r for _, r in rows]).reshape(len(rows), PARAMS)
+        motion = np.array([np.zeros(MOTION) if ob.motion is None else ob.motion.row()
+                           for ob in self.obstacles]).reshape(len(rows), MOTION)
         calpha = (np.arange(self.nodes) + 0.5) / self.nodes
         L = len(self.loads)
         seg = np.array([ld.segment for ld in self.loads], dtype=np.int64)
         alpha = np.array([ld.alpha for ld in self.loads], dtype=float)
         wrench = np.array([np.concatenate([ld.force, ld.moment]) for ld in self.loads]).reshape(L, 6)
         local = np.array([ld.local for ld in self.loads], dtype=np.bool_)
-        return PackedEnvironment(kind, prm, self.law.packed(), calpha, seg, alpha, wrench, local)
+        return PackedEnvironment(kind, prm, motion, self.law.packed(), calpha, seg, alpha, wrench, local)
 
 
 class PackedEnvironment(NamedTuple):
     """An :class:`Environment` as the kernels take it: obstacles ``kind (m,) int64``,
-    ``prm (m, PARAMS)``; ``law (LAW,)``; contact points ``calpha (K,)``; loads ``seg (L,) int64``,
+    ``prm (m, PARAMS)`` at ``t = 0``, ``motion (m, MOTION)``; ``law (LAW,)``; contact points ``calpha (K,)``; loads ``seg (L,) int64``,
     ``alpha (L,)``, ``wrench (L, 6)``, ``local (L,) bool``."""
 
     kind: np.ndarray
     prm: np.ndarray
+    motion: np.ndarray
     law: np.ndarray
     calpha: np.ndarray
     seg: np.ndarray

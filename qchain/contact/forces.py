@@ -15,7 +15,7 @@ backbone position ``x`` at signed distance ``phi(x)`` from an obstacle with outw
 * the normal force ``f_n = l k d^e max(0, 1 + c d')`` (Hunt and Crossley's, per rest length
   ``l`` of tube: N), ``d' = -n . v_c`` the rate of penetration;
 * the friction force ``f_t = -mu(s) f_n v_t / sqrt(s^2 + eps^2)``, ``v_t`` the sliding velocity
-  of the surface point (``s = |v_t|``), ``mu(s) = mu_d + (mu_s - mu_d) exp(-(s / v_s)^2)``:
+  of the surface point relative to the obstacle (``s = |v_t|``), ``mu(s) = mu_d + (mu_s - mu_d) exp(-(s / v_s)^2)``:
   Coulomb's law regularised below the speed ``eps`` (m/s), static to dynamic over ``v_s``.
 
 **Generalised forces.** A world force ``F`` at ``x_c`` is the slice wrench
@@ -136,14 +136,15 @@ def law_force(law, ell, d, nrm, vc, F):
 
 
 @jit
-def contact_forces(arr, kind, prm, law, calpha, q, qd, R_WB, p_WB, V0, tau, F0, W, rec, sc):
+def contact_forces(arr, kind, prm, vel, law, calpha, q, qd, R_WB, p_WB, V0, tau, F0, W, rec, sc):
     """Add the contact forces' generalised forces to ``tau`` (n, 3) and their wrench on the
     base (base frame) to ``F0`` (6,); returns the number of active contacts.
 
     Parameters
     ----------
     arr : ChainArrays (or the plain tuple of its fields)
-    kind : (m,) int64, prm : (m, PARAMS)   the obstacles (:mod:`qchain.contact.distance`).
+    kind : (m,) int64, prm : (m, PARAMS)   the obstacles at this time (:mod:`qchain.contact.distance`).
+    vel : (m, 3)                           their velocities (m/s, world; :func:`~qchain.contact.distance.move`).
     law : (LAW,)                           the packed law (module docstring).
     calpha : (K,)                          contact points' slice coordinates in (0, 1).
     q, qd : (n, 3)                         curvature coordinates and their rates.
@@ -218,9 +219,9 @@ def contact_forces(arr, kind, prm, law, calpha, q, qd, R_WB, p_WB, V0, tau, F0, 
                     for r in range(3):
                         vc[r] = Rs[r, 0] * Vs[0] + Rs[r, 1] * Vs[1] + Rs[r, 2] * Vs[2]
                         tmp[r] = Rs[r, 0] * Vs[3] + Rs[r, 1] * Vs[4] + Rs[r, 2] * Vs[5]
-                    vc[0] += tmp[1] * arm[2] - tmp[2] * arm[1]
-                    vc[1] += tmp[2] * arm[0] - tmp[0] * arm[2]
-                    vc[2] += tmp[0] * arm[1] - tmp[1] * arm[0]
+                    vc[0] += tmp[1] * arm[2] - tmp[2] * arm[1] - vel[b, 0]  # relative to the obstacle
+                    vc[1] += tmp[2] * arm[0] - tmp[0] * arm[2] - vel[b, 1]
+                    vc[2] += tmp[0] * arm[1] - tmp[1] * arm[0] - vel[b, 2]
                     slide = law_force(law, ell, d, nrm, vc, F)
                     _world_wrench_to_slice(Rs, F, arm, f6)
                     _add_phi_t(R1, p1, S1, f6, 1.0, W[j], tau[j], g9)

@@ -1,5 +1,6 @@
 """Obstacles, checked where they are made: half-spaces (ground, walls), spheres, capsules,
-cylinders (poles) and boxes, fixed in the world frame (m).
+cylinders (poles) and boxes, in the world frame (m), fixed or translated by a prescribed
+:class:`Motion`.
 
 Each is a frozen dataclass whose :meth:`row` gives the kernels' parameter row
 (:mod:`qchain.contact.distance`); a bad argument raises naming the parameter, the value and
@@ -12,11 +13,46 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..checks.bounds import EXTENT, POSITION
+from ..checks.bounds import ANGLE, EXTENT, FREQUENCY, POSITION, VELOCITY
 from ..checks.convert import as_matrix, as_vector
-from .distance import BOX, CAPSULE, CYLINDER, HALFSPACE, PARAMS, SPHERE
+from .distance import BOX, CAPSULE, CYLINDER, HALFSPACE, MOTION, PARAMS, SPHERE
 
-__all__ = ["HalfSpace", "Sphere", "Capsule", "Cylinder", "Box", "Obstacle"]
+__all__ = ["HalfSpace", "Sphere", "Capsule", "Cylinder", "Box", "Obstacle", "Motion"]
+
+
+@dataclass(frozen=True)
+class Motion:
+    """A prescribed translation of an obstacle: ``u(t) = velocity t + amplitude sin(2 pi
+    frequency t + phase)`` (m, world frame) added to its placement; ``velocity`` (3,) m/s,
+    ``amplitude`` (3,) m, ``frequency`` Hz, ``phase`` rad. The arm's friction and damping act
+    on its velocity relative to the obstacle."""
+
+    velocity: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    amplitude: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    frequency: float = 0.0
+    phase: float = 0.0
+
+    def __post_init__(self):
+        v = as_vector("Motion.velocity", self.velocity, 3)
+        VELOCITY.check_array("Motion.velocity", v)
+        a = as_vector("Motion.amplitude", self.amplitude, 3)
+        POSITION.check_array("Motion.amplitude", a)
+        object.__setattr__(self, "velocity", v)
+        object.__setattr__(self, "amplitude", a)
+        object.__setattr__(self, "frequency", FREQUENCY.check("Motion.frequency", self.frequency))
+        object.__setattr__(self, "phase", ANGLE.check("Motion.phase", self.phase))
+
+    def row(self) -> np.ndarray:
+        """The kernels' motion row (MOTION,)."""
+        out = np.zeros(MOTION)
+        out[:3], out[3:6], out[6], out[7] = self.velocity, self.amplitude, self.frequency, self.phase
+        return out
+
+
+def _motion(owner: str, value):
+    if value is not None and not isinstance(value, Motion):
+        raise TypeError(f"{owner}.motion must be a qchain.contact.Motion or None, got {type(value).__name__}")
+    return value
 
 
 def _point(owner: str, name: str, value) -> np.ndarray:
@@ -40,7 +76,10 @@ class HalfSpace:
     point: np.ndarray = field(default_factory=lambda: np.zeros(3))
     normal: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, 1.0]))
 
+    motion: Motion | None = None
+
     def __post_init__(self):
+        object.__setattr__(self, "motion", _motion("HalfSpace", self.motion))
         object.__setattr__(self, "point", _point("HalfSpace", "point", self.point))
         nrm = as_vector("HalfSpace.normal", self.normal, 3)
         size = float(np.linalg.norm(nrm))
@@ -59,7 +98,10 @@ class Sphere:
     center: np.ndarray
     radius: float
 
+    motion: Motion | None = None
+
     def __post_init__(self):
+        object.__setattr__(self, "motion", _motion("Sphere", self.motion))
         object.__setattr__(self, "center", _point("Sphere", "center", self.center))
         object.__setattr__(self, "radius", EXTENT.check("Sphere.radius", self.radius))
 
@@ -85,7 +127,10 @@ class Capsule:
     b: np.ndarray
     radius: float
 
+    motion: Motion | None = None
+
     def __post_init__(self):
+        object.__setattr__(self, "motion", _motion("Capsule", self.motion))
         a, b = _axis("Capsule", self.a, self.b)
         object.__setattr__(self, "a", a)
         object.__setattr__(self, "b", b)
@@ -103,7 +148,10 @@ class Cylinder:
     b: np.ndarray
     radius: float
 
+    motion: Motion | None = None
+
     def __post_init__(self):
+        object.__setattr__(self, "motion", _motion("Cylinder", self.motion))
         a, b = _axis("Cylinder", self.a, self.b)
         object.__setattr__(self, "a", a)
         object.__setattr__(self, "b", b)
@@ -122,7 +170,10 @@ class Box:
     half_extents: np.ndarray
     rotation: np.ndarray = field(default_factory=lambda: np.eye(3))
 
+    motion: Motion | None = None
+
     def __post_init__(self):
+        object.__setattr__(self, "motion", _motion("Box", self.motion))
         object.__setattr__(self, "center", _point("Box", "center", self.center))
         h = as_vector("Box.half_extents", self.half_extents, 3)
         EXTENT.check_array("Box.half_extents", h)

@@ -83,7 +83,7 @@ def _run(chain, m, method, q0, v0, t0, t1, *, dt, rtol, atol, t_eval, on_sample,
     nA = idx.size
     c = steppers.constants(method)
     fixed = method in ("rk4", "midpoint")
-    wk = system.workspace(chain)
+    wk = system.workspace(chain, m)
     it = steppers.integrator(nA, chain.nq)
     y, tf, cnt = it.y, it.tf, it.cnt
     wk.q_chart[:] = q0

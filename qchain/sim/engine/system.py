@@ -33,6 +33,7 @@ import numpy as np
 from ...algorithms import aba_derivatives, planar, recursive, rnea_derivatives
 from ...contact.environment import Environment, PackedEnvironment
 from ...contact.derivatives import environment_derivatives
+from ...contact.distance import PARAMS, move
 from ...contact.forces import contact_forces, load_forces
 from ...algorithms.arrays import AbaDerivativesWorkspace, AbaWorkspace, ChainArrays, PlanarWorkspace, RneaWorkspace
 from ...model.arc import SCRATCH, arc_node, take1, take2
@@ -144,6 +145,9 @@ class Workspace(NamedTuple):
         The environment's ``d tau/dq`` and ``d tau/dv`` (:mod:`qchain.contact.derivatives`).
     Denv : (3, n, 3), Eenv : (3, 6) float
         The tangent passes' directions and results.
+    prm_t, vel : (m, PARAMS), (m, 3) float
+        The obstacles at the time of the last evaluation and their velocities
+        (:func:`qchain.contact.distance.move`).
     """
 
     q: np.ndarray
@@ -164,6 +168,8 @@ class Workspace(NamedTuple):
     Jenv: np.ndarray
     Denv: np.ndarray
     Eenv: np.ndarray
+    prm_t: np.ndarray
+    vel: np.ndarray
 
 
 def pack(chain, pressure, tau, env=None) -> EngineModel | None:
@@ -235,14 +241,16 @@ def _layout(n: int, nv: int) -> np.ndarray:
     return table
 
 
-def workspace(chain) -> Workspace:
-    """A fresh :class:`Workspace` for ``chain``, zeros."""
+def workspace(chain, m: EngineModel | None = None) -> Workspace:
+    """A fresh :class:`Workspace` for ``chain`` (and the obstacles of its packed model ``m``), zeros."""
     n, nv, nq = chain.n, chain.nv, chain.nq
+    k = 0 if m is None else m.env.kind.shape[0]
     return Workspace(q=np.zeros(nq), v=np.zeros(nv), q_chart=np.zeros(nq), p=np.zeros(3 * n), tau=np.zeros(nv),
                      f=np.zeros((n, 3)), A0=np.zeros(6), a=np.zeros(nv), qdd=np.zeros((n, 3)), B=np.zeros((4, 6)),
                      info=np.zeros(4, dtype=np.int64), buf=np.zeros(_layout(n, nv)[-1, 0]), scratch=np.zeros(SCRATCH),
                      R_WB=np.zeros((3, 3)), W=np.zeros((2, n + 2, 6)),
-                     Jenv=np.zeros((2, nv, nv)), Denv=np.zeros((3, n, 3)), Eenv=np.zeros((3, 6)))
+                     Jenv=np.zeros((2, nv, nv)), Denv=np.zeros((3, n, 3)), Eenv=np.zeros((3, 6)),
+                     prm_t=np.zeros((k, PARAMS)), vel=np.zeros((k, 3)))
 
 
 @inline
@@ -421,7 +429,7 @@ def _forces(m, wk, t):
     for j in range(n):
         for b in range(3):
             f[j, b] += tau[voff + 3 * j + b]
-    _environment(m, wk, q[qoff:].reshape(n, 3), v[voff:].reshape(n, 3), f)
+    _environment(m, wk, t, q[qoff:].reshape(n, 3), v[voff:].reshape(n, 3), f)
     F0 = B[3]  # reused: the base wrench (floating); the origin row is not needed past here
     F_env = wk.W[0, n + 1]
     for r in range(6):
@@ -433,7 +441,7 @@ def _forces(m, wk, t):
 
 
 @inline
-def _environment(m, wk, q_c, v_c, f):
+def _environment(m, wk, t, q_c, v_c, f):
     """Add the environment's generalised forces to ``f`` (n, 3) and its wrench on the base to
     ``wk.W[n + 1]`` (zeroed first); nothing to do without obstacles or loads."""
     env = m.env
@@ -443,7 +451,8 @@ def _environment(m, wk, q_c, v_c, f):
     for r in range(6):
         F_env[r] = 0.0
     if env.kind.shape[0] > 0:
-        contact_forces(m.arrays, env.kind, env.prm, env.law, env.calpha, q_c, v_c, wk.R_WB, wk.B[3, :3], wk.B[0],
+        move(env.kind, env.prm, env.motion, t, wk.prm_t, wk.vel)
+        contact_forces(m.arrays, env.kind, wk.prm_t, wk.vel, env.law, env.calpha, q_c, v_c, wk.R_WB, wk.B[3, :3], wk.B[0],
                        f, F_env, W[: n + 1], W[:0], wk.scratch)
     if env.seg.shape[0] > 0:
         load_forces(env.seg, env.alpha, env.wrench, env.local, q_c, wk.R_WB, wk.B[3, :3], f, F_env, W[: n + 1],
@@ -461,7 +470,8 @@ def _environment_jacobian(m, wk, t, q_c, v_c, Minv, da_dq, da_dv):
     n = q_c.shape[0]
     nv = m.nv
     Jq, Jv = wk.Jenv[0], wk.Jenv[1]
-    environment_derivatives(m.arrays, env.kind, env.prm, env.law, env.calpha, env.seg, env.alpha, env.wrench,
+    move(env.kind, env.prm, env.motion, t, wk.prm_t, wk.vel)
+    environment_derivatives(m.arrays, env.kind, wk.prm_t, wk.vel, env.law, env.calpha, env.seg, env.alpha, env.wrench,
                             env.local, m.base == FLOATING, q_c, v_c, wk.R_WB, wk.B[3, :3], wk.B[0], Jq, Jv,
                             wk.W[0, : n + 1], wk.W[1, : n + 1], wk.Denv, wk.Eenv, wk.scratch)
     for r in range(nv):

@@ -67,7 +67,7 @@ def standin(method: str, planar_kernel: bool) -> tuple:
     without the run's own chain."""
     chain = _standin_chain(planar_kernel)
     m = system.pack(chain, np.zeros(chain.nu), np.zeros(chain.nv))
-    wk = system.workspace(chain)
+    wk = system.workspace(chain, m)
     it = steppers.integrator(m.idx.size, chain.nq)
     out = (np.zeros(1), np.zeros((1, chain.nq)), np.zeros((1, chain.nv)), np.zeros((1, chain.nu)))
     return m, wk, it, out, steppers.constants(method)
