@@ -149,6 +149,91 @@ def scenes(quick: bool):
         return tr.success, tr.t[-1], "ok" if tr.success else tr.message
 
     out["30 segments"] = thirty
+    out.update(contact_scenes(run, f))
+    return out
+
+
+def _lying(coords, n=2, **kw):
+    """A floating arm of ``n`` segments lying along the world x axis, its centre ``height`` (m)
+    above the ground (the segments grow along the base's z axis: turned by -90 degrees about y)."""
+    import pinocchio as pin
+
+    height = kw.pop("height", 0.015)
+    tilt = kw.pop("tilt", 0.0)
+    ch = Chain([_seg(coords, damping=0.01) for _ in range(n)], base="floating", **kw)
+    q0 = ch.neutral()
+    R = pin.rpy.rpyToMatrix(0.0, np.pi / 2 + tilt, 0.0)
+    q0[:7] = pin.SE3ToXYZQUAT(pin.SE3(R, np.array([-0.1, 0.0, height])))
+    return ch, q0
+
+
+def contact_scenes(run, f):
+    """The contact columns: stiff ground, high friction on a slope, grazing contact, a fast
+    impact; each checks what the physics says must happen, never only that the run ended."""
+    from qchain.contact import ContactLaw, Environment, HalfSpace
+
+    out = {}
+    r_s = SEG["radius"]
+
+    def deepest(ch, tr, env):
+        return max((ch.contacts(q, v, env, t).penetration.max(initial=0.0) for t, q, v in zip(tr.t, tr.q, tr.v)),
+                   default=0.0)
+
+    def stiff_ground(method, coords, dt, wall):
+        ch, q0 = _lying(coords, height=0.03)
+        env = Environment([HalfSpace()], ContactLaw(stiffness=1e8, damping=5.0, mu_static=0.3, mu_dynamic=0.3))
+        tr = run(ch, q0, np.zeros(ch.nv), 0.3 * f, method, dt, wall, env=env, energies=False,
+                 t_eval=np.linspace(0, 0.3 * f, 61))
+        if not tr.success:
+            return False, tr.t[-1], tr.message
+        d = deepest(ch, tr, env)
+        return d < 0.1 * r_s, tr.t[-1], f"deepest penetration {d * 1e3:.3f} mm (bound {0.1 * r_s * 1e3:.1f} mm)"
+
+    out["contact: stiff ground"] = stiff_ground
+
+    def high_friction(method, coords, dt, wall):
+        theta = np.pi / 4  # tan(theta) = 1 < mu = 2: the arm must stay
+        import pinocchio as pin
+
+        ch, q0 = _lying(coords, height=0.0149)
+        g = 9.81 * np.array([np.sin(theta), 0.0, -np.cos(theta)])  # the slope as a tilted gravity
+        ch = Chain(ch.segments, base="floating", gravity=g)
+        env = Environment([HalfSpace()], ContactLaw(stiffness=1e5, damping=5.0, mu_static=2.0, mu_dynamic=2.0))
+        T = 0.5 * f
+        tr = run(ch, q0, np.zeros(ch.nv), T, method, dt, wall, env=env, energies=False, t_eval=[0.1 * T, T])
+        if not tr.success:
+            return False, tr.t[-1], tr.message
+        slid = abs(tr.q[-1, 0] - tr.q[0, 0])
+        return slid < 1e-3, tr.t[-1], f"slid {slid * 1e3:.3f} mm after settling (bound 1 mm: sticks)"
+
+    out["contact: high friction"] = high_friction
+
+    def grazing(method, coords, dt, wall):
+        ch, q0 = _lying(coords, height=r_s + 2e-4, gravity=np.zeros(3))
+        v0 = np.zeros(ch.nv)
+        v0[:3] = [0.0, 0.0, 0.3]  # base frame: along the arm's axis, which lies along the ground
+        v0[3:6] = [0.0, 0.5, 0.0]
+        env = Environment([HalfSpace()], ContactLaw(stiffness=1e6, damping=1.0, mu_static=0.5, mu_dynamic=0.4))
+        tr = run(ch, q0, v0, 0.3 * f, method, dt, wall, env=env, energies=False)
+        ok = tr.success and np.all(np.isfinite(tr.q))
+        return ok, tr.t[-1], "ok" if ok else tr.message
+
+    out["contact: grazing"] = grazing
+
+    def impact(method, coords, dt, wall):
+        ch, q0 = _lying(coords, height=0.02, gravity=np.zeros(3))
+        v0 = np.zeros(ch.nv)
+        v0[0] = 5.0  # base-frame x is world -z once turned: 5 m/s down
+        env = Environment([HalfSpace()], ContactLaw(stiffness=1e7, damping=0.05))
+        tr = run(ch, q0, v0, 0.02, method, dt, wall, env=env, energies=False, t_eval=np.linspace(0, 0.02, 81))
+        if not tr.success:
+            return False, tr.t[-1], tr.message
+        d = deepest(ch, tr, env)
+        up = ch.centers_of_mass(tr.q[-1]).mean(axis=0)[2] > ch.centers_of_mass(tr.q[40]).mean(axis=0)[2]
+        ok = d < r_s and up
+        return ok, tr.t[-1], f"deepest {d * 1e3:.2f} mm (bound r_s), {'rebounds' if up else 'no rebound'}"
+
+    out["contact: fast impact"] = impact
     return out
 
 
