@@ -7,6 +7,11 @@ numpy, Pinocchio or numba and changes no global state):
 the model                                       :class:`Segment`, :class:`Chain`, :class:`Data`,
                                                 :class:`LagrangianChain`, :class:`Frames`
 statics                                         :func:`equilibrium`
+contact and loads                               :class:`Environment`, :class:`ContactLaw`,
+                                                :class:`PointLoad`, :class:`HalfSpace`,
+                                                :class:`Sphere`, :class:`Capsule`,
+                                                :class:`Cylinder`, :class:`Box`, :class:`Motion`
+                                                (:mod:`qchain.contact`)
 time integration                                :func:`simulate`, :class:`Event`, :data:`METHODS`,
                                                 :class:`Trajectory`, :class:`Budget`,
                                                 :func:`compile_all`
@@ -22,7 +27,7 @@ errors                                          :class:`QchainError` and its kin
 
 The package reads top-down (``docs/architecture.md``): ``checks`` and ``errors`` at the
 bottom, then ``model`` (one segment's math), ``algorithms`` (the recursive passes and their
-derivatives), ``arm`` (:class:`Chain` and its methods), ``sim`` (integration and the compiled
+derivatives), ``contact`` (obstacles, the contact law, loads), ``arm`` (:class:`Chain` and its methods), ``sim`` (integration and the compiled
 engine), ``scene`` and ``recording``, ``batch``, and ``cli`` on top. ``qchain.segment``,
 ``qchain.chain``, ``qchain.recursive`` and ``qchain.logging`` are public faces over them.
 """
@@ -37,6 +42,9 @@ _EXPORTS = {
     "Segment": "model.segment",
     "Chain": "arm.chain", "Frames": "arm.kinematics", "Data": "arm.data", "LagrangianChain": "arm.lagrangian",
     "equilibrium": "arm.statics", "EquilibriumResult": "arm.statics",
+    "Environment": "contact.environment", "ContactLaw": "contact.environment", "PointLoad": "contact.environment",
+    "HalfSpace": "contact.shapes", "Sphere": "contact.shapes", "Capsule": "contact.shapes",
+    "Cylinder": "contact.shapes", "Box": "contact.shapes", "Motion": "contact.shapes",
     "simulate": "sim.simulation", "Event": "sim.simulation", "METHODS": "sim.simulation",
     "Trajectory": "sim.trajectory", "Budget": "sim.budget", "BudgetError": "errors",
     "compile_all": "sim.engine.compile",
