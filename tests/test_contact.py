@@ -439,3 +439,62 @@ def test_the_engine_moves_obstacles_as_the_python_path_does():
     touching = [len(ch.contacts(q, v, env, t=t).segment) for t, q, v in zip(a.t, a.q, a.v)]
     assert a.success and b.success and touching[0] == 0 and max(touching) > 0  # the rising ground meets the arm
     np.testing.assert_allclose(a.q, b.q, rtol=0, atol=1e-5)
+
+
+def _curled(base="floating"):
+    """Five short segments bent so that the last touches the first, 3.7 mm deep (a state
+    found by a search over random bends)."""
+    ch = Chain([Segment(**dict(SEGMENT, length=0.06)) for _ in range(5)], base=base)
+    q = ch.neutral()
+    rng = np.random.default_rng(415)
+    for j in range(5):
+        q[ch.q_slice(j)] = [0.06, *rng.uniform(-28, 28, 2)]
+    return ch, q, np.random.default_rng(0).normal(size=ch.nv)
+
+
+def test_self_contact_is_equal_and_opposite_and_its_derivatives_are_exact():
+    ch, q, v = _curled()
+    env = Environment(law=ContactLaw(stiffness=1e5, damping=1.0, mu_static=0.4, mu_dynamic=0.3, slip_velocity=0.05),
+                      self_contact=True, nodes=6)
+    C = ch.contacts(q, v, env)
+    assert len(C.segment) > 0 and np.all(C.obstacle < 0)
+    assert all(-1 - o - s >= 2 for s, o in zip(C.segment, C.obstacle))  # never neighbours
+    # internal forces: no net force or moment on the arm (the floating base feels none)
+    np.testing.assert_allclose(C.tau[:6], 0.0, atol=1e-12 * np.abs(C.tau).max())
+    assert np.abs(C.tau[6:]).max() > 1e-2  # (a 3.7 mm overlap of k = 1e5 balls: about 0.1 N)
+    dq, dv = ch.environment_force_derivatives(q, v, env)
+    h = 1e-7
+    Fq = np.array([(ch.environment_force(ch.integrate(q, h * e), v, env)
+                    - ch.environment_force(ch.integrate(q, -h * e), v, env)) / (2 * h) for e in np.eye(ch.nv)]).T
+    Fv = np.array([(ch.environment_force(q, v + h * e, env) - ch.environment_force(q, v - h * e, env)) / (2 * h)
+                   for e in np.eye(ch.nv)]).T
+    np.testing.assert_allclose(dq, Fq, rtol=0, atol=1e-8 * np.abs(Fq).max())
+    np.testing.assert_allclose(dv, Fv, rtol=0, atol=1e-8 * np.abs(Fv).max())
+
+
+def test_a_self_touching_arm_keeps_momentum_and_energy_in_the_engine():
+    # frictionless, undamped self-contact in zero gravity: momentum (exactly, internal forces)
+    # and energy (to the tolerance) are kept through the collision of the arm with itself
+    ch, q0, _ = _curled()
+    ch = Chain([Segment(**dict(SEGMENT, length=0.06, damping=0.0)) for _ in range(5)], base="floating",
+               gravity=np.zeros(3))
+    env = Environment(law=ContactLaw(stiffness=1e5), self_contact=True, nodes=6)
+    v0 = np.zeros(ch.nv)
+    v0[3:6] = [1.0, -2.0, 0.5]  # spinning, so that momentum is a test
+    tr = qchain.simulate(ch, q0, v0, (0, 0.05), method="radau5", env=env, rtol=1e-9, atol=1e-11,
+                         t_eval=np.linspace(0, 0.05, 26))
+    assert tr.success, tr.message
+    assert len(ch.contacts(q0, v0, env).segment) > 0  # it starts pressed into itself
+    h = np.array([ch.momentum(q, v) for q, v in zip(tr.q, tr.v)])
+    assert np.abs(h - h[0]).max() < 1e-6 * np.abs(h[0]).max()
+    E = np.array([ch.kinetic_energy(q, v) + ch.potential_energy(q) + _self_energy(ch, q, env)
+                  for q, v in zip(tr.q, tr.v)])
+    assert np.abs(E - E[0]).max() < 1e-5 * E[0]
+
+
+def _self_energy(ch, q, env):
+    """The self-contact potential: ``sum l k d^(e+1) / (e+1)`` over the touching pairs."""
+    C = ch.contacts(q, np.zeros(ch.nv), env)
+    ell = 0.06 / env.nodes  # every segment is 6 cm
+    law = env.law
+    return float(np.sum(ell * law.stiffness * C.penetration ** (law.exponent + 1) / (law.exponent + 1)))

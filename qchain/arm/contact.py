@@ -6,10 +6,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..contact.derivatives import environment_derivatives
+from ..contact.derivatives import NODE_T, environment_derivatives
 from ..contact.environment import Contacts, Environment
 from ..contact.distance import move
-from ..contact.forces import RECORD, contact_forces, load_forces
+from ..contact.forces import RECORD, ROOT, contact_forces, load_forces
 from ..model.arc import SCRATCH
 
 __all__ = ["ChainContact"]
@@ -20,6 +20,14 @@ def _moved(pk, t: float):
     prm, vel = np.empty_like(pk.prm), np.empty((pk.kind.size, 3))
     move(pk.kind, pk.prm, pk.motion, float(t), prm, vel)
     return prm, vel
+
+
+def _self_contact_work(n: int, pk):
+    """The self-contact passes' work arrays ``(roots (n, ROOT + 12), P (2, K, NODE_T))``, for the
+    forces and their tangents (empty without self-contact)."""
+    if pk.law[7]:
+        return np.zeros((n, ROOT + 12)), np.zeros((2, pk.calpha.size, NODE_T))
+    return np.zeros((0, ROOT + 12)), np.zeros((2, 0, NODE_T))
 
 
 def _check_env(env) -> Environment:
@@ -44,11 +52,12 @@ class ChainContact:
         p_WB = np.ascontiguousarray(st.X_WB.translation)
         rec = np.zeros((cap, RECORD))
         count = 0
-        if pk.kind.size:
+        if pk.kind.size or pk.law[7]:
             v_c = np.ascontiguousarray(st.v_c)
             prm, vel = _moved(pk, t)
+            roots, P = _self_contact_work(self.n, pk)
             count = contact_forces(self._arrays, pk.kind, prm, vel, pk.law, pk.calpha, st.q_c, v_c, R_WB, p_WB,
-                                   np.ascontiguousarray(st.V0), tau_c, F0, W, rec, sc)
+                                   np.ascontiguousarray(st.V0), tau_c, F0, W, roots, P, rec, sc)
         if pk.seg.size:
             load_forces(pk.seg, pk.alpha, pk.wrench, pk.local, st.q_c, R_WB, p_WB, tau_c, F0, W, sc)
         tau = self._force_e(st, tau_c).ravel()
@@ -80,13 +89,13 @@ class ChainContact:
     def _environment_derivatives(self, st, pk, t: float) -> tuple[np.ndarray, np.ndarray]:
         nv, n = self.nv, self.n
         dq, dv = np.zeros((nv, nv)), np.zeros((nv, nv))
-        if pk.kind.size or pk.seg.size:
+        if pk.kind.size or pk.seg.size or pk.law[7]:
             prm, vel = _moved(pk, t)
             environment_derivatives(self._arrays, pk.kind, prm, vel, pk.law, pk.calpha, pk.seg, pk.alpha, pk.wrench,
                                     pk.local, self.floating, st.q_c, np.ascontiguousarray(st.v_c),
                                     np.ascontiguousarray(st.X_WB.rotation), np.ascontiguousarray(st.X_WB.translation),
                                     np.ascontiguousarray(st.V0), dq, dv, np.zeros((n + 1, 6)), np.zeros((n + 1, 6)),
-                                    np.zeros((3, n, 3)), np.zeros((3, 6)), np.empty(SCRATCH))
+                                    np.zeros((3, n, 3)), np.zeros((3, 6)), *_self_contact_work(n, pk), np.empty(SCRATCH))
         return dq, dv
 
     def contacts(self, q, v, env: Environment, t: float = 0.0) -> Contacts:
@@ -95,6 +104,6 @@ class ChainContact:
         their generalised force with the loads'."""
         env = _check_env(env)
         st = self._state(q, v, t=t)
-        cap = self.n * env.nodes * max(1, len(env.obstacles))
+        cap = self.n * env.nodes * max(1, len(env.obstacles)) + (self.n * env.nodes) ** 2 * env.self_contact
         tau, rec, _ = self._environment_force(st, env, cap, t)
         return Contacts.from_records(rec, tau)

@@ -30,9 +30,14 @@ from ..algorithms.arrays import ChainArrays
 from ..model.arc import arc_node, arc_node_derivatives, arc_pose, jit, take1, take2, take3
 from ..model.slices import phi_transpose_force, slice_twist, sub_motion_cross
 from .distance import BOX, CAPSULE, CYLINDER, HALFSPACE, SPHERE, signed_distance
-from .forces import _mat3, _point, _world_wrench_to_slice
+from .forces import ROOT, _keep_root, _mat3, _near_segments, _point, _world_wrench_to_slice
 
-__all__ = ["environment_tangent", "environment_derivatives"]
+#: a contact node kept for the self-contact tangent: world rotation (9), point (3), velocity
+#: (3), angular velocity (3), the slice's R (9), p (3), S (18) in its root, then the changes of
+#: the point (3), velocity (3), angular velocity (3), the pose variation (6), S dq (6), dS/dq (54)
+NODE_T = 123
+
+__all__ = ["environment_tangent", "environment_derivatives", "NODE_T"]
 
 
 @jit
@@ -302,13 +307,14 @@ def _contact_point(kind, prm, vel, law, ell, r_s, x, dx, Rs, Vs, dVs, eta, w, dw
 
 @jit
 def environment_tangent(arr, kind, prm, vel, law, calpha, seg, lalpha, wrench, local, q, qd, dq, dqd, R_WB, p_WB,
-                        V0, eta0, dV0, dtau, dF0, W, dW, sc):
+                        V0, eta0, dV0, dtau, dF0, W, dW, roots, P, sc):
     """The change ``dtau`` (n, 3) of the environment's generalised force on the segment
     coordinates and ``dF0`` (6,) of its wrench on the base along the direction ``(dq, dqd)``
     (n, 3) of the coordinates and rates, ``eta0`` (6,) of the base pose (body twist) and
     ``dV0`` (6,) of the base twist. Arguments as :func:`qchain.contact.forces.contact_forces`
-    and :func:`~qchain.contact.forces.load_forces` together; ``W``, ``dW`` (n + 1, 6) work
-    arrays; ``sc`` scratch."""
+    and :func:`~qchain.contact.forces.load_forces` together; ``W``, ``dW`` (n + 1, 6),
+    ``roots`` (n, ROOT + 12) and ``P`` (2, K, NODE_T) work arrays (the last two for
+    self-contact, ``law[7]`` set); ``sc`` scratch."""
     arr = ChainArrays(*arr)
     n = q.shape[0]
     m = kind.shape[0]
@@ -362,6 +368,13 @@ def environment_tangent(arr, kind, prm, vel, law, calpha, seg, lalpha, wrench, l
         l, ux, uy = q[j, 0], q[j, 1], q[j, 2]
         r_s = arr.radius[j]
         any_near = False
+        if law[7] > 0.0:  # self-contact: keep the root, its tangent and the segment's ball
+            arc_pose(0.5, l, ux, uy, Rn, pn)
+            _point(Rj, oj, pn, x)
+            _keep_root(roots[j], Rj, oj, Vj, x, 0.5 * abs(l) + r_s)
+            for r in range(6):
+                roots[j, ROOT + r] = eta[r]
+                roots[j, ROOT + 6 + r] = dV[r]
         if m > 0:
             arc_pose(0.5, l, ux, uy, Rn, pn)
             _point(Rj, oj, pn, x)
@@ -423,6 +436,8 @@ def environment_tangent(arr, kind, prm, vel, law, calpha, seg, lalpha, wrench, l
         for r in range(3):
             for c in range(3):
                 Rj[r, c] = Rs[r, c]
+    if law[7] > 0.0:
+        _self_contact_tangent(arr, law, calpha, q, qd, dq, dqd, roots, P, W, dW, dtau, sc[o:])
     for j in range(n - 1, -1, -1):
         arc_node(1.0, q[j, 0], q[j, 1], q[j, 2], 0.0, 0.0, 0.0, Rn, pn, Sn, Sdn)
         arc_node_derivatives(1.0, q[j, 0], q[j, 1], q[j, 2], 0.0, 0.0, 0.0, dS, Kn)
@@ -435,7 +450,7 @@ def environment_tangent(arr, kind, prm, vel, law, calpha, seg, lalpha, wrench, l
 
 @jit
 def environment_derivatives(arr, kind, prm, vel, law, calpha, seg, lalpha, wrench, local, floating, q, qd, R_WB, p_WB,
-                            V0, dtau_dq, dtau_dv, W, dW, D, E, sc):
+                            V0, dtau_dq, dtau_dv, W, dW, D, E, roots, P, sc):
     """``dtau_dq``, ``dtau_dv`` (nv, nv): the derivatives of the environment's generalised force
     (the chain's order: a floating base's wrench first) with respect to the configuration
     (along ``integrate``: a floating base's pose by a body twist) and the velocity, one
@@ -468,9 +483,113 @@ def environment_derivatives(arr, kind, prm, vel, law, calpha, seg, lalpha, wrenc
                 else:
                     dqd[k // 3, k % 3] = 1.0
             environment_tangent(arr, kind, prm, vel, law, calpha, seg, lalpha, wrench, local, q, qd, dq, dqd, R_WB, p_WB,
-                                V0, eta0, dV0, dtau, dF0, W, dW, sc)
+                                V0, eta0, dV0, dtau, dF0, W, dW, roots, P, sc)
             for r in range(off):
                 out[r, i] = dF0[r]
             for j in range(n):
                 for c in range(3):
                     out[off + 3 * j + c, i] = dtau[j, c]
+
+
+@jit
+def _keep_node_tangents(root, q, qd, dq, dqd, calpha, out, t):
+    """Every contact node of a segment with its tangent, into ``out`` (K, NODE_T) (layout:
+    :data:`NODE_T`); ``root`` (ROOT + 12,) the kept root and its ``eta``, ``dV``; ``t`` scratch."""
+    Rj = root[0:9].reshape((3, 3))
+    for i in range(calpha.shape[0]):
+        row = out[i]
+        Rs = row[0:9].reshape((3, 3))
+        Rn = row[18:27].reshape((3, 3))
+        pn = row[27:30]
+        Sn = row[30:48].reshape((6, 3))
+        dS = row[69:123].reshape((3, 6, 3))
+        a = calpha[i]
+        arc_node(a, q[0], q[1], q[2], qd[0], qd[1], qd[2], Rn, pn, Sn, t[0:18].reshape((6, 3)))
+        arc_node_derivatives(a, q[0], q[1], q[2], qd[0], qd[1], qd[2], dS, t[18:36].reshape((3, 6)))
+        Vs, dVs = t[36:42], t[42:48]
+        _frame_step(Rn, pn, Sn, dS, t[48:51], qd, dq, dqd, root[12:18], root[ROOT:ROOT + 6], root[ROOT + 6:ROOT + 12],
+                    t[51:57], Vs, row[57:63], dVs, row[63:69])
+        _mat3(Rj, Rn, Rs)
+        _point(Rj, root[9:12], pn, row[9:12])
+        _rx(Rs, Vs[0:3], row[12:15])
+        _rx(Rs, Vs[3:6], row[15:18])
+        _rx(Rs, row[57:60], row[48:51])
+        eta = row[57:63]
+        _cross(eta[3:6], Vs[0:3], t[51:54])
+        _cross(eta[3:6], Vs[3:6], t[54:57])
+        for r in range(3):
+            t[51 + r] += dVs[r]
+            t[54 + r] += dVs[3 + r]
+        _rx(Rs, t[51:54], row[51:54])
+        _rx(Rs, t[54:57], row[54:57])
+
+
+@jit
+def _pair_side(row, F, dF, arm, darm, dq_j, W_j, dW_j, dtau_j, t):
+    """One side of a self-contact pair: its slice wrench and change, accumulated."""
+    w, dw = t[0:6], t[6:12]
+    _wrench_tangent(row[0:9].reshape((3, 3)), F, dF, arm, darm, row[57:63], w, dw, t[12:15], t[15:18])
+    _accumulate(row[18:27].reshape((3, 3)), row[27:30], row[30:48].reshape((6, 3)), row[69:123].reshape((3, 6, 3)),
+                dq_j, w, dw, row[63:69], W_j, dW_j, dtau_j, t[18:27], t[27:33], t[33:36])
+
+
+@jit
+def _self_contact_tangent(arr, law, calpha, q, qd, dq, dqd, roots, P, W, dW, dtau, sc):
+    """The self-contact pairs of :func:`qchain.contact.forces._self_contact` and their changes,
+    accumulated into ``W``, ``dW``, ``dtau``."""
+    n = q.shape[0]
+    K = calpha.shape[0]
+    t = sc[0:64]
+    u = sc[64:100]
+    nrm, dn, arm_a, arm_b, darm_a, darm_b = u[0:3], u[3:6], u[6:9], u[9:12], u[12:15], u[15:18]
+    vc, dvc, F, dF, dr, v3 = u[18:21], u[21:24], u[24:27], u[27:30], u[30:33], u[33:36]
+    for i in range(n):
+        for j in range(i + 2, n):
+            if not _near_segments(roots[i], roots[j]):
+                continue
+            _keep_node_tangents(roots[i], q[i], qd[i], dq[i], dqd[i], calpha, P[0], t)
+            _keep_node_tangents(roots[j], q[j], qd[j], dq[j], dqd[j], calpha, P[1], t)
+            ri, rj = arr.radius[i], arr.radius[j]
+            ell = 0.5 * (arr.l0[i] + arr.l0[j]) / K
+            for a in range(K):
+                A = P[0, a]
+                for b in range(K):
+                    B = P[1, b]
+                    for r in range(3):
+                        nrm[r] = A[9 + r] - B[9 + r]
+                        dr[r] = A[48 + r] - B[48 + r]
+                    dist = np.sqrt(nrm[0] ** 2 + nrm[1] ** 2 + nrm[2] ** 2)
+                    d = ri + rj - dist
+                    if d <= 0.0 or dist == 0.0:
+                        continue
+                    for r in range(3):
+                        nrm[r] /= dist
+                    ddist = nrm[0] * dr[0] + nrm[1] * dr[1] + nrm[2] * dr[2]
+                    _project_out(nrm, dr, dist, dn)
+                    ha, hb = 0.5 * (ri + dist - rj), 0.5 * (dist - ri + rj)
+                    for r in range(3):
+                        arm_a[r] = -ha * nrm[r]
+                        arm_b[r] = hb * nrm[r]
+                        darm_a[r] = -0.5 * ddist * nrm[r] - ha * dn[r]
+                        darm_b[r] = 0.5 * ddist * nrm[r] + hb * dn[r]
+                    # the relative velocity of the two surface points, and its change
+                    _cross(A[15:18], arm_a, vc)
+                    _cross(B[15:18], arm_b, v3)
+                    for r in range(3):
+                        vc[r] += A[12 + r] - B[12 + r] - v3[r]
+                    _cross(A[54:57], arm_a, dvc)
+                    _cross(A[15:18], darm_a, v3)
+                    for r in range(3):
+                        dvc[r] += v3[r] + A[51 + r] - B[51 + r]
+                    _cross(B[54:57], arm_b, v3)
+                    for r in range(3):
+                        dvc[r] -= v3[r]
+                    _cross(B[15:18], darm_b, v3)
+                    for r in range(3):
+                        dvc[r] -= v3[r]
+                    _law_tangent(law, ell, d, -ddist, nrm, dn, vc, dvc, F, dF)
+                    _pair_side(A, F, dF, arm_a, darm_a, dq[i], W[i], dW[i], dtau[i], t)
+                    for r in range(3):
+                        F[r] = -F[r]
+                        dF[r] = -dF[r]
+                    _pair_side(B, F, dF, arm_b, darm_b, dq[j], W[j], dW[j], dtau[j], t)

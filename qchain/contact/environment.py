@@ -84,7 +84,8 @@ class ContactLaw:
                              f"{self.mu_dynamic:g}")
 
     def packed(self) -> np.ndarray:
-        """The kernels' law array (LAW,)."""
+        """The kernels' law array (LAW,); its last entry, the self-contact flag, is the
+        :class:`Environment`'s."""
         out = np.zeros(LAW)
         out[:7] = (self.stiffness, self.exponent, self.damping, self.mu_static, self.mu_dynamic,
                    self.slip_velocity, self.stribeck_velocity)
@@ -164,12 +165,16 @@ class Environment:
     loads : sequence of PointLoad
     nodes : int
         Contact points along each segment (midpoints of ``nodes`` equal pieces).
+    self_contact : bool
+        Contact between segments at least two apart (neighbours share a root and always
+        touch), with the same law, equal and opposite.
     """
 
     obstacles: Sequence = ()
     law: ContactLaw = field(default_factory=ContactLaw)
     loads: Sequence = ()
     nodes: int = 16
+    self_contact: bool = False
 
     def __post_init__(self):
         obstacles = tuple(self.obstacles)
@@ -188,6 +193,7 @@ class Environment:
         object.__setattr__(self, "obstacles", obstacles)
         object.__setattr__(self, "loads", loads)
         object.__setattr__(self, "nodes", CONTACT_NODES.check("Environment.nodes", self.nodes))
+        object.__setattr__(self, "self_contact", as_bool("Environment.self_contact", self.self_contact))
 
     def time_scale(self, chain) -> float | None:
         """The contact's time scale (s), the shortest over the chain's segments: the period
@@ -195,7 +201,7 @@ class Environment:
         stiffness at the penetration where it carries its own weight,
         ``k_eff = e l k d*^(e - 1)``, ``l k d*^e = m g``; None without obstacles. An explicit
         method's step cannot exceed a fraction of it in contact; an implicit one's can."""
-        if not self.obstacles:
+        if not self.obstacles and not self.self_contact:
             return None
         law = self.law
         g = max(float(np.linalg.norm(chain.gravity)), 1e-3)  # weightless: a milli-g rest load
@@ -228,7 +234,9 @@ class Environment:
         alpha = np.array([ld.alpha for ld in self.loads], dtype=float)
         wrench = np.array([np.concatenate([ld.force, ld.moment]) for ld in self.loads]).reshape(L, 6)
         local = np.array([ld.local for ld in self.loads], dtype=np.bool_)
-        return PackedEnvironment(kind, prm, motion, self.law.packed(), calpha, seg, alpha, wrench, local)
+        law = self.law.packed()
+        law[7] = 1.0 if self.self_contact else 0.0
+        return PackedEnvironment(kind, prm, motion, law, calpha, seg, alpha, wrench, local)
 
 
 class PackedEnvironment(NamedTuple):

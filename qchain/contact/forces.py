@@ -38,13 +38,20 @@ from ..model.arc import arc_node, arc_pose, jit, take1, take2
 from ..model.slices import phi_transpose_force, slice_twist
 from .distance import PARAMS, signed_distance
 
-__all__ = ["LAW", "RECORD", "contact_forces", "load_forces"]
+__all__ = ["LAW", "RECORD", "ROOT", "NODE", "contact_forces", "load_forces"]
 
 #: entries of the packed contact law
 LAW = 8
 #: columns of a contact record: segment, alpha, obstacle, penetration (m), point (3, m, world),
-#: normal (3, world), force on the arm (3, N, world), sliding speed (m/s)
+#: normal (3, world), force on the arm (3, N, world), sliding speed (m/s); a self-contact's
+#: obstacle is ``-1 - k``, ``k`` the other segment
 RECORD = 15
+#: a root kept for self-contact: rotation (9), origin (3), body twist (6), the segment's middle
+#: point (3) and its reach (1)
+ROOT = 22
+#: a contact node kept for self-contact: world rotation (9), point (3), velocity (3), angular
+#: velocity (3), and its slice map's R (9), p (3), S (18)
+NODE = 48
 
 
 @jit
@@ -136,7 +143,7 @@ def law_force(law, ell, d, nrm, vc, F):
 
 
 @jit
-def contact_forces(arr, kind, prm, vel, law, calpha, q, qd, R_WB, p_WB, V0, tau, F0, W, rec, sc):
+def contact_forces(arr, kind, prm, vel, law, calpha, q, qd, R_WB, p_WB, V0, tau, F0, W, roots, P, rec, sc):
     """Add the contact forces' generalised forces to ``tau`` (n, 3) and their wrench on the
     base (base frame) to ``F0`` (6,); returns the number of active contacts.
 
@@ -151,6 +158,7 @@ def contact_forces(arr, kind, prm, vel, law, calpha, q, qd, R_WB, p_WB, V0, tau,
     R_WB, p_WB : (3, 3), (3,)              the base (first root) placement in the world.
     V0 : (6,)                              the base's body twist.
     W : (n + 1, 6)                         work array (root wrenches).
+    roots : (n, ROOT), P : (2, K, NODE)     work arrays of self-contact (``law[7]`` set; else any).
     rec : (cap, RECORD)                    the first ``cap`` contacts are written here (cap may be 0).
     sc : scratch (``SCRATCH``).
     """
@@ -177,6 +185,7 @@ def contact_forces(arr, kind, prm, vel, law, calpha, q, qd, R_WB, p_WB, V0, tau,
     g9, o = take1(sc, o, 9)
     tmp, o = take1(sc, o, 6)
     near, o = take1(sc, o, m)
+    self_contact = law[7] > 0.0
     for r in range(3):
         oj[r] = p_WB[r]
         for c in range(3):
@@ -195,6 +204,8 @@ def contact_forces(arr, kind, prm, vel, law, calpha, q, qd, R_WB, p_WB, V0, tau,
         arc_pose(0.5, l, ux, uy, R1, p1)
         _point(Rj, oj, p1, x)
         reach = 0.5 * abs(l) + r_s
+        if self_contact:
+            _keep_root(roots[j], Rj, oj, Vj, x, reach)
         any_near = False
         for b in range(m):
             near[b] = 1.0 if signed_distance(kind[b], prm[b], x, nrm) < reach else 0.0
@@ -236,6 +247,8 @@ def contact_forces(arr, kind, prm, vel, law, calpha, q, qd, R_WB, p_WB, V0, tau,
                         row[14] = 0.0
                     count += 1
         _root_step(q[j], qd[j], Rj, oj, Vj, R1, p1, S1, Sd1, tmp)
+    if self_contact:
+        count = _self_contact(arr, law, calpha, q, qd, roots, P, W, tau, rec, count, sc[o:])
     _backward(q, W, tau, F0, R1, p1, S1, Sd1, g9)
     return count
 
@@ -291,3 +304,109 @@ def load_forces(seg, alpha, wrench, local, q, R_WB, p_WB, tau, F0, W, sc):
             _add_phi_t(R1, p1, S1, f6, 1.0, W[j], tau[j], g9)
         _root_step(q[j], zero3, Rj, oj, Vj, R1, p1, S1, Sd1, tmp)
     _backward(q, W, tau, F0, R1, p1, S1, Sd1, g9)
+
+
+@jit
+def _keep_root(row, Rj, oj, Vj, mid, reach):
+    """Keep a root's frame, twist and its segment's bounding ball in ``row`` (ROOT,)."""
+    for r in range(3):
+        for c in range(3):
+            row[3 * r + c] = Rj[r, c]
+        row[9 + r] = oj[r]
+        row[18 + r] = mid[r]
+    for r in range(6):
+        row[12 + r] = Vj[r]
+    row[21] = reach
+
+
+@jit
+def _keep_nodes(root, q, qd, calpha, out, tmp):
+    """Every contact node of a segment (its root row ``root``, coordinates ``q``, rates ``qd``)
+    into ``out`` (K, NODE): ``[0:9]`` world rotation, ``[9:12]`` point, ``[12:15]`` velocity,
+    ``[15:18]`` angular velocity (world), ``[18:27]``, ``[27:30]``, ``[30:48]`` the slice's
+    ``R``, ``p``, ``S`` in its root (for ``Phi^T``). ``tmp`` (24,) scratch."""
+    Rj = root[0:9].reshape((3, 3))
+    for i in range(calpha.shape[0]):
+        row = out[i]
+        Rs = row[0:9].reshape((3, 3))
+        Rn = row[18:27].reshape((3, 3))
+        pn = row[27:30]
+        Sn = row[30:48].reshape((6, 3))
+        arc_node(calpha[i], q[0], q[1], q[2], qd[0], qd[1], qd[2], Rn, pn, Sn, tmp[0:18].reshape((6, 3)))
+        slice_twist(Rn, pn, Sn, root[12:18], qd, tmp[18:24])
+        _mat3(Rj, Rn, Rs)
+        _point(Rj, root[9:12], pn, row[9:12])
+        for r in range(3):
+            row[12 + r] = Rs[r, 0] * tmp[18] + Rs[r, 1] * tmp[19] + Rs[r, 2] * tmp[20]
+            row[15 + r] = Rs[r, 0] * tmp[21] + Rs[r, 1] * tmp[22] + Rs[r, 2] * tmp[23]
+
+
+@jit
+def _near_segments(ra, rb):
+    """Whether two segments' bounding balls (root rows ``ra``, ``rb``) overlap."""
+    d2 = (ra[18] - rb[18]) ** 2 + (ra[19] - rb[19]) ** 2 + (ra[20] - rb[20]) ** 2
+    return d2 < (ra[21] + rb[21]) ** 2
+
+
+@jit
+def _self_contact(arr, law, calpha, q, qd, roots, P, W, tau, rec, count, sc):
+    """Add the contact forces between the balls of segments at least two apart (equal and
+    opposite, the law on the surface points' relative velocity) to ``W`` and ``tau``; returns
+    the contact count. ``roots`` (n, ROOT) as the forward loop kept them; ``P`` (2, K, NODE)."""
+    n = q.shape[0]
+    K = calpha.shape[0]
+    o = 0
+    nrm, o = take1(sc, o, 3)
+    arm_a, o = take1(sc, o, 3)
+    arm_b, o = take1(sc, o, 3)
+    vc, o = take1(sc, o, 3)
+    F, o = take1(sc, o, 3)
+    f6, o = take1(sc, o, 6)
+    g9, o = take1(sc, o, 9)
+    tmp, o = take1(sc, o, 24)
+    for i in range(n):
+        for j in range(i + 2, n):
+            if not _near_segments(roots[i], roots[j]):
+                continue
+            _keep_nodes(roots[i], q[i], qd[i], calpha, P[0], tmp)
+            _keep_nodes(roots[j], q[j], qd[j], calpha, P[1], tmp)
+            ri, rj = arr.radius[i], arr.radius[j]
+            ell = 0.5 * (arr.l0[i] + arr.l0[j]) / K
+            for a in range(K):
+                A = P[0, a]
+                for b in range(K):
+                    B = P[1, b]
+                    dx, dy, dz = A[9] - B[9], A[10] - B[10], A[11] - B[11]
+                    dist = np.sqrt(dx * dx + dy * dy + dz * dz)
+                    d = ri + rj - dist
+                    if d <= 0.0 or dist == 0.0:
+                        continue
+                    nrm[0], nrm[1], nrm[2] = dx / dist, dy / dist, dz / dist  # from b to a
+                    # both forces act at the point midway between the two surfaces, so that
+                    # the pair's net force and moment vanish (momentum is kept)
+                    ha = 0.5 * (ri + dist - rj)
+                    hb = 0.5 * (dist - ri + rj)
+                    for r in range(3):
+                        arm_a[r] = -ha * nrm[r]
+                        arm_b[r] = hb * nrm[r]
+                    vc[0] = (A[12] + A[16] * arm_a[2] - A[17] * arm_a[1]) - (B[12] + B[16] * arm_b[2] - B[17] * arm_b[1])
+                    vc[1] = (A[13] + A[17] * arm_a[0] - A[15] * arm_a[2]) - (B[13] + B[17] * arm_b[0] - B[15] * arm_b[2])
+                    vc[2] = (A[14] + A[15] * arm_a[1] - A[16] * arm_a[0]) - (B[14] + B[15] * arm_b[1] - B[16] * arm_b[0])
+                    slide = law_force(law, ell, d, nrm, vc, F)
+                    _world_wrench_to_slice(A[0:9].reshape((3, 3)), F, arm_a, f6)
+                    _add_phi_t(A[18:27].reshape((3, 3)), A[27:30], A[30:48].reshape((6, 3)), f6, 1.0, W[i], tau[i], g9)
+                    for r in range(3):
+                        F[r] = -F[r]
+                    _world_wrench_to_slice(B[0:9].reshape((3, 3)), F, arm_b, f6)
+                    _add_phi_t(B[18:27].reshape((3, 3)), B[27:30], B[30:48].reshape((6, 3)), f6, 1.0, W[j], tau[j], g9)
+                    if count < rec.shape[0]:
+                        row = rec[count]
+                        row[0], row[1], row[2], row[3] = i, calpha[a], -1 - j, d
+                        for r in range(3):
+                            row[4 + r] = A[9 + r] + arm_a[r]
+                            row[7 + r] = nrm[r]
+                            row[10 + r] = -F[r]
+                        row[13] = slide
+                        row[14] = 0.0
+                    count += 1
+    return count

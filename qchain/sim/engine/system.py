@@ -32,7 +32,8 @@ import numpy as np
 
 from ...algorithms import aba_derivatives, planar, recursive, rnea_derivatives
 from ...contact.environment import Environment, PackedEnvironment
-from ...contact.derivatives import environment_derivatives
+from ...contact.derivatives import NODE_T, environment_derivatives
+from ...contact.forces import ROOT
 from ...contact.distance import PARAMS, move
 from ...contact.forces import contact_forces, load_forces
 from ...algorithms.arrays import AbaDerivativesWorkspace, AbaWorkspace, ChainArrays, PlanarWorkspace, RneaWorkspace
@@ -148,6 +149,8 @@ class Workspace(NamedTuple):
     prm_t, vel : (m, PARAMS), (m, 3) float
         The obstacles at the time of the last evaluation and their velocities
         (:func:`qchain.contact.distance.move`).
+    roots, nodes : (n, ROOT + 12), (2, K, NODE_T) float
+        The self-contact passes' roots and contact nodes (empty without self-contact).
     """
 
     q: np.ndarray
@@ -170,6 +173,8 @@ class Workspace(NamedTuple):
     Eenv: np.ndarray
     prm_t: np.ndarray
     vel: np.ndarray
+    roots: np.ndarray
+    nodes: np.ndarray
 
 
 def pack(chain, pressure, tau, env=None) -> EngineModel | None:
@@ -245,12 +250,15 @@ def workspace(chain, m: EngineModel | None = None) -> Workspace:
     """A fresh :class:`Workspace` for ``chain`` (and the obstacles of its packed model ``m``), zeros."""
     n, nv, nq = chain.n, chain.nv, chain.nq
     k = 0 if m is None else m.env.kind.shape[0]
+    selfc = m is not None and m.env.law[7] > 0.0
+    K = m.env.calpha.shape[0] if selfc else 0
     return Workspace(q=np.zeros(nq), v=np.zeros(nv), q_chart=np.zeros(nq), p=np.zeros(3 * n), tau=np.zeros(nv),
                      f=np.zeros((n, 3)), A0=np.zeros(6), a=np.zeros(nv), qdd=np.zeros((n, 3)), B=np.zeros((4, 6)),
                      info=np.zeros(4, dtype=np.int64), buf=np.zeros(_layout(n, nv)[-1, 0]), scratch=np.zeros(SCRATCH),
                      R_WB=np.zeros((3, 3)), W=np.zeros((2, n + 2, 6)),
                      Jenv=np.zeros((2, nv, nv)), Denv=np.zeros((3, n, 3)), Eenv=np.zeros((3, 6)),
-                     prm_t=np.zeros((k, PARAMS)), vel=np.zeros((k, 3)))
+                     prm_t=np.zeros((k, PARAMS)), vel=np.zeros((k, 3)), roots=np.zeros((n if selfc else 0, ROOT + 12)),
+                     nodes=np.zeros((2, K, NODE_T)))
 
 
 @inline
@@ -450,10 +458,10 @@ def _environment(m, wk, t, q_c, v_c, f):
     F_env = W[n + 1]
     for r in range(6):
         F_env[r] = 0.0
-    if env.kind.shape[0] > 0:
+    if env.kind.shape[0] > 0 or env.law[7] > 0.0:
         move(env.kind, env.prm, env.motion, t, wk.prm_t, wk.vel)
         contact_forces(m.arrays, env.kind, wk.prm_t, wk.vel, env.law, env.calpha, q_c, v_c, wk.R_WB, wk.B[3, :3], wk.B[0],
-                       f, F_env, W[: n + 1], W[:0], wk.scratch)
+                       f, F_env, W[: n + 1], wk.roots, wk.nodes, W[:0], wk.scratch)
     if env.seg.shape[0] > 0:
         load_forces(env.seg, env.alpha, env.wrench, env.local, q_c, wk.R_WB, wk.B[3, :3], f, F_env, W[: n + 1],
                     wk.scratch)
@@ -473,7 +481,7 @@ def _environment_jacobian(m, wk, t, q_c, v_c, Minv, da_dq, da_dv):
     move(env.kind, env.prm, env.motion, t, wk.prm_t, wk.vel)
     environment_derivatives(m.arrays, env.kind, wk.prm_t, wk.vel, env.law, env.calpha, env.seg, env.alpha, env.wrench,
                             env.local, m.base == FLOATING, q_c, v_c, wk.R_WB, wk.B[3, :3], wk.B[0], Jq, Jv,
-                            wk.W[0, : n + 1], wk.W[1, : n + 1], wk.Denv, wk.Eenv, wk.scratch)
+                            wk.W[0, : n + 1], wk.W[1, : n + 1], wk.Denv, wk.Eenv, wk.roots, wk.nodes, wk.scratch)
     for r in range(nv):
         for c in range(nv):
             aq = 0.0
@@ -592,7 +600,7 @@ def jacobian(m, wk, t, y, Jq, Jv):
         wk.info[0] = SINGULAR if status < 3 else NONFINITE
         return wk.info[0]
     da_dq, da_dv = wa.da_dq, wa.da_dv
-    if m.env.kind.shape[0] > 0 or m.env.seg.shape[0] > 0:
+    if m.env.kind.shape[0] > 0 or m.env.seg.shape[0] > 0 or m.env.law[7] > 0.0:
         _environment_jacobian(m, wk, t, q_c, v_c, wa.da_dtau, da_dq, da_dv)
     for r in range(nA):
         for c in range(nA):
