@@ -1,23 +1,8 @@
 """The bounded reading layer: what reading one recording may cost, and the pieces that keep to it.
 
-A recording may come from anywhere, so everything that reads one (:func:`read_recording`,
-``qchain replay``, ``recover``, ``layout``, a killed run's journal) goes through here:
-
-* :func:`open_source` opens a path only if it is a regular file (a FIFO, a device or a
-  folder is refused before anything waits on it) and reads exactly the size it had, or
-  reads a binary stream up to :attr:`ReadLimits.max_stream_bytes`; anything else is a
-  ``TypeError`` naming the argument.
-* :class:`ReadBudget` counts the bytes a reading processes (decompressed chunk data, records
-  parsed, bytes examined while resynchronising after damage) and the records inside chunks,
-  against limits proportional to the file's size: a file cannot make its reader do much
-  more than read it. :func:`decompress` never produces more than the budget allows, whatever
-  sizes the file declares.
-* :func:`loads` parses JSON with orjson (no infinities, no NaN, no lone surrogates) and
-  refuses values nested deeper than :attr:`ReadLimits.max_depth`.
-
-A limit exceeded raises :class:`LimitExceeded`, a :class:`RecordingFormatError` that says
-the offset, the limit and how to raise it; the reader adds the file's name.
-"""
+Everything that reads a recording goes through here (docs/recording.md, "Files from anywhere").
+A limit exceeded raises :class:`LimitExceeded`, a :class:`RecordingFormatError` that says the
+offset, the limit and how to raise it; the reader adds the file's name."""
 
 from __future__ import annotations
 

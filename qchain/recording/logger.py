@@ -1,11 +1,6 @@
-""":class:`RunLogger`: the simulation's side of the recording service.
-
-The simulating process packs records into float64 rows (:class:`RecordLayout`) and
-appends them, a batch at a time, to the run's journal (:mod:`.journal`): one write, on
-disk when it returns, whatever happens to the processes afterwards. The writer process
-(:mod:`.writer`) reads the journal and writes the recording and the Rerun view; the
-simulating process never waits for it except in :meth:`RunLogger.flush` and at the end.
-"""
+""":class:`RunLogger`: the simulation's side of the recording service (docs/recording.md, "How it
+is built": it appends rows to the journal and never waits for the writer but in ``flush`` and
+at the end)."""
 
 from __future__ import annotations
 

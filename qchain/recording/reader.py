@@ -1,21 +1,9 @@
 """Reading a recording back: every intact chunk, what is missing said, a killed run's journal.
 
-:func:`read_recording` scans the file with :func:`qchain.recording.scan.scan`: a damaged
-chunk loses only its own steps, the reader goes on with the chunks after it, and
-:attr:`Recording.gaps` says which time range is missing. The ``qchain`` metadata must
-match its CRC32 seal (its second copy is used when the first is damaged); a damaged
-metadata record is reported, never used. If the run that wrote the file was killed, its
-journal (``run.mcap.journal``) still holds the records the file lacks: they are read too
-(:attr:`Recording.recovered`). Reading parses JSON only: nothing in a file is executed.
-
-A file may come from anywhere: reading it is bounded in time and memory by
-:class:`~qchain.recording.bounded.ReadLimits` (in proportion to its size), a FIFO or a
-device is refused before anything waits on it, and every value handed on is checked (times
-finite and representable, steps whole, shapes consistent, at most ``max_segments``
-segments). Anything wrong is a :class:`RecordingFormatError` naming the file and the byte
-(the chunk) where it is; non-finite values the file holds (``null``) are read as NaN and
-said in :attr:`Recording.nonfinite`.
-"""
+See docs/recording.md, "Damage" and "Files from anywhere": a damaged chunk loses only its
+own steps (:attr:`Recording.gaps`), sealed metadata is checked, a journal's records are read
+too (:attr:`Recording.recovered`), and reading is bounded by :class:`ReadLimits`. Reading
+parses JSON only: nothing in a file is executed."""
 
 from __future__ import annotations
 
