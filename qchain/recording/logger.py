@@ -118,14 +118,10 @@ class RunLogger:
 
     Notes
     -----
-    Use it as a context manager. Leaving the block normally records success; an exception
-    (KeyboardInterrupt included) records a failure with the exception's text, and the file
-    is finished in every case. Call :meth:`set_outcome` before leaving to record a
-    simulation's own status and message. Call ``log()`` from one thread.
-
-    Killing every process of a run loses at most ``flush_interval`` of simulation time (or
-    50 ms of wall time) of records: the journal holds the rest, and
-    :func:`qchain.logging.read_recording` reads it.
+    Use it as a context manager: leaving the block records success, an exception a failure
+    with its text, and the file is finished in every case (:meth:`set_outcome` records a
+    simulation's own status first). Call ``log()`` from one thread. What a killed run loses:
+    docs/recording.md, "How it is built".
     """
 
     def __init__(self, info: RunInfo, mcap: str | os.PathLike | BinaryIO | None = None, *, serve: bool = False,
