@@ -659,15 +659,10 @@ def _disorder(b: Batch) -> str:
 
 
 def read_mcap(path: str | os.PathLike | BinaryIO, *, limits: ReadLimits | None = None) -> Trajectory:
-    """Read a qchain MCAP recording as a :class:`~qchain.sim.trajectory.Trajectory`.
-
-    A truncated recording (a killed run) reads up to its last complete chunk and on from
-    its journal if the run left one; the trajectory then has ``success=False``, a message
-    saying where it stopped, and ``meta["truncated"] = True``, ``meta["stopped_at"]`` (s).
-    A damaged chunk loses only its own records: ``meta["gaps"]`` says which. ``meta`` also
-    holds the step numbers, backbone points (N, n, P, 3), tip frames (N, n, 7), base frames
-    (N, 7), logged total energy, scene text, model parameters and qchain version; non-finite
-    values the file holds are said in the message and ``meta["nonfinite"]``.
+    """Read a qchain MCAP recording as a :class:`~qchain.sim.trajectory.Trajectory`:
+    ``read_recording(path, limits=limits).to_trajectory()`` (truncation, gaps and non-finite
+    values said in its message and ``meta``; backbone (N, n, P, 3) m, tip frames (N, n, 7), base
+    (N, 7) in ``meta``).
 
     Raises
     ------
