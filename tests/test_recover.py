@@ -434,3 +434,9 @@ def test_a_journal_with_a_bad_layout_is_reported_not_a_crash(tmp_path):
     path.write_bytes(b"")
     journal_path(path).write_bytes(b"not a journal at all")
     refused_recording(path, "no recording file, and its journal")
+
+
+def test_recover_refuses_arguments_of_the_wrong_type(tmp_path):
+    for bad in (None, 123, 1.5, [str(tmp_path)]):
+        with pytest.raises(TypeError, match="recover: path must be a path"):
+            recover(bad)

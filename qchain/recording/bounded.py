@@ -1,23 +1,8 @@
 """The bounded reading layer: what reading one recording may cost, and the pieces that keep to it.
 
-A recording may come from anywhere, so everything that reads one (:func:`read_recording`,
-``qchain replay``, ``recover``, ``layout``, a killed run's journal) goes through here:
-
-* :func:`open_source` opens a path only if it is a regular file (a FIFO, a device or a
-  folder is refused before anything waits on it) and reads exactly the size it had, or
-  reads a binary stream up to :attr:`ReadLimits.max_stream_bytes`; anything else is a
-  ``TypeError`` naming the argument.
-* :class:`ReadBudget` counts the bytes a reading processes (decompressed chunk data, records
-  parsed, bytes examined while resynchronising after damage) and the records inside chunks,
-  against limits proportional to the file's size: a file cannot make its reader do much
-  more than read it. :func:`decompress` never produces more than the budget allows, whatever
-  sizes the file declares.
-* :func:`loads` parses JSON with orjson (no infinities, no NaN, no lone surrogates) and
-  refuses values nested deeper than :attr:`ReadLimits.max_depth`.
-
-A limit exceeded raises :class:`LimitExceeded`, a :class:`RecordingFormatError` that says
-the offset, the limit and how to raise it; the reader adds the file's name.
-"""
+Everything that reads a recording goes through here (docs/recording.md, "Files from anywhere").
+A limit exceeded raises :class:`LimitExceeded`, a :class:`RecordingFormatError` that says the
+offset, the limit and how to raise it; the reader adds the file's name."""
 
 from __future__ import annotations
 
@@ -38,34 +23,14 @@ __all__ = ["ReadLimits", "DEFAULT_LIMITS", "ReadBudget", "LimitExceeded", "open_
 
 @dataclass(frozen=True)
 class ReadLimits:
-    """What reading one recording may cost. Every limit exceeded is a
+    """What reading one recording may cost; every limit exceeded is a
     :class:`~qchain.logging.RecordingFormatError` naming the file, the offset and the limit.
 
-    Parameters
-    ----------
-    expansion : float
-        Bytes a reading may process (chunk data decompressed, records parsed, bytes examined
-        while searching past damage), as a multiple of the file's size ...
-    slack_bytes : int
-        ... plus this many (small files). qchain's recordings need about 3 x their size (40 x
-        for an arm at rest, whose records differ only in time); a zstd bomb (32 KiB that
-        decompress to 1 GiB) needs 32768 x.
-    records_per_byte : float
-        Records inside chunks a reading may parse, per byte of the file ...
-    slack_records : int
-        ... plus this many. Every message of a qchain recording costs the file at least 16
-        bytes (its message index entry); 0.25 a byte leaves a margin of 4.
-    max_segments : int
-        Segments a recording may declare (a run's default budget allows 1000).
-    max_depth : int
-        Nesting of JSON values (the metadata's run information and parameters).
-    max_stream_bytes : int
-        Bytes read from a binary stream.
-    max_file_bytes : int
-        Size of a file a path may name (it is read into memory whole, to the size it has
-        when opened): a bigger one (a sparse file of 64 GiB, say) is refused before
-        anything is read.
-    """
+    Bytes processed may be ``expansion`` x the file's size + ``slack_bytes``, records inside chunks
+    ``records_per_byte`` x its size + ``slack_records``; ``max_segments`` bounds the segments
+    declared, ``max_depth`` JSON nesting, ``max_stream_bytes`` a stream, ``max_file_bytes`` a file
+    (refused from its size, before it is read). Defaults and why: docs/recording.md, "Files from
+    anywhere"."""
 
     expansion: float = 256.0
     slack_bytes: int = 64 << 20

@@ -1,13 +1,5 @@
-"""The Foxglove layout qchain ships, built with ``foxglove-sdk``'s layout types.
-
-:func:`foxglove_layout` makes the layout of a run: the 3D arm (``/qchain/arm`` line
-strips, the frame tree of ``/qchain/tf``, the camera following the base frame) beside
-plots of the chamber pressures, the coordinates (one plot a segment, each series named
-with its unit, ``segment 2 ux [1/m]``) and the energies, legends on top of the plots, not
-over the data, the whole run on the time axis. ``qchain layout RECORDING.mcap -o
-layout.json`` writes it for a recording; Foxglove imports it from its layout menu
-("Import from file").
-"""
+"""The Foxglove layout qchain ships, built with ``foxglove-sdk``'s layout types
+(docs/recording.md, "The viewers"); ``qchain layout RECORDING.mcap -o layout.json`` writes it."""
 
 from __future__ import annotations
 

@@ -1,18 +1,9 @@
-"""The journal: the simulating process's own copy of every record, on disk at once.
-
-A recording ``run.mcap`` is written by a writer process, which may be slow to start or
-starved of CPU time on a busy machine. So the simulating process does not hand records to
-it directly: it appends each batch of records to ``run.mcap.journal``, an MCAP file of
-its own (the mcap library's ``Writer``, no compression, one chunk a batch), with a single
-write the operating system keeps whatever happens to the processes. The writer reads the
-journal as it grows and writes the recording; once the recording is finished the journal
-is removed. If every process of the run is killed, the journal stays, and
-:func:`qchain.logging.read_recording` reads the records the recording lacks from it
-(``qchain recover`` makes the recording whole again).
+"""The journal ``run.mcap.journal``: the simulating process's own copy of every record, on disk at
+once (an MCAP file of the mcap library's ``Writer``, one chunk a batch, one write each; see
+docs/recording.md, "How it is built").
 
 The simulating process holds an exclusive ``flock`` on the journal while the run lasts:
-another run on the same path is refused, and a journal nobody holds is a killed run's.
-"""
+another run on the same path is refused, and a journal nobody holds is a killed run's."""
 
 from __future__ import annotations
 

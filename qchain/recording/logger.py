@@ -1,11 +1,6 @@
-""":class:`RunLogger`: the simulation's side of the recording service.
-
-The simulating process packs records into float64 rows (:class:`RecordLayout`) and
-appends them, a batch at a time, to the run's journal (:mod:`.journal`): one write, on
-disk when it returns, whatever happens to the processes afterwards. The writer process
-(:mod:`.writer`) reads the journal and writes the recording and the Rerun view; the
-simulating process never waits for it except in :meth:`RunLogger.flush` and at the end.
-"""
+""":class:`RunLogger`: the simulation's side of the recording service (docs/recording.md, "How it
+is built": it appends rows to the journal and never waits for the writer but in ``flush`` and
+at the end)."""
 
 from __future__ import annotations
 
@@ -123,14 +118,10 @@ class RunLogger:
 
     Notes
     -----
-    Use it as a context manager. Leaving the block normally records success; an exception
-    (KeyboardInterrupt included) records a failure with the exception's text, and the file
-    is finished in every case. Call :meth:`set_outcome` before leaving to record a
-    simulation's own status and message. Call ``log()`` from one thread.
-
-    Killing every process of a run loses at most ``flush_interval`` of simulation time (or
-    50 ms of wall time) of records: the journal holds the rest, and
-    :func:`qchain.logging.read_recording` reads it.
+    Use it as a context manager: leaving the block records success, an exception a failure
+    with its text, and the file is finished in every case (:meth:`set_outcome` records a
+    simulation's own status first). Call ``log()`` from one thread. What a killed run loses:
+    docs/recording.md, "How it is built".
     """
 
     def __init__(self, info: RunInfo, mcap: str | os.PathLike | BinaryIO | None = None, *, serve: bool = False,

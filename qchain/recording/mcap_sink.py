@@ -1,31 +1,8 @@
 """The recording: an MCAP file written with the mcap library's ``Writer``.
 
-Channels (``log_time`` = ``publish_time`` = simulation time in ns, ``sequence`` = step
-modulo 2**32):
-
-======================================  =============================  ===========================
-topic                                   schema (encoding)              what
-======================================  =============================  ===========================
-``/qchain/state``                       ``qchain.State`` (JSON)        every field of a step
-                                                                       record, bit for bit
-``/qchain/tf``                          ``foxglove.FrameTransforms``   world -> base ->
-                                        (protobuf)                     segment_1_tip -> ...
-``/qchain/arm``                         ``foxglove.SceneUpdate``       one line strip a segment,
-                                        (protobuf)                     thickness = its diameter
-``/qchain/backbone_points``             ``foxglove.PointCloud``        the backbone points (what
-                                        (protobuf)                     Rerun's importer draws)
-======================================  =============================  ===========================
-
-The Foxglove messages are built and encoded by ``foxglove-sdk`` with its official schemas.
-``/qchain/state`` is JSON with numbers in their shortest round-trip form (``null`` for a
-non-finite one), so a recording reads back bit for bit and Foxglove plots any field.
-
-Chunks (zstd) are closed at step boundaries every ``flush_interval`` of simulation time
-and ``flush_wall_interval`` of wall time, so a damaged chunk loses whole steps only. The
-``qchain`` metadata record (scene, parameters, version, radii, layout) is sealed with a
-CRC32 and written twice, at the start and before the end; ``qchain.outcome`` says how the
-run ended.
-"""
+Its channels, chunks and metadata are described in docs/recording.md, "The file": the Foxglove
+messages are built by ``foxglove-sdk``, ``/qchain/state`` is JSON in shortest round-trip form
+(``null`` for a non-finite number), chunks close at step boundaries."""
 
 from __future__ import annotations
 

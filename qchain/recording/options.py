@@ -100,17 +100,9 @@ def refuse_recording(out: str | os.PathLike, recording: str | os.PathLike, what:
 
 def check_outputs(mcap: str | os.PathLike | None, rrd: str | os.PathLike | None = None,
                   scene_path: str | os.PathLike | None = None, min_free: int = MIN_FREE_BYTES) -> list[str]:
-    """Check the output paths of a run before it starts; create their folders.
-
-    Refused with :class:`~qchain.logging.LoggingError` naming the path and why: a path
-    the system or the recording cannot take (:func:`check_output_name`: a NUL character, a
-    name that is not UTF-8, a file name that with the journal's ``.journal`` suffix is
-    longer than the file system takes); a folder; the scene file itself; the same path for
-    the MCAP and the ``.rrd``; a folder that cannot be created or written, or has less
-    than ``min_free`` bytes free; a recording another run is writing (its journal is
-    locked); a killed run's journal not recovered yet; an existing file that is not an
-    MCAP recording. Returns notices (an earlier recording that will be replaced).
-    """
+    """Check the output paths of a run before it starts and create their folders; returns notices
+    (an earlier recording that will be replaced). Refusals are :class:`~qchain.logging.LoggingError`
+    naming the path and why (the list: docs/recording.md, "Output paths are checked")."""
     notices: list[str] = []
     outs = [(name, check_output_name(name, p, JOURNAL_SUFFIX if name == "mcap" else ""))
             for name, p in (("mcap", mcap), ("rrd", rrd)) if p is not None]

@@ -1,21 +1,9 @@
 """Reading a recording back: every intact chunk, what is missing said, a killed run's journal.
 
-:func:`read_recording` scans the file with :func:`qchain.recording.scan.scan`: a damaged
-chunk loses only its own steps, the reader goes on with the chunks after it, and
-:attr:`Recording.gaps` says which time range is missing. The ``qchain`` metadata must
-match its CRC32 seal (its second copy is used when the first is damaged); a damaged
-metadata record is reported, never used. If the run that wrote the file was killed, its
-journal (``run.mcap.journal``) still holds the records the file lacks: they are read too
-(:attr:`Recording.recovered`). Reading parses JSON only: nothing in a file is executed.
-
-A file may come from anywhere: reading it is bounded in time and memory by
-:class:`~qchain.recording.bounded.ReadLimits` (in proportion to its size), a FIFO or a
-device is refused before anything waits on it, and every value handed on is checked (times
-finite and representable, steps whole, shapes consistent, at most ``max_segments``
-segments). Anything wrong is a :class:`RecordingFormatError` naming the file and the byte
-(the chunk) where it is; non-finite values the file holds (``null``) are read as NaN and
-said in :attr:`Recording.nonfinite`.
-"""
+See docs/recording.md, "Damage" and "Files from anywhere": a damaged chunk loses only its
+own steps (:attr:`Recording.gaps`), sealed metadata is checked, a journal's records are read
+too (:attr:`Recording.recovered`), and reading is bounded by :class:`ReadLimits`. Reading
+parses JSON only: nothing in a file is executed."""
 
 from __future__ import annotations
 
@@ -82,22 +70,14 @@ class Gap:
 
 
 @dataclass
-class Recording:
-    """Everything a qchain MCAP holds (the reading side of :class:`RunLogger`).
+class Recording(Batch):
+    """Everything a qchain MCAP holds (the reading side of :class:`RunLogger`): its records, a
+    :class:`Batch`, and
 
     Attributes
     ----------
     path : str
     info : RunInfo
-    t : (N,) s
-    step : (N,) int
-    q, v, p : (N, nq), (N, nv), (N, 3 n)
-    energy : (N, 3) J
-        (kinetic, potential, total).
-    base : (N, 7)
-        World placement of the base (x, y, z, qx, qy, qz, qw).
-    backbone : (N, n, P, 3) m
-    tip_frames : (N, n, 7)
     outcome : dict or None
         The ``qchain.outcome`` metadata (None when the run never closed its log).
     truncated : bool
@@ -126,15 +106,6 @@ class Recording:
 
     path: str
     info: RunInfo
-    t: np.ndarray
-    step: np.ndarray
-    q: np.ndarray
-    v: np.ndarray
-    p: np.ndarray
-    energy: np.ndarray
-    base: np.ndarray
-    backbone: np.ndarray
-    tip_frames: np.ndarray
     outcome: dict | None
     truncated: bool
     stop_reason: str
@@ -145,9 +116,6 @@ class Recording:
     nonfinite: list = field(default_factory=list)
     journal_unread: str = ""
     disorder: str = ""
-
-    def __len__(self) -> int:
-        return int(self.t.shape[0])
 
     def batch(self) -> Batch:
         return Batch(*(getattr(self, f) for f in Batch.__dataclass_fields__))
@@ -360,38 +328,11 @@ def read_recording(source: str | os.PathLike | BinaryIO, journal: bool = True, *
 
 @dataclass
 class _Found:
-    """What reading a recording found, step by step (:func:`_scan_file`, :func:`_read_journal`,
-    :func:`_run_info`), for :func:`_read` to assemble.
+    """What reading found (:func:`_scan_file`, :func:`_read_journal`, :func:`_run_info`), for :func:`_read`.
 
-    Attributes
-    ----------
-    damage : list of str
-        Everything found damaged, in the order found.
-    meta, meta_offset : dict or None, int or None
-        The first intact ``qchain`` metadata record and its byte (the journal's: no byte).
-    outcome : dict or None
-        The last usable ``qchain.outcome`` metadata record (else the journal's).
-    complete : bool
-        The footer was read.
-    stop_reason : str
-        Why the file ends early.
-    state_channels, other_channels : set of int
-        Ids of the channels of the state topic, and of the other topics.
-    declared : dict of int to str
-        Channel id -> the topic of its first declaration.
-    redeclared : set of int
-        Channels declared again as another topic (said once each).
-    chunk_times : list of (int, int), ns
-        (message start, end time) of every chunk read.
-    stream : list of tuple
-        In file order: ("m", channel id, message data, chunk offset) and ("d", damage
-        item); messages are kept until the end when their channel's record was lost (a
-        damaged first chunk): the sealed metadata names the channel ids too.
-    journal_rows, journal_layout : (K, width) ndarray or None, RecordLayout or None
-        The rows of a killed run's journal to merge, and their layout.
-    journal_unread : str
-        Why the journal, or some of its records, was not read or merged ("" when it was).
-    """
+    ``stream`` holds, in file order, ("m", channel id, data, chunk offset) and ("d", damage item):
+    messages wait until the end in case their channel's record was lost (the sealed metadata names
+    the channel ids too); ``chunk_times`` are (start, end) ns of every chunk read."""
 
     damage: list = field(default_factory=list)
     meta: dict | None = None
@@ -411,30 +352,8 @@ class _Found:
 
 
 def _read(name: str, buf: bytearray, jpath, limits: ReadLimits) -> Recording:
-    """Read a recording's bytes, and its journal, as a :class:`Recording` (the work of
-    :func:`read_recording`): open it within ``limits``, scan its records, assemble the
-    arrays, say the damage and the gaps.
-
-    Parameters
-    ----------
-    name : str
-        The file, as messages name it.
-    buf : bytearray
-        Its bytes (empty: the writer never started, the journal holds it all).
-    jpath : path or None
-        Its journal, to read too (None: there is none, or it is not asked for).
-    limits : ReadLimits
-
-    Returns
-    -------
-    Recording
-
-    Raises
-    ------
-    RecordingFormatError
-    LimitExceeded
-        Reading would cost more than ``limits`` allow (the caller names the file).
-    """
+    """The work of :func:`read_recording` (``buf`` empty: the journal holds it all); raises
+    :class:`LimitExceeded` for the caller to name the file."""
     if len(buf) == 0 and jpath is None:
         raise RecordingFormatError(f"{name}: the file is empty, not a qchain MCAP recording")
     head = bytes(buf[: len(MAGIC)])
@@ -463,20 +382,7 @@ def _read(name: str, buf: bytearray, jpath, limits: ReadLimits) -> Recording:
 
 
 def _scan_file(buf: bytearray, budget: ReadBudget) -> _Found:
-    """Scan the file's records (:func:`qchain.recording.scan.scan`): channels, messages,
-    ``qchain`` and ``qchain.outcome`` metadata (their seals checked), damage, where it ends.
-
-    Parameters
-    ----------
-    buf : bytearray
-        The file's bytes.
-    budget : ReadBudget
-        What the scan may still cost.
-
-    Returns
-    -------
-    _Found
-    """
+    """Scan the file's records (:func:`qchain.recording.scan.scan`) into a new :class:`_Found`."""
     found = _Found()
     damage = found.damage
     for item in scan(buf, budget=budget) if len(buf) >= len(MAGIC) else ():
@@ -528,24 +434,7 @@ def _scan_file(buf: bytearray, budget: ReadBudget) -> _Found:
 
 
 def _read_journal(found: _Found, name: str, jpath, limits: ReadLimits) -> None:
-    """Read a killed run's journal into ``found`` (its rows; the metadata and the outcome
-    the file lacks; its damage); a live run's, still being written, is not read.
-
-    Parameters
-    ----------
-    found : _Found
-        What the file holds (:func:`_scan_file`), completed in place.
-    name : str
-        The file, as messages name it.
-    jpath : path or None
-        The journal (None: none).
-    limits : ReadLimits
-
-    Raises
-    ------
-    RecordingFormatError
-        Reading the journal would exceed ``limits``.
-    """
+    """Read a killed run's journal into ``found`` (a live run's is not read)."""
     if jpath is None or journal_owner(jpath) is not None:
         return
     try:
@@ -585,26 +474,7 @@ def _read_journal(found: _Found, name: str, jpath, limits: ReadLimits) -> None:
 
 def _run_info(found: _Found, name: str, jpath, size: int, limits: ReadLimits) -> RunInfo:
     """The run's :class:`RunInfo` from the ``qchain`` metadata found, its format and version
-    checked; the state channels it names are added to ``found``.
-
-    Parameters
-    ----------
-    found : _Found
-        The file's and the journal's records (:func:`_read_journal`).
-    name : str
-        The file, as messages name it.
-    jpath : path or None
-        Its journal.
-    size : int
-        The file's size (bytes; 0: only the journal holds the run).
-    limits : ReadLimits
-
-    Raises
-    ------
-    RecordingFormatError
-        No intact qchain metadata (saying why: damaged, cut before it, another program's
-        file), another format version, run information that is not of the expected form.
-    """
+    checked; the state channels it names are added to ``found``."""
     meta, damage = found.meta, found.damage
     if meta is None and size == 0:
         raise RecordingFormatError(f"{name}: no recording file, and its journal {jpath} holds no qchain recording ("
@@ -644,28 +514,8 @@ def _run_info(found: _Found, name: str, jpath, size: int, limits: ReadLimits) ->
 
 
 def _assemble(found: _Found, info: RunInfo, name: str, buf: bytearray, budget: ReadBudget):
-    """The file's state messages as checked arrays, and the gaps its damage leaves.
-
-    Parameters
-    ----------
-    found : _Found
-        What was read (:func:`_run_info`); its ``stream`` is emptied, messages on channels
-        no record declares are said as damage.
-    info : RunInfo
-    name : str
-        The file, as messages name it.
-    buf : bytearray
-        The file's bytes (for its summary, if it is complete).
-    budget : ReadBudget
-
-    Returns
-    -------
-    b : Batch
-        The file's records, in file order.
-    gaps : list of Gap
-    index, stats : list of ChunkIndex or None, Statistics or None
-        The summary's chunk index and statistics (None: the file is not complete).
-    """
+    """The file's state messages as a :class:`Batch`, its gaps, and the summary's chunk index
+    and statistics (None, None: the file is not complete); empties ``found.stream``."""
     msgs: list[tuple[int, bytes]] = []
     events: list[tuple[int, object]] = []  # (position in msgs, damage item)
     undeclared: dict[int, int] = {}  # channel id -> messages on it, never declared
@@ -696,39 +546,8 @@ def _assemble(found: _Found, info: RunInfo, name: str, buf: bytearray, budget: R
 
 
 def _merge_journal(found: _Found, b: Batch, gaps: list, info: RunInfo, name: str, jpath, file_complete: bool):
-    """Merge the journal's rows the file lacks (after its last record, and inside its gaps)
-    into its records; rows that do not fit are said, and the journal kept, not merged.
-
-    Parameters
-    ----------
-    found : _Found
-        ``journal_rows`` to merge; ``journal_unread``, ``damage`` and ``stop_reason`` are
-        updated.
-    b : Batch
-        The file's records.
-    gaps : list of Gap
-        The file's gaps; those the journal fills are said as damage instead.
-    info : RunInfo
-    name : str
-        The file, as messages name it.
-    jpath : path or None
-        The journal.
-    file_complete : bool
-        The file has its footer, summary and outcome: nothing is appended after its last.
-
-    Returns
-    -------
-    b : Batch
-        The records, the journal's merged in step order.
-    gaps : list of Gap
-    recovered : int
-        Rows read from the journal.
-
-    Raises
-    ------
-    RecordingFormatError
-        The journal's rows do not fit, and the file holds no record and no footer.
-    """
+    """Merge the journal's rows the file lacks (after its last record, inside its gaps): returns
+    (batch, gaps, rows recovered); rows that do not fit are said in ``found`` and not merged."""
     rows, lay = found.journal_rows, found.journal_layout
     if rows is not None:
         why = _check_rows(rows, lay, info, str(jpath))
@@ -783,24 +602,7 @@ def _gap_before(b: Batch, k: int, offset: int, end: int, reason: str) -> Gap:
 
 
 def _unfilled(gaps: list, b: Batch, damage: list, jpath) -> list:
-    """The gaps the journal's records do not fill: a gap whose steps are all in ``b`` now
-    is said as damage instead (its entry in ``damage`` names the journal).
-
-    Parameters
-    ----------
-    gaps : list of Gap
-        The file's gaps.
-    b : Batch
-        The file's records and the journal's, merged.
-    damage : list of str
-        Holds each gap's reason; a filled gap's is rewritten in place.
-    jpath : path
-        The journal.
-
-    Returns
-    -------
-    list of Gap
-    """
+    """The gaps the merged records ``b`` do not fill; a filled gap's ``damage`` entry names ``jpath``."""
     have = set(b.step.tolist())
     kept = []
     for g in gaps:
@@ -857,15 +659,10 @@ def _disorder(b: Batch) -> str:
 
 
 def read_mcap(path: str | os.PathLike | BinaryIO, *, limits: ReadLimits | None = None) -> Trajectory:
-    """Read a qchain MCAP recording as a :class:`~qchain.sim.trajectory.Trajectory`.
-
-    A truncated recording (a killed run) reads up to its last complete chunk and on from
-    its journal if the run left one; the trajectory then has ``success=False``, a message
-    saying where it stopped, and ``meta["truncated"] = True``, ``meta["stopped_at"]`` (s).
-    A damaged chunk loses only its own records: ``meta["gaps"]`` says which. ``meta`` also
-    holds the step numbers, backbone points (N, n, P, 3), tip frames (N, n, 7), base frames
-    (N, 7), logged total energy, scene text, model parameters and qchain version; non-finite
-    values the file holds are said in the message and ``meta["nonfinite"]``.
+    """Read a qchain MCAP recording as a :class:`~qchain.sim.trajectory.Trajectory`:
+    ``read_recording(path, limits=limits).to_trajectory()`` (truncation, gaps and non-finite
+    values said in its message and ``meta``; backbone (N, n, P, 3) m, tip frames (N, n, 7), base
+    (N, 7) in ``meta``).
 
     Raises
     ------

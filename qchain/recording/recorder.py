@@ -1,14 +1,9 @@
 """Step records of a simulated chain, for :mod:`qchain.logging`, computed in batches.
 
-:class:`ChainRecorder` is the ``on_sample`` callback of :func:`qchain.sim.simulation` that turns
-each sample into a step record (time, q, v, p, energies, base frame, backbone points and
-segment-tip frames) for a :class:`qchain.logging.RunLogger`. A sample only costs a copy of
-the state: the frames of a batch of samples come from one compiled call
-(:meth:`qchain.Chain.frames_batch`) and the batch goes to the logger's journal in one
-:meth:`~qchain.logging.RunLogger.log_rows` call. A sample waits here at most the logger's
-``flush_interval`` of simulation time (0.25 s by default) and ``max_wall`` seconds of wall
-time (50 ms): that is what killing the run can lose.
-"""
+:class:`ChainRecorder` is the ``on_sample`` callback of :func:`qchain.sim.simulation`; a
+sample costs a copy of the state, a batch's frames one compiled call
+(:meth:`qchain.Chain.frames_batch`) and one :meth:`~qchain.logging.RunLogger.log_rows`
+(docs/recording.md, "Cost")."""
 
 from __future__ import annotations
 

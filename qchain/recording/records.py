@@ -464,7 +464,7 @@ class Batch:
 
     def take(self, index) -> Batch:
         """The records at ``index`` (a slice, or integer positions)."""
-        return Batch(*(getattr(self, f)[index] for f in self.__dataclass_fields__))
+        return Batch(*(getattr(self, f)[index] for f in Batch.__dataclass_fields__))
 
 
 def default_base(backbone: np.ndarray) -> np.ndarray:

@@ -1,15 +1,9 @@
 """Re-logging a recording into Rerun (``qchain replay``), making a killed run's recording
 whole (``qchain recover``) and writing its Foxglove layout (``qchain layout``).
 
-The recording is read within :class:`~qchain.recording.bounded.ReadLimits` (see
-:mod:`qchain.recording.reader`). Sending to a viewer at ``--connect URL`` is bounded in time
-too: the viewer must answer a connection (its HTTP/2 settings, or a TLS handshake) within
-``timeout`` seconds, and the sending runs in a child process of its own that must be done
-within a deadline: a peer that accepts and never answers, or stops taking data halfway, is
-reported with a warning, and the child is killed (it also dies with this process). The Rerun
-SDK's gRPC client waits for such a peer forever, even at interpreter exit, which is why the
-sending is not done in this process. Output paths (``--rrd``, ``-o``) are checked before
-anything is written, and never the recording itself."""
+Sending to a viewer at ``--connect URL`` runs in a child process of its own, killed past
+a deadline: the Rerun SDK's gRPC client waits forever for a peer that stops answering, even
+at interpreter exit (docs/recording.md, "Files from anywhere")."""
 
 from __future__ import annotations
 

@@ -1,20 +1,8 @@
 """The Rerun view of a run: live (a served web viewer, a viewer you run) or an ``.rrd`` file.
 
-A blueprint puts the 3D arm (backbone as tubes of the segments' radii, tip axes, chamber
-pressures as arrows on the tip plates, length and colour by pressure) beside time series
-of the pressures, coordinates, velocities and energies, every series named with its unit
-(``segment 2 ux [1/m]``). The camera is framed from the arm's reach about its base, along
-the base's own axis, so an arm hanging from its base is as centred as one standing on it.
-The plots show the whole run on their time axis (``RunInfo.duration`` when known) and no
-legend over the data (a series' name shows on hover). Per-step data go on the
-``sim_time`` (duration) and ``step`` (sequence) timelines in column batches
-(``send_columns``).
-
-``serve=True`` hosts ``rr.GrpcServerSink`` on ``bind`` (127.0.0.1 by default) and the
-web viewer of the ``rerun`` program shipped in the rerun-sdk wheel, behind a front on
-``bind`` that keeps the page from asking any other host for anything
-(:mod:`.web_viewer`), with Rerun's analytics turned off.
-"""
+What it shows is in docs/recording.md, "The viewers". Per-step data go on the ``sim_time``
+(duration) and ``step`` (sequence) timelines in column batches (``send_columns``); the served
+web viewer sits behind :mod:`.web_viewer`, with Rerun's analytics turned off."""
 
 from __future__ import annotations
 

@@ -1,22 +1,10 @@
 """MCAP records one by one, with resynchronisation after damage, within a reading budget.
 
-The mcap library's ``StreamReader`` stops at the first damaged record, so one flipped bit
-in a chunk would lose every intact chunk after it. :func:`scan` parses the records with
-the library's own record classes, and where a record is damaged (a chunk whose CRC or
-compression fails, a length that runs past the file, an unknown opcode) it reports the
-damage and searches forward for the next record it can trust: a chunk whose uncompressed
-data match its CRC, or a metadata record whose qchain seal matches. Every byte between is
-reported as damaged; nothing after it is lost.
-
-Given a :class:`~qchain.recording.bounded.ReadBudget`, a scan processes at most the bytes and
-records it allows (:class:`~qchain.recording.bounded.LimitExceeded` past them): a chunk is
-decompressed to at most what the budget has left whatever sizes it declares, the records
-inside are counted, and the search past damage costs the bytes it examines and is linear
-in the file's size (candidates are found by one regular expression, not a ``find`` a byte).
-
-:func:`scan` also reads a file that is still being written (``final=False``): it stops
-before a record that is not complete yet and says where to resume.
-"""
+The mcap library's ``StreamReader`` stops at the first damaged record; :func:`scan` parses
+the records with the library's own record classes and, past damage, searches for the next
+record it can trust (docs/recording.md, "Damage"), candidates found by one regular
+expression so that the search stays linear. With ``final=False`` it reads a file still being
+written, stopping before a record that is not complete yet."""
 
 from __future__ import annotations
 

@@ -1,16 +1,9 @@
 """The served Rerun web viewer, kept on this machine.
 
-The web viewer that the ``rerun`` program serves (``--serve-web``) asks other hosts for
-things: Google's fonts (its page links them), GitHub's API (the latest release), Rerun's
-telemetry and app hosts (from its WebAssembly code). None of that can be turned off by an
-option of rerun-sdk 0.41. So qchain puts a small HTTP front (the standard library's
-``http.server``, bound where the viewer is served) before it: it passes every request on
-to the ``rerun`` program's server on a loopback port, removes the font links from the page,
-puts a guard in the page that refuses ``fetch``, ``XMLHttpRequest``, ``WebSocket`` and
-``sendBeacon`` to any host but this one, and sends a Content-Security-Policy that lets the
-browser connect nowhere else either. The viewer works as before (its fonts are built into
-its code); the gRPC data server it reads is on 127.0.0.1 too.
-"""
+Rerun's web viewer asks other hosts for things and no option of rerun-sdk 0.41 turns that
+off, so a small ``http.server`` front passes requests on to the ``rerun`` program on a
+loopback port, drops the font links, guards ``fetch``, ``XMLHttpRequest``, ``WebSocket`` and
+``sendBeacon``, and sends a Content-Security-Policy (docs/recording.md, "The viewers")."""
 
 from __future__ import annotations
 

@@ -1,25 +1,11 @@
 """The writer: reads records and feeds the sinks (the recording, the Rerun view).
 
-For a file, the writer is a process of its own (``python -m qchain.recording.writer``:
-its own interpreter, so its work takes nothing from the simulating process's GIL and runs
-on another core). It reads the run's journal as it grows (every ``poll`` seconds), so the
-simulating process never waits for it and nothing is lost when it is slow or starved.
-Control messages (configuration, flush, end) go over a socket pair with
-:mod:`multiprocessing.connection`. If the simulating process dies, the writer sees the
-connection close, reads the journal to its end and finishes the recording, with an
-outcome saying so; then it removes the journal. For an in-memory stream the writer is a
-thread of the simulating process fed through a queue (no journal: a stream dies with the
-process anyway).
-
-A Rerun viewer at a URL (``connect``) is fed from a thread of its own
-(:class:`RemoteViewer`): the Rerun SDK holds a sender without end when its peer stops
-taking data (its queue full, its flush, its disconnect, its exit), so only that thread can
-be held; a viewer that takes nothing for ``viewer_timeout`` s is given up with one warning,
-and the recording and the ``.rrd`` file never wait for it. At the end the writer process
-says "finished" (the recording complete, the journal removed) before it waits for the
-viewer, then takes its leave of Rerun within :data:`TEARDOWN_LIMIT` s and ends with
-``os._exit``: no writer outlives its run by more than that.
-"""
+For a file it is a process of its own (``python -m qchain.recording.writer``) that reads the
+journal as it grows, controlled over a socket pair with :mod:`multiprocessing.connection`;
+for an in-memory stream, a thread fed through a queue. A viewer at ``connect`` is fed from a
+thread of its own (:class:`RemoteViewer`), since the Rerun SDK can hold a sender without end:
+see docs/recording.md, "How it is built". The process ends with ``os._exit`` within
+:data:`TEARDOWN_LIMIT` s of its leave of Rerun."""
 
 from __future__ import annotations
 
