@@ -8,7 +8,7 @@ pressed onto the ground against a Kirchhoff rod on the law's continuous foundati
 solve_bvp).
 
 Every run uses the compiled ``dopri5`` with a contact stiffness soft enough (1e5 or 1e6
-N/m^2.5 per metre of tube) that the contact's time scale is ~1-10 ms: explicit steps of
+N/m^2.5: a metre of tube takes k d^1.5) that the contact's time scale is ~1-10 ms: explicit steps of
 ~0.1 ms resolve it, so a run of a fraction of a second costs thousands of steps, not millions.
 The figures quoted in the comments were measured on 2026-12-04 (docs/accuracy.md).
 """
