@@ -7,9 +7,10 @@ the ball-chain discretisation's ripple over a thin pole against plane geometry, 
 pressed onto the ground against a Kirchhoff rod on the law's continuous foundation (scipy's
 solve_bvp).
 
-Every run uses the compiled ``dopri5`` with a contact stiffness soft enough (1e5 or 1e6
-N/m^2.5: a metre of tube takes k d^1.5) that the contact's time scale is ~1-10 ms: explicit steps of
-~0.1 ms resolve it, so a run of a fraction of a second costs thousands of steps, not millions.
+Every run but the cantilever's (scipy's BDF: its segments' damping is stiff) uses the compiled
+``dopri5`` with a contact stiffness soft enough (1e5 or 1e6 N/m^2.5: a metre of tube takes
+``k d^1.5``) that the contact's time scale is ~1-10 ms: explicit steps of ~0.1 ms resolve it,
+so a run of a fraction of a second costs thousands of steps, not millions.
 The figures quoted in the comments were measured on 2026-12-04 (docs/accuracy.md).
 """
 
@@ -318,7 +319,7 @@ def _rod_on_foundation():
         return CANT_K * np.maximum(0.0, zg + CANT_R - z) ** CANT_EXP
 
     def f(s, y):
-        th, kap, x, z, V = y
+        th, kap, _, z, V = y
         return np.vstack([kap, V * np.cos(th) / EI, np.cos(th), np.sin(th), -(w - pressure(z))])
 
     def bc(ya, yb):
