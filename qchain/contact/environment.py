@@ -59,8 +59,8 @@ class ContactLaw:
         Coulomb's coefficients (``mu_static >= mu_dynamic``).
     slip_velocity : float, m/s (``eps``)
         The regularisation: friction grows smoothly from 0 to its full value over about
-        this sliding speed (a resting arm creeps at about ``eps`` times the ratio of the
-        tangential load to the friction limit).
+        this sliding speed (a resting arm slides at ``eps rho / sqrt(1 - rho^2)``, ``rho``
+        the ratio of the tangential load to the friction limit).
     stribeck_velocity : float, m/s (``v_s``)
         The sliding speed over which ``mu_static`` falls to ``mu_dynamic``.
     """
