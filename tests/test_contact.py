@@ -198,8 +198,8 @@ def test_forward_and_inverse_dynamics_take_the_environment():
     np.testing.assert_allclose(lhs, ch.internal_forces(q, v, p), rtol=0, atol=1e-9 * np.abs(lhs).max())
 
 
-@pytest.mark.parametrize("base", ["fixed", "floating"])
-def test_the_engine_runs_contact_as_scipy_does(base):
+def _falling_onto_the_ground(base):
+    """Two segments held out sideways 5 cm above the ground, a tip load pressing down."""
     X = pin.SE3(pin.rpy.rpyToMatrix(np.pi / 2, 0, 0), np.array([0, 0, 0.05]))
     ch = Chain([Segment(**SEGMENT) for _ in range(2)], base=base, **({"base_placement": X} if base == "fixed" else {}))
     q0 = ch.neutral()
@@ -207,6 +207,12 @@ def test_the_engine_runs_contact_as_scipy_does(base):
         q0[:7] = pin.SE3ToXYZQUAT(X)
     env = Environment([HalfSpace()], ContactLaw(stiffness=1e5, damping=2.0, mu_static=0.5, mu_dynamic=0.4),
                       loads=[PointLoad(1, 1.0, force=[0.0, 0.0, -0.05])])
+    return ch, q0, env
+
+
+@pytest.mark.parametrize("base", ["fixed", "floating"])
+def test_the_engine_runs_contact_as_scipy_does(base):
+    ch, q0, env = _falling_onto_the_ground(base)
     kw = dict(env=env, rtol=1e-8, atol=1e-10, t_eval=np.linspace(0, 0.1, 3))
     a = qchain.simulate(ch, q0, np.zeros(ch.nv), (0, 0.1), method="dopri5", **kw)
     b = qchain.simulate(ch, q0, np.zeros(ch.nv), (0, 0.1), method="RK45", **kw)
@@ -324,13 +330,7 @@ def test_environment_derivatives_refuse_paper_coordinates():
 
 @pytest.mark.parametrize("base", ["fixed", "floating"])
 def test_implicit_methods_run_contact_with_its_exact_jacobian(base):
-    X = pin.SE3(pin.rpy.rpyToMatrix(np.pi / 2, 0, 0), np.array([0, 0, 0.05]))
-    ch = Chain([Segment(**SEGMENT) for _ in range(2)], base=base, **({"base_placement": X} if base == "fixed" else {}))
-    q0 = ch.neutral()
-    if base == "floating":
-        q0[:7] = pin.SE3ToXYZQUAT(X)
-    env = Environment([HalfSpace()], ContactLaw(stiffness=1e5, damping=2.0, mu_static=0.5, mu_dynamic=0.4),
-                      loads=[PointLoad(1, 1.0, force=[0.0, 0.0, -0.05])])
+    ch, q0, env = _falling_onto_the_ground(base)
     ref = qchain.simulate(ch, q0, np.zeros(ch.nv), (0, 0.1), method="dopri5", env=env, rtol=1e-9, atol=1e-11,
                           t_eval=[0.1])
     r5 = qchain.simulate(ch, q0, np.zeros(ch.nv), (0, 0.1), method="radau5", env=env, rtol=1e-7, atol=1e-9,

@@ -30,7 +30,7 @@ from ..algorithms.arrays import ChainArrays
 from ..model.arc import arc_node, arc_node_derivatives, arc_pose, jit, take1, take2, take3
 from ..model.slices import phi_transpose_force, slice_twist, sub_motion_cross
 from .distance import BOX, CAPSULE, CYLINDER, HALFSPACE, SPHERE, signed_distance
-from .forces import ROOT, _keep_root, _mat3, _near_segments, _point, _world_wrench_to_slice
+from .forces import ROOT, _keep_root, _mat3, _near_segments, _point, _world_wrench_to_slice, start
 
 #: a contact node kept for the self-contact tangent: world rotation (9), point (3), velocity
 #: (3), angular velocity (3), the slice's R (9), p (3), S (18) in its root, then the changes of
@@ -349,18 +349,11 @@ def environment_tangent(arr, kind, prm, vel, law, calpha, seg, lalpha, wrench, l
     z3, o = take1(sc, o, 3)
     tmp, o = take1(sc, o, 45)
     near, o = take1(sc, o, m)
-    for r in range(3):
-        oj[r] = p_WB[r]
-        for c in range(3):
-            Rj[r, c] = R_WB[r, c]
+    start(R_WB, p_WB, V0, Rj, oj, Vj, W)
+    start(R_WB, p_WB, V0, Rj, oj, Vj, dW)
     for r in range(6):
-        Vj[r] = V0[r]
         eta[r] = eta0[r]
         dV[r] = dV0[r]
-    for j in range(n + 1):
-        for r in range(6):
-            W[j, r] = 0.0
-            dW[j, r] = 0.0
     for j in range(n):
         for c in range(3):
             dtau[j, c] = 0.0

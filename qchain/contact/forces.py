@@ -71,6 +71,21 @@ def _root_step(q, qd, Rj, oj, Vj, R1, p1, S1, Sd1, tmp):
 
 
 @jit
+def start(R_WB, p_WB, V0, Rj, oj, Vj, W):
+    """The first root's world rotation ``Rj``, origin ``oj`` and body twist ``Vj`` from the
+    base's; the root wrenches ``W`` (n + 1, 6) zeroed."""
+    for r in range(3):
+        oj[r] = p_WB[r]
+        for c in range(3):
+            Rj[r, c] = R_WB[r, c]
+    for r in range(6):
+        Vj[r] = V0[r]
+    for j in range(W.shape[0]):
+        for r in range(6):
+            W[j, r] = 0.0
+
+
+@jit
 def _add_phi_t(R, p, S, f, wgt, W_root, tau_j, g9):
     """``(W_root, tau_j) += wgt Phi^T f``: the root wrench (6,) and the segment's generalised
     force (3,) of the slice wrench ``f`` (6,) (``g9`` (9,) scratch)."""
@@ -186,15 +201,7 @@ def contact_forces(arr, kind, prm, vel, law, calpha, q, qd, R_WB, p_WB, V0, tau,
     tmp, o = take1(sc, o, 6)
     near, o = take1(sc, o, m)
     self_contact = law[7] > 0.0
-    for r in range(3):
-        oj[r] = p_WB[r]
-        for c in range(3):
-            Rj[r, c] = R_WB[r, c]
-    for r in range(6):
-        Vj[r] = V0[r]
-    for j in range(n + 1):
-        for r in range(6):
-            W[j, r] = 0.0
+    start(R_WB, p_WB, V0, Rj, oj, Vj, W)
     count = 0
     for j in range(n):
         l, ux, uy = q[j, 0], q[j, 1], q[j, 2]
@@ -278,16 +285,11 @@ def load_forces(seg, alpha, wrench, local, q, R_WB, p_WB, tau, F0, W, sc):
     g9, o = take1(sc, o, 9)
     tmp, o = take1(sc, o, 6)
     zero3, o = take1(sc, o, 3)
+    for r in range(6):
+        tmp[r] = 0.0
     for r in range(3):
         zero3[r] = 0.0
-        oj[r] = p_WB[r]
-        for c in range(3):
-            Rj[r, c] = R_WB[r, c]
-    for r in range(6):
-        Vj[r] = 0.0
-    for j in range(n + 1):
-        for r in range(6):
-            W[j, r] = 0.0
+    start(R_WB, p_WB, tmp, Rj, oj, Vj, W)  # loads need no twists
     for j in range(n):
         for i in range(L):
             if seg[i] != j:

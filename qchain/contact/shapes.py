@@ -120,45 +120,40 @@ def _axis(owner: str, a, b) -> tuple[np.ndarray, np.ndarray]:
 
 
 @dataclass(frozen=True)
-class Capsule:
-    """The points within ``radius`` (m) of the segment from ``a`` to ``b`` (3,) (m)."""
+class _Axial:
+    """A shape around the segment from ``a`` to ``b`` (3,) (m) of radius ``radius`` (m)."""
 
     a: np.ndarray
     b: np.ndarray
     radius: float
 
     motion: Motion | None = None
+    _KIND = -1
 
     def __post_init__(self):
-        object.__setattr__(self, "motion", _motion("Capsule", self.motion))
-        a, b = _axis("Capsule", self.a, self.b)
+        name = type(self).__name__
+        object.__setattr__(self, "motion", _motion(name, self.motion))
+        a, b = _axis(name, self.a, self.b)
         object.__setattr__(self, "a", a)
         object.__setattr__(self, "b", b)
-        object.__setattr__(self, "radius", EXTENT.check("Capsule.radius", self.radius))
+        object.__setattr__(self, "radius", EXTENT.check(f"{name}.radius", self.radius))
 
     def row(self):
-        return _row(CAPSULE, self.a, self.b, [self.radius])
+        return _row(self._KIND, self.a, self.b, [self.radius])
 
 
 @dataclass(frozen=True)
-class Cylinder:
+class Capsule(_Axial):
+    """The points within ``radius`` (m) of the segment from ``a`` to ``b`` (3,) (m)."""
+
+    _KIND = CAPSULE
+
+
+@dataclass(frozen=True)
+class Cylinder(_Axial):
     """A solid cylinder (a pole) with flat ends: axis from ``a`` to ``b`` (3,) (m), ``radius`` (m)."""
 
-    a: np.ndarray
-    b: np.ndarray
-    radius: float
-
-    motion: Motion | None = None
-
-    def __post_init__(self):
-        object.__setattr__(self, "motion", _motion("Cylinder", self.motion))
-        a, b = _axis("Cylinder", self.a, self.b)
-        object.__setattr__(self, "a", a)
-        object.__setattr__(self, "b", b)
-        object.__setattr__(self, "radius", EXTENT.check("Cylinder.radius", self.radius))
-
-    def row(self):
-        return _row(CYLINDER, self.a, self.b, [self.radius])
+    _KIND = CYLINDER
 
 
 @dataclass(frozen=True)
