@@ -1,0 +1,185 @@
+"""A two-segment arm hanging from its base pushes a wall with its tip, harder as the pressure rises.
+
+The arm hangs under gravity (its base frame turned upside down), a wall (a ``HalfSpace``,
+normal +x) 50 mm to its -x side. Chamber 1 of both segments is raised in steps (a ramp of
+0.2 s, then a hold of 0.5 s at each of 30, 60, 90, 120, 150 kPa): the arm bends towards
+-x, its tip reaches the wall and pushes it. The wall is frictionless, so that the settled
+force can be compared with statics: :func:`qchain.equilibrium` with ``env=`` solves the
+static balance with the contact (at rest the regularised friction would be zero there, so a
+rubbing wall's stiction could not be compared). Three figures of the wall's normal force:
+
+* the dynamic run (``qchain.simulate``, method ``radau5``), against the pressure of each instant;
+* the static force at many pressures (``equilibrium(chain, p, env=env)``);
+* the pressure at which the free arm (no wall; ``equilibrium(chain, p)``) first reaches the
+  wall: no force below it.
+
+Method: ``radau5``, the compiled implicit Runge-Kutta method with the exact Jacobian (the
+contact's derivatives included): the contact is stiff (one contact point's period is about
+a millisecond, ``Environment.time_scale``), which would limit an explicit method's steps for
+as long as the tip touches the wall; an implicit one's steps follow the arm's motion.
+
+Writes ``push_wall.png``: the arm's shape at each pressure with the contact forces (arrows),
+and the wall's normal force against pressure. Prints the largest contact force, the deepest
+penetration, the settled force at each pressure beside the static one, and the wall-clock
+time per simulated second.
+
+Run: ``.venv/bin/python examples/push_wall.py [--duration S] [--out DIR] [--quick]``
+"""
+
+from __future__ import annotations
+
+import time
+
+import _common
+import matplotlib.pyplot as plt
+import numpy as np
+import pinocchio as pin
+
+import qchain
+from qchain import Chain, Segment, Table, equilibrium
+from qchain.contact import ContactLaw, Environment, HalfSpace, hunt_crossley_damping
+
+#: one segment (SI units): tests/support.py's SEGMENT, more damped (beta = 0.05 s) so that
+#: each pressure step settles within its hold
+SEGMENT = {"length": 0.1, "radius": 0.015, "mass": 0.05, "chamber_area": 4.5e-5,
+           "chamber_radius": 0.0085, "youngs_modulus": 1e5, "damping": 0.05}
+WALL_X = -0.05  # m: the wall's plane x = WALL_X, the solid on its -x side
+LEVELS = (3e4, 6e4, 9e4, 1.2e5, 1.5e5)  # Pa in chamber 1 of both segments
+RISE, HOLD = 0.2, 0.5  # s: each step's ramp and hold
+
+
+def build(nodes: int = 16):
+    """``(chain, env)``: the hanging arm (base frame turned half a turn about x: the arm grows
+    along world -z, chamber 1 faces world +x) and the frictionless wall."""
+    chain = Chain([Segment(**SEGMENT) for _ in range(2)], base_placement=pin.SE3(pin.utils.rotate("x", np.pi),
+                                                                                   np.zeros(3)))
+    law = ContactLaw(stiffness=1e6, exponent=1.5, damping=hunt_crossley_damping(0.5, 0.1))
+    return chain, Environment([HalfSpace([WALL_X, 0.0, -0.1], [1.0, 0.0, 0.0])], law=law, nodes=nodes)
+
+
+def pressures(P: float) -> np.ndarray:
+    """The chain's pressures (3 n,) Pa: ``P`` in chamber 1 of both segments."""
+    return np.array([P, 0.0, 0.0, P, 0.0, 0.0])
+
+
+def staircase(levels) -> tuple[Table, np.ndarray]:
+    """The pressure schedule (a ``Table``) and the end of each hold (s)."""
+    times, values, ends = [0.0], [pressures(0.0)], []
+    for P in levels:
+        t = times[-1]
+        times += [t + RISE, t + RISE + HOLD]
+        values += [pressures(P)] * 2
+        ends.append(t + RISE + HOLD)
+    return Table(np.array(times), np.array(values)), np.array(ends)
+
+
+def wall_force(chain, q, v, env) -> float:
+    """The wall's normal force on the arm (N, along the wall's normal)."""
+    c = chain.contacts(q, v, env)
+    return float(c.force @ env.obstacles[0].normal @ np.ones(len(c.segment))) if len(c.segment) else 0.0
+
+
+def onset_pressure(chain, hi: float = 1.5e5) -> float:
+    """The pressure (Pa) at which the free arm's surface first reaches the wall (statics without
+    the wall, bisection to 10 Pa)."""
+    r = SEGMENT["radius"]
+
+    def reach(P):
+        q = equilibrium(chain, pressures(P)).q
+        return chain.backbone(q, 64).reshape(-1, 3)[:, 0].min() - r - WALL_X  # > 0: clear of the wall
+
+    lo = 0.0
+    while hi - lo > 10.0:
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if reach(mid) > 0 else (lo, mid)
+    return 0.5 * (lo + hi)
+
+
+def main(argv=None) -> dict:
+    args = _common.parser(__doc__, "push_wall", scene_flag=False).parse_args(argv)
+    levels = LEVELS[::2] if args.quick else LEVELS
+    schedule, ends = staircase(levels)
+    T = args.duration if args.duration is not None else float(ends[-1])
+    if not T > 0:
+        raise SystemExit(f"--duration must be > 0 s, got {T}")
+    chain, env = build()
+    rest = equilibrium(chain)  # hanging straight under gravity: no pressure, clear of the wall
+    print(f"arm: 2 segments of {SEGMENT['length'] * 1e3:g} mm hanging; wall at x = {WALL_X * 1e3:g} mm; "
+          f"chamber 1 stepped to {', '.join(f'{P / 1e3:g}' for P in levels)} kPa; contact time scale "
+          f"{env.time_scale(chain) * 1e3:.2f} ms")
+    t_eval = np.linspace(0.0, T, round(T * 200) + 1)
+    t0 = time.perf_counter()
+    traj = qchain.simulate(chain, rest.q, np.zeros(chain.nv), (0.0, T), pressure=schedule, method="radau5", env=env,
+                           t_eval=t_eval)
+    wall = time.perf_counter() - t0 - traj.meta.get("compile_s", 0.0)
+    _common.report(traj)
+    cs = [chain.contacts(q, v, env) for q, v in zip(traj.q, traj.v)]
+    normal = env.obstacles[0].normal
+    F = np.array([float((c.force @ normal).sum()) for c in cs])
+    f_max = max(float(np.linalg.norm(c.force, axis=1).max()) if len(c.force) else 0.0 for c in cs)
+    depth = max(float(c.penetration.max()) if len(c.penetration) else 0.0 for c in cs)
+    P_t = traj.p[:, 0]
+
+    # statics: the settled force at each level, and the curve through many pressures
+    p_on = onset_pressure(chain)
+    settled, static, shapes = [], [], []
+    q = rest.q
+    for P, te in zip(levels, ends):
+        k = int(np.argmin(np.abs(traj.t - te)))
+        eq = equilibrium(chain, pressures(P), q0=q, env=env)
+        if not eq.success:
+            raise RuntimeError(f"no static shape at {P / 1e3:g} kPa: {eq.message}")
+        q = eq.q
+        settled.append(F[k] if traj.t[k] > te - 1e-9 else np.nan)  # nan: the run stopped before this hold's end
+        static.append(wall_force(chain, eq.q, np.zeros(chain.nv), env))
+        shapes.append((P, k, eq.q))
+    settled, static = np.array(settled), np.array(static)
+    curve_P = np.linspace(0.0, max(levels), 31)
+    curve, q = [], rest.q
+    for P in curve_P:
+        q = equilibrium(chain, pressures(P), q0=q, env=env).q
+        curve.append(wall_force(chain, q, np.zeros(chain.nv), env))
+
+    print(f"simulated {T:g} s in {wall:.3g} s wall (not counting {traj.meta.get('compile_s', 0.0):.2g} s compiling or "
+          f"loading the engine): {wall / T:.3g} s wall per simulated second (radau5, {traj.nfev} right-hand sides)")
+    print(f"largest contact force at one point {f_max * 1e3:.1f} mN; deepest penetration {depth * 1e3:.3f} mm")
+    print(f"the free arm reaches the wall at {p_on / 1e3:.2f} kPa (statics without the wall)")
+    print(f"{'pressure (kPa)':>15} {'settled (mN)':>13} {'static (mN)':>12} {'difference':>11}")
+    for P, fs, fe in zip(levels, settled, static):
+        rel = f"{(fs - fe) / fe * 100:+.3f}%" if fe > 0 else f"{(fs - fe) * 1e3:+.3f} mN"
+        print(f"{P / 1e3:15g} {fs * 1e3:13.3f} {fe * 1e3:12.3f} {rel:>11}")
+
+    fig, (ax, fx) = plt.subplots(1, 2, figsize=(12, 5.5), gridspec_kw={"width_ratios": [1, 1.3]})
+    _common.draw_obstacle(ax, env.obstacles[0], axes=(0, 2), height=0.13)
+    cmap = plt.get_cmap("viridis")
+    _common.draw_arm(ax, chain, traj.q[0], 0.0, color="0.6", lw=1.5, label="0 kPa")
+    for n, (P, k, _) in enumerate(shapes):
+        _common.draw_arm(ax, chain, traj.q[k], traj.t[k], color=cmap(0.85 * n / max(1, len(shapes) - 1)),
+                         label=f"{P / 1e3:g} kPa, t = {traj.t[k]:.2f} s")
+        _common.draw_contacts(ax, cs[k], axes=(0, 2), mm_per_newton=100.0)
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.set(xlabel="x (mm)", ylabel="z (mm)", title="settled shapes; contact forces on the arm (1 N = 100 mm)")
+    ax.legend(fontsize=7, loc="lower right")
+    fx.plot(P_t / 1e3, F, color="C0", lw=1, label="dynamics (radau5), every sample")
+    fx.plot(curve_P / 1e3, curve, "k--", lw=1, label="statics: qchain.equilibrium(env=)")
+    fx.plot(np.array(levels) / 1e3, settled, "o", color="C3", label="dynamics, end of each hold")
+    fx.axvline(p_on / 1e3, color="0.5", ls=":", label="free arm reaches the wall (statics, no wall)")
+    fx.set(xlabel="pressure in chamber 1 (kPa)", ylabel="wall's normal force (N)",
+           title="the wall's normal force against pressure")
+    fx.legend(fontsize=7)
+    for a in (ax, fx):
+        a.grid(alpha=0.3)
+    fig.suptitle("pushing a frictionless wall: radau5 against statics")
+    fig.tight_layout()
+    args.out.mkdir(parents=True, exist_ok=True)
+    png = args.out / "push_wall.png"
+    fig.savefig(png, dpi=80)
+    plt.close(fig)
+    print(f"wrote {png}")
+    return {"trajectory": traj, "png": png, "chain": chain, "env": env, "levels": np.array(levels),
+            "settled": settled, "static": static, "onset": p_on, "force": F, "max_force": f_max,
+            "max_penetration": depth, "wall_per_second": wall / T}
+
+
+if __name__ == "__main__":
+    main()
