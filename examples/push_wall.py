@@ -1,4 +1,5 @@
-"""A two-segment arm hanging from its base pushes a wall with its tip, harder as the pressure rises.
+"""A two-segment arm hanging from its base pushes a wall with its tip, harder as the pressure rises;
+the same arm lying on the floor is pulled along it by a tip load.
 
 The arm hangs under gravity (its base frame turned upside down), a wall (a ``HalfSpace``,
 normal +x) 50 mm to its -x side. Chamber 1 of both segments is raised in steps (a ramp of
@@ -19,10 +20,16 @@ steps for as long as the tip touches the wall; an implicit one's steps follow th
 motion. Measured on this run (3.5 s): ``dopri5`` took 5 times the right-hand sides and 3.7
 times the wall time of ``radau5``, for the same final shape (docs/contact_examples.md).
 
+Then a second experiment: the same arm, free (a floating base), lying on the floor and
+pulled along its axis at the tip by a constant ``PointLoad`` of half and of 1.5 times the
+static friction limit (friction mu_static 0.5, mu_dynamic 0.4), checked against Coulomb's
+law: the first holds, the second slides with its momentum growing at ``F - mu_dynamic W``.
+
 Writes ``push_wall.png``: the arm's shape at each pressure with the contact forces (arrows),
-and the wall's normal force against pressure. Prints the largest contact force, the deepest
-penetration, the settled force at each pressure beside the static one, and the wall-clock
-time per simulated second.
+and the wall's normal force against pressure; ``push_floor.png``: the sliding arm with its
+contact forces, and both runs' momentum against Coulomb's law. Prints the largest contact
+force, the deepest penetration, the settled force at each pressure beside the static one,
+the momentum rates beside Coulomb's, and the wall-clock time per simulated second.
 
 Run: ``.venv/bin/python examples/push_wall.py [--duration S] [--out DIR] [--quick]``
 """
@@ -38,7 +45,13 @@ import pinocchio as pin
 
 import qchain
 from qchain import Chain, Segment, Table, equilibrium
-from qchain.contact import ContactLaw, Environment, HalfSpace, hunt_crossley_damping
+from qchain.contact import (
+    ContactLaw,
+    Environment,
+    HalfSpace,
+    PointLoad,
+    hunt_crossley_damping,
+)
 
 #: one segment (SI units): tests/support.py's SEGMENT, more damped (beta = 0.05 s) so that
 #: each pressure step settles within its hold
@@ -95,9 +108,96 @@ def onset_pressure(chain, hi: float = 1.5e5) -> float:
     return 0.5 * (lo + hi)
 
 
+def floor_arm():
+    """``(chain, q0, law)``: a free (floating-base) two-segment arm lying straight along world +x
+    on the floor ``z <= 0``, sunk by the depth at which the floor carries its weight, and the
+    contact law with friction (mu_static 0.5, mu_dynamic 0.4)."""
+    chain = Chain([Segment(**SEGMENT) for _ in range(2)], base="floating")
+    law = ContactLaw(stiffness=1e6, exponent=1.5, damping=hunt_crossley_damping(0.5, 0.1), mu_static=0.5,
+                     mu_dynamic=0.4, slip_velocity=1e-3, stribeck_velocity=1e-2)
+    g = float(np.linalg.norm(chain.gravity))
+    # l k d^e = m g per contact point of rest length l and mass m, i.e. per metre: k d^e = (mass/length) g
+    sink = (SEGMENT["mass"] / SEGMENT["length"] * g / law.stiffness) ** (1.0 / law.exponent)
+    q0 = chain.neutral()
+    q0[:3] = [0.0, 0.0, SEGMENT["radius"] - sink]
+    q0[3:7] = pin.Quaternion(pin.utils.rotate("y", np.pi / 2)).coeffs()  # the arm's axis (base z) along world x
+    return chain, q0, law
+
+
+def drag(args) -> dict:
+    """The arm lying on the floor, pulled along its axis at the tip by a constant ``PointLoad``
+    of half and of 1.5 times the static friction limit ``mu_static W`` (``W`` its weight), for
+    0.5 s (0.3 s with ``--quick``). Coulomb's law, independent of the model: below the limit
+    the arm stays put (friction cancels the load); above it the arm slides and its momentum
+    grows at ``F - mu_dynamic W`` (once the sliding speed is far above the Stribeck velocity).
+    Writes ``push_floor.png``."""
+    chain, q0, law = floor_arm()
+    mass = sum(s.mass for s in chain.segments)
+    W = mass * float(np.linalg.norm(chain.gravity))
+    T = 0.3 if args.quick else 0.5
+    t_ref = 0.1  # s: the sliding arm is far above the Stribeck velocity from here on
+    runs = {}
+    for ratio in (0.5, 1.5):
+        load = ratio * law.mu_static * W
+        env = Environment([HalfSpace()], law=law, loads=[PointLoad(1, 1.0, [load, 0.0, 0.0])], nodes=16)
+        t0 = time.perf_counter()
+        traj = qchain.simulate(chain, q0, np.zeros(chain.nv), (0.0, T), method="radau5", env=env,
+                               t_eval=np.linspace(0.0, T, round(T * 200) + 1))
+        wall = time.perf_counter() - t0 - traj.meta.get("compile_s", 0.0)
+        _common.report(traj)
+        momentum = np.array([chain.momentum(q, v)[0] for q, v in zip(traj.q, traj.v)])  # kg m/s along x
+        c = chain.contacts(traj.q[-1], traj.v[-1], env)
+        k = int(np.argmin(np.abs(traj.t - t_ref)))
+        rate = (momentum[-1] - momentum[k]) / (traj.t[-1] - traj.t[k])  # N
+        runs[ratio] = {"trajectory": traj, "load": load, "momentum": momentum, "contacts": c, "rate": rate,
+                       "friction": float(c.force[:, 0].sum()), "normal": float(c.force[:, 2].sum()),
+                       "wall_per_second": wall / T}
+        expect = load - law.mu_dynamic * W if ratio > 1 else 0.0
+        print(f"dragged at {load:.4f} N ({ratio:g} x mu_s W): momentum rate {rate:.5f} N after {t_ref:g} s "
+              f"(Coulomb: {expect:.5f} N); at {T:g} s friction {runs[ratio]['friction']:+.5f} N, floor's normal "
+              f"force {runs[ratio]['normal']:.5f} N (weight {W:.5f} N), fastest slip {c.slip.max():.3g} m/s; "
+              f"{wall / T:.3g} s wall per simulated second")
+
+    fig, (ax, mx) = plt.subplots(1, 2, figsize=(12, 4.5))
+    slide = runs[1.5]
+    tr = slide["trajectory"]
+    tip = chain.tip_placement(tr.q[-1]).translation * 1e3
+    _common.draw_obstacle(ax, HalfSpace([tip[0] * 1e-3, 0.0, 0.0]), axes=(0, 2), height=0.4)
+    _common.draw_arm(ax, chain, tr.q[-1], tr.t[-1])
+    _common.draw_contacts(ax, slide["contacts"], axes=(0, 2), mm_per_newton=500.0)
+    ax.annotate("", xy=(tip[0] + slide["load"] * 100.0, tip[2]), xytext=(tip[0], tip[2]),
+                arrowprops={"arrowstyle": "->", "color": "k"})
+    ax.set_xlim(tip[0] - 230.0, tip[0] + 100.0)
+    ax.set_ylim(-40.0, 60.0)
+    ax.set_aspect("equal")
+    slid = (tr.q[-1][0] - tr.q[0][0]) * 1e3
+    ax.set(xlabel="x (mm)", ylabel="z (mm)",
+           title=f"{1.5:g} x mu_s W at {tr.t[-1]:.2f} s, {slid:.0f} mm along: contact forces on the\n"
+                 f"arm (red, 1 N = 500 mm), the tip load (black, 1 N = 100 mm)")
+    for ratio, r in runs.items():
+        tr = r["trajectory"]
+        mx.plot(tr.t, r["momentum"], label=f"load {ratio:g} x mu_s W: simulated")
+        k = int(np.argmin(np.abs(tr.t - t_ref)))
+        expect = r["load"] - law.mu_dynamic * W if ratio > 1 else 0.0
+        mx.plot(tr.t[k:], r["momentum"][k] + expect * (tr.t[k:] - tr.t[k]), "--", color="k", lw=1,
+                label="Coulomb: rate F - mu_d W" if ratio > 1 else "Coulomb: at rest")
+    mx.set(xlabel="t (s)", ylabel="linear momentum along x (kg m/s)", title="the arm's momentum against Coulomb's law")
+    mx.legend(fontsize=7)
+    for a in (ax, mx):
+        a.grid(alpha=0.3)
+    fig.suptitle(f"an arm on the floor pulled at its tip: mu_s = {law.mu_static:g}, mu_d = {law.mu_dynamic:g}")
+    fig.tight_layout()
+    png = args.out / "push_floor.png"
+    fig.savefig(png, dpi=80)
+    plt.close(fig)
+    print(f"wrote {png}")
+    return {"runs": runs, "weight": W, "mass": mass, "law": law, "png": png}
+
+
 def main(argv=None) -> dict:
     ap = _common.parser(__doc__, "push_wall", scene_flag=False)
-    ap._option_string_actions["--duration"].help = "simulated time (s); default the steps' 3.5 s, 2.1 s with --quick"  # no scene here
+    # no scene here: say the example's own default
+    ap._option_string_actions["--duration"].help = "simulated time (s); default the steps' 3.5 s, 2.1 s with --quick"
     args = ap.parse_args(argv)
     levels = LEVELS[::2] if args.quick else LEVELS
     schedule, ends = staircase(levels)
@@ -179,7 +279,8 @@ def main(argv=None) -> dict:
     fig.savefig(png, dpi=80)
     plt.close(fig)
     print(f"wrote {png}")
-    return {"trajectory": traj, "png": png, "chain": chain, "env": env, "levels": np.array(levels),
+    dragged = drag(args)
+    return {"trajectory": traj, "png": png, "chain": chain, "env": env, "levels": np.array(levels), "drag": dragged,
             "settled": settled, "static": static, "onset": p_on, "force": F, "max_force": f_max,
             "max_penetration": depth, "wall_per_second": wall / T}
 

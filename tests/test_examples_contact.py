@@ -107,3 +107,30 @@ def test_push_wall_no_force_before_the_free_arm_reaches_the_wall(push):
     assert np.all(out["settled"][below] == 0.0) and np.all(out["static"][below] == 0.0)
     assert np.all(out["settled"][~below] > 0.0) and np.all(out["static"][~below] > 0.0)
     assert out["max_penetration"] < 0.15 * 0.015
+
+
+@pytest.mark.slow
+def test_push_floor_obeys_coulomb(push):
+    """The free arm lying on the floor, pulled at its tip (push_wall.py's second part), against
+    Coulomb's law with the arm's weight W = m g (independent of the contact passes): the floor
+    carries W; under half the static limit the arm stays put, friction cancelling the load;
+    at 1.5 times it the arm slides, its momentum growing at F - mu_dynamic W."""
+    out, out_dir = push
+    d = out["drag"]
+    W, law = d["weight"], d["law"]
+    assert is_png(d["png"]) and d["png"].parent == out_dir
+    hold, slide = d["runs"][0.5], d["runs"][1.5]
+    for r in (hold, slide):
+        assert r["trajectory"].success
+        assert abs(r["normal"] - W) < 1e-4 * W
+    assert abs(hold["friction"] + hold["load"]) < 1e-3 * hold["load"]
+    assert abs(hold["momentum"]).max() < d["mass"] * 2 * law.slip_velocity  # creeping slower than 2 eps
+    # the regularised law's creep: F = mu(s) W s / sqrt(s^2 + eps^2), solved for s by fixed point
+    eps, creep = law.slip_velocity, 0.0
+    for _ in range(50):
+        mu = law.mu_dynamic + (law.mu_static - law.mu_dynamic) * math.exp(-((creep / law.stribeck_velocity) ** 2))
+        creep = eps / math.sqrt((mu * W / hold["load"]) ** 2 - 1.0)
+    assert abs(hold["momentum"][-1] / d["mass"] - creep) < 0.01 * creep
+    assert slide["momentum"][-1] > 0.1  # kg m/s: well on its way
+    assert abs(slide["rate"] - (slide["load"] - law.mu_dynamic * W)) < 1e-3 * (slide["load"] - law.mu_dynamic * W)
+    assert abs(slide["friction"] + law.mu_dynamic * W) < 1e-3 * law.mu_dynamic * W
