@@ -90,3 +90,51 @@ def run(doc: str, name: str, argv, quick: float):
 
 def report(traj) -> None:
     print(f"run: {'success' if traj.success else 'FAILED'}: {traj.message} (nfev = {traj.nfev})")
+
+
+def draw_obstacle(ax, ob, axes=(0, 2), color="0.6", height=None):
+    """Draw a contact obstacle (``qchain.contact``) in the plane of world ``axes`` (mm): a
+    half-space as its boundary line (hatched on the solid's side), a cylinder or capsule whose
+    axis is along a world axis as a disc (seen along its axis) or a rectangle (a capsule's
+    rounded ends drawn square). ``height`` (m): the half-space's line runs this far either side
+    of its ``point`` (default 0.5 m)."""
+    from matplotlib.patches import Circle, Rectangle
+
+    from qchain.contact import Capsule, Cylinder, HalfSpace
+
+    i, j = axes
+    if isinstance(ob, HalfSpace):
+        n = ob.normal[[i, j]]
+        t = np.array([-n[1], n[0]])
+        L = 0.5 if height is None else height
+        ends = np.array([ob.point[[i, j]] - L * t, ob.point[[i, j]] + L * t]) * 1e3
+        ax.plot(ends[:, 0], ends[:, 1], color=color, lw=2)
+        for s in np.linspace(-1, 1, 41):  # hatching on the solid's side
+            a = (ob.point[[i, j]] + s * L * t) * 1e3
+            b = a - 4.0 * (n + t) / np.sqrt(2)
+            ax.plot([a[0], b[0]], [a[1], b[1]], color=color, lw=0.7)
+    elif isinstance(ob, (Cylinder, Capsule)):
+        u = ob.b - ob.a
+        if np.count_nonzero(np.abs(u) > 1e-12) != 1:
+            raise ValueError("draw_obstacle draws a cylinder or capsule whose axis is along a world axis")
+        if abs(u[i]) < 1e-12 and abs(u[j]) < 1e-12:  # seen along its axis: a disc
+            ax.add_patch(Circle(ob.a[[i, j]] * 1e3, ob.radius * 1e3, color=color, alpha=0.6))
+        else:  # an axis along one of the drawing's axes: a rectangle
+            lo = np.minimum(ob.a, ob.b)[[i, j]] - ob.radius * (np.abs(u[[i, j]]) < 1e-12)
+            hi = np.maximum(ob.a, ob.b)[[i, j]] + ob.radius * (np.abs(u[[i, j]]) < 1e-12)
+            ax.add_patch(Rectangle(lo * 1e3, *(hi - lo) * 1e3, color=color, alpha=0.6))
+    else:
+        raise TypeError(f"draw_obstacle draws HalfSpace, Cylinder and Capsule, got {type(ob).__name__}")
+
+
+def draw_contacts(ax, contacts, axes=(0, 2), mm_per_newton=20.0, color="C3"):
+    """Draw contact points (dots) and the forces on the arm (arrows, ``mm_per_newton``) of a
+    :class:`qchain.contact.Contacts` in the plane of world ``axes`` (mm)."""
+    if len(contacts.segment) == 0:
+        return
+    i, j = axes
+    pt = contacts.point * 1e3
+    f = contacts.force * mm_per_newton
+    ax.plot(pt[:, i], pt[:, j], ".", color=color, ms=3)
+    ax.quiver(pt[:, i], pt[:, j], f[:, i], f[:, j], color=color, angles="xy", scale_units="xy", scale=1.0,
+              width=0.004)
