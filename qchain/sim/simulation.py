@@ -383,9 +383,10 @@ def simulate(
 def _note_contact_steps(run: _Run, traj: Trajectory) -> None:
     """Say in ``traj.meta`` whether the contact's time scale limited the steps:
     ``contact_time_scale`` (s, :meth:`qchain.contact.Environment.time_scale`) and
-    ``step_limited_by_contact``: the arm touched an obstacle (at one of up to 200 samples) and
-    the mean step was below a quarter of that time scale (an explicit method in contact, or an
-    implicit one at a tolerance that resolves the contact's vibration)."""
+    ``step_limited_by_contact``: an explicit method's run in which the arm touched an obstacle
+    (at one of up to 200 samples) and the mean step was below a quarter of that time scale
+    (explicit steps are bounded by it for stability; an implicit method's steps follow the
+    tolerance, and its flag is False)."""
     if run.env is None or not run.env.obstacles:
         return
     T = run.env.time_scale(run.chain)
@@ -394,7 +395,8 @@ def _note_contact_steps(run: _Run, traj: Trajectory) -> None:
     span = (traj.t[-1] - run.t0) if len(traj.t) else 0.0
     picks = np.unique(np.linspace(0, len(traj.t) - 1, min(len(traj.t), 200)).astype(int)) if len(traj.t) else []
     touched = any(len(run.chain.contacts(traj.q[k], traj.v[k], run.env, traj.t[k]).segment) for k in picks)
-    traj.meta["step_limited_by_contact"] = bool(touched and steps and span / steps < 0.25 * T)
+    explicit = run.method not in JACOBIAN_METHODS
+    traj.meta["step_limited_by_contact"] = bool(explicit and touched and steps and span / steps < 0.25 * T)
 
 
 def check_method(method) -> str:
