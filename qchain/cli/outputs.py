@@ -234,6 +234,11 @@ def summary_lines(scene: Scene, model: SceneModel, traj, wall: float, message: s
     if warning is not None:
         lines.append(warning)
     ke, pe = traj.kinetic_energy, traj.potential_energy
+    if traj.meta.get("contact_time_scale") is not None:  # a run with obstacles (qchain.sim.simulation)
+        limited = traj.meta.get("step_limited_by_contact", False)
+        lines.append(f"contact: time scale {traj.meta['contact_time_scale'] * 1e3:.3g} ms; the steps were "
+                     + ("limited by it (in contact, the mean step was under a quarter of it)" if limited else
+                        "not limited by it"))
     lines.append(f"energies (J): kinetic {ke[-1]:.6g}, potential {pe[-1]:.6g} (gravity + elastic), total "
                  f"{ke[-1] + pe[-1]:.6g}; at the start total {ke[0] + pe[0]:.6g}")
     return lines
