@@ -279,7 +279,7 @@ OBSTACLE_TYPES = ("halfspace", "sphere", "capsule", "cylinder", "box")
 #: of ``k d^e`` per metre, a launch rather than a rest.
 MAX_START_PENETRATION = 0.1
 
-CONTACT = KeyTable("contact", "The contact law (`qchain.contact.ContactLaw`, docs/contact.md): at each of `nodes` "
+CONTACT = KeyTable("contact", "The contact law (`qchain.contact.ContactLaw`, `qchain/contact/forces.py`): at each of `nodes` "
                    "contact points a segment (a ball of the segment's radius standing for `l0 / nodes` of tube), "
                    "penetration `d`, the normal force `(l0 / nodes) k d^e max(0, 1 + c d')` and regularised Coulomb "
                    "friction. Used only with `[[obstacles]]`.", (
