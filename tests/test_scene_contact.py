@@ -283,3 +283,13 @@ def test_the_declaration_names_the_agreed_keys():
     assert F.OBSTACLE.keys("box") == ("type", "name", "center", "half_extents", "rpy")
     assert F.OBSTACLE.keys("halfspace") == ("type", "name", "point", "normal")
     assert F.LOAD.keys() == ("segment", "alpha", "force", "moment", "local")
+
+
+def test_the_format_docs_contact_example_is_a_valid_symmetric_scene():
+    sc = parse_scene(F.EXAMPLE + "\n" + F.CONTACT_EXAMPLE, "example.toml")
+    env = sc.environment
+    assert [type(o) for o in env.obstacles] == [HalfSpace, Cylinder] and len(env.loads) == 1
+    assert sc.surroundings.labels == ('obstacles[0] "ground"', 'obstacles[1] "pole"')
+    assert sc.planar_obstacle() is None  # the pole lies across the arm's plane, centred on it
+    assert env.law.damping == pytest.approx(hunt_crossley_damping(0.8, 0.5))
+

@@ -28,7 +28,7 @@ from ..model.segment import DEFAULT_NODES
 from ..sim.simulation import DEFAULT_METHOD, FIXED_STEP, METHODS
 
 __all__ = ["Field", "KeyTable", "TABLES", "OBSTACLE_TYPES", "MAX_START_PENETRATION", "Problem", "SceneError", "PLOTS", "PRESSURE_KINDS", "MAX_DEPTH",
-           "MAX_SCENE_BYTES", "MAX_STRETCH", "EXAMPLE", "nesting_problem", "markdown"]
+           "MAX_SCENE_BYTES", "MAX_STRETCH", "EXAMPLE", "CONTACT_EXAMPLE", "nesting_problem", "markdown"]
 
 #: Plots a scene may ask for.
 PLOTS = ("tip", "arm", "energy", "pressure", "momentum")
@@ -702,6 +702,36 @@ plots = ["tip", "arm"]
 '''
 
 
+#: The contact tables, as :data:`EXAMPLE` would add them (a ground under the hanging arm, a
+#: pole beside it, a load at its tip).
+CONTACT_EXAMPLE = '''\
+[contact]
+stiffness = 1e6
+exponent = 1.5
+restitution = 0.8
+impact_speed = 0.5
+mu_static = 0.5
+mu_dynamic = 0.4
+nodes = 16
+
+[[obstacles]]
+type = "halfspace"
+name = "ground"
+
+[[obstacles]]
+type = "cylinder"
+name = "pole"
+a = [0.1, -0.2, 0.0]
+b = [0.1, 0.2, 0.0]
+radius = 0.02
+
+[[loads]]
+segment = 2
+alpha = 1.0
+force = [0.0, 0.0, -0.5]
+'''
+
+
 def _cell(s: str) -> str:
     return s.replace("|", "\\|")
 
@@ -731,6 +761,14 @@ def markdown() -> str:
         "",
         "```toml",
         EXAMPLE.rstrip("\n"),
+        "```",
+        "",
+        "Contact with obstacles and point loads (`qchain/contact/`) is three more tables: the law,",
+        "the obstacles (world frame) and the loads. Added to the example, these lay a ground and a",
+        "pole across the arm's plane under it and hang 0.5 N from its tip:",
+        "",
+        "```toml",
+        CONTACT_EXAMPLE.rstrip("\n"),
         "```",
         "",
     ]
