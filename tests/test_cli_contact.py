@@ -87,3 +87,38 @@ def test_an_arm_starting_inside_an_obstacle_is_bad_input(tmp_path, capsys):
     assert (f'qchain run: error: {p}: obstacles[0]: expected an arm that starts outside obstacles[0] "ground" (inside '
             "by at most 10% of a segment's radius, 1.5 mm for segment 0), found segment 0 starts inside it by 10 mm") \
         in err, err
+
+
+def test_the_arm_plot_draws_the_obstacles_as_each_view_sees_them():
+    """The format docs' contact example: a ground (normal +z) and a pole along y at x = 0.1 m,
+    radius 0.02 m, from y = -0.2 to 0.2 m. The side view (x-z) shows the ground's line and the
+    pole's end disc; the top view (x-y) no ground (it looks along its normal) and the pole as a
+    flat-ended 40 mm x 400 mm band."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from qchain.cli.outputs import plot_arm
+    from qchain.scene import format as F
+    from qchain.scene import parse_scene
+
+    sc = parse_scene(F.EXAMPLE + "\n" + F.CONTACT_EXAMPLE)
+    m = sc.build()
+    traj = sc.simulate(model=m, duration=0.01)
+    tip = np.array([m.chain.tip_placement(q).translation for q in traj.q])
+    fig = plot_arm(m, traj, tip, "t", env=sc.environment)
+    side, top = fig.axes
+    try:
+        (disc,), (band,) = side.patches, top.patches
+        x, z = disc.get_xy().T
+        assert x.min() == pytest.approx(80, abs=0.5) and x.max() == pytest.approx(120, abs=0.5)
+        assert z.min() == pytest.approx(-20, abs=0.5) and z.max() == pytest.approx(20, abs=0.5)
+        x, y = band.get_xy().T
+        assert y.min() == pytest.approx(-200, abs=1e-9) and y.max() == pytest.approx(200, abs=1e-9)  # flat ends
+        assert x.min() == pytest.approx(80, abs=0.5) and x.max() == pytest.approx(120, abs=0.5)
+        ground = [ln for ln in side.get_lines() if type(ln).__name__ == "AxLine"]
+        assert len(ground) == 1 and not [ln for ln in top.get_lines() if type(ln).__name__ == "AxLine"]
+    finally:
+        plt.close(fig)
+
