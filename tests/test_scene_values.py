@@ -97,11 +97,12 @@ FUZZ = settings(max_examples=300, deadline=None, suppress_health_check=[HealthCh
 
 
 def put(d: dict, table: str, key: str, value) -> dict:
-    """``d`` with ``value`` at ``table.key`` (``segments[]`` meaning the first segment)."""
+    """``d`` with ``value`` at ``table.key`` (``segments[]``, ``obstacles[]``, ``loads[]`` meaning
+    the first of them, made if missing)."""
     if table == "":
         d[key] = value
-    elif table == "segments[]":
-        d["segments"][0][key] = value
+    elif table.endswith("[]"):
+        d.setdefault(table[:-2], [{}])[0][key] = value
     elif table == "base.motion":
         d.setdefault("base", {"type": "prescribed"})["motion"][key] = value
     else:
@@ -110,7 +111,18 @@ def put(d: dict, table: str, key: str, value) -> dict:
 
 
 def dotted(table: str, key: str) -> str:
-    return key if table == "" else f"{'segments[0]' if table == 'segments[]' else table}.{key}"
+    return key if table == "" else f"{table[:-2] + '[0]' if table.endswith('[]') else table}.{key}"
+
+
+#: a valid obstacle of each type, far from base_scene's arm, and a valid load
+FAR_OBSTACLES = {
+    "halfspace": {"type": "halfspace", "point": [0.0, 0.0, -1.0]},
+    "sphere": {"type": "sphere", "center": [0.0, 0.0, 5.0], "radius": 0.1},
+    "capsule": {"type": "capsule", "a": [1.0, 0.0, 0.0], "b": [2.0, 0.0, 0.0], "radius": 0.1},
+    "cylinder": {"type": "cylinder", "a": [1.0, 0.0, 0.0], "b": [1.0, 0.0, 1.0], "radius": 0.1},
+    "box": {"type": "box", "center": [1.0, 0.0, 0.0], "half_extents": [0.1, 0.2, 0.3]},
+}
+LOAD = {"segment": 1, "alpha": 1.0, "force": [0.0, 0.0, -0.5]}
 
 
 def context_for(table: F.KeyTable, f: F.Field) -> dict:
@@ -121,6 +133,14 @@ def context_for(table: F.KeyTable, f: F.Field) -> dict:
         return base_scene(base="prescribed")
     if table is F.BASE and f.when:
         return base_scene(base=f.when[0])
+    if table is F.OBSTACLE:
+        d = base_scene()
+        d["obstacles"] = [dict(FAR_OBSTACLES[f.when[0] if f.when else "sphere"])]
+        return d
+    if table is F.LOAD:
+        d = base_scene()
+        d["loads"] = [dict(LOAD)]
+        return d
     if table is F.SIMULATION and f.key == "dt":
         d = base_scene()
         d["simulation"]["method"] = "rk4"

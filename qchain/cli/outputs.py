@@ -111,7 +111,7 @@ def write_outputs(scene: Scene, model: SceneModel, traj, folder: Path, plots=Non
             ax.plot(t, tip[:, k] * 1e3, label=c)
         finish(fig, "tip.png", ax, "tip position, world (mm)", "tip position")
     if "arm" in plots:
-        fig = plot_arm(model, traj, tip, title)
+        fig = plot_arm(model, traj, tip, title, env=scene.environment)
         finish(fig, "arm.png")
     if "energy" in plots:
         fig, ax = plt.subplots(figsize=(8, 4))
@@ -148,8 +148,9 @@ def momenta(model: SceneModel, traj) -> np.ndarray:
     return np.array([ch.momentum(q, v, t=t) for t, q, v in zip(traj.t, traj.q, traj.v)])
 
 
-def plot_arm(model: SceneModel, traj, tip: np.ndarray, title: str, snapshots: int = 8):
-    """Side (x-z) and top (x-y) views of the arm at ``snapshots`` times, with the tip path."""
+def plot_arm(model: SceneModel, traj, tip: np.ndarray, title: str, snapshots: int = 8, env=None):
+    """Side (x-z) and top (x-y) views of the arm at ``snapshots`` times, with the tip path and
+    the obstacles of ``env`` (a :class:`qchain.contact.Environment`) as seen in each view."""
     import matplotlib.pyplot as plt
     import numpy as np
 
@@ -166,6 +167,8 @@ def plot_arm(model: SceneModel, traj, tip: np.ndarray, title: str, snapshots: in
             ax.plot(pts[:, a], pts[:, b], color=c, lw=3, label=f"t = {traj.t[k]:.2f} s")
             ax.plot(pts[0, a], pts[0, b], "ks", ms=4)
         ax.set_aspect("equal", adjustable="datalim")
+        if env is not None:
+            _draw_obstacles(ax, env.obstacles, a, b)
         ax.set_xlabel(f"{'xyz'[a]} (mm)")
         ax.set_ylabel(f"{'xyz'[b]} (mm)")
         ax.set_title(view)
@@ -173,6 +176,46 @@ def plot_arm(model: SceneModel, traj, tip: np.ndarray, title: str, snapshots: in
     axes[0].legend(fontsize=7)
     fig.suptitle(f"{title}: arm snapshots")
     return fig
+
+
+def _draw_obstacles(ax, obstacles, a: int, b: int) -> None:
+    """The obstacles projected on the view of world axes ``a``, ``b`` (mm), in grey: a
+    half-space as its boundary line (none when the view looks along its normal), the other
+    shapes as the outline of their projection."""
+    import numpy as np
+    from matplotlib.patches import Circle, Polygon
+    from scipy.spatial import ConvexHull, QhullError
+
+    from ..contact.shapes import Box, Capsule, HalfSpace, Sphere
+
+    style = dict(facecolor="0.85", edgecolor="0.4", alpha=0.6, zorder=0)
+    circle = np.stack([np.cos(np.linspace(0, 2 * np.pi, 24)), np.sin(np.linspace(0, 2 * np.pi, 24))], 1)
+    for ob in obstacles:
+        if isinstance(ob, HalfSpace):
+            n = ob.normal[[a, b]]
+            if np.hypot(*n) > 1e-9:  # the boundary is a line in this view
+                p = ob.point[[a, b]] * 1e3
+                ax.axline(p, p + np.array([-n[1], n[0]]), color="0.4", lw=1.5, zorder=0)
+        elif isinstance(ob, Sphere):
+            ax.add_patch(Circle(ob.center[[a, b]] * 1e3, ob.radius * 1e3, **style))
+        else:  # capsule, cylinder (their ends' discs or balls), box (its corners): the hull of the projection
+            if isinstance(ob, Box):
+                signs = np.array(np.meshgrid([-1, 1], [-1, 1], [-1, 1])).reshape(3, -1).T
+                pts = ob.center + (signs * ob.half_extents) @ ob.rotation.T
+            elif isinstance(ob, Capsule):  # balls at the ends
+                pts = np.concatenate([end + ob.radius * np.insert(circle, k, 0.0, axis=1)
+                                      for end in (ob.a, ob.b) for k in range(3)])
+            else:  # a cylinder: discs normal to its axis at the ends
+                axis = (ob.b - ob.a) / np.linalg.norm(ob.b - ob.a)
+                u = np.cross(axis, np.eye(3)[int(np.argmin(np.abs(axis)))])
+                u /= np.linalg.norm(u)
+                rim = ob.radius * (circle[:, :1] * u + circle[:, 1:] * np.cross(axis, u))
+                pts = np.concatenate([ob.a + rim, ob.b + rim])
+            xy = pts[:, [a, b]] * 1e3
+            try:
+                ax.add_patch(Polygon(xy[ConvexHull(xy).vertices], **style))
+            except QhullError:  # a flat projection (no area): its extent as a line
+                ax.plot(xy[:, 0], xy[:, 1], color="0.4", lw=1.5, zorder=0)
 
 
 # --------------------------------------------------------------------------------------
@@ -234,6 +277,11 @@ def summary_lines(scene: Scene, model: SceneModel, traj, wall: float, message: s
     if warning is not None:
         lines.append(warning)
     ke, pe = traj.kinetic_energy, traj.potential_energy
+    if traj.meta.get("contact_time_scale") is not None:  # a run with obstacles (qchain.sim.simulation)
+        limited = traj.meta.get("step_limited_by_contact", False)
+        lines.append(f"contact: time scale {traj.meta['contact_time_scale'] * 1e3:.3g} ms; the steps were "
+                     + ("limited by it (in contact, the mean step was under a quarter of it)" if limited else
+                        "not limited by it"))
     lines.append(f"energies (J): kinetic {ke[-1]:.6g}, potential {pe[-1]:.6g} (gravity + elastic), total "
                  f"{ke[-1] + pe[-1]:.6g}; at the start total {ke[0] + pe[0]:.6g}")
     return lines

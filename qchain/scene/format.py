@@ -13,6 +13,7 @@ import difflib
 import math
 import re
 from dataclasses import dataclass, replace
+from dataclasses import fields as dataclass_fields
 
 import numpy as np
 
@@ -22,11 +23,12 @@ from ..checks.paths import has_nul, show_nul
 from ..sim.budget import DEFAULT as DEFAULT_BUDGET
 from ..sim.budget import RANGES as BUDGET_RANGES
 from ..errors import MAX_LISTED, SceneError
+from ..contact.environment import ContactLaw, Environment
 from ..model.segment import DEFAULT_NODES
 from ..sim.simulation import DEFAULT_METHOD, FIXED_STEP, METHODS
 
-__all__ = ["Field", "KeyTable", "TABLES", "Problem", "SceneError", "PLOTS", "PRESSURE_KINDS", "MAX_DEPTH",
-           "MAX_SCENE_BYTES", "MAX_STRETCH", "EXAMPLE", "nesting_problem", "markdown"]
+__all__ = ["Field", "KeyTable", "TABLES", "OBSTACLE_TYPES", "MAX_START_PENETRATION", "Problem", "SceneError", "PLOTS", "PRESSURE_KINDS", "MAX_DEPTH",
+           "MAX_SCENE_BYTES", "MAX_STRETCH", "EXAMPLE", "CONTACT_EXAMPLE", "nesting_problem", "markdown"]
 
 #: Plots a scene may ask for.
 PLOTS = ("tip", "arm", "energy", "pressure", "momentum")
@@ -138,6 +140,10 @@ TOP = KeyTable("", "The top level of the file.", (
     Field("simulation", "table", "Duration, method, tolerances (below).", required=True),
     Field("output", "table", "Samples, folder, plots (below)."),
     Field("budget", "table", "What a run may cost before it is refused (below)."),
+    Field("contact", "table", "The contact law between the arm and the obstacles (below).",
+          default="`qchain.contact.ContactLaw`'s"),
+    Field("obstacles", "tables", "Obstacles the arm can touch (below).", default="none"),
+    Field("loads", "tables", "Point loads on the arm (below).", default="none"),
 ))
 
 MODEL = KeyTable("model", "How the model is built (\"Model reduction\" in `qchain/scene/scene.py`).", (
@@ -263,8 +269,69 @@ BUDGET = KeyTable("budget", "What a run may cost (`qchain/sim/budget.py`): a sce
           default=str(DEFAULT_BUDGET.max_segments)),
 ))
 
+_LAW = {f.name: f.default for f in dataclass_fields(ContactLaw)}  # the defaults, ContactLaw's own
+DEFAULT_CONTACT_NODES = next(f.default for f in dataclass_fields(Environment) if f.name == "nodes")
+#: The obstacle types a scene may name, and the classes they make.
+OBSTACLE_TYPES = ("halfspace", "sphere", "capsule", "cylinder", "box")
+#: Deepest start penetration a scene may have, as a fraction of the segment's radius: an arm at
+#: rest on an obstacle sinks by ``(w / k)^(1/e)`` (0.3 mm for 0.5 kg/m at the default law), a
+#: few per cent of a soft arm's radius; an arm placed inside an obstacle starts with a force
+#: of ``k d^e`` per metre, a launch rather than a rest.
+MAX_START_PENETRATION = 0.1
+
+CONTACT = KeyTable("contact", "The contact law (`qchain.contact.ContactLaw`, `qchain/contact/forces.py`): at each of `nodes` "
+                   "contact points a segment (a ball of the segment's radius standing for `l0 / nodes` of tube), "
+                   "penetration `d`, the normal force `(l0 / nodes) k d^e max(0, 1 + c d')` and regularised Coulomb "
+                   "friction. Used only with `[[obstacles]]`.", (
+    Field("stiffness", "number", "`k`, per metre of tube.", B.CONTACT_STIFFNESS, default=f"{_LAW['stiffness']:g}"),
+    Field("exponent", "number", "`e`: 1.5 Hertz's, 1 a linear spring.", B.CONTACT_EXPONENT,
+          default=f"{_LAW['exponent']:g}"),
+    Field("damping", "number", "Hunt-Crossley `c`; or `restitution` and `impact_speed` instead, not both.",
+          B.CONTACT_DAMPING, default=f"{_LAW['damping']:g}"),
+    Field("restitution", "number", "With `impact_speed`: `damping = hunt_crossley_damping(restitution, "
+          "impact_speed)`.", B.RESTITUTION, default="none"),
+    Field("impact_speed", "number", "The impact speed `restitution` holds at; only with it.", B.IMPACT_SPEED,
+          default="none"),
+    Field("mu_static", "number", "Static friction coefficient, `>= mu_dynamic`.", B.FRICTION,
+          default=f"{_LAW['mu_static']:g}"),
+    Field("mu_dynamic", "number", "Dynamic friction coefficient.", B.FRICTION, default=f"{_LAW['mu_dynamic']:g}"),
+    Field("slip_velocity", "number", "Sliding speed over which friction grows to its full value.", B.SLIP_VELOCITY,
+          default=f"{_LAW['slip_velocity']:g}"),
+    Field("stribeck_velocity", "number", "Sliding speed over which `mu_static` falls to `mu_dynamic`.",
+          B.SLIP_VELOCITY, default=f"{_LAW['stribeck_velocity']:g}"),
+    Field("nodes", "integer", "Contact points a segment.", B.CONTACT_NODES, default=str(DEFAULT_CONTACT_NODES)),
+))
+
+OBSTACLE = KeyTable("obstacles[]", "One table an obstacle, fixed in the world: `[[obstacles]]`. An arm that starts "
+                    f"inside one deeper than {MAX_START_PENETRATION:.0%} of a segment's radius is refused.", (
+    Field("type", "choice", "The shape.", choices=OBSTACLE_TYPES, required=True),
+    Field("name", "string", "Free text, for messages and `qchain info`.", default='"obstacles[i]"'),
+    Field("point", "vector", "A point on the plane.", B.POSITION, default="[0, 0, 0]", size=3, when=("halfspace",)),
+    Field("normal", "vector", "The plane's normal, out of the solid (normalised, not zero).", B.DIRECTION,
+          default="[0, 0, 1]", size=3, when=("halfspace",)),
+    Field("center", "vector", "The centre.", B.POSITION, required=True, size=3, when=("sphere", "box")),
+    Field("radius", "number", "The radius.", B.EXTENT, required=True, when=("sphere", "capsule", "cylinder")),
+    Field("a", "vector", "One end of the axis.", B.POSITION, required=True, size=3, when=("capsule", "cylinder")),
+    Field("b", "vector", "The other end (not `a`).", B.POSITION, required=True, size=3,
+          when=("capsule", "cylinder")),
+    Field("half_extents", "vector", "Half the box's sides, along its own axes.", B.EXTENT, required=True, size=3,
+          when=("box",)),
+    Field("rpy", "vector", "The box's roll-pitch-yaw, `R = Rz(yaw) Ry(pitch) Rx(roll)`.", B.ANGLE,
+          default="[0, 0, 0]", size=3, when=("box",)),
+))
+
+LOAD = KeyTable("loads[]", "One table a point load (`qchain.contact.PointLoad`): `[[loads]]`.", (
+    Field("segment", "integer", "The segment it acts on, from 0 at the base.", Range(0, None, integer=True),
+          required=True),
+    Field("alpha", "number", "Where along the segment: 0 its root, 1 its tip.", Range(0.0, 1.0), required=True),
+    Field("force", "vector", "The force.", replace(B.FORCE, unit="N"), default="[0, 0, 0]", size=3),
+    Field("moment", "vector", "The moment.", replace(B.FORCE, unit="N m"), default="[0, 0, 0]", size=3),
+    Field("local", "boolean", "`true`: in the slice's own frame, turning with it (a follower load); `false`: world "
+          "frame.", default="false"),
+))
+
 #: Every table of the format, in the order of the documentation.
-TABLES = (TOP, MODEL, SEGMENT, BASE, MOTION, PRESSURE, INITIAL, SIMULATION, OUTPUT, BUDGET)
+TABLES = (TOP, MODEL, SEGMENT, BASE, MOTION, PRESSURE, INITIAL, SIMULATION, OUTPUT, BUDGET, CONTACT, OBSTACLE, LOAD)
 
 
 # --------------------------------------------------------------------------------------
@@ -635,6 +702,36 @@ plots = ["tip", "arm"]
 '''
 
 
+#: The contact tables, as :data:`EXAMPLE` would add them (a ground under the hanging arm, a
+#: pole beside it, a load at its tip).
+CONTACT_EXAMPLE = '''\
+[contact]
+stiffness = 1e6
+exponent = 1.5
+restitution = 0.8
+impact_speed = 0.5
+mu_static = 0.5
+mu_dynamic = 0.4
+nodes = 16
+
+[[obstacles]]
+type = "halfspace"
+name = "ground"
+
+[[obstacles]]
+type = "cylinder"
+name = "pole"
+a = [0.1, -0.2, 0.0]
+b = [0.1, 0.2, 0.0]
+radius = 0.02
+
+[[loads]]
+segment = 2
+alpha = 1.0
+force = [0.0, 0.0, -0.5]
+'''
+
+
 def _cell(s: str) -> str:
     return s.replace("|", "\\|")
 
@@ -666,6 +763,14 @@ def markdown() -> str:
         EXAMPLE.rstrip("\n"),
         "```",
         "",
+        "Contact with obstacles and point loads (`qchain/contact/`) is three more tables: the law,",
+        "the obstacles (world frame) and the loads. Added to the example, these lay a ground and a",
+        "pole across the arm's plane under it and hang 0.5 N from its tip:",
+        "",
+        "```toml",
+        CONTACT_EXAMPLE.rstrip("\n"),
+        "```",
+        "",
     ]
     for t in TABLES:
         title = "Top level" if not t.path else (f"`[[{t.path[:-2]}]]`" if t.path.endswith("[]") else f"`[{t.path}]`")
@@ -691,6 +796,18 @@ def markdown() -> str:
         "* pressures at or above a vacuum, -101325 Pa gauge, at all times (a sine's `offset - abs(amplitude)`);",
         "* `dt` with a fixed-step method only and `<= duration`; `max_step` with an adaptive one only;",
         "* the initial state inside the model, its mass matrix and energies finite;",
+        "* `[contact]`: `damping`, or `restitution` with `impact_speed`, not both; `mu_dynamic <= mu_static`;",
+        "* obstacles that are shapes: a half-space's `normal` not zero, a capsule's or cylinder's `b` at least",
+        "  1e-9 m from `a`; a load's `segment` one the arm has (`count` expanded);",
+        f"* the arm starts outside every obstacle: inside one by more than {MAX_START_PENETRATION:.0%} of a segment's "
+        "radius is",
+        "  refused, naming the obstacle, the segment and the depth (mm). An arm resting on an obstacle",
+        "  sinks by `(w / k)^(1/e)` for its weight `w` per metre (0.3 mm, 2 % of a 15 mm radius, for",
+        "  0.5 kg/m at the default law), so a rest state passes and an arm placed through an obstacle does not;",
+        "* the planar model (`[model]`) only when every obstacle and load is symmetric about the base's",
+        "  x-z plane: half-space normals, world load forces in it, load moments normal to it; sphere and",
+        "  box centres in it, box axes one normal to it; capsule and cylinder ends both in it or each",
+        "  the other's mirror image; follower (`local`) loads with no slice-y force and only a slice-y moment;",
         "* the run within its budget: `[budget]` above, whose message names the key that makes the",
         "  cost (`simulation.dt`, `simulation.max_step`, `pressure.frequency`, `base.motion.frequency`,",
         "  `output.sample_rate`, `segments[i].count`) and the bound to raise.",

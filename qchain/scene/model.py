@@ -136,7 +136,8 @@ class ModelBuilder:
             planar = True
             reductions.append(
                 "planar: uy locked at 0 in every segment: gravity, pressures (p2 == p3), initial state and base "
-                "motion symmetric about the base x-z plane"
+                "motion" + (", obstacles and loads" if self.surroundings.environment is not None else "")
+                + " symmetric about the base x-z plane"
             )
         else:
             kept.append(f"planar: not applicable: {why_not}")
@@ -208,7 +209,18 @@ class ModelBuilder:
                 return f"the base translates along {show_vector(ax)}, out of the x-z plane"
             if b.motion.kind == "rotation" and (ax[0] != 0.0 or ax[2] != 0.0) and b.motion.amplitude != 0.0:
                 return f"the base turns about {show_vector(ax)}, not the y axis"
-        return None
+        return self.surroundings.asymmetry(self.base.placement)
+
+    def start_problems(self) -> list:
+        """Problems (:class:`qchain.scene.format.Problem`) of an arm that starts inside an
+        obstacle (:meth:`qchain.scene.surroundings.Surroundings.start_problems`)."""
+        env = self.surroundings.environment
+        if env is None or not env.obstacles:
+            return []
+        segs = [s.segment(nodes=1) for s in self.segments]  # the backbone's shape alone: no mass integrals
+        chain = self._chain(segs, planar=False)
+        q0, v0 = self._initial_state(chain)
+        return self.surroundings.start_problems(chain, q0, v0)
 
     def _nodes(self, reduce: bool, planar: bool):
         """Node counts, the bends they were sized for, and a note saying how."""

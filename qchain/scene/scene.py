@@ -25,7 +25,8 @@ own setting); ``SceneModel.kept`` says which reductions did not apply and why no
   2 and 3 of every segment given the same pressure at all times (equal schedule
   parameters); ``uy = 0`` and ``uy' = 0`` at the start; a base motion in that plane (a
   translation along an axis with no y component, a rotation about the y axis; a floating
-  base with no initial y velocity and no x or z angular velocity).
+  base with no initial y velocity and no x or z angular velocity); every obstacle and point
+  load symmetric about that plane (:meth:`qchain.scene.surroundings.Surroundings.asymmetry`).
 * nodes (automatic, with ``model.node_tolerance``): each segment gets the fewest Gauss
   nodes whose ``M_xi`` is within ``node_tolerance`` of a converged one
   (:func:`qchain.model.segment.nodes_for_tolerance`) at the largest bend the scene reaches:
@@ -68,6 +69,7 @@ from .format import PLOTS, Problem, SceneError, _Checker, _show, _type_name  # n
 from .model import BEND_MARGIN, BEND_SAMPLES, ModelBuilder, SceneModel, _list_or_one  # noqa: F401 (re-exported)
 from ..checks.text import show_vector
 from .parts import BaseSpec, SegmentSpec, SineMotion
+from .surroundings import Surroundings
 from .cost import _cost, _frequency
 from ..sim.simulation import COMPILED, FIXED_STEP, METHODS, explicit_stability_limit, simulate
 
@@ -116,6 +118,8 @@ class Scene(ModelBuilder):
     save : bool
     budget : Budget
         What a run may cost (:mod:`qchain.sim.budget`; the file's ``[budget]`` table).
+    surroundings : Surroundings
+        Obstacles, contact law and point loads (:mod:`qchain.scene.surroundings`).
     """
 
     path: Path | None
@@ -143,6 +147,14 @@ class Scene(ModelBuilder):
     plots: tuple[str, ...]
     save: bool
     budget: Budget = field(default_factory=Budget)
+    surroundings: Surroundings = field(default_factory=Surroundings)
+
+    @property
+    def environment(self):
+        """The :class:`qchain.contact.Environment` of the file's ``[contact]``, ``[[obstacles]]``
+        and ``[[loads]]`` (None without obstacles and loads): every run passes it to
+        :func:`qchain.simulate` as ``env``."""
+        return self.surroundings.environment
 
     @property
     def n(self) -> int:
@@ -197,7 +209,7 @@ class Scene(ModelBuilder):
                 model.chain, model.q0, model.v0, (0.0, T), pressure=model.pressure if pressure is None else pressure,
                 method=self.method, dt=self.dt,
                 rtol=self.rtol, atol=self.atol, t_eval=self.sample_times(T), on_sample=on_sample, progress=progress,
-                max_step=self.max_step, controller_rate=controller_rate, budget=self.budget,
+                max_step=self.max_step, controller_rate=controller_rate, budget=self.budget, env=self.environment,
             )
         except BudgetError as err:  # said as a scene's budget: raised in its [budget] table
             if err.cost is None:
@@ -288,6 +300,7 @@ class Scene(ModelBuilder):
             lines.append("not reduced:")
             lines += [f"  - {k}" for k in m.kept]
         lines.append(f"pressure: {_pressure_summary(self.pressure_spec)}")
+        lines += self.surroundings.describe(ch)
         meth = f"{self.method}, dt = {self.dt:g} s" if self.method in FIXED_STEP else \
             f"{self.method}, rtol = {self.rtol:g}, atol = {self.atol:g}" + \
             (f", max_step = {self.max_step:g} s" if math.isfinite(self.max_step) else "")
