@@ -50,12 +50,13 @@ physics (soft Hunt-Crossley per length of tube against MuJoCo's per-capsule soft
 constraint; constant-curvature segments against rigid links; no end cap beyond the last
 contact point's ball against a capsule's round end), and the output gives that distance.
 
-Run: ``python benchmarks/bench_contact.py [--quick] [--out DIR]``; writes ``contact.csv``
-(every row of both parts) into ``--out`` (default ``out/bench``).
+Run: ``python benchmarks/bench_contact.py [--quick] [--out DIR] [--part a|b|ab]``; writes
+``contact_overhead.csv`` (a) and ``contact_mujoco.csv`` (b) into ``--out`` (default ``out/bench``).
 """
 
 from __future__ import annotations
 
+import argparse
 import itertools
 import time
 import xml.etree.ElementTree as ET
@@ -137,14 +138,16 @@ def overhead_runs(ch: Chain, T: float, repeats: int) -> tuple[list[dict], np.nda
         envs[f"contact/{k}"] = Environment([HalfSpace()], law(), nodes=k)
     q0, v0 = ch.neutral(), np.zeros(ch.nv)
     walls = {k: [] for k in envs}
+    cpus = {k: [] for k in envs}  # CPU time: less disturbed than wall time by other jobs on the machine
     last = {}
     for k, env in envs.items():  # warm-up: compiles what each needs
         simulate(ch, q0, v0, (0.0, 0.01), method="dopri5", env=env, energies=False, **TOL)
     for _ in range(repeats):
         for k, env in envs.items():
-            t0 = time.perf_counter()
+            t0, c0 = time.perf_counter(), time.process_time()
             tr = simulate(ch, q0, v0, (0.0, T), method="dopri5", env=env, energies=False, **TOL)
             walls[k].append(time.perf_counter() - t0)
+            cpus[k].append(time.process_time() - c0)
             if not tr.success:
                 raise RuntimeError(f"part (a) {k} run failed: {tr.message}")
             last[k] = tr
@@ -152,12 +155,13 @@ def overhead_runs(ch: Chain, T: float, repeats: int) -> tuple[list[dict], np.nda
     if last["far"].nfev != last["none"].nfev or not np.array_equal(last["far"].q, last["none"].q):
         raise RuntimeError("part (a): the far environment changed the run (it must exert no force)")
     rows = []
-    base = np.median(walls["none"])
+    base, cpu_base = np.median(walls["none"]), np.median(cpus["none"])
     for k in envs:
         med, lo, hi = _spread(np.array(walls[k]) / T)
         tr = last[k]
         rows.append(dict(part="a", item="simulate", case=k, wall_per_sim_s=med, lo=lo, hi=hi,
                          nfev=int(tr.nfev), us_per_rhs=1e6 * med * T / tr.nfev, ratio=np.median(walls[k]) / base,
+                         cpu_per_sim_s=np.median(cpus[k]) / T, cpu_ratio=np.median(cpus[k]) / cpu_base,
                          repeats=repeats))
     return rows, last["contact"].q[-1].copy(), last["contact"].v[-1].copy()
 
@@ -207,7 +211,7 @@ def bc_per_call_us(f, calls: int) -> float:
 
 
 def part_a(quick: bool) -> list[dict]:
-    T, repeats = (0.1, 3) if quick else (1.0, 5)
+    T, repeats = (0.1, 3) if quick else (1.0, 7)
     calls, call_repeats = (300, 3) if quick else (2000, 7)
     rows = []
     for planar in (True, False):
@@ -226,13 +230,16 @@ def part_a(quick: bool) -> list[dict]:
 
 def print_a(rows: list[dict]) -> None:
     print(f"\n(a) cost of an environment on the same arm (dopri5, rtol {TOL['rtol']:g}, atol {TOL['atol']:g})")
-    print(f"{'arm':<15} {'case':<10} {'wall ms/s':>10} {'min-max':>15} {'x none':>7} {'nfev':>7} {'us/rhs':>7}")
+    print(f"{'arm':<15} {'case':<10} {'wall ms/s':>10} {'min-max':>15} {'x none':>7} {'cpu ms/s':>9} {'x none':>7} "
+          f"{'nfev':>7} {'us/rhs':>7}")
     for r in rows:
         if r["item"] == "simulate":
             print(f"{r['arm']:<15} {r['case']:<10} {1e3 * r['wall_per_sim_s']:>10.2f} "
-                  f"{1e3 * r['lo']:>7.2f}-{1e3 * r['hi']:<7.2f} {r['ratio']:>7.3f} {r['nfev']:>7d} "
+                  f"{1e3 * r['lo']:>7.2f}-{1e3 * r['hi']:<7.2f} {r['ratio']:>7.3f} {1e3 * r['cpu_per_sim_s']:>9.2f} "
+                  f"{r['cpu_ratio']:>7.3f} {r['nfev']:>7d} "
                   f"{r['us_per_rhs']:>7.2f}")
-    print(f"(targets: far <= {TARGET_FAR:g}x, contact <= {TARGET_CONTACT:g}x the no-environment run)")
+    print(f"(targets: far <= {TARGET_FAR:g}x, contact <= {TARGET_CONTACT:g}x the no-environment run; cpu: process "
+          f"time, medians; us/rhs: median wall time over nfev)")
     print(f"\n{'arm':<15} {'call (from Python)':<30} {'case':<8} {'us/call':>8} {'min-max':>15} {'x none':>7}")
     for r in rows:
         if r["item"] != "simulate":
@@ -411,26 +418,40 @@ def print_b(rows: list[dict], lines: list[str]) -> None:
 # ---------------------------------------------------------------------------------- run
 
 
-def run(quick: bool = False, out_dir: Path = Path("out/bench")) -> list[dict]:
-    """Both parts; print their tables; write ``contact.csv`` into ``out_dir``; return the rows."""
-    try:
-        import mujoco
-    except ImportError as err:  # part (a) needs no MuJoCo
-        mujoco = None
-        print(f"skipping part (b), the MuJoCo comparison (the `bench` extra: pip install mujoco): {err}")
+def run(quick: bool = False, out_dir: Path = Path("out/bench"), parts: str = "ab") -> list[dict]:
+    """The parts named in ``parts`` ("a", "b" or "ab"); print their tables; write
+    ``contact_overhead.csv`` (a) and ``contact_mujoco.csv`` (b) into ``out_dir``; return the rows."""
+    mujoco = None
+    if "b" in parts:
+        try:
+            import mujoco
+        except ImportError as err:  # part (a) needs no MuJoCo
+            print(f"skipping part (b), the MuJoCo comparison (the `bench` extra: pip install mujoco): {err}")
     t0 = time.perf_counter()
-    print(f"scene: {br.describe(SCENE, 1.0)}" + (f"; MuJoCo {mujoco.__version__}" if mujoco else ""), flush=True)
-    rows_a = part_a(quick)
+    print(f"scene: {br.describe(SCENE, 1.0)}, damping beta = {BETA * 1e3:g} ms"
+          + (f"; MuJoCo {mujoco.__version__}" if mujoco else ""), flush=True)
+    rows_a = part_a(quick) if "a" in parts else []
     rows_b, lines = part_b(quick) if mujoco else ([], [])
-    print_a(rows_a)
+    for rows, name in ((rows_a, "contact_overhead.csv"), (rows_b, "contact_mujoco.csv")):
+        if rows:
+            fields = list(dict.fromkeys(k for r in rows for k in r))
+            _study.write_csv([{k: r.get(k, "") for k in fields} for r in rows], Path(out_dir) / name)
+    if rows_a:
+        print_a(rows_a)
     if rows_b:
         print_b(rows_b, lines)
-    rows = rows_a + rows_b
-    fields = list(dict.fromkeys(k for r in rows for k in r))
-    _study.write_csv([{k: r.get(k, "") for k in fields} for r in rows], Path(out_dir) / "contact.csv")
-    print(f"wrote {Path(out_dir) / 'contact.csv'} ({time.perf_counter() - t0:.1f} s)")
-    return rows
+    print(f"wrote into {out_dir} ({time.perf_counter() - t0:.1f} s)")
+    return rows_a + rows_b
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true", help="short runs (under a minute)")
+    ap.add_argument("--out", type=Path, default=Path("out/bench"), help="folder for the CSV files")
+    ap.add_argument("--part", choices=["a", "b", "ab"], default="ab", help="(a) overhead, (b) against MuJoCo")
+    args = ap.parse_args(argv)
+    return run(args.quick, args.out, args.part)
 
 
 if __name__ == "__main__":
-    _study.main(__doc__, run)
+    main()

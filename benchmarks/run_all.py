@@ -5,7 +5,7 @@ Writes into ``--out`` (default ``out/bench``): ``work_precision.{csv,png}``,
 ``release.{csv,png}`` (qchain against MuJoCo at equal accuracy; needs the ``bench`` extra's mujoco),
 ``reduced.csv`` (full against planar and inextensible models),
 ``static_cantilever.{csv,png}``,
-``scaling.{csv,png}``, ``derivatives.csv``, ``stability_map.{csv,png}``, ``contact.csv``. ``--quick`` shortens every study.
+``scaling.{csv,png}``, ``derivatives.csv``, ``stability_map.{csv,png}``, ``contact_{overhead,mujoco}.csv``. ``--quick`` shortens every study.
 
 Run: ``.venv/bin/python benchmarks/run_all.py [--quick] [--out DIR] [--only STUDY ...]``.
 """
