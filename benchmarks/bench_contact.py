@@ -51,7 +51,8 @@ constraint; constant-curvature segments against rigid links; no end cap beyond t
 contact point's ball against a capsule's round end), and the output gives that distance.
 
 Run: ``python benchmarks/bench_contact.py [--quick] [--out DIR] [--part a|b|ab]``; writes
-``contact_overhead.csv`` (a) and ``contact_mujoco.csv`` (b) into ``--out`` (default ``out/bench``).
+``contact_overhead.csv`` (a), ``contact_mujoco.csv`` and ``contact_mujoco.png`` (b) into ``--out``
+(default ``out/bench``); ``--replot`` redraws the chart from the CSV in ``--out`` (no runs).
 """
 
 from __future__ import annotations
@@ -415,6 +416,22 @@ def print_b(rows: list[dict], lines: list[str]) -> None:
         print(line)
 
 
+def plot_b(rows: list[dict], path: Path) -> None:
+    """Part (b)'s cost against accuracy, qchain left and MuJoCo right (bench_release's chart: each
+    size's frontier, filled where converged in time, each code's headline run circled); the
+    errors are against each code's own reference."""
+    best = {code: br.cheapest(rows, code) for code in ("qchain", "mujoco")}
+    br.plot(rows, path, rows[0]["T_s"], "", best)
+
+
+def replot(out_dir: Path) -> None:
+    """Redraw ``contact_mujoco.png`` from a written ``contact_mujoco.csv`` (no runs)."""
+    rows = _study.read_csv(Path(out_dir) / "contact_mujoco.csv")
+    for r in rows:
+        r["ok"] = r["status"] == "ok"
+    plot_b(rows, Path(out_dir) / "contact_mujoco.png")
+
+
 # ---------------------------------------------------------------------------------- run
 
 
@@ -440,6 +457,7 @@ def run(quick: bool = False, out_dir: Path = Path("out/bench"), parts: str = "ab
         print_a(rows_a)
     if rows_b:
         print_b(rows_b, lines)
+        plot_b(rows_b, Path(out_dir) / "contact_mujoco.png")
     print(f"wrote into {out_dir} ({time.perf_counter() - t0:.1f} s)")
     return rows_a + rows_b
 
@@ -449,7 +467,10 @@ def main(argv=None):
     ap.add_argument("--quick", action="store_true", help="short runs (under a minute)")
     ap.add_argument("--out", type=Path, default=Path("out/bench"), help="folder for the CSV files")
     ap.add_argument("--part", choices=["a", "b", "ab"], default="ab", help="(a) overhead, (b) against MuJoCo")
+    ap.add_argument("--replot", action="store_true", help="only redraw contact_mujoco.png from its CSV in --out")
     args = ap.parse_args(argv)
+    if args.replot:
+        return replot(args.out)
     return run(args.quick, args.out, args.part)
 
 
