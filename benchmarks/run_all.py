@@ -5,7 +5,7 @@ Writes into ``--out`` (default ``out/bench``): ``work_precision.{csv,png}``,
 ``release.{csv,png}`` (qchain against MuJoCo at equal accuracy; needs the ``bench`` extra's mujoco),
 ``reduced.csv`` (full against planar and inextensible models),
 ``static_cantilever.{csv,png}``,
-``scaling.{csv,png}``, ``derivatives.csv``, ``stability_map.{csv,png}``. ``--quick`` shortens every study.
+``scaling.{csv,png}``, ``derivatives.csv``, ``stability_map.{csv,png}``, ``contact_{overhead,mujoco}.csv``. ``--quick`` shortens every study.
 
 Run: ``.venv/bin/python benchmarks/run_all.py [--quick] [--out DIR] [--only STUDY ...]``.
 """
@@ -26,12 +26,12 @@ def main(argv=None) -> int:
     ap.add_argument("--quick", action="store_true", help="short runs (a few minutes in all)")
     ap.add_argument("--out", type=Path, default=Path("out/bench"), help="folder for the CSV and PNG files")
     ap.add_argument("--only", nargs="+",
-                    choices=["precision", "cosserat", "release", "reduced", "static", "scaling", "derivatives", "stability"],
+                    choices=["precision", "cosserat", "release", "reduced", "static", "scaling", "derivatives", "stability", "contact"],
                     help="run only these studies")
     args = ap.parse_args(argv)
     sys.path.insert(0, str(HERE))
     args.out.mkdir(parents=True, exist_ok=True)
-    todo = args.only or ["precision", "cosserat", "release", "reduced", "static", "scaling", "derivatives", "stability"]
+    todo = args.only or ["precision", "cosserat", "release", "reduced", "static", "scaling", "derivatives", "stability", "contact"]
     t_all = time.perf_counter()
     for name in todo:
         t0 = time.perf_counter()
@@ -69,6 +69,8 @@ def main(argv=None) -> int:
             bd.main(["--n", *map(str, ns), *reps, "--csv", str(args.out / "derivatives.csv")])
         elif name == "stability":
             importlib.import_module("stability_map").run(args.quick, args.out)
+        elif name == "contact":
+            importlib.import_module("bench_contact").run(args.quick, args.out)
         print(f"-- {name}: {time.perf_counter() - t0:.1f} s", flush=True)
     print(f"all charts in {args.out} ({time.perf_counter() - t_all:.1f} s)")
     return 0
