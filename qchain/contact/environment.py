@@ -194,6 +194,7 @@ class Environment:
         object.__setattr__(self, "loads", loads)
         object.__setattr__(self, "nodes", CONTACT_NODES.check("Environment.nodes", self.nodes))
         object.__setattr__(self, "self_contact", as_bool("Environment.self_contact", self.self_contact))
+        object.__setattr__(self, "_packed", None)
 
     def time_scale(self, chain) -> float | None:
         """The contact's time scale (s), the shortest over the chain's segments: the period
@@ -222,7 +223,12 @@ class Environment:
                                  f"{ld.segment}")
 
     def packed(self) -> "PackedEnvironment":
-        """The kernels' arrays (:class:`PackedEnvironment`)."""
+        """The kernels' arrays (:class:`PackedEnvironment`), made once (the passes never write them)."""
+        if self._packed is None:
+            object.__setattr__(self, "_packed", self._pack())
+        return self._packed
+
+    def _pack(self) -> "PackedEnvironment":
         rows = [ob.row() for ob in self.obstacles]
         kind = np.array([k for k, _ in rows], dtype=np.int64)
         prm = np.array([r for _, r in rows]).reshape(len(rows), PARAMS)

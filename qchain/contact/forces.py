@@ -203,6 +203,16 @@ def contact_forces(arr, kind, prm, vel, law, calpha, q, qd, R_WB, p_WB, V0, tau,
     self_contact = law[7] > 0.0
     start(R_WB, p_WB, V0, Rj, oj, Vj, W)
     count = 0
+    if not self_contact:
+        # the whole arm lies within its length plus its widest radius of the base origin: an
+        # environment beyond that costs one distance per obstacle
+        reach = 0.0
+        widest = 0.0
+        for j in range(n):
+            reach += abs(q[j, 0])
+            widest = max(widest, arr.radius[j])
+        if _all_beyond(kind, prm, p_WB, reach + widest, nrm):
+            return 0
     for j in range(n):
         l, ux, uy = q[j, 0], q[j, 1], q[j, 2]
         r_s = arr.radius[j]
@@ -256,8 +266,18 @@ def contact_forces(arr, kind, prm, vel, law, calpha, q, qd, R_WB, p_WB, V0, tau,
         _root_step(q[j], qd[j], Rj, oj, Vj, R1, p1, S1, Sd1, tmp)
     if self_contact:
         count = _self_contact(arr, law, calpha, q, qd, roots, P, W, tau, rec, count, sc[o:])
-    _backward(q, W, tau, F0, R1, p1, S1, Sd1, g9)
+    if count > 0:  # (no contact: every root wrench is zero)
+        _backward(q, W, tau, F0, R1, p1, S1, Sd1, g9)
     return count
+
+
+@jit
+def _all_beyond(kind, prm, x, reach, nrm):
+    """Whether every obstacle is farther than ``reach`` (m) from the point ``x``."""
+    for b in range(kind.shape[0]):
+        if signed_distance(kind[b], prm[b], x, nrm) <= reach:
+            return False
+    return True
 
 
 @jit
