@@ -65,6 +65,10 @@ Planar twists and accelerations are ``(vx, vz, wy)``, planar forces ``(fx, fz, n
 * ``Phi^T f = (R f_lin, pz (R f)_x - px (R f)_z + n_y, alpha (f_z + ux n_y),
   a2 f_x + a3 ux f_z + s n_y)``.
 
+A tip payload (``arr.payload``) enters by its in-plane block (rows and columns 0, 2, 4) and
+in-plane force; the reduction stays exact when it is symmetric about the x-z plane
+(``c_y = 0``, ``y`` a principal axis), which :class:`qchain.Chain` requires of a planar chain's.
+
 The segment block (5 x 5 over ``(V_root planar, ld, uxd)``) has the root block of the
 disks moved to the root, ``[[m, 0, m pz], [0, m, -m px], [m pz, -m px, Iyy + m |p|^2]]``
 summed over the nodes, and the q columns ``Phi^T I S_c``.

@@ -15,6 +15,12 @@ The passes work on per-segment blocks and plain arrays, never on the ``Chain`` f
   frame, ``A0 = a_root - (R^T g, 0)``: gravity enters as an upward acceleration of the base
   (Featherstone's device), so every pass includes it at no cost.
 
+A rigid tip payload (``arr.payload`` (6, 6), its spatial inertia ``I_p`` at the tip origin,
+zeros for none; :mod:`qchain.arm.payload`) is what hangs beyond root ``n``: the backward
+sweeps start from its wrench ``I_p A_n + V_n x* (I_p V_n)`` (:func:`payload_wrench`,
+:func:`rnea`), its inertia (the composite inertia of :func:`crba`, the articulated inertia of
+:func:`aba`) and its bias force ``V_n x* (I_p V_n)`` (:func:`aba`).
+
 Root ``j + 1`` is the tip of segment ``j``: its twist is ``T_j xi_j`` with the tip map
 ``T_j = Phi_j(1) = [Ad(g_j(1))^-1, S_j(1)]`` (6 x 9), and its acceleration
 ``T_j xidot_j + c_j`` with the tip bias acceleration ``c_j = Phidot_j(1) xi_j``.
