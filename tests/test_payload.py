@@ -160,6 +160,19 @@ def test_aba_derivatives_against_central_differences(base):
     np.testing.assert_allclose(d.da_dv, dv, rtol=0, atol=5e-8 * np.abs(dv).max())
 
 
+@pytest.mark.parametrize("base", ["fixed", "floating"])
+def test_coriolis_matrix_with_a_payload(base):
+    """``C v = nle - g`` and ``C + C^T = dM/dt`` (``dM/dt`` from the exact ``mass_matrix_derivative``)."""
+    ch, ch0 = arms(base)
+    q, v = state(ch, 14)
+    C = ch.coriolis_matrix(q, v)
+    want = ch.nonlinear_effects(q, v) - ch.generalized_gravity(q)
+    assert np.abs(want - (ch0.nonlinear_effects(q, v) - ch0.generalized_gravity(q))).max() > 1e-3 * np.abs(want).max()
+    np.testing.assert_allclose(C @ v, want, rtol=0, atol=1e-12 * np.abs(want).max())
+    Mdot = ch.mass_matrix_derivative(q) @ v
+    np.testing.assert_allclose(C + C.T, Mdot, rtol=0, atol=1e-12 * np.abs(Mdot).max())
+
+
 def test_momentum_is_the_mass_weighted_velocity_of_the_centres_of_mass():
     """Linear momentum = d/dt of (segment masses x their centres of mass + the payload's
     mass x its centre of mass), by central differences along ``integrate``."""

@@ -55,7 +55,8 @@ from ..errors import DomainError, NonFiniteError, SingularConfigurationError
 from ..model.segment import PAPER_SINGULAR_ANGLE, Segment
 from ..model.segment import _paper_jacobian as paper_jacobian, _paper_jacobian_dot as paper_jacobian_dot
 from ..model.segment import _paper_to_curvature as paper_to_curvature
-from ..model.spatial import _ad_matrix as ad_matrix, _quaternion_to_rotation as quaternion_to_rotation
+from ..model.spatial import _ad_matrix as ad_matrix, _force_cross_bar as force_cross_bar
+from ..model.spatial import _quaternion_to_rotation as quaternion_to_rotation
 from ..checks.frozen import KeepsReadOnly
 
 __all__ = ["Chain", "Frames", "BASES"]
@@ -838,7 +839,8 @@ class Chain(KeepsReadOnly, ChainKinematics, ChainContact, ChainChecks):
 
     @_finite("Coriolis matrix", has_v=True)
     def coriolis_matrix(self, q, v) -> np.ndarray:
-        """``C(q, v)`` (nv, nv) with ``C v = nonlinear_effects - g`` and ``dM/dt - 2C`` skew.
+        """``C(q, v)`` (nv, nv) with ``C v = nonlinear_effects - g`` and ``dM/dt - 2C`` skew
+        (the tip payload's terms included).
 
         ``C = sum_j A_j^T (C_xi_j A_j + M_xi_j Adot_j)`` with ``xi_j = A_j v``, from the
         segments' own ``C_xi`` (fixed and floating bases; a prescribed base adds a forcing
@@ -875,4 +877,9 @@ class Chain(KeepsReadOnly, ChainKinematics, ChainContact, ChainChecks):
             Vdot[:, sl] += Sdot
             Vmap = Ad[j] @ Vmap
             Vmap[:, sl] += S[j]
+        if self._has_payload:  # a rigid body with twist V = Vmap v: C_b(V) = (V x* I + I ad(V) + bar(I V)) / 2, skew
+            I = self._payload
+            V = Vmap @ v
+            C_b = 0.5 * (-ad_matrix(V).T @ I + I @ ad_matrix(V) + force_cross_bar(I @ V))
+            C += Vmap.T @ (I @ Vdot + C_b @ Vmap)
         return C
