@@ -213,6 +213,44 @@ def test_planar_kernel_with_a_planar_payload():
     np.testing.assert_allclose(tau_p[:, :2], tau_s[:, :2], rtol=0, atol=1e-11 * np.abs(tau_s).max())
 
 
+def test_planar_kernel_on_a_moving_base():
+    """planar_aba_moving (a planar chain on a prescribed base moving in its x-z plane, the
+    engine's planar path) equals recursive.aba with the payload, base twist in the plane."""
+    ch, _ = arms("fixed", payload=PLANAR_PAYLOAD, planar=True)
+    q, v = state(ch, 15)
+    n = ch.n
+    arr = tuple(ch.kernel_arrays())
+    q_c, v_c = q.reshape(n, 3), v.reshape(n, 3)
+    f = ch.internal_forces(q, v).reshape(n, 3)
+    V0 = np.array([0.3, 0.0, -0.2, 0.0, 1.5, 0.0])
+    A0 = np.array([0.5, 0.0, 9.81, 0.0, -2.0, 0.0])
+    qa, qp = np.empty((n, 3)), np.empty((n, 3))
+    ws = qchain.algorithms.recursive.aba_workspace(n, ch.nv)
+    assert qchain.algorithms.recursive.aba(arr, q_c, v_c, f, V0, A0, False, np.zeros(6), qa, np.empty(6), tuple(ws),
+                                           ws.scratch)
+    pw = planar_alg.planar_workspace(n)
+    assert planar_alg.planar_aba_moving(arr, q_c, v_c, f, V0, A0, qp, tuple(pw), pw.pscratch)
+    np.testing.assert_allclose(qp[:, :2], qa[:, :2], rtol=0, atol=1e-11 * np.abs(qa).max())
+
+
+def test_planar_and_spatial_engines_agree_with_a_payload():
+    """A planar chain (the engine's planar kernel) and the same chain unconstrained (the
+    spatial kernel), started in the plane with a plane-symmetric payload, follow the same
+    trajectory (the symmetry keeps the free chain in the plane)."""
+    seg = Segment(**SEGMENT)
+    chp = Chain([seg] * 2, planar=True, payload=PLANAR_PAYLOAD)
+    chs = Chain([seg] * 2, payload=PLANAR_PAYLOAD)
+    q0 = chp.neutral()
+    q0[1::3] = [5.0, -4.0]
+    v0 = np.zeros(chp.nv)
+    kw = dict(method="dopri5", rtol=1e-10, atol=1e-12)
+    rp = qchain.simulate(chp, q0, v0, (0.0, 0.2), **kw)
+    rs = qchain.simulate(chs, q0, v0, (0.0, 0.2), **kw)
+    assert np.abs(rp.q[-1] - q0).max() > 1.0  # it moves
+    np.testing.assert_allclose(rp.q[-1], rs.q[-1], rtol=0, atol=1e-7)
+    np.testing.assert_allclose(rs.q[:, 2::3], 0.0, atol=1e-12)
+
+
 def test_no_payload_is_no_change():
     """``payload=None`` and a zero ``pinocchio.Inertia`` give the same results, bit for bit."""
     ch0 = Chain([S] * 3, base="floating")
