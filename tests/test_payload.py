@@ -304,3 +304,14 @@ def test_energy_is_conserved_with_a_payload():
     K = max(ch.kinetic_energy(q, v) for q, v in zip(res.q, res.v))
     assert K > 1e-3  # it moves
     assert np.abs(E - E[0]).max() < 1e-9 * K  # measured 3e-11
+
+
+def test_a_pickled_chain_keeps_its_payload():
+    """Batches send the chain to worker processes pickled."""
+    import pickle
+
+    ch, _ = arms("floating")
+    copy = pickle.loads(pickle.dumps(ch))
+    np.testing.assert_array_equal(copy.payload.matrix(), PAYLOAD.matrix())
+    q, v = state(ch, 16)
+    assert np.array_equal(copy.forward_dynamics(q, v), ch.forward_dynamics(q, v))
