@@ -70,11 +70,16 @@ def test_mass_matrix_is_the_hessian_of_the_kinetic_energy(base):
     np.testing.assert_allclose(ch.kinetic_energy(q, v), ch0.kinetic_energy(q, v) + E(v), rtol=1e-13)
 
 
-def test_statics_of_a_straight_cantilever():
+@pytest.mark.parametrize("base", ["fixed", "floating"])
+def test_statics_of_a_straight_cantilever(base):
     """At rest, inverse dynamics = the arm's own gravity - J_tip^T (the payload's gravity
-    wrench at the tip origin, tip frame); also at a bent configuration."""
-    ch, ch0 = arms("fixed")
-    for q in (ch.neutral(), state(ch, 1)[0]):
+    wrench at the tip origin, tip frame); straight and bent (a floating base: turned, its
+    rows the base wrench)."""
+    ch, ch0 = arms(base)
+    q_straight = ch.neutral()
+    if ch.floating:
+        q_straight[3:7] = state(ch, 1)[0][3:7]
+    for q in (q_straight, state(ch, 1)[0]):
         X = ch.tip_placement(q)
         f = PAYLOAD.mass * X.rotation.T @ ch.gravity  # tip frame
         W = np.concatenate([f, np.cross(PAYLOAD.lever, f)])
