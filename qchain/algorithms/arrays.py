@@ -51,6 +51,10 @@ class ChainArrays(NamedTuple):
         The paper's actuation law.
     locked : (n, 3) bool
         Coordinates held still (``planar``, inextensible segments).
+    payload : (6, 6) float
+        Spatial inertia of a rigid payload fixed at the tip (root ``n``), in the tip frame,
+        Pinocchio's ``[linear; angular]`` convention (``pinocchio.Inertia.matrix()``):
+        ``[[m 1, -m [c]], [m [c], I_c - m [c][c]]]`` (kg, kg m, kg m^2). All zeros: no payload.
     """
 
     alpha: np.ndarray
@@ -66,6 +70,7 @@ class ChainArrays(NamedTuple):
     r_ch: np.ndarray
     paper_act: np.ndarray
     locked: np.ndarray
+    payload: np.ndarray
 
 
 class AbaWorkspace(NamedTuple):

@@ -65,6 +65,10 @@ Planar twists and accelerations are ``(vx, vz, wy)``, planar forces ``(fx, fz, n
 * ``Phi^T f = (R f_lin, pz (R f)_x - px (R f)_z + n_y, alpha (f_z + ux n_y),
   a2 f_x + a3 ux f_z + s n_y)``.
 
+A tip payload (``arr.payload``) enters by its in-plane block (rows and columns 0, 2, 4) and
+in-plane force; the reduction stays exact when it is symmetric about the x-z plane
+(``c_y = 0``, ``y`` a principal axis), which :class:`qchain.Chain` requires of a planar chain's.
+
 The segment block (5 x 5 over ``(V_root planar, ld, uxd)``) has the root block of the
 disks moved to the root, ``[[m, 0, m pz], [0, m, -m px], [m pz, -m px, Iyy + m |p|^2]]``
 summed over the nodes, and the q columns ``Phi^T I S_c``.
@@ -238,6 +242,27 @@ def _tip(l, ux, ld, uxd, vx, vz, vw, T, c, j):
 
 
 @_inline
+def _payload_inertia(P):
+    """The in-plane block (rows and columns 0, 2, 4) of the payload's spatial inertia ``P``
+    (6, 6), upper triangle ``(i00, i01, i02, i11, i12, i22)``; exact for a payload symmetric
+    about the x-z plane (``c_y = 0``, ``y`` a principal axis of ``I_c``: ``qchain.Chain``
+    refuses another on a planar chain)."""
+    return P[0, 0], P[0, 2], P[0, 4], P[2, 2], P[2, 4], P[4, 4]
+
+
+@_inline
+def _payload_force(P, vx, vz, vw, ax, az, aw):
+    """In-plane ``P A + V x* (P V)`` (the planar force of :func:`recursive.payload_wrench`) for
+    the planar twist ``(vx, vz, vw)`` and acceleration ``(ax, az, aw)``."""
+    hx = P[0, 0] * vx + P[0, 2] * vz + P[0, 4] * vw
+    hz = P[2, 0] * vx + P[2, 2] * vz + P[2, 4] * vw
+    fx = P[0, 0] * ax + P[0, 2] * az + P[0, 4] * aw + vw * hz
+    fz = P[2, 0] * ax + P[2, 2] * az + P[2, 4] * aw - vw * hx
+    fw = P[4, 0] * ax + P[4, 2] * az + P[4, 4] * aw + vz * hx - vx * hz
+    return fx, fz, fw
+
+
+@_inline
 def _planar_aba(arr, q, qd, tau, v0x, v0z, v0w, A0, qdd, ws, sc):
     alpha, w, offs, mass, radius, locked = arr.alpha, arr.w, arr.offs, arr.mass, arr.radius, arr.locked
     n = q.shape[0]
@@ -255,8 +280,9 @@ def _planar_aba(arr, q, qd, tau, v0x, v0z, v0w, A0, qdd, ws, sc):
         vx, vz, vw = _tip(l, ux, ld, uxd, vx, vz, vw, T, c, j)
     # pass 2: articulated inertias, backwards. IA (symmetric 3 x 3) and pA in scalars;
     # the scratch holds IA T (3, 5) at sc[0:15] and Mh (5, 5, upper triangle) at sc[15:40]
-    i00 = i01 = i02 = i11 = i12 = i22 = 0.0
-    p0 = p1 = p2 = 0.0
+    # from the payload's in-plane inertia and bias force (vx, vz, vw: the tip's twist)
+    i00, i01, i02, i11, i12, i22 = _payload_inertia(arr.payload)
+    p0, p1, p2 = _payload_force(arr.payload, vx, vz, vw, 0.0, 0.0, 0.0)
     for j in range(n - 1, -1, -1):
         c0 = c[j, 0]
         c1 = c[j, 1]
@@ -428,7 +454,8 @@ def planar_rnea(arr, q, qd, qdd, A0, tau, F0, ws, sc):
         nz = T[j, 1, 0] * ax + T[j, 1, 1] * az + T[j, 1, 2] * aw + dl + T[j, 1, 4] * du + c[j, 1]
         nw = aw + T[j, 2, 3] * dl + T[j, 2, 4] * du + c[j, 2]
         ax, az, aw = nx, nz, nw
-    fx = fz = fw = 0.0  # wrench on root j + 1 from what lies beyond
+    # wrench on root j + 1 from what lies beyond: at the tip, the payload's
+    fx, fz, fw = _payload_force(arr.payload, vx, vz, vw, ax, az, aw)
     for j in range(n - 1, -1, -1):
         gx = b[j, 0] + T[j, 0, 0] * fx + T[j, 1, 0] * fz
         gz = b[j, 1] + T[j, 0, 1] * fx + T[j, 1, 1] * fz

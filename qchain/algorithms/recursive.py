@@ -15,6 +15,12 @@ The passes work on per-segment blocks and plain arrays, never on the ``Chain`` f
   frame, ``A0 = a_root - (R^T g, 0)``: gravity enters as an upward acceleration of the base
   (Featherstone's device), so every pass includes it at no cost.
 
+A rigid tip payload (``arr.payload`` (6, 6), its spatial inertia ``I_p`` at the tip origin,
+zeros for none; :mod:`qchain.arm.payload`) is what hangs beyond root ``n``: the backward
+sweeps start from its wrench ``I_p A_n + V_n x* (I_p V_n)`` (:func:`payload_wrench`,
+:func:`rnea`), its inertia (the composite inertia of :func:`crba`, the articulated inertia of
+:func:`aba`) and its bias force ``V_n x* (I_p V_n)`` (:func:`aba`).
+
 Root ``j + 1`` is the tip of segment ``j``: its twist is ``T_j xi_j`` with the tip map
 ``T_j = Phi_j(1) = [Ad(g_j(1))^-1, S_j(1)]`` (6 x 9), and its acceleration
 ``T_j xidot_j + c_j`` with the tip bias acceleration ``c_j = Phidot_j(1) xi_j``.
@@ -42,7 +48,7 @@ from ..model.slices import (
     _segment_slices, domain_violation, elastic_gradient_c, input_matrix_c, rest_damping_c, phi_matrix, slice_twist,
     sub_motion_cross)
 
-__all__ = ["rnea", "crba", "aba", "tip_maps", "frames", "internal_forces", "first_invalid"]
+__all__ = ["rnea", "crba", "aba", "tip_maps", "frames", "internal_forces", "first_invalid", "payload_wrench"]
 
 
 @jit_helper
@@ -64,6 +70,28 @@ def _tip(q, qd, xi, T, c, sc):
         rel[r] = S[r, 0] * qd[0] + S[r, 1] * qd[1] + S[r, 2] * qd[2]
         c[r] = Sd[r, 0] * qd[0] + Sd[r, 1] * qd[1] + Sd[r, 2] * qd[2]
     sub_motion_cross(rel, Vr, c)
+
+
+@jit_helper
+def payload_wrench(P, V, A, h, F):
+    """``F = P A + V x* (P V)`` (6,): the wrench (tip frame) the tip must exert on a rigid
+    payload of spatial inertia ``P`` (6, 6) moving with twist ``V`` and apparent acceleration
+    ``A`` (gravity folded in as the passes do); ``h`` (6,) receives ``P V``. ``P = 0``: ``F = 0``."""
+    for r in range(6):
+        acc = 0.0
+        acc2 = 0.0
+        for s in range(6):
+            acc += P[r, s] * V[s]
+            acc2 += P[r, s] * A[s]
+        h[r] = acc
+        F[r] = acc2
+    # V x* h = (w x h_l, v x h_l + w x h_a)
+    F[0] += V[4] * h[2] - V[5] * h[1]
+    F[1] += V[5] * h[0] - V[3] * h[2]
+    F[2] += V[3] * h[1] - V[4] * h[0]
+    F[3] += V[1] * h[2] - V[2] * h[1] + V[4] * h[5] - V[5] * h[4]
+    F[4] += V[2] * h[0] - V[0] * h[2] + V[5] * h[3] - V[3] * h[5]
+    F[5] += V[0] * h[1] - V[1] * h[0] + V[3] * h[4] - V[4] * h[3]
 
 
 @jit_helper
@@ -138,7 +166,8 @@ def rnea(arr, q, qd, qdd, V0, A0, tau, F0, ws, sc):
         _matvec(T[j], xid, A)
         for r in range(6):
             A[r] += c[j, r]
-    F[:] = 0.0
+    h, o = take1(sc, o, 6)
+    payload_wrench(arr.payload, V, A, h, F)  # V, A: the tip's (root n) twist and acceleration
     for j in range(n - 1, -1, -1):
         out[:] = 0.0
         for r in range(6):  # T^T F
@@ -200,7 +229,9 @@ def crba(arr, q, floating, H, ws, sc):
     for j in range(n):
         _tip(q[j], z3, z9, T[j], c, sc[o:])
     Ic, o = take2(sc, o, 6, 6)
-    Ic[:, :] = 0.0
+    for r in range(6):  # what hangs beyond the tip: the payload
+        for s in range(6):
+            Ic[r, s] = arr.payload[r, s]
     IcT, o = take2(sc, o, 6, 9)
     Mh, o = take2(sc, o, 9, 9)
     F, o = take2(sc, o, 6, 3)
@@ -326,9 +357,11 @@ def aba(arr, q, qd, tau, V0, A0, floating, F0, qdd, A0_out, ws, sc):
                         True, Mall[j], b[j], sc[o:])
         _tip(q[j], qd[j], xi, T[j], c[j], sc[o:])
         _matvec(T[j], xi, V)
-    # pass 2: articulated inertias, backwards
-    IA[:, :] = 0.0
-    pA[:] = 0.0
+    # pass 2: articulated inertias, backwards, from the payload's (V: the tip twist)
+    for r in range(6):
+        for s in range(6):
+            IA[r, s] = arr.payload[r, s]
+    payload_wrench(arr.payload, V, z9[:6], pc, pA)  # bias force V x* (P V); z9 is zero
     for j in range(n - 1, -1, -1):
         for r in range(6):
             acc = pA[r]

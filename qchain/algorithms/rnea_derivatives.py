@@ -44,7 +44,7 @@ from ..model.slices import (
     elastic_hessian_c, mass_finish, mass_node, phi_matrix, phi_transpose_force, pressure_jacobian_c, rest_damping_c,
     slice_twist)
 from .arrays import AbaWorkspace, ChainArrays, RneaWorkspace
-from .recursive import _load_xi
+from .recursive import _load_xi, payload_wrench
 from .recursive import _project as recursive_project
 from .recursive import aba_workspace as recursive_aba_workspace
 
@@ -422,13 +422,12 @@ def _rnea_derivatives(arr, q, qd, qdd, V0, A0, floating, g_B, ws, wd, sc):
     xid, o = take1(sc, o, 9)
     _forward_pass(alpha, w, offs, mass, radius, q, qd, qdd, V0, A0, V, T, Q, Mxi, A, Rw, pw, QqT, QxT, rel1, tipV,
                   tipA, dS1, R1, p1, xi, xid, sc[o:])
-    # the subtree beyond the current root: its wrench F, composite inertia Ic, W = dF/dV
+    # the subtree beyond the current root: its wrench F, composite inertia Ic, W = dF/dV;
+    # beyond the tip, the payload (zeros without one)
     F, o = take1(sc, o, 6)
-    F[:] = 0.0
     Ic, o = take2(sc, o, 6, 6)
-    Ic[:, :] = 0.0
     WF, o = take2(sc, o, 6, 6)
-    WF[:, :] = 0.0
+    _payload_blocks(arr.payload, V[n], A[n], F, Ic, WF, sc[o:])
     dq[:, :] = 0.0
     dv[:, :] = 0.0
     M[:, :] = 0.0
@@ -439,6 +438,29 @@ def _rnea_derivatives(arr, q, qd, qdd, V0, A0, floating, g_B, ws, wd, sc):
     _assemble(n, off, G, Ya, Yv, Ms, Jw, sig1, sig2, M, dq, dv)
     if floating:
         _floating_base(n, off, V0, g_B, G, Ya, Yv, Ms, M, dq, dv, Ic, WF, sc[o:])
+
+
+@jit_helper
+def _payload_blocks(P, V, A, F, Ic, WF, sc):
+    """The payload (spatial inertia ``P`` (6, 6)) at the tip twist ``V`` and apparent
+    acceleration ``A`` (6,): its wrench ``F = P A + V x* (P V)``, ``Ic = P = dF/dA`` and
+    ``WF = dF/dV = (. x* P V) + V x* P .`` column by column (6, 6); ``sc`` scratch."""
+    o = 0
+    h, o = take1(sc, o, 6)
+    e, o = take1(sc, o, 6)
+    t1, o = take1(sc, o, 6)
+    t2, o = take1(sc, o, 6)
+    payload_wrench(P, V, A, h, F)
+    for s in range(6):
+        for r in range(6):
+            Ic[r, s] = P[r, s]
+            e[r] = P[r, s]
+        _fcross(V, e, t1)  # V x* (P e_s)
+        e[:] = 0.0
+        e[s] = 1.0
+        _fcross(e, h, t2)  # e_s x* (P V)
+        for r in range(6):
+            WF[r, s] = t1[r] + t2[r]
 
 
 @jit_inline

@@ -48,13 +48,15 @@ from .contact import ChainContact
 from .kinematics import _NO_POINTS, ChainKinematics, Frames
 from .dynamics_derivatives import _ZERO6, ForwardDynamicsDerivatives, InverseDynamicsDerivatives
 from .data import Data
+from .payload import payload_matrix
 from ..checks.bounds import GRAVITY, POSITION, PSI, SEGMENT_COUNT, TIME
 from ..checks.convert import as_bool, as_index, as_vector, describe_value
 from ..errors import DomainError, NonFiniteError, SingularConfigurationError
 from ..model.segment import PAPER_SINGULAR_ANGLE, Segment
 from ..model.segment import _paper_jacobian as paper_jacobian, _paper_jacobian_dot as paper_jacobian_dot
 from ..model.segment import _paper_to_curvature as paper_to_curvature
-from ..model.spatial import _ad_matrix as ad_matrix, _quaternion_to_rotation as quaternion_to_rotation
+from ..model.spatial import _ad_matrix as ad_matrix, _force_cross_bar as force_cross_bar
+from ..model.spatial import _quaternion_to_rotation as quaternion_to_rotation
 from ..checks.frozen import KeepsReadOnly
 
 __all__ = ["Chain", "Frames", "BASES"]
@@ -112,6 +114,13 @@ class Chain(KeepsReadOnly, ChainKinematics, ChainContact, ChainChecks):
     planar : bool
         Hold ``uy = 0`` in every segment (curvature coordinates only): the arm moves in the
         base's x-z plane. Exact for scenes symmetric about that plane.
+    payload : pinocchio.Inertia, optional
+        A rigid body fixed at the tip frame (root ``n``): ``Inertia(mass, lever, inertia)``,
+        mass (kg, >= 0), centre of mass ``lever`` (3,) m in the tip frame, rotational inertia
+        (3, 3) kg m^2 about it, tip-frame axes (symmetric, positive semi-definite). It enters
+        every dynamics pass, gravity included, and the energies and momentum
+        (:mod:`qchain.arm.payload`). With ``planar=True`` it must be symmetric about the x-z
+        plane. None (default): no payload.
 
     Locked coordinates (``planar``, and ``l`` of segments with ``extensible=False``) keep
     their place in ``q`` and ``v`` so layouts do not change: ``q`` must hold the locked
@@ -141,6 +150,7 @@ class Chain(KeepsReadOnly, ChainKinematics, ChainContact, ChainChecks):
         base_placement: pin.SE3 | None = None,
         base_motion: Callable | None = None,
         planar: bool = False,
+        payload: pin.Inertia | None = None,
     ):
         if (isinstance(segments, (Segment, str, bytes, set, frozenset, dict)) or isinstance(segments, np.ndarray)
                 and segments.ndim != 1 or not isinstance(segments, Sequence) and not hasattr(segments, "__iter__")):
@@ -208,6 +218,10 @@ class Chain(KeepsReadOnly, ChainKinematics, ChainContact, ChainChecks):
             j = int(np.flatnonzero(self._paper)[0])
             raise ValueError(f"planar=True needs curvature coordinates; segments[{j}] has coords='paper'")
         self.planar = bool(planar)
+        # the checked payload and its spatial inertia (6, 6) at the tip origin (zeros: none)
+        self._payload_inertia, self._payload = payload_matrix(payload, self.planar)
+        self._payload.flags.writeable = False
+        self._has_payload = self._payload_inertia is not None
         self._planar_kernel = self.planar and base == "fixed"  # forward dynamics on qchain.algorithms.planar
         self._p_zero = np.zeros((n, 3))  # p = None on the unchecked path (writable: one array type for the kernels)
         self._locked = np.zeros((n, 3), dtype=bool)
@@ -221,7 +235,8 @@ class Chain(KeepsReadOnly, ChainKinematics, ChainContact, ChainChecks):
         # NamedTuple field by field in Python: a microsecond a call; the passes name it again)
         self._named_arrays = ChainArrays(alpha=self._alpha, w=self._w, offs=self._offs, mass=self._mass,
                                    radius=self._radius, l0=self._l0, EI=self._EI, EA=self._EA, beta=self._beta,
-                                   A_ch=self._A_ch, r_ch=self._r_ch, paper_act=self._paper_act, locked=self._locked)
+                                   A_ch=self._A_ch, r_ch=self._r_ch, paper_act=self._paper_act, locked=self._locked,
+                                   payload=self._payload)
         self._arrays = tuple(self._named_arrays)
         self.active = np.ones(self.nv, dtype=bool)
         self.active[self._voff :] = ~self._locked.ravel()
@@ -242,6 +257,12 @@ class Chain(KeepsReadOnly, ChainKinematics, ChainContact, ChainChecks):
         quantities made from it, so it is set once, at construction)."""
         return pin.SE3(self._X_WB0)
 
+    @property
+    def payload(self) -> pin.Inertia | None:
+        """The tip payload (a new ``pinocchio.Inertia``, tip frame), or None; read-only (the
+        passes keep its spatial inertia: make a new Chain for another payload)."""
+        return pin.Inertia(self._payload_inertia) if self._has_payload else None
+
     def kernel_arrays(self) -> ChainArrays | None:
         """The flat per-node and per-segment arrays the compiled passes take, as one named
         structure (:class:`qchain.algorithms.arrays.ChainArrays`; the chain's own arrays, not
@@ -254,7 +275,8 @@ class Chain(KeepsReadOnly, ChainKinematics, ChainContact, ChainChecks):
         segment ``j``'s nodes ``offs[j]:offs[j + 1]``; ``mass`` (kg), ``radius`` (m), ``l0``
         rest length (m), ``EI`` (N m^2), ``EA`` (N), ``beta`` damping (s), ``A_ch`` chamber
         area (m^2), ``r_ch`` chamber radius (m), all ``(n,)``; ``paper_act (n,) bool`` the
-        paper's actuation law; ``locked (n, 3) bool`` coordinates held still."""
+        paper's actuation law; ``locked (n, 3) bool`` coordinates held still; ``payload
+        (6, 6)`` the tip payload's spatial inertia (zeros: none)."""
         if self._any_paper or self._has_linear:
             return None
         return self._named_arrays
@@ -430,17 +452,19 @@ class Chain(KeepsReadOnly, ChainKinematics, ChainContact, ChainChecks):
 
     @_finite("kinetic energy", has_v=True)
     def kinetic_energy(self, q, v, t: float = 0.0) -> float:
-        """``T = sum_j 1/2 xi_j^T M_xi_j xi_j`` (J), the base's own motion included (the paper's
-        eq. (4) summed over the segments; docs/model.md section 8)."""
+        """``T = sum_j 1/2 xi_j^T M_xi_j xi_j + 1/2 V_n^T I_p V_n`` (J), the base's own motion
+        included (the paper's eq. (4) summed over the segments; docs/model.md section 8), and
+        the tip payload's (spatial inertia ``I_p``, tip twist ``V_n``)."""
         st = self._state(q, v, t=t)
         V = self._root_twists(st)
         M = self._segment_masses_c(st)
         xi = np.concatenate([V[:-1], st.v_c], axis=1)
-        return 0.5 * float(np.einsum("ni,nij,nj->", xi, M, xi))
+        return 0.5 * float(np.einsum("ni,nij,nj->", xi, M, xi)) + 0.5 * float(V[-1] @ self._payload @ V[-1])
 
     @_finite("centres of mass")
     def centers_of_mass(self, q, t: float = 0.0) -> np.ndarray:
-        """World centre of mass of each segment (n, 3), m."""
+        """World centre of mass of each segment (n, 3), m (the tip payload's is not among
+        them: it is ``tip_placement(q).act(payload.lever)``)."""
         return self._centers_of_mass(self._state(q, t=t))
 
     def _centers_of_mass(self, st: _State) -> np.ndarray:
@@ -452,15 +476,21 @@ class Chain(KeepsReadOnly, ChainKinematics, ChainContact, ChainChecks):
 
     @_finite("potential energy")
     def potential_energy(self, q, t: float = 0.0) -> float:
-        """Gravity (about the world origin) plus elastic energy (J) (docs/model.md section 9)."""
+        """Gravity (about the world origin; the tip payload's included) plus elastic energy (J)
+        (docs/model.md section 9)."""
         st = self._state(q, t=t)
         Ug = -float(self._mass @ (self._centers_of_mass(st) @ self.gravity))
+        if self._has_payload:
+            P = self._payload_inertia
+            f = self._state_frames(st, _NO_POINTS)
+            Ug -= P.mass * float((f.rotation[0, -1] @ P.lever + f.translation[0, -1]) @ self.gravity)
         Ue = sum(s.elastic_energy(st.q_e[j]) for j, s in enumerate(self.segments))
         return Ug + Ue
 
     @_finite("momentum", has_v=True)
     def momentum(self, q, v, t: float = 0.0) -> np.ndarray:
-        """World momentum (6,): linear (kg m/s) and angular about the world origin (kg m^2/s)."""
+        """World momentum (6,): linear (kg m/s) and angular about the world origin (kg m^2/s),
+        the tip payload's included."""
         st = self._state(q, v, t=t)
         V = self._root_twists(st)
         M = self._segment_masses_c(st)
@@ -469,7 +499,7 @@ class Chain(KeepsReadOnly, ChainKinematics, ChainContact, ChainChecks):
         for j in range(self.n):
             xi = np.concatenate([V[j], st.v_c[j]])
             h += X[j].act(pin.Force(M[j, :6] @ xi)).vector
-        return h
+        return h + X[self.n].act(pin.Force(self._payload @ V[self.n])).vector
 
     # ------------------------------------------------------------------ dynamics
 
@@ -817,7 +847,8 @@ class Chain(KeepsReadOnly, ChainKinematics, ChainContact, ChainChecks):
 
     @_finite("Coriolis matrix", has_v=True)
     def coriolis_matrix(self, q, v) -> np.ndarray:
-        """``C(q, v)`` (nv, nv) with ``C v = nonlinear_effects - g`` and ``dM/dt - 2C`` skew.
+        """``C(q, v)`` (nv, nv) with ``C v = nonlinear_effects - g`` and ``dM/dt - 2C`` skew
+        (the tip payload's terms included).
 
         ``C = sum_j A_j^T (C_xi_j A_j + M_xi_j Adot_j)`` with ``xi_j = A_j v``, from the
         segments' own ``C_xi`` (fixed and floating bases; a prescribed base adds a forcing
@@ -854,4 +885,9 @@ class Chain(KeepsReadOnly, ChainKinematics, ChainContact, ChainChecks):
             Vdot[:, sl] += Sdot
             Vmap = Ad[j] @ Vmap
             Vmap[:, sl] += S[j]
+        if self._has_payload:  # a rigid body with twist V = Vmap v: C_b(V) = (V x* I + I ad(V) + bar(I V)) / 2, skew
+            I = self._payload
+            V = Vmap @ v
+            C_b = 0.5 * (-ad_matrix(V).T @ I + I @ ad_matrix(V) + force_cross_bar(I @ V))
+            C += Vmap.T @ (I @ Vdot + C_b @ Vmap)
         return C
