@@ -322,8 +322,6 @@ def test_a_pickled_chain_keeps_its_payload():
     assert np.array_equal(copy.forward_dynamics(q, v), ch.forward_dynamics(q, v))
 
 
-@pytest.mark.xfail(strict=True, reason="qchain.sim.engine.system.energies (the compiled engine's sample energies) "
-                   "omits the tip payload; sim/ is another engineer's (reported)")
 def test_the_compiled_engines_energies_include_the_payload():
     seg = Segment(**dict(SEGMENT, damping=0.0))
     ch = Chain([seg] * 2, payload=pin.Inertia(0.02, np.array([0.005, -0.003, 0.01]), I_C * 0.1))

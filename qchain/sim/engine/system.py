@@ -676,6 +676,16 @@ def energies(m, wk, t, q, v):
                 Rn[r, cc] = Rj[r, 0] * R[0, cc] + Rj[r, 1] * R[1, cc] + Rj[r, 2] * R[2, cc]
         for r in range(3):
             copy(Rj[r], Rn[r])
+    # the tip payload (ChainArrays.payload, its spatial inertia at the tip): 1/2 V^T P V and the
+    # gravity of its mass m at its centre oj + Rj c (m c from P's m [c]x block)
+    P = ar.payload
+    for r in range(6):
+        acc = 0.0
+        for c in range(6):
+            acc += P[r, c] * V[c]
+        kin += 0.5 * V[r] * acc
+    for r in range(3):
+        pot -= g_W[r] * (P[0, 0] * oj[r] + Rj[r, 0] * P[5, 1] + Rj[r, 1] * P[3, 2] + Rj[r, 2] * P[4, 0])
     return kin, pot
 
 
