@@ -264,11 +264,14 @@ def _accepted(m, wk, it, t, h, t_new, fixed):
 @ejit_inner
 def _end_state(m, wk, it, t, y):
     """The status of the configuration at ``y`` at time ``t`` (a fixed step's end is checked
-    before it is accepted, so a run stops on the last valid state)."""
+    before it is accepted, so a run stops on the last valid state: ``y`` is set back to
+    ``it.y_old`` and the status recorded where it fails)."""
     system.configuration(m, wk, wk.q_chart, y)
     st = system.check(m, wk, wk.q)
     if st != 0:
         it.tf[T_FAIL] = t
+        system.copy(y, it.y_old)
+        it.cnt[STATUS] = st
     return st
 
 
@@ -356,10 +359,7 @@ def advance_rk4(fs, m, wk, it, out, c, t_stop, max_out, max_steps):
         system.copy(yold, y)
         for i in range(N):
             y[i] = y[i] + h / 6.0 * (K[0, i] + 2.0 * K[1, i] + 2.0 * K[2, i] + K[3, i])
-        st = _end_state(m, wk, it, t_new, y)
-        if st != 0:
-            system.copy(y, yold)
-            cnt[STATUS] = st
+        if _end_state(m, wk, it, t_new, y) != 0:
             return FAILED
         system.copy(K[8, :nA], K[0, :nA])
         system.position_rate(m, y, K[9])
@@ -459,12 +459,8 @@ def advance_midpoint(fs, m, wk, it, out, c, t_stop, max_out, max_steps):
             K[1, nA + i] = F[nA + i]
             y[i] = y[i] + h * Y[nA + i]
             y[nA + i] = 2.0 * Y[nA + i] - y[nA + i]
-        st = _end_state(m, wk, it, t_new, y)
-        if st != 0:
-            system.copy(y, yold)
-            cnt[STATUS] = st
+        if _end_state(m, wk, it, t_new, y) != 0:
             return FAILED
-        cnt[F_OK] = 1
         system.position_rate(m, yold, K[8])
         system.position_rate(m, y, K[9])
         steps += 1
