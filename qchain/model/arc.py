@@ -1,34 +1,13 @@
 """Closed-form kinematics of a constant-strain (constant-curvature, extensible) slice and its
 configuration derivatives.
 
-This is the per-node kernel of the model (docs/model.md section 2), compiled with numba
-because it runs at every quadrature node of every segment in every dynamics call.
-A segment in curvature coordinates ``q = (l, ux, uy)`` has the constant strain twist
-``X = l * xi_u`` with the unit-length strain ``xi_u = (0, 0, 1, -uy, ux, 0)``
-(Pinocchio's ``[linear; angular]``). Slice ``alpha`` in [0, 1] sits at
-``g(alpha) = exp6(alpha X)``, arc length ``s = alpha l`` along the backbone: the paper's
-constant-curvature kinematics, eq. (1a), (1b) at the tip and their slice version in its
-section III-C, ``R = Rz(psi) Ry(kappa s) Rz(psi)^T``, ``d = Rz(psi) d_xz(s, kappa)``.
-
-Because ``xi_u`` has zero pitch, ``A = ad(xi_u)`` obeys ``A^3 = -kappa^2 A`` with
-``kappa^2 = ux^2 + uy^2``, so every exponential is a quadratic polynomial in ``A``
-whose coefficients are the entire functions
-
-    f0(x) = sin(x)/x,   f1(x) = (1 - cos x)/x^2,   f2(x) = (x - sin x)/x^3
-
-of the bending angle ``x = s kappa``, and their derivatives ``g_n(x) = f_n'(x)/x``
-(also entire). They are evaluated by their Taylor series for ``x < 2`` and in closed form
-otherwise, so nothing divides by the curvature and the straight pose is a regular point
-(docs/model.md section 1: why curvature coordinates need no clamp at ``kappa = 0``).
-With ``a1 = s f0, a2 = s^2 f1, a3 = s^3 f2``:
-
-* ``R(s) = I + a1 [w] + a2 [w]^2`` with ``w = (-uy, ux, 0)``; ``p(s) = (a2 ux, a2 uy, a1)``;
-* slice Jacobian ``S(alpha) = alpha Jexp6(alpha X) dX/dq`` (slice body frame), columns
-  ``alpha xi_u`` and ``F(s) eta_j`` with ``F(s) = s I - a2 A + a3 A^2
-  = int_0^s Ad(exp(-sigma xi_u)) dsigma`` and ``eta_j = d xi_u / d u_j``;
-* its exact time derivative ``Sdot = sum_j qdot_j dS/dq_j`` (what ``C_xi`` needs): the
-  ``l`` part is ``alpha ldot Ad(g)^-1 eta_j``, the ``u`` part differentiates ``a2, a3``
-  (``d a2 = s^4 g1 (u . udot)``, ``d a3 = s^5 g2 (u . udot)``) and ``A``.
+The per-node kernel of the model, compiled with numba (it runs at every quadrature node of
+every segment in every dynamics call). docs/model.md section 2 gives the slice placement
+``g(alpha) = exp6(alpha l xi_u)``, ``xi_u = (0, 0, 1, -uy, ux, 0)``, the slice Jacobian ``S``
+and its time derivative ``Sdot`` in closed form, with ``A = ad(xi_u)``, ``A^3 = -kappa^2 A``,
+the entire functions ``f0(x) = sin(x)/x``, ``f1(x) = (1 - cos x)/x^2``,
+``f2(x) = (x - sin x)/x^3`` of the bending angle ``x = s kappa``, ``g_n(x) = f_n'(x)/x``
+(Taylor series below ``x = 2``, closed form above) and ``a1 = s f0, a2 = s^2 f1, a3 = s^3 f2``.
 
 One order more, for the derivatives of the dynamics (:mod:`qchain.algorithms.rnea_derivatives`,
 :func:`arc_node_derivatives`):

@@ -1,36 +1,9 @@
 """One soft pneumatic segment: the paper's per-segment blocks M_xi, C_xi, B.
 
-A segment is a braided soft cylinder of rest length ``l0`` and radius ``r_s`` that bends
-with constant curvature and stretches (no twist, no swelling), driven by three inner
-chambers at angles ``phi_i = 0, +2pi/3, -2pi/3`` about the root frame's z axis (chamber 1
-on the +x axis). It is the model of Olguin-Diaz, Trejo-Ramos, Parra-Vega and
-Navarro-Alarcon, "On the Modelling of Soft-robots as Quasi-Continuum Lagrangian
-Dynamical Systems with Well-posed Input Matrix" ("the paper"); docs/model.md restates it
-(sections 1 to 6 and 9), with the paper's equation numbers.
-
-Conventions
------------
-* Deformation coordinates ``q_e`` (shape (3,)), docs/model.md section 1:
-  ``coords="curvature"`` (default) ``(l, ux, uy)`` [m, 1/m, 1/m] with
-  ``(ux, uy) = kappa (cos psi, sin psi)``, analytic everywhere; ``coords="paper"``
-  ``(l, psi, kappa)`` [m, rad, 1/m], the paper's own (section III-A, before eq. (1)),
-  singular at ``kappa = 0``.
-* Quasi-velocities ``xi = (v, w, qdot_e)`` (shape (9,)), the paper's ``xi`` (before
-  eq. (3)): ``v, w`` the root frame's linear and angular velocity in root coordinates
-  (Pinocchio ``[linear; angular]``), ``qdot_e`` in the segment's coordinates.
-* Equation of motion of a segment on a moving root frame, the paper's eq. (9)
-  (docs/model.md section 6; all terms on the left are "generalised forces" in the sense of
-  Pinocchio's ``rnea``/``computeGeneralizedGravity``)::
-
-      M_xi(q_e) xi_dot + C_xi(q_e, xi) xi + G(q_e) + [0; D qdot_e + dU_el/dq_e]
-          = [w_root; B(q_e) p]
-
-  where ``w_root`` is the wrench (root coordinates) the root frame exerts on the segment.
-* Mass: the paper's density field ``rho = rho0 l0 / (l (1 - kappa r cos(psi - phi)))``
-  (eq. (5)) makes every cross-section a rigid uniform disk of mass ``m dalpha``
-  (docs/model.md section 3), so ``M_xi = int_0^1 Phi^T I_disk Phi dalpha`` (eq. (6),
-  docs/model.md section 4) with ``Phi = [Ad(g)^-1, S(alpha)]``, computed by Gauss-Legendre
-  quadrature on ``nodes`` points.
+The model (Olguin-Diaz, Trejo-Ramos, Parra-Vega and Navarro-Alarcon, "the paper"), its
+coordinates ``q_e`` (3,) (``coords="curvature"`` ``(l, ux, uy)``, ``coords="paper"``
+``(l, psi, kappa)``), quasi-velocities ``xi = (v, w, qdot_e)`` (9,), equation of motion
+(eq. (9)) and density field: docs/model.md, sections 1 to 6 and 9, and docs/segment.md.
 """
 
 from __future__ import annotations
@@ -251,7 +224,7 @@ class Segment(KeepsReadOnly):
         ``K(q0)`` the elastic stiffness at rest in curvature coordinates, mapped to ``coords``
         (docs/model.md section 9).
     coords : {"curvature", "paper"}
-        Deformation coordinates ``q_e``; see the module docstring and docs/model.md section 1.
+        Deformation coordinates ``q_e``; see docs/model.md section 1.
     actuation : {"volume", "paper"}
         Input matrix model: chamber-volume virtual work (default) or the paper's
         tip-plate forces (eq. (8); docs/model.md section 5).
@@ -546,13 +519,6 @@ class Segment(KeepsReadOnly):
         xid_c = np.zeros(9)
         xid_c[:3] = -g
         return self._lift(J).T @ self._newton_euler_c(q_c, np.zeros(9), xid_c)
-
-    @_finite("gravity energy")
-    def gravity_energy(self, q_e, gravity) -> float:
-        """``U_g = -m g . r_cm`` (J) relative to the root origin; ``g`` in root coordinates
-        (docs/model.md section 9)."""
-        g = as_vector("gravity", gravity, 3)
-        return -self.mass * float(g @ self.center_of_mass(q_e))
 
     @_finite("kinetic energy")
     def kinetic_energy(self, q_e, xi) -> float:

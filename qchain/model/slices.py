@@ -1,24 +1,13 @@
 """Integrals over the slices of one segment (numba): M_xi and the slice Newton-Euler force.
 
-A segment is a continuum of rigid uniform disks (the paper's density field, eq. (5);
-docs/model.md section 3). With
-``Phi(alpha) = [Ad(g(alpha))^-1, S(alpha)]`` (6 x 9) mapping the segment's quasi-velocity
-``xi = (V_root, qdot)`` to the body twist of slice ``alpha``, and the disk's spatial inertia
-``I = diag(m, m, m, m r^2/4, m r^2/4, m r^2/2)`` per unit ``alpha``:
+A segment is a continuum of rigid uniform disks (docs/model.md sections 3 and 4): with
+``Phi(alpha) = [Ad(g(alpha))^-1, S(alpha)]`` (6 x 9), ``M_xi = int_0^1 Phi^T I Phi dalpha``
+(:func:`segment_mass`) and ``Q = M_xi xidot + C_xi xi`` (:func:`segment_newton_euler`); the
+input matrix and the elastic and damping laws: sections 5 and 9. Everything is in curvature
+coordinates ``q = (l, ux, uy)``; integrals use the Gauss-Legendre nodes ``alpha`` with
+weights ``w`` (summing to 1).
 
-* ``M_xi = int_0^1 Phi^T I Phi dalpha``                     (:func:`segment_mass`)
-* ``Q = int_0^1 Phi^T (I a + V x* I V) dalpha`` with the slice twist ``V = Phi xi`` and
-  acceleration ``a = Phi xidot + Phidot xi``                (:func:`segment_newton_euler`)
-
-so ``Q = M_xi xidot + C_xi xi`` (the paper's eq. (6) and the left side of eq. (9);
-docs/model.md section 4); a root acceleration of ``(-g_root, 0)`` adds the generalised
-gravity ``G`` (docs/model.md section 9). The segment forces below are the input matrix
-(eq. (8); docs/model.md section 5) and the elastic and damping laws (docs/model.md
-section 9). Everything is in curvature coordinates ``q = (l, ux, uy)``;
-integrals use the Gauss-Legendre nodes ``alpha`` with weights ``w`` (summing to 1).
-
-Unchecked by design: compiled kernels whose arguments the checked API has validated
-(``docs/engine.md``, "Unchecked kernels"); call the checked API unless you guarantee them.
+Unchecked by design (``docs/engine.md``, "Unchecked kernels"): call the checked API.
 """
 
 from __future__ import annotations

@@ -166,8 +166,6 @@ force_cross_bar = checked(_force_cross_bar, h=_batch(6))
 inv_adjoint = checked(_inv_adjoint, R=_batch(3), p=_batch(3), joint=lambda R, p: _pose_shapes(R, p))
 
 
-
-
 def quaternion_to_rotation(quat) -> np.ndarray:
     """Rotation matrices ``(..., 3, 3)`` of quaternions ``(..., 4)`` as ``(x, y, z, w)``,
     normalised here; a quaternion of norm below 1e-150 (no rotation) is a ``ValueError``."""

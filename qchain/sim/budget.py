@@ -1,25 +1,8 @@
 """What a run may cost, checked before it starts: steps, output samples, memory, segments.
 
 A run whose cost would exceed its :class:`Budget` is refused before the first step, with
-a message naming the budget, what exceeded it and how to raise it (a ``[budget]`` table in
-a scene file, ``budget=Budget(...)`` for :func:`qchain.simulate`). The defaults
-let every example and benchmark run and stop a mistyped ``dt = 1e-300`` (``1e300`` steps)
-or ``sample_rate = 1e9`` before it hangs or asks for terabytes.
-
-The costs are lower bounds or estimates, known before a run:
-
-* steps: ``duration / dt`` for the fixed-step methods; for the adaptive ones
-  ``duration / max_step`` and ``2 f duration`` for the fastest sine input or base motion of
-  frequency ``f`` (a step longer than half a period cannot follow it), ``duration x rate``
-  for a held controller (a step ends at each of its instants), and for the explicit
-  adaptive ones (``dopri5``, ``RK45``, ``DOP853``) ``duration / h_s`` with ``h_s`` the
-  step's stability limit at the start (the largest ``|z|`` of the method's stability region
-  over the largest ``|eigenvalue|`` of the exact Jacobian: no stable step is longer, so a
-  stiff model is refused before it takes hours of tiny steps);
-* samples: the output times (``duration * sample_rate + 1`` for a scene, ``len(t_eval)``,
-  or one a step of a fixed-step run without ``t_eval``);
-* memory (bytes): the samples' arrays (``t, q, v, p`` and two energies, 8 bytes each)
-  plus the solver's dense matrices, ``12 nv^2`` doubles.
+a message naming the budget, what exceeded it and how to raise it; the costs, lower bounds
+known before a run, are listed in docs/simulation.md.
 """
 
 from __future__ import annotations
@@ -45,7 +28,7 @@ RANGES = {
 
 @dataclass(frozen=True)
 class Budget:
-    """Upper bounds on what one run may cost (see the module docstring).
+    """Upper bounds on what one run may cost (docs/simulation.md).
 
     Parameters
     ----------
@@ -127,7 +110,7 @@ class Cost:
 def run_cost(*, duration: float, method: str, fixed_step: bool, dt: float | None, max_step: float,
              frequency: float, samples: float, samples_why: str, nq: int, nv: int, nu: int,
              stable_step: float | None = None, controller_rate: float | None = None) -> Cost:
-    """The :class:`Cost` of a run of ``duration`` s (see the module docstring).
+    """The :class:`Cost` of a run of ``duration`` s (docs/simulation.md).
 
     ``samples`` is the number of output samples (``math.nan``: one a step, for a run
     without output times); ``frequency`` the fastest input's (Hz, 0 for none);

@@ -305,9 +305,8 @@ def as_input(name: str, u, size: int, bound: Range | None | str = "auto"
     """``(t, q, v) -> (size,)`` from ``None`` (zeros), a constant array, a :class:`Schedule` or a
     controller ``(t, q, v) -> (size,)`` (or ``(t) -> (size,)``).
 
-    Checked here, where the input enters: sizes; a constant's entries (real, finite, inside
-    ``bound``); a schedule's values over all times (:meth:`Schedule.extent`); a
-    controller's outputs (and those of a schedule whose extent is unknown) at every call.
+    Checked here, where the input enters (docs/simulation.md): a schedule's values over all
+    times (:meth:`Schedule.extent`), a controller's outputs at every call.
 
     Parameters
     ----------

@@ -1,19 +1,6 @@
 """The Python backend of :func:`qchain.sim.simulation.simulate`: what the compiled engine
-(:mod:`qchain.sim.engine`) does not run.
-
-That is a chain with a segment in paper coordinates or with the linear law, a controller
-called at every stage of every step (no ``controller_rate``), a Python ``base_motion``, and
-scipy's methods (``"RK45"``, ``"DOP853"``, ``"Radau"``, ``"BDF"``). The same method names run
-here: ``rk4`` and ``midpoint`` on the steppers of this module, ``dopri5`` as scipy's RK45 and
-``radau5`` as scipy's Radau; ``Trajectory.meta["engine"]`` is ``"python"``.
-
-The state is ``y = (delta_A, v_A)`` over the active coordinates in a chart ``q_chart``
-(:class:`_System`); a floating base is advanced on the Lie group, the chart re-centred as
-the base turns (``_RECENTER``). Python is entered at every stage: these paths are an order
-of magnitude or more slower than the compiled engine (scipy's Radau about 7 to 13 times
-``radau5`` on 3 to 8 segments), kept for what the engine does not serve and for comparison.
-
-:func:`run` takes arguments that :func:`qchain.sim.simulation.simulate` has checked.
+(:mod:`qchain.sim.engine`) does not run, with Python at every stage (docs/simulation.md says
+which runs come here); ``Trajectory.meta["engine"]`` is ``"python"``.
 """
 
 from __future__ import annotations
@@ -49,7 +36,6 @@ class _Stop(Exception):
     """Ends a Python-path run with ``success = False`` and this message, the samples kept."""
 
 
-
 class _System:
     """The first-order system in a chart: ``y = (delta_A, v_A)`` over the active coordinates."""
 
@@ -69,14 +55,6 @@ class _System:
         x[self.idx] = xA
         return x
 
-    def q_of(self, yd: np.ndarray) -> np.ndarray:
-        ch = self.ch
-        if ch.floating:
-            return ch.integrate(self.q_chart, self.full(yd))
-        q = self.q_chart.copy()  # additive for a fixed or prescribed base (no quaternion)
-        q[self.idx] += yd
-        return q
-
     def delta_dot(self, yd: np.ndarray, v: np.ndarray) -> np.ndarray:
         dd = v.copy()
         if self.ch.floating:
@@ -94,12 +72,11 @@ class _System:
         return self.ch.forward_dynamics(q, v, p, tau, t=t, data=self.data)
 
     def rhs(self, t, y):
-        yd, yv = y[: self.nA], y[self.nA :]
+        yd = y[: self.nA]
         if not np.all(np.isfinite(y)):
             return np.full_like(y, np.nan)
         try:
-            q = self.q_of(yd)
-            v = self.full(yv)
+            q, v = driver.state(self.ch, self.idx, self.q_chart, y)
             a = self.accel(t, q, v)
         except QchainError as err:  # domain exit or singular coordinates at a trial point
             self.error = f"{err} (at t = {t:.6g} s)"
@@ -117,14 +94,11 @@ class _System:
         stiff part of the Jacobian: scipy's Radau and BDF's Newton matrix on the Python path
         (the compiled ``radau5`` and ``midpoint`` use the exact one)."""
         self.njev += 1
-        yd, yv = y[: self.nA], y[self.nA :]
         n = self.nA
         J = np.zeros((2 * n, 2 * n))
         J[:n, n:] = np.eye(n)
         try:
-            q = self.q_of(yd)
-            v = self.full(yv)
-            M, K, D = self.mkd(q, v)
+            M, K, D = self.mkd(*driver.state(self.ch, self.idx, self.q_chart, y))
         except QchainError:
             return J
         from scipy.linalg import cho_factor, cho_solve
@@ -139,7 +113,6 @@ class _System:
         ch = self.ch
         ix = np.ix_(self.idx, self.idx)
         return ch.mass_matrix(q)[ix], ch.elastic_stiffness(q)[ix], ch.dissipation_matrix(q)[ix]
-
 
 
 def takes_energies(on_sample: Callable | None, energies: bool) -> bool:
@@ -162,7 +135,6 @@ def _state_entry(chain: Chain, q, v) -> str:
     return "the state"
 
 
-
 def run(r, bar, deadline: float | None) -> Trajectory:
     """Run ``r.chain`` from ``(r.q0, r.v0)`` over ``(r.t0, r.t1)`` on the Python steppers and
     build its :class:`Trajectory` (``meta["engine"] = "python"``).
@@ -170,17 +142,8 @@ def run(r, bar, deadline: float | None) -> Trajectory:
     Parameters
     ----------
     r : qchain.sim.simulation._Run
-        The run's arguments as :func:`qchain.sim.simulation.simulate` checked them: ``chain``;
-        ``method``, one of ``qchain.sim.simulation.METHODS`` (``rk4`` and ``midpoint`` on the
-        steppers of this module, the others on scipy's solver :data:`ADAPTIVE` names); the
-        initial state ``q0 (nq,)``, ``v0 (nv,)``; the span ``t0 < t1`` (s); the inputs
-        ``P_in (t, q, v) -> (3 n,) Pa`` and ``T_in (t, q, v) -> (nv,)``
-        (:func:`qchain.sim.inputs.as_input`); ``dt``, ``rtol``, ``atol``, ``max_step``,
-        ``first_step``, ``t_eval``, ``events``, ``on_sample``, ``energies`` as ``simulate``'s
-        (:func:`qchain.sim.simulation.check_settings`); ``budget.max_steps``, the step budget
-        of an adaptive run (:class:`qchain.sim.budget.Budget`).
+        The run's arguments as :func:`qchain.sim.simulation.simulate` checked them.
     bar : qchain.sim.simulation._Progress
-        The run's progress (``update(t)``, ``close(t)``).
     deadline : float or None, s
         ``time.perf_counter()`` at which the run stops (``wall_limit``).
 
@@ -236,25 +199,9 @@ class _Events:
         self.g_prev = [e(t, q, v) for e in events]
 
     def __call__(self, t_a: float, t_b: float, interp: Callable) -> float | None:
-        """Root-find sign changes of the events over [t_a, t_b] (s), the state at a time given
-        by ``interp(s) -> (q, v)``; return the first terminal time, or None."""
-        g_now = []
-        hit = None
-        for k, e in enumerate(self.events):
-            qb, vb = interp(t_b)
-            gb = e(t_b, qb, vb)
-            g_now.append(gb)
-            ga = self.g_prev[k]
-            rising, falling = ga < 0 <= gb, ga > 0 >= gb
-            if (rising and e.direction >= 0) or (falling and e.direction <= 0):
-                from scipy.optimize import brentq
-
-                te = brentq(lambda s: e(s, *interp(s)), t_a, t_b, xtol=1e-12 * max(1.0, abs(t_b)))
-                self.log.append((e.name, te))
-                if e.terminal and (hit is None or te < hit):
-                    hit = te
-        self.g_prev = g_now
-        return hit
+        """:func:`qchain.sim.engine.driver.crossings` over [t_a, t_b] (s), the state at a time
+        given by ``interp(s) -> (q, v)``."""
+        return driver.crossings(self.events, self.g_prev, self.log, t_a, t_b, interp)
 
 
 def _run_fixed(sysm: _System, rec: _Recorder, bar, watch: _Events, at: SimpleNamespace, r) -> tuple[int, str]:
@@ -325,7 +272,7 @@ def _rk4_step(sysm: _System, t, q, v, h):
         if sysm.error:
             raise _DomainExit(f"{sysm.error}, in a stage of the step from t = {t:.6g} s (dt = {h:g} s)")
         raise _DomainExit(sysm.nonfinite(y1, t + h))
-    return sysm.q_of(y1[:nA]), sysm.full(y1[nA:])
+    return driver.state(sysm.ch, sysm.idx, sysm.q_chart, y1)
 
 
 def _midpoint_step(sysm: _System, t, q, v, h, tol=1e-10, max_iter=50):
@@ -383,11 +330,8 @@ def _midpoint_step(sysm: _System, t, q, v, h, tol=1e-10, max_iter=50):
 _STEPPERS = {"rk4": _rk4_step, "midpoint": _midpoint_step}
 
 
-
-#: An adaptive run on the Python steppers stops as stalled after STALL_STEPS accepted steps in
-#: a row each shorter than STALL_STEP x max(1 s, |t|): no smooth model of an arm needs them
-#: (an explicit method's stability limit below it is refused before the run by the budget),
-#: a noisy controller drives the step to them and would take hours to reach the step budget
+#: an adaptive run stops as stalled after STALL_STEPS accepted steps in a row each shorter
+#: than STALL_STEP x max(1 s, |t|) (docs/simulation.md)
 STALL_STEP, STALL_STEPS = 1e-9, 1000
 
 

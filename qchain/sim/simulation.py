@@ -1,41 +1,8 @@
 """Time integration of a chain: ``simulate(chain, q0, v0, t_span, ...) -> Trajectory``.
 
-Methods, chosen by name (``METHODS``, matched exactly, case included: ``"radau"`` is refused,
-naming ``"radau5"`` and ``"Radau"``); the first four run on the compiled engine
-(:mod:`qchain.sim.engine`): whole stretches of steps in compiled code, Python entered only
-for output samples, controller instants, events and progress.
-
-=============  =========================================================================
-``"radau5"``   (default) Radau IIA of order 5, adaptive, L-stable (Hairer and Wanner's
-               RADAU5): Newton with the exact Jacobian (``forward_dynamics_derivatives``),
-               factorisations reused over steps; for stiff, damped arms.
-``"dopri5"``   Dormand-Prince 5(4), adaptive explicit, error-controlled by ``rtol``/``atol``.
-``"rk4"``      classical Runge-Kutta, fixed step ``dt``, 4th order (Munthe-Kaas form on
-               the base's Lie group: a chart re-centred every step, ``dexp^-1`` applied).
-``"midpoint"`` implicit midpoint rule, fixed step ``dt``: symmetric (time-reversible) and
-               A-stable; on undamped, unforced runs its energy error stays bounded instead
-               of drifting. Newton with ``I - dt/2 Jv - dt^2/4 Jq`` of the exact Jacobian.
-``"RK45"``     scipy's solvers, Python at every stage (kept for comparison and for what
-``"DOP853"``   the compiled engine does not serve): RK45 and DOP853 explicit, Radau and
-``"Radau"``    BDF implicit with the model's exact elastic stiffness and damping as the
-``"BDF"``      Newton matrix.
-=============  =========================================================================
-
-The compiled engine serves chains in curvature coordinates with the material law, inputs
-that are constants or schedules (:mod:`qchain.sim.inputs`), a fixed or floating base or a
-prescribed :class:`qchain.sim.inputs.SineMotion`, and Python controllers sampled at
-``controller_rate`` (zero-order hold). Anything else (paper coordinates, the linear law, a
-controller called at every stage, a Python ``base_motion``) runs the same method names on
-the Python steppers of :mod:`qchain.sim.python_backend` (``dopri5`` as scipy's RK45,
-``radau5`` as scipy's Radau); ``Trajectory.meta["engine"]`` says which ran.
-
-A floating base is always advanced on the Lie group: the state is ``(delta, v)`` with
-``q = chain.integrate(q_chart, delta)`` in a chart re-centred as the base turns, never by
-adding to a quaternion. Locked coordinates (``Chain.active``) are not integrated.
-
-Leaving the model's domain (``|kappa| r_s -> 1``, ``l -> 0``), a singular paper-coordinate
-configuration or a non-finite state stops the run with ``success = False`` and a message
-naming the segment, the coordinate and the time; the trajectory up to that point is kept.
+The methods (:data:`METHODS`), which backend serves a run (the compiled engine or
+:mod:`qchain.sim.python_backend`, ``Trajectory.meta["engine"]``), the checks and the failures
+are described in docs/simulation.md and docs/engine.md.
 """
 
 from __future__ import annotations
@@ -93,10 +60,8 @@ class Event:
 
 
 class _Progress:
-    """The progress of a run on stderr: a bar redrawn in place (``True``, for a terminal), or
-    for a log or a pipe (``"lines"``) a plain line once the run has taken
-    :data:`LINES_AFTER` s of wall time and then every :data:`LINES_EVERY` s, with the time
-    still to go (a long run is seen going on, not mistaken for a hang)."""
+    """The progress of a run on stderr, as :func:`simulate`'s ``progress`` says (``"lines"``:
+    after :data:`LINES_AFTER` s of wall time, then every :data:`LINES_EVERY` s)."""
 
     def __init__(self, t0, t1, enabled):
         self.t0, self.t1, self.enabled = t0, t1, enabled
@@ -138,7 +103,6 @@ class _Progress:
 
 #: s of wall time before a run's first progress line (``progress="lines"``), and between lines
 LINES_AFTER, LINES_EVERY = 10.0, 30.0
-
 
 
 #: The shortest span a run may have, relative to ``max(1 s, |t0|, |t1|)``: below it the
@@ -240,8 +204,6 @@ def _check_t_eval(t_eval, t0: float, t1: float) -> np.ndarray:
     return t
 
 
-
-
 def run_cost_of(chain: Chain, t0: float, t1: float, *, method: str, dt, max_step, t_eval, inputs=(),
                 controller_rate=None, stable_step=None):
     """The :class:`qchain.sim.budget.Cost` of a run of ``chain`` over ``(t0, t1)`` with checked
@@ -255,12 +217,10 @@ def run_cost_of(chain: Chain, t0: float, t1: float, *, method: str, dt, max_step
 
 
 def explicit_stability_limit(chain: Chain, method: str, q0, v0, t0: float, pressure=None, tau=None) -> float | None:
-    """The stability limit of an explicit adaptive method's step at the start (s): the
-    largest ``|z|`` of its stability region (:data:`qchain.sim.engine.driver.EXPLICIT_STABILITY_EXTENT`)
-    over the largest ``|eigenvalue|`` of the exact Jacobian at ``(t0, q0, v0)``; no stable
-    step is longer. Inputs are taken at ``t0``; a controller's as zero (it is not called
-    before the run: it may keep state). None where the Jacobian cannot be formed or has more
-    than :data:`qchain.sim.engine.driver.STABILITY_MAX_NV` free coordinates."""
+    """The stability limit (s) of an explicit adaptive method's step at ``(t0, q0, v0)``:
+    :func:`qchain.sim.engine.driver.stability_limit` at the method's stability extent. Inputs
+    are taken at ``t0``; a controller's as zero (it is not called before the run: it may keep
+    state)."""
     def at_start(u, size):
         if u is None or (callable(u) and not isinstance(u, Schedule)):
             return np.zeros(size)
@@ -304,7 +264,7 @@ def simulate(
     t_span : (t0, t1) s
     pressure : None, (3 n,) Pa, a :class:`qchain.sim.inputs.Schedule`, or a controller ``(t, q, v) -> (3 n,)``.
     tau : None, (nv,), a schedule or a controller: external generalised forces.
-    method : one of ``METHODS`` (see the module docstring).
+    method : one of ``METHODS`` (docs/engine.md, "Methods").
     dt : float, s
         Step of the fixed-step methods (required for them; ignored by the others).
     rtol, atol : float
@@ -348,17 +308,8 @@ def simulate(
         Obstacles, the contact law and point loads (docs/contact.md): their generalised
         force joins ``tau`` (with its exact derivatives in the implicit methods' Jacobian).
 
-    Every number is a real (``bool``, strings and complex numbers raise ``TypeError``)
-    inside its range (:mod:`qchain.checks.bounds`; else ``ValueError`` naming the argument, the
-    value and the bound): ``t_span`` within +-1e12 s, ``dt``, ``max_step`` and
-    ``first_step`` > 0 s, ``1e-15 <= rtol <= 1``, ``1e-20 <= atol <= 1e3``, ``t_eval``
-    finite, strictly increasing and inside ``t_span``, ``wall_limit`` > 0 s,
-    ``0 < controller_rate <= 1e9`` Hz; ``t_span`` lasts at least :data:`SPAN_RESOLUTION`
-    times ``max(1 s, |t0|, |t1|)`` (shorter spans have no distinct step times); ``energies``
-    and ``progress`` are booleans, ``on_sample`` a callable, ``events`` a list of
-    :class:`Event`, a controller takes ``(t, q, v)`` or ``(t)``. A controller, an event
-    function and ``on_sample`` get their own copies of the state: what they do with them
-    changes neither the run nor its samples. An exception they raise propagates unchanged.
+    Every argument is checked where it enters, each error naming it, the value and the bound
+    (docs/simulation.md); callbacks get their own copies of the state.
 
     Returns
     -------
@@ -468,22 +419,9 @@ class _Run:
 
 def _check_arguments(chain, q0, v0, t_span, *, pressure, tau, method, budget, on_sample, env=None,
                      **settings) -> _Run:
-    """Step 1 of :func:`simulate`: check its arguments where they enter, in a fixed order (the
-    first bad one is the one said), and the run's cost against the budget before it starts.
-
-    Parameters
-    ----------
-    chain, q0, v0, t_span, pressure, tau, method, budget, on_sample, env
-        As :func:`simulate`.
-    **settings
-        The rest of :func:`simulate`'s keywords (``dt``, ``rtol``, ... ``controller_rate``),
-        checked by :func:`check_settings`.
-
-    Returns
-    -------
-    _Run
-        The checked arguments, the inputs as functions and the held controllers.
-    """
+    """Step 1 of :func:`simulate`: check its arguments (as :func:`simulate`'s; ``**settings``
+    by :func:`check_settings`) where they enter, in a fixed order (the first bad one is the one
+    said), and the run's cost against the budget before it starts."""
     t0, t1 = check_run(chain, method, t_span)
     q0, v0 = _check_start(chain, q0, v0, t0)
     cfg = check_settings(chain, t0, t1, method=method, on_sample=on_sample, **settings)
@@ -548,16 +486,10 @@ def _check_env(chain: Chain, env):
 
 def _choose_backend(run: _Run):
     """Step 2 of :func:`simulate`: the compiled engine's packed model
-    (:func:`qchain.sim.engine.system.pack`) where it serves the run (a method of
-    :data:`COMPILED`, the chain and the inputs it can take), else None for
-    :mod:`qchain.sim.python_backend`. A held controller is packed as zeros (its output is
-    written into the packed model at its instants).
-
-    Raises
-    ------
-    ValueError
-        ``controller_rate`` given for a run the compiled engine does not serve.
-    """
+    (:func:`qchain.sim.engine.system.pack`) where it serves the run, else None for
+    :mod:`qchain.sim.python_backend` (``ValueError`` then if ``controller_rate`` is given). A
+    held controller is packed as zeros (its output is written into the packed model at its
+    instants)."""
     if run.method in COMPILED:
         zeros = {name: np.zeros(size) for name, _, size in run.held}
         m = system.pack(run.chain, zeros.get("pressure", run.pressure), zeros.get("tau", run.tau), run.env)
@@ -571,18 +503,9 @@ def _choose_backend(run: _Run):
 
 def _run_compiled(run: _Run, m, bar: _Progress, deadline: float | None) -> Trajectory:
     """Step 3 of :func:`simulate` on the compiled engine (:func:`qchain.sim.engine.driver.run`,
-    which builds the :class:`Trajectory`): the packed model ``m``, the held controllers
-    written into its input slots at their instants, samples' inputs read from those slots.
-
-    Parameters
-    ----------
-    run : _Run
-    m : qchain.sim.engine.system.EngineModel
-        The packed model (:func:`_choose_backend`).
-    bar : _Progress
-    deadline : float or None
-        ``time.perf_counter()`` (s) at which the run stops (``wall_limit``).
-    """
+    which builds the :class:`Trajectory`): the packed model ``m`` (:func:`_choose_backend`), the
+    held controllers written into its input slots at their instants, samples' inputs read from
+    those slots; ``deadline``: ``time.perf_counter()`` (s) at which the run stops."""
     p_of, tau_of = run.P_in, run.T_in
     controllers = []
     if run.controller_rate is not None:

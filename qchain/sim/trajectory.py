@@ -26,9 +26,7 @@ class Trajectory:
     p : (N, 3 n) Pa
         Chamber pressures, segment by segment, chambers 1..3.
     kinetic_energy, potential_energy : (N,) J
-        Potential = gravity + elastic. A run of the compiled engine computes them at their
-        first use (:meth:`with_energies`): a run whose energies nobody reads never pays for
-        them (nor, on a fresh install, for compiling their pass).
+        Potential = gravity + elastic; maybe computed at their first use (:meth:`with_energies`).
     success : bool
         False when the run stopped early (domain exit, non-finite state, solver failure,
         interruption); the samples up to that point are kept.

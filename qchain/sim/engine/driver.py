@@ -1,10 +1,8 @@
 """The one driver loop of the compiled engine: Python between stretches of compiled steps.
 
 :func:`run` calls a stepper's ``advance`` (:mod:`qchain.sim.engine.steppers`) and between calls
-does only what must be Python: hand new output samples to ``on_sample``, sample a
-zero-order-hold controller at its instants, check events, update the progress bar, honour
-Ctrl-C and the wall-clock limit. A call returns at the next of these; otherwise it runs a
-stretch sized to take about :data:`STRETCH` s of wall time, so Ctrl-C is felt promptly.
+does only what must be Python (docs/engine.md); a call otherwise runs a stretch sized to
+take about :data:`STRETCH` s of wall time, so Ctrl-C is felt promptly.
 """
 
 from __future__ import annotations
@@ -76,9 +74,7 @@ def _run(chain, m, method, q0, v0, t0, t1, *, dt, rtol, atol, t_eval, on_sample,
     ``controllers``: ``[(callable (t, q, v) -> (size,), params array to hold it in)]``;
     ``inputs``: ``(t, q, v) -> (p, tau)`` in Python, for the samples Python writes (the first,
     one at a controller instant or a terminal event) and the stability limit);
-    ``max_total_steps``: the budget's ``max_steps``, enforced as the run goes for the adaptive
-    methods (steps taken, rejected ones included): a stiff model that drives an explicit
-    method's step to nothing stops (status -1) instead of running for hours."""
+    ``max_total_steps``: the budget's ``max_steps`` (docs/simulation.md)."""
     idx = m.idx
     nA = idx.size
     c = steppers.constants(method)
@@ -178,7 +174,7 @@ def _run(chain, m, method, q0, v0, t0, t1, *, dt, rtol, atol, t_eval, on_sample,
             if code == AT_STOP:
                 if t >= t1:
                     break
-                q, v = _state(chain, m, wk.q_chart, y)
+                q, v = state(chain, m.idx, wk.q_chart, y)
                 hold(t, q, v)
                 n_hold += 1
                 for r in range(cnt[steppers.K_OUT] - 1, -1, -1):  # a sample at the instant shows the new hold
@@ -277,10 +273,9 @@ def _read_only(a: np.ndarray) -> np.ndarray:
     return v
 
 
-def _state(chain, m, q_chart, y):
-    """``(q, v)`` of the engine state ``y`` in the chart at ``q_chart`` (Python's
-    :func:`system.configuration`)."""
-    idx = m.idx
+def state(chain, idx, q_chart, y):
+    """``(q, v)`` of the state ``y = (delta, v)`` over the free coordinates ``idx`` in the
+    chart at ``q_chart`` (Python's :func:`system.configuration`)."""
     nA = idx.size
     v = np.zeros(chain.nv)
     v[idx] = y[nA:]
@@ -297,28 +292,32 @@ def _state_at(method, chain, m, it, c, s):
     """``(q, v)`` at time ``s`` in the last step (its dense output)."""
     ys = it.tmp[steppers.Y_OUT]
     steppers.dense(steppers.CODES[method], it, c, s, ys)
-    return _state(chain, m, it.qc, ys)
+    return state(chain, m.idx, it.qc, ys)
 
 
-def _events(events, g_prev, ev_log, method, chain, m, wk, it, c):
-    """Sign changes of the events over the last step, root-found on its dense output; returns
-    the first terminal event's time or None."""
+def crossings(events, g_prev, log, ta, tb, state_at):
+    """Sign changes of the events over ``[ta, tb]`` (s), root-found on the state at a time,
+    ``state_at(s) -> (q, v)``: ``g_prev`` (their values at ``ta``) updated to ``tb``, ``log``
+    given ``(name, t s)`` of each crossing; returns the first terminal event's time or None."""
     from scipy.optimize import brentq
 
-    tf = it.tf
-    ta, tb = tf[steppers.T_OLD], tf[steppers.T]
     hit = None
     for kk, e in enumerate(events):
-        gb = e(tb, *_state_at(method, chain, m, it, c, tb))
+        gb = e(tb, *state_at(tb))
         ga = g_prev[kk]
         g_prev[kk] = gb
         if (ga < 0 <= gb and e.direction >= 0) or (ga > 0 >= gb and e.direction <= 0):
-            te = brentq(lambda s: e(s, *_state_at(method, chain, m, it, c, s)), ta, tb,
-                        xtol=1e-12 * max(1.0, abs(tb)))
-            ev_log.append((e.name, te))
+            te = brentq(lambda s: e(s, *state_at(s)), ta, tb, xtol=1e-12 * max(1.0, abs(tb)))
+            log.append((e.name, te))
             if e.terminal and (hit is None or te < hit):
                 hit = te
     return hit
+
+
+def _events(events, g_prev, ev_log, method, chain, m, wk, it, c):
+    """:func:`crossings` over the last step, on its dense output."""
+    return crossings(events, g_prev, ev_log, it.tf[steppers.T_OLD], it.tf[steppers.T],
+                     lambda s: _state_at(method, chain, m, it, c, s))
 
 
 def _cut(out, cnt, hit, method, chain, m, wk, it, c, inputs):

@@ -18,12 +18,10 @@ SINE      3   ``(3, m)``          ``amplitude (m), frequency (m) Hz, phase (m) r
 TABLE     4   ``(4, m, K)``       ``times (K) s, values (K*m), row-major (time, input)``
 ============  ==================  =========================================================
 
-:func:`pack_base_motion` packs a :class:`qchain.sim.inputs.SineMotion`
-``X_WB(t) = X_0 * M(s(t))``, ``s = a sin(2 pi f t + phase)``, and :func:`base_motion_eval`
-gives ``(R_WB, p_WB, V_B, A_B)`` at ``t``. ``ints = (kind,)`` with kind TRANSLATION (0,
-``M(s) = (I, s axis)``) or ROTATION (1, ``M(s) = (exp3(s axis), 0)``); ``params`` (18,) =
-``axis (3, mount frame), amplitude (m or rad), frequency (Hz), phase (rad), R_0 (9,
-row-major), p_0 (3, m)``, the mount ``X_0 = (R_0, p_0)`` in the world.
+:func:`pack_base_motion` packs a :class:`qchain.sim.inputs.SineMotion` (its docstring gives
+the motion) and :func:`base_motion_eval` gives ``(R_WB, p_WB, V_B, A_B)`` at ``t``:
+``ints = (kind,)``, TRANSLATION (0) or ROTATION (1); ``params`` (18,) = ``axis (3, mount
+frame), amplitude (m or rad), frequency (Hz), phase (rad), R_0 (9, row-major), p_0 (3, m)``.
 
 The evaluations repeat the float operations of the Python ``__call__`` in the same order,
 so they are equal bit for bit except where the elementary functions differ: numpy's
@@ -100,7 +98,6 @@ def pack_input(u, size: int, name: str = "input") -> tuple[np.ndarray, np.ndarra
             return _packed(SINE, size, u.amplitude, u.frequency, u.phase, u.offset)
         if kind is Table:
             return _packed(TABLE, size, u.times, u.values, extra=(u.times.size,))
-        return None
     if callable(u):
         return None
     return _packed(CONSTANT, size, as_vector(name, u, size))

@@ -16,25 +16,10 @@ and the workspace ``wk``) from the integrator state ``it`` (an :class:`Integrato
 Output samples at the times ``out[0]`` (K,) are written into ``out[1:]`` (q (K, nq),
 v (K, nv), p (K, nu)) from each accepted step's dense output, so outputs never shorten a step.
 
-Methods (Hairer, Norsett and Wanner, *Solving ODEs I*; Hairer and Wanner, *Solving ODEs II*):
+The methods (``rk4``, ``midpoint``, ``dopri5``, ``radau5``), their step control and Newton
+matrices, and the tolerances (on ``y = (delta, v)``, as scipy's): docs/engine.md, "Methods".
 
-``rk4``       classical Runge-Kutta, fixed step; the chart is moved every step (Munthe-Kaas).
-``midpoint``  implicit midpoint rule, fixed step, symmetric and A-stable: Newton on the
-              midpoint velocity with the matrix ``I - h/2 Jv - h^2/4 Jq`` of the exact
-              Jacobian, kept over steps and refreshed when Newton slows.
-``dopri5``    Dormand-Prince 5(4) with its 4th-order dense output and scipy's ``RK45`` step
-              control (first same as last).
-``radau5``    Radau IIA, order 5, L-stable (RADAU5): simplified Newton with the exact
-              Jacobian of :func:`qchain.sim.engine.system.jacobian`, one real and one complex
-              factorisation of half the system's size (the position rows are eliminated:
-              ``(c^2 - c Jv - Jq) dv = c r_v + Jq r_x``), reused over steps while Newton
-              converges fast; Gustafsson's predictive step control; the collocation
-              polynomial as dense output.
-
-Tolerances act on ``y = (delta, v)`` as scipy's do: ``|err_i| <= atol + rtol |y_i|``, RMS norm.
-
-Unchecked by design: compiled kernels whose arguments the checked API has validated
-(``docs/engine.md``, "Unchecked kernels"); call the checked API unless you guarantee them.
+Unchecked by design (``docs/engine.md``, "Unchecked kernels"): call the checked API.
 """
 
 from __future__ import annotations
@@ -279,11 +264,14 @@ def _accepted(m, wk, it, t, h, t_new, fixed):
 @ejit_inner
 def _end_state(m, wk, it, t, y):
     """The status of the configuration at ``y`` at time ``t`` (a fixed step's end is checked
-    before it is accepted, so a run stops on the last valid state)."""
+    before it is accepted, so a run stops on the last valid state: ``y`` is set back to
+    ``it.y_old`` and the status recorded where it fails)."""
     system.configuration(m, wk, wk.q_chart, y)
     st = system.check(m, wk, wk.q)
     if st != 0:
         it.tf[T_FAIL] = t
+        system.copy(y, it.y_old)
+        it.cnt[STATUS] = st
     return st
 
 
@@ -371,10 +359,7 @@ def advance_rk4(fs, m, wk, it, out, c, t_stop, max_out, max_steps):
         system.copy(yold, y)
         for i in range(N):
             y[i] = y[i] + h / 6.0 * (K[0, i] + 2.0 * K[1, i] + 2.0 * K[2, i] + K[3, i])
-        st = _end_state(m, wk, it, t_new, y)
-        if st != 0:
-            system.copy(y, yold)
-            cnt[STATUS] = st
+        if _end_state(m, wk, it, t_new, y) != 0:
             return FAILED
         system.copy(K[8, :nA], K[0, :nA])
         system.position_rate(m, y, K[9])
@@ -474,12 +459,8 @@ def advance_midpoint(fs, m, wk, it, out, c, t_stop, max_out, max_steps):
             K[1, nA + i] = F[nA + i]
             y[i] = y[i] + h * Y[nA + i]
             y[nA + i] = 2.0 * Y[nA + i] - y[nA + i]
-        st = _end_state(m, wk, it, t_new, y)
-        if st != 0:
-            system.copy(y, yold)
-            cnt[STATUS] = st
+        if _end_state(m, wk, it, t_new, y) != 0:
             return FAILED
-        cnt[F_OK] = 1
         system.position_rate(m, yold, K[8])
         system.position_rate(m, y, K[9])
         steps += 1

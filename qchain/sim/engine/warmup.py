@@ -1,23 +1,9 @@
 """The first run after install: compile in parallel before the run, say so, and time it apart.
 
-numba compiles the engine at its first use and caches the machine code (``cache=True``: in
-``qchain/__pycache__`` folders, or ``NUMBA_CACHE_DIR``); later processes load it. A method's
-engine is four parts, each compiled and cached on its own:
-
-``rhs_planar`` / ``rhs_spatial``  the right-hand side (:mod:`qchain.sim.engine.system`), a C callback;
-``jacobian``                      its exact Jacobian (implicit methods only), a C callback;
-``advance``                       the method's stepper (:mod:`qchain.sim.engine.steppers`), which
-                                  calls the two through their addresses;
-``energies``                      the samples' energies.
-
-:func:`prepare` makes them ready before a run starts, so the run's wall time and real-time
-factor never include compiling or loading. Where the cache lacks parts, it first prints one
-line on stderr with the expected time (:data:`EXPECTED_COMPILE_S`), then compiles the two
-callbacks in worker processes (:func:`_main`; numba compiles in one thread, so processes are
-how a compile uses more than one core) while this process compiles the stepper and the
-energies; it then loads what the workers cached. A worker that
-fails costs nothing but time: what is not in the cache afterwards is compiled here.
-:func:`start` sets the workers going earlier (a scene does so before it builds its model).
+The engine's parts (``rhs_planar`` / ``rhs_spatial``, ``jacobian``, ``advance``,
+``energies``) and how they are compiled: docs/engine.md, "The first run: compiling".
+:func:`prepare` makes them ready before a run starts; :func:`start` sets the workers going
+earlier (a scene does so before it builds its model).
 """
 
 from __future__ import annotations
