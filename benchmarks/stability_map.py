@@ -161,7 +161,7 @@ def _lying(coords, n=2, **kw):
     height = kw.pop("height", 0.015)
     tilt = kw.pop("tilt", 0.0)
     ch = Chain([_seg(coords, damping=0.01) for _ in range(n)], base="floating", **kw)
-    q0 = ch.neutral()
+    q0 = _q_bent(ch, coords, 0.5)  # nearly straight (the paper's coordinates are singular at straight)
     R = pin.rpy.rpyToMatrix(0.0, np.pi / 2 + tilt, 0.0)
     q0[:7] = pin.SE3ToXYZQUAT(pin.SE3(R, np.array([-0.1, 0.0, height])))
     return ch, q0
