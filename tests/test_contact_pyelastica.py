@@ -157,8 +157,9 @@ def test_a_cantilever_on_the_ground_settles_as_in_pyelastica():
 
     PyElastica's clamp holds the whole first element (``OneEndFixedBC`` fixes node 0 and the
     first element's directors) and its curvatures live between elements, so its rod bends
-    from ``ds / 2`` on: it is too stiff by O(ds) (free, it sags 16.642 mm at 64 elements
-    against the Kirchhoff rod's 17.164 mm, 3.0 %, that of a cantilever ``ds / 2`` shorter).
+    from ``ds / 2`` on: it is too stiff by O(ds) (free, in a separate run without the ground,
+    it sags 16.642 mm at 64 elements against the Kirchhoff rod's 17.164 mm: 3.0 %, that of a
+    cantilever ``ds / 2`` shorter, 16.634 mm).
     So the codes differ at first order in ``ds``, and the difference extrapolated to
     ``ds -> 0`` (Richardson, first order: ``2 D(128) - D(64)``) is what is left of the
     modelling: qchain's constant-curvature segments (second order in 1/n: -0.35 % of the
