@@ -364,8 +364,8 @@ def test_a_cantilever_pressed_onto_the_ground_matches_a_rod_on_the_laws_foundati
     against 0.06769 N (6.4 % and 1.6 % low; 0.39 % at n = 16), the backbone within 0.152 and
     0.037 mm of the reference at equal arclength, for n = 4 and 8 segments: the
     constant-curvature segments' error, second order in 1/n (the 64 rather than 16 contact
-    points per segment change the force by 0.03 %). PyElastica, which the brief named as the
-    reference, is not in the project's environment."""
+    points per segment change the force by 0.03 %). The same scene against PyElastica:
+    tests/test_contact_pyelastica.py."""
     ref, F_ref = _rod_on_foundation()
     force_err, shape_err = [], []
     for n in (4, 8):
