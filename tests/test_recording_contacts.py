@@ -247,14 +247,23 @@ def test_foxglove_draws_forces_as_arrows_at_the_points_and_the_obstacles_as_shap
     assert (box.size.x, box.size.y, box.size.z) == (0.1, 0.2, 0.04)
 
 
-def test_rerun_draws_the_obstacles_once_and_the_forces_as_arrows(tmp_path):
-    """The .rrd holds each obstacle as a static shape of its kind and, for every record, the
-    contact forces as arrows from the contact points (scaled by force_ref) and the points."""
+@pytest.mark.parametrize("how", ["live", "replay"])
+def test_rerun_draws_the_obstacles_once_and_the_forces_as_arrows(tmp_path, how):
+    """The .rrd of the run (live) and of `qchain replay` holds each obstacle as a static shape
+    of its kind and, for every record, the contact forces as arrows from the contact points
+    (scaled by force_ref) and the points."""
     import rerun as rr
+
+    from qchain.recording.replay import replay
 
     records, contacts = arm_records(12, dt=1e-2), _contacts(12, seed=7)
     rrd = tmp_path / "run.rrd"
-    _logged(records, contacts, rrd=rrd)
+    if how == "live":
+        _logged(records, contacts, rrd=rrd)
+    else:
+        path = tmp_path / "run.mcap"
+        _logged(records, contacts, mcap=path)
+        assert len(replay(path, rrd=rrd, batch=5).recording) == 12
     cols, _ = _rrd_columns(rrd)
     static = {}
     for chunk in rr.chunk.RrdReader(rrd).stream():

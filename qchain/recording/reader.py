@@ -73,7 +73,9 @@ class Gap:
 @dataclass
 class Recording(Batch):
     """Everything a qchain MCAP holds (the reading side of :class:`RunLogger`): its records, a
-    :class:`Batch`, and
+    :class:`Batch` (with ``contacts`` (K, max_contacts, 11) when the run recorded contacts,
+    NaN-padded; :meth:`~Batch.contact_set` gives record ``k``'s; a record whose contact
+    message was lost reads as having none), and
 
     Attributes
     ----------
