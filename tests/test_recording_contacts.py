@@ -340,3 +340,33 @@ def test_the_recorder_records_the_chains_contacts_each_sample():
         got = r.contact_set(k)
         for name in ("point", "normal", "force", "segment", "obstacle"):
             np.testing.assert_array_equal(getattr(got, name), getattr(want, name), err_msg=name)
+
+
+def test_the_foxglove_layout_shows_the_obstacles_and_forces_of_a_contact_run():
+    """The 3D panel of a run with an environment draws /qchain/obstacles and
+    /qchain/contact_forces with the arm; a run without one's layout does not name them."""
+    from qchain.logging import foxglove_layout
+
+    def topics(info):
+        layout = json.loads(foxglove_layout(info, 9, 9, 9).to_json())
+        found = []
+
+        def walk(x):
+            if isinstance(x, dict):
+                if "topics" in x and isinstance(x["topics"], dict):
+                    found.append(x["topics"])
+                for v in x.values():
+                    walk(v)
+            elif isinstance(x, list):
+                for v in x:
+                    walk(v)
+
+        walk(layout)
+        assert len(found) == 1
+        return found[0]
+
+    with_env = topics(_info())
+    assert with_env[CONTACT_TOPICS["obstacles"]]["visible"] is True
+    assert with_env[CONTACT_TOPICS["forces"]]["visible"] is True
+    assert with_env[TOPICS["arm"]]["visible"] is True
+    assert not set(CONTACT_TOPICS.values()) & set(topics(arm_info()))

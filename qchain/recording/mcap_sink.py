@@ -35,7 +35,7 @@ from .scenery import (
 )
 from .scenery import reach as arm_reach
 
-__all__ = ["McapSink", "info_metadata", "STATE_SCHEMA", "CONTACTS_SCHEMA", "relative_frames", "records_contacts"]
+__all__ = ["McapSink", "info_metadata", "STATE_SCHEMA", "CONTACTS_SCHEMA", "relative_frames"]
 
 #: JSON schema of ``/qchain/state`` (a number may be null: a non-finite value).
 STATE_SCHEMA = {
@@ -82,11 +82,6 @@ CONTACTS_SCHEMA = {
     },
     "required": ["t", "step", "point", "normal", "force", "segment", "obstacle"],
 }
-
-
-def records_contacts(info: RunInfo) -> bool:
-    """Whether a run's recording has the contact channels (an environment was declared)."""
-    return info.obstacles is not None or info.max_contacts > 0
 
 
 def info_metadata(info: RunInfo, recording_id: str) -> dict[str, str]:
@@ -174,7 +169,7 @@ class McapSink:
             s = cls.get_schema()
             ch[key] = self._w.register_channel(TOPICS[key], "protobuf",
                                                self._w.register_schema(s.name, s.encoding, s.data))
-        if records_contacts(info):
+        if info.records_contacts:
             sid = self._w.register_schema("qchain.Contacts", "jsonschema", json.dumps(CONTACTS_SCHEMA).encode())
             ch["contacts"] = self._w.register_channel(CONTACT_TOPICS["contacts"], "json", sid)
             s = fm.SceneUpdate.get_schema()

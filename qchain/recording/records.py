@@ -418,6 +418,12 @@ class RunInfo:
         self.force_ref = float(self.force_ref)
 
     @property
+    def records_contacts(self) -> bool:
+        """Whether the run's recording has the contact channels (:data:`CONTACT_TOPICS`): an
+        environment was declared (``obstacles`` or ``max_contacts``)."""
+        return self.obstacles is not None or self.max_contacts > 0
+
+    @property
     def scene_file(self) -> str | None:
         """The scene's path as given (for the file system), ``scene_path`` as recorded."""
         return self._scene_file if getattr(self, "_scene_file", None) is not None else self.scene_path
