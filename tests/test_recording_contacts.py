@@ -370,3 +370,36 @@ def test_the_foxglove_layout_shows_the_obstacles_and_forces_of_a_contact_run():
     assert with_env[CONTACT_TOPICS["forces"]]["visible"] is True
     assert with_env[TOPICS["arm"]]["visible"] is True
     assert not set(CONTACT_TOPICS.values()) & set(topics(arm_info()))
+
+
+def test_a_killed_runs_contacts_come_back_from_its_journal_and_recover_keeps_them(tmp_path):
+    """A killed run's file (cut after its last chunk, a chunk inside damaged) and its journal
+    (rows with the contacts): reading merges the journal's records with their contacts, and
+    `recover` writes a whole recording holding every record's contacts."""
+    from qchain.logging import recover
+    from qchain.recording.journal import journal_path
+    from qchain.recording.mcap_sink import info_metadata
+    from qchain.recording.scan import scan
+    from support import write_journal
+
+    records, contacts = arm_records(60, dt=1e-2), _contacts(60, seed=11)
+    info = _info()
+    data = _logged(records, contacts, info=info, flush_interval=0.05).getvalue()
+    whole = read_recording(io.BytesIO(data))
+    chunks = [it for it in scan(data) if it.kind == "chunk"]
+    assert len(chunks) >= 6
+    cut = bytearray(data[: chunks[-1].end])  # no summary, no footer: as a killed run leaves it
+    cut[chunks[1].offset + 60] ^= 0x10  # a chunk inside lost to a flipped bit
+    path = tmp_path / "run.mcap"
+    path.write_bytes(bytes(cut))
+    b = whole.batch()
+    write_journal(path, b.rows(), b.layout, info_metadata(info, whole.metadata["recording_id"]))
+    assert b.layout.C == MAX_CONTACTS
+    rec = read_recording(path)
+    assert rec.recovered > 0 and not rec.gaps and len(rec) == 60
+    _assert_contacts_equal(rec, contacts)
+    recover(path)
+    assert not journal_path(path).exists()
+    again = read_recording(path)
+    assert not again.truncated and not again.gaps and again.info.obstacles == OBSTACLES
+    _assert_contacts_equal(again, contacts)
