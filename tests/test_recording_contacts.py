@@ -376,11 +376,12 @@ def test_a_killed_runs_contacts_come_back_from_its_journal_and_recover_keeps_the
     """A killed run's file (cut after its last chunk, a chunk inside damaged) and its journal
     (rows with the contacts): reading merges the journal's records with their contacts, and
     `recover` writes a whole recording holding every record's contacts."""
+    from support import write_journal
+
     from qchain.logging import recover
     from qchain.recording.journal import journal_path
     from qchain.recording.mcap_sink import info_metadata
     from qchain.recording.scan import scan
-    from support import write_journal
 
     records, contacts = arm_records(60, dt=1e-2), _contacts(60, seed=11)
     info = _info()
