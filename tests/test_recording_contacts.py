@@ -56,7 +56,8 @@ def _contacts(K, seed=0):
         c = 0 if k == 0 else int(rng.integers(0, MAX_CONTACTS + 1))
         nrm = rng.normal(size=(c, 3))
         out.append(ContactSet(rng.normal(size=(c, 3)), nrm / np.linalg.norm(nrm, axis=1, keepdims=True),
-                              rng.normal(size=(c, 3)), rng.integers(0, 3, c), rng.integers(0, len(OBSTACLES), c)))
+                              rng.normal(size=(c, 3)), rng.integers(0, 3, c),
+                              rng.integers(-3, len(OBSTACLES), c)))  # -1 - k: self-contact with segment k
     return out
 
 
@@ -150,6 +151,18 @@ def test_bad_contacts_and_obstacles_are_refused_by_name():
         pack_contacts(object(), 2)
     with pytest.raises(ValueError, match="contacts: point, normal, force"):
         pack_contacts(ContactSet(np.zeros((2, 3)), np.zeros((3, 3)), np.zeros((2, 3)), [0, 0], [0, 0]), 2)
+    info = _info()
+    bad = ContactSet(np.zeros((1, 3)), np.zeros((1, 3)), np.zeros((1, 3)), [0], [5])
+    with pytest.raises(ValueError, match="contacts.obstacle must be indices into RunInfo.obstacles \\(5 of them\\)"):
+        pack_contacts(bad, 2, info)
+    with pytest.raises(ValueError, match="contacts.segment must be segment indices 0 .. 2"):
+        pack_contacts(bad._replace(segment=[3], obstacle=[0]), 2, info)
+    assert pack_contacts(bad._replace(obstacle=[-3]), 2, info)[1] == 0  # self-contact with segment 2
+    record = arm_records(1, dt=1e-2)[0]
+    record.contacts = bad
+    with RunLogger(info, io.BytesIO(), quiet=True) as log, \
+            pytest.raises(ValueError, match="contacts.obstacle must be indices"):
+        log.log(record)
     with pytest.raises(ValueError, match="obstacles\\[0\\] must be a dict with a 'type'"):
         RunInfo(n_segments=1, radii=[0.01], obstacles=[{"radius": 1.0}])
     with pytest.raises(ValueError, match="obstacles must be None or a list"):

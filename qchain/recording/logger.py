@@ -375,7 +375,7 @@ class RunLogger:
             base = default_base(np.asarray(bb, dtype=float))
         extra = ()
         if self._layout.C:
-            block, dropped = pack_contacts(record.contacts, self._layout.C)
+            block, dropped = pack_contacts(record.contacts, self._layout.C, self.info)
             self._said_dropped(dropped, t)
             extra = (block.ravel(),)
         try:
@@ -528,7 +528,7 @@ class RunLogger:
                                  f"{len(contacts)}")
             blocks = np.empty((K, C * CONTACT_WIDTH))
             for k in range(K):
-                block, dropped = pack_contacts(None if contacts is None else contacts[k], C)
+                block, dropped = pack_contacts(None if contacts is None else contacts[k], C, self.info)
                 self._said_dropped(dropped, float(t[k]))
                 blocks[k] = block.ravel()
             extra = (blocks,)

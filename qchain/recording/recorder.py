@@ -254,7 +254,7 @@ class ChainRecorder:
             for k in range(K):
                 found = None if self.contacts is None else \
                     self.contacts(float(rows[k, 0]), rows[k, self._sq].copy(), rows[k, sv].copy())
-                blocks[k], dropped = pack_contacts(found, C)
+                blocks[k], dropped = pack_contacts(found, C, getattr(self.logger, "info", None))
                 if dropped and hasattr(self.logger, "_said_dropped"):  # (said once, by the logger)
                     self.logger._said_dropped(dropped, float(rows[k, 0]))
         self.logger.log_rows(rows, self.layout)

@@ -132,7 +132,8 @@ class ContactSet(NamedTuple):
     normal : (c, 3) float          the obstacle's outward unit normal there, world frame.
     force : (c, 3) float, N        the force on the arm, world frame.
     segment : (c,) int             the segment touching (0-based).
-    obstacle : (c,) int            index into ``RunInfo.obstacles``.
+    obstacle : (c,) int            index into ``RunInfo.obstacles``; ``-1 - k`` for self-contact
+                                   with segment ``k`` (as :class:`qchain.contact.Contacts`).
     """
 
     point: np.ndarray
@@ -150,12 +151,13 @@ class ContactSet(NamedTuple):
                    used[:, 10].astype(np.int64))
 
 
-def pack_contacts(contacts, capacity: int) -> tuple[np.ndarray, int]:
+def pack_contacts(contacts, capacity: int, info: RunInfo | None = None) -> tuple[np.ndarray, int]:
     """``contacts`` (anything with ``.point`` (c, 3), ``.normal`` (c, 3), ``.force`` (c, 3),
     ``.segment`` (c,), ``.obstacle`` (c,), e.g. :class:`qchain.contact.Contacts`, or None: no
     contact) as a row's block (capacity, CONTACT_WIDTH), NaN-padded, and how many contacts
     did not fit: the block keeps the ``capacity`` largest forces (a recording's rows all
-    have one width)."""
+    have one width). With the run's ``info``, a segment or obstacle it does not have is a
+    ``ValueError`` (a reader would refuse the recording)."""
     block = np.full((capacity, CONTACT_WIDTH), np.nan)
     if contacts is None:
         return block, 0
@@ -173,8 +175,14 @@ def pack_contacts(contacts, capacity: int) -> tuple[np.ndarray, int]:
         raise ValueError(f"contacts: point, normal, force must be (c, 3) and segment, obstacle (c,) for the "
                          f"same c ({exc})") from None
     full = np.concatenate(cols, axis=1)
-    if not np.isfinite(full[:, 9]).all():
-        raise ValueError("contacts.segment must be finite whole numbers")
+    seg, obs = full[:, 9], full[:, 10]
+    n = np.inf if info is None else info.n_segments
+    m = np.inf if info is None else len(info.obstacles or ())
+    if not (np.isfinite(seg).all() and (seg == np.floor(seg)).all() and (seg >= 0).all() and (seg < n).all()):
+        raise ValueError(f"contacts.segment must be segment indices 0 .. {n - 1}, got {seg.tolist()}")
+    if not (np.isfinite(obs).all() and (obs == np.floor(obs)).all() and (obs >= -n).all() and (obs < m).all()):
+        raise ValueError(f"contacts.obstacle must be indices into RunInfo.obstacles ({m} of them) or -1 - k for "
+                         f"self-contact with segment k, got {obs.tolist()}")
     dropped = max(0, c - capacity)
     if dropped:
         keep = np.sort(np.argsort(-np.linalg.norm(full[:, 6:9], axis=1), kind="stable")[:capacity])

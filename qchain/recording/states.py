@@ -180,9 +180,9 @@ def _decode_contacts(msgs: list[tuple[int, bytes]], b: Batch, info: RunInfo, nam
                     bad = f"{c} contacts, more than the run's max_contacts = {C}"
                 elif not (np.isfinite(seg).all() and (seg >= 0).all() and (seg < n).all() and (seg == np.floor(seg)).all()):
                     bad = f"a segment that is not one of the {n}"
-                elif not (np.isfinite(obs).all() and (obs == np.floor(obs)).all() and (obs >= -1).all()
-                          and (m == 0 or (obs < m).all())):
-                    bad = f"an obstacle index that is not one of the {m}"
+                elif not (np.isfinite(obs).all() and (obs == np.floor(obs)).all() and (obs >= -n).all()
+                          and (obs < m).all()):  # (-1 - k: self-contact with segment k)
+                    bad = f"an obstacle index that is not one of the {m} obstacles nor -1 - k for a segment k"
         if bad is not None:
             raise RecordingFormatError(f"{name}: the contact message in the chunk at byte {off}: {bad}")
         k = where.get(s["step"]) if type(s["step"]) is int else None
