@@ -417,3 +417,20 @@ def test_a_killed_runs_contacts_come_back_from_its_journal_and_recover_keeps_the
     again = read_recording(path)
     assert not again.truncated and not again.gaps and again.info.obstacles == OBSTACLES
     _assert_contacts_equal(again, contacts)
+
+
+def test_the_shapes_orientations_turn_their_axes_where_the_obstacles_say():
+    """quat_from_matrix gives back the matrix (random rotations and half turns, where the
+    trace is -1), quat_between turns a onto b (opposite directions too)."""
+    from scipy.spatial.transform import Rotation
+
+    from qchain.recording.scenery import quat_between, quat_from_matrix
+
+    mats = list(Rotation.random(200, random_state=3).as_matrix())
+    mats += [np.diag(d) for d in ([1.0, -1.0, -1.0], [-1.0, 1.0, -1.0], [-1.0, -1.0, 1.0])]
+    for R in mats:
+        np.testing.assert_allclose(_quat_rot(quat_from_matrix(R)), R, atol=1e-12)
+    rng = np.random.default_rng(4)
+    for a, b in [*rng.normal(size=(50, 2, 3)), ([0, 0, 1.0], [0, 0, -1.0]), ([1.0, 0, 0], [-2.0, 0, 0])]:
+        got = _quat_rot(quat_between(a, b)) @ (np.asarray(a) / np.linalg.norm(a))
+        np.testing.assert_allclose(got, np.asarray(b) / np.linalg.norm(b), atol=1e-12)
