@@ -222,6 +222,31 @@ class Environment:
                 raise ValueError(f"Environment.loads[{i}].segment must be < {n} (the chain's segments), got "
                                  f"{ld.segment}")
 
+    def describe(self) -> list[dict]:
+        """The obstacles as plain JSON-like data (lists, floats, strings; no numpy), world
+        frame at ``t = 0``, for a recording's ``RunInfo.obstacles``: each a dict with
+        ``"type"`` and the shape's parameters in m (``"halfspace"``: ``point``, ``normal``;
+        ``"sphere"``: ``center``, ``radius``; ``"capsule"``, ``"cylinder"``: ``a``, ``b``,
+        ``radius``; ``"box"``: ``center``, ``half_extents``, ``rotation`` (3 x 3, rows)), and
+        ``"motion"``: None for a fixed obstacle, else its ``velocity`` (m/s), ``amplitude``
+        (m), ``frequency`` (Hz) and ``phase`` (rad). Index ``i`` of the list is the
+        ``obstacle`` index of :class:`Contacts`."""
+        fields = {HalfSpace: ("point", "normal"), Sphere: ("center", "radius"), Capsule: ("a", "b", "radius"),
+                  Cylinder: ("a", "b", "radius"), Box: ("center", "half_extents", "rotation")}
+        out = []
+        for ob in self.obstacles:
+            d = {"type": type(ob).__name__.lower()}
+            for name in fields[type(ob)]:
+                value = getattr(ob, name)
+                d[name] = np.asarray(value, dtype=float).tolist() if np.ndim(value) else float(value)
+            m = ob.motion
+            d["motion"] = None if m is None else {
+                "velocity": np.asarray(m.velocity, dtype=float).tolist(),
+                "amplitude": np.asarray(m.amplitude, dtype=float).tolist(),
+                "frequency": float(m.frequency), "phase": float(m.phase)}
+            out.append(d)
+        return out
+
     def packed(self) -> "PackedEnvironment":
         """The kernels' arrays (:class:`PackedEnvironment`), made once (the passes never write them)."""
         if self._packed is None:

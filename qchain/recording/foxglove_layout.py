@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import json
 
-from .records import TOPICS, RunInfo
+from .records import CONTACT_TOPICS, TOPICS, RunInfo
 
 __all__ = ["foxglove_layout", "layout_json"]
 
@@ -40,13 +40,17 @@ def foxglove_layout(info: RunInfo, nq: int, nv: int, n_p: int):
     energy = _plot(fl, "energy [J]", [(f"{st}.{k}", f"{k} [J]") for k in ("kinetic", "potential", "total")])
     reach = sum(float(s.get("length", 0.0)) for s in info.params.get("segments", [])
                 if isinstance(s, dict)) or 10.0 * sum(info.radii)
+    topics = {TOPICS["arm"]: fl.BaseRendererSceneUpdateTopicSettings(visible=True),
+              TOPICS["points"]: fl.BaseRendererPointCloudTopicSettings(visible=False)}
+    if info.records_contacts:  # the obstacles and the contact forces, drawn with the arm
+        topics.update({CONTACT_TOPICS[k]: fl.BaseRendererSceneUpdateTopicSettings(visible=True)
+                       for k in ("obstacles", "forces")})
     three = fl.ThreeDeePanel(title="arm", config=fl.ThreeDeeConfig(
         follow_tf="base", follow_mode="follow-position",
         camera_state=fl.ThreeDeeCameraState(distance=4.0 * reach, perspective=True, phi=70.0, theta_offset=35.0,
                                             target_offset=(0.0, 0.0, 0.5 * reach), fovy=45.0, near=0.001,
                                             far=1000.0),
-        topics={TOPICS["arm"]: fl.BaseRendererSceneUpdateTopicSettings(visible=True),
-                TOPICS["points"]: fl.BaseRendererPointCloudTopicSettings(visible=False)},
+        topics=topics,
     ))
     return fl.Layout(content=fl.SplitContainer(direction="row", items=[
         fl.SplitItem(proportion=3, content=three),

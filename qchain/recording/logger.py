@@ -27,6 +27,7 @@ from .journal import JournalReader, JournalWriter, journal_path
 from .mcap_sink import info_metadata
 from .options import check_outputs
 from .records import (
+    CONTACT_WIDTH,
     DEFAULT_FLUSH_INTERVAL,
     DEFAULT_FLUSH_WALL_INTERVAL,
     LoggingError,
@@ -35,6 +36,7 @@ from .records import (
     RunInfo,
     StepRecord,
     default_base,
+    pack_contacts,
 )
 from .rerun_sink import CONNECT_TIMEOUT, DEFAULT_BIND, _reap
 from .writer import DEFAULT_RERUN_LATENCY, TEARDOWN_LIMIT, WRITER_POLL, ThreadWriter, launch, take_spare
@@ -321,7 +323,8 @@ class RunLogger:
             raise ValueError(f"record.backbone must have shape ({n}, P, 3) with P >= 1, got {bb}")
         if shapes["tip_frames"] != (n, 7):
             raise ValueError(f"record.tip_frames must have shape ({n}, 7), got {shapes['tip_frames']}")
-        return self._set_layout(RecordLayout(shapes["q"][0], shapes["v"][0], shapes["p"][0], n, bb[1]))
+        return self._set_layout(RecordLayout(shapes["q"][0], shapes["v"][0], shapes["p"][0], n, bb[1],
+                                             self.info.max_contacts))
 
     def _set_layout(self, lay: RecordLayout) -> RecordLayout:
         self._shapes = {"q": (lay.nq,), "v": (lay.nv,), "p": (lay.n_p,), "backbone": (lay.n, lay.P, 3),
@@ -370,9 +373,14 @@ class RunLogger:
             raise self._shape_error(record)
         if base is None:
             base = default_base(np.asarray(bb, dtype=float))
+        extra = ()
+        if self._layout.C:
+            block, dropped = pack_contacts(record.contacts, self._layout.C, self.info)
+            self._said_dropped(dropped, t)
+            extra = (block.ravel(),)
         try:
             row = np.concatenate(((t, record.step), q, v, p, (record.kinetic, record.potential, record.total), base,
-                                  np.ravel(bb), np.ravel(tf)), dtype=np.float64)
+                                  np.ravel(bb), np.ravel(tf)) + extra, dtype=np.float64)
         except ValueError:
             raise self._shape_error(record) from None
         if row.shape[0] != self._width or np.shape(q) != shapes["q"] or np.shape(v) != shapes["v"] \
@@ -392,6 +400,14 @@ class RunLogger:
         if t - self._buf_t0 >= 0.5 * self.flush_interval or len(buf) >= 256 or \
                 time.monotonic() - self._buf_wall >= 0.05:
             self._flush_buffer()
+
+    def _said_dropped(self, dropped: int, t: float) -> None:
+        """Warn once that samples had more contacts than the rows hold."""
+        if dropped and not getattr(self, "_warned_contacts", False):
+            self._warned_contacts = True
+            warnings.warn(f"qchain.logging: {dropped} contact(s) more than RunInfo.max_contacts = "
+                          f"{self.info.max_contacts} at t = {t:.6g} s: the largest forces are recorded, the rest not "
+                          "(said once)", LoggingWarning, stacklevel=4)
 
     def _flush_buffer(self) -> None:
         if self._buf:
@@ -447,6 +463,9 @@ class RunLogger:
         if self._layout is None:
             if layout.n != self.info.n_segments:
                 raise ValueError(f"layout.n = {layout.n} segments, but the run's RunInfo has {self.info.n_segments}")
+            if layout.C != self.info.max_contacts:
+                raise ValueError(f"layout.C = {layout.C} contacts, but the run's RunInfo.max_contacts is "
+                                 f"{self.info.max_contacts}")
             self._set_layout(layout)
         elif layout is not self._layout and layout != self._layout:
             raise ValueError(f"layout {layout} differs from the run's {self._layout} (fixed by its first record)")
@@ -458,7 +477,8 @@ class RunLogger:
         self._write(rows.copy() if self.worker == "thread" else rows)
         self.n_logged += K
 
-    def log_columns(self, t, step, q, v, p, kinetic, potential, total, backbone, tip_frames, base=None) -> None:
+    def log_columns(self, t, step, q, v, p, kinetic, potential, total, backbone, tip_frames, base=None,
+                    contacts=None) -> None:
         """Take ``K`` records given as columns: the batch form of :meth:`log`.
 
         Parameters
@@ -473,6 +493,8 @@ class RunLogger:
         tip_frames : (K, n, 7)
         base : (K, 7) or None
             As the fields of :class:`StepRecord`, one row a record.
+        contacts : sequence of K Contacts-like (or None) or None
+            Each record's active contacts, as :attr:`StepRecord.contacts`.
         """
         if self._closed:
             raise LoggingError("log_columns() on a closed RunLogger")
@@ -498,8 +520,21 @@ class RunLogger:
         base = np.asarray(base, dtype=np.float64)
         if base.shape != (K, 7):
             raise ValueError(f"base must have shape ({K}, 7), got {base.shape}")
+        extra = ()
+        C = self._layout.C
+        if C:
+            if contacts is not None and len(contacts) != K:
+                raise ValueError(f"contacts must hold K = {K} entries (one a record, None: no contact), got "
+                                 f"{len(contacts)}")
+            blocks = np.empty((K, C * CONTACT_WIDTH))
+            for k in range(K):
+                block, dropped = pack_contacts(None if contacts is None else contacts[k], C, self.info)
+                self._said_dropped(dropped, float(t[k]))
+                blocks[k] = block.ravel()
+            extra = (blocks,)
         rows = np.concatenate((t[:, None], step[:, None], q, v, p, kinetic[:, None], potential[:, None],
-                               total[:, None], base, backbone.reshape(K, -1), tip_frames.reshape(K, -1)), axis=1)
+                               total[:, None], base, backbone.reshape(K, -1), tip_frames.reshape(K, -1)) + extra,
+                              axis=1)
         self.log_rows(rows, self._layout)
 
     def set_outcome(self, success: bool = True, message: str = "", status: int | None = None, nfev: int = 0) -> None:

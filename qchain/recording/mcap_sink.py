@@ -16,16 +16,26 @@ from typing import BinaryIO
 import numpy as np
 
 from .records import (
+    CONTACT_TOPICS,
     FORMAT_NAME,
     FORMAT_VERSION,
     SEGMENT_COLORS,
     TOPICS,
     Batch,
     RunInfo,
+    ns,
     seal,
 )
+from .scenery import (
+    CONTACT_COLOR,
+    OBSTACLE_COLOR,
+    force_scale,
+    obstacle_shapes,
+    quat_between,
+)
+from .scenery import reach as arm_reach
 
-__all__ = ["McapSink", "info_metadata", "STATE_SCHEMA", "relative_frames"]
+__all__ = ["McapSink", "info_metadata", "STATE_SCHEMA", "CONTACTS_SCHEMA", "relative_frames"]
 
 #: JSON schema of ``/qchain/state`` (a number may be null: a non-finite value).
 STATE_SCHEMA = {
@@ -50,6 +60,27 @@ STATE_SCHEMA = {
                      "description": "world backbone points of each segment, root to tip, m"},
     },
     "required": ["t", "step", "q", "v", "p", "kinetic", "potential", "total", "base", "tips", "backbone"],
+}
+
+
+_VEC3S = {"type": "array", "items": {"type": "array", "items": {"type": "number"}, "minItems": 3, "maxItems": 3}}
+
+#: JSON schema of ``/qchain/contacts``: one sample's active contacts, ``c`` of them.
+CONTACTS_SCHEMA = {
+    "title": "qchain.Contacts",
+    "description": "The active contacts of the arm at one output sample of a qchain run",
+    "type": "object",
+    "properties": {
+        "t": {"type": "number", "description": "simulation time, s"},
+        "step": {"type": "integer", "description": "sample counter (that of /qchain/state)"},
+        "point": {**_VEC3S, "description": "contact points on the arm's surface, world frame, m"},
+        "normal": {**_VEC3S, "description": "the obstacles' outward unit normals there, world frame"},
+        "force": {**_VEC3S, "description": "the forces on the arm, world frame, N"},
+        "segment": {"type": "array", "items": {"type": "integer"}, "description": "the segment touching (0-based)"},
+        "obstacle": {"type": "array", "items": {"type": "integer"},
+                     "description": "index into the obstacles of the qchain metadata's info"},
+    },
+    "required": ["t", "step", "point", "normal", "force", "segment", "obstacle"],
 }
 
 
@@ -138,11 +169,19 @@ class McapSink:
             s = cls.get_schema()
             ch[key] = self._w.register_channel(TOPICS[key], "protobuf",
                                                self._w.register_schema(s.name, s.encoding, s.data))
+        if info.records_contacts:
+            sid = self._w.register_schema("qchain.Contacts", "jsonschema", json.dumps(CONTACTS_SCHEMA).encode())
+            ch["contacts"] = self._w.register_channel(CONTACT_TOPICS["contacts"], "json", sid)
+            s = fm.SceneUpdate.get_schema()
+            sid = self._w.register_schema(s.name, s.encoding, s.data)
+            for key in ("forces", "obstacles"):
+                ch[key] = self._w.register_channel(CONTACT_TOPICS[key], "protobuf", sid)
         self._ch = ch
+        topics = {**TOPICS, **CONTACT_TOPICS}
         # the channel ids in the sealed metadata too: a damaged first chunk loses its channel
         # records, not the meaning of every chunk after it
         meta = info_metadata(info, recording_id)
-        meta["channels"] = json.dumps({str(cid): TOPICS[key] for key, cid in ch.items()}, sort_keys=True)
+        meta["channels"] = json.dumps({str(cid): topics[key] for key, cid in ch.items()}, sort_keys=True)
         self._meta = seal(meta)
         self._w.add_metadata("qchain", self._meta)
         self.flush_interval = float(flush_interval)
@@ -180,6 +219,9 @@ class McapSink:
         n = b.backbone.shape[1]
         if self._static is None:
             self._static = self._statics(n)
+            self._scale = force_scale(arm_reach(self.info, b.backbone[0]), self.info.force_ref)
+            if "obstacles" in self._ch:
+                self._write_obstacles(b)
         colors, names, fields, identity = self._static
         dumps, opt, w, ch = self._dumps, self._opt, self._w, self._ch
         ns_all = np.rint(b.t * 1e9).astype(np.int64)
@@ -214,6 +256,8 @@ class McapSink:
             w.add_message(ch["tf"], lt, tf.encode(), lt, seq)
             w.add_message(ch["arm"], lt, arm.encode(), lt, seq)
             w.add_message(ch["points"], lt, pts.encode(), lt, seq)
+            if "contacts" in ch:
+                self._write_contacts(b, k, lt, seq, stamp)
             self._open += 1
             if last_flush_t is None:
                 last_flush_t = t
@@ -224,6 +268,62 @@ class McapSink:
         self.n_records += K
         self.last_t = ts[-1]
         self.tick()
+
+    def _write_obstacles(self, b: Batch) -> None:
+        """The obstacles, once, at the first record's time; lifetime 0: for the whole run."""
+        fm = self._fm
+        lt = ns(float(b.t[0]))
+        stamp = fm.Timestamp(lt // 1_000_000_000, lt % 1_000_000_000)
+        color = fm.Color(r=OBSTACLE_COLOR[0] / 255.0, g=OBSTACLE_COLOR[1] / 255.0, b=OBSTACLE_COLOR[2] / 255.0,
+                         a=0.5)
+        entities = []
+        for i, sh in enumerate(obstacle_shapes(self.info.obstacles, 2.0 * arm_reach(self.info, b.backbone[0]))):
+            pose = fm.Pose(position=fm.Vector3(x=sh.center[0], y=sh.center[1], z=sh.center[2]),
+                           orientation=fm.Quaternion(x=sh.quaternion[0], y=sh.quaternion[1], z=sh.quaternion[2],
+                                                     w=sh.quaternion[3]))
+            size = fm.Vector3(x=sh.size[0], y=sh.size[1], z=sh.size[2])
+            prim = {}
+            if sh.kind == "box":
+                prim["cubes"] = [fm.CubePrimitive(pose=pose, size=size, color=color)]
+            elif sh.kind == "sphere":
+                prim["spheres"] = [fm.SpherePrimitive(pose=pose, size=size, color=color)]
+            else:  # a cylinder; a capsule is its cylinder and two balls at its ends
+                prim["cylinders"] = [fm.CylinderPrimitive(pose=pose, size=size, bottom_scale=1.0, top_scale=1.0,
+                                                          color=color)]
+                if sh.kind == "capsule":
+                    ob = self.info.obstacles[i]
+                    ball = fm.Vector3(x=sh.size[0], y=sh.size[0], z=sh.size[0])
+                    prim["spheres"] = [fm.SpherePrimitive(pose=fm.Pose(position=fm.Vector3(x=e[0], y=e[1], z=e[2]),
+                                                                       orientation=fm.Quaternion(x=0.0, y=0.0, z=0.0,
+                                                                                                 w=1.0)),
+                                                          size=ball, color=color) for e in (ob["a"], ob["b"])]
+            entities.append(fm.SceneEntity(timestamp=stamp, frame_id="world", id=f"obstacle_{i}", **prim))
+        self._w.add_message(self._ch["obstacles"], lt, fm.SceneUpdate(entities=entities).encode(), lt, 0)
+
+    def _write_contacts(self, b: Batch, k: int, lt: int, seq: int, stamp) -> None:
+        """Record ``k``'s contacts: the JSON message and the force arrows at the points."""
+        fm = self._fm
+        c = b.contact_set(k)
+        self._w.add_message(self._ch["contacts"], lt, self._dumps(
+            {"t": b.t[k], "step": int(b.step[k]), "point": c.point, "normal": c.normal, "force": c.force,
+             "segment": c.segment, "obstacle": c.obstacle}, option=self._opt), lt, seq)
+        color = fm.Color(r=CONTACT_COLOR[0] / 255.0, g=CONTACT_COLOR[1] / 255.0, b=CONTACT_COLOR[2] / 255.0, a=1.0)
+        radii = self.info.radii
+        arrows = []
+        for x, f, seg in zip(c.point.tolist(), c.force, c.segment.tolist()):
+            length = float(np.linalg.norm(f)) * self._scale
+            if not length > 0.0:
+                continue
+            d = 0.3 * radii[min(max(seg, 0), len(radii) - 1)]  # the shaft a third of the tube's radius thick
+            qr = quat_between([1.0, 0.0, 0.0], f)  # an arrow points along its pose's x axis
+            arrows.append(fm.ArrowPrimitive(
+                pose=fm.Pose(position=fm.Vector3(x=x[0], y=x[1], z=x[2]),
+                             orientation=fm.Quaternion(x=qr[0], y=qr[1], z=qr[2], w=qr[3])),
+                shaft_length=0.75 * length, shaft_diameter=d, head_length=0.25 * length, head_diameter=2.0 * d,
+                color=color))
+        upd = fm.SceneUpdate(entities=[fm.SceneEntity(timestamp=stamp, frame_id="world", id="contact_forces",
+                                                      arrows=arrows)])
+        self._w.add_message(self._ch["forces"], lt, upd.encode(), lt, seq)
 
     def tick(self) -> None:
         """Close the open chunk if it is older than the wall-time interval."""

@@ -21,6 +21,7 @@ from ..sim.trajectory import Trajectory
 from .bounded import DEFAULT_LIMITS, LimitExceeded, ReadBudget, ReadLimits, loads, open_source
 from .journal import JournalReader, journal_owner, journal_path
 from .records import (
+    CONTACT_TOPICS,
     FORMAT_NAME,
     FORMAT_VERSION,
     TOPICS,
@@ -33,7 +34,7 @@ from .records import (
     unseal,
 )
 from .scan import MAGIC, scan, summary_records
-from .states import STEP_MAX, _decode_states, _series_max
+from .states import STEP_MAX, _decode_contacts, _decode_states, _series_max
 
 __all__ = ["Recording", "Gap", "read_recording", "read_mcap", "T_MAX", "STEP_MAX"]
 
@@ -72,7 +73,9 @@ class Gap:
 @dataclass
 class Recording(Batch):
     """Everything a qchain MCAP holds (the reading side of :class:`RunLogger`): its records, a
-    :class:`Batch`, and
+    :class:`Batch` (with ``contacts`` (K, max_contacts, 11) when the run recorded contacts,
+    NaN-padded; :meth:`~Batch.contact_set` gives record ``k``'s; a record whose contact
+    message was lost reads as having none), and
 
     Attributes
     ----------
@@ -118,7 +121,8 @@ class Recording(Batch):
     disorder: str = ""
 
     def batch(self) -> Batch:
-        return Batch(*(getattr(self, f) for f in Batch.__dataclass_fields__))
+        return Batch(*(getattr(self, f) for f in Batch.__dataclass_fields__ if f != "contacts"),
+                     contacts=self.contacts)
 
     @property
     def complete(self) -> bool:
@@ -341,6 +345,7 @@ class _Found:
     complete: bool = False
     stop_reason: str = ""
     state_channels: set = field(default_factory=set)
+    contact_channels: set = field(default_factory=set)
     other_channels: set = field(default_factory=set)
     declared: dict = field(default_factory=dict)
     redeclared: set = field(default_factory=set)
@@ -374,7 +379,7 @@ def _read(name: str, buf: bytearray, jpath, limits: ReadLimits) -> Recording:
             found.damage.append(gap.reason)
     return Recording(
         path=name, info=info, t=b.t, step=b.step, q=b.q, v=b.v, p=b.p, energy=b.energy, base=b.base,
-        backbone=b.backbone, tip_frames=b.tip_frames, outcome=found.outcome, truncated=not found.complete,
+        backbone=b.backbone, tip_frames=b.tip_frames, contacts=b.contacts, outcome=found.outcome, truncated=not found.complete,
         stop_reason="" if found.complete else found.stop_reason, metadata=found.meta, gaps=gaps,
         damage=found.damage, recovered=recovered, nonfinite=_nonfinite(b), journal_unread=found.journal_unread,
         disorder=_disorder(b),
@@ -394,7 +399,8 @@ def _scan_file(buf: bytearray, budget: ReadBudget) -> _Found:
                 if isinstance(rec, Channel):
                     first = found.declared.setdefault(rec.id, rec.topic)
                     if first == rec.topic:
-                        (found.state_channels if rec.topic == TOPICS["state"] else found.other_channels).add(rec.id)
+                        (found.state_channels if rec.topic == TOPICS["state"] else found.contact_channels
+                         if rec.topic == CONTACT_TOPICS["contacts"] else found.other_channels).add(rec.id)
                     elif rec.id not in found.redeclared:
                         found.redeclared.add(rec.id)
                         damage.append(f"the chunk at byte {item.offset} declares channel {rec.id} again as "
@@ -505,9 +511,12 @@ def _run_info(found: _Found, name: str, jpath, size: int, limits: ReadLimits) ->
             ids = {int(k) for k, v in channels.items() if v == TOPICS["state"] and k.isascii() and k.isdigit()
                    and len(k) < 6}
             named = {int(k) for k in channels if k.isascii() and k.isdigit() and len(k) < 6}
+            contact_ids = {int(k) for k, v in channels.items() if v == CONTACT_TOPICS["contacts"] and k.isascii()
+                           and k.isdigit() and len(k) < 6}
         except ValueError as exc:
             raise RecordingFormatError(f"{where}: {exc}") from None
         found.state_channels |= ids - found.other_channels
+        found.contact_channels |= contact_ids - found.other_channels - found.state_channels
         for k in named:
             found.declared.setdefault(k, "")
     return info
@@ -517,12 +526,15 @@ def _assemble(found: _Found, info: RunInfo, name: str, buf: bytearray, budget: R
     """The file's state messages as a :class:`Batch`, its gaps, and the summary's chunk index
     and statistics (None, None: the file is not complete); empties ``found.stream``."""
     msgs: list[tuple[int, bytes]] = []
+    contact_msgs: list[tuple[int, bytes]] = []
     events: list[tuple[int, object]] = []  # (position in msgs, damage item)
     undeclared: dict[int, int] = {}  # channel id -> messages on it, never declared
     for entry in found.stream:
         if entry[0] == "m":
             if entry[1] in found.state_channels:
                 msgs.append((entry[3], entry[2]))
+            elif entry[1] in found.contact_channels:
+                contact_msgs.append((entry[3], entry[2]))
             elif entry[1] not in found.declared:
                 undeclared[entry[1]] = undeclared.get(entry[1], 0) + 1
         else:
@@ -536,6 +548,8 @@ def _assemble(found: _Found, info: RunInfo, name: str, buf: bytearray, budget: R
     index, stats = summary if summary is not None else (None, None)
     b = _decode_states(msgs, info, name, budget)
     del msgs
+    b.contacts = _decode_contacts(contact_msgs, b, info, name, budget)
+    del contact_msgs
     gaps = []
     for pos, item in events:
         if index is not None and not any(item.offset <= c.chunk_start_offset < item.end for c in index):

@@ -12,7 +12,7 @@ import time
 import numpy as np
 
 from ..arm.chain import Frames
-from .records import T_MAX, RecordLayout
+from .records import CONTACT_WIDTH, T_MAX, RecordLayout, pack_contacts
 
 __all__ = ["ChainRecorder", "BACKBONE_POINTS", "series_names"]
 
@@ -55,6 +55,12 @@ class ChainRecorder:
         Pace the simulation to the wall clock: a sample at simulated time ``t`` is not
         handed over before ``t`` seconds of wall time after the first (to watch a short
         run live).
+    contacts : callable or None
+        ``contacts(t, q, v)`` -> the active contacts of a sample (anything with ``.point``,
+        ``.normal``, ``.force`` (c, 3) world frame, m and N, ``.segment`` and ``.obstacle``
+        (c,)), e.g. ``lambda t, q, v: chain.contacts(q, v, env, t)``; called once a sample
+        when the logger's ``RunInfo.max_contacts`` > 0, with the sample's ``q`` (nq,) and
+        ``v`` (nv,). None: no contacts recorded.
 
     Notes
     -----
@@ -68,7 +74,7 @@ class ChainRecorder:
     """
 
     def __init__(self, logger, chain, points_per_segment: int = BACKBONE_POINTS, max_batch: int = 64,
-                 max_wall: float = 0.05, realtime: bool = False):
+                 max_wall: float = 0.05, realtime: bool = False, contacts=None):
         if not (isinstance(points_per_segment, (int, np.integer)) and points_per_segment >= 2):
             raise ValueError(f"points_per_segment must be an int >= 2, got {points_per_segment!r}")
         if not (isinstance(max_batch, (int, np.integer)) and max_batch >= 1):
@@ -82,9 +88,14 @@ class ChainRecorder:
         self.max_wall = float(max_wall)
         self.max_sim = logger.flush_interval  # s of simulation time a sample waits here at most
         self.realtime = bool(realtime)
+        if contacts is not None and not callable(contacts):
+            raise TypeError(f"contacts must be None or a callable (t, q, v) -> contacts, got {type(contacts).__name__}")
+        self.contacts = contacts
+        info = getattr(logger, "info", None)
         self._clock0: tuple[float, float] | None = None
         self.n_samples = 0
-        self.layout = RecordLayout(chain.nq, chain.nv, chain.nu, chain.n, self.points_per_segment)
+        self.layout = RecordLayout(chain.nq, chain.nv, chain.nu, chain.n, self.points_per_segment,
+                                   int(getattr(info, "max_contacts", 0) or 0))
         sl = self.layout.slices
         # q, v, p, kinetic, potential side by side: one copy a sample, one assignment a batch
         assert sl["q"].stop == sl["v"].start and sl["v"].stop == sl["p"].start and sl["p"].stop == sl["energy"].start
@@ -236,6 +247,16 @@ class ChainRecorder:
         tf = rows[:, self._stf].reshape(K, -1, 7)  # a view into the rows
         tf[:, :, :3] = f.translation[:, 1:]
         tf[:, :, 3:] = f.quaternion[:, 1:]
+        C = self.layout.C
+        if C:
+            sv = self.layout.slices["v"]
+            blocks = rows[:, self.layout.slices["contacts"]].reshape(K, C, CONTACT_WIDTH)
+            for k in range(K):
+                found = None if self.contacts is None else \
+                    self.contacts(float(rows[k, 0]), rows[k, self._sq].copy(), rows[k, sv].copy())
+                blocks[k], dropped = pack_contacts(found, C, getattr(self.logger, "info", None))
+                if dropped and hasattr(self.logger, "_said_dropped"):  # (said once, by the logger)
+                    self.logger._said_dropped(dropped, float(rows[k, 0]))
         self.logger.log_rows(rows, self.layout)
         self.n_samples += K
         self._t_taken = float(rows[K - 1, 0])

@@ -14,7 +14,7 @@ import zlib
 from collections.abc import Sequence
 from contextlib import suppress
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -32,6 +32,10 @@ __all__ = [
     "FORMAT_NAME",
     "FORMAT_VERSION",
     "TOPICS",
+    "CONTACT_TOPICS",
+    "CONTACT_WIDTH",
+    "ContactSet",
+    "pack_contacts",
     "SEGMENT_COLORS",
     "DEFAULT_FLUSH_INTERVAL",
     "DEFAULT_FLUSH_WALL_INTERVAL",
@@ -51,6 +55,20 @@ TOPICS = {
     "arm": "/qchain/arm",  # foxglove.SceneUpdate: the backbone as line strips
     "points": "/qchain/backbone_points",  # foxglove.PointCloud: the backbone points
 }
+
+#: MCAP topics of a run with an environment (``RunInfo.obstacles`` or ``max_contacts``):
+#: written only then, so a recording without contact is what it was before.
+CONTACT_TOPICS = {
+    "contacts": "/qchain/contacts",  # qchain.Contacts, JSON: each sample's active contacts
+    "forces": "/qchain/contact_forces",  # foxglove.SceneUpdate: arrows (forces) at the contact points
+    "obstacles": "/qchain/obstacles",  # foxglove.SceneUpdate: the obstacles, once (lifetime: the whole run)
+}
+
+#: Most contacts a sample can record (a row of 11 x this many numbers at most)
+MAX_CONTACTS = 1 << 16
+
+#: Numbers a contact takes in a row: point (3, m), normal (3), force (3, N), segment, obstacle.
+CONTACT_WIDTH = 11
 
 #: Seconds of simulation time a record may wait before it is on disk (the journal's
 #: batches and the recording's chunks are cut at least this often).
@@ -105,6 +123,75 @@ def unseal(entries: dict[str, str]) -> dict[str, str] | None:
 # --------------------------------------------------------------------------------------
 
 
+class ContactSet(NamedTuple):
+    """The active contacts of one sample as a recording holds them (``c`` of them).
+
+    Attributes
+    ----------
+    point : (c, 3) float, m        the contact point on the arm's surface, world frame.
+    normal : (c, 3) float          the obstacle's outward unit normal there, world frame.
+    force : (c, 3) float, N        the force on the arm, world frame.
+    segment : (c,) int             the segment touching (0-based).
+    obstacle : (c,) int            index into ``RunInfo.obstacles``; ``-1 - k`` for self-contact
+                                   with segment ``k`` (as :class:`qchain.contact.Contacts`).
+    """
+
+    point: np.ndarray
+    normal: np.ndarray
+    force: np.ndarray
+    segment: np.ndarray
+    obstacle: np.ndarray
+
+    @classmethod
+    def from_block(cls, block: np.ndarray) -> ContactSet:
+        """From a row's contact block (C, CONTACT_WIDTH): the rows whose segment is not NaN
+        (the padding)."""
+        used = block[np.isfinite(block[:, 9])]
+        return cls(used[:, 0:3].copy(), used[:, 3:6].copy(), used[:, 6:9].copy(), used[:, 9].astype(np.int64),
+                   used[:, 10].astype(np.int64))
+
+
+def pack_contacts(contacts, capacity: int, info: RunInfo | None = None) -> tuple[np.ndarray, int]:
+    """``contacts`` (anything with ``.point`` (c, 3), ``.normal`` (c, 3), ``.force`` (c, 3),
+    ``.segment`` (c,), ``.obstacle`` (c,), e.g. :class:`qchain.contact.Contacts`, or None: no
+    contact) as a row's block (capacity, CONTACT_WIDTH), NaN-padded, and how many contacts
+    did not fit: the block keeps the ``capacity`` largest forces (a recording's rows all
+    have one width). With the run's ``info``, a segment or obstacle it does not have is a
+    ``ValueError`` (a reader would refuse the recording)."""
+    block = np.full((capacity, CONTACT_WIDTH), np.nan)
+    if contacts is None:
+        return block, 0
+    try:
+        point = np.asarray(contacts.point, dtype=np.float64).reshape(-1, 3)
+        c = point.shape[0]
+        cols = (point, np.asarray(contacts.normal, dtype=np.float64).reshape(c, 3),
+                np.asarray(contacts.force, dtype=np.float64).reshape(c, 3),
+                np.asarray(contacts.segment, dtype=np.float64).reshape(c, 1),
+                np.asarray(contacts.obstacle, dtype=np.float64).reshape(c, 1))
+    except AttributeError as exc:
+        raise TypeError(f"contacts must have .point, .normal, .force, .segment and .obstacle (a "
+                        f"qchain.contact.Contacts), got {type(contacts).__name__} ({exc})") from None
+    except ValueError as exc:
+        raise ValueError(f"contacts: point, normal, force must be (c, 3) and segment, obstacle (c,) for the "
+                         f"same c ({exc})") from None
+    full = np.concatenate(cols, axis=1)
+    seg, obs = full[:, 9], full[:, 10]
+    n = np.inf if info is None else info.n_segments
+    m = np.inf if info is None else len(info.obstacles or ())
+    if not (np.isfinite(seg).all() and (seg == np.floor(seg)).all() and (seg >= 0).all() and (seg < n).all()):
+        raise ValueError(f"contacts.segment must be segment indices 0 .. {n - 1}, got {seg.tolist()}")
+    if not (np.isfinite(obs).all() and (obs == np.floor(obs)).all() and (obs >= -n).all() and (obs < m).all()):
+        raise ValueError(f"contacts.obstacle must be indices into RunInfo.obstacles ({m} of them) or -1 - k for "
+                         f"self-contact with segment k, got {obs.tolist()}")
+    dropped = max(0, c - capacity)
+    if dropped:
+        keep = np.sort(np.argsort(-np.linalg.norm(full[:, 6:9], axis=1), kind="stable")[:capacity])
+        full = full[keep]
+    block[: full.shape[0]] = full
+    return block, dropped
+
+
+
 @dataclass
 class StepRecord:
     """The state of the arm at one simulation step, as the logger takes it.
@@ -131,6 +218,11 @@ class StepRecord:
     base_frame : (7,) array or None
         World placement of the base frame (the root of segment 1) in the same form;
         ``None``: at the first backbone point, aligned with the world.
+    contacts : Contacts-like or None
+        The active contacts at this sample (``.point``, ``.normal``, ``.force`` (c, 3) world
+        frame, m and N; ``.segment``, ``.obstacle`` (c,)), e.g. ``chain.contacts(q, v, env,
+        t)``; recorded when the run's ``RunInfo.max_contacts`` > 0 (at most that many a
+        sample, the largest forces), None: none.
 
     Arrays may be reused by the caller after ``log()`` returns: the logger copies them.
     Every record of a run must have the shapes of the first one.
@@ -147,6 +239,7 @@ class StepRecord:
     backbone: np.ndarray
     tip_frames: np.ndarray
     base_frame: np.ndarray | None = None
+    contacts: Any = None
 
 
 def _jsonable(value: Any, where: str) -> Any:
@@ -233,6 +326,22 @@ class RunInfo:
         ``"segment 2 ux [1/m]"`` (plots and layouts); ``None``: ``q[0]``, ``v[0]``, ...
     duration : float or None, s
         The simulated time the run is meant to reach (the live plots' time axis).
+    obstacles : list of dict or None
+        The environment's obstacles at ``t = 0``, world frame, as plain JSON-like data
+        (:meth:`qchain.contact.Environment.describe`): each a dict with ``"type"`` (one of
+        ``"halfspace"``, ``"sphere"``, ``"capsule"``, ``"cylinder"``, ``"box"``), its
+        parameters in m (halfspace ``point``, ``normal``; sphere ``center``, ``radius``;
+        capsule and cylinder ``a``, ``b``, ``radius``; box ``center``, ``half_extents``,
+        ``rotation`` (3 x 3)) and ``"motion"`` (a dict, or None for a fixed obstacle); the
+        viewers draw them. ``None``: the run has no environment (a recording from before
+        contact reads back so).
+    force_ref : float, N
+        Contact force drawn as an arrow a quarter of the arm's reach long (e.g. the arm's
+        weight).
+    max_contacts : int
+        Contacts a sample can record (the rows' contact capacity; the largest forces are
+        kept when a sample has more); 0 records none. ``chain.n * env.nodes *
+        len(env.obstacles)`` holds every contact with the obstacles.
 
     ``scene``, ``name``, ``qchain_version``, ``q_names`` and ``v_names`` must be UTF-8
     text (a recording stores them as such): a ``ValueError`` names the field otherwise,
@@ -252,6 +361,9 @@ class RunInfo:
     q_names: Sequence[str] | None = None
     v_names: Sequence[str] | None = None
     duration: float | None = None
+    obstacles: list | None = None
+    max_contacts: int = 0
+    force_ref: float = 1.0
 
     def __post_init__(self) -> None:
         if isinstance(self.n_segments, bool) or not isinstance(self.n_segments, (int, np.integer)):
@@ -296,6 +408,28 @@ class RunInfo:
                 raise ValueError(f"duration must be None or a time > 0 s and <= {T_MAX:.10g} s (a recording's "
                                  f"times: {T_MAX_WHY}), got {self.duration!r}")
             self.duration = d
+        if self.obstacles is not None:
+            if isinstance(self.obstacles, (str, dict)) or not isinstance(self.obstacles, Sequence):
+                raise ValueError(f"obstacles must be None or a list of dicts, got {type(self.obstacles).__name__}")
+            obstacles = _jsonable(list(self.obstacles), "obstacles")
+            for i, ob in enumerate(obstacles):
+                if not isinstance(ob, dict) or not isinstance(ob.get("type"), str):
+                    raise ValueError(f"obstacles[{i}] must be a dict with a 'type' string, got {ob!r}")
+                _utf8(f"obstacles[{i}]['type']", ob["type"])
+            self.obstacles = obstacles
+        mc = self.max_contacts
+        if isinstance(mc, bool) or not isinstance(mc, (int, np.integer)) or not 0 <= mc <= MAX_CONTACTS:
+            raise ValueError(f"max_contacts must be a whole number from 0 to {MAX_CONTACTS}, got {mc!r}")
+        self.max_contacts = int(mc)
+        if not (math.isfinite(float(self.force_ref)) and float(self.force_ref) > 0.0):
+            raise ValueError(f"force_ref must be > 0 N, got {self.force_ref!r}")
+        self.force_ref = float(self.force_ref)
+
+    @property
+    def records_contacts(self) -> bool:
+        """Whether the run's recording has the contact channels (:data:`CONTACT_TOPICS`): an
+        environment was declared (``obstacles`` or ``max_contacts``)."""
+        return self.obstacles is not None or self.max_contacts > 0
 
     @property
     def scene_file(self) -> str | None:
@@ -349,9 +483,10 @@ class RecordLayout:
 
     The row holds, in this order, ``t`` (s), ``step`` (an integer value), ``q`` (nq),
     ``v`` (nv), ``p`` (n_p, Pa), ``kinetic``, ``potential``, ``total`` (J), the base frame
-    (7: x, y, z, qx, qy, qz, qw), the backbone (n x P x 3, m, row-major) and the tip frames
-    (n x 7): the fields of :class:`StepRecord` flattened. :attr:`slices` says where each
-    field is.
+    (7: x, y, z, qx, qy, qz, qw), the backbone (n x P x 3, m, row-major), the tip frames
+    (n x 7) and, when ``C`` > 0, the contacts (C x CONTACT_WIDTH: point, normal, force,
+    segment, obstacle; unused rows NaN): the fields of :class:`StepRecord` flattened.
+    :attr:`slices` says where each field is.
 
     Attributes
     ----------
@@ -361,6 +496,9 @@ class RecordLayout:
         Segments.
     P : int
         Backbone points a segment.
+    C : int
+        Contacts a row holds (``RunInfo.max_contacts``); 0: none (the layout of a run
+        without contact, as before).
     """
 
     nq: int
@@ -368,18 +506,21 @@ class RecordLayout:
     n_p: int
     n: int
     P: int
+    C: int = 0
 
     @property
     def row_width(self) -> int:
         """Numbers in a row."""
-        return 2 + self.nq + self.nv + self.n_p + 3 + 7 + self.n * self.P * 3 + self.n * 7
+        return 2 + self.nq + self.nv + self.n_p + 3 + 7 + self.n * self.P * 3 + self.n * 7 + self.C * CONTACT_WIDTH
 
     @property
     def slices(self) -> dict[str, slice]:
         """Field name -> its columns in a row (``t``, ``step``, ``q``, ``v``, ``p``,
-        ``energy`` (kinetic, potential, total), ``base``, ``backbone``, ``tip_frames``)."""
+        ``energy`` (kinetic, potential, total), ``base``, ``backbone``, ``tip_frames``,
+        ``contacts``)."""
         sizes = (("t", 1), ("step", 1), ("q", self.nq), ("v", self.nv), ("p", self.n_p), ("energy", 3),
-                 ("base", 7), ("backbone", self.n * self.P * 3), ("tip_frames", self.n * 7))
+                 ("base", 7), ("backbone", self.n * self.P * 3), ("tip_frames", self.n * 7),
+                 ("contacts", self.C * CONTACT_WIDTH))
         out, a = {}, 0
         for name, size in sizes:
             out[name] = slice(a, a + size)
@@ -387,23 +528,27 @@ class RecordLayout:
         return out
 
     def to_json(self) -> dict:
-        return {"nq": self.nq, "nv": self.nv, "np": self.n_p, "n": self.n, "P": self.P}
+        out = {"nq": self.nq, "nv": self.nv, "np": self.n_p, "n": self.n, "P": self.P}
+        if self.C:  # (a layout without contacts is written as before)
+            out["C"] = self.C
+        return out
 
     @classmethod
     def from_json(cls, d: dict) -> RecordLayout:
         """From :meth:`to_json` output; ``ValueError`` for anything but whole numbers
-        (``n`` and ``P`` >= 1, the others >= 0, a row of at most 2**24 numbers)."""
+        (``n`` and ``P`` >= 1, the others >= 0, a row of at most 2**24 numbers); ``C``
+        may be missing (0: a layout from before contact)."""
         if not isinstance(d, dict):
             raise ValueError(f"a record layout must be a JSON object, got {type(d).__name__}")
         vals = {}
-        for key in ("nq", "nv", "np", "n", "P"):
-            v = d.get(key)
+        for key in ("nq", "nv", "np", "n", "P", "C"):
+            v = d.get(key, 0 if key == "C" else None)
             if isinstance(v, bool) or not isinstance(v, int) or not (0 <= v <= 1 << 24):
                 raise ValueError(f"record layout: {key} must be a whole number >= 0, got {v!r}")
             vals[key] = v
         if vals["n"] < 1 or vals["P"] < 1:
             raise ValueError(f"record layout: n and P must be >= 1, got n = {vals['n']}, P = {vals['P']}")
-        lay = cls(vals["nq"], vals["nv"], vals["np"], vals["n"], vals["P"])
+        lay = cls(vals["nq"], vals["nv"], vals["np"], vals["n"], vals["P"], vals["C"])
         if lay.row_width > 1 << 24:
             raise ValueError(f"record layout: a row of {lay.row_width} numbers (more than 2**24)")
         return lay
@@ -413,7 +558,9 @@ class RecordLayout:
 class Batch:
     """K records, stacked: t (K,), step (K,), q (K, nq), v (K, nv), p (K, 3n),
     energy (K, 3) = (kinetic, potential, total), base (K, 7), backbone (K, n, P, 3),
-    tip_frames (K, n, 7)."""
+    tip_frames (K, n, 7), contacts (K, C, CONTACT_WIDTH) or None (a run without contact
+    records): each row a contact (point, normal, force, segment, obstacle), NaN rows unused
+    (:meth:`contact_set` gives one record's as a :class:`ContactSet`)."""
 
     t: np.ndarray
     step: np.ndarray
@@ -424,9 +571,16 @@ class Batch:
     base: np.ndarray
     backbone: np.ndarray
     tip_frames: np.ndarray
+    contacts: np.ndarray | None = field(default=None, kw_only=True)
 
     def __len__(self) -> int:
         return int(self.t.shape[0])
+
+    def contact_set(self, k: int) -> ContactSet:
+        """The active contacts of record ``k`` (none when the run recorded no contacts)."""
+        if self.contacts is None:
+            return ContactSet.from_block(np.zeros((0, CONTACT_WIDTH)))
+        return ContactSet.from_block(self.contacts[k])
 
     @classmethod
     def from_rows(cls, rows: np.ndarray, lay: RecordLayout) -> Batch:
@@ -444,27 +598,41 @@ class Batch:
             base=col("base"),
             backbone=col("backbone").reshape(K, lay.n, lay.P, 3),
             tip_frames=col("tip_frames").reshape(K, lay.n, 7),
+            contacts=col("contacts").reshape(K, lay.C, CONTACT_WIDTH) if lay.C else None,
         )
 
     def rows(self) -> np.ndarray:
         """The batch as rows of its layout (the inverse of :meth:`from_rows`)."""
         K = len(self)
+        extra = () if self.contacts is None else (self.contacts.reshape(K, -1),)
         return np.concatenate(
             (self.t[:, None], self.step[:, None].astype(np.float64), self.q, self.v, self.p, self.energy,
-             self.base, self.backbone.reshape(K, -1), self.tip_frames.reshape(K, -1)), axis=1)
+             self.base, self.backbone.reshape(K, -1), self.tip_frames.reshape(K, -1)) + extra, axis=1)
 
     @property
     def layout(self) -> RecordLayout:
         return RecordLayout(self.q.shape[1], self.v.shape[1], self.p.shape[1], self.backbone.shape[1],
-                            self.backbone.shape[2])
+                            self.backbone.shape[2], 0 if self.contacts is None else self.contacts.shape[1])
 
     @classmethod
     def concatenate(cls, batches: Sequence[Batch]) -> Batch:
-        return cls(*(np.concatenate([getattr(x, f) for x in batches]) for f in cls.__dataclass_fields__))
+        """The batches one after another; contacts are kept when every batch has them (of
+        one capacity)."""
+        out = Batch(*(np.concatenate([getattr(x, f) for x in batches]) for f in _BATCH_COLUMNS))
+        if all(x.contacts is not None for x in batches):
+            out.contacts = np.concatenate([x.contacts for x in batches])
+        return out
 
     def take(self, index) -> Batch:
         """The records at ``index`` (a slice, or integer positions)."""
-        return Batch(*(getattr(self, f)[index] for f in Batch.__dataclass_fields__))
+        out = Batch(*(getattr(self, f)[index] for f in _BATCH_COLUMNS))
+        if self.contacts is not None:
+            out.contacts = self.contacts[index]
+        return out
+
+
+#: The columns every batch has (``contacts`` is optional)
+_BATCH_COLUMNS = ("t", "step", "q", "v", "p", "energy", "base", "backbone", "tip_frames")
 
 
 def default_base(backbone: np.ndarray) -> np.ndarray:

@@ -21,6 +21,8 @@ from urllib.parse import quote, urlsplit
 import numpy as np
 
 from .records import SEGMENT_COLORS, Batch, LoggingError, RunInfo
+from .scenery import CONTACT_COLOR, OBSTACLE_COLOR, force_scale, obstacle_shapes
+from .scenery import reach as arm_reach
 
 __all__ = ["RerunSink", "camera", "probe_viewer", "bound_rerun_exit", "CONNECT_TIMEOUT", "DEFAULT_BIND",
            "DEFAULT_GRPC_PORT", "DEFAULT_WEB_PORT", "quiet_env"]
@@ -435,10 +437,7 @@ class RerunSink:
             else np.zeros(n)
 
     def _reach(self, b: Batch) -> float:
-        lengths = self.info.params.get("segments") if isinstance(self.info.params, dict) else None
-        if isinstance(lengths, list) and len(lengths) == b.backbone.shape[1] and all("length" in s for s in lengths):
-            return float(sum(float(s["length"]) for s in lengths))
-        return max(float(self._drawn_lengths(b).sum()), 8.0 * float(np.sum(self.info.radii)))
+        return arm_reach(self.info, b.backbone[0])
 
     def _start(self, b: Batch) -> None:
         rr, rec, info = self.rr, self.rec, self.info
@@ -452,9 +451,9 @@ class RerunSink:
         ang = np.asarray(info.chamber_angles)
         self._cos, self._sin = np.cos(ang), np.sin(ang)
         colors = np.array([SEGMENT_COLORS[i % len(SEGMENT_COLORS)] for i in range(n)], dtype=np.uint8)
-        reach = self._reach(b)
+        reach_ = self._reach(b)
         rec.log("/", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
-        rec.log("world/axes", rr.Arrows3D(origins=np.zeros((3, 3)), vectors=np.eye(3) * 0.25 * reach,
+        rec.log("world/axes", rr.Arrows3D(origins=np.zeros((3, 3)), vectors=np.eye(3) * 0.25 * reach_,
                                           colors=[(200, 60, 60), (60, 170, 60), (60, 90, 220)],
                                           radii=0.05 * float(radii.min())), static=True)
         rec.log("arm/backbone", rr.LineStrips3D.from_fields(radii=radii, colors=colors), static=True)
@@ -480,8 +479,49 @@ class RerunSink:
         if info.params:
             text += "\n\n## Model parameters\n\n```json\n" + json.dumps(info.params, indent=2, sort_keys=True) + "\n```"
         rec.log("scene", rr.TextDocument(text, media_type=rr.MediaType.MARKDOWN), static=True)
+        self._contact_scale = force_scale(reach_, info.force_ref)
+        self._log_obstacles(2.0 * reach_)
+        if b.contacts is not None:
+            rec.log("world/contacts/forces", rr.Arrows3D.from_fields(radii=0.3 * float(radii.min()),
+                                                                     colors=[CONTACT_COLOR]), static=True)
+            rec.log("world/contacts/points", rr.Points3D.from_fields(radii=0.5 * float(radii.min()),
+                                                                     colors=[CONTACT_COLOR]), static=True)
         rec.send_blueprint(self.blueprint(b), make_active=True, make_default=True)
         self.started = True
+
+    def _log_obstacles(self, extent: float) -> None:
+        """The obstacles as static shapes under ``world/obstacles/<i>`` (a half-space: a thin
+        slab ``2 extent`` m wide), drawn where they are at ``t = 0``."""
+        rr, rec = self.rr, self.rec
+        color = [OBSTACLE_COLOR + (160,)]
+        for i, sh in enumerate(obstacle_shapes(self.info.obstacles, extent)):
+            path = f"world/obstacles/{i}"
+            if sh.kind == "box":
+                rec.log(path, rr.Boxes3D(centers=[sh.center], half_sizes=[0.5 * sh.size], quaternions=[sh.quaternion],
+                                         colors=color, fill_mode="solid"), static=True)
+            elif sh.kind == "sphere":
+                rec.log(path, rr.Ellipsoids3D(centers=[sh.center], half_sizes=[0.5 * sh.size], colors=color,
+                                              fill_mode="solid"), static=True)
+            elif sh.kind == "cylinder":
+                rec.log(path, rr.Cylinders3D(centers=[sh.center], lengths=[sh.size[2]], radii=[0.5 * sh.size[0]],
+                                             quaternions=[sh.quaternion], colors=color, fill_mode="solid"), static=True)
+            else:  # a capsule: Rerun's runs along its own z from its translation (the axis's start)
+                a = np.asarray(self.info.obstacles[i]["a"], dtype=float)
+                rec.log(path, rr.Capsules3D(translations=[a], lengths=[sh.size[2]], radii=[0.5 * sh.size[0]],
+                                            quaternions=[sh.quaternion], colors=color, fill_mode="solid"), static=True)
+
+    def _send_contacts(self, b: Batch, idx) -> None:
+        """Each record's contact forces as arrows at the contact points (and the points)."""
+        rr, rec = self.rr, self.rec
+        K = len(b)
+        sets = [b.contact_set(k) for k in range(K)]
+        counts = np.array([len(c.segment) for c in sets])
+        points = np.concatenate([c.point for c in sets]) if K else np.zeros((0, 3))
+        forces = np.concatenate([c.force for c in sets]) if K else np.zeros((0, 3))
+        rec.send_columns("world/contacts/forces", indexes=idx, columns=rr.Arrows3D.columns(
+            origins=points, vectors=forces * self._contact_scale).partition(counts))
+        rec.send_columns("world/contacts/points", indexes=idx,
+                         columns=rr.Points3D.columns(positions=points).partition(counts))
 
     # -- per-step part -----------------------------------------------------------------------
 
@@ -519,6 +559,8 @@ class RerunSink:
             rec.send_columns(f"plots/q/{key}", indexes=idx, columns=rr.Scalars.columns(scalars=b.q[:, sl]))
         rec.send_columns("plots/v", indexes=idx, columns=rr.Scalars.columns(scalars=b.v))
         rec.send_columns("plots/energy", indexes=idx, columns=rr.Scalars.columns(scalars=b.energy))
+        if b.contacts is not None:
+            self._send_contacts(b, idx)
 
     def finish(self) -> None:
         """Flush everything; finalise a .rrd file (keep a live server up)."""

@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from .bounded import ReadBudget
-from .records import T_MAX, Batch, RecordingFormatError, RunInfo
+from .records import CONTACT_WIDTH, T_MAX, Batch, RecordingFormatError, RunInfo
 
 #: Largest step number (a journal row holds it as a float64, exact up to 2**53).
 STEP_MAX = 1 << 53
@@ -134,3 +134,58 @@ def _decode_states(msgs: list[tuple[int, bytes]], info: RunInfo, name: str, budg
             base=cols["base"], backbone=cols["backbone"], tip_frames=cols["tips"]))
         del states, cols
     return parts[0] if len(parts) == 1 else Batch.concatenate(parts)
+
+
+_CONTACT_KEYS = frozenset(("t", "step", "point", "normal", "force", "segment", "obstacle"))
+
+
+def _decode_contacts(msgs: list[tuple[int, bytes]], b: Batch, info: RunInfo, name: str,
+                     budget: ReadBudget | None = None) -> np.ndarray | None:
+    """The ``/qchain/contacts`` messages ``(chunk offset, JSON)`` as the contact blocks (K,
+    C, CONTACT_WIDTH) of the records of ``b`` (matched by step; NaN rows: no contact, also
+    for a record whose contact message was lost with a damaged chunk), ``C`` =
+    ``info.max_contacts``; None when the run recorded no contacts (``C`` = 0)."""
+    C = info.max_contacts
+    if C == 0:
+        return None
+    out = np.full((len(b), C, CONTACT_WIDTH), np.nan)
+    where = {int(s): k for k, s in enumerate(b.step.tolist())}
+    import orjson
+
+    n = info.n_segments
+    m = len(info.obstacles or ())
+    for off, data in msgs:
+        if budget is not None:
+            budget.spend(PARSED_NUMBER_BYTES * data.count(b","), off, "the numbers of its contact messages")
+        try:
+            s = orjson.loads(data)
+        except orjson.JSONDecodeError as exc:
+            raise RecordingFormatError(f"{name}: the contact message in the chunk at byte {off}: not valid JSON "
+                                       f"({exc})") from None
+        bad = None
+        if type(s) is not dict or s.keys() != _CONTACT_KEYS:
+            bad = f"expected the fields {', '.join(sorted(_CONTACT_KEYS))}"
+        else:
+            try:
+                cols = [np.array(s[key], dtype=float).reshape(-1, w) for key, w in
+                        (("point", 3), ("normal", 3), ("force", 3), ("segment", 1), ("obstacle", 1))]
+            except (ValueError, TypeError) as exc:
+                bad = f"its arrays are not (c, 3) and (c,) numbers ({exc})"
+            else:
+                c = cols[0].shape[0]
+                seg, obs = cols[3][:, 0], cols[4][:, 0]
+                if any(x.shape[0] != c for x in cols):
+                    bad = "point, normal, force, segment and obstacle differ in length"
+                elif c > C:
+                    bad = f"{c} contacts, more than the run's max_contacts = {C}"
+                elif not (np.isfinite(seg).all() and (seg >= 0).all() and (seg < n).all() and (seg == np.floor(seg)).all()):
+                    bad = f"a segment that is not one of the {n}"
+                elif not (np.isfinite(obs).all() and (obs == np.floor(obs)).all() and (obs >= -n).all()
+                          and (obs < m).all()):  # (-1 - k: self-contact with segment k)
+                    bad = f"an obstacle index that is not one of the {m} obstacles nor -1 - k for a segment k"
+        if bad is not None:
+            raise RecordingFormatError(f"{name}: the contact message in the chunk at byte {off}: {bad}")
+        k = where.get(s["step"]) if type(s["step"]) is int else None
+        if k is not None:  # (a contact message whose state was lost is not read)
+            out[k, :c] = np.concatenate(cols, axis=1)
+    return out
