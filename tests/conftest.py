@@ -24,6 +24,20 @@ if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
     signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
+@pytest.fixture(scope="module")
+def examples():
+    """``examples(name)`` imports ``examples/<name>.py`` (the examples' folder on the path)."""
+    import importlib
+
+    from support import EXAMPLES
+
+    sys.path.insert(0, str(EXAMPLES))
+    try:
+        yield lambda name: importlib.import_module(name)
+    finally:
+        sys.path.remove(str(EXAMPLES))
+
+
 @pytest.fixture
 def rng():
     return np.random.default_rng(12345)

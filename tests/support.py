@@ -28,6 +28,14 @@ from qchain.recording.scan import scan
 
 #: the repository's root folder
 ROOT = Path(__file__).resolve().parents[1]
+#: the examples' folder
+EXAMPLES = ROOT / "examples"
+
+
+def is_png(path) -> bool:
+    """A PNG file of more than 10 kB (a drawn figure, not an empty canvas)."""
+    path = Path(path)
+    return path.is_file() and path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and path.stat().st_size > 10_000
 
 #: one short soft segment (SI units: m, kg, m^2, Pa, s): the arm of most bad-input tests
 SEGMENT = dict(length=0.1, radius=0.015, mass=0.05, chamber_area=4.5e-5, chamber_radius=0.0085, youngs_modulus=1e5,

@@ -1,30 +1,15 @@
 """Every example runs (``--quick``) and produces its outputs, which say what they should."""
 
-import importlib
 import math
 import subprocess
 import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
 
-EXAMPLES = Path(__file__).parents[1] / "examples"
-PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
+from support import EXAMPLES, is_png
 
 
-@pytest.fixture(scope="module")
-def examples():
-    sys.path.insert(0, str(EXAMPLES))
-    try:
-        yield lambda name: importlib.import_module(name)
-    finally:
-        sys.path.remove(str(EXAMPLES))
-
-
-def is_png(path):
-    path = Path(path)
-    return path.is_file() and path.read_bytes()[:8] == PNG_MAGIC and path.stat().st_size > 10_000
 
 
 def test_step_response(examples, tmp_path, capsys):

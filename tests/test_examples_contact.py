@@ -3,30 +3,14 @@ what they show holds: the arm wraps the pole and holds it, its contact forces ba
 own; the wall's force after each pressure step settles on the static balance's, and is zero
 below the pressure at which the free arm reaches the wall."""
 
-import importlib
 import math
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
 
-EXAMPLES = Path(__file__).parents[1] / "examples"
-PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
+from support import EXAMPLES, is_png
 
 
-@pytest.fixture(scope="module")
-def examples():
-    sys.path.insert(0, str(EXAMPLES))
-    try:
-        yield lambda name: importlib.import_module(name)
-    finally:
-        sys.path.remove(str(EXAMPLES))
-
-
-def is_png(path):
-    path = Path(path)
-    return path.is_file() and path.read_bytes()[:8] == PNG_MAGIC and path.stat().st_size > 10_000
 
 
 @pytest.fixture(scope="module")

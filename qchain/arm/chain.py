@@ -804,8 +804,7 @@ class Chain(KeepsReadOnly, ChainKinematics, ChainContact, ChainChecks):
         """
         data = self._data(data)
         if env is not None:
-            te = self.environment_force(q, v, env, t)
-            dq, dv = self.environment_force_derivatives(q, v, env, t)
+            te, dq, dv = self.environment_terms(q, v, env, t)
             out = self.forward_dynamics_derivatives(q, v, p, te if tau is None else self._vec("tau", tau, self.nv) + te,
                                                     t, data, skip_checks)
             return out._replace(da_dq=out.da_dq + out.da_dtau @ dq, da_dv=out.da_dv + out.da_dtau @ dv)

@@ -78,13 +78,18 @@ class ChainContact:
         (:mod:`qchain.contact.derivatives`). At a contact's onset and where its damping term
         reaches zero the law has a kink: the result is the derivative of the branch the state
         is on. Chains in curvature coordinates (the paper's ``(l, psi, kappa)`` are refused)."""
+        return self.environment_terms(q, v, env, t)[1:]
+
+    def environment_terms(self, q, v, env: Environment, t: float = 0.0):
+        """``(tau, d tau/dq, d tau/dv)``: :meth:`environment_force` and
+        :meth:`environment_force_derivatives` from one validated state."""
         env = _check_env(env)
         if self._any_paper:
             raise ValueError("environment_force_derivatives needs every segment in curvature coordinates "
                              "(coords='curvature'); the paper's (l, psi, kappa) are not supported here")
         st = self._state(q, v, t=t)
-        env.check_segments(self.n)
-        return self._environment_derivatives(st, env.packed(), t)
+        tau = self._environment_force(st, env, 0, t)[0]
+        return (tau, *self._environment_derivatives(st, env.packed(), t))
 
     def _environment_derivatives(self, st, pk, t: float) -> tuple[np.ndarray, np.ndarray]:
         nv, n = self.nv, self.n

@@ -173,7 +173,7 @@ def contact_forces(arr, kind, prm, vel, law, calpha, q, qd, R_WB, p_WB, V0, tau,
     R_WB, p_WB : (3, 3), (3,)              the base (first root) placement in the world.
     V0 : (6,)                              the base's body twist.
     W : (n + 1, 6)                         work array (root wrenches).
-    roots : (n, ROOT), P : (2, K, NODE)     work arrays of self-contact (``law[7]`` set; else any).
+    roots : (n, >= ROOT), P : (2, K, >= NODE) work arrays of self-contact (``law[7]`` set; else any).
     rec : (cap, RECORD)                    the first ``cap`` contacts are written here (cap may be 0).
     sc : scratch (``SCRATCH``).
     """
