@@ -386,9 +386,12 @@ def test_a_run_says_when_the_contact_time_scale_limits_its_steps():
     q0 = ch.neutral()
     stiff = qchain.simulate(ch, q0, np.zeros(ch.nv), (0, 0.2), method="dopri5", env=env)
     assert stiff.meta["contact_time_scale"] == T and stiff.meta["step_limited_by_contact"]
+    # the engine's count of active contacts covers every sample's, and no more points exist
+    seen = max(len(ch.contacts(q, v, env, t).segment) for t, q, v in zip(stiff.t, stiff.q, stiff.v))
+    assert seen > 0 and seen <= stiff.meta["max_active_contacts"] <= 2 * 8
     far = Environment([HalfSpace([0, 0, -1.0])], ContactLaw(stiffness=1e5, exponent=1.0), nodes=8)
     free = qchain.simulate(ch, q0, np.zeros(ch.nv), (0, 0.2), method="radau5", env=far)
-    assert not free.meta["step_limited_by_contact"]
+    assert not free.meta["step_limited_by_contact"] and free.meta["max_active_contacts"] == 0
     assert "contact_time_scale" not in qchain.simulate(ch, q0, np.zeros(ch.nv), (0, 0.01), method="radau5").meta
 
 

@@ -294,6 +294,59 @@ def test_over_a_thin_pole_the_ball_chain_ripples_as_plane_geometry_says(nodes):
     assert max(deepest) - min(deepest) == pytest.approx(ripple, abs=1e-15)
 
 
+@pytest.mark.parametrize("stiffness", [1e4, 1e5, 1e6])
+def test_contact_nodes_keep_the_ripple_over_an_edge_within_a_quarter_of_the_rest_penetration(stiffness):
+    """``contact_nodes`` picks the fewest balls a segment whose ripple over the sharpest obstacle
+    (an edge: a pole of radius -> 0) stays within ``RIPPLE`` (1/4) of the depth ``d0`` a segment
+    sinks under its own weight. Measured by sliding a straight tube resting at ``d0`` over a
+    1 um pole by one spacing (the penetrations as ``chain.contacts`` reports them): the ripple is
+    ``sqrt(H^2 + h^2/4) - H <= h^2 / (8 H)``, ``H = r_s + rho - d0``; the rule bounds
+    ``h^2 / (8 r_s)``, so the measured ripple may exceed ``d0 / 4`` by the factor ``r_s / H``
+    and no more; with one ball fewer it exceeds ``d0 / 4``."""
+    from qchain.contact import contact_nodes
+    from qchain.contact.environment import RIPPLE
+
+    law = ContactLaw(stiffness=stiffness)
+    ch = Chain([Segment(**SEGMENT)], base="floating", gravity=(0.0, 0.0, -G))
+    K = contact_nodes(ch.segments, law, ch.gravity)
+    d0 = (SEGMENT["mass"] * G / (L0 * stiffness)) ** (1 / law.exponent)
+    rho = 1e-6
+    H = R_S + rho - d0
+    R = pin.rpy.rpyToMatrix(0.0, np.pi / 2, 0.0)
+
+    def ripple(nodes):
+        h = L0 / nodes
+        env = Environment([Capsule([0.0, -1.0, 0.0], [0.0, 1.0, 0.0], rho)], law, nodes=nodes)
+        deepest = []
+        for u in np.linspace(0.0, h, 41):
+            q = ch.neutral()
+            q[:7] = pin.SE3ToXYZQUAT(pin.SE3(R, np.array([-L0 / 2 + u, 0.0, H])))
+            deepest.append(ch.contacts(q, np.zeros(ch.nv), env).penetration.max())
+        assert max(deepest) == pytest.approx(d0, rel=1e-9)  # a ball right over the edge
+        return max(deepest) - min(deepest)
+
+    assert 1 < K < 64
+    assert ripple(K) <= RIPPLE * d0 * R_S / H * (1 + 1e-9)
+    assert ripple(K - 1) > RIPPLE * d0
+    # the scene's default is the rule's count
+    assert K == contact_nodes([Segment(**SEGMENT)], law, (0.0, 0.0, -G))
+
+
+def test_contact_nodes_refuses_what_it_cannot_use():
+    from qchain.contact import contact_nodes
+
+    segs = [Segment(**SEGMENT)]
+    with pytest.raises(ValueError, match=r"ripple must be in \(0, 1\].*got 0\.0"):
+        contact_nodes(segs, ContactLaw(), (0, 0, -G), ripple=0.0)
+    with pytest.raises(TypeError, match="law must be a ContactLaw, got dict"):
+        contact_nodes(segs, {"stiffness": 1e6}, (0, 0, -G))
+    with pytest.raises(ValueError, match="gravity"):
+        contact_nodes(segs, ContactLaw(), (0, 0, np.nan))
+    # weightless: reckoned at a milli-g, so a finite count (the stiffest laws reach the cap)
+    assert contact_nodes(segs, ContactLaw(), (0, 0, 0)) >= contact_nodes(segs, ContactLaw(), (0, 0, -G))
+    assert contact_nodes(segs, ContactLaw(stiffness=1e12), (0, 0, -G)) == 64
+
+
 # -- (6) a cantilever bending down onto the ground: the shape and the contact force
 
 

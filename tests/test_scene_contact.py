@@ -9,7 +9,7 @@ import math
 import numpy as np
 import pytest
 
-from qchain.contact import Box, Capsule, Cylinder, HalfSpace, Sphere, hunt_crossley_damping
+from qchain.contact import Box, Capsule, Cylinder, HalfSpace, Sphere, contact_nodes, hunt_crossley_damping
 from qchain.scene import SceneError, parse_scene
 from qchain.scene import format as F
 from support import base_scene, to_toml
@@ -63,8 +63,12 @@ def test_the_tables_make_the_environment_every_run_gets(monkeypatch):
     assert env.loads[1].local and env.loads[1].alpha == 0.25
     # without the tables: no environment, and the law's defaults are ContactLaw's
     assert parse_scene(scene()).environment is None
-    d = parse_scene(scene([FAR["sphere"]])).environment
-    assert (d.law.stiffness, d.law.exponent, d.law.damping, d.nodes) == (1e6, 1.5, 0.0, 16)
+    plain = parse_scene(scene([FAR["sphere"]]))
+    d = plain.environment
+    # without contact.nodes: the fewest balls the ripple rule allows for these segments
+    rule = contact_nodes([s.segment() for s in plain.segments], d.law, plain.gravity)
+    assert (d.law.stiffness, d.law.exponent, d.law.damping, d.nodes) == (1e6, 1.5, 0.0, rule)
+    assert rule == contact_nodes(plain.build(reduce=False).chain.segments, d.law, plain.gravity) and 1 < rule < 64
     # every run hands it to qchain.simulate
     import qchain.scene.scene as S
 
@@ -136,7 +140,7 @@ def test_an_arm_that_starts_inside_an_obstacle_is_refused_with_segment_obstacle_
     # segment 1 (0.08 m from z = 0.1) has its contact point 10 of 16 at z = 0.1 + 0.08 * 10.5 / 16 = 0.1525:
     # 0.02 m from the ball's centre, whose surface is 0.01 m away, so the tube (r_s = 0.015 m) is 5 mm inside
     ball = {"type": "sphere", "name": "ball", "center": [0.02, 0.0, 0.1525], "radius": 0.01}
-    found = refused(scene([FAR["halfspace"], ball]))
+    found = refused(scene([FAR["halfspace"], ball], contact={"nodes": 16}))
     assert found == ['obstacles[1]: expected an arm that starts outside obstacles[1] "ball" (inside by at most 10% of '
                      "a segment's radius, 1.5 mm for segment 1), found segment 1 starts inside it by 5 mm (at alpha = "
                      "0.656, point (0.015, 0, 0.1525) m)"]

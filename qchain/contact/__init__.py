@@ -8,7 +8,7 @@ from .. import lazy_exports
 _EXPORTS = {
     "HalfSpace": "shapes", "Sphere": "shapes", "Capsule": "shapes", "Cylinder": "shapes", "Box": "shapes", "Motion": "shapes",
     "ContactLaw": "environment", "PointLoad": "environment", "Environment": "environment",
-    "Contacts": "environment", "hunt_crossley_damping": "environment",
+    "Contacts": "environment", "hunt_crossley_damping": "environment", "contact_nodes": "environment",
 }
 __all__ = list(_EXPORTS)
 __getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)

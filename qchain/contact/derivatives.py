@@ -30,7 +30,7 @@ from ..algorithms.arrays import ChainArrays
 from ..model.arc import arc_node, arc_node_derivatives, arc_pose, jit, take1, take2, take3
 from ..model.slices import phi_transpose_force, slice_twist, sub_motion_cross
 from .distance import BOX, CAPSULE, CYLINDER, HALFSPACE, SPHERE, signed_distance
-from .forces import ROOT, _keep_root, _mat3, _near_segments, _point, _world_wrench_to_slice, start
+from .forces import ROOT, _keep_root, _mat3, _near_segments, _point, _world_wrench_to_slice, power, start
 
 #: a contact node kept for the self-contact tangent: world rotation (9), point (3), velocity
 #: (3), angular velocity (3), the slice's R (9), p (3), S (18) in its root, then the changes of
@@ -149,9 +149,9 @@ def _law_tangent(law, ell, d, dd, n, dn, vc, dvc, F, dF):
     if hdamp < 0.0:
         hdamp = 0.0
         dh = 0.0
-    de = d ** e
+    de = power(d, e)
     fn = ell * k * de * hdamp
-    dfn = ell * k * (e * d ** (e - 1.0) * dd * hdamp + de * dh)
+    dfn = ell * k * (e * power(d, e - 1.0) * dd * hdamp + de * dh)
     vt0, vt1, vt2 = vc[0] - vn * n[0], vc[1] - vn * n[1], vc[2] - vn * n[2]
     dvt0 = dvc[0] - dvn * n[0] - vn * dn[0]
     dvt1 = dvc[1] - dvn * n[1] - vn * dn[1]

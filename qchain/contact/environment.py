@@ -20,7 +20,8 @@ from .distance import MOTION, PARAMS
 from .forces import LAW, RECORD
 from .shapes import Box, Capsule, Cylinder, HalfSpace, Sphere
 
-__all__ = ["ContactLaw", "PointLoad", "Environment", "Contacts", "hunt_crossley_damping", "MAX_OBSTACLES"]
+__all__ = ["ContactLaw", "PointLoad", "Environment", "Contacts", "hunt_crossley_damping", "contact_nodes",
+           "MAX_OBSTACLES", "RIPPLE"]
 
 #: obstacles in one environment (each costs a distance per contact point near it)
 MAX_OBSTACLES = 1000
@@ -151,6 +152,53 @@ class Contacts(NamedTuple):
                    rec[:, 4:7].copy(), rec[:, 7:10].copy(), rec[:, 10:13].copy(), rec[:, 13].copy(), tau)
 
 
+#: the ripple of the chain of balls :func:`contact_nodes` allows, as a fraction of the penetration at rest
+RIPPLE = 0.25
+#: the weight of a weightless arm's rest load, as a fraction of Earth's gravity (m/s^2)
+_MIN_GRAVITY = 1e-3
+
+
+def _rest_penetration(law, mass: float, length: float, g: float) -> float:
+    """m: how deep a segment of ``mass`` (kg) and rest ``length`` (m) lying on a flat obstacle
+    sinks under gravity ``g`` (m/s^2): ``k d^e = m g / length``, per metre of tube."""
+    return (mass * max(g, _MIN_GRAVITY) / (length * law.stiffness)) ** (1.0 / law.exponent)
+
+
+def contact_nodes(segments, law, gravity, ripple: float = RIPPLE) -> int:
+    """The fewest contact points a segment that draw every segment's tube within ``ripple``
+    times its penetration at rest (docs/contact.md, "Which nodes").
+
+    Between two balls ``h = l0 / nodes`` apart the chain of balls lies ``~ h^2 / (8 r_s)``
+    inside the tube; over a convex obstacle of radius ``rho`` less (``h^2 / (8 (r_s + rho))``).
+    Kept below ``ripple d0``, ``d0`` the depth a segment sinks lying on a flat obstacle under its
+    own weight (:class:`ContactLaw` ``k d0^e = m g / l0``):
+    ``nodes >= l0 / sqrt(8 ripple r_s d0)``; and the last ball covers the tube's end
+    (``h / 2 <= r_s``). The largest over the segments, within ``CONTACT_NODES`` (1 to 64).
+
+    Parameters
+    ----------
+    segments : sequence of qchain.Segment (or anything with ``length`` m, ``radius`` m, ``mass`` kg)
+    law : ContactLaw
+    gravity : (3,) m/s^2
+        A weightless arm is reckoned at 1e-3 m/s^2 (a milli-g rest load), as
+        :meth:`Environment.time_scale` does.
+    ripple : float
+        The allowed ripple over the rest penetration, in (0, 1].
+    """
+    if not isinstance(law, ContactLaw):
+        raise TypeError(f"law must be a ContactLaw, got {type(law).__name__}")
+    ripple = as_real("ripple", ripple)
+    if not 0.0 < ripple <= 1.0:
+        raise ValueError(f"ripple must be in (0, 1] (a fraction of the penetration at rest), got {ripple!r}")
+    g = float(np.linalg.norm(as_vector("gravity", gravity, 3)))
+    need = int(CONTACT_NODES.low)
+    for s in segments:
+        d0 = _rest_penetration(law, s.mass, s.length, g)
+        h = min(np.sqrt(8.0 * ripple * s.radius * d0), 2.0 * s.radius)
+        need = max(need, int(np.ceil(s.length / h * (1.0 - 1e-12))))
+    return int(min(need, CONTACT_NODES.high))
+
+
 _SHAPES = (HalfSpace, Sphere, Capsule, Cylinder, Box)
 
 
@@ -205,12 +253,12 @@ class Environment:
         if not self.obstacles and not self.self_contact:
             return None
         law = self.law
-        g = max(float(np.linalg.norm(chain.gravity)), 1e-3)  # weightless: a milli-g rest load
+        g = float(np.linalg.norm(chain.gravity))
         periods = []
         for s in chain.segments:
             m = s.mass / self.nodes
             ell = s.length / self.nodes
-            d = (m * g / (ell * law.stiffness)) ** (1.0 / law.exponent)
+            d = _rest_penetration(law, s.mass, s.length, g)
             k_eff = law.exponent * ell * law.stiffness * d ** (law.exponent - 1.0)
             periods.append(2.0 * np.pi * np.sqrt(m / k_eff))
         return float(min(periods))

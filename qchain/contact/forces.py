@@ -38,7 +38,7 @@ from ..model.arc import arc_node, arc_pose, jit, take1, take2
 from ..model.slices import phi_transpose_force, slice_twist
 from .distance import PARAMS, signed_distance
 
-__all__ = ["LAW", "RECORD", "ROOT", "NODE", "contact_forces", "load_forces"]
+__all__ = ["LAW", "RECORD", "ROOT", "NODE", "beyond_reach", "contact_forces", "law_force", "load_forces", "power"]
 
 #: entries of the packed contact law
 LAW = 8
@@ -58,7 +58,7 @@ NODE = 48
 def _root_step(q, qd, Rj, oj, Vj, R1, p1, S1, Sd1, tmp):
     """Root ``j`` -> root ``j + 1`` in place: world rotation ``Rj``, origin ``oj`` and body twist
     ``Vj`` of the next root (the tip of segment ``j`` at ``q``, ``qd``)."""
-    arc_node(1.0, q[0], q[1], q[2], qd[0], qd[1], qd[2], R1, p1, S1, Sd1)
+    arc_node(1.0, q[0], q[1], q[2], 0.0, 0.0, 0.0, R1, p1, S1, Sd1)  # (Sd1 not needed: no rates)
     slice_twist(R1, p1, S1, Vj, qd, tmp)
     for r in range(6):
         Vj[r] = tmp[r]
@@ -139,18 +139,37 @@ def _world_wrench_to_slice(Rs, F, arm, f6):
 
 
 @jit
+def power(d, e):
+    """``d ** e`` for ``d >= 0``, without the general power where the exponent is the law's
+    usual 1, 3/2 (Hertz) or 2, or their derivatives' 0 and 1/2: equal to rounding, several
+    times cheaper."""
+    if e == 1.5:
+        return d * np.sqrt(d)
+    if e == 1.0:
+        return d
+    if e == 0.5:
+        return np.sqrt(d)
+    if e == 2.0:
+        return d * d
+    if e == 0.0:
+        return 1.0
+    return d ** e
+
+
+@jit
 def law_force(law, ell, d, nrm, vc, F):
     """The world force ``F`` (3,) on the arm from a contact of penetration ``d > 0`` (m), outward
     normal ``nrm`` (3,), surface-point velocity ``vc`` (3, m/s) and rest length ``ell`` (m);
     returns the sliding speed (m/s). The law is the module docstring's."""
     k, e, c, mu_s, mu_d, eps, v_s = law[0], law[1], law[2], law[3], law[4], law[5], law[6]
     vn = vc[0] * nrm[0] + vc[1] * nrm[1] + vc[2] * nrm[2]
-    fn = ell * k * d ** e * max(0.0, 1.0 - c * vn)  # d' = -vn
+    fn = ell * k * power(d, e) * max(0.0, 1.0 - c * vn)  # d' = -vn
     vt0, vt1, vt2 = vc[0] - vn * nrm[0], vc[1] - vn * nrm[1], vc[2] - vn * nrm[2]
     s2 = vt0 * vt0 + vt1 * vt1 + vt2 * vt2
     s = np.sqrt(s2)
-    mu = mu_d + (mu_s - mu_d) * np.exp(-s2 / (v_s * v_s))
-    ft = mu * fn / np.sqrt(s2 + eps * eps)
+    # the transcendental calls only where they change the result (a point's cost is a few of them)
+    mu = mu_d if mu_s == mu_d else mu_d + (mu_s - mu_d) * np.exp(-s2 / (v_s * v_s))
+    ft = 0.0 if mu == 0.0 else mu * fn / np.sqrt(s2 + eps * eps)
     F[0] = fn * nrm[0] - ft * vt0
     F[1] = fn * nrm[1] - ft * vt1
     F[2] = fn * nrm[2] - ft * vt2
@@ -201,18 +220,10 @@ def contact_forces(arr, kind, prm, vel, law, calpha, q, qd, R_WB, p_WB, V0, tau,
     tmp, o = take1(sc, o, 6)
     near, o = take1(sc, o, m)
     self_contact = law[7] > 0.0
+    if not self_contact and beyond_reach(arr.radius, q, kind, prm, p_WB, nrm):
+        return 0
     start(R_WB, p_WB, V0, Rj, oj, Vj, W)
     count = 0
-    if not self_contact:
-        # the whole arm lies within its length plus its widest radius of the base origin: an
-        # environment beyond that costs one distance per obstacle
-        reach = 0.0
-        widest = 0.0
-        for j in range(n):
-            reach += abs(q[j, 0])
-            widest = max(widest, arr.radius[j])
-        if _all_beyond(kind, prm, p_WB, reach + widest, nrm):
-            return 0
     for j in range(n):
         l, ux, uy = q[j, 0], q[j, 1], q[j, 2]
         r_s = arr.radius[j]
@@ -231,7 +242,7 @@ def contact_forces(arr, kind, prm, vel, law, calpha, q, qd, R_WB, p_WB, V0, tau,
             ell = arr.l0[j] / K
             for i in range(K):
                 a = calpha[i]
-                arc_node(a, l, ux, uy, qd[j, 0], qd[j, 1], qd[j, 2], R1, p1, S1, Sd1)
+                arc_node(a, l, ux, uy, 0.0, 0.0, 0.0, R1, p1, S1, Sd1)
                 _point(Rj, oj, p1, x)
                 _mat3(Rj, R1, Rs)
                 slice_twist(R1, p1, S1, Vj, qd[j], Vs)
@@ -272,10 +283,18 @@ def contact_forces(arr, kind, prm, vel, law, calpha, q, qd, R_WB, p_WB, V0, tau,
 
 
 @jit
-def _all_beyond(kind, prm, x, reach, nrm):
-    """Whether every obstacle is farther than ``reach`` (m) from the point ``x``."""
+def beyond_reach(radius, q, kind, prm, p_WB, nrm):
+    """Whether every obstacle (``kind``, ``prm``) lies beyond the arm's reach: the whole arm
+    lies within its length ``sum |l_j|`` plus its widest radius of the base origin ``p_WB``, and
+    a signed distance is 1-Lipschitz; so an environment beyond that costs one distance per
+    obstacle. ``radius`` (n,) m, ``q`` (n, 3) curvature coordinates, ``nrm`` (3,) scratch."""
+    reach = 0.0
+    widest = 0.0
+    for j in range(q.shape[0]):
+        reach += abs(q[j, 0])
+        widest = max(widest, radius[j])
     for b in range(kind.shape[0]):
-        if signed_distance(kind[b], prm[b], x, nrm) <= reach:
+        if signed_distance(kind[b], prm[b], p_WB, nrm) <= reach + widest:
             return False
     return True
 

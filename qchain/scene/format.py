@@ -270,7 +270,6 @@ BUDGET = KeyTable("budget", "What a run may cost (`qchain/sim/budget.py`): a sce
 ))
 
 _LAW = {f.name: f.default for f in dataclass_fields(ContactLaw)}  # the defaults, ContactLaw's own
-DEFAULT_CONTACT_NODES = next(f.default for f in dataclass_fields(Environment) if f.name == "nodes")
 #: The obstacle types a scene may name, and the classes they make.
 OBSTACLE_TYPES = ("halfspace", "sphere", "capsule", "cylinder", "box")
 #: Deepest start penetration a scene may have, as a fraction of the segment's radius: an arm at
@@ -299,7 +298,9 @@ CONTACT = KeyTable("contact", "The contact law (`qchain.contact.ContactLaw`, `qc
           default=f"{_LAW['slip_velocity']:g}"),
     Field("stribeck_velocity", "number", "Sliding speed over which `mu_static` falls to `mu_dynamic`.",
           B.SLIP_VELOCITY, default=f"{_LAW['stribeck_velocity']:g}"),
-    Field("nodes", "integer", "Contact points a segment.", B.CONTACT_NODES, default=str(DEFAULT_CONTACT_NODES)),
+    Field("nodes", "integer", "Contact points a segment.", B.CONTACT_NODES,
+          default="the fewest that keep the ripple of the chain of balls within a quarter of the penetration at "
+          "rest (`qchain.contact.contact_nodes`, docs/contact.md)"),
 ))
 
 OBSTACLE = KeyTable("obstacles[]", "One table an obstacle, fixed in the world: `[[obstacles]]`. An arm that starts "

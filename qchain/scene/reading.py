@@ -166,7 +166,7 @@ def parse_scene(text: str, path: str | os.PathLike | None = None) -> Scene:
 
     pressure, pspec = _pressure(ck, raw, n)
     q_e0, v_e0 = _initial(ck, raw, segments)
-    surroundings = read_surroundings(ck, raw, n)
+    surroundings = read_surroundings(ck, raw, segments, gravity)
 
     # output
     O = F.OUTPUT

@@ -13,7 +13,8 @@ import pinocchio as pin
 
 from . import format as F
 from ..checks.text import show_vector
-from ..contact.environment import MAX_OBSTACLES, ContactLaw, Environment, PointLoad, hunt_crossley_damping
+from ..contact.environment import (MAX_OBSTACLES, ContactLaw, Environment, PointLoad, contact_nodes,
+                                   hunt_crossley_damping)
 from ..contact.shapes import Box, Capsule, Cylinder, HalfSpace, Sphere
 from .format import _MISSING, Problem, _Checker, _show, _type_name
 
@@ -152,24 +153,28 @@ def _shape_text(ob) -> str:
 # reading
 
 
-def read_surroundings(ck: _Checker, raw: dict, n: int | None) -> Surroundings:
+def read_surroundings(ck: _Checker, raw: dict, segments, gravity) -> Surroundings:
     """The ``[contact]``, ``[[obstacles]]`` and ``[[loads]]`` tables of the parsed scene ``raw``
-    (``n`` segments, None if unknown), their problems added to ``ck``."""
+    (its ``segments``, None if unknown, and ``gravity`` (3,) m/s^2), their problems added to
+    ``ck``. Without ``contact.nodes`` the contact points a segment are the fewest the ripple
+    rule allows (:func:`qchain.contact.contact_nodes`)."""
     start = len(ck.problems)
     law, nodes = _law(ck, raw)
     obstacles, labels = _obstacles(ck, raw)
-    loads = _loads(ck, raw, n)
-    if len(ck.problems) > start or law is None or (not obstacles and not loads):
+    loads = _loads(ck, raw, None if segments is None else len(segments))
+    if len(ck.problems) > start or law is None or (not obstacles and not loads) or segments is None:
         return Surroundings()
+    if nodes is None:
+        nodes = contact_nodes(segments, law, gravity)
     return Surroundings(Environment(obstacles, law=law, loads=loads, nodes=nodes), tuple(labels))
 
 
-def _law(ck: _Checker, raw: dict) -> tuple[ContactLaw | None, int]:
+def _law(ck: _Checker, raw: dict) -> tuple[ContactLaw | None, int | None]:
     T = F.CONTACT
     ct = ck.section(raw, "contact", T.keys())
     start = len(ck.problems)
     v = {k: ck.field(ct, T[k], f"contact.{k}") for k in T.keys()}
-    nodes = v.pop("nodes") or F.DEFAULT_CONTACT_NODES
+    nodes = v.pop("nodes")  # None: contact_nodes picks them
     e, speed = v.pop("restitution"), v.pop("impact_speed")
     if "damping" in ct and ("restitution" in ct or "impact_speed" in ct):
         ck.add("contact.damping", "damping, or restitution with impact_speed, not both",

@@ -335,7 +335,8 @@ def _note_contact_steps(run: _Run, traj: Trajectory) -> None:
     """Say in ``traj.meta`` whether the contact's time scale limited the steps:
     ``contact_time_scale`` (s, :meth:`qchain.contact.Environment.time_scale`) and
     ``step_limited_by_contact``: an explicit method's run in which the arm touched an obstacle
-    (at one of up to 200 samples) and the mean step was below a quarter of that time scale
+    (at any evaluation on the compiled engine, ``meta["max_active_contacts"] > 0``; at one of
+    up to 200 samples on the Python backend) and the mean step was below a quarter of that time scale
     (explicit steps are bounded by it for stability; an implicit method's steps follow the
     tolerance, and its flag is False)."""
     if run.env is None or not run.env.obstacles:
@@ -344,8 +345,11 @@ def _note_contact_steps(run: _Run, traj: Trajectory) -> None:
     traj.meta["contact_time_scale"] = T
     steps = traj.meta.get("nsteps") or 0
     span = (traj.t[-1] - run.t0) if len(traj.t) else 0.0
-    picks = np.unique(np.linspace(0, len(traj.t) - 1, min(len(traj.t), 200)).astype(int)) if len(traj.t) else []
-    touched = any(len(run.chain.contacts(traj.q[k], traj.v[k], run.env, traj.t[k]).segment) for k in picks)
+    if "max_active_contacts" in traj.meta:  # the compiled engine counted them at every evaluation
+        touched = traj.meta["max_active_contacts"] > 0
+    else:
+        picks = np.unique(np.linspace(0, len(traj.t) - 1, min(len(traj.t), 200)).astype(int)) if len(traj.t) else []
+        touched = any(len(run.chain.contacts(traj.q[k], traj.v[k], run.env, traj.t[k]).segment) for k in picks)
     explicit = run.method not in JACOBIAN_METHODS
     traj.meta["step_limited_by_contact"] = bool(explicit and touched and steps and span / steps < 0.25 * T)
 

@@ -471,4 +471,6 @@ def _trajectory(chain, m, wk, out, cnt, status, message, energies, method, ev_lo
         traj.with_energies(source)
     traj.meta.update(method=method, engine="compiled", nsteps=int(cnt[steppers.NSTEPS]), njev=int(cnt[steppers.NJEV]),
                      nlu=int(cnt[steppers.NLU]), nreject=int(cnt[steppers.NREJECT]), events=ev_log)
+    if m.env.kind.shape[0] or m.env.law[7]:  # an environment with obstacles or self-contact
+        traj.meta["max_active_contacts"] = int(wk.info[2])
     return traj

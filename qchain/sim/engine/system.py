@@ -35,7 +35,7 @@ from ...contact.environment import Environment, PackedEnvironment
 from ...contact.derivatives import NODE_T, environment_derivatives
 from ...contact.forces import ROOT
 from ...contact.distance import PARAMS, move
-from ...contact.forces import contact_forces, load_forces
+from ...contact.forces import beyond_reach, contact_forces, load_forces
 from ...algorithms.arrays import AbaDerivativesWorkspace, AbaWorkspace, ChainArrays, PlanarWorkspace, RneaWorkspace
 from ...model.arc import SCRATCH, arc_node, take1, take2
 from ...model.slices import slice_twist
@@ -131,7 +131,8 @@ class Workspace(NamedTuple):
     B : (4, 6) float
         The base's state (:func:`_base_state`).
     info : (4,) int64
-        Status and the segment it concerns.
+        Status and the segment it concerns; ``info[2]``: the most contacts any right-hand side
+        of the run found active (a run's ``meta["max_active_contacts"]``).
     buf : (size,) float
         The kernels' workspaces in one buffer (:data:`KERNEL_NDIM`, carved by
         :func:`aba_ws` and its siblings).
@@ -451,7 +452,8 @@ def _forces(m, wk, t):
 @inline
 def _environment(m, wk, t, q_c, v_c, f):
     """Add the environment's generalised forces to ``f`` (n, 3) and its wrench on the base to
-    ``wk.W[n + 1]`` (zeroed first); nothing to do without obstacles or loads."""
+    ``wk.W[n + 1]`` (zeroed first), and raise ``wk.info[2]`` to the active contacts' count;
+    nothing to do without obstacles or loads."""
     env = m.env
     n = q_c.shape[0]
     W = wk.W[0]
@@ -460,8 +462,12 @@ def _environment(m, wk, t, q_c, v_c, f):
         F_env[r] = 0.0
     if env.kind.shape[0] > 0 or env.law[7] > 0.0:
         move(env.kind, env.prm, env.motion, t, wk.prm_t, wk.vel)
-        contact_forces(m.arrays, env.kind, wk.prm_t, wk.vel, env.law, env.calpha, q_c, v_c, wk.R_WB, wk.B[3, :3], wk.B[0],
-                       f, F_env, W[: n + 1], wk.roots, wk.nodes, W[:0], wk.scratch)
+        # the far test before the call: the call's arguments (the model's arrays) cost more than it
+        if env.law[7] > 0.0 or not beyond_reach(m.arrays.radius, q_c, env.kind, wk.prm_t, wk.B[3, :3], wk.scratch):
+            count = contact_forces(m.arrays, env.kind, wk.prm_t, wk.vel, env.law, env.calpha, q_c, v_c, wk.R_WB,
+                                   wk.B[3, :3], wk.B[0], f, F_env, W[: n + 1], wk.roots, wk.nodes, W[:0], wk.scratch)
+            if count > wk.info[2]:
+                wk.info[2] = count
     if env.seg.shape[0] > 0:
         load_forces(env.seg, env.alpha, env.wrench, env.local, q_c, wk.R_WB, wk.B[3, :3], f, F_env, W[: n + 1],
                     wk.scratch)
