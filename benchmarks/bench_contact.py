@@ -10,7 +10,8 @@ bending mode (3.1 Hz), but enough to still the links' chatter on the ground: und
 half, at every step down to 10 us; Euler likewise). qchain
 models it as n equal inextensible segments (bench_cosserat's tiny unpressurised chambers), the
 contact law ``ContactLaw(stiffness=1e6, exponent=1.5, damping=c)`` with ``c`` Hunt and
-Crossley's for restitution 0.5 at 0.5 m/s, frictionless, 16 contact points a segment.
+Crossley's for restitution 0.5 at 0.5 m/s, frictionless, 16 contact points a segment in part (a)
+and the references of part (b), ``contact_nodes``' count (what a scene takes) in part (b)'s sweeps.
 
 (a) **Overhead** (the same arm, n = 10, planar and spatial, dopri5 at rtol 1e-6,
 atol 1e-8): the arm clamped at z0 = r (its underside at the ground) run T = 1 s
@@ -20,7 +21,8 @@ atol 1e-8): the arm clamped at z0 = r (its underside at the ground) run T = 1 s
 * ``far``: ``Environment([HalfSpace([0, 0, -3]), Sphere([5, 5, 5], 0.5)])``, never touched
   (targets: at most 5 % dearer than ``none``);
 * ``contact``: the ground, so the arm lies on it along its whole length (target: at most 2x);
-  ``contact/8``, ``contact/4``: the same with 8 and 4 contact points a segment instead of 16.
+  ``contact/8``, ``contact/4``: the same with 8 and 4 contact points a segment instead of 16;
+  ``rule (K)``: with ``K = contact_nodes(...)``, the count a scene of this arm takes (5).
 
 Cost: wall seconds per simulated second, median over ``repeats`` runs taken in turn (none,
 far, contact, none, ...; spread: min and max); the runs' right-hand-side evaluations (nfev)
@@ -70,7 +72,7 @@ import _study
 import bench_cosserat as bc
 import bench_release as br
 from qchain import Chain, Segment
-from qchain.contact import ContactLaw, Environment, HalfSpace, Sphere, hunt_crossley_damping
+from qchain.contact import ContactLaw, Environment, HalfSpace, Sphere, contact_nodes, hunt_crossley_damping
 from qchain.sim.simulation import simulate
 
 SCENE = br.SCENE
@@ -79,6 +81,7 @@ BETA = 5e-4  # s, stiffness-proportional damping D = beta K in both codes (mode 
 DROP_Z0 = 0.04  # m, part (b): the clamp's height (the rod's underside 20 mm above the ground)
 RESTITUTION, IMPACT = 0.5, 0.5  # qchain's Hunt-Crossley damping: restitution at impact speed (m/s)
 FEWER_NODES = (8, 4)  # part (a): contact runs with these contact points a segment besides the default 16
+REF_NODES = 16  # part (b): the references' contact points a segment (the sweeps take contact_nodes' count)
 TARGET_FAR, TARGET_CONTACT = 1.05, 2.0  # part (a)'s targets (cost over the no-environment run's)
 
 
@@ -137,6 +140,8 @@ def overhead_runs(ch: Chain, T: float, repeats: int) -> tuple[list[dict], np.nda
     envs = environments()
     for k in FEWER_NODES:  # the same ground with fewer contact points a segment (16 by default)
         envs[f"contact/{k}"] = Environment([HalfSpace()], law(), nodes=k)
+    rule = contact_nodes(ch.segments, law(), ch.gravity)  # what a scene of this arm takes
+    envs[f"rule ({rule})"] = Environment([HalfSpace()], law(), nodes=rule)
     q0, v0 = ch.neutral(), np.zeros(ch.nv)
     walls = {k: [] for k in envs}
     cpus = {k: [] for k in envs}  # CPU time: less disturbed than wall time by other jobs on the machine
@@ -255,10 +260,11 @@ def print_a(rows: list[dict]) -> None:
 # ---------------------------------------------------------------------------------- part (b)
 
 
-def qchain_drop(n: int, T: float, method: str, repeat_below: float = 0.0, **kw) -> dict:
-    """The falling rod in qchain; bench_cosserat's ``qchain_run`` with the ground (same fields)."""
+def qchain_drop(n: int, T: float, method: str, repeat_below: float = 0.0, nodes: int | None = None, **kw) -> dict:
+    """The falling rod in qchain; bench_cosserat's ``qchain_run`` with the ground (same fields);
+    ``nodes`` contact points a segment (None: :func:`qchain.contact.contact_nodes`' count)."""
     ch = rod(n, DROP_Z0)
-    env = environments()["contact"]
+    env = Environment([HalfSpace()], law(), nodes=nodes or contact_nodes(ch.segments, law(), ch.gravity))
     t_eval = bc.sample_times(T)
     q0, v0 = ch.neutral(), np.zeros(ch.nv)
     walls = []
@@ -352,7 +358,8 @@ def part_b(quick: bool) -> tuple[list[dict], list[str]]:
     for n in (cfg["check_n"], cfg["ref_n"]):
         print(f"  qchain reference n = {n}, dopri5 rtol {cfg['ref_tol']['rtol']:g}", flush=True)
         refs[n] = add("qchain", f"n={n}", "dopri5", "reference",
-                      qchain_drop(n, T, "dopri5", **cfg["ref_tol"]), value=cfg["ref_tol"]["rtol"], kind="rtol")
+                      qchain_drop(n, T, "dopri5", nodes=REF_NODES, **cfg["ref_tol"]), value=cfg["ref_tol"]["rtol"],
+                      kind="rtol")
     for N in (cfg["check_N"], cfg["ref_N"]):
         print(f"  MuJoCo reference N = {N}, RK4 dt {cfg['ref_dt'] * 1e3:g} ms", flush=True)
         refs[N, "mj"] = add("mujoco", f"N={N}", "RK4", "reference", mujoco_drop(N, "RK4", cfg["ref_dt"], T),
@@ -364,7 +371,8 @@ def part_b(quick: bool) -> tuple[list[dict], list[str]]:
 
     for n, method in itertools.product(cfg["ns"], cfg["methods"]):
         kind = "dt" if method == "rk4" else "rtol"
-        print(f"  qchain n = {n} {method}", flush=True)
+        print(f"  qchain n = {n} {method}, {contact_nodes(rod(n, DROP_Z0).segments, law(), (0, 0, -SCENE['g']))} "
+              "contact points a segment (contact_nodes)", flush=True)
 
         def runner(v, n=n, method=method):
             kw = dict(dt=v) if method == "rk4" else dict(rtol=v, atol=v / 100.0)

@@ -183,6 +183,54 @@ def test_a_far_obstacle_changes_nothing():
     np.testing.assert_array_equal(ch.forward_dynamics(q, v, p, env=env), ch.forward_dynamics(q, v, p))
 
 
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_the_planar_contact_pass_is_the_spatial_one_in_the_plane(seed):
+    """A planar chain among obstacles symmetric about its base's x-z plane (the base turned
+    and raised in the world; friction, damping, an obstacle moving in the plane): the planar
+    pass's generalised forces, base wrench and count equal the spatial pass's in-plane ones."""
+    from qchain.contact.distance import move
+    from qchain.contact.forces import RECORD, contact_forces
+    from qchain.contact.planar import planar_contact_forces
+    from qchain.contact.shapes import Motion
+    from qchain.model.arc import SCRATCH
+
+    rng = np.random.default_rng(seed)
+    X = pin.SE3(pin.rpy.rpyToMatrix(0.3, -0.4, 0.7), np.array([0.1, -0.2, 0.3]))
+    ch = Chain([Segment(**SEGMENT) for _ in range(3)], base_placement=X, planar=True)
+    q = ch.neutral()
+    q[1::3] += rng.uniform(-12, 12, 3)  # ux: bent in the plane
+    v = np.zeros(ch.nv)
+    v[0::3] = rng.normal(0, 0.05, 3)
+    v[1::3] = rng.normal(0, 2.0, 3)
+    st = ch._state(q, v)
+    ex, ez, o = X.rotation[:, 0], X.rotation[:, 2], X.translation
+    pts = ch.backbone(q, 9)  # (n, 9, 3) world points of the backbone
+    pick = lambda j, k: pts[j, k]
+    nrm = np.cos(0.3) * ex + np.sin(0.3) * ez
+    env = Environment([HalfSpace(pick(2, 4) - 0.01 * nrm, nrm),
+                       Sphere(pick(1, 3) + 0.02 * ex, 0.01),
+                       Capsule(pick(0, 6) - 0.03 * ez - 0.2 * X.rotation[:, 1], pick(0, 6) - 0.03 * ez
+                               + 0.2 * X.rotation[:, 1], 0.02, motion=Motion(velocity=0.1 * ex)),
+                       Box(pick(2, 8), [0.02, 0.05, 0.02], rotation=X.rotation)],
+                      ContactLaw(damping=2.0, mu_static=0.5, mu_dynamic=0.3), nodes=7)
+    pk = env.packed()
+    prm, vel = np.empty_like(pk.prm), np.empty((pk.kind.size, 3))
+    move(pk.kind, pk.prm, pk.motion, 0.2, prm, vel)
+    args = (ch._arrays, pk.kind, prm, vel, pk.law, pk.calpha, st.q_c, np.ascontiguousarray(st.v_c),
+            np.ascontiguousarray(st.X_WB.rotation), np.ascontiguousarray(st.X_WB.translation),
+            np.ascontiguousarray(st.V0))
+    tau, F0 = np.zeros((ch.n, 3)), np.zeros(6)
+    count = contact_forces(*args, tau, F0, np.zeros((ch.n + 1, 6)), np.zeros((0, 34)), np.zeros((2, 0, 123)),
+                           np.zeros((0, RECORD)), np.empty(SCRATCH))
+    tau_p, F0_p = np.zeros((ch.n, 3)), np.zeros(6)
+    count_p = planar_contact_forces(*args, tau_p, F0_p, np.zeros((ch.n + 1, 6)), np.empty(SCRATCH))
+    assert count_p == count >= 4
+    scale = np.abs(tau[:, :2]).max()
+    np.testing.assert_allclose(tau_p[:, :2], tau[:, :2], rtol=0, atol=1e-12 * scale)
+    np.testing.assert_allclose(F0_p[[0, 2, 4]], F0[[0, 2, 4]], rtol=0, atol=1e-12 * np.abs(F0).max())
+    assert np.abs(tau[:, 2]).max() < 1e-12 * scale  # the spatial pass agrees that nothing leaves the plane
+
+
 def test_forward_and_inverse_dynamics_take_the_environment():
     ch, q, v = _bent_arm()
     c = ch.backbone(q, 11)[2, 5]

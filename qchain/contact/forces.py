@@ -244,14 +244,17 @@ def contact_forces(arr, kind, prm, vel, law, calpha, q, qd, R_WB, p_WB, V0, tau,
                 a = calpha[i]
                 arc_node(a, l, ux, uy, 0.0, 0.0, 0.0, R1, p1, S1, Sd1)
                 _point(Rj, oj, p1, x)
-                _mat3(Rj, R1, Rs)
-                slice_twist(R1, p1, S1, Vj, qd[j], Vs)
+                moving = False  # the slice's world rotation and twist, made at its first contact
                 for b in range(m):
                     if near[b] == 0.0:
                         continue
                     d = r_s - signed_distance(kind[b], prm[b], x, nrm)
                     if d <= 0.0:
                         continue
+                    if not moving:
+                        _mat3(Rj, R1, Rs)
+                        slice_twist(R1, p1, S1, Vj, qd[j], Vs)
+                        moving = True
                     # the surface point x - r_s n: its world velocity v + w x arm
                     for r in range(3):
                         arm[r] = -r_s * nrm[r]

@@ -36,6 +36,7 @@ from ...contact.derivatives import NODE_T, environment_derivatives
 from ...contact.forces import ROOT
 from ...contact.distance import PARAMS, move
 from ...contact.forces import beyond_reach, contact_forces, load_forces
+from ...contact.planar import planar_contact_forces
 from ...algorithms.arrays import AbaDerivativesWorkspace, AbaWorkspace, ChainArrays, PlanarWorkspace, RneaWorkspace
 from ...model.arc import SCRATCH, arc_node, take1, take2
 from ...model.slices import slice_twist
@@ -464,8 +465,13 @@ def _environment(m, wk, t, q_c, v_c, f):
         move(env.kind, env.prm, env.motion, t, wk.prm_t, wk.vel)
         # the far test before the call: the call's arguments (the model's arrays) cost more than it
         if env.law[7] > 0.0 or not beyond_reach(m.arrays.radius, q_c, env.kind, wk.prm_t, wk.B[3, :3], wk.scratch):
-            count = contact_forces(m.arrays, env.kind, wk.prm_t, wk.vel, env.law, env.calpha, q_c, v_c, wk.R_WB,
-                                   wk.B[3, :3], wk.B[0], f, F_env, W[: n + 1], wk.roots, wk.nodes, W[:0], wk.scratch)
+            if m.planar_kernel == 1 and env.law[7] == 0.0:  # in-plane at 2-D cost (self-contact: the spatial pass)
+                count = planar_contact_forces(m.arrays, env.kind, wk.prm_t, wk.vel, env.law, env.calpha, q_c, v_c,
+                                              wk.R_WB, wk.B[3, :3], wk.B[0], f, F_env, W[: n + 1], wk.scratch)
+            else:
+                count = contact_forces(m.arrays, env.kind, wk.prm_t, wk.vel, env.law, env.calpha, q_c, v_c, wk.R_WB,
+                                       wk.B[3, :3], wk.B[0], f, F_env, W[: n + 1], wk.roots, wk.nodes, W[:0],
+                                       wk.scratch)
             if count > wk.info[2]:
                 wk.info[2] = count
     if env.seg.shape[0] > 0:
