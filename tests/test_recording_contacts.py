@@ -264,8 +264,8 @@ def test_foxglove_draws_forces_as_arrows_at_the_points_and_the_obstacles_as_shap
 @pytest.mark.parametrize("how", ["live", "replay"])
 def test_rerun_draws_the_obstacles_once_and_the_forces_as_arrows(tmp_path, how):
     """The .rrd of the run (live) and of `qchain replay` holds each obstacle as a static shape
-    of its kind, the moving one translated at each record by its law, and, for every record, the contact forces as arrows from the contact points
-    (scaled by force_ref) and the points."""
+    of its kind, the moving one translated at each record by its law, and, for every record,
+    the contact forces as arrows from the contact points (scaled by force_ref) and the points."""
     import rerun as rr
 
     from qchain.recording.replay import replay
@@ -495,7 +495,8 @@ def test_a_bad_motion_law_is_refused_where_runinfo_takes_it():
                              ("amplitude", [0.0, float("nan"), 0.0], "3 finite numbers"),
                              ("frequency", "2", "a finite number"), ("phase", None, "a finite number")):
         with pytest.raises(ValueError, match=f"obstacles\\[1\\]\\['motion'\\]\\['{key}'\\] must be {said}, got"):
-            RunInfo(n_segments=1, radii=[0.01], obstacles=[base | {"motion": None}, {**base, "motion": {**good, key: value}}])
+            RunInfo(n_segments=1, radii=[0.01],
+                    obstacles=[{**base, "motion": None}, {**base, "motion": {**good, key: value}}])
     with pytest.raises(ValueError, match="obstacles\\[0\\]\\['motion'\\] must be None or a dict"):
         RunInfo(n_segments=1, radii=[0.01], obstacles=[{**base, "motion": [1.0, 2.0]}])
 

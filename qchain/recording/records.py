@@ -62,7 +62,8 @@ TOPICS = {
 CONTACT_TOPICS = {
     "contacts": "/qchain/contacts",  # qchain.Contacts, JSON: each sample's active contacts
     "forces": "/qchain/contact_forces",  # foxglove.SceneUpdate: arrows (forces) at the contact points
-    "obstacles": "/qchain/obstacles",  # foxglove.SceneUpdate: the obstacles, once (lifetime: the whole run)
+    # foxglove.SceneUpdate: the obstacles (lifetime: the whole run), once; a record each if one moves
+    "obstacles": "/qchain/obstacles",
 }
 
 #: Most contacts a sample can record (a row of 11 x this many numbers at most)
