@@ -505,7 +505,8 @@ def test_foxglove_moves_a_moving_obstacle_each_record_and_draws_fixed_ones_once(
     """With a moving obstacle, /qchain/obstacles holds a scene update a record (what Foxglove
     shows after a seek is the topic's last message, so each holds every obstacle): the
     cylinder's centre is where the engine's law moves its axis at that record's time, the
-    fixed obstacles stay where they are. Without one, a single message."""
+    fixed obstacles stay where they are; a moving capsule's end balls go with it. Without a
+    moving obstacle, a single message."""
     records, contacts = arm_records(25, dt=1.7e-2), _contacts(25, seed=8)
     buf = _logged(records, contacts)
     msgs = _foxglove(buf, CONTACT_TOPICS["obstacles"])
@@ -521,6 +522,17 @@ def test_foxglove_moves_a_moving_obstacle_each_record_and_draws_fixed_ones_once(
         np.testing.assert_allclose([pole.x, pole.y, pole.z], 0.5 * (prm[0:3] + prm[3:6]), rtol=0, atol=1e-15)
         for i in (0, 1, 2, 4):
             assert _prims(e[f"obstacle_{i}"]) == _prims(first[f"obstacle_{i}"])
+    # a moving capsule: its cylinder and both end balls go along
+    drift = {"velocity": [0.0, 0.3, -0.1], "amplitude": [0.0, 0.0, 0.02], "frequency": 3.0, "phase": 0.5}
+    caps = dict(OBSTACLES[2], motion=drift)
+    msgs = _foxglove(_logged(arm_records(10, dt=2e-2), _contacts(10, seed=9),
+                             info=_info(obstacles=[*OBSTACLES[:2], caps, *OBSTACLES[3:]])), CONTACT_TOPICS["obstacles"])
+    moved = _compiled_move(caps, [r.t for r in arm_records(10, dt=2e-2)])
+    assert len(msgs) == 10 and np.abs(moved[-1, :3] - caps["a"]).max() > 0.05
+    for (_, upd), prm in zip(msgs, moved):
+        e = {x.id: x for x in upd.entities}["obstacle_2"]
+        got = [[p.pose.position.x, p.pose.position.y, p.pose.position.z] for p in (*e.cylinders, *e.spheres)]
+        np.testing.assert_allclose(got, [0.5 * (prm[0:3] + prm[3:6]), prm[0:3], prm[3:6]], rtol=0, atol=1e-15)
     fixed = _info(obstacles=[dict(ob, motion=None) for ob in OBSTACLES])
     msgs = _foxglove(_logged(arm_records(25, dt=1.7e-2), _contacts(25, seed=8), info=fixed),
                      CONTACT_TOPICS["obstacles"])
