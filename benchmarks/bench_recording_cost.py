@@ -21,7 +21,11 @@ Printed per sample:
 ``hand-over``  the engine's part: no-op run - bare run (shorter compiled stretches, the
                samples' energies);
 ``recorder``   the recorder's own part: record run - no-op run (the frames of a batch,
-               packing rows, the journal write).
+               packing rows, the journal write);
+``contacts``   a scene with obstacles only (``--scene examples/scenes/arm_on_ground.toml``):
+               what recording its contacts costs, record run - the same run recorded as a
+               scene without obstacles is (a fourth run a round: no contact channel, no
+               ``Chain.contacts`` a sample).
 
 The logger's fixed costs (constructor, close: waiting for the writer to finish the file) are
 printed apart: they do not grow with the run.
@@ -122,11 +126,12 @@ def main(argv=None) -> int:
     noop = NoOp()
     # warm: compiled engine, energies, frames_batch, the writer's imports
     scene.simulate(model=model, duration=1.0, on_sample=noop)
-    costs = {"off": [], "noop": [], "record": [], "open": [], "close": []}
+    contact = scene.environment is not None and bool(scene.environment.obstacles)
+    kinds = ["off", "noop", "record"] + (["record-nc"] if contact else [])
+    costs = {"open": [], "close": [], **{k: [] for k in kinds}}
     N = None
     for rnd in range(args.rounds + 1):
-        order = ["off", "noop", "record"]
-        order = order[rnd % 3:] + order[: rnd % 3]
+        order = kinds[rnd % len(kinds):] + kinds[: rnd % len(kinds)]
         for kind in order:
             if kind == "off":
                 c0 = time.process_time()
@@ -139,18 +144,25 @@ def main(argv=None) -> int:
             else:
                 prepare_writer()  # as qchain run does, during the model build
                 time.sleep(0.5)  # (the writer's start-up is not the simulating process's)
-                ns = argparse.Namespace(no_record=False, mcap=folder / f"r{rnd}.mcap", serve=False, connect=None,
+                ns = argparse.Namespace(no_record=False, mcap=folder / f"{kind}{rnd}.mcap", serve=False, connect=None,
                                         rrd=None, bind="127.0.0.1", rerun_rate=None, realtime=False)
                 c_open = time.process_time()
-                logger, rec = cli._make_logger(ns, scene, model, duration=args.duration)
+                with_contacts = cli._contact_recording
+                if kind == "record-nc":  # recorded as a scene without obstacles is
+                    cli._contact_recording = lambda chain, env: ({}, None)
+                try:
+                    logger, rec = cli._make_logger(ns, scene, model, duration=args.duration)
+                finally:
+                    cli._contact_recording = with_contacts
                 c0 = time.process_time()
                 with logger:
                     with rec:
                         traj = scene.simulate(model=model, duration=args.duration, on_sample=rec)
                     cpu = time.process_time() - c0
                     c_close = time.process_time()
-                costs["open"].append(c0 - c_open)
-                costs["close"].append(time.process_time() - c_close)
+                if kind == "record":
+                    costs["open"].append(c0 - c_open)
+                    costs["close"].append(time.process_time() - c_close)
                 assert isinstance(logger, RunLogger) and logger.close()["n_records"] == len(traj.t)
             N = len(traj.t)
             if rnd > 0:  # the first round warms up
@@ -158,6 +170,8 @@ def main(argv=None) -> int:
     off, noop_, rec_ = (np.array(costs[k]) for k in ("off", "noop", "record"))
     rows = [("total", (rec_ - off) / N), ("hand-over", (noop_ - off) / N), ("recorder", (rec_ - noop_) / N),
             ("bare simulation", off / N)]
+    if contact:
+        rows.insert(3, ("contacts", (rec_ - np.array(costs["record-nc"])) / N))
     print(f"{args.scene.name}: {args.duration:g} s simulated, {N} samples a run, {args.rounds} rounds "
           "(simulating process's CPU time a sample, us; median and bootstrap 95 % CI of the median)")
     print(f"{'':<18}{'median':>9}  {'95 % CI':>16}")
@@ -168,7 +182,7 @@ def main(argv=None) -> int:
         m, lo, hi = _median_ci(np.array(costs[name]) * 1e3)
         print(f"logger {name:<11}{m:>9.2f}  {lo:>7.2f} .. {hi:<7.2f} ms (once a run)")
     print("total: record - bare (target <= 10 us a sample); hand-over: no-op - bare (the engine's part); "
-          "recorder: record - no-op")
+          "recorder: record - no-op" + ("; contacts: record - record without contacts" if contact else ""))
     return 0
 
 

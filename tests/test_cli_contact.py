@@ -122,3 +122,94 @@ def test_the_arm_plot_draws_the_obstacles_as_each_view_sees_them():
     finally:
         plt.close(fig)
 
+
+
+def _touching_scene(tmp_path) -> Path:
+    """The example with its base lowered to 1 mm above where the tube touches the ground
+    (axis at 16 mm, radius 15 mm): the arm lands at once; 200 samples a second."""
+    text = EXAMPLE.read_text().replace("position = [0.0, 0.0, 0.05]", "position = [0.0, 0.0, 0.016]")
+    text = text.replace("sample_rate = 100.0", "sample_rate = 200.0")
+    assert "0.016" in text and "200.0" in text
+    p = tmp_path / "touching.toml"
+    p.write_text(text)
+    return p
+
+
+def _static_kinds(rrd) -> dict:
+    """entity path -> the archetypes of its static chunks, in a .rrd."""
+    import rerun as rr
+
+    kinds: dict = {}
+    for chunk in rr.chunk.RrdReader(rrd).stream():
+        if chunk.is_static:
+            kinds.setdefault(chunk.entity_path, set()).update(
+                n.split(":")[0] for n in chunk.to_record_batch().schema.names if ":" in n)
+    return kinds
+
+
+def test_a_run_records_the_scenes_obstacles_and_contacts_and_draws_them(tmp_path, capsys):
+    """`qchain run --mcap --rrd` of a scene with an obstacle: the recording holds the obstacles
+    (Environment.describe), a capacity of segments x contact points, force_ref the weight a
+    contact point carries lying flat; each sample's contacts are Chain.contacts at the recorded
+    (t, q, v) (the same points and forces, so the same force sums); the .rrd of the run and of
+    `qchain replay` draw the ground and the forces."""
+    from test_logging import _rrd_columns
+
+    from qchain.logging import read_recording
+
+    scene = _touching_scene(tmp_path)
+    mcap, rrd, rrd2 = tmp_path / "run.mcap", tmp_path / "run.rrd", tmp_path / "replay.rrd"
+    assert main(["run", str(scene), "--duration", "0.05", "--mcap", str(mcap), "--rrd", str(rrd), "--no-plots",
+                 "--no-progress"]) == 0
+    assert f"recorded {mcap} (11 samples, up to t = 0.05 s)" in capsys.readouterr().out
+    sc = load_scene(scene)
+    env, ch = sc.environment, sc.build().chain
+    rec = read_recording(mcap)
+    assert rec.info.obstacles == env.describe() and len(rec) == 11
+    assert rec.info.max_contacts == 3 * 16 * 1
+    assert rec.info.force_ref == pytest.approx(3 * 0.05 * 9.81 / (3 * 16), rel=1e-12)
+    touching = 0
+    for k in range(len(rec)):
+        want = ch.contacts(rec.q[k], rec.v[k], env, t=float(rec.t[k]))
+        got = rec.contact_set(k)
+        for name in ("point", "normal", "force", "segment", "obstacle"):
+            np.testing.assert_array_equal(getattr(got, name), getattr(want, name), err_msg=f"sample {k}: {name}")
+        np.testing.assert_array_equal(got.force.sum(axis=0), want.force.sum(axis=0))
+        touching += len(got.segment) > 0
+    assert touching >= 8  # it lands at once and stays: most samples touch
+    assert np.max([rec.contact_set(k).force[:, 2].sum() for k in range(len(rec))]) > 0.1  # N: the ground pushes up
+
+    assert main(["replay", str(mcap), "--rrd", str(rrd2)]) == 0
+    for path in (rrd, rrd2):
+        kinds = _static_kinds(path)
+        assert "Boxes3D" in kinds["/world/obstacles/0"], kinds  # the ground: a thin slab
+        cols, _ = _rrd_columns(path)
+        assert cols["/world/contacts/forces"]["step"] == list(range(11))
+        assert not any(p.startswith("/world/obstacles/") for p in cols)  # a fixed ground: no motion
+        k = int(np.argmax([len(rec.contact_set(j).segment) for j in range(len(rec))]))
+        origins = np.array(cols["/world/contacts/forces"]["origins"][k]).reshape(-1, 3)
+        np.testing.assert_allclose(origins, rec.contact_set(k).point, rtol=0, atol=1e-7)  # (float32)
+
+
+def test_a_run_without_obstacles_makes_no_contact_call():
+    """No environment, or point loads only: nothing of contact in the recording's RunInfo and
+    no contacts callable for the recorder (no contact call a sample). With obstacles: the
+    capacity counts up to two obstacles a point, bounded; force_ref uses standard gravity
+    when the run has none."""
+    from types import SimpleNamespace
+
+    from qchain.cli.main import MAX_RUN_CONTACTS, _contact_recording
+    from qchain.contact import Environment, HalfSpace, PointLoad, Sphere
+
+    sc = load_scene(EXAMPLE)
+    ch = sc.build().chain
+    assert _contact_recording(ch, None) == ({}, None)
+    assert _contact_recording(ch, Environment(loads=[PointLoad(0, 1.0, force=[0.0, 0.0, -1.0])])) == ({}, None)
+    info, contacts = _contact_recording(ch, sc.environment)
+    assert callable(contacts) and info["max_contacts"] == 48
+    three = Environment([HalfSpace(), Sphere([0.2, 0.0, 0.0], 0.05), Sphere([0.3, 0.0, 0.0], 0.05)], nodes=16)
+    assert _contact_recording(ch, three)[0]["max_contacts"] == 2 * 48
+    long = SimpleNamespace(n=40, segments=[SimpleNamespace(mass=0.05)] * 40, payload=None, gravity=np.zeros(3))
+    info, _ = _contact_recording(long, Environment([HalfSpace()], nodes=64))
+    assert info["max_contacts"] == MAX_RUN_CONTACTS < 40 * 64
+    assert info["force_ref"] == pytest.approx(40 * 0.05 * 9.80665 / (40 * 64), rel=1e-15)

@@ -44,7 +44,7 @@ FORCE_REF = 2.0
 
 def _info(**kw):
     d = arm_info().to_json()
-    d.update(obstacles=OBSTACLES, max_contacts=MAX_CONTACTS, force_ref=FORCE_REF, **kw)
+    d.update({"obstacles": OBSTACLES, "max_contacts": MAX_CONTACTS, "force_ref": FORCE_REF, **kw})
     return RunInfo.from_json(d)
 
 
@@ -85,7 +85,7 @@ def _logged(records, contacts, info=None, mcap=None, **kw):
 def test_mcap_round_trip_with_contacts_is_exact():
     """Ragged contacts (0 to 6 a sample) come back bit for bit, at their records; the obstacles
     come back as recorded; the contact messages follow their JSON schema, which Foxglove
-    reads; each channel has one message a record, the obstacles one in all."""
+    reads; each channel has one message a record (the obstacles too: one of them moves)."""
     records, contacts = arm_records(60, dt=1e-2), _contacts(60)
     buf = _logged(records, contacts)
     rec = read_recording(buf)
@@ -99,8 +99,9 @@ def test_mcap_round_trip_with_contacts_is_exact():
     reader = make_reader(buf)
     counts = {ch.topic: reader.get_summary().statistics.channel_message_counts[cid]
               for cid, ch in reader.get_summary().channels.items()}
+    # the obstacles: a message a record, since one of them (the cylinder) moves
     assert counts == {**{t: 60 for t in TOPICS.values()}, CONTACT_TOPICS["contacts"]: 60,
-                      CONTACT_TOPICS["forces"]: 60, CONTACT_TOPICS["obstacles"]: 1}
+                      CONTACT_TOPICS["forces"]: 60, CONTACT_TOPICS["obstacles"]: 60}
     _check_foxglove_readable(CONTACTS_SCHEMA)
     k = 0
     for schema, channel, msg in reader.iter_messages(topics=[CONTACT_TOPICS["contacts"]]):
@@ -218,8 +219,8 @@ def _q(p):
 def test_foxglove_draws_forces_as_arrows_at_the_points_and_the_obstacles_as_shapes():
     """Decoded with the published schemas (foxglove-schemas-protobuf): one arrow a contact, its
     tail at the contact point, along the force, force_ref drawn a quarter of the reach long;
-    the obstacles once at the first record's time, lifetime 0 (the whole run), each as its
-    primitive, where and as large as recorded."""
+    the obstacles at the first record's time, lifetime 0 (the whole run), each as its
+    primitive, where and as large as recorded (the moving cylinder's law is zero at t = 0)."""
     records, contacts = arm_records(20, dt=1e-2), _contacts(20, seed=5)
     buf = _logged(records, contacts)
     scale = force_scale(reach(_info(), records[0].backbone), FORCE_REF)
@@ -237,8 +238,8 @@ def test_foxglove_draws_forces_as_arrows_at_the_points_and_the_obstacles_as_shap
             along = _quat_rot(_q(a.pose))[:, 0]  # an arrow points along its pose's x axis
             np.testing.assert_allclose(along, f / np.linalg.norm(f), atol=1e-12)
             assert a.shaft_length + a.head_length == pytest.approx(np.linalg.norm(f) * scale, rel=1e-12)
-    (lt, upd), = _foxglove(buf, CONTACT_TOPICS["obstacles"])
-    assert lt == round(records[0].t * 1e9)
+    (lt, upd) = _foxglove(buf, CONTACT_TOPICS["obstacles"])[0]
+    assert lt == round(records[0].t * 1e9) and records[0].t == 0.0
     e = {x.id: x for x in upd.entities}
     assert list(e) == [f"obstacle_{i}" for i in range(5)]
     assert all(x.lifetime.seconds == 0 and x.lifetime.nanos == 0 and x.frame_id == "world" for x in e.values())
@@ -263,8 +264,8 @@ def test_foxglove_draws_forces_as_arrows_at_the_points_and_the_obstacles_as_shap
 @pytest.mark.parametrize("how", ["live", "replay"])
 def test_rerun_draws_the_obstacles_once_and_the_forces_as_arrows(tmp_path, how):
     """The .rrd of the run (live) and of `qchain replay` holds each obstacle as a static shape
-    of its kind and, for every record, the contact forces as arrows from the contact points
-    (scaled by force_ref) and the points."""
+    of its kind, the moving one translated at each record by its law, and, for every record,
+    the contact forces as arrows from the contact points (scaled by force_ref) and the points."""
     import rerun as rr
 
     from qchain.recording.replay import replay
@@ -287,6 +288,15 @@ def test_rerun_draws_the_obstacles_once_and_the_forces_as_arrows(tmp_path, how):
         "/world/obstacles/0": {"Boxes3D"}, "/world/obstacles/1": {"Ellipsoids3D"},
         "/world/obstacles/2": {"Capsules3D"}, "/world/obstacles/3": {"Cylinders3D"},
         "/world/obstacles/4": {"Boxes3D"}}
+    # the moving cylinder: its entity translated at every record by the engine's law, the
+    # others never (their shapes are where they are at t = 0)
+    assert [p for p in cols if p.startswith("/world/obstacles/")] == ["/world/obstacles/3"]
+    pole = cols["/world/obstacles/3"]
+    assert pole["step"] == [r.step for r in records] and pole["t"] == [round(r.t * 1e9) for r in records]
+    moved = _compiled_move(OBSTACLES[3], [r.t for r in records])
+    np.testing.assert_allclose(np.array(pole["translation"]).reshape(-1, 3), moved[:, :3] - OBSTACLES[3]["a"],
+                               rtol=0, atol=1e-9)  # (float32 in Rerun: 1e-9 of a 1 cm swing)
+    assert np.abs(moved[:, 0] - OBSTACLES[3]["a"][0]).max() > 5e-3
     scale = force_scale(reach(_info(), records[0].backbone), FORCE_REF)
     arrows, points = cols["/world/contacts/forces"], cols["/world/contacts/points"]
     assert arrows["step"] == [r.step for r in records]
@@ -434,3 +444,101 @@ def test_the_shapes_orientations_turn_their_axes_where_the_obstacles_say():
     for a, b in [*rng.normal(size=(50, 2, 3)), ([0, 0, 1.0], [0, 0, -1.0]), ([1.0, 0, 0], [-2.0, 0, 0])]:
         got = _quat_rot(quat_between(a, b)) @ (np.asarray(a) / np.linalg.norm(a))
         np.testing.assert_allclose(got, np.asarray(b) / np.linalg.norm(b), atol=1e-12)
+
+
+def _compiled_move(ob: dict, t) -> np.ndarray:
+    """The obstacle ``ob`` (RunInfo.obstacles form) moved to the times ``t`` (K,) by the
+    engine's compiled ``qchain.contact.distance.move``: its parameter rows (K, PARAMS)."""
+    from qchain.contact.distance import CAPSULE, CYLINDER, MOTION, PARAMS, SPHERE, move
+
+    kind = {"sphere": SPHERE, "capsule": CAPSULE, "cylinder": CYLINDER}[ob["type"]]
+    row = np.zeros((1, PARAMS))
+    if kind == SPHERE:
+        row[0, :4] = [*ob["center"], ob["radius"]]
+    else:
+        row[0, :7] = [*ob["a"], *ob["b"], ob["radius"]]
+    mo = np.zeros((1, MOTION))
+    m = ob["motion"]
+    mo[0] = [*m["velocity"], *m["amplitude"], m["frequency"], m["phase"]]
+    out = []
+    for tk in np.atleast_1d(t):
+        prm_t, vel = np.empty((1, PARAMS)), np.empty((1, 3))
+        move(np.array([kind]), row, mo, float(tk), prm_t, vel)
+        out.append(prm_t[0].copy())
+    return np.array(out)
+
+
+def test_the_viewers_motion_law_is_the_engines():
+    """scenery.motion_offset (numpy, for the writer process and replays) gives the translation
+    the compiled engine moves an obstacle by (qchain.contact.distance.move), for drifting and
+    oscillating motions over long times; None is at rest."""
+    from qchain.recording.scenery import motion_offset
+
+    rng = np.random.default_rng(12)
+    t = np.concatenate([[0.0], np.sort(rng.uniform(0.0, 50.0, 200))])
+    for _ in range(20):
+        m = {"velocity": rng.normal(size=3).tolist(), "amplitude": rng.uniform(-0.1, 0.1, 3).tolist(),
+             "frequency": float(rng.uniform(0.0, 20.0)), "phase": float(rng.uniform(-np.pi, np.pi))}
+        ob = {"type": "sphere", "center": [0.0, 0.0, 0.0], "radius": 0.1, "motion": m}
+        want = _compiled_move(ob, t)[:, :3]
+        got = motion_offset(m, t)
+        np.testing.assert_allclose(got, want, rtol=0, atol=4 * np.finfo(float).eps * max(1.0, np.abs(want).max()))
+        assert np.abs(got).max() > 0.0
+    np.testing.assert_array_equal(motion_offset(None, t), np.zeros((t.size, 3)))
+
+
+def test_a_bad_motion_law_is_refused_where_runinfo_takes_it():
+    base = {"type": "sphere", "center": [0.0, 0.0, 0.0], "radius": 0.1}
+    good = {"velocity": [0.0, 0.0, 0.0], "amplitude": [0.01, 0.0, 0.0], "frequency": 1.0, "phase": 0.0}
+    RunInfo(n_segments=1, radii=[0.01], obstacles=[{**base, "motion": good}])
+    for key, value, said in (("velocity", [0.0, 1.0], "3 finite numbers"),
+                             ("amplitude", [0.0, float("nan"), 0.0], "3 finite numbers"),
+                             ("frequency", "2", "a finite number"), ("phase", None, "a finite number")):
+        with pytest.raises(ValueError, match=f"obstacles\\[1\\]\\['motion'\\]\\['{key}'\\] must be {said}, got"):
+            RunInfo(n_segments=1, radii=[0.01],
+                    obstacles=[{**base, "motion": None}, {**base, "motion": {**good, key: value}}])
+    with pytest.raises(ValueError, match="obstacles\\[0\\]\\['motion'\\] must be None or a dict"):
+        RunInfo(n_segments=1, radii=[0.01], obstacles=[{**base, "motion": [1.0, 2.0]}])
+
+
+def test_foxglove_moves_a_moving_obstacle_each_record_and_draws_fixed_ones_once():
+    """With a moving obstacle, /qchain/obstacles holds a scene update a record (what Foxglove
+    shows after a seek is the topic's last message, so each holds every obstacle): the
+    cylinder's centre is where the engine's law moves its axis at that record's time, the
+    fixed obstacles stay where they are; a moving capsule's end balls go with it. Without a
+    moving obstacle, a single message."""
+    records, contacts = arm_records(25, dt=1.7e-2), _contacts(25, seed=8)
+    buf = _logged(records, contacts)
+    msgs = _foxglove(buf, CONTACT_TOPICS["obstacles"])
+    assert [lt for lt, _ in msgs] == [round(r.t * 1e9) for r in records]
+    first = {e.id: e for e in msgs[0][1].entities}
+    moved = _compiled_move(OBSTACLES[3], [r.t for r in records])
+    assert np.abs(moved[:, 0] - OBSTACLES[3]["a"][0]).max() > 5e-3  # it does move (by up to 1 cm)
+    for (lt, upd), prm in zip(msgs, moved):
+        e = {x.id: x for x in upd.entities}
+        assert list(e) == [f"obstacle_{i}" for i in range(5)]
+        assert all(x.lifetime.seconds == 0 and x.lifetime.nanos == 0 for x in e.values())
+        pole = e["obstacle_3"].cylinders[0].pose.position
+        np.testing.assert_allclose([pole.x, pole.y, pole.z], 0.5 * (prm[0:3] + prm[3:6]), rtol=0, atol=1e-15)
+        for i in (0, 1, 2, 4):
+            assert _prims(e[f"obstacle_{i}"]) == _prims(first[f"obstacle_{i}"])
+    # a moving capsule: its cylinder and both end balls go along
+    drift = {"velocity": [0.0, 0.3, -0.1], "amplitude": [0.0, 0.0, 0.02], "frequency": 3.0, "phase": 0.5}
+    caps = dict(OBSTACLES[2], motion=drift)
+    msgs = _foxglove(_logged(arm_records(10, dt=2e-2), _contacts(10, seed=9),
+                             info=_info(obstacles=[*OBSTACLES[:2], caps, *OBSTACLES[3:]])), CONTACT_TOPICS["obstacles"])
+    moved = _compiled_move(caps, [r.t for r in arm_records(10, dt=2e-2)])
+    assert len(msgs) == 10 and np.abs(moved[-1, :3] - caps["a"]).max() > 0.05
+    for (_, upd), prm in zip(msgs, moved):
+        e = {x.id: x for x in upd.entities}["obstacle_2"]
+        got = [[p.pose.position.x, p.pose.position.y, p.pose.position.z] for p in (*e.cylinders, *e.spheres)]
+        np.testing.assert_allclose(got, [0.5 * (prm[0:3] + prm[3:6]), prm[0:3], prm[3:6]], rtol=0, atol=1e-15)
+    fixed = _info(obstacles=[dict(ob, motion=None) for ob in OBSTACLES])
+    msgs = _foxglove(_logged(arm_records(25, dt=1.7e-2), _contacts(25, seed=8), info=fixed),
+                     CONTACT_TOPICS["obstacles"])
+    assert len(msgs) == 1 and msgs[0][0] == 0
+
+
+def _prims(entity):
+    """A scene entity's primitives (everything but its timestamp), serialised."""
+    return [p.SerializeToString() for kind in ("cubes", "spheres", "cylinders") for p in getattr(entity, kind)]

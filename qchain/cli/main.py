@@ -363,6 +363,7 @@ def _make_logger(args, scene: Scene, model: SceneModel, duration: float | None =
     ch = model.chain
     q_names, v_names = series_names(ch)
     stem = _recording_stem(scene.path) if scene.path else None
+    contact, contacts = _contact_recording(ch, scene.environment)
     info = qlog.RunInfo(
         n_segments=ch.n,
         radii=[s.radius for s in ch.segments],
@@ -385,13 +386,41 @@ def _make_logger(args, scene: Scene, model: SceneModel, duration: float | None =
         q_names=q_names,
         v_names=v_names,
         duration=duration if duration is not None else scene.duration,
+        **contact,
     )
     if args.no_record and not args.mcap:  # a viewer or .rrd only: the same rate as with a recording
         logger = qlog.RunLogger(info, None, serve=args.serve, connect=args.connect, rrd=args.rrd, bind=args.bind,
                                 linger=args.serve, **{"rerun_rate": args.rerun_rate, **logger_kwargs})
     else:
         logger = qlog.logger_from_args(args, info, **logger_kwargs)
-    return logger, ChainRecorder(logger, ch, realtime=bool(getattr(args, "realtime", False)))
+    return logger, ChainRecorder(logger, ch, realtime=bool(getattr(args, "realtime", False)), contacts=contacts)
+
+
+#: Contacts a sample of ``qchain run`` records at most (``RunInfo.max_contacts``): 11 numbers
+#: each travel in every row of the journal, NaN-padded; past it a sample keeps its largest forces.
+MAX_RUN_CONTACTS = 1024
+
+
+def _contact_recording(chain, env) -> tuple[dict, object]:
+    """What a run with obstacles records of them: the :class:`~qchain.logging.RunInfo` fields
+    (``obstacles`` = ``env.describe()``; ``max_contacts`` = segments x contact points x the
+    obstacles counted up to two (a point seldom touches more at once than the ground and a
+    wall), bounded by :data:`MAX_RUN_CONTACTS`; ``force_ref`` (N) = the weight a contact point carries when the
+    arm lies flat, ``m g / (n nodes)`` with the arm's and payload's mass ``m`` and standard
+    gravity for a weightless run, so a resting arm's forces are drawn a quarter reach long)
+    and the recorder's ``contacts(t, q, v)`` (:meth:`qchain.Chain.contacts`). ``({}, None)``
+    without obstacles (``env`` None, or loads only): no contact channel, no contact call."""
+    if env is None or not env.obstacles:
+        return {}, None
+    import numpy as np
+    from scipy.constants import g as standard_gravity
+
+    n_points = chain.n * env.nodes
+    mass = sum(s.mass for s in chain.segments) + (chain.payload.mass if chain.payload is not None else 0.0)
+    g = float(np.linalg.norm(chain.gravity)) or standard_gravity
+    info = {"obstacles": env.describe(), "max_contacts": min(n_points * min(len(env.obstacles), 2), MAX_RUN_CONTACTS),
+            "force_ref": mass * g / n_points}
+    return info, lambda t, q, v: chain.contacts(q, v, env, t)
 
 
 def _info(args) -> int:

@@ -30,6 +30,7 @@ from .scenery import (
     CONTACT_COLOR,
     OBSTACLE_COLOR,
     force_scale,
+    motion_offset,
     obstacle_shapes,
     quat_between,
 )
@@ -190,6 +191,7 @@ class McapSink:
         self._last_flush_wall = time.monotonic()
         self._open = 0  # records in the open chunk
         self._static = None
+        self._obstacles: tuple[list, list[int]] = ([], [])  # their shapes, the moving ones (_obstacle_parts)
         self.n_records = 0
         self.last_t: float | None = None
         self.finished = False
@@ -221,7 +223,10 @@ class McapSink:
             self._static = self._statics(n)
             self._scale = force_scale(arm_reach(self.info, b.backbone[0]), self.info.force_ref)
             if "obstacles" in self._ch:
-                self._write_obstacles(b)
+                self._obstacles = self._obstacle_parts(b)
+                if not self._obstacles[1]:  # none moves: one message for the whole run
+                    lt = ns(float(b.t[0]))
+                    self._write_obstacles(lt, 0, np.zeros((len(self.info.obstacles or ()), 3)))
         colors, names, fields, identity = self._static
         dumps, opt, w, ch = self._dumps, self._opt, self._w, self._ch
         ns_all = np.rint(b.t * 1e9).astype(np.int64)
@@ -231,6 +236,7 @@ class McapSink:
         ts, steps, lts = b.t.tolist(), b.step.tolist(), ns_all.tolist()
         radii = self.info.radii
         last_flush_t = self._last_flush_t
+        moved = self._obstacle_offsets(b) if "obstacles" in ch and self._obstacles[1] else None
         for k in range(K):
             t, step, lt = ts[k], steps[k], lts[k]
             seq = step & 0xFFFFFFFF
@@ -258,6 +264,8 @@ class McapSink:
             w.add_message(ch["points"], lt, pts.encode(), lt, seq)
             if "contacts" in ch:
                 self._write_contacts(b, k, lt, seq, stamp)
+            if moved is not None:
+                self._write_obstacles(lt, seq, moved[k])
             self._open += 1
             if last_flush_t is None:
                 last_flush_t = t
@@ -269,16 +277,37 @@ class McapSink:
         self.last_t = ts[-1]
         self.tick()
 
-    def _write_obstacles(self, b: Batch) -> None:
-        """The obstacles, once, at the first record's time; lifetime 0: for the whole run."""
+    def _obstacle_parts(self, b: Batch):
+        """The obstacles' shapes at ``t = 0`` (:func:`obstacle_shapes`, sized by the first
+        record's reach) and the indices of those that move."""
+        shapes = obstacle_shapes(self.info.obstacles, 2.0 * arm_reach(self.info, b.backbone[0]))
+        return shapes, [sh.index for sh in shapes if self.info.obstacles[sh.index].get("motion") is not None]
+
+    def _obstacle_offsets(self, b: Batch) -> np.ndarray:
+        """Every obstacle's translation from ``t = 0`` (K, m, 3) m at the batch's records (zeros
+        for a fixed one), by its law in ``RunInfo.obstacles`` (:func:`motion_offset`)."""
+        out = np.zeros((len(b), len(self.info.obstacles or ()), 3))
+        for i in self._obstacles[1]:
+            out[:, i] = motion_offset(self.info.obstacles[i]["motion"], b.t)
+        return out
+
+    def _write_obstacles(self, lt: int, seq: int, offsets: np.ndarray) -> None:
+        """All the obstacles, lifetime 0, each translated by ``offsets[i]`` (m, 3) m, at the
+        time ``lt`` ns. Without a moving obstacle this is one message at the first record's
+        time; with one, a message each record holding them all: Foxglove shows, after a seek,
+        the last message of a topic before the time sought, so each message draws the whole
+        scene where it is then (a frame-locked entity on a moving frame would depend on the
+        transforms around the time instead)."""
         fm = self._fm
-        lt = ns(float(b.t[0]))
         stamp = fm.Timestamp(lt // 1_000_000_000, lt % 1_000_000_000)
         color = fm.Color(r=OBSTACLE_COLOR[0] / 255.0, g=OBSTACLE_COLOR[1] / 255.0, b=OBSTACLE_COLOR[2] / 255.0,
                          a=0.5)
+        unturned = fm.Quaternion(x=0.0, y=0.0, z=0.0, w=1.0)
         entities = []
-        for i, sh in enumerate(obstacle_shapes(self.info.obstacles, 2.0 * arm_reach(self.info, b.backbone[0]))):
-            pose = fm.Pose(position=fm.Vector3(x=sh.center[0], y=sh.center[1], z=sh.center[2]),
+        for sh in self._obstacles[0]:
+            i, u = sh.index, offsets[sh.index]
+            c = sh.center + u
+            pose = fm.Pose(position=fm.Vector3(x=c[0], y=c[1], z=c[2]),
                            orientation=fm.Quaternion(x=sh.quaternion[0], y=sh.quaternion[1], z=sh.quaternion[2],
                                                      w=sh.quaternion[3]))
             size = fm.Vector3(x=sh.size[0], y=sh.size[1], z=sh.size[2])
@@ -293,12 +322,12 @@ class McapSink:
                 if sh.kind == "capsule":
                     ob = self.info.obstacles[i]
                     ball = fm.Vector3(x=sh.size[0], y=sh.size[0], z=sh.size[0])
+                    ends = (np.asarray(ob["a"], dtype=float) + u, np.asarray(ob["b"], dtype=float) + u)
                     prim["spheres"] = [fm.SpherePrimitive(pose=fm.Pose(position=fm.Vector3(x=e[0], y=e[1], z=e[2]),
-                                                                       orientation=fm.Quaternion(x=0.0, y=0.0, z=0.0,
-                                                                                                 w=1.0)),
-                                                          size=ball, color=color) for e in (ob["a"], ob["b"])]
+                                                                       orientation=unturned),
+                                                          size=ball, color=color) for e in ends]
             entities.append(fm.SceneEntity(timestamp=stamp, frame_id="world", id=f"obstacle_{i}", **prim))
-        self._w.add_message(self._ch["obstacles"], lt, fm.SceneUpdate(entities=entities).encode(), lt, 0)
+        self._w.add_message(self._ch["obstacles"], lt, fm.SceneUpdate(entities=entities).encode(), lt, seq)
 
     def _write_contacts(self, b: Batch, k: int, lt: int, seq: int, stamp) -> None:
         """Record ``k``'s contacts: the JSON message and the force arrows at the points."""

@@ -20,6 +20,7 @@ import numpy as np
 
 from .. import __version__
 from ..errors import LoggingError, LoggingWarning, RecordingFormatError
+from .scenery import motion_law
 
 __all__ = [
     "StepRecord",
@@ -61,7 +62,8 @@ TOPICS = {
 CONTACT_TOPICS = {
     "contacts": "/qchain/contacts",  # qchain.Contacts, JSON: each sample's active contacts
     "forces": "/qchain/contact_forces",  # foxglove.SceneUpdate: arrows (forces) at the contact points
-    "obstacles": "/qchain/obstacles",  # foxglove.SceneUpdate: the obstacles, once (lifetime: the whole run)
+    # foxglove.SceneUpdate: the obstacles (lifetime: the whole run), once; a record each if one moves
+    "obstacles": "/qchain/obstacles",
 }
 
 #: Most contacts a sample can record (a row of 11 x this many numbers at most)
@@ -332,8 +334,10 @@ class RunInfo:
         ``"halfspace"``, ``"sphere"``, ``"capsule"``, ``"cylinder"``, ``"box"``), its
         parameters in m (halfspace ``point``, ``normal``; sphere ``center``, ``radius``;
         capsule and cylinder ``a``, ``b``, ``radius``; box ``center``, ``half_extents``,
-        ``rotation`` (3 x 3)) and ``"motion"`` (a dict, or None for a fixed obstacle); the
-        viewers draw them. ``None``: the run has no environment (a recording from before
+        ``rotation`` (3 x 3)) and ``"motion"`` (None for a fixed obstacle, else ``velocity``
+        (3,) m/s, ``amplitude`` (3,) m, ``frequency`` Hz, ``phase`` rad, all finite: the
+        viewers move it by ``u(t) = velocity t + amplitude sin(2 pi frequency t + phase)``);
+        the viewers draw them. ``None``: the run has no environment (a recording from before
         contact reads back so).
     force_ref : float, N
         Contact force drawn as an arrow a quarter of the arm's reach long (e.g. the arm's
@@ -416,6 +420,7 @@ class RunInfo:
                 if not isinstance(ob, dict) or not isinstance(ob.get("type"), str):
                     raise ValueError(f"obstacles[{i}] must be a dict with a 'type' string, got {ob!r}")
                 _utf8(f"obstacles[{i}]['type']", ob["type"])
+                motion_law(ob.get("motion"), f"obstacles[{i}]['motion']")  # the viewers move it by this law
             self.obstacles = obstacles
         mc = self.max_contacts
         if isinstance(mc, bool) or not isinstance(mc, (int, np.integer)) or not 0 <= mc <= MAX_CONTACTS:

@@ -21,7 +21,7 @@ from urllib.parse import quote, urlsplit
 import numpy as np
 
 from .records import SEGMENT_COLORS, Batch, LoggingError, RunInfo
-from .scenery import CONTACT_COLOR, OBSTACLE_COLOR, force_scale, obstacle_shapes
+from .scenery import CONTACT_COLOR, OBSTACLE_COLOR, force_scale, motion_offset, obstacle_shapes
 from .scenery import reach as arm_reach
 
 __all__ = ["RerunSink", "camera", "probe_viewer", "bound_rerun_exit", "CONNECT_TIMEOUT", "DEFAULT_BIND",
@@ -312,6 +312,7 @@ class RerunSink:
         self.web: subprocess.Popen | None = None
         self.front = None
         self.started = False
+        self._moving: list = []  # (entity path, motion) of the moving obstacles (_log_obstacles)
         os.environ.update({k: v for k, v in quiet_env().items() if k in ("RERUN_ANALYTICS", "DO_NOT_TRACK")})
         import rerun as rr
         import rerun.blueprint as rrb
@@ -491,11 +492,15 @@ class RerunSink:
 
     def _log_obstacles(self, extent: float) -> None:
         """The obstacles as static shapes under ``world/obstacles/<i>`` (a half-space: a thin
-        slab ``2 extent`` m wide), drawn where they are at ``t = 0``."""
+        slab ``2 extent`` m wide), drawn where they are at ``t = 0``; a moving one's entity gets
+        its translation each sample (:meth:`_send_obstacle_motion`)."""
         rr, rec = self.rr, self.rec
         color = [OBSTACLE_COLOR + (160,)]
-        for i, sh in enumerate(obstacle_shapes(self.info.obstacles, extent)):
+        for sh in obstacle_shapes(self.info.obstacles, extent):
+            i = sh.index
             path = f"world/obstacles/{i}"
+            if self.info.obstacles[i].get("motion") is not None:
+                self._moving.append((path, self.info.obstacles[i]["motion"]))
             if sh.kind == "box":
                 rec.log(path, rr.Boxes3D(centers=[sh.center], half_sizes=[0.5 * sh.size], quaternions=[sh.quaternion],
                                          colors=color, fill_mode="solid"), static=True)
@@ -509,6 +514,14 @@ class RerunSink:
                 a = np.asarray(self.info.obstacles[i]["a"], dtype=float)
                 rec.log(path, rr.Capsules3D(translations=[a], lengths=[sh.size[2]], radii=[0.5 * sh.size[0]],
                                             quaternions=[sh.quaternion], colors=color, fill_mode="solid"), static=True)
+
+    def _send_obstacle_motion(self, b: Batch, idx) -> None:
+        """Each moving obstacle's translation from ``t = 0`` at every record, as the
+        ``Transform3D`` of its entity (its static shape is drawn in that entity's frame), from
+        the law in ``RunInfo.obstacles``: a replay recomputes it from the records' times."""
+        for path, motion in self._moving:
+            self.rec.send_columns(path, indexes=idx,
+                                  columns=self.rr.Transform3D.columns(translation=motion_offset(motion, b.t)))
 
     def _send_contacts(self, b: Batch, idx) -> None:
         """Each record's contact forces as arrows at the contact points (and the points)."""
@@ -559,6 +572,8 @@ class RerunSink:
             rec.send_columns(f"plots/q/{key}", indexes=idx, columns=rr.Scalars.columns(scalars=b.q[:, sl]))
         rec.send_columns("plots/v", indexes=idx, columns=rr.Scalars.columns(scalars=b.v))
         rec.send_columns("plots/energy", indexes=idx, columns=rr.Scalars.columns(scalars=b.energy))
+        if self._moving:
+            self._send_obstacle_motion(b, idx)
         if b.contacts is not None:
             self._send_contacts(b, idx)
 

@@ -1,7 +1,7 @@
 """What the viewers draw besides the arm: the obstacles of ``RunInfo.obstacles`` as primitive
-shapes, and the contact forces as arrows. Plain numpy, in one place for both viewers (the
-Foxglove messages of :mod:`qchain.recording.mcap_sink`, the Rerun view of
-:mod:`qchain.recording.rerun_sink`)."""
+shapes, moved by their prescribed motions, and the contact forces as arrows. Plain numpy, in
+one place for both viewers (the Foxglove messages of :mod:`qchain.recording.mcap_sink`, the
+Rerun view of :mod:`qchain.recording.rerun_sink`)."""
 
 from __future__ import annotations
 
@@ -15,6 +15,8 @@ __all__ = [
     "OBSTACLE_COLOR",
     "Shape",
     "force_scale",
+    "motion_law",
+    "motion_offset",
     "obstacle_shapes",
     "quat_between",
     "quat_from_matrix",
@@ -32,12 +34,14 @@ class Shape(NamedTuple):
     ``center`` (3,) m (a capsule's: the midpoint of its axis); ``quaternion`` (4,) x, y, z, w
     turning the primitive's own axes into the world's (a cylinder's and a capsule's axis is
     its own z); ``size`` (3,) m, the full extents (a sphere's: its diameter thrice; a
-    cylinder's and a capsule's: diameter, diameter, axis length without the caps)."""
+    cylinder's and a capsule's: diameter, diameter, axis length without the caps); ``index``
+    the obstacle's index in ``RunInfo.obstacles``."""
 
     kind: str
     center: np.ndarray
     quaternion: np.ndarray
     size: np.ndarray
+    index: int = -1
 
 
 def quat_from_matrix(R: np.ndarray) -> np.ndarray:
@@ -78,30 +82,71 @@ def quat_between(a, b) -> np.ndarray:
 
 
 def obstacle_shapes(obstacles: list[dict] | None, extent: float) -> list[Shape]:
-    """The primitives of ``RunInfo.obstacles`` (at ``t = 0``), one an obstacle, in order. A
-    half-space is a square slab ``2 extent`` (m) wide whose top face is the plane; an
-    obstacle of a type this qchain does not know is skipped (a newer recording)."""
+    """The primitives of ``RunInfo.obstacles`` (at ``t = 0``), one an obstacle, in order (each
+    with its ``index``). A half-space is a square slab ``2 extent`` (m) wide whose top face is
+    the plane; an obstacle of a type this qchain does not know is skipped (a newer recording).
+    A moving obstacle is drawn here and translated by :func:`motion_offset` at each sample."""
     out = []
-    for ob in obstacles or ():
+    for i, ob in enumerate(obstacles or ()):
         kind = ob.get("type")
         if kind == "halfspace":
             n = np.asarray(ob["normal"], dtype=float)
             n = n / np.linalg.norm(n)
             th = HALFSPACE_THICKNESS * 2.0 * extent
             out.append(Shape("box", np.asarray(ob["point"], dtype=float) - 0.5 * th * n,
-                             quat_between([0.0, 0.0, 1.0], n), np.array([2.0 * extent, 2.0 * extent, th])))
+                             quat_between([0.0, 0.0, 1.0], n), np.array([2.0 * extent, 2.0 * extent, th]), i))
         elif kind == "sphere":
             out.append(Shape("sphere", np.asarray(ob["center"], dtype=float), np.array([0.0, 0.0, 0.0, 1.0]),
-                             np.full(3, 2.0 * float(ob["radius"]))))
+                             np.full(3, 2.0 * float(ob["radius"])), i))
         elif kind in ("cylinder", "capsule"):
             a, b = np.asarray(ob["a"], dtype=float), np.asarray(ob["b"], dtype=float)
             d, r = float(ob["radius"]), b - a
             out.append(Shape(kind, 0.5 * (a + b), quat_between([0.0, 0.0, 1.0], r),
-                             np.array([2.0 * d, 2.0 * d, float(np.linalg.norm(r))])))
+                             np.array([2.0 * d, 2.0 * d, float(np.linalg.norm(r))]), i))
         elif kind == "box":
             out.append(Shape("box", np.asarray(ob["center"], dtype=float), quat_from_matrix(ob["rotation"]),
-                             2.0 * np.asarray(ob["half_extents"], dtype=float)))
+                             2.0 * np.asarray(ob["half_extents"], dtype=float), i))
     return out
+
+
+def motion_law(motion, name: str = "motion") -> tuple[np.ndarray, np.ndarray, float, float] | None:
+    """An obstacle's ``"motion"`` entry of ``RunInfo.obstacles`` (as
+    :meth:`qchain.contact.Environment.describe` writes it) checked and unpacked: ``velocity``
+    (3,) m/s, ``amplitude`` (3,) m, ``frequency`` Hz, ``phase`` rad, all finite; None for a
+    fixed obstacle (``motion`` None). A ``ValueError`` names ``name`` and what is wrong."""
+    if motion is None:
+        return None
+    if not isinstance(motion, dict):
+        raise ValueError(f"{name} must be None or a dict of velocity, amplitude, frequency and phase, got "
+                         f"{type(motion).__name__}")
+    out = []
+    for key, shape in (("velocity", (3,)), ("amplitude", (3,)), ("frequency", ()), ("phase", ())):
+        value = motion.get(key)
+        try:
+            x = np.asarray(value, dtype=float)
+        except (TypeError, ValueError):
+            x = None
+        if x is None or x.shape != shape or not np.all(np.isfinite(x)) or isinstance(value, (bool, str)):
+            what = "3 finite numbers" if shape else "a finite number"
+            raise ValueError(f"{name}['{key}'] must be {what}, got {value!r}")
+        out.append(x if shape else float(x))
+    return out[0], out[1], out[2], out[3]
+
+
+def motion_offset(motion, t) -> np.ndarray:
+    """The translation ``u(t) = velocity t + amplitude sin(2 pi frequency t + phase)`` (K, 3) m,
+    world frame, of an obstacle whose ``RunInfo.obstacles`` entry has the ``"motion"``
+    ``motion`` (:func:`motion_law`; None: zeros), at the times ``t`` (K,) s. The numpy twin of
+    the compiled :func:`qchain.contact.distance.move` (the writer process and a replay load no
+    numba), in the same operations (``tests/test_recording_contacts.py`` holds them equal)."""
+    t = np.asarray(t, dtype=float).reshape(-1)
+    law = motion_law(motion)
+    if law is None:
+        return np.zeros((t.shape[0], 3))
+    velocity, amplitude, frequency, phase = law
+    w = 2.0 * np.pi * frequency
+    s = np.sin(w * t + phase)
+    return velocity[None, :] * t[:, None] + amplitude[None, :] * s[:, None]
 
 
 def force_scale(reach: float, force_ref: float) -> float:
