@@ -106,21 +106,22 @@ def main(argv=None) -> dict:
     q_load, updates = weight_as_tip_load(ch, p_end)  # from the straight arm: no use of eq
     load_vs_payload = float(np.linalg.norm(ch.tip_placement(q_load).translation - ch.tip_placement(eq.q).translation))
 
-    print(f"payload: {P.mass * 1e3:g} g ball of {ball * 1e3:.3g} mm radius, {P.mass / arm_mass:.0%} of the arm's "
-          f"{arm_mass * 1e3:g} g; peak pressure {peak / 1e3:.4g} kPa (chamber {j_peak % 3 + 1} of segment {j_peak // 3} "
-          f"at t = {traj.t[k_peak]:.2f} s)")
-    print(f"lift: the ball's centre from z = {hang_com[2] * 1e3:.1f} mm (hanging, static) to {com[k_up, 2] * 1e3:.1f} mm "
-          f"at t = {traj.t[k_up]:.2f} s: lifted {lift * 1e3:.1f} mm")
+    print(f"payload: {P.mass * 1e3:g} g ball of {ball * 1e3:.3g} mm radius, {P.mass / arm_mass:.0%} of the "
+          f"arm's {arm_mass * 1e3:g} g; peak pressure {peak / 1e3:.4g} kPa (chamber {j_peak % 3 + 1} of segment "
+          f"{j_peak // 3} at t = {traj.t[k_peak]:.2f} s)")
+    print(f"lift: the ball's centre from z = {hang_com[2] * 1e3:.1f} mm (hanging, static) to "
+          f"{com[k_up, 2] * 1e3:.1f} mm at t = {traj.t[k_up]:.2f} s: lifted {lift * 1e3:.1f} mm")
     if T > LIFTED:
-        print(f"carry: {abs(carried):.1f} deg round the vertical through the base ({'counter-' if carried > 0 else ''}"
-              f"clockwise seen from above), the ball's centre between z = "
-              f"{during.min() * 1e3:.1f} and {during.max() * 1e3:.1f} mm on the way")
-    print(f"end (t = {T:g} s): the ball moves at {speed * 1e3:.2g} mm/s, its centre {to_static * 1e3:.3g} mm from the static "
-          f"shape at these pressures (qchain.equilibrium, {'converged' if eq.success else 'NOT converged'}); that shape's "
-          f"tip {load_vs_payload * 1e3:.2g} mm from the bare arm's carrying the ball's weight as a tip PointLoad "
-          f"({updates} load updates)")
-    print(f"simulated {T:g} s in {wall:.3g} s wall (not counting {traj.meta.get('compile_s', 0.0):.2g} s compiling or "
-          f"loading the engine): {wall / T:.3g} s wall per simulated second ({sc.method}, {traj.nfev} right-hand sides)")
+        turn = "counter-clockwise" if carried > 0 else "clockwise"
+        print(f"carry: {abs(carried):.1f} deg round the vertical through the base ({turn} seen from above), the "
+              f"ball's centre between z = {during.min() * 1e3:.1f} and {during.max() * 1e3:.1f} mm on the way")
+    print(f"end (t = {T:g} s): the ball moves at {speed * 1e3:.2g} mm/s, its centre {to_static * 1e3:.3g} mm from "
+          f"the static shape at these pressures (qchain.equilibrium, {'converged' if eq.success else 'NOT converged'});"
+          f" that shape's tip {load_vs_payload:.2g} m from the bare arm's carrying the ball's weight as a tip "
+          f"PointLoad ({updates} load updates)")
+    print(f"simulated {T:g} s in {wall:.3g} s wall (not counting {traj.meta.get('compile_s', 0.0):.2g} s compiling "
+          f"or loading the engine): {wall / T:.3g} s wall per simulated second ({sc.method}, {traj.nfev} right-hand "
+          "sides)")
 
     fig, axs = plt.subplots(1, 3, figsize=(16, 5.5), gridspec_kw={"width_ratios": [1, 1, 1.3]})
     sx, tx, hx = axs
