@@ -1,7 +1,8 @@
-"""The contact examples (examples/wrap_pole.py, examples/push_wall.py) run with ``--quick`` and
-what they show holds: the arm wraps the pole and holds it, its contact forces balancing its
-own; the wall's force after each pressure step settles on the static balance's, and is zero
-below the pressure at which the free arm reaches the wall."""
+"""The contact examples (examples/wrap_pole.py, examples/push_wall.py, examples/carry_payload.py)
+run with ``--quick`` and what they show holds: the arm wraps the pole and holds it, its contact
+forces balancing its own; the wall's force after each pressure step settles on the static
+balance's, and is zero below the pressure at which the free arm reaches the wall; the lifted
+payload settles on the static shape, which is the bare arm's carrying the payload's weight."""
 
 import math
 
@@ -17,6 +18,12 @@ from support import EXAMPLES, is_png
 def wrap(examples, tmp_path_factory):
     out_dir = tmp_path_factory.mktemp("wrap_pole")
     return examples("wrap_pole").main(["--quick", "--out", str(out_dir)]), out_dir
+
+
+@pytest.fixture(scope="module")
+def carry(examples, tmp_path_factory):
+    out_dir = tmp_path_factory.mktemp("carry_payload")
+    return examples("carry_payload").main(["--quick", "--out", str(out_dir)]), out_dir
 
 
 @pytest.fixture(scope="module")
@@ -118,3 +125,31 @@ def test_push_floor_obeys_coulomb(push):
     assert slide["momentum"][-1] > 0.1  # kg m/s: well on its way
     assert abs(slide["rate"] - (slide["load"] - law.mu_dynamic * W)) < 1e-3 * (slide["load"] - law.mu_dynamic * W)
     assert abs(slide["friction"] + law.mu_dynamic * W) < 1e-3 * law.mu_dynamic * W
+
+
+@pytest.mark.slow
+def test_carry_payload_runs_and_draws(carry):
+    out, out_dir = carry
+    traj = out["trajectory"]
+    assert traj.success and math.isclose(traj.t[-1], 2.5)  # --quick: the lift and its hold
+    assert is_png(out["png"]) and out["png"].parent == out_dir
+    P = out["chain"].payload
+    assert P.mass == 0.04 and P.mass > 0.4 * sum(s.mass for s in out["chain"].segments)  # a fair share of the arm
+    assert out["peak_pressure"] == 2e5
+
+
+@pytest.mark.slow
+def test_carry_payload_lifts_it_onto_the_static_shape(carry):
+    """The scene's arm lifts its ball more than 100 mm above where it hangs; after the hold it
+    has settled (the ball slower than 10 mm/s) within 1 mm of qchain.equilibrium's shape at the
+    held pressures; and that shape is the bare arm's carrying the ball's weight as a tip
+    PointLoad (force m g, moment (R c) x m g: the environment's load path, not the payload's)."""
+    out, _ = carry
+    ch, com = out["chain"], out["payload_centres"]
+    hang = out["hanging"]
+    assert hang.success and out["static"].success
+    assert np.allclose(out["hanging_centre"], ch.tip_placement(hang.q).act(ch.payload.lever))
+    assert com[0, 2] - out["hanging_centre"][2] < 2e-3  # it starts hanging (straight, a little above its sag)
+    assert out["lift"] > 0.1  # m
+    assert out["end_speed"] < 0.01 and out["to_static"] < 1e-3  # m/s, m
+    assert out["load_vs_payload"] < 1e-9  # m

@@ -332,3 +332,173 @@ def test_the_compiled_engines_energies_include_the_payload():
     U = np.array([ch.potential_energy(q) for q in res.q])
     np.testing.assert_allclose(res.kinetic_energy, K, rtol=1e-10, atol=1e-12)
     np.testing.assert_allclose(res.potential_energy, U, rtol=1e-10, atol=1e-12)
+
+
+# -- scene files: the [payload] table (qchain/scene/payload.py)
+
+def _payload_scene(payload, pressure=None, **top):
+    from support import base_scene, to_toml
+
+    d = base_scene()
+    d["payload"] = payload
+    if pressure is not None:
+        d["pressure"] = pressure
+    d.update(top)
+    return to_toml(d)
+
+
+SCENE_PAYLOAD = {"mass": 0.06, "lever": [0.01, 0.0, 0.02], "inertia": [[2e-5, 0.0, 3e-6], [0.0, 3e-5, 0.0],
+                                                                        [3e-6, 0.0, 1e-5]]}
+
+
+def _weight_as_tip_load(chain, bare, p, iterations=60):
+    """The static shape of ``bare`` (the arm without the payload) carrying ``chain.payload``'s
+    weight as a world-frame PointLoad at the tip: force m g, moment (R c) x m g about the tip
+    origin, the moment updated from each shape until the shape stops moving."""
+    from qchain import equilibrium
+    from qchain.contact import Environment, PointLoad
+
+    P = chain.payload
+    f = P.mass * chain.gravity
+    q = bare.neutral()
+    for _ in range(iterations):
+        arm = chain.tip_placement(q).rotation @ P.lever
+        res = equilibrium(bare, p, q0=q, env=Environment([], loads=[PointLoad(chain.n - 1, 1.0, f, np.cross(arm, f))]),
+                          tol=1e-13)
+        assert res.success, res.message
+        step = np.abs(res.q - q).max()
+        q = res.q
+        if step < 1e-13:
+            return q
+    raise AssertionError(f"the tip load's shape did not settle (last step {step:.3g})")
+
+
+def test_a_scene_payload_is_the_chains_and_its_statics_are_its_weight_at_the_tip():
+    """The [payload] table makes the Chain's payload (mass, lever, inertia as written); the static
+    shape of the scene's arm equals the bare arm's carrying the payload's weight as a tip
+    PointLoad (the environment's load path, not the passes' payload code), and its weight
+    lowers the tip against the bare arm's (the arm hanging, bent by its pressures)."""
+    from qchain import equilibrium
+    from qchain.scene import parse_scene
+
+    hanging = {"type": "fixed", "position": [0.0, 0.0, 0.5], "rpy": [np.pi, 0.0, 0.0]}
+    sc = parse_scene(_payload_scene(SCENE_PAYLOAD, base=hanging), "p.toml")
+    ch = sc.model.chain
+    P = ch.payload
+    assert P.mass == 0.06
+    np.testing.assert_array_equal(P.lever, SCENE_PAYLOAD["lever"])
+    np.testing.assert_array_equal(P.inertia, SCENE_PAYLOAD["inertia"])
+    assert ch.planar  # lever y = 0 and y a principal axis: the reduction stays
+    full = sc.build(reduce=False).chain
+    bare = Chain([s.segment() for s in sc.segments], gravity=sc.gravity, base_placement=sc.base.placement)
+    p = sc.pressure(0.0)
+    eq_full = equilibrium(full, p, tol=1e-13)
+    assert eq_full.success
+    q_load = _weight_as_tip_load(full, bare, p)
+    np.testing.assert_allclose(eq_full.q, q_load, rtol=0, atol=1e-10)
+    eq_planar = equilibrium(ch, p)  # the planar model: the same shape
+    np.testing.assert_allclose(eq_planar.q, eq_full.q, rtol=0, atol=1e-9)
+    drop = bare.tip_placement(equilibrium(bare, p).q).translation[2] - full.tip_placement(eq_full.q).translation[2]
+    assert drop > 1e-3  # m: the payload matters
+
+
+def test_a_point_mass_payload_by_default_and_mass_zero_is_none():
+    from qchain.scene import parse_scene
+
+    P = parse_scene(_payload_scene({"mass": 0.02})).model.chain.payload
+    assert P.mass == 0.02 and not np.any(P.lever) and not np.any(P.inertia)
+    sc = parse_scene(_payload_scene({"mass": 0.0}))
+    assert sc.payload is None and sc.model.chain.payload is None
+    assert not any(x.startswith("payload:") for x in sc.describe())
+
+
+@pytest.mark.parametrize("payload, line", [
+    ({"mass": -0.1}, "payload.mass: expected a number >= 0 and <= 1e+06 (kg), found -0.1"),
+    ({"lever": [0.0, 0.0, 0.1]}, "payload.mass: expected a number >= 0 and <= 1e+06 (kg), found nothing"),
+    ({"mass": 0.1, "lever": [0.0, 0.0, 1e3]},
+     "payload.lever[2]: expected a number >= -100 and <= 100 (m), found 1000.0"),
+    ({"mass": 0.1, "lever": [0.0, 0.1]},
+     "payload.lever: expected an array of 3 numbers (m), found 2 numbers [0.0, 0.1]"),
+    ({"mass": 0.1, "inertia": [1e-5, 1e-5, 1e-5]},
+     "payload.inertia: expected 3 arrays of 3 numbers, one a row (kg m^2), found an array [1e-05, 1e-05, 1e-05]"),
+    ({"mass": 0.1, "inertia": [[1e-5, 0.0, 0.0], [0.0, 1e-5, 0.0], [0.0, 0.0, float("nan")]]},
+     "payload.inertia[2][2]: expected a finite number, found a float nan"),
+    ({"mass": 0.1, "inertia": [[1e-5, 2e-6, 0.0], [0.0, 1e-5, 0.0], [0.0, 0.0, 1e-5]]},
+     "payload.inertia: expected a rigid body's rotational inertia about its centre of mass: symmetric, positive "
+     "semi-definite (kg m^2), found a matrix that is not symmetric, ((1e-05, 2e-06, 0), (0, 1e-05, 0), (0, 0, 1e-05))"),
+    ({"mass": 0.1, "inertia": [[1e-5, 2e-5, 0.0], [2e-5, 1e-5, 0.0], [0.0, 0.0, 1e-5]]},
+     "found a matrix that is not positive semi-definite, eigenvalues (-1e-05, 1e-05, 3e-05) kg m^2"),
+    ({"mass": 0.0, "inertia": [[1e-5, 0.0, 0.0], [0.0, 1e-5, 0.0], [0.0, 0.0, 1e-5]]},
+     "payload.inertia: expected zeros with payload.mass = 0 (a body without mass has no rotational inertia)"),
+    ({"mass": 0.1, "offset": [0.0, 0.0, 0.1]}, "payload.offset: expected one of the keys mass, lever, inertia"),
+])
+def test_bad_payload_values_are_refused_by_key_value_and_bound(payload, line):
+    from qchain.scene import SceneError, parse_scene
+
+    with pytest.raises(SceneError) as err:
+        parse_scene(_payload_scene(payload), "p.toml")
+    assert any(line in str(p) for p in err.value.problems), str(err.value)
+
+
+def test_a_scene_payload_refuses_what_chain_refuses():
+    """The scene's rigid-body check is the Chain's (qchain.arm.payload.inertia_problem): the same
+    matrices pass and fail both ways."""
+    from qchain.arm.payload import inertia_problem
+    from qchain.scene import SceneError, parse_scene
+
+    for I in (np.diag([1e-5, 2e-5, 0.0]), np.array([[1e-5, 2e-5, 0], [2e-5, 1e-5, 0], [0, 0, 1e-5]]),
+              np.array([[1e-5, 1e-6, 0], [1e-6, 1e-5, 0], [0, 0, 1e-5]])):
+        text = _payload_scene({"mass": 0.1, "inertia": I.tolist()})
+        try:
+            Chain([S], payload=pin.Inertia(0.1, np.zeros(3), I))
+        except ValueError:
+            with pytest.raises(SceneError):
+                parse_scene(text)
+            assert inertia_problem(I) is not None
+        else:
+            assert parse_scene(text).payload is not None and inertia_problem(I) is None
+
+
+@pytest.mark.parametrize("payload, why", [
+    ({"mass": 0.05, "lever": [0.0, 0.01, 0.02]},
+     "payload: its lever (0, 0.01, 0.02) m leaves the tip frame's x-z plane (y = 0.01 m, not 0)"),
+    ({"mass": 0.05, "inertia": [[2e-5, 1e-6, 0.0], [1e-6, 2e-5, 0.0], [0.0, 0.0, 1e-5]]},
+     "payload: its inertia couples the tip frame's y axis with x or z (inertia[0][1] = 1e-06"),
+])
+def test_an_asymmetric_payload_gives_the_full_model_with_the_reason(payload, why):
+    """A payload off the tip's x-z plane: the planar reduction is refused, the reason in
+    SceneModel.kept (`qchain info`); the full model does accelerate out of the plane."""
+    from qchain.scene import parse_scene
+
+    sym = {"type": "constant", "value": [1e4, 0, 0, 1e4, 0, 0]}  # chambers 2 and 3 equal: planar but for the payload
+    sc = parse_scene(_payload_scene(payload, sym))
+    assert why in sc.planar_obstacle()
+    assert not sc.model.chain.planar and any(k == f"planar: not applicable: {sc.planar_obstacle()}"
+                                             for k in sc.model.kept)
+    m = sc.model
+    q = m.q0.copy()
+    q[1::3] = 2.0  # bent in the plane: the lever's or the inertia's y coupling then pushes out of it
+    a = m.chain.forward_dynamics(q, m.v0, sc.pressure(0.0))
+    assert np.abs(a[2::3]).max() > 1e-3
+    sc_sym = parse_scene(_payload_scene({"mass": 0.05, "lever": [0.01, 0.0, 0.02]}, sym))
+    assert sc_sym.planar_obstacle() is None and sc_sym.model.chain.planar
+    assert any("tip payload symmetric about the base x-z plane" in r for r in sc_sym.model.reductions)
+
+
+def test_info_lists_the_payload():
+    from qchain.scene import parse_scene
+
+    lines = parse_scene(_payload_scene(SCENE_PAYLOAD)).describe()
+    assert ("payload: 0.06 kg (0.6 x the arm's 0.1 kg) at lever (0.01, 0, 0.02) m (tip frame), inertia "
+            "((2e-05, 0, 3e-06), (0, 3e-05, 0), (3e-06, 0, 1e-05)) kg m^2 about its centre of mass; weight 0.5886 N"
+            ) in lines
+    ball = parse_scene(_payload_scene({"mass": 0.05, "inertia": np.diag([1e-5, 1e-5, 2e-5]).tolist()})).describe()
+    assert any("principal moments (1e-05, 1e-05, 2e-05) kg m^2 along the tip axes" in x for x in ball)
+
+
+def test_the_format_docs_payload_example_is_a_valid_scene():
+    from qchain.scene import format as F
+    from qchain.scene import parse_scene
+
+    sc = parse_scene(F.EXAMPLE + "\n" + F.PAYLOAD_EXAMPLE, "example.toml")
+    assert sc.payload.mass == 0.06 and sc.planar_obstacle() is None

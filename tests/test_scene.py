@@ -199,7 +199,7 @@ DELETE = object()
 ERRORS = [
     # (mutations, expected message fragment)
     ([_set("segmnts", 1)], "segmnts: expected one of the keys name, description, gravity, model, segments, base, "
-                           "pressure, initial, simulation, output, budget, contact, obstacles, loads (did you mean "
+                           "pressure, initial, simulation, output, budget, contact, obstacles, loads, payload (did you mean "
                            "'segments'?), found the unknown key 'segmnts'"),
     ([_set("segments[0].raduis", 0.01)], "segments[0].raduis: expected one of the keys count, length, radius,"),
     ([_set("segments[0].raduis", 0.01)], "(did you mean 'radius'?), found the unknown key 'raduis'"),

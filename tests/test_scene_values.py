@@ -141,6 +141,10 @@ def context_for(table: F.KeyTable, f: F.Field) -> dict:
         d = base_scene()
         d["loads"] = [dict(LOAD)]
         return d
+    if table is F.PAYLOAD:
+        d = base_scene()
+        d["payload"] = {"mass": 0.05}
+        return d
     if table is F.SIMULATION and f.key == "dt":
         d = base_scene()
         d["simulation"]["method"] = "rk4"
@@ -190,7 +194,7 @@ def test_every_declared_key_refuses_a_value_of_the_wrong_type_by_name(table, f):
 
 
 NUMERIC = [(t, f) for t, f in FIELDS if f.range is not None and f.kind in
-           ("number", "integer", "vector", "per_segment", "number_or_per_segment", "times", "rows")]
+           ("number", "integer", "vector", "matrix", "per_segment", "number_or_per_segment", "times", "rows")]
 
 
 def bad_value(f: F.Field):
@@ -203,6 +207,9 @@ def bad_value(f: F.Field):
         return st.lists(entry, min_size=6, max_size=6).map(lambda row: [[0.0] * 6, row])
     if f.kind == "times":
         return st.lists(entry, min_size=2, max_size=2)
+    if f.kind == "matrix":  # one bad entry in an otherwise valid matrix (zeros)
+        return st.tuples(st.integers(0, size * size - 1), entry).map(
+            lambda ie: [[ie[1] if size * i + j == ie[0] else 0.0 for j in range(size)] for i in range(size)])
     return st.tuples(st.integers(0, size - 1), entry).map(lambda ie: [ie[1] if i == ie[0] else 0.5
                                                                       for i in range(size)])
 

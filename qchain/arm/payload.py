@@ -15,8 +15,10 @@ import numpy as np
 import pinocchio as pin
 
 from ..checks.bounds import Range
+from ..checks.text import show_matrix, show_vector
 
-__all__ = ["PAYLOAD_MASS", "PAYLOAD_LEVER", "PAYLOAD_INERTIA", "payload_matrix", "planar_consistent"]
+__all__ = ["PAYLOAD_MASS", "PAYLOAD_LEVER", "PAYLOAD_INERTIA", "payload_matrix", "planar_consistent",
+           "inertia_problem"]
 
 #: the payload's mass (0: none; up to the heaviest segment's bound, qchain.checks.bounds.MASS)
 PAYLOAD_MASS = Range(0.0, 1e6, "kg")
@@ -51,12 +53,10 @@ def payload_matrix(payload, planar: bool) -> tuple[pin.Inertia | None, np.ndarra
     c = PAYLOAD_LEVER.check_array("payload.lever", np.array(payload.lever, dtype=float))
     I = np.array(payload.inertia, dtype=float)
     PAYLOAD_INERTIA.check_array("payload.inertia", I)
-    scale = max(float(np.abs(I).max()), np.finfo(float).tiny)
-    if np.abs(I - I.T).max() > _PSD_TOL * scale:
-        raise ValueError(f"payload.inertia must be symmetric, got {np.array2string(I)} kg m^2")
-    if np.linalg.eigvalsh(0.5 * (I + I.T)).min() < -_PSD_TOL * scale:
-        raise ValueError(f"payload.inertia must be positive semi-definite (a rigid body's rotational inertia), got "
-                         f"eigenvalues {np.array2string(np.linalg.eigvalsh(0.5 * (I + I.T)))} kg m^2")
+    why = inertia_problem(I)
+    if why is not None:
+        raise ValueError(f"payload.inertia must be symmetric and positive semi-definite (a rigid body's rotational "
+                         f"inertia), got {why}")
     if m == 0.0 and np.abs(I).max() > 0.0:
         raise ValueError("payload.mass is 0 but payload.inertia is not: a body without mass has no rotational "
                          "inertia (use payload=None for no payload)")
@@ -65,7 +65,7 @@ def payload_matrix(payload, planar: bool) -> tuple[pin.Inertia | None, np.ndarra
     if planar and not planar_consistent(P):
         raise ValueError("planar=True needs a payload symmetric about the base's x-z plane (lever[1] = 0, y a "
                          f"principal axis of payload.inertia: inertia[0, 1] = inertia[1, 2] = 0), got lever "
-                         f"{np.array2string(c)} m and inertia {np.array2string(I)} kg m^2")
+                         f"{show_vector(c)} m and inertia {show_matrix(I)} kg m^2")
     return (inertia if m > 0.0 else None), P
 
 
@@ -74,3 +74,16 @@ def planar_consistent(P: np.ndarray) -> bool:
     out-of-plane one (1, 3, 5): the condition of :mod:`qchain.algorithms.planar`'s reduction."""
     even, odd = [0, 2, 4], [1, 3, 5]
     return not np.any(P[np.ix_(even, odd)])
+
+
+def inertia_problem(I: np.ndarray) -> str | None:
+    """Why the (3, 3) matrix ``I`` (kg m^2) is not a rigid body's rotational inertia
+    (symmetric and positive semi-definite, to a relative 1e-12 of its largest entry), or None."""
+    I = np.asarray(I, dtype=float)
+    scale = max(float(np.abs(I).max()), np.finfo(float).tiny)
+    if np.abs(I - I.T).max() > _PSD_TOL * scale:
+        return f"a matrix that is not symmetric, {show_matrix(I)} kg m^2"
+    eig = np.linalg.eigvalsh(0.5 * (I + I.T))
+    if eig.min() < -_PSD_TOL * scale:
+        return f"a matrix that is not positive semi-definite, eigenvalues {show_vector(eig)} kg m^2"
+    return None

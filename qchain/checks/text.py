@@ -1,6 +1,7 @@
 """Values shown in messages, on one line: text from outside (:func:`printable`, defined in
 :mod:`qchain.errors`, which a ``SceneError`` needs), paths (:func:`show_path`), vectors
-(:func:`show_vector`). Standard library only at import (the command line's error path)."""
+(:func:`show_vector`), matrices (:func:`show_matrix`). Standard library only at import (the
+command line's error path)."""
 
 from __future__ import annotations
 
@@ -8,7 +9,7 @@ import os
 
 from ..errors import printable
 
-__all__ = ["printable", "show_path", "show_vector"]
+__all__ = ["printable", "show_path", "show_vector", "show_matrix"]
 
 
 def show_path(path, limit: int | None = None) -> str:
@@ -30,3 +31,11 @@ def show_vector(x, most: int | None = None) -> str:
         return repr(x)[:60]
     cut = most is not None and a.size > most
     return "(" + ", ".join(f"{v:.6g}" for v in (a[:most] if cut else a)) + (", ..." if cut else "") + ")"
+
+
+def show_matrix(a) -> str:
+    """A matrix as messages show it, one line, row by row: ``((1, 0), (0, 2))`` (each row as
+    :func:`show_vector` shows it)."""
+    import numpy as np
+
+    return "(" + ", ".join(show_vector(row) for row in np.atleast_2d(np.asarray(a, dtype=float))) + ")"

@@ -26,6 +26,8 @@ from ..errors import MAX_LISTED, SceneError
 from ..contact.environment import ContactLaw, Environment
 from ..model.segment import DEFAULT_NODES
 from ..sim.simulation import DEFAULT_METHOD, FIXED_STEP, METHODS
+from .keys import Field, KeyTable
+from .payload import PAYLOAD, PAYLOAD_EXAMPLE
 
 __all__ = ["Field", "KeyTable", "TABLES", "OBSTACLE_TYPES", "MAX_START_PENETRATION", "Problem", "SceneError", "PLOTS", "PRESSURE_KINDS", "MAX_DEPTH",
            "MAX_SCENE_BYTES", "MAX_STRETCH", "EXAMPLE", "CONTACT_EXAMPLE", "nesting_problem", "markdown"]
@@ -45,85 +47,7 @@ MAX_PATH_BYTES = 4095
 
 
 # --------------------------------------------------------------------------------------
-# the declaration
-
-
-#: how the documentation names each kind of :class:`Field` (a kind not here: its own name)
-_TYPE_TEXTS = {"per_segment": "3 numbers a segment", "number_or_per_segment": "number, or 3 a segment",
-               "times": "array of numbers, increasing", "rows": "array of pressure vectors",
-               "names": "array of strings", "tables": "array of tables", "choice": "string",
-               "path": "string (a folder path)"}
-
-
-@dataclass(frozen=True)
-class Field:
-    """One key of a scene table.
-
-    Attributes
-    ----------
-    key : str
-    kind : str
-        ``number``, ``integer``, ``boolean``, ``string``, ``path``, ``choice``, ``vector``
-        (``size`` numbers), ``per_segment`` (3 numbers a segment, flat or nested),
-        ``number_or_per_segment``, ``times`` (strictly increasing), ``rows`` (per-segment
-        vectors, one a time), ``names`` (an array of ``choices``), ``table`` or ``tables``
-        (an array of tables).
-    doc : str
-        What the key means (Markdown).
-    range : Range, optional
-        Bounds of the number, or of every entry of an array.
-    default : str
-        The default, as the documentation states it ("" for a required key or none).
-    required : bool
-    choices : tuple of str
-    size : int, optional
-        Entries of a ``vector``.
-    when : tuple of str
-        The ``type`` values of its table the key belongs to (empty: all).
-    """
-
-    key: str
-    kind: str
-    doc: str
-    range: Range | None = None
-    default: str = ""
-    required: bool = False
-    choices: tuple = ()
-    size: int | None = None
-    when: tuple = ()
-
-    def type_text(self) -> str:
-        if self.kind == "vector":
-            return f"array of {self.size} numbers"
-        return _TYPE_TEXTS.get(self.kind, self.kind)
-
-    def range_text(self) -> str:
-        if self.choices:
-            return ", ".join(f'`"{c}"`' for c in self.choices)
-        if self.range is not None and (self.range.low is not None or self.range.high is not None):
-            return replace(self.range, unit="").text()  # the bounds alone: the unit has its own column
-        return ""
-
-
-@dataclass(frozen=True)
-class KeyTable:
-    """A table of a scene file: its dotted ``path`` (``""`` for the top level, ``segments[]``
-    for an array of tables), what it is, and its fields."""
-
-    path: str
-    doc: str
-    fields: tuple[Field, ...]
-    required: bool = False
-
-    def __getitem__(self, key: str) -> Field:
-        for f in self.fields:
-            if f.key == key:
-                return f
-        raise KeyError(key)
-
-    def keys(self, kind: str | None = None) -> tuple[str, ...]:
-        """The keys of the table (those of a ``type`` of it, if ``kind`` is given)."""
-        return tuple(f.key for f in self.fields if kind is None or not f.when or kind in f.when)
+# the declaration (its vocabulary, Field and KeyTable: qchain.scene.keys)
 
 
 PRESSURE_KINDS = ("constant", "step", "ramp", "sine", "table")
@@ -144,6 +68,7 @@ TOP = KeyTable("", "The top level of the file.", (
           default="`qchain.contact.ContactLaw`'s"),
     Field("obstacles", "tables", "Obstacles the arm can touch (below).", default="none"),
     Field("loads", "tables", "Point loads on the arm (below).", default="none"),
+    Field("payload", "table", "A rigid body at the arm's tip (below).", default="none"),
 ))
 
 MODEL = KeyTable("model", "How the model is built (\"Model reduction\" in `qchain/scene/scene.py`).", (
@@ -332,7 +257,8 @@ LOAD = KeyTable("loads[]", "One table a point load (`qchain.contact.PointLoad`):
 ))
 
 #: Every table of the format, in the order of the documentation.
-TABLES = (TOP, MODEL, SEGMENT, BASE, MOTION, PRESSURE, INITIAL, SIMULATION, OUTPUT, BUDGET, CONTACT, OBSTACLE, LOAD)
+TABLES = (TOP, MODEL, SEGMENT, BASE, MOTION, PRESSURE, INITIAL, SIMULATION, OUTPUT, BUDGET, CONTACT, OBSTACLE, LOAD,
+          PAYLOAD)
 
 
 # --------------------------------------------------------------------------------------
@@ -498,6 +424,8 @@ class _Checker:
                 self.add(path, f"an array of {f.size} numbers", "nothing (the key is required)")
                 return None
             return self.vector(d, f.key, path, f.size, f.range.unit if f.range else "", default=default, bounds=f.range)
+        if f.kind == "matrix":
+            return self.matrix(d, f.key, path, f.size, f.range, default=default)
         raise ValueError(f"field {f.key}: kind {f.kind!r} is not a scalar kind")  # pragma: no cover
 
     def number(self, d: dict, key: str, path: str, unit: str = "", *, default=None, required: bool = False,
@@ -622,6 +550,26 @@ class _Checker:
             self.add(path, what, f"{arr.size} numbers {_show(v)}")
             arr = None
         return arr if arr is not None or default is None else np.array(default, dtype=float)
+
+    def matrix(self, d: dict, key: str, path: str, size: int, bounds: Range, default=None):
+        """A (size, size) array given as ``size`` arrays (rows) of ``size`` numbers inside ``bounds``."""
+        v = d.get(key, _MISSING)
+        if v is _MISSING:
+            return default
+        what = f"{size} arrays of {size} numbers, one a row{f' ({bounds.unit})' if bounds.unit else ''}"
+        if not isinstance(v, list) or len(v) != size or not all(isinstance(row, list) for row in v):
+            self.add(path, what, f"{_type_name(v)} {_show(v)}")
+            return None
+        out = np.empty((size, size))
+        for i, row in enumerate(v):
+            arr = self._numbers(row, f"{path}[{i}]", f"an array of {size} numbers (row {i})", bounds)
+            if arr is None:
+                return None
+            if arr.size != size:
+                self.add(f"{path}[{i}]", f"an array of {size} numbers (row {i})", f"{arr.size} numbers {_show(row)}")
+                return None
+            out[i] = arr
+        return out
 
     def per_segment(self, v, path: str, n: int | None, unit: str = "", width: int = 3,
                     bounds: Range | None = None) -> np.ndarray | None:
@@ -772,6 +720,13 @@ def markdown() -> str:
         CONTACT_EXAMPLE.rstrip("\n"),
         "```",
         "",
+        "A payload at the tip (a rigid body; `examples/carry_payload.py` lifts one) is one more",
+        "table; this one is a 60 g ball of 20 mm radius centred 20 mm beyond the tip:",
+        "",
+        "```toml",
+        PAYLOAD_EXAMPLE.rstrip("\n"),
+        "```",
+        "",
     ]
     for t in TABLES:
         title = "Top level" if not t.path else (f"`[[{t.path[:-2]}]]`" if t.path.endswith("[]") else f"`[{t.path}]`")
@@ -809,6 +764,9 @@ def markdown() -> str:
         "  x-z plane: half-space normals, world load forces in it, load moments normal to it; sphere and",
         "  box centres in it, box axes one normal to it; capsule and cylinder ends both in it or each",
         "  the other's mirror image; follower (`local`) loads with no slice-y force and only a slice-y moment;",
+        "  and a payload symmetric about the tip frame's x-z plane (`lever[1] = 0`, `inertia[0][1] =",
+        "  inertia[1][2] = 0`); otherwise `qchain info` says which one keeps the full model;",
+        "* `[payload]`: `inertia` symmetric and positive semi-definite (a rigid body's), zeros when `mass = 0`;",
         "* the run within its budget: `[budget]` above, whose message names the key that makes the",
         "  cost (`simulation.dt`, `simulation.max_step`, `pressure.frequency`, `base.motion.frequency`,",
         "  `output.sample_rate`, `segments[i].count`) and the bound to raise.",

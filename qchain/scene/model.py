@@ -16,6 +16,7 @@ from ..arm.chain import Chain
 from ..sim.inputs import Schedule
 from ..checks.text import show_vector
 from ..model.segment import CHAMBER_ANGLES, DEFAULT_NODES, nodes_for_tolerance
+from .payload import payload_asymmetry
 
 __all__ = ["SceneModel", "ModelBuilder", "BEND_MARGIN", "BEND_SAMPLES"]
 
@@ -137,7 +138,7 @@ class ModelBuilder:
             reductions.append(
                 "planar: uy locked at 0 in every segment: gravity, pressures (p2 == p3), initial state and base "
                 "motion" + (", obstacles and loads" if self.surroundings.environment is not None else "")
-                + " symmetric about the base x-z plane"
+                + (", tip payload" if self.payload is not None else "") + " symmetric about the base x-z plane"
             )
         else:
             kept.append(f"planar: not applicable: {why_not}")
@@ -178,7 +179,7 @@ class ModelBuilder:
         kind = self.base.type
         kw = ({"base_placement": self.base.placement} if kind == "fixed" else
               {"base_motion": self.base.motion} if kind == "prescribed" else {})
-        return Chain(segs, base=kind, gravity=self.gravity, planar=planar, **kw)
+        return Chain(segs, base=kind, gravity=self.gravity, planar=planar, payload=self.payload, **kw)
 
     def _initial_state(self, chain: Chain) -> tuple[np.ndarray, np.ndarray]:
         q_B, v_B = ((pin.SE3ToXYZQUAT(self.base.placement), [*self.base.velocity, *self.base.angular_velocity])
@@ -209,7 +210,7 @@ class ModelBuilder:
                 return f"the base translates along {show_vector(ax)}, out of the x-z plane"
             if b.motion.kind == "rotation" and (ax[0] != 0.0 or ax[2] != 0.0) and b.motion.amplitude != 0.0:
                 return f"the base turns about {show_vector(ax)}, not the y axis"
-        return self.surroundings.asymmetry(self.base.placement)
+        return payload_asymmetry(self.payload) or self.surroundings.asymmetry(self.base.placement)
 
     def start_problems(self) -> list:
         """Problems (:class:`qchain.scene.format.Problem`) of an arm that starts inside an
@@ -255,7 +256,7 @@ class ModelBuilder:
         static = np.zeros(self.n)
         failed = None
         for placement, g in conditions:
-            ch = Chain(segs, base="fixed", gravity=g, base_placement=placement, planar=planar)
+            ch = Chain(segs, base="fixed", gravity=g, base_placement=placement, planar=planar, payload=self.payload)
             q_guess = None
             for p in candidates:
                 res = equilibrium(ch, p, q0=q_guess)
@@ -269,7 +270,8 @@ class ModelBuilder:
             if failed:
                 break
         initial = self._bends(None, None)
-        ch0 = Chain(segs, base="fixed", gravity=np.zeros(3))  # deformation rates only: rigid motion bends nothing
+        # deformation rates only (rigid motion bends nothing); the payload moves with the tip
+        ch0 = Chain(segs, base="fixed", gravity=np.zeros(3), payload=self.payload)
         T0 = ch0.kinetic_energy(self.q_e0.ravel(), self.v_e0.ravel())
         EI = np.array([s.segment(nodes=1).bending_stiffness for s in self.segments])
         l0 = np.array([s.length for s in self.segments])

@@ -26,6 +26,7 @@ from .format import _MISSING, PLOTS, Problem, SceneError, _Checker, _is_number, 
 from .cost import _cost, _frequency
 from ..checks.text import show_vector
 from .parts import BaseSpec, SegmentSpec, SineMotion
+from .payload import read_payload
 from .surroundings import read_surroundings
 from ..model.segment import Segment
 from ..sim.simulation import DEFAULT_METHOD, FIXED_STEP, METHODS  # a scene may name any method, without case
@@ -167,6 +168,7 @@ def parse_scene(text: str, path: str | os.PathLike | None = None) -> Scene:
     pressure, pspec = _pressure(ck, raw, n)
     q_e0, v_e0 = _initial(ck, raw, segments)
     surroundings = read_surroundings(ck, raw, segments, gravity)
+    payload = read_payload(ck, raw)
 
     # output
     O = F.OUTPUT
@@ -203,7 +205,7 @@ def parse_scene(text: str, path: str | os.PathLike | None = None) -> Scene:
         segments=segments, base=base, gravity=gravity, pressure=pressure, pressure_spec=pspec, q_e0=q_e0,
         v_e0=v_e0, duration=duration, method=method, rtol=rtol, atol=atol, dt=dt, max_step=max_step,
         reduce=reduce, node_tolerance=node_tol, max_bend=max_bend, sample_rate=rate, output_folder=Path(folder),
-        plots=tuple(dict.fromkeys(plots)), save=save, budget=budget, surroundings=surroundings,
+        plots=tuple(dict.fromkeys(plots)), save=save, budget=budget, surroundings=surroundings, payload=payload,
     )
     bad = scene.start_problems()  # the arm at its start, inside an obstacle: needs the whole scene
     if bad:

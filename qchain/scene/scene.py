@@ -26,7 +26,9 @@ own setting); ``SceneModel.kept`` says which reductions did not apply and why no
   parameters); ``uy = 0`` and ``uy' = 0`` at the start; a base motion in that plane (a
   translation along an axis with no y component, a rotation about the y axis; a floating
   base with no initial y velocity and no x or z angular velocity); every obstacle and point
-  load symmetric about that plane (:meth:`qchain.scene.surroundings.Surroundings.asymmetry`).
+  load symmetric about that plane (:meth:`qchain.scene.surroundings.Surroundings.asymmetry`);
+  a tip payload symmetric about the tip frame's x-z plane
+  (:func:`qchain.scene.payload.payload_asymmetry`).
 * nodes (automatic, with ``model.node_tolerance``): each segment gets the fewest Gauss
   nodes whose ``M_xi`` is within ``node_tolerance`` of a converged one
   (:func:`qchain.model.segment.nodes_for_tolerance`) at the largest bend the scene reaches:
@@ -58,6 +60,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+import pinocchio as pin
 
 from . import format as F
 from ..checks.bounds import DURATION, VACUUM_GAUGE
@@ -69,6 +72,7 @@ from .format import PLOTS, Problem, SceneError, _Checker, _show, _type_name  # n
 from .model import BEND_MARGIN, BEND_SAMPLES, ModelBuilder, SceneModel, _list_or_one  # noqa: F401 (re-exported)
 from ..checks.text import show_vector
 from .parts import BaseSpec, SegmentSpec, SineMotion
+from .payload import describe_payload
 from .surroundings import Surroundings
 from .cost import _cost, _frequency
 from ..sim.simulation import COMPILED, FIXED_STEP, METHODS, explicit_stability_limit, simulate
@@ -120,6 +124,9 @@ class Scene(ModelBuilder):
         What a run may cost (:mod:`qchain.sim.budget`; the file's ``[budget]`` table).
     surroundings : Surroundings
         Obstacles, contact law and point loads (:mod:`qchain.scene.surroundings`).
+    payload : pinocchio.Inertia or None
+        The rigid body at the tip (``[payload]``, :mod:`qchain.scene.payload`): the model's
+        ``Chain(payload=)``.
     """
 
     path: Path | None
@@ -148,6 +155,7 @@ class Scene(ModelBuilder):
     save: bool
     budget: Budget = field(default_factory=Budget)
     surroundings: Surroundings = field(default_factory=Surroundings)
+    payload: pin.Inertia | None = None
 
     @property
     def environment(self):
@@ -301,6 +309,7 @@ class Scene(ModelBuilder):
             lines += [f"  - {k}" for k in m.kept]
         lines.append(f"pressure: {_pressure_summary(self.pressure_spec)}")
         lines += self.surroundings.describe(ch)
+        lines += describe_payload(self.payload, ch)
         meth = f"{self.method}, dt = {self.dt:g} s" if self.method in FIXED_STEP else \
             f"{self.method}, rtol = {self.rtol:g}, atol = {self.atol:g}" + \
             (f", max_step = {self.max_step:g} s" if math.isfinite(self.max_step) else "")
