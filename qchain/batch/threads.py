@@ -75,11 +75,11 @@ class ThreadPool:
             ) -> Iterator[tuple[int, object]]:
         """Run ``fn(shared, [item])`` for each item on the threads; yield ``(index, result)``
         as items finish. ``shared`` is the object itself, shared by the threads (nothing is
-        pickled). ``stop``: an event set when the caller
-        stops early (an exception in an item, Ctrl-C, the iterator closed), for ``fn`` to stop
-        at (:func:`qchain.sim.engine.driver.stop_on`); items not started then are not
-        started, and this waits for those running to end before it returns or raises. A thread
-        cannot die alone, so ``retries`` is not used."""
+        pickled). ``stop``: an event set when the caller stops early (an exception in an
+        item, Ctrl-C, the iterator closed), for ``fn`` to stop at
+        (:func:`qchain.sim.engine.driver.stop_on`); items not started then are not started,
+        and this waits for those running to end before it returns or raises. A thread cannot
+        die alone, so ``retries`` is not used."""
         stop = threading.Event() if stop is None else stop
         n = max(1, min(self.workers, len(items)))
         ex = ThreadPoolExecutor(max_workers=n, thread_name_prefix="qchain-rollout")

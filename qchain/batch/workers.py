@@ -450,7 +450,7 @@ class DaskEngine:
     """Items as tasks on a ``dask.distributed`` cluster: ``client`` a client or a scheduler
     address (connected here, closed by :meth:`close`); ``lost_timeout`` s without a worker or an
     answer before :class:`ClusterLost` (default the dask config ``qchain.lost-timeout``, else
-    300 s; None waits for ever). Start workers with ``--nthreads 1``: the engine holds the GIL."""
+    300 s; None waits for ever). Start workers with ``--nthreads 1``: an item's Python holds the GIL."""
 
     kind = "dask"
 
@@ -567,8 +567,9 @@ class DaskEngine:
         if any(n > 1 for n in threads):
             import warnings
 
-            warnings.warn(f"Dask workers with {max(threads)} threads run one qchain item at a time each (the "
-                          "compiled engine holds the GIL): start one worker process a core with --nthreads 1",
+            warnings.warn(f"Dask workers with {max(threads)} threads run the Python of qchain items one at a time "
+                          "each (the GIL: a sweep run's scene, metrics and files, a rollout's set-up): start one "
+                          "worker process a core with --nthreads 1",
                           RuntimeWarning, stacklevel=3)
         attempts = [0] * len(items)
         pending: dict = {}  # future -> chunk (item indices), in the order sent
