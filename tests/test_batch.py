@@ -12,6 +12,7 @@ import time
 from decimal import Decimal
 from pathlib import Path
 
+import numba
 import numpy as np
 import pytest
 
@@ -412,17 +413,19 @@ def rk4_stretch(steps: int):
     return lambda: entry(fs, m, wk, it, out, c, np.inf, 1 << 30, steps)
 
 
+@numba.njit
+def holds(n):
+    """Compiled without ``nogil``: :func:`runs_beside` must see it hold the lock. (At module
+    level: numba leaves a dead weak proxy behind a dispatcher made in a function, which
+    ``isinstance`` over ``gc.get_objects()`` in tests/test_dask.py then trips on.)"""
+    s = 0.0
+    for i in range(n):
+        s += np.sin(i * 1e-9)
+    return s
+
+
 def test_the_compiled_engine_releases_pythons_lock_while_it_steps():
-    import numba
-
     from qchain.sim.engine import steppers, system
-
-    @numba.njit
-    def holds(n):  # compiled without nogil: the probe below must see it hold the lock
-        s = 0.0
-        for i in range(n):
-            s += np.sin(i * 1e-9)
-        return s
 
     holds(10)
     assert not runs_beside(lambda: holds(30_000_000))  # (the probe can fail)
