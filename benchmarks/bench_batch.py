@@ -1,5 +1,5 @@
 """Batch throughput: 256 one-second rollouts of the four-segment spatial arm on 1 and 2 cores,
-on the local worker pool and on a Dask LocalCluster.
+on threads, on the local worker pool and on a Dask LocalCluster.
 
 The workload (``examples/scenes/spatial_arm.toml``'s model, 12 free coordinates): each
 rollout is the scene's rotating sine pressure with its own amplitude (x 0.5..1), frequency
@@ -11,6 +11,8 @@ Engines, timed side by side in rounds (each round runs every engine once, in a r
 order; the first round is not timed: pools started, engines loaded):
 
 * ``serial``   ``simulate_batch(workers=1)``: one core, in this process;
+* ``threads-2`` ``simulate_batch(workers=2)``: 2 threads of this process (the default engine
+  of these rollouts, :class:`qchain.batch.threads.ThreadPool`);
 * ``pool-1``   a :class:`qchain.batch.workers.LocalPool` of 1 worker process;
 * ``pool-2``   a :class:`qchain.batch.workers.LocalPool` of 2 worker processes;
 * ``dask-2``   a ``dask.distributed.LocalCluster`` on 127.0.0.1, 2 worker processes of 1 thread.
@@ -19,7 +21,11 @@ Figures: wall time of the whole ``simulate_batch`` call (median and min-max over
 the batch's simulated seconds per wall second (1 s of the batch / wall: every rollout
 advanced together) and the rollouts' seconds per wall second (256 times that), parallel
 efficiency ``rate(pool-2) / (2 rate(serial))`` and ``rate(pool-2) / (2 rate(pool-1))`` (per round,
-then the median), and the Dask overhead ``wall(dask-2) / wall(pool-2) - 1`` (per round). The
+then the median), the speed-ups ``wall(serial) / wall(threads-2)`` and ``wall(serial) /
+wall(pool-2)`` (per round, then the median), and the Dask overhead ``wall(dask-2) / wall(pool-2)
+- 1`` (per round). Then serial and threads rounds from a script without
+``if __name__ == "__main__":``, run as a command of its own (threads need no guard): the
+batch above, and a quarter of it at rtol = 1e-6 (``HEAVY``, longer rollouts). The
 machine's load average and CPU steal time are printed beside them. Start-up costs (pool and
 cluster start, first batch with the engine loaded in the workers) are measured once.
 
@@ -30,8 +36,12 @@ machine under ``flock /tmp/qchain-bench.flock``.
 from __future__ import annotations
 
 import argparse
+import json
 import logging
 import os
+import subprocess
+import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -41,11 +51,15 @@ import _study
 from qchain import simulate_batch
 from qchain.sim.inputs import Sine
 from qchain.scene import load_scene
+from qchain.batch.threads import ThreadPool
 from qchain.batch.workers import LocalPool
 
 SCENE = Path(__file__).resolve().parents[1] / "examples" / "scenes" / "spatial_arm.toml"
 SETTING = dict(method="radau5", rtol=3e-2, atol=3e-4)
 REFERENCE = dict(method="radau5", rtol=1e-10, atol=1e-12)
+#: longer rollouts (about 7 times the steps): the part of a rollout in Python, which threads run one
+#: at a time, is then a smaller share
+HEAVY = dict(method="radau5", rtol=1e-6, atol=1e-8)
 
 
 def workload(B: int, seed: int = 0):
@@ -106,6 +120,38 @@ def result_encoding(sc, model, P, t_eval, n: int = 64, reps: int = 20) -> tuple[
                 pickle.dumps(res, protocol=pickle.HIGHEST_PROTOCOL))}})))
 
 
+#: the serial and threads rounds as a script without a main guard (run by :func:`unguarded`)
+UNGUARDED = """
+import json, sys, time
+sys.path.insert(0, {here!r})
+from bench_batch import workload
+from qchain import simulate_batch
+sc, model, P, t_eval = workload({B})
+args = (model.chain, model.q0, model.v0, (0.0, 1.0))
+kw = dict(pressure=P, t_eval=t_eval, **{setting!r})
+simulate_batch(*args, **{{**kw, "pressure": P[:2]}}, workers=2)
+walls = {{"serial": [], "threads-2": []}}
+for r in range({rounds} + 1):
+    for name, w in (("serial", 1), ("threads-2", 2))[:: 1 if r % 2 else -1]:
+        t0 = time.perf_counter()
+        b = simulate_batch(*args, **kw, workers=w)
+        if r > 0:
+            walls[name].append(time.perf_counter() - t0)
+        assert b.meta["engine"] == ("threads" if w == 2 else "serial")
+print(json.dumps(walls))
+"""
+
+
+def unguarded(B: int, rounds: int, setting: dict) -> dict[str, list[float]]:
+    """Wall times (s) of ``rounds`` serial and threads rounds of ``B`` rollouts at ``setting``
+    in a script without a main guard."""
+    with tempfile.TemporaryDirectory() as tmp:
+        script = Path(tmp) / "unguarded_batch.py"
+        script.write_text(UNGUARDED.format(here=str(Path(__file__).resolve().parent), B=B, rounds=rounds, setting=setting))
+        r = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, check=True)
+    return json.loads(r.stdout.strip().splitlines()[-1])
+
+
 def run(quick: bool = False, out_dir: Path = Path("out/bench"), rounds: int | None = None) -> list[dict]:
     import distributed
 
@@ -141,8 +187,8 @@ def run(quick: bool = False, out_dir: Path = Path("out/bench"), rounds: int | No
     print(f"start-up: this process's engine {warm_s:.2f} s; " +
           ", ".join(f"{k} started and its engines loaded {v:.2f} s" for k, v in startup.items()))
 
-    engines = {"serial": dict(workers=1), "pool-1": dict(workers=pools[1]), "pool-2": dict(workers=pools[2]),
-               "dask-2": dict(client=client)}
+    engines = {"serial": dict(workers=1), "threads-2": dict(workers=ThreadPool(2)), "pool-1": dict(workers=pools[1]),
+               "pool-2": dict(workers=pools[2]), "dask-2": dict(client=client)}
     walls: dict[str, list[float]] = {k: [] for k in engines}
     batches = {}
     try:
@@ -186,9 +232,21 @@ def run(quick: bool = False, out_dir: Path = Path("out/bench"), rounds: int | No
     eff_serial = W["serial"] / (2 * W["pool-2"])
     eff_pool = W["pool-1"] / (2 * W["pool-2"])
     over = W["dask-2"] / W["pool-2"] - 1
+    up_threads, up_pool = W["serial"] / W["threads-2"], W["serial"] / W["pool-2"]
+    scripts = {}
+    for label, b, setting in (("rtol 3e-2", B, SETTING), ("rtol 1e-6", B // 4, HEAVY)):
+        w = {k: np.array(v) for k, v in unguarded(b, rounds, setting).items()}
+        scripts[label] = (b, w, w["serial"] / w["threads-2"])
     print(f"\nparallel efficiency 1 -> 2 cores (per round): against serial {np.median(eff_serial) * 100:.1f} % "
           f"({eff_serial.min() * 100:.1f}-{eff_serial.max() * 100:.1f}), against pool-1 {np.median(eff_pool) * 100:.1f} % "
           f"({eff_pool.min() * 100:.1f}-{eff_pool.max() * 100:.1f})")
+    print(f"speed-up on 2 cores against serial (per round): threads-2 {np.median(up_threads):.2f}x "
+          f"({up_threads.min():.2f}-{up_threads.max():.2f}), pool-2 {np.median(up_pool):.2f}x "
+          f"({up_pool.min():.2f}-{up_pool.max():.2f})")
+    for label, (b, w, up) in scripts.items():
+        print(f"from a script without a main guard, {b} rollouts at {label} ({len(up)} rounds): serial "
+              f"{np.median(w['serial']):.3f} s ({np.median(w['serial']) / b * 1e3:.1f} ms a rollout), threads-2 "
+              f"{np.median(w['threads-2']):.3f} s, speed-up {np.median(up):.2f}x ({up.min():.2f}-{up.max():.2f})")
     print(f"Dask LocalCluster overhead against pool-2 (per round): {np.median(over) * 100:+.1f} % "
           f"({over.min() * 100:+.1f}..{over.max() * 100:+.1f})")
     print(f"a Dask worker encoding one chunk of 64 rollouts' results: {enc_dask:.2f} ms with Dask's protocol, "
@@ -197,6 +255,9 @@ def run(quick: bool = False, out_dir: Path = Path("out/bench"), rounds: int | No
           f"{steal1 - steal0:.2f} s")
     summary = dict(engine="summary", cores=2, rollouts=B, rounds=rounds,
                    efficiency_vs_serial=float(np.median(eff_serial)), efficiency_vs_pool1=float(np.median(eff_pool)),
+                   speedup_threads2=float(np.median(up_threads)), speedup_pool2=float(np.median(up_pool)),
+                   speedup_threads2_unguarded=float(np.median(scripts["rtol 3e-2"][2])),
+                   speedup_threads2_unguarded_heavy=float(np.median(scripts["rtol 1e-6"][2])),
                    dask_overhead=float(np.median(over)), tip_error_max_m=float(err.max()),
                    tip_error_median_m=float(np.median(err)), load_before=load0[0], load_after=load1[0],
                    steal_s=steal1 - steal0, bit_identical=same, encode_dask_ms=enc_dask, encode_pickle_ms=enc_pickle)

@@ -11,6 +11,10 @@ call through a pointer. numba otherwise links every compiled callee into its cal
 types, optimises and emits it again there, so each stepper paid again for the whole model;
 a callback is compiled once, cached on its own, and can be compiled in another process at
 the same time as the rest (:mod:`qchain.sim.engine.warmup`).
+
+The entry points (:data:`ejit`) release Python's lock (``nogil``) for the whole call: a
+stretch of steps runs in another thread while this one goes on, so a batch's rollouts run on
+threads (:mod:`qchain.batch.threads`). Callbacks and inner functions never take the lock.
 """
 
 from __future__ import annotations
@@ -20,15 +24,48 @@ import warnings
 
 import numba
 from numba.core import sigutils, types
+from numba.core.caching import FunctionCache
 from numba.core.ccallback import CFunc
 from numba.core.errors import NumbaExperimentalFeatureWarning
 
-__all__ = ["ejit", "ejit_inner", "inline", "kernel", "Kernel", "OPTIONS", "first_class_functions"]
+__all__ = ["ejit", "ejit_inner", "inline", "kernel", "Kernel", "OPTIONS", "ENTRY_OPTIONS", "cached_here",
+           "first_class_functions"]
 
 #: the compiler options of every engine function
 OPTIONS = dict(error_model="numpy", _nrt=False)
-#: entry points, called from Python
-ejit = numba.njit(cache=True, **OPTIONS)
+#: what an entry point's on-disk cache entries are marked with, beyond numba's own key
+ENTRY_OPTIONS = dict(nogil=True)
+
+
+class _MarkedCache(FunctionCache):
+    """numba's on-disk cache with :data:`ENTRY_OPTIONS` in each entry's key.
+
+    numba's key is the signature, the CPU and the bytecode, not the compiler options; an
+    entry compiled before the entry points released the lock (from the same source file)
+    would load and hold it. Marked entries are found only by dispatchers with these options.
+    """
+
+    def _index_key(self, sig, codegen):
+        return super()._index_key(sig, codegen) + (tuple(sorted(ENTRY_OPTIONS.items())),)
+
+
+def cached_here(dispatcher, key_matches) -> bool:
+    """Whether ``dispatcher``'s on-disk index holds an entry whose key satisfies
+    ``key_matches(key)`` and, for an entry point, carries :class:`_MarkedCache`'s mark
+    (numba's cache layout is not public API: exceptions are the caller's to take)."""
+    keys = dispatcher._cache._cache_file._load_index()
+    mark = tuple(sorted(ENTRY_OPTIONS.items())) if isinstance(dispatcher._cache, _MarkedCache) else None
+    return any(key_matches(k) and (mark is None or k[-1] == mark) for k in keys)
+
+
+def ejit(fn):
+    """An entry point, called from Python: compiled without a reference count, cached, and
+    releasing Python's lock for the call (``nogil``)."""
+    disp = numba.njit(cache=True, **ENTRY_OPTIONS, **OPTIONS)(fn)
+    disp._cache = _MarkedCache(disp.py_func)
+    return disp
+
+
 #: called only from compiled code: the model and workspace tuples (dozens of arrays) get no
 #: CPython wrapper to unbox them (calling one from Python crashes the process)
 ejit_inner = numba.njit(cache=True, no_cpython_wrapper=True, **OPTIONS)

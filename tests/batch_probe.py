@@ -23,6 +23,13 @@ class Broken:
         return np.full(6, np.nan)
 
 
+class Never:
+    """An event function that never crosses zero."""
+
+    def __call__(self, t, q, v):
+        return 1.0
+
+
 def square_logged(shared, items):
     """``i -> i * i``, appending each finished item to the log ``shared[0]`` after ``shared[1]`` s."""
     path, pause = shared

@@ -5,10 +5,14 @@ batch arrays, run settings and worker counts checked before anything runs."""
 import io
 import os
 import signal
+import subprocess
+import sys
 import threading
 import time
 from decimal import Decimal
+from pathlib import Path
 
+import numba
 import numpy as np
 import pytest
 
@@ -151,7 +155,7 @@ def test_bad_arguments_are_named_where_they_enter(arm):
 def test_a_rollout_that_raises_stops_the_batch_naming_it(arm, pool):
     q0, v0, _ = inputs(arm, 3)
     ctrl = [batch_probe.Hold(np.full(arm.nu, 1e4)), batch_probe.Broken(), batch_probe.Hold(np.full(arm.nu, 1e4))]
-    for workers in (1, pool):
+    for workers in (1, pool, 2):  # (2: threads, the controller held at its rate)
         with pytest.raises(RolloutError, match=r"rollout 1 raised ValueError: pressure\(t, q, v\) has non-finite"):
             simulate_batch(arm, q0, v0, (0.0, 0.05), pressure=ctrl, controller_rate=100.0, method="rk4", dt=1e-3,
                            workers=workers)
@@ -361,3 +365,161 @@ def test_a_batch_names_the_rollout_whose_pressure_is_out_of_range():
         with pytest.raises(ValueError, match=r"pressure\[2\]\[0\] must stay >= -101325"):
             simulate_batch(ch, np.tile(ch.neutral(), (3, 1)), np.zeros((3, 6)), (0.0, 0.1), pressure=P, workers=1,
                            t_eval=np.linspace(0.0, 0.1, 11))
+
+
+# --------------------------------------------------------------------------------------
+# Threads (issue 29): the compiled engine releases Python's lock, so a batch's rollouts run on
+# threads of this process by default; processes where a rollout calls Python at every step.
+
+def runs_beside(work) -> bool:
+    """Whether this thread runs while another thread is inside ``work()``.
+
+    With the switch interval at 100 s no thread takes Python's lock from another: the
+    other thread keeps it from starting until it ends ``work()``, unless ``work()`` releases
+    it. Nothing in the other thread releases the lock before ``work()`` (``Event.set`` does
+    not)."""
+    inside, done = threading.Event(), threading.Event()
+
+    def target():
+        inside.set()
+        work()
+        done.set()
+
+    old = sys.getswitchinterval()
+    sys.setswitchinterval(100.0)
+    try:
+        th = threading.Thread(target=target)
+        th.start()
+        inside.wait()
+        beside = not done.is_set()
+        th.join()
+    finally:
+        sys.setswitchinterval(old)
+    return beside
+
+
+def rk4_stretch(steps: int):
+    """The rk4 stepper's compiled entry point and its arguments for ``steps`` steps of a
+    one-segment arm (no samples written), as the driver calls it."""
+    from qchain.sim.engine import steppers, warmup
+
+    m, wk, it, _, c = warmup.standin("rk4", False)
+    out = (np.array([1e9]), np.zeros((1, wk.q.size)), np.zeros((1, wk.v.size)), np.zeros((1, m.p_params.size)))
+    fs, entry = warmup.prepare("rk4", m, wk, it, out, c)
+    wk.q_chart[:] = warmup._standin_chain(False).neutral()
+    it.tf[steppers.T] = it.tf[steppers.T0] = 0.0
+    it.tf[steppers.DT] = it.tf[steppers.H] = 1e-5
+    it.tf[steppers.MAX_STEP] = np.inf
+    return lambda: entry(fs, m, wk, it, out, c, np.inf, 1 << 30, steps)
+
+
+@numba.njit
+def holds(n):
+    """Compiled without ``nogil``: :func:`runs_beside` must see it hold the lock. (At module
+    level: numba leaves a dead weak proxy behind a dispatcher made in a function, which
+    ``isinstance`` over ``gc.get_objects()`` in tests/test_dask.py then trips on.)"""
+    s = 0.0
+    for i in range(n):
+        s += np.sin(i * 1e-9)
+    return s
+
+
+def test_the_compiled_engine_releases_pythons_lock_while_it_steps():
+    from qchain.sim.engine import steppers, system
+
+    holds(10)
+    assert not runs_beside(lambda: holds(30_000_000))  # (the probe can fail)
+    rk4_stretch(10)()  # (loaded, and called once, before the probe)
+    assert runs_beside(rk4_stretch(50_000))
+    for fn in (*steppers.ADVANCE.values(), system.energies_batch):  # every entry point of a rollout
+        assert fn.targetoptions.get("nogil") is True, fn
+
+
+def test_rollouts_on_threads_are_bit_identical_to_simulate(arm):
+    from qchain.batch.threads import ThreadPool
+
+    B = 4
+    q0, v0, P = inputs(arm, B, seed=3)
+    P[2] = np.tile([4e6, 0.0, 0.0], arm.n)  # leaves the model: fails, the others go on
+    kw = dict(method="radau5", rtol=1e-4, atol=1e-6, t_eval=T_EVAL)
+    refs = [simulate(arm, q0[i], v0[i], T, pressure=P[i], **kw) for i in range(B)]
+    for workers in (2, None, ThreadPool(2)):
+        b = simulate_batch(arm, q0, v0, T, pressure=P, workers=workers, **kw)
+        assert b.meta["engine"] == "threads" and b.meta["workers"] == 2, workers
+        assert list(b.success) == [True, True, False, True]
+        for i in range(B):
+            assert same(b[i], refs[i]), (workers, i)
+        assert {r["worker"] for r in b.meta["rollouts"]} == {f"{os.uname().nodename}:{os.getpid()}"}
+        assert all(r["thread"].startswith("qchain-rollout") for r in b.meta["rollouts"])
+    fixed = dict(method="rk4", dt=1e-3)  # no t_eval: every step, the grid of the longest rollout
+    b = simulate_batch(arm, q0, v0[0], (0.0, 0.05), pressure=P, workers=2, **fixed)
+    assert b.meta["engine"] == "threads" and b.t.size == max(b.nsamples) == 51
+    for i in range(B):
+        assert same(b[i], simulate(arm, q0[i], v0[0], (0.0, 0.05), pressure=P[i], **fixed)), i
+
+
+@pytest.mark.slow
+def test_rollouts_that_call_python_at_every_step_run_on_processes_by_default(arm):
+    from qchain.batch.threads import ThreadPool
+    from qchain.sim.simulation import Event
+
+    q0, v0, _ = inputs(arm, 2, seed=4)
+    hold = batch_probe.Hold(np.full(arm.nu, 1e4))
+    kw = dict(method="rk4", dt=1e-3, t_eval=np.linspace(0, 0.02, 5))
+    refs = [simulate(arm, q0[i], v0[i], (0.0, 0.02), pressure=hold, **kw) for i in range(2)]
+    b = simulate_batch(arm, q0, v0, (0.0, 0.02), pressure=hold, workers=2, **kw)  # a controller at every stage
+    assert b.meta["engine"] == "local" and all(same(b[i], refs[i]) for i in range(2))
+    b = simulate_batch(arm, q0, v0, (0.0, 0.02), pressure=hold, workers=ThreadPool(2), **kw)  # chosen: threads
+    assert b.meta["engine"] == "threads" and all(same(b[i], refs[i]) for i in range(2))
+    held = simulate_batch(arm, q0, v0, (0.0, 0.02), pressure=hold, controller_rate=500.0, workers=2, **kw)
+    assert held.meta["engine"] == "threads"  # held: Python only at the controller's instants
+    ev = [Event(batch_probe.Never(), name="never")]
+    b = simulate_batch(arm, q0, v0, (0.0, 0.02), events=ev, workers=2, **kw)
+    assert b.meta["engine"] == "local" and b.success.all()
+
+
+@pytest.mark.slow
+def test_a_script_without_a_main_guard_runs_a_batch_on_threads(tmp_path):
+    script = tmp_path / "batch_script.py"
+    script.write_text(
+        "import numpy as np\n"
+        "from qchain import Chain, Segment, simulate, simulate_batch\n"
+        "from qchain.sim.inputs import Sine\n"
+        f"arm = Chain([Segment(**{SEG!r}) for _ in range(2)], gravity=(0, 0, -9.81))\n"
+        "P = [Sine(amplitude=np.full(6, 2e4), frequency=f, offset=np.full(6, 2e4)) for f in (1.0, 2.0, 3.0, 4.0)]\n"
+        "te = np.linspace(0, 0.1, 6)\n"
+        "b = simulate_batch(arm, np.tile(arm.neutral(), (4, 1)), np.zeros(arm.nv), (0, 0.1), pressure=P, t_eval=te,\n"
+        "                   rtol=1e-4, atol=1e-6, workers=2)\n"
+        "same = all(np.array_equal(b.q[i], simulate(arm, arm.neutral(), np.zeros(arm.nv), (0, 0.1), pressure=P[i],\n"
+        "                                           t_eval=te, rtol=1e-4, atol=1e-6).q) for i in range(4))\n"
+        "print(b.meta['engine'], b.meta['workers'], bool(b.success.all()), same)\n")
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(Path(__file__).resolve().parents[1]),
+                                                       os.environ.get("PYTHONPATH", "")]))
+    r = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=600, env=env,
+                       cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.split() == ["threads", "2", "True", "True"], (r.stdout, r.stderr)
+
+
+@pytest.mark.slow
+def test_an_error_or_ctrl_c_on_threads_stops_the_rollouts_still_running(arm):
+    q0, v0, _ = inputs(arm, 4, seed=5)
+    long = dict(method="rk4", dt=1e-5, t_eval=np.linspace(0, 50.0, 11))  # minutes a rollout
+    def rollout_threads():
+        return [t for t in threading.enumerate() if t.name.startswith("qchain-rollout")]
+
+
+    def interrupt():
+        time.sleep(1.0)
+        os.kill(os.getpid(), signal.SIGINT)  # as Ctrl-C: to the process, whichever thread takes it
+
+    threading.Thread(target=interrupt, daemon=True).start()
+    with deadline(120, "a batch on threads after Ctrl-C"), pytest.raises(KeyboardInterrupt):
+        simulate_batch(arm, q0, v0, (0.0, 50.0), pressure=np.full((4, arm.nu), 1e4), workers=2, **long)
+    assert not rollout_threads()  # every rollout's thread ended
+    ctrl = [batch_probe.Hold(np.full(arm.nu, 1e4)) for _ in range(4)]
+    ctrl[1] = batch_probe.Broken()  # raises at once, on the second thread, while the first runs rollout 0
+    with deadline(120, "a batch on threads after an error"), \
+            pytest.raises(RolloutError, match=r"rollout 1 raised ValueError: pressure\(t, q, v\) has non-finite"):
+        simulate_batch(arm, q0, v0, (0.0, 50.0), pressure=ctrl, controller_rate=100.0, workers=2, **long)
+    assert not rollout_threads()

@@ -525,8 +525,13 @@ def test_the_python_sweep_refuses_engine_arguments_where_they_enter(tmp_path):
         with deadline(10, f"sweep({kw})"), pytest.raises((TypeError, ValueError)) as exc:
             sweep(tmp_path / "scene.toml", axes, folder=tmp_path / "res", **kw)
         assert words in str(exc.value), (kw, str(exc.value))
+    from qchain.batch.threads import ThreadPool
+
+    with pytest.raises(ValueError, match="a sweep's run builds its scene, computes its metrics and writes its files"):
+        sweep(tmp_path / "scene.toml", axes, folder=tmp_path / "res", workers=ThreadPool(2))
     assert not (tmp_path / "res").exists()
-    with pytest.raises(ValueError, match="<= 1024 or a qchain.batch.workers.LocalPool, got an int 1000000000"):
+    with pytest.raises(ValueError, match="<= 1024, a qchain.batch.threads.ThreadPool or a qchain.batch.workers.LocalPool, "
+                                         "got an int 1000000000"):
         LocalPool(10**9)
     assert resolve_workers(2) == 2 and resolve_workers(-1) >= 1
 

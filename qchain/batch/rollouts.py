@@ -1,15 +1,18 @@
 """Many rollouts of one chain at once: ``simulate_batch(chain, q0, v0, t_span, ...) -> BatchTrajectory``,
-each rollout bit for bit what :func:`qchain.simulate` gives with the same arguments, on the
-engines of :mod:`qchain.batch.workers`. Behaviour, failures and guarantees: ``docs/sweeps.md``
-("Batched rollouts")."""
+each rollout bit for bit what :func:`qchain.simulate` gives with the same arguments, on
+threads of this process (:mod:`qchain.batch.threads`) or the engines of
+:mod:`qchain.batch.workers`. Behaviour, failures, guarantees and which engine is the default:
+``docs/sweeps.md`` ("Batched rollouts", "Engines")."""
 
 from __future__ import annotations
 
 import dataclasses
+import functools
 import os
 import pickle
 import socket
 import sys
+import threading
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -53,10 +56,10 @@ class BatchTrajectory:
         Wall time of each rollout's ``simulate`` call in its worker (``meta["rollouts"][i]
         ["compile_s"]`` of it went to compiling or loading the engine).
     meta : dict
-        ``method``, ``engine`` ("serial", "local" or "dask"), ``workers``, ``wall_s`` (the
-        whole call), ``compile_s`` (this process's compile or load before fanning out),
-        ``t_span``, ``rollouts`` (each rollout's ``Trajectory.meta``, with ``worker``:
-        the ``host:pid`` that ran it).
+        ``method``, ``engine`` ("serial", "threads", "local" or "dask"), ``workers``,
+        ``wall_s`` (the whole call), ``compile_s`` (this process's compile or load before
+        fanning out), ``t_span``, ``rollouts`` (each rollout's ``Trajectory.meta``, with
+        ``worker``: the ``host:pid`` that ran it, and ``thread``: the name of its thread).
     """
 
     t: np.ndarray
@@ -212,13 +215,23 @@ def _rollouts(shared: _Shared, items: list) -> list:
             raise RolloutError(i, f"{type(err).__name__}: {err}") from err
         wall = time.perf_counter() - w0
         tr.meta["worker"] = f"{socket.gethostname()}:{os.getpid()}"
+        tr.meta["thread"] = threading.current_thread().name
         out.append((tr, wall))
     return out
 
 
-def _warm(shared_and_item: tuple) -> float:
+def _rollouts_into(sink: _Sink, shared: _Shared, items: list) -> list:
+    """:func:`_rollouts`, each result written into ``sink`` by the thread that ran it
+    (this process's engines: serial, threads); returns None an item."""
+    for item, (tr, wall) in zip(items, _rollouts(shared, items)):
+        sink.put(item[0], tr, wall)
+    return [None] * len(items)
+
+
+def _warm(shared_and_item: tuple) -> tuple[float, str]:
     """A one-step run of ``(shared, item)`` (compiles or loads the engine); returns its wall
-    time. Here and in a worker (:meth:`qchain.batch.workers.DaskEngine.warm`)."""
+    time and the engine it ran on (``"compiled"`` or ``"python"``). Here and in a worker
+    (:meth:`qchain.batch.workers.DaskEngine.warm`)."""
     shared, item = shared_and_item
     t0 = shared.t_span[0]
     kw = _inputs(shared, item)
@@ -227,10 +240,12 @@ def _warm(shared_and_item: tuple) -> float:
     span = kw["dt"] if kw["method"] in FIXED_STEP else 1e-6
     w0 = time.perf_counter()
     try:
-        simulate(shared.chain, item[1], item[2], (t0, t0 + span), **kw)
+        tr = simulate(shared.chain, item[1], item[2], (t0, t0 + span), **kw)
+        if kw["energies"]:  # their pass compiled or loaded here too, not by every thread or worker at once
+            tr.kinetic_energy
     except Exception as err:  # what rollout item[0] would raise at its first step
         raise RolloutError(item[0], f"{type(err).__name__}: {err}") from err
-    return time.perf_counter() - w0
+    return time.perf_counter() - w0, tr.meta.get("engine")
 
 
 def simulate_batch(
@@ -277,8 +292,13 @@ def simulate_batch(
     t_eval : (N,) s
         The batch's one time grid: required for the adaptive methods; for ``rk4`` and
         ``midpoint`` without events the default is every step.
-    workers : int, None or LocalPool
-        None or -1 every core (default), 1 this process, up to 1024 (:data:`qchain.checks.bounds.WORKERS`).
+    workers : int, None, ThreadPool or LocalPool
+        None or -1 every core (default), 1 this process, up to 1024 (:data:`qchain.checks.bounds.WORKERS`):
+        threads of this process where every rollout runs in compiled code (a compiled
+        ``method``, no ``events``, schedules or constants as inputs or a controller held at
+        ``controller_rate``), worker processes otherwise (``docs/sweeps.md``, "Engines"). A
+        :class:`qchain.batch.threads.ThreadPool` or :class:`qchain.batch.workers.LocalPool`
+        chooses the engine.
     client : dask.distributed.Client, str or DaskEngine, optional
         A Dask cluster instead (a client or a scheduler address ``tcp://HOST:PORT``).
     retries : int
@@ -304,11 +324,12 @@ def simulate_batch(
     _check_starts(chain, Q0, V0, B, t0)
     shared, items = _share(chain, (t0, t1), method, cfg, budget, Q0, V0, p_in, tau_in, B)
     w_start = time.perf_counter()
-    results, name, n_workers, compile_s = _run_all(shared, items, workers=workers, client=client, retries=retries,
-                                                   progress=progress)
+    sink = _Sink(chain, B, cfg["t_eval"], (t0, t1), cfg["dt"])
+    name, n_workers, compile_s = _run_all(shared, items, sink, workers=workers, client=client, retries=retries,
+                                          progress=progress, python_inputs=_calls_python(cfg, p_in, tau_in))
     wall_s = time.perf_counter() - w_start
-    return _assemble(chain, results, cfg["t_eval"], (t0, t1), dict(method=method, engine=name, workers=n_workers,
-                                                                   wall_s=wall_s, compile_s=compile_s, t_span=(t0, t1)))
+    return sink.result(dict(method=method, engine=name, workers=n_workers, wall_s=wall_s, compile_s=compile_s,
+                            t_span=(t0, t1)))
 
 
 def _check_shared_settings(chain: Chain, t_span, *, method: str, workers, client, retries, progress, rtol, atol,
@@ -386,67 +407,111 @@ def _share(chain: Chain, t_span: tuple[float, float], method: str, cfg: dict, bu
     return shared, items
 
 
-def _run_all(shared: _Shared, items: list, *, workers, client, retries: int, progress: bool):
+def _calls_python(cfg: dict, p: tuple, tau: tuple) -> bool:
+    """Whether a rollout calls Python at every step: events, or a controller not held at a
+    ``controller_rate`` (which runs on the Python steppers)."""
+    if cfg["events"]:
+        return True
+    inputs = [x for shared, each in (p, tau) for x in (shared, *(each or ()))]
+    return cfg["controller_rate"] is None and any(callable(x) and not isinstance(x, Schedule) for x in inputs)
+
+
+def _run_all(shared: _Shared, items: list, sink: _Sink, *, workers, client, retries: int, progress: bool,
+             python_inputs: bool):
     """Step 4 of :func:`simulate_batch`: run the rollouts here one after the other or on the
-    engine :func:`qchain.batch.workers.engine_for` picks (the method's engine compiled or loaded
-    here first); returns ``(results, engine name, workers, compile_s)``, ``results[i]`` a
-    ``(Trajectory, wall s)`` or a :class:`qchain.batch.workers.Lost`."""
+    engine :func:`qchain.batch.workers.engine_for` picks (threads where every rollout runs in
+    compiled code: a compiled method on the compiled engine, ``python_inputs`` False), the
+    method's engine compiled or loaded here first; each result written into ``sink``. Returns
+    ``(engine name, workers, compile_s)``."""
     chain, method = shared.chain, shared.kw["method"]
     B = len(items)
-    engine = engine_for(workers, client, tasks=B)
-    compile_s = 0.0
-    results: list = [None] * B
+    compile_s, runs_on = 0.0, "python"
+    if method in COMPILED and (workers != 1 or client is not None):
+        # compile or load the engine here once: threads share it, worker processes load it from the cache
+        compile_s, runs_on = _warm((shared, items[0]))
+    engine = engine_for(workers, client, tasks=B, threads=runs_on == "compiled" and not python_inputs)
     from tqdm import tqdm
 
     bar = tqdm(total=B, unit="rollout", file=sys.stderr, smoothing=0.1, disable=not progress)
     try:
         if engine is None:
             name, n_workers = "serial", 1
-            for k, item in enumerate(items):
-                results[k] = _rollouts(shared, [item])[0]
+            for item in items:
+                _rollouts_into(sink, shared, [item])
+                bar.update(1)
+        elif engine.kind == "threads":
+            name, n_workers = engine.kind, min(engine.workers, B)
+            for _ in engine.map(functools.partial(_rollouts_into, sink), shared, items):
                 bar.update(1)
         else:
             name, n_workers = engine.kind, engine.workers
             payload = Payload.of(shared, "the chain and the shared inputs")
-            if method in COMPILED:  # compile or load the engine here once; the workers load it from the cache
-                compile_s = _warm((shared, items[0]))
+            if method in COMPILED:
                 engine.warm(_warm, Payload.of((shared, items[0])), key=("rollout", method, bool(chain.planar)))
             for i, res in engine.map(_rollouts, payload, items, retries=retries):
-                results[i] = res
+                if isinstance(res, Lost):
+                    sink.lost(i, res)
+                else:
+                    sink.put(i, *res)
                 bar.update(1)
     finally:
         bar.close()
         if engine is not None and isinstance(client, str):  # a client this call connected
             engine.close()
-    return results, name, n_workers, compile_s
+    return name, n_workers, compile_s
 
 
-def _assemble(chain: Chain, results: list, t_eval, t_span, meta: dict) -> BatchTrajectory:
-    B = len(results)
-    trajs = [None if isinstance(r, Lost) else r[0] for r in results]
-    if t_eval is not None:
-        t = t_eval.copy()
-    else:  # a fixed step: every rollout's samples are the same grid, up to where it stopped
-        t = max((tr.t for tr in trajs if tr is not None), key=len, default=np.zeros(0))
-    N = t.size
-    q, v, p = (np.full((B, N, size), np.nan) for size in (chain.nq, chain.nv, chain.nu))
-    ke, pe, wall = np.full((B, N), np.nan), np.full((B, N), np.nan), np.full(B, np.nan)
-    success, status, message = np.zeros(B, bool), np.full(B, -1, int), np.empty(B, object)
-    nfev, nsteps, nsamples = np.zeros(B, int), np.zeros(B, int), np.zeros(B, int)
-    rollouts = []
-    for i, (r, tr) in enumerate(zip(results, trajs)):
-        if tr is None:
-            message[i] = f"not run: {r.message}"
-            rollouts.append({"method": meta["method"], "lost": r.message, "attempts": r.attempts})
-            continue
+class _Sink:
+    """The batch's arrays, made before any rollout runs (NaN until written); each rollout's
+    results are written into its rows as it ends, by the thread that ran it where it ran in
+    this process. ``t_eval`` (N,) s the batch's grid, or None for a fixed step ``dt`` s over
+    ``t_span``: every rollout's own steps, the same grid up to where each stopped."""
+
+    def __init__(self, chain: Chain, B: int, t_eval, t_span: tuple[float, float], dt: float | None):
+        self.method_grid = t_eval is None
+        if self.method_grid:  # at most a sample at t0, one a grid step inside the span and one at t1
+            t0, t1 = t_span
+            N = int(np.floor((t1 - t0) / dt)) + 3
+            self.t = np.full(N, np.nan)
+        else:
+            self.t = t_eval.copy()
+            N = self.t.size
+        self.n_t = 0  # samples of the longest rollout so far (the grid known up to there)
+        self.q, self.v, self.p = (np.full((B, N, size), np.nan) for size in (chain.nq, chain.nv, chain.nu))
+        self.ke, self.pe, self.wall = np.full((B, N), np.nan), np.full((B, N), np.nan), np.full(B, np.nan)
+        self.success, self.status, self.message = np.zeros(B, bool), np.full(B, -1, int), np.empty(B, object)
+        self.nfev, self.nsteps, self.nsamples = np.zeros(B, int), np.zeros(B, int), np.zeros(B, int)
+        self.rollouts: list = [None] * B
+        self._lock = threading.Lock()
+
+    def put(self, i: int, tr: Trajectory, wall: float) -> None:
+        """Rollout ``i``'s trajectory into its rows (its energies computed here if they were not)."""
         K = len(tr.t)
-        if not np.array_equal(tr.t, t[:K]):  # the batch's one time grid is every rollout's
-            raise AssertionError(f"rollout {i} was sampled at other times than the batch's grid")
-        q[i, :K], v[i, :K], p[i, :K] = tr.q, tr.v, tr.p
-        ke[i, :K], pe[i, :K] = tr.kinetic_energy, tr.potential_energy
-        success[i], status[i], message[i] = tr.success, tr.status, tr.message
-        nfev[i], nsteps[i], nsamples[i], wall[i] = tr.nfev, tr.meta.get("nsteps", 0), K, r[1]
-        rollouts.append(dict(tr.meta))
-    meta["rollouts"] = rollouts
-    return BatchTrajectory(t=t, q=q, v=v, p=p, kinetic_energy=ke, potential_energy=pe, success=success, status=status,
-                           message=message, nfev=nfev, nsteps=nsteps, nsamples=nsamples, wall=wall, meta=meta)
+        with self._lock:  # the grid: every rollout's samples are at the batch's one grid's times
+            known = min(K, self.n_t) if self.method_grid else K
+            if K > self.t.size or not np.array_equal(tr.t[:known], self.t[:known]):
+                raise AssertionError(f"rollout {i} was sampled at other times than the batch's grid")
+            if K > self.n_t:
+                if self.method_grid:
+                    self.t[self.n_t : K] = tr.t[self.n_t :]
+                self.n_t = K
+        self.q[i, :K], self.v[i, :K], self.p[i, :K] = tr.q, tr.v, tr.p
+        self.ke[i, :K], self.pe[i, :K] = tr.kinetic_energy, tr.potential_energy
+        self.success[i], self.status[i], self.message[i] = tr.success, tr.status, tr.message
+        self.nfev[i], self.nsteps[i], self.nsamples[i], self.wall[i] = tr.nfev, tr.meta.get("nsteps", 0), K, wall
+        self.rollouts[i] = dict(tr.meta)
+
+    def lost(self, i: int, r: Lost) -> None:
+        """Rollout ``i`` not run: its workers died (``r``)."""
+        self.message[i] = f"not run: {r.message}"
+        self.rollouts[i] = {"lost": r.message, "attempts": r.attempts}
+
+    def result(self, meta: dict) -> BatchTrajectory:
+        """The batch, with ``meta`` (and each rollout's in ``meta["rollouts"]``)."""
+        N = self.n_t if self.method_grid else self.t.size
+        cut = (lambda a: a[:, :N]) if N < self.t.size else (lambda a: a)  # (the grid's rows beyond its last sample)
+        meta["rollouts"] = [r if r is None or "lost" not in r else {"method": meta["method"], **r} for r in self.rollouts]
+        return BatchTrajectory(t=self.t[:N].copy(), q=cut(self.q), v=cut(self.v), p=cut(self.p),
+                               kinetic_energy=cut(self.ke), potential_energy=cut(self.pe), success=self.success,
+                               status=self.status, message=self.message, nfev=self.nfev, nsteps=self.nsteps,
+                               nsamples=self.nsamples, wall=self.wall, meta=meta)

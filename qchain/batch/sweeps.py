@@ -29,7 +29,7 @@ from ..scene.reading import load_scene, parse_scene
 from .sweep_spec import (
     Axis, SweepError, SweepSpec, _metrics_name, _plain, check_results_folder, load_sweep,
     validate_runs)
-from .workers import DEFAULT_RETRIES, ClusterLost, Lost, Payload, check_engine, engine_for
+from .workers import DEFAULT_RETRIES, ClusterLost, Lost, Payload, ThreadPool, check_engine, engine_for
 
 __all__ = ["sweep", "run_sweep", "SweepResult", "METRICS", "TIMING_COLUMNS", "summary_metrics", "Axis",
            "SweepSpec", "SweepError", "load_sweep"]
@@ -474,6 +474,10 @@ def run_sweep(spec: SweepSpec, *, workers=None, client=None, progress: bool | No
     if workers is None and client is None:
         workers, client = spec.workers, spec.dask
     check_engine(workers, client, spec.retries)
+    if isinstance(workers, ThreadPool):
+        raise ValueError(f"workers must be a count, a qchain.batch.workers.LocalPool or None for a sweep, got {workers!r}: "
+                         "a sweep's run builds its scene, computes its metrics and writes its files in Python, which "
+                         "threads would run one at a time")
     runs = spec.run_texts() if runs is None else runs
     scenes = validate_runs(spec, runs)
     axis_cols = [k for a in spec.axes for k in a.keys]

@@ -1,5 +1,7 @@
-"""Where batches and sweeps run: worker processes on this machine (:class:`LocalPool`, the
-default) or a Dask cluster (:class:`DaskEngine`).
+"""Where batches and sweeps run: threads of this process (:class:`ThreadPool`, from
+:mod:`qchain.batch.threads`: a batch's default where its rollouts run in compiled code),
+worker processes on this machine (:class:`LocalPool`, the default otherwise) or a Dask
+cluster (:class:`DaskEngine`).
 
 :func:`qchain.simulate_batch` and :func:`qchain.sweep` hand their work here as *items* (the
 arguments of one rollout or one sweep run), a module-level function ``fn(shared, items) ->
@@ -33,8 +35,10 @@ import numpy as np
 from ..checks import bounds
 from ..checks.convert import describe_value
 from ..errors import ClusterLost
+from .threads import ThreadPool, _whole, resolve_workers
 
-__all__ = ["LocalPool", "DaskEngine", "ClusterLost", "Lost", "Payload", "plan_chunks", "resolve_workers", "check_engine",
+__all__ = ["LocalPool", "ThreadPool", "DaskEngine", "ClusterLost", "Lost", "Payload", "plan_chunks", "resolve_workers",
+           "check_engine",
            "engine_for", "default_pool", "dumps", "DEFAULT_RETRIES", "DEFAULT_LOST_TIMEOUT"]
 
 #: times an item is sent again after the worker running it died
@@ -146,29 +150,11 @@ def plan_chunks(n_items: int, n_workers: int, factor: int = 4, max_chunk: int = 
     return chunks
 
 
-def _whole(x) -> bool:
-    return isinstance(x, (int, np.integer)) and not isinstance(x, (bool, np.bool_))
-
-
-def resolve_workers(workers) -> int:
-    """The number of worker processes for ``workers``: None or -1 every core this process
-    may use, else an int within :data:`qchain.checks.bounds.WORKERS`."""
-    if workers is None or (_whole(workers) and workers == -1):
-        try:
-            return len(os.sched_getaffinity(0))
-        except AttributeError:  # not Linux
-            return os.cpu_count() or 1
-    if not (_whole(workers) and bounds.WORKERS.contains(workers)):
-        raise ValueError(f"workers must be None or -1 (every core), an int >= 1 and <= {bounds.WORKERS.high:g} or a "
-                         f"qchain.batch.workers.LocalPool, got {describe_value(workers)}")
-    return int(workers)
-
-
 def check_engine(workers, client, retries) -> int:
     """Check a batch's or a sweep's ``workers``, ``client`` and ``retries`` where they enter
     (``TypeError``/``ValueError`` naming the argument, the value and the bound); returns
     ``retries`` as an int."""
-    if not (workers is None or isinstance(workers, (LocalPool, DaskEngine))):
+    if not (workers is None or isinstance(workers, (ThreadPool, LocalPool, DaskEngine))):
         resolve_workers(workers)
     if client is not None and not (isinstance(client, (str, DaskEngine)) or hasattr(client, "submit")):
         raise TypeError(f"client must be None, a scheduler address 'tcp://HOST:PORT', a dask.distributed.Client or a "
@@ -464,7 +450,7 @@ class DaskEngine:
     """Items as tasks on a ``dask.distributed`` cluster: ``client`` a client or a scheduler
     address (connected here, closed by :meth:`close`); ``lost_timeout`` s without a worker or an
     answer before :class:`ClusterLost` (default the dask config ``qchain.lost-timeout``, else
-    300 s; None waits for ever). Start workers with ``--nthreads 1``: the engine holds the GIL."""
+    300 s; None waits for ever). Start workers with ``--nthreads 1``: an item's Python holds the GIL."""
 
     kind = "dask"
 
@@ -581,8 +567,9 @@ class DaskEngine:
         if any(n > 1 for n in threads):
             import warnings
 
-            warnings.warn(f"Dask workers with {max(threads)} threads run one qchain item at a time each (the "
-                          "compiled engine holds the GIL): start one worker process a core with --nthreads 1",
+            warnings.warn(f"Dask workers with {max(threads)} threads run the Python of qchain items one at a time "
+                          "each (the GIL: a sweep run's scene, metrics and files, a rollout's set-up): start one "
+                          "worker process a core with --nthreads 1",
                           RuntimeWarning, stacklevel=3)
         attempts = [0] * len(items)
         pending: dict = {}  # future -> chunk (item indices), in the order sent
@@ -706,18 +693,22 @@ def _takes_n_workers(client) -> bool:
         return False
 
 
-def engine_for(workers=None, client=None, tasks: int | None = None):
-    """The engine for ``workers`` (an int, None for every core, or a :class:`LocalPool`) and
-    ``client`` (a Dask client or address, or a :class:`DaskEngine`); None where the work
-    runs in this process (``workers=1`` without a client). ``tasks``: how many there are to
-    run; no more worker processes start than that (``workers=1024`` for two runs starts two)."""
+def engine_for(workers=None, client=None, tasks: int | None = None, threads: bool = False):
+    """The engine for ``workers`` (an int, None for every core, a :class:`ThreadPool` or a
+    :class:`LocalPool`) and ``client`` (a Dask client or address, or a :class:`DaskEngine`);
+    None where the work runs in this process (``workers=1`` without a client). A count gives
+    threads where ``threads`` (the work runs in compiled code, which releases Python's lock),
+    else worker processes. ``tasks``: how many there are to run; no more workers start than
+    that (``workers=1024`` for two runs starts two)."""
     if client is not None:
         if workers is not None:
             raise ValueError("give workers or client, not both: a Dask cluster has its own workers")
         return client if isinstance(client, DaskEngine) else DaskEngine(client)
-    if isinstance(workers, (LocalPool, DaskEngine)):
+    if isinstance(workers, (ThreadPool, LocalPool, DaskEngine)):
         return workers
     n = resolve_workers(workers)
     if tasks is not None:
         n = max(1, min(n, int(tasks)))
-    return None if n == 1 else default_pool(n)
+    if n == 1:
+        return None
+    return ThreadPool(n) if threads else default_pool(n)

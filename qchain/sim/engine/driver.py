@@ -2,14 +2,18 @@
 
 :func:`run` calls a stepper's ``advance`` (:mod:`qchain.sim.engine.steppers`) and between calls
 does only what must be Python (docs/engine.md); a call otherwise runs a stretch sized to
-take about :data:`STRETCH` s of wall time, so Ctrl-C is felt promptly.
+take about :data:`STRETCH` s of wall time, so Ctrl-C is felt promptly. A stretch releases
+Python's lock (:data:`qchain._jit.ejit`): runs in other threads go on meanwhile, and a run in
+a thread stops between stretches when the event :func:`stop_on` set for that thread is set.
 """
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import inspect
 import sys
+import threading
 import time as _time
 
 import numpy as np
@@ -20,7 +24,7 @@ from ..trajectory import Trajectory
 from . import steppers, system, warmup
 from .steppers import AT_STOP, FAILED, STEPS
 
-__all__ = ["run", "Interrupted", "STRETCH"]
+__all__ = ["run", "Interrupted", "STRETCH", "stop_on"]
 
 STRETCH = 0.05  #: s of wall time a compiled stretch aims at between looks from Python
 EPS = np.finfo(float).eps
@@ -32,6 +36,23 @@ class Interrupted(KeyboardInterrupt):
     def __init__(self, trajectory: Trajectory):
         super().__init__("interrupted")
         self.trajectory = trajectory
+
+
+_thread = threading.local()  # .stop: the event that interrupts this thread's runs (stop_on)
+
+
+@contextlib.contextmanager
+def stop_on(event: threading.Event):
+    """A context in which this thread's runs stop at their next look from Python (within a
+    stretch, about :data:`STRETCH` s) once ``event`` is set, as at Ctrl-C: :class:`Interrupted`
+    with the trajectory so far. For runs on a thread of a pool, where Ctrl-C reaches only the
+    main thread."""
+    before = getattr(_thread, "stop", None)
+    _thread.stop = event
+    try:
+        yield
+    finally:
+        _thread.stop = before
 
 
 class _Outputs:
@@ -122,6 +143,7 @@ def _run(chain, m, method, q0, v0, t0, t1, *, dt, rtol, atol, t_eval, on_sample,
     ev_log: list[tuple[str, float]] = []
     g_prev = [e(t0, q0, v0) for e in events]
     emitted = 0
+    stop = getattr(_thread, "stop", None)
     max_steps = 1  # grows by 4x a stretch to STRETCH s: a costly step (a large implicit model) is felt at once
     t = t0
     if on_sample is not None and pass_energies:  # the samples' energies are needed as they come
@@ -171,6 +193,8 @@ def _run(chain, m, method, q0, v0, t0, t1, *, dt, rtol, atol, t_eval, on_sample,
             if deadline is not None and _time.perf_counter() > deadline:
                 status, message = -1, f"wall-clock limit reached at t = {t:.6g} s"
                 break
+            if stop is not None and stop.is_set():
+                raise KeyboardInterrupt
             if code == AT_STOP:
                 if t >= t1:
                     break
@@ -413,18 +437,18 @@ def stability_limit(chain, q, v, p, tau, t, radius: float = RK4_STABILITY_RADIUS
     if idx.size > STABILITY_MAX_NV:
         return None
     key = tuple(np.asarray(x, dtype=float).tobytes() for x in (q, v, p, tau)) + (float(t),)
-    last = _LAST_RADIUS
-    if last and last[0] is chain and last[1] == key:  # (qchain run checks the budget, then simulate again)
+    last = _LAST_RADIUS[0]  # one read of one tuple: another thread may replace it meanwhile
+    if last is not None and last[0] is chain and last[1] == key:  # (qchain run checks the budget, then simulate again)
         rho = last[2]
     else:
         rho = _spectral_radius(chain, idx, q, v, p, tau, t)
-        _LAST_RADIUS[:] = [chain, key, rho]
+        _LAST_RADIUS[0] = (chain, key, rho)
     return radius / rho if rho is not None and rho > 0 else None
 
 
-#: ``[chain, state key, spectral radius]`` of the last :func:`stability_limit` (the chain kept,
-#: so that its identity is not another's)
-_LAST_RADIUS: list = []
+#: ``[(chain, state key, spectral radius)]`` of the last :func:`stability_limit` (the chain
+#: kept, so that its identity is not another's), replaced whole
+_LAST_RADIUS: list = [None]
 
 
 def _spectral_radius(chain, idx, q, v, p, tau, t) -> float | None:

@@ -12,12 +12,13 @@ import atexit
 import os
 import subprocess
 import sys
+import threading
 import time
 
 import numpy as np
 
 from . import steppers, system
-from ..._jit import Kernel, first_class_functions
+from ..._jit import Kernel, cached_here, first_class_functions
 
 __all__ = ["prepare", "prepare_energies", "start", "parts", "is_cached", "announce", "loaded", "callbacks",
            "EXPECTED_COMPILE_S", "IMPLICIT"]
@@ -98,7 +99,7 @@ def is_cached(dispatcher) -> bool | None:
     """Whether numba's on-disk cache holds machine code for ``dispatcher`` built from its
     current source (None if that cannot be told)."""
     try:
-        return bool(dispatcher._cache._cache_file._load_index())
+        return cached_here(dispatcher, lambda key: True)
     except Exception:  # numba's cache layout is not public API: no answer, no notice
         return None
 
@@ -193,18 +194,21 @@ def prepare(method: str, m, wk, it, out, c, energies: bool = False, stream=sys.s
     stepper, called ``advance(fs, m, wk, it, out, c, t_stop, max_out, max_steps)``."""
     key = (method, system.rhs(m).__name__, _fingerprint((m, wk, it, out, c)))
     ready = _ready.get(key)
-    if ready is not None:
-        if energies:
-            prepare_energies(m, wk)
-        return ready
+    if ready is None:
+        with _lock:  # runs on threads (qchain.batch.threads): one of them compiles or loads, the others wait
+            ready = _ready.get(key) or _prepare(key, method, m, wk, it, out, c, energies, stream)
+    if energies:
+        prepare_energies(m, wk)
+    return ready
+
+
+def _prepare(key, method, m, wk, it, out, c, energies, stream) -> tuple:
     if loaded(method) and all(k.loaded(*_kernel_args(k.__name__, m, wk, it)) for k in _kernels(method, m)):
         fs = callbacks(method, m, wk, it)
     else:
         start(method, bool(m.planar_kernel == 1), energies, stream)
         _wait()
         fs = callbacks(method, m, wk, it)  # loaded from the cache, or compiled here if a worker failed
-    if energies:
-        prepare_energies(m, wk)
     advance = steppers.ADVANCE[method]
     # the compiled stepper's own entry point: numba's dispatcher types the callbacks argument in
     # Python at every call (a quarter of a millisecond), the entry point only unboxes it
@@ -218,6 +222,7 @@ def prepare(method: str, m, wk, it, out, c, energies: bool = False, stream=sys.s
 
 
 _ready: dict = {}  # (method, right-hand side, argument fingerprint) -> callbacks, this process
+_lock = threading.RLock()  # held while a part is compiled or loaded
 
 
 def _fingerprint(x) -> tuple:
@@ -237,6 +242,13 @@ def prepare_energies(m, wk, stream=sys.stderr) -> float:
     energies, or where a trajectory's energies are first read); returns the seconds it took,
     0 if this process has it. Says so on ``stream`` first if it compiles."""
     if len(system.energies_batch.overloads):
+        return 0.0
+    with _lock:
+        return _prepare_energies(m, wk, stream)
+
+
+def _prepare_energies(m, wk, stream) -> float:
+    if len(system.energies_batch.overloads):  # another thread has it now
         return 0.0
     if stream is not None and is_cached(system.energies_batch) is False:
         print(f"qchain: compiling the energies pass for this machine: about {EXPECTED_ENERGIES_S} s, once after "
