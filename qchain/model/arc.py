@@ -87,31 +87,17 @@ jit_inline = numba.njit(cache=True, fastmath=False, error_model="numpy", inline=
 @jit
 def _bend(x):
     """``(f0, f1, f2, g0, g1, g2)`` at bending angle ``x >= 0`` (rad)."""
-    if x < _SHORT_BELOW:  # the usual bend of a node: the short series, half the work
-        t = x * x
-        f0 = _F_COEF[0, _NTERMS_SHORT - 1]
-        f1 = _F_COEF[1, _NTERMS_SHORT - 1]
-        f2 = _F_COEF[2, _NTERMS_SHORT - 1]
-        g0 = _G_COEF[0, _NTERMS_SHORT - 1]
-        g1 = _G_COEF[1, _NTERMS_SHORT - 1]
-        g2 = _G_COEF[2, _NTERMS_SHORT - 1]
-        for k in range(_NTERMS_SHORT - 2, -1, -1):
-            f0 = f0 * t + _F_COEF[0, k]
-            f1 = f1 * t + _F_COEF[1, k]
-            f2 = f2 * t + _F_COEF[2, k]
-            g0 = g0 * t + _G_COEF[0, k]
-            g1 = g1 * t + _G_COEF[1, k]
-            g2 = g2 * t + _G_COEF[2, k]
-        return f0, f1, f2, g0, g1, g2
     if x < _SERIES_BELOW:
+        # the usual bend of a node takes the short series: half the work
+        nt = _NTERMS_SHORT if x < _SHORT_BELOW else _NTERMS
         t = x * x
-        f0 = _F_COEF[0, _NTERMS - 1]
-        f1 = _F_COEF[1, _NTERMS - 1]
-        f2 = _F_COEF[2, _NTERMS - 1]
-        g0 = _G_COEF[0, _NTERMS - 1]
-        g1 = _G_COEF[1, _NTERMS - 1]
-        g2 = _G_COEF[2, _NTERMS - 1]
-        for k in range(_NTERMS - 2, -1, -1):
+        f0 = _F_COEF[0, nt - 1]
+        f1 = _F_COEF[1, nt - 1]
+        f2 = _F_COEF[2, nt - 1]
+        g0 = _G_COEF[0, nt - 1]
+        g1 = _G_COEF[1, nt - 1]
+        g2 = _G_COEF[2, nt - 1]
+        for k in range(nt - 2, -1, -1):
             f0 = f0 * t + _F_COEF[0, k]
             f1 = f1 * t + _F_COEF[1, k]
             f2 = f2 * t + _F_COEF[2, k]
