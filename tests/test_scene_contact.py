@@ -378,7 +378,8 @@ def test_a_motion_in_the_plane_keeps_the_planar_model_and_one_out_of_it_is_refus
     d["obstacles"] = [dict(FAR["sphere"], velocity=[0.0, 0.3, 0.1])]
     assert parse_scene(to_toml(d)).planar_obstacle() is None
     d["obstacles"] = [dict(FAR["sphere"], velocity=[0.3, 0.0, 0.0])]
-    assert "its motion's velocity (0.3, 0, 0) m/s leaves the base x-z plane" in parse_scene(to_toml(d)).planar_obstacle()
+    why = parse_scene(to_toml(d)).planar_obstacle()
+    assert "its motion's velocity (0.3, 0, 0) m/s leaves the base x-z plane" in why
 
 
 def test_info_lines_list_the_obstacles_the_law_and_its_time_scale():
@@ -401,9 +402,9 @@ def test_info_lines_list_the_obstacles_the_law_and_its_time_scale():
     assert f"  time scale {min(periods) * 1e3:.3g} ms" in "\n".join(lines)
     assert "load 0: segment 1 at alpha = 1, force (0, 0, -0.5) N, moment (0, 0, 0) N m, world frame" in lines
     moving = parse_scene(scene([dict(FAR["sphere"], name="swing", **SWAY)])).describe()
-    assert ('  - obstacles[0] "swing": sphere, radius 0.1 m, center (0, 0, 5) m; moved by u(t) = velocity t + amplitude '
-            "sin(2 pi frequency t + phase): velocity (0.02, 0, -0.01) m/s, amplitude (0.004, 0, 0.002) m, frequency 3 Hz, "
-            "phase 0.4 rad") in moving, moving
+    assert ('  - obstacles[0] "swing": sphere, radius 0.1 m, center (0, 0, 5) m; moved by u(t) = velocity t + '
+            "amplitude sin(2 pi frequency t + phase): velocity (0.02, 0, -0.01) m/s, amplitude (0.004, 0, 0.002) m, "
+            "frequency 3 Hz, phase 0.4 rad") in moving, moving
     assert not any(x.startswith(("obstacles:", "contact:")) for x in parse_scene(scene()).describe())
 
 

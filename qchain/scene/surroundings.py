@@ -277,8 +277,8 @@ def _motion(ck: _Checker, path: str, o: dict) -> Motion | None:
                "frequency 0 is a constant offset: move the obstacle instead)", _show(o["frequency"]))
     for k in ("frequency", "phase"):
         if k in o and "amplitude" not in o:
-            ck.add(f"{path}.amplitude", f"an amplitude (m, world frame) beside {k} = {_show(o[k])} (the sine it shapes)",
-                   "nothing")
+            ck.add(f"{path}.amplitude",
+                   f"an amplitude (m, world frame) beside {k} = {_show(o[k])} (the sine it shapes)", "nothing")
             break
     if len(ck.problems) > start:
         return None
