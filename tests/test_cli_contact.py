@@ -3,6 +3,7 @@ time scale listed; a run of the example arm on the ground, recorded, whose summa
 contact's time scale and whether it limited the steps; an arm starting inside an obstacle
 is bad input."""
 
+import io
 import math
 import re
 from pathlib import Path
@@ -213,3 +214,82 @@ def test_a_run_without_obstacles_makes_no_contact_call():
     info, _ = _contact_recording(long, Environment([HalfSpace()], nodes=64))
     assert info["max_contacts"] == MAX_RUN_CONTACTS < 40 * 64
     assert info["force_ref"] == pytest.approx(40 * 0.05 * 9.80665 / (40 * 64), rel=1e-15)
+
+
+#: the example's ground as a conveyor belt running along +x that also heaves (the recorded law)
+BELT = {"velocity": [0.2, 0.0, 0.0], "amplitude": [0.0, 0.0, 5e-4], "frequency": 10.0, "phase": 0.3}
+
+
+def _belt_scene(tmp_path) -> Path:
+    """:func:`_touching_scene` with its ground moved by :data:`BELT`."""
+    text = _touching_scene(tmp_path).read_text()
+    keys = "".join(f"{k} = {v!r}\n" for k, v in BELT.items())
+    text = text.replace("normal = [0.0, 0.0, 1.0]\n", "normal = [0.0, 0.0, 1.0]\n" + keys)
+    assert keys in text
+    p = tmp_path / "belt.toml"
+    p.write_text(text)
+    return p
+
+
+def _belt_offset(t) -> np.ndarray:
+    """u(t) (K, 3) m of BELT, written out here: velocity t + amplitude sin(2 pi frequency t + phase)."""
+    t = np.asarray(t, dtype=float)[:, None]
+    return (np.array(BELT["velocity"]) * t
+            + np.array(BELT["amplitude"]) * np.sin(2 * np.pi * BELT["frequency"] * t + BELT["phase"]))
+
+
+def test_info_shows_a_moving_obstacles_motion(tmp_path, capsys):
+    assert main(["info", str(_belt_scene(tmp_path))]) == 0
+    out = capsys.readouterr().out
+    assert ('  - obstacles[0] "ground": half-space through (0, 0, 0) m, normal (0, 0, 1); moved by u(t) = velocity t + '
+            "amplitude sin(2 pi frequency t + phase): velocity (0.2, 0, 0) m/s, amplitude (0, 0, 0.0005) m, frequency "
+            "10 Hz, phase 0.3 rad") in out, out
+    assert "planar: uy locked at 0 in every segment" in out  # the belt moves in the base's x-z plane
+
+
+def test_a_run_records_a_moving_obstacle_where_its_law_puts_it(tmp_path, capsys):
+    """`qchain run --mcap --rrd` of the touching example on a moving belt: the recording holds
+    the belt's law (RunInfo.obstacles[0]["motion"]); Foxglove's obstacle message of each record
+    and Rerun's translation of the belt put it where the law, written out here, puts it at the
+    record's time; each sample's contacts are Chain.contacts at the recorded (t, q, v), and the
+    belt's friction drags the arm along +x (it runs faster than the arm)."""
+    from test_logging import _rrd_columns
+    from test_recording_contacts import _foxglove
+
+    from qchain.logging import read_recording
+    from qchain.recording.records import CONTACT_TOPICS
+
+    scene = _belt_scene(tmp_path)
+    mcap, rrd = tmp_path / "run.mcap", tmp_path / "run.rrd"
+    assert main(["run", str(scene), "--duration", "0.05", "--mcap", str(mcap), "--rrd", str(rrd), "--no-plots",
+                 "--no-progress"]) == 0
+    assert f"recorded {mcap} (11 samples, up to t = 0.05 s)" in capsys.readouterr().out
+    sc = load_scene(scene)
+    env, ch = sc.environment, sc.build().chain
+    rec = read_recording(mcap)
+    assert rec.info.obstacles == env.describe() and rec.info.obstacles[0]["motion"] == BELT
+    t = np.asarray(rec.t, dtype=float)
+    assert len(t) == 11 and t[0] == 0.0
+    want = _belt_offset(t)
+    assert np.abs(want[:, 0]).max() == pytest.approx(0.01)  # it does move: 10 mm along x by the end
+    # Foxglove: a scene update a record, the ground's slab carried by the law
+    msgs = _foxglove(io.BytesIO(mcap.read_bytes()), CONTACT_TOPICS["obstacles"])
+    assert [lt for lt, _ in msgs] == [round(x * 1e9) for x in t]
+    slab = np.array([[c.pose.position.x, c.pose.position.y, c.pose.position.z]
+                     for _, upd in msgs for c in upd.entities[0].cubes])
+    np.testing.assert_allclose(slab - slab[0], want - want[0], rtol=0, atol=1e-12)
+    # Rerun: the ground's entity translated at each record by the law (float32)
+    cols, _ = _rrd_columns(rrd)
+    ground = cols["/world/obstacles/0"]
+    assert ground["t"] == [round(x * 1e9) for x in t]
+    np.testing.assert_allclose(np.array(ground["translation"]).reshape(-1, 3), want, rtol=0, atol=1e-8)
+    # the engine's contacts at each record, and the belt's friction on the arm
+    drag = []
+    for k in range(len(rec)):
+        c_want = ch.contacts(rec.q[k], rec.v[k], env, t=float(rec.t[k]))
+        got = rec.contact_set(k)
+        for name in ("point", "normal", "force", "segment", "obstacle"):
+            np.testing.assert_array_equal(getattr(got, name), getattr(c_want, name), err_msg=f"sample {k}: {name}")
+        if len(got.segment):
+            drag.append(got.force[:, 0].sum())
+    assert len(drag) >= 4 and all(f > 0.0 for f in drag), drag  # (the heaving belt bounces it: 6 of 11 touch)

@@ -17,7 +17,11 @@ from ..checks.bounds import ANGLE, EXTENT, FREQUENCY, POSITION, VELOCITY
 from ..checks.convert import as_matrix, as_vector
 from .distance import BOX, CAPSULE, CYLINDER, HALFSPACE, MOTION, PARAMS, SPHERE
 
-__all__ = ["HalfSpace", "Sphere", "Capsule", "Cylinder", "Box", "Obstacle", "Motion"]
+__all__ = ["HalfSpace", "Sphere", "Capsule", "Cylinder", "Box", "Obstacle", "Motion", "MOTION_RANGES"]
+
+#: The bounds of each :class:`Motion` field (of every component of a vector), checked where it is
+#: made; scene files declare their motion keys with these (:mod:`qchain.scene.format`).
+MOTION_RANGES = {"velocity": VELOCITY, "amplitude": POSITION, "frequency": FREQUENCY, "phase": ANGLE}
 
 
 @dataclass(frozen=True)
@@ -33,14 +37,12 @@ class Motion:
     phase: float = 0.0
 
     def __post_init__(self):
-        v = as_vector("Motion.velocity", self.velocity, 3)
-        VELOCITY.check_array("Motion.velocity", v)
-        a = as_vector("Motion.amplitude", self.amplitude, 3)
-        POSITION.check_array("Motion.amplitude", a)
-        object.__setattr__(self, "velocity", v)
-        object.__setattr__(self, "amplitude", a)
-        object.__setattr__(self, "frequency", FREQUENCY.check("Motion.frequency", self.frequency))
-        object.__setattr__(self, "phase", ANGLE.check("Motion.phase", self.phase))
+        for name in ("velocity", "amplitude"):
+            x = as_vector(f"Motion.{name}", getattr(self, name), 3)
+            MOTION_RANGES[name].check_array(f"Motion.{name}", x)
+            object.__setattr__(self, name, x)
+        for name in ("frequency", "phase"):
+            object.__setattr__(self, name, MOTION_RANGES[name].check(f"Motion.{name}", getattr(self, name)))
 
     def row(self) -> np.ndarray:
         """The kernels' motion row (MOTION,)."""

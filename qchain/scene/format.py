@@ -24,13 +24,15 @@ from ..sim.budget import DEFAULT as DEFAULT_BUDGET
 from ..sim.budget import RANGES as BUDGET_RANGES
 from ..errors import MAX_LISTED, SceneError
 from ..contact.environment import ContactLaw, Environment
+from ..contact.shapes import MOTION_RANGES
 from ..model.segment import DEFAULT_NODES
 from ..sim.simulation import DEFAULT_METHOD, FIXED_STEP, METHODS
 from .keys import Field, KeyTable
 from .payload import PAYLOAD, PAYLOAD_EXAMPLE
 
-__all__ = ["Field", "KeyTable", "TABLES", "OBSTACLE_TYPES", "MAX_START_PENETRATION", "Problem", "SceneError", "PLOTS", "PRESSURE_KINDS", "MAX_DEPTH",
-           "MAX_SCENE_BYTES", "MAX_STRETCH", "EXAMPLE", "CONTACT_EXAMPLE", "nesting_problem", "markdown"]
+__all__ = ["Field", "KeyTable", "TABLES", "OBSTACLE_TYPES", "OBSTACLE_MOTION_KEYS", "MAX_START_PENETRATION", "Problem",
+           "SceneError", "PLOTS", "PRESSURE_KINDS", "MAX_DEPTH", "MAX_SCENE_BYTES", "MAX_STRETCH", "EXAMPLE",
+           "CONTACT_EXAMPLE", "nesting_problem", "markdown"]
 
 #: Plots a scene may ask for.
 PLOTS = ("tip", "arm", "energy", "pressure", "momentum")
@@ -228,8 +230,11 @@ CONTACT = KeyTable("contact", "The contact law (`qchain.contact.ContactLaw`, `qc
           "rest (`qchain.contact.contact_nodes`, docs/contact.md)"),
 ))
 
-OBSTACLE = KeyTable("obstacles[]", "One table an obstacle, fixed in the world: `[[obstacles]]`. An arm that starts "
-                    f"inside one deeper than {MAX_START_PENETRATION:.0%} of a segment's radius is refused.", (
+OBSTACLE = KeyTable("obstacles[]", "One table an obstacle: `[[obstacles]]`. Fixed in the world, or carried by a "
+                    "prescribed translation `u(t) = velocity t + amplitude sin(2 pi frequency t + phase)` (world frame, "
+                    "`qchain.contact.Motion`) added to its placement: give `velocity`, or `amplitude` with `frequency` "
+                    "(and `phase`), or both. An arm that starts inside one (where it is at t = 0) deeper than "
+                    f"{MAX_START_PENETRATION:.0%} of a segment's radius is refused.", (
     Field("type", "choice", "The shape.", choices=OBSTACLE_TYPES, required=True),
     Field("name", "string", "Free text, for messages and `qchain info`.", default='"obstacles[i]"'),
     Field("point", "vector", "A point on the plane.", B.POSITION, default="[0, 0, 0]", size=3, when=("halfspace",)),
@@ -244,7 +249,17 @@ OBSTACLE = KeyTable("obstacles[]", "One table an obstacle, fixed in the world: `
           when=("box",)),
     Field("rpy", "vector", "The box's roll-pitch-yaw, `R = Rz(yaw) Ry(pitch) Rx(roll)`.", B.ANGLE,
           default="[0, 0, 0]", size=3, when=("box",)),
+    Field("velocity", "vector", "The motion's drift velocity, world frame.", MOTION_RANGES["velocity"],
+          default="[0, 0, 0]", size=3),
+    Field("amplitude", "vector", "The motion's sine amplitude, world frame; needs `frequency`.",
+          MOTION_RANGES["amplitude"], default="[0, 0, 0]", size=3),
+    Field("frequency", "number", "The sine's frequency, > 0; only with `amplitude`.", MOTION_RANGES["frequency"],
+          default="none"),
+    Field("phase", "number", "The sine's phase at t = 0; only with `amplitude`.", MOTION_RANGES["phase"],
+          default="0"),
 ))
+#: The keys of ``[[obstacles]]`` that make its :class:`qchain.contact.Motion`.
+OBSTACLE_MOTION_KEYS = ("velocity", "amplitude", "frequency", "phase")
 
 LOAD = KeyTable("loads[]", "One table a point load (`qchain.contact.PointLoad`): `[[loads]]`.", (
     Field("segment", "integer", "The segment it acts on, from 0 at the base.", Range(0, None, integer=True),
@@ -755,15 +770,19 @@ def markdown() -> str:
         "* `[contact]`: `damping`, or `restitution` with `impact_speed`, not both; `mu_dynamic <= mu_static`;",
         "* obstacles that are shapes: a half-space's `normal` not zero, a capsule's or cylinder's `b` at least",
         "  1e-9 m from `a`; a load's `segment` one the arm has (`count` expanded);",
+        "* an obstacle's motion: `amplitude` and a `frequency > 0` together (a sine of frequency 0 is a",
+        "  constant offset), `phase` only with them;",
         f"* the arm starts outside every obstacle: inside one by more than {MAX_START_PENETRATION:.0%} of a segment's "
         "radius is",
-        "  refused, naming the obstacle, the segment and the depth (mm). An arm resting on an obstacle",
+        "  refused, naming the obstacle, the segment and the depth (mm), a moving obstacle where its",
+        "  motion puts it at t = 0 (`amplitude sin(phase)` from its placement). An arm resting on an obstacle",
         "  sinks by `(w / k)^(1/e)` for its weight `w` per metre (0.3 mm, 2 % of a 15 mm radius, for",
         "  0.5 kg/m at the default law), so a rest state passes and an arm placed through an obstacle does not;",
         "* the planar model (`[model]`) only when every obstacle and load is symmetric about the base's",
         "  x-z plane: half-space normals, world load forces in it, load moments normal to it; sphere and",
         "  box centres in it, box axes one normal to it; capsule and cylinder ends both in it or each",
-        "  the other's mirror image; follower (`local`) loads with no slice-y force and only a slice-y moment;",
+        "  the other's mirror image; an obstacle's motion `velocity` and `amplitude` in it; follower",
+        "  (`local`) loads with no slice-y force and only a slice-y moment;",
         "  and a payload symmetric about the tip frame's x-z plane (`lever[1] = 0`, `inertia[0][1] =",
         "  inertia[1][2] = 0`); otherwise `qchain info` says which one keeps the full model;",
         "* `[payload]`: `inertia` symmetric and positive semi-definite (a rigid body's), zeros when `mass = 0`;",

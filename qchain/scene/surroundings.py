@@ -1,7 +1,8 @@
 """A scene's surroundings: the ``[contact]``, ``[[obstacles]]`` and ``[[loads]]`` tables
 (declared in :mod:`qchain.scene.format`) read into a :class:`qchain.contact.Environment`;
 whether they keep the scene symmetric about the base's x-z plane (the planar model); an arm
-that starts inside an obstacle; and how ``qchain info`` describes them."""
+that starts inside an obstacle (where its motion puts it at t = 0); and how ``qchain info``
+describes them."""
 
 from __future__ import annotations
 
@@ -15,7 +16,7 @@ from . import format as F
 from ..checks.text import show_vector
 from ..contact.environment import (MAX_OBSTACLES, ContactLaw, Environment, PointLoad, contact_nodes,
                                    hunt_crossley_damping)
-from ..contact.shapes import Box, Capsule, Cylinder, HalfSpace, Sphere
+from ..contact.shapes import Box, Capsule, Cylinder, HalfSpace, Motion, Sphere
 from .format import _MISSING, Problem, _Checker, _show, _type_name
 
 __all__ = ["Surroundings", "read_surroundings", "MIN_AXIS"]
@@ -38,8 +39,9 @@ class Surroundings:
     # ------------------------------------------------------------------ symmetry
 
     def asymmetry(self, placement: pin.SE3) -> str | None:
-        """Why an obstacle or a load is not symmetric about the x-z plane of the base frame
-        ``placement`` (world), or None if all are (the planar model stays exact)."""
+        """Why an obstacle, its motion or a load is not symmetric about the x-z plane of the base
+        frame ``placement`` (world), or None if all are (the planar model stays exact). A motion
+        in the plane keeps a symmetric obstacle symmetric at every time."""
         env = self.environment
         if env is None:
             return None
@@ -74,6 +76,11 @@ class Surroundings:
                     return f"{who}: its center is {side(ob.center):.6g} m off the base x-z plane"
                 if float(np.max(np.abs(ob.rotation.T @ n))) < 1.0 - 1e-12:
                     return f"{who}: none of its axes is normal to the base x-z plane (turned out of it by rpy)"
+            if ob.motion is not None:
+                for name, x, unit in (("velocity", ob.motion.velocity, "m/s"), ("amplitude", ob.motion.amplitude, "m")):
+                    if abs(float(x @ n)) > 1e-12 * max(1.0, float(np.linalg.norm(x))):
+                        return (f"{who}: its motion's {name} {show_vector(x)} {unit} leaves the base x-z plane "
+                                f"(by {float(x @ n):.6g} {unit})")
         for i, ld in enumerate(env.loads):
             if ld.local:  # the slice frame: its y axis stays the base's y axis in the planar model
                 f_out, m_in = abs(ld.force[1]), math.hypot(ld.moment[0], ld.moment[2])
@@ -137,6 +144,15 @@ class Surroundings:
 
 
 def _shape_text(ob) -> str:
+    if ob.motion is None:
+        return _placement_text(ob)
+    mo = ob.motion
+    return (f"{_placement_text(ob)}; moved by u(t) = velocity t + amplitude sin(2 pi frequency t + phase): velocity "
+            f"{show_vector(mo.velocity)} m/s, amplitude {show_vector(mo.amplitude)} m, frequency {mo.frequency:g} Hz, "
+            f"phase {mo.phase:g} rad")
+
+
+def _placement_text(ob) -> str:
     if isinstance(ob, HalfSpace):
         return f"half-space through {show_vector(ob.point)} m, normal {show_vector(ob.normal)}"
     if isinstance(ob, Sphere):
@@ -228,19 +244,54 @@ def _obstacles(ck: _Checker, raw: dict) -> tuple[list, list[str]]:
         if kind is None:
             continue
         defaults = {"point": (0.0, 0.0, 0.0), "normal": (0.0, 0.0, 1.0), "rpy": (0.0, 0.0, 0.0), "name": ""}
-        v = {k: ck.field(o, T[k], f"{path}.{k}", defaults.get(k)) for k in allowed if k != "type"}
+        v = {k: ck.field(o, T[k], f"{path}.{k}", defaults.get(k)) for k in allowed
+             if k != "type" and k not in F.OBSTACLE_MOTION_KEYS}
+        motion = _motion(ck, path, o)
         if len(ck.problems) > start:
             continue
-        shape = _shape(ck, path, kind, v, o)
+        shape = _shape(ck, path, kind, v, o, motion)
         if shape is not None:
             out.append(shape)
             labels.append(f'{path} "{v["name"]}"' if v["name"] else path)
     return out, labels
 
 
-def _shape(ck: _Checker, path: str, kind: str, v: dict, o: dict):
-    """The obstacle of type ``kind`` from its checked values ``v``; None (with a problem) for a
-    degenerate one: a zero normal, an axis whose ends coincide."""
+def _motion(ck: _Checker, path: str, o: dict) -> Motion | None:
+    """The :class:`Motion` of the obstacle table ``o`` (None without motion keys, or with a
+    problem added): each key within :data:`qchain.contact.shapes.MOTION_RANGES`, ``amplitude``
+    and a ``frequency`` > 0 together (a sine of frequency 0 is a constant offset, a frequency
+    or phase without amplitude moves nothing: both are mistakes), ``phase`` only with them."""
+    T = F.OBSTACLE
+    if not any(k in o for k in F.OBSTACLE_MOTION_KEYS):
+        return None
+    start = len(ck.problems)
+    vel = ck.field(o, T["velocity"], f"{path}.velocity", (0.0, 0.0, 0.0))
+    amp = ck.field(o, T["amplitude"], f"{path}.amplitude", (0.0, 0.0, 0.0))
+    freq = ck.field(o, T["frequency"], f"{path}.frequency")
+    phase = ck.field(o, T["phase"], f"{path}.phase", 0.0)
+    if "amplitude" in o and "frequency" not in o:
+        ck.add(f"{path}.frequency", f"a frequency > 0 Hz beside amplitude = {_show(o['amplitude'])} (the sine's)",
+               "nothing")
+    elif "amplitude" in o and freq == 0.0:
+        ck.add(f"{path}.frequency", f"a frequency > 0 Hz beside amplitude = {_show(o['amplitude'])} (a sine of "
+               "frequency 0 is a constant offset: move the obstacle instead)", _show(o["frequency"]))
+    for k in ("frequency", "phase"):
+        if k in o and "amplitude" not in o:
+            ck.add(f"{path}.amplitude",
+                   f"an amplitude (m, world frame) beside {k} = {_show(o[k])} (the sine it shapes)", "nothing")
+            break
+    if len(ck.problems) > start:
+        return None
+    try:
+        return Motion(vel, amp, 0.0 if freq is None else freq, phase)
+    except (ValueError, TypeError) as err:  # pragma: no cover - the checks above are Motion's own
+        ck.add(path, "a valid motion", str(err))
+        return None
+
+
+def _shape(ck: _Checker, path: str, kind: str, v: dict, o: dict, motion: Motion | None = None):
+    """The obstacle of type ``kind`` from its checked values ``v``, carried by ``motion``; None
+    (with a problem) for a degenerate one: a zero normal, an axis whose ends coincide."""
     if kind == "halfspace" and not np.any(v["normal"]):
         ck.add(f"{path}.normal", "a non-zero direction", _show(o.get("normal")))
         return None
@@ -251,14 +302,14 @@ def _shape(ck: _Checker, path: str, kind: str, v: dict, o: dict):
     try:
         if kind == "halfspace":
             nrm = v["normal"] / np.max(np.abs(v["normal"]))  # scaled first: the norm of [1e-200, 0, 0] underflows
-            return HalfSpace(v["point"], nrm)
+            return HalfSpace(v["point"], nrm, motion=motion)
         if kind == "sphere":
-            return Sphere(v["center"], v["radius"])
+            return Sphere(v["center"], v["radius"], motion=motion)
         if kind == "capsule":
-            return Capsule(v["a"], v["b"], v["radius"])
+            return Capsule(v["a"], v["b"], v["radius"], motion=motion)
         if kind == "cylinder":
-            return Cylinder(v["a"], v["b"], v["radius"])
-        return Box(v["center"], v["half_extents"], pin.rpy.rpyToMatrix(*v["rpy"]))
+            return Cylinder(v["a"], v["b"], v["radius"], motion=motion)
+        return Box(v["center"], v["half_extents"], pin.rpy.rpyToMatrix(*v["rpy"]), motion=motion)
     except (ValueError, TypeError) as err:  # pragma: no cover - the checks above are the shapes' own
         ck.add(path, f"a valid {kind}", str(err))
         return None
