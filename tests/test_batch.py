@@ -523,3 +523,25 @@ def test_an_error_or_ctrl_c_on_threads_stops_the_rollouts_still_running(arm):
             pytest.raises(RolloutError, match=r"rollout 1 raised ValueError: pressure\(t, q, v\) has non-finite"):
         simulate_batch(arm, q0, v0, (0.0, 50.0), pressure=ctrl, controller_rate=100.0, workers=2, **long)
     assert not rollout_threads()
+
+
+def test_a_start_whose_energies_overflow_fails_its_rollout_with_simulates_error(arm):
+    """The starts' energies are checked in one compiled pass a batch; a start whose energies
+    are not finite is checked again in Python by its rollout, which raises what simulate
+    raises for it (and a batch of finite starts runs as simulate does)."""
+    from qchain.errors import NonFiniteError
+
+    q0, v0, P = inputs(arm, 3, seed=7)
+    v0[1] = 1e200  # its kinetic energy overflows: inside the model, refused by simulate
+    with pytest.raises(NonFiniteError, match=r"kinetic energy inf J") as ref:
+        simulate(arm, q0[1], v0[1], T, pressure=P[1], t_eval=T_EVAL)
+    from qchain.sim.budget import as_budget
+    from qchain.sim.simulation import Runs
+
+    runs = Runs(arm, T, method="radau5", budget=as_budget(None), dt=None, rtol=1e-6, atol=1e-8, max_step=np.inf,
+                first_step=None, wall_limit=None, t_eval=T_EVAL, energies=True, controller_rate=None)
+    assert list(runs.starts_finite(q0, v0)) == [True, False, True]
+    for workers in (1, 2):
+        with pytest.raises(RolloutError, match=r"rollout 1 raised NonFiniteError") as err:
+            simulate_batch(arm, q0, v0, T, pressure=P, t_eval=T_EVAL, workers=workers)
+        assert str(ref.value) in str(err.value), workers

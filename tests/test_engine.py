@@ -430,3 +430,23 @@ def test_the_engine_model_holds_the_chain_s_kernel_arrays_by_name():
     assert np.array_equal(m.idx, np.flatnonzero(ch.active))
     paper = Chain([Segment(**SEG, coords="paper")])
     assert paper.kernel_arrays() is None and system.pack(paper, None, None) is None
+
+
+def test_a_model_packed_once_takes_each_runs_inputs_as_pack_does():
+    """:func:`system.with_inputs` on the chain's model packed once gives, field by field,
+    :func:`system.pack` with those inputs (new input arrays: a held controller's output is
+    written into them), and None where pack gives None (a Python controller)."""
+    from qchain.sim.inputs import Sine
+
+    ch = hanging_arm(2, planar=False)
+    base = system.pack(ch, None, None)
+    P = Sine(amplitude=np.full(ch.nu, 2e4), frequency=1.5, phase=np.arange(ch.nu) * 0.1, offset=np.full(ch.nu, 1e4))
+    for p, tau in ((P, None), (np.full(ch.nu, 3e3), np.linspace(-1, 1, ch.nv)), (None, None)):
+        m, ref = system.with_inputs(base, ch, p, tau), system.pack(ch, p, tau)
+        for name in system.EngineModel._fields:
+            a, b = getattr(m, name), getattr(ref, name)
+            assert (np.array_equal(a, b) if isinstance(a, np.ndarray) else
+                    all(np.array_equal(x, y) for x, y in zip(a, b)) if isinstance(a, tuple) else a == b), name
+        assert not np.shares_memory(m.p_params, base.p_params) and not np.shares_memory(m.tau_params, base.tau_params)
+    assert system.with_inputs(base, ch, lambda t, q, v: np.zeros(ch.nu), None) is None
+    assert system.pack(ch, lambda t, q, v: np.zeros(ch.nu), None) is None

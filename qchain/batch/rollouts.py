@@ -26,7 +26,7 @@ from ..errors import QchainError, RolloutError
 from ..sim.inputs import Schedule, as_input
 from ..sim.budget import Budget, as_budget
 from ..sim.simulation import (
-    COMPILED, DEFAULT_METHOD, FIXED_STEP, Event, _check_start, check_run, check_settings, run_cost_of, simulate)
+    COMPILED, DEFAULT_METHOD, FIXED_STEP, Event, Runs, _check_start, check_run, check_settings, run_cost_of, simulate)
 from ..sim.trajectory import Trajectory
 from .workers import DEFAULT_RETRIES, Lost, Payload, check_engine, dumps, engine_for
 
@@ -189,6 +189,25 @@ class _Shared:
     t_span: tuple[float, float]
     kw: dict  # simulate's keyword arguments shared by every rollout (inputs and events pickled)
     each: dict  # "pressure", "tau": whether the items carry their own
+    #: (B,) bool: the starts whose energies are finite (one compiled pass), or None (each checked by its rollout)
+    starts_finite: np.ndarray | None = None
+    #: the runs' shared part, made once (:func:`_runs_of`); never pickled: a worker process makes its own
+    runs: Runs | None = None
+
+    def __getstate__(self):
+        return {**self.__dict__, "runs": None}
+
+
+_SETTINGS = ("pressure", "tau", "events", "method", "budget")  # kw's entries that are not check_settings'
+
+
+def _runs_of(shared: _Shared) -> Runs:
+    """The :class:`qchain.sim.simulation.Runs` of the batch (made here once)."""
+    if shared.runs is None:
+        kw = shared.kw
+        shared.runs = Runs(shared.chain, shared.t_span, method=kw["method"], budget=kw["budget"],
+                           **{k: x for k, x in kw.items() if k not in _SETTINGS})
+    return shared.runs
 
 
 def _inputs(shared: _Shared, item) -> dict:
@@ -204,13 +223,15 @@ def _inputs(shared: _Shared, item) -> dict:
 def _rollouts(shared: _Shared, items: list) -> list:
     """In a worker (or this process): run each ``(index, q0, v0, pressure, tau)``; returns
     ``(Trajectory, wall seconds)`` each."""
+    runs = _runs_of(shared)  # simulate's checks of the shared settings were made by simulate_batch, once
     out = []
     for item in items:
         i, q0, v0 = item[:3]
         kw = _inputs(shared, item)
         w0 = time.perf_counter()
         try:
-            tr = simulate(shared.chain, q0, v0, shared.t_span, **kw)
+            tr = runs.run(q0, v0, pressure=kw["pressure"], tau=kw["tau"], events=kw["events"],
+                          start_finite=shared.starts_finite is not None and bool(shared.starts_finite[i]))
         except Exception as err:
             raise RolloutError(i, f"{type(err).__name__}: {err}") from err
         wall = time.perf_counter() - w0
@@ -321,8 +342,9 @@ def simulate_batch(
     p_in = _batched_input("pressure", pressure, chain.nu)  # (shared, per_rollout)
     tau_in = _batched_input("tau", tau, chain.nv)
     budget, B = _check_budget(chain, t0, t1, method, cfg, budget, Q0, V0, p_in, tau_in)
-    _check_starts(chain, Q0, V0, B, t0)
+    Q0, V0 = _check_starts(chain, Q0, V0, B, t0)
     shared, items = _share(chain, (t0, t1), method, cfg, budget, Q0, V0, p_in, tau_in, B)
+    shared.starts_finite = _runs_of(shared).starts_finite(Q0, V0)
     w_start = time.perf_counter()
     sink = _Sink(chain, B, cfg["t_eval"], (t0, t1), cfg["dt"])
     name, n_workers, compile_s = _run_all(shared, items, sink, workers=workers, client=client, retries=retries,
@@ -381,14 +403,18 @@ def _check_budget(chain: Chain, t0: float, t1: float, method: str, cfg: dict, bu
     return budget, B
 
 
-def _check_starts(chain: Chain, Q0: np.ndarray, V0: np.ndarray, B: int, t0: float) -> None:
+def _check_starts(chain: Chain, Q0: np.ndarray, V0: np.ndarray, B: int, t0: float) -> tuple[np.ndarray, np.ndarray]:
     """Every rollout's start ``(q0[i], v0[i])`` inside the model at ``t0`` (s), its locks
-    held, checked here where it enters (``ValueError`` naming the rollout)."""
+    held, checked here where it enters (``ValueError`` naming the rollout); returns the
+    checked starts ``(B, nq)``, ``(B, nv)`` (their energies are checked by the rollouts:
+    :meth:`qchain.sim.simulation.Runs.starts_finite`)."""
+    Q, V = np.empty((B, chain.nq)), np.empty((B, chain.nv))
     for i in range(B):
         try:
-            _check_start(chain, _row(Q0, i), _row(V0, i), t0, (f"q0[{i}]", f"v0[{i}]"), energies=False)
+            Q[i], V[i] = _check_start(chain, _row(Q0, i), _row(V0, i), t0, (f"q0[{i}]", f"v0[{i}]"), energies=False)
         except (QchainError, ValueError) as err:
             raise ValueError(f"rollout {i}: q0[{i}], v0[{i}]: {err}") from err
+    return Q, V
 
 
 def _share(chain: Chain, t_span: tuple[float, float], method: str, cfg: dict, budget: Budget, Q0: np.ndarray,

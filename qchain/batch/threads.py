@@ -12,9 +12,10 @@ threads are the default is in ``docs/sweeps.md`` ("Engines").
 from __future__ import annotations
 
 import os
+import queue
 import threading
 from collections.abc import Callable, Iterator, Sequence
-from concurrent.futures import FIRST_COMPLETED, ThreadPoolExecutor, wait
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
@@ -84,20 +85,28 @@ class ThreadPool:
         n = max(1, min(self.workers, len(items)))
         ex = ThreadPoolExecutor(max_workers=n, thread_name_prefix="qchain-rollout")
         futures = {}
+        # each item's future as it finishes: O(1) Python a finished item (concurrent.futures.wait
+        # looks at every pending future at each call, Python that holds the lock the threads need)
+        finished_q: queue.SimpleQueue = queue.SimpleQueue()
         finished = False
         try:
             for i, item in enumerate(items):
-                futures[ex.submit(_one, fn, shared, item, stop)] = i
-            pending = set(futures)
-            while pending:
-                # a bounded wait: Ctrl-C may reach one of the pool's threads, whose signal this thread
-                # handles only when it next runs Python (an unbounded wait would hold it off to the end)
-                done, pending = wait(pending, timeout=_LOOK, return_when=FIRST_COMPLETED)
-                for fut in sorted(done, key=futures.get):  # (as they finished; ties in item order)
-                    err = fut.exception()
-                    if err is not None:
-                        raise err
-                    yield futures[fut], fut.result()
+                fut = ex.submit(_one, fn, shared, item, stop)
+                futures[fut] = i
+                fut.add_done_callback(finished_q.put)
+            for _ in range(len(futures)):
+                while True:
+                    # a bounded wait: Ctrl-C may reach one of the pool's threads, whose signal this thread
+                    # handles only when it next runs Python (an unbounded wait would hold it off to the end)
+                    try:
+                        fut = finished_q.get(timeout=_LOOK)
+                        break
+                    except queue.Empty:
+                        continue
+                err = fut.exception()
+                if err is not None:
+                    raise err
+                yield futures[fut], fut.result()
             finished = True
         finally:
             if not finished:

@@ -7,6 +7,7 @@ are described in docs/simulation.md and docs/engine.md.
 
 from __future__ import annotations
 
+import dataclasses
 import difflib
 import sys
 import time as _time
@@ -24,7 +25,7 @@ from ..checks.convert import as_bool, as_real, as_real_array, as_vector, check_c
 from .inputs import Schedule, _copy, as_input
 from .trajectory import Trajectory
 
-__all__ = ["simulate", "METHODS", "FIXED_STEP", "COMPILED", "DEFAULT_METHOD", "Event"]
+__all__ = ["simulate", "Runs", "METHODS", "FIXED_STEP", "COMPILED", "DEFAULT_METHOD", "Event"]
 
 FIXED_STEP = ("rk4", "midpoint")
 #: the methods that form the exact Jacobian (a dense, O(nv^3) computation) and factor it
@@ -322,13 +323,81 @@ def simulate(
                            on_sample=on_sample, env=env, dt=dt, rtol=rtol, atol=atol, max_step=max_step, first_step=first_step,
                            wall_limit=wall_limit, t_eval=t_eval, energies=energies, progress=progress, events=events,
                            controller_rate=controller_rate)
+    return _execute(run)
+
+
+def _execute(run: _Run, base=None) -> Trajectory:
+    """Steps 2 and 3 of :func:`simulate`: the checked run ``run`` on the compiled engine or
+    :mod:`qchain.sim.python_backend`; ``base``: the chain's packed model without its inputs
+    where the caller packed it once (:class:`Runs`)."""
     deadline = None if run.wall_limit is None else _time.perf_counter() + float(run.wall_limit)
     bar = _Progress(run.t0, run.t1, run.progress)
     _announce_dense_jacobians(run)
-    m = _choose_backend(run)
+    m = _choose_backend(run, base)
     traj = _run_compiled(run, m, bar, deadline) if m is not None else python_backend.run(run, bar, deadline)
     _note_contact_steps(run, traj)
     return traj
+
+
+class Runs:
+    """Runs of ``chain`` over ``t_span`` that share every setting but the start and the inputs
+    (:func:`qchain.batch.simulate_batch`'s rollouts): :func:`simulate`'s checks of the shared
+    settings and the packing of the model done once, by the caller, and each :meth:`run` bit
+    for bit what :func:`simulate` gives with the same arguments.
+
+    Parameters
+    ----------
+    chain : Chain
+    t_span : (t0, t1) s, checked (:func:`check_run`)
+    method : str
+        One of :data:`METHODS`.
+    budget : Budget
+        Already checked against the cost of every run the caller will make (their inputs'
+        fastest sine included); an explicit method's stability limit is checked at each run's
+        start, as :func:`simulate` does.
+    **settings
+        :func:`check_settings`' output without ``progress`` and ``events`` (``dt``, ``rtol``,
+        ``atol``, ``max_step``, ``first_step``, ``wall_limit``, ``t_eval``, ``energies``,
+        ``controller_rate``). Safe to share between threads (nothing here is written by a run).
+    """
+
+    def __init__(self, chain: Chain, t_span: tuple[float, float], *, method: str, budget: Budget, **settings):
+        t0, t1 = t_span
+        self.template = _Run(chain=chain, q0=None, v0=None, t0=t0, t1=t1, method=method, pressure=None, tau=None,
+                             on_sample=None, budget=budget, progress=False, events=[], **settings)
+        # the inputs are packed at each run, into this model of the chain (None: the Python backend serves it)
+        self.base = system.pack(chain, None, None) if method in COMPILED else None
+
+    def starts_finite(self, Q: np.ndarray, V: np.ndarray) -> np.ndarray | None:
+        """``(B,) bool``: whether each start ``(Q[i] (nq,), V[i] (nv,))``, checked without its
+        energies (:func:`_check_start`), has finite energies at ``t0``, in one compiled pass;
+        None without the compiled engine (or its energies' pass, where the runs compute no energies). A start
+        whose energies are not finite is checked again in Python by
+        its :meth:`run`, which raises :func:`simulate`'s error for it."""
+        if self.base is None or not (self.template.energies or len(system.energies_batch.overloads)):
+            return None  # (runs without energies do not load or compile their pass for this)
+        from .engine import warmup
+
+        wk = system.workspace(self.template.chain, self.base)
+        warmup.prepare_energies(self.base, wk)
+        B = Q.shape[0]
+        ke, pe = np.empty(B), np.empty(B)
+        system.energies_batch(self.base, wk, np.full(B, self.template.t0), np.ascontiguousarray(Q, dtype=float),
+                              np.ascontiguousarray(V, dtype=float), ke, pe)
+        return np.isfinite(ke) & np.isfinite(pe)
+
+    def run(self, q0: np.ndarray, v0: np.ndarray, *, pressure=None, tau=None, events=(), start_finite: bool = False
+            ) -> Trajectory:
+        """:func:`simulate` from ``(q0 (nq,), v0 (nv,))``, a start checked without its energies
+        (:func:`_check_start` with ``energies=False``: float arrays), with these inputs and
+        ``events`` (fresh: a run's inputs and events are its own). ``start_finite``: its
+        energies are known finite (:meth:`starts_finite`); otherwise they are checked here,
+        in Python, as :func:`simulate` does."""
+        tpl = self.template
+        if not start_finite:
+            _check_start(tpl.chain, q0, v0, tpl.t0)
+        run = dataclasses.replace(tpl, q0=q0, v0=v0, pressure=pressure, tau=tau, events=list(events), held=[])
+        return _execute(_with_inputs(run), self.base)
 
 
 def _note_contact_steps(run: _Run, traj: Trajectory) -> None:
@@ -432,6 +501,14 @@ def _check_arguments(chain, q0, v0, t_span, *, pressure, tau, method, budget, on
     run = _Run(chain=chain, q0=q0, v0=v0, t0=t0, t1=t1, method=method, pressure=pressure, tau=tau,
                on_sample=on_sample, budget=as_budget(budget), env=_check_env(chain, env), **cfg)
     run.budget.check(run.cost())
+    return _with_inputs(run)
+
+
+def _with_inputs(run: _Run) -> _Run:
+    """``run`` with its inputs as functions (``P_in``, ``T_in``, ``held``), checked, and an
+    explicit method's stability limit at its start against its budget (the rest of its cost
+    checked)."""
+    chain, method, pressure, tau, q0, v0, t0 = run.chain, run.method, run.pressure, run.tau, run.q0, run.v0, run.t0
     run.P_in, run.T_in = as_input("pressure", pressure, chain.nu), as_input("tau", tau, chain.nv)  # checked here
     if method in driver.EXPLICIT_STABILITY_EXTENT:  # a stiff model: refused before hours of tiny steps
         run.budget.check(run.cost(explicit_stability_limit(chain, method, q0, v0, t0, pressure, tau)))
@@ -488,15 +565,17 @@ def _check_env(chain: Chain, env):
     return env
 
 
-def _choose_backend(run: _Run):
+def _choose_backend(run: _Run, base=None):
     """Step 2 of :func:`simulate`: the compiled engine's packed model
-    (:func:`qchain.sim.engine.system.pack`) where it serves the run, else None for
-    :mod:`qchain.sim.python_backend` (``ValueError`` then if ``controller_rate`` is given). A
-    held controller is packed as zeros (its output is written into the packed model at its
-    instants)."""
+    (:func:`qchain.sim.engine.system.pack`, or ``base``, the chain's packed once, with the
+    run's inputs: :func:`qchain.sim.engine.system.with_inputs`) where it serves the run, else
+    None for :mod:`qchain.sim.python_backend` (``ValueError`` then if ``controller_rate`` is
+    given). A held controller is packed as zeros (its output is written into the packed model
+    at its instants)."""
     if run.method in COMPILED:
         zeros = {name: np.zeros(size) for name, _, size in run.held}
-        m = system.pack(run.chain, zeros.get("pressure", run.pressure), zeros.get("tau", run.tau), run.env)
+        p, tau = zeros.get("pressure", run.pressure), zeros.get("tau", run.tau)
+        m = system.pack(run.chain, p, tau, run.env) if base is None else system.with_inputs(base, run.chain, p, tau)
         if m is not None:
             return m
     if run.controller_rate is not None:

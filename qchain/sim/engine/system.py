@@ -43,7 +43,7 @@ from ...model.slices import slice_twist
 from . import lie, schedules
 from ..._jit import ejit, ejit_inner, inline, kernel
 
-__all__ = ["EngineModel", "Workspace", "pack", "workspace", "rhs", "rhs_planar", "rhs_spatial", "jacobian",
+__all__ = ["EngineModel", "Workspace", "pack", "with_inputs", "workspace", "rhs", "rhs_planar", "rhs_spatial", "jacobian",
            "configuration", "energies", "energies_batch", "inputs", "RECENTER", "OK", "DOMAIN", "SINGULAR", "NONFINITE",
            "FIXED", "FLOATING", "PRESCRIBED"]
 
@@ -195,6 +195,22 @@ def pack(chain, pressure, tau, env=None) -> EngineModel | None:
     f = schedules.pack_input(tau, chain.nv, "tau")
     if p is None or f is None:
         return None
+    return _packed_model(chain, arrays, p, f, env)
+
+
+def with_inputs(m: EngineModel, chain, pressure, tau) -> EngineModel | None:
+    """``m`` (:func:`pack` of ``chain``, the model shared) with the compiled ``pressure`` and
+    ``tau`` inputs instead of its own (new arrays: a held controller's output is written into
+    them), or None where compiled code cannot evaluate them: :func:`pack` of ``chain`` with
+    those inputs, without packing the chain again."""
+    p = schedules.pack_input(pressure, chain.nu, "pressure")
+    f = schedules.pack_input(tau, chain.nv, "tau")
+    if p is None or f is None:
+        return None
+    return m._replace(p_ints=p[0], p_params=p[1], tau_ints=f[0], tau_params=f[1])
+
+
+def _packed_model(chain, arrays, p: tuple, f: tuple, env) -> EngineModel | None:
     base = {"fixed": FIXED, "floating": FLOATING, "prescribed": PRESCRIBED}[chain.base]
     planar_kernel = chain.planar and base != FLOATING
     if base == PRESCRIBED:
