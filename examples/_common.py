@@ -138,3 +138,17 @@ def draw_contacts(ax, contacts, axes=(0, 2), mm_per_newton=20.0, color="C3"):
     ax.plot(pt[:, i], pt[:, j], ".", color=color, ms=3)
     ax.quiver(pt[:, i], pt[:, j], f[:, i], f[:, j], color=color, angles="xy", scale_units="xy", scale=1.0,
               width=0.004)
+
+
+def save_figure(fig, out, filename: str, dpi: int = 110):
+    """Lay ``fig`` out, write it as ``out / filename`` (the folder made if needed), close it and
+    say so; returns the path."""
+    import matplotlib.pyplot as plt
+
+    fig.tight_layout()
+    out.mkdir(parents=True, exist_ok=True)
+    path = out / filename
+    fig.savefig(path, dpi=dpi)
+    plt.close(fig)
+    print(f"wrote {path}")
+    return path

@@ -19,6 +19,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from scipy.optimize import root  # noqa: E402
 
+import _common  # noqa: E402
 from qchain import Segment  # noqa: E402
 
 GRAVITY_ROOT = np.array([0.0, 0.0, -9.81])  # root z axis points up (m/s^2)
@@ -97,12 +98,7 @@ def main(argv=None) -> dict:
     ax2.set_xlabel("x (mm)")
     ax2.set_ylabel("y (mm)")
     ax2.set_title("top view (dashed: chambers 1-3 at 0, 120, -120 deg)")
-    fig.tight_layout()
-    args.out.mkdir(parents=True, exist_ok=True)
-    png = args.out / "bend_segment.png"
-    fig.savefig(png, dpi=120)
-    plt.close(fig)
-    print(f"wrote {png}")
+    png = _common.save_figure(fig, args.out, "bend_segment.png", dpi=120)
     return {"png": png, "shapes": shapes}
 
 

@@ -152,12 +152,7 @@ def main(argv=None) -> dict:
     px.legend(fontsize=7, loc="lower right")
     hx.grid(alpha=0.3)
     fig.suptitle(f"{sc.name}: a {P.mass * 1e3:g} g ball on a {arm_mass * 1e3:g} g arm, {sc.method}")
-    fig.tight_layout()
-    args.out.mkdir(parents=True, exist_ok=True)
-    png = args.out / "carry_payload.png"
-    fig.savefig(png, dpi=80)
-    plt.close(fig)
-    print(f"wrote {png}")
+    png = _common.save_figure(fig, args.out, "carry_payload.png", dpi=80)
     return {"trajectory": traj, "png": png, "chain": ch, "scene": sc, "payload_centres": com, "hanging": hang,
             "hanging_centre": hang_com, "lifted_index": k_up, "lift": lift, "peak_pressure": peak,
             "carried_deg": carried, "static": eq, "to_static": to_static, "end_speed": speed,

@@ -114,12 +114,7 @@ def main(argv=None) -> dict:
     bx.legend(fontsize=7)
     bx.grid(alpha=0.3)
     fig.suptitle(f"design study: {len(rows)} runs, {res.engine} engine, {res.wall_s:.3g} s wall")
-    args.out.mkdir(parents=True, exist_ok=True)
-    png = args.out / "design_study.png"
-    fig.tight_layout()
-    fig.savefig(png, dpi=110)
-    plt.close(fig)
-    print(f"wrote {png}")
+    png = _common.save_figure(fig, args.out, "design_study.png", dpi=110)
     return {"result": res, "png": png, "reach": reach, "radii": radii, "counts": counts, "levels": levels}
 
 

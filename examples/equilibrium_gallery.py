@@ -65,12 +65,7 @@ def main(argv=None) -> dict:
     ax2.set_ylabel("y (mm)")
     ax2.set_title("top view (chambers 1, 2, 3 at 0, 120, -120 deg)")
     ax2.grid(alpha=0.3)
-    fig.tight_layout()
-    args.out.mkdir(parents=True, exist_ok=True)
-    png = args.out / "gallery.png"
-    fig.savefig(png, dpi=110)
-    plt.close(fig)
-    print(f"wrote {png}")
+    png = _common.save_figure(fig, args.out, "gallery.png", dpi=110)
 
     T = _common.duration(args, sc, quick=0.3) if (args.duration is not None or args.quick) else 3.0
     label, q_eq, tip_eq = shapes[CHECK_ROW]

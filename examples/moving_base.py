@@ -45,12 +45,7 @@ def main(argv=None) -> dict:
     bx.set_title("side view")
     bx.legend(fontsize=7)
     bx.grid(alpha=0.3)
-    fig.tight_layout()
-    args.out.mkdir(parents=True, exist_ok=True)
-    png = args.out / "moving_base.png"
-    fig.savefig(png, dpi=110)
-    plt.close(fig)
-    print(f"wrote {png}")
+    png = _common.save_figure(fig, args.out, "moving_base.png", dpi=110)
     return {"trajectory": traj, "png": png, "tip": tip, "mount": mount}
 
 

@@ -186,11 +186,7 @@ def drag(args) -> dict:
     for a in (ax, mx):
         a.grid(alpha=0.3)
     fig.suptitle(f"an arm on the floor pulled at its tip: mu_s = {law.mu_static:g}, mu_d = {law.mu_dynamic:g}")
-    fig.tight_layout()
-    png = args.out / "push_floor.png"
-    fig.savefig(png, dpi=80)
-    plt.close(fig)
-    print(f"wrote {png}")
+    png = _common.save_figure(fig, args.out, "push_floor.png", dpi=80)
     return {"runs": runs, "weight": W, "mass": mass, "law": law, "png": png}
 
 
@@ -273,12 +269,7 @@ def main(argv=None) -> dict:
     for a in (ax, fx):
         a.grid(alpha=0.3)
     fig.suptitle("pushing a frictionless wall: radau5 against statics")
-    fig.tight_layout()
-    args.out.mkdir(parents=True, exist_ok=True)
-    png = args.out / "push_wall.png"
-    fig.savefig(png, dpi=80)
-    plt.close(fig)
-    print(f"wrote {png}")
+    png = _common.save_figure(fig, args.out, "push_wall.png", dpi=80)
     dragged = drag(args)
     return {"trajectory": traj, "png": png, "chain": chain, "env": env, "levels": np.array(levels), "drag": dragged,
             "settled": settled, "static": static, "onset": p_on, "force": F, "max_force": f_max,

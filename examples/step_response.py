@@ -50,12 +50,7 @@ def main(argv=None) -> dict:
     axes[1].set_xlabel("t (s)")
     for ax in axes:
         ax.grid(alpha=0.3)
-    args.out.mkdir(parents=True, exist_ok=True)
-    png = args.out / "tip_response.png"
-    fig.tight_layout()
-    fig.savefig(png, dpi=110)
-    plt.close(fig)
-    print(f"wrote {png}")
+    png = _common.save_figure(fig, args.out, "tip_response.png", dpi=110)
     return {"trajectory": traj, "png": png, "overshoot_percent": overshoot, "distance_to_static": left}
 
 

@@ -125,12 +125,7 @@ def main(argv=None) -> dict:
     axes[2].legend(fontsize=7, ncol=3)
     for ax in axes:
         ax.grid(alpha=0.3)
-    fig.tight_layout()
-    args.out.mkdir(parents=True, exist_ok=True)
-    png = args.out / "tip_control.png"
-    fig.savefig(png, dpi=110)
-    plt.close(fig)
-    print(f"wrote {png}")
+    png = _common.save_figure(fig, args.out, "tip_control.png", dpi=110)
     return {"trajectory": traj, "png": png, "error": err, "target": target}
 
 

@@ -46,12 +46,7 @@ def main(argv=None) -> dict:
     bx.legend()
     bx.grid(alpha=0.3)
     fig.suptitle(f"{sc.name}: {sc.n} segments, sinusoidal pressures, {model.chain.nv_active} free coordinates")
-    args.out.mkdir(parents=True, exist_ok=True)
-    png = args.out / "wave_arm.png"
-    fig.tight_layout()
-    fig.savefig(png, dpi=110)
-    plt.close(fig)
-    print(f"wrote {png}")
+    png = _common.save_figure(fig, args.out, "wave_arm.png", dpi=110)
     return {"trajectory": traj, "png": png, "tip": tip}
 
 

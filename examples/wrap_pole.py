@@ -156,12 +156,7 @@ def main(argv=None) -> dict:
     for a in axs:
         a.grid(alpha=0.3)
     fig.suptitle(f"wrapping a pole: radau5, friction mu_s = {env.law.mu_static:g}, mu_d = {env.law.mu_dynamic:g}")
-    fig.tight_layout()
-    args.out.mkdir(parents=True, exist_ok=True)
-    png = args.out / "wrap_pole.png"
-    fig.savefig(png, dpi=80)
-    plt.close(fig)
-    print(f"wrote {png}")
+    png = _common.save_figure(fig, args.out, "wrap_pole.png", dpi=80)
     return {"trajectory": traj, "png": png, "chain": chain, "env": env, "pole": pole, "wrap_deg": wrap,
             "span_deg": span, "contacts_on_pole": n_pole, "grip": f_sum, "resultant": f_net, "friction": f_fric,
             "balance": balance, "to_static": to_static, "static": eq, "max_force": f_max, "max_penetration": depth,
