@@ -148,6 +148,19 @@ def _static_kinds(rrd) -> dict:
     return kinds
 
 
+def _run_recorded(scene, tmp_path, capsys):
+    """``qchain run`` of ``scene`` for 0.05 s into run.mcap and run.rrd (11 samples); returns
+    the recording, the scene's environment and chain, and the .rrd's path."""
+    from qchain.logging import read_recording
+
+    mcap, rrd = tmp_path / "run.mcap", tmp_path / "run.rrd"
+    assert main(["run", str(scene), "--duration", "0.05", "--mcap", str(mcap), "--rrd", str(rrd), "--no-plots",
+                 "--no-progress"]) == 0
+    assert f"recorded {mcap} (11 samples, up to t = 0.05 s)" in capsys.readouterr().out
+    sc = load_scene(scene)
+    return read_recording(mcap), sc.environment, sc.build().chain, rrd
+
+
 def test_a_run_records_the_scenes_obstacles_and_contacts_and_draws_them(tmp_path, capsys):
     """`qchain run --mcap --rrd` of a scene with an obstacle: the recording holds the obstacles
     (Environment.describe), a capacity of segments x contact points, force_ref the weight a
@@ -156,16 +169,8 @@ def test_a_run_records_the_scenes_obstacles_and_contacts_and_draws_them(tmp_path
     `qchain replay` draw the ground and the forces."""
     from test_logging import _rrd_columns
 
-    from qchain.logging import read_recording
-
-    scene = _touching_scene(tmp_path)
-    mcap, rrd, rrd2 = tmp_path / "run.mcap", tmp_path / "run.rrd", tmp_path / "replay.rrd"
-    assert main(["run", str(scene), "--duration", "0.05", "--mcap", str(mcap), "--rrd", str(rrd), "--no-plots",
-                 "--no-progress"]) == 0
-    assert f"recorded {mcap} (11 samples, up to t = 0.05 s)" in capsys.readouterr().out
-    sc = load_scene(scene)
-    env, ch = sc.environment, sc.build().chain
-    rec = read_recording(mcap)
+    rec, env, ch, rrd = _run_recorded(_touching_scene(tmp_path), tmp_path, capsys)
+    mcap, rrd2 = tmp_path / "run.mcap", tmp_path / "replay.rrd"
     assert rec.info.obstacles == env.describe() and len(rec) == 11
     assert rec.info.max_contacts == 3 * 16 * 1
     assert rec.info.force_ref == pytest.approx(3 * 0.05 * 9.81 / (3 * 16), rel=1e-12)
@@ -256,17 +261,10 @@ def test_a_run_records_a_moving_obstacle_where_its_law_puts_it(tmp_path, capsys)
     from test_logging import _rrd_columns
     from test_recording_contacts import _foxglove
 
-    from qchain.logging import read_recording
     from qchain.recording.records import CONTACT_TOPICS
 
-    scene = _belt_scene(tmp_path)
-    mcap, rrd = tmp_path / "run.mcap", tmp_path / "run.rrd"
-    assert main(["run", str(scene), "--duration", "0.05", "--mcap", str(mcap), "--rrd", str(rrd), "--no-plots",
-                 "--no-progress"]) == 0
-    assert f"recorded {mcap} (11 samples, up to t = 0.05 s)" in capsys.readouterr().out
-    sc = load_scene(scene)
-    env, ch = sc.environment, sc.build().chain
-    rec = read_recording(mcap)
+    rec, env, ch, rrd = _run_recorded(_belt_scene(tmp_path), tmp_path, capsys)
+    mcap = tmp_path / "run.mcap"
     assert rec.info.obstacles == env.describe() and rec.info.obstacles[0]["motion"] == BELT
     t = np.asarray(rec.t, dtype=float)
     assert len(t) == 11 and t[0] == 0.0
