@@ -15,7 +15,8 @@ backbone as line strips (``/qchain/arm``) and as a point cloud
 (``/qchain/backbone_points``). Metadata carry the scene, the model parameters and the
 qchain version under a CRC32 seal. :func:`read_recording` and :func:`read_mcap` read it back
 bit for bit; a damaged chunk loses only its own records (``Recording.gaps`` says which);
-:func:`recover` makes a killed run's recording whole. :func:`replay` re-logs a recording
+:func:`recover` makes a killed run's recording whole; :func:`export_ros2` writes a recording as a
+ROS 2 bag (:mod:`qchain.recording.ros2`). :func:`replay` re-logs a recording
 into Rerun; :func:`foxglove_layout` is the Foxglove layout qchain ships. Reading a file from
 anywhere is bounded in time and memory (:class:`ReadLimits`); every bad file is a
 :class:`RecordingFormatError` naming it and the byte where it is bad.
@@ -49,6 +50,7 @@ from .recording.records import (
     StepRecord,
 )
 from .recording.replay import ReplaySession, recover, replay
+from .recording.ros2 import ROS2_TOPICS, export_ros2
 from .recording.writer import prepare_writer
 
 __all__ = [
@@ -67,6 +69,8 @@ __all__ = [
     "replay",
     "ReplaySession",
     "recover",
+    "export_ros2",
+    "ROS2_TOPICS",
     "foxglove_layout",
     "layout_json",
     "check_outputs",

@@ -77,7 +77,26 @@ def _run(args, parser, session: _Session) -> int:
     if ran is None:
         return EXIT_FAILED
     traj, interrupted, wall = ran
-    return _report_run(args, scene, model, traj, interrupted, wall, session)
+    code = _report_run(args, scene, model, traj, interrupted, wall, session)
+    if args.ros2 is not None and logger is not None and traj is not None:
+        code = max(code, _export_ros2(logger.mcap_path, args.ros2))
+    return code
+
+
+def _export_ros2(mcap, out) -> int:
+    """``--ros2 OUT``: the finished recording written as a ROS 2 bag
+    (:func:`qchain.recording.ros2.export_ros2`); an export that fails is said, and the
+    recording stays as it is."""
+    from ..recording.ros2 import export_ros2
+
+    try:
+        count = export_ros2(mcap, out)
+    except Exception as err:  # the recording is whole: say why the bag is not, exit 1
+        print(f"qchain run: error: the ROS 2 bag {printable(show_path(out))} could not be written: {_one_line(err)}; "
+              f"`qchain export {printable(show_path(mcap))} -o OUT.mcap` retries it", file=sys.stderr)
+        return EXIT_FAILED
+    print(f"wrote {printable(show_path(out))} (ROS 2 bag, {count} messages)")
+    return EXIT_OK
 
 
 def _load_run_scene(args, parser) -> tuple[Scene, float]:
@@ -123,6 +142,12 @@ def _check_run_outputs(args, scene: Scene, duration: float) -> tuple[bool, list[
             src = "--duration" if args.duration is not None else f"{printable(show_path(args.scene))}: simulation.duration"
             raise BadInput(f"{src} {duration:g} s: a recorded run lasts at most {T_MAX:.10g} s ({T_MAX_WHY}); run "
                            "it with --no-record (and no --rrd, --serve or --connect)")
+    if args.ros2 is not None:
+        if not record:
+            raise BadInput("--ros2 is written from the run's recording: drop --no-record (or give --mcap)")
+        if Path(args.ros2).suffix != ".mcap":
+            raise BadInput(f"--ros2 {printable(show_path(args.ros2))}: a ROS 2 bag is an .mcap file; name it *.mcap")
+        check_output_path("--ros2", args.ros2)
     mcap = None
     if record:
         if args.mcap is None and not args.no_record:
@@ -307,6 +332,8 @@ def _check_planned_outputs(args, scene, mcap) -> None:
         outputs += [("--mcap", mcap), ("--mcap (its journal)", os.fspath(mcap) + ".journal")]
     if args.rrd is not None:
         outputs.append(("--rrd", args.rrd))
+    if args.ros2 is not None:
+        outputs.append(("--ros2", args.ros2))
     if not args.no_plots:
         flag = "--out" if args.out is not None else "output.folder"
         for path in planned_outputs(scene, args.out):
@@ -457,6 +484,9 @@ def _parser() -> argparse.ArgumentParser:
                           "once a run has taken 10 s)")
     bar.add_argument("--no-progress", dest="progress", action="store_false", help="no progress bar")
     run.add_argument("--no-record", action="store_true", help="write no MCAP recording (unless --mcap is given)")
+    run.add_argument("--ros2", type=Path, default=None, metavar="OUT",
+                     help="also write the recording as a ROS 2 bag (an .mcap file: /tf, /joint_states, "
+                          "/qchain/pressures, /qchain/markers) once the run ends")
     g = qlog.add_logging_arguments(run)
     g.add_argument("--viewer-timeout", type=float, default=None, metavar="S",
                    help=f"seconds a Rerun viewer (--connect, --serve) has to answer before it is given up, with a "
@@ -468,13 +498,14 @@ def _parser() -> argparse.ArgumentParser:
     sub.add_parser("replay", help="replay an MCAP recording in Rerun (qchain replay --help)", add_help=False)
     sub.add_parser("recover", help="make a killed run's recording whole (qchain recover --help)", add_help=False)
     sub.add_parser("layout", help="write a recording's Foxglove layout (qchain layout --help)", add_help=False)
+    sub.add_parser("export", help="write a recording as a ROS 2 bag (qchain export --help)", add_help=False)
     sub.add_parser("sweep", help="run a scene over axes of its values, on every core or a Dask cluster "
                    "(qchain sweep --help)", add_help=False)
     parser.commands = {"run": run, "info": info}  # (their usage errors: _dispatch)
     for p in (run, info):  # every path argument: not empty (Path("") is the working folder), no NUL
         for action in p._actions:
             if action.type is Path:
-                action.type = file_argument if action.dest in ("mcap", "rrd") else path_argument
+                action.type = file_argument if action.dest in ("mcap", "rrd", "ros2") else path_argument
     return parser
 
 
@@ -499,7 +530,7 @@ def _dispatch(argv: list[str], session: _Session, debug: bool) -> int:
     # imported here, not with the module: `qchain --version` answers without the recording's libraries
     from . import recording as qlog
 
-    handed = {"replay": "replay_main", "recover": "recover_main", "layout": "layout_main"}
+    handed = {"replay": "replay_main", "recover": "recover_main", "layout": "layout_main", "export": "export_main"}
     if argv and argv[0] in handed:
         session.phase = "run"  # qchain.logging says its errors and their exit codes itself
         return int(getattr(qlog, handed[argv[0]])(argv[1:]) or 0)

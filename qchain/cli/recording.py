@@ -31,7 +31,7 @@ from .errors import BadInput
 
 _default_mcap_path = default_mcap_path  # reachable where a parameter has the same name
 
-__all__ = ["replay_main", "recover_main", "layout_main", "add_logging_arguments", "logger_from_args",
+__all__ = ["replay_main", "recover_main", "layout_main", "export_main", "add_logging_arguments", "logger_from_args",
            # what qchain run needs of the recording service, in one place
            "RunInfo", "RunLogger", "LoggingError", "check_outputs", "default_mcap_path", "prepare_writer"]
 
@@ -216,6 +216,29 @@ def layout_main(argv: Sequence[str] | None = None) -> int:
             print(f"wrote {printable(args.out)}")
     except _ERRORS as exc:
         return _error("layout", exc)
+    return 0
+
+
+def export_main(argv: Sequence[str] | None = None) -> int:
+    """``qchain export LOG.mcap -o BAG.mcap``: a recording as a ROS 2 bag
+    (:func:`qchain.recording.ros2.export_ros2`). Exit codes: 0 done, 2 not a readable
+    recording, or an output that cannot be written (then left as it was)."""
+    from ..recording.ros2 import export_ros2
+
+    args, limits = _parse("qchain export", "Write a recording as a ROS 2 bag: an MCAP file of the ros2 profile "
+                          "(/tf, /joint_states, /qchain/pressures, /qchain/markers) for ros2 bag play, Foxglove and "
+                          "rosbags.", argv, lambda parser: parser.add_argument(
+                              "-o", "--out", type=file_argument, required=True, help="the bag to write (.mcap)"))
+    try:
+        refuse_recording(args.out, args.log, f"-o {args.out} is the recording")
+        try:
+            check_output_path("-o", args.out)
+        except BadInput as exc:
+            raise LoggingError(str(exc)) from None
+        count = export_ros2(args.log, args.out, limits=limits)
+    except _ERRORS as exc:
+        return _error("export", exc)
+    print(printable(f"wrote {args.out} (ROS 2 bag, {count} messages)"))
     return 0
 
 
