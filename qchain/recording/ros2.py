@@ -39,7 +39,7 @@ from .records import SEGMENT_COLORS, Batch, RunInfo
 from .scenery import OBSTACLE_COLOR, motion_offset, obstacle_shapes
 from .scenery import reach as arm_reach
 
-__all__ = ["ROS2_TOPICS", "MESSAGE_TYPES", "write_ros2", "export_ros2", "joint_names", "pressure_names"]
+__all__ = ["ROS2_TOPICS", "BagWriter", "stamp", "write_ros2", "export_ros2", "joint_names", "pressure_names"]
 
 #: topic -> ROS 2 message type of a qchain ROS 2 bag
 ROS2_TOPICS = {
@@ -48,7 +48,6 @@ ROS2_TOPICS = {
     "/qchain/pressures": "sensor_msgs/msg/JointState",
     "/qchain/markers": "visualization_msgs/msg/MarkerArray",
 }
-MESSAGE_TYPES = sorted(set(ROS2_TOPICS.values()))
 
 # visualization_msgs/Marker types and actions
 _ARROW, _CUBE, _SPHERE, _CYLINDER, _LINE_STRIP = 0, 1, 2, 3, 4
@@ -83,10 +82,6 @@ def pressure_names(info: RunInfo, n_pressures: int) -> list[str]:
     return [f"segment_{k // 3 + 1}_chamber_{k % 3 + 1}" for k in range(n_pressures)]
 
 
-def _stamp(lt: int) -> dict:
-    return {"sec": lt // 1_000_000_000, "nanosec": lt % 1_000_000_000}
-
-
 def _color(rgb, a: float = 1.0) -> dict:
     return {"r": rgb[0] / 255.0, "g": rgb[1] / 255.0, "b": rgb[2] / 255.0, "a": a}
 
@@ -117,8 +112,54 @@ def _obstacle_markers(info: RunInfo, shapes, offsets: np.ndarray, header: dict) 
     return out
 
 
+class BagWriter:
+    """A ROS 2 bag being written: an MCAP file of the ``ros2`` profile (``mcap-ros2-support``'s
+    writer), each message type's schema the ROS 2 Humble definition (``rosbags``' type store),
+    registered at its first message.
+
+    Parameters
+    ----------
+    out : binary stream
+        Where the MCAP goes (written from its start; not closed).
+    metadata : dict, optional
+        Entries of the bag's ``qchain`` metadata record.
+    """
+
+    def __init__(self, out, *, metadata: dict[str, str] | None = None):
+        from mcap_ros2.writer import Writer
+
+        self._w = Writer(out)
+        self._schemas: dict[str, object] = {}
+        self.count = 0
+        if metadata:
+            self._w.add_metadata("qchain", dict(metadata))
+
+    def write(self, topic: str, typename: str, t: float | int, message: dict, sequence: int = 0) -> None:
+        """One message (a dict of the type's fields; missing ones take their defaults) of ROS 2
+        type ``typename`` (e.g. ``"geometry_msgs/msg/PoseStamped"``) on ``topic`` at log time
+        ``t`` (an int: ns; a float: s)."""
+        schema = self._schemas.get(typename)
+        if schema is None:
+            schema = self._schemas[typename] = self._w.register_msgdef(*_msgdef(typename))
+        lt = t if isinstance(t, int) else int(round(float(t) * 1e9))
+        self._w.write_message(topic, schema, message, log_time=lt, publish_time=lt, sequence=sequence)
+        self.count += 1
+
+    def finish(self) -> int:
+        """Write the summary; returns the number of messages."""
+        self._w.finish()
+        return self.count
+
+
+def stamp(t: float | int) -> dict:
+    """A ``builtin_interfaces/Time`` of ``t`` (an int: ns; a float: s)."""
+    lt = t if isinstance(t, int) else int(round(float(t) * 1e9))
+    return {"sec": lt // 1_000_000_000, "nanosec": lt % 1_000_000_000}
+
+
 def write_ros2(b: Batch, info: RunInfo, out, *, metadata: dict[str, str] | None = None) -> int:
-    """Write the records ``b`` of a run described by ``info`` as a ROS 2 bag.
+    """Write the records ``b`` of a run described by ``info`` as a ROS 2 bag (the topics of
+    :data:`ROS2_TOPICS`).
 
     Parameters
     ----------
@@ -135,17 +176,9 @@ def write_ros2(b: Batch, info: RunInfo, out, *, metadata: dict[str, str] | None 
     int
         The number of messages written.
     """
-    from mcap_ros2.writer import Writer
-
     from .mcap_sink import relative_frames
 
-    w = Writer(out)
-    schemas = {}
-    for typename in MESSAGE_TYPES:
-        name, text = _msgdef(typename)
-        schemas[typename] = w.register_msgdef(name, text)
-    if metadata:
-        w.add_metadata("qchain", dict(metadata))
+    w = BagWriter(out, metadata=metadata)
     K = len(b)
     n = info.n_segments
     jnames = joint_names(info)
@@ -161,20 +194,19 @@ def write_ros2(b: Batch, info: RunInfo, out, *, metadata: dict[str, str] | None 
         offsets[:, i] = motion_offset(info.obstacles[i]["motion"], b.t)
     rel = relative_frames(b.base, b.tip_frames) if K else np.zeros((0, n + 1, 7))
     lts = np.rint(b.t * 1e9).astype(np.int64).tolist()
-    count = 0
     for k in range(K):
         lt = lts[k]
         seq = int(b.step[k]) & 0xFFFFFFFF
-        stamp = _stamp(lt)
-        world = {"stamp": stamp, "frame_id": "world"}
+        st = stamp(lt)
+        world = {"stamp": st, "frame_id": "world"}
         tf = {"transforms": [
-            {"header": {"stamp": stamp, "frame_id": frames[j]}, "child_frame_id": frames[j + 1],
+            {"header": {"stamp": st, "frame_id": frames[j]}, "child_frame_id": frames[j + 1],
              "transform": {"translation": {"x": f[0], "y": f[1], "z": f[2]},
                            "rotation": {"x": f[3], "y": f[4], "z": f[5], "w": f[6]}}}
             for j, f in enumerate(rel[k].tolist())]}
-        joints = {"header": {"stamp": stamp, "frame_id": ""}, "name": jnames,
+        joints = {"header": {"stamp": st, "frame_id": ""}, "name": jnames,
                   "position": b.q[k, -3 * n:].tolist(), "velocity": b.v[k, -3 * n:].tolist(), "effort": []}
-        pressures = {"header": {"stamp": stamp, "frame_id": ""}, "name": pnames, "position": [], "velocity": [],
+        pressures = {"header": {"stamp": st, "frame_id": ""}, "name": pnames, "position": [], "velocity": [],
                      "effort": b.p[k].tolist()}
         markers = [{"header": world, "ns": "backbone", "id": i, "type": _LINE_STRIP, "action": _ADD,
                     "pose": _pose((0, 0, 0), (0, 0, 0, 1)),
@@ -185,10 +217,8 @@ def write_ros2(b: Batch, info: RunInfo, out, *, metadata: dict[str, str] | None 
         markers += _obstacle_markers(info, shapes, offsets[k], world)
         for topic, msg in (("/tf", tf), ("/joint_states", joints), ("/qchain/pressures", pressures),
                            ("/qchain/markers", {"markers": markers})):
-            w.write_message(topic, schemas[ROS2_TOPICS[topic]], msg, log_time=lt, publish_time=lt, sequence=seq)
-            count += 1
-    w.finish()
-    return count
+            w.write(topic, ROS2_TOPICS[topic], lt, msg, sequence=seq)
+    return w.finish()
 
 
 def export_ros2(recording: str | os.PathLike, out: str | os.PathLike, *, limits=None) -> int:
