@@ -240,6 +240,47 @@ class ChainKinematics:
             Jt[:, self.v_slice(j)] += S[j]
         return self._express(Jt, self.placements(q, t)[-1], reference)
 
+    def points(self, q, where, t: float = 0.0) -> np.ndarray:
+        """World positions (m, 3), m, of the backbone points ``where`` = ``[(segment, alpha),
+        ...]`` (0-based segment, ``alpha`` in [0, 1] along it; segment ``-1`` is the last)."""
+        segs, alphas = self._where(where)
+        st = self._state(q, t=t)
+        grid = np.unique(alphas)
+        f = self._state_frames(st, grid)
+        return f.backbone[0, segs, np.searchsorted(grid, alphas)]
+
+    def point_jacobian(self, q, segment: int, alpha: float, t: float = 0.0) -> np.ndarray:
+        """``d(point)/dq`` (3, nv) of the world position of backbone point ``alpha`` of
+        ``segment``, along ``integrate(q, dq)``: the transpose of the map from a world force
+        there to its generalised force (virtual work), which is exact
+        (:meth:`environment_force` of a :class:`~qchain.contact.PointLoad`); the tip's is
+        :meth:`tip_jacobian`'s linear rows in ``"local_world_aligned"``."""
+        from ..contact.environment import Environment, PointLoad
+
+        (seg,), (a,) = self._where([(segment, alpha)])
+        if seg == self.n - 1 and a == 1.0:
+            return self.tip_jacobian(q, "local_world_aligned", t)[:3]
+        zero = np.zeros(self.nv)
+        return np.array([self.environment_force(q, zero, Environment(loads=[PointLoad(int(seg), a, force=e)]), t)
+                         for e in np.eye(3)])
+
+    def _where(self, where) -> tuple[np.ndarray, np.ndarray]:
+        """Checked ``(segment, alpha)`` pairs as arrays (segment made >= 0)."""
+        segs, alphas = [], []
+        for i, item in enumerate(where):
+            try:
+                seg, a = item
+            except (TypeError, ValueError):
+                raise ValueError(f"where[{i}] must be a (segment, alpha) pair, got {item!r}") from None
+            if isinstance(seg, bool) or not isinstance(seg, (int, np.integer)) or not -self.n <= seg < self.n:
+                raise ValueError(f"where[{i}]: segment must be an int in [-{self.n}, {self.n - 1}], got {seg!r}")
+            a = float(a)
+            if not 0.0 <= a <= 1.0:
+                raise ValueError(f"where[{i}]: alpha must be in [0, 1], got {a!r}")
+            segs.append(int(seg) % self.n)
+            alphas.append(a)
+        return np.array(segs, dtype=np.int64), np.array(alphas)
+
     @staticmethod
     def _express(J_local: np.ndarray, X: pin.SE3, reference: str) -> np.ndarray:
         """Tip-frame (LOCAL) Jacobian columns (6, k) re-expressed in ``reference`` at the tip

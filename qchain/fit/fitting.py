@@ -1,0 +1,198 @@
+"""``qchain.fit.fit``: chosen scene parameters fitted to measured experiments.
+
+The fit rebuilds the scene's model for each trial ``theta`` (the fitted keys written into
+the scene table, :func:`qchain.batch.sweep_spec.apply_values`, the model built as ``qchain
+run`` builds it, with the node count held at the start model's so that the model's
+structure does not change under the fit), evaluates every experiment's residuals and their
+exact Jacobian, and hands them to :func:`qchain.fit.solve.least_squares_fit`. The fitted
+scene is the scene file with the fitted values put in (:meth:`FitReport.scene_text`).
+"""
+
+from __future__ import annotations
+
+import os
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ..batch.sweep_spec import apply_values
+from .measurements import MeasurementError
+from .parameters import FitParameter, column_map, fit_parameters, scene_values
+from .solve import FitResult, least_squares_fit
+from .statics import StaticPoses, static_residuals
+
+__all__ = ["fit", "FitReport"]
+
+
+@dataclass
+class FitReport:
+    """A fit's outcome.
+
+    Attributes
+    ----------
+    result : FitResult
+        Values, standard errors, correlation, residuals, counters (:mod:`qchain.fit.solve`).
+    parameters : list of FitParameter
+    experiments : list
+        What was fitted to.
+    residuals : list of (n_i,) arrays
+        Each experiment's residuals at the solution (m), in its own order.
+    raw : dict
+        The fitted scene's table.
+    source : str
+        The scene file fitted.
+    """
+
+    result: FitResult
+    parameters: list
+    experiments: list
+    residuals: list
+    raw: dict
+    source: str
+    evaluations: int = 0
+    notes: list = field(default_factory=list)
+
+    def scene_text(self) -> str:
+        """The fitted scene as TOML, with a header saying what was fitted."""
+        import tomli_w
+
+        head = [f"# fitted by qchain.fit from {self.source}: {len(self.experiments)} experiment(s), "
+                f"RMS residual {np.sqrt(np.mean(self.result.residuals ** 2)):.4g} m"]
+        for p, x, s in zip(self.parameters, self.result.x, self.result.stderr):
+            head.append(f"#   {p.key} = {x:.9g} {p.unit} (+- {s:.3g}; started at {p.start:.6g})")
+        return "\n".join(head) + "\n" + tomli_w.dumps(self.raw)
+
+    def write_scene(self, path) -> Path:
+        """Write :meth:`scene_text` to ``path`` (whole or not at all)."""
+        import tempfile
+
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=".fitted-", suffix=".toml", dir=path.parent)
+        try:
+            with os.fdopen(fd, "w") as fh:
+                fh.write(self.scene_text())
+            os.replace(tmp, path)
+            tmp = None
+        finally:
+            if tmp is not None and os.path.exists(tmp):
+                os.unlink(tmp)
+        return path
+
+
+def _model_params(params: list[FitParameter]) -> tuple[list, list]:
+    """The model's ``(kind, segment)`` list for the fit parameters and its columns' keys."""
+    pairs, cols = [], []
+    for p in params:
+        if p.name == "gravity":
+            if ("gravity", None) not in pairs:
+                pairs.append(("gravity", None))
+                cols += [("gravity", k) for k in range(3)]
+            continue
+        for s in p.segments:
+            if (p.name, s) not in pairs:
+                pairs.append((p.name, s))
+                cols.append((p.name, s))
+    return pairs, cols
+
+
+def fit(scene, experiments, keys, *, bounds: dict | None = None, loss: str = "linear",
+        f_scale: float = 1e-3, reduce: bool = False, max_nfev: int | None = 50) -> FitReport:
+    """Fit the scene keys ``keys`` to ``experiments``.
+
+    Parameters
+    ----------
+    scene : path
+        The scene file (TOML) whose parameters are fitted; the fit starts from its values.
+    experiments : sequence of StaticPoses
+        The measurements (static poses; each experiment's pressures must match the arm's
+        chambers, its points lie within the arm's reach).
+    keys : sequence of str
+        Scene keys to fit (:mod:`qchain.fit.parameters`): ``"segments[0].youngs_modulus"``,
+        ``"segments[*].mass"``, ``"gravity[2]"``, ...
+    bounds : dict, optional
+        ``{key: (lower, upper)}`` (SI units).
+    loss, f_scale : str, float
+        The least-squares loss (``"linear"``, or robust ``"soft_l1"``, ``"huber"``, ...) and
+        the residual size (m) where a robust loss starts to down-weight.
+    reduce : bool
+        The scene's automatic reductions (planar, node counts). Off by default: they are
+        decided from the scene's own pressures and state, which the experiments' need not
+        share (a planar model cannot follow pressures that differ in chambers 2 and 3).
+    max_nfev : int, optional
+        Residual evaluations at most.
+    """
+    from ..scene.reading import parse_scene
+    import tomli_w
+
+    path = Path(scene)
+    try:
+        raw = tomllib.loads(path.read_text())
+    except (OSError, tomllib.TOMLDecodeError) as exc:
+        raise ValueError(f"scene {path}: cannot be read ({exc})") from None
+    experiments = list(experiments)
+    if not experiments:
+        raise ValueError("experiments: give at least one")
+    for i, e in enumerate(experiments):
+        if not isinstance(e, StaticPoses):
+            raise TypeError(f"experiments[{i}] must be StaticPoses, got {type(e).__name__}")
+    keys = list(keys)
+    params = fit_parameters(raw, keys, bounds)
+    start = parse_scene(path.read_text(), path).build(reduce=reduce)
+    nodes = [len(s.alpha_nodes) for s in start.chain.segments]
+    chain0 = start.chain
+    total = sum(e.n_values for e in experiments)
+    if total < 2 * len(params):
+        raise MeasurementError(f"{total} measured numbers are too few for {len(params)} parameters: at least "
+                               f"{2 * len(params)} are needed")
+    for e in experiments:
+        if e.pressures.shape[1] != chain0.nu:
+            raise MeasurementError(f"{e.source}: {e.pressures.shape[1]} pressures a pose, the model has {chain0.nu} "
+                                   f"chambers ({chain0.n} segments x 3)")
+        reach = sum(s.length for s in chain0.segments)
+        d = np.linalg.norm(e.points - chain0.base_placement.translation, axis=-1)
+        if d.max() > 1.5 * reach:
+            k = int(np.unravel_index(np.argmax(d), d.shape)[0])
+            raise MeasurementError(f"{e.source}: the point measured in pose {k} is {d.max():.4g} m from the base, and "
+                                   f"the arm is {reach:.4g} m long: units that do not match (mm for m?) or another "
+                                   "frame than the base's world frame")
+    pairs, cols = _model_params(params)
+    T = column_map(params, cols)
+    guesses = [[None] * e.pressures.shape[0] for e in experiments]
+    state = {"n": 0, "last": None}
+
+    def model_at(x):
+        values = scene_values(params, x)
+        values.update({f"segments[{i}].nodes": n for i, n in enumerate(_table_nodes(raw, nodes))})
+        new = apply_values(raw, values)
+        return new, parse_scene(tomli_w.dumps(new), path).build(reduce=reduce).chain
+
+    def fun(x):
+        state["n"] += 1
+        new, chain = model_at(x)
+        rs, Js = [], []
+        for e, g in zip(experiments, guesses):
+            r, J = static_residuals(chain, e, pairs, g)
+            rs.append(r)
+            Js.append(J @ T)
+        state["last"] = (new, rs)
+        return np.concatenate(rs), np.concatenate(Js)
+
+    res = least_squares_fit(fun, [p.start for p in params], [p.key for p in params],
+                            lower=[p.lower for p in params], upper=[p.upper for p in params], loss=loss,
+                            f_scale=f_scale, max_nfev=max_nfev)
+    fun(res.x)  # the report's residuals and scene at the solution
+    new, rs = state["last"]
+    return FitReport(result=res, parameters=params, experiments=experiments, residuals=rs, raw=new,
+                     source=str(path), evaluations=state["n"])
+
+
+def _table_nodes(raw: dict, nodes: list[int]) -> list[int]:
+    """Each ``[[segments]]`` table's node count (its first segment's) from the expanded list."""
+    out, k = [], 0
+    for tab in raw.get("segments", []):
+        out.append(nodes[k])
+        k += int(tab.get("count", 1))
+    return out

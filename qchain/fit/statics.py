@@ -1,0 +1,106 @@
+"""Static calibration: a model fitted to equilibrium poses measured at held pressures.
+
+A :class:`StaticPoses` is K pressure vectors, each held until the arm settled, and the
+points measured on the arm there. For parameters ``theta`` the model's poses are the
+equilibria ``q_k(theta)`` (:func:`qchain.equilibrium`), the residuals the model's points minus
+the measured ones, and their Jacobian exact by the implicit function theorem: at an
+equilibrium the accelerations ``a(q, 0, p; theta)`` vanish, so
+
+    dq_k/dtheta = -(da/dq)^-1 da/dtheta,      d point/dtheta = J_point(q_k) dq_k/dtheta,
+
+with ``da/dq`` of :meth:`~qchain.Chain.forward_dynamics_derivatives`, ``da/dtheta`` of
+:meth:`~qchain.Chain.forward_dynamics_parameter_derivatives` (on the free coordinates where
+the model holds some still) and ``J_point`` of :meth:`~qchain.Chain.point_jacobian`.
+
+What statics cannot tell: the masses and moduli enter a static pose only as the ratio of
+weight to stiffness (and the chamber area as pressure gain to stiffness), so fitting mass
+and modulus of one segment from statics alone is refused by the fit's identifiability check
+(:mod:`qchain.fit.solve`), which names them.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .measurements import MeasurementError
+
+__all__ = ["StaticPoses", "static_residuals"]
+
+
+@dataclass(frozen=True)
+class StaticPoses:
+    """Equilibrium poses of one experiment.
+
+    Attributes
+    ----------
+    pressures : (K, 3 n) float, Pa
+        The held pressures.
+    points : (K, m, 3) float, m, world frame
+        The measured points at each.
+    where : tuple of (int, float)
+        Each point's ``(segment, alpha)`` (default the tip).
+    source : str
+    """
+
+    pressures: np.ndarray
+    points: np.ndarray
+    where: tuple = ((-1, 1.0),)
+    source: str = "static poses"
+
+    def __post_init__(self):
+        p = np.asarray(self.pressures, dtype=float)
+        x = np.asarray(self.points, dtype=float)
+        if p.ndim != 2 or p.shape[0] == 0:
+            raise MeasurementError(f"{self.source}: pressures must be (K, 3 n) with K >= 1, got shape {p.shape}")
+        if x.shape != (p.shape[0], len(self.where), 3):
+            raise MeasurementError(f"{self.source}: points must have shape ({p.shape[0]}, {len(self.where)}, 3) "
+                                   f"(poses, points at where, xyz), got {x.shape}")
+        for name, a in (("pressures", p), ("points", x)):
+            if not np.all(np.isfinite(a)):
+                k = int(np.flatnonzero(~np.all(np.isfinite(a.reshape(a.shape[0], -1)), axis=1))[0])
+                raise MeasurementError(f"{self.source}: {name} of pose {k} are not finite (a lost marker? leave "
+                                       "that pose out)")
+        object.__setattr__(self, "pressures", p)
+        object.__setattr__(self, "points", x)
+
+    @property
+    def n_values(self) -> int:
+        return int(self.points.size)
+
+
+def static_residuals(chain, poses: StaticPoses, params, q_guess: list | None = None):
+    """Residuals (K m 3,) m and their Jacobian (K m 3, n_theta) of the model ``chain``'s
+    equilibria against ``poses``, for the model parameters ``params`` (a
+    :class:`~qchain.arm.parameter_derivatives.Parameters` or its ``(kind, segment)`` list).
+
+    ``q_guess`` (K configurations, updated in place) starts each equilibrium where the last
+    evaluation ended, so a fit's Newton solves take a step or two.
+    """
+    from ..arm.statics import equilibrium
+
+    P = chain.parameters(params) if not hasattr(params, "names") else params
+    free = np.flatnonzero(chain.active)
+    K, m = poses.points.shape[:2]
+    r = np.empty((K, m, 3))
+    J = np.empty((K, m, 3, len(P)))
+    zero = np.zeros(chain.nv)
+    for k in range(K):
+        p = poses.pressures[k]
+        q0 = None if q_guess is None or q_guess[k] is None else q_guess[k]
+        eq = equilibrium(chain, p, q0=q0)
+        if not eq.success:
+            raise FloatingPointError(f"{poses.source}: pose {k}: the model has no equilibrium at these pressures and "
+                                     f"parameters ({eq.message})")
+        if q_guess is not None:
+            q_guess[k] = eq.q
+        q = eq.q
+        d = chain.forward_dynamics_derivatives(q, zero, p)
+        pd = chain.forward_dynamics_parameter_derivatives(q, zero, p, P)
+        dq = np.zeros((chain.nv, len(P)))
+        dq[free] = -np.linalg.solve(d.da_dq[np.ix_(free, free)], pd.da_dtheta[free])
+        r[k] = chain.points(q, poses.where) - poses.points[k]
+        for j, (seg, alpha) in enumerate(poses.where):
+            J[k, j] = chain.point_jacobian(q, seg, alpha) @ dq
+    return r.reshape(-1), J.reshape(K * m * 3, len(P))
