@@ -45,6 +45,7 @@ from ..algorithms.arrays import ChainArrays
 from ..model.arc import SCRATCH, arc_nodes
 from .checks import QUATERNION_TOLERANCE, ChainChecks, _finite  # noqa: F401 (QUATERNION_TOLERANCE re-exported)
 from .contact import ChainContact
+from .parameter_derivatives import ChainParameters
 from .kinematics import _NO_POINTS, ChainKinematics, Frames
 from .dynamics_derivatives import _ZERO6, ForwardDynamicsDerivatives, InverseDynamicsDerivatives
 from .data import Data
@@ -95,7 +96,7 @@ def _check_placement(name: str, X) -> None:
     POSITION.check_array(f"{name}.translation", H[:3, 3])
 
 
-class Chain(KeepsReadOnly, ChainKinematics, ChainContact, ChainChecks):
+class Chain(KeepsReadOnly, ChainKinematics, ChainContact, ChainParameters, ChainChecks):
     """A soft arm of ``n`` segments.
 
     Parameters
