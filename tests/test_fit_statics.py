@@ -45,6 +45,9 @@ rpy = [3.141592653589793, 0.0, 0.0]
 [pressure]
 type = "constant"
 value = [0.0, 0.0, 0.0,  0.0, 0.0, 0.0,  0.0, 0.0, 0.0]
+
+[simulation]
+duration = 1.0
 """
 TRUTH = dict(E0=1.3e5, E1=0.8e5, A=5.0e-5)
 PRESSURES = np.array([[p1, p2, p3] * 3 for p1, p2, p3 in
@@ -86,19 +89,19 @@ def test_the_static_jacobian_is_the_derivative_of_the_residuals(tmp_path):
             kw = dict(length=s.length, radius=s.radius, mass=s.mass, chamber_area=s.chamber_area,
                       chamber_radius=s.chamber_radius, youngs_modulus=s.youngs_modulus, damping=s.damping,
                       nodes=len(s.alpha_nodes))
-            if j == seg:
+            if kind != "gravity" and j == seg:
                 kw[kind] += h
             segs.append(Segment(**kw))
         g = np.array(chain.gravity)
         if kind == "gravity":
             g[seg] += h
-        return Chain(segs, base=chain.base_placement, gravity=g)
+        return Chain(segs, base="fixed", base_placement=chain.base_placement, gravity=g)
 
     cols = [("youngs_modulus", 0), ("youngs_modulus", 2), ("chamber_area", 1), ("mass", 1),
             ("gravity", 0), ("gravity", 1), ("gravity", 2)]
     for c, (kind, seg) in enumerate(cols):
         x0 = getattr(chain.segments[seg], kind) if kind != "gravity" else chain.gravity[seg]
-        h = 1e-5 * max(abs(x0), 1.0)
+        h = 1e-4 * (abs(x0) or 1.0)  # the equilibria are solved to ~1e-9: a smaller step is noise
         fd = []
         for s in (+1, -1):
             ch = rebuilt(kind, seg, s * h)
@@ -157,16 +160,23 @@ def test_measurements_in_millimetres_are_refused(tmp_path):
 
 
 @pytest.mark.slow
-def test_twenty_noisy_experiments_put_the_truth_within_two_standard_errors(tmp_path):
-    """20 synthetic experiments (0.5 mm noise, seeds 0-19): each parameter within 2 standard
-    errors of the truth in at least 18."""
+def test_two_standard_errors_cover_the_truth_in_repeated_noisy_experiments(tmp_path):
+    """40 synthetic experiments (0.5 mm noise, seeds 0-39), each fitted from the same wrong
+    start: each parameter within 2 standard errors of the truth in at least 85 % of them (95 %
+    for a linear model; the modulus enters a pose as 1/E, and at 0.5 mm noise the standard
+    errors are 2-6 % of the values, where that curvature shows), and the z-scores' RMS within
+    0.75-1.35 (standard errors neither inflated nor too small)."""
     scene = _scene(tmp_path, E0=1.0e5, E1=1.0e5, A=4.0e-5)
     truth = np.array([TRUTH["E0"], TRUTH["E1"], TRUTH["A"]])
-    hits = np.zeros(3, int)
+    z = []
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", FitWarning)
-        for seed in range(20):
-            rep = fit(scene, [_poses(tmp_path, noise=5e-4, seed=seed)],
-                      ["segments[0].youngs_modulus", "segments[1].youngs_modulus", "segments[1].chamber_area"])
-            hits += np.abs(rep.result.x - truth) <= 2 * rep.result.stderr
-    assert np.all(hits >= 18), hits
+        for seed in range(40):
+            res = fit(scene, [_poses(tmp_path, noise=5e-4, seed=seed)],
+                      ["segments[0].youngs_modulus", "segments[1].youngs_modulus", "segments[1].chamber_area"]).result
+            assert res.success
+            z.append((res.x - truth) / res.stderr)
+    z = np.abs(np.array(z))
+    assert np.all((z <= 2).mean(axis=0) >= 0.85), (z <= 2).mean(axis=0)
+    rms = np.sqrt((z ** 2).mean(axis=0))
+    assert np.all((rms > 0.75) & (rms < 1.35)), rms
