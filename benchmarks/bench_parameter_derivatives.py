@@ -2,7 +2,7 @@
 
 For n segments (fixed base, curvature coordinates, default nodes) this prints the median
 microseconds per call, measured interleaved in one run (each set of ``--calls`` calls is one
-sample), of
+sample; the thread's CPU time, so waiting for a core on a loaded machine does not count), of
 
 * ``fwd``: ``forward_dynamics`` on its fast path (``skip_checks=True``, a ``data``);
 * ``aba``: the compiled articulated-body pass alone (:func:`qchain.algorithms.recursive.aba`),
@@ -31,18 +31,28 @@ Run: ``python benchmarks/bench_parameter_derivatives.py [--n 3 10] [--repeats 15
 from __future__ import annotations
 
 import argparse
+import time
 from pathlib import Path
 
 import numba
 import numpy as np
 
 import _study
-from bench_chain import per_call_us, soft_chain, state
+from bench_chain import soft_chain, state
 from qchain._jit import OPTIONS
 from qchain.algorithms import aba_derivatives, parameter_derivatives as pd, recursive
 from qchain.arm.parameter_derivatives import PARAMETER_KINDS
 
 PER_SEGMENT = [k for k, (_, _, seg) in PARAMETER_KINDS.items() if seg]
+
+
+def per_call_us(f, calls: int) -> float:
+    """Microseconds of this thread's CPU time per call (``time.thread_time``): on a shared,
+    loaded machine the time the thread waits for a core does not count."""
+    t0 = time.thread_time()
+    for _ in range(calls):
+        f()
+    return (time.thread_time() - t0) / calls * 1e6
 
 
 # Compiled loops: a call from Python types every array of the structures it is passed (dozens),
@@ -159,7 +169,7 @@ def main(argv=None):
               f" {r['at_n_us']:>6.1f} {r['at_5n3_us']:>8.1f} {r['checked_us']:>8.1f} | {r['state_d_over_aba']:>7.2f}"
               f" {r['extra_1_over_aba']:>9.2f} {r['extra_n_over_aba']:>9.2f} {r['extra_5n3_over_aba']:>12.2f}"
               f" {r['total_5n3_over_aba']:>12.2f}")
-    print("(median us per call, interleaved; th_k: state and parameter derivatives in one compiled call; at_k: the "
+    print("(median us of CPU time per call, interleaved; th_k: state and parameter derivatives in one compiled call; at_k: the "
           "parameter columns alone after the state derivatives; ratios of medians to one aba pass)")
     if args.csv:
         _study.write_csv(rows, Path(args.csv))
