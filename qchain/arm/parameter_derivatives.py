@@ -34,6 +34,7 @@ from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 
+from ..algorithms import aba_derivatives
 from ..algorithms import parameter_derivatives as _pd
 from ..model.segment import _paper_jacobian_dot as paper_jacobian_dot
 from ..checks.convert import describe_value
@@ -248,7 +249,7 @@ def forward_dynamics_parameter_derivatives(chain: Chain, q, v, p=None, params=()
     """Exact ``da/dtheta`` (nv, n_theta) of :meth:`Chain.forward_dynamics` at ``(q, v, p, tau, t)``.
 
     ``da/dtheta = M^-1 (df/dtheta - dID/dtheta)`` (:mod:`qchain.algorithms.parameter_derivatives`),
-    one compiled call after the forward dynamics and their state derivatives. ``params``: a
+    compiled, after the forward dynamics and their state derivatives. ``params``: a
     :class:`Parameters` or the list it takes. ``env`` (a :class:`qchain.contact.Environment`,
     curvature coordinates) adds its forces, which depend on no parameter here (its
     ``d/dq`` enters an inextensible segment's rest length; a base placement with ``env`` is
@@ -277,11 +278,17 @@ def forward_dynamics_parameter_derivatives(chain: Chain, q, v, p=None, params=()
     dID = np.empty((nv, len(P)))
     wq = _pd.parameter_workspace(n, nv, len(P))
     A_B = np.zeros(6) if st.A_B is None else np.ascontiguousarray(st.A_B)
-    status = _pd.parameter_derivatives(
-        chain._arrays, chain.floating, np.ascontiguousarray(st.q_c), np.ascontiguousarray(st.v_c), p3, tau_c,
-        np.ascontiguousarray(st.V0), A_B, np.ascontiguousarray(st.g_B), np.ascontiguousarray(st.X_WB.rotation),
-        _youngs(chain), P.kinds, P.index, tuple(data.aba_workspace()), tuple(data.rnea_workspace()),
-        tuple(data.aba_derivatives_workspace()), tuple(wq), data.scratch, da, dID)
+    q_c, v_c, V0, g_B = (np.ascontiguousarray(x) for x in (st.q_c, st.v_c, st.V0, st.g_B))
+    ws, wd, wa = tuple(data.aba_workspace()), tuple(data.rnea_workspace()), tuple(data.aba_derivatives_workspace())
+    # two calls, not the one compiled entry: the state derivatives' pass is the one
+    # forward_dynamics_derivatives compiled already (the entry, without reference counting, is
+    # compiled apart, a minute and a half on first use)
+    status = aba_derivatives.aba_derivatives(chain._arrays, chain.floating, q_c, v_c, p3, tau_c, V0, A_B, g_B, ws, wd,
+                                             wa, data.scratch)
+    if status == 0:
+        status = _pd.parameter_derivatives_at(chain._arrays, chain.floating, q_c, v_c, p3, data.a_c, data.A0, V0, g_B,
+                                              np.ascontiguousarray(st.X_WB.rotation), _youngs(chain), P.kinds,
+                                              P.index, ws, wd, wa, tuple(wq), data.scratch, da, dID)
     if status in (1, 2):
         raise chain.indefinite_error("forward_dynamics_parameter_derivatives", st.q_e, t)
     if status:
