@@ -169,8 +169,8 @@ def main(argv=None):
               f" {r['at_n_us']:>6.1f} {r['at_5n3_us']:>8.1f} {r['checked_us']:>8.1f} | {r['state_d_over_aba']:>7.2f}"
               f" {r['extra_1_over_aba']:>9.2f} {r['extra_n_over_aba']:>9.2f} {r['extra_5n3_over_aba']:>12.2f}"
               f" {r['total_5n3_over_aba']:>12.2f}")
-    print("(median us of CPU time per call, interleaved; th_k: state and parameter derivatives in one compiled call; at_k: the "
-          "parameter columns alone after the state derivatives; ratios of medians to one aba pass)")
+    print("(median us of CPU time per call, interleaved; th_k: state and parameter derivatives in one compiled "
+          "call; at_k: the parameter columns alone after the state derivatives; ratios of medians to one aba pass)")
     if args.csv:
         _study.write_csv(rows, Path(args.csv))
     return rows
