@@ -7,6 +7,8 @@ numpy, Pinocchio or numba and changes no global state):
 the model                                       :class:`Segment`, :class:`Chain`, :class:`Data`,
                                                 :class:`LagrangianChain`, :class:`Frames`
 statics                                         :func:`equilibrium`
+parameter derivatives                           :class:`Parameters` (and the :class:`Chain` methods
+                                                ``*_dynamics_parameter_derivatives``)
 contact and loads                               :class:`Environment`, :class:`ContactLaw`,
                                                 :class:`PointLoad`, :class:`HalfSpace`,
                                                 :class:`Sphere`, :class:`Capsule`,
@@ -41,7 +43,7 @@ __version__ = "0.1.0"
 _EXPORTS = {
     "Segment": "model.segment",
     "Chain": "arm.chain", "Frames": "arm.kinematics", "Data": "arm.data", "LagrangianChain": "arm.lagrangian",
-    "equilibrium": "arm.statics", "EquilibriumResult": "arm.statics",
+    "equilibrium": "arm.statics", "EquilibriumResult": "arm.statics", "Parameters": "arm.parameter_derivatives",
     "Environment": "contact.environment", "ContactLaw": "contact.environment", "PointLoad": "contact.environment",
     "HalfSpace": "contact.shapes", "Sphere": "contact.shapes", "Capsule": "contact.shapes",
     "Cylinder": "contact.shapes", "Box": "contact.shapes", "Motion": "contact.shapes",

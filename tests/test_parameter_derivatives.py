@@ -23,7 +23,7 @@ PER_SEGMENT = ("youngs_modulus", "damping", "mass", "length", "chamber_area")
 #: the accelerations are affine in E, damping, chamber area and gravity (no truncation error, so
 #: a long step keeps the rounding error small), curved in the others
 STEP = {"youngs_modulus": 1e-2, "damping": 1e-2, "mass": 1e-5, "length": 1e-6, "chamber_area": 1e-2,
-        "gravity": 1e-2, "base_placement": 1e-6}
+        "gravity": 1e-2, "base_placement": 1e-4}
 
 
 def all_params(ch):
@@ -167,8 +167,15 @@ def test_with_contact(rng):
     np.testing.assert_allclose(r.a, ch.forward_dynamics(q, v, p, env=env), rtol=1e-12, atol=1e-12)
     fd = differences(ch, P, lambda c, qs: c.forward_dynamics(qs, v, p, env=env), q)
     assert_columns_close(r.da_dtheta, fd, r.names)
-    with pytest.raises(ValueError, match="base_placement derivatives with env are not supported"):
-        ch.forward_dynamics_parameter_derivatives(q, v, p, [("base_placement", None)], env=env)
+    a = r.a + rng.normal(size=ch.nv) * 0.1
+    a[~ch.active] = 0.0
+    ri = ch.inverse_dynamics_parameter_derivatives(q, v, a, P, env=env)
+    np.testing.assert_allclose(ri.tau, ch.inverse_dynamics(q, v, a, env=env), rtol=1e-12, atol=1e-12)
+    fdi = differences(ch, P, lambda c, qs: c.inverse_dynamics(qs, v, a, env=env), q)
+    assert_columns_close(ri.dtau_dtheta, fdi, ri.names)
+    for call in (ch.forward_dynamics_parameter_derivatives, ch.inverse_dynamics_parameter_derivatives):
+        with pytest.raises(ValueError, match="base_placement derivatives with env are not supported"):
+            call(q, v, p, [("base_placement", None)], env=env)
 
 
 @pytest.mark.parametrize("base", [b for b, _ in CASES])
@@ -208,6 +215,23 @@ def test_a_floating_base_takes_gravity_whole(rng):
     np.testing.assert_allclose(r.da_dtheta, expect, rtol=0, atol=1e-11)
 
 
+@pytest.mark.parametrize("base", ["fixed", "floating"])
+def test_gravity_columns_are_the_mass_matrix_base_columns(base, rng):
+    """``dtau/dg_world = -M_b[:, :3] R_WB^T``, ``M_b`` the base columns of the mass matrix (a
+    floating base's own; a fixed base's from the same chain made floating)."""
+    ch = make_chain("curvature", base, **dict(CASES)[base])
+    q, v = random_state(ch, rng)
+    a = rng.normal(size=ch.nv)
+    r = ch.inverse_dynamics_parameter_derivatives(q, v, a, [("gravity", None)])
+    if base == "floating":
+        Mb, R = ch.mass_matrix(q)[:, :3], pin.XYZQUATToSE3(q[:7]).rotation
+    else:
+        free = Chain(ch.segments, base="floating")
+        qf = np.concatenate([[0, 0, 0, 0, 0, 0, 1.0], q])
+        Mb, R = free.mass_matrix(qf)[6:, :3], ch.base_placement.rotation
+    np.testing.assert_allclose(r.dtau_dtheta, -Mb @ R.T, rtol=1e-12, atol=1e-12 * np.abs(Mb).max())
+
+
 def test_compiled_first_order_entry(rng):
     """The compiled entry the trajectory sensitivities call writes ``d(v, a)/dtheta`` into a
     preallocated array: zero on top, the checked API's ``da/dtheta`` below."""
@@ -228,6 +252,9 @@ def test_compiled_first_order_entry(rng):
     assert status == 0
     assert np.all(dx[:nv] == 0.0)
     np.testing.assert_allclose(dx[nv:], r.da_dtheta, rtol=1e-13, atol=1e-13 * np.abs(r.da_dtheta).max())
+    data = ch.create_data()  # the checked API in a given workspace: the same numbers
+    rd = ch.forward_dynamics_parameter_derivatives(q, v, p, P, data=data)
+    np.testing.assert_array_equal(rd.da_dtheta, r.da_dtheta)
 
 
 def test_parameters_name_their_columns():

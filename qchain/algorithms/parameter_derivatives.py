@@ -56,7 +56,7 @@ from .rnea_derivatives import _rnea_derivatives, rnea_workspace
 
 __all__ = ["KIND_YOUNGS", "KIND_DAMPING", "KIND_MASS", "KIND_LENGTH", "KIND_AREA", "KIND_GRAVITY", "KIND_BASE",
            "ParameterWorkspace", "parameter_workspace", "parameter_derivatives", "parameter_derivatives_at",
-           "inverse_parameter_derivatives", "first_order_parameter_derivatives"]
+           "inverse_parameter_derivatives", "first_order_parameter_derivatives", "fresh_workspaces"]
 
 KIND_YOUNGS, KIND_DAMPING, KIND_MASS, KIND_LENGTH, KIND_AREA, KIND_GRAVITY, KIND_BASE = range(7)
 

@@ -34,6 +34,7 @@ from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 
+from ..algorithms import aba_derivatives
 from ..algorithms import parameter_derivatives as _pd
 from ..model.segment import _paper_jacobian_dot as paper_jacobian_dot
 from ..checks.convert import describe_value
@@ -80,7 +81,9 @@ class Parameters:
     names : tuple of str     ``"segment 0 youngs_modulus [Pa]"``, ``"gravity z [m/s^2]"``, ...
     units : tuple of str     each column's SI unit.
     values : (n_theta,)      the chain's values (a base placement's perturbation is 0).
-    kinds, index : (n_theta,) int64   the compiled pass's encoding.
+    kinds, index : (n_theta,) int64   the compiled pass's encoding (a ``KIND_*`` of
+                             :mod:`qchain.algorithms.parameter_derivatives` and its segment or
+                             component), to pass to its compiled entries; never write them.
     """
 
     def __init__(self, chain: Chain, params):
@@ -103,25 +106,25 @@ class Parameters:
             if not isinstance(kind, str) or kind not in PARAMETER_KINDS:
                 raise ValueError(f"params[{i}]: unknown parameter {kind!r}; the parameters are "
                                  f"{tuple(PARAMETER_KINDS)}")
-            if (kind, seg if not isinstance(seg, (int, np.integer)) else int(seg)) in seen:
-                raise ValueError(f"params[{i}]: ({kind!r}, {seg!r}) is named twice")
             code, unit, per_segment = PARAMETER_KINDS[kind]
             if per_segment:
                 if isinstance(seg, bool) or not isinstance(seg, (int, np.integer)) or not 0 <= seg < chain.n:
                     raise ValueError(f"params[{i}]: {kind!r} is per segment, its segment must be an int in "
                                      f"[0, {chain.n - 1}] (the chain has {chain.n} segments), got {seg!r}")
                 seg = int(seg)
-                seen.add((kind, seg))
+            elif seg is not None:
+                raise ValueError(f"params[{i}]: {kind!r} is a whole-arm parameter, its segment must be None, "
+                                 f"got {seg!r}")
+            if (kind, seg) in seen:
+                raise ValueError(f"params[{i}]: ({kind!r}, {seg!r}) is named twice")
+            seen.add((kind, seg))
+            if per_segment:
                 names.append(f"segment {seg} {kind} [{unit}]")
                 units.append(unit)
                 kinds.append(code)
                 index.append(seg)
                 values.append(float(getattr(chain.segments[seg], _SEGMENT_ATTR[kind])))
                 continue
-            if seg is not None:
-                raise ValueError(f"params[{i}]: {kind!r} is a whole-arm parameter, its segment must be None, "
-                                 f"got {seg!r}")
-            seen.add((kind, None))
             if kind == "gravity":
                 for k, axis in enumerate("xyz"):
                     names.append(f"gravity {axis} [{unit}]")
@@ -144,9 +147,10 @@ class Parameters:
         self.kinds = np.array(kinds, dtype=np.int64)
         self.index = np.array(index, dtype=np.int64)
         self.values = np.array(values)
-        for x in (self.kinds, self.index, self.values):
-            x.flags.writeable = False
-        self._needs_base_free = bool(np.any(self.kinds == _pd.KIND_BASE))
+        # values read-only; kinds and index writable (never write them): numba compiles a kernel
+        # apart for read-only arrays, and the compiled entries take these two as they are
+        self.values.flags.writeable = False
+        self._has_base = bool(np.any(self.kinds == _pd.KIND_BASE))
 
     def __len__(self) -> int:
         return len(self.names)
@@ -245,7 +249,7 @@ def forward_dynamics_parameter_derivatives(chain: Chain, q, v, p=None, params=()
     """Exact ``da/dtheta`` (nv, n_theta) of :meth:`Chain.forward_dynamics` at ``(q, v, p, tau, t)``.
 
     ``da/dtheta = M^-1 (df/dtheta - dID/dtheta)`` (:mod:`qchain.algorithms.parameter_derivatives`),
-    one compiled call after the forward dynamics and their state derivatives. ``params``: a
+    compiled, after the forward dynamics and their state derivatives. ``params``: a
     :class:`Parameters` or the list it takes. ``env`` (a :class:`qchain.contact.Environment`,
     curvature coordinates) adds its forces, which depend on no parameter here (its
     ``d/dq`` enters an inextensible segment's rest length; a base placement with ``env`` is
@@ -256,7 +260,7 @@ def forward_dynamics_parameter_derivatives(chain: Chain, q, v, p=None, params=()
     data = chain._data(data)
     dq_env = None
     if env is not None:
-        if P._needs_base_free:
+        if P._has_base:
             raise ValueError("base_placement derivatives with env are not supported: the obstacles are placed in the "
                              "world, so moving the base moves the arm against them")
         te, dq_env, _ = chain.environment_terms(q, v, env, t)
@@ -274,11 +278,17 @@ def forward_dynamics_parameter_derivatives(chain: Chain, q, v, p=None, params=()
     dID = np.empty((nv, len(P)))
     wq = _pd.parameter_workspace(n, nv, len(P))
     A_B = np.zeros(6) if st.A_B is None else np.ascontiguousarray(st.A_B)
-    status = _pd.parameter_derivatives(
-        chain._arrays, chain.floating, np.ascontiguousarray(st.q_c), np.ascontiguousarray(st.v_c), p3, tau_c,
-        np.ascontiguousarray(st.V0), A_B, np.ascontiguousarray(st.g_B), np.ascontiguousarray(st.X_WB.rotation),
-        _youngs(chain), P.kinds, P.index, tuple(data.aba_workspace()), tuple(data.rnea_workspace()),
-        tuple(data.aba_derivatives_workspace()), tuple(wq), data.scratch, da, dID)
+    q_c, v_c, V0, g_B = (np.ascontiguousarray(x) for x in (st.q_c, st.v_c, st.V0, st.g_B))
+    ws, wd, wa = tuple(data.aba_workspace()), tuple(data.rnea_workspace()), tuple(data.aba_derivatives_workspace())
+    # two calls, not the one compiled entry: the state derivatives' pass is the one
+    # forward_dynamics_derivatives compiled already (the entry, without reference counting, is
+    # compiled apart, a minute and a half on first use)
+    status = aba_derivatives.aba_derivatives(chain._arrays, chain.floating, q_c, v_c, p3, tau_c, V0, A_B, g_B, ws, wd,
+                                             wa, data.scratch)
+    if status == 0:
+        status = _pd.parameter_derivatives_at(chain._arrays, chain.floating, q_c, v_c, p3, data.a_c, data.A0, V0, g_B,
+                                              np.ascontiguousarray(st.X_WB.rotation), _youngs(chain), P.kinds,
+                                              P.index, ws, wd, wa, tuple(wq), data.scratch, da, dID)
     if status in (1, 2):
         raise chain.indefinite_error("forward_dynamics_parameter_derivatives", st.q_e, t)
     if status:
@@ -300,13 +310,21 @@ def forward_dynamics_parameter_derivatives(chain: Chain, q, v, p=None, params=()
     return ParameterDerivatives(a, _to_paper_rows(chain, st, da), P.names, P.units)
 
 
-def inverse_dynamics_parameter_derivatives(chain: Chain, q, v, a, params=(), t: float = 0.0
+def inverse_dynamics_parameter_derivatives(chain: Chain, q, v, a, params=(), t: float = 0.0, env=None
                                            ) -> InverseParameterDerivatives:
     """Exact ``dtau/dtheta`` (nv, n_theta) of :meth:`Chain.inverse_dynamics` ``M a + C v + g`` at
     ``(q, v, a, t)``: the mass, gravity and base-placement columns (and an inextensible
     segment's rest length, which moves its held length); Young's modulus, damping, a free
-    rest length and the chamber area do not enter it (zero columns)."""
+    rest length and the chamber area do not enter it (zero columns). With ``env`` the
+    inverse dynamics less the environment's forces, as :meth:`Chain.inverse_dynamics` (the
+    contact forces' share of the rest lengths enters; a base placement is refused)."""
     P = _parameters(chain, params)
+    te = dq_env = None
+    if env is not None:
+        if P._has_base:
+            raise ValueError("base_placement derivatives with env are not supported: the obstacles are placed in the "
+                             "world, so moving the base moves the arm against them")
+        te, dq_env, _ = chain.environment_terms(q, v, env, t)
     a = chain._vec("a", a, chain.nv)
     st = chain._state(q, v, t=t, nonsingular=True, extra=(("a", a),))
     if chain._any_locked:
@@ -324,6 +342,13 @@ def inverse_dynamics_parameter_derivatives(chain: Chain, q, v, a, params=(), t: 
         tuple(data.rnea_workspace()), tuple(wq), data.scratch, dID)
     tau_c = data.tau_c.ravel()
     tau = np.concatenate([data.F0, tau_c]) if chain.floating else tau_c.copy()
+    if env is not None:  # (curvature coordinates: environment_terms refuses the paper's)
+        tau -= te
+        for k in np.flatnonzero(P.kinds == _pd.KIND_LENGTH):
+            j = int(P.index[k])
+            dID[:, k] -= _contact_rest_length_column(chain, st, env, t, j)
+            if chain._locked[j, 0]:
+                dID[:, k] -= dq_env[:, chain._voff + 3 * j]
     if st.J is not None:  # tau_e = J^T tau_c, row blocks
         for j in np.flatnonzero(chain._paper):
             sl = chain.v_slice(j)
@@ -348,7 +373,7 @@ class ChainParameters:
         """:func:`qchain.arm.parameter_derivatives.forward_dynamics_parameter_derivatives` of this chain."""
         return forward_dynamics_parameter_derivatives(self, q, v, p, params, tau, t, env, data)
 
-    def inverse_dynamics_parameter_derivatives(self, q, v, a, params=(), t: float = 0.0
+    def inverse_dynamics_parameter_derivatives(self, q, v, a, params=(), t: float = 0.0, env=None
                                                ) -> InverseParameterDerivatives:
         """:func:`qchain.arm.parameter_derivatives.inverse_dynamics_parameter_derivatives` of this chain."""
-        return inverse_dynamics_parameter_derivatives(self, q, v, a, params, t)
+        return inverse_dynamics_parameter_derivatives(self, q, v, a, params, t, env)
