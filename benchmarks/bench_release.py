@@ -702,7 +702,7 @@ def plot(rows: list[dict], path: Path, T: float, ref_note: str, best: dict) -> N
         ax.set_title(f"{TITLES.get(panel, panel)}, best runs per size", fontsize=10)
         ax.set_xlabel("RMS tip error against the reference (m)")
         ax.grid(True, which="both", alpha=0.3)
-        ax.legend(fontsize=8, loc="lower left")
+        ax.legend(fontsize=8, loc="upper right")
     cpu = bool(rows) and "cpu_per_sim_s" in rows[0]
     axes[0][0].set_ylabel(f"{'CPU' if cpu else 'wall'} time per simulated second (s)")
     _study.save(fig, path)
