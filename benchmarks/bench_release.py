@@ -36,17 +36,19 @@ empties the cache first.
 qchain: n equal segments (bench_cosserat's ``qchain_arm``, damping 0, tiny unpressurised
 chambers), every method of ``qchain.sim.simulation.METHODS`` (read at run time): the fixed-step
 ones (``FIXED_STEP``) over steps dt = 5 ms / 2^j, the others over rtol = 1e-1, 1e-2, ...
-(atol = rtol / 100; scipy's, which run Python at every stage, down to 1e-3; quick: 1e-2). Two groups: **reduced**, the model this planar scene needs (``Chain(...,
-planar=True)``, inextensible and extensible: the inextensible one qualifies where it is within
-1 mm like any run), and **full spatial** (``planar=False``, ``extensible=True``: 3 coordinates
-a segment, the model of a scene without reductions).
+(atol = rtol / 100; scipy's, which run Python at every stage, down to 1e-3; quick: 1e-2).
+Two groups: **reduced**, the model this planar scene needs (``Chain(..., planar=True)``,
+inextensible n = 5, 10, 20 and extensible n = 10, 20: the inextensible one qualifies where it
+is within 1 mm like any run; quick: n = 10 inextensible), and **full spatial**
+(``planar=False``, ``extensible=True``, n = 5, 10, 20; quick: 10: 3 coordinates a segment, the
+model of a scene without reductions).
 
 MuJoCo: N rigid links of length h = L/N (each a cylinder of radius r: mass rho A h and the rod's
 rotary inertia), hinges about world y at the link ends (the first at the clamp), stiffness EI/h at
 the interior hinges and 2 EI/h at the clamp (its Voronoi length is h/2), no damping, gravity, no
 contacts, built as MJCF text; tip = a site at the end of the last link. Integrators Euler
 (semi-implicit without damping), implicitfast, RK4, and MuJoCo 4's ``discrete`` where present,
-over steps dt = 5 ms / 2^j (they divide the 10 ms sampling).
+over steps dt = 5 ms / 2^j (they divide the 10 ms sampling); N = 5, 10, 20, 40, 80 (quick: 10, 20).
 
 Error: distance between the tip and the reference tip over samples every 10 ms in [0, T]; RMS
 (the main figure) and max. "Converged in time": RMS distance to the same model and method at
@@ -404,10 +406,10 @@ def references(cfg: dict, T: float, cache: Path | None) -> tuple[dict, list[str]
 def settings(quick: bool) -> dict:
     steps = [5e-3 / 2**j for j in range(10)]  # 5 ms .. 9.8 us, all divide 10 ms
     if quick:
-        return dict(T=0.5, reduced=[(10, False), (10, True)], full=[10], Ns=[10, 20, 40],
+        return dict(T=0.5, reduced=[(10, False)], full=[10], Ns=[10, 20],
                     pe_Ns=(50, 100, 200), pe_dt=1e-5, pe_N_mid=100, q_ref_n=32, q_ref_rtol=1e-10,
                     steps=steps[:8], rtols=[1e-1, 1e-2, 1e-3, 1e-4, 1e-5], scipy_rtols=[1e-1, 1e-2],
-                    repeat_below=0.3, budget=4.0, arm_T=1.0)
+                    repeat_below=0.3, budget=2.0, arm_T=1.0)
     return dict(T=1.0, reduced=[(5, False), (10, False), (20, False), (10, True), (20, True)], full=[5, 10, 20],
                 Ns=[5, 10, 20, 40, 80], pe_Ns=(100, 200, 400), pe_dt=5e-6, pe_N_mid=100, q_ref_n=32,
                 q_ref_rtol=1e-10, steps=steps, rtols=[10.0**-k for k in range(1, 10)],
@@ -478,7 +480,8 @@ def run(quick: bool = False, out_dir: Path = Path("out/bench"), ns=None, Ns=None
     # ---- qchain sweeps
     for (n, planar, ext), method in itertools.product(configs, methods):
         kind = "dt" if method in fixed else "rtol"
-        values = cfg["steps"] if kind == "dt" else cfg["rtols"] if method in ("radau5", "dopri5") else cfg["scipy_rtols"]
+        values = (cfg["steps"] if kind == "dt" else cfg["rtols"] if method in ("radau5", "dopri5")
+                  else cfg["scipy_rtols"])
         variant = variant_name(planar, ext)
         group = "reduced" if planar else "full"
         print(f"qchain n = {n} {variant} {method}", flush=True)
@@ -520,14 +523,15 @@ def run(quick: bool = False, out_dir: Path = Path("out/bench"), ns=None, Ns=None
                                                                                          ratios=TARGETS)
     floor = {g: min((r["rms_error_m"] for r in rows_a if r.get("group") == g and r["ok"]), default=float("nan"))
              for g in GROUPS}
-    lines.append("  closest any run comes to A (RMS): " + ", ".join(f"{GROUPS[g]} {_mm(x)} mm" for g, x in floor.items()))
+    lines.append("  closest any run comes to A (RMS): "
+                 + ", ".join(f"{GROUPS[g]} {_mm(x)} mm" for g, x in floor.items()))
     lines += ["against reference B, the unshearable extensible rod (table, chart):"] + headline(rows, best,
                                                                                                ratios=TARGETS)
     for line in lines:
         print(line)
     fields = ["code", "group", "model", "n", "variant", "method", "role", "setting", "value", "kind", "T_s",
-              "rms_error_m", "max_error_m", "rms_vs_shearable_m", "max_vs_shearable_m", "time_conv_m", "cpu_per_sim_s", "cost_ratio",
-              "work", "repeats", "status", "reference"]
+              "rms_error_m", "max_error_m", "rms_vs_shearable_m", "max_vs_shearable_m", "time_conv_m", "cpu_per_sim_s",
+              "cost_ratio", "work", "repeats", "status", "reference"]
     _study.write_csv([{k: r.get(k, "") for k in fields} for r in rows], out_dir / "release.csv")
     plot(rows, out_dir / "release.png", T, ref["note_b"], best)
     print(f"wrote {out_dir / 'release.csv'} and {out_dir / 'release.png'} ({release_s:.1f} s of wall time)")
@@ -609,7 +613,8 @@ def headline(rows: list[dict], best: dict, ratios: dict | None = None) -> list[s
         for method in dict.fromkeys(r["method"] for r in mine):
             r = cheapest(mine, code, lambda r, method=method: r["method"] == method)
             lines.append(f"    {labels[key]:<20} {method:<13} " + (
-                f"{cost_of(r):.4g} s/s  [{r['model']} {r['setting']}, {1e3 * r['rms_error_m']:.3f} mm]" if r else "none"))
+                f"{cost_of(r):.4g} s/s  [{r['model']} {r['setting']}, {1e3 * r['rms_error_m']:.3f} mm]"
+                if r else "none"))
     return lines
 
 
@@ -636,8 +641,9 @@ def print_table(rows: list[dict]) -> None:
               f"{_mm(r['max_error_m']):>9} {_mm(r['rms_vs_shearable_m']):>9} {_mm(r['time_conv_m'], '.4f'):>11} "
               f"{cost:>9} {ratio:>9} {r['repeats']:>3}  {_short(r['status'])}{mark}")
     print(f"(RMS, max: tip distance to reference B, the unshearable extensible rod, over samples every "
-          f"{bc.SAMPLE * 1e3:g} ms; vs A: RMS distance to reference A, the shearable Cosserat rod; t-conv: RMS distance to the same run at half the step or "
-          f"10x tighter rtol; CPU s/s: CPU seconds per simulated second; x MuJoCo: cost over the MuJoCo headline run's; "
+          f"{bc.SAMPLE * 1e3:g} ms; vs A: RMS distance to reference A, the shearable Cosserat rod; t-conv: RMS "
+          f"distance to the same run at half the step or 10x tighter rtol; CPU s/s: CPU seconds per simulated "
+          f"second; x MuJoCo: cost over the MuJoCo headline run's; "
           f"*: within {ACCURACY * 1e3:g} mm RMS and converged in time to {CONVERGED * 1e3:g} mm)")
 
 
@@ -726,7 +732,7 @@ def main(argv=None):
     ap.add_argument("--out", type=Path, default=Path("out/bench"), help="folder for the CSV and PNG files")
     ap.add_argument("--n", type=int, nargs="+", help="qchain segment counts (default 5 10 20; quick: 10)")
     ap.add_argument("--N", type=int, nargs="+", dest="N_links",
-                    help="MuJoCo link counts (default 5 10 20 40 80; quick: 10 20 40)")
+                    help="MuJoCo link counts (default 5 10 20 40 80; quick: 10 20)")
     ap.add_argument("--no-arm", action="store_true", help="skip the four-segment spatial arm")
     ap.add_argument("--fresh", action="store_true", help="recompute the reference tracks (ignore the cache)")
     args = ap.parse_args(argv)

@@ -103,7 +103,8 @@ def run(quick: bool = False, out_dir: Path = Path("out/bench"), cache: Path | No
                    if bound == br.ARM_ACCURACY else "")
         lines.append(f"arm headline: cheapest within {bound * 1e3:g} mm (largest tip distance): {best['method']} "
                      f"{best['setting']}: {calls:.0f} pinocchio.aba calls per simulated second{verdict}; "
-                     f"{best['cpu_per_sim_s'] * 1e3:.3f} ms CPU per simulated second, error {best['tip_error_m']:.2e} m")
+                     f"{best['cpu_per_sim_s'] * 1e3:.3f} ms CPU per simulated second, "
+                     f"error {best['tip_error_m']:.2e} m")
     for line in lines:
         print(line, flush=True)
     _study.write_csv(rows, Path(out_dir) / "release_arm.csv")
