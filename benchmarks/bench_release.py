@@ -1,55 +1,91 @@
-"""Cost at equal accuracy: a soft cantilever released under gravity, qchain against MuJoCo 4.
+"""Cost at equal accuracy: a soft cantilever released under gravity, qchain against MuJoCo 4,
+both against a converged extensible Cosserat rod (PyElastica); and the four-segment spatial arm
+in ``pinocchio.aba`` calls.
 
-Scene (SI units, the same numbers in both codes): a rod of length L = 0.2 m, radius
-r = 0.02 m, density rho = 1000 kg/m^3, Young's modulus E = 5e5 Pa, clamped at the world
-origin, straight along world +x and at rest at t = 0, then released under gravity
-(g = 9.81 m/s^2 along -z), undamped, for T = 1 s (``--quick``: 0.5 s). Derived: A = pi r^2,
-EI = E pi r^4 / 4 = 0.0628 N m^2, mass 0.251 kg, first bending frequency 3.1 Hz, static tip
-deflection under the same load (linear theory) 39 mm; every cross-section is a uniform rigid
-disk (rotary inertia rho I per length) in both codes.
+Scene (SI units, the same numbers in every code): a rod of length L = 0.2 m, radius r = 0.02 m,
+density rho = 1000 kg/m^3, Young's modulus E = 5e5 Pa, Poisson ratio nu = 0.5 (shear modulus
+G = E / 3: PyElastica only, neither qchain nor MuJoCo has shear), clamped at the world origin,
+straight along world +x and at rest at t = 0, then released under gravity (g = 9.81 m/s^2 along
+-z), undamped, for T = 1 s (``--quick``: 0.5 s). Derived: A = pi r^2, EI = E pi r^4 / 4 =
+0.0628 N m^2, EA = 628 N, mass 0.251 kg, first bending frequency 3.1 Hz, static tip deflection
+under the same load (linear theory) 39 mm; every cross-section is a uniform rigid disk (rotary
+inertia rho I per length) in every code.
 
-Both codes discretise the same continuum: the shear-rigid, **inextensible** Kirchhoff rod
-(planar Euler elastica dynamics with rotary inertia). Reference: qchain with n = 32 and
-n = 64 inextensible segments (dopri5, rtol 1e-10, atol 1e-12), Richardson-extrapolated
-(both codes converge at second order in the segment/link count: (4 x_64 - x_32) / 3 at
-every sample); ``--quick``: qchain n = 32 alone. Independent check: the MuJoCo link chain
-below with N = 80 and 160 links (``--quick``: 40 and 80) under RK4 at a small step, raw and
-extrapolated the same way; the output gives the distances.
+References, both PyElastica rods (bench_cosserat's ``elastica_run``: ``CosseratRod`` clamped with
+the rod started half an element inside the wall, ``PositionVerlet``), independent of qchain:
 
-qchain: n equal segments (``Chain(..., planar=True)``, ``extensible=False``; ``True`` as a
-variant, which converges to the extensible rod, EA = E A), damping 0, tiny unpressurised
-chambers (bench_cosserat's ``CHAMBER``), every method of ``qchain.sim.simulation.METHODS`` (read at
-run time): the fixed-step ones (``FIXED_STEP``) over steps dt = 5 ms / 2^j, the others over
-rtol = 1e-2, 1e-3, ... (atol = rtol / 100).
+* **A**, the issue's: the converged extensible Cosserat rod with the material's shear modulus
+  G = E/3: N = 100, 200, 400 elements at one step dt = 5 us (``--quick``: N = 50, 100, 200 at
+  10 us), extrapolated in N at the order the three give (Richardson) when it is clean (within
+  0.25 of an integer), else the finest run; checked in time by the finest at dt / 2.
+* **B**, the rod the other codes model: the same extensible rod without shear. PyElastica's
+  explicit rod goes unstable in this scene with the shear modulus 8x the material's, so B is
+  qchain's planar extensible rod with n = 32 segments (``dopri5`` at rtol 1e-10; the output
+  gives n = 16's distance), checked against PyElastica with the shear modulus 1x, 2x and 4x
+  (N = 100), which approach it as the shear stiffens.
 
-MuJoCo: N rigid links of length h = L/N (each a cylinder of radius r: mass rho A h and the
-rod's rotary inertia), hinges about world y at the link ends (the first at the clamp),
-stiffness EI/h at the interior hinges and 2 EI/h at the clamp (its Voronoi length is h/2),
-no damping, gravity, no contacts, built as MJCF text; tip = a site at the end of the last
-link. Integrators Euler (semi-implicit without damping), implicitfast, RK4, and MuJoCo 4's
-``discrete`` where present, over steps dt = 5 ms / 2^j (they divide the 10 ms sampling).
+Shear is not small here (r / L = 0.1, G = E/3): it lowers the bending frequencies (Timoshenko), and
+the phase this loses over three swings puts every unshearable model several millimetres (RMS)
+from A. So no run of qchain or MuJoCo can be within 1 mm of A; the table, the chart and the
+second headline measure against B, the first headline against A, and the output gives A - B
+(and the inextensible rod's distance from B: the axial stretch).
+Every reference track is cached in ``<out>/release_cache/`` under a hash of everything it
+depends on (scene, span, sampling, resolution, step, shear factor, code and version); ``--fresh``
+empties the cache first.
 
-Error: distance between the tip and the reference tip over samples every 10 ms in [0, T];
-RMS (the main figure) and max. "Converged in time": RMS distance to the same model and
-method at half the step (fixed step) or at 10x tighter rtol (adaptive); a sweep goes from
-coarse to fine and stops after a pair closer than 0.005 mm, or when a run takes longer than
-the budget (the last run of a sweep has no such figure). Cost: wall seconds per simulated
-second of the integration (model set-up excluded; qchain's kernels compiled by a warm-up
-run of every method; ``energies=False`` and ``t_eval`` = the samples); median of 3 repeats
-for runs under 2 s (quick: 0.3 s). Headline: each code's cheapest run within 1 mm RMS of
-the reference and converged in time to 0.2 mm, and the ratio qchain / MuJoCo; the table's
-ratio column divides every cost by that MuJoCo run's.
+qchain: n equal segments (bench_cosserat's ``qchain_arm``, damping 0, tiny unpressurised
+chambers), every method of ``qchain.sim.simulation.METHODS`` (read at run time): the fixed-step
+ones (``FIXED_STEP``) over steps dt = 5 ms / 2^j, the others over rtol = 1e-1, 1e-2, ...
+(atol = rtol / 100; scipy's, which run Python at every stage, down to 1e-3; quick: 1e-2).
+Two groups: **reduced**, the model this planar scene needs (``Chain(..., planar=True)``,
+inextensible n = 5, 10, 20 and extensible n = 10, 20: the inextensible one qualifies where it
+is within 1 mm like any run; quick: n = 10 inextensible), and **full spatial**
+(``planar=False``, ``extensible=True``, n = 5, 10, 20; quick: 10: 3 coordinates a segment, the
+model of a scene without reductions).
 
-Run: ``python benchmarks/bench_release.py [--quick] [--out DIR] [--n 5 10 20] [--N 5 10 20 40 80]``
-Writes ``release.csv`` and ``release.png`` into ``--out`` (default ``out/bench``).
-Redraw the chart from a written CSV (no runs): ``python benchmarks/replot.py [DIR]``.
+MuJoCo: N rigid links of length h = L/N (each a cylinder of radius r: mass rho A h and the rod's
+rotary inertia), hinges about world y at the link ends (the first at the clamp), stiffness EI/h at
+the interior hinges and 2 EI/h at the clamp (its Voronoi length is h/2), no damping, gravity, no
+contacts, built as MJCF text; tip = a site at the end of the last link. Integrators Euler
+(semi-implicit without damping), implicitfast, RK4, and MuJoCo 4's ``discrete`` where present,
+over steps dt = 5 ms / 2^j (they divide the 10 ms sampling); N = 5, 10, 20, 40, 80 (quick: 10, 20).
+
+Error: distance between the tip and the reference tip over samples every 10 ms in [0, T]; RMS
+(the main figure) and max. "Converged in time": RMS distance to the same model and method at
+half the step (fixed step) or at 10x tighter rtol (adaptive); a sweep goes from coarse to fine
+and stops after a pair closer than 0.005 mm, or when a run takes longer than the budget (the
+last run of a sweep has no such figure). Cost: **CPU seconds** (``time.process_time``: the
+machine is shared, wall time would count the others' work) per simulated second of the
+integration (model set-up excluded; qchain's kernels compiled by a warm-up run of every method
+and model; ``energies=False`` and ``t_eval`` = the samples); median of 3 repeats for runs under
+``repeat_below`` (2 s; quick: 0.3 s). Headline (against A, then B): each group's cheapest run within 1 mm RMS
+of the reference and converged in time to 0.2 mm; ratios qchain reduced / MuJoCo (target <= 0.5) and
+qchain full spatial / MuJoCo (target <= 1.0); the table's ratio column divides every cost by
+the MuJoCo headline run's.
+
+Arm (``--no-arm`` skips it): ``examples/scenes/spatial_arm.toml``, four segments driven in all
+chambers, 12 free coordinates, 2 s (``--quick``: 1 s), every method over bench_precision's
+settings; error: the largest tip distance from the converged tip path (``radau5`` rtol 1e-10,
+checked against ``dopri5`` rtol 1e-10, both cached); cost: CPU seconds per simulated second,
+median of repeats, and the same in calls of ``pinocchio.aba`` on the equal-nv rigid chain
+(bench_precision's ``aba_call_s``, CPU time, in the same run). Headline: the cheapest run within
+1 mm, in aba calls per simulated second (target <= 500).
+
+Run: ``python benchmarks/bench_release.py [--quick] [--out DIR] [--n 5 10 20] [--N 5 10 20 40 80]
+[--no-arm] [--fresh]``. Writes ``release.csv``, ``release_arm.csv`` and ``release.png`` into
+``--out`` (default ``out/bench``). Redraw the chart from a written CSV (no runs):
+``python benchmarks/replot.py [DIR]``.
 """
 
 from __future__ import annotations
 
 import argparse
+import hashlib
 import itertools
+import json
+import shutil
 import time
+from importlib import metadata
 from pathlib import Path
 
 import numpy as np
@@ -57,19 +93,25 @@ import numpy as np
 import _study
 import bench_cosserat as bc
 
-SCENE = dict(L=0.2, r=0.02, rho=1000.0, E=5e5, g=9.81)  # m, m, kg/m^3, Pa, m/s^2
+SCENE = dict(L=0.2, r=0.02, rho=1000.0, E=5e5, nu=0.5, g=9.81)  # m, m, kg/m^3, Pa, -, m/s^2
 ACCURACY = 1e-3  # m RMS: the headline's accuracy level
 CONVERGED = 2e-4  # m RMS: the headline's time-convergence level
 STOP = 5e-6  # m RMS: a sweep stops after two neighbours this close
-REF_TOL = dict(rtol=1e-10, atol=1e-12)  # qchain reference
-REF_METHOD = "dopri5"  # compiled: the n = 64 reference in seconds, not minutes
+TARGETS = {"qchain reduced": 0.5, "qchain full spatial": 1.0}  # cost / MuJoCo's, at most
+ARM_TARGET = 500.0  # pinocchio.aba calls per simulated second, at most
+ARM_ACCURACY = 1e-3  # m, largest tip distance
+CLOCK = time.process_time  # CPU time of this process
+CACHE_FORMAT = 1  # bump when a cached track's meaning changes
+GROUPS = {"reduced": "qchain reduced", "full": "qchain full spatial", "mujoco": "mujoco"}
+TITLES = {"reduced": "qchain, reduced (planar): n segments", "full": "qchain, full spatial model: n segments",
+          "mujoco": "MuJoCo: N links", "qchain": "qchain: n segments"}
 
 
 def constants(scene=SCENE) -> dict:
     L, r, rho, E, g = (scene[k] for k in ("L", "r", "rho", "E", "g"))
     A = np.pi * r * r
     EI = E * np.pi * r**4 / 4
-    return dict(A=A, EI=EI, mass=rho * A * L, q=rho * A * g,
+    return dict(A=A, EI=EI, EA=E * A, G=E / (2.0 * (1.0 + scene.get("nu", 0.5))), mass=rho * A * L, q=rho * A * g,
                 f1=1.875104**2 / (2 * np.pi * L * L) * np.sqrt(EI / (rho * A)),
                 w_static=rho * A * g * L**4 / (8 * EI))
 
@@ -78,7 +120,7 @@ def describe(scene=SCENE, T: float = 1.0) -> str:
     c = constants(scene)
     return (f"L = {scene['L']:g} m, r = {scene['r']:g} m, rho = {scene['rho']:g} kg/m^3, E = {scene['E']:g} Pa, "
             f"g = {scene['g']:g} m/s^2 along -z, undamped, T = {T:g} s; EI = {c['EI']:.4g} N m^2, "
-            f"mass {c['mass']:.4g} kg, first bending frequency {c['f1']:.3g} Hz, "
+            f"EA = {c['EA']:.4g} N, mass {c['mass']:.4g} kg, first bending frequency {c['f1']:.3g} Hz, "
             f"linear static tip deflection {1e3 * c['w_static']:.3g} mm")
 
 
@@ -92,9 +134,15 @@ def tip_rms(a: np.ndarray, b: np.ndarray) -> float:
     return float(np.sqrt(np.mean(d * d))) if np.all(np.isfinite(d)) else float("nan")
 
 
-def richardson(coarse: np.ndarray, fine: np.ndarray) -> np.ndarray:
-    """Second-order extrapolation of two tracks at N and 2N: ``(4 fine - coarse) / 3``."""
-    return (4.0 * fine - coarse) / 3.0
+def richardson(coarse: np.ndarray, fine: np.ndarray, order: float = 2.0) -> np.ndarray:
+    """Extrapolation of two tracks at resolutions N and 2N converging at ``order``:
+    ``fine + (fine - coarse) / (2^order - 1)`` (second order: ``(4 fine - coarse) / 3``)."""
+    return fine + (fine - coarse) / (2.0**order - 1.0)
+
+
+def observed_order(x1: np.ndarray, x2: np.ndarray, x3: np.ndarray) -> float:
+    """Convergence order of three tracks at N, 2N, 4N: ``log2(|x1 - x2| / |x2 - x3|)`` (RMS distances)."""
+    return float(np.log2(tip_rms(x1, x2) / tip_rms(x2, x3)))
 
 
 # ---------------------------------------------------------------------------------- MuJoCo
@@ -149,8 +197,8 @@ def mujoco_model(N: int, dt: float, integrator: str = "Euler", scene=SCENE, damp
 
 
 def mujoco_run(N: int, integrator: str, dt: float, T: float, repeat_below: float = 0.0, scene=SCENE) -> dict:
-    """Release the N-link rod; tips (K, 3) at ``bc.sample_times(T)``, cost (s/s) etc., as
-    ``bc.qchain_run``. A run that goes non-finite or leaves 3 L stops as ``unstable``."""
+    """Release the N-link rod; tips (K, 3) at ``bc.sample_times(T)``, cost (CPU s per simulated
+    s) etc., as ``bc.qchain_run``. A run that goes non-finite or leaves 3 L stops as ``unstable``."""
     m = int(round(bc.SAMPLE / dt))
     if m < 1 or abs(m * dt - bc.SAMPLE) > 1e-9 * bc.SAMPLE:
         raise ValueError(f"dt = {dt:g} s must divide the sampling period {bc.SAMPLE:g} s")
@@ -179,7 +227,7 @@ def _mujoco_once(N, integrator, dt, m, T, scene):
     previous = mujoco.get_mju_user_warning()
     mujoco.set_mju_user_warning(lambda msg: None)  # an unstable step is reported in the row, not on stderr
     try:
-        t0 = time.perf_counter()
+        t0 = CLOCK()
         for k in range(1, K + 1):
             mujoco.mj_step(model, data, nstep=m)
             mujoco.mj_kinematics(model, data)  # the site at the new time (mj_step leaves the old one)
@@ -189,7 +237,7 @@ def _mujoco_once(N, integrator, dt, m, T, scene):
                 status = f"unstable at t = {k * bc.SAMPLE:.2f} s"
                 break
             tips[k] = tip
-        wall = time.perf_counter() - t0
+        wall = CLOCK() - t0
     finally:
         mujoco.set_mju_user_warning(previous)
     return tips, wall, status
@@ -210,15 +258,146 @@ def qchain_setting(method: str, value: float, fixed: tuple) -> dict:
 
 
 def qchain_warmup(configs) -> None:
-    """A short run of every method on every ``(n, extensible)`` model: compiles what each compiles."""
+    """A short run of every method on every ``(n, planar, extensible)`` model: compiles what each compiles."""
     from qchain.sim.simulation import simulate
 
     methods, fixed = qchain_methods()
-    for n, ext in configs:
-        ch = bc.qchain_arm(n, SCENE, extensible=ext)
+    for n, planar, ext in configs:
+        ch = bc.qchain_arm(n, SCENE, extensible=ext, planar=planar)
         for method in methods:
             kw = qchain_setting(method, 1e-3 if method in fixed else 1e-4, fixed)
             simulate(ch, ch.neutral(), np.zeros(ch.nv), (0.0, 0.004), method=method, energies=False, **kw)
+
+
+def variant_name(planar: bool, extensible: bool) -> str:
+    return f"{'planar' if planar else 'spatial'} {'extensible' if extensible else 'inextensible'}"
+
+
+# ---------------------------------------------------------------------------------- references
+
+
+def cached_track(cache: Path | None, name: str, key: dict, compute) -> tuple[np.ndarray, float, bool]:
+    """A reference tip track (K, 3), computed by ``compute() -> (tips, cpu_s)`` or read from
+    ``cache/<name>-<hash of key>.npz``; returns ``(tips, cpu_s, from_cache)``. ``cache=None``
+    always computes. The key (JSON) is stored beside the track and compared on reading."""
+    blob = json.dumps(dict(key, format=CACHE_FORMAT), sort_keys=True)
+    path = None
+    if cache is not None:
+        path = cache / f"{name}-{hashlib.sha1(blob.encode()).hexdigest()[:12]}.npz"
+        if path.exists():
+            with np.load(path) as z:
+                if str(z["key"]) == blob:
+                    return np.array(z["tips"]), float(z["cpu_s"]), True
+    tips, cpu = compute()
+    if path is not None:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_suffix(".tmp.npz")
+        np.savez(tmp, tips=tips, key=np.array(blob), cpu_s=cpu)
+        tmp.replace(path)
+    return tips, cpu, False
+
+
+def _version(dist: str) -> str:
+    try:
+        return metadata.version(dist)
+    except metadata.PackageNotFoundError:
+        return "?"
+
+
+def elastica_track(N: int, dt: float, T: float, cache: Path | None, shear_factor: float = 1.0):
+    """PyElastica's rod with N elements at step dt (bench_cosserat's ``elastica_run``), cached."""
+    key = dict(code="pyelastica", version=_version("pyelastica"), scene=SCENE, T=T, sample=bc.SAMPLE, N=N, dt=dt,
+               shear_factor=shear_factor, clamp="half an element inside the wall")
+
+    def compute():
+        t0 = CLOCK()
+        res = bc.elastica_run(N, dt, T, scene=SCENE, shear_factor=shear_factor)
+        reach = float(np.max(np.linalg.norm(res["tips"], axis=1)))
+        if res["ok"] and reach > 1.01 * SCENE["L"]:  # the rod stretches by ~1e-3 at most: a blow-up inside 3 L
+            res.update(ok=False, status=f"unstable: the tip reached {reach:.3g} m from the clamp")
+        if not res["ok"]:
+            raise RuntimeError(f"PyElastica reference N = {N}, dt = {dt:g} s, shear modulus x{shear_factor:g} "
+                               f"failed: {res['status']}")
+        return res["tips"], CLOCK() - t0
+
+    return cached_track(cache, f"pyelastica-N{N}", key, compute)
+
+
+def qchain_track(n: int, extensible: bool, method: str, rtol: float, T: float, cache: Path | None):
+    """qchain's planar rod, n segments, at a tight tolerance (a converged reference), cached."""
+    key = dict(code="qchain", scene=SCENE, T=T, sample=bc.SAMPLE, n=n, planar=True, extensible=extensible,
+               method=method, rtol=rtol, atol=rtol / 100.0)
+
+    def compute():
+        t0 = CLOCK()
+        res = bc.qchain_run(n, T, method, scene=SCENE, extensible=extensible, rtol=rtol, atol=rtol / 100.0)
+        if not res["ok"]:
+            raise RuntimeError(f"qchain reference n = {n} ({variant_name(True, extensible)}) failed: {res['status']}")
+        return res["tips"], CLOCK() - t0
+
+    return cached_track(cache, f"qchain-n{n}-{'ext' if extensible else 'inext'}", key, compute)
+
+
+def references(cfg: dict, T: float, cache: Path | None) -> tuple[dict, list[str]]:
+    """The two references: ``({"cosserat": A, "unshearable": B, "note", "note_b"}, report lines)``.
+
+    A: the converged extensible Cosserat rod with the material's shear modulus (PyElastica,
+    extrapolated in N). B: the extensible rod without shear (qchain planar, n = ``q_ref_n``,
+    tight dopri5), checked against PyElastica with stiffer shear (module docstring).
+    """
+    lines = []
+    Ns, dt = cfg["pe_Ns"], cfg["pe_dt"]
+
+    def say(what, cpu, hit):
+        print(f"reference: {what}: {'cached' if hit else f'{cpu:.1f} s CPU'}", flush=True)
+
+    pe = {}
+    for N in Ns:
+        pe[N], cpu, hit = elastica_track(N, dt, T, cache)
+        say(f"PyElastica N = {N}, dt = {dt * 1e6:g} us", cpu, hit)
+    fine, cpu, hit = elastica_track(Ns[-1], dt / 2, T, cache)
+    say(f"PyElastica N = {Ns[-1]}, dt = {dt / 2 * 1e6:g} us (check in time)", cpu, hit)
+    d = [tip_rms(pe[a], pe[b]) for a, b in zip(Ns, Ns[1:])]
+    p = observed_order(*(pe[N] for N in Ns[-3:]))
+    x_fin = pe[Ns[-1]]
+    if abs(p - round(p)) <= 0.25 and round(p) >= 1:
+        ref = richardson(pe[Ns[-2]], x_fin, round(p))
+        how = f"N = {Ns[-2]} and {Ns[-1]} Richardson-extrapolated at order {round(p)}"
+    else:
+        ref = x_fin
+        how = f"N = {Ns[-1]} (not extrapolated: the observed order {p:.2f} is not clean)"
+    note = f"converged extensible Cosserat rod: PyElastica (G = E/3), dt = {dt * 1e6:g} us, {how}"
+    lines.append(f"reference A (the issue's): {note}")
+    lines.append("  convergence in N: RMS differences " + ", ".join(
+        f"N = {a}/{b}: {1e3 * x:.4f} mm" for a, b, x in zip(Ns, Ns[1:], d)) + f"; observed order {p:.2f}; "
+        f"the finest run is {1e3 * tip_rms(x_fin, ref):.4f} mm RMS ({1e3 * bc.tip_error(x_fin, ref):.4f} max) "
+        f"from the reference; in time, N = {Ns[-1]} at dt/2 is {1e3 * tip_rms(fine, x_fin):.5f} mm RMS from dt")
+
+    # B: the unshearable extensible rod, qchain's own (PyElastica goes unstable with stiff shear here)
+    n, rtol = cfg["q_ref_n"], cfg["q_ref_rtol"]
+    q = {}
+    for m in (n // 2, n):
+        q[m], cpu, hit = qchain_track(m, True, "dopri5", rtol, T, cache)
+        say(f"qchain n = {m} planar extensible, dopri5 rtol {rtol:g}", cpu, hit)
+    stiff = q[n]
+    kirchhoff, cpu, hit = qchain_track(n, False, "dopri5", rtol, T, cache)
+    say(f"qchain n = {n} planar inextensible, dopri5 rtol {rtol:g}", cpu, hit)
+    note_b = f"unshearable extensible rod: qchain planar extensible n = {n}, dopri5 rtol {rtol:g}"
+    lines.append(f"reference B (the rod qchain and MuJoCo model, without shear): {note_b}")
+    lines.append(f"  n = {n // 2} is {1e3 * tip_rms(q[n // 2], stiff):.4f} mm RMS from it; B is "
+                 f"{1e3 * tip_rms(stiff, ref):.3f} mm RMS ({1e3 * bc.tip_error(stiff, ref):.3f} max) from A: the shear "
+                 "that every unshearable model leaves out; the inextensible rod (n = "
+                 f"{n}) is {1e3 * tip_rms(kirchhoff, stiff):.3f} mm RMS from B (the axial stretch)")
+    Nm = cfg["pe_N_mid"]
+    sh = {1.0: pe[Nm]}
+    for f in (2.0, 4.0):
+        sh[f], cpu, hit = elastica_track(Nm, dt, T, cache, shear_factor=f)
+        say(f"PyElastica N = {Nm}, dt = {dt * 1e6:g} us, shear modulus x{f:g}", cpu, hit)
+    lines.append(f"  independent check of B: PyElastica N = {Nm} with the shear modulus x1, x2, x4 is "
+                 + ", ".join(f"{1e3 * tip_rms(sh[f], stiff):.3f}" for f in (1.0, 2.0, 4.0))
+                 + " mm RMS from B (stiffer shear, closer to B; x8 goes unstable)")
+    out = dict(cosserat=ref, unshearable=stiff)
+    return dict(out, note=note, note_b=note_b), lines
 
 
 # ---------------------------------------------------------------------------------- study
@@ -227,10 +406,14 @@ def qchain_warmup(configs) -> None:
 def settings(quick: bool) -> dict:
     steps = [5e-3 / 2**j for j in range(10)]  # 5 ms .. 9.8 us, all divide 10 ms
     if quick:
-        return dict(T=0.5, ns=[10], ext_ns=[], Ns=[10, 20, 40], ref_ns=[32], check_Ns=(40, 80), check_dt=6.25e-5,
-                    steps=steps[:8], rtols=[1e-1, 1e-2, 1e-3, 1e-4, 1e-5], repeat_below=0.3, budget=4.0)
-    return dict(T=1.0, ns=[5, 10, 20], ext_ns=[10], Ns=[5, 10, 20, 40, 80], ref_ns=[32, 64], check_Ns=(80, 160),
-                check_dt=2.5e-5, steps=steps, rtols=[10.0**-k for k in range(1, 10)], repeat_below=2.0, budget=60.0)
+        return dict(T=0.5, reduced=[(10, False)], full=[10], Ns=[10, 20],
+                    pe_Ns=(50, 100, 200), pe_dt=1e-5, pe_N_mid=100, q_ref_n=32, q_ref_rtol=1e-10,
+                    steps=steps[:8], rtols=[1e-1, 1e-2, 1e-3, 1e-4, 1e-5], scipy_rtols=[1e-1, 1e-2],
+                    repeat_below=0.3, budget=2.0, arm_T=1.0)
+    return dict(T=1.0, reduced=[(5, False), (10, False), (20, False), (10, True), (20, True)], full=[5, 10, 20],
+                Ns=[5, 10, 20, 40, 80], pe_Ns=(100, 200, 400), pe_dt=5e-6, pe_N_mid=100, q_ref_n=32,
+                q_ref_rtol=1e-10, steps=steps, rtols=[10.0**-k for k in range(1, 10)],
+                scipy_rtols=[1e-1, 1e-2, 1e-3], repeat_below=2.0, budget=10.0, arm_T=None)
 
 
 def _fmt_setting(kind: str, value: float) -> str:
@@ -240,7 +423,7 @@ def _fmt_setting(kind: str, value: float) -> str:
 def sweep(runner, values, kind: str, budget: float, T: float) -> list[dict]:
     """Run ``runner(value)`` from coarse to fine; each row gets ``value``, ``kind`` and, from
     the next finer run, ``time_conv_m`` (nan if either failed, or for the last). Stops after
-    a pair within ``STOP``, or after a run slower than ``budget`` s of wall time."""
+    a pair within ``STOP``, or after a run costlier than ``budget`` s (its repeats included)."""
     rows = []
     for v in values:
         res = runner(v)
@@ -258,124 +441,105 @@ def sweep(runner, values, kind: str, budget: float, T: float) -> list[dict]:
     return rows
 
 
-def run(quick: bool = False, out_dir: Path = Path("out/bench"), ns=None, Ns=None) -> list[dict]:
-    """Run the study; write ``release.csv`` and ``release.png`` into ``out_dir``; return the rows."""
+def run(quick: bool = False, out_dir: Path = Path("out/bench"), ns=None, Ns=None, arm: bool = True,
+        fresh: bool = False) -> list[dict]:
+    """Run the study; write ``release.csv``, ``release.png`` (and ``release_arm.csv``) into
+    ``out_dir``; return the rows of the release."""
     cfg = settings(quick)
     if ns:
-        cfg["ns"] = list(ns)
-        cfg["ext_ns"] = [n for n in cfg["ext_ns"] if n in ns]
+        cfg["reduced"] = [(n, ext) for n in ns for ext in (False, True)]
+        cfg["full"] = list(ns)
     if Ns:
         cfg["Ns"] = list(Ns)
     T, rb, budget = cfg["T"], cfg["repeat_below"], cfg["budget"]
+    out_dir = Path(out_dir)
+    cache = out_dir / "release_cache"
+    if fresh and cache.exists():
+        shutil.rmtree(cache)  # every reference recomputed, then cached again
     methods, fixed = qchain_methods()
     integrators = mujoco_integrators()
     import mujoco
 
     print(f"scene: {describe(SCENE, T)}", flush=True)
-    print(f"qchain methods {methods} (fixed step: {fixed}); MuJoCo {mujoco.__version__}, integrators {integrators}",
-          flush=True)
+    print(f"qchain methods {methods} (fixed step: {fixed}); MuJoCo {mujoco.__version__}, integrators {integrators}; "
+          f"PyElastica {_version('pyelastica')}; cost in CPU time (time.process_time)", flush=True)
     t_start = time.perf_counter()
     rows: list[dict] = []
 
-    def add(code, model, n, variant, method, role, res, value=float("nan"), kind=""):
-        res.setdefault("value", value)
-        res.setdefault("kind", kind)
-        res.setdefault("setting", _fmt_setting(kind, value) if kind else "")
+    def add(code, group, model, n, variant, method, res):
         res.setdefault("time_conv_m", float("nan"))
-        rows.append(dict(code=code, model=model, n=n, variant=variant, method=method, role=role, T_s=T, **res))
-        return rows[-1]
+        rows.append(dict(code=code, group=group, model=model, n=n, variant=variant, method=method, role="sweep",
+                         T_s=T, **res))
 
-    # ---- reference: qchain, many segments
-    qchain_warmup([(2, False)] + [(n, False) for n in cfg["ns"]] + [(n, True) for n in cfg["ext_ns"]])
-    refs = {}
-    for n in cfg["ref_ns"]:
-        print(f"reference: qchain n = {n}, {REF_METHOD} rtol={REF_TOL['rtol']:g}", flush=True)
-        res = bc.qchain_run(n, T, REF_METHOD, scene=SCENE, extensible=False, **REF_TOL)
-        if not res["ok"]:
-            raise RuntimeError(f"qchain reference run n = {n} failed: {res['status']}")
-        refs[n] = add("qchain", f"n={n}", n, "inextensible", REF_METHOD, "reference", res, REF_TOL["rtol"], "rtol")
-        print(f"    {res['cost']:.3f} s/s", flush=True)
-    if len(refs) >= 2:
-        n1, n2 = sorted(refs)[-2:]
-        ref_tips = richardson(refs[n1]["tips"], refs[n2]["tips"])
-        ref_note = f"qchain n = {n1} and {n2} inextensible, {REF_METHOD} rtol {REF_TOL['rtol']:g}, Richardson-extrapolated"
-    else:
-        n2 = max(refs)
-        ref_tips = refs[n2]["tips"]
-        ref_note = f"qchain n = {n2} inextensible, {REF_METHOD} rtol {REF_TOL['rtol']:g}"
-
-    # ---- independent check: MuJoCo, many links, RK4 at a small step
-    mj_ref = {}
-    for N in cfg["check_Ns"]:
-        print(f"check: MuJoCo N = {N}, RK4 dt = {cfg['check_dt'] * 1e3:g} ms", flush=True)
-        res = mujoco_run(N, "RK4", cfg["check_dt"], T)
-        if not res["ok"]:
-            raise RuntimeError(f"MuJoCo check run N = {N} failed: {res['status']}")
-        mj_ref[N] = add("mujoco", f"N={N}", N, "", "RK4", "check", res, cfg["check_dt"], "dt")
-        print(f"    {res['cost']:.3f} s/s", flush=True)
-    N1, N2 = cfg["check_Ns"]
-    mj_extra = richardson(mj_ref[N1]["tips"], mj_ref[N2]["tips"])
-    checks = dict(mj_fine=(tip_rms(mj_ref[N2]["tips"], ref_tips), bc.tip_error(mj_ref[N2]["tips"], ref_tips)),
-                  mj_extra=(tip_rms(mj_extra, ref_tips), bc.tip_error(mj_extra, ref_tips)))
-    if len(refs) >= 2:
-        checks["q_fine"] = (tip_rms(refs[n2]["tips"], ref_tips), bc.tip_error(refs[n2]["tips"], ref_tips))
-        checks["q_coarse"] = (tip_rms(refs[n1]["tips"], ref_tips), bc.tip_error(refs[n1]["tips"], ref_tips))
+    configs = [(n, True, ext) for n, ext in cfg["reduced"]] + [(n, False, True) for n in cfg["full"]]
+    qchain_warmup([(2, True, False), (2, True, True)] + configs)
+    ref, ref_lines = references(cfg, T, cache)
+    for line in ref_lines:
+        print(line, flush=True)
 
     # ---- qchain sweeps
-    configs = [(n, False) for n in cfg["ns"]] + [(n, True) for n in cfg["ext_ns"]]
-    for (n, ext), method in itertools.product(configs, methods):
+    for (n, planar, ext), method in itertools.product(configs, methods):
         kind = "dt" if method in fixed else "rtol"
-        values = cfg["steps"] if kind == "dt" else cfg["rtols"]
-        variant = "extensible" if ext else "inextensible"
+        values = (cfg["steps"] if kind == "dt" else cfg["rtols"] if method in ("radau5", "dopri5")
+                  else cfg["scipy_rtols"])
+        variant = variant_name(planar, ext)
+        group = "reduced" if planar else "full"
         print(f"qchain n = {n} {variant} {method}", flush=True)
 
-        def runner(v, n=n, ext=ext, method=method):
-            return bc.qchain_run(n, T, method, rb, scene=SCENE, extensible=ext, **qchain_setting(method, v, fixed))
+        def runner(v, n=n, ext=ext, planar=planar, method=method):
+            return bc.qchain_run(n, T, method, rb, scene=SCENE, extensible=ext, planar=planar, clock=CLOCK,
+                                 **qchain_setting(method, v, fixed))
 
+        model = f"n={n}" + ("" if planar else " 3D") + (" ext" if ext and planar else "")
         for res in sweep(runner, values, kind, budget, T):
-            add("qchain", f"n={n}" + (" ext" if ext else ""), n, variant, method, "sweep", res)
+            add("qchain", group, model, n, variant, method, res)
 
     # ---- MuJoCo sweeps
     mujoco_run(4, "Euler", 1e-3, bc.SAMPLE)  # warm-up
     for N, integ in itertools.product(cfg["Ns"], integrators):
         print(f"MuJoCo N = {N} {integ}", flush=True)
         for res in sweep(lambda v, N=N, integ=integ: mujoco_run(N, integ, v, T, rb), cfg["steps"], "dt", budget, T):
-            add("mujoco", f"N={N}", N, "", integ, "sweep", res)
+            add("mujoco", "mujoco", f"N={N}", N, "", integ, res)
 
     # ---- errors, headline
     for r in rows:
         tips = r.pop("tips")
-        r["rms_error_m"] = tip_rms(tips, ref_tips) if r["ok"] else float("nan")
-        r["max_error_m"] = bc.tip_error(tips, ref_tips) if r["ok"] else float("nan")
-        r["wall_per_sim_s"] = r.pop("cost") if r["ok"] else float("nan")  # a failed run has no cost
+        for suffix, x in (("", ref["unshearable"]), ("_vs_shearable", ref["cosserat"])):
+            r[f"rms{suffix}_m" if suffix else "rms_error_m"] = tip_rms(tips, x) if r["ok"] else float("nan")
+            r[f"max{suffix}_m" if suffix else "max_error_m"] = bc.tip_error(tips, x) if r["ok"] else float("nan")
+        r["cpu_per_sim_s"] = r.pop("cost") if r["ok"] else float("nan")  # a failed run has no cost
         r.pop("max_kappa_r", None)
-    best = {code: cheapest(rows, code) for code in ("qchain", "mujoco")}
-    base = best["mujoco"]["wall_per_sim_s"] if best["mujoco"] else float("nan")
+    best = best_runs(rows)
+    base = best["mujoco"]["cpu_per_sim_s"] if best["mujoco"] else float("nan")
     for r in rows:
-        r["cost_ratio"] = r["wall_per_sim_s"] / base if np.isfinite(base) else float("nan")
-        r["reference"] = ref_note
-    wall_total = time.perf_counter() - t_start
+        r["cost_ratio"] = r["cpu_per_sim_s"] / base if np.isfinite(base) else float("nan")
+        r["reference"] = ref["note_b"]
+    release_s = time.perf_counter() - t_start
 
     print_table(rows)
-    lines = [f"reference: {ref_note}"]
-    if "q_fine" in checks:
-        lines.append(f"  qchain n = {n2} alone: {1e3 * checks['q_fine'][0]:.4f} mm RMS "
-                     f"({1e3 * checks['q_fine'][1]:.4f} max) from it, n = {n1}: "
-                     f"{1e3 * checks['q_coarse'][0]:.4f} mm RMS "
-                     f"({1e3 * checks['q_coarse'][1]:.4f} max)")
-    lines.append(f"  independent check, MuJoCo N = {N2} links (RK4, dt = {cfg['check_dt'] * 1e3:g} ms): "
-                 f"{1e3 * checks['mj_fine'][0]:.4f} mm RMS ({1e3 * checks['mj_fine'][1]:.4f} max); MuJoCo N = {N1} "
-                 f"and {N2} Richardson-extrapolated: {1e3 * checks['mj_extra'][0]:.4f} mm RMS "
-                 f"({1e3 * checks['mj_extra'][1]:.4f} max)")
-    lines += headline(rows, best)
+    # reference A: the errors against the shearable rod in the columns the rule reads
+    rows_a = [dict(r, rms_error_m=r["rms_vs_shearable_m"], max_error_m=r["max_vs_shearable_m"]) for r in rows]
+    lines = ref_lines + ["against reference A, the shearable Cosserat rod:"] + headline(rows_a, best_runs(rows_a),
+                                                                                         ratios=TARGETS)
+    floor = {g: min((r["rms_error_m"] for r in rows_a if r.get("group") == g and r["ok"]), default=float("nan"))
+             for g in GROUPS}
+    lines.append("  closest any run comes to A (RMS): "
+                 + ", ".join(f"{GROUPS[g]} {_mm(x)} mm" for g, x in floor.items()))
+    lines += ["against reference B, the unshearable extensible rod (table, chart):"] + headline(rows, best,
+                                                                                               ratios=TARGETS)
     for line in lines:
         print(line)
-    out_dir = Path(out_dir)
-    fields = ["code", "model", "n", "variant", "method", "role", "setting", "value", "kind", "T_s", "rms_error_m",
-              "max_error_m", "time_conv_m", "wall_per_sim_s", "cost_ratio", "work", "repeats", "status", "reference"]
+    fields = ["code", "group", "model", "n", "variant", "method", "role", "setting", "value", "kind", "T_s",
+              "rms_error_m", "max_error_m", "rms_vs_shearable_m", "max_vs_shearable_m", "time_conv_m", "cpu_per_sim_s",
+              "cost_ratio", "work", "repeats", "status", "reference"]
     _study.write_csv([{k: r.get(k, "") for k in fields} for r in rows], out_dir / "release.csv")
-    plot(rows, out_dir / "release.png", T, ref_note, best)
-    print(f"wrote {out_dir / 'release.csv'} and {out_dir / 'release.png'} ({wall_total:.1f} s of runs)")
+    plot(rows, out_dir / "release.png", T, ref["note_b"], best)
+    print(f"wrote {out_dir / 'release.csv'} and {out_dir / 'release.png'} ({release_s:.1f} s of wall time)")
+    if arm:
+        import bench_release_arm
+
+        bench_release_arm.run(quick, out_dir, cache, T=cfg["arm_T"])
+    print(f"bench_release: {time.perf_counter() - t_start:.1f} s of wall time in all", flush=True)
     return rows
 
 
@@ -385,41 +549,72 @@ def eligible(r: dict, accuracy: float = ACCURACY) -> bool:
             and r["time_conv_m"] <= CONVERGED)
 
 
+def cost_of(r: dict) -> float:
+    """A row's cost per simulated second: CPU time here, wall time in bench_contact's rows."""
+    return r["cpu_per_sim_s"] if "cpu_per_sim_s" in r else r["wall_per_sim_s"]
+
+
 def cheapest(rows: list[dict], code: str, keep=lambda r: True, accuracy: float = ACCURACY) -> dict | None:
     cand = [r for r in rows if r["code"] == code and eligible(r, accuracy) and keep(r)]
-    return min(cand, key=lambda r: r["wall_per_sim_s"]) if cand else None
+    return min(cand, key=cost_of) if cand else None
+
+
+def best_runs(rows: list[dict], accuracy: float = ACCURACY) -> dict:
+    """The cheapest eligible run of each group (``reduced``, ``full``, ``mujoco``), None where none."""
+    return {g: cheapest(rows, "mujoco" if g == "mujoco" else "qchain", lambda r, g=g: r.get("group") == g, accuracy)
+            for g in GROUPS}
 
 
 def _name(r: dict) -> str:
     return f"{r['code']} {r['model']} {r['method']} {r['setting']}"
 
 
-def headline(rows: list[dict], best: dict) -> list[str]:
-    q, m = best["qchain"], best["mujoco"]
+def headline(rows: list[dict], best: dict, ratios: dict | None = None) -> list[str]:
+    """The headline lines: each entry of ``best`` (its cheapest eligible run), the ratio of each
+    to MuJoCo's (``ratios``: label -> target, where there is one), then the same at tighter
+    accuracy levels and per method. ``best`` maps a group (or a code) to a row or None."""
+    labels = {k: GROUPS.get(k, k) for k in best}
+    m = best.get("mujoco")
     lines = [f"headline: the cheapest run within {ACCURACY * 1e3:g} mm RMS of the reference and converged in time to "
-             f"{CONVERGED * 1e3:g} mm RMS"]
-    for r, who in ((q, "qchain"), (m, "MuJoCo")):
+             f"{CONVERGED * 1e3:g} mm RMS (cost: {'CPU' if rows and 'cpu_per_sim_s' in rows[0] else 'wall'} "
+             "seconds per simulated second)"]
+    for key, r in best.items():
         if r is None:
-            lines.append(f"  {who}: no run qualifies")
+            lines.append(f"  {labels[key]}: no run qualifies")
         else:
-            lines.append(f"  {who}: {_name(r)}: {r['wall_per_sim_s']:.4g} s per simulated second "
+            lines.append(f"  {labels[key]}: {_name(r)}: {cost_of(r):.4g} s per simulated second "
                          f"(error {1e3 * r['rms_error_m']:.3f} mm RMS, {1e3 * r['max_error_m']:.3f} max; "
                          f"time convergence {1e3 * r['time_conv_m']:.4f} mm)")
-    if q and m:
-        lines.append(f"  ratio qchain / MuJoCo: {q['wall_per_sim_s'] / m['wall_per_sim_s']:.3g}")
+    for key, r in best.items():
+        if key == "mujoco":
+            continue
+        target = (ratios or {}).get(labels[key])
+        verdict = ""
+        if r and m:
+            x = cost_of(r) / cost_of(m)
+            if target is not None:
+                verdict = f" (target <= {target:g}: {'met' if x <= target else 'NOT met'})"
+            lines.append(f"  ratio {labels[key]} / MuJoCo: {x:.3g}{verdict}")
+        elif target is not None:
+            lines.append(f"  ratio {labels[key]} / MuJoCo: none (a side has no qualifying run; target <= {target:g}: "
+                         "NOT met)")
     lines.append("  at other accuracy levels (same rule):")
     for acc in (5e-4, 2e-4, 1e-4):
-        qa, ma = cheapest(rows, "qchain", accuracy=acc), cheapest(rows, "mujoco", accuracy=acc)
-        parts = [f"{who} " + (f"{r['wall_per_sim_s']:.4g} s/s [{r['model']} {r['method']} {r['setting']}]" if r else
-                             "none") for r, who in ((qa, "qchain"), (ma, "MuJoCo"))]
-        ratio = f", ratio {qa['wall_per_sim_s'] / ma['wall_per_sim_s']:.3g}" if qa and ma else ""
-        lines.append(f"    {acc * 1e3:g} mm: " + "; ".join(parts) + ratio)
+        at = {k: cheapest(rows, "mujoco" if k == "mujoco" else "qchain",
+                          (lambda r, k=k: r.get("group", r["code"]) == k) if k in GROUPS else (lambda r: True), acc)
+              for k in best}
+        parts = [f"{labels[k]} " + (f"{cost_of(r):.4g} s/s [{r['model']} {r['method']} {r['setting']}]" if r else
+                                   "none") for k, r in at.items()]
+        lines.append(f"    {acc * 1e3:g} mm: " + "; ".join(parts))
     lines.append("  per method (cheapest qualifying run):")
-    for code in ("qchain", "mujoco"):
-        for method in dict.fromkeys(r["method"] for r in rows if r["code"] == code and r["role"] == "sweep"):
-            r = cheapest(rows, code, lambda r, method=method: r["method"] == method)
-            lines.append(f"    {code} {method:<13} " + (f"{r['wall_per_sim_s']:.4g} s/s  [{r['model']} {r['setting']}, "
-                                                        f"{1e3 * r['rms_error_m']:.3f} mm]" if r else "none"))
+    for key in best:
+        code = "mujoco" if key == "mujoco" else "qchain"
+        mine = [r for r in rows if r["code"] == code and r["role"] == "sweep" and r.get("group", code) in (key, code)]
+        for method in dict.fromkeys(r["method"] for r in mine):
+            r = cheapest(mine, code, lambda r, method=method: r["method"] == method)
+            lines.append(f"    {labels[key]:<20} {method:<13} " + (
+                f"{cost_of(r):.4g} s/s  [{r['model']} {r['setting']}, {1e3 * r['rms_error_m']:.3f} mm]"
+                if r else "none"))
     return lines
 
 
@@ -436,17 +631,19 @@ def _short(status: str, width: int = 60) -> str:
 
 
 def print_table(rows: list[dict]) -> None:
-    print(f"{'code':<7} {'model':<9} {'method':<13} {'step / tol':<16} {'RMS (mm)':>9} {'max (mm)':>9} "
-          f"{'t-conv (mm)':>11} {'wall s/s':>9} {'x MuJoCo':>9} {'rep':>3}  status")
+    print(f"{'code':<7} {'model':<11} {'method':<13} {'step / tol':<16} {'RMS (mm)':>9} {'max (mm)':>9} "
+          f"{'vs A':>9} {'t-conv (mm)':>11} {'CPU s/s':>9} {'x MuJoCo':>9} {'rep':>3}  status")
     for r in rows:
         ratio = f"{r['cost_ratio']:.3g}" if np.isfinite(r["cost_ratio"]) else "-"
-        cost = f"{r['wall_per_sim_s']:.4f}" if np.isfinite(r["wall_per_sim_s"]) else "-"
+        cost = f"{r['cpu_per_sim_s']:.4f}" if np.isfinite(r["cpu_per_sim_s"]) else "-"
         mark = " *" if eligible(r) else ""
-        print(f"{r['code']:<7} {r['model']:<9} {r['method']:<13} {r['setting']:<16} {_mm(r['rms_error_m']):>9} "
-              f"{_mm(r['max_error_m']):>9} {_mm(r['time_conv_m'], '.4f'):>11} {cost:>9} {ratio:>9} {r['repeats']:>3}  "
-              f"{_short(r['status']) if r['role'] == 'sweep' else r['role']}{mark}")
-    print(f"(errors: tip distance to the reference over samples every {bc.SAMPLE * 1e3:g} ms; t-conv: RMS distance to "
-          f"the same run at half the step or 10x tighter rtol; x MuJoCo: cost over the MuJoCo headline run's; "
+        print(f"{r['code']:<7} {r['model']:<11} {r['method']:<13} {r['setting']:<16} {_mm(r['rms_error_m']):>9} "
+              f"{_mm(r['max_error_m']):>9} {_mm(r['rms_vs_shearable_m']):>9} {_mm(r['time_conv_m'], '.4f'):>11} "
+              f"{cost:>9} {ratio:>9} {r['repeats']:>3}  {_short(r['status'])}{mark}")
+    print(f"(RMS, max: tip distance to reference B, the unshearable extensible rod, over samples every "
+          f"{bc.SAMPLE * 1e3:g} ms; vs A: RMS distance to reference A, the shearable Cosserat rod; t-conv: RMS "
+          f"distance to the same run at half the step or 10x tighter rtol; CPU s/s: CPU seconds per simulated "
+          f"second; x MuJoCo: cost over the MuJoCo headline run's; "
           f"*: within {ACCURACY * 1e3:g} mm RMS and converged in time to {CONVERGED * 1e3:g} mm)")
 
 
@@ -456,22 +653,23 @@ def frontier(runs: list[dict]) -> list[dict]:
     Parameters
     ----------
     runs : list of dict
-        Rows with finite ``rms_error_m`` (m) and ``wall_per_sim_s`` (s/s).
+        Rows with finite ``rms_error_m`` (m) and cost (``cost_of``, s/s).
     """
     front = []
-    for r in sorted(runs, key=lambda r: (r["wall_per_sim_s"], r["rms_error_m"])):
+    for r in sorted(runs, key=lambda r: (cost_of(r), r["rms_error_m"])):
         if not front or r["rms_error_m"] < front[-1]["rms_error_m"]:
             front.append(r)
     return front
 
 
 def plot(rows: list[dict], path: Path, T: float, ref_note: str, best: dict) -> None:
-    """Cost against accuracy, qchain left and MuJoCo right, one line a model size.
+    """Cost against accuracy, one panel a group (a row's ``group``, else its ``code``).
 
     Each line joins a model size's frontier: the runs (of any method and setting) that no other run
     of that size beats in both RMS error and cost; grey dots are the other runs. Filled: converged in
-    time to ``CONVERGED``; hollow: not, or not measured. Circled: each code's headline run (``best``).
-    ``T`` and ``ref_note`` describe the scene and reference (in the README's caption, not the chart).
+    time to ``CONVERGED``; hollow: not, or not measured. Circled: each panel's headline run (``best``,
+    keyed by group or code). ``T`` and ``ref_note`` describe the scene and reference (in the README's
+    caption, not the chart).
     """
     import matplotlib
 
@@ -479,65 +677,66 @@ def plot(rows: list[dict], path: Path, T: float, ref_note: str, best: dict) -> N
     import matplotlib.pyplot as plt
 
     sweeps = [r for r in rows if r["role"] == "sweep" and r["ok"] and np.isfinite(r["rms_error_m"])
-              and r["rms_error_m"] > 0 and np.isfinite(r["wall_per_sim_s"])]
-    fig, axes = plt.subplots(1, 2, figsize=(12.5, 5.6), sharex=True, sharey=True)
-    for ax, code, who in zip(axes, ("qchain", "mujoco"), ("qchain: n segments", "MuJoCo: N links")):
-        mine = [r for r in sweeps if r["code"] == code]
+              and r["rms_error_m"] > 0 and np.isfinite(cost_of(r))]
+    panels = list(dict.fromkeys(r.get("group") or r["code"] for r in rows if r["role"] == "sweep"))
+    fig, axes = plt.subplots(1, len(panels), figsize=(6.2 * len(panels), 5.6), sharex=True, sharey=True,
+                             squeeze=False)
+    for ax, panel in zip(axes[0], panels):
+        mine = [r for r in sweeps if (r.get("group") or r["code"]) == panel]
         models = list(dict.fromkeys(r["model"] for r in mine))
         colors = plt.cm.viridis(np.linspace(0.0, 0.85, max(len(models), 1)))
-        ax.plot([r["rms_error_m"] for r in mine], [r["wall_per_sim_s"] for r in mine], ".", color="0.75", ms=4,
+        ax.plot([r["rms_error_m"] for r in mine], [cost_of(r) for r in mine], ".", color="0.75", ms=4,
                 zorder=1, label="other runs")
         for model, color in zip(models, colors):
             front = frontier([r for r in mine if r["model"] == model])
-            ax.plot([r["rms_error_m"] for r in front], [r["wall_per_sim_s"] for r in front], "-", color=color,
+            ax.plot([r["rms_error_m"] for r in front], [cost_of(r) for r in front], "-", color=color,
                     lw=1.5, zorder=2, label=model)
             for r in front:
                 conv = np.isfinite(r["time_conv_m"]) and r["time_conv_m"] <= CONVERGED
-                ax.plot(r["rms_error_m"], r["wall_per_sim_s"], "o", color=color, ms=5, mfc=color if conv else "white",
+                ax.plot(r["rms_error_m"], cost_of(r), "o", color=color, ms=5, mfc=color if conv else "white",
                         zorder=3)
-        r = best.get(code)
+        r = best.get(panel)
         if r is not None:
-            ax.plot(r["rms_error_m"], r["wall_per_sim_s"], "o", ms=15, mfc="none", mec="k", mew=1.5, zorder=4)
-            ax.annotate(f"cheapest: {r['model']} {r['method']} {r['setting']}\n{r['wall_per_sim_s']:.3g} s/s",
-                        (r["rms_error_m"], r["wall_per_sim_s"]), textcoords="offset points", xytext=(10, -22),
+            ax.plot(r["rms_error_m"], cost_of(r), "o", ms=15, mfc="none", mec="k", mew=1.5, zorder=4)
+            ax.annotate(f"cheapest: {r['model']} {r['method']} {r['setting']}\n{cost_of(r):.3g} s/s",
+                        (r["rms_error_m"], cost_of(r)), textcoords="offset points", xytext=(10, -22),
                         fontsize=8)
         _study.threshold(ax, ACCURACY, f"{ACCURACY * 1e3:g} mm RMS (headline bound)")
         ax.plot([], [], "o", color="k", mfc="white", ms=5, label=f"hollow: not converged to {CONVERGED * 1e3:g} mm")
         ax.set_xscale("log")
         ax.set_yscale("log")
-        ax.set_title(f"{who}, best runs per size", fontsize=10)
+        ax.set_title(f"{TITLES.get(panel, panel)}, best runs per size", fontsize=10)
         ax.set_xlabel("RMS tip error against the reference (m)")
         ax.grid(True, which="both", alpha=0.3)
-        ax.legend(fontsize=8, loc="lower left")
-    axes[0].set_ylabel("wall time per simulated second (s)")
+        ax.legend(fontsize=8, loc="upper right")
+    cpu = bool(rows) and "cpu_per_sim_s" in rows[0]
+    axes[0][0].set_ylabel(f"{'CPU' if cpu else 'wall'} time per simulated second (s)")
     _study.save(fig, path)
 
 
 def replot(csv_path: Path, png_path: Path) -> None:
     """Redraw the chart from a written ``release.csv`` (no runs)."""
-    import csv
-
-    with open(csv_path) as fh:
-        rows = list(csv.DictReader(fh))
+    rows = _study.read_csv(Path(csv_path))
     for r in rows:
-        for k in ("n", "work", "repeats"):
-            r[k] = int(float(r[k]))
-        for k in ("value", "T_s", "rms_error_m", "max_error_m", "time_conv_m", "wall_per_sim_s", "cost_ratio"):
-            r[k] = float(r[k]) if r[k] not in ("", "nan") else float("nan")
+        for k in ("time_conv_m", "rms_error_m", "max_error_m", "cpu_per_sim_s", "wall_per_sim_s"):
+            if k in r and r[k] == "":
+                r[k] = float("nan")
         r["ok"] = r["status"] == "ok"
-    best = {code: cheapest(rows, code) for code in ("qchain", "mujoco")}
+    best = best_runs(rows) if "group" in rows[0] else {c: cheapest(rows, c) for c in ("qchain", "mujoco")}
     plot(rows, png_path, rows[0]["T_s"], rows[0]["reference"], best)
 
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--quick", action="store_true", help="T = 0.5 s, n = 10 and fewer settings (under two minutes)")
-    ap.add_argument("--out", type=Path, default=Path("out/bench"), help="folder for release.csv and release.png")
+    ap.add_argument("--quick", action="store_true", help="T = 0.5 s, n = 10 and fewer settings (a few minutes)")
+    ap.add_argument("--out", type=Path, default=Path("out/bench"), help="folder for the CSV and PNG files")
     ap.add_argument("--n", type=int, nargs="+", help="qchain segment counts (default 5 10 20; quick: 10)")
     ap.add_argument("--N", type=int, nargs="+", dest="N_links",
-                    help="MuJoCo link counts (default 5 10 20 40 80; quick: 10 20 40)")
+                    help="MuJoCo link counts (default 5 10 20 40 80; quick: 10 20)")
+    ap.add_argument("--no-arm", action="store_true", help="skip the four-segment spatial arm")
+    ap.add_argument("--fresh", action="store_true", help="recompute the reference tracks (ignore the cache)")
     args = ap.parse_args(argv)
-    return run(args.quick, args.out, ns=args.n, Ns=args.N_links)
+    return run(args.quick, args.out, ns=args.n, Ns=args.N_links, arm=not args.no_arm, fresh=args.fresh)
 
 
 if __name__ == "__main__":

@@ -2,7 +2,9 @@
 
 Writes into ``--out`` (default ``out/bench``): ``work_precision.{csv,png}``,
 ``cosserat_release.{csv,png}`` (PyElastica part only with the ``bench`` extra installed),
-``release.{csv,png}`` (qchain against MuJoCo at equal accuracy; needs the ``bench`` extra's mujoco),
+``release.{csv,png}`` and ``release_arm.csv`` (qchain against MuJoCo at equal accuracy against a
+PyElastica Cosserat rod, and the four-segment arm in ``pinocchio.aba`` calls; needs the ``bench``
+extra's mujoco and pyelastica; reference tracks cached in ``release_cache/``),
 ``reduced.csv`` (full against planar and inextensible models),
 ``static_cantilever.{csv,png}``,
 ``scaling.{csv,png}``, ``derivatives.csv``, ``stability_map.{csv,png}``, ``contact_{overhead,mujoco}.csv``. ``--quick`` shortens every study.

@@ -99,3 +99,33 @@ def test_release_run_samples_the_tip():
     b = a + [0.0, 3e-3, 4e-3]
     assert br.tip_rms(a, b) == pytest.approx(5e-3)
     np.testing.assert_allclose(br.richardson(a, b), (4 * b - a) / 3)
+
+
+def test_order_and_extrapolation_of_a_known_series():
+    """Tracks x_N = x* + c / N^p: the observed order is p and Richardson at p returns x*."""
+    rng = np.random.default_rng(1)
+    exact, c = rng.normal(size=(5, 3)), rng.normal(size=(5, 3))
+    for p in (1.0, 2.0):
+        x = {N: exact + c / N**p for N in (100, 200, 400)}
+        assert br.observed_order(x[100], x[200], x[400]) == pytest.approx(p, abs=1e-12)
+        np.testing.assert_allclose(br.richardson(x[200], x[400], p), exact, atol=1e-14)
+
+
+def test_reference_cache_is_keyed_by_its_parameters(tmp_path):
+    calls = []
+
+    def compute(value):
+        def f():
+            calls.append(value)
+            return np.full((3, 3), value), 0.5
+        return f
+
+    tips, cpu, hit = br.cached_track(tmp_path, "track", dict(N=100, dt=1e-5), compute(1.0))
+    assert not hit and calls == [1.0] and cpu == 0.5
+    tips2, cpu2, hit2 = br.cached_track(tmp_path, "track", dict(N=100, dt=1e-5), compute(2.0))
+    assert hit2 and calls == [1.0] and cpu2 == 0.5
+    np.testing.assert_array_equal(tips2, tips)
+    tips3, _, hit3 = br.cached_track(tmp_path, "track", dict(N=100, dt=5e-6), compute(3.0))  # another step
+    assert not hit3 and calls == [1.0, 3.0] and np.all(tips3 == 3.0)
+    _, _, hit4 = br.cached_track(None, "track", dict(N=100, dt=1e-5), compute(4.0))  # no cache: always computed
+    assert not hit4 and calls[-1] == 4.0
