@@ -5,7 +5,6 @@ scene, and what it dropped and why (:class:`SceneModel`; "Model reduction" in th
 from __future__ import annotations
 
 import functools
-import itertools
 import math
 from dataclasses import dataclass, replace
 
@@ -18,7 +17,7 @@ from ..checks.text import show_vector
 from ..model.segment import CHAMBER_ANGLES, DEFAULT_NODES, nodes_for_tolerance
 from .cost import _frequency
 from .payload import payload_asymmetry
-from .stretch import AXIAL_SEPARATION, STRETCH_MARGIN, StretchEstimate
+from .stretch import AXIAL_SEPARATION, STRETCH_MARGIN, StretchEstimate, _ranges
 
 __all__ = ["SceneModel", "ModelBuilder", "BEND_MARGIN", "BEND_SAMPLES"]
 
@@ -60,16 +59,6 @@ class SceneModel:
     reductions: list[str]
     kept: list[str]
     reduced: bool
-
-
-def _ranges(idx) -> str:
-    """``[0, 1, 2, 5]`` -> ``"segments 0-2, 5"``."""
-    idx = sorted(idx)
-    # runs of consecutive indices: constant index - position within each
-    runs = [[i for _, i in g] for _, g in itertools.groupby(enumerate(idx), lambda ki: ki[1] - ki[0])]
-    parts = [f"{r[0]}" if len(r) == 1 else f"{r[0]}-{r[-1]}" for r in runs]
-    word = "segment" if len(idx) == 1 else "segments"
-    return f"{word} {', '.join(parts)}"
 
 
 def _fmt(x: float) -> str:

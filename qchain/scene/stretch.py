@@ -6,6 +6,7 @@ the docstring of :mod:`qchain.scene.scene` says what the estimate covers and wha
 
 from __future__ import annotations
 
+import itertools
 import math
 from dataclasses import dataclass, replace
 
@@ -74,14 +75,22 @@ def _common_mode_varies(P: np.ndarray, n: int) -> list[int]:
     return [j for j in range(n) if np.ptp(mean[:, j]) > 1e-9 * scale]
 
 
+def _ranges(idx) -> str:
+    """``[0, 1, 2, 5]`` -> ``"segments 0-2, 5"``."""
+    idx = sorted(idx)
+    # runs of consecutive indices: constant index - position within each
+    runs = [[i for _, i in g] for _, g in itertools.groupby(enumerate(idx), lambda ki: ki[1] - ki[0])]
+    parts = [f"{r[0]}" if len(r) == 1 else f"{r[0]}-{r[-1]}" for r in runs]
+    word = "segment" if len(idx) == 1 else "segments"
+    return f"{word} {', '.join(parts)}"
+
+
 class StretchEstimate:
     """The inextensible reduction's checks and estimate (a base class of
     :class:`~qchain.scene.model.ModelBuilder`; see the module docstring)."""
 
     def inextensible_obstacle(self, controlled: bool = False) -> str | None:
         """Why ``l`` may not be locked automatically whatever the estimate says, or None."""
-        from .model import _ranges
-
         if controlled:
             return "the pressures come from a controller (their common mode, which stretches the arm, is unknown)"
         free = [j for j, s in enumerate(self.segments) if s.extensible]
