@@ -17,6 +17,15 @@ the full model's stability limit), wall per simulated second, and the largest ti
 between the models (what the reduction changes: nothing for ``planar``, the axial stretch
 for ``inextensible``).
 
+Work-precision (``reduced_precision.csv``, ``reduced_precision.png``): each model with
+``radau5`` over a ladder of tolerances, CPU time per simulated second (median of interleaved
+repeats) against the largest tip error over the second, all against one reference, the full
+extensible model at rtol 1e-10 (one line a model). The planar model is exact here (the
+scene is symmetric), so it meets the full model's errors; the inextensible one levels off at
+what locking ``l`` changes. A scene file of this rod (``benchmarks/bench_reduced.py``'s
+``SCENE``) says which model a plain run builds, and why, at the default
+``model.length_tolerance`` and at 2 mm.
+
 Run: ``python benchmarks/bench_reduced.py [--quick] [--out DIR]``
 """
 
@@ -34,6 +43,26 @@ from qchain.sim.simulation import simulate
 
 ROD = dict(L=0.2, r=0.02, rho=1000.0, E=5e5, g=9.81)
 N = 10
+MODELS = {"full": (False, True), "planar": (True, True), "planar, inextensible": (True, False)}
+RTOLS = (1e-1, 3e-2, 1e-2, 1e-3, 1e-4, 1e-5, 1e-6)
+#: the rod as a scene file (the model a plain ``qchain run`` of it builds)
+SCENE = f"""
+name = "cantilever release"
+[[segments]]
+count = {N}
+length = {ROD["L"] / N!r}
+radius = {ROD["r"]!r}
+mass = {ROD["rho"] * np.pi * ROD["r"] ** 2 * ROD["L"] / N!r}
+chamber_area = 1e-6
+chamber_radius = 0.005
+youngs_modulus = {ROD["E"]!r}
+[base]
+rpy = [0, 1.5707963267948966, 0]
+[simulation]
+duration = 1.0
+[output]
+save = false
+"""
 
 
 def rod(planar: bool, extensible: bool, n: int = N) -> Chain:
@@ -117,7 +146,96 @@ def run(quick: bool = False, out_dir: Path = Path("out/bench")) -> list[dict]:
             print(f"{name:>22} {ch.nv_active:5d} {us[name]:8.2f} {pin_us:11.2f} {us[name] / pin_us:6.2f} {method:>8} "
                   f"{row['wall_per_sim_s'] * 1e3:9.2f} {dist:15.2e}", flush=True)
     _study.write_csv(rows, out_dir / "reduced.csv")
+    return rows + work_precision(quick, out_dir)
+
+
+def scene_models() -> list[str]:
+    """What the rod's scene builds at the default ``model.length_tolerance`` and at 2 mm."""
+    from dataclasses import replace
+
+    from qchain.scene import parse_scene
+
+    sc = parse_scene(SCENE)
+    out = []
+    for tol in (sc.length_tolerance, 2e-3):
+        m = replace(sc, length_tolerance=tol).build()
+        out += [f"length_tolerance {tol * 1e3:g} mm: {m.chain.nv_active} free; {r}" for r in m.reductions + m.kept
+                if r.startswith(("planar", "inextensible"))]
+    return out
+
+
+def work_precision(quick: bool = False, out_dir: Path = Path("out/bench")) -> list[dict]:
+    """CPU time per simulated second against the largest tip error over the run, each model
+    with radau5 over :data:`RTOLS`, against the full model at rtol 1e-10."""
+    T = 0.3 if quick else 1.0
+    reps = 1 if quick else 3
+    rtols = RTOLS[:4] if quick else RTOLS
+    t_eval = np.linspace(0.0, T, int(round(T / 0.002)) + 1)
+    models = {name: rod(*flags) for name, flags in MODELS.items()}
+
+    def sim(ch, rtol):
+        return simulate(ch, ch.neutral(), np.zeros(ch.nv), (0.0, T), method="radau5", rtol=rtol, atol=rtol * 1e-2,
+                        t_eval=t_eval, energies=False)
+
+    def tips(ch, tr):
+        return ch.frames_batch(tr.q, 2, t=tr.t).translation[:, -1]
+
+    ref_ch = models["full"]
+    ref = tips(ref_ch, sim(ref_ch, 1e-10))
+    cpu = {(name, r): [] for name in models for r in rtols}
+    err = {}
+    for name, ch in models.items():  # compiled or loaded, once
+        sim(ch, rtols[0])
+    for _ in range(reps):
+        for name, ch in models.items():
+            for r in rtols:
+                t0 = time.process_time()
+                tr = sim(ch, r)
+                cpu[name, r].append(time.process_time() - t0)
+                err[name, r] = float(np.max(np.linalg.norm(tips(ch, tr) - ref, axis=1))) if tr.success else np.nan
+    rows = []
+    print(f"\nwork-precision: radau5, {T:g} s, tip error against the full model at rtol 1e-10; CPU medians of {reps}")
+    print(f"{'model':>22} {'free':>5} {'rtol':>7} {'ms/sim s':>9} {'tip err mm':>11}")
+    for name, ch in models.items():
+        for r in rtols:
+            c = float(np.median(cpu[name, r])) / T
+            rows.append(dict(model=name, free=ch.nv_active, rtol=r, cpu_per_sim_s=c, tip_error_m=err[name, r]))
+            print(f"{name:>22} {ch.nv_active:5d} {r:7.0e} {c * 1e3:9.2f} {err[name, r] * 1e3:11.4f}")
+    for line in scene_models():
+        print("scene: " + line)
+    _study.write_csv(rows, out_dir / "reduced_precision.csv")
+    plot(rows, out_dir / "reduced_precision.png")
     return rows
+
+
+def plot(rows: list[dict], path: Path) -> None:
+    """Cost per simulated second against tip error, one line a model (rtol labelled)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7.0, 4.6))
+    for name, marker in zip(MODELS, "osD"):
+        rs = [r for r in rows if r["model"] == name and np.isfinite(r["tip_error_m"])]
+        x = [r["tip_error_m"] * 1e3 for r in rs]
+        y = [r["cpu_per_sim_s"] * 1e3 for r in rs]
+        ax.plot(x, y, marker=marker, label=f"{name} ({int(rs[0]['free'])} free)")
+        for r, xi, yi in zip(rs, x, y):
+            ax.annotate(f"{r['rtol']:.0e}", (xi, yi), textcoords="offset points", xytext=(4, 3), fontsize=7)
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.set_xlabel("largest tip error over the run (mm), against the full model at rtol 1e-10")
+    ax.set_ylabel("CPU ms per simulated second")
+    ax.set_title("Cantilever release, n = 10, radau5: full and reduced models")
+    _study.threshold(ax, 1.0, "1 mm")
+    ax.legend(fontsize=8)
+    ax.grid(True, which="both", alpha=0.3)
+    _study.save(fig, path)
+
+
+def replot(csv_path: Path, png_path: Path) -> None:
+    plot(_study.read_csv(csv_path), png_path)
 
 
 def main(argv=None):

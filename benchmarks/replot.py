@@ -22,6 +22,7 @@ CHARTS = {
     "static_cantilever": ("bench_static", "plot"),
     "scaling": ("bench_chain", None),
     "stability_map": ("stability_map", "replot"),
+    "reduced_precision": ("bench_reduced", "replot"),
 }
 
 

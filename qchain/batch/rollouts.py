@@ -23,7 +23,7 @@ from ..arm.chain import Chain
 from ..checks import bounds as _bounds
 from ..checks.convert import as_bool, as_real_array
 from ..errors import QchainError, RolloutError
-from ..sim.inputs import Schedule, as_input
+from ..sim.inputs import BUILT_IN, Schedule, as_input
 from ..sim.budget import Budget, as_budget
 from ..sim.simulation import (
     COMPILED, DEFAULT_METHOD, FIXED_STEP, Event, Runs, _check_start, check_run, check_settings, run_cost_of, simulate)
@@ -169,9 +169,10 @@ def _batch_size(sizes: dict[str, int]) -> int:
 
 
 def _as_item(u, what: str):
-    """A rollout's input as it travels: None, an array, or pickled (a schedule or a
+    """A rollout's input as it travels: None, an array, one of qchain's schedules (immutable:
+    shared, not copied), an empty list of events, or pickled (any other schedule or a
     controller: each rollout unpickles its own copy, so none sees another's state)."""
-    if u is None or isinstance(u, np.ndarray):
+    if u is None or isinstance(u, np.ndarray) or type(u) in BUILT_IN or (type(u) is list and not u):
         return u
     return dumps(u, what)
 
@@ -231,7 +232,8 @@ def _rollouts(shared: _Shared, items: list) -> list:
         w0 = time.perf_counter()
         try:
             tr = runs.run(q0, v0, pressure=kw["pressure"], tau=kw["tau"], events=kw["events"],
-                          start_finite=shared.starts_finite is not None and bool(shared.starts_finite[i]))
+                          start_finite=shared.starts_finite is not None and bool(shared.starts_finite[i]),
+                          inputs_checked=True)  # by simulate_batch (_batched_input), every rollout's
         except Exception as err:
             raise RolloutError(i, f"{type(err).__name__}: {err}") from err
         wall = time.perf_counter() - w0

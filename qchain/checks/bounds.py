@@ -17,7 +17,7 @@ from .convert import as_real, describe_value
 __all__ = ["Range", "LENGTH", "RADIUS", "MASS", "CHAMBER_AREA", "CHAMBER_RADIUS", "YOUNGS_MODULUS", "DAMPING", "NODES",
            "GRAVITY", "POSITION", "ANGLE", "PSI", "VELOCITY", "ANGULAR_VELOCITY", "RATE", "DIRECTION", "AMPLITUDE",
            "FREQUENCY", "PRESSURE", "PRESSURE_AMPLITUDE", "TIME", "DURATION", "STEP", "RTOL", "ATOL", "SAMPLE_RATE",
-           "NODE_TOLERANCE", "MAX_BEND", "WALL_LIMIT", "VACUUM_GAUGE", "SEGMENT_COUNT", "WORKERS", "RETRIES",
+           "NODE_TOLERANCE", "MAX_BEND", "LENGTH_TOLERANCE", "WALL_LIMIT", "VACUUM_GAUGE", "SEGMENT_COUNT", "WORKERS", "RETRIES",
            "EXTENT", "CONTACT_STIFFNESS", "CONTACT_EXPONENT", "CONTACT_DAMPING", "FRICTION", "SLIP_VELOCITY",
            "RESTITUTION", "IMPACT_SPEED", "CONTACT_NODES"]
 
@@ -174,6 +174,7 @@ ATOL = Range(1e-20, 1e3)  #: absolute tolerance (units of each state entry)
 SAMPLE_RATE = Range(0.0, 1e9, "Hz", low_open=True)  #: output samples a second
 NODE_TOLERANCE = Range(0.0, 1.0, low_open=True, high_open=True)  #: relative M_xi accuracy
 MAX_BEND = Range(0.0, 1e3, "rad")  #: the bend the node count is sized for
+LENGTH_TOLERANCE = Range(0.0, 1e3, "m", low_open=True)  #: tip change the inextensible reduction may make
 WALL_LIMIT = Range(0.0, 1e9, "s", low_open=True)  #: wall-clock limit of a run
 
 SEGMENT_COUNT = Range(1, 10**6, integer=True)  #: segments of a chain (a workspace's n)

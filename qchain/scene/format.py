@@ -74,11 +74,14 @@ TOP = KeyTable("", "The top level of the file.", (
 ))
 
 MODEL = KeyTable("model", "How the model is built (\"Model reduction\" in `qchain/scene/scene.py`).", (
-    Field("reduce", "boolean", "Automatic reductions (planar, node count) on.", default="true"),
+    Field("reduce", "boolean", "Automatic reductions (planar, inextensible, node count) on.", default="true"),
     Field("node_tolerance", "number", "Relative `M_xi` accuracy the node count of each segment is sized for.",
           B.NODE_TOLERANCE, default="none: `nodes` or the default node count"),
     Field("max_bend", "number", "The bend (rad) the node count is sized for; needs `node_tolerance`.", B.MAX_BEND,
           default="estimated from the static bends under the peak pressures"),
+    Field("length_tolerance", "number", "Tip change (m) the automatic inextensible reduction may make: `l` is "
+          "locked at `l0` in every segment where the estimated change is within it.", B.LENGTH_TOLERANCE,
+          default="1e-4"),
 ))
 
 SEGMENT = KeyTable("segments[]", "One table a segment, base to tip: `[[segments]]`.", (

@@ -5,9 +5,8 @@ scene, and what it dropped and why (:class:`SceneModel`; "Model reduction" in th
 from __future__ import annotations
 
 import functools
-import itertools
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import pinocchio as pin
@@ -16,7 +15,9 @@ from ..arm.chain import Chain
 from ..sim.inputs import Schedule
 from ..checks.text import show_vector
 from ..model.segment import CHAMBER_ANGLES, DEFAULT_NODES, nodes_for_tolerance
+from .cost import _frequency
 from .payload import payload_asymmetry
+from .stretch import AXIAL_SEPARATION, STRETCH_MARGIN, StretchEstimate, _ranges
 
 __all__ = ["SceneModel", "ModelBuilder", "BEND_MARGIN", "BEND_SAMPLES"]
 
@@ -58,16 +59,6 @@ class SceneModel:
     reductions: list[str]
     kept: list[str]
     reduced: bool
-
-
-def _ranges(idx) -> str:
-    """``[0, 1, 2, 5]`` -> ``"segments 0-2, 5"``."""
-    idx = sorted(idx)
-    # runs of consecutive indices: constant index - position within each
-    runs = [[i for _, i in g] for _, g in itertools.groupby(enumerate(idx), lambda ki: ki[1] - ki[0])]
-    parts = [f"{r[0]}" if len(r) == 1 else f"{r[0]}-{r[-1]}" for r in runs]
-    word = "segment" if len(idx) == 1 else "segments"
-    return f"{word} {', '.join(parts)}"
 
 
 def _fmt(x: float) -> str:
@@ -113,7 +104,7 @@ def _chambers_2_3_differ(spec: dict, n: int) -> str | None:
     return None if not bad else f"pressure: the sines of chambers 2 and 3 differ in {_ranges(bad)}"
 
 
-class ModelBuilder:
+class ModelBuilder(StretchEstimate):
     """Model building and reduction of :class:`~qchain.scene.Scene` (its base class; see the
     module docstring)."""
 
@@ -143,9 +134,13 @@ class ModelBuilder:
         else:
             kept.append(f"planar: not applicable: {why_not}")
         self._start_compiling(planar, controlled)
+        lock, note = self._inextensible(reduce, planar, controlled)
+        if note:
+            (reductions if lock else kept).append(note)
         nodes, max_bend, note = self._nodes(reduce, planar)
         (reductions if max_bend is not None else kept).append(note)  # sized from node_tolerance, or not
-        segs = [s.segment(nodes=k) for s, k in zip(self.segments, nodes)]
+        specs = [replace(s, extensible=False) if lock else s for s in self.segments]
+        segs = [s.segment(nodes=k) for s, k in zip(specs, nodes)]
         chain = self._chain(segs, planar)
         q0, v0 = self._initial_state(chain)
         # the start state's energies, which a run checks first (its kernels load here, with
@@ -154,6 +149,34 @@ class ModelBuilder:
         chain.potential_energy(q0)
         return SceneModel(chain=chain, q0=q0, v0=v0, pressure=self.pressure, nodes=nodes, max_bend=max_bend,
                           reductions=reductions, kept=kept, reduced=reduce)
+
+    def _inextensible(self, reduce: bool, planar: bool, controlled: bool) -> tuple[bool, str]:
+        """Whether to lock every segment's ``l`` at ``l0`` (the automatic inextensible
+        reduction), and the note saying why or why not ("" when every segment is locked by
+        the file already)."""
+        if all(not s.extensible for s in self.segments):
+            return False, ""
+        if not reduce:
+            return False, "inextensible: not tried (reduce = false)"
+        why_not = self.inextensible_obstacle(controlled)
+        if why_not is not None:
+            return False, f"inextensible: not applicable: {why_not}"
+        est = self.estimate_stretch(planar)
+        if isinstance(est, str):
+            return False, f"inextensible: not applicable: the stretch could not be estimated: {est}"
+        f_in = _frequency(self.pressure_spec, self.base)
+        if est.axial_frequency < AXIAL_SEPARATION * f_in:
+            return False, (f"inextensible: not applicable: the slowest axial mode ({_fmt(est.axial_frequency)} Hz) is "
+                           f"within {AXIAL_SEPARATION:g}x of the inputs' {_fmt(f_in)} Hz")
+        tol = self.length_tolerance
+        how = (f"estimated tip change {_fmt(est.tip * 1e3)} mm = {STRETCH_MARGIN:g} x static "
+               f"{_fmt(est.shape / STRETCH_MARGIN * 1e3)} mm + drift {_fmt(est.drift * 1e3)} mm over {self.duration:g} s "
+               f"(axial strain {_fmt(est.strain)}, bend {_fmt(est.bend_frequency)} Hz, axial "
+               f"{_fmt(est.axial_frequency)} Hz)")
+        if est.tip > tol:
+            return False, f"inextensible: not applicable: {how} > length_tolerance = {_fmt(tol * 1e3)} mm"
+        return True, (f"inextensible: l locked at l0 in every segment, axial mode dropped: {how} <= length_tolerance "
+                      f"= {_fmt(tol * 1e3)} mm")
 
     def _start_compiling(self, planar: bool, controlled: bool) -> None:
         """On a cold cache, set the engine's compile going in worker processes while the model
@@ -324,6 +347,18 @@ class ModelBuilder:
         n = self.n
         if self.pressure is None:
             return [np.zeros(3 * n)]
+        P = np.array([self.pressure(t) for t in self._pressure_times()])
+        c = np.exp(1j * np.asarray(CHAMBER_ANGLES))
+        drive = np.abs(P.reshape(len(P), n, 3) @ c)  # (K, n): bending drive per segment (arbitrary units)
+        pick = set(int(k) for k in np.argmax(drive, axis=0))
+        pick.add(int(np.argmax(drive.sum(axis=1))))
+        pick.add(int(np.argmin(drive.sum(axis=1))))
+        return [P[k] for k in sorted(pick)]
+
+    def _pressure_times(self) -> list[float]:
+        """Times (s) at which the pressure schedule is scanned: ``BEND_SAMPLES`` even samples
+        of the run and the schedule's corner times (a sine's extremes)."""
+        n = self.n
         T = self.duration
         times = list(np.linspace(0.0, T, BEND_SAMPLES))
         spec = self.pressure_spec
@@ -342,10 +377,4 @@ class ModelBuilder:
                     for target in (0.25, 0.75):
                         t0 = ((target - ph[k] / (2 * math.pi)) % 1.0) * period
                         times += list(np.arange(t0, T, period)[:64])
-        P = np.array([self.pressure(t) for t in sorted(set(times))])
-        c = np.exp(1j * np.asarray(CHAMBER_ANGLES))
-        drive = np.abs(P.reshape(len(P), n, 3) @ c)  # (K, n): bending drive per segment (arbitrary units)
-        pick = set(int(k) for k in np.argmax(drive, axis=0))
-        pick.add(int(np.argmax(drive.sum(axis=1))))
-        pick.add(int(np.argmin(drive.sum(axis=1))))
-        return [P[k] for k in sorted(pick)]
+        return sorted(set(times))

@@ -27,6 +27,7 @@ from .cost import _cost, _frequency
 from ..checks.text import show_vector
 from .parts import BaseSpec, SegmentSpec, SineMotion
 from .payload import read_payload
+from .stretch import DEFAULT_LENGTH_TOLERANCE
 from .surroundings import read_surroundings
 from ..model.segment import Segment
 from ..sim.simulation import DEFAULT_METHOD, FIXED_STEP, METHODS  # a scene may name any method, without case
@@ -135,6 +136,7 @@ def parse_scene(text: str, path: str | os.PathLike | None = None) -> Scene:
     reduce = ck.field(mt, F.MODEL["reduce"], "model.reduce", True)
     node_tol = ck.field(mt, F.MODEL["node_tolerance"], "model.node_tolerance")
     max_bend = ck.field(mt, F.MODEL["max_bend"], "model.max_bend")
+    length_tol = ck.field(mt, F.MODEL["length_tolerance"], "model.length_tolerance", DEFAULT_LENGTH_TOLERANCE)
     if "max_bend" in mt and "node_tolerance" not in mt:
         ck.add("model.max_bend", "model.node_tolerance beside it (max_bend only sizes the node count)",
                "max_bend without node_tolerance")
@@ -206,6 +208,7 @@ def parse_scene(text: str, path: str | os.PathLike | None = None) -> Scene:
         v_e0=v_e0, duration=duration, method=method, rtol=rtol, atol=atol, dt=dt, max_step=max_step,
         reduce=reduce, node_tolerance=node_tol, max_bend=max_bend, sample_rate=rate, output_folder=Path(folder),
         plots=tuple(dict.fromkeys(plots)), save=save, budget=budget, surroundings=surroundings, payload=payload,
+        length_tolerance=length_tol,
     )
     bad = scene.start_problems()  # the arm at its start, inside an obstacle: needs the whole scene
     if bad:

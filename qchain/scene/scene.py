@@ -19,6 +19,26 @@ own setting); ``SceneModel.kept`` says which reductions did not apply and why no
 
 * ``extensible = false`` (the file's choice, applied with or without ``reduce``): ``l`` is
   held at ``l0`` and the axial mode, the stiffest, is dropped.
+* inextensible (automatic, :mod:`qchain.scene.stretch`): ``l`` is held at ``l0`` in every
+  segment when the estimated tip change of doing so is within ``model.length_tolerance``
+  (m, default 1e-4). Not tried when the pressures actuate elongation (the mean chamber
+  pressure of a segment changes during the run: the axial mode is then the motion), when
+  they come from a controller, with obstacles (impacts load the axial mode), when a
+  segment starts with ``l != l0`` or a length rate, or when the slowest axial mode lies
+  within ``AXIAL_SEPARATION`` (3) times the fastest sine input. The estimate is
+  ``shape + drift``: ``shape`` is ``STRETCH_MARGIN`` (2, a suddenly applied load's
+  overshoot) times the largest tip distance between the extensible and the locked static
+  shapes, solved under the conditions and peak pressures of the bend estimate below (point
+  loads included); ``drift`` is the phase the slowest bending mode (``omega_1``, the arm at
+  rest) gains over the run when the segments are ``2 e`` longer, ``A omega_1 T DRIFT_RATE
+  2 e`` (``e`` the largest static axial strain, ``A`` the largest tip excursion from the
+  start to a static shape, plus the arm's length times the bend the initial kinetic energy
+  could store, ``T`` the file's duration; at most ``2 A``). It is an estimate, not a bound:
+  ``DRIFT_RATE`` (2) is set from the cantilever release, where the two models' tips drift
+  apart by about 1.8 x ``2 e`` in phase (the arm's own swinging tension shifts the
+  frequency beyond the ``1.5 e`` of a longer segment); damping, which the estimate ignores,
+  makes it pessimistic. tests/test_scene_stretch.py checks it against the full model's tip on
+  runs of the cantilever.
 * planar (automatic): ``uy`` is held at 0 in every segment when the scene is symmetric
   about the base's x-z plane, where the reduction is exact: every segment in curvature
   coordinates; gravity in that plane (expressed in the base frame at the start); chambers
@@ -49,7 +69,8 @@ own setting); ``SceneModel.kept`` says which reductions did not apply and why no
   :data:`qchain.model.segment.DEFAULT_NODES`.
 
 ``model.reduce = false`` (or ``Scene.build(reduce=False)``) turns the automatic reductions
-off: same layout, all coordinates free, the default node count, for comparison.
+off: same layout, all coordinates free (but those of ``extensible = false`` segments), the
+default node count, for comparison.
 """
 
 from __future__ import annotations
@@ -73,6 +94,7 @@ from .model import BEND_MARGIN, BEND_SAMPLES, ModelBuilder, SceneModel, _list_or
 from ..checks.text import show_vector
 from .parts import BaseSpec, SegmentSpec, SineMotion
 from .payload import describe_payload
+from .stretch import DEFAULT_LENGTH_TOLERANCE
 from .surroundings import Surroundings
 from .cost import _cost, _frequency
 from ..sim.simulation import COMPILED, FIXED_STEP, METHODS, explicit_stability_limit, simulate
@@ -116,6 +138,8 @@ class Scene(ModelBuilder):
     max_step : float, s (``inf`` when not given)
     reduce : bool
     node_tolerance, max_bend : float or None
+    length_tolerance : float, m
+        Tip change the automatic inextensible reduction may make (``model.length_tolerance``).
     sample_rate : float, Hz
     output_folder : Path
     plots : tuple of str
@@ -156,6 +180,7 @@ class Scene(ModelBuilder):
     budget: Budget = field(default_factory=Budget)
     surroundings: Surroundings = field(default_factory=Surroundings)
     payload: pin.Inertia | None = None
+    length_tolerance: float = DEFAULT_LENGTH_TOLERANCE
 
     @property
     def environment(self):

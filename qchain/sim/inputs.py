@@ -21,7 +21,7 @@ from ..checks.bounds import ANGLE, FORCE, FREQUENCY, PRESSURE, TIME, Range, chec
 from ..checks.convert import as_real_array, as_vector
 from ..checks.frozen import KeepsReadOnly
 
-__all__ = ["Schedule", "Constant", "Step", "Ramp", "Sine", "Table", "as_input", "input_range", "FORCE", "SineMotion"]
+__all__ = ["Schedule", "Constant", "Step", "Ramp", "Sine", "Table", "BUILT_IN", "as_input", "input_range", "FORCE", "SineMotion"]
 
 _RANGES = {"pressure": PRESSURE, "tau": FORCE}
 
@@ -221,6 +221,11 @@ class Table(Schedule):
 
     def extent(self):
         return self.values.min(axis=0), self.values.max(axis=0)
+
+
+#: qchain's own schedules: frozen, their arrays read-only (runs may share one), their values
+#: bounded by :meth:`Schedule.extent`
+BUILT_IN = (Constant, Step, Ramp, Sine, Table)
 
 
 def input_range(name: str) -> Range | None:

@@ -22,7 +22,7 @@ from ..arm.chain import Chain
 from . import python_backend
 from .engine import driver, system
 from ..checks.convert import as_bool, as_real, as_real_array, as_vector, check_callable, describe_value
-from .inputs import Schedule, _copy, as_input
+from .inputs import BUILT_IN, Schedule, _copy, as_input
 from .trajectory import Trajectory
 
 __all__ = ["simulate", "Runs", "METHODS", "FIXED_STEP", "COMPILED", "DEFAULT_METHOD", "Event"]
@@ -364,7 +364,8 @@ class Runs:
     def __init__(self, chain: Chain, t_span: tuple[float, float], *, method: str, budget: Budget, **settings):
         t0, t1 = t_span
         self.template = _Run(chain=chain, q0=None, v0=None, t0=t0, t1=t1, method=method, pressure=None, tau=None,
-                             on_sample=None, budget=budget, progress=False, events=[], **settings)
+                             on_sample=None, budget=budget, progress=False, events=[], batch=driver.Batch(),
+                             **settings)
         # the inputs are packed at each run, into this model of the chain (None: the Python backend serves it)
         self.base = system.pack(chain, None, None) if method in COMPILED else None
 
@@ -386,18 +387,20 @@ class Runs:
                               np.ascontiguousarray(V, dtype=float), ke, pe)
         return np.isfinite(ke) & np.isfinite(pe)
 
-    def run(self, q0: np.ndarray, v0: np.ndarray, *, pressure=None, tau=None, events=(), start_finite: bool = False
-            ) -> Trajectory:
+    def run(self, q0: np.ndarray, v0: np.ndarray, *, pressure=None, tau=None, events=(), start_finite: bool = False,
+            inputs_checked: bool = False) -> Trajectory:
         """:func:`simulate` from ``(q0 (nq,), v0 (nv,))``, a start checked without its energies
         (:func:`_check_start` with ``energies=False``: float arrays), with these inputs and
         ``events`` (fresh: a run's inputs and events are its own). ``start_finite``: its
         energies are known finite (:meth:`starts_finite`); otherwise they are checked here,
-        in Python, as :func:`simulate` does."""
+        in Python, as :func:`simulate` does. ``inputs_checked``: the caller checked the
+        inputs (:func:`qchain.sim.inputs.as_input`), so schedules of
+        :data:`qchain.sim.inputs.BUILT_IN` are not checked again."""
         tpl = self.template
         if not start_finite:
             _check_start(tpl.chain, q0, v0, tpl.t0)
         run = dataclasses.replace(tpl, q0=q0, v0=v0, pressure=pressure, tau=tau, events=list(events), held=[])
-        return _execute(_with_inputs(run), self.base)
+        return _execute(_with_inputs(run, inputs_checked), self.base)
 
 
 def _note_contact_steps(run: _Run, traj: Trajectory) -> None:
@@ -481,6 +484,8 @@ class _Run:
     P_in: Callable | None = None
     T_in: Callable | None = None
     held: list = field(default_factory=list)
+    #: what the runs of a batch share on the compiled engine (:class:`Runs`), or None
+    batch: driver.Batch | None = None
 
     def cost(self, stable_step: float | None = None):
         """The run's :class:`qchain.sim.budget.Cost` (:func:`run_cost_of`), with an explicit
@@ -504,12 +509,14 @@ def _check_arguments(chain, q0, v0, t_span, *, pressure, tau, method, budget, on
     return _with_inputs(run)
 
 
-def _with_inputs(run: _Run) -> _Run:
-    """``run`` with its inputs as functions (``P_in``, ``T_in``, ``held``), checked, and an
+def _with_inputs(run: _Run, checked: bool = False) -> _Run:
+    """``run`` with its inputs as functions (``P_in``, ``T_in``, ``held``), checked (but
+    :data:`qchain.sim.inputs.BUILT_IN` schedules where the caller ``checked`` them), and an
     explicit method's stability limit at its start against its budget (the rest of its cost
     checked)."""
     chain, method, pressure, tau, q0, v0, t0 = run.chain, run.method, run.pressure, run.tau, run.q0, run.v0, run.t0
-    run.P_in, run.T_in = as_input("pressure", pressure, chain.nu), as_input("tau", tau, chain.nv)  # checked here
+    run.P_in, run.T_in = (_input_function(name, u, size, checked) for name, u, size in  # checked here
+                          (("pressure", pressure, chain.nu), ("tau", tau, chain.nv)))
     if method in driver.EXPLICIT_STABILITY_EXTENT:  # a stiff model: refused before hours of tiny steps
         run.budget.check(run.cost(explicit_stability_limit(chain, method, q0, v0, t0, pressure, tau)))
     if run.controller_rate is not None:
@@ -519,6 +526,14 @@ def _with_inputs(run: _Run) -> _Run:
         if not run.held:
             raise ValueError("controller_rate is given but neither pressure nor tau is a controller (t, q, v) -> array")
     return run
+
+
+def _input_function(name: str, u, size: int, checked: bool) -> Callable:
+    """:func:`as_input`, or, for a built-in schedule the caller ``checked`` (its size and its
+    extent within bounds), the same function without checking it again."""
+    if checked and type(u) in BUILT_IN:
+        return lambda t, q, v: u(t)
+    return as_input(name, u, size)
 
 
 def _check_start(chain: Chain, q0, v0, t0: float, names=("q0", "v0"), energies: bool = True
@@ -605,7 +620,7 @@ def _run_compiled(run: _Run, m, bar: _Progress, deadline: float | None) -> Traje
                           first_step=run.first_step, energies=run.energies, deadline=deadline,
                           controllers=controllers, controller_rate=run.controller_rate,
                           inputs=lambda t, q, v: (p_of(t, q, v), tau_of(t, q, v)),
-                          max_total_steps=run.budget.max_steps)
+                          max_total_steps=run.budget.max_steps, batch=run.batch)
     except driver.Interrupted as err:
         bar.close(err.trajectory.t[-1] if len(err.trajectory.t) else run.t0)
         raise

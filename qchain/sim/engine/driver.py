@@ -79,6 +79,28 @@ class _Outputs:
             setattr(self, name, b)
 
 
+class Batch:
+    """What the runs of a batch share (:class:`qchain.sim.simulation.Runs`, on any number of
+    threads): the engine :func:`warmup.prepare` made ready for one of them, reused by every
+    later run whose inputs have the same types (the rest of a batch's arguments are made
+    alike by the same code: the chain's packed model, the workspaces, the outputs on one
+    grid), so the argument types are fingerprinted once a batch, not once a run; and the
+    stretch size (steps a compiled call) the last run reached, where the next one starts
+    instead of at one step. Neither changes a result: the stepper's state lives in its
+    arrays, whatever the stretches."""
+
+    def __init__(self):
+        #: (the inputs' fingerprint, callbacks, compiled stepper), set as one tuple: threads read it
+        self.ready: tuple | None = None
+        self.stretch = 1
+
+
+def _inputs_fingerprint(m) -> tuple:
+    """The types of the packed model's input arrays, the fields :func:`system.with_inputs`
+    replaces run by run."""
+    return tuple((a.dtype.num, a.ndim, a.flags.num) for a in (m.p_ints, m.p_params, m.tau_ints, m.tau_params))
+
+
 def run(*args, **kw) -> Trajectory:
     """:func:`_run`, with numba's warning that first-class functions are experimental (which it
     gives at every call of the engine) silenced for the run: not the user's concern, and a
@@ -89,13 +111,14 @@ def run(*args, **kw) -> Trajectory:
 
 def _run(chain, m, method, q0, v0, t0, t1, *, dt, rtol, atol, t_eval, on_sample, pass_energies, events, bar,
          max_step, first_step, energies, deadline, controllers, controller_rate, inputs,
-         max_total_steps: int | None = None) -> Trajectory:
+         max_total_steps: int | None = None, batch: Batch | None = None) -> Trajectory:
     """Integrate from ``(q0, v0)`` at ``t0`` to ``t1`` on the compiled engine (arguments as
     :func:`qchain.simulate`'s, validated there; ``m`` from :func:`system.pack`;
     ``controllers``: ``[(callable (t, q, v) -> (size,), params array to hold it in)]``;
     ``inputs``: ``(t, q, v) -> (p, tau)`` in Python, for the samples Python writes (the first,
     one at a controller instant or a terminal event) and the stability limit);
-    ``max_total_steps``: the budget's ``max_steps`` (docs/simulation.md)."""
+    ``max_total_steps``: the budget's ``max_steps`` (docs/simulation.md); ``batch``: what the
+    runs of a batch share (:class:`Batch`)."""
     idx = m.idx
     nA = idx.size
     c = steppers.constants(method)
@@ -119,7 +142,15 @@ def _run(chain, m, method, q0, v0, t0, t1, *, dt, rtol, atol, t_eval, on_sample,
     if out.every:
         cnt[steppers.EVERY] = 1
     t_prep = _time.perf_counter()
-    fs, advance = warmup.prepare(method, m, wk, it, out.arrays, c, energies=on_sample is not None and pass_energies)
+    sample_energies = on_sample is not None and pass_energies
+    ready = batch.ready if batch is not None and not sample_energies else None
+    fp = None if batch is None else _inputs_fingerprint(m)
+    if ready is not None and ready[0] == fp:
+        fs, advance = ready[1:]
+    else:
+        fs, advance = warmup.prepare(method, m, wk, it, out.arrays, c, energies=sample_energies)
+        if batch is not None:
+            batch.ready = fp, fs, advance
     compile_s = _time.perf_counter() - t_prep
     hold_times = _hold_times(controllers, controller_rate, t0, t1)
     n_hold = 0
@@ -144,7 +175,8 @@ def _run(chain, m, method, q0, v0, t0, t1, *, dt, rtol, atol, t_eval, on_sample,
     g_prev = [e(t0, q0, v0) for e in events]
     emitted = 0
     stop = getattr(_thread, "stop", None)
-    max_steps = 1  # grows by 4x a stretch to STRETCH s: a costly step (a large implicit model) is felt at once
+    # grows by 4x a stretch to STRETCH s: a costly step (a large implicit model) is felt at once
+    max_steps = 1 if batch is None else batch.stretch
     t = t0
     if on_sample is not None and pass_energies:  # the samples' energies are needed as they come
         compile_s += warmup.prepare_energies(m, wk)
@@ -213,6 +245,8 @@ def _run(chain, m, method, q0, v0, t0, t1, *, dt, rtol, atol, t_eval, on_sample,
                            ev_log)
         traj.meta["compile_s"] = compile_s
         raise Interrupted(traj) from None
+    if batch is not None:
+        batch.stretch = max_steps
     traj = _trajectory(chain, m, wk, out, cnt, status, message, energies, method, ev_log)
     traj.meta["compile_s"] = compile_s  # compiling or loading: a caller's wall time less this is the run's
     return traj
