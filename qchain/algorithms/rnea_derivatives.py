@@ -39,7 +39,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..model.arc import arc_node, arc_node_derivatives, jit, jit_helper, jit_inline, take1, take2, take3
+from ..model.arc import arc_node, arc_node_derivatives, jit, jit_helper, jit_inline, jit_pass, take1, take2, take3
 from ..model.slices import (
     elastic_hessian_c, mass_finish, mass_node, phi_matrix, phi_transpose_force, pressure_jacobian_c, rest_damping_c,
     slice_twist)
@@ -383,7 +383,7 @@ def rnea_workspace(n, nv):
                          np.zeros((n, 3)), np.zeros(6), np.zeros((nv, nv)), np.zeros((nv, nv)), np.zeros((nv, nv)))
 
 
-@jit
+@jit_pass
 def rnea_derivatives(arr, q, qd, qdd, V0, A0, floating, g_B, ws, wd, sc):
     """Inverse dynamics and its exact derivatives, curvature coordinates.
 
@@ -721,7 +721,7 @@ def _floating_base(n, off, V0, g_B, G, Ya, Yv, Ms, M, dq, dv, Ic, WF, sc):
                 dq[ri + b, 3 + k] = acc
 
 
-@jit
+@jit_pass
 def internal_forces_derivatives(arr, q, p, dfq, dfv, sc):
     """Derivatives of the internal forces ``f = B p - D qd - dU_el/dq`` of
     :func:`qchain.algorithms.recursive.internal_forces` (material law, curvature coordinates):

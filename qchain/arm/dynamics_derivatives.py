@@ -41,6 +41,7 @@ __all__ = ["InverseDynamicsDerivatives", "ForwardDynamicsDerivatives"]
 # read-only zero here compiled a second specialisation of every kernel it reaches (aba,
 # aba_derivatives, rnea_derivatives: ~15 s of the first run's compile).
 _ZERO6 = np.zeros(6)
+_EMPTY = np.zeros(0)  # no tau on the compiled paths (one array type)
 
 
 class InverseDynamicsDerivatives(NamedTuple):
