@@ -22,9 +22,8 @@ from .arrays import AbaDerivativesWorkspace, AbaWorkspace, ChainArrays, RneaWork
 from ..model.slices import input_matrix_c
 from .recursive import _chol as recursive_chol
 from .recursive import aba as recursive_aba
-from .recursive import aba_workspace as recursive_aba_workspace
 from .recursive import internal_forces as recursive_internal_forces
-from .rnea_derivatives import _internal_forces_derivatives, _rnea_derivatives, rnea_workspace
+from .rnea_derivatives import _internal_forces_derivatives, _rnea_derivatives
 
 __all__ = ["aba_derivatives", "aba_derivatives_workspace", "input_matrices"]
 
@@ -244,17 +243,3 @@ def _aba_derivatives_at(arr, floating, q, qd, p, qdd, A0, a, V0, g_B, ws, wd, wa
             if not (np.isfinite(da_dq[r, c]) and np.isfinite(da_dv[r, c])):
                 return 3
     return 0
-
-
-@jit
-def aba_derivatives_fresh(arr, floating, q, qd, p, tau_ext, V0, A_B, g_B):
-    """:func:`aba_derivatives` in a workspace made here (no ``Data`` given): returns
-    ``(status, a, da_dq, da_dv, da_dp, da_dtau)`` and boxes only those."""
-    arr = ChainArrays(*arr)  # a plain tuple from Python (arrays.py), named here
-    n = q.shape[0]
-    nv = (6 if floating else 0) + 3 * n
-    ws = recursive_aba_workspace(n, nv)
-    wd = rnea_workspace(n, nv)
-    wa = aba_derivatives_workspace(n, nv)
-    status = aba_derivatives(arr, floating, q, qd, p, tau_ext, V0, A_B, g_B, ws, wd, wa, ws.scratch)
-    return status, wa.a, wa.da_dq, wa.da_dv, wa.da_dp, wa.da_dtau

@@ -46,7 +46,6 @@ from ..model.slices import (
 from .arrays import AbaWorkspace, ChainArrays, RneaWorkspace
 from .recursive import _load_xi, payload_wrench
 from .recursive import _project as recursive_project
-from .recursive import aba_workspace as recursive_aba_workspace
 
 __all__ = ["segment_derivatives", "tip_derivatives", "rnea_derivatives", "rnea_workspace",
            "internal_forces_derivatives"]
@@ -748,16 +747,3 @@ def _internal_forces_derivatives(q, p, l0, EI, EA, beta, A_ch, r_ch, paper_act, 
             for b in range(3):
                 dfq[j, a, b] = Kp[a, b] - H[a, b]
                 dfv[j, a, b] = -D[a, b]
-
-
-@jit
-def rnea_derivatives_fresh(arr, q, qd, qdd, V0, A0, floating, g_B):
-    """:func:`rnea_derivatives` in a workspace made here: returns ``(tau_c, F0, dtau_dq,
-    dtau_dv, M)``."""
-    arr = ChainArrays(*arr)  # a plain tuple from Python (arrays.py), named here
-    n = q.shape[0]
-    nv = (6 if floating else 0) + 3 * n
-    ws = recursive_aba_workspace(n, nv)
-    wd = rnea_workspace(n, nv)
-    _rnea_derivatives(arr, q, qd, qdd, V0, A0, floating, g_B, ws, wd, ws.scratch)
-    return wd.tau_c, wd.F0, wd.dtau_dq, wd.dtau_dv, wd.M
