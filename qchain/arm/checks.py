@@ -183,6 +183,8 @@ class ChainChecks:
         key = threading.get_ident()
         own = self._own_data.get(key)
         if own is None:
+            if len(self._own_data) >= 64:  # threads come and go: start afresh (a call in progress holds its own)
+                self._own_data.clear()
             own = self._own_data[key] = Data(self.n, self.nv)
         return own
 
