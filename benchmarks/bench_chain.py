@@ -1,14 +1,17 @@
 """Cost of the chain's dynamics against Pinocchio's ``aba`` on a rigid chain of equal nv.
 
 For n segments (fixed base, curvature coordinates, default nodes) this prints the median
-microseconds per call of ``mass_matrix``, ``nonlinear_effects`` and ``forward_dynamics``,
-the same solved by ``crba`` + Cholesky (``M a = B p - D v - dU/dq - nle``), the median of
-``pinocchio.aba`` on a rigid chain with the same nv (RX, RY, PZ joints per
-segment carrying cylinder bodies of the same mass, radius and length), measured
-interleaved in one run, their ratio, and the accuracy bought: the relative difference of
-``forward_dynamics`` at the default node count from a 24-node reference.
+microseconds per call (CPU time of the process: the machine is shared) of ``mass_matrix``,
+``nonlinear_effects`` and ``forward_dynamics`` (checked), ``forward_dynamics`` on the unchecked
+path of integrators (``data=``, ``skip_checks=True``), the same accelerations solved by ``crba``
++ Cholesky (``M a = B p - D v - dU/dq - nle``), the median of ``pinocchio.aba`` on a rigid
+chain with the same nv (RX, RY, PZ joints per segment carrying cylinder bodies of the same
+mass, radius and length), measured interleaved in one run, the ratios of the two forward
+dynamics to ``pinocchio.aba`` (ratio of the medians, with the quartiles of the per-set ratios),
+and the accuracy bought: the relative difference of ``forward_dynamics`` at the default node
+count from a 24-node reference.
 
-Run: ``python benchmarks/bench_chain.py [--n 1 3 8 10 30] [--repeats 15] [--csv out.csv]``
+Run: ``python benchmarks/bench_chain.py [--n 1 3 8 10 30] [--nodes 4 5 6] [--repeats 15] [--csv out.csv]``
 """
 
 from __future__ import annotations
@@ -56,19 +59,22 @@ def state(ch: Chain, rng):
 
 
 def per_call_us(f, calls: int) -> float:
-    t0 = time.perf_counter()
+    """CPU microseconds per call of ``f`` over ``calls`` calls (process time: another job on the
+    shared cores does not count)."""
+    t0 = time.process_time()
     for _ in range(calls):
         f()
-    return (time.perf_counter() - t0) / calls * 1e6
+    return (time.process_time() - t0) / calls * 1e6
 
 
-def run(ns, repeats: int, calls: int):
-    rng = np.random.default_rng(0)
+def run(ns, repeats: int, calls: int, nodes=(None,)):
     rows = []
-    for n in ns:
-        ch = soft_chain(n)
+    for n, nk in [(n, nk) for n in ns for nk in nodes]:
+        rng = np.random.default_rng(n)  # one state per n, whatever the node count
+        ch = soft_chain(n, nodes=nk)
         ref = soft_chain(n, nodes=24)
         q, v, p = state(ch, rng)
+        cdata = ch.create_data()
         model = rigid_chain(n)
         data = model.createData()
         qr = pin.randomConfiguration(model, -np.ones(model.nq), np.ones(model.nq))
@@ -78,6 +84,7 @@ def run(ns, repeats: int, calls: int):
             "mass_matrix": lambda: ch.mass_matrix(q),
             "nonlinear_effects": lambda: ch.nonlinear_effects(q, v),
             "forward_dynamics": lambda: ch.forward_dynamics(q, v, p),
+            "fwd_unchecked": lambda: ch.forward_dynamics(q, v, p, data=cdata, skip_checks=True),
             "crba+cholesky": lambda: cho_solve(
                 cho_factor(ch.mass_matrix(q)), ch.internal_forces(q, v, p) - ch.nonlinear_effects(q, v)
             ),
@@ -93,8 +100,17 @@ def run(ns, repeats: int, calls: int):
         a = ch.forward_dynamics(q, v, p)
         a_ref = ref.forward_dynamics(q, v, p)
         err = float(np.linalg.norm(a - a_ref) / np.linalg.norm(a_ref))
-        rows.append(dict(n=n, nv=ch.nv, **{k + "_us": med[k] for k in fns},
-                         ratio_fd_aba=med["forward_dynamics"] / med["pin.aba"], fd_rel_err=err))
+        aba = np.array(times["pin.aba"])
+        spread = {}
+        for k in ("forward_dynamics", "fwd_unchecked"):
+            r = np.array(times[k]) / aba
+            spread[k] = (float(np.percentile(r, 25)), float(np.percentile(r, 75)))
+        rows.append(dict(n=n, nv=ch.nv, nodes=ch.segments[0].node_count, **{k + "_us": med[k] for k in fns},
+                         ratio_fd_aba=med["forward_dynamics"] / med["pin.aba"],
+                         ratio_fd_aba_q1=spread["forward_dynamics"][0], ratio_fd_aba_q3=spread["forward_dynamics"][1],
+                         ratio_fu_aba=med["fwd_unchecked"] / med["pin.aba"],
+                         ratio_fu_aba_q1=spread["fwd_unchecked"][0], ratio_fu_aba_q3=spread["fwd_unchecked"][1],
+                         fd_rel_err=err))
     return rows
 
 
@@ -125,18 +141,24 @@ def plot(rows, path):
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--n", type=int, nargs="+", default=[1, 3, 8, 10, 30])
+    ap.add_argument("--nodes", type=int, nargs="+", default=[None],
+                    help="Gauss nodes a segment (default: the Segment default), one table row each")
     ap.add_argument("--repeats", type=int, default=15)
     ap.add_argument("--calls", type=int, default=200)
     ap.add_argument("--csv", default=None, help="also write the table as CSV")
     ap.add_argument("--png", default=None, help="also draw the cost scaling chart")
     args = ap.parse_args(argv)
-    rows = run(args.n, args.repeats, args.calls)
-    print(f"{'n':>3} {'nv':>4} {'mass_matrix':>12} {'nle':>9} {'fwd_dyn':>9} {'crba+chol':>10} {'pin.aba':>9}"
-          f" {'fwd/aba':>8} {'fwd err':>9}   (median us per call; err vs 24 nodes)")
+    rows = run(args.n, args.repeats, args.calls, args.nodes)
+    print(f"{'n':>3} {'nv':>4} {'nod':>3} {'mass_matrix':>12} {'nle':>9} {'fwd_dyn':>9} {'fwd_unchk':>9} {'crba+chol':>10}"
+          f" {'pin.aba':>9} {'fwd/aba':>8} {'(q1-q3)':>11} {'unchk/aba':>9} {'(q1-q3)':>11} {'fwd err':>9}")
     for r in rows:
-        print(f"{r['n']:>3} {r['nv']:>4} {r['mass_matrix_us']:>12.1f} {r['nonlinear_effects_us']:>9.1f}"
-              f" {r['forward_dynamics_us']:>9.1f} {r['crba+cholesky_us']:>10.1f} {r['pin.aba_us']:>9.2f}"
-              f" {r['ratio_fd_aba']:>8.2f} {r['fd_rel_err']:>9.1e}")
+        print(f"{r['n']:>3} {r['nv']:>4} {r['nodes']:>3} {r['mass_matrix_us']:>12.1f} {r['nonlinear_effects_us']:>9.1f}"
+              f" {r['forward_dynamics_us']:>9.1f} {r['fwd_unchecked_us']:>9.1f} {r['crba+cholesky_us']:>10.1f}"
+              f" {r['pin.aba_us']:>9.2f} {r['ratio_fd_aba']:>8.2f} {r['ratio_fd_aba_q1']:>5.2f}-{r['ratio_fd_aba_q3']:<5.2f}"
+              f" {r['ratio_fu_aba']:>9.2f} {r['ratio_fu_aba_q1']:>5.2f}-{r['ratio_fu_aba_q3']:<5.2f}"
+              f" {r['fd_rel_err']:>9.1e}")
+    print("(median CPU us per call, interleaved; ratios of medians, quartiles of the per-set ratios; "
+          "err: relative to 24 nodes)")
     by_n = {r["n"]: r for r in rows}
     if 10 in by_n and 30 in by_n:
         g = by_n[30]["forward_dynamics_us"] / by_n[10]["forward_dynamics_us"]

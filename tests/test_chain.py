@@ -494,6 +494,34 @@ def test_indices_and_workspaces_are_checked():
     assert np.array_equal(CH2.forward_dynamics(Q2, V2, P2, data=d), CH2.forward_dynamics(Q2, V2, P2))
 
 
+def test_calls_without_data_work_in_a_workspace_of_their_thread():
+    """Without ``data=`` a thread's calls reuse the workspace the chain keeps for it: fresh
+    results equal to those with a ``data``, another thread its own, and a copy or pickle of
+    the chain takes none along."""
+    import threading
+
+    ch = Chain([S, S])
+    ref = ch.forward_dynamics(Q2, V2, P2, data=ch.create_data())
+    refd = ch.forward_dynamics_derivatives(Q2, V2, P2, data=ch.create_data())
+    a1 = ch.forward_dynamics(Q2, V2, P2)
+    d1 = ch.forward_dynamics_derivatives(Q2, V2, P2)
+    a2 = ch.forward_dynamics(Q2, V2, 2 * P2)
+    d2 = ch.forward_dynamics_derivatives(Q2, V2, 2 * P2)
+    assert np.array_equal(a1, ref) and not np.array_equal(a2, ref)  # a1 was not overwritten
+    for x, y in zip(d1, refd):
+        assert np.array_equal(x, y)
+    assert not np.array_equal(d1.da_dq, d2.da_dq)
+    other = []
+    t = threading.Thread(target=lambda: other.append(ch.forward_dynamics(Q2, V2, P2)))
+    t.start()
+    t.join()
+    assert np.array_equal(other[0], ref)
+    assert len(ch._own_data) == 2
+    for clone in (pickle.loads(pickle.dumps(ch)), copy.deepcopy(ch)):
+        assert clone._own_data == {}
+        assert np.array_equal(clone.forward_dynamics(Q2, V2, P2), ref)
+
+
 def test_frames_batch_checks_the_arrays_it_writes_into_even_on_the_unchecked_path():
     """A float32 ``out`` crashed the process (the compiled pass wrote float64 into it)."""
     Q = np.tile(Q2, (4, 1))

@@ -17,20 +17,19 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..model.arc import jit, jit_helper, take1
+from ..model.arc import jit, jit_helper, jit_pass, take1
 from .arrays import AbaDerivativesWorkspace, AbaWorkspace, ChainArrays, RneaWorkspace
 from ..model.slices import input_matrix_c
 from .recursive import _chol as recursive_chol
 from .recursive import aba as recursive_aba
-from .recursive import aba_workspace as recursive_aba_workspace
 from .recursive import internal_forces as recursive_internal_forces
-from .rnea_derivatives import _internal_forces_derivatives, _rnea_derivatives, rnea_workspace
+from .rnea_derivatives import _internal_forces_derivatives, _rnea_derivatives
 
 __all__ = ["aba_derivatives", "aba_derivatives_workspace", "input_matrices"]
 
 
 
-@jit
+@jit_pass
 def input_matrices(arr, q, B, sc):
     """``B[j]`` (3, 3) the input matrix of every segment (:func:`qchain.model.slices.input_matrix_c`);
     ``arr`` the model's :class:`~qchain.algorithms.arrays.ChainArrays`."""
@@ -99,26 +98,40 @@ def _matmul(A, B, out):
 @jit_helper
 def _chol_inverse(L, k, Minv):
     """``Minv = (L L^T)^-1`` (k, k) from the lower Cholesky factor ``L``, which is overwritten
-    by its own inverse (lower)."""
-    for j in range(k):
-        L[j, j] = 1.0 / L[j, j]
-        for i in range(j + 1, k):
-            acc = 0.0
-            for s in range(j, i):
-                acc -= L[i, s] * L[s, j]
-            L[i, j] = acc / L[i, i]
-        for i in range(j):
+    by its own inverse (lower; zeros above). Row by row, as sums of scaled rows (the inner loops
+    run along contiguous rows, which the compiler vectorises; the dot-product form ran along
+    columns): row ``i`` of ``L^-1`` from the rows above it, then ``Minv = sum_s x_s x_s^T`` over
+    the rows ``x_s`` of ``L^-1``. Row ``i`` of ``Minv`` holds row ``i`` of ``L`` meanwhile."""
+    for i in range(k):
+        t = Minv[i]
+        for s in range(i):
+            t[s] = L[i, s]
+            L[i, s] = 0.0
+        for s in range(i):
+            a = t[s]
+            if a != 0.0:
+                for j in range(s + 1):
+                    L[i, j] += a * L[s, j]
+        d = 1.0 / L[i, i]
+        for j in range(i):
+            L[i, j] *= -d
+        L[i, i] = d
+        for j in range(i + 1, k):
             L[i, j] = 0.0
     for i in range(k):
-        for j in range(i + 1):
-            acc = 0.0
-            for s in range(i, k):
-                acc += L[s, i] * L[s, j]
-            Minv[i, j] = acc
-            Minv[j, i] = acc
+        for j in range(k):
+            Minv[i, j] = 0.0
+    for s in range(k):
+        for i in range(s + 1):
+            a = L[s, i]
+            for j in range(i + 1):
+                Minv[i, j] += a * L[s, j]
+    for i in range(k):
+        for j in range(i):
+            Minv[j, i] = Minv[i, j]
 
 
-@jit
+@jit_pass
 def aba_derivatives(arr, floating, q, qd, p, tau_ext, V0, A_B, g_B, ws, wd, wa, sc):
     """Forward dynamics and its exact derivatives in one compiled call (curvature coordinates,
     the material law).
@@ -230,17 +243,3 @@ def _aba_derivatives_at(arr, floating, q, qd, p, qdd, A0, a, V0, g_B, ws, wd, wa
             if not (np.isfinite(da_dq[r, c]) and np.isfinite(da_dv[r, c])):
                 return 3
     return 0
-
-
-@jit
-def aba_derivatives_fresh(arr, floating, q, qd, p, tau_ext, V0, A_B, g_B):
-    """:func:`aba_derivatives` in a workspace made here (no ``Data`` given): returns
-    ``(status, a, da_dq, da_dv, da_dp, da_dtau)`` and boxes only those."""
-    arr = ChainArrays(*arr)  # a plain tuple from Python (arrays.py), named here
-    n = q.shape[0]
-    nv = (6 if floating else 0) + 3 * n
-    ws = recursive_aba_workspace(n, nv)
-    wd = rnea_workspace(n, nv)
-    wa = aba_derivatives_workspace(n, nv)
-    status = aba_derivatives(arr, floating, q, qd, p, tau_ext, V0, A_B, g_B, ws, wd, wa, ws.scratch)
-    return status, wa.a, wa.da_dq, wa.da_dv, wa.da_dp, wa.da_dtau

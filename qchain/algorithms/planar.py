@@ -86,7 +86,7 @@ from __future__ import annotations
 import numpy as np
 
 from .arrays import ChainArrays, PlanarWorkspace
-from ..model.arc import SCRATCH, _bend, jit, jit_inline as _inline
+from ..model.arc import SCRATCH, _bend, jit, jit_inline as _inline, jit_pass
 
 __all__ = ["planar_aba", "planar_aba_moving", "planar_rnea", "planar_workspace"]
 
@@ -386,7 +386,7 @@ def _planar_aba(arr, q, qd, tau, v0x, v0z, v0w, A0, qdd, ws, sc):
     return True
 
 
-@jit
+@jit_pass
 def planar_aba(arr, q, qd, tau, A0, qdd, ws, sc):
     """Articulated-body forward dynamics of a planar chain: ``qdd`` (n, 3) from
     ``M qdd + C qd + g = tau``, equal to :func:`qchain.algorithms.recursive.aba` on a fixed base.
@@ -407,7 +407,7 @@ def planar_aba(arr, q, qd, tau, A0, qdd, ws, sc):
     return _planar_aba(arr, q, qd, tau, 0.0, 0.0, 0.0, A0, qdd, ws, sc)
 
 
-@jit
+@jit_pass
 def planar_aba_moving(arr, q, qd, tau, V0, A0, qdd, ws, sc):
     """:func:`planar_aba` for a base moving in its x-z plane (a prescribed base): ``V0`` (6,)
     is the base's body twist, of which only the in-plane components 0, 2, 4 are used (the
@@ -417,7 +417,7 @@ def planar_aba_moving(arr, q, qd, tau, V0, A0, qdd, ws, sc):
     return _planar_aba(arr, q, qd, tau, V0[0], V0[2], V0[4], A0, qdd, ws, sc)
 
 
-@jit
+@jit_pass
 def planar_rnea(arr, q, qd, qdd, A0, tau, F0, ws, sc):
     """Inverse dynamics of a planar chain on a fixed base: ``tau = M qdd + C qd + g`` (n, 3)
     and the base wrench ``F0`` (6,), equal to :func:`qchain.algorithms.recursive.rnea` with ``V0 = 0``.

@@ -28,6 +28,7 @@ Root ``j + 1`` is the tip of segment ``j``: its twist is ``T_j xi_j`` with the t
 * :func:`rnea` -- recursive Newton-Euler over the slices, O(n * nodes);
 * :func:`crba` -- composite-body assembly of ``M = sum_j A_j^T M_xi_j A_j``, O(n^2);
 * :func:`aba` -- articulated-body forward dynamics on the 9 x 9 segment blocks, O(n);
+  :func:`forward_dynamics` -- it with the material law's forces, in one call from Python;
 * :func:`frames` -- world frames of the roots and the tip and backbone points, for many
   configurations in one call (drawing and logging).
 
@@ -43,12 +44,13 @@ from __future__ import annotations
 import numpy as np
 
 from .arrays import AbaWorkspace, ChainArrays
-from ..model.arc import SCRATCH, arc_node, arc_pose, jit, jit_helper, take1, take2
+from ..model.arc import SCRATCH, arc_node_bias, arc_pose, jit, jit_helper, jit_pass, take1, take2
 from ..model.slices import (
     _segment_slices, domain_violation, elastic_gradient_c, input_matrix_c, rest_damping_c, phi_matrix, slice_twist,
     sub_motion_cross)
 
-__all__ = ["rnea", "crba", "aba", "tip_maps", "frames", "internal_forces", "first_invalid", "payload_wrench"]
+__all__ = ["rnea", "crba", "aba", "forward_dynamics", "tip_maps", "frames", "internal_forces", "first_invalid", "first_invalid_of",
+           "payload_wrench"]
 
 
 @jit_helper
@@ -58,8 +60,8 @@ def _tip(q, qd, xi, T, c, sc):
     R, o = take2(sc, o, 3, 3)
     p, o = take1(sc, o, 3)
     S, o = take2(sc, o, 6, 3)
-    Sd, o = take2(sc, o, 6, 3)
-    arc_node(1.0, q[0], q[1], q[2], qd[0], qd[1], qd[2], R, p, S, Sd)
+    sd, o = take1(sc, o, 6)
+    arc_node_bias(1.0, q[0], q[1], q[2], qd[0], qd[1], qd[2], R, p, S, sd)
     phi_matrix(R, p, S, T)
     Vr, o = take1(sc, o, 6)
     zero3, o = take1(sc, o, 3)
@@ -68,7 +70,7 @@ def _tip(q, qd, xi, T, c, sc):
     rel, o = take1(sc, o, 6)
     for r in range(6):
         rel[r] = S[r, 0] * qd[0] + S[r, 1] * qd[1] + S[r, 2] * qd[2]
-        c[r] = Sd[r, 0] * qd[0] + Sd[r, 1] * qd[1] + Sd[r, 2] * qd[2]
+        c[r] = sd[r]
     sub_motion_cross(rel, Vr, c)
 
 
@@ -129,7 +131,7 @@ def tip_maps(q, qd, V0, T, c, V):
         _matvec(T[j], xi, V[j + 1])
 
 
-@jit
+@jit_pass
 def rnea(arr, q, qd, qdd, V0, A0, tau, F0, ws, sc):
     """Inverse dynamics ``tau = M qdd + C qd + g`` (n, 3) and the base wrench ``F0`` (6,): the
     inertial and gravity terms of the paper's eq. (9) for the chain, by Newton-Euler over the
@@ -185,22 +187,24 @@ def rnea(arr, q, qd, qdd, V0, A0, tau, F0, ws, sc):
 def _project(M, T, I, IT, out):
     """``out = M + T^T I T`` (9, 9): a segment's 9x9 block with the inertia ``I`` (6, 6) of what
     hangs beyond its tip carried to its root through the tip map ``T`` (6, 9); ``IT`` (6, 9)
-    receives ``I T``."""
+    receives ``I T``. ``T``'s lower left 3 x 3 block is zero (the linear velocity's share of
+    the angular one, ``Ad^-1``'s) and ``out`` symmetric: its upper triangle is formed, then mirrored."""
     for r in range(6):
         for k in range(9):
             acc = 0.0
-            for s in range(6):
+            for s in range(3 if k < 3 else 6):
                 acc += I[r, s] * T[s, k]
             IT[r, k] = acc
     for a in range(9):
-        for b in range(9):
+        for b in range(a, 9):
             acc = M[a, b]
             for r in range(6):
                 acc += T[r, a] * IT[r, b]
             out[a, b] = acc
+            out[b, a] = acc
 
 
-@jit
+@jit_pass
 def crba(arr, q, floating, H, ws, sc):
     """Composite-body assembly of the joint-space inertia ``H`` (nv, nv), curvature coordinates
     (``M = sum_j A_j^T M_xi_j A_j`` of the segments' eq. (6) blocks; docs/model.md section 8).
@@ -311,7 +315,7 @@ def _chol_solve(L, k, b):
         b[i] = acc / L[i, i]
 
 
-@jit
+@jit_pass
 def aba(arr, q, qd, tau, V0, A0, floating, F0, qdd, A0_out, ws, sc):
     """Articulated-body forward dynamics: ``qdd`` (n, 3) from ``M qdd + C qd + g = tau`` (the
     paper's eq. (9) for the chain; docs/model.md section 8).
@@ -443,6 +447,57 @@ def aba(arr, q, qd, tau, V0, A0, floating, F0, qdd, A0_out, ws, sc):
     return True
 
 
+@jit_pass
+def forward_dynamics(arr, floating, q, v, p, tau, V0, A_B, g_B, f, a, ws, sc):
+    """``a`` (nv,) of ``M a + C v + g + D v + dU_el/dq = B p + tau`` in one compiled call: the
+    material law's forces (:func:`internal_forces`), the external ``tau`` and :func:`aba`. The
+    ``skip_checks`` path of ``Chain.forward_dynamics`` (curvature coordinates, the material law),
+    whose Python would otherwise cost a third of the call at ten segments.
+
+    ``q`` (nq,), ``v`` (nv,): the chain's whole configuration and velocity (the base's 7 and 6
+    first for a ``floating`` base); ``p`` (3 n,) Pa; ``tau`` (nv,) or empty (none; a floating
+    base's ``tau[:6]`` is the wrench on the base); ``V0`` (6,) the base twist, ``A_B`` (6,) the
+    base's own acceleration (zeros but for a prescribed base), ``g_B`` (3,) gravity in the base
+    frame; ``f`` (n, 3) receives the segments' generalised forces, ``a`` the accelerations
+    (a floating base's first six: its own, gravity included). ``ws``, ``sc``: as :func:`aba`.
+    Returns 0; 1 where :func:`aba` returns False (``a`` is then not defined); 2 where an
+    entry of ``a`` is not finite.
+    """
+    n = f.shape[0]
+    qoff = 7 if floating else 0
+    voff = 6 if floating else 0
+    q_c = q[qoff:].reshape((n, 3))
+    v_c = v[voff:].reshape((n, 3))
+    internal_forces(arr, q_c, v_c, p.reshape((n, 3)), f, sc)
+    o = 0
+    F0, o = take1(sc, o, 6)
+    A0, o = take1(sc, o, 6)
+    for r in range(6):
+        F0[r] = 0.0
+        A0[r] = A_B[r]
+    for r in range(3):
+        A0[r] -= g_B[r]
+    if tau.shape[0] > 0:
+        for j in range(n):
+            for b in range(3):
+                f[j, b] += tau[voff + 3 * j + b]
+        if floating:
+            for r in range(6):
+                F0[r] = tau[r]
+    A_out, o = take1(sc, o, 6)
+    if not aba(arr, q_c, v_c, f, V0, A0, floating, F0, a[voff:].reshape((n, 3)), A_out, ws, sc[o:]):
+        return 1
+    if floating:
+        for r in range(6):
+            a[r] = A_out[r]
+        for r in range(3):
+            a[r] += g_B[r]
+    for i in range(a.shape[0]):
+        if not np.isfinite(a[i]):
+            return 2
+    return 0
+
+
 @jit_helper
 def _quaternion(R, out):
     """Unit quaternion ``(x, y, z, w)`` of the rotation ``R`` (3, 3) into ``out`` (4,), with
@@ -561,7 +616,7 @@ def frames(q, paper, R0, o0, alpha, R, o, quat, points):
             _quaternion(R[k, j], quat[k, j])
 
 
-@jit
+@jit_pass
 def internal_forces(arr, q, qd, p, out, sc):
     """``out = B p - D qd - dU_el/dq`` (n, 3), material law, curvature coordinates, with
     ``D`` of :func:`qchain.model.slices.rest_damping_c` (:func:`qchain.model.slices.input_matrix_c`,
@@ -581,6 +636,20 @@ def internal_forces(arr, q, qd, p, out, sc):
         for a in range(3):
             out[j, a] = -g[a] - D[a, 0] * qd[j, 0] - D[a, 1] * qd[j, 1] - D[a, 2] * qd[j, 2]
             out[j, a] += B[a, 0] * p[j, 0] + B[a, 1] * p[j, 1] + B[a, 2] * p[j, 2]
+
+
+@jit_pass
+def first_invalid_of(x0, x1, x2, x3, q, radius, paper):
+    """:func:`first_invalid` for four arrays checked alongside in one call (empty ones for
+    fewer): ``-2 - k`` where ``x_k`` is the first with a non-finite entry, else the index of
+    the first segment outside the model, or -1."""
+    xs = (x0, x1, x2, x3)
+    for k in range(4):
+        x = xs[k]
+        for i in range(x.shape[0]):
+            if not np.isfinite(x[i]):
+                return -2 - k
+    return first_invalid(q[:0, 0], q, radius, paper)
 
 
 @jit

@@ -39,14 +39,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..model.arc import arc_node, arc_node_derivatives, jit, jit_helper, jit_inline, take1, take2, take3
+from ..model.arc import arc_node, arc_node_derivatives, jit, jit_helper, jit_inline, jit_pass, take1, take2, take3
 from ..model.slices import (
     elastic_hessian_c, mass_finish, mass_node, phi_matrix, phi_transpose_force, pressure_jacobian_c, rest_damping_c,
     slice_twist)
 from .arrays import AbaWorkspace, ChainArrays, RneaWorkspace
 from .recursive import _load_xi, payload_wrench
 from .recursive import _project as recursive_project
-from .recursive import aba_workspace as recursive_aba_workspace
 
 __all__ = ["segment_derivatives", "tip_derivatives", "rnea_derivatives", "rnea_workspace",
            "internal_forces_derivatives"]
@@ -383,7 +382,7 @@ def rnea_workspace(n, nv):
                          np.zeros((n, 3)), np.zeros(6), np.zeros((nv, nv)), np.zeros((nv, nv)), np.zeros((nv, nv)))
 
 
-@jit
+@jit_pass
 def rnea_derivatives(arr, q, qd, qdd, V0, A0, floating, g_B, ws, wd, sc):
     """Inverse dynamics and its exact derivatives, curvature coordinates.
 
@@ -721,7 +720,7 @@ def _floating_base(n, off, V0, g_B, G, Ya, Yv, Ms, M, dq, dv, Ic, WF, sc):
                 dq[ri + b, 3 + k] = acc
 
 
-@jit
+@jit_pass
 def internal_forces_derivatives(arr, q, p, dfq, dfv, sc):
     """Derivatives of the internal forces ``f = B p - D qd - dU_el/dq`` of
     :func:`qchain.algorithms.recursive.internal_forces` (material law, curvature coordinates):
@@ -748,16 +747,3 @@ def _internal_forces_derivatives(q, p, l0, EI, EA, beta, A_ch, r_ch, paper_act, 
             for b in range(3):
                 dfq[j, a, b] = Kp[a, b] - H[a, b]
                 dfv[j, a, b] = -D[a, b]
-
-
-@jit
-def rnea_derivatives_fresh(arr, q, qd, qdd, V0, A0, floating, g_B):
-    """:func:`rnea_derivatives` in a workspace made here: returns ``(tau_c, F0, dtau_dq,
-    dtau_dv, M)``."""
-    arr = ChainArrays(*arr)  # a plain tuple from Python (arrays.py), named here
-    n = q.shape[0]
-    nv = (6 if floating else 0) + 3 * n
-    ws = recursive_aba_workspace(n, nv)
-    wd = rnea_workspace(n, nv)
-    _rnea_derivatives(arr, q, qd, qdd, V0, A0, floating, g_B, ws, wd, ws.scratch)
-    return wd.tau_c, wd.F0, wd.dtau_dq, wd.dtau_dv, wd.M

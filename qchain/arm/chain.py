@@ -47,7 +47,7 @@ from .checks import QUATERNION_TOLERANCE, ChainChecks, _finite  # noqa: F401 (QU
 from .contact import ChainContact
 from .parameter_derivatives import ChainParameters
 from .kinematics import _NO_POINTS, ChainKinematics, Frames
-from .dynamics_derivatives import _ZERO6, ForwardDynamicsDerivatives, InverseDynamicsDerivatives
+from .dynamics_derivatives import _EMPTY, _ZERO6, ForwardDynamicsDerivatives, InverseDynamicsDerivatives
 from .data import Data
 from .payload import payload_matrix
 from ..checks.bounds import GRAVITY, POSITION, PSI, SEGMENT_COUNT, TIME
@@ -57,7 +57,6 @@ from ..model.segment import PAPER_SINGULAR_ANGLE, Segment
 from ..model.segment import _paper_jacobian as paper_jacobian, _paper_jacobian_dot as paper_jacobian_dot
 from ..model.segment import _paper_to_curvature as paper_to_curvature
 from ..model.spatial import _ad_matrix as ad_matrix, _force_cross_bar as force_cross_bar
-from ..model.spatial import _quaternion_to_rotation as quaternion_to_rotation
 from ..checks.frozen import KeepsReadOnly
 
 __all__ = ["Chain", "Frames", "BASES"]
@@ -78,6 +77,8 @@ class _State:
     V0: np.ndarray | None = None  # (6,) base body twist
     A_B: np.ndarray | None = None  # (6,) base body acceleration (prescribed)
     g_B: np.ndarray | None = None  # (3,) gravity in the base frame
+    q: np.ndarray | None = None  # (nq,) the whole validated configuration
+    v: np.ndarray | None = None  # (nv,) and velocity
 
 
 def _check_placement(name: str, X) -> None:
@@ -224,7 +225,11 @@ class Chain(KeepsReadOnly, ChainKinematics, ChainContact, ChainParameters, Chain
         self._payload.flags.writeable = False
         self._has_payload = self._payload_inertia is not None
         self._planar_kernel = self.planar and base == "fixed"  # forward dynamics on qchain.algorithms.planar
+        # forward dynamics in one compiled call (recursive.forward_dynamics): curvature coordinates, the material law
+        self._fused = not (self._planar_kernel or self._any_paper or self._has_linear)
         self._p_zero = np.zeros((n, 3))  # p = None on the unchecked path (writable: one array type for the kernels)
+        self._p_flat = self._p_zero.reshape(-1)
+        self._own_data: dict[int, Data] = {}  # the workspaces of calls without data= (_workspace)
         self._locked = np.zeros((n, 3), dtype=bool)
         self._locked[:, 0] = [not s.extensible for s in segs]
         self._locked[:, 2] = self.planar
@@ -303,6 +308,11 @@ class Chain(KeepsReadOnly, ChainKinematics, ChainContact, ChainParameters, Chain
             q[self.q_slice(j)] = s.neutral()
         return q
 
+    def __getstate__(self):
+        state = super().__getstate__()
+        state["_own_data"] = {}  # the calls' own workspaces stay with this process's threads
+        return state
+
     def __repr__(self) -> str:
         return f"Chain(n={self.n}, base={self.base!r}, nq={self.nq}, nv={self.nv})"
 
@@ -374,7 +384,7 @@ class Chain(KeepsReadOnly, ChainKinematics, ChainContact, ChainParameters, Chain
                     )
                 q_c[j] = paper_to_curvature(q_e[j])
                 J[j] = paper_jacobian(q_e[j])
-        st = _State(X_WB=X, q_e=q_e, q_c=np.ascontiguousarray(q_c), J=J, A_B=A_B)
+        st = _State(X_WB=X, q_e=q_e, q_c=np.ascontiguousarray(q_c), J=J, A_B=A_B, q=q, v=v)
         st.g_B = self._g_B if self.base == "fixed" else X.rotation.T @ self.gravity
         if v is not None:
             st.v_e = v[self._voff :].reshape(self.n, 3)
@@ -534,8 +544,9 @@ class Chain(KeepsReadOnly, ChainKinematics, ChainContact, ChainParameters, Chain
     def _aba(self, q_c, v_c, f_c, V0, A0, F0, qdd_c, A0_out, data: Data | None) -> bool:
         """The articulated-body pass: :func:`qchain.algorithms.planar.planar_aba` for a planar chain on a
         fixed base (the same accelerations at 2-D cost), :func:`qchain.algorithms.recursive.aba` else."""
+        data = self._workspace(data)
         if self._planar_kernel:
-            pw = _planar.planar_workspace(self.n) if data is None else data.planar_workspace()
+            pw = data.planar_workspace()
             A0_out[:] = A0
             return _planar.planar_aba(self._arrays, q_c, v_c, f_c, A0, qdd_c, tuple(pw), pw.pscratch)
         return recursive.aba(self._arrays, q_c, v_c, f_c, V0, A0, self.floating, F0, qdd_c, A0_out,
@@ -544,7 +555,7 @@ class Chain(KeepsReadOnly, ChainKinematics, ChainContact, ChainParameters, Chain
     def _ws_sc(self, data: Data | None) -> tuple:
         """``(workspace, scratch)`` arguments of the compiled passes, the workspace as the plain
         tuple of its fields (as ``_arrays``: the pass names it again)."""
-        ws = recursive.aba_workspace(self.n, self.nv) if data is None else data.aba_workspace()
+        ws = self._workspace(data).aba_workspace()
         return tuple(ws), ws.scratch
 
     @_finite("mass matrix")
@@ -708,7 +719,14 @@ class Chain(KeepsReadOnly, ChainKinematics, ChainContact, ChainParameters, Chain
         return st, p3, tau
 
     def _forward_dynamics_unchecked(self, q, v, p, tau, t, data):
-        q_c, v_c, p3, V0, A_B, g_B = self._unchecked_inputs(q, v, p, t, data)
+        if self._fused and data is not None:  # a singular articulated block is not reported here
+            V0, A_B, g_B = ((_ZERO6, None, self._g_B) if self.base == "fixed" else
+                            self._unchecked_inputs(q, v, p, t, data)[3:])
+            recursive.forward_dynamics(self._arrays, self.floating, q, v, self._p_flat if p is None else p,
+                                       _EMPTY if tau is None else tau, V0, _ZERO6 if A_B is None else A_B, g_B,
+                                       data.f, data.a, tuple(data.aba_workspace()), data.scratch)
+            return data.a
+        q_c, v_c, p3, V0, A_B, g_B = self._unchecked_inputs(q, v, p, t, data)  # the planar kernel
         f = data.f
         recursive.internal_forces(self._arrays, q_c, v_c, p3, f, data.scratch)
         F0 = _ZERO6
@@ -728,38 +746,48 @@ class Chain(KeepsReadOnly, ChainKinematics, ChainContact, ChainParameters, Chain
     def _forward_dynamics(self, st: _State, p3: np.ndarray, tau: np.ndarray | None, t: float,
                           data: Data | None = None) -> np.ndarray:
         """:meth:`forward_dynamics` on a validated state."""
-        f = self._internal_e(st, p3)
-        F0 = np.zeros(6)
-        if tau is not None:
-            f = f + tau[self._voff :].reshape(self.n, 3)
-            if self.floating:
-                F0 = tau[:6].copy()
-        f_c = f if st.J is None else np.linalg.solve(np.swapaxes(st.J, 1, 2), f[..., None])[..., 0]
-        qdd_c = np.empty((self.n, 3))
-        A0 = np.empty(6)
-        ok = self._aba(st.q_c, np.ascontiguousarray(st.v_c), np.ascontiguousarray(f_c), st.V0, self._A0(st), F0, qdd_c,
-                       A0, data)
+        a = np.empty(self.nv)
+        if self._fused:  # what the path below computes, in one compiled call
+            d = self._workspace(data)
+            status = recursive.forward_dynamics(self._arrays, self.floating, st.q, st.v, p3.reshape(-1),
+                                                _EMPTY if tau is None else tau, st.V0,
+                                                _ZERO6 if st.A_B is None else st.A_B, st.g_B, d.f, a,
+                                                tuple(d.aba_workspace()), d.scratch)
+            ok, finite = status != 1, status == 0
+        else:
+            f = self._internal_e(st, p3)
+            F0 = np.zeros(6)
+            if tau is not None:
+                f = f + tau[self._voff :].reshape(self.n, 3)
+                if self.floating:
+                    F0 = tau[:6].copy()
+            f_c = f if st.J is None else np.linalg.solve(np.swapaxes(st.J, 1, 2), f[..., None])[..., 0]
+            qdd_c = np.empty((self.n, 3))
+            A0 = np.empty(6)
+            ok = self._aba(st.q_c, np.ascontiguousarray(st.v_c), np.ascontiguousarray(f_c), st.V0, self._A0(st), F0,
+                           qdd_c, A0, data)
         if not ok:
             culprit = self._overflowing_segment(st.q_e, st.v_e)
             if culprit:
                 raise NonFiniteError(f"Chain.forward_dynamics: the acceleration is not finite at t = {t:.6g} s: "
                                      f"{culprit}")
             raise self.indefinite_error("forward_dynamics", st.q_e, t)
-        a = np.empty(self.nv)
-        if self.floating:
-            a[:6] = A0
-            a[:3] += st.g_B
-        if st.J is None:
-            a[self._voff :] = qdd_c.ravel()
-        else:
-            a_e = np.empty((self.n, 3))
-            for j in range(self.n):
-                rhs = qdd_c[j]
-                if self._paper[j]:
-                    rhs = rhs - paper_jacobian_dot(st.q_e[j], st.v_e[j]) @ st.v_e[j]
-                a_e[j] = np.linalg.solve(st.J[j], rhs)
-            a[self._voff :] = a_e.ravel()
-        if not np.all(np.isfinite(a)):
+        if not self._fused:
+            if self.floating:
+                a[:6] = A0
+                a[:3] += st.g_B
+            if st.J is None:
+                a[self._voff :] = qdd_c.ravel()
+            else:
+                a_e = np.empty((self.n, 3))
+                for j in range(self.n):
+                    rhs = qdd_c[j]
+                    if self._paper[j]:
+                        rhs = rhs - paper_jacobian_dot(st.q_e[j], st.v_e[j]) @ st.v_e[j]
+                    a_e[j] = np.linalg.solve(st.J[j], rhs)
+                a[self._voff :] = a_e.ravel()
+            finite = np.all(np.isfinite(a))
+        if not finite:
             q_full = np.concatenate([np.zeros(self._qoff), st.q_e.ravel()])
             v_full = np.concatenate([np.zeros(self._voff), st.v_e.ravel()])
             raise self.nonfinite_error("forward_dynamics", "acceleration", q_full, v_full, t, result=a)
@@ -818,27 +846,6 @@ class Chain(KeepsReadOnly, ChainKinematics, ChainContact, ChainParameters, Chain
         q_c, v_c, p3, V0, A_B, g_B = self._unchecked_inputs(q, v, p, t, data)
         return _derivs.compiled_forward_dynamics_derivatives(self, q_c, v_c, p3, tau, V0, A_B, g_B, t, data,
                                                              check=False)
-
-    def _unchecked_inputs(self, q, v, p, t, data):
-        """``(q_c, v_c, p (n, 3), V0, A_B, g_B)`` of the ``skip_checks`` fast path, which serves
-        chains in curvature coordinates with the material law and needs a ``data``."""
-        if data is None or self._any_paper or self._has_linear:
-            raise ValueError("skip_checks=True needs data=chain.create_data() and a chain in curvature coordinates "
-                             "with the material law (no stiffness_matrix/damping_matrix)")
-        n = self.n
-        q_c = q[self._qoff :].reshape(n, 3)
-        v_c = v[self._voff :].reshape(n, 3)
-        p3 = self._p_zero if p is None else p.reshape(n, 3)
-        A_B = None
-        if self.base == "fixed":
-            V0, g_B = _ZERO6, self._g_B
-        elif self.floating:
-            V0 = v[:6]
-            g_B = quaternion_to_rotation(q[3:7]).T @ self.gravity
-        else:
-            X, V0, A_B = self.base_motion(float(t))
-            g_B = X.rotation.T @ self.gravity
-        return q_c, v_c, p3, V0, A_B, g_B
 
     @_finite("mass matrix derivative")
     def mass_matrix_derivative(self, q, data: Data | None = None) -> np.ndarray:

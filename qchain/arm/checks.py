@@ -16,6 +16,7 @@ has no state of its own.
 from __future__ import annotations
 
 import functools
+import threading
 
 import numpy as np
 
@@ -24,8 +25,11 @@ from ..checks.bounds import POSITION, check_time
 from ..checks.results import finite_result
 from ..checks.convert import as_real_array, as_vector, describe_value
 from ..errors import DomainError, NonFiniteError, QchainError
+from .data import Data
+from .dynamics_derivatives import _EMPTY, _ZERO6
 from ..checks.text import show_vector
 from ..model.segment import Segment
+from ..model.spatial import _quaternion_to_rotation as quaternion_to_rotation
 from ..model.segment import _paper_jacobian as paper_jacobian, _paper_to_curvature as paper_to_curvature
 
 __all__ = ["ChainChecks", "QUATERNION_TOLERANCE"]
@@ -134,8 +138,6 @@ class ChainChecks:
         ``skip_checks`` path runs it too."""
         if data is None:
             return None
-        from .data import Data
-
         if not isinstance(data, Data):
             raise TypeError(f"{name} must be None or chain.create_data(), got {describe_value(data)}")
         if data.n != self.n or data.nv != self.nv:
@@ -170,6 +172,42 @@ class ChainChecks:
                         f"precision (length l = {float(q_e[j][0]):.3g} m against rest length {s.length:g} m)")
         return QchainError(f"Chain.{method}: an articulated inertia block is not positive definite{at} "
                            f"(q = {np.array2string(np.ravel(q_e), precision=6)})")
+
+    def _workspace(self, data: Data | None) -> Data:
+        """``data``, or for a call without one this thread's own workspace, made on its first
+        call and kept (a fresh one each call cost a tenth of a checked forward dynamics at ten
+        segments); one per thread, as a ``Data`` serves one evaluation at a time. What the
+        methods return is never a workspace array when no ``data`` is given."""
+        if data is not None:
+            return data
+        key = threading.get_ident()
+        own = self._own_data.get(key)
+        if own is None:
+            if len(self._own_data) >= 64:  # threads come and go: start afresh (a call in progress holds its own)
+                self._own_data.clear()
+            own = self._own_data[key] = Data(self.n, self.nv)
+        return own
+
+    def _unchecked_inputs(self, q, v, p, t, data):
+        """``(q_c, v_c, p (n, 3), V0, A_B, g_B)`` of the ``skip_checks`` fast path, which serves
+        chains in curvature coordinates with the material law and needs a ``data``."""
+        if data is None or self._any_paper or self._has_linear:
+            raise ValueError("skip_checks=True needs data=chain.create_data() and a chain in curvature coordinates "
+                             "with the material law (no stiffness_matrix/damping_matrix)")
+        n = self.n
+        q_c = q[self._qoff :].reshape(n, 3)
+        v_c = v[self._voff :].reshape(n, 3)
+        p3 = self._p_zero if p is None else p.reshape(n, 3)
+        A_B = None
+        if self.base == "fixed":
+            V0, g_B = _ZERO6, self._g_B
+        elif self.floating:
+            V0 = v[:6]
+            g_B = quaternion_to_rotation(q[3:7]).T @ self.gravity
+        else:
+            X, V0, A_B = self.base_motion(float(t))
+            g_B = X.rotation.T @ self.gravity
+        return q_c, v_c, p3, V0, A_B, g_B
 
     def _vec(self, name: str, x, size: int) -> np.ndarray:
         """Fast shape check; finiteness is checked with the domain
@@ -210,10 +248,11 @@ class ChainChecks:
     def _check_domain(self, q_e: np.ndarray, *checked: tuple[str, np.ndarray]) -> None:
         """Raise for non-finite entries of the ``checked`` (name, array) pairs, or a segment
         configuration outside the model (naming the segment and its indices in q)."""
-        for name, x in checked:
-            if recursive.first_invalid(x, q_e[:0], self._radius, self._paper) == -2:
-                as_vector(name, x, x.shape[0])
-        j = recursive.first_invalid(q_e[:0, 0], q_e, self._radius, self._paper)
+        xs = [x for _, x in checked] + [_EMPTY] * (4 - len(checked))  # at most q, v, p, tau: one call
+        j = recursive.first_invalid_of(*xs, q_e, self._radius, self._paper)
+        if j <= -2:
+            name, x = checked[-2 - j]
+            as_vector(name, x, x.shape[0])  # raises, naming the entry
         if j >= 0:
             sl = self.q_slice(j)
             try:

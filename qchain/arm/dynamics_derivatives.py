@@ -41,6 +41,7 @@ __all__ = ["InverseDynamicsDerivatives", "ForwardDynamicsDerivatives"]
 # read-only zero here compiled a second specialisation of every kernel it reaches (aba,
 # aba_derivatives, rnea_derivatives: ~15 s of the first run's compile).
 _ZERO6 = np.zeros(6)
+_EMPTY = np.zeros(0)  # no tau on the compiled paths (one array type)
 
 
 class InverseDynamicsDerivatives(NamedTuple):
@@ -89,12 +90,11 @@ def _curvature_id_derivatives(ch: Chain, st: _State, qdd_c: np.ndarray, A0: np.n
     V0 = _ZERO6 if st.V0 is None else st.V0
     args = (ch._arrays, st.q_c, np.ascontiguousarray(st.v_c),
             np.ascontiguousarray(qdd_c), V0, A0, ch.floating, g_B)
+    d = ch._workspace(data)  # without data: the thread's own, whose results are copied out
+    rnea_derivatives.rnea_derivatives(*args, tuple(d.aba_workspace()), tuple(d.rnea_workspace()), d.scratch)
+    tau, F0, dq, dv, M = d.tau_c, d.F0, d.dtau_dq, d.dtau_dv, d.M
     if data is None:
-        tau, F0, dq, dv, M = rnea_derivatives.rnea_derivatives_fresh(*args)
-    else:
-        rnea_derivatives.rnea_derivatives(*args, tuple(data.aba_workspace()), tuple(data.rnea_workspace()),
-                                           data.scratch)
-        tau, F0, dq, dv, M = data.tau_c, data.F0, data.dtau_dq, data.dtau_dv, data.M
+        dq, dv, M = dq.copy(), dv.copy(), M.copy()
     tau = tau.ravel()
     full = np.concatenate([F0, tau]) if ch.floating else tau.copy()
     return full, dq, dv, M
@@ -224,12 +224,12 @@ def compiled_forward_dynamics_derivatives(ch: Chain, q_c, v_c, p3, tau, V0, A_B,
     tau_ext = np.zeros(ch.nv) if tau is None else tau
     A_B = _ZERO6 if A_B is None else A_B
     args = (ch._arrays, ch.floating, q_c, v_c, p3, tau_ext, V0, A_B, g_B)
+    d = ch._workspace(data)  # without data: the thread's own, whose results are copied out
+    status = aba_derivatives.aba_derivatives(*args, tuple(d.aba_workspace()), tuple(d.rnea_workspace()),
+                                             tuple(d.aba_derivatives_workspace()), d.scratch)
+    out = (d.a, d.da_dq, d.da_dv, d.da_dp, d.da_dtau)
     if data is None:
-        status, *out = aba_derivatives.aba_derivatives_fresh(*args)
-    else:
-        status = aba_derivatives.aba_derivatives(*args, tuple(data.aba_workspace()), tuple(data.rnea_workspace()),
-                                                 tuple(data.aba_derivatives_workspace()), data.scratch)
-        out = (data.a, data.da_dq, data.da_dv, data.da_dp, data.da_dtau)
+        out = tuple(x.copy() for x in out)
     if status and check:
         if status in (1, 2):  # name the segment whose inertia is singular, and its coordinates
             raise ch.indefinite_error("forward_dynamics_derivatives", q_c, t)

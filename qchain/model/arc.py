@@ -50,13 +50,15 @@ from numba.extending import register_jitable
 from ..checks.convert import as_batch, as_real_array
 from .spatial import _inv_adjoint as inv_adjoint
 
-__all__ = ["ArcNodes", "arc_nodes", "bend_functions", "strain_twist", "arc_node", "arc_pose", "bend_h",
+__all__ = ["ArcNodes", "arc_nodes", "bend_functions", "strain_twist", "arc_node", "arc_node_bias", "arc_pose", "bend_h",
            "arc_node_derivatives"]
 
 _SERIES_BELOW = 2.0  # rad; at x = 2 the 16-term series is exact to 1e-25
 _NTERMS = 16
-# below x = 0.5 rad 8 terms do: the first term left out is under 5e-20 of the sum's size
+# below x = 0.5 rad 8 terms do: the first term left out is under 5e-20 of the sum's size;
+# below 1.25 rad 11 terms do (the first left out under 1e-20 of it)
 _SHORT_BELOW, _NTERMS_SHORT = 0.5, 8
+_MID_BELOW, _NTERMS_MID = 1.25, 11
 _F_COEF = np.array([[(-1) ** k / factorial(2 * k + n + 1) for k in range(_NTERMS)] for n in range(3)])
 _G_COEF = np.array(
     [[(-1) ** k * 2 * k / factorial(2 * k + n + 1) for k in range(1, _NTERMS + 1)] for n in range(3)]
@@ -82,6 +84,13 @@ jit_helper = register_jitable(fastmath=False, error_model="numpy", no_cfunc_wrap
 #: helpers take arrays, and a compiled call with array arguments costs atomic reference counts,
 #: which numba prunes only within one function (the planar passes, ``_rnea_derivatives``' pieces).
 jit_inline = numba.njit(cache=True, fastmath=False, error_model="numpy", inline="always")
+#: A pass called from Python that allocates nothing (it writes only into the arrays it is
+#: given): compiled without numba's reference count, as the engine's code is (``qchain._jit``).
+#: With it every array view a pass makes (a segment's nodes, a workspace row, a scratch carving)
+#: and every array handed to a compiled callee costs an atomic count and its release: a quarter
+#: of a forward-dynamics call from Python at ten segments. Such a pass cannot allocate arrays
+#: nor assign an array to a slice (loops do); the explicit flag holds for every caller.
+jit_pass = numba.njit(cache=True, fastmath=False, error_model="numpy", _nrt=False)
 
 
 @jit
@@ -89,7 +98,7 @@ def _bend(x):
     """``(f0, f1, f2, g0, g1, g2)`` at bending angle ``x >= 0`` (rad)."""
     if x < _SERIES_BELOW:
         # the usual bend of a node takes the short series: half the work
-        nt = _NTERMS_SHORT if x < _SHORT_BELOW else _NTERMS
+        nt = _NTERMS_SHORT if x < _SHORT_BELOW else (_NTERMS_MID if x < _MID_BELOW else _NTERMS)
         t = x * x
         f0 = _F_COEF[0, nt - 1]
         f1 = _F_COEF[1, nt - 1]
@@ -160,6 +169,57 @@ def arc_pose(alpha, l, ux, uy, R, p):
     _write_pose(s * f0, s * s * f1, ux, uy, R, p)
 
 
+@jit_helper
+def _node_jacobian(alpha, l, ux, uy, R, p, S):
+    """``R``, ``p`` and ``S`` of :func:`arc_node`, and ``(s, a1, a2, a3, g1, g2)`` for the rates."""
+    s = alpha * l
+    k2 = ux * ux + uy * uy
+    f0, f1, f2, g0, g1, g2 = _bend(s * np.sqrt(k2))
+    s2 = s * s
+    a1 = s * f0
+    a2 = s2 * f1
+    a3 = s2 * s * f2
+    _write_pose(a1, a2, ux, uy, R, p)
+    for r in range(3):
+        S[r, 0] = 0.0
+    S[2, 0] = alpha
+    S[3, 0] = -alpha * uy
+    S[4, 0] = alpha * ux
+    S[5, 0] = 0.0
+    # S[:, 1 + i] = s eta_i - a2 (xi x eta_i) + a3 xi x (xi x eta_i), eta_1 = e_5, eta_2 = -e_4,
+    # written out (the products of xi = (0, 0, 1, -uy, ux, 0) with them are a few of its entries)
+    a3x, a3y = a3 * ux, a3 * uy
+    S[0, 1], S[1, 1], S[2, 1] = a2, 0.0, a3x
+    S[3, 1], S[4, 1], S[5, 1] = -a3x * uy, s - a3y * uy, a2 * uy
+    S[0, 2], S[1, 2], S[2, 2] = 0.0, a2, a3y
+    S[3, 2], S[4, 2], S[5, 2] = a3x * ux - s, a3y * ux, -a2 * ux
+    return s, a1, a2, a3, g1, g2
+
+
+@jit
+def arc_node_bias(alpha, l, ux, uy, ld, uxd, uyd, R, p, S, sd):
+    """:func:`arc_node` with ``sd = Sd qdot`` (6,) in place of ``Sd``: the slice's bias
+    acceleration from its own rates, all the passes use of ``Sd``, in closed form (the
+    module docstring's ``Sd(qdot) qdot``: three cross products instead of the 6 x 3 ``Sd``)."""
+    s, a1, a2, a3, g1, g2 = _node_jacobian(alpha, l, ux, uy, R, p, S)
+    if ld == 0.0 and uxd == 0.0 and uyd == 0.0:
+        for r in range(6):
+            sd[r] = 0.0
+        return
+    s4 = s * s * s * s
+    ud = ux * uxd + uy * uyd
+    da2 = s4 * g1 * ud
+    da3 = s4 * s * g2 * ud
+    xi = (0.0, 0.0, 1.0, -uy, ux, 0.0)
+    xd = (0.0, 0.0, 0.0, -uyd, uxd, 0.0)
+    Ax = _mcross(xi, xd)
+    AAx = _mcross(xi, Ax)
+    XAx = _mcross(xd, Ax)
+    al = alpha * ld
+    for r in range(6):
+        sd[r] = al * (2.0 * xd[r] - a1 * Ax[r] + a2 * AAx[r]) - da2 * Ax[r] + da3 * AAx[r] + a3 * XAx[r]
+
+
 @jit
 def arc_node(alpha, l, ux, uy, ld, uxd, uyd, R, p, S, Sd):
     """Slice kinematics at one node (numba; also callable from Python): ``g(alpha)``, ``S(alpha)``
@@ -175,29 +235,15 @@ def arc_node(alpha, l, ux, uy, ld, uxd, uyd, R, p, S, Sd):
     S : (6, 3) out           slice Jacobian (slice body frame).
     Sd : (6, 3) out          ``dS/dt`` along ``(ld, uxd, uyd)``.
     """
-    s = alpha * l
-    k2 = ux * ux + uy * uy
-    f0, f1, f2, g0, g1, g2 = _bend(s * np.sqrt(k2))
+    s, a1, a2, a3, g1, g2 = _node_jacobian(alpha, l, ux, uy, R, p, S)
     s2 = s * s
-    a1 = s * f0
-    a2 = s2 * f1
-    a3 = s2 * s * f2
     ud = ux * uxd + uy * uyd
     da2 = s2 * s2 * g1 * ud
     da3 = s2 * s2 * s * g2 * ud
-    _write_pose(a1, a2, ux, uy, R, p)
     xi = (0.0, 0.0, 1.0, -uy, ux, 0.0)
     xid = (0.0, 0.0, 0.0, -uyd, uxd, 0.0)
     for r in range(6):
-        S[r, 0] = alpha * xi[r]
         Sd[r, 0] = alpha * xid[r]
-    # S[:, 1 + i] = s eta_i - a2 (xi x eta_i) + a3 xi x (xi x eta_i), eta_1 = e_5, eta_2 = -e_4,
-    # written out (the products of xi = (0, 0, 1, -uy, ux, 0) with them are a few of its entries)
-    a3x, a3y = a3 * ux, a3 * uy
-    S[0, 1], S[1, 1], S[2, 1] = a2, 0.0, a3x
-    S[3, 1], S[4, 1], S[5, 1] = -a3x * uy, s - a3y * uy, a2 * uy
-    S[0, 2], S[1, 2], S[2, 2] = 0.0, a2, a3y
-    S[3, 2], S[4, 2], S[5, 2] = a3x * ux - s, a3y * ux, -a2 * ux
     if ld == 0.0 and uxd == 0.0 and uyd == 0.0:  # Sd is linear in the rates: zero, and half the work saved
         for r in range(6):
             Sd[r, 1] = 0.0
@@ -268,7 +314,7 @@ def arc_node_derivatives(alpha, l, ux, uy, ld, uxd, uyd, dS, K):
     a1 = s * f0
     a2 = s2 * f1
     a3 = s3 * f2
-    cx = np.cos(x)
+    cx = 1.0 - x * x * f1  # cos x from f1 = (1 - cos x) / x^2: no transcendental call per node
     ud = ux * uxd + uy * uyd
     u = (ux, uy)
     udot = (uxd, uyd)

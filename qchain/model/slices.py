@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .arc import SCRATCH, arc_node, arc_node_derivatives, jit, jit_helper, take1, take2, take3
+from .arc import SCRATCH, arc_node, arc_node_bias, arc_node_derivatives, jit, jit_helper, take1, take2, take3
 
 __all__ = ["CHAMBER_ANGLES", "input_matrix_c", "pressure_jacobian_c", "elastic_gradient_c", "elastic_hessian_c",
            "rest_damping_c", "domain_violation", "segment_slices", "segment_mass", "segment_newton_euler", "phi_transpose_force", "phi_matrix", "slice_twist"]
@@ -101,7 +101,7 @@ def _segment_slices(alpha, w, mass, radius, q, xi, xid, want_mass, M, Q, sc):
     R, o = take2(sc, o, 3, 3)
     p, o = take1(sc, o, 3)
     S, o = take2(sc, o, 6, 3)
-    Sd, o = take2(sc, o, 6, 3)
+    sd, o = take1(sc, o, 6)
     V, o = take1(sc, o, 6)
     V0 = xi[:6]
     qd = xi[6:]
@@ -129,8 +129,12 @@ def _segment_slices(alpha, w, mass, radius, q, xi, xid, want_mass, M, Q, sc):
     Irot, o = take2(sc, o, 3, 3)  # sum w (R I_d R^T - m [p]^2)
     Irot[:, :] = 0.0
     fc, o = take1(sc, o, 6)
+    accelerating = False  # the mass matrix's and the bias force's passes have xid = 0
+    for r in range(9):
+        if xid[r] != 0.0:
+            accelerating = True
     for k in range(alpha.shape[0]):
-        arc_node(alpha[k], q[0], q[1], q[2], qd[0], qd[1], qd[2], R, p, S, Sd)
+        arc_node_bias(alpha[k], q[0], q[1], q[2], qd[0], qd[1], qd[2], R, p, S, sd)
         if want_mass:
             wsum += w[k]
             mass_node(R, p, S, Id, w[k], M, mp, Irot, fc)
@@ -139,9 +143,13 @@ def _segment_slices(alpha, w, mass, radius, q, xi, xid, want_mass, M, Q, sc):
             rel[r] = S[r, 0] * qd[0] + S[r, 1] * qd[1] + S[r, 2] * qd[2]
             V[r] = Vr[r] + rel[r]
         # a = Ad^-1 A0 + S qdd + Sd qd - rel x Vr
-        slice_twist(R, p, S, A0, qdd, a)
-        for r in range(6):
-            a[r] += Sd[r, 0] * qd[0] + Sd[r, 1] * qd[1] + Sd[r, 2] * qd[2]
+        if accelerating:
+            slice_twist(R, p, S, A0, qdd, a)
+            for r in range(6):
+                a[r] += sd[r]
+        else:
+            for r in range(6):
+                a[r] = sd[r]
         sub_motion_cross(rel, Vr, a)
         # h = I V; f = I a + V x* h, V x* h = (w x hl, v x hl + w x ha)
         hl0, hl1, hl2 = m * V[0], m * V[1], m * V[2]
