@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import os
 import re
+import signal
 import subprocess
 import sys
 import time
@@ -138,17 +139,24 @@ def warm_up(timeout: float = TIMEOUT_S, python: str | None = None, env: dict | N
     _say("compiling the default method's engine into numba's cache for the first run (about 45 s of CPU, "
          "in two processes; QCHAIN_INSTALL_COMPILE=0 leaves it to the first run)")
     t0 = time.perf_counter()
-    try:
-        p = subprocess.run(cmd, cwd=str(ROOT), env=env, stdin=subprocess.DEVNULL, capture_output=True, text=True,
-                           timeout=timeout)
-    except subprocess.TimeoutExpired:
-        _say(f"compiling ahead took over {timeout:g} s and was stopped: the first run compiles what is missing")
-        return False
+    try:  # a session of its own: stopped, it is stopped with the compiling workers it started
+        p = subprocess.Popen(cmd, cwd=str(ROOT), env=env, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
+                             stderr=subprocess.PIPE, text=True, start_new_session=True)
     except OSError as err:
         _say(f"compiling ahead could not start ({err}): the first run compiles the engine")
         return False
+    try:
+        out, err = p.communicate(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        try:
+            os.killpg(p.pid, signal.SIGKILL)
+        except OSError:
+            pass
+        p.communicate()
+        _say(f"compiling ahead took over {timeout:g} s and was stopped: the first run compiles what is missing")
+        return False
     if p.returncode != 0:
-        tail = (p.stderr or p.stdout).strip().splitlines()[-1:] or ["no output"]
+        tail = (err or out).strip().splitlines()[-1:] or ["no output"]
         _say(f"compiling ahead failed (exit {p.returncode}: {tail[0]}): the first run compiles the engine")
         return False
     _say(f"engine compiled and cached in {time.perf_counter() - t0:.0f} s")
