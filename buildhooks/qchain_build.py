@@ -45,7 +45,7 @@ WARMUP_DEPENDENCIES = ("numba", "numpy", "scipy", "pin")
 #: packages whose versions must match between the build and the run for the cache to be taken
 PINNED = ("numba", "numpy")
 #: seconds after which the warm-up is given up (the first run compiles what is missing)
-TIMEOUT_S = 900
+TIMEOUT_S = 1800
 #: the environment variable (and config setting ``compile``) that turns the warm-up off with 0
 SWITCH = "QCHAIN_INSTALL_COMPILE"
 
