@@ -137,7 +137,7 @@ def warm_up(timeout: float = TIMEOUT_S, python: str | None = None, env: dict | N
     env.setdefault("MPLBACKEND", "Agg")
     cmd = [python or sys.executable, str(Path(__file__).resolve()), "--compile"]
     _say("compiling the default method's engine into numba's cache for the first run (one to two minutes of "
-         "CPU, in three processes; QCHAIN_INSTALL_COMPILE=0 leaves it to the first run)")
+         "CPU, in parallel processes; QCHAIN_INSTALL_COMPILE=0 leaves it to the first run)")
     t0 = time.perf_counter()
     try:  # a session of its own: stopped, it is stopped with the compiling workers it started
         p = subprocess.Popen(cmd, cwd=str(ROOT), env=env, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
