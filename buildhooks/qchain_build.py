@@ -86,11 +86,15 @@ def _clean_env() -> dict[str, str]:
 
 def _target_versions() -> dict[str, str]:
     """The versions of :data:`PINNED` in the environment being installed into, where it has
-    them (empty for a fresh one, or if that cannot be told)."""
+    them from a package index through pip (empty for a fresh one, or if that cannot be told).
+    One installed otherwise (conda, a local build, a file) may be a version no index has: asked
+    for, it would fail the install, so it is left to ``pyproject.toml``'s bounds."""
     code = ("import importlib.metadata as m\n"
             f"for n in {PINNED!r}:\n"
-            "    try: print(n, m.version(n))\n"
-            "    except m.PackageNotFoundError: pass\n")
+            "    try: d = m.distribution(n)\n"
+            "    except m.PackageNotFoundError: continue\n"
+            "    if (d.read_text('INSTALLER') or '').strip() == 'pip' and d.read_text('direct_url.json') is None:\n"
+            "        print(n, d.version)\n")
     try:
         p = subprocess.run([sys.executable, "-I", "-c", code], env=_clean_env(), capture_output=True, text=True,
                            timeout=60, check=True)
