@@ -3,7 +3,9 @@
 The engine's parts (``rhs_planar`` / ``rhs_spatial``, ``jacobian``, ``advance``,
 ``energies``) and how they are compiled: docs/engine.md, "The first run: compiling".
 :func:`prepare` makes them ready before a run starts; :func:`start` sets the workers going
-earlier (a scene does so before it builds its model).
+earlier (a scene does so before it builds its model). An editable install has compiled the
+default method's parts already (``buildhooks/qchain_build.py``, docs/engine.md "Compiled at
+install"): then nothing here is cold and nothing is said.
 """
 
 from __future__ import annotations

@@ -1,0 +1,105 @@
+"""The build backend (``buildhooks/qchain_build.py``): an editable install compiles the engine
+into numba's cache for the first run, best effort, and never fails the install."""
+
+from __future__ import annotations
+
+import importlib.util
+import os
+import subprocess
+import sys
+import tomllib
+from pathlib import Path
+
+import numba
+import numpy as np
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def _backend():
+    spec = importlib.util.spec_from_file_location("qchain_build", ROOT / "buildhooks" / "qchain_build.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def test_pyproject_builds_with_the_backend_which_has_every_hook():
+    """pip finds the backend in the tree (``backend-path``), and it answers every PEP 517/660
+    hook (setuptools' for those it does not wrap)."""
+    build = tomllib.loads((ROOT / "pyproject.toml").read_text())["build-system"]
+    assert build["build-backend"] == "qchain_build" and build["backend-path"] == ["buildhooks"]
+    b = _backend()
+    for hook in ("build_wheel", "build_sdist", "build_editable", "get_requires_for_build_wheel",
+                 "get_requires_for_build_sdist", "get_requires_for_build_editable", "prepare_metadata_for_build_wheel",
+                 "prepare_metadata_for_build_editable"):
+        assert callable(getattr(b, hook)), hook
+    assert "buildhooks/qchain_build.py" in (ROOT / "MANIFEST.in").read_text()  # in the sdist, or it cannot build
+
+
+def test_the_warm_up_asks_for_the_runtime_dependencies_at_this_environment_s_numba_and_numpy():
+    """The build environment gets numba, numpy, scipy and Pinocchio with pyproject's bounds, and
+    numba and numpy at the versions the target environment has (numba takes a cache entry only
+    from its own version)."""
+    b = _backend()
+    reqs = b.warmup_requires()
+    deps = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["dependencies"]
+    assert sorted(r.split("=")[0].split(">")[0] for r in reqs) == ["numba", "numpy", "pin", "scipy"]
+    # the test runs in the environment qchain is installed in: pip would start the backend with this interpreter
+    assert f"numba=={numba.__version__}" in reqs and f"numpy=={np.__version__}" in reqs
+    assert next(d for d in deps if d.startswith("scipy")) in reqs and next(d for d in deps if d.startswith("pin")) in reqs
+
+
+def test_the_warm_up_is_switched_off_by_the_environment_or_a_config_setting(monkeypatch):
+    b = _backend()
+    monkeypatch.delenv("QCHAIN_INSTALL_COMPILE", raising=False)
+    assert b.enabled() and b.enabled({}) and b.enabled({"compile": "1"})
+    assert not b.enabled({"compile": "0"}) and not b.enabled({"compile": "false"})
+    monkeypatch.setenv("QCHAIN_INSTALL_COMPILE", "0")
+    assert not b.enabled()
+    assert b.enabled({"compile": "1"})  # the config setting is the more specific
+
+
+def test_a_failing_warm_up_never_fails_the_install_and_says_why(tmp_path, capsys):
+    """No interpreter, one that fails, one that takes too long: ``warm_up`` returns False and
+    says on stderr that the first run compiles, and raises nothing."""
+    b = _backend()
+    failing = tmp_path / "failing-python"
+    failing.write_text("#!/bin/sh\necho 'ImportError: no numba here' >&2\nexit 3\n")
+    failing.chmod(0o755)
+    slow = tmp_path / "slow-python"
+    slow.write_text("#!/bin/sh\nexec sleep 30\n")
+    slow.chmod(0o755)
+    cases = ((str(tmp_path / "missing"), 60, "could not start"), (str(failing), 60, "failed (exit 3: ImportError"),
+             (str(slow), 0.5, "took over 0.5 s and was stopped"))
+    for python, timeout, said in cases:
+        assert b.warm_up(timeout=timeout, python=python) is False
+        err = capsys.readouterr().err
+        assert said in err and "the first run compiles" in err, err
+
+
+@pytest.mark.slow
+def test_after_the_install_s_warm_up_the_readme_example_compiles_nothing(tmp_path):
+    """The warm-up into an empty numba cache, then the README's example in a new process with
+    that cache: no part of the engine announced as compiled on stderr, and numba compiled
+    nothing (every function it needed was in the cache)."""
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "cache"), MPLBACKEND="Agg")
+    env.pop("PYTHONPATH", None)
+    b = _backend()
+    assert b.warm_up(timeout=3000, env=env)  # (no timing here: a loaded machine takes long)
+    code = ("import runpy, sys\n"
+            "from numba.core import event\n"
+            "compiled = []\n"
+            "class L(event.Listener):\n"
+            "    def on_start(self, ev): compiled.append(ev.data['dispatcher'].py_func.__qualname__)\n"
+            "    def on_end(self, ev): pass\n"
+            "event.register('numba:compile', L())\n"
+            f"sys.argv = ['wave_arm.py', '--quick', '--out', {str(tmp_path / 'out')!r}]\n"
+            f"sys.path.insert(0, {str(ROOT / 'examples')!r})\n"
+            f"runpy.run_path({str(ROOT / 'examples' / 'wave_arm.py')!r}, run_name='__main__')\n"
+            "print('compiled:', compiled)\n")
+    p = subprocess.run([sys.executable, "-c", code], env=dict(env, PYTHONPATH=str(ROOT)), cwd=str(tmp_path),
+                       capture_output=True, text=True, timeout=1800)
+    assert p.returncode == 0, p.stderr
+    assert "qchain: compiling" not in p.stderr, p.stderr
+    assert "compiled: []" in p.stdout, p.stdout
