@@ -138,6 +138,11 @@ def test_tip_derivative_matches_differences_of_tip_positions():
             for ch in (arm(3, A0 + e), arm(3, A0 - e))]
     fd = (tips[0] - tips[1]) / (2 * e)
     assert np.abs(fd - dp[:, :, -1]).max() < 1e-7 * np.abs(fd).max()
+    # a chosen subset of the initial columns: the same numbers as those columns of the full set
+    sub = sensitivities(chain, q0, v0, (0.0, 0.05), initial=["v0[5]", "q0[2]"], params=[("chamber_area", 1)], **kw)
+    assert sub.columns == ["v0[5]", "q0[2]", "chamber_area[1]"]
+    full = [r.columns.index(c) for c in sub.columns]
+    assert np.array_equal(sub.S, r.S[:, :, full])
 
 
 def test_bad_input_is_refused_by_name():
@@ -151,6 +156,9 @@ def test_bad_input_is_refused_by_name():
     refused(lambda: call(params=[("chamber_area", 0), ("chamber_area", 0)]), "twice")
     refused(lambda: call(params="chamber_area"), "params")
     refused(lambda: call(initial=False), "nothing to differentiate")
+    refused(lambda: call(initial=["w0[1]"]), "initial[0]")
+    refused(lambda: call(initial=["q0[1]", "q0[1]"]), "twice")
+    refused(lambda: call(initial="q0[1]"), "initial")
     refused(lambda: call(q0=np.zeros(5)), "q0")
     refused(lambda: call(v0=np.zeros(4)), "v0")
     refused(lambda: call(method="radau5"), "method")

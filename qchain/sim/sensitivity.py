@@ -92,10 +92,21 @@ class SensitivityResult:
 
 def _columns(chain: Chain, initial, params) -> tuple[list[str], np.ndarray, np.ndarray]:
     """The column names and the parameters' ``kinds``, ``index`` (int64), checked where they enter."""
-    if not isinstance(initial, (bool, np.bool_)):
-        raise TypeError(f"initial must be True or False, got {describe_value(initial)}")
     idx = np.flatnonzero(chain.active)
-    names = ([f"q0[{i}]" for i in idx] + [f"v0[{i}]" for i in idx]) if initial else []
+    every = [f"q0[{i}]" for i in idx] + [f"v0[{i}]" for i in idx]
+    if isinstance(initial, (bool, np.bool_)):
+        names = every if initial else []
+    elif isinstance(initial, (list, tuple)):
+        names = list(initial)
+        for k, name in enumerate(names):
+            if name not in every:
+                raise ValueError(f"initial[{k}] must name a free coordinate of the initial state, one of "
+                                 f"{every}, got {describe_value(name)}")
+        if len(set(names)) != len(names):
+            raise ValueError(f"initial names a column twice: {names}")
+    else:
+        raise TypeError(f"initial must be True, False or a list of names such as 'q0[1]', 'v0[4]', got "
+                        f"{describe_value(initial)}")
     if isinstance(params, (str, bytes)) or not isinstance(params, (list, tuple)):
         raise TypeError(f"params must be a list of (name, segment) pairs, e.g. [('chamber_area', 0)], got "
                         f"{describe_value(params)}")
@@ -167,9 +178,9 @@ def sensitivities(chain: Chain, q0, v0, t_span, *, params=(), initial: bool = Tr
     params : list of (name, segment)
         The parameters to differentiate with respect to (:data:`PARAMETERS`: ``"chamber_area"``,
         m^2); the other model parameters (:data:`PENDING_PARAMETERS`) are refused by name.
-    initial : bool
-        Include the columns of the initial state's free coordinates (``q0`` in the tangent
-        space, then ``v0``).
+    initial : bool or list of str
+        True: the columns of the initial state's free coordinates (``q0[i]`` in the tangent
+        space, then ``v0[i]``, ``i`` in ``flatnonzero(chain.active)``); or a list of those names.
     method : ``"dopri5"`` (adaptive: its steps are those of :func:`qchain.simulate`'s own
         dopri5 run at ``rtol``, ``atol``, ``max_step``, ``first_step``, then frozen) or ``"rk4"``
         (``dt``).
@@ -222,10 +233,10 @@ def sensitivities(chain: Chain, q0, v0, t_span, *, params=(), initial: bool = Tr
         grid = np.array(plain.t, dtype=float)
         meta["grid_nfev"] = int(plain.nfev)
     t_out = grid.copy() if cfg["t_eval"] is None else np.array(cfg["t_eval"], dtype=float)
-    return _run(chain, m, method, q0, v0, grid, t_out, columns, kinds, index, initial, meta)
+    return _run(chain, m, method, q0, v0, grid, t_out, columns, kinds, index, meta)
 
 
-def _run(chain, m, method, q0, v0, grid, t_out, columns, kinds, index, initial, meta) -> SensitivityResult:
+def _run(chain, m, method, q0, v0, grid, t_out, columns, kinds, index, meta) -> SensitivityResult:
     idx = m.idx
     nA = idx.size
     N = 2 * nA
@@ -236,8 +247,9 @@ def _run(chain, m, method, q0, v0, grid, t_out, columns, kinds, index, initial, 
     y = np.zeros(N)
     y[nA:] = v0[idx]
     S = np.zeros((N, ncol))
-    if initial:
-        S[:, :N] = np.eye(N)
+    for c, name in enumerate(columns[: ncol - P]):  # the initial state's columns: unit vectors
+        i = int(np.flatnonzero(idx == int(name[3:-1]))[0])
+        S[i if name.startswith("q0") else nA + i, c] = 1.0
     K = np.zeros((11, N))
     dK = np.zeros((11, N, ncol))
     Jq, Jv = np.zeros((nA, nA)), np.zeros((nA, nA))
