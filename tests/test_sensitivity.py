@@ -125,7 +125,7 @@ def test_near_equilibrium_the_sensitivity_is_the_linearisations_step_map_and_its
     assert np.abs(S - E).max() / np.abs(E).max() < 2 * method_error + 1e-8
 
 
-def test_tip_derivative_matches_differences_of_tip_positions():
+def test_tip_and_point_derivatives_match_differences_of_their_positions():
     chain = arm()
     q0, v0 = start(chain)
     kw = dict(method="rk4", dt=1e-3, t_eval=T_EVAL, pressure=P_SINE)
@@ -138,6 +138,21 @@ def test_tip_derivative_matches_differences_of_tip_positions():
             for ch in (arm(3, A0 + e), arm(3, A0 - e))]
     fd = (tips[0] - tips[1]) / (2 * e)
     assert np.abs(fd - dp[:, :, -1]).max() < 1e-7 * np.abs(fd).max()
+    # a point inside the arm: segment 1 at alpha = 0.5, the backbone's middle point there
+    pm, dpm = tip_sensitivities(chain, r, segment=1, alpha=0.5)
+    assert np.allclose(pm, [chain.backbone(q, 3)[1, 1] for q in tr.q], rtol=0, atol=1e-15)
+    mids = [np.array([ch.backbone(q, 3)[1, 1] for q in simulate(ch, q0, v0, (0.0, 0.05), **kw).q])
+            for ch in (arm(3, A0 + e), arm(3, A0 - e))]
+    fd = (mids[0] - mids[1]) / (2 * e)
+    assert np.abs(fd - dpm[:, :, -1]).max() < 1e-7 * np.abs(fd).max()
+    eq = 1e-6  # and an initial-state column, against runs from perturbed starts
+    c = r.columns.index("q0[4]")
+    dq = np.zeros(chain.nv)
+    dq[4] = eq
+    mids = [np.array([chain.backbone(q, 3)[1, 1] for q in simulate(chain, q0 + s_ * dq, v0, (0.0, 0.05), **kw).q])
+            for s_ in (1, -1)]
+    fd = (mids[0] - mids[1]) / (2 * eq)
+    assert np.abs(fd - dpm[:, :, c]).max() < 1e-7 * np.abs(fd).max()
     # a chosen subset of the initial columns: the same numbers as those columns of the full set
     sub = sensitivities(chain, q0, v0, (0.0, 0.05), initial=["v0[5]", "q0[2]"], params=[("chamber_area", 1)], **kw)
     assert sub.columns == ["v0[5]", "q0[2]", "chamber_area[1]"]
@@ -170,6 +185,9 @@ def test_bad_input_is_refused_by_name():
     refused(lambda: sensitivities(floating, floating.neutral(), np.zeros(floating.nv), (0, 0.01), method="rk4",
                                   dt=1e-3), "floating")
     refused(lambda: tip_sensitivities(arm(2), call()), "nq")
+    refused(lambda: tip_sensitivities(chain, call(), segment=3), "segment")
+    refused(lambda: tip_sensitivities(chain, call(), segment=0, alpha=1.5), "alpha")
+    refused(lambda: tip_sensitivities(chain, call(), segment=0, alpha=float("nan")), "alpha")
 
 
 def test_a_run_leaving_the_domain_fails_with_its_samples_and_the_step():

@@ -30,6 +30,7 @@ import numpy as np
 from ..arm.chain import Chain
 from ..checks.convert import as_real_array, describe_value
 from .._jit import first_class_functions
+from ..model.arc import arc_nodes
 from .engine import sensitivity as es
 from .engine import system, tableaus, warmup
 from .inputs import Schedule, as_input
@@ -291,20 +292,49 @@ def _run(chain, m, method, q0, v0, grid, t_out, columns, kinds, index, meta) -> 
                              method=method, meta=meta)
 
 
-def tip_sensitivities(chain: Chain, result: SensitivityResult) -> tuple[np.ndarray, np.ndarray]:
-    """The tip's world position along ``result`` and its derivative: ``p (K, 3)`` (m) and
-    ``dp (K, 3, ncol)`` = ``J(q) dq/d(column)``, with ``J`` the linear rows of the exact tip
-    Jacobian in world axes (:meth:`qchain.Chain.tip_jacobian`, ``"local_world_aligned"``)."""
+def tip_sensitivities(chain: Chain, result: SensitivityResult, segment: int | None = None,
+                      alpha: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+    """The world position of the tip (or of the backbone point at ``alpha`` in [0, 1] of
+    ``segment``) along ``result`` and its derivative: ``p (K, 3)`` (m) and ``dp (K, 3, ncol)``
+    = ``J(q) dq/d(column)``, with ``J`` the linear rows of the point's exact frame Jacobian in
+    world axes (as :meth:`qchain.Chain.tip_jacobian` with ``"local_world_aligned"``: the root
+    maps of the segments before, then the slice's map at ``alpha``)."""
     if not isinstance(result, SensitivityResult):
         raise TypeError(f"result must be a SensitivityResult, got {type(result).__name__}")
     if result.q.shape[1:] != (chain.nq,):
         raise ValueError(f"result is for nq = {result.q.shape[1]}, the chain has nq = {chain.nq}")
+    seg = chain.n - 1 if segment is None else segment
+    if isinstance(seg, (bool, np.bool_)) or not isinstance(seg, (int, np.integer)) or not 0 <= seg < chain.n:
+        raise ValueError(f"segment must be an integer in [0, {chain.n - 1}], got {describe_value(segment)}")
+    a = float(alpha) if isinstance(alpha, (int, float, np.integer, np.floating)) else np.nan
+    if not 0.0 <= a <= 1.0:
+        raise ValueError(f"alpha must be a number in [0, 1], got {describe_value(alpha)}")
     K = result.t.size
     p = np.zeros((K, 3))
     dp = np.zeros((K, 3, result.S.shape[2]))
     for k in range(K):
         t = float(result.t[k])
-        p[k] = chain.tip_placement(result.q[k], t).translation
-        J = chain.tip_jacobian(result.q[k], "local_world_aligned", t)[:3]
+        X, J = _point_jacobian(chain, result.q[k], t, seg, a)
+        p[k] = X[1]
         dp[k] = J @ result.S[k, : chain.nv]
     return p, dp
+
+
+def _point_jacobian(chain: Chain, q: np.ndarray, t: float, seg: int, alpha: float):
+    """``((R, p), J)``: the world placement of the slice frame at ``(seg, alpha)`` and the linear
+    rows (3, nv) of its Jacobian in world axes (dq in velocity coordinates)."""
+    st = chain._state(q, t=t)
+    alphas = np.ones(chain.n)
+    alphas[seg] = alpha
+    nodes = arc_nodes(alphas, st.q_c)
+    S = nodes.S if st.J is None else nodes.S @ st.J
+    Ad = nodes.Ad_inv
+    Jt = np.zeros((6, chain.nv))
+    if chain.floating:
+        Jt[:, :6] = np.eye(6)
+    for j in range(seg + 1):
+        Jt = Ad[j] @ Jt
+        Jt[:, chain.v_slice(j)] += S[j]
+    root = chain.placements(q, t)[seg]
+    R = root.rotation @ nodes.R[seg]
+    return (R, root.translation + root.rotation @ nodes.p[seg]), R @ Jt[:3]
