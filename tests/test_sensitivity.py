@@ -7,7 +7,9 @@ import pytest
 import scipy.linalg
 
 from qchain import Chain, Segment, equilibrium, simulate
-from qchain.sim.inputs import Sine
+import pinocchio as pin
+
+from qchain.sim.inputs import Sine, SineMotion
 from qchain.sim.sensitivity import sensitivities, tip_sensitivities
 from support import refused
 
@@ -102,6 +104,27 @@ def test_planar_chain_rk4_against_differences():
     free = np.flatnonzero(chain.active)
     check_columns(chain, r, None, dict(method="rk4", dt=1e-3), [f"q0[{free[1]}]", f"v0[{free[-1]}]",
                                                                   "chamber_area[1]"], 1e-7)
+
+
+def test_prescribed_base_swinging_about_a_tilted_axis_against_differences():
+    motion = SineMotion(kind="rotation", axis=np.array([0.3, 0.4, 0.5]) / np.linalg.norm([0.3, 0.4, 0.5]),
+                        amplitude=0.4, frequency=3.0, phase=0.2, mount=pin.SE3.Identity())
+    chain = arm(base="prescribed", base_motion=motion)
+    q0, v0 = start(chain)
+    r = sensitivities(chain, q0, v0, (0.0, 0.05), method="rk4", dt=1e-3, t_eval=T_EVAL, pressure=P_SINE,
+                      params=[("chamber_area", 1)])
+    tr = simulate(chain, q0, v0, (0.0, 0.05), method="rk4", dt=1e-3, t_eval=T_EVAL, pressure=P_SINE)
+    assert np.array_equal(r.q, tr.q) and np.array_equal(r.v, tr.v)
+    q0p = q0.copy()
+    q0p[4] += 1e-6
+    q0m = q0.copy()
+    q0m[4] -= 1e-6
+    kw = dict(method="rk4", dt=1e-3)
+    fd = (run_q(chain, q0p, v0, **kw) - run_q(chain, q0m, v0, **kw)) / 2e-6
+    an = r.S[:, :, r.columns.index("q0[4]")]
+    assert np.abs(fd - an).max() < 1e-7 * np.abs(an).max()
+    p, dp = tip_sensitivities(chain, r)  # the base's motion is in the tip's world position
+    assert np.allclose(p, [chain.tip_placement(q, t).translation for q, t in zip(tr.q, tr.t)], rtol=0, atol=1e-15)
 
 
 def test_near_equilibrium_the_sensitivity_is_the_linearisations_step_map_and_its_exponential():
