@@ -204,6 +204,10 @@ def test_bad_input_is_refused_by_name():
     refused(lambda: call(steps=[0.0, 0.005, 0.004, 0.01]), "steps")
     refused(lambda: call(steps=[0.0, 0.005]), "steps")
     refused(lambda: call(pressure=lambda t, q, v: np.zeros(9)), "pressure")
+    from qchain.sim.budget import Budget, BudgetError
+
+    refused(lambda: call(dt=1e-10), "max_steps", BudgetError)
+    refused(lambda: call(budget=Budget(max_memory=1e4)), "max_memory", BudgetError)
     floating = Chain([Segment(**SEG)], base="floating")
     refused(lambda: sensitivities(floating, floating.neutral(), np.zeros(floating.nv), (0, 0.01), method="rk4",
                                   dt=1e-3), "floating")

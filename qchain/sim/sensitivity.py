@@ -33,6 +33,7 @@ from .._jit import first_class_functions
 from ..model.arc import arc_nodes
 from .engine import sensitivity as es
 from .engine import system, tableaus, warmup
+from .budget import Budget, Cost, as_budget
 from .inputs import Schedule, as_input
 from .simulation import _check_env, _check_start, _check_t_eval, check_run, check_settings, simulate
 
@@ -165,7 +166,7 @@ def _check_steps(steps, t0: float, t1: float) -> np.ndarray:
 def sensitivities(chain: Chain, q0, v0, t_span, *, params=(), initial: bool = True, method: str = "dopri5",
                   dt: float | None = None, rtol: float = 1e-6, atol: float = 1e-8, steps=None, t_eval=None,
                   pressure=None, tau=None, env=None, max_step: float = np.inf,
-                  first_step: float | None = None) -> SensitivityResult:
+                  first_step: float | None = None, budget: Budget | None = None) -> SensitivityResult:
     """A run of ``chain`` from ``(q0, v0)`` over ``t_span`` and the exact derivative of its
     samples with respect to the initial state and ``params``.
 
@@ -191,6 +192,9 @@ def sensitivities(chain: Chain, q0, v0, t_span, *, params=(), initial: bool = Tr
         Sample times (the method's dense output, and its derivative); default every step end.
     pressure, tau, env
         As :func:`qchain.simulate`'s (compiled inputs: constants or schedules).
+    budget : qchain.sim.budget.Budget, optional
+        What the run may cost: its steps, samples and the memory of the samples'
+        sensitivities (K x 2 nA x ncol floats) are checked before it starts.
 
     Returns
     -------
@@ -221,9 +225,13 @@ def sensitivities(chain: Chain, q0, v0, t_span, *, params=(), initial: bool = Tr
         raise ValueError("sensitivities need the compiled engine: a chain in curvature coordinates with the material "
                          "law, constant or scheduled inputs, no Python base_motion")
     meta = {}
+    budget = as_budget(budget)
     if steps is not None:
         grid = _check_steps(steps, t0, t1)
     elif method == "rk4":
+        n_steps = np.ceil((t1 - t0) / cfg["dt"])
+        budget.check(Cost(steps=n_steps, steps_why=f"duration / dt = {t1 - t0:g} s / {cfg['dt']:g} s", samples=0,
+                          samples_why="", memory=0.0, memory_why=""))
         grid = _fixed_grid(t0, t1, cfg["dt"])
     else:
         plain = simulate(chain, q0, v0, (t0, t1), method="dopri5", rtol=cfg["rtol"], atol=cfg["atol"],
@@ -234,6 +242,11 @@ def sensitivities(chain: Chain, q0, v0, t_span, *, params=(), initial: bool = Tr
         grid = np.array(plain.t, dtype=float)
         meta["grid_nfev"] = int(plain.nfev)
     t_out = grid.copy() if cfg["t_eval"] is None else np.array(cfg["t_eval"], dtype=float)
+    nA, ncol = int(np.count_nonzero(chain.active)), len(columns)
+    budget.check(Cost(steps=grid.size - 1, steps_why="the steps to take", samples=t_out.size,
+                      samples_why="t_eval" if cfg["t_eval"] is not None else "a sample every step",
+                      memory=8.0 * t_out.size * (chain.nq + chain.nv + 2 * nA * ncol + 2 * chain.nv * ncol),
+                      memory_why=f"{t_out.size} samples of the state and of {ncol} sensitivity columns"))
     return _run(chain, m, method, q0, v0, grid, t_out, columns, kinds, index, meta)
 
 
