@@ -44,6 +44,10 @@ PARAMETERS = {"chamber_area": (es.KIND_AREA, es.chamber_area_derivatives)}
 #: parameters the dynamics' parameter derivatives will give (issue 30, item 1): refused by name until then
 PENDING_PARAMETERS = ("youngs_modulus", "damping", "mass", "length", "gravity")
 METHODS = ("rk4", "dopri5")
+#: seconds a cold compile of the sensitivity engine takes on the 2-core machine, the Jacobian in
+#: a worker meanwhile (measured on a loaded machine: the right-hand side, the parameter kernels
+#: and the loop 146 s against 84 s for the Jacobian; idle about a third of that)
+COMPILE_S = 60
 
 
 @dataclass
@@ -277,11 +281,7 @@ def _run(chain, m, method, q0, v0, grid, t_out, columns, kinds, index, meta) -> 
     else:
         A, C, Pd = np.zeros((7, 7)), np.zeros(7), np.zeros((7, 4))
     param_kernel = PARAMETERS["chamber_area"][1] if P else es.no_parameters
-    fs = (system.rhs(m).compile(m, wk, 0.0, y, K[0]), system.jacobian.compile(m, wk, 0.0, y, Jq, Jv),
-          param_kernel.compile(m, wk, 0.0, y, kinds, index, pbuf, da))
-    if warmup.is_cached(es.advance_sensitivities) is False and not es.advance_sensitivities.overloads:
-        print("qchain: compiling the sensitivity loop for this machine: about 15 s, once after install or an update "
-              "(cached for later runs)", file=sys.stderr, flush=True)
+    fs = _callbacks(m, wk, y, K[0], Jq, Jv, param_kernel, (kinds, index, pbuf, da))
     code = es.RK4 if method == "rk4" else es.DOPRI5
     with first_class_functions():
         status = es.advance_sensitivities(fs, m, wk, code, A, C, Pd, grid, y, S, K, dK, np.zeros(N),
@@ -303,6 +303,29 @@ def _run(chain, m, method, q0, v0, grid, t_out, columns, kinds, index, meta) -> 
                              success=status == system.OK, message=message, status=0 if status == system.OK else -1,
                              nfev=int(cnt[es.NFEV]), njev=int(cnt[es.NJEV]), nsteps=int(cnt[es.NSTEPS]),
                              method=method, meta=meta)
+
+
+def _callbacks(m, wk, y, f, Jq, Jv, param_kernel, param_args) -> tuple:
+    """The compiled loop's callbacks (right-hand side, Jacobian, parameter kernel), loaded from
+    the cache or compiled. Cold, it says so once on stderr, and the Jacobian (the largest part)
+    is compiled in a worker process (:mod:`qchain.sim.engine.warmup`'s) while this one
+    compiles the rest."""
+    rhs = system.rhs(m)
+    cold = [k.__name__ for k, args in ((rhs, (f,)), (system.jacobian, (Jq, Jv)), (param_kernel, param_args))
+            if k.is_cached(m, wk, 0.0, y, *args) is False]
+    if not es.advance_sensitivities.overloads and warmup.is_cached(es.advance_sensitivities) is False:
+        cold.append("advance_sensitivities")
+    if cold:
+        print(f"qchain: compiling the sensitivity engine for this machine ({', '.join(cold)}): about "
+              f"{COMPILE_S} s on 2 cores, once after install or an update (cached for later runs)", file=sys.stderr,
+              flush=True)
+    if "jacobian" in cold and warmup._parallel():
+        warmup._spawn(["jacobian"], "radau5", bool(m.planar_kernel == 1))
+    out_rhs = rhs.compile(m, wk, 0.0, y, f)
+    out_param = param_kernel.compile(m, wk, 0.0, y, *param_args)
+    if "jacobian" in cold:
+        warmup._wait()  # then loaded from the cache (or compiled here if the worker failed)
+    return out_rhs, system.jacobian.compile(m, wk, 0.0, y, Jq, Jv), out_param
 
 
 def tip_sensitivities(chain: Chain, result: SensitivityResult, segment: int | None = None,
