@@ -44,10 +44,11 @@ PARAMETERS = {"chamber_area": (es.KIND_AREA, es.chamber_area_derivatives)}
 #: parameters the dynamics' parameter derivatives will give (issue 30, item 1): refused by name until then
 PENDING_PARAMETERS = ("youngs_modulus", "damping", "mass", "length", "gravity")
 METHODS = ("rk4", "dopri5")
-#: seconds a cold compile of the sensitivity engine takes on the 2-core machine, the Jacobian in
-#: a worker meanwhile (measured on a loaded machine: the right-hand side, the parameter kernels
-#: and the loop 146 s against 84 s for the Jacobian; idle about a third of that)
-COMPILE_S = 60
+#: seconds a cold compile of the sensitivity engine takes on an idle 2-core machine, the
+#: Jacobian in a worker meanwhile: the parts of radau5's engine (24 s idle, docs/engine.md) with
+#: the loop in place of its stepper; measured 128 s on the 2-core machine at a load average of 9-16
+#: (230 s with every part compiled in one process)
+COMPILE_S = 30
 
 
 @dataclass
