@@ -20,9 +20,17 @@ T_EVAL = np.array([0.0, 0.0123, 0.031, 0.05])  # between steps: the dense output
 P_SINE = Sine(amplitude=[2e4, 0, 1e4] * 3, frequency=5.0, phase=[0, 1, 2] * 3, offset=[2e4, 0, 1e4] * 3)
 
 
-def arm(n=3, area1=A0, **kw):
-    return Chain([Segment(**{**SEG, "chamber_area": area1 if j == 1 else A0}) for j in range(n)],
-                 gravity=(0, 0, -9.81), **kw)
+def arm(n=3, area1=A0, change=None, **kw):
+    """The test arm; ``change = (name, j, value)``: segment ``j``'s attribute (or gravity's axis ``j``) changed."""
+    segs = [dict(SEG, chamber_area=area1 if j == 1 else A0) for j in range(n)]
+    g = [0.0, 0.0, -9.81]
+    if change is not None:
+        name, j, value = change
+        if name == "gravity":
+            g[j] = value
+        else:
+            segs[j][name] = value
+    return Chain([Segment(**s) for s in segs], gravity=g, **kw)
 
 
 def start(chain):
@@ -52,6 +60,13 @@ def check_columns(chain, r, runs, method_kw, cols, rel):
             e = 1e-4 * A0
             fd = (run_q(arm(chain.n, A0 + e, planar=chain.planar), q0, v0, **method_kw)
                   - run_q(arm(chain.n, A0 - e, planar=chain.planar), q0, v0, **method_kw)) / (2 * e)
+        elif not name.startswith(("q0", "v0")):
+            pname, j = name[:-1].split("[")
+            j = int(j)
+            value = [0.0, 0.0, -9.81][j] if pname == "gravity" else SEG[pname]
+            e = 1e-3 if pname == "gravity" else 1e-5 * value
+            fd = (run_q(arm(chain.n, change=(pname, j, value + e), planar=chain.planar), q0, v0, **method_kw)
+                  - run_q(arm(chain.n, change=(pname, j, value - e), planar=chain.planar), q0, v0, **method_kw)) / (2 * e)
         else:
             i = int(name[3:-1])
             e = 1e-6
@@ -98,12 +113,31 @@ def test_planar_chain_rk4_against_differences():
     chain = arm(planar=True)
     q0, v0 = start(chain)
     r = sensitivities(chain, q0, v0, (0.0, 0.05), method="rk4", dt=1e-3, t_eval=T_EVAL, pressure=P_SINE,
-                      params=[("chamber_area", 1)])
+                      params=[("chamber_area", 1), ("youngs_modulus", 1), ("mass", 2), ("gravity", 2)])
     locked = np.flatnonzero(~chain.active)
     assert locked.size and not np.any(r.S[:, locked]) and not np.any(r.S[:, chain.nv + locked])
     free = np.flatnonzero(chain.active)
     check_columns(chain, r, None, dict(method="rk4", dt=1e-3), [f"q0[{free[1]}]", f"v0[{free[-1]}]",
-                                                                  "chamber_area[1]"], 1e-7)
+                                                                  "chamber_area[1]", "youngs_modulus[1]", "mass[2]",
+                                                                  "gravity[2]"], 1e-7)
+
+
+def test_every_model_parameter_against_differences_of_rebuilt_chains():
+    chain = arm()
+    q0, v0 = start(chain)
+    params = [("youngs_modulus", 0), ("damping", 2), ("mass", 1), ("length", 1), ("gravity", 2), ("gravity", 0)]
+    kw = dict(method="rk4", dt=1e-3)
+    r = sensitivities(chain, q0, v0, (0.0, 0.05), t_eval=T_EVAL, pressure=P_SINE, params=params, initial=False, **kw)
+    assert r.columns == ["youngs_modulus[0]", "damping[2]", "mass[1]", "length[1]", "gravity[2]", "gravity[0]"]
+    errs = []
+    for c, (name, j) in enumerate(params):
+        value = {"gravity": [0.0, 0.0, -9.81][j]}.get(name, SEG.get(name, 0.0) if name != "length" else SEG["length"])
+        e = 1e-3 if name == "gravity" else 1e-5 * value  # damping and mass: the differences' error is 1e-4 at 1e-3
+        fd = (run_q(arm(change=(name, j, value + e)), q0, v0, **kw)
+              - run_q(arm(change=(name, j, value - e)), q0, v0, **kw)) / (2 * e)
+        an = r.S[:, :, c]
+        errs.append(np.abs(fd - an).max() / np.abs(an).max())
+    assert max(errs) < 1e-7, errs
 
 
 def test_prescribed_base_swinging_about_a_tilted_axis_against_differences():
@@ -189,7 +223,10 @@ def test_bad_input_is_refused_by_name():
     call = lambda **kw: sensitivities(chain, kw.pop("q0", q0), kw.pop("v0", v0), (0.0, 0.01),
                                       **{"method": "rk4", "dt": 1e-3, **kw})
     refused(lambda: call(params=[("stiffness", 0)]), "stiffness")
-    refused(lambda: call(params=[("youngs_modulus", 0)]), "youngs_modulus")
+    refused(lambda: call(params=[("gravity", 3)]), "axis")
+    stiff = Chain([Segment(**SEG, extensible=False) for _ in range(2)])
+    refused(lambda: sensitivities(stiff, stiff.neutral(), np.zeros(stiff.nv), (0, 0.01), method="rk4", dt=1e-3,
+                                  params=[("length", 1)]), "inextensible")
     refused(lambda: call(params=[("chamber_area", 3)]), "segment")
     refused(lambda: call(params=[("chamber_area", 0), ("chamber_area", 0)]), "twice")
     refused(lambda: call(params="chamber_area"), "params")

@@ -30,6 +30,7 @@ import numpy as np
 from ..arm.chain import Chain
 from ..checks.convert import as_real_array, describe_value
 from .._jit import first_class_functions
+from ..algorithms import parameter_derivatives as pd
 from ..model.arc import arc_nodes
 from .engine import sensitivity as es
 from .engine import system, tableaus, warmup
@@ -37,12 +38,13 @@ from .budget import Budget, Cost, as_budget
 from .inputs import Schedule, as_input
 from .simulation import _check_env, _check_start, _check_t_eval, check_run, check_settings, simulate
 
-__all__ = ["sensitivities", "SensitivityResult", "tip_sensitivities", "PARAMETERS", "PENDING_PARAMETERS"]
+__all__ = ["sensitivities", "SensitivityResult", "tip_sensitivities", "PARAMETERS"]
 
-#: parameters whose derivative columns are available: name -> (kind code, its kernel)
-PARAMETERS = {"chamber_area": (es.KIND_AREA, es.chamber_area_derivatives)}
-#: parameters the dynamics' parameter derivatives will give (issue 30, item 1): refused by name until then
-PENDING_PARAMETERS = ("youngs_modulus", "damping", "mass", "length", "gravity")
+#: the parameters with derivative columns: name -> (kind code of the parameter derivatives, unit);
+#: per segment (``(name, segment)``) except gravity (``("gravity", axis)``, axis 0-2: x, y, z)
+PARAMETERS = {"youngs_modulus": (pd.KIND_YOUNGS, "Pa"), "damping": (pd.KIND_DAMPING, "s"),
+              "mass": (pd.KIND_MASS, "kg"), "length": (pd.KIND_LENGTH, "m"), "chamber_area": (pd.KIND_AREA, "m^2"),
+              "gravity": (pd.KIND_GRAVITY, "m/s^2")}
 METHODS = ("rk4", "dopri5")
 #: seconds a cold compile of the sensitivity engine takes on an idle 2-core machine, the
 #: Jacobian in a worker meanwhile: the parts of radau5's engine (24 s idle, docs/engine.md) with
@@ -122,13 +124,16 @@ def _columns(chain: Chain, initial, params) -> tuple[list[str], np.ndarray, np.n
         if not (isinstance(item, (list, tuple)) and len(item) == 2 and isinstance(item[0], str)):
             raise TypeError(f"params[{k}] must be a (name, segment) pair, got {describe_value(item)}")
         name, j = item
-        if name in PENDING_PARAMETERS:
-            raise ValueError(f"params[{k}]: the derivative with respect to {name!r} is not available yet (it needs "
-                             f"the dynamics' parameter derivatives); available: {sorted(PARAMETERS)}")
         if name not in PARAMETERS:
-            raise ValueError(f"params[{k}]: unknown parameter {name!r}; available: {sorted(PARAMETERS)}")
-        if isinstance(j, (bool, np.bool_)) or not isinstance(j, (int, np.integer)) or not 0 <= j < chain.n:
-            raise ValueError(f"params[{k}]: segment must be an integer in [0, {chain.n - 1}], got {describe_value(j)}")
+            raise ValueError(f"params[{k}]: unknown parameter {name!r}; the parameters are {tuple(PARAMETERS)}")
+        hi = 2 if name == "gravity" else chain.n - 1
+        what = "axis (0, 1, 2: x, y, z)" if name == "gravity" else "segment"
+        if isinstance(j, (bool, np.bool_)) or not isinstance(j, (int, np.integer)) or not 0 <= j <= hi:
+            raise ValueError(f"params[{k}]: the {what} of {name!r} must be an integer in [0, {hi}], got "
+                             f"{describe_value(j)}")
+        if name == "length" and chain._locked[int(j), 0]:
+            raise ValueError(f"params[{k}]: segment {int(j)} is inextensible: its length is held at q0's, not a "
+                             "parameter of the run")
         if (name, int(j)) in zip((n for n, _ in params[:k]), (int(i) for _, i in params[:k])):
             raise ValueError(f"params[{k}]: ({name!r}, {int(j)}) is asked twice")
         kinds.append(PARAMETERS[name][0])
@@ -183,8 +188,9 @@ def sensitivities(chain: Chain, q0, v0, t_span, *, params=(), initial: bool = Tr
     q0 : (nq,), v0 : (nv,)
     t_span : (t0, t1) s
     params : list of (name, segment)
-        The parameters to differentiate with respect to (:data:`PARAMETERS`: ``"chamber_area"``,
-        m^2); the other model parameters (:data:`PENDING_PARAMETERS`) are refused by name.
+        The parameters to differentiate with respect to (:data:`PARAMETERS`): segment ``j``'s
+        ``"youngs_modulus"`` (Pa), ``"damping"`` (s), ``"mass"`` (kg), ``"length"`` (rest
+        length, m), ``"chamber_area"`` (m^2), or ``("gravity", axis)`` (m/s^2).
     initial : bool or list of str
         True: the columns of the initial state's free coordinates (``q0[i]`` in the tangent
         space, then ``v0[i]``, ``i`` in ``flatnonzero(chain.active)``); or a list of those names.
@@ -220,6 +226,9 @@ def sensitivities(chain: Chain, q0, v0, t_span, *, params=(), initial: bool = Tr
                          progress=False, on_sample=None, events=None, controller_rate=None)
     env = _check_env(chain, env)
     columns, kinds, index = _columns(chain, initial, params)
+    if env is not None and np.any(kinds == pd.KIND_LENGTH):
+        raise ValueError("params: a rest length's derivative with env is not supported (the contact nodes move along "
+                         "the segment with it)")
     for name, u, size in (("pressure", pressure, chain.nu), ("tau", tau, chain.nv)):
         as_input(name, u, size)  # checked where it enters
         if callable(u) and not isinstance(u, Schedule):
@@ -273,7 +282,6 @@ def _run(chain, m, method, q0, v0, grid, t_out, columns, kinds, index, meta) -> 
     dK = np.zeros((11, N, ncol))
     Jq, Jv = np.zeros((nA, nA)), np.zeros((nA, nA))
     da = np.zeros((chain.nv, P))
-    pbuf = np.zeros(1)
     nt = t_out.size
     Qo, Vo, So = np.zeros((nt, chain.nq)), np.zeros((nt, chain.nv)), np.zeros((nt, N, ncol))
     cnt = np.zeros(8, dtype=np.int64)
@@ -281,7 +289,13 @@ def _run(chain, m, method, q0, v0, grid, t_out, columns, kinds, index, meta) -> 
         A, C, Pd = tableaus.DOPRI5_A.copy(), tableaus.DOPRI5_C.copy(), tableaus.DOPRI5_P.copy()
     else:
         A, C, Pd = np.zeros((7, 7)), np.zeros(7), np.zeros((7, 4))
-    param_kernel = PARAMETERS["chamber_area"][1] if P else es.no_parameters
+    if P == 0:
+        param_kernel, pbuf = es.no_parameters, np.zeros(1)
+    elif np.all(kinds == pd.KIND_AREA):  # the input gain alone: from the Jacobian's da/dp
+        param_kernel, pbuf = es.chamber_area_derivatives, np.zeros(1)
+    else:
+        param_kernel, pbuf = es.model_parameter_derivatives, np.zeros(es.parameter_buffer_size(chain.n, chain.nv, P))
+        pbuf[: chain.n] = [s.youngs_modulus for s in chain.segments]
     fs = _callbacks(m, wk, y, K[0], Jq, Jv, param_kernel, (kinds, index, pbuf, da))
     code = es.RK4 if method == "rk4" else es.DOPRI5
     with first_class_functions():

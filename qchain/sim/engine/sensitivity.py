@@ -26,16 +26,18 @@ import numpy as np
 
 from . import system
 from ..._jit import ejit, ejit_inner, kernel
+from ...algorithms import parameter_derivatives as pd
+from ...algorithms.parameter_derivatives import ParameterWorkspace
 
-__all__ = ["advance_sensitivities", "no_parameters", "chamber_area_derivatives", "KIND_AREA", "RK4", "DOPRI5",
+__all__ = ["advance_sensitivities", "no_parameters", "chamber_area_derivatives", "model_parameter_derivatives",
+           "parameter_buffer_size", "KIND_AREA", "RK4", "DOPRI5",
            "NFEV", "NJEV", "NPEV", "NSTEPS", "STATUS", "K_OUT", "T_FAIL_STEP"]
 
 RK4, DOPRI5 = 0, 1
 # cnt: counters, the failure status and the step it happened in, samples written
 NFEV, NJEV, NPEV, NSTEPS, STATUS, K_OUT, T_FAIL_STEP = range(7)
-#: the kind code of a chamber area (m^2) in ``kinds``; the codes are those of the parameter
-#: derivatives' ``KIND_*`` (``KIND_AREA = 4`` there), so their kernel reads the same arrays
-KIND_AREA = 4
+#: the kind code of a chamber area (m^2) in ``kinds`` (the parameter derivatives' ``KIND_*``)
+KIND_AREA = pd.KIND_AREA
 
 #: The parameter kernel's contract (:func:`qchain._jit.kernel`), for every kernel passed as the
 #: third callback: ``param(m, wk, t, y, kinds, index, pbuf, da) -> int64 status`` with
@@ -76,6 +78,47 @@ def chamber_area_derivatives(m, wk, t, y, kinds, index, pbuf, da):
                 acc += da_dp[r, 3 * j + i] * p[3 * j + i]
             da[r, k] = acc / A_ch[j]
     return system.OK
+
+
+def parameter_buffer_size(n: int, nv: int, P: int) -> int:
+    """The floats :func:`model_parameter_derivatives` carves from ``pbuf``: Young's moduli (n,),
+    then :class:`~qchain.algorithms.parameter_derivatives.ParameterWorkspace` (``Qu`` (n, 9),
+    ``T`` (n, 6, 9), ``c`` (n, 6), ``Hf`` (6 + 3 n)^2, ``Mb`` (nv, 3), ``rhs`` (nv, P)) and
+    ``dID`` (nv, P)."""
+    return n + 9 * n + 54 * n + 6 * n + (6 + 3 * n) ** 2 + 3 * nv + 2 * nv * P
+
+
+@kernel
+def model_parameter_derivatives(m, wk, t, y, kinds, index, pbuf, da):
+    """``da`` (nv, P) = ``da/dtheta`` of every kind of the parameter derivatives
+    (:func:`qchain.algorithms.parameter_derivatives._parameter_derivatives_at`) after the
+    Jacobian's pass at the same state, whose results it reads from ``wk``; ``pbuf``
+    (:func:`parameter_buffer_size`) starts with the segments' Young's moduli (Pa)."""
+    n = m.arrays.mass.shape[0]
+    nv = m.nv
+    P = kinds.shape[0]
+    o = n
+    E = pbuf[:n]
+    Qu = pbuf[o : o + 9 * n].reshape((n, 9))
+    o += 9 * n
+    T = pbuf[o : o + 54 * n].reshape((n, 6, 9))
+    o += 54 * n
+    c = pbuf[o : o + 6 * n].reshape((n, 6))
+    o += 6 * n
+    nf = 6 + 3 * n
+    Hf = pbuf[o : o + nf * nf].reshape((nf, nf))
+    o += nf * nf
+    Mb = pbuf[o : o + 3 * nv].reshape((nv, 3))
+    o += 3 * nv
+    rhs = pbuf[o : o + nv * P].reshape((nv, P))
+    o += nv * P
+    dID = pbuf[o : o + nv * P].reshape((nv, P))
+    q_c, v_c = system._segment_states(m, wk)
+    st = pd._parameter_derivatives_at(m.arrays, m.base == system.FLOATING, q_c, v_c, wk.p.reshape((n, 3)), wk.qdd,
+                                      wk.A0, wk.B[0], wk.B[2, :3], wk.R_WB, E, kinds, index, system.aba_ws(m, wk),
+                                      system.rnea_ws(m, wk), system.aba_derivatives_ws(m, wk),
+                                      ParameterWorkspace(Qu, T, c, Hf, Mb, rhs), wk.scratch, da, dID)
+    return system.OK if st == 0 else (system.SINGULAR if st < 3 else system.NONFINITE)
 
 
 @ejit_inner
