@@ -1,8 +1,8 @@
 """Cost of a rollout with forward sensitivities (qchain.sim.sensitivity) against a plain rollout.
 
 For a 3- and a 10-segment spatial arm driven by a sine in every chamber this prints the median
-CPU time of a plain ``simulate`` run and of ``sensitivities`` with 1, 5 and 20 columns (the
-chamber areas first, up to the segment count, then initial-state columns), with the same
+CPU time of a plain ``simulate`` run and of ``sensitivities`` with 1, 5 and 20 columns (model
+parameters: each kind on each segment in turn, then gravity, then initial-state columns), with the same
 method and steps, measured interleaved in one run: ``rk4`` at a fixed ``dt`` and ``dopri5``
 (the sensitivity pass on the steps of the plain run, frozen; "total" adds that plain run, which
 chooses them). The last columns: the ratio to the plain rollout, and what central differences
@@ -38,7 +38,11 @@ def cpu(fn) -> float:
 
 
 def columns(chain: Chain, ncol: int):
-    params = [("chamber_area", j) for j in range(min(ncol, chain.n))]
+    """``ncol`` columns: the model's parameters (every kind on each segment in turn, then
+    gravity's axes), then initial-state columns if the parameters run out."""
+    kinds = ("youngs_modulus", "damping", "mass", "length", "chamber_area")
+    every = [(k, j) for j in range(chain.n) for k in kinds] + [("gravity", a) for a in range(3)]
+    params = every[:ncol]
     free = np.flatnonzero(chain.active)
     names = [f"q0[{i}]" for i in free] + [f"v0[{i}]" for i in free]
     return params, names[: ncol - len(params)]

@@ -70,7 +70,7 @@ class SensitivityResult:
         locked coordinates have zero rows.
     columns : list of str
         What each column is the derivative with respect to: ``"q0[i]"``, ``"v0[i]"`` (the free
-        coordinates ``i`` of the initial state) and ``"chamber_area[j]"`` (segment ``j``, m^2).
+        coordinates ``i`` of the initial state) and ``"name[j]"`` for a parameter (:data:`PARAMETERS`).
     steps : (M + 1,) s
         The step ends the run took (frozen: the derivative holds them fixed).
     success, message, status : bool, str, int
