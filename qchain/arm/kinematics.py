@@ -249,20 +249,26 @@ class ChainKinematics:
         f = self._state_frames(st, grid)
         return f.backbone[0, segs, np.searchsorted(grid, alphas)]
 
+    @_finite("point Jacobian")
     def point_jacobian(self, q, segment: int, alpha: float, t: float = 0.0) -> np.ndarray:
-        """``d(point)/dq`` (3, nv) of the world position of backbone point ``alpha`` of
-        ``segment``, along ``integrate(q, dq)``: the transpose of the map from a world force
-        there to its generalised force (virtual work), which is exact
-        (:meth:`environment_force` of a :class:`~qchain.contact.PointLoad`); the tip's is
-        :meth:`tip_jacobian`'s linear rows in ``"local_world_aligned"``."""
-        from ..contact.environment import Environment, PointLoad
-
+        """``d(point)/dq`` (3, nv): the linear rows, in world axes, of the exact frame Jacobian
+        of the slice at ``alpha`` in [0, 1] of ``segment`` (segment ``-1`` the last), along
+        ``integrate(q, dq)``: the root maps of the segments before it, then the slice's own map
+        at ``alpha`` (:meth:`tip_jacobian`'s construction, stopped there)."""
         (seg,), (a,) = self._where([(segment, alpha)])
-        if seg == self.n - 1 and a == 1.0:
-            return self.tip_jacobian(q, "local_world_aligned", t)[:3]
-        zero = np.zeros(self.nv)
-        return np.array([self.environment_force(q, zero, Environment(loads=[PointLoad(int(seg), a, force=e)]), t)
-                         for e in np.eye(3)])
+        st = self._state(q, t=t)
+        alphas = np.ones(self.n)
+        alphas[seg] = a
+        nodes = arc_nodes(alphas, st.q_c)
+        S = nodes.S if st.J is None else nodes.S @ st.J
+        Jt = np.zeros((6, self.nv))
+        if self.floating:
+            Jt[:, :6] = np.eye(6)
+        for j in range(seg + 1):
+            Jt = nodes.Ad_inv[j] @ Jt
+            Jt[:, self.v_slice(j)] += S[j]
+        R = self.placements(q, t)[seg].rotation @ nodes.R[seg]
+        return R @ Jt[:3]
 
     def _where(self, where) -> tuple[np.ndarray, np.ndarray]:
         """Checked ``(segment, alpha)`` pairs as arrays (segment made >= 0)."""

@@ -31,7 +31,6 @@ from ..arm.chain import Chain
 from ..checks.convert import as_real_array, describe_value
 from .._jit import first_class_functions
 from ..algorithms import parameter_derivatives as pd
-from ..model.arc import arc_nodes
 from .engine import sensitivity as es
 from .engine import system, tableaus, warmup
 from .budget import Budget, Cost, as_budget
@@ -365,27 +364,6 @@ def tip_sensitivities(chain: Chain, result: SensitivityResult, segment: int | No
     dp = np.zeros((K, 3, result.S.shape[2]))
     for k in range(K):
         t = float(result.t[k])
-        X, J = _point_jacobian(chain, result.q[k], t, seg, a)
-        p[k] = X[1]
-        dp[k] = J @ result.S[k, : chain.nv]
+        p[k] = chain.points(result.q[k], [(seg, a)], t)[0]
+        dp[k] = chain.point_jacobian(result.q[k], seg, a, t) @ result.S[k, : chain.nv]
     return p, dp
-
-
-def _point_jacobian(chain: Chain, q: np.ndarray, t: float, seg: int, alpha: float):
-    """``((R, p), J)``: the world placement of the slice frame at ``(seg, alpha)`` and the linear
-    rows (3, nv) of its Jacobian in world axes (dq in velocity coordinates)."""
-    st = chain._state(q, t=t)
-    alphas = np.ones(chain.n)
-    alphas[seg] = alpha
-    nodes = arc_nodes(alphas, st.q_c)
-    S = nodes.S if st.J is None else nodes.S @ st.J
-    Ad = nodes.Ad_inv
-    Jt = np.zeros((6, chain.nv))
-    if chain.floating:
-        Jt[:, :6] = np.eye(6)
-    for j in range(seg + 1):
-        Jt = Ad[j] @ Jt
-        Jt[:, chain.v_slice(j)] += S[j]
-    root = chain.placements(q, t)[seg]
-    R = root.rotation @ nodes.R[seg]
-    return (R, root.translation + root.rotation @ nodes.p[seg]), R @ Jt[:3]
