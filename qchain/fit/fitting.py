@@ -18,7 +18,8 @@ from pathlib import Path
 import numpy as np
 
 from ..batch.sweep_spec import apply_values
-from .measurements import MeasurementError
+from .dynamics import dynamic_residuals
+from .measurements import MeasurementError, Measurements
 from .parameters import FitParameter, column_map, fit_parameters, scene_values
 from .solve import FitResult, least_squares_fit
 from .statics import StaticPoses, static_residuals
@@ -98,17 +99,30 @@ def _model_params(params: list[FitParameter]) -> tuple[list, list]:
     return pairs, cols
 
 
+def _sensitivity_params(params: list[FitParameter]) -> list:
+    """The sensitivities' ``(name, segment or axis)`` columns of the fit parameters."""
+    out = []
+    for p in params:
+        for c in ([("gravity", p.component)] if p.name == "gravity" else [(p.name, s) for s in p.segments]):
+            if c not in out:
+                out.append(c)
+    return out
+
+
 def fit(scene, experiments, keys, *, bounds: dict | None = None, loss: str = "linear",
-        f_scale: float = 1e-3, reduce: bool = False, max_nfev: int | None = 50) -> FitReport:
+        f_scale: float = 1e-3, reduce: bool = False, max_nfev: int | None = 50, start: str = "rest",
+        rtol: float = 1e-7) -> FitReport:
     """Fit the scene keys ``keys`` to ``experiments``.
 
     Parameters
     ----------
     scene : path
         The scene file (TOML) whose parameters are fitted; the fit starts from its values.
-    experiments : sequence of StaticPoses
-        The measurements (static poses; each experiment's pressures must match the arm's
-        chambers, its points lie within the arm's reach).
+    experiments : sequence of StaticPoses or Measurements
+        Static poses (:mod:`qchain.fit.statics`) and measured motions
+        (:mod:`qchain.fit.measurements`, :mod:`qchain.fit.dynamics`), mixed as they come; each
+        experiment's pressures must match the arm's chambers, its points lie within the arm's
+        reach.
     keys : sequence of str
         Scene keys to fit (:mod:`qchain.fit.parameters`): ``"segments[0].youngs_modulus"``,
         ``"segments[*].mass"``, ``"gravity[2]"``, ...
@@ -123,6 +137,11 @@ def fit(scene, experiments, keys, *, bounds: dict | None = None, loss: str = "li
         share (a planar model cannot follow pressures that differ in chambers 2 and 3).
     max_nfev : int, optional
         Residual evaluations at most.
+    start : {"rest", "scene"}
+        Where a measured motion starts: at rest under its first pressures (its pose moving with
+        the parameters), or at the scene's initial state.
+    rtol : float
+        The runs' dopri5 tolerance (their steps are held for the exact sensitivities).
     """
     from ..scene.reading import parse_scene
     import tomli_w
@@ -136,18 +155,21 @@ def fit(scene, experiments, keys, *, bounds: dict | None = None, loss: str = "li
     if not experiments:
         raise ValueError("experiments: give at least one")
     for i, e in enumerate(experiments):
-        if not isinstance(e, StaticPoses):
-            raise TypeError(f"experiments[{i}] must be StaticPoses, got {type(e).__name__}")
+        if not isinstance(e, (StaticPoses, Measurements)):
+            raise TypeError(f"experiments[{i}] must be StaticPoses or Measurements, got {type(e).__name__}")
     keys = list(keys)
     params = fit_parameters(raw, keys, bounds)
-    start = parse_scene(path.read_text(), path).build(reduce=reduce)
-    nodes = [len(s.alpha_nodes) for s in start.chain.segments]
-    chain0 = start.chain
+    start_model = parse_scene(path.read_text(), path).build(reduce=reduce)
+    nodes = [len(s.alpha_nodes) for s in start_model.chain.segments]
+    chain0 = start_model.chain
     total = sum(e.n_values for e in experiments)
     if total < 2 * len(params):
         raise MeasurementError(f"{total} measured numbers are too few for {len(params)} parameters: at least "
                                f"{2 * len(params)} are needed")
     for e in experiments:
+        if isinstance(e, Measurements):
+            e.check_model(chain0)
+            continue
         if e.pressures.shape[1] != chain0.nu:
             raise MeasurementError(f"{e.source}: {e.pressures.shape[1]} pressures a pose, the model has {chain0.nu} "
                                    f"chambers ({chain0.n} segments x 3)")
@@ -160,7 +182,11 @@ def fit(scene, experiments, keys, *, bounds: dict | None = None, loss: str = "li
                                    "frame than the base's world frame")
     pairs, cols = _model_params(params)
     T = column_map(params, cols)
-    guesses = [[None] * e.pressures.shape[0] for e in experiments]
+    sens = _sensitivity_params(params)
+    T_sens = column_map(params, sens)
+    if start == "scene":
+        q_start, v_start = start_model.q0, start_model.v0
+    guesses = [[None] * e.pressures.shape[0] if isinstance(e, StaticPoses) else None for e in experiments]
     state = {"n": 0, "last": None}
 
     def model_at(x):
@@ -174,9 +200,15 @@ def fit(scene, experiments, keys, *, bounds: dict | None = None, loss: str = "li
         new, chain = model_at(x)
         rs, Js = [], []
         for e, g in zip(experiments, guesses):
-            r, J = static_residuals(chain, e, pairs, g)
+            if isinstance(e, StaticPoses):
+                r, J = static_residuals(chain, e, pairs, g)
+                J = J @ T
+            else:
+                r, J = dynamic_residuals(chain, e, sens, pairs, T_sens, T, start=start,
+                                         q0=q_start if start == "scene" else None,
+                                         v0=v_start if start == "scene" else None, rtol=rtol)
             rs.append(r)
-            Js.append(J @ T)
+            Js.append(J)
         state["last"] = (new, rs)
         return np.concatenate(rs), np.concatenate(Js)
 

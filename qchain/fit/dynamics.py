@@ -1,0 +1,93 @@
+"""Dynamic calibration: a model fitted to measured motion under recorded pressures.
+
+For parameters ``theta`` the model's motion is a run of the compiled engine from the
+experiment's start, driven by the measured pressures (their piecewise-linear table), with its
+exact forward sensitivities (:func:`qchain.sim.sensitivity.sensitivities`: the derivative of
+the numbers the integrator returns, its steps held); the residuals are the model's points
+at the measured times minus the measured points, their Jacobian ``J_point(q) dq/dtheta``.
+
+The start: a real arm's experiment starts at rest under its first pressures (``start="rest"``,
+the default): ``q0 = equilibrium(chain, p(0))``, ``v0 = 0``, and since that rest pose moves
+with the parameters too, its exact derivative (the implicit function theorem, as in
+:mod:`qchain.fit.statics`) is carried through the initial-state columns of the sensitivities:
+``dq/dtheta = S_theta + S_q0 dq0/dtheta``. ``start="scene"`` takes the scene's own initial
+state, which does not depend on the parameters.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .measurements import Measurements
+
+__all__ = ["dynamic_residuals"]
+
+
+def _rest_derivative(chain, q0, p0, pairs):
+    """``dq0/dtheta`` (nv, n_theta) of the rest pose under ``p0`` (zero rows where locked)."""
+    free = np.flatnonzero(chain.active)
+    zero = np.zeros(chain.nv)
+    d = chain.forward_dynamics_derivatives(q0, zero, p0)
+    pd = chain.forward_dynamics_parameter_derivatives(q0, zero, p0, pairs)
+    out = np.zeros((chain.nv, pd.da_dtheta.shape[1]))
+    out[free] = -np.linalg.solve(d.da_dq[np.ix_(free, free)], pd.da_dtheta[free])
+    return out
+
+
+def dynamic_residuals(chain, meas: Measurements, sens_params: list, static_params: list, T_sens: np.ndarray,
+                      T_static: np.ndarray, *, start: str = "rest", q0=None, v0=None, rtol: float = 1e-7,
+                      atol: float = 1e-9):
+    """Residuals (K m 3,) m and their Jacobian (K m 3, p) of ``chain``'s run against ``meas``.
+
+    Parameters
+    ----------
+    chain : Chain
+    meas : Measurements
+        Measured points (``meas.points``) at ``meas.where``, pressures ``meas.pressures``.
+    sens_params, T_sens
+        The sensitivities' ``(name, segment or axis)`` columns and the map from them to the
+        fit's parameters (:func:`qchain.fit.parameters.column_map`).
+    static_params, T_static
+        The same for :meth:`~qchain.Chain.forward_dynamics_parameter_derivatives` (the rest
+        pose's derivative; ``start="rest"`` only).
+    start : {"rest", "scene"}
+    q0, v0
+        The start for ``start="scene"``.
+    rtol, atol
+        dopri5's tolerances (its steps are then held for the sensitivities).
+    """
+    from ..arm.statics import equilibrium
+    from ..sim.sensitivity import sensitivities, tip_sensitivities
+
+    if meas.points is None:
+        raise ValueError(f"{meas.source}: the dynamic fit needs measured points (coordinates alone: not yet)")
+    p0 = meas.pressures(0.0)
+    if start == "rest":
+        eq = equilibrium(chain, p0)
+        if not eq.success:
+            raise FloatingPointError(f"{meas.source}: the model has no rest pose under the first pressures "
+                                     f"({eq.message})")
+        q0, v0 = eq.q, np.zeros(chain.nv)
+    elif start != "scene":
+        raise ValueError(f"start must be 'rest' or 'scene', got {start!r}")
+    free = np.flatnonzero(chain.active)
+    nf = free.size
+    res = sensitivities(chain, q0, v0, (0.0, float(meas.t[-1])), params=list(sens_params), initial=True,
+                        method="dopri5", rtol=rtol, atol=atol, t_eval=meas.t, pressure=meas.pressures)
+    if not res.success:
+        raise FloatingPointError(f"{meas.source}: the model's run failed: {res.message}")
+    dx0 = None
+    if start == "rest":
+        dq0 = _rest_derivative(chain, q0, p0, static_params) @ T_static  # (nv, p)
+        dx0 = dq0[free]
+    K, m = meas.points.shape[:2]
+    r = np.empty((K, m, 3))
+    J = np.empty((K, m, 3, T_sens.shape[1]))
+    for j, (seg, alpha) in enumerate(meas.where):
+        pts, dp = tip_sensitivities(chain, res, segment=int(seg) % chain.n, alpha=alpha)
+        r[:, j] = pts - meas.points[:, j]
+        Jj = dp[:, :, 2 * nf:] @ T_sens  # (K, 3, p)
+        if dx0 is not None:
+            Jj = Jj + dp[:, :, :nf] @ dx0
+        J[:, j] = Jj
+    return r.reshape(-1), J.reshape(K * m * 3, -1)
