@@ -60,9 +60,13 @@ CODES = {"rk4": RK4, "midpoint": MIDPOINT, "dopri5": DOPRI5, "radau5": RADAU5}
 NEWTON_MAXITER = 6  # RADAU5's
 MIDPOINT_MAXITER = 12
 SAFETY, MIN_FACTOR, MAX_FACTOR = 0.9, 0.2, 10.0
-#: radau5 keeps its Newton matrices for a next step between these multiples of the factorised
-#: one (Hairer and Wanner's RADAU5, ``QUOT1``, ``QUOT2``): a refactorisation costs O(nA^3)
-LU_BAND = (1.0, 1.2)
+#: radau5 keeps its step, and its Newton matrices, where the controller's next step after an
+#: accepted one lies between these multiples of it (RADAU5's ``QUOT1``, ``QUOT2``): a
+#: refactorisation costs O(nA^3). The lower end is scipy's (0: an accepted step is not
+#: shrunk): RADAU5's 1.0 refactors for every shrink the controller asks after an accepted
+#: step (more factorisations on the work-precision scenes), and took a step accepted just
+#: above the floor of a coarse ``t`` below it (tests/test_simulate.py, late spans)
+LU_BAND = (0.0, 1.2)
 #: radau5 forms a new Jacobian after an accepted step whose Newton took more than two
 #: iterations contracting slower than this (scipy's ``Radau``; RADAU5's ``THET``)
 JAC_RATE = 1e-3
