@@ -807,8 +807,8 @@ def advance_radau5(fs, m, wk, it, out, c, t_stop, max_out, max_steps):
         # accepted
         cnt[LAST_ST] = 0
         # a new Jacobian after a slow Newton (scipy's rule: more than two iterations at a
-        # contraction rate above 1e-3); Newton matrices kept while the next step, max_step
-        # counted, stays within Hairer and Wanner's band [1, 1.2] of the factorised one
+        # contraction rate above JAC_RATE); else the factorised step and its matrices kept
+        # where the controller's next one, max_step counted, lies in LU_BAND of it
         recompute_jac = n_iter > 2 and rate > JAC_RATE
         fac = min(MAX_FACTOR, safety * _predict(h, tf, en))
         if rejected:  # no growth right after a rejection, on the error or Newton's (RADAU5)
