@@ -99,6 +99,51 @@ def test_radau5_uses_the_exact_jacobian_sparingly_on_a_stiff_arm():
     assert np.abs(r.q[-1] - d.q[-1]).max() < 1e-4
 
 
+
+@pytest.mark.parametrize("method, kw", [
+    ("radau5", dict(first_step=1e-3, max_step=1e-3, rtol=1e-6, atol=1e-8)),
+    ("midpoint", dict(dt=1e-3)),
+])
+def test_implicit_steps_keep_their_newton_matrix_on_a_smooth_run(method, kw):
+    """Steps of one size on a smooth run (radau5 held by ``max_step``, whose error would let
+    it grow; midpoint on its ``t0 + k dt`` grid, where ``t + h - t`` rounds differently from
+    step to step): the Jacobian and the factorisations are formed a few times, not every
+    step (each counted in ``meta``: ``njev``, ``nlu`` as scipy's, radau5 factoring its real
+    and complex matrices), and the run stays on the tight reference."""
+    ch = arm(2, damping=0.02)
+    P = waving(ch)
+    T = 0.2
+    t_eval = np.linspace(0, T, 11)
+    q0, v0 = ch.neutral(), np.zeros(ch.nv)
+    ref = reference(ch, q0, v0, T, t_eval, pressure=P)
+    tr = simulate(ch, q0, v0, (0, T), pressure=P, method=method, t_eval=t_eval, energies=False, **kw)
+    assert tr.success, tr.message
+    steps = tr.meta["nsteps"]
+    assert steps >= 200 and tr.meta["nreject"] <= 2  # (radau5's first steps, from rest, shorter)
+    assert 1 <= tr.meta["njev"] <= steps / 20, tr.meta
+    per_factor = 2 if method == "radau5" else 1
+    assert per_factor <= tr.meta["nlu"] <= per_factor * steps / 5, tr.meta
+    assert tr.nfev >= steps  # every step evaluates the model at least once
+    # radau5 near its rtol; midpoint's own 2nd-order error at dt = 1 ms, 3.2e-4 here (reusing
+    # the matrix moves the run by 3e-9: Newton solves to 1e-10 whatever its matrix)
+    tol = 1e-7 if method == "radau5" else 4e-4
+    assert np.abs(tr.q - ref.q).max() < tol
+
+
+def test_radau5_refactors_where_its_step_changes():
+    """An adaptive run whose step grows and shrinks: a factorisation for a new step size, so
+    more than one, yet fewer pairs than steps, and a Jacobian on fewer steps than taken."""
+    ch = arm(2, damping=0.02)
+    P = waving(ch)
+    tr = simulate(ch, ch.neutral(), np.zeros(ch.nv), (0, 0.5), pressure=P, method="radau5", rtol=1e-6, atol=1e-8,
+                  energies=False)
+    assert tr.success, tr.message
+    steps = tr.meta["nsteps"] + tr.meta["nreject"]
+    assert 2 < tr.meta["nlu"] < 2 * steps, tr.meta
+    assert tr.meta["nlu"] % 2 == 0  # real and complex, always together
+    assert 1 <= tr.meta["njev"] < tr.meta["nsteps"], tr.meta
+
+
 def test_floating_base_on_the_lie_group_conserves_momentum():
     """Zero gravity, a spinning floating arm waving its chambers: the world momentum stays
     constant (relative drift) and the quaternion stays unit, on every compiled method."""

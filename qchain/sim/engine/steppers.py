@@ -60,6 +60,18 @@ CODES = {"rk4": RK4, "midpoint": MIDPOINT, "dopri5": DOPRI5, "radau5": RADAU5}
 NEWTON_MAXITER = 6  # RADAU5's
 MIDPOINT_MAXITER = 12
 SAFETY, MIN_FACTOR, MAX_FACTOR = 0.9, 0.2, 10.0
+#: radau5 keeps its step, and its Newton matrices, where the controller's next step after an
+#: accepted one lies between these multiples of it (RADAU5's ``QUOT1``, ``QUOT2``): a
+#: refactorisation costs O(nA^3). The lower end is scipy's (0: an accepted step is not
+#: shrunk): RADAU5's 1.0 refactors for every shrink the controller asks after an accepted
+#: step (more factorisations on the work-precision scenes), and took a step accepted just
+#: above the floor of a coarse ``t`` below it (tests/test_simulate.py, late spans)
+LU_BAND = (0.0, 1.2)
+#: radau5 forms a new Jacobian after an accepted step whose Newton took more than two
+#: iterations contracting slower than this (scipy's ``Radau``; RADAU5's ``THET``)
+JAC_RATE = 1e-3
+#: radau5 forms a new Jacobian after a step rejected on its error with a stale one (RADAU5)
+REJECT_NEW_JAC = True
 
 
 def constants(method: str) -> tuple:
@@ -370,14 +382,25 @@ def advance_rk4(fs, m, wk, it, out, c, t_stop, max_out, max_steps):
 
 
 @ejit_inner
-def _midpoint_matrix(fs, m, wk, it, t, y, h):
-    """Factor ``I - h/2 Jv - h^2/4 Jq`` at ``(t, y)`` with the exact Jacobian."""
+def _same_step(h, h_lu):
+    """Whether a factorisation for the step ``h_lu`` serves the step ``h``: equal but for the
+    rounding of ``t + h - t`` (a fixed step's ``t0 + k dt`` grid, a step cut at ``t_stop``
+    by a few ulp), which a comparison with ``!=`` took for a new step size and refactored."""
+    return abs(h - h_lu) <= 1e-10 * h_lu
+
+
+@ejit_inner
+def _midpoint_matrix(fs, m, wk, it, t, y, h, new_jac):
+    """Factor ``I - h/2 Jv - h^2/4 Jq``: with a new exact Jacobian at ``(t, y)`` if ``new_jac``
+    (or none was formed yet), else with the one kept (the step changed, not the model)."""
     Jq, Jv, LU, piv, cnt = it.Jq, it.Jv, it.LUr, it.piv_r, it.cnt
     nA = Jq.shape[0]
-    cnt[NJEV] += 1
-    st = _jacobian(fs, m, wk, it, t, y, Jq, Jv)
-    if st != 0:
-        return st
+    if new_jac or cnt[NJEV] == 0:
+        cnt[NJEV] += 1
+        st = _jacobian(fs, m, wk, it, t, y, Jq, Jv)
+        if st != 0:
+            return st
+        it.tf[JAC_T] = t
     for r in range(nA):
         for k in range(nA):
             LU[r, k] = -0.5 * h * Jv[r, k] - 0.25 * h * h * Jq[r, k]
@@ -410,13 +433,13 @@ def advance_midpoint(fs, m, wk, it, out, c, t_stop, max_out, max_steps):
         t_new = _fixed_next(tf, t_stop)
         h = t_new - t
         tm = t + 0.5 * h
-        if cnt[LU_OK] == 1 and tf[H_LU] != h:
+        if cnt[LU_OK] == 1 and not _same_step(h, tf[H_LU]):
             cnt[LU_OK] = 0
         # first guess: V = v + h/2 a_prev (the last step's midpoint acceleration)
         for i in range(nA):
             Y[nA + i] = y[nA + i] + 0.5 * h * K[1, nA + i]
         converged = False
-        fresh = False  # the matrix was formed in this step
+        fresh = False  # the Jacobian was formed in this step
         itn_fresh = 0
         res_old = np.inf
         st = 0
@@ -439,12 +462,16 @@ def advance_midpoint(fs, m, wk, it, out, c, t_stop, max_out, max_steps):
             if res <= tol * (1.0 + vmax):
                 converged = True
                 break
-            if cnt[LU_OK] == 0 or (not fresh and itn > 0 and res > 0.5 * res_old):
-                st = _midpoint_matrix(fs, m, wk, it, tm, Y, h)  # none yet, or a stale one that slows Newton
+            slow = not fresh and itn > 0 and res > 0.5 * res_old  # a stale Jacobian slows Newton
+            if cnt[LU_OK] == 0 or slow:
+                # none yet, or for another step (with the Jacobian kept), or a new Jacobian
+                njev = cnt[NJEV]
+                st = _midpoint_matrix(fs, m, wk, it, tm, Y, h, slow)
                 if st != 0:
                     break
-                fresh = True
-                itn_fresh = itn
+                if cnt[NJEV] != njev:
+                    fresh = True
+                    itn_fresh = itn
             elif fresh and itn - itn_fresh >= MIDPOINT_MAXITER:
                 break
             res_old = res
@@ -659,8 +686,10 @@ def _radau_newton(fs, m, wk, it, c, t, h, scale):
 
 @ejit_inner
 def _radau_jacobian(fs, m, wk, it, t):
+    """The exact Jacobian at the step's start ``(t, it.y)``; the factorisations go stale."""
     it.cnt[NJEV] += 1
     st = _jacobian(fs, m, wk, it, t, it.y, it.Jq, it.Jv)
+    it.tf[JAC_T] = t
     it.cnt[JAC_CURRENT] = 1
     it.cnt[LU_OK] = 0
     return st
@@ -683,19 +712,18 @@ def advance_radau5(fs, m, wk, it, out, c, t_stop, max_out, max_steps):
         if code >= 0:
             return code
         t = tf[T]
-        if cnt[JAC_CURRENT] == 0 and tf[JAC_T] < 0.0:  # the first step: a Jacobian at the start
+        if cnt[NJEV] == 0:  # the first step: a Jacobian at the start
             st = _radau_jacobian(fs, m, wk, it, t)
             if st != 0:
                 cnt[STATUS] = st
                 return FAILED
-            tf[JAC_T] = t
         rejected = False
         while True:
             h = tf[H]
             t_new = _trial_end(it, t, t_stop)
             if not t_new == t_new:
                 return FAILED
-            if tf[H_LU] != t_new - t:
+            if not _same_step(t_new - t, tf[H_LU]):
                 cnt[LU_OK] = 0
             trial = h
             h = t_new - t
@@ -767,19 +795,32 @@ def advance_radau5(fs, m, wk, it, out, c, t_stop, max_out, max_steps):
                 cnt[NREJECT] += 1
                 cnt[LU_OK] = 0
                 rejected = True
+                if cnt[JAC_CURRENT] == 0 and REJECT_NEW_JAC:
+                    # a stale Jacobian also filters the error estimate: Hairer and Wanner
+                    # retry a rejected step with a new one (their RADAU5, "step is rejected")
+                    st = _radau_jacobian(fs, m, wk, it, t)
+                    if st != 0:
+                        cnt[STATUS] = st
+                        return FAILED
                 continue
             break
         # accepted
         cnt[LAST_ST] = 0
-        recompute_jac = n_iter > 2 and rate > 1e-3
+        # a new Jacobian after a slow Newton (scipy's rule: more than two iterations at a
+        # contraction rate above JAC_RATE); else the factorised step and its matrices kept
+        # where the controller's next one, max_step counted, lies in LU_BAND of it
+        recompute_jac = n_iter > 2 and rate > JAC_RATE
         fac = min(MAX_FACTOR, safety * _predict(h, tf, en))
-        if not recompute_jac and fac < 1.2:
-            fac = 1.0
-        else:
-            cnt[LU_OK] = 0
+        if rejected:  # no growth right after a rejection, on the error or Newton's (RADAU5)
+            fac = min(1.0, fac)
+        h_next = max(h * fac, trial) if h < trial and not rejected else h * fac
+        h_lu = tf[H_LU]
+        if (not recompute_jac and cnt[LU_OK] == 1 and h_next >= LU_BAND[0] * h_lu
+                and min(h_next, tf[MAX_STEP]) <= LU_BAND[1] * h_lu):
+            h_next = h_lu
         tf[H_ABS_OLD] = h
         tf[ERR_OLD] = en
-        tf[H] = max(h * fac, trial) if h < trial and not rejected else h * fac
+        tf[H] = h_next
         system.copy(yold, y)
         system.copy(y, yn)
         for i in range(N):  # the collocation polynomial: Q = Z^T P
