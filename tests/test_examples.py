@@ -122,3 +122,24 @@ def test_every_example_has_the_promised_flags(name):
     assert "--quick" in r.stdout and "--out DIR" in r.stdout, r.stdout
     if (EXAMPLES / "scenes" / f"{name}.toml").is_file():
         assert "--scene FILE" in r.stdout, r.stdout
+
+
+def test_calibrate(examples, tmp_path, capsys):
+    """The fit from a lab-style ROS 2 bag (1 s, 0.5 mm mocap noise, 300 Pa pressure noise):
+    the moduli and chamber area within 5 % of the hidden values, the damping within 25 %;
+    the residuals at the noise's size; the fitted model's tip far closer to the measured one
+    than the datasheet model's; the fitted scene a scene."""
+    out = examples("calibrate").main(["--quick", "--out", str(tmp_path)])
+    mod = examples("calibrate")
+    res = out["report"].result
+    hidden = np.array([mod.HIDDEN[k] for k in mod.KEYS])
+    rel = np.abs(res.x / hidden - 1)
+    assert np.all(rel[[0, 1, 3]] < 0.05) and rel[2] < 0.25, rel
+    assert 0.4e-3 < res.sigma < 0.6e-3
+    assert out["rms_after"] < out["rms_before"] / 3
+    assert is_png(out["png"]) and out["bag"].stat().st_size > 0
+    from qchain.scene import load_scene
+
+    fitted = load_scene(out["fitted"]).build(reduce=False).chain
+    assert fitted.segments[0].youngs_modulus == pytest.approx(res.x[0], rel=1e-9)
+    assert "fitted - hidden, in standard errors" in capsys.readouterr().out
