@@ -16,21 +16,22 @@ contact and loads                               :class:`Environment`, :class:`Co
                                                 (:mod:`qchain.contact`)
 time integration                                :func:`simulate`, :class:`Event`, :data:`METHODS`,
                                                 :class:`Trajectory`, :class:`Budget`,
-                                                :func:`compile_all`
+                                                :func:`compile_all`, :func:`sensitivities`
 input schedules                                 :class:`Constant`, :class:`Step`, :class:`Ramp`,
                                                 :class:`Sine`, :class:`Table`, :class:`SineMotion`
 scene files                                     :class:`Scene`, :func:`load_scene`, :func:`parse_scene`
 batches and sweeps                              :func:`simulate_batch`, :class:`BatchTrajectory`,
                                                 :func:`sweep`, :func:`run_sweep`
 recordings                                      :class:`RunLogger`, :func:`read_recording`,
-                                                :func:`replay`, :func:`recover`
+                                                :func:`replay`, :func:`recover`, :func:`export_ros2`
+calibration                                     :mod:`qchain.fit` (``qchain.fit.fit``)
 errors                                          :class:`QchainError` and its kinds
 ==============================================  =============================================
 
 The package reads top-down (``docs/architecture.md``): ``checks`` and ``errors`` at the
 bottom, then ``model`` (one segment's math), ``algorithms`` (the recursive passes and their
 derivatives), ``contact`` (obstacles, the contact law, loads), ``arm`` (:class:`Chain` and its methods), ``sim`` (integration and the compiled
-engine), ``scene`` and ``recording``, ``batch``, and ``cli`` on top. ``qchain.segment``,
+engine), ``scene`` and ``recording``, ``batch``, ``fit``, and ``cli`` on top. ``qchain.segment``,
 ``qchain.chain``, ``qchain.recursive`` and ``qchain.logging`` are public faces over them.
 """
 
@@ -49,14 +50,14 @@ _EXPORTS = {
     "Cylinder": "contact.shapes", "Box": "contact.shapes", "Motion": "contact.shapes",
     "simulate": "sim.simulation", "Event": "sim.simulation", "METHODS": "sim.simulation",
     "Trajectory": "sim.trajectory", "Budget": "sim.budget", "BudgetError": "errors",
-    "compile_all": "sim.engine.compile",
+    "compile_all": "sim.engine.compile", "sensitivities": "sim.sensitivity",
     "Constant": "sim.inputs", "Step": "sim.inputs", "Ramp": "sim.inputs", "Sine": "sim.inputs", "Table": "sim.inputs",
     "SineMotion": "sim.inputs",
     "Scene": "scene.scene", "SceneError": "errors", "load_scene": "scene.reading", "parse_scene": "scene.reading",
     "simulate_batch": "batch.rollouts", "BatchTrajectory": "batch.rollouts", "RolloutError": "errors",
     "sweep": "batch.sweeps", "run_sweep": "batch.sweeps", "SweepResult": "batch.sweeps",
     "RunLogger": "recording.logger", "read_recording": "recording.reader", "replay": "recording.replay",
-    "recover": "recording.replay",
+    "recover": "recording.replay", "export_ros2": "recording.ros2",
     "QchainError": "errors", "DomainError": "errors", "SingularConfigurationError": "errors",
     "NonFiniteError": "errors",
 }
