@@ -10,7 +10,6 @@ scene is the scene file with the fitted values put in (:meth:`FitReport.scene_te
 
 from __future__ import annotations
 
-import os
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -67,20 +66,11 @@ class FitReport:
 
     def write_scene(self, path) -> Path:
         """Write :meth:`scene_text` to ``path`` (whole or not at all)."""
-        import tempfile
+        from ..checks.paths import written_whole
 
-        path = Path(path)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=".fitted-", suffix=".toml", dir=path.parent)
-        try:
-            with os.fdopen(fd, "w") as fh:
-                fh.write(self.scene_text())
-            os.replace(tmp, path)
-            tmp = None
-        finally:
-            if tmp is not None and os.path.exists(tmp):
-                os.unlink(tmp)
-        return path
+        with written_whole(path, prefix=".fitted-") as fh:
+            fh.write(self.scene_text())
+        return Path(path)
 
 
 def _model_params(params: list[FitParameter]) -> tuple[list, list]:

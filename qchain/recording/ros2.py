@@ -30,7 +30,7 @@ metadata of the recording) is copied into the bag's metadata.
 from __future__ import annotations
 
 import os
-import tempfile
+import os
 from pathlib import Path
 
 import numpy as np
@@ -247,6 +247,7 @@ def export_ros2(recording: str | os.PathLike, out: str | os.PathLike, *, limits=
     qchain.logging.RecordingFormatError, qchain.logging.LoggingError
         The recording cannot be read.
     """
+    from ..checks.paths import written_whole
     from .reader import read_recording
 
     out = Path(out)
@@ -256,16 +257,6 @@ def export_ros2(recording: str | os.PathLike, out: str | os.PathLike, *, limits=
         raise ValueError(f"out is the recording itself ({str(out)!r}): choose another path")
     rec = read_recording(recording, limits=limits)
     meta = dict(rec.metadata)  # the recording's sealed description, as it is
-    out.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=".ros2-", suffix=".mcap", dir=out.parent)
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            count = write_ros2(rec, rec.info, fh, metadata=meta)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, out)
-        tmp = None
-    finally:
-        if tmp is not None and os.path.exists(tmp):
-            os.unlink(tmp)
+    with written_whole(out, binary=True, prefix=".ros2-") as fh:
+        count = write_ros2(rec, rec.info, fh, metadata=meta)
     return count
