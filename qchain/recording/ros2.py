@@ -30,7 +30,6 @@ metadata of the recording) is copied into the bag's metadata.
 from __future__ import annotations
 
 import os
-import os
 from pathlib import Path
 
 import numpy as np
