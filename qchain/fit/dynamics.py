@@ -36,7 +36,7 @@ def _rest_derivative(chain, q0, p0, pairs):
 
 def dynamic_residuals(chain, meas: Measurements, sens_params: list, static_params: list, T_sens: np.ndarray,
                       T_static: np.ndarray, *, start: str = "rest", q0=None, v0=None, rtol: float = 1e-7,
-                      atol: float = 1e-9):
+                      atol: float = 1e-9, jacobian: bool = True):
     """Residuals (K m 3,) m and their Jacobian (K m 3, p) of ``chain``'s run against ``meas``.
 
     Parameters
@@ -55,6 +55,9 @@ def dynamic_residuals(chain, meas: Measurements, sens_params: list, static_param
         The start for ``start="scene"``.
     rtol, atol
         dopri5's tolerances (its steps are then held for the sensitivities).
+    jacobian : bool
+        False: the residuals of a plain run (the same numbers: the sensitivities' run is
+        ``simulate``'s bit for bit), the Jacobian None.
     """
     from ..arm.statics import equilibrium
     from ..sim.sensitivity import sensitivities, tip_sensitivities
@@ -70,6 +73,16 @@ def dynamic_residuals(chain, meas: Measurements, sens_params: list, static_param
         q0, v0 = eq.q, np.zeros(chain.nv)
     elif start != "scene":
         raise ValueError(f"start must be 'rest' or 'scene', got {start!r}")
+    if not jacobian:
+        from ..sim.simulation import simulate
+
+        run = simulate(chain, q0, v0, (0.0, float(meas.t[-1])), pressure=meas.pressures, method="dopri5",
+                       rtol=rtol, atol=atol, t_eval=meas.t, energies=False)
+        if not run.success:
+            raise FloatingPointError(f"{meas.source}: the model's run failed: {run.message}")
+        r = np.stack([np.array([chain.points(q, [(s, a)])[0] for q in run.q]) - meas.points[:, j]
+                      for j, (s, a) in enumerate(meas.where)], axis=1)
+        return r.reshape(-1), None
     free = np.flatnonzero(chain.active)
     nf = free.size
     res = sensitivities(chain, q0, v0, (0.0, float(meas.t[-1])), params=list(sens_params), initial=True,

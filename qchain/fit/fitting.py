@@ -185,27 +185,33 @@ def fit(scene, experiments, keys, *, bounds: dict | None = None, loss: str = "li
         new = apply_values(raw, values)
         return new, parse_scene(tomli_w.dumps(new), path).build(reduce=reduce).chain
 
-    def fun(x):
+    def evaluate(x, jacobian: bool):
         state["n"] += 1
         new, chain = model_at(x)
         rs, Js = [], []
         for e, g in zip(experiments, guesses):
             if isinstance(e, StaticPoses):
-                r, J = static_residuals(chain, e, pairs, g)
-                J = J @ T
+                r, J = static_residuals(chain, e, pairs, g, jacobian=jacobian)
+                J = None if J is None else J @ T
             else:
                 r, J = dynamic_residuals(chain, e, sens, pairs, T_sens, T, start=start,
                                          q0=q_start if start == "scene" else None,
-                                         v0=v_start if start == "scene" else None, rtol=rtol)
+                                         v0=v_start if start == "scene" else None, rtol=rtol, jacobian=jacobian)
             rs.append(r)
             Js.append(J)
         state["last"] = (new, rs)
-        return np.concatenate(rs), np.concatenate(Js)
+        return np.concatenate(rs), (np.concatenate(Js) if jacobian else None)
+
+    def fun(x):
+        return evaluate(x, True)
+
+    def fun_r(x):
+        return evaluate(x, False)[0]
 
     res = least_squares_fit(fun, [p.start for p in params], [p.key for p in params],
                             lower=[p.lower for p in params], upper=[p.upper for p in params], loss=loss,
-                            f_scale=f_scale, max_nfev=max_nfev)
-    fun(res.x)  # the report's residuals and scene at the solution
+                            f_scale=f_scale, max_nfev=max_nfev, residuals=fun_r)
+    fun_r(res.x)  # the report's residuals and scene at the solution
     new, rs = state["last"]
     return FitReport(result=res, parameters=params, experiments=experiments, residuals=rs, raw=new,
                      source=str(path), evaluations=state["n"])

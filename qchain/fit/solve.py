@@ -134,7 +134,8 @@ def _statistics(J: np.ndarray, r: np.ndarray, cost: float, scale: np.ndarray, na
 def least_squares_fit(fun: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]], x0, names: list[str], *,
                       lower=None, upper=None, scale=None, loss: str = "linear", f_scale: float = 1.0,
                       identifiable_tol: float = 1e-7, max_nfev: int | None = None,
-                      xtol: float = 1e-10, ftol: float = 1e-10, gtol: float = 1e-10) -> FitResult:
+                      xtol: float = 1e-10, ftol: float = 1e-10, gtol: float = 1e-10,
+                      residuals: Callable[[np.ndarray], np.ndarray] | None = None) -> FitResult:
     """Fit ``theta`` to make ``r(theta)`` small.
 
     Parameters
@@ -157,6 +158,10 @@ def least_squares_fit(fun: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]
     identifiable_tol : float
         Singular values of the scaled Jacobian below this fraction of the largest mark
         directions the data do not fix.
+    residuals : callable, optional
+        ``residuals(theta) -> r``, the same residuals without their Jacobian, for the trial
+        points the solver rejects (a plain rollout instead of one with sensitivities); the
+        Jacobian is asked of ``fun`` only where the solver needs it.
     """
     from scipy.optimize import least_squares
 
@@ -174,31 +179,46 @@ def least_squares_fit(fun: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]
     sc = np.where(np.abs(x0) > 0, np.abs(x0), 1.0) if scale is None else np.asarray(scale, dtype=float)
     if loss not in ("linear", "soft_l1", "huber", "cauchy", "arctan"):
         raise ValueError(f"loss must be 'linear', 'soft_l1', 'huber', 'cauchy' or 'arctan', got {loss!r}")
-    cache: dict = {}
+    cache: dict = {}  # the last point's r, and its J once asked
 
-    def evaluate(z):
+    def check(z, r, J=None):
+        if not (np.all(np.isfinite(r)) and (J is None or np.all(np.isfinite(J)))):
+            raise FloatingPointError(f"the residuals or their Jacobian are not finite at {dict(zip(names, z * sc))}")
+
+    def value(z):
         key = z.tobytes()
-        if key not in cache:
-            cache.clear()
-            r, J = fun(z * sc)
-            r, J = np.asarray(r, dtype=float), np.asarray(J, dtype=float)
-            if not (np.all(np.isfinite(r)) and np.all(np.isfinite(J))):
-                raise FloatingPointError(f"the residuals or their Jacobian are not finite at {dict(zip(names, z * sc))}")
-            cache[key] = (r, J * sc)
-        return cache[key]
+        if cache.get("key") != key:
+            if residuals is None:
+                r, J = fun(z * sc)
+                r, J = np.asarray(r, dtype=float), np.asarray(J, dtype=float)
+                check(z, r, J)
+                cache.update(key=key, r=r, J=J * sc)
+            else:
+                r = np.asarray(residuals(z * sc), dtype=float)
+                check(z, r)
+                cache.update(key=key, r=r, J=None)
+        return cache["r"]
 
     njev = [0]
 
     def jac(z):
         njev[0] += 1
-        return evaluate(z)[1]
+        value(z)
+        if cache["J"] is None:
+            r, J = fun(z * sc)
+            r, J = np.asarray(r, dtype=float), np.asarray(J, dtype=float)
+            check(z, r, J)
+            cache.update(r=r, J=J * sc)
+        return cache["J"]
 
     lo_s, hi_s = lo / sc, hi / sc
     z0 = np.clip(x0 / sc, lo_s, hi_s)
-    sol = least_squares(lambda z: evaluate(z)[0], z0, jac=jac, bounds=(lo_s, hi_s), method="trf", loss=loss,
+    sol = least_squares(value, z0, jac=jac, bounds=(lo_s, hi_s), method="trf", loss=loss,
                         f_scale=f_scale, x_scale=1.0, max_nfev=max_nfev, xtol=xtol, ftol=ftol, gtol=gtol)
     x = sol.x * sc
-    r, Js = evaluate(sol.x)
+    Js = jac(sol.x)
+    njev[0] -= 1  # (the statistics' own)
+    r = cache["r"]
     J = Js / sc
     if loss != "linear":  # the Jacobian as the robust loss weights it (scipy's scaling by rho')
         z = (r / f_scale) ** 2

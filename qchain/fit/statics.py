@@ -70,13 +70,14 @@ class StaticPoses:
         return int(self.points.size)
 
 
-def static_residuals(chain, poses: StaticPoses, params, q_guess: list | None = None):
+def static_residuals(chain, poses: StaticPoses, params, q_guess: list | None = None, jacobian: bool = True):
     """Residuals (K m 3,) m and their Jacobian (K m 3, n_theta) of the model ``chain``'s
     equilibria against ``poses``, for the model parameters ``params`` (a
     :class:`~qchain.arm.parameter_derivatives.Parameters` or its ``(kind, segment)`` list).
 
     ``q_guess`` (K configurations, updated in place) starts each equilibrium where the last
-    evaluation ended, so a fit's Newton solves take a step or two.
+    evaluation ended, so a fit's Newton solves take a step or two. ``jacobian=False``: the
+    residuals alone (the Jacobian None).
     """
     from ..arm.statics import equilibrium
 
@@ -96,11 +97,13 @@ def static_residuals(chain, poses: StaticPoses, params, q_guess: list | None = N
         if q_guess is not None:
             q_guess[k] = eq.q
         q = eq.q
+        r[k] = chain.points(q, poses.where) - poses.points[k]
+        if not jacobian:
+            continue
         d = chain.forward_dynamics_derivatives(q, zero, p)
         pd = chain.forward_dynamics_parameter_derivatives(q, zero, p, P)
         dq = np.zeros((chain.nv, len(P)))
         dq[free] = -np.linalg.solve(d.da_dq[np.ix_(free, free)], pd.da_dtheta[free])
-        r[k] = chain.points(q, poses.where) - poses.points[k]
         for j, (seg, alpha) in enumerate(poses.where):
             J[k, j] = chain.point_jacobian(q, seg, alpha) @ dq
-    return r.reshape(-1), J.reshape(K * m * 3, len(P))
+    return r.reshape(-1), (J.reshape(K * m * 3, len(P)) if jacobian else None)
