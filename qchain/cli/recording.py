@@ -8,13 +8,13 @@ from __future__ import annotations
 import argparse
 import os
 import sys
-import tempfile
 import time
 import warnings
 from collections.abc import Sequence
 from dataclasses import replace
 from pathlib import Path
 
+from ..checks.paths import written_whole
 from ..checks.text import printable
 from ..recording.bounded import DEFAULT_LIMITS, ReadLimits
 from ..recording.foxglove_layout import layout_json
@@ -200,19 +200,11 @@ def layout_main(argv: Sequence[str] | None = None) -> int:
         if args.out is None:
             print(text)
         else:
-            tmp = None
             try:
-                args.out.parent.mkdir(parents=True, exist_ok=True)
-                fd, tmp = tempfile.mkstemp(prefix=".layout-", dir=args.out.parent)  # short: see recover
-                with os.fdopen(fd, "w") as fh:
+                with written_whole(args.out, prefix=".layout-") as fh:  # short: see recover
                     fh.write(text + "\n")
-                os.replace(tmp, args.out)
-                tmp = None
             except OSError as exc:
                 raise LoggingError(f"cannot write {args.out} ({exc.strerror or exc})") from None
-            finally:
-                if tmp is not None and os.path.exists(tmp):
-                    os.unlink(tmp)
             print(f"wrote {printable(args.out)}")
     except _ERRORS as exc:
         return _error("layout", exc)

@@ -19,19 +19,9 @@ from __future__ import annotations
 import numpy as np
 
 from .measurements import Measurements
+from .statics import rest_derivative
 
 __all__ = ["dynamic_residuals"]
-
-
-def _rest_derivative(chain, q0, p0, pairs):
-    """``dq0/dtheta`` (nv, n_theta) of the rest pose under ``p0`` (zero rows where locked)."""
-    free = np.flatnonzero(chain.active)
-    zero = np.zeros(chain.nv)
-    d = chain.forward_dynamics_derivatives(q0, zero, p0)
-    pd = chain.forward_dynamics_parameter_derivatives(q0, zero, p0, pairs)
-    out = np.zeros((chain.nv, pd.da_dtheta.shape[1]))
-    out[free] = -np.linalg.solve(d.da_dq[np.ix_(free, free)], pd.da_dtheta[free])
-    return out
 
 
 def dynamic_residuals(chain, meas: Measurements, sens_params: list, static_params: list, T_sens: np.ndarray,
@@ -80,8 +70,7 @@ def dynamic_residuals(chain, meas: Measurements, sens_params: list, static_param
                        rtol=rtol, atol=atol, t_eval=meas.t, energies=False)
         if not run.success:
             raise FloatingPointError(f"{meas.source}: the model's run failed: {run.message}")
-        r = np.stack([np.array([chain.points(q, [(s, a)])[0] for q in run.q]) - meas.points[:, j]
-                      for j, (s, a) in enumerate(meas.where)], axis=1)
+        r = np.array([chain.points(q, meas.where) for q in run.q]) - meas.points  # one pass a sample
         return r.reshape(-1), None
     free = np.flatnonzero(chain.active)
     nf = free.size
@@ -91,7 +80,7 @@ def dynamic_residuals(chain, meas: Measurements, sens_params: list, static_param
         raise FloatingPointError(f"{meas.source}: the model's run failed: {res.message}")
     dx0 = None
     if start == "rest":
-        dq0 = _rest_derivative(chain, q0, p0, static_params) @ T_static  # (nv, p)
+        dq0 = rest_derivative(chain, q0, p0, static_params) @ T_static  # (nv, p)
         dx0 = dq0[free]
     K, m = meas.points.shape[:2]
     r = np.empty((K, m, 3))

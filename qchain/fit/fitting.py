@@ -19,7 +19,7 @@ import numpy as np
 from ..batch.sweep_spec import apply_values
 from .dynamics import dynamic_residuals
 from .measurements import MeasurementError, Measurements
-from .parameters import FitParameter, column_map, fit_parameters, scene_values
+from .parameters import FitParameter, _tables, column_map, fit_parameters, scene_values
 from .solve import FitResult, least_squares_fit
 from .statics import StaticPoses, static_residuals
 
@@ -157,19 +157,7 @@ def fit(scene, experiments, keys, *, bounds: dict | None = None, loss: str = "li
         raise MeasurementError(f"{total} measured numbers are too few for {len(params)} parameters: at least "
                                f"{2 * len(params)} are needed")
     for e in experiments:
-        if isinstance(e, Measurements):
-            e.check_model(chain0)
-            continue
-        if e.pressures.shape[1] != chain0.nu:
-            raise MeasurementError(f"{e.source}: {e.pressures.shape[1]} pressures a pose, the model has {chain0.nu} "
-                                   f"chambers ({chain0.n} segments x 3)")
-        reach = sum(s.length for s in chain0.segments)
-        d = np.linalg.norm(e.points - chain0.base_placement.translation, axis=-1)
-        if d.max() > 1.5 * reach:
-            k = int(np.unravel_index(np.argmax(d), d.shape)[0])
-            raise MeasurementError(f"{e.source}: the point measured in pose {k} is {d.max():.4g} m from the base, and "
-                                   f"the arm is {reach:.4g} m long: units that do not match (mm for m?) or another "
-                                   "frame than the base's world frame")
+        e.check_model(chain0)
     pairs, cols = _model_params(params)
     T = column_map(params, cols)
     sens = _sensitivity_params(params)
@@ -219,8 +207,4 @@ def fit(scene, experiments, keys, *, bounds: dict | None = None, loss: str = "li
 
 def _table_nodes(raw: dict, nodes: list[int]) -> list[int]:
     """Each ``[[segments]]`` table's node count (its first segment's) from the expanded list."""
-    out, k = [], 0
-    for tab in raw.get("segments", []):
-        out.append(nodes[k])
-        k += int(tab.get("count", 1))
-    return out
+    return [nodes[first] for first, _ in _tables(raw)]

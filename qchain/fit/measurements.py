@@ -37,10 +37,11 @@ from pathlib import Path
 
 import numpy as np
 
+from ..recording.scenery import quat_mul, quat_rotate
 from ..sim.inputs import Table
 
 __all__ = ["Measurements", "MeasurementError", "MeasurementWarning", "read_bag", "read_qchain", "read_csv",
-           "bag_topics"]
+           "bag_topics", "beyond_reach"]
 
 
 class MeasurementError(ValueError):
@@ -156,15 +157,23 @@ class Measurements:
         for seg, _ in self.where:
             if not -chain.n <= seg < chain.n:
                 raise MeasurementError(f"where: segment {seg} is not one of the model's {chain.n} segments")
-        reach = sum(s.length for s in chain.segments)
-        base = np.asarray(chain.base_placement.translation if base_position is None else base_position, float)
-        d = np.linalg.norm(self.points - base, axis=-1)
-        k, j = np.unravel_index(int(np.argmax(d)), d.shape)
-        if d[k, j] > slack * reach:
+        far = beyond_reach(chain, self.points, base_position, slack)
+        if far is not None:
+            k, j, d, reach = far
             raise MeasurementError(
-                f"{self.source}: the measured point {j} is {d[k, j]:.4g} m from the base at t = {self.t[k]:.6g} s, "
+                f"{self.source}: the measured point {j} is {d:.4g} m from the base at t = {self.t[k]:.6g} s, "
                 f"and the arm is {reach:.4g} m long (at most {slack:g} x that is possible): units that do not match "
                 "(mm for m?) or another frame than the base's world frame")
+
+
+def beyond_reach(chain, points: np.ndarray, base_position=None, slack: float = 1.5):
+    """The measured point (K, m, 3) farthest from the base, as ``(sample, point, distance m,
+    the arm's length m)``, when it is farther than ``slack`` times the arm's rest length; else None."""
+    reach = sum(s.length for s in chain.segments)
+    base = np.asarray(chain.base_placement.translation if base_position is None else base_position, float)
+    d = np.linalg.norm(points - base, axis=-1)
+    k, j = np.unravel_index(int(np.argmax(d)), d.shape)
+    return (int(k), int(j), float(d[k, j]), reach) if d[k, j] > slack * reach else None
 
 
 def _check_increasing(what: str, t: np.ndarray, source: str) -> None:
@@ -381,19 +390,6 @@ def _tf_frames(reader, conns) -> set[str]:
     return frames
 
 
-def _quat_mul(a, b):
-    ax, ay, az, aw = a
-    bx, by, bz, bw = b
-    return np.array([aw * bx + ax * bw + ay * bz - az * by, aw * by - ax * bz + ay * bw + az * bx,
-                     aw * bz + ax * by - ay * bx + az * bw, aw * bw - ax * bx - ay * by - az * bz])
-
-
-def _quat_rot(q, v):
-    u, w = np.asarray(q[:3]), q[3]
-    t = 2.0 * np.cross(u, v)
-    return np.asarray(v) + w * t + np.cross(u, t)
-
-
 def _compose_tf(transforms, parent: str, child: str):
     """The placement of ``child`` in ``parent`` from one message's transforms (a path of
     child -> parent links), with the header of the last link; None if they do not join."""
@@ -409,8 +405,8 @@ def _compose_tf(transforms, parent: str, child: str):
     x, q = np.zeros(3), np.array([0.0, 0.0, 0.0, 1.0])
     for tr in reversed(chain):  # parent first: X = X_parent * X_link
         r, p = tr.transform.rotation, tr.transform.translation
-        x = x + _quat_rot(q, [p.x, p.y, p.z])
-        q = _quat_mul(q, [r.x, r.y, r.z, r.w])
+        x = x + quat_rotate(q, np.array([p.x, p.y, p.z]))
+        q = quat_mul(q, [r.x, r.y, r.z, r.w])
     return (x, q), chain[0].header if chain else transforms[0].header
 
 

@@ -24,9 +24,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .measurements import MeasurementError
+from .measurements import MeasurementError, beyond_reach
 
-__all__ = ["StaticPoses", "static_residuals"]
+__all__ = ["StaticPoses", "static_residuals", "rest_derivative"]
 
 
 @dataclass(frozen=True)
@@ -69,6 +69,32 @@ class StaticPoses:
     def n_values(self) -> int:
         return int(self.points.size)
 
+    def check_model(self, chain) -> None:
+        """Refuse poses the arm ``chain`` cannot mean: pressures for another number of
+        chambers, a point farther from the base than 1.5 times the arm's length (units)."""
+        if self.pressures.shape[1] != chain.nu:
+            raise MeasurementError(f"{self.source}: {self.pressures.shape[1]} pressures a pose, the model has "
+                                   f"{chain.nu} chambers ({chain.n} segments x 3)")
+        far = beyond_reach(chain, self.points)
+        if far is not None:
+            k, _, d, reach = far
+            raise MeasurementError(f"{self.source}: the point measured in pose {k} is {d:.4g} m from the base, and "
+                                   f"the arm is {reach:.4g} m long: units that do not match (mm for m?) or another "
+                                   "frame than the base's world frame")
+
+
+def rest_derivative(chain, q, p, params) -> np.ndarray:
+    """``dq/dtheta`` (nv, n_theta) of the equilibrium ``q`` under pressures ``p``, by the
+    implicit function theorem (``a(q, 0, p; theta) = 0``), on the free coordinates (zero rows
+    where the model holds a coordinate still)."""
+    free = np.flatnonzero(chain.active)
+    zero = np.zeros(chain.nv)
+    d = chain.forward_dynamics_derivatives(q, zero, p)
+    pd = chain.forward_dynamics_parameter_derivatives(q, zero, p, params)
+    out = np.zeros((chain.nv, pd.da_dtheta.shape[1]))
+    out[free] = -np.linalg.solve(d.da_dq[np.ix_(free, free)], pd.da_dtheta[free])
+    return out
+
 
 def static_residuals(chain, poses: StaticPoses, params, q_guess: list | None = None, jacobian: bool = True):
     """Residuals (K m 3,) m and their Jacobian (K m 3, n_theta) of the model ``chain``'s
@@ -82,11 +108,9 @@ def static_residuals(chain, poses: StaticPoses, params, q_guess: list | None = N
     from ..arm.statics import equilibrium
 
     P = chain.parameters(params) if not hasattr(params, "names") else params
-    free = np.flatnonzero(chain.active)
     K, m = poses.points.shape[:2]
     r = np.empty((K, m, 3))
     J = np.empty((K, m, 3, len(P)))
-    zero = np.zeros(chain.nv)
     for k in range(K):
         p = poses.pressures[k]
         q0 = None if q_guess is None or q_guess[k] is None else q_guess[k]
@@ -100,10 +124,7 @@ def static_residuals(chain, poses: StaticPoses, params, q_guess: list | None = N
         r[k] = chain.points(q, poses.where) - poses.points[k]
         if not jacobian:
             continue
-        d = chain.forward_dynamics_derivatives(q, zero, p)
-        pd = chain.forward_dynamics_parameter_derivatives(q, zero, p, P)
-        dq = np.zeros((chain.nv, len(P)))
-        dq[free] = -np.linalg.solve(d.da_dq[np.ix_(free, free)], pd.da_dtheta[free])
+        dq = rest_derivative(chain, q, p, P)
         for j, (seg, alpha) in enumerate(poses.where):
             J[k, j] = chain.point_jacobian(q, seg, alpha) @ dq
     return r.reshape(-1), (J.reshape(K * m * 3, len(P)) if jacobian else None)

@@ -33,6 +33,8 @@ from .scenery import (
     motion_offset,
     obstacle_shapes,
     quat_between,
+    quat_mul,
+    quat_rotate,
 )
 from .scenery import reach as arm_reach
 
@@ -103,23 +105,6 @@ def info_metadata(info: RunInfo, recording_id: str) -> dict[str, str]:
     }
 
 
-def _qmul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Quaternion products (..., 4) x, y, z, w."""
-    ax, ay, az, aw = np.moveaxis(a, -1, 0)
-    bx, by, bz, bw = np.moveaxis(b, -1, 0)
-    return np.stack([aw * bx + ax * bw + ay * bz - az * by,
-                     aw * by - ax * bz + ay * bw + az * bx,
-                     aw * bz + ax * by - ay * bx + az * bw,
-                     aw * bw - ax * bx - ay * by - az * bz], axis=-1)
-
-
-def _qrot(q: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """Rotate vectors (..., 3) by unit quaternions (..., 4)."""
-    u, w = q[..., :3], q[..., 3:4]
-    t = 2.0 * np.cross(u, v)
-    return v + w * t + np.cross(u, t)
-
-
 def relative_frames(base: np.ndarray, tips: np.ndarray) -> np.ndarray:
     """The frame tree's transforms (K, n + 1, 7): world -> base, base -> tip 1, tip i -> tip
     i + 1, each as its child's placement in its parent (x, y, z, qx, qy, qz, qw), from
@@ -130,8 +115,8 @@ def relative_frames(base: np.ndarray, tips: np.ndarray) -> np.ndarray:
     child = world[:, 1:]
     pinv = parent[..., 3:] * np.array([-1.0, -1.0, -1.0, 1.0])  # conjugate = inverse of a unit quaternion
     with np.errstate(all="ignore"):  # a non-finite record gives non-finite transforms, said as such
-        out[:, 1:, :3] = _qrot(pinv, child[..., :3] - parent[..., :3])
-        out[:, 1:, 3:] = _qmul(pinv, child[..., 3:])
+        out[:, 1:, :3] = quat_rotate(pinv, child[..., :3] - parent[..., :3])
+        out[:, 1:, 3:] = quat_mul(pinv, child[..., 3:])
     return out
 
 

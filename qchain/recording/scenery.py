@@ -20,6 +20,8 @@ __all__ = [
     "obstacle_shapes",
     "quat_between",
     "quat_from_matrix",
+    "quat_mul",
+    "quat_rotate",
 ]
 
 #: RGB of the obstacles (grey, drawn half transparent in Foxglove) and of the contact forces
@@ -64,6 +66,24 @@ def quat_from_matrix(R: np.ndarray) -> np.ndarray:
         q[k] = (R[k, a] + R[a, k]) / (4 * x)
         q[3] = (R[k, j] - R[j, k]) / (4 * x)
     return q / np.linalg.norm(q)
+
+
+def quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Quaternion products (..., 4) x, y, z, w."""
+    ax, ay, az, aw = np.moveaxis(np.asarray(a, dtype=float), -1, 0)
+    bx, by, bz, bw = np.moveaxis(np.asarray(b, dtype=float), -1, 0)
+    return np.stack([aw * bx + ax * bw + ay * bz - az * by,
+                     aw * by - ax * bz + ay * bw + az * bx,
+                     aw * bz + ax * by - ay * bx + az * bw,
+                     aw * bw - ax * bx - ay * by - az * bz], axis=-1)
+
+
+def quat_rotate(q: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Vectors (..., 3) rotated by unit quaternions (..., 4) x, y, z, w."""
+    q = np.asarray(q, dtype=float)
+    u, w = q[..., :3], q[..., 3:4]
+    t = 2.0 * np.cross(u, v)
+    return v + w * t + np.cross(u, t)
 
 
 def quat_between(a, b) -> np.ndarray:
