@@ -33,6 +33,8 @@ __all__ = [
     "RolloutError",
     "SweepError",
     "ClusterLost",
+    # fits (fit)
+    "FitSpecError",
     # the command line (cli)
     "BadInput",
     "OutputError",
@@ -158,6 +160,11 @@ class RolloutError(QchainError):
 class SweepError(SceneError):
     """A sweep (file or arguments) that cannot be run; ``problems`` lists every problem,
     each naming the key, what was expected and what was found."""
+
+
+class FitSpecError(SceneError):
+    """A fit file (``qchain fit``) that cannot be used; ``problems`` lists every problem, each
+    naming the key, what was expected and what was found."""
 
 
 class ClusterLost(QchainError, RuntimeError):

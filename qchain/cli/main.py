@@ -1,5 +1,5 @@
 """The ``qchain`` command: ``run`` and ``info`` here, the dispatch of ``replay``, ``recover``,
-``layout`` and ``sweep``. Commands, flags, what is checked before a run, errors and exit
+``layout``, ``sweep`` and ``fit``. Commands, flags, what is checked before a run, errors and exit
 codes (0 success, 1 the run failed or stopped, 2 bad input): ``docs/cli.md``."""
 
 from __future__ import annotations
@@ -30,7 +30,7 @@ __all__ = ["main", "command", "write_outputs", "tip_positions", "summary_lines",
            "EXIT_FAILED", "EXIT_USAGE", "CONNECT_TIMEOUT"]
 
 #: The commands; the first word of the command line names one.
-COMMANDS = ("run", "info", "replay", "recover", "layout", "sweep")
+COMMANDS = ("run", "info", "replay", "recover", "layout", "sweep", "fit")
 
 
 def version() -> str:
@@ -501,6 +501,8 @@ def _parser() -> argparse.ArgumentParser:
     sub.add_parser("export", help="write a recording as a ROS 2 bag (qchain export --help)", add_help=False)
     sub.add_parser("sweep", help="run a scene over axes of its values, on every core or a Dask cluster "
                    "(qchain sweep --help)", add_help=False)
+    sub.add_parser("fit", help="fit a scene's parameters to measured motion as a fit file says (qchain fit --help)",
+                   add_help=False)
     parser.commands = {"run": run, "info": info}  # (their usage errors: _dispatch)
     for p in (run, info):  # every path argument: not empty (Path("") is the working folder), no NUL
         for action in p._actions:
@@ -518,7 +520,7 @@ def _dispatch(argv: list[str], session: _Session, debug: bool) -> int:
     except OSError as exc:  # relative paths (the scene, runs/, out/) would fail later, naming nothing
         raise BadInput(f"the working folder cannot be used ({exc.strerror or exc}: deleted?): change to an existing "
                        "folder") from None
-    if argv and argv[0] in ("run", "info", "sweep") and \
+    if argv and argv[0] in ("run", "info", "sweep", "fit") and \
             os.environ.get("NUMBA_DISABLE_JIT", "0").strip() not in ("", "0"):
         raise BadInput(f"NUMBA_DISABLE_JIT={os.environ['NUMBA_DISABLE_JIT'][:20]} is set: qchain's engine is "
                        "numba-compiled (and would take hours as Python); unset it")
@@ -526,6 +528,10 @@ def _dispatch(argv: list[str], session: _Session, debug: bool) -> int:
         from .sweep import main as sweep_main
 
         return sweep_main(argv[1:], debug=debug, session=session)
+    if argv and argv[0] == "fit":
+        from .fit import main as fit_main
+
+        return fit_main(argv[1:], debug=debug, session=session)
 
     # imported here, not with the module: `qchain --version` answers without the recording's libraries
     from . import recording as qlog

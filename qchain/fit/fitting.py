@@ -10,6 +10,7 @@ scene is the scene file with the fitted values put in (:meth:`FitReport.scene_te
 
 from __future__ import annotations
 
+import time
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -53,6 +54,35 @@ class FitReport:
     source: str
     evaluations: int = 0
     notes: list = field(default_factory=list)
+    start_residuals: list = field(default_factory=list)
+    wall_s: float = 0.0
+    cpu_s: float = 0.0
+
+    def predicted(self, which: str = "fitted") -> list:
+        """Each experiment's model points (K, m, 3) m, world frame, of the ``"fitted"`` or the
+        ``"start"`` model: the measured points plus the residuals the fit computed there (no run
+        again)."""
+        rs = self.residuals if which == "fitted" else self.start_residuals
+        return [e.points + r.reshape(e.points.shape) for e, r in zip(self.experiments, rs)]
+
+    def summary(self) -> list[str]:
+        """The fit in lines of text (:func:`qchain.fit.report.summary_lines`)."""
+        from .report import summary_lines
+
+        return summary_lines(self)
+
+    def to_dict(self) -> dict:
+        """The fit as plain JSON-ready values (:func:`qchain.fit.report.report_dict`)."""
+        from .report import report_dict
+
+        return report_dict(self)
+
+    def plot(self, path=None, dpi: int = 80):
+        """Measured against start and fitted motion, and the residuals, per experiment
+        (:func:`qchain.fit.report.plot_report`); written to ``path`` (PNG) if given."""
+        from .report import plot_report
+
+        return plot_report(self, path, dpi=dpi)
 
     def scene_text(self) -> str:
         """The fitted scene as TOML, with a header saying what was fitted."""
@@ -101,7 +131,7 @@ def _sensitivity_params(params: list[FitParameter]) -> list:
 
 def fit(scene, experiments, keys, *, bounds: dict | None = None, loss: str = "linear",
         f_scale: float = 1e-3, reduce: bool = False, max_nfev: int | None = 50, start: str = "rest",
-        rtol: float = 1e-7) -> FitReport:
+        rtol: float = 1e-7, values: dict | None = None) -> FitReport:
     """Fit the scene keys ``keys`` to ``experiments``.
 
     Parameters
@@ -132,6 +162,8 @@ def fit(scene, experiments, keys, *, bounds: dict | None = None, loss: str = "li
         the parameters), or at the scene's initial state.
     rtol : float
         The runs' dopri5 tolerance (their steps are held for the exact sensitivities).
+    values : dict, optional
+        ``{key: value}`` start values of fitted keys instead of the scene's (SI units).
     """
     from ..scene.reading import parse_scene
     import tomli_w
@@ -148,8 +180,14 @@ def fit(scene, experiments, keys, *, bounds: dict | None = None, loss: str = "li
         if not isinstance(e, (StaticPoses, Measurements)):
             raise TypeError(f"experiments[{i}] must be StaticPoses or Measurements, got {type(e).__name__}")
     keys = list(keys)
+    if values:
+        extra = sorted(set(values) - set(keys))
+        if extra:
+            raise ValueError(f"values: {extra[0]!r} is not one of the fitted keys {keys}")
+        raw = apply_values(raw, values)
     params = fit_parameters(raw, keys, bounds)
-    start_model = parse_scene(path.read_text(), path).build(reduce=reduce)
+    wall0, cpu0 = time.perf_counter(), time.process_time()
+    start_model = parse_scene(tomli_w.dumps(raw) if values else path.read_text(), path).build(reduce=reduce)
     nodes = [len(s.alpha_nodes) for s in start_model.chain.segments]
     chain0 = start_model.chain
     total = sum(e.n_values for e in experiments)
@@ -188,6 +226,8 @@ def fit(scene, experiments, keys, *, bounds: dict | None = None, loss: str = "li
             rs.append(r)
             Js.append(J)
         state["last"] = (new, rs)
+        if state["n"] == 1:  # the solver's first point is the start: its residuals draw the start model
+            state["first"] = rs
         return np.concatenate(rs), (np.concatenate(Js) if jacobian else None)
 
     def fun(x):
@@ -202,7 +242,8 @@ def fit(scene, experiments, keys, *, bounds: dict | None = None, loss: str = "li
     fun_r(res.x)  # the report's residuals and scene at the solution
     new, rs = state["last"]
     return FitReport(result=res, parameters=params, experiments=experiments, residuals=rs, raw=new,
-                     source=str(path), evaluations=state["n"])
+                     source=str(path), evaluations=state["n"], start_residuals=state["first"],
+                     wall_s=time.perf_counter() - wall0, cpu_s=time.process_time() - cpu0)
 
 
 def _table_nodes(raw: dict, nodes: list[int]) -> list[int]:

@@ -699,10 +699,6 @@ force = [0.0, 0.0, -0.5]
 '''
 
 
-def _cell(s: str) -> str:
-    return s.replace("|", "\\|")
-
-
 def markdown() -> str:
     """``docs/scene-format.md``: the format as tables of keys, generated from :data:`TABLES`."""
     out = [
@@ -747,19 +743,7 @@ def markdown() -> str:
         "",
     ]
     for t in TABLES:
-        title = "Top level" if not t.path else (f"`[[{t.path[:-2]}]]`" if t.path.endswith("[]") else f"`[{t.path}]`")
-        out += [f"## {title}", "", t.doc, ""]
-        has_when = any(f.when for f in t.fields)
-        head = "| key | type | unit | range | default |" + (" with `type` |" if has_when else "") + " meaning |"
-        out += [head, "|" + "---|" * (head.count("|") - 1)]
-        for f in t.fields:
-            unit = f.range.unit if f.range is not None else ""
-            default = "**required**" if f.required else (f.default or "none")
-            row = f"| `{f.key}` | {f.type_text()} | {_cell(unit)} | {_cell(f.range_text())} | {_cell(default)} |"
-            if has_when:
-                row += f" {', '.join(f.when) if f.when else 'all'} |"
-            out.append(row + f" {_cell(f.doc)} |")
-        out.append("")
+        out += t.markdown()
     out += [
         "## Checks across keys",
         "",

@@ -91,3 +91,23 @@ class KeyTable:
         """The keys of the table (those of a ``type`` of it, if ``kind`` is given)."""
         return tuple(f.key for f in self.fields if kind is None or not f.when or kind in f.when)
 
+    def markdown(self, top: str = "Top level") -> list[str]:
+        """The table as documentation: a heading (``top`` for the top level), its text and a
+        Markdown table of its keys (type, unit, range, default, meaning)."""
+        title = top if not self.path else (f"`[[{self.path[:-2]}]]`" if self.path.endswith("[]") else f"`[{self.path}]`")
+        out = [f"## {title}", "", self.doc, ""]
+        has_when = any(f.when for f in self.fields)
+        head = "| key | type | unit | range | default |" + (" with `type` |" if has_when else "") + " meaning |"
+        out += [head, "|" + "---|" * (head.count("|") - 1)]
+        for f in self.fields:
+            unit = f.range.unit if f.range is not None else ""
+            default = "**required**" if f.required else (f.default or "none")
+            row = f"| `{f.key}` | {f.type_text()} | {_cell(unit)} | {_cell(f.range_text())} | {_cell(default)} |"
+            if has_when:
+                row += f" {', '.join(f.when) if f.when else 'all'} |"
+            out.append(row + f" {_cell(f.doc)} |")
+        return out + [""]
+
+
+def _cell(s: str) -> str:
+    return s.replace("|", "\\|")

@@ -1,0 +1,188 @@
+"""``qchain fit FIT.toml``: a fit file on synthetic static poses (a CSV) and a short lab bag
+fits and writes fitted.toml (a scene with the fitted values), fit.json (the same values) and
+fit.png (a PNG of the stated size); bad fit files are refused with the key, the value and the
+bound named, exit code 2 and nothing written."""
+
+from __future__ import annotations
+
+import json
+import struct
+import subprocess
+import sys
+import tomllib
+
+import numpy as np
+import pytest
+from test_fit_dynamics import _lab_bag
+from test_fit_statics import TRUTH, _poses, _scene
+
+from qchain.cli.main import main
+from qchain.fit.report import FIGURE_HEIGHT, FIGURE_WIDTH
+
+START = dict(E0=1.0e5, E1=1.0e5, A=4.0e-5)
+KEYS = ["segments[0].youngs_modulus", "segments[1].youngs_modulus", "segments[1].chamber_area"]
+
+
+def _static_csv(tmp_path, noise=0.0):
+    """The true scene's equilibria (tip and first segment's end) as a CSV: pressures p0..p8, points in mm."""
+    poses = _poses(tmp_path, noise=noise)
+    head = [f"p{i}" for i in range(9)] + ["tip_x", "tip_y", "tip_z", "mid_x", "mid_y", "mid_z"]
+    rows = [",".join(head)]
+    for p, x in zip(poses.pressures, poses.points):
+        rows.append(",".join(f"{v:.17g}" for v in list(p) + list(x.reshape(-1) * 1e3)))
+    path = tmp_path / "poses.csv"
+    path.write_text("\n".join(rows) + "\n")
+    return path
+
+
+STATIC_EXPERIMENT = """
+[[experiments]]
+static_csv = "poses.csv"
+pressures = ["p0", "p1", "p2", "p3", "p4", "p5", "p6", "p7", "p8"]
+points = [["tip_x", "tip_y", "tip_z"], ["mid_x", "mid_y", "mid_z"]]
+where = [[-1, 1.0], [0, 1.0]]
+scale = 1e-3
+"""
+
+
+def _spec(tmp_path, body: str, parameters: str | None = None, name="fit.toml"):
+    if parameters is None:
+        parameters = "".join(f'\n[[parameters]]\nkey = "{k}"\n' for k in KEYS)
+    path = tmp_path / name
+    path.write_text(f'scene = "arm.toml"\n{parameters}\n{body}')
+    return path
+
+
+def _png_size(path) -> tuple[int, int]:
+    data = path.read_bytes()
+    assert data[:8] == b"\x89PNG\r\n\x1a\n" and data[12:16] == b"IHDR"
+    return struct.unpack(">II", data[16:24])
+
+
+def test_a_fit_file_of_static_poses_fits_back_and_writes_its_outputs(tmp_path, capsys):
+    _scene(tmp_path, "arm.toml", **START)
+    _static_csv(tmp_path)
+    spec = _spec(tmp_path, STATIC_EXPERIMENT + '\n[fit]\nmax_nfev = 40\n\n[output]\nfolder = "results"\n')
+    assert main(["fit", str(spec)]) == 0
+    out = capsys.readouterr().out
+    assert "segments[0].youngs_modulus" in out and "std error" in out
+    folder = tmp_path / "results"
+    assert sorted(p.name for p in folder.iterdir()) == ["fit.json", "fit.png", "fitted.toml"]
+    data = json.loads((folder / "fit.json").read_text())
+    values = {p["key"]: p["value"] for p in data["parameters"]}
+    truth = {KEYS[0]: TRUTH["E0"], KEYS[1]: TRUTH["E1"], KEYS[2]: TRUTH["A"]}
+    for k in KEYS:  # no noise: the hidden values come back
+        assert values[k] == pytest.approx(truth[k], rel=1e-6)
+    assert {p["key"]: p["start"] for p in data["parameters"]} == {KEYS[0]: 1.0e5, KEYS[1]: 1.0e5, KEYS[2]: 4.0e-5}
+    assert data["experiments"][0]["kind"] == "static"
+    assert data["experiments"][0]["rms_fitted_m"] < 1e-6 < 1e-3 < data["experiments"][0]["rms_start_m"]
+    assert data["counters"]["nfev"] >= 1 and data["cpu_s"] > 0
+    corr = np.array(data["correlation"], dtype=float)
+    assert corr.shape == (3, 3) and np.allclose(np.diag(corr), 1.0) and np.allclose(corr, corr.T)
+    # the fitted scene loads, with the fitted values exactly as fit.json has them
+    from qchain.scene.reading import load_scene
+
+    text = (folder / "fitted.toml").read_text()
+    raw = tomllib.loads(text)
+    assert raw["segments"][0]["youngs_modulus"] == values[KEYS[0]]
+    assert raw["segments"][1]["youngs_modulus"] == values[KEYS[1]]
+    assert raw["segments"][1]["chamber_area"] == values[KEYS[2]]
+    scene = load_scene(folder / "fitted.toml")
+    assert scene.segments[2].youngs_modulus == values[KEYS[1]]
+    assert _png_size(folder / "fit.png") == (round(FIGURE_WIDTH * 80), round(FIGURE_HEIGHT * 80))
+
+
+def test_a_bag_and_static_poses_together(tmp_path, capsys):
+    """Two experiments of two kinds in one fit: the picture has a column each, fit.json an
+    entry each, and the fit lowers both residuals."""
+    _scene(tmp_path, "arm.toml", **START)
+    _static_csv(tmp_path)
+    bag = _lab_bag(tmp_path, noise=5e-4, duration=0.3)
+    spec = _spec(tmp_path, STATIC_EXPERIMENT + f'\n[[experiments]]\nbag = "{bag.name}"\npressure_topic = "/pressures"\n'
+                 'pose_topic = "/mocap/tip"\n\n[fit]\nmax_nfev = 4\n')
+    assert main(["fit", str(spec)]) == 0
+    folder = tmp_path / "fit-fit"  # the default: beside the fit file
+    data = json.loads((folder / "fit.json").read_text())
+    assert [e["kind"] for e in data["experiments"]] == ["static", "dynamic"]
+    for e in data["experiments"]:
+        assert e["rms_fitted_m"] < e["rms_start_m"]
+    assert data["experiments"][1]["samples"] == 30
+    assert _png_size(folder / "fit.png") == (round(2 * FIGURE_WIDTH * 80), round(FIGURE_HEIGHT * 80))
+
+
+@pytest.mark.parametrize("case, body, parameters, words", [
+    ("unknown key", STATIC_EXPERIMENT + "\n[fit]\nmax_nfv = 3\n", None, ["fit.max_nfv", "did you mean 'max_nfev'"]),
+    ("unknown experiment key", STATIC_EXPERIMENT.replace("scale =", "scael ="), None,
+     ["experiments[0].scael", "did you mean 'scale'"]),
+    ("two sources", STATIC_EXPERIMENT.replace('scale = 1e-3', 'scale = 1e-3\ncsv = "poses.csv"'), None,
+     ["experiments[0]", "exactly one of the keys bag, recording, csv, static_csv", "2: csv, static_csv"]),
+    ("no source", STATIC_EXPERIMENT.replace('static_csv = "poses.csv"\n', ''), None,
+     ["experiments[0]", "exactly one of the keys", "none of them"]),
+    ("a key of another kind", STATIC_EXPERIMENT + 'pressure_topic = "/p"\n', None,
+     ["experiments[0].pressure_topic", "keys of a static_csv experiment", "a key of bag experiments"]),
+    ("a key the scene lacks", STATIC_EXPERIMENT, '[[parameters]]\nkey = "segments[5].mass"\n',
+     ["parameters[0]", "segments[5].mass", "2 [[segments]] tables"]),
+    ("not a fit parameter", STATIC_EXPERIMENT, '[[parameters]]\nkey = "segments[0].radius"\n',
+     ["parameters[0]", "'segments[0].radius' is not a parameter a fit can change"]),
+    ("bounds reversed", STATIC_EXPERIMENT, '[[parameters]]\nkey = "segments[0].mass"\nlower = 0.2\nupper = 0.1\n',
+     ["parameters[0].upper", "a number above lower = 0.2", "found 0.1"]),
+    ("a bound outside the format's", STATIC_EXPERIMENT,
+     '[[parameters]]\nkey = "segments[0].youngs_modulus"\nlower = -5.0\n',
+     ["parameters[0]", "lower bound -5 is below the scene format's 1 Pa"]),
+    ("a start outside the bounds", STATIC_EXPERIMENT,
+     '[[parameters]]\nkey = "segments[0].mass"\nupper = 0.1\nstart = 0.3\n',
+     ["parameters[0]", "start value 0.3", "outside the bounds"]),
+    ("a missing column", STATIC_EXPERIMENT.replace('"mid_z"]', '"mid_w"]'), None,
+     ["experiments[0].static_csv", "no column 'mid_w'"]),
+    ("a bad loss", STATIC_EXPERIMENT + '\n[fit]\nloss = "huberr"\n', None, ["fit.loss", "did you mean 'huber'"]),
+])
+def test_bad_fit_files_are_refused_by_key_and_write_nothing(tmp_path, capsys, case, body, parameters, words):
+    _scene(tmp_path, "arm.toml", **START)
+    _static_csv(tmp_path)
+    spec = _spec(tmp_path, body + '\n[output]\nfolder = "results"\n' if "[output]" not in body else body, parameters)
+    assert main(["fit", str(spec)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("qchain fit: error: ")
+    for w in words:
+        assert w in err, (case, err)
+    assert not (tmp_path / "results").exists() and not (tmp_path / "fit-fit").exists()
+
+
+def test_a_missing_scene_file_is_refused(tmp_path, capsys):
+    _static_csv(tmp_path)
+    spec = _spec(tmp_path, STATIC_EXPERIMENT)
+    assert main(["fit", str(spec)]) == 2
+    err = capsys.readouterr().err
+    assert "scene: expected the scene file (a path relative to the fit file), found \"arm.toml\": no such file" in err
+    assert not (tmp_path / "fit-fit").exists()
+
+
+def test_a_missing_fit_file_is_refused(tmp_path, capsys):
+    assert main(["fit", str(tmp_path / "none.toml")]) == 2
+    assert "none.toml" in capsys.readouterr().err
+
+
+def test_qchain_fit_as_a_process(tmp_path):
+    """The command as a user runs it (under load: ``/work/shared/tools/under-load``): exit code 0
+    and its outputs; a refused file exit code 2 with one error line."""
+    _scene(tmp_path, "arm.toml", **START)
+    _static_csv(tmp_path)
+    spec = _spec(tmp_path, STATIC_EXPERIMENT + "\n[fit]\nmax_nfev = 40\n\n[output]\nplot = false\n")
+    r = subprocess.run([sys.executable, "-m", "qchain", "fit", str(spec)], capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr
+    assert "wrote" in r.stdout and "fitted.toml" in r.stdout
+    assert sorted(p.name for p in (tmp_path / "fit-fit").iterdir()) == ["fit.json", "fitted.toml"]
+    bad = _spec(tmp_path, STATIC_EXPERIMENT.replace("static_csv", "static_cvs"), name="bad.toml")
+    r = subprocess.run([sys.executable, "-m", "qchain", "fit", str(bad)], capture_output=True, text=True, timeout=600)
+    assert r.returncode == 2
+    assert "did you mean 'static_csv'" in r.stderr and "Traceback" not in r.stderr
+
+
+def test_docs_show_the_fit_files_keys_as_declared():
+    """docs/fit.md holds the fit file's tables as :func:`qchain.fit.spec.markdown` renders them."""
+    from pathlib import Path
+
+    from qchain.fit.spec import markdown
+
+    doc = (Path(__file__).parents[1] / "docs" / "fit.md").read_text()
+    assert "\n".join(markdown()).strip() in doc
