@@ -13,6 +13,9 @@ four scene keys with the exact trajectory sensitivities (``qchain.fit.fit``); it
 fitted values with their standard errors against the hidden ones, writes the fitted scene
 and draws the tip measured, as the datasheet model moves and as the fitted model moves,
 with the residuals (``out/calibrate/calibrate.png``).
+
+The same fit as a fit file for the command line: ``qchain fit examples/fit/calibrate-fit.toml``
+(after this example, from the repository's root: it reads ``out/calibrate/lab_run.mcap``).
 """
 
 from __future__ import annotations

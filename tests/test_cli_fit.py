@@ -186,3 +186,61 @@ def test_docs_show_the_fit_files_keys_as_declared():
 
     doc = (Path(__file__).parents[1] / "docs" / "fit.md").read_text()
     assert "\n".join(markdown()).strip() in doc
+
+
+def test_points_in_the_wrong_unit_are_refused_before_the_fit(tmp_path, capsys):
+    """The CSV's millimetres read as metres: the experiment against the arm's reach, exit code 2,
+    no output folder left behind."""
+    _scene(tmp_path, "arm.toml", **START)
+    _static_csv(tmp_path)
+    spec = _spec(tmp_path, STATIC_EXPERIMENT.replace("scale = 1e-3", "scale = 1.0"))
+    assert main(["fit", str(spec)]) == 2
+    err = capsys.readouterr().err
+    assert "m from the base, and the arm is 0.3 m long" in err and "mm for m?" in err
+    assert not (tmp_path / "fit-fit").exists()
+
+
+def test_a_csv_of_motion_is_read_as_read_csv_reads_it(tmp_path):
+    """A ``csv`` experiment: its keys handed to read_csv (window, scale, columns) as given."""
+    from qchain.fit import read_csv
+    from qchain.fit.spec import load_fit_spec
+
+    _scene(tmp_path, "arm.toml", **START)
+    t = np.arange(0.0, 1.0, 0.01)
+    rows = ["time,x,y,z," + ",".join(f"p{i}" for i in range(9))]
+    for k, tk in enumerate(t):
+        rows.append(f"{tk:.6f},{10 * np.sin(tk):.6f},0.5,{-300 + k * 0.1:.6f}," + ",".join(["1000"] * 9))
+    (tmp_path / "motion.csv").write_text("\n".join(rows) + "\n")
+    spec = _spec(tmp_path, '[[experiments]]\ncsv = "motion.csv"\ntime = "time"\npoints = [["x", "y", "z"]]\n'
+                 'pressures = ["p0", "p1", "p2", "p3", "p4", "p5", "p6", "p7", "p8"]\nscale = 1e-3\n'
+                 'start = 0.2\nstop = 0.6\n')
+    got = load_fit_spec(spec).experiments[0]
+    want = read_csv(tmp_path / "motion.csv", time="time", points=[("x", "y", "z")],
+                    pressures=[f"p{i}" for i in range(9)], scale=1e-3, start=0.2, stop=0.6)
+    np.testing.assert_array_equal(got.t, want.t)
+    np.testing.assert_array_equal(got.points, want.points)
+    assert got.t.size == 41 and got.points[0, 0, 1] == 0.5e-3
+
+
+def test_the_example_fit_file_reads_the_bag_calibrate_writes(examples, tmp_path):
+    """examples/fit/calibrate-fit.toml, laid out as in the repository with the bag
+    examples/calibrate.py writes (1 s of it): a valid fit file of calibrate.py's keys."""
+    import shutil
+    from pathlib import Path
+
+    from qchain.fit.spec import load_fit_spec
+
+    root = Path(__file__).parents[1]
+    for rel in ("examples/fit/calibrate-fit.toml", "examples/scenes/calibrate.toml"):
+        (tmp_path / rel).parent.mkdir(parents=True, exist_ok=True)
+        shutil.copy(root / rel, tmp_path / rel)
+    cal = examples("calibrate")
+    (tmp_path / "out/calibrate").mkdir(parents=True)
+    cal.record_lab_bag(tmp_path / "examples/scenes/calibrate.toml", 1.0, tmp_path / "out/calibrate/lab_run.mcap")
+    from qchain.fit import MeasurementWarning
+
+    with pytest.warns(MeasurementWarning, match="1 measured samples outside"):  # the mocap's last sample
+        spec = load_fit_spec(tmp_path / "examples/fit/calibrate-fit.toml")
+    assert spec.keys == cal.KEYS
+    assert spec.folder == tmp_path / "out/calibrate/fit"
+    assert spec.experiments[0].n_samples >= 99 and spec.options["f_scale"] == cal.MOCAP_NOISE

@@ -16,11 +16,12 @@ import json
 import os
 import sys
 import warnings
+from contextlib import suppress
 
 from ..checks.text import printable, show_path
 from .checks import check_output_folder, path_argument
 from .command import command
-from .errors import take_debug
+from .errors import BadInput, take_debug
 
 __all__ = ["main", "OUTPUTS"]
 
@@ -48,15 +49,30 @@ def main(argv=None, *, debug: bool | None = None, session=None) -> int:
 
 
 def _main(argv: list[str], session) -> int:
-    from ..fit.fitting import fit
     from ..fit.spec import load_fit_spec
 
     args = _parser().parse_args(argv)
     with warnings.catch_warnings(record=True) as read_warnings:  # the readers' warnings: said, and kept in fit.json
         warnings.simplefilter("always")
         spec = load_fit_spec(args.fit, out=args.out)
+    spec.read_warnings = [str(w.message) for w in read_warnings]
+    made = not spec.folder.exists()
     check_output_folder("the output folder", spec.folder)
-    said = [str(w.message) for w in read_warnings]
+    try:
+        return _fit(spec, args, session)
+    except BaseException:
+        if made:  # a folder this command made and wrote nothing into: gone again
+            with suppress(OSError):
+                spec.folder.rmdir()
+        raise
+
+
+def _fit(spec, args, session) -> int:
+    """Fit, print, write the outputs (after the fit: whole or not at all)."""
+    from ..fit.fitting import fit
+    from ..fit.measurements import MeasurementError
+
+    said = spec.read_warnings
     for text in said:
         print(printable(f"qchain fit: warning: {' '.join(text.split())}"), file=sys.stderr)
     print(printable(f"fit {show_path(spec.path)}: {len(spec.keys)} parameters of {show_path(spec.scene)} from "
@@ -65,7 +81,11 @@ def _main(argv: list[str], session) -> int:
     session.phase = "run"
     with warnings.catch_warnings(record=True) as fit_warnings:
         warnings.simplefilter("always")
-        rep = fit(spec.scene, spec.experiments, spec.keys, bounds=spec.bounds, values=spec.values, **spec.options)
+        try:
+            rep = fit(spec.scene, spec.experiments, spec.keys, bounds=spec.bounds, values=spec.values,
+                      **spec.options)
+        except MeasurementError as err:  # the experiments against the model (chambers, reach, too few): input
+            raise BadInput(f"{show_path(spec.path)}: {err}") from None
     fitted = [str(w.message) for w in fit_warnings]
     session.phase = "end"
     for line in rep.summary():

@@ -152,6 +152,7 @@ class FitSpec:
     folder: Path
     plot: bool = True
     sources: list = field(default_factory=list)
+    read_warnings: list = field(default_factory=list)
 
 
 def _file(ck: _Checker, d: dict, key: str, path: str, base: Path, what: str) -> Path | None:
