@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 from test_fit_dynamics import _lab_bag
 from test_fit_statics import TRUTH, _poses, _scene
+from test_recording_ros2 import recorded  # noqa: F401  (the module fixture: a recording and its bag)
 
 from qchain.cli.main import main
 from qchain.fit.report import FIGURE_HEIGHT, FIGURE_WIDTH
@@ -244,3 +245,25 @@ def test_the_example_fit_file_reads_the_bag_calibrate_writes(examples, tmp_path)
     assert spec.keys == cal.KEYS
     assert spec.folder == tmp_path / "out/calibrate/fit"
     assert spec.experiments[0].n_samples >= 99 and spec.options["f_scale"] == cal.MOCAP_NOISE
+
+
+def test_a_recording_and_a_qchain_bags_tf_are_read_as_their_readers_read_them(tmp_path, recorded):  # noqa: F811
+    """``recording`` and ``bag`` with ``tf`` (a bag qchain wrote): the experiments the readers
+    give for the same arguments."""
+    from qchain.fit import read_bag, read_qchain
+    from qchain.fit.spec import load_fit_spec
+
+    rec, bag, _ = recorded
+    n = rec.info.n_segments
+    _scene(tmp_path, "arm.toml", **START)
+    spec = _spec(tmp_path, f'[[experiments]]\nrecording = "{rec.path}"\nstop = 0.05\n\n'
+                 f'[[experiments]]\nbag = "{bag}"\npressure_topic = "/qchain/pressures"\n'
+                 f'tf = ["world", "segment_{n}_tip"]\n')
+    got = load_fit_spec(spec).experiments
+    want = [read_qchain(rec.path, stop=0.05), read_bag(bag, pressure_topic="/qchain/pressures",
+                                                       tf=("world", f"segment_{n}_tip"))]
+    for g, w in zip(got, want):
+        np.testing.assert_array_equal(g.t, w.t)
+        np.testing.assert_array_equal(g.points, w.points)
+        np.testing.assert_array_equal(g.pressures.values, w.pressures.values)
+    assert got[0].t[-1] <= 0.05 < rec.t[-1]
