@@ -17,10 +17,10 @@ from pathlib import Path
 import numpy as np
 
 from ..batch.sweep_spec import apply_values
-from .dynamics import dynamic_residuals
-from .measurements import MeasurementError, Measurements
+from .dynamics import dynamic_residuals, input_noise_draws
+from .measurements import MeasurementError, Measurements, filter_pressures, pressure_noise
 from .parameters import FitParameter, _tables, column_map, fit_parameters, scene_values
-from .solve import FitResult, least_squares_fit
+from .solve import COVARIANCES, FitResult, least_squares_fit
 from .statics import StaticPoses, static_residuals
 
 __all__ = ["fit", "FitReport"]
@@ -101,7 +101,8 @@ def _sensitivity_params(params: list[FitParameter]) -> list:
 
 def fit(scene, experiments, keys, *, bounds: dict | None = None, loss: str = "linear",
         f_scale: float = 1e-3, reduce: bool = False, max_nfev: int | None = 50, start: str = "rest",
-        rtol: float = 1e-7) -> FitReport:
+        rtol: float = 1e-7, covariance: str = "inputs", pressure_filter: float | None = None,
+        input_draws: int = 40) -> FitReport:
     """Fit the scene keys ``keys`` to ``experiments``.
 
     Parameters
@@ -132,6 +133,25 @@ def fit(scene, experiments, keys, *, bounds: dict | None = None, loss: str = "li
         the parameters), or at the scene's initial state.
     rtol : float
         The runs' dopri5 tolerance (their steps are held for the exact sensitivities).
+    covariance : {"inputs", "iid", "hac"}
+        How the standard errors are formed (:func:`qchain.fit.solve.least_squares_fit`).
+        ``"inputs"`` (default): the measured pressures are taken as the true ones plus a
+        white sensor noise, its level estimated from each recording's pressures themselves
+        (:func:`qchain.fit.measurements.pressure_noise`), and its effect on the fitted values
+        (an error in the fit's inputs, which least squares does not see in the residuals) is
+        propagated through the model at the solution by ``input_draws`` runs under freshly
+        drawn noise; the measurement noise is white. Assumes the pressure noise is white (or
+        low-passed as ``pressure_filter`` says), independent of the measurement noise, small
+        enough for the model's response to it to be near linear. Static poses add no draws.
+        ``"iid"``: independent residuals of one standard deviation, the pressures exact.
+        ``"hac"``: Newey-West, residuals correlated in time by an unknown law.
+    pressure_filter : float, optional, Hz
+        Low-pass every measured motion's pressures at this cutoff before fitting
+        (:func:`qchain.fit.measurements.filter_pressures`, zero phase); in (0, Nyquist).
+    input_draws : int
+        The runs that sample the pressure noise's effect for ``covariance="inputs"``: the
+        standard errors' own relative error is about ``1 / sqrt(2 input_draws)`` of the part
+        the inputs add.
     """
     from ..scene.reading import parse_scene
     import tomli_w
@@ -144,9 +164,20 @@ def fit(scene, experiments, keys, *, bounds: dict | None = None, loss: str = "li
     experiments = list(experiments)
     if not experiments:
         raise ValueError("experiments: give at least one")
+    if covariance not in COVARIANCES:
+        raise ValueError(f"covariance must be 'inputs', 'iid' or 'hac', got {covariance!r}")
+    if isinstance(input_draws, bool) or not isinstance(input_draws, (int, np.integer)) or input_draws < 2:
+        raise ValueError(f"input_draws must be an integer >= 2, got {input_draws!r}")
     for i, e in enumerate(experiments):
         if not isinstance(e, (StaticPoses, Measurements)):
             raise TypeError(f"experiments[{i}] must be StaticPoses or Measurements, got {type(e).__name__}")
+    # the sensor noise is estimated from the pressures as recorded, before any filtering
+    noise = [pressure_noise(e.pressures) if isinstance(e, Measurements) else None for e in experiments]
+    if pressure_filter is not None:
+        from dataclasses import replace
+
+        experiments = [replace(e, pressures=filter_pressures(e.pressures, pressure_filter))
+                       if isinstance(e, Measurements) else e for e in experiments]
     keys = list(keys)
     params = fit_parameters(raw, keys, bounds)
     start_model = parse_scene(path.read_text(), path).build(reduce=reduce)
@@ -196,9 +227,28 @@ def fit(scene, experiments, keys, *, bounds: dict | None = None, loss: str = "li
     def fun_r(x):
         return evaluate(x, False)[0]
 
+    def draws(x):  # (N, m): each motion's draws in its rows, zeros in the others'
+        _, chain = model_at(x)
+        sizes = [e.points.size for e in experiments]
+        out = np.zeros((input_draws, sum(sizes)))
+        at = 0
+        for e, sz, s_p in zip(experiments, sizes, noise):
+            if isinstance(e, Measurements):
+                out[:, at:at + sz] = input_noise_draws(
+                    chain, e, s_p, input_draws, cutoff=pressure_filter, start=start,
+                    q0=q_start if start == "scene" else None, v0=v_start if start == "scene" else None, rtol=rtol)
+            at += sz
+        return out
+
+    blocks, at = [], 0  # each experiment's residual rows: K samples (or poses) of m points x 3
+    for e in experiments:
+        K = e.points.shape[0]
+        blocks.append((at, K, e.points.size // K))
+        at += e.points.size
     res = least_squares_fit(fun, [p.start for p in params], [p.key for p in params],
                             lower=[p.lower for p in params], upper=[p.upper for p in params], loss=loss,
-                            f_scale=f_scale, max_nfev=max_nfev, residuals=fun_r)
+                            f_scale=f_scale, max_nfev=max_nfev, residuals=fun_r, covariance=covariance,
+                            blocks=blocks, input_draws=draws)
     fun_r(res.x)  # the report's residuals and scene at the solution
     new, rs = state["last"]
     return FitReport(result=res, parameters=params, experiments=experiments, residuals=rs, raw=new,
