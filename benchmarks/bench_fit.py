@@ -9,11 +9,14 @@ example). Printed: per bag the fitted values in standard errors from the truth; 
 parameter how many bags put the truth within two standard errors; the median fit cost
 (wall, CPU, rollouts with sensitivities, Jacobians).
 
-The fit treats the measured pressures as exact inputs: their noise is an error in the
-variables that least squares does not model, so with it the standard errors are too small by
-what it adds; ``--pressure-noise 0`` measures the coverage of the model the fit assumes.
+The fit's standard errors (``--covariance``, default ``inputs``) count the pressure sensor's
+noise, an error in the fit's inputs: its level estimated from each bag's pressures, its effect
+sampled by runs of the model under fresh noise (docs/fit.md, "Noisy pressures"); ``iid``
+takes the pressures as exact, ``hac`` is Newey-West. ``--pressure-filter HZ`` low-passes the
+pressures first. ``--pressure-noise 0`` measures the coverage with mocap noise alone.
 
-Run: ``python benchmarks/bench_fit.py [--bags 20] [--duration 1] [--pressure-noise 300] [--out DIR]``
+Run: ``python benchmarks/bench_fit.py [--bags 20] [--duration 1] [--pressure-noise 300] [--covariance inputs]
+[--pressure-filter HZ] [--out DIR]``
 """
 
 from __future__ import annotations

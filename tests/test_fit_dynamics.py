@@ -118,6 +118,8 @@ def test_the_fits_noise_options_are_checked_where_they_enter(tmp_path):
         fit(scene, [meas], KEYS, covariance="white")
     with pytest.raises(ValueError, match=r"input_draws must be an integer >= 2, got 1"):
         fit(scene, [meas], KEYS, input_draws=1)
+    with pytest.raises(ValueError, match=r"pressure_sigma must be finite and >= 0 .*, got -300"):
+        fit(scene, [meas], KEYS, pressure_sigma=-300.0)
     for bad in (0.0, 30.0):  # the pressures are sampled at 50 Hz: Nyquist 25 Hz
         with pytest.raises(MeasurementError, match=r"pressure_filter: cutoff .* must lie in \(0, 25\) Hz"):
             fit(scene, [meas], KEYS, pressure_filter=bad)

@@ -12,6 +12,10 @@ with the parameters too, its exact derivative (the implicit function theorem, as
 :mod:`qchain.fit.statics`) is carried through the initial-state columns of the sensitivities:
 ``dq/dtheta = S_theta + S_q0 dq0/dtheta``. ``start="scene"`` takes the scene's own initial
 state, which does not depend on the parameters.
+
+:func:`input_noise_draws` samples how the residuals move when the pressure sensor's noise is
+drawn anew (plain runs under the measured pressures plus fresh noise): the fit's
+``covariance="inputs"`` standard errors.
 """
 
 from __future__ import annotations

@@ -12,7 +12,9 @@ residuals of one standard deviation: ``sigma^2 = 2 cost / (m - p)`` and the cova
 ``sigma^2 (J^T J)^-1`` at the solution, computed from the singular value decomposition of the
 column-scaled ``J`` (its small singular values are the directions the data do not fix). With a
 robust loss the Jacobian is weighted as scipy weights it (``rho'``), which is the usual
-sandwich-free approximation.
+sandwich-free approximation. ``covariance="hac"`` (Newey-West) and ``"inputs"`` (the
+inputs' noise propagated by draws, the effective-variance sandwich) replace the independent
+residuals by residuals correlated in time (docs/fit.md, "Noisy pressures").
 
 A parameter set the data cannot tell apart shows as a scaled ``J`` whose smallest singular
 value is below ``identifiable_tol`` times its largest: the warning names the parameters that
