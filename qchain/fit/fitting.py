@@ -175,21 +175,7 @@ def fit(scene, experiments, keys, *, bounds: dict | None = None, loss: str = "li
     for i, e in enumerate(experiments):
         if not isinstance(e, (StaticPoses, Measurements)):
             raise TypeError(f"experiments[{i}] must be StaticPoses or Measurements, got {type(e).__name__}")
-    # the sensor noise is estimated from the pressures as recorded, before any filtering
-    if pressure_sigma is None:
-        noise = [pressure_noise(e.pressures) if isinstance(e, Measurements) else None for e in experiments]
-    else:
-        ps = np.asarray(pressure_sigma, dtype=float)
-        if not (np.all(np.isfinite(ps)) and np.all(ps >= 0) and ps.ndim <= 1):
-            raise ValueError(f"pressure_sigma must be finite and >= 0 (Pa, one value or one a chamber), got "
-                             f"{pressure_sigma!r}")
-        noise = [np.broadcast_to(ps, (e.pressures.size,)) if isinstance(e, Measurements) else None
-                 for e in experiments]
-    if pressure_filter is not None:
-        from dataclasses import replace
-
-        experiments = [replace(e, pressures=filter_pressures(e.pressures, pressure_filter))
-                       if isinstance(e, Measurements) else e for e in experiments]
+    experiments, noise = _pressure_noise(experiments, pressure_sigma, pressure_filter)
     keys = list(keys)
     params = fit_parameters(raw, keys, bounds)
     start_model = parse_scene(path.read_text(), path).build(reduce=reduce)
@@ -239,32 +225,63 @@ def fit(scene, experiments, keys, *, bounds: dict | None = None, loss: str = "li
     def fun_r(x):
         return evaluate(x, False)[0]
 
-    def draws(x):  # (N, m): each motion's draws in its rows, zeros in the others'
-        _, chain = model_at(x)
-        sizes = [e.points.size for e in experiments]
-        out = np.zeros((input_draws, sum(sizes)))
-        at = 0
-        for e, sz, s_p in zip(experiments, sizes, noise):
-            if isinstance(e, Measurements):
-                out[:, at:at + sz] = input_noise_draws(
-                    chain, e, s_p, input_draws, cutoff=pressure_filter, start=start,
-                    q0=q_start if start == "scene" else None, v0=v_start if start == "scene" else None, rtol=rtol)
-            at += sz
-        return out
+    def draws(x):
+        return _input_draws(model_at(x)[1], experiments, noise, input_draws, pressure_filter, start,
+                            q_start if start == "scene" else None, v_start if start == "scene" else None, rtol)
 
-    blocks, at = [], 0  # each experiment's residual rows: K samples (or poses) of m points x 3
-    for e in experiments:
-        K = e.points.shape[0]
-        blocks.append((at, K, e.points.size // K))
-        at += e.points.size
     res = least_squares_fit(fun, [p.start for p in params], [p.key for p in params],
                             lower=[p.lower for p in params], upper=[p.upper for p in params], loss=loss,
                             f_scale=f_scale, max_nfev=max_nfev, residuals=fun_r, covariance=covariance,
-                            blocks=blocks, input_draws=draws)
+                            blocks=_residual_blocks(experiments), input_draws=draws)
     fun_r(res.x)  # the report's residuals and scene at the solution
     new, rs = state["last"]
     return FitReport(result=res, parameters=params, experiments=experiments, residuals=rs, raw=new,
                      source=str(path), evaluations=state["n"])
+
+
+def _pressure_noise(experiments: list, pressure_sigma, pressure_filter):
+    """Each measured motion's pressure noise (3 n,) Pa (given, or estimated from its pressures
+    as recorded, before any filtering; None for static poses) and the experiments with their
+    pressures low-passed at ``pressure_filter`` Hz when asked."""
+    if pressure_sigma is None:
+        noise = [pressure_noise(e.pressures) if isinstance(e, Measurements) else None for e in experiments]
+    else:
+        ps = np.asarray(pressure_sigma, dtype=float)
+        if not (np.all(np.isfinite(ps)) and np.all(ps >= 0) and ps.ndim <= 1):
+            raise ValueError(f"pressure_sigma must be finite and >= 0 (Pa, one value or one a chamber), got "
+                             f"{pressure_sigma!r}")
+        noise = [np.broadcast_to(ps, (e.pressures.size,)) if isinstance(e, Measurements) else None
+                 for e in experiments]
+    if pressure_filter is not None:
+        from dataclasses import replace
+
+        experiments = [replace(e, pressures=filter_pressures(e.pressures, pressure_filter))
+                       if isinstance(e, Measurements) else e for e in experiments]
+    return experiments, noise
+
+
+def _residual_blocks(experiments: list) -> list:
+    """Each experiment's residual rows as ``(start, K, rows)``: K samples (or poses) of m points x 3."""
+    blocks, at = [], 0
+    for e in experiments:
+        K = e.points.shape[0]
+        blocks.append((at, K, e.points.size // K))
+        at += e.points.size
+    return blocks
+
+
+def _input_draws(chain, experiments: list, noise: list, n: int, cutoff, start: str, q0, v0, rtol: float):
+    """(n, m): each measured motion's :func:`~qchain.fit.dynamics.input_noise_draws` in its
+    rows, zeros in the static poses' rows (their pressures taken as exact)."""
+    sizes = [e.points.size for e in experiments]
+    out = np.zeros((n, sum(sizes)))
+    at = 0
+    for e, sz, s_p in zip(experiments, sizes, noise):
+        if isinstance(e, Measurements):
+            out[:, at:at + sz] = input_noise_draws(chain, e, s_p, n, cutoff=cutoff, start=start, q0=q0, v0=v0,
+                                                   rtol=rtol)
+        at += sz
+    return out
 
 
 def _table_nodes(raw: dict, nodes: list[int]) -> list[int]:
