@@ -9,11 +9,14 @@ example). Printed: per bag the fitted values in standard errors from the truth; 
 parameter how many bags put the truth within two standard errors; the median fit cost
 (wall, CPU, rollouts with sensitivities, Jacobians).
 
-The fit treats the measured pressures as exact inputs: their noise is an error in the
-variables that least squares does not model, so with it the standard errors are too small by
-what it adds; ``--pressure-noise 0`` measures the coverage of the model the fit assumes.
+The fit's standard errors (``--covariance``, default ``inputs``) count the pressure sensor's
+noise, an error in the fit's inputs: its level estimated from each bag's pressures, its effect
+sampled by runs of the model under fresh noise (docs/fit.md, "Noisy pressures"); ``iid``
+takes the pressures as exact, ``hac`` is Newey-West. ``--pressure-filter HZ`` low-passes the
+pressures first. ``--pressure-noise 0`` measures the coverage with mocap noise alone.
 
-Run: ``python benchmarks/bench_fit.py [--bags 20] [--duration 1] [--pressure-noise 300] [--out DIR]``
+Run: ``python benchmarks/bench_fit.py [--bags 20] [--duration 1] [--pressure-noise 300] [--covariance inputs]
+[--pressure-filter HZ] [--out DIR]``
 """
 
 from __future__ import annotations
@@ -42,6 +45,8 @@ def main(argv=None) -> dict:
     p.add_argument("--duration", type=float, default=1.0)
     p.add_argument("--pressure-noise", type=float, default=calibrate.PRESSURE_NOISE)
     p.add_argument("--out", type=Path, default=None)
+    p.add_argument("--covariance", default="inputs", choices=["inputs", "iid", "hac"])
+    p.add_argument("--pressure-filter", type=float, default=None, help="low-pass cutoff (Hz) of the pressures")
     args = p.parse_args(argv)
     calibrate.PRESSURE_NOISE = args.pressure_noise
     scene = calibrate._common.SCENES / "calibrate.toml"
@@ -50,7 +55,8 @@ def main(argv=None) -> dict:
     out.mkdir(parents=True, exist_ok=True)
     z, costs = [], []
     print(f"{args.bags} bags, {args.duration:g} s each, mocap noise {calibrate.MOCAP_NOISE * 1e3:g} mm, pressure noise "
-          f"{args.pressure_noise:g} Pa; (fitted - truth) / standard error:")
+          f"{args.pressure_noise:g} Pa; covariance {args.covariance!r}, pressure filter "
+          f"{args.pressure_filter or 'none'} Hz; (fitted - truth) / standard error:")
     print(f"{'bag':>4} " + " ".join(f"{k:>28}" for k in calibrate.KEYS) + f" {'wall s':>7} {'CPU s':>6} {'nfev':>5} {'njev':>5}")
     for b in range(args.bags):
         bag = out / f"bag{b}.mcap"
@@ -59,7 +65,8 @@ def main(argv=None) -> dict:
             warnings.simplefilter("ignore", (FitWarning, MeasurementWarning))
             meas = read_bag(bag, pressure_topic="/pressures", pose_topic="/mocap/tip")
             t0, c0 = time.perf_counter(), time.process_time()
-            res = fit(scene, [meas], calibrate.KEYS, f_scale=calibrate.MOCAP_NOISE).result
+            res = fit(scene, [meas], calibrate.KEYS, f_scale=calibrate.MOCAP_NOISE, covariance=args.covariance,
+                      pressure_filter=args.pressure_filter).result
             wall, cpu = time.perf_counter() - t0, time.process_time() - c0
         z.append((res.x - truth) / res.stderr)
         costs.append((wall, cpu, res.nfev, res.njev))

@@ -10,7 +10,10 @@ lab's clock. The recording is a ROS 2 bag (``geometry_msgs/PoseStamped`` on ``/m
 
 The fit reads the bag (``qchain.fit.read_bag``), starts from the datasheet's values and fits
 four scene keys with the exact trajectory sensitivities (``qchain.fit.fit``); it prints the
-fitted values with their standard errors against the hidden ones, writes the fitted scene
+fitted values with their standard errors against the hidden ones (the fit's default
+standard errors count the pressure sensor's noise, its level estimated from the bag's
+pressures and its effect sampled by runs of the fitted model: docs/fit.md, "Noisy
+pressures"), writes the fitted scene
 and draws the tip measured, as the datasheet model moves and as the fitted model moves,
 with the residuals (``out/calibrate/calibrate.png``).
 

@@ -106,3 +106,20 @@ def test_a_lab_bag_fits_back_to_the_hidden_parameters(tmp_path):
     assert res.success and np.all(np.isfinite(res.stderr))
     assert np.all(np.abs(res.x - truth) <= 3 * res.stderr), (res.x, truth, res.stderr)
     assert 4e-4 < res.sigma < 6e-4
+
+
+def test_the_fits_noise_options_are_checked_where_they_enter(tmp_path):
+    from qchain.fit import MeasurementError
+
+    meas = read_bag(_lab_bag(tmp_path, noise=0.0, duration=0.3), pressure_topic="/pressures",
+                    pose_topic="/mocap/tip")
+    scene = _scene(tmp_path)
+    with pytest.raises(ValueError, match=r"covariance must be 'inputs', 'iid' or 'hac', got 'white'"):
+        fit(scene, [meas], KEYS, covariance="white")
+    with pytest.raises(ValueError, match=r"input_draws must be an integer >= 2, got 1"):
+        fit(scene, [meas], KEYS, input_draws=1)
+    with pytest.raises(ValueError, match=r"pressure_sigma must be finite and >= 0 .*, got -300"):
+        fit(scene, [meas], KEYS, pressure_sigma=-300.0)
+    for bad in (0.0, 30.0):  # the pressures are sampled at 50 Hz: Nyquist 25 Hz
+        with pytest.raises(MeasurementError, match=r"pressure_filter: cutoff .* must lie in \(0, 25\) Hz"):
+            fit(scene, [meas], KEYS, pressure_filter=bad)

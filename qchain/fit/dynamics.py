@@ -12,6 +12,10 @@ with the parameters too, its exact derivative (the implicit function theorem, as
 :mod:`qchain.fit.statics`) is carried through the initial-state columns of the sensitivities:
 ``dq/dtheta = S_theta + S_q0 dq0/dtheta``. ``start="scene"`` takes the scene's own initial
 state, which does not depend on the parameters.
+
+:func:`input_noise_draws` samples how the residuals move when the pressure sensor's noise is
+drawn anew (plain runs under the measured pressures plus fresh noise): the fit's
+``covariance="inputs"`` standard errors.
 """
 
 from __future__ import annotations
@@ -21,7 +25,7 @@ import numpy as np
 from .measurements import Measurements
 from .statics import rest_derivative
 
-__all__ = ["dynamic_residuals"]
+__all__ = ["dynamic_residuals", "input_noise_draws"]
 
 
 def dynamic_residuals(chain, meas: Measurements, sens_params: list, static_params: list, T_sens: np.ndarray,
@@ -93,3 +97,39 @@ def dynamic_residuals(chain, meas: Measurements, sens_params: list, static_param
             Jj = Jj + dp[:, :, :nf] @ dx0
         J[:, j] = Jj
     return r.reshape(-1), J.reshape(K * m * 3, -1)
+
+
+def input_noise_draws(chain, meas: Measurements, noise: np.ndarray, n_draws: int, *, cutoff: float | None = None,
+                      start: str = "rest", q0=None, v0=None, rtol: float = 1e-7, atol: float = 1e-9,
+                      seed: int = 0) -> np.ndarray:
+    """(n_draws, K m 3) m: how the residuals change when the pressure sensor's noise is drawn
+    anew: the model's run under the measured pressures plus white noise of ``noise`` (Pa a
+    chamber, each sample; low-passed at ``cutoff`` Hz as the measured ones were), less its run
+    under the measured pressures (a plain run each, :func:`dynamic_residuals` with
+    ``jacobian=False``).
+
+    The measured pressures are the true ones plus the sensor's noise, so the residuals hold the
+    model's response to that noise; a fresh draw of it has the same distribution (to first
+    order in the noise, the model near the truth), so the draws sample the residuals'
+    covariance from the inputs (errors in the variables, propagated through the model's
+    nonlinear dynamics rather than through a linearisation). Reproducible: draws from ``seed``.
+    """
+    from dataclasses import replace
+
+    from ..sim.inputs import Table
+    from .measurements import filter_pressures
+
+    tab = meas.pressures
+    base, _ = dynamic_residuals(chain, meas, [], [], None, None, start=start, q0=q0, v0=v0, rtol=rtol, atol=atol,
+                                jacobian=False)
+    rng = np.random.default_rng(seed)
+    out = np.empty((int(n_draws), base.size))
+    for k in range(int(n_draws)):
+        e = rng.normal(size=tab.values.shape) * np.asarray(noise, dtype=float)
+        if cutoff is not None:
+            e = filter_pressures(Table(tab.times, e), cutoff).values
+        m = replace(meas, pressures=Table(tab.times, tab.values + e))
+        r, _ = dynamic_residuals(chain, m, [], [], None, None, start=start, q0=q0, v0=v0, rtol=rtol, atol=atol,
+                                 jacobian=False)
+        out[k] = r - base
+    return out

@@ -18,10 +18,10 @@ from pathlib import Path
 import numpy as np
 
 from ..batch.sweep_spec import apply_values
-from .dynamics import dynamic_residuals
-from .measurements import MeasurementError, Measurements
+from .dynamics import dynamic_residuals, input_noise_draws
+from .measurements import MeasurementError, Measurements, filter_pressures, pressure_noise
 from .parameters import FitParameter, _tables, column_map, fit_parameters, scene_values
-from .solve import FitResult, least_squares_fit
+from .solve import COVARIANCES, FitResult, least_squares_fit
 from .statics import StaticPoses, static_residuals
 
 __all__ = ["fit", "FitReport"]
@@ -131,7 +131,8 @@ def _sensitivity_params(params: list[FitParameter]) -> list:
 
 def fit(scene, experiments, keys, *, bounds: dict | None = None, loss: str = "linear",
         f_scale: float = 1e-3, reduce: bool = False, max_nfev: int | None = 50, start: str = "rest",
-        rtol: float = 1e-7, values: dict | None = None) -> FitReport:
+        rtol: float = 1e-7, covariance: str = "inputs", pressure_filter: float | None = None,
+        input_draws: int = 40, pressure_sigma=None, values: dict | None = None) -> FitReport:
     """Fit the scene keys ``keys`` to ``experiments``.
 
     Parameters
@@ -162,6 +163,29 @@ def fit(scene, experiments, keys, *, bounds: dict | None = None, loss: str = "li
         the parameters), or at the scene's initial state.
     rtol : float
         The runs' dopri5 tolerance (their steps are held for the exact sensitivities).
+    covariance : {"inputs", "iid", "hac"}
+        How the standard errors are formed (:func:`qchain.fit.solve.least_squares_fit`).
+        ``"inputs"`` (default): the measured pressures are taken as the true ones plus a
+        white sensor noise, its level estimated from each recording's pressures themselves
+        (:func:`qchain.fit.measurements.pressure_noise`), and its effect on the fitted values
+        (an error in the fit's inputs, which least squares does not see in the residuals) is
+        propagated through the model at the solution by ``input_draws`` runs under freshly
+        drawn noise; the measurement noise is white. Assumes the pressure noise is white (or
+        low-passed as ``pressure_filter`` says), independent of the measurement noise, small
+        enough for the model's response to it to be near linear. Static poses add no draws.
+        ``"iid"``: independent residuals of one standard deviation, the pressures exact.
+        ``"hac"``: Newey-West, residuals correlated in time by an unknown law.
+    pressure_filter : float, optional, Hz
+        Low-pass every measured motion's pressures at this cutoff before fitting
+        (:func:`qchain.fit.measurements.filter_pressures`, zero phase); in (0, Nyquist).
+    input_draws : int
+        The runs that sample the pressure noise's effect for ``covariance="inputs"``: the
+        standard errors' own relative error is about ``1 / sqrt(2 input_draws)`` of the part
+        the inputs add.
+    pressure_sigma : float or (3 n,) float, optional, Pa
+        The pressure sensor's noise (standard deviation a sample, a chamber) when known (a
+        datasheet); default: estimated from each recording (about 16 % off a chamber from
+        100 samples).
     values : dict, optional
         ``{key: value}`` start values of fitted keys instead of the scene's (SI units).
     """
@@ -176,9 +200,14 @@ def fit(scene, experiments, keys, *, bounds: dict | None = None, loss: str = "li
     experiments = list(experiments)
     if not experiments:
         raise ValueError("experiments: give at least one")
+    if covariance not in COVARIANCES:
+        raise ValueError(f"covariance must be 'inputs', 'iid' or 'hac', got {covariance!r}")
+    if isinstance(input_draws, bool) or not isinstance(input_draws, (int, np.integer)) or input_draws < 2:
+        raise ValueError(f"input_draws must be an integer >= 2, got {input_draws!r}")
     for i, e in enumerate(experiments):
         if not isinstance(e, (StaticPoses, Measurements)):
             raise TypeError(f"experiments[{i}] must be StaticPoses or Measurements, got {type(e).__name__}")
+    experiments, noise = _pressure_noise(experiments, pressure_sigma, pressure_filter)
     keys = list(keys)
     if values:
         extra = sorted(set(values) - set(keys))
@@ -236,14 +265,64 @@ def fit(scene, experiments, keys, *, bounds: dict | None = None, loss: str = "li
     def fun_r(x):
         return evaluate(x, False)[0]
 
+    def draws(x):
+        return _input_draws(model_at(x)[1], experiments, noise, input_draws, pressure_filter, start,
+                            q_start if start == "scene" else None, v_start if start == "scene" else None, rtol)
+
     res = least_squares_fit(fun, [p.start for p in params], [p.key for p in params],
                             lower=[p.lower for p in params], upper=[p.upper for p in params], loss=loss,
-                            f_scale=f_scale, max_nfev=max_nfev, residuals=fun_r)
+                            f_scale=f_scale, max_nfev=max_nfev, residuals=fun_r, covariance=covariance,
+                            blocks=_residual_blocks(experiments), input_draws=draws)
     fun_r(res.x)  # the report's residuals and scene at the solution
     new, rs = state["last"]
     return FitReport(result=res, parameters=params, experiments=experiments, residuals=rs, raw=new,
                      source=str(path), evaluations=state["n"], start_residuals=state["first"],
                      wall_s=time.perf_counter() - wall0, cpu_s=time.process_time() - cpu0)
+
+
+def _pressure_noise(experiments: list, pressure_sigma, pressure_filter):
+    """Each measured motion's pressure noise (3 n,) Pa (given, or estimated from its pressures
+    as recorded, before any filtering; None for static poses) and the experiments with their
+    pressures low-passed at ``pressure_filter`` Hz when asked."""
+    if pressure_sigma is None:
+        noise = [pressure_noise(e.pressures) if isinstance(e, Measurements) else None for e in experiments]
+    else:
+        ps = np.asarray(pressure_sigma, dtype=float)
+        if not (np.all(np.isfinite(ps)) and np.all(ps >= 0) and ps.ndim <= 1):
+            raise ValueError(f"pressure_sigma must be finite and >= 0 (Pa, one value or one a chamber), got "
+                             f"{pressure_sigma!r}")
+        noise = [np.broadcast_to(ps, (e.pressures.size,)) if isinstance(e, Measurements) else None
+                 for e in experiments]
+    if pressure_filter is not None:
+        from dataclasses import replace
+
+        experiments = [replace(e, pressures=filter_pressures(e.pressures, pressure_filter))
+                       if isinstance(e, Measurements) else e for e in experiments]
+    return experiments, noise
+
+
+def _residual_blocks(experiments: list) -> list:
+    """Each experiment's residual rows as ``(start, K, rows)``: K samples (or poses) of m points x 3."""
+    blocks, at = [], 0
+    for e in experiments:
+        K = e.points.shape[0]
+        blocks.append((at, K, e.points.size // K))
+        at += e.points.size
+    return blocks
+
+
+def _input_draws(chain, experiments: list, noise: list, n: int, cutoff, start: str, q0, v0, rtol: float):
+    """(n, m): each measured motion's :func:`~qchain.fit.dynamics.input_noise_draws` in its
+    rows, zeros in the static poses' rows (their pressures taken as exact)."""
+    sizes = [e.points.size for e in experiments]
+    out = np.zeros((n, sum(sizes)))
+    at = 0
+    for e, sz, s_p in zip(experiments, sizes, noise):
+        if isinstance(e, Measurements):
+            out[:, at:at + sz] = input_noise_draws(chain, e, s_p, n, cutoff=cutoff, start=start, q0=q0, v0=v0,
+                                                   rtol=rtol)
+        at += sz
+    return out
 
 
 def _table_nodes(raw: dict, nodes: list[int]) -> list[int]:

@@ -12,7 +12,9 @@ residuals of one standard deviation: ``sigma^2 = 2 cost / (m - p)`` and the cova
 ``sigma^2 (J^T J)^-1`` at the solution, computed from the singular value decomposition of the
 column-scaled ``J`` (its small singular values are the directions the data do not fix). With a
 robust loss the Jacobian is weighted as scipy weights it (``rho'``), which is the usual
-sandwich-free approximation.
+sandwich-free approximation. ``covariance="hac"`` (Newey-West) and ``"inputs"`` (the
+inputs' noise propagated by draws, the effective-variance sandwich) replace the independent
+residuals by residuals correlated in time (docs/fit.md, "Noisy pressures").
 
 A parameter set the data cannot tell apart shows as a scaled ``J`` whose smallest singular
 value is below ``identifiable_tol`` times its largest: the warning names the parameters that
@@ -57,7 +59,8 @@ class FitResult:
     residuals : (m,) float
         Residuals at the solution (model minus measurement, in the measurements' units).
     sigma : float
-        The residuals' standard deviation estimate, ``sqrt(2 cost / (m - p))``.
+        The residuals' standard deviation estimate, ``sqrt(2 cost / (m - p))`` (with
+        ``covariance="inputs"``: the measurement noise's, less the inputs' noise's part).
     cost : float
         ``1/2 sum rho(r^2)``.
     success : bool
@@ -98,10 +101,38 @@ class FitResult:
         return out
 
 
+COVARIANCES = ("iid", "hac", "inputs")
+
+
+def newey_west_lags(n: int) -> int:
+    """Newey and West's (1994) bandwidth rule ``floor(4 (n / 100)^(2/9))`` for ``n`` samples."""
+    return int(np.floor(4.0 * (n / 100.0) ** (2.0 / 9.0)))
+
+
+def _hac_meat(Js: np.ndarray, r: np.ndarray, blocks) -> np.ndarray:
+    """Newey-West estimate of ``Js^T Cov(r) Js`` (p, p): the scores ``g_k = sum Js r`` over each
+    sample's rows, their autocovariances to the lag :func:`newey_west_lags` with Bartlett
+    weights, per experiment (experiments independent), scaled by ``K / (K - p)``."""
+    m, p = Js.shape
+    meat = np.zeros((p, p))
+    K_all = 0
+    for start, K, rows in blocks:
+        g = (Js[start:start + K * rows] * r[start:start + K * rows, None]).reshape(K, rows, p).sum(axis=1)
+        S = g.T @ g
+        L = newey_west_lags(K)
+        for lag in range(1, min(L, K - 1) + 1):
+            G = g[lag:].T @ g[:-lag]
+            S += (1.0 - lag / (L + 1.0)) * (G + G.T)
+        meat += S
+        K_all += K
+    return meat * K_all / max(K_all - p, 1)
+
+
 def _statistics(J: np.ndarray, r: np.ndarray, cost: float, scale: np.ndarray, names: list[str],
-                identifiable_tol: float):
+                identifiable_tol: float, covariance: str = "iid", blocks=None, draws=None):
     """Covariance, standard errors, correlation and the unidentifiable groups from the
-    Jacobian ``J`` (m, p) in physical units, via the SVD of ``J * scale``."""
+    Jacobian ``J`` (m, p) in physical units, via the SVD of ``J * scale``; ``covariance`` as
+    :func:`least_squares_fit` says (``blocks`` for ``"hac"``, ``draws`` (N, m) for ``"inputs"``)."""
     m, p = J.shape
     Js = J * scale
     U, s, Vt = np.linalg.svd(Js, full_matrices=False)
@@ -114,7 +145,21 @@ def _statistics(J: np.ndarray, r: np.ndarray, cost: float, scale: np.ndarray, na
         big = np.flatnonzero(np.abs(v) > 0.2 * np.abs(v).max())
         groups.append([names[i] for i in big])
     inv = (Vt[ok].T / s[ok] ** 2) @ Vt[ok]  # pseudo-inverse of Js^T Js on the fixed directions
-    cov = sigma2 * inv * np.outer(scale, scale)
+    if covariance == "hac":
+        cov_s = inv @ _hac_meat(Js, r, blocks if blocks is not None else [(0, m, 1)]) @ inv
+    elif covariance == "inputs" and draws is not None and len(draws):
+        # r = e_meas + d (white measurement noise plus the input noise's propagated part d):
+        # Cov(theta) = inv Js^T (s_m^2 I + Cov d) Js inv, Cov d from the draws; s_m^2 from the
+        # residuals less what the draws put in them off the fitted directions
+        D = np.asarray(draws, dtype=float)
+        G = D @ Js  # (N, p)
+        Dperp = D - (D @ U[:, ok]) @ U[:, ok].T
+        sm2 = max(2.0 * cost - float(np.mean(np.sum(Dperp ** 2, axis=1))), 0.0) / dof
+        cov_s = sm2 * inv + inv @ (G.T @ G / D.shape[0]) @ inv
+        sigma2 = sm2
+    else:
+        cov_s = sigma2 * inv
+    cov = cov_s * np.outer(scale, scale)
     free = np.zeros(p, bool)
     for k in np.flatnonzero(~ok):
         free |= np.abs(Vt[k]) > 1e-8 * np.abs(Vt[k]).max()
@@ -135,7 +180,8 @@ def least_squares_fit(fun: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]
                       lower=None, upper=None, scale=None, loss: str = "linear", f_scale: float = 1.0,
                       identifiable_tol: float = 1e-7, max_nfev: int | None = None,
                       xtol: float = 1e-10, ftol: float = 1e-10, gtol: float = 1e-10,
-                      residuals: Callable[[np.ndarray], np.ndarray] | None = None) -> FitResult:
+                      residuals: Callable[[np.ndarray], np.ndarray] | None = None, covariance: str = "iid",
+                      blocks=None, input_draws: Callable[[np.ndarray], np.ndarray] | None = None) -> FitResult:
     """Fit ``theta`` to make ``r(theta)`` small.
 
     Parameters
@@ -162,6 +208,21 @@ def least_squares_fit(fun: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]
         ``residuals(theta) -> r``, the same residuals without their Jacobian, for the trial
         points the solver rejects (a plain rollout instead of one with sensitivities); the
         Jacobian is asked of ``fun`` only where the solver needs it.
+    covariance : {"iid", "hac", "inputs"}
+        How the standard errors read the residuals. ``"iid"``: independent, of one standard
+        deviation (``sigma^2 (J^T J)^-1``). ``"hac"``: the sandwich ``(J^T J)^-1 J^T Omega J
+        (J^T J)^-1`` with Newey and West's estimate of ``Omega`` from the residuals, correlated
+        within ``blocks`` (residuals correlated in time, their correlation unknown).
+        ``"inputs"``: the same sandwich with ``Omega = s_m^2 I + Cov(d)``, ``d`` the residuals'
+        change from the inputs' noise, sampled by ``input_draws`` (errors in the inputs
+        propagated through the model); without ``input_draws`` as ``"iid"``.
+    blocks : list of (start, K, rows), optional
+        For ``"hac"``: the residual rows ``start .. start + K rows`` are ``K`` samples in time
+        of ``rows`` residuals each, one experiment (default: all rows one experiment, one row a
+        sample).
+    input_draws : callable, optional
+        For ``"inputs"``: ``input_draws(theta) -> (N, m)``, ``N`` draws of the residuals'
+        change when the inputs' noise is drawn anew (at the solution).
     """
     from scipy.optimize import least_squares
 
@@ -177,6 +238,8 @@ def least_squares_fit(fun: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]
         if not lo[i] <= x0[i] <= hi[i]:
             raise ValueError(f"{names[i]}: start value {x0[i]:g} is outside its bounds [{lo[i]:g}, {hi[i]:g}]")
     sc = np.where(np.abs(x0) > 0, np.abs(x0), 1.0) if scale is None else np.asarray(scale, dtype=float)
+    if covariance not in COVARIANCES:
+        raise ValueError(f"covariance must be 'iid', 'hac' or 'inputs', got {covariance!r}")
     if loss not in ("linear", "soft_l1", "huber", "cauchy", "arctan"):
         raise ValueError(f"loss must be 'linear', 'soft_l1', 'huber', 'cauchy' or 'arctan', got {loss!r}")
     cache: dict = {}  # the last point's r, and its J once asked
@@ -225,7 +288,9 @@ def least_squares_fit(fun: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]
         rho1 = {"soft_l1": lambda z: (1 + z) ** -0.5, "huber": lambda z: np.where(z <= 1, 1.0, z ** -0.5),
                 "cauchy": lambda z: 1 / (1 + z), "arctan": lambda z: 1 / (1 + z ** 2)}[loss](z)
         J = J * np.sqrt(rho1)[:, None]
-    cov, stderr, corr, sigma, groups, pairs = _statistics(J, r, float(sol.cost), sc, list(names), identifiable_tol)
+    draws = input_draws(x) if covariance == "inputs" and input_draws is not None else None
+    cov, stderr, corr, sigma, groups, pairs = _statistics(J, r, float(sol.cost), sc, list(names), identifiable_tol,
+                                                          covariance, blocks, draws)
     at_bound = [names[i] for i in range(p) if sol.active_mask[i] != 0]
     res = FitResult(names=list(names), x=x, x0=x0, stderr=stderr, correlation=corr, covariance=cov, residuals=r,
                     sigma=sigma, cost=float(sol.cost), success=bool(sol.success), message=str(sol.message),
