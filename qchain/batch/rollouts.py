@@ -54,11 +54,15 @@ class BatchTrajectory:
         Dynamics evaluations, steps, samples recorded.
     wall : (B,) s
         Wall time of each rollout's ``simulate`` call in its worker (``meta["rollouts"][i]
-        ["compile_s"]`` of it went to compiling or loading the engine).
+        ["compile_s"]`` of it went to compiling or loading the engine); in a compiled loop
+        (``meta["loop"]``), the time-stamp counter's ticks between its start and end, at
+        the rate the loops' calls measured.
     meta : dict
         ``method``, ``engine`` ("serial", "threads", "local" or "dask"), ``workers``,
         ``wall_s`` (the whole call), ``compile_s`` (this process's compile or load before
-        fanning out), ``t_span``, ``rollouts`` (each rollout's ``Trajectory.meta``, with
+        fanning out), ``t_span``, ``loop`` ("compiled": every rollout in compiled loops,
+        :mod:`qchain.sim.engine.batched`; "python": a Python loop, each rollout a run of the
+        driver), ``rollouts`` (each rollout's ``Trajectory.meta``, with
         ``worker``: the ``host:pid`` that ran it, and ``thread``: the name of its thread).
     """
 
@@ -349,11 +353,11 @@ def simulate_batch(
     shared.starts_finite = _runs_of(shared).starts_finite(Q0, V0)
     w_start = time.perf_counter()
     sink = _Sink(chain, B, cfg["t_eval"], (t0, t1), cfg["dt"])
-    name, n_workers, compile_s = _run_all(shared, items, sink, workers=workers, client=client, retries=retries,
+    name, n_workers, compile_s, loop = _run_all(shared, items, sink, workers=workers, client=client, retries=retries,
                                           progress=progress, python_inputs=_calls_python(cfg, p_in, tau_in))
     wall_s = time.perf_counter() - w_start
     return sink.result(dict(method=method, engine=name, workers=n_workers, wall_s=wall_s, compile_s=compile_s,
-                            t_span=(t0, t1)))
+                            t_span=(t0, t1), loop=loop))
 
 
 def _check_shared_settings(chain: Chain, t_span, *, method: str, workers, client, retries, progress, rtol, atol,
@@ -449,8 +453,10 @@ def _run_all(shared: _Shared, items: list, sink: _Sink, *, workers, client, retr
     """Step 4 of :func:`simulate_batch`: run the rollouts here one after the other or on the
     engine :func:`qchain.batch.workers.engine_for` picks (threads where every rollout runs in
     compiled code: a compiled method on the compiled engine, ``python_inputs`` False), the
-    method's engine compiled or loaded here first; each result written into ``sink``. Returns
-    ``(engine name, workers, compile_s)``."""
+    method's engine compiled or loaded here first; each result written into ``sink``. Every
+    rollout in compiled loops where none needs Python (:func:`_together`), on this thread or
+    the threads. Returns ``(engine name, workers, compile_s, loop)``, ``loop`` "compiled" or
+    "python" (a Python loop over the rollouts, each a :class:`qchain.sim.simulation.Runs` run)."""
     chain, method = shared.chain, shared.kw["method"]
     B = len(items)
     compile_s, runs_on = 0.0, "python"
@@ -493,7 +499,7 @@ def _run_all(shared: _Shared, items: list, sink: _Sink, *, workers, client, retr
         bar.close()
         if engine is not None and isinstance(client, str):  # a client this call connected
             engine.close()
-    return name, n_workers, compile_s
+    return name, n_workers, compile_s, "compiled" if together is not None else "python"
 
 
 def _together(shared: _Shared, items: list, sink: _Sink):
