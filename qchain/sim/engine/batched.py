@@ -318,8 +318,8 @@ class Rollouts:
                 *self.inputs_packed, *self.out, self.stat, self.fl)
 
     def work(self, done=None) -> None:
-        """Run rollouts on this thread until none is left; ``done(n)`` after each call that
-        ended ``n`` rollouts. A set stop event (:func:`qchain.sim.engine.driver.stop_on`)
+        """Run rollouts on this thread until none is left; ``done(n)`` after each call, ``n``
+        the rollouts the threads claimed meanwhile (a progress bar's count). A set stop event (:func:`qchain.sim.engine.driver.stop_on`)
         ends it between calls with ``KeyboardInterrupt``, as Ctrl-C does."""
         m = _own_inputs(self.m, self.inputs_packed)
         wk = system.workspace(self.chain, m)
