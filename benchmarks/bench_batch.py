@@ -29,7 +29,11 @@ batch above, and a quarter of it at rtol = 1e-6 (``HEAVY``, longer rollouts). Th
 machine's load average and CPU steal time are printed beside them. Start-up costs (pool and
 cluster start, first batch with the engine loaded in the workers) are measured once.
 
-Run: ``python benchmarks/bench_batch.py [--quick] [--rounds N] [--out DIR]``; on a shared
+Last, the compiled loop (:mod:`qchain.sim.engine.batched`, the rollouts' default) against
+the Python loop (each rollout a run of the driver), side by side: a serial batch's CPU time
+a rollout and each loop's 2-thread speed-up (``--loops``: only these).
+
+Run: ``python benchmarks/bench_batch.py [--quick] [--rounds N] [--out DIR] [--loops]``; on a shared
 machine under ``flock /tmp/qchain-bench.flock``.
 """
 
@@ -152,6 +156,44 @@ def unguarded(B: int, rounds: int, setting: dict) -> dict[str, list[float]]:
     return json.loads(r.stdout.strip().splitlines()[-1])
 
 
+def loops(B: int, rounds: int) -> dict:
+    """The compiled loop against the Python loop, side by side in rounds: a serial batch's CPU
+    time a rollout (``time.process_time``; the compiled work is the same, so the difference
+    is Python saved) and the 2-thread speed-up of each. The Python loop is forced by a
+    ``wall_limit`` no rollout reaches (it needs the clock between stretches)."""
+    sc, model, P, t_eval = workload(B)
+    args = (model.chain, model.q0, model.v0, (0.0, 1.0))
+    kws = {"compiled": dict(pressure=P, t_eval=t_eval, **SETTING),
+           "python": dict(pressure=P, t_eval=t_eval, wall_limit=1e6, **SETTING)}
+    for kw in kws.values():
+        simulate_batch(*args, **{**kw, "pressure": P[:2]}, workers=2)
+    cpu = {k: [] for k in kws}
+    wall = {(k, w): [] for k in kws for w in (1, 2)}
+    load0 = os.getloadavg()[0]
+    for r in range(rounds + 1):
+        for k in (list(kws) if r % 2 else list(kws)[::-1]):
+            for w in (1, 2):
+                c0, w0 = time.process_time(), time.perf_counter()
+                b = simulate_batch(*args, **kws[k], workers=w)
+                c1, w1 = time.process_time(), time.perf_counter()
+                assert b.meta["loop"] == k
+                if r > 0:
+                    wall[k, w].append(w1 - w0)
+                    if w == 1:
+                        cpu[k].append((c1 - c0) / B)
+    out = {"load_before": load0, "load_after": os.getloadavg()[0]}
+    print(f"\ncompiled loop against Python loop, {B} rollouts, {rounds} rounds (load average {load0:.2f} -> "
+          f"{out['load_after']:.2f}):")
+    print(f"{'loop':>9} {'serial CPU ms a rollout':>24} {'serial wall s':>14} {'threads-2 wall s':>17} {'speed-up':>16}")
+    for k in kws:
+        up = np.array(wall[k, 1]) / np.array(wall[k, 2])
+        out[k] = dict(cpu_ms=float(np.median(cpu[k]) * 1e3), speedup=float(np.median(up)))
+        print(f"{k:>9} {np.median(cpu[k]) * 1e3:24.3f} {np.median(wall[k, 1]):14.3f} {np.median(wall[k, 2]):17.3f} "
+              f"{np.median(up):7.2f}x ({up.min():.2f}-{up.max():.2f})")
+    print(f"Python saved a rollout: {out['python']['cpu_ms'] - out['compiled']['cpu_ms']:.3f} ms CPU")
+    return out
+
+
 def run(quick: bool = False, out_dir: Path = Path("out/bench"), rounds: int | None = None) -> list[dict]:
     import distributed
 
@@ -168,8 +210,9 @@ def run(quick: bool = False, out_dir: Path = Path("out/bench"), rounds: int | No
 
     # start-up, once
     t0 = time.perf_counter()
-    simulate_batch(*args, **{**kw, "pressure": P[:2]}, workers=1)  # this process: engine compiled or loaded
+    loop = simulate_batch(*args, **{**kw, "pressure": P[:2]}, workers=1).meta["loop"]  # engine compiled or loaded
     warm_s = time.perf_counter() - t0
+    print(f"rollouts run in {loop} loops (meta['loop'])")
     pools = {}
     startup = {}
     for n in (1, 2):
@@ -260,7 +303,11 @@ def run(quick: bool = False, out_dir: Path = Path("out/bench"), rounds: int | No
                    speedup_threads2_unguarded_heavy=float(np.median(scripts["rtol 1e-6"][2])),
                    dask_overhead=float(np.median(over)), tip_error_max_m=float(err.max()),
                    tip_error_median_m=float(np.median(err)), load_before=load0[0], load_after=load1[0],
-                   steal_s=steal1 - steal0, bit_identical=same, encode_dask_ms=enc_dask, encode_pickle_ms=enc_pickle)
+                   steal_s=steal1 - steal0, bit_identical=same, loop=loop, encode_dask_ms=enc_dask, encode_pickle_ms=enc_pickle)
+    lp = loops(B, rounds)
+    summary.update(cpu_ms_compiled_loop=lp["compiled"]["cpu_ms"], cpu_ms_python_loop=lp["python"]["cpu_ms"],
+                   speedup_threads2_compiled_loop=lp["compiled"]["speedup"],
+                   speedup_threads2_python_loop=lp["python"]["speedup"])
     _study.write_csv(rows, out_dir / "batch.csv")
     _study.write_csv([summary], out_dir / "batch_summary.csv")
     return rows + [summary]
@@ -271,7 +318,10 @@ def main(argv=None):
     ap.add_argument("--quick", action="store_true", help="64 rollouts, 3 rounds")
     ap.add_argument("--rounds", type=int, default=None, help="timed rounds (default 7, 3 with --quick)")
     ap.add_argument("--out", type=Path, default=Path("out/bench"), help="folder for the CSV files")
+    ap.add_argument("--loops", action="store_true", help="only the compiled loop against the Python loop")
     args = ap.parse_args(argv)
+    if args.loops:
+        return loops(64 if args.quick else 256, args.rounds or (3 if args.quick else 7))
     return run(args.quick, args.out, args.rounds)
 
 

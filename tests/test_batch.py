@@ -545,3 +545,70 @@ def test_a_start_whose_energies_overflow_fails_its_rollout_with_simulates_error(
         with pytest.raises(RolloutError, match=r"rollout 1 raised NonFiniteError") as err:
             simulate_batch(arm, q0, v0, T, pressure=P, t_eval=T_EVAL, workers=workers)
         assert str(ref.value) in str(err.value), workers
+
+
+def test_a_batch_of_schedules_runs_in_one_compiled_loop_bit_identical_to_simulate(arm):
+    """Rollouts whose inputs are constants or qchain's schedules run in compiled loops
+    (qchain.sim.engine.batched), serially and on threads: each what simulate gives, bit for
+    bit, whatever the mix of input kinds (packed into rows of different lengths)."""
+    from qchain.sim.inputs import Step, Table
+
+    B = 5
+    q0, v0, _ = inputs(arm, B, seed=11)
+    nu = arm.nu
+    P = [Sine(amplitude=np.full(nu, 2e4), frequency=3.0, phase=np.linspace(0, 1, nu), offset=np.full(nu, 2e4)),
+         np.full(nu, 3e4),
+         Step(time=0.1, after=np.full(nu, 4e4), before=np.zeros(nu)),
+         Table(times=np.array([0.0, 0.1, 0.2]), values=np.array([np.zeros(nu), np.full(nu, 3e4), np.full(nu, 1e4)])),
+         None]
+    for kw in (dict(method="radau5", rtol=1e-4, atol=1e-6, t_eval=T_EVAL), dict(method="rk4", dt=1e-3, t_eval=T_EVAL),
+               dict(method="midpoint", dt=5e-3, t_eval=T_EVAL)):
+        refs = [simulate(arm, q0[i], v0[i], T, pressure=P[i], **kw) for i in range(B)]
+        for workers in (1, 2):
+            b = simulate_batch(arm, q0, v0, T, pressure=P, workers=workers, **kw)
+            assert b.meta["loop"] == "compiled", (kw["method"], workers)
+            assert b.meta["engine"] == ("serial" if workers == 1 else "threads")
+            for i in range(B):
+                assert same(b[i], refs[i]), (kw["method"], workers, i)
+                assert b.nsteps[i] == refs[i].meta["nsteps"] and b.meta["rollouts"][i]["njev"] == refs[i].meta["njev"]
+            assert b.success.all() and np.all(b.wall > 0) and np.all(b.wall < b.meta["wall_s"] + 1e-3)
+            names = {r["thread"] for r in b.meta["rollouts"]}
+            assert names == {"MainThread"} if workers == 1 else all(n.startswith("qchain-rollout") for n in names)
+
+
+def test_a_compiled_loop_stops_a_rollout_at_the_step_budget_as_simulate_does(arm):
+    """Where a run stops on ``budget.max_steps`` depends on its stretches (a stepper call
+    counts accepted steps; the rejected ones of its last call go beyond the budget), in
+    simulate as in a batch: the same message, the samples both have alike, and the energies
+    of a rollout that stopped early computed on its own samples."""
+    from qchain.sim.budget import Budget
+
+    q0, v0, P = inputs(arm, 3, seed=12)
+    kw = dict(method="radau5", rtol=1e-8, atol=1e-10, t_eval=T_EVAL, budget=Budget(max_steps=60))
+    refs = [simulate(arm, q0[i], v0[i], T, pressure=P[i], **kw) for i in range(3)]
+    assert not any(r.success for r in refs)  # (the budget bites)
+    for workers in (1, 2):
+        b = simulate_batch(arm, q0, v0, T, pressure=P, workers=workers, **kw)
+        assert b.meta["loop"] == "compiled"
+        for i in range(3):
+            tr, ref = b[i], refs[i]
+            assert tr.status == ref.status == -1 and tr.message.startswith(
+                "step budget exceeded: budget.max_steps = 60, ") and "rejected), t reached = " in tr.message
+            meta = b.meta["rollouts"][i]
+            assert 60 <= meta["nsteps"] + meta["nreject"] <= 60 + meta["nreject"]
+            K = min(len(tr.t), len(ref.t))
+            assert K >= 1 and np.array_equal(tr.q[:K], ref.q[:K]) and np.array_equal(tr.p[:K], ref.p[:K])
+            assert np.array_equal(tr.kinetic_energy[:K], ref.kinetic_energy[:K])
+            assert b.nsamples[i] < T_EVAL.size and np.isnan(b.kinetic_energy[i, b.nsamples[i]:]).all()
+
+
+def test_a_batch_that_needs_python_between_steps_runs_in_the_python_loop(arm):
+    from qchain.batch.threads import ThreadPool
+
+    q0, v0, _ = inputs(arm, 2, seed=13)
+    hold = batch_probe.Hold(np.full(arm.nu, 1e4))
+    kw = dict(method="rk4", dt=1e-3, t_eval=np.linspace(0, 0.02, 5))
+    b = simulate_batch(arm, q0, v0, (0.0, 0.02), pressure=hold, controller_rate=500.0, workers=ThreadPool(2), **kw)
+    assert b.meta["loop"] == "python" and b.success.all()
+    b = simulate_batch(arm, q0, v0, (0.0, 0.02), pressure=np.full(arm.nu, 1e4), wall_limit=60.0, workers=1, **kw)
+    assert b.meta["loop"] == "python" and b.success.all()

@@ -54,11 +54,15 @@ class BatchTrajectory:
         Dynamics evaluations, steps, samples recorded.
     wall : (B,) s
         Wall time of each rollout's ``simulate`` call in its worker (``meta["rollouts"][i]
-        ["compile_s"]`` of it went to compiling or loading the engine).
+        ["compile_s"]`` of it went to compiling or loading the engine); in a compiled loop
+        (``meta["loop"]``), the time-stamp counter's ticks between its start and end, at
+        the rate the loops' calls measured.
     meta : dict
         ``method``, ``engine`` ("serial", "threads", "local" or "dask"), ``workers``,
         ``wall_s`` (the whole call), ``compile_s`` (this process's compile or load before
-        fanning out), ``t_span``, ``rollouts`` (each rollout's ``Trajectory.meta``, with
+        fanning out), ``t_span``, ``loop`` ("compiled": every rollout in compiled loops,
+        :mod:`qchain.sim.engine.batched`; "python": a Python loop, each rollout a run of the
+        driver), ``rollouts`` (each rollout's ``Trajectory.meta``, with
         ``worker``: the ``host:pid`` that ran it, and ``thread``: the name of its thread).
     """
 
@@ -349,11 +353,11 @@ def simulate_batch(
     shared.starts_finite = _runs_of(shared).starts_finite(Q0, V0)
     w_start = time.perf_counter()
     sink = _Sink(chain, B, cfg["t_eval"], (t0, t1), cfg["dt"])
-    name, n_workers, compile_s = _run_all(shared, items, sink, workers=workers, client=client, retries=retries,
+    name, n_workers, compile_s, loop = _run_all(shared, items, sink, workers=workers, client=client, retries=retries,
                                           progress=progress, python_inputs=_calls_python(cfg, p_in, tau_in))
     wall_s = time.perf_counter() - w_start
     return sink.result(dict(method=method, engine=name, workers=n_workers, wall_s=wall_s, compile_s=compile_s,
-                            t_span=(t0, t1)))
+                            t_span=(t0, t1), loop=loop))
 
 
 def _check_shared_settings(chain: Chain, t_span, *, method: str, workers, client, retries, progress, rtol, atol,
@@ -449,8 +453,10 @@ def _run_all(shared: _Shared, items: list, sink: _Sink, *, workers, client, retr
     """Step 4 of :func:`simulate_batch`: run the rollouts here one after the other or on the
     engine :func:`qchain.batch.workers.engine_for` picks (threads where every rollout runs in
     compiled code: a compiled method on the compiled engine, ``python_inputs`` False), the
-    method's engine compiled or loaded here first; each result written into ``sink``. Returns
-    ``(engine name, workers, compile_s)``."""
+    method's engine compiled or loaded here first; each result written into ``sink``. Every
+    rollout in compiled loops where none needs Python (:func:`_together`), on this thread or
+    the threads. Returns ``(engine name, workers, compile_s, loop)``, ``loop`` "compiled" or
+    "python" (a Python loop over the rollouts, each a :class:`qchain.sim.simulation.Runs` run)."""
     chain, method = shared.chain, shared.kw["method"]
     B = len(items)
     compile_s, runs_on = 0.0, "python"
@@ -461,8 +467,15 @@ def _run_all(shared: _Shared, items: list, sink: _Sink, *, workers, client, retr
     from tqdm import tqdm
 
     bar = tqdm(total=B, unit="rollout", file=sys.stderr, smoothing=0.1, disable=not progress)
+    together = None if engine is not None and engine.kind != "threads" else _together(shared, items, sink)
     try:
-        if engine is None:
+        if together is not None:  # every rollout in compiled loops, none in Python
+            name, n_workers = ("serial", 1) if engine is None else (engine.kind, min(engine.workers, B))
+            for _ in (engine.map(lambda _, __: [together.work(bar.update)], None, range(n_workers))
+                      if engine is not None else [together.work(bar.update)]):
+                pass
+            sink.put_all(together.finish())
+        elif engine is None:
             name, n_workers = "serial", 1
             for item in items:
                 _rollouts_into(sink, shared, [item])
@@ -486,7 +499,53 @@ def _run_all(shared: _Shared, items: list, sink: _Sink, *, workers, client, retr
         bar.close()
         if engine is not None and isinstance(client, str):  # a client this call connected
             engine.close()
-    return name, n_workers, compile_s
+    return name, n_workers, compile_s, "compiled" if together is not None else "python"
+
+
+def _together(shared: _Shared, items: list, sink: _Sink):
+    """The batch as :class:`qchain.sim.engine.batched.Rollouts` (every rollout in compiled
+    loops, writing into ``sink``'s arrays), or None where a rollout needs Python between its
+    steps or at its start: events, a controller, a wall-clock limit, a method that checks its
+    stability limit at each start (``dopri5``), an every-step grid (no ``t_eval``), a chain the
+    compiled engine does not serve, a start whose energies must be checked in Python, or an
+    input that is not a constant or a schedule of :data:`qchain.sim.inputs.BUILT_IN`."""
+    from ..sim.engine.batched import Rollouts
+    from ..sim.engine.schedules import pack_input
+    from ..sim.simulation import _input_function
+
+    kw, chain = shared.kw, shared.chain
+    runs = _runs_of(shared)
+    if (kw["method"] not in ("rk4", "midpoint", "radau5") or runs.base is None or kw["events"]
+            or kw["controller_rate"] is not None or kw["wall_limit"] is not None or kw["t_eval"] is None
+            or shared.starts_finite is None or not shared.starts_finite.all()):
+        return None
+    t0 = shared.t_span[0]
+    Q0, V0 = np.array([it[1] for it in items]), np.array([it[2] for it in items])
+    packs, P0, fns = [], np.empty((len(items), chain.nu)), []
+    memo: dict = {}  # a shared input's pack and functions, made once
+    for j, item in enumerate(items):
+        both = []
+        for name, size, own, x in (("pressure", chain.nu, shared.each["pressure"], item[3]),
+                                   ("tau", chain.nv, shared.each["tau"], item[4])):
+            u = x if own else kw[name]
+            if not (u is None or isinstance(u, np.ndarray) or type(u) in BUILT_IN):
+                return None  # (pickled: a schedule of the user's or a controller)
+            key = (name, id(u))
+            if key not in memo:
+                memo[key] = (pack_input(u, size, name), _input_function(name, u, size, True), u)
+            both.append(memo[key])
+        packs.append((both[0][0], both[1][0]))
+        fns.append((both[0][1], both[1][1]))
+        P0[j] = fns[-1][0](t0, Q0[j], V0[j])
+
+    def inputs(i):
+        p_of, tau_of = fns[i]
+        return lambda t, q, v: (p_of(t, q, v), tau_of(t, q, v))
+
+    settings = dict(dt=kw["dt"], rtol=kw["rtol"], atol=kw["atol"], max_step=kw["max_step"],
+                    first_step=kw["first_step"], max_total_steps=kw["budget"].max_steps, energies=kw["energies"])
+    return Rollouts(chain, runs.base, kw["method"], shared.t_span, settings, Q0, V0, packs, P0, inputs, sink.t,
+                    sink.q, sink.v, sink.p, sink.ke, sink.pe)
 
 
 class _Sink:
@@ -528,6 +587,15 @@ class _Sink:
         self.success[i], self.status[i], self.message[i] = tr.success, tr.status, tr.message
         self.nfev[i], self.nsteps[i], self.nsamples[i], self.wall[i] = tr.nfev, tr.meta.get("nsteps", 0), K, wall
         self.rollouts[i] = dict(tr.meta)
+
+    def put_all(self, ends: list[dict]) -> None:
+        """Every rollout's end (:meth:`qchain.sim.engine.batched.Rollouts.finish`), its samples
+        and energies already written into the arrays."""
+        worker = f"{socket.gethostname()}:{os.getpid()}"
+        for i, e in enumerate(ends):
+            self.success[i], self.status[i], self.message[i] = e["status"] >= 0, e["status"], e["message"]
+            self.nfev[i], self.nsteps[i], self.nsamples[i], self.wall[i] = e["nfev"], e["nsteps"], e["nsamples"], e["wall"]
+            self.rollouts[i] = dict(e["meta"], worker=worker, thread=e["thread"])
 
     def lost(self, i: int, r: Lost) -> None:
         """Rollout ``i`` not run: its workers died (``r``)."""

@@ -24,7 +24,7 @@ from ..trajectory import Trajectory
 from . import steppers, system, warmup
 from .steppers import AT_STOP, FAILED, STEPS
 
-__all__ = ["run", "Interrupted", "STRETCH", "stop_on"]
+__all__ = ["run", "Interrupted", "STRETCH", "stop_on", "start_integrator"]
 
 STRETCH = 0.05  #: s of wall time a compiled stretch aims at between looks from Python
 EPS = np.finfo(float).eps
@@ -128,16 +128,7 @@ def _run(chain, m, method, q0, v0, t0, t1, *, dt, rtol, atol, t_eval, on_sample,
     y, tf, cnt = it.y, it.tf, it.cnt
     wk.q_chart[:] = q0
     y[nA:] = v0[idx]
-    tf[steppers.T] = tf[steppers.T0] = t0
-    tf[steppers.DT] = dt if fixed else 0.0
-    tf[steppers.RTOL], tf[steppers.ATOL] = rtol, atol
-    tf[steppers.MAX_STEP] = max_step
-    h0 = first_step if first_step is not None else min(1e-4, (t1 - t0) / 10)
-    # well above the steppers' floor, 10 float64 spacings of t (coarse at large t: 1.2e-4 s at
-    # 1e12 s), where a first step's rejections would take it under the floor
-    tf[steppers.H] = h0 if first_step is not None else \
-        max(h0, min(1000.0 * float(np.spacing(max(abs(t0), abs(t1)))), (t1 - t0) / 4))
-    tf[steppers.NEWTON_TOL] = max(10 * EPS / rtol, min(0.03, rtol**0.5))
+    start_integrator(it, method, t0, t1, dt=dt, rtol=rtol, atol=atol, max_step=max_step, first_step=first_step)
     out = _Outputs(chain, t_eval, guess=int(min((t1 - t0) / dt + 2, 1 << 16)) if fixed and t_eval is None else 1024)
     if out.every:
         cnt[steppers.EVERY] = 1
@@ -250,6 +241,25 @@ def _run(chain, m, method, q0, v0, t0, t1, *, dt, rtol, atol, t_eval, on_sample,
     traj = _trajectory(chain, m, wk, out, cnt, status, message, energies, method, ev_log)
     traj.meta["compile_s"] = compile_s  # compiling or loading: a caller's wall time less this is the run's
     return traj
+
+
+def start_integrator(it, method: str, t0: float, t1: float, *, dt, rtol: float, atol: float, max_step: float,
+                     first_step: float | None) -> None:
+    """Set the floats of a fresh integrator ``it`` (:func:`steppers.integrator`) for a run of
+    ``method`` over ``(t0, t1)`` s with these settings (as :func:`qchain.simulate` checked
+    them): the time, the fixed step, the tolerances, the first step and Newton's tolerance. The
+    state ``it.y`` is the caller's (the start's velocities; ``delta = 0``)."""
+    tf = it.tf
+    tf[steppers.T] = tf[steppers.T0] = t0
+    tf[steppers.DT] = dt if method in ("rk4", "midpoint") else 0.0
+    tf[steppers.RTOL], tf[steppers.ATOL] = rtol, atol
+    tf[steppers.MAX_STEP] = max_step
+    h0 = first_step if first_step is not None else min(1e-4, (t1 - t0) / 10)
+    # well above the steppers' floor, 10 float64 spacings of t (coarse at large t: 1.2e-4 s at
+    # 1e12 s), where a first step's rejections would take it under the floor
+    tf[steppers.H] = h0 if first_step is not None else \
+        max(h0, min(1000.0 * float(np.spacing(max(abs(t0), abs(t1)))), (t1 - t0) / 4))
+    tf[steppers.NEWTON_TOL] = max(10 * EPS / rtol, min(0.03, rtol**0.5))
 
 
 def step_budget_message(max_steps: int, taken: str, t: float, t1: float, method: str) -> str:
