@@ -148,7 +148,7 @@ def have_elastica() -> bool:
 
 
 def elastica_run(N: int, dt: float, T: float, repeat_below: float = 0.0, scene=SCENE,
-                 shear_factor: float = 1.0) -> dict:
+                 shear_factor: float = 1.0, filter_order: int | None = None) -> dict:
     """The same release in PyElastica: N elements, PositionVerlet at step dt (s); tips (K, 3).
 
     The rod starts half an element inside the wall (see the module docstring).
@@ -161,7 +161,7 @@ def elastica_run(N: int, dt: float, T: float, repeat_below: float = 0.0, scene=S
         raise ValueError(f"dt = {dt:g} s must divide the sampling period {SAMPLE:g} s")
     walls = []
     while True:
-        tips, wall, status = _elastica_once(N, dt, m, T, scene, shear_factor)
+        tips, wall, status = _elastica_once(N, dt, m, T, scene, shear_factor, filter_order)
         walls.append(wall)
         if status != "ok" or len(walls) >= (3 if walls[0] < repeat_below else 1):
             break
@@ -170,10 +170,10 @@ def elastica_run(N: int, dt: float, T: float, repeat_below: float = 0.0, scene=S
                 work=int(round(T / dt)), max_kappa_r=float("nan"))
 
 
-def _elastica_once(N, dt, m, T, scene, shear_factor):
+def _elastica_once(N, dt, m, T, scene, shear_factor, filter_order=None):
     import elastica as ea
 
-    class Release(ea.BaseSystemCollection, ea.Constraints, ea.Forcing):
+    class Release(ea.BaseSystemCollection, ea.Constraints, ea.Forcing, ea.Damping):
         pass
 
     L, r, rho, E, g = (scene[k] for k in ("L", "r", "rho", "E", "g"))
@@ -185,6 +185,8 @@ def _elastica_once(N, dt, m, T, scene, shear_factor):
     sim.append(rod)
     sim.constrain(rod).using(ea.OneEndFixedBC, constrained_position_idx=(0,), constrained_director_idx=(0,))
     sim.add_forcing_to(rod).using(ea.GravityForces, acc_gravity=np.array([0.0, 0.0, -g]))
+    if filter_order is not None:
+        sim.dampen(rod).using(ea.LaplaceDissipationFilter, filter_order=filter_order)
     sim.finalize()
     stepper = ea.PositionVerlet()
     K = int(round(T / SAMPLE))

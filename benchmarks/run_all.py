@@ -3,7 +3,8 @@
 Writes into ``--out`` (default ``out/bench``): ``work_precision.{csv,png}``,
 ``cosserat_release.{csv,png}`` (PyElastica part only with the ``bench`` extra installed),
 ``release.{csv,png}`` and ``release_arm.csv`` (qchain against MuJoCo at equal accuracy against a
-PyElastica Cosserat rod, and the four-segment arm in ``pinocchio.aba`` calls; needs the ``bench``
+converged unshearable extensible rod built from MuJoCo hinge and slide links, with PyElastica's
+Cosserat rods beside it, and the four-segment arm in ``pinocchio.aba`` calls; needs the ``bench``
 extra's mujoco and pyelastica; reference tracks cached in ``release_cache/``),
 ``reduced.csv`` (full against planar and inextensible models),
 ``static_cantilever.{csv,png}``,

@@ -129,3 +129,40 @@ def test_reference_cache_is_keyed_by_its_parameters(tmp_path):
     assert not hit3 and calls == [1.0, 3.0] and np.all(tips3 == 3.0)
     _, _, hit4 = br.cached_track(None, "track", dict(N=100, dt=1e-5), compute(4.0))  # no cache: always computed
     assert not hit4 and calls[-1] == 4.0
+
+
+def test_extensible_rod_is_the_rod_with_slides():
+    """Reference C's chain: a slide (EA/h, 2 EA/h at the clamp) before every hinge."""
+    model, data = br.mujoco_model(N, DT, "RK4", STIFF, extensible=True)
+    c = br.constants(STIFF)
+    h = STIFF["L"] / N
+    assert model.nv == 2 * N and model.njnt == 2 * N
+    slides = model.jnt_type == mujoco.mjtJoint.mjJNT_SLIDE
+    hinges = model.jnt_type == mujoco.mjtJoint.mjJNT_HINGE
+    assert slides.sum() == N and hinges.sum() == N
+    np.testing.assert_allclose(model.jnt_stiffness[slides], [2 * c["EA"] / h] + [c["EA"] / h] * (N - 1), rtol=1e-12)
+    np.testing.assert_allclose(model.jnt_stiffness[hinges], [2 * c["EI"] / h] + [c["EI"] / h] * (N - 1), rtol=1e-12)
+    np.testing.assert_allclose(model.jnt_axis[slides], np.tile([1.0, 0.0, 0.0], (N, 1)))
+    np.testing.assert_allclose(model.body_mass[1:].sum(), c["mass"], rtol=1e-12)
+    np.testing.assert_allclose(data.site_xpos[model.site("tip").id], [STIFF["L"], 0.0, 0.0], atol=1e-15)
+
+
+def test_extensible_rod_hanging_stretches_as_the_continuum():
+    """Gravity along the rod (+x): at rest, slide i carries the links beyond it, and the tip
+    moves by the continuum's rho g L^2 / (2 E) (exact for this chain: the clamp's 2 EA/h makes
+    the discrete sum N^2 / 2 exactly). MuJoCo's own forces must balance there (qacc = 0)."""
+    model, data = br.mujoco_model(N, DT, "RK4", br.SCENE, extensible=True)
+    model.opt.gravity[:] = (br.SCENE["g"], 0.0, 0.0)
+    c = br.constants(br.SCENE)
+    h, m = br.SCENE["L"] / N, br.SCENE["rho"] * c["A"] * br.SCENE["L"] / N
+    slides = np.flatnonzero(model.jnt_type == mujoco.mjtJoint.mjJNT_SLIDE)
+    tension = (N - np.arange(N)) * m * br.SCENE["g"]
+    data.qpos[model.jnt_qposadr[slides]] = tension / model.jnt_stiffness[slides]
+    mujoco.mj_forward(model, data)
+    assert np.max(np.abs(data.qacc)) < 1e-9  # m/s^2, rad/s^2: at rest to rounding
+    stretch = br.SCENE["rho"] * br.SCENE["g"] * br.SCENE["L"] ** 2 / (2 * br.SCENE["E"])  # 3.9e-4 m
+    assert data.site_xpos[model.site("tip").id][0] - br.SCENE["L"] == pytest.approx(stretch, rel=1e-12)
+    data.qpos[model.jnt_qposadr[slides]] *= 1.01  # every slide 1 % beyond: only the clamp's net force
+    mujoco.mj_forward(model, data)  # changes (-1 % of the weight), pulling the whole chain back at g / 100
+    np.testing.assert_allclose(data.qacc[model.jnt_dofadr[slides]], [-0.01 * br.SCENE["g"]] + [0.0] * (N - 1),
+                               atol=1e-9)
