@@ -81,18 +81,22 @@ def _copy2(src, dst):
 
 
 @jit_helper
-def _matmul(A, B, out):
-    """``out = A B`` by loops (row by row, so the inner loop runs along rows of ``B`` and
-    ``out``): ``np.dot`` with ``out`` needs numba's reference counting, which the compiled
-    engine's callers run without."""
+def _matmul2(A, B1, B2, out1, out2):
+    """``out1 = A B1``, ``out2 = A B2`` (``B1``, ``B2`` of one shape) by loops, in one sweep over
+    ``A`` (each ``A[r, k]`` loaded once for both products; row by row, so the inner loop runs
+    along rows of ``B`` and ``out``): ``np.dot`` with ``out`` needs numba's reference counting,
+    which the compiled engine's callers run without."""
+    m = B1.shape[1]
     for r in range(A.shape[0]):
-        for c in range(B.shape[1]):
-            out[r, c] = 0.0
+        for c in range(m):
+            out1[r, c] = 0.0
+            out2[r, c] = 0.0
         for k in range(A.shape[1]):
             a = A[r, k]
             if a != 0.0:
-                for c in range(B.shape[1]):
-                    out[r, c] += a * B[k, c]
+                for c in range(m):
+                    out1[r, c] += a * B1[k, c]
+                    out2[r, c] += a * B2[k, c]
 
 
 @jit_helper
@@ -179,7 +183,8 @@ def aba_derivatives(arr, floating, q, qd, p, tau_ext, V0, A_B, g_B, ws, wd, wa, 
     for j in range(n):
         for b in range(3):
             a[off + 3 * j + b] = qdd[j, b]
-    return _aba_derivatives_at(arr, floating, q, qd, p, qdd, A0, a, V0, g_B, ws, wd, wa, sc)
+    # the articulated-body pass has just written every segment's M_xi and bias force into ws
+    return _derivatives_after(arr, floating, q, qd, p, qdd, A0, a, V0, g_B, ws, wd, wa, sc, True)
 
 
 @jit_helper
@@ -189,6 +194,14 @@ def _aba_derivatives_at(arr, floating, q, qd, p, qdd, A0, a, V0, g_B, ws, wd, wa
     floating base, the given one otherwise) and ``a`` (nv,). The compiled engine calls it
     after its own right-hand side at the same state (:func:`qchain.sim.engine.system.jacobian`),
     so the forward pass is neither computed nor compiled twice."""
+    return _derivatives_after(arr, floating, q, qd, p, qdd, A0, a, V0, g_B, ws, wd, wa, sc, False)
+
+
+@jit_helper
+def _derivatives_after(arr, floating, q, qd, p, qdd, A0, a, V0, g_B, ws, wd, wa, sc, blocks_known):
+    """:func:`_aba_derivatives_at`; ``blocks_known``: ``ws.M_xi`` and ``ws.Q`` hold the segment
+    blocks and bias forces at this state (:func:`aba_derivatives`' own forward pass wrote them),
+    which the slice pass then does not integrate again."""
     l0, EI, EA, beta, A_ch, r_ch, paper_act, locked = (arr.l0, arr.EI, arr.EA, arr.beta, arr.A_ch, arr.r_ch,
                                                          arr.paper_act, arr.locked)
     n = q.shape[0]
@@ -197,7 +210,7 @@ def _aba_derivatives_at(arr, floating, q, qd, p, qdd, A0, a, V0, g_B, ws, wd, wa
     L, rhs, da_dq, da_dv, da_dtau, da_dp = wa.L, wa.rhs, wa.da_dq, wa.da_dv, wa.da_dtau, wa.da_dp
     dfq, dfv, B = wa.dfq, wa.dfv, wa.B
     M, dq, dv = wd.M, wd.dtau_dq, wd.dtau_dv
-    _rnea_derivatives(arr, q, qd, qdd, V0, A0, floating, g_B, ws, wd, sc)
+    _rnea_derivatives(arr, q, qd, qdd, V0, A0, floating, g_B, ws, wd, sc, blocks_known)
     _internal_forces_derivatives(q, p, l0, EI, EA, beta, A_ch, r_ch, paper_act, dfq, dfv, sc)
     _input_matrices(q, A_ch, r_ch, paper_act, B, sc)
     # right-hand sides df - dID, the free block of M with locked coordinates decoupled
@@ -221,10 +234,11 @@ def _aba_derivatives_at(arr, floating, q, qd, p, qdd, A0, a, V0, g_B, ws, wd, wa
         return 2
     _chol_inverse(L, nv, da_dtau)
     _zero_locked(locked, off, da_dtau, True, True)
+    # L (its inverse now, not needed further) holds the second right-hand side: both products
+    # in one sweep over M^-1
     _copy2(da_dq, rhs)
-    _matmul(da_dtau, rhs, da_dq)
-    _copy2(da_dv, rhs)
-    _matmul(da_dtau, rhs, da_dv)
+    _copy2(da_dv, L)
+    _matmul2(da_dtau, rhs, L, da_dq, da_dv)
     _zero_locked(locked, off, da_dq, False, True)
     _zero_locked(locked, off, da_dv, False, True)
     for r in range(nv):
@@ -240,6 +254,9 @@ def _aba_derivatives_at(arr, floating, q, qd, p, qdd, A0, a, V0, g_B, ws, wd, wa
         if not np.isfinite(a[r]):
             return 3
         for c in range(nv):
-            if not (np.isfinite(da_dq[r, c]) and np.isfinite(da_dv[r, c])):
+            if not (np.isfinite(da_dq[r, c]) and np.isfinite(da_dv[r, c]) and np.isfinite(da_dtau[r, c])):
+                return 3
+        for c in range(da_dp.shape[1]):
+            if not np.isfinite(da_dp[r, c]):
                 return 3
     return 0

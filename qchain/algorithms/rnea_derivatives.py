@@ -171,9 +171,12 @@ def segment_derivatives(alpha, w, mass, radius, q, xi, xid, M, Q, QqT, QxT, sc):
 
 
 @jit_helper
-def _segment_derivatives(alpha, w, mass, radius, q, xi, xid, M, Q, QqT, QxT, sc):
+def _segment_derivatives(alpha, w, mass, radius, q, xi, xid, M, Q, QqT, QxT, sc, blocks_known=False):
     """:func:`segment_derivatives`, the body the kernels call: compiled into them, without a
-    Python entry point (:data:`qchain.model.arc.jit_helper`)."""
+    Python entry point (:data:`qchain.model.arc.jit_helper`). With ``blocks_known``, ``M`` already
+    holds ``M_xi`` at this ``q`` and ``Q`` the bias force ``Q(xid = 0)`` at this ``xi`` (the
+    articulated-body pass just wrote them): ``M`` is left as it is and ``Q += M xid`` (``Q`` is
+    linear in ``xid``), so the nodes' inertia and force sums are not done twice."""
     o = 0
     R, o = take2(sc, o, 3, 3)
     p, o = take1(sc, o, 3)
@@ -210,8 +213,15 @@ def _segment_derivatives(alpha, w, mass, radius, q, xi, xid, M, Q, QqT, QxT, sc)
     qdd = xid[6:]
     QqT[:, :] = 0.0
     QxT[:, :] = 0.0
-    M[:, :] = 0.0
-    Q[:] = 0.0
+    if blocks_known:
+        for r in range(9):
+            acc = 0.0
+            for k in range(9):
+                acc += M[r, k] * xid[k]
+            Q[r] += acc
+    else:
+        M[:, :] = 0.0
+        Q[:] = 0.0
     mp, o = take1(sc, o, 3)
     mp[:] = 0.0
     Irot, o = take2(sc, o, 3, 3)
@@ -228,8 +238,9 @@ def _segment_derivatives(alpha, w, mass, radius, q, xi, xid, M, Q, QqT, QxT, sc)
         _fcross(V, hV, f)
         for r in range(6):
             f[r] += Id[r] * a[r]
-        phi_transpose_force(R, p, S, f, wk, Q)
-        mass_node(R, p, S, Id, wk, M, mp, Irot, t1)
+        if not blocks_known:
+            phi_transpose_force(R, p, S, f, wk, Q)
+            mass_node(R, p, S, Id, wk, M, mp, Irot, t1)
         for c in range(3):
             _q_variation(c, S, dS, K, qd, qdd, Vr, Ar, rel, dV, da, t1, t2, t3)
             _force_variation(Id, V, hV, dV, da, t1, t3, df)
@@ -273,7 +284,8 @@ def _segment_derivatives(alpha, w, mass, radius, q, xi, xid, M, Q, QqT, QxT, sc)
             for r in range(6):
                 df[r] = EA[r, kk]
             phi_transpose_force(R, p, S, df, wk, QxT[kk])
-    mass_finish(M, mp, Irot, mass * wsum)
+    if not blocks_known:
+        mass_finish(M, mp, Irot, mass * wsum)
 
 
 @jit_helper
@@ -402,9 +414,11 @@ def rnea_derivatives(arr, q, qd, qdd, V0, A0, floating, g_B, ws, wd, sc):
 
 
 @jit_helper
-def _rnea_derivatives(arr, q, qd, qdd, V0, A0, floating, g_B, ws, wd, sc):
+def _rnea_derivatives(arr, q, qd, qdd, V0, A0, floating, g_B, ws, wd, sc, blocks_known=False):
     """:func:`rnea_derivatives`, the body the kernels call: compiled into them, without a
-    Python entry point (:data:`qchain.model.arc.jit_helper`). Its passes, :func:`_forward_pass`,
+    Python entry point (:data:`qchain.model.arc.jit_helper`). ``blocks_known``: ``ws.M_xi`` and
+    ``ws.Q`` already hold every segment's ``M_xi`` and bias force ``Q(xid = 0)`` at ``(q, qd, V0)``
+    (:func:`qchain.algorithms.recursive.aba` at this state wrote them). Its passes, :func:`_forward_pass`,
     :func:`_backward_pass`, :func:`_assemble` and, for a floating base, :func:`_floating_base`,
     are inlined into it (:data:`qchain.model.arc.jit_inline`): the same code as one function."""
     alpha, w, offs, mass, radius = arr.alpha, arr.w, arr.offs, arr.mass, arr.radius
@@ -420,7 +434,7 @@ def _rnea_derivatives(arr, q, qd, qdd, V0, A0, floating, g_B, ws, wd, sc):
     xi, o = take1(sc, o, 9)
     xid, o = take1(sc, o, 9)
     _forward_pass(alpha, w, offs, mass, radius, q, qd, qdd, V0, A0, V, T, Q, Mxi, A, Rw, pw, QqT, QxT, rel1, tipV,
-                  tipA, dS1, R1, p1, xi, xid, sc[o:])
+                  tipA, dS1, R1, p1, xi, xid, sc[o:], blocks_known)
     # the subtree beyond the current root: its wrench F, composite inertia Ic, W = dF/dV;
     # beyond the tip, the payload (zeros without one)
     F, o = take1(sc, o, 6)
@@ -464,7 +478,7 @@ def _payload_blocks(P, V, A, F, Ic, WF, sc):
 
 @jit_inline
 def _forward_pass(alpha, w, offs, mass, radius, q, qd, qdd, V0, A0, V, T, Q, Mxi, A, Rw, pw, QqT, QxT, rel1, tipV,
-                  tipA, dS1, R1, p1, xi, xid, sc):
+                  tipA, dS1, R1, p1, xi, xid, sc, blocks_known):
     """Root to tip: every segment's ``Q``, ``M_xi`` and their derivatives
     (:func:`segment_derivatives`), its tip and the tip's variations (:func:`tip_derivatives`),
     the roots' twists ``V``, accelerations ``A`` and placements ``Rw, pw`` in the first root's
@@ -481,7 +495,7 @@ def _forward_pass(alpha, w, offs, mass, radius, q, qd, qdd, V0, A0, V, T, Q, Mxi
         _load_xi(xid, A[j], qdd[j])
         a0, a1 = offs[j], offs[j + 1]
         _segment_derivatives(alpha[a0:a1], w[a0:a1], mass[j], radius[j], q[j], xi, xid, Mxi[j], Q[j], QqT[j], QxT[j],
-                             sc)
+                             sc, blocks_known)
         _tip_derivatives(q[j], qd[j], qdd[j], V[j], A[j], T[j], R1, p1, V[j + 1], A[j + 1], rel1[j], tipV[j],
                          tipA[j], dS1[j], sc)
         for r in range(3):

@@ -31,9 +31,9 @@ root frame of segment ``j``, ``root 0`` the base; ``[linear; angular]``; SI unit
 ``pDinv, pU, pu``    (n, 2, 2), (n, 3, 2), (n, 2)  its articulated factors; ``pscratch``
 ``tau``              (nv,)              inverse dynamics (N, N m)
 ``a``                (nv,)              forward dynamics (m/s^2, rad/s^2, ...)
-``M, L``             (nv, nv)           mass matrix and the inverse of its Cholesky factor
-                                        (free block)
-``rhs``              (nv, nv)           right-hand sides of the derivative solves
+``M, L``             (nv, nv)           mass matrix; the inverse of its Cholesky factor (free
+                                        block), then the right-hand sides of ``da_dv``
+``rhs``              (nv, nv)           right-hand sides of ``da_dq``
 ``dtau_dq, dtau_dv`` (nv, nv)           inverse-dynamics derivatives
 ``da_dq, da_dv``     (nv, nv)           forward-dynamics derivatives
 ``da_dtau``          (nv, nv)           ``M^-1``
