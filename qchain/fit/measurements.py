@@ -496,6 +496,23 @@ def read_csv(path, *, time: str = "t", points: list[tuple[str, str, str]] | None
     order; ``scale`` multiplies them, e.g. 1e-3 for mm), the pressure columns (Pa), all on
     one clock and one row a sample (empty cells are NaN: that sample is left out, said)."""
     path = Path(path)
+    cols = [time] + [c for triple in (points or []) for c in triple] + list(pressures)
+    data = csv_columns(path, cols, empty=math.nan)
+    t = data[:, 0]
+    npts = len(points or [])
+    pts = data[:, 1:1 + 3 * npts].reshape(len(t), npts, 3) * float(scale) if npts else None
+    p = data[:, 1 + 3 * npts:]
+    if pts is None:
+        raise MeasurementError(f"{path}: no measured columns (points=)")
+    return _assemble(t, pts, None, None, t, p, where, f"{path}", start, stop)
+
+
+def csv_columns(path, cols: list[str], *, empty: float | None = None) -> np.ndarray:
+    """(rows, len(cols)) float: the named columns of a CSV file with a header row, one row a
+    line after it. An empty cell reads as ``empty`` (refused, naming its line and column, when
+    None); a cell that is not a number is refused the same way; a missing column lists those
+    the file has."""
+    path = Path(path)
     try:
         with open(path, newline="") as fh:
             rows = list(csv.reader(fh))
@@ -504,7 +521,6 @@ def read_csv(path, *, time: str = "t", points: list[tuple[str, str, str]] | None
     if len(rows) < 2:
         raise MeasurementError(f"{path}: no header row and data rows")
     header = [h.strip() for h in rows[0]]
-    cols = [time] + [c for triple in (points or []) for c in triple] + list(pressures)
     missing = [c for c in cols if c not in header]
     if missing:
         raise MeasurementError(f"{path}: no column {missing[0]!r}; the columns: {header}")
@@ -512,19 +528,12 @@ def read_csv(path, *, time: str = "t", points: list[tuple[str, str, str]] | None
 
     def num(cell: str, r: int, c: str) -> float:
         cell = cell.strip()
-        if cell == "":
-            return math.nan
+        if cell == "" and empty is not None:
+            return empty
         try:
             return float(cell)
         except ValueError:
             raise MeasurementError(f"{path}: line {r + 1}, column {c!r}: {cell[:20]!r} is not a number") from None
 
-    data = np.array([[num(row[i] if i < len(row) else "", r, c) for i, c in zip(idx, cols)]
-                     for r, row in enumerate(rows[1:], start=1)])
-    t = data[:, 0]
-    npts = len(points or [])
-    pts = data[:, 1:1 + 3 * npts].reshape(len(t), npts, 3) * float(scale) if npts else None
-    p = data[:, 1 + 3 * npts:]
-    if pts is None:
-        raise MeasurementError(f"{path}: no measured columns (points=)")
-    return _assemble(t, pts, None, None, t, p, where, f"{path}", start, stop)
+    return np.array([[num(row[i] if i < len(row) else "", r, c) for i, c in zip(idx, cols)]
+                     for r, row in enumerate(rows[1:], start=1)], dtype=float).reshape(len(rows) - 1, len(cols))

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .measurements import MeasurementError, beyond_reach
+from .measurements import MeasurementError, beyond_reach, csv_columns
 
 __all__ = ["StaticPoses", "static_residuals", "rest_derivative", "read_static_csv"]
 
@@ -135,31 +135,11 @@ def read_static_csv(path, *, points: list, pressures: list[str], where=((-1, 1.0
     columns (``pressures``, Pa) and the measured points' x, y, z columns (``points``: one
     triple of column names a point, in ``where``'s order; ``scale`` multiplies them, 1e-3 for
     mm). A row with an empty or non-finite cell is refused, naming it (leave that pose out)."""
-    import csv
     from pathlib import Path
 
     path = Path(path)
-    try:
-        with open(path, newline="") as fh:
-            rows = list(csv.reader(fh))
-    except OSError as exc:
-        raise MeasurementError(f"{path}: cannot be read ({exc.strerror or exc})") from None
-    if len(rows) < 2:
-        raise MeasurementError(f"{path}: no header row and data rows")
-    header = [h.strip() for h in rows[0]]
     cols = list(pressures) + [c for triple in points for c in triple]
-    missing = [c for c in cols if c not in header]
-    if missing:
-        raise MeasurementError(f"{path}: no column {missing[0]!r}; the columns: {header}")
-    idx = [header.index(c) for c in cols]
-    data = np.empty((len(rows) - 1, len(cols)))
-    for r, row in enumerate(rows[1:], start=1):
-        for k, (i, c) in enumerate(zip(idx, cols)):
-            cell = row[i].strip() if i < len(row) else ""
-            try:
-                data[r - 1, k] = float(cell)
-            except ValueError:
-                raise MeasurementError(f"{path}: line {r + 1}, column {c!r}: {cell[:20]!r} is not a number") from None
+    data = csv_columns(path, cols)
     n_p = len(pressures)
     pts = data[:, n_p:].reshape(len(data), len(points), 3) * float(scale)
     return StaticPoses(data[:, :n_p], pts, where=tuple((int(s), float(a)) for s, a in where), source=str(path))
