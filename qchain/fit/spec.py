@@ -302,11 +302,7 @@ def load_fit_spec(path, out=None) -> FitSpec:
                 ck.add(f"scene ({_show(str(scene), 120)}): {p.key}", p.expected, p.found)
 
     keys, bounds, values = [], {}, {}
-    tabs = raw.get("parameters")
-    if not isinstance(tabs, list) or not tabs or not all(isinstance(t, dict) for t in tabs):
-        ck.add("parameters", "an array of tables ([[parameters]]), at least one",
-               "nothing (the key is required)" if tabs is None else f"{_type_name(tabs)} {_show(tabs)}")
-        tabs = []
+    tabs = _table_array(ck, raw, "parameters")
     for i, t in enumerate(tabs):
         where = f"parameters[{i}]"
         ck.keys(t, where, PARAMETER.keys())
@@ -343,11 +339,7 @@ def load_fit_spec(path, out=None) -> FitSpec:
             values[key] = x0
 
     exps = []
-    etabs = raw.get("experiments")
-    if not isinstance(etabs, list) or not etabs or not all(isinstance(t, dict) for t in etabs):
-        ck.add("experiments", "an array of tables ([[experiments]]), at least one",
-               "nothing (the key is required)" if etabs is None else f"{_type_name(etabs)} {_show(etabs)}")
-        etabs = []
+    etabs = _table_array(ck, raw, "experiments")
     for i, e in enumerate(etabs):
         exps.append(_experiment(ck, e, f"experiments[{i}]", base))
 
@@ -367,6 +359,17 @@ def load_fit_spec(path, out=None) -> FitSpec:
         base / folder if folder is not None else base / f"{path.stem}-fit"))
     return FitSpec(path=path, scene=scene, keys=keys, bounds=bounds, values=values, experiments=exps,
                    options=options, folder=folder, plot=plot, sources=[str(e.source) for e in exps])
+
+
+def _table_array(ck, raw: dict, name: str) -> list:
+    """``raw[name]`` when it is a non-empty array of tables (``[[name]]``); else the problem
+    said on ``ck`` and an empty list."""
+    tabs = raw.get(name)
+    if not isinstance(tabs, list) or not tabs or not all(isinstance(t, dict) for t in tabs):
+        ck.add(name, f"an array of tables ([[{name}]]), at least one",
+               "nothing (the key is required)" if tabs is None else f"{_type_name(tabs)} {_show(tabs)}")
+        return []
+    return tabs
 
 
 def markdown() -> list[str]:
