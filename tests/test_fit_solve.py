@@ -168,3 +168,49 @@ def test_input_noise_standard_errors_cover_the_truth_with_errors_in_the_inputs()
 def test_an_unknown_covariance_is_refused_by_name():
     with pytest.raises(ValueError, match=r"covariance must be 'iid', 'hac' or 'inputs', got 'sandwich'"):
         least_squares_fit(_line(np.arange(5.0), np.arange(5.0)), [1.0, 1.0], ["a", "b"], covariance="sandwich")
+
+
+def test_a_robust_loss_weights_the_input_draws_as_it_weights_the_residuals():
+    """With a robust loss the input-noise draws pass through the loss's row weights
+    (``sqrt(rho')`` at the solution) as the Jacobian does: draws that move only the outliers
+    the loss has set aside leave the standard errors as they are, the same draws on inlier
+    rows raise them; and the covariance is the sandwich of the weighted rows, computed here
+    apart."""
+    from qchain.fit.solve import robust_weights
+
+    rng = np.random.default_rng(4)
+    x = np.linspace(0, 1, 60)
+    y = 2.0 + 3.0 * x + 0.01 * rng.normal(size=x.size)
+    out = np.arange(0, 60, 10)
+    y[out] += 1.0  # six gross outliers
+    X = np.stack([np.ones_like(x), x], axis=1)
+    D_out = np.zeros((40, x.size))
+    D_out[:, out] = rng.normal(size=(40, 1))  # draws that shift the outliers alone, by about 1
+    inl = out + 5
+    D_in = np.zeros_like(D_out)
+    D_in[:, inl] = 0.05 * rng.normal(size=(40, 1))  # a shift of six inliers, smaller
+
+    def run(D):
+        return least_squares_fit(_line(x, y), [1.0, 1.0], ["a", "b"], loss="cauchy", f_scale=0.02,
+                                 covariance="inputs", input_draws=lambda th: D)
+
+    none, outl, inli = run(np.zeros_like(D_out)), run(D_out), run(D_in)
+    assert np.all(outl.stderr <= 1.02 * none.stderr), (outl.stderr, none.stderr)
+    assert np.any(inli.stderr >= 1.05 * none.stderr), (inli.stderr, none.stderr)
+    # the sandwich of the weighted rows, by hand
+    w = np.sqrt(robust_weights(outl.residuals, "cauchy", 0.02))
+    assert w[out].max() < 0.03 and w[inl].min() > 0.5
+    sc = np.array([1.0, 1.0])
+    Jw, Dw = X * sc * w[:, None], D_out * w
+    U, s, Vt = np.linalg.svd(Jw, full_matrices=False)
+    inv = (Vt.T / s ** 2) @ Vt
+    Dperp = Dw - (Dw @ U) @ U.T
+    sm2 = max(2 * outl.cost - np.mean(np.sum(Dperp ** 2, axis=1)), 0.0) / (x.size - 2)
+    G = Dw @ Jw
+    np.testing.assert_allclose(outl.covariance, sm2 * inv + inv @ (G.T @ G / 40) @ inv, rtol=1e-8)
+    # (the draws left unweighted would give another covariance: the test tells them apart)
+    Dperp0 = D_out - (D_out @ U) @ U.T
+    sm20 = max(2 * outl.cost - np.mean(np.sum(Dperp0 ** 2, axis=1)), 0.0) / (x.size - 2)
+    G0 = D_out @ Jw
+    other = sm20 * inv + inv @ (G0.T @ G0 / 40) @ inv
+    assert np.abs(np.diag(other) / np.diag(outl.covariance) - 1).max() > 0.1

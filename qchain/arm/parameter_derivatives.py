@@ -21,7 +21,8 @@ Parameters, per segment ``j`` (``("kind", j)``) or for the whole arm (``("kind",
 ``length``          m           the rest length ``l0`` (the elastic law and ``K(q0)``; an
                                 inextensible segment's held length too)
 ``chamber_area``    m^2         ``A_ch``, the input gain (``B`` linear in it)
-``gravity``         m/s^2       world gravity, 3 columns (x, y, z)
+``gravity``         m/s^2       world gravity: ``("gravity", axis)`` one column,
+                                ``("gravity", None)`` three (x, y, z)
 ``base_placement``  m, rad      a fixed base's ``X_WB exp6(delta)``, ``delta`` 6 columns:
                                 translation x, y, z then rotation x, y, z, base frame
 ==================  ==========  =======================================================
@@ -73,8 +74,10 @@ class Parameters:
     chain : Chain
     params : sequence of (kind, segment) pairs
         ``kind`` one of :data:`PARAMETER_KINDS`; ``segment`` an int in ``[0, n)`` for the
-        per-segment kinds, None for ``gravity`` (3 columns, world x, y, z) and
-        ``base_placement`` (6 columns, a fixed base only).
+        per-segment kinds; for ``gravity`` its axis (0, 1, 2: world x, y, z; one column) or
+        None (its three columns, x, y, z: the same as naming the axes in turn); None for
+        ``base_placement`` (6 columns, a fixed base only). :func:`qchain.sim.sensitivities`
+        takes the same pairs.
 
     Attributes
     ----------
@@ -112,12 +115,20 @@ class Parameters:
                     raise ValueError(f"params[{i}]: {kind!r} is per segment, its segment must be an int in "
                                      f"[0, {chain.n - 1}] (the chain has {chain.n} segments), got {seg!r}")
                 seg = int(seg)
+            elif kind == "gravity" and seg is not None:
+                if isinstance(seg, bool) or not isinstance(seg, (int, np.integer)) or not 0 <= seg <= 2:
+                    raise ValueError(f"params[{i}]: the axis of 'gravity' must be None (all three) or an int in "
+                                     f"[0, 2] (x, y, z), got {seg!r}")
+                seg = int(seg)
             elif seg is not None:
                 raise ValueError(f"params[{i}]: {kind!r} is a whole-arm parameter, its segment must be None, "
                                  f"got {seg!r}")
-            if (kind, seg) in seen:
-                raise ValueError(f"params[{i}]: ({kind!r}, {seg!r}) is named twice")
-            seen.add((kind, seg))
+            # one column a (kind, segment or axis): gravity's None stands for its three axes
+            cols = [(kind, k) for k in range(3)] if (kind == "gravity" and seg is None) else [(kind, seg)]
+            twice = [c for c in cols if c in seen]
+            if twice:
+                raise ValueError(f"params[{i}]: ({kind!r}, {twice[0][1]!r}) is named twice")
+            seen.update(cols)
             if per_segment:
                 names.append(f"segment {seg} {kind} [{unit}]")
                 units.append(unit)
@@ -127,6 +138,8 @@ class Parameters:
                 continue
             if kind == "gravity":
                 for k, axis in enumerate("xyz"):
+                    if seg is not None and k != seg:
+                        continue
                     names.append(f"gravity {axis} [{unit}]")
                     units.append(unit)
                     kinds.append(code)

@@ -61,9 +61,25 @@ class FitReport:
     def predicted(self, which: str = "fitted") -> list:
         """Each experiment's model points (K, m, 3) m, world frame, of the ``"fitted"`` or the
         ``"start"`` model: the measured points plus the residuals the fit computed there (no run
-        again)."""
+        again); None for an experiment that measured no points (coordinates only)."""
         rs = self.residuals if which == "fitted" else self.start_residuals
-        return [e.points + r.reshape(e.points.shape) for e, r in zip(self.experiments, rs)]
+        return [split_residuals(e, r)[0] if e.points is None else e.points + split_residuals(e, r)[0]
+                for e, r in zip(self.experiments, rs)]
+
+    def predicted_coordinates(self, which: str = "fitted") -> list:
+        """Each measured motion's model coordinates (K, nc) at its used coordinates
+        (``e.coordinate_index``; SI units), of the ``"fitted"`` or the ``"start"`` model, as
+        :meth:`predicted`; None for an experiment without measured coordinates."""
+        rs = self.residuals if which == "fitted" else self.start_residuals
+        out = []
+        for e, r in zip(self.experiments, rs):
+            rc = split_residuals(e, r)[1]
+            if rc is None:
+                out.append(None)
+                continue
+            ci = e.coordinate_index
+            out.append(e.coordinates[:, ci] + rc / e.coordinate_scale[ci])
+        return out
 
     def summary(self) -> list[str]:
         """The fit in lines of text (:func:`qchain.fit.report.summary_lines`)."""
@@ -103,24 +119,10 @@ class FitReport:
         return Path(path)
 
 
-def _model_params(params: list[FitParameter]) -> tuple[list, list]:
-    """The model's ``(kind, segment)`` list for the fit parameters and its columns' keys."""
-    pairs, cols = [], []
-    for p in params:
-        if p.name == "gravity":
-            if ("gravity", None) not in pairs:
-                pairs.append(("gravity", None))
-                cols += [("gravity", k) for k in range(3)]
-            continue
-        for s in p.segments:
-            if (p.name, s) not in pairs:
-                pairs.append((p.name, s))
-                cols.append((p.name, s))
-    return pairs, cols
-
-
-def _sensitivity_params(params: list[FitParameter]) -> list:
-    """The sensitivities' ``(name, segment or axis)`` columns of the fit parameters."""
+def _model_params(params: list[FitParameter]) -> list:
+    """The model's derivative columns of the fit parameters, each once: ``(name, segment)``,
+    gravity ``("gravity", axis)`` -- the pairs both :meth:`~qchain.Chain.parameters` (the
+    rest poses' derivatives) and :func:`qchain.sim.sensitivities` take, one column a pair."""
     out = []
     for p in params:
         for c in ([("gravity", p.component)] if p.name == "gravity" else [(p.name, s) for s in p.segments]):
@@ -225,10 +227,9 @@ def fit(scene, experiments, keys, *, bounds: dict | None = None, loss: str = "li
                                f"{2 * len(params)} are needed")
     for e in experiments:
         e.check_model(chain0)
-    pairs, cols = _model_params(params)
-    T = column_map(params, cols)
-    sens = _sensitivity_params(params)
-    T_sens = column_map(params, sens)
+    pairs = _model_params(params)
+    T = column_map(params, pairs)
+    experiments, notes = _resolve_coordinates(chain0, experiments)
     if start == "scene":
         q_start, v_start = start_model.q0, start_model.v0
     guesses = [[None] * e.pressures.shape[0] if isinstance(e, StaticPoses) else None for e in experiments]
@@ -249,7 +250,7 @@ def fit(scene, experiments, keys, *, bounds: dict | None = None, loss: str = "li
                 r, J = static_residuals(chain, e, pairs, g, jacobian=jacobian)
                 J = None if J is None else J @ T
             else:
-                r, J = dynamic_residuals(chain, e, sens, pairs, T_sens, T, start=start,
+                r, J = dynamic_residuals(chain, e, pairs, T, start=start,
                                          q0=q_start if start == "scene" else None,
                                          v0=v_start if start == "scene" else None, rtol=rtol, jacobian=jacobian)
             rs.append(r)
@@ -276,7 +277,7 @@ def fit(scene, experiments, keys, *, bounds: dict | None = None, loss: str = "li
     fun_r(res.x)  # the report's residuals and scene at the solution
     new, rs = state["last"]
     return FitReport(result=res, parameters=params, experiments=experiments, residuals=rs, raw=new,
-                     source=str(path), evaluations=state["n"], start_residuals=state["first"],
+                     source=str(path), evaluations=state["n"], start_residuals=state["first"], notes=notes,
                      wall_s=time.perf_counter() - wall0, cpu_s=time.process_time() - cpu0)
 
 
@@ -301,20 +302,58 @@ def _pressure_noise(experiments: list, pressure_sigma, pressure_filter):
     return experiments, noise
 
 
+def split_residuals(e, r: np.ndarray):
+    """An experiment's residuals (K rows,) as its points' part (K, m, 3) m and its coordinates'
+    part (K, nc) (scaled, m), each None when it measured none."""
+    K = e.points.shape[0] if isinstance(e, StaticPoses) else e.n_samples
+    R = np.asarray(r, dtype=float).reshape(K, -1)
+    m = 0 if e.points is None else e.points.shape[1]
+    pts = R[:, :3 * m].reshape(K, m, 3) if m else None
+    crd = R[:, 3 * m:] if (isinstance(e, Measurements) and e.coordinates is not None) else None
+    return pts, crd
+
+
+def _resolve_coordinates(chain, experiments: list) -> tuple[list, list]:
+    """The measured motions with coordinates given their scale for the start model ``chain``
+    (:func:`qchain.fit.measurements.coordinate_scale`: fixed for the whole fit, so that a
+    fitted rest length does not reweight its own residuals), and a note for each whose
+    coordinates the model holds still (left out)."""
+    from dataclasses import replace
+
+    from .measurements import coordinate_scale
+
+    out, notes = [], []
+    for i, e in enumerate(experiments):
+        if isinstance(e, Measurements) and e.coordinates is not None:
+            w, held = coordinate_scale(chain, e)
+            if held:
+                notes.append(f"experiment {i}: the measured coordinates {', '.join(held)} are held still by the model "
+                             "(inextensible or planar) and left out of the fit")
+            e = replace(e, coordinate_scale=w)
+        out.append(e)
+    return out, notes
+
+
+def _sizes(experiments: list) -> list:
+    """Each experiment's ``(K, rows)``: K samples (or poses) of ``rows`` residuals."""
+    return [(e.points.shape[0], e.points.size // e.points.shape[0]) if isinstance(e, StaticPoses)
+            else (e.n_samples, e.rows) for e in experiments]
+
+
 def _residual_blocks(experiments: list) -> list:
-    """Each experiment's residual rows as ``(start, K, rows)``: K samples (or poses) of m points x 3."""
+    """Each experiment's residual rows as ``(start, K, rows)``: K samples (or poses) of ``rows``
+    residuals (m points x 3, then a measured motion's used coordinates)."""
     blocks, at = [], 0
-    for e in experiments:
-        K = e.points.shape[0]
-        blocks.append((at, K, e.points.size // K))
-        at += e.points.size
+    for K, rows in _sizes(experiments):
+        blocks.append((at, K, rows))
+        at += K * rows
     return blocks
 
 
 def _input_draws(chain, experiments: list, noise: list, n: int, cutoff, start: str, q0, v0, rtol: float):
     """(n, m): each measured motion's :func:`~qchain.fit.dynamics.input_noise_draws` in its
     rows, zeros in the static poses' rows (their pressures taken as exact)."""
-    sizes = [e.points.size for e in experiments]
+    sizes = [K * rows for K, rows in _sizes(experiments)]
     out = np.zeros((n, sum(sizes)))
     at = 0
     for e, sz, s_p in zip(experiments, sizes, noise):

@@ -41,7 +41,7 @@ from ..recording.scenery import quat_mul, quat_rotate
 from ..sim.inputs import Table
 
 __all__ = ["Measurements", "MeasurementError", "MeasurementWarning", "read_bag", "read_qchain", "read_csv",
-           "bag_topics", "beyond_reach", "pressure_noise", "filter_pressures"]
+           "bag_topics", "beyond_reach", "pressure_noise", "filter_pressures", "coordinate_scale"]
 
 
 class MeasurementError(ValueError):
@@ -70,7 +70,14 @@ class Measurements:
     orientations : (K, 4) float or None
         The tip's measured orientation (x, y, z, w), world frame, when a pose was measured.
     coordinates : (K, nq) float or None
-        Measured generalised coordinates (a qchain recording).
+        Measured generalised coordinates (a qchain recording, or CSV columns): per segment
+        ``(l, ux, uy)``, m, 1/m, 1/m.
+    coordinate_scale : (nq,) float or float or None, m per coordinate unit
+        What a coordinate's residual is multiplied by, so that it is a length comparable to a
+        point's (a zero leaves that coordinate out). Default (:func:`coordinate_scale`): 1 for
+        a segment's length ``l``, ``l0^2 / 2`` for its curvatures (the sideways move of the
+        segment's tip that an error of the curvature causes alone: m), the coordinates the model
+        holds (an inextensible segment's ``l``, a planar arm's ``uy``) left out.
     pressures : Table
         Chamber pressures (Pa), ``(3 n,)`` at each time, piecewise linear.
     source : str
@@ -85,6 +92,7 @@ class Measurements:
     coordinates: np.ndarray | None = None
     source: str = ""
     notes: list = field(default_factory=list)
+    coordinate_scale: np.ndarray | float | None = None
 
     def __post_init__(self):
         t = np.asarray(self.t, dtype=float)
@@ -102,6 +110,29 @@ class Measurements:
                 if not (isinstance(seg, (int, np.integer)) and 0.0 <= float(alpha) <= 1.0):
                     raise MeasurementError(f"where: each point is (segment, alpha) with alpha in [0, 1], got "
                                            f"{(seg, alpha)!r}")
+        src = self.source or "measurements"
+        if self.coordinates is not None:
+            c = np.asarray(self.coordinates, dtype=float)
+            if c.ndim != 2 or c.shape[0] != t.size or c.shape[1] == 0:
+                raise MeasurementError(f"{src}: coordinates must have shape ({t.size}, nq) (samples, coordinates), "
+                                       f"got {c.shape}")
+            if not np.all(np.isfinite(c)):
+                k, i = np.argwhere(~np.isfinite(c))[0]
+                raise MeasurementError(f"{src}: coordinate {i} of sample {k} (t = {t[k]:.6g} s) is {c[k, i]!r}: "
+                                       "measured coordinates must be finite (leave that sample out)")
+            object.__setattr__(self, "coordinates", c)
+        if self.coordinate_scale is not None:
+            if self.coordinates is None:
+                raise MeasurementError(f"{src}: coordinate_scale is given but no coordinates are measured")
+            w = np.asarray(self.coordinate_scale, dtype=float)
+            nq = self.coordinates.shape[1]
+            if w.ndim == 0:
+                w = np.full(nq, float(w))
+            if w.shape != (nq,) or not np.all(np.isfinite(w)) or np.any(w < 0) or not np.any(w > 0):
+                raise MeasurementError(f"{src}: coordinate_scale must be one number or {nq} (one a measured "
+                                       f"coordinate), finite, >= 0 (m per coordinate unit; 0 leaves one out) and "
+                                       f"not all 0, got {self.coordinate_scale!r}")
+            object.__setattr__(self, "coordinate_scale", w)
 
     @property
     def n_samples(self) -> int:
@@ -118,6 +149,22 @@ class Measurements:
         if self.coordinates is not None:
             k += self.coordinates.size
         return k
+
+    @property
+    def coordinate_index(self) -> np.ndarray:
+        """The measured coordinates the residuals hold (those of nonzero ``coordinate_scale``;
+        all when it is not set yet); empty without coordinates."""
+        if self.coordinates is None:
+            return np.zeros(0, dtype=int)
+        if self.coordinate_scale is None:
+            return np.arange(self.coordinates.shape[1])
+        return np.flatnonzero(self.coordinate_scale > 0)
+
+    @property
+    def rows(self) -> int:
+        """Residuals a sample: 3 a measured point, then one a used coordinate
+        (:attr:`coordinate_index`); the orientations are not fitted."""
+        return (0 if self.points is None else 3 * self.points.shape[1]) + self.coordinate_index.size
 
     @property
     def duration(self) -> float:
@@ -151,7 +198,7 @@ class Measurements:
                                    f"({chain.n} segments x 3)")
         if self.coordinates is not None and self.coordinates.shape[1] != chain.nq:
             raise MeasurementError(f"{self.source}: {self.coordinates.shape[1]} coordinates a sample, the model has "
-                                   f"nq = {chain.nq}")
+                                   f"nq = {chain.nq} ({chain.n} segments x (l, ux, uy))")
         if self.points is None:
             return
         for seg, _ in self.where:
@@ -164,6 +211,32 @@ class Measurements:
                 f"{self.source}: the measured point {j} is {d:.4g} m from the base at t = {self.t[k]:.6g} s, "
                 f"and the arm is {reach:.4g} m long (at most {slack:g} x that is possible): units that do not match "
                 "(mm for m?) or another frame than the base's world frame")
+
+
+def coordinate_scale(chain, meas: Measurements) -> tuple[np.ndarray, list[str]]:
+    """``meas``'s coordinate scale (nq,) m per unit for the model ``chain`` and the coordinates
+    it leaves out because the model holds them (their names, :meth:`~qchain.Chain.coordinate_name`).
+
+    The default scale: 1 for a segment's length ``l`` (m already), ``l0^2 / 2`` for each
+    curvature ``ux``, ``uy`` (a curvature error ``du`` over a segment of rest length ``l0``
+    moves its tip sideways by ``l0^2 du / 2`` to first order: the coordinate's residual becomes
+    that length, comparable to a measured point's). ``meas.coordinate_scale``, when given,
+    replaces it. Either way the coordinates the model holds still (``chain.active`` false: an
+    inextensible segment's length, a planar arm's ``uy``) get 0: they are not free to fit.
+    A floating base's coordinates are refused (the sensitivities do not take one)."""
+    if chain.nq != chain.nv or chain.base == "floating":
+        raise MeasurementError(f"{meas.source}: measured coordinates need a fixed or prescribed base (nq = nv), the "
+                               f"model has base={chain.base!r}")
+    if meas.coordinate_scale is not None:
+        w = np.array(meas.coordinate_scale, dtype=float)
+    else:
+        l0 = np.array([s.length for s in chain.segments])
+        w = np.column_stack([np.ones(chain.n), l0 ** 2 / 2, l0 ** 2 / 2]).reshape(-1)
+    held = np.flatnonzero(~chain.active & (w > 0))
+    w[~chain.active] = 0.0
+    if not np.any(w > 0):
+        raise MeasurementError(f"{meas.source}: coordinate_scale leaves no coordinate the model can move")
+    return w, [chain.coordinate_name(int(i), velocity=False) for i in held]
 
 
 def beyond_reach(chain, points: np.ndarray, base_position=None, slack: float = 1.5):
@@ -473,9 +546,12 @@ def _compose_tf(transforms, parent: str, child: str):
 
 
 def read_qchain(path, *, measure: str = "tip", start: float | None = None, stop: float | None = None,
-                limits=None) -> Measurements:
+                limits=None, coordinate_scale=None) -> Measurements:
     """One experiment from a qchain recording: ``measure`` ``"tip"`` (the last tip's position
-    and orientation) or ``"coordinates"`` (q); the pressures as recorded."""
+    and orientation) or ``"coordinates"`` (q, with ``coordinate_scale`` as
+    :class:`Measurements` says); the pressures as recorded."""
+    from dataclasses import replace
+
     from ..recording.reader import read_recording
 
     if measure not in ("tip", "coordinates"):
@@ -485,26 +561,36 @@ def read_qchain(path, *, measure: str = "tip", start: float | None = None, stop:
     if measure == "tip":
         tip = rec.tip_frames[:, -1]
         return _assemble(rec.t, tip[:, None, :3], tip[:, 3:], None, rec.t, rec.p, ((-1, 1.0),), src, start, stop)
-    return _assemble(rec.t, None, None, rec.q, rec.t, rec.p, ((-1, 1.0),), src, start, stop)
+    m = _assemble(rec.t, None, None, rec.q, rec.t, rec.p, ((-1, 1.0),), src, start, stop)
+    return m if coordinate_scale is None else replace(m, coordinate_scale=coordinate_scale)
 
 
 def read_csv(path, *, time: str = "t", points: list[tuple[str, str, str]] | None = None,
              where=((-1, 1.0),), pressures: list[str], scale: float = 1.0, start: float | None = None,
-             stop: float | None = None) -> Measurements:
+             stop: float | None = None, coordinates: list[str] | None = None,
+             coordinate_scale=None) -> Measurements:
     """One experiment from a CSV file with a header row: a time column (s), the measured
     points' x, y, z columns (``points``: one triple of column names a point, in ``where``'s
-    order; ``scale`` multiplies them, e.g. 1e-3 for mm), the pressure columns (Pa), all on
+    order; ``scale`` multiplies them, e.g. 1e-3 for mm) and/or the measured coordinates'
+    columns (``coordinates``: one a coordinate of ``q``, in its order, SI units; weighted by
+    ``coordinate_scale`` as :class:`Measurements` says), the pressure columns (Pa), all on
     one clock and one row a sample (empty cells are NaN: that sample is left out, said)."""
+    from dataclasses import replace
+
     path = Path(path)
-    cols = [time] + [c for triple in (points or []) for c in triple] + list(pressures)
+    ccols = list(coordinates or [])
+    cols = [time] + [c for triple in (points or []) for c in triple] + ccols + list(pressures)
     data = csv_columns(path, cols, empty=math.nan)
     t = data[:, 0]
     npts = len(points or [])
     pts = data[:, 1:1 + 3 * npts].reshape(len(t), npts, 3) * float(scale) if npts else None
-    p = data[:, 1 + 3 * npts:]
-    if pts is None:
-        raise MeasurementError(f"{path}: no measured columns (points=)")
-    return _assemble(t, pts, None, None, t, p, where, f"{path}", start, stop)
+    at = 1 + 3 * npts
+    q = data[:, at:at + len(ccols)] if ccols else None
+    p = data[:, at + len(ccols):]
+    if pts is None and q is None:
+        raise MeasurementError(f"{path}: no measured columns (points= or coordinates=)")
+    m = _assemble(t, pts, None, q, t, p, where, f"{path}", start, stop)
+    return m if coordinate_scale is None else replace(m, coordinate_scale=coordinate_scale)
 
 
 def csv_columns(path, cols: list[str], *, empty: float | None = None) -> np.ndarray:

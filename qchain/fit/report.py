@@ -8,7 +8,9 @@ measured ones (:meth:`FitReport.predicted`), so nothing is simulated again here.
 The picture (:func:`plot_report`): one column an experiment. A measured motion
 (:class:`~qchain.fit.Measurements`) shows the first measured point's x, y and z over time
 (measured as dots, the start model and the fitted model as lines) and the residual norm
-over time (each measured point's distance to the model's, the largest of them a sample); static poses
+over time (each measured point's distance to the model's, the largest of them a sample); a
+motion measured as coordinates only shows the three of them that move most (SI units) and
+the largest scaled coordinate residual a sample; static poses
 (:class:`~qchain.fit.StaticPoses`) the same against the pose's number, as markers.
 """
 
@@ -31,17 +33,41 @@ def _kind(e) -> str:
     return "static" if isinstance(e, StaticPoses) else "dynamic"
 
 
-def _rms(r: np.ndarray) -> float:
-    """The RMS distance (m) of a residual vector of points, (K m 3,): sqrt of the mean squared
-    norm of each point's residual."""
-    r = np.asarray(r, dtype=float).reshape(-1, 3)
-    return float(np.sqrt(np.mean(np.sum(r ** 2, axis=1)))) if r.size else math.nan
+def _rms(e, r: np.ndarray) -> float:
+    """The RMS residual (m) of experiment ``e``'s residuals ``r``: sqrt of the mean, over its
+    measured items, of each one's squared residual -- a point's distance, a coordinate's scaled
+    residual (:func:`qchain.fit.measurements.coordinate_scale`)."""
+    from .fitting import split_residuals
+
+    pts, crd = split_residuals(e, r)
+    sq = []
+    if pts is not None:
+        sq.append(np.sum(pts ** 2, axis=-1).reshape(-1))
+    if crd is not None:
+        sq.append((crd ** 2).reshape(-1))
+    sq = np.concatenate(sq) if sq else np.zeros(0)
+    return float(np.sqrt(np.mean(sq))) if sq.size else math.nan
+
+
+def _sample_error(e, r: np.ndarray) -> np.ndarray:
+    """(K,) m: a sample's largest item residual (a point's distance or a scaled coordinate's)."""
+    from .fitting import split_residuals
+
+    pts, crd = split_residuals(e, r)
+    parts = []
+    if pts is not None:
+        parts.append(np.linalg.norm(pts, axis=-1))
+    if crd is not None:
+        parts.append(np.abs(crd))
+    return np.concatenate(parts, axis=1).max(axis=1)
 
 
 def experiment_rms(report) -> list[tuple[float, float]]:
-    """Each experiment's RMS point distance (m) for the start model and the fitted model."""
+    """Each experiment's RMS residual (m: a point's distance, a coordinate's scaled residual) for
+    the start model and the fitted model."""
     starts = report.start_residuals or [None] * len(report.experiments)
-    return [(math.nan if s is None else _rms(s), _rms(r)) for s, r in zip(starts, report.residuals)]
+    return [(math.nan if s is None else _rms(e, s), _rms(e, r))
+            for e, s, r in zip(report.experiments, starts, report.residuals)]
 
 
 def _finite_or_none(x):
@@ -61,8 +87,10 @@ def report_dict(report) -> dict:
     corr = [[_finite_or_none(c) for c in row] for row in np.asarray(res.correlation)]
     exps = []
     for e, (before, after) in zip(report.experiments, experiment_rms(report)):
+        coords = e.coordinate_index.size if _kind(e) == "dynamic" else 0
         exps.append({"source": str(e.source), "kind": _kind(e),
-                     "samples": int(e.points.shape[0]), "points": int(e.points.shape[1]),
+                     "samples": int(e.pressures.shape[0] if _kind(e) == "static" else e.n_samples),
+                     "points": 0 if e.points is None else int(e.points.shape[1]), "coordinates": int(coords),
                      "rms_start_m": _finite_or_none(before), "rms_fitted_m": _finite_or_none(after)})
     return {
         "scene": str(report.source),
@@ -90,8 +118,12 @@ def summary_lines(report) -> list[str]:
     out.append(f"residuals: {res.residuals.size} numbers, sigma {res.sigma * 1e3:.4g} mm; "
                f"{'converged' if res.success else 'not converged'} ({res.message})")
     for i, (e, (before, after)) in enumerate(zip(report.experiments, experiment_rms(report))):
-        out.append(f"experiment {i} ({_kind(e)}, {e.points.shape[0]} {'poses' if _kind(e) == 'static' else 'samples'}):"
-                   f" RMS distance {before * 1e3:.4g} mm at the start, {after * 1e3:.4g} mm fitted  [{e.source}]")
+        static = _kind(e) == "static"
+        K = e.pressures.shape[0] if static else e.n_samples
+        what = "" if static or e.coordinates is None else f", {e.coordinate_index.size} coordinates"
+        out.append(f"experiment {i} ({_kind(e)}, {K} {'poses' if static else 'samples'}{what}):"
+                   f" RMS residual {before * 1e3:.4g} mm at the start, {after * 1e3:.4g} mm fitted  [{e.source}]")
+    out += [f"note: {n}" for n in getattr(report, "notes", [])]
     out.append(f"{res.nfev} residual evaluations ({res.njev} with the Jacobian), {report.wall_s:.3g} s wall, "
                f"{report.cpu_s:.3g} s CPU")
     return out
@@ -123,26 +155,37 @@ def plot_report(report, path=None, dpi: int = 80):
     axes = fig.subplots(4, n, squeeze=False, sharex="col")
     fitted = report.predicted("fitted")
     start = report.predicted("start") if report.start_residuals else [None] * n
+    fitted_q = report.predicted_coordinates("fitted")
+    start_q = report.predicted_coordinates("start") if report.start_residuals else [None] * n
+    starts_r = report.start_residuals or [None] * n
     for j, e in enumerate(report.experiments):
         static = _kind(e) == "static"
         x = np.arange(e.points.shape[0]) if static else e.t
-        meas = e.points[:, 0] * 1e3
         style = dict(marker="o", ls="none", ms=4) if static else dict(lw=1.2)
-        for i in range(3):
+        if e.points is not None:  # the first point's x, y, z (mm)
+            shown = [(e.points[:, 0, i] * 1e3, None if start[j] is None else start[j][:, 0, i] * 1e3,
+                      fitted[j][:, 0, i] * 1e3, f"{_point_name(e.where[0])} {'xyz'[i]} (mm)") for i in range(3)]
+        else:  # coordinates only: the three used ones that move most (SI units)
+            ci = e.coordinate_index
+            qm = e.coordinates[:, ci]
+            pick = np.argsort(-np.ptp(qm, axis=0), kind="stable")[:3]
+            shown = [(qm[:, k], None if start_q[j] is None else start_q[j][:, k], fitted_q[j][:, k],
+                      _coordinate_name(int(ci[k]))) for k in pick]
+        for i, (meas, st, fi, label) in enumerate(shown):
             ax = axes[i, j]
-            ax.plot(x, meas[:, i], "x" if static else ".", ms=5 if static else 2, color="0.35", label="measured")
-            if start[j] is not None:
-                ax.plot(x, start[j][:, 0, i] * 1e3, color="C3", label="start model", **style)
-            ax.plot(x, fitted[j][:, 0, i] * 1e3, color="C0", label="fitted model", **style)
-            ax.set_ylabel(f"{_point_name(e.where[0])} {'xyz'[i]} (mm)")
+            ax.plot(x, meas, "x" if static else ".", ms=5 if static else 2, color="0.35", label="measured")
+            if st is not None:
+                ax.plot(x, st, color="C3", label="start model", **style)
+            ax.plot(x, fi, color="C0", label="fitted model", **style)
+            ax.set_ylabel(label)
         axes[0, j].set_title(_short(str(e.source)), fontsize=9)
         axes[0, j].legend(loc="best", fontsize=7)
         ax = axes[3, j]
         before, after = experiment_rms(report)[j]
-        for preds, color, what, rms in ((start[j], "C3", "start", before), (fitted[j], "C0", "fitted", after)):
-            if preds is None:
+        for rr, color, what, rms in ((starts_r[j], "C3", "start", before), (report.residuals[j], "C0", "fitted", after)):
+            if rr is None:
                 continue
-            err = np.linalg.norm(preds - e.points, axis=-1).max(axis=1) * 1e3  # the largest point's a sample
+            err = _sample_error(e, rr) * 1e3  # the largest item's a sample
             label = f"{what} (RMS {rms * 1e3:.3g} mm)"
             if static:
                 w = 0.4
@@ -161,6 +204,12 @@ def plot_report(report, path=None, dpi: int = 80):
     with written_whole(path, binary=True, prefix=".fit-") as fh:
         fig.savefig(fh, format="png", dpi=dpi)
     return Path(path)
+
+
+def _coordinate_name(i: int) -> str:
+    """Entry ``i`` of a curvature-coordinate ``q`` in words, with its unit."""
+    j, k = divmod(i, 3)
+    return f"segment {j} {('l (m)', 'ux (1/m)', 'uy (1/m)')[k]}"
 
 
 def _point_name(where) -> str:

@@ -11,8 +11,9 @@ The statistics (:class:`FitResult`) are those of a least-squares estimate with i
 residuals of one standard deviation: ``sigma^2 = 2 cost / (m - p)`` and the covariance
 ``sigma^2 (J^T J)^-1`` at the solution, computed from the singular value decomposition of the
 column-scaled ``J`` (its small singular values are the directions the data do not fix). With a
-robust loss the Jacobian is weighted as scipy weights it (``rho'``), which is the usual
-sandwich-free approximation. ``covariance="hac"`` (Newey-West) and ``"inputs"`` (the
+robust loss every row is weighted as scipy weights it (``sqrt(rho')``, :func:`robust_weights`):
+the Jacobian, the residuals the HAC scores are made of and the input-noise draws alike, the
+usual approximation that leaves out ``rho''``. ``covariance="hac"`` (Newey-West) and ``"inputs"`` (the
 inputs' noise propagated by draws, the effective-variance sandwich) replace the independent
 residuals by residuals correlated in time (docs/fit.md, "Noisy pressures").
 
@@ -176,6 +177,16 @@ def _statistics(J: np.ndarray, r: np.ndarray, cost: float, scale: np.ndarray, na
     return cov, stderr, corr, float(np.sqrt(sigma2)), groups, pairs
 
 
+def robust_weights(r: np.ndarray, loss: str, f_scale: float) -> np.ndarray:
+    """``rho'(z)`` (m,) of scipy's robust ``loss`` at ``z = (r / f_scale)^2``: the factor a row's
+    squared residual is weighted by at the solution (1 for ``"linear"``)."""
+    z = (np.asarray(r, dtype=float) / f_scale) ** 2
+    if loss == "linear":
+        return np.ones_like(z)
+    return {"soft_l1": lambda z: (1 + z) ** -0.5, "huber": lambda z: np.where(z <= 1, 1.0, z ** -0.5),
+            "cauchy": lambda z: 1 / (1 + z), "arctan": lambda z: 1 / (1 + z ** 2)}[loss](z)
+
+
 def least_squares_fit(fun: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]], x0, names: list[str], *,
                       lower=None, upper=None, scale=None, loss: str = "linear", f_scale: float = 1.0,
                       identifiable_tol: float = 1e-7, max_nfev: int | None = None,
@@ -283,14 +294,19 @@ def least_squares_fit(fun: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]
     njev[0] -= 1  # (the statistics' own)
     r = cache["r"]
     J = Js / sc
-    if loss != "linear":  # the Jacobian as the robust loss weights it (scipy's scaling by rho')
-        z = (r / f_scale) ** 2
-        rho1 = {"soft_l1": lambda z: (1 + z) ** -0.5, "huber": lambda z: np.where(z <= 1, 1.0, z ** -0.5),
-                "cauchy": lambda z: 1 / (1 + z), "arctan": lambda z: 1 / (1 + z ** 2)}[loss](z)
-        J = J * np.sqrt(rho1)[:, None]
     draws = input_draws(x) if covariance == "inputs" and input_draws is not None else None
-    cov, stderr, corr, sigma, groups, pairs = _statistics(J, r, float(sol.cost), sc, list(names), identifiable_tol,
-                                                          covariance, blocks, draws)
+    r_w = r
+    if loss != "linear":
+        # every residual row as the robust loss weights it (scipy's scaling by sqrt(rho')): the
+        # Jacobian, the residuals of the HAC scores and the input draws alike, so that a row the
+        # loss down-weights (an outlier) counts as little in the covariance as in the fit
+        w = np.sqrt(robust_weights(r, loss, f_scale))
+        J = J * w[:, None]
+        r_w = r * w
+        if draws is not None:
+            draws = np.asarray(draws, dtype=float) * w
+    cov, stderr, corr, sigma, groups, pairs = _statistics(J, r_w, float(sol.cost), sc, list(names),
+                                                          identifiable_tol, covariance, blocks, draws)
     at_bound = [names[i] for i in range(p) if sol.active_mask[i] != 0]
     res = FitResult(names=list(names), x=x, x0=x0, stderr=stderr, correlation=corr, covariance=cov, residuals=r,
                     sigma=sigma, cost=float(sol.cost), success=bool(sol.success), message=str(sol.message),

@@ -24,6 +24,7 @@ from ..errors import FitSpecError
 from ..scene.format import _Checker, _show, _type_name
 from ..scene.keys import Field, KeyTable
 from .measurements import MeasurementError, read_bag, read_csv, read_qchain
+from .solve import COVARIANCES
 from .statics import read_static_csv
 
 __all__ = ["FitSpec", "FitSpecError", "load_fit_spec", "TABLES", "SOURCES", "LOSSES", "markdown"]
@@ -76,11 +77,19 @@ EXPERIMENT = KeyTable("experiments[]", "One table an experiment: `[[experiments]
           "velocity"), default='"effort"', when=("bag",)),
     Field("joints", "names", "The pressures' joint names, in the model's chamber order.",
           default="the message's order", when=("bag",)),
-    Field("measure", "choice", "What of the recording is fitted to: the last tip's position.", choices=("tip",),
+    Field("measure", "choice", "What of the recording is fitted to: the last tip's position, or the full "
+          "coordinates `q` (weighted by `coordinate_scale`).", choices=("tip", "coordinates"),
           default='"tip"', when=("recording",)),
     Field("time", "string", "The time column (s).", default='"t"', when=("csv",)),
     Field("points", "names", "The measured points' columns: an array of `[x, y, z]` column-name triples, one a "
-          "point, in `where`'s order.", required=True, when=("csv", "static_csv")),
+          "point, in `where`'s order (a `csv` may give `coordinates` instead, or both).", when=("csv", "static_csv"),
+          default="required for `static_csv`; a `csv` needs it or `coordinates`"),
+    Field("coordinates", "names", "The measured coordinates' columns, one a coordinate of `q` in its order (per "
+          "segment `l` m, `ux`, `uy` 1/m).", default="none", when=("csv",)),
+    Field("coordinate_scale", "number_or_per_segment", "m per coordinate unit: what a coordinate's residual is "
+          "multiplied by to be a length comparable to a point's (0 leaves it out; coordinates the model holds still "
+          "are left out anyway).", Range(0.0, 1e3, "m"), default="1 for `l`, `l0^2/2` for `ux`, `uy`",
+          when=("recording", "csv")),
     Field("pressures", "names", "The pressure columns (Pa), in the model's chamber order.", required=True,
           when=("csv", "static_csv")),
     Field("scale", "number", "Multiplies the point columns (1e-3 for mm).", Range(0.0, None, low_open=True),
@@ -104,6 +113,19 @@ FIT = KeyTable("fit", "How the fit runs (`qchain.fit.fit`).", (
     Field("rtol", "number", "The runs' dopri5 relative tolerance.", B.RTOL, default="1e-7"),
     Field("reduce", "boolean", "The scene's automatic reductions (off: they are decided from the scene's own "
           "pressures, which the experiments' need not share).", default="false"),
+    Field("covariance", "choice", "How the standard errors are formed: `inputs` adds the pressure sensor's noise "
+          "propagated through the model to white measurement noise; `iid` independent residuals, the pressures "
+          "exact; `hac` Newey-West, residuals correlated in time (docs/fit.md, \"Noisy pressures\").",
+          choices=COVARIANCES, default='"inputs"'),
+    Field("pressure_filter", "number", "Low-pass every measured motion's pressures at this cutoff before fitting "
+          "(zero phase); below each motion's Nyquist frequency (half its pressures' sample rate).",
+          Range(0.0, None, "Hz", low_open=True), default="none"),
+    Field("pressure_sigma", "number_or_per_segment", "The pressure sensor's noise (standard deviation a sample), "
+          "one for all chambers or one a chamber; for static poses the only source of their input-noise term.",
+          Range(0.0, 1e9, "Pa"), default="estimated from each recording; static poses: none"),
+    Field("input_draws", "integer", "Runs (or pose sets) with freshly drawn pressure noise behind `covariance = "
+          "\"inputs\"`: the standard errors' own relative error is about `1/sqrt(2 input_draws)` of the part the "
+          "inputs add.", Range(2, 100000, integer=True), default="40"),
 ))
 
 OUTPUT = KeyTable("output", "What `qchain fit` writes: `fitted.toml` (the fitted scene), `fit.json` (values, "
@@ -136,7 +158,8 @@ class FitSpec:
     experiments : list of Measurements or StaticPoses
         Read (their readers' warnings were issued).
     options : dict
-        ``qchain.fit.fit``'s keyword arguments (loss, f_scale, max_nfev, start, rtol, reduce).
+        ``qchain.fit.fit``'s keyword arguments (loss, f_scale, max_nfev, start, rtol, reduce,
+        covariance, pressure_filter, pressure_sigma, input_draws).
     folder : Path
         The output folder.
     plot : bool
@@ -205,7 +228,19 @@ def _where(ck: _Checker, d: dict, path: str) -> tuple | None:
     return tuple((int(s), float(a)) for s, a in v)
 
 
-def _experiment(ck: _Checker, e: dict, path: str, base: Path):
+def _coordinate_scale(ck: _Checker, e: dict, path: str, n: int | None):
+    """``coordinate_scale``: a number, or 3 a segment (``n`` segments, flat or nested); None if absent."""
+    if "coordinate_scale" not in e:
+        return None
+    f = EXPERIMENT["coordinate_scale"]
+    v = e["coordinate_scale"]
+    if isinstance(v, list):
+        arr = ck.per_segment(v, path, n, "m", bounds=f.range)
+        return None if arr is None else arr.reshape(-1)
+    return ck.number(e, "coordinate_scale", path, "m", bounds=f.range)
+
+
+def _experiment(ck: _Checker, e: dict, path: str, base: Path, n_segments: int | None = None):
     """One ``[[experiments]]`` table checked and read: Measurements, StaticPoses or None."""
     T = EXPERIMENT
     ck.keys(e, path, T.keys())
@@ -244,11 +279,24 @@ def _experiment(ck: _Checker, e: dict, path: str, base: Path):
                      tf=tuple(tf) if tf else None, pressure_field=fld, pressure_names=joints, where=where,
                      start=t0, stop=t1)
     if kind == "recording":
-        ck.field(e, T["measure"], f"{path}.measure", "tip")
+        measure = ck.field(e, T["measure"], f"{path}.measure", "tip")
+        cscale = _coordinate_scale(ck, e, f"{path}.coordinate_scale", n_segments)
+        if cscale is not None and measure != "coordinates":
+            ck.add(f"{path}.coordinate_scale", 'a key of measure = "coordinates"', f"measure = {_show(measure)}")
         if len(ck.problems) > start:
             return None
-        return _read(ck, path + f".{kind}", read_qchain, src, measure="tip", start=t0, stop=t1)
-    pts = _triples(ck, e, f"{path}.points")
+        return _read(ck, path + f".{kind}", read_qchain, src, measure=measure, start=t0, stop=t1,
+                     coordinate_scale=cscale)
+    coords = _names(ck, e, "coordinates", f"{path}.coordinates") if kind == "csv" else None
+    cscale = _coordinate_scale(ck, e, f"{path}.coordinate_scale", n_segments) if kind == "csv" else None
+    if cscale is not None and coords is None:
+        ck.add(f"{path}.coordinate_scale", "a key of an experiment with coordinates", "no coordinates")
+    if kind == "csv" and "points" not in e and coords is not None:
+        pts = None
+        if "where" in e:
+            ck.add(f"{path}.where", "a key of measured points", "no points (coordinates only)")
+    else:
+        pts = _triples(ck, e, f"{path}.points")
     pres = _names(ck, e, "pressures", f"{path}.pressures")
     if "pressures" not in e:
         ck.add(f"{path}.pressures", "an array of strings (the pressure columns)", "nothing (the key is required)")
@@ -261,7 +309,7 @@ def _experiment(ck: _Checker, e: dict, path: str, base: Path):
     if kind == "csv":
         time = ck.string(e, "time", f"{path}.time", "t")
         return _read(ck, path + ".csv", read_csv, src, time=time, points=pts, where=where, pressures=pres,
-                     scale=scale, start=t0, stop=t1)
+                     scale=scale, start=t0, stop=t1, coordinates=coords, coordinate_scale=cscale)
     return _read(ck, path + ".static_csv", read_static_csv, src, points=pts, pressures=pres, where=where,
                  scale=scale)
 
@@ -340,8 +388,13 @@ def load_fit_spec(path, out=None) -> FitSpec:
 
     exps = []
     etabs = _table_array(ck, raw, "experiments")
+    n_segments = None
+    if scene_raw is not None:
+        from .parameters import _tables
+
+        n_segments = sum(c for _, c in _tables(scene_raw))
     for i, e in enumerate(etabs):
-        exps.append(_experiment(ck, e, f"experiments[{i}]", base))
+        exps.append(_experiment(ck, e, f"experiments[{i}]", base, n_segments))
 
     ft = ck.section(raw, "fit", FIT.keys())
     options = dict(loss=ck.field(ft, FIT["loss"], "fit.loss", "linear"),
@@ -349,7 +402,24 @@ def load_fit_spec(path, out=None) -> FitSpec:
                    max_nfev=ck.field(ft, FIT["max_nfev"], "fit.max_nfev", 50),
                    start=ck.field(ft, FIT["start"], "fit.start", "rest"),
                    rtol=ck.field(ft, FIT["rtol"], "fit.rtol", 1e-7),
-                   reduce=ck.field(ft, FIT["reduce"], "fit.reduce", False))
+                   reduce=ck.field(ft, FIT["reduce"], "fit.reduce", False),
+                   covariance=ck.field(ft, FIT["covariance"], "fit.covariance", "inputs"),
+                   pressure_filter=ck.field(ft, FIT["pressure_filter"], "fit.pressure_filter"),
+                   pressure_sigma=_pressure_sigma(ck, ft, n_segments),
+                   input_draws=ck.field(ft, FIT["input_draws"], "fit.input_draws", 40))
+    cut = options["pressure_filter"]
+    if cut is not None:  # below every measured motion's Nyquist frequency, said here rather than mid-fit
+        import numpy as np
+
+        from .measurements import Measurements
+
+        for i, e in enumerate(exps):
+            if isinstance(e, Measurements):
+                nyq = 0.5 / float(np.median(np.diff(e.pressures.times)))
+                if not cut < nyq:
+                    ck.add("fit.pressure_filter", f"a cutoff below {nyq:.6g} Hz (experiments[{i}]'s pressures' "
+                           "Nyquist frequency, half their sample rate)", _show(ft["pressure_filter"]))
+                    break
     ot = ck.section(raw, "output", OUTPUT.keys())
     folder = ck.path(ot, "folder", "output.folder", None)
     plot = ck.field(ot, OUTPUT["plot"], "output.plot", True)
@@ -359,6 +429,18 @@ def load_fit_spec(path, out=None) -> FitSpec:
         base / folder if folder is not None else base / f"{path.stem}-fit"))
     return FitSpec(path=path, scene=scene, keys=keys, bounds=bounds, values=values, experiments=exps,
                    options=options, folder=folder, plot=plot, sources=[str(e.source) for e in exps])
+
+
+def _pressure_sigma(ck: _Checker, ft: dict, n: int | None):
+    """``[fit] pressure_sigma``: a number, or one a chamber (3 a segment, flat or nested)."""
+    if "pressure_sigma" not in ft:
+        return None
+    f = FIT["pressure_sigma"]
+    v = ft["pressure_sigma"]
+    if isinstance(v, list):
+        arr = ck.per_segment(v, "fit.pressure_sigma", n, "Pa", bounds=f.range)
+        return None if arr is None else arr.reshape(-1)
+    return ck.number(ft, "pressure_sigma", "fit.pressure_sigma", "Pa", bounds=f.range)
 
 
 def _table_array(ck, raw: dict, name: str) -> list:

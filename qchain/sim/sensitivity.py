@@ -40,7 +40,8 @@ from .simulation import _check_env, _check_start, _check_t_eval, check_run, chec
 __all__ = ["sensitivities", "SensitivityResult", "tip_sensitivities", "PARAMETERS"]
 
 #: the parameters with derivative columns: name -> (kind code of the parameter derivatives, unit);
-#: per segment (``(name, segment)``) except gravity (``("gravity", axis)``, axis 0-2: x, y, z)
+#: per segment (``(name, segment)``) except gravity (``("gravity", axis)``, axis 0-2: x, y, z, or
+#: ``("gravity", None)``: the three axes; the pairs of :class:`qchain.arm.parameter_derivatives.Parameters`)
 PARAMETERS = {"youngs_modulus": (pd.KIND_YOUNGS, "Pa"), "damping": (pd.KIND_DAMPING, "s"),
               "mass": (pd.KIND_MASS, "kg"), "length": (pd.KIND_LENGTH, "m"), "chamber_area": (pd.KIND_AREA, "m^2"),
               "gravity": (pd.KIND_GRAVITY, "m/s^2")}
@@ -119,9 +120,16 @@ def _columns(chain: Chain, initial, params) -> tuple[list[str], np.ndarray, np.n
         raise TypeError(f"params must be a list of (name, segment) pairs, e.g. [('chamber_area', 0)], got "
                         f"{describe_value(params)}")
     kinds, index = [], []
+    expanded = []  # ("gravity", None): its three axes, as qchain.arm.parameter_derivatives.Parameters reads it
     for k, item in enumerate(params):
         if not (isinstance(item, (list, tuple)) and len(item) == 2 and isinstance(item[0], str)):
             raise TypeError(f"params[{k}] must be a (name, segment) pair, got {describe_value(item)}")
+        if item[0] == "gravity" and item[1] is None:
+            expanded += [(k, ("gravity", a)) for a in range(3)]
+        else:
+            expanded.append((k, tuple(item)))
+    done = []
+    for k, item in expanded:
         name, j = item
         if name not in PARAMETERS:
             raise ValueError(f"params[{k}]: unknown parameter {name!r}; the parameters are {tuple(PARAMETERS)}")
@@ -133,8 +141,9 @@ def _columns(chain: Chain, initial, params) -> tuple[list[str], np.ndarray, np.n
         if name == "length" and chain._locked[int(j), 0]:
             raise ValueError(f"params[{k}]: segment {int(j)} is inextensible: its length is held at q0's, not a "
                              "parameter of the run")
-        if (name, int(j)) in zip((n for n, _ in params[:k]), (int(i) for _, i in params[:k])):
+        if (name, int(j)) in done:
             raise ValueError(f"params[{k}]: ({name!r}, {int(j)}) is asked twice")
+        done.append((name, int(j)))
         kinds.append(PARAMETERS[name][0])
         index.append(int(j))
         names.append(f"{name}[{int(j)}]")
@@ -189,7 +198,8 @@ def sensitivities(chain: Chain, q0, v0, t_span, *, params=(), initial: bool = Tr
     params : list of (name, segment)
         The parameters to differentiate with respect to (:data:`PARAMETERS`): segment ``j``'s
         ``"youngs_modulus"`` (Pa), ``"damping"`` (s), ``"mass"`` (kg), ``"length"`` (rest
-        length, m), ``"chamber_area"`` (m^2), or ``("gravity", axis)`` (m/s^2).
+        length, m), ``"chamber_area"`` (m^2), or ``("gravity", axis)`` (m/s^2; ``("gravity", None)``: the
+        three axes, as :meth:`~qchain.Chain.parameters` reads it).
     initial : bool or list of str
         True: the columns of the initial state's free coordinates (``q0[i]`` in the tangent
         space, then ``v0[i]``, ``i`` in ``flatnonzero(chain.active)``); or a list of those names.
