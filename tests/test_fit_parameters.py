@@ -76,3 +76,40 @@ def test_bad_keys_and_bounds_are_refused_by_name():
         fit_parameters(raw, ["gravity[2]", "gravity[2]"])
     with pytest.raises(ValueError, match=r"bounds for 'gravity\[1\]', which is not one of the fitted keys"):
         fit_parameters(raw, ["gravity[2]"], bounds={"gravity[1]": (0, 1)})
+
+
+def test_gravity_is_named_one_way_by_the_parameters_the_sensitivities_and_the_fit():
+    """``("gravity", axis)`` is one column and ``("gravity", None)`` the three axes in turn, for
+    :meth:`Chain.parameters` (the rest poses' derivatives) and :func:`qchain.sim.sensitivities`
+    alike; the fit hands both the same pairs (``_model_params``), and their columns agree."""
+    from qchain.fit.fitting import _model_params
+    from qchain.scene.reading import parse_scene
+    from qchain.sim.sensitivity import sensitivities
+
+    raw = _raw()
+    params = fit_parameters(raw, ["segments[*].mass", "gravity[2]", "gravity[0]"])
+    pairs = _model_params(params)
+    assert pairs == [("mass", 0), ("mass", 1), ("mass", 2), ("mass", 3), ("gravity", 2), ("gravity", 0)]
+    import tomli_w
+
+    chain = parse_scene(tomli_w.dumps(raw)).build(reduce=False).chain
+    P = chain.parameters(pairs)
+    assert [n for n in P.names if n.startswith("gravity")] == ["gravity z [m/s^2]", "gravity x [m/s^2]"]
+    rng = np.random.default_rng(0)
+    q = np.tile([chain.segments[0].length, 0.0, 0.0], chain.n) + rng.normal(size=chain.nq) * np.tile([0, 1, 1], chain.n)
+    v, p = 0.1 * rng.normal(size=chain.nv), rng.uniform(0, 2e4, chain.nu)
+    one = chain.forward_dynamics_parameter_derivatives(q, v, p, [("gravity", 2)]).da_dtheta
+    all3 = chain.forward_dynamics_parameter_derivatives(q, v, p, [("gravity", None)]).da_dtheta
+    np.testing.assert_array_equal(one[:, 0], all3[:, 2])
+    with pytest.raises(ValueError, match=r"\('gravity', 1\) is named twice"):
+        chain.parameters([("gravity", None), ("gravity", 1)])
+    with pytest.raises(ValueError, match=r"axis of 'gravity' must be None \(all three\) or an int in \[0, 2\]"):
+        chain.parameters([("gravity", 3)])
+    # the sensitivities read the same pairs: ("gravity", None) is the three axes' columns
+    q0 = np.tile([chain.segments[0].length, 0.5, 0.0], chain.n)
+    a = sensitivities(chain, q0, np.zeros(chain.nv), (0.0, 0.05), params=[("gravity", None)], initial=False,
+                      method="rk4", dt=0.01)
+    b = sensitivities(chain, q0, np.zeros(chain.nv), (0.0, 0.05), params=[("gravity", k) for k in range(3)],
+                      initial=False, method="rk4", dt=0.01)
+    assert a.columns == b.columns == ["gravity[0]", "gravity[1]", "gravity[2]"]
+    np.testing.assert_array_equal(a.S, b.S)

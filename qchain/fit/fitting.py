@@ -22,7 +22,7 @@ from .dynamics import dynamic_residuals, input_noise_draws
 from .measurements import MeasurementError, Measurements, filter_pressures, pressure_noise
 from .parameters import FitParameter, _tables, column_map, fit_parameters, scene_values
 from .solve import COVARIANCES, FitResult, least_squares_fit
-from .statics import StaticPoses, static_residuals
+from .statics import StaticPoses, static_input_draws, static_residuals
 
 __all__ = ["fit", "FitReport"]
 
@@ -174,7 +174,9 @@ def fit(scene, experiments, keys, *, bounds: dict | None = None, loss: str = "li
         propagated through the model at the solution by ``input_draws`` runs under freshly
         drawn noise; the measurement noise is white. Assumes the pressure noise is white (or
         low-passed as ``pressure_filter`` says), independent of the measurement noise, small
-        enough for the model's response to it to be near linear. Static poses add no draws.
+        enough for the model's response to it to be near linear. Static poses add draws
+        (:func:`qchain.fit.statics.static_input_draws`, the equilibria's exact pressure
+        derivative) when ``pressure_sigma`` is given; their held pressures give no estimate.
         ``"iid"``: independent residuals of one standard deviation, the pressures exact.
         ``"hac"``: Newey-West, residuals correlated in time by an unknown law.
     pressure_filter : float, optional, Hz
@@ -292,8 +294,12 @@ def _pressure_noise(experiments: list, pressure_sigma, pressure_filter):
         if not (np.all(np.isfinite(ps)) and np.all(ps >= 0) and ps.ndim <= 1):
             raise ValueError(f"pressure_sigma must be finite and >= 0 (Pa, one value or one a chamber), got "
                              f"{pressure_sigma!r}")
-        noise = [np.broadcast_to(ps, (e.pressures.size,)) if isinstance(e, Measurements) else None
-                 for e in experiments]
+        noise = []
+        for e in experiments:
+            nu = e.pressures.size if isinstance(e, Measurements) else e.pressures.shape[1]
+            if ps.size not in (1, nu):
+                raise ValueError(f"pressure_sigma must be one value or {nu} (one a chamber), got {ps.size} values")
+            noise.append(np.broadcast_to(ps, (nu,)))
     if pressure_filter is not None:
         from dataclasses import replace
 
@@ -352,7 +358,8 @@ def _residual_blocks(experiments: list) -> list:
 
 def _input_draws(chain, experiments: list, noise: list, n: int, cutoff, start: str, q0, v0, rtol: float):
     """(n, m): each measured motion's :func:`~qchain.fit.dynamics.input_noise_draws` in its
-    rows, zeros in the static poses' rows (their pressures taken as exact)."""
+    rows, each set of static poses' :func:`~qchain.fit.statics.static_input_draws` when
+    ``pressure_sigma`` was given (else zeros: their pressures taken as exact)."""
     sizes = [K * rows for K, rows in _sizes(experiments)]
     out = np.zeros((n, sum(sizes)))
     at = 0
@@ -360,6 +367,8 @@ def _input_draws(chain, experiments: list, noise: list, n: int, cutoff, start: s
         if isinstance(e, Measurements):
             out[:, at:at + sz] = input_noise_draws(chain, e, s_p, n, cutoff=cutoff, start=start, q0=q0, v0=v0,
                                                    rtol=rtol)
+        elif s_p is not None:  # static poses: only with a given pressure_sigma (one pose a pressure: no estimate)
+            out[:, at:at + sz] = static_input_draws(chain, e, s_p, n)
         at += sz
     return out
 

@@ -118,7 +118,7 @@ class Measurements:
                                        f"got {c.shape}")
             if not np.all(np.isfinite(c)):
                 k, i = np.argwhere(~np.isfinite(c))[0]
-                raise MeasurementError(f"{src}: coordinate {i} of sample {k} (t = {t[k]:.6g} s) is {c[k, i]!r}: "
+                raise MeasurementError(f"{src}: coordinate {i} of sample {k} (t = {t[k]:.6g} s) is {float(c[k, i])!r}: "
                                        "measured coordinates must be finite (leave that sample out)")
             object.__setattr__(self, "coordinates", c)
         if self.coordinate_scale is not None:

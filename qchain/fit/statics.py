@@ -26,7 +26,7 @@ import numpy as np
 
 from .measurements import MeasurementError, beyond_reach, csv_columns
 
-__all__ = ["StaticPoses", "static_residuals", "rest_derivative", "read_static_csv"]
+__all__ = ["StaticPoses", "static_residuals", "rest_derivative", "read_static_csv", "static_input_draws"]
 
 
 @dataclass(frozen=True)
@@ -128,6 +128,36 @@ def static_residuals(chain, poses: StaticPoses, params, q_guess: list | None = N
         for j, (seg, alpha) in enumerate(poses.where):
             J[k, j] = chain.point_jacobian(q, seg, alpha) @ dq
     return r.reshape(-1), (J.reshape(K * m * 3, len(P)) if jacobian else None)
+
+
+def static_input_draws(chain, poses: StaticPoses, noise, n_draws: int, *, seed: int = 0) -> np.ndarray:
+    """(n_draws, K m 3) m: how the static residuals change when the held pressures' sensor noise
+    (``noise``, Pa a chamber, standard deviation) is drawn anew: ``J_point(q_k) dq_k/dp e``, with
+    ``dq/dp = -(da/dq)^-1 da/dp`` the exact derivative of the equilibrium by the implicit
+    function theorem (on the free coordinates) and ``e`` white noise, one draw a pose.
+
+    Linearised rather than re-solved: the equilibrium map ``p -> q`` is smooth, the noise small,
+    and the dynamic draws (:func:`qchain.fit.dynamics.input_noise_draws`) hold to first order in
+    the noise too; the derivative costs one linear solve a pose where re-solving costs a Newton
+    solve a pose and draw. Reproducible: draws from ``seed``."""
+    from ..arm.statics import equilibrium
+
+    free = np.flatnonzero(chain.active)
+    K, m = poses.points.shape[:2]
+    G = np.empty((K, m * 3, chain.nu))
+    zero = np.zeros(chain.nv)
+    for k in range(K):
+        p = poses.pressures[k]
+        eq = equilibrium(chain, p)
+        if not eq.success:
+            raise FloatingPointError(f"{poses.source}: pose {k}: the model has no equilibrium ({eq.message})")
+        d = chain.forward_dynamics_derivatives(eq.q, zero, p)
+        dq = np.zeros((chain.nv, chain.nu))
+        dq[free] = -np.linalg.solve(d.da_dq[np.ix_(free, free)], d.da_dp[free])
+        G[k] = np.concatenate([chain.point_jacobian(eq.q, seg, alpha) @ dq for seg, alpha in poses.where])
+    rng = np.random.default_rng(seed)
+    e = rng.normal(size=(int(n_draws), K, chain.nu)) * np.asarray(noise, dtype=float)
+    return np.einsum("krp,nkp->nkr", G, e).reshape(int(n_draws), -1)
 
 
 def read_static_csv(path, *, points: list, pressures: list[str], where=((-1, 1.0),), scale: float = 1.0) -> StaticPoses:
