@@ -136,6 +136,15 @@ def test_a_bag_and_static_poses_together(tmp_path, capsys):
     ("a missing column", STATIC_EXPERIMENT.replace('"mid_z"]', '"mid_w"]'), None,
      ["experiments[0].static_csv", "no column 'mid_w'"]),
     ("a bad loss", STATIC_EXPERIMENT + '\n[fit]\nloss = "huberr"\n', None, ["fit.loss", "did you mean 'huber'"]),
+    ("a bad covariance", STATIC_EXPERIMENT + '\n[fit]\ncovariance = "white"\n', None,
+     ["fit.covariance", "'white'", "inputs"]),
+    ("too few draws", STATIC_EXPERIMENT + '\n[fit]\ninput_draws = 1\n', None, ["fit.input_draws", ">= 2", "1"]),
+    ("a negative pressure noise", STATIC_EXPERIMENT + '\n[fit]\npressure_sigma = -3.0\n', None,
+     ["fit.pressure_sigma", ">= 0", "-3"]),
+    ("pressure noise for 2 chambers", STATIC_EXPERIMENT + '\n[fit]\npressure_sigma = [1.0, 2.0]\n', None,
+     ["fit.pressure_sigma", "9 numbers (3 a segment x 3 segments)", "2 numbers"]),
+    ("a zero cutoff", STATIC_EXPERIMENT + '\n[fit]\npressure_filter = 0.0\n', None,
+     ["fit.pressure_filter", "> 0", "0"]),
 ])
 def test_bad_fit_files_are_refused_by_key_and_write_nothing(tmp_path, capsys, case, body, parameters, words):
     _scene(tmp_path, "arm.toml", **START)
@@ -267,3 +276,35 @@ def test_a_recording_and_a_qchain_bags_tf_are_read_as_their_readers_read_them(tm
         np.testing.assert_array_equal(g.points, w.points)
         np.testing.assert_array_equal(g.pressures.values, w.pressures.values)
     assert got[0].t[-1] <= 0.05 < rec.t[-1]
+
+
+def test_the_fit_tables_noise_options_reach_fit(tmp_path, monkeypatch):
+    """``[fit]`` covariance, pressure_filter, pressure_sigma and input_draws are handed to
+    qchain.fit.fit as given; a cutoff above a motion's Nyquist frequency is refused by key."""
+    import qchain.fit.fitting as fitting
+
+    _scene(tmp_path, "arm.toml", **START)
+    _static_csv(tmp_path)
+    bag = _lab_bag(tmp_path, noise=5e-4, duration=0.3)
+    motion = f'\n[[experiments]]\nbag = "{bag.name}"\npressure_topic = "/pressures"\npose_topic = "/mocap/tip"\n'
+    seen = {}
+
+    def fake(scene, experiments, keys, **kw):  # records what it is given, then stops the command (exit 2)
+        from qchain.fit import MeasurementError
+
+        seen.update(kw)
+        raise MeasurementError("stopped here by the test")
+
+    monkeypatch.setattr(fitting, "fit", fake)
+    spec = _spec(tmp_path, STATIC_EXPERIMENT + motion + '\n[fit]\ncovariance = "hac"\npressure_filter = 10.0\n'
+                 'pressure_sigma = [100.0, 200.0, 300.0, 100.0, 200.0, 300.0, 100.0, 200.0, 300.0]\n'
+                 'input_draws = 7\n')
+    assert main(["fit", str(spec)]) == 2
+    assert seen["covariance"] == "hac" and seen["pressure_filter"] == 10.0 and seen["input_draws"] == 7
+    np.testing.assert_array_equal(seen["pressure_sigma"], [100.0, 200.0, 300.0] * 3)
+    bad = _spec(tmp_path, STATIC_EXPERIMENT + motion + '\n[fit]\npressure_filter = 30.0\n', name="bad.toml")
+    from qchain.errors import FitSpecError
+    from qchain.fit.spec import load_fit_spec
+
+    with pytest.raises(FitSpecError, match=r"fit.pressure_filter.*a cutoff below 25 Hz .*experiments\[1\].*30"):
+        load_fit_spec(bad)
