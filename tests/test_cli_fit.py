@@ -137,7 +137,7 @@ def test_a_bag_and_static_poses_together(tmp_path, capsys):
      ["experiments[0].static_csv", "no column 'mid_w'"]),
     ("a bad loss", STATIC_EXPERIMENT + '\n[fit]\nloss = "huberr"\n', None, ["fit.loss", "did you mean 'huber'"]),
     ("a bad covariance", STATIC_EXPERIMENT + '\n[fit]\ncovariance = "white"\n', None,
-     ["fit.covariance", "'white'", "inputs"]),
+     ["fit.covariance", '"white"', '"inputs"']),
     ("too few draws", STATIC_EXPERIMENT + '\n[fit]\ninput_draws = 1\n', None, ["fit.input_draws", ">= 2", "1"]),
     ("a negative pressure noise", STATIC_EXPERIMENT + '\n[fit]\npressure_sigma = -3.0\n', None,
      ["fit.pressure_sigma", ">= 0", "-3"]),
