@@ -62,6 +62,8 @@ class FitReport:
         """Each experiment's model points (K, m, 3) m, world frame, of the ``"fitted"`` or the
         ``"start"`` model: the measured points plus the residuals the fit computed there (no run
         again); None for an experiment that measured no points (coordinates only)."""
+        from .report import split_residuals
+
         rs = self.residuals if which == "fitted" else self.start_residuals
         return [split_residuals(e, r)[0] if e.points is None else e.points + split_residuals(e, r)[0]
                 for e, r in zip(self.experiments, rs)]
@@ -70,6 +72,8 @@ class FitReport:
         """Each measured motion's model coordinates (K, nc) at its used coordinates
         (``e.coordinate_index``; SI units), of the ``"fitted"`` or the ``"start"`` model, as
         :meth:`predicted`; None for an experiment without measured coordinates."""
+        from .report import split_residuals
+
         rs = self.residuals if which == "fitted" else self.start_residuals
         out = []
         for e, r in zip(self.experiments, rs):
@@ -306,17 +310,6 @@ def _pressure_noise(experiments: list, pressure_sigma, pressure_filter):
         experiments = [replace(e, pressures=filter_pressures(e.pressures, pressure_filter))
                        if isinstance(e, Measurements) else e for e in experiments]
     return experiments, noise
-
-
-def split_residuals(e, r: np.ndarray):
-    """An experiment's residuals (K rows,) as its points' part (K, m, 3) m and its coordinates'
-    part (K, nc) (scaled, m), each None when it measured none."""
-    K = e.points.shape[0] if isinstance(e, StaticPoses) else e.n_samples
-    R = np.asarray(r, dtype=float).reshape(K, -1)
-    m = 0 if e.points is None else e.points.shape[1]
-    pts = R[:, :3 * m].reshape(K, m, 3) if m else None
-    crd = R[:, 3 * m:] if (isinstance(e, Measurements) and e.coordinates is not None) else None
-    return pts, crd
 
 
 def _resolve_coordinates(chain, experiments: list) -> tuple[list, list]:

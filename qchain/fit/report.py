@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["summary_lines", "report_dict", "plot_report", "experiment_rms", "FIGURE_WIDTH", "FIGURE_HEIGHT"]
+__all__ = ["summary_lines", "report_dict", "plot_report", "experiment_rms", "split_residuals", "FIGURE_WIDTH", "FIGURE_HEIGHT"]
 
 #: The picture's size (inches) a column (one experiment) and its height.
 FIGURE_WIDTH, FIGURE_HEIGHT = 6.0, 8.0
@@ -33,12 +33,24 @@ def _kind(e) -> str:
     return "static" if isinstance(e, StaticPoses) else "dynamic"
 
 
+def split_residuals(e, r: np.ndarray):
+    """An experiment's residuals (K rows,) as its points' part (K, m, 3) m and its coordinates'
+    part (K, nc) (scaled, m), each None when it measured none."""
+    from .measurements import Measurements
+    from .statics import StaticPoses
+
+    K = e.points.shape[0] if isinstance(e, StaticPoses) else e.n_samples
+    R = np.asarray(r, dtype=float).reshape(K, -1)
+    m = 0 if e.points is None else e.points.shape[1]
+    pts = R[:, :3 * m].reshape(K, m, 3) if m else None
+    crd = R[:, 3 * m:] if (isinstance(e, Measurements) and e.coordinates is not None) else None
+    return pts, crd
+
+
 def _rms(e, r: np.ndarray) -> float:
     """The RMS residual (m) of experiment ``e``'s residuals ``r``: sqrt of the mean, over its
     measured items, of each one's squared residual -- a point's distance, a coordinate's scaled
     residual (:func:`qchain.fit.measurements.coordinate_scale`)."""
-    from .fitting import split_residuals
-
     pts, crd = split_residuals(e, r)
     sq = []
     if pts is not None:
@@ -51,8 +63,6 @@ def _rms(e, r: np.ndarray) -> float:
 
 def _sample_error(e, r: np.ndarray) -> np.ndarray:
     """(K,) m: a sample's largest item residual (a point's distance or a scaled coordinate's)."""
-    from .fitting import split_residuals
-
     pts, crd = split_residuals(e, r)
     parts = []
     if pts is not None:
