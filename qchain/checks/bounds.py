@@ -186,6 +186,11 @@ RETRIES = Range(0, 100, integer=True)  #: runs of a rollout again after its work
 #: (3e13), small enough that no product with the model's quantities overflows.
 FORCE = Range(-1e15, 1e15)
 
+# -- environments (qchain.envs): a reaching task's settings
+REWARD_WEIGHT = Range(0.0, 1e6, "m")  #: weight of the pressure effort in a reward measured in metres
+PENALTY = Range(0.0, 1e9, "m")  #: what leaving the model's domain costs, in the reward's metres
+ENV_COUNT = Range(1, 4096, integer=True)  #: sub-environments of a vectorised environment
+
 # -- contact (qchain.contact): obstacles and the contact law
 EXTENT = Range(0.0, 1e4, "m", low_open=True)  #: an obstacle's radius, half-extent or length
 CONTACT_STIFFNESS = Range(0.0, 1e15, "N/m^(1+exponent)", low_open=True)  #: normal force per metre of tube
