@@ -278,6 +278,40 @@ def test_a_recording_and_a_qchain_bags_tf_are_read_as_their_readers_read_them(tm
     assert got[0].t[-1] <= 0.05 < rec.t[-1]
 
 
+def test_coordinates_through_the_fit_file_are_read_as_their_readers_read_them(tmp_path, recorded):  # noqa: F811
+    """``measure = "coordinates"`` on a recording and ``coordinates`` columns in a CSV, each
+    with a ``coordinate_scale``: the experiments read_qchain and read_csv give for the same
+    arguments (coordinates, scale, no points where none were asked)."""
+    from qchain.fit import read_csv, read_qchain
+    from qchain.fit.spec import load_fit_spec
+
+    rec, _, _ = recorded
+    _scene(tmp_path, "arm.toml", **START)
+    t = np.arange(0.0, 0.5, 0.01)
+    names = [f"q{i}" for i in range(6)]
+    rows = ["time," + ",".join(names) + "," + ",".join(f"p{i}" for i in range(9))]
+    for k, tk in enumerate(t):
+        q = [0.1 + 0.01 * k, 0.5 * np.sin(tk), 0.0, 0.1, -0.2 * tk, 0.3]
+        rows.append(f"{tk:.6f}," + ",".join(f"{v:.9g}" for v in q) + "," + ",".join(["1000"] * 9))
+    (tmp_path / "coords.csv").write_text("\n".join(rows) + "\n")
+    spec = _spec(tmp_path, f'[[experiments]]\nrecording = "{rec.path}"\nmeasure = "coordinates"\nstop = 0.05\n'
+                 'coordinate_scale = 0.02\n\n'
+                 '[[experiments]]\ncsv = "coords.csv"\ntime = "time"\ncoordinates = ["q0", "q1", "q2", "q3", "q4", "q5"]\n'
+                 'pressures = ["p0", "p1", "p2", "p3", "p4", "p5", "p6", "p7", "p8"]\nstop = 0.3\n')
+    got = load_fit_spec(spec).experiments
+    want = [read_qchain(rec.path, measure="coordinates", stop=0.05, coordinate_scale=0.02),
+            read_csv(tmp_path / "coords.csv", time="time", coordinates=names,
+                     pressures=[f"p{i}" for i in range(9)], stop=0.3)]
+    for g, w in zip(got, want):
+        np.testing.assert_array_equal(g.t, w.t)
+        assert g.points is None and w.points is None
+        np.testing.assert_array_equal(g.coordinates, w.coordinates)
+        np.testing.assert_array_equal(np.asarray(g.coordinate_scale, dtype=float),
+                                      np.asarray(w.coordinate_scale, dtype=float))
+    assert got[1].coordinates.shape == (31, 6) and got[1].coordinates[10, 0] == 0.2
+    np.testing.assert_array_equal(got[0].coordinates, rec.q[rec.t <= 0.05])
+
+
 def test_the_fit_tables_noise_options_reach_fit(tmp_path, monkeypatch):
     """``[fit]`` covariance, pressure_filter, pressure_sigma and input_draws are handed to
     qchain.fit.fit as given; a cutoff above a motion's Nyquist frequency is refused by key."""
