@@ -190,7 +190,22 @@ def _compile() -> None:
             ch = model.chain
             np.array([ch.tip_placement(q, t=t).translation for t, q in zip(traj.t, traj.q)])
             ch.backbone(traj.q[-1], 16, t=traj.t[-1])
+            batch_warm_up(model)
     compile_all([DEFAULT_METHOD], stream=None)  # waits for the workers, loads what they cached
+
+
+def batch_warm_up(model) -> None:
+    """Two rollouts of ``model`` in one batch with the default method and built-in pressure
+    schedules: compiles :func:`qchain.sim.engine.batched.run_rollouts` (the compiled loop a
+    thread of ``simulate_batch``) for this kernel into numba's cache, so a user's first
+    batch does not wait for it."""
+    import numpy as np
+
+    from qchain import simulate_batch
+
+    ch = model.chain
+    simulate_batch(ch, model.q0, model.v0, (0.0, 0.01), pressure=np.zeros((2, ch.nu)), t_eval=[0.0, 0.01],
+                   workers=1)
 
 
 if __name__ == "__main__":

@@ -80,9 +80,9 @@ def test_a_failing_warm_up_never_fails_the_install_and_says_why(tmp_path, capsys
 
 @pytest.mark.slow
 def test_after_the_install_s_warm_up_the_readme_example_compiles_nothing(tmp_path):
-    """The warm-up into an empty numba cache, then the README's example in a new process with
-    that cache: no part of the engine announced as compiled on stderr, and numba compiled
-    nothing (every function it needed was in the cache)."""
+    """The warm-up into an empty numba cache, then the README's example and a first batch on
+    threads in a new process with that cache: no part of the engine announced as compiled on
+    stderr, and numba compiled nothing (every function it needed was in the cache)."""
     env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "cache"), MPLBACKEND="Agg")
     env.pop("PYTHONPATH", None)
     b = _backend()
@@ -97,6 +97,13 @@ def test_after_the_install_s_warm_up_the_readme_example_compiles_nothing(tmp_pat
             f"sys.argv = ['wave_arm.py', '--quick', '--out', {str(tmp_path / 'out')!r}]\n"
             f"sys.path.insert(0, {str(ROOT / 'examples')!r})\n"
             f"runpy.run_path({str(ROOT / 'examples' / 'wave_arm.py')!r}, run_name='__main__')\n"
+            # a user's first batch on threads: the compiled loop of simulate_batch is cached too
+            "import numpy as np\n"
+            "from qchain import load_scene, simulate_batch\n"
+            f"m = load_scene({str(ROOT / 'examples' / 'scenes' / 'wave_arm.toml')!r}).build()\n"
+            "P = np.linspace(0.0, 2e4, 4)[:, None] * np.ones(m.chain.nu)\n"
+            "b = simulate_batch(m.chain, m.q0, m.v0, (0.0, 0.02), pressure=P, t_eval=np.linspace(0, 0.02, 5), workers=2)\n"
+            "assert b.meta['loop'] == 'compiled', b.meta\n"
             "print('compiled:', compiled)\n")
     p = subprocess.run([sys.executable, "-c", code], env=dict(env, PYTHONPATH=str(ROOT)), cwd=str(tmp_path),
                        capture_output=True, text=True, timeout=1800)
