@@ -62,10 +62,15 @@ def allocate(B: np.ndarray, tau: np.ndarray, p_min: float, p_max: float, penalty
     ``[p_min, p_max]`` Pa with the least-pressure penalty ``penalty`` (units of ``B``);
     see the module docstring. The arguments are the caller's checked arrays."""
     m = B.shape[1]
-    A = np.vstack([B, penalty * np.eye(m)])
-    b = np.concatenate([tau, np.zeros(m)])
-    res = lsq_linear(A, b, bounds=(p_min, p_max), method="bvls")
-    p = np.clip(res.x, p_min, p_max)  # bvls returns the bounds themselves; clip guards round-off
+    # Solved in units where the pressures and B's entries are of order one: lsq_linear's
+    # tolerances are absolute-ish, and B of ~1e-8 N m^2/Pa with p of ~1e4 Pa otherwise stops
+    # it far from the optimum (same minimiser: the objective is scaled by bs^2).
+    ps = max(abs(p_min), abs(p_max))
+    bs = max(float(np.abs(B).max()) * ps, np.finfo(float).tiny)
+    A = np.vstack([B * (ps / bs), (penalty * ps / bs) * np.eye(m)])
+    b = np.concatenate([tau / bs, np.zeros(m)])
+    res = lsq_linear(A, b, bounds=(p_min / ps, p_max / ps), method="bvls")
+    p = np.clip(res.x * ps, p_min, p_max)  # bvls returns the bounds themselves; clip guards round-off
     realised = B @ p
     residual = float(np.linalg.norm(realised - tau))
     return Allocation(p=p, realised=realised, residual=residual, at_lower=int(np.count_nonzero(p <= p_min)),
