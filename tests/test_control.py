@@ -46,3 +46,47 @@ def test_the_allocation_stays_within_bounds_and_realises_a_reachable_force():
     assert a.residual < 1e-4 and not a.saturated
     far = allocate(B, 100.0 * B @ p_true, 0.0, 1.0, 1e-6)  # 100 times what the bounds allow
     assert np.all(far.p <= 1.0) and far.saturated and far.at_upper > 0
+
+
+# -- closed-loop validation on a small arm (2 inextensible segments, short runs)
+
+def _targets(ch):
+    """A static target the chambers can hold (the equilibrium under admissible pressures)
+    and a start away from it (the equilibrium under half of them)."""
+    from qchain.arm.statics import equilibrium
+
+    p_eq = np.array([1e4, 0.0, 0.0, 0.0, 1e4, 0.0])
+    return equilibrium(ch, p_eq).q, equilibrium(ch, 0.5 * p_eq).q
+
+
+def _critical_damping(ch, q, Kp):
+    """Kd_i = 2 sqrt(Kp M_ii) on the free coordinates: each coordinate's PD critically damped
+    on its own inertia (the couplings aside)."""
+    a = np.flatnonzero(ch.active)
+    return 2.0 * np.sqrt(Kp * np.diag(ch.mass_matrix(q))[a])
+
+
+def _controllers(ch, q_d, q0):
+    from qchain.control import TipPD, TipTracking
+
+    x_d = ch.tip_placement(q_d).translation
+    x0 = ch.tip_placement(q0).translation
+    Kd = _critical_damping(ch, q_d, 1e-3)
+    return [
+        PDCompensation(ch, q_d, Kp=1e-3, Kd=Kd, rate=500.0, p_max=5e4),
+        SlotineLi(ch, q_d, K=Kd, Lambda=10.0, rate=500.0, p_max=5e4),
+        TipPD(ch, x_d, Kp=1.0, Kd=0.05, rate=500.0, p_max=5e4),
+        TipTracking(ch, lambda t: x0 + (x_d - x0) * t / 0.3, 0.3, q0, K=Kd, Lambda=10.0, rate=500.0, p_max=5e4),
+    ]
+
+
+@pytest.mark.parametrize("which", range(4))
+def test_every_controller_keeps_its_pressures_within_bounds_in_closed_loop(which):
+    ch = _chain()
+    q_d, q0 = _targets(ch)
+    ctl = _controllers(ch, q_d, q0)[which]
+    ctl.run(q0, np.zeros(ch.nv), 0.3)
+    s = ctl.signals()
+    assert s["p"].shape == (len(s["t"]), 6) and len(s["t"]) >= 0.3 * ctl.rate - 1
+    assert np.all(np.isfinite(s["p"]))
+    assert s["p"].min() >= ctl.p_min and s["p"].max() <= ctl.p_max
