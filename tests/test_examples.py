@@ -143,3 +143,17 @@ def test_calibrate(examples, tmp_path, capsys):
     fitted = load_scene(out["fitted"]).build(reduce=False).chain
     assert fitted.segments[0].youngs_modulus == pytest.approx(res.x[0], rel=1e-9)
     assert "fitted - hidden, in standard errors" in capsys.readouterr().out
+
+
+def test_reach_env(examples, tmp_path, capsys):
+    """The tracking policy ends closer to the target and with a higher return than the random
+    one, episode by episode (the same seeds: the same targets)."""
+    pytest.importorskip("gymnasium")
+    out = examples("reach_env").main(["--quick", "--out", str(tmp_path)])
+    assert is_png(out["png"]) and out["png"].parent == tmp_path
+    track, rand = out["results"]["tracking"], out["results"]["random"]
+    assert len(track) == len(rand) == 2
+    for a, b in zip(track, rand):
+        assert np.array_equal(a["target"], b["target"])
+        assert a["distance"] < 0.5 * b["distance"] and a["ret"] > b["ret"]
+    assert "final distance" in capsys.readouterr().out
