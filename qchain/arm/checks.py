@@ -93,8 +93,7 @@ class ChainChecks:
                 q_c = paper_to_curvature(q_e[j]) if self._paper[j] else q_e[j]
                 M = s._mass_c(np.ascontiguousarray(q_c, dtype=float))
                 J = paper_jacobian(q_e[j]) if self._paper[j] else np.eye(3)
-                vc = None if v_e is None else J @ v_e[j]
-                T = 0.0 if vc is None else _quadratic_form(M[6:, 6:], vc)
+                T = 0.0 if v_e is None else _quadratic_form(M[6:, 6:], J, v_e[j])
                 U = Segment.elastic_energy.__wrapped__(s, q_e[j])
                 what = [w for w, ok in (("mass matrix", np.all(np.isfinite(M))),
                                         (f"kinetic energy {T:.3g} J", np.isfinite(T) or not np.all(np.isfinite(M))),
@@ -281,13 +280,13 @@ class ChainChecks:
         return p3, tau, extra
 
 
-def _quadratic_form(M: np.ndarray, v: np.ndarray) -> float:
-    """``1/2 v^T M v`` for a positive-definite ``M``, computed on ``v`` scaled to unit size:
-    a ``v`` whose square overflows gives +inf (not the nan of inf - inf that the plain
-    product's order of summation may give)."""
+def _quadratic_form(M: np.ndarray, J: np.ndarray, v: np.ndarray) -> float:
+    """``1/2 (J v)^T M (J v)`` for a positive-definite ``M``, computed on ``v`` scaled to unit
+    size: a ``v`` whose square overflows gives +inf, not the nan of inf - inf that the plain
+    products' order of summation may give."""
     s = float(np.max(np.abs(v))) if v.size else 0.0
     if s == 0.0 or not np.isfinite(s):
-        return 0.5 * float(v @ M @ v)
-    u = v / s
-    return 0.5 * float(u @ M @ u) * s * s
-
+        w = J @ v
+        return 0.5 * float(w @ M @ w)
+    w = J @ (v / s)
+    return 0.5 * float(w @ M @ w) * s * s
