@@ -29,19 +29,27 @@ def _pressures(t):
     return p
 
 
-def _lab_bag(tmp_path: Path, noise: float, seed: int = 0, duration: float = 1.0) -> Path:
-    """The true scene run from rest, its tip at 100 Hz with ``noise`` (m), pressures at 50 Hz."""
+def _true_run(tmp_path: Path, duration: float, **scene):
+    """The true scene (``scene``: its values changed) run from rest at its first pressures'
+    equilibrium: ``(chain, t_p, table, t, traj)``, pressures at 50 Hz on ``t_p``, samples at
+    100 Hz on ``t`` (dopri5, rtol 1e-10)."""
     from qchain import equilibrium, simulate
     from qchain.scene.reading import load_scene
     from qchain.sim.inputs import Table
 
-    chain = load_scene(_scene(tmp_path, "truth.toml")).build(reduce=False).chain
+    chain = load_scene(_scene(tmp_path, "truth.toml", **scene)).build(reduce=False).chain
     t_p = np.arange(0.0, duration + 1e-9, 0.02)
     table = Table(t_p, _pressures(t_p))
     q0 = equilibrium(chain, table(0.0)).q
     t = np.arange(0.005, duration, 0.01)
     traj = simulate(chain, q0, np.zeros(chain.nv), (0.0, duration), pressure=table, method="dopri5", rtol=1e-10,
                     atol=1e-12, t_eval=t)
+    return chain, t_p, table, t, traj
+
+
+def _lab_bag(tmp_path: Path, noise: float, seed: int = 0, duration: float = 1.0) -> Path:
+    """The true scene run from rest, its tip at 100 Hz with ``noise`` (m), pressures at 50 Hz."""
+    chain, t_p, table, t, traj = _true_run(tmp_path, duration)
     tip = np.array([chain.points(q, [(-1, 1.0)])[0] for q in traj.q])
     tip += noise * np.random.default_rng(seed).normal(size=tip.shape)
     path = tmp_path / f"lab-{seed}.mcap"
@@ -131,18 +139,9 @@ def test_the_fits_noise_options_are_checked_where_they_enter(tmp_path):
 def _coordinate_run(tmp_path, noise_l: float, noise_u: float, seed: int = 0, duration: float = 1.0, **scene):
     """The true scene run from rest; its coordinates at 100 Hz with noise (m for l, 1/m for ux,
     uy), its pressures at 50 Hz: a Measurements of coordinates."""
-    from qchain import equilibrium, simulate
     from qchain.fit import Measurements
-    from qchain.scene.reading import load_scene
-    from qchain.sim.inputs import Table
 
-    chain = load_scene(_scene(tmp_path, "truth.toml", **scene)).build(reduce=False).chain
-    t_p = np.arange(0.0, duration + 1e-9, 0.02)
-    table = Table(t_p, _pressures(t_p))
-    q0 = equilibrium(chain, table(0.0)).q
-    t = np.arange(0.005, duration, 0.01)
-    traj = simulate(chain, q0, np.zeros(chain.nv), (0.0, duration), pressure=table, method="dopri5", rtol=1e-10,
-                    atol=1e-12, t_eval=t)
+    chain, _, table, t, traj = _true_run(tmp_path, duration, **scene)
     rng = np.random.default_rng(seed)
     sd = np.tile([noise_l, noise_u, noise_u], chain.n)
     q = traj.q + sd * rng.normal(size=traj.q.shape)

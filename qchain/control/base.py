@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import os
 import time
+from abc import ABC, abstractmethod
 
 import numpy as np
 
@@ -46,7 +47,7 @@ def gain(name: str, value, size: int) -> np.ndarray:
     return arr
 
 
-class Controller:
+class Controller(ABC):
     """Base of the controllers of :mod:`qchain.control`: ``(t, q, v) -> p`` (3 n,) Pa.
 
     Parameters
@@ -98,10 +99,10 @@ class Controller:
         self._records: list[dict] = []
 
     # -- what a subclass writes
+    @abstractmethod
     def torque(self, t: float, q: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, dict]:
         """``(tau, signals)``: the wanted force on the free coordinates (k,) and the
         controller's own signals at this call (name -> array or number)."""
-        raise NotImplementedError
 
     # -- the callable simulate samples
     def __call__(self, t, q, v) -> np.ndarray:

@@ -17,7 +17,14 @@ from ..arm.chain import Chain
 from ..checks.bounds import DURATION, SAMPLE_RATE
 from ..checks.convert import as_real, as_vector, describe_value
 
-__all__ = ["ConfigurationReference", "TipReference", "TipPathReference", "tip_inverse_kinematics"]
+__all__ = ["ConfigurationReference", "TipReference", "TipPathReference", "tip_inverse_kinematics", "path_point"]
+
+
+def path_point(path: Callable, t: float) -> np.ndarray:
+    """A tip path's point (3,) m at ``t``, world frame: ``path(t)`` is the point or
+    ``(x, xdot)`` (the first is used); checked (shape, finite), naming ``path(t=...)``."""
+    out = path(t)
+    return as_vector(f"path(t={t:g})", out[0] if isinstance(out, tuple) else out, 3)
 
 
 class ConfigurationReference:
@@ -125,9 +132,7 @@ class TipPathReference:
         ts = np.linspace(self.t0, self.t1, K)
         Q = np.empty((K, chain.nq))
         for k, t in enumerate(ts):
-            out = path(t)
-            x = as_vector(f"path(t={t:g})", out[0] if isinstance(out, tuple) else out, 3)
-            Q[k] = tip_inverse_kinematics(chain, x, Q[k - 1] if k else q_home)
+            Q[k] = tip_inverse_kinematics(chain, path_point(path, t), Q[k - 1] if k else q_home)
         self.times, self.configurations = ts, Q
         self._spline = CubicSpline(ts, Q, axis=0)
         self._d1, self._d2 = self._spline.derivative(1), self._spline.derivative(2)

@@ -10,13 +10,11 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
-import numpy as np
-
 from ..arm.chain import Chain
 from ..checks.convert import as_real
 from .base import Controller
 from .configuration import SlotineLi
-from .references import TipPathReference, TipReference
+from .references import TipPathReference, TipReference, path_point
 
 __all__ = ["TipPD", "TipTracking"]
 
@@ -111,7 +109,6 @@ class TipTracking(SlotineLi):
 
     def torque(self, t, q, v):
         tau, sig = super().torque(t, q, v)
-        out = self.path(t)
-        sig["x_d"] = np.asarray(out[0] if isinstance(out, tuple) else out, dtype=float)
+        sig["x_d"] = path_point(self.path, t)
         sig["x"] = self.chain.tip_placement(q).translation
         return tau, sig
