@@ -11,12 +11,12 @@ target ``x_d`` by a spring ``Kp`` with a damper ``Kd``, and ``c v`` damps the mo
 tip does not see. With the skew-symmetry of ``dM/dt - 2C`` the energy
 ``V = 1/2 v^T M v + 1/2 e^T Kp e`` has ``dV/dt = -xdot^T Kd xdot - c v^T v - v^T D v <= 0``
 (``D`` the material damping), so the arm comes to rest with ``J^T Kp e = 0``: on the
-target. The controller runs at CONTROL_RATE (500 Hz), its pressures held between samples
-(``controller_rate``: the arm is integrated in compiled code between them). The pressures
-that realise ``tau`` solve ``B(q) p = tau`` in the least-squares
-sense with ``0 <= p <= p_max`` (``scipy.optimize.lsq_linear``, with a small penalty on
-``p``: equal pressure in a segment's three chambers does not bend it, so the least
-pressure is taken).
+target. It is :class:`qchain.control.TipPD` (docs/control.md), running at CONTROL_RATE
+(500 Hz), its pressures held between samples (``controller_rate``: the arm is integrated in
+compiled code between them). The pressures that realise ``tau`` solve ``B(q) p = tau`` in
+the least-squares sense with ``0 <= p <= p_max`` (:func:`qchain.control.allocate`: bounded
+least squares with a small penalty on ``p``: equal pressure in a segment's three chambers
+does not bend it, so the least pressure is taken).
 
 The default target is the tip of the static shape under a pressure set (so it is
 reachable with admissible pressures); ``--target X Y Z`` (mm, world) picks another.
@@ -32,46 +32,17 @@ import time
 
 import matplotlib.pyplot as plt
 import numpy as np
-from scipy.optimize import lsq_linear
 
 import _common
 from qchain import equilibrium
+from qchain.control import TipPD
 
 KP = 20.0  # N/m, tip spring
 KD = 2.0  # N s/m, tip damper
 C_NULL = 2e-5  # N m^2 s, damping of the coordinates (ux, uy rates, 1/(m s))
 CONTROL_RATE = 500.0  # Hz: sampled and held between samples, as a real controller runs
 P_MAX = 1.0e5  # Pa, largest chamber pressure
-P_PENALTY = 1e-11  # N m^2/Pa: weight of |p| in the least squares (B is ~4e-8 N m^2/Pa)
 TARGET_PRESSURES = [0.0, 6e4, 0.0] * 3  # Pa: chamber 2 of every segment: the default target's shape
-
-
-class TipController:
-    """``(t, q, v) -> p`` (3 n,) Pa for a fixed-base chain; see the module docstring."""
-
-    def __init__(self, chain, target):
-        self.ch = chain
-        self.target = np.asarray(target, dtype=float)
-        self.idx = np.flatnonzero(chain.active)
-        self.worst_residual = 0.0  # N m^2: largest |B p - tau| over the calls
-
-    def torque(self, q, v):
-        ch = self.ch
-        J = ch.tip_jacobian(q, "local_world_aligned")[:3]  # tip origin velocity, world axes
-        x = ch.tip_placement(q).translation
-        xdot = J @ v
-        tau = ch.generalized_gravity(q) + ch.elastic_force(q) + J.T @ (KP * (self.target - x) - KD * xdot) - C_NULL * v
-        return tau[self.idx]
-
-    def __call__(self, t, q, v):
-        tau = self.torque(q, v)
-        B = self.ch.input_matrix(q)[self.idx]
-        A = np.vstack([B, P_PENALTY * np.eye(B.shape[1])])
-        b = np.concatenate([tau, np.zeros(B.shape[1])])
-        res = lsq_linear(A, b, bounds=(0.0, P_MAX), method="bvls")
-        p = res.x
-        self.worst_residual = max(self.worst_residual, float(np.abs(B @ p - tau).max()))
-        return p
 
 
 def main(argv=None) -> dict:
@@ -94,7 +65,7 @@ def main(argv=None) -> dict:
     print(f"target ({', '.join(f'{x * 1e3:.1f}' for x in target)}) mm, tip starts "
           f"{np.linalg.norm(target - x0) * 1e3:.1f} mm away")
     T = _common.duration(args, sc, quick=0.3)
-    ctl = TipController(ch, target)
+    ctl = TipPD(ch, target, Kp=KP, Kd=KD, c=C_NULL, rate=CONTROL_RATE, p_max=P_MAX)
     t0 = time.perf_counter()
     traj = sc.simulate(model=model, duration=T, pressure=ctl, controller_rate=CONTROL_RATE)
     wall = time.perf_counter() - t0
@@ -106,7 +77,7 @@ def main(argv=None) -> dict:
     print(f"simulated {traj.t[-1]:g} s in {wall:.3g} s wall; tip error {err[0] * 1e3:.1f} mm -> {err[-1] * 1e3:.4f} mm; "
           + (f"within 1 mm from t = {settle:.3g} s" if settle is not None else "not yet within 1 mm"))
     print(f"largest pressure {traj.p.max() / 1e3:.1f} kPa (limit {P_MAX / 1e3:g}); largest |B p - tau| "
-          f"{ctl.worst_residual:.2g} N m^2 (nonzero where the pressure limits bind)")
+          f"{ctl.signals()['residual'].max():.2g} N m^2 (nonzero where the pressure limits bind)")
 
     fig, axes = plt.subplots(3, 1, figsize=(8, 9), sharex=True)
     axes[0].semilogy(traj.t, np.maximum(err * 1e3, 1e-6))

@@ -84,6 +84,35 @@ def test_tip_control(examples, tmp_path, capsys):
     assert "tip error" in capsys.readouterr().out
 
 
+
+def test_track_circle(examples, tmp_path, capsys):
+    """A short run of every controller on both arms: the RMS tip error it reports is the one
+    recomputed from the saved states (forward kinematics against the circle), the pressures
+    saved stay within the bounds, and the table is printed."""
+    mod = examples("track_circle")
+    out = mod.main(["--duration", "0.1", "--out", str(tmp_path)])
+    assert is_png(out["png"]) and out["png"].parent == tmp_path
+    ch, circle = out["chain"], out["circle"]
+    res = out["results"]
+    assert [(r["name"], r["case"]) for r in res] == [(n, c) for n, _ in mod.CONTROLLERS for c in ("matched", "mismatched")]
+    printed = capsys.readouterr().out
+    for r in res:
+        run = np.load(tmp_path / f"{r['key']}.npz")
+        assert math.isclose(run["t"][-1], 0.1)
+        tip = np.array([ch.tip_placement(q).translation for q in run["q"]])
+        rms = np.sqrt(np.mean(np.sum((tip - circle.point(run["t"])) ** 2, axis=1)))
+        assert r["rms_mm"] == pytest.approx(rms * 1e3, rel=1e-12)
+        assert f"{r['rms_mm']:.3f}" in printed
+        assert np.all(run["p"] >= 0.0) and np.all(run["p"] <= mod.P_MAX)
+        sig = np.load(tmp_path / f"{r['key']}-signals.npz")
+        assert len(sig["t"]) >= 0.1 * mod.RATE and np.all(sig["p"] >= 0.0) and np.all(sig["p"] <= mod.P_MAX)
+        assert r["compute_us"] == pytest.approx(np.median(sig["compute_s"]) * 1e6)
+        assert r["p_rms_kpa"] == pytest.approx(np.sqrt(np.mean(run["p"] ** 2)) / 1e3)
+    # the mismatched arm: moduli one standard error up and 20 g at the tip
+    plant = mod.mismatched(ch)
+    assert plant.payload.mass == pytest.approx(0.02)
+    assert plant.segments[0].youngs_modulus == pytest.approx(ch.segments[0].youngs_modulus * (1 + mod.E_REL_STDERR))
+
 @pytest.mark.slow
 def test_an_example_runs_as_a_script(tmp_path):
     r = subprocess.run([sys.executable, str(EXAMPLES / "moving_base.py"), "--duration", "0.05", "--out", str(tmp_path)],
