@@ -233,6 +233,7 @@ def main(argv=None) -> dict:
         ax.plot(r["t"], err, styles[r["case"]], color=f"C{i // 2}", lw=1,
                 label=f"{r['name']}, {r['case']} (RMS {r['rms_mm']:.2f} mm)")
     ax.set_yscale("log")
+    ax.set_ylim(bottom=1e-2)  # the runs start on the circle: 1e-14 mm at t = 0 would squash the rest
     ax.set_ylabel("|tip - circle| (mm)")
     ax.legend(fontsize=7, ncol=2)
     ax = fig.add_subplot(gs[2, :])

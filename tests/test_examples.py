@@ -113,6 +113,33 @@ def test_track_circle(examples, tmp_path, capsys):
     assert plant.payload.mass == pytest.approx(0.02)
     assert plant.segments[0].youngs_modulus == pytest.approx(ch.segments[0].youngs_modulus * (1 + mod.E_REL_STDERR))
 
+
+def test_reach_obstacle(examples, tmp_path, capsys):
+    """A short run: the straight approach runs into the ball and is held by it (the contact
+    force it reports is the one of the arm's contacts; the tip's backbone point stays outside
+    the ball, the tip no nearer the target than half the start's distance), the via-point
+    approach heads for its first via point without touching; the pressures stay within the bounds."""
+    mod = examples("reach_obstacle")
+    out = mod.main(["--quick", "--out", str(tmp_path)])
+    assert is_png(out["png"]) and out["png"].parent == tmp_path
+    ch, env, vias = out["chain"], out["env"], out["vias"]
+    straight, by_via = out["results"]["straight"], out["results"]["via points"]
+    for r in (straight, by_via):
+        traj = r["trajectory"]
+        assert traj.success and math.isclose(traj.t[-1], 0.5)
+        assert np.all(traj.p >= 0.0) and np.all(traj.p <= mod.P_MAX)
+        ball = env.obstacles[0]
+        assert np.linalg.norm(r["tip"] - ball.center, axis=1).min() > ball.radius
+    k = int(np.argmax(straight["force"]))
+    traj = straight["trajectory"]
+    c = ch.contacts(traj.q[k], traj.v[k], env)
+    assert straight["force"].max() > 0.5 and straight["force"][k] == pytest.approx(np.linalg.norm(c.force.sum(axis=0)))
+    assert straight["error"][-1] > 0.5 * straight["error"][0]
+    assert np.all(by_via["force"] == 0.0)
+    d = np.linalg.norm(by_via["tip"][by_via["trajectory"].t < mod.SWITCHES[0]] - vias[0], axis=1)
+    assert d[-1] < 0.5 * d[0]
+    assert "final tip error" in capsys.readouterr().out
+
 @pytest.mark.slow
 def test_an_example_runs_as_a_script(tmp_path):
     r = subprocess.run([sys.executable, str(EXAMPLES / "moving_base.py"), "--duration", "0.05", "--out", str(tmp_path)],
