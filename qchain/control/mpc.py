@@ -234,7 +234,7 @@ class MPC(Controller):
         track = sum(0.5 * w[j] * np.sum((self._tip(S[j]) - Xd[j]) ** 2) for j in range(1, self.horizon + 1))
         cost = track + 0.5 * self.R * self._scale**2 * float(np.sum(U * U))
         if not np.isfinite(cost) or not np.all(np.isfinite(S)):
-            raise NonFiniteError(f"MPC: the planned motion left finite numbers (cost {cost:g}); the plan's pressures "
+            raise NonFiniteError(f"MPC: the planned motion has non-finite entries (cost {cost:g}); the plan's pressures "
                                  f"range {U.min() * self._scale:g} to {U.max() * self._scale:g} Pa")
         return float(cost)
 
