@@ -19,7 +19,7 @@ __all__ = ["Range", "LENGTH", "RADIUS", "MASS", "CHAMBER_AREA", "CHAMBER_RADIUS"
            "FREQUENCY", "PRESSURE", "PRESSURE_AMPLITUDE", "TIME", "DURATION", "STEP", "RTOL", "ATOL", "SAMPLE_RATE",
            "NODE_TOLERANCE", "MAX_BEND", "LENGTH_TOLERANCE", "WALL_LIMIT", "VACUUM_GAUGE", "SEGMENT_COUNT", "WORKERS", "RETRIES",
            "EXTENT", "CONTACT_STIFFNESS", "CONTACT_EXPONENT", "CONTACT_DAMPING", "FRICTION", "SLIP_VELOCITY",
-           "RESTITUTION", "IMPACT_SPEED", "CONTACT_NODES"]
+           "RESTITUTION", "IMPACT_SPEED", "CONTACT_NODES", "HORIZON", "TIP_WEIGHT", "PRESSURE_WEIGHT", "ITERATIONS"]
 
 
 def _num(x: float) -> str:
@@ -190,6 +190,12 @@ FORCE = Range(-1e15, 1e15)
 REWARD_WEIGHT = Range(0.0, 1e6, "m")  #: weight of the pressure effort in a reward measured in metres
 PENALTY = Range(0.0, 1e9, "m")  #: what leaving the model's domain costs, in the reward's metres
 ENV_COUNT = Range(1, 4096, integer=True)  #: sub-environments of a vectorised environment
+
+# -- control (qchain.control): model-predictive control's settings
+HORIZON = Range(1, 10_000, integer=True)  #: control intervals an MPC plans over
+TIP_WEIGHT = Range(0.0, 1e15, "1/m^2")  #: weight of the squared tip error in an MPC cost
+PRESSURE_WEIGHT = Range(0.0, 1e3, "1/Pa^2")  #: weight of the squared pressures in an MPC cost
+ITERATIONS = Range(1, 10_000, integer=True)  #: iterations of an optimiser
 
 # -- contact (qchain.contact): obstacles and the contact law
 EXTENT = Range(0.0, 1e4, "m", low_open=True)  #: an obstacle's radius, half-extent or length

@@ -9,6 +9,8 @@ rate, with pressures bounded to what the chambers take and their internal signal
 - :class:`PDCompensation`, :class:`SlotineLi` (:mod:`~qchain.control.configuration`):
   configuration space;
 - :class:`TipPD`, :class:`TipTracking` (:mod:`~qchain.control.task`): the tip position;
+- :class:`MPC` (:mod:`~qchain.control.mpc`): model-predictive tip tracking (box-DDP on the
+  exact derivatives);
 - references (:mod:`~qchain.control.references`): ``q_d(t)``, ``x_d(t)``, a tip path by
   inverse kinematics.
 """
@@ -18,7 +20,7 @@ from .. import lazy_exports
 _EXPORTS = {
     "Controller": "base", "Allocation": "allocation", "allocate": "allocation",
     "PDCompensation": "configuration", "SlotineLi": "configuration",
-    "TipPD": "task", "TipTracking": "task",
+    "TipPD": "task", "TipTracking": "task", "MPC": "mpc",
     "ConfigurationReference": "references", "TipReference": "references", "TipPathReference": "references",
     "tip_inverse_kinematics": "references",
 }

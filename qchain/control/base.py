@@ -111,15 +111,23 @@ class Controller(ABC):
         t = as_real("t", t)
         q = as_vector("q", q, self.chain.nq)
         v = as_vector("v", v, self.chain.nv)
+        rec = {"t": t}
+        rec.update(self._command(t, q, v))
+        rec["compute_s"] = time.process_time() - c0
+        self._records.append(rec)
+        return rec["p"]
+
+    def _command(self, t: float, q: np.ndarray, v: np.ndarray) -> dict:
+        """The call's signals, ``"p"`` the pressures among them: :meth:`torque`, then the
+        bounded allocation of ``tau`` (a controller that chooses pressures itself, such as
+        :class:`~qchain.control.mpc.MPC`, overrides this)."""
         tau, own = self.torque(t, q, v)
         B = self.chain.input_matrix(q)[self.active]
         a = allocate(B, tau, self.p_min, self.p_max, self.penalty)
-        rec = {"t": t, "p": a.p, "tau": tau, "tau_realised": a.realised, "residual": a.residual,
+        rec = {"p": a.p, "tau": tau, "tau_realised": a.realised, "residual": a.residual,
                "saturated": a.saturated, "at_upper": a.at_upper}
         rec.update(own)
-        rec["compute_s"] = time.process_time() - c0
-        self._records.append(rec)
-        return a.p
+        return rec
 
     # -- after a run
     def signals(self) -> dict[str, np.ndarray]:
