@@ -345,3 +345,76 @@ def test_engine_rhs_and_jacobian_carry_the_tendons():
     assert err <= 1e-8 * np.abs(Jq).max()
     _, Jq0, _ = engine(np.zeros(2))
     assert np.abs(Jq - Jq0).max() > 1e4 * err
+
+
+def _kirchhoff_tendon_arm(tendons, T, EI, s_stops):
+    """An independent reference: the inextensible, torsion-rigid Kirchhoff rod (no gravity)
+    clamped along +z with frictionless tendons ``(r, phi0, pitch or None, s_end)``. Cut at
+    arclength ``s``, the part beyond it holds the tendons that pass ``s`` and nothing else, so
+    the rod's bending moment balances theirs there: with the tendon's tangent
+    ``(a (-sin phi, cos phi), z) / f`` in the section frame, ``a = 2 pi r / pitch``,
+    ``z = 1 - r (u . e)``, ``f = sqrt(a^2 + z^2)``, ``e = (cos phi, sin phi)``,
+
+        EI u(s) = sum_k T_k r_k z_k / f_k e_k      (the tendons passing s),
+
+    solved pointwise by fixed-point iteration (``r |u| << 1``), then ``p' = R e_z``,
+    ``R' = R [(-u_y, u_x, 0)]x`` (the strain twist's axes, docs/model.md section 2) integrated
+    by scipy's DOP853 at ``rtol = 1e-12``. Returns the backbone points at ``s_stops`` (m)."""
+    from scipy.integrate import solve_ivp
+
+    def u_at(s):
+        act = [(r, phi0 + (0.0 if p is None else 2 * np.pi * s / p), 0.0 if p is None else 2 * np.pi * r / p, Tk)
+               for (r, phi0, p, s_end), Tk in zip(tendons, T) if s <= s_end]
+        u = np.zeros(2)
+        for _ in range(100):
+            un = np.zeros(2)
+            for r, ph, a, Tk in act:
+                e = np.array([np.cos(ph), np.sin(ph)])
+                z = 1.0 - r * (u @ e)
+                un += Tk * r * z / (EI * np.hypot(a, z)) * e
+            if np.abs(un - u).max() <= 1e-15 * max(1.0, np.abs(un).max()):
+                break
+            u = un
+        return un
+
+    def rhs(s, y):
+        ux, uy = u_at(s)
+        W = np.array([[0.0, 0.0, ux], [0.0, 0.0, uy], [-ux, -uy, 0.0]])  # [(-uy, ux, 0)]x
+        Rm = y[3:].reshape(3, 3)
+        return np.concatenate([Rm[:, 2], (Rm @ W).ravel()])
+
+    y, s0, out = np.concatenate([np.zeros(3), np.eye(3).ravel()]), 0.0, []
+    for s1 in s_stops:  # stops at the tendons' ends, where u jumps
+        y = solve_ivp(rhs, (s0, s1), y, method="DOP853", rtol=1e-12, atol=1e-14).y[:, -1]
+        out.append(y[:3].copy())
+        s0 = s1
+    return np.array(out)
+
+
+def test_tendon_arm_converges_to_the_kirchhoff_rod():
+    """A straight tendon ending mid-arm and a helical one to the tip on an inextensible arm of
+    3 x 0.1 m, no gravity: the helix's moment turns along the arm, so the exact rod's
+    curvature varies within each segment and qchain's constant-curvature segments converge to
+    it at second order as they are split (``k`` sub-segments a segment): the mid-arm point and
+    the tip each move ~4 times closer to the rod at each halving."""
+    L0, R, E = 0.1, 0.01, 1e6
+    EI = E * np.pi * R ** 4 / 4
+    tendons = [(0.008, 0.0, None, 2 * L0), (0.006, np.pi / 2, 0.25, 3 * L0)]
+    T = np.array([1.2, 1.0])
+    ref = _kirchhoff_tendon_arm(tendons, T, EI, [2 * L0, 3 * L0])
+    errors = []
+    for k in (2, 4, 8):
+        segs = [qc.Segment(length=L0 / k, radius=R, mass=0.01 / k, chamber_area=1e-6, chamber_radius=0.005,
+                           youngs_modulus=E, extensible=False) for _ in range(3 * k)]
+        chain = qc.Chain(segs, gravity=(0.0, 0.0, 0.0),
+                         tendons=[qc.Tendon(radius=0.008, angle=0.0, end=2 * k - 1),
+                                  qc.Tendon(radius=0.006, angle=np.pi / 2, pitch=0.25)])
+        eq = qc.equilibrium(chain, tension=T, tol=1e-13)
+        assert eq.success
+        got = np.array([chain.points(eq.q, [(2 * k - 1, 1.0)])[0], chain.tip_placement(eq.q).translation])
+        errors.append(np.linalg.norm(got - ref, axis=1))
+    errors = np.array(errors)  # (3 refinements, 2 points)
+    deflection = np.linalg.norm(ref[1] - [0.0, 0.0, 3 * L0])
+    assert deflection > 0.03  # a real bend: 40 mm at the tip of a 0.3 m arm
+    assert np.all((errors[:-1] / errors[1:] > 3.5) & (errors[:-1] / errors[1:] < 4.5))
+    assert errors[-1].max() < 1e-3 * deflection  # k = 8 (24 segments): within 0.1 % of the deflection
