@@ -42,7 +42,7 @@ __version__ = "0.1.0"
 
 #: Each public name and the module that defines it, relative to this package.
 _EXPORTS = {
-    "Segment": "model.segment",
+    "Segment": "model.segment", "Tendon": "model.tendon",
     "Chain": "arm.chain", "Frames": "arm.kinematics", "Data": "arm.data", "LagrangianChain": "arm.lagrangian",
     "equilibrium": "arm.statics", "EquilibriumResult": "arm.statics", "Parameters": "arm.parameter_derivatives",
     "Environment": "contact.environment", "ContactLaw": "contact.environment", "PointLoad": "contact.environment",

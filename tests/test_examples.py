@@ -213,3 +213,15 @@ def test_reach_env(examples, tmp_path, capsys):
         assert np.array_equal(a["target"], b["target"])
         assert a["distance"] < 0.5 * b["distance"] and a["ret"] > b["ret"]
     assert "final distance" in capsys.readouterr().out
+
+
+def test_tendon_arm(examples, tmp_path, capsys):
+    out = examples("tendon_arm").main(["--quick", "--out", str(tmp_path)])
+    traj, tips, ch = out["trajectory"], out["tips"], out["chain"]
+    assert traj.success and traj.meta["engine"] == "compiled" and is_png(out["png"])
+    assert np.all(traj.tension[-1] == [5.0, 4.0]) and np.all(traj.tension >= 0.0)
+    assert tips[-1, 0] > 0.02  # tendon 0 on the base's +x side pulls the arm towards +x
+    assert abs(tips[-1, 1]) > 0.002  # the helix, which changes side, bends it out of the x-z plane
+    # segment 2 lies past tendon 0's end: only the helix (and gravity) act there
+    assert np.all(ch.tendon_matrix(traj.q[-1])[6:, 0] == 0.0)
+    assert "from the static shape" in capsys.readouterr().out

@@ -50,6 +50,7 @@ from .kinematics import _NO_POINTS, ChainKinematics, Frames
 from .dynamics_derivatives import _EMPTY, _ZERO6, ForwardDynamicsDerivatives, InverseDynamicsDerivatives
 from .data import Data
 from .payload import payload_matrix
+from .tendons import ChainTendons, tendon_table
 from ..checks.bounds import GRAVITY, POSITION, PSI, SEGMENT_COUNT, TIME
 from ..checks.convert import as_bool, as_index, as_vector, describe_value
 from ..errors import DomainError, NonFiniteError, SingularConfigurationError
@@ -97,7 +98,7 @@ def _check_placement(name: str, X) -> None:
     POSITION.check_array(f"{name}.translation", H[:3, 3])
 
 
-class Chain(KeepsReadOnly, ChainKinematics, ChainContact, ChainParameters, ChainChecks):
+class Chain(KeepsReadOnly, ChainKinematics, ChainContact, ChainParameters, ChainTendons, ChainChecks):
     """A soft arm of ``n`` segments.
 
     Parameters
@@ -123,6 +124,8 @@ class Chain(KeepsReadOnly, ChainKinematics, ChainContact, ChainParameters, Chain
         every dynamics pass, gravity included, and the energies and momentum
         (:mod:`qchain.arm.payload`). With ``planar=True`` it must be symmetric about the x-z
         plane. None (default): no payload.
+    tendons : sequence of Tendon, optional
+        Tendons beside the chambers (:class:`qchain.Tendon`, :class:`ChainTendons`; docs/tendons.md).
 
     Locked coordinates (``planar``, and ``l`` of segments with ``extensible=False``) keep
     their place in ``q`` and ``v`` so layouts do not change: ``q`` must hold the locked
@@ -138,8 +141,8 @@ class Chain(KeepsReadOnly, ChainKinematics, ChainContact, ChainParameters, Chain
 
     Attributes
     ----------
-    n, nq, nv, nu : int
-        Segments, configuration size, velocity size, pressure inputs (3 n).
+    n, nq, nv, nu, nt : int
+        Segments, configuration size, velocity size, pressure inputs (3 n), tendons (``tendons``).
     active : (nv,) bool
         Free (not locked) velocity coordinates; ``nv_active`` of them.
     """
@@ -153,6 +156,7 @@ class Chain(KeepsReadOnly, ChainKinematics, ChainContact, ChainParameters, Chain
         base_motion: Callable | None = None,
         planar: bool = False,
         payload: pin.Inertia | None = None,
+        tendons: Sequence = (),
     ):
         if (isinstance(segments, (Segment, str, bytes, set, frozenset, dict)) or isinstance(segments, np.ndarray)
                 and segments.ndim != 1 or not isinstance(segments, Sequence) and not hasattr(segments, "__iter__")):
@@ -193,6 +197,8 @@ class Chain(KeepsReadOnly, ChainKinematics, ChainContact, ChainParameters, Chain
         n = len(segs)
         self.n = n
         self.nu = 3 * n
+        self.tendons, self._tendon_rows, self._tendon_nodes, self._tendon_weights = tendon_table(tendons, segs)
+        self.nt = len(self.tendons)
         self.floating = base == "floating"
         self._qoff = 7 if self.floating else 0
         self._voff = 6 if self.floating else 0
@@ -315,20 +321,6 @@ class Chain(KeepsReadOnly, ChainKinematics, ChainContact, ChainParameters, Chain
 
     def __repr__(self) -> str:
         return f"Chain(n={self.n}, base={self.base!r}, nq={self.nq}, nv={self.nv})"
-
-    def coordinate_name(self, i: int, velocity: bool = True) -> str:
-        """Who owns entry ``i`` of ``v`` (or of ``q`` with ``velocity=False``), in words:
-        ``"segment 1, uy"``, ``"base, angular velocity z"``."""
-        off = self._voff if velocity else self._qoff
-        i = as_index("i", i, self.nv if velocity else self.nq)
-        if i < off:
-            names = (("linear velocity x", "linear velocity y", "linear velocity z", "angular velocity x",
-                      "angular velocity y", "angular velocity z") if velocity else
-                     ("position x", "position y", "position z", "quaternion x", "quaternion y", "quaternion z",
-                      "quaternion w"))
-            return f"base, {names[i]}"
-        j, k = divmod(i - off, 3)
-        return f"segment {j}, {('l', 'psi', 'kappa')[k] if self._paper[j] else ('l', 'ux', 'uy')[k]}"
 
     # ------------------------------------------------------------------ inputs
 
@@ -687,7 +679,7 @@ class Chain(KeepsReadOnly, ChainKinematics, ChainContact, ChainParameters, Chain
         return f
 
     def forward_dynamics(self, q, v, p=None, tau=None, t: float = 0.0, data: Data | None = None,
-                         skip_checks: bool = False, env=None) -> np.ndarray:
+                         skip_checks: bool = False, env=None, tension=None) -> np.ndarray:
         """Accelerations ``a`` (nv,) of ``M a + C v + g + D v + dU_el/dq = B p + tau``.
 
         The paper's eq. (9) for the chain (docs/model.md section 6), solved by the
@@ -699,9 +691,10 @@ class Chain(KeepsReadOnly, ChainKinematics, ChainContact, ChainParameters, Chain
         is the unchecked fast path (:meth:`forward_dynamics_derivatives`): it returns
         ``data.a``, overwritten by the next call with that ``data``. ``env`` (a
         :class:`qchain.contact.Environment`) adds its contact forces and loads to ``tau``
-        (:meth:`environment_force`).
+        (:meth:`environment_force`). ``tension`` (nt,) N adds ``B_T(q) T`` (:meth:`tendon_force`).
         """
         data = self._data(data)
+        tau = tau if tension is None else self._with_tendons(q, tau, tension)
         if env is not None:
             te = self.environment_force(q, v, env, t)
             tau = te if tau is None else self._vec("tau", tau, self.nv) + te

@@ -23,7 +23,7 @@ import numpy as np
 from ..algorithms import recursive
 from ..checks.bounds import POSITION, check_time
 from ..checks.results import finite_result
-from ..checks.convert import as_real_array, as_vector, describe_value
+from ..checks.convert import as_index, as_real_array, as_vector, describe_value
 from ..errors import DomainError, NonFiniteError, QchainError
 from .data import Data
 from .dynamics_derivatives import _EMPTY, _ZERO6
@@ -68,6 +68,20 @@ def _finite(quantity: str, has_v: bool = False):
 class ChainChecks:
     """Input checks and non-finite result errors of :class:`~qchain.arm.chain.Chain` (its base
     class; see the module docstring)."""
+
+    def coordinate_name(self, i: int, velocity: bool = True) -> str:
+        """Who owns entry ``i`` of ``v`` (or of ``q`` with ``velocity=False``), in words:
+        ``"segment 1, uy"``, ``"base, angular velocity z"``."""
+        off = self._voff if velocity else self._qoff
+        i = as_index("i", i, self.nv if velocity else self.nq)
+        if i < off:
+            names = (("linear velocity x", "linear velocity y", "linear velocity z", "angular velocity x",
+                      "angular velocity y", "angular velocity z") if velocity else
+                     ("position x", "position y", "position z", "quaternion x", "quaternion y", "quaternion z",
+                      "quaternion w"))
+            return f"base, {names[i]}"
+        j, k = divmod(i - off, 3)
+        return f"segment {j}, {('l', 'psi', 'kappa')[k] if self._paper[j] else ('l', 'ux', 'uy')[k]}"
 
     def _check_locks(self, q_e: np.ndarray, v_e: np.ndarray | None) -> None:
         """Raise for a locked coordinate of ``q_e`` (n, 3) off its locked value, or of ``v_e``

@@ -22,6 +22,7 @@ from ..checks.bounds import FORCE, PRESSURE, TIME, Range
 from .chain import Chain
 from ..checks.convert import as_bool, as_vector
 from ..errors import QchainError
+from .tendons import check_tension
 
 __all__ = ["equilibrium", "EquilibriumResult"]
 
@@ -48,18 +49,20 @@ class EquilibriumResult:
     nfev: int
 
 
-def _stiffness(chain: Chain, q: np.ndarray, p: np.ndarray, env=None, t: float = 0.0) -> np.ndarray:
-    """Newton matrix of ``-F``: elastic minus pressure stiffness, minus the environment's
-    (all exact)."""
+def _stiffness(chain: Chain, q: np.ndarray, p: np.ndarray, env=None, t: float = 0.0, T=None) -> np.ndarray:
+    """Newton matrix of ``-F``: elastic minus pressure stiffness, minus the tendons' and the
+    environment's (all exact)."""
     K = chain.elastic_stiffness(q) - chain.pressure_stiffness(q, p)
+    if T is not None:
+        K = K - chain.tendon_stiffness(q, T)
     if env is not None:
         K = K - chain.environment_force_derivatives(q, np.zeros(chain.nv), env, t)[0]
     return K
 
 
 def equilibrium(chain: Chain, p=None, q0=None, tip_wrench=None, *, t: float = 0.0, tol: float = 1e-10,
-                max_iter: int = 200, continuation: bool = True, env=None) -> EquilibriumResult:
-    """Static shape of ``chain`` under pressures ``p`` (3 n,) Pa and gravity.
+                max_iter: int = 200, continuation: bool = True, env=None, tension=None) -> EquilibriumResult:
+    """Static shape of ``chain`` under pressures ``p`` (3 n,) Pa, tendon tensions and gravity.
 
     Parameters
     ----------
@@ -87,6 +90,10 @@ def equilibrium(chain: Chain, p=None, q0=None, tip_wrench=None, *, t: float = 0.
         its exact stiffness (:meth:`qchain.Chain.environment_force_derivatives`) the Newton
         matrix. At rest the regularised friction is zero (it needs sliding to act): a
         static shape holds by normal forces and loads alone.
+    tension : (nt,) N, optional
+        The tensions of the chain's tendons, each within :data:`qchain.checks.bounds.TENSION`
+        (``>= 0``): ``B_T(q) T`` joins the balance and its exact stiffness
+        (:meth:`qchain.Chain.tendon_stiffness`) the Newton matrix (docs/tendons.md).
     """
     if not isinstance(chain, Chain):
         raise TypeError(f"chain must be a qchain.Chain, got {type(chain).__name__}")
@@ -98,6 +105,8 @@ def equilibrium(chain: Chain, p=None, q0=None, tip_wrench=None, *, t: float = 0.
     continuation = as_bool("continuation", continuation)
     if p is not None:  # checked here, where they enter: real, finite, within their declared ranges
         p = PRESSURE.check_array("p", as_vector("p", p, chain.nu))
+    if tension is not None:
+        tension = check_tension(tension, chain.nt)
     if tip_wrench is not None:
         tip_wrench = FORCE.check_array("tip_wrench", as_vector("tip_wrench", tip_wrench, 6))
     if q0 is not None:
@@ -112,11 +121,11 @@ def equilibrium(chain: Chain, p=None, q0=None, tip_wrench=None, *, t: float = 0.
             for j, s in enumerate(chain.segments):
                 q0c[chain.q_slice(j)] = s.to_curvature(q0c[chain.q_slice(j)])
         res = equilibrium(twin, p, q0c, tip_wrench, t=t, tol=tol, max_iter=max_iter, continuation=continuation,
-                          env=env)
+                          env=env, tension=tension)
         for j, s in enumerate(chain.segments):
             res.q[chain.q_slice(j)] = s.from_curvature(res.q[chain.q_slice(j)])
         return res
-    res = _solve(chain, p, q0, tip_wrench, t, tol, max_iter, env)
+    res = _solve(chain, p, q0, tip_wrench, t, tol, max_iter, env, tension)
     if res.success or not continuation:
         return res
     p = np.zeros(chain.nu) if p is None else as_vector("p", p, chain.nu)
@@ -125,7 +134,8 @@ def equilibrium(chain: Chain, p=None, q0=None, tip_wrench=None, *, t: float = 0.
     while lam < 1.0:
         trial = min(1.0, lam + step)
         scaled = _scaled(chain, trial)
-        r = _solve(scaled, trial * p, q, trial * w, t, tol, max_iter, env)
+        r = _solve(scaled, trial * p, q, trial * w, t, tol, max_iter, env,
+                   None if tension is None else trial * tension)
         total += r.nfev
         if r.success:
             lam, q = trial, r.q
@@ -142,10 +152,10 @@ def _scaled(chain: Chain, lam: float, segments=None) -> Chain:
     """The same chain with gravity scaled by ``lam`` (and other ``segments``, if given)."""
     return Chain(chain.segments if segments is None else segments, base=chain.base, gravity=lam * chain.gravity,
                  base_placement=chain.base_placement if chain.base == "fixed" else None,
-                 base_motion=chain.base_motion, planar=chain.planar)
+                 base_motion=chain.base_motion, planar=chain.planar, tendons=chain.tendons)
 
 
-def _solve(chain, p, q0, tip_wrench, t, tol, max_iter, env=None) -> EquilibriumResult:
+def _solve(chain, p, q0, tip_wrench, t, tol, max_iter, env=None, T=None) -> EquilibriumResult:
     p = np.zeros(chain.nu) if p is None else as_vector("p", p, chain.nu)
     q = chain.neutral() if q0 is None else chain._q(q0, "q0").copy()
     w = None if tip_wrench is None else as_vector("tip_wrench", tip_wrench, 6)
@@ -161,6 +171,8 @@ def _solve(chain, p, q0, tip_wrench, t, tol, max_iter, env=None) -> EquilibriumR
             f += chain.tip_jacobian(q, "local_world_aligned", t=t).T @ w
         if env is not None:
             f += chain.environment_force(q, zero_v, env, t)
+        if T is not None:
+            f += chain.tendon_force(q, T)
         return f[idx]
 
     def with_step(q, dx):
@@ -174,7 +186,8 @@ def _solve(chain, p, q0, tip_wrench, t, tol, max_iter, env=None) -> EquilibriumR
         raise QchainError(f"equilibrium: the starting guess is not a valid configuration: {err}") from None
     scale = max(np.max(np.abs(r)), np.max(np.abs(chain.elastic_force(q)[idx])), 1e-12)
     scale = max(scale, np.max(np.abs(chain.input_matrix(q)[idx] @ p)) if p.any() else 0.0)
-    W = _stiffness(chain, q, p, env, t)[np.ix_(idx, idx)]  # of -F
+    scale = max(scale, np.max(np.abs(chain.tendon_force(q, T)[idx])) if T is not None and T.any() else 0.0)
+    W = _stiffness(chain, q, p, env, t, T)[np.ix_(idx, idx)]  # of -F
     col = np.sqrt(np.abs(np.diag(W))) + 1e-300  # residual scaling: N vs N m^2 per coordinate
     fresh = True
     it = 0
@@ -184,7 +197,7 @@ def _solve(chain, p, q0, tip_wrench, t, tol, max_iter, env=None) -> EquilibriumR
         try:
             dx = np.linalg.solve(W, r)
         except np.linalg.LinAlgError:
-            W = _stiffness(chain, q, p, env, t)[np.ix_(idx, idx)]
+            W = _stiffness(chain, q, p, env, t, T)[np.ix_(idx, idx)]
             dx = np.linalg.lstsq(W, r, rcond=None)[0]
         step = 1.0
         while True:
@@ -202,7 +215,7 @@ def _solve(chain, p, q0, tip_wrench, t, tol, max_iter, env=None) -> EquilibriumR
             if fresh:
                 return EquilibriumResult(q, False, "line search failed: no decrease along the Newton step",
                                          it, float(np.max(np.abs(r))), nfev)
-            W = _stiffness(chain, q, p, env, t)[np.ix_(idx, idx)]  # drop the Broyden history and retry
+            W = _stiffness(chain, q, p, env, t, T)[np.ix_(idx, idx)]  # drop the Broyden history and retry
             fresh = True
             continue
         fresh = False
@@ -210,7 +223,7 @@ def _solve(chain, p, q0, tip_wrench, t, tol, max_iter, env=None) -> EquilibriumR
         y_ = -(r_new - r)  # change of -F
         W = W + np.outer(y_ - W @ s_, s_) / (s_ @ s_)  # good Broyden update
         if it % 10 == 0:  # refresh the exact part now and then
-            W = _stiffness(chain, q_new, p, env, t)[np.ix_(idx, idx)]
+            W = _stiffness(chain, q_new, p, env, t, T)[np.ix_(idx, idx)]
         q, r = q_new, r_new
     return EquilibriumResult(q, False, f"no convergence in {max_iter} iterations", it,
                              float(np.max(np.abs(r))), nfev)

@@ -15,6 +15,7 @@ import numpy as np
 from .convert import as_real, describe_value
 
 __all__ = ["Range", "LENGTH", "RADIUS", "MASS", "CHAMBER_AREA", "CHAMBER_RADIUS", "YOUNGS_MODULUS", "DAMPING", "NODES",
+           "TENDON_RADIUS", "TENDON_PITCH", "TENSION",
            "GRAVITY", "POSITION", "ANGLE", "PSI", "VELOCITY", "ANGULAR_VELOCITY", "RATE", "DIRECTION", "AMPLITUDE",
            "FREQUENCY", "PRESSURE", "PRESSURE_AMPLITUDE", "TIME", "DURATION", "STEP", "RTOL", "ATOL", "SAMPLE_RATE",
            "NODE_TOLERANCE", "MAX_BEND", "LENGTH_TOLERANCE", "WALL_LIMIT", "VACUUM_GAUGE", "SEGMENT_COUNT", "WORKERS", "RETRIES",
@@ -143,6 +144,11 @@ CHAMBER_RADIUS = Range(0.0, 10.0, "m", low_open=True)  #: distance of the chambe
 YOUNGS_MODULUS = Range(1.0, 1e12, "Pa")  #: from a gel to steel and beyond
 DAMPING = Range(0.0, 1e2, "s")  #: beta of D = beta K(q0)
 NODES = Range(1, 100, integer=True)  #: Gauss-Legendre nodes along a segment (the node count converges by ~24)
+
+# -- a tendon (qchain.model.tendon; docs/tendons.md)
+TENDON_RADIUS = Range(0.0, 10.0, "m", low_open=True)  #: offset of a tendon from the backbone
+TENDON_PITCH = Range(1e-4, 1e6, "m")  #: |pitch| of a helical tendon: rest length per turn
+TENSION = Range(0.0, 1e9, "N")  #: a tendon's tension: a tendon pulls, it cannot push
 
 # -- the world, the base and the initial state
 GRAVITY = Range(-1e4, 1e4, "m/s^2")  #: each component

@@ -17,13 +17,13 @@ from dataclasses import dataclass
 import numpy as np
 import pinocchio as pin
 
-from ..checks.bounds import ANGLE, FORCE, FREQUENCY, PRESSURE, TIME, Range, check_time
+from ..checks.bounds import ANGLE, FORCE, FREQUENCY, PRESSURE, TENSION, TIME, Range, check_time
 from ..checks.convert import as_real_array, as_vector
 from ..checks.frozen import KeepsReadOnly
 
 __all__ = ["Schedule", "Constant", "Step", "Ramp", "Sine", "Table", "BUILT_IN", "as_input", "input_range", "FORCE", "SineMotion"]
 
-_RANGES = {"pressure": PRESSURE, "tau": FORCE}
+_RANGES = {"pressure": PRESSURE, "tau": FORCE, "tension": TENSION}
 
 
 def _vec(name, x, size=None) -> np.ndarray:

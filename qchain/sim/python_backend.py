@@ -159,8 +159,10 @@ def run(r, bar, deadline: float | None) -> Trajectory:
     """
     method = r.method
     T_in = r.T_in
+    if r.chain.nt:  # the tendons' generalised force B_T(q) T joins tau
+        T_in = lambda t, q, v, _T=T_in: _T(t, q, v) + r.chain.tendon_force(q, r.Tn_in(t, q, v))  # noqa: E731
     if r.env is not None:  # the environment's forces join the external ones
-        T_in = lambda t, q, v: r.T_in(t, q, v) + r.chain.environment_force(q, v, r.env, t)  # noqa: E731
+        T_in = lambda t, q, v, _T=T_in: _T(t, q, v) + r.chain.environment_force(q, v, r.env, t)  # noqa: E731
     sysm = _System(r.chain, r.P_in, T_in, deadline)
     rec = _Recorder(r.chain, sysm, r.t_eval, r.on_sample, r.energies)
     # how far the run has got: time t (s), state q (nq,), v (nv,) and accepted steps, kept where an

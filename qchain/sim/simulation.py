@@ -254,8 +254,9 @@ def simulate(
     controller_rate: float | None = None,
     budget: Budget | None = None,
     env=None,
+    tension=None,
 ) -> Trajectory:
-    """Integrate ``M a + C v + g + D v + dU/dq = B p + tau`` from ``(q0, v0)`` over ``t_span``.
+    """Integrate ``M a + C v + g + D v + dU/dq = B p + B_T T + tau`` from ``(q0, v0)`` over ``t_span``.
 
     Parameters
     ----------
@@ -308,6 +309,13 @@ def simulate(
     env : qchain.contact.Environment, optional
         Obstacles, the contact law and point loads (docs/contact.md): their generalised
         force joins ``tau`` (with its exact derivatives in the implicit methods' Jacobian).
+    tension : None, (nt,) N, a schedule or a controller ``(t, q, v) -> (nt,)``
+        The tensions of the chain's tendons (docs/tendons.md), each within
+        :data:`qchain.checks.bounds.TENSION`: a tendon pulls and cannot push, so a negative
+        tension (a schedule's at any time, a controller's at any call) raises ``ValueError``
+        naming the tendon and the value. Schedules and constants run on the compiled engine
+        (with the tendons' exact stiffness in the implicit methods' Jacobian); a controller
+        runs on the Python steppers. The samples' tensions are ``Trajectory.tension``.
 
     Every argument is checked where it enters, each error naming it, the value and the bound
     (docs/simulation.md); callbacks get their own copies of the state.
@@ -322,7 +330,7 @@ def simulate(
     run = _check_arguments(chain, q0, v0, t_span, pressure=pressure, tau=tau, method=method, budget=budget,
                            on_sample=on_sample, env=env, dt=dt, rtol=rtol, atol=atol, max_step=max_step, first_step=first_step,
                            wall_limit=wall_limit, t_eval=t_eval, energies=energies, progress=progress, events=events,
-                           controller_rate=controller_rate)
+                           controller_rate=controller_rate, tension=tension)
     return _execute(run)
 
 
@@ -336,6 +344,9 @@ def _execute(run: _Run, base=None) -> Trajectory:
     m = _choose_backend(run, base)
     traj = _run_compiled(run, m, bar, deadline) if m is not None else python_backend.run(run, bar, deadline)
     _note_contact_steps(run, traj)
+    if run.chain.nt:  # the samples' tensions: a schedule's or a controller's at the sample
+        traj.tension = np.array([run.Tn_in(t, q, v) for t, q, v in zip(traj.t, traj.q, traj.v)]
+                                ).reshape(len(traj.t), run.chain.nt)
     return traj
 
 
@@ -481,8 +492,10 @@ class _Run:
     events: list
     controller_rate: float | None
     env: object = None
+    tension: object = None
     P_in: Callable | None = None
     T_in: Callable | None = None
+    Tn_in: Callable | None = None
     held: list = field(default_factory=list)
     #: what the runs of a batch share on the compiled engine (:class:`Runs`), or None
     batch: driver.Batch | None = None
@@ -495,7 +508,7 @@ class _Run:
                            stable_step=stable_step)
 
 
-def _check_arguments(chain, q0, v0, t_span, *, pressure, tau, method, budget, on_sample, env=None,
+def _check_arguments(chain, q0, v0, t_span, *, pressure, tau, method, budget, on_sample, env=None, tension=None,
                      **settings) -> _Run:
     """Step 1 of :func:`simulate`: check its arguments (as :func:`simulate`'s; ``**settings``
     by :func:`check_settings`) where they enter, in a fixed order (the first bad one is the one
@@ -504,7 +517,7 @@ def _check_arguments(chain, q0, v0, t_span, *, pressure, tau, method, budget, on
     q0, v0 = _check_start(chain, q0, v0, t0)
     cfg = check_settings(chain, t0, t1, method=method, on_sample=on_sample, **settings)
     run = _Run(chain=chain, q0=q0, v0=v0, t0=t0, t1=t1, method=method, pressure=pressure, tau=tau,
-               on_sample=on_sample, budget=as_budget(budget), env=_check_env(chain, env), **cfg)
+               on_sample=on_sample, budget=as_budget(budget), env=_check_env(chain, env), tension=tension, **cfg)
     run.budget.check(run.cost())
     return _with_inputs(run)
 
@@ -517,6 +530,12 @@ def _with_inputs(run: _Run, checked: bool = False) -> _Run:
     chain, method, pressure, tau, q0, v0, t0 = run.chain, run.method, run.pressure, run.tau, run.q0, run.v0, run.t0
     run.P_in, run.T_in = (_input_function(name, u, size, checked) for name, u, size in  # checked here
                           (("pressure", pressure, chain.nu), ("tau", tau, chain.nv)))
+    if run.tension is not None and not chain.nt:
+        raise ValueError("tension is given but the chain has no tendons (Chain(..., tendons=[...]))")
+    run.Tn_in = _input_function("tension", run.tension, chain.nt, False)  # checked: >= 0 (TENSION)
+    if run.controller_rate is not None and callable(run.tension) and not isinstance(run.tension, Schedule):
+        raise ValueError("controller_rate holds pressure and tau controllers; a tension controller is called at "
+                         "every stage (without controller_rate)")
     if method in driver.EXPLICIT_STABILITY_EXTENT:  # a stiff model: refused before hours of tiny steps
         run.budget.check(run.cost(explicit_stability_limit(chain, method, q0, v0, t0, pressure, tau)))
     if run.controller_rate is not None:
@@ -587,10 +606,12 @@ def _choose_backend(run: _Run, base=None):
     None for :mod:`qchain.sim.python_backend` (``ValueError`` then if ``controller_rate`` is
     given). A held controller is packed as zeros (its output is written into the packed model
     at its instants)."""
-    if run.method in COMPILED:
+    tension_compiled = not callable(run.tension) or type(run.tension) in BUILT_IN
+    if run.method in COMPILED and tension_compiled:
         zeros = {name: np.zeros(size) for name, _, size in run.held}
         p, tau = zeros.get("pressure", run.pressure), zeros.get("tau", run.tau)
-        m = system.pack(run.chain, p, tau, run.env) if base is None else system.with_inputs(base, run.chain, p, tau)
+        m = (system.pack(run.chain, p, tau, run.env, run.tension) if base is None else
+             system.with_inputs(base, run.chain, p, tau, run.tension))
         if m is not None:
             return m
     if run.controller_rate is not None:

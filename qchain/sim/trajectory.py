@@ -36,6 +36,8 @@ class Trajectory:
         Number of forward-dynamics evaluations.
     status : int
         0 finished, 1 stopped by an event, -1 failed.
+    tension : (N, nt) N or None
+        The tendons' tensions at the samples (a chain with tendons; docs/tendons.md), else None.
     """
 
     t: np.ndarray
@@ -49,6 +51,7 @@ class Trajectory:
     nfev: int = 0
     status: int = 0
     meta: dict = field(default_factory=dict)
+    tension: np.ndarray | None = None
 
     def with_energies(self, source: Callable[[], tuple[np.ndarray, np.ndarray]]) -> "Trajectory":
         """Compute ``kinetic_energy`` and ``potential_energy`` by ``source() -> (KE, PE)`` at

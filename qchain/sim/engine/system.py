@@ -40,6 +40,7 @@ from ...contact.planar import planar_contact_forces
 from ...algorithms.arrays import AbaDerivativesWorkspace, AbaWorkspace, ChainArrays, PlanarWorkspace, RneaWorkspace
 from ...model.arc import SCRATCH, arc_node, take1, take2
 from ...model.slices import slice_twist
+from ...model.tendon import tendon_length_c
 from . import lie, schedules
 from ..._jit import ejit, ejit_inner, inline, kernel
 
@@ -86,6 +87,10 @@ class EngineModel(NamedTuple):
     env : PackedEnvironment
         Obstacles, contact law and point loads (:meth:`qchain.contact.Environment.packed`);
         none of either costs nothing.
+    tendon_rows, tendon_nodes, tendon_weights : (R, 7), (K,), (K,) float
+        The tendons' routing (:func:`qchain.arm.tendons.tendon_table`; none: ``R = 0``).
+    tn_ints, tn_params : (k,) int64, (k',) float
+        The tension input (N), as the pressure input.
     """
 
     arrays: ChainArrays
@@ -105,6 +110,11 @@ class EngineModel(NamedTuple):
     tau_params: np.ndarray
     layout: np.ndarray
     env: PackedEnvironment
+    tendon_rows: np.ndarray
+    tendon_nodes: np.ndarray
+    tendon_weights: np.ndarray
+    tn_ints: np.ndarray
+    tn_params: np.ndarray
 
 
 class Workspace(NamedTuple):
@@ -121,6 +131,8 @@ class Workspace(NamedTuple):
         Pressures (Pa).
     tau : (nv,) float
         Generalised force input.
+    tension : (nt,) float
+        Tendon tensions (N).
     f : (n, 3) float
         Internal plus external generalised forces on the segment coordinates.
     A0 : (6,) float
@@ -160,6 +172,7 @@ class Workspace(NamedTuple):
     q_chart: np.ndarray
     p: np.ndarray
     tau: np.ndarray
+    tension: np.ndarray
     f: np.ndarray
     A0: np.ndarray
     a: np.ndarray
@@ -179,7 +192,7 @@ class Workspace(NamedTuple):
     nodes: np.ndarray
 
 
-def pack(chain, pressure, tau, env=None) -> EngineModel | None:
+def pack(chain, pressure, tau, env=None, tension=None) -> EngineModel | None:
     """The :class:`EngineModel` of ``chain`` with compiled ``pressure`` and ``tau`` inputs, or
     None where the compiled engine cannot serve it (paper coordinates, the linear law, a Python
     controller or a Python ``base_motion``). A ``planar`` chain whose base stays in its x-z
@@ -193,24 +206,26 @@ def pack(chain, pressure, tau, env=None) -> EngineModel | None:
         return None
     p = schedules.pack_input(pressure, chain.nu, "pressure")
     f = schedules.pack_input(tau, chain.nv, "tau")
-    if p is None or f is None:
+    tn = schedules.pack_input(tension, chain.nt, "tension")
+    if p is None or f is None or tn is None:
         return None
-    return _packed_model(chain, arrays, p, f, env)
+    return _packed_model(chain, arrays, p, f, env, tn)
 
 
-def with_inputs(m: EngineModel, chain, pressure, tau) -> EngineModel | None:
+def with_inputs(m: EngineModel, chain, pressure, tau, tension=None) -> EngineModel | None:
     """``m`` (:func:`pack` of ``chain``, the model shared) with the compiled ``pressure`` and
     ``tau`` inputs instead of its own (new arrays: a held controller's output is written into
     them), or None where compiled code cannot evaluate them: :func:`pack` of ``chain`` with
     those inputs, without packing the chain again."""
     p = schedules.pack_input(pressure, chain.nu, "pressure")
     f = schedules.pack_input(tau, chain.nv, "tau")
-    if p is None or f is None:
+    tn = schedules.pack_input(tension, chain.nt, "tension")
+    if p is None or f is None or tn is None:
         return None
-    return m._replace(p_ints=p[0], p_params=p[1], tau_ints=f[0], tau_params=f[1])
+    return m._replace(p_ints=p[0], p_params=p[1], tau_ints=f[0], tau_params=f[1], tn_ints=tn[0], tn_params=tn[1])
 
 
-def _packed_model(chain, arrays, p: tuple, f: tuple, env) -> EngineModel | None:
+def _packed_model(chain, arrays, p: tuple, f: tuple, env, tn: tuple) -> EngineModel | None:
     base = {"fixed": FIXED, "floating": FLOATING, "prescribed": PRESCRIBED}[chain.base]
     planar_kernel = chain.planar and base != FLOATING
     if base == PRESCRIBED:
@@ -228,7 +243,9 @@ def _packed_model(chain, arrays, p: tuple, f: tuple, env) -> EngineModel | None:
                        planar_kernel=int(planar_kernel), nq=chain.nq, nv=chain.nv,
                        g_W=np.array(chain.gravity, dtype=float), R_WB0=np.array(X.rotation),
                        p_WB0=np.array(X.translation), bm_ints=bm[0], bm_params=bm[1], p_ints=p[0], p_params=p[1],
-                       tau_ints=f[0], tau_params=f[1], layout=_layout(chain.n, chain.nv), env=env)
+                       tau_ints=f[0], tau_params=f[1], layout=_layout(chain.n, chain.nv), env=env,
+                       tendon_rows=np.array(chain._tendon_rows), tendon_nodes=np.array(chain._tendon_nodes),
+                       tendon_weights=np.array(chain._tendon_weights), tn_ints=tn[0], tn_params=tn[1])
 
 
 #: the kernel workspaces carved from one buffer (:func:`_layout`), in order: the aba,
@@ -271,6 +288,7 @@ def workspace(chain, m: EngineModel | None = None) -> Workspace:
     selfc = m is not None and m.env.law[7] > 0.0
     K = m.env.calpha.shape[0] if selfc else 0
     return Workspace(q=np.zeros(nq), v=np.zeros(nv), q_chart=np.zeros(nq), p=np.zeros(3 * n), tau=np.zeros(nv),
+                     tension=np.zeros(chain.nt),
                      f=np.zeros((n, 3)), A0=np.zeros(6), a=np.zeros(nv), qdd=np.zeros((n, 3)), B=np.zeros((4, 6)),
                      info=np.zeros(4, dtype=np.int64), buf=np.zeros(_layout(n, nv)[-1, 0]), scratch=np.zeros(SCRATCH),
                      R_WB=np.zeros((3, 3)), W=np.zeros((2, n + 2, 6)),
@@ -429,9 +447,78 @@ def check(m, wk, q):
 
 @inline
 def inputs(m, wk, t):
-    """Pressure ``wk.p`` and generalised force ``wk.tau`` at ``t``."""
+    """Pressure ``wk.p``, generalised force ``wk.tau`` and tensions ``wk.tension`` at ``t``."""
     schedules.input_eval(m.p_ints, m.p_params, t, wk.p)
     schedules.input_eval(m.tau_ints, m.tau_params, t, wk.tau)
+    if wk.tension.shape[0] > 0:
+        schedules.input_eval(m.tn_ints, m.tn_params, t, wk.tension)
+
+
+@inline
+def _tendon_forces(m, wk, q_c, f):
+    """``f += B_T(q) T`` (n, 3): each tendon's ``-T dL/dq`` on the segments it passes
+    (:func:`qchain.model.tendon.tendon_length_c`); returns the status (DOMAIN where a fibre
+    would have no length, ``kappa r >= 1``, ``info[1]`` the segment)."""
+    rows = m.tendon_rows
+    sc = wk.scratch
+    g, o = take1(sc, 0, 3)
+    H, o = take2(sc, o, 3, 3)
+    for i in range(rows.shape[0]):
+        k = int(rows[i, 0])
+        j = int(rows[i, 1])
+        r = rows[i, 2]
+        if (q_c[j, 1] * q_c[j, 1] + q_c[j, 2] * q_c[j, 2]) * r * r >= 1.0:
+            wk.info[0] = DOMAIN
+            wk.info[1] = j
+            return DOMAIN
+        a, b = int(rows[i, 5]), int(rows[i, 6])
+        tendon_length_c(q_c[j], r, rows[i, 3], rows[i, 4], m.tendon_nodes[a:b], m.tendon_weights[a:b], False, g,
+                        H)
+        T = wk.tension[k]
+        for c in range(3):
+            f[j, c] -= T * g[c]
+    return OK
+
+
+@inline
+def _tendon_jacobian(m, wk, q_c, Minv, da_dq):
+    """``da_dq += M^-1 d(B_T T)/dq`` (nv, nv): the tendons' exact stiffness ``-T d^2 L/dq^2``,
+    block-diagonal on the segments (written in ``wk.Jenv[0]``'s first rows: the environment's
+    pass is done with it by now)."""
+    rows = m.tendon_rows
+    n = q_c.shape[0]
+    voff = m.nv - 3 * n
+    nv = m.nv
+    sc = wk.scratch
+    g, o = take1(sc, 0, 3)
+    H, o = take2(sc, o, 3, 3)
+    K = wk.Jenv[0]  # (nv, nv); only the (3, 3) blocks are written, each column block at a time
+    for j in range(n):
+        for a in range(3):
+            for c in range(3):
+                K[a, c] = 0.0
+        touched = False
+        for i in range(rows.shape[0]):
+            if int(rows[i, 1]) != j:
+                continue
+            touched = True
+            k = int(rows[i, 0])
+            s0, s1 = int(rows[i, 5]), int(rows[i, 6])
+            tendon_length_c(q_c[j], rows[i, 2], rows[i, 3], rows[i, 4], m.tendon_nodes[s0:s1],
+                            m.tendon_weights[s0:s1], True, g, H)
+            T = wk.tension[k]
+            for a in range(3):
+                for c in range(3):
+                    K[a, c] -= T * H[a, c]
+        if not touched:
+            continue
+        # da_dq[:, block j] += Minv[:, block j] K_j
+        for r in range(nv):
+            for c in range(3):
+                acc = 0.0
+                for a in range(3):
+                    acc += Minv[r, voff + 3 * j + a] * K[a, c]
+                da_dq[r, voff + 3 * j + c] += acc
 
 
 @inline
@@ -455,6 +542,10 @@ def _forces(m, wk, t):
     for j in range(n):
         for b in range(3):
             f[j, b] += tau[voff + 3 * j + b]
+    if m.tendon_rows.shape[0] > 0:
+        status = _tendon_forces(m, wk, q[qoff:].reshape(n, 3), f)
+        if status != OK:
+            return status
     _environment(m, wk, t, q[qoff:].reshape(n, 3), v[voff:].reshape(n, 3), f)
     F0 = B[3]  # reused: the base wrench (floating); the origin row is not needed past here
     F_env = wk.W[0, n + 1]
@@ -630,6 +721,8 @@ def jacobian(m, wk, t, y, Jq, Jv):
     da_dq, da_dv = wa.da_dq, wa.da_dv
     if m.env.kind.shape[0] > 0 or m.env.seg.shape[0] > 0 or m.env.law[7] > 0.0:
         _environment_jacobian(m, wk, t, q_c, v_c, wa.da_dtau, da_dq, da_dv)
+    if m.tendon_rows.shape[0] > 0:
+        _tendon_jacobian(m, wk, q_c, wa.da_dtau, da_dq)
     for r in range(nA):
         for c in range(nA):
             Jq[r, c] = da_dq[idx[r], idx[c]]

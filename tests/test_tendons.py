@@ -1,0 +1,420 @@
+"""Tendons (qchain.model.tendon, qchain.arm.tendons; docs/tendons.md): the input matrix
+against finite differences and a brute-force fibre length from the arm's kinematics, the
+quadrature against scipy, a straight tip tendon against its equivalent chamber pressures,
+the statics of a tendon-bent segment against its closed form, and bad input."""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+import pytest
+from scipy.integrate import quad
+
+import qchain as qc
+from qchain.arm.tendons import check_tension
+from qchain.errors import DomainError
+from qchain.model.slices import CHAMBER_ANGLES
+from qchain.model.tendon import helix_nodes, tendon_length_c
+
+
+def _segment(**kw):
+    base = dict(length=0.2, radius=0.02, mass=0.1, chamber_area=1e-4, chamber_radius=0.01, youngs_modulus=1e5)
+    base.update(kw)
+    return qc.Segment(**base)
+
+
+#: a mid-arm straight tendon, a helical one to the tip, a left-handed helix ending at segment 0
+TENDONS = (qc.Tendon(radius=0.015, angle=0.3, end=1), qc.Tendon(radius=0.012, angle=1.0, pitch=0.25),
+           qc.Tendon(radius=0.018, angle=-2.0, pitch=-0.07, end=0))
+
+
+def _chain(coords=("curvature",) * 3, tendons=TENDONS, **kw):
+    segs = [_segment(length=0.2 - 0.02 * j, coords=c) for j, c in enumerate(coords)]
+    return qc.Chain(segs, tendons=tendons, **kw)
+
+
+def _config(chain, rng, bend=8.0):
+    """A random bent configuration (curvatures up to ``bend`` 1/m, lengths +-10 %)."""
+    q = chain.neutral()
+    for j, s in enumerate(chain.segments):
+        l = s.length * rng.uniform(0.9, 1.1)
+        k, psi = rng.uniform(0.5, 1.0) * bend, rng.uniform(-np.pi, np.pi)
+        q[chain.q_slice(j)] = (l, psi, k) if s.coords == "paper" else (l, k * np.cos(psi), k * np.sin(psi))
+    return q
+
+
+def _fd(f, x, eps=1e-6):
+    cols = []
+    for i in range(x.size):
+        xp, xm = x.copy(), x.copy()
+        xp[i] += eps
+        xm[i] -= eps
+        cols.append((f(xp) - f(xm)) / (2 * eps))
+    return np.array(cols)  # (n, ...): derivative along x[i] in row i
+
+
+@pytest.mark.parametrize("coords", [("curvature",) * 3, ("paper", "curvature", "paper")])
+def test_tendon_matrix_is_minus_the_length_gradient(coords):
+    chain = _chain(coords)
+    rng = np.random.default_rng(3)
+    for _ in range(3):
+        q = _config(chain, rng)
+        Bt = chain.tendon_matrix(q)
+        fd = -_fd(chain.tendon_lengths, q)  # (nv, m)
+        assert np.abs(Bt - fd).max() <= 1e-8 * np.abs(Bt).max()
+        # zero past each tendon's end
+        assert np.all(Bt[chain.v_slice(2), 0] == 0.0) and np.all(Bt[3:, 2] == 0.0)
+    # the straight pose is a regular point in curvature coordinates
+    if coords[0] == "curvature":
+        q = chain.neutral()
+        assert np.abs(chain.tendon_matrix(q) + _fd(chain.tendon_lengths, q)).max() <= 1e-8
+
+
+@pytest.mark.parametrize("coords", [("curvature",) * 3, ("paper", "curvature", "paper")])
+def test_tendon_stiffness_is_the_derivative_of_the_tendon_force(coords):
+    chain = _chain(coords)
+    q = _config(chain, np.random.default_rng(5))
+    T = np.array([2.0, 3.0, 1.5])
+    K = chain.tendon_stiffness(q, T)
+    fd = _fd(lambda x: chain.tendon_force(x, T), q).T  # K[:, i] = d tau / dq_i
+    assert np.abs(K - fd).max() <= 1e-7 * np.abs(K).max()
+
+
+def _fibre_polyline(chain, q, k, points=4001):
+    """Tendon ``k``'s length as the polyline through ``points`` material points a segment,
+    placed on the deformed arm by the chain's own kinematics (root frames) and each segment's
+    slice placements; the helix's angle from the rest arc length from the base, computed
+    here independently of the model's routing."""
+    td = chain.tendons[k]
+    roots = chain.placements(q)  # world placements of the roots 0..n
+    end = chain.n - 1 if td.end is None else td.end
+    s0 = 0.0
+    pts = []
+    alphas = np.linspace(0.0, 1.0, points)
+    for j in range(end + 1):
+        seg = chain.segments[j]
+        qe = q[chain.q_slice(j)]
+        for a in alphas:
+            s = s0 + a * seg.length
+            phi = td.angle + (0.0 if td.pitch is None else 2 * np.pi * s / td.pitch)
+            X = roots[j] * seg.slice_placement(qe, a)
+            pts.append(X.translation + X.rotation @ (td.radius * np.array([np.cos(phi), np.sin(phi), 0.0])))
+        s0 += seg.length
+    pts = np.array(pts)
+    return np.linalg.norm(np.diff(pts, axis=0), axis=1).sum()
+
+
+def test_tendon_length_matches_the_fibre_on_the_deformed_arm():
+    chain = _chain(("paper", "curvature", "curvature"))
+    q = _config(chain, np.random.default_rng(7))
+    L = chain.tendon_lengths(q)
+    for k in range(chain.nt):
+        coarse = _fibre_polyline(chain, q, k, 801)
+        fine = _fibre_polyline(chain, q, k, 1601)
+        # the polyline converges from below at O(h^2): the model's length lies past both, and
+        # Richardson's extrapolation of the two (error O(h^4)) meets it
+        assert coarse < fine < L[k]
+        assert abs(L[k] - (4 * fine - coarse) / 3) < 1e-9 * L[k] < abs(L[k] - fine)
+
+
+@pytest.mark.parametrize("kr", [0.0, 0.3, 0.6, 0.9])
+@pytest.mark.parametrize("omega", [0.4, 2 * np.pi, -9.0, 40.0])
+def test_helix_quadrature_against_adaptive_quadrature(kr, omega):
+    r, l, psi, phi = 0.01, 0.18, 0.7, -0.4
+    kappa = kr / r
+    q = np.array([l, kappa * np.cos(psi), kappa * np.sin(psi)])
+    x, w = helix_nodes(omega)
+    L = tendon_length_c(q, r, phi, omega, x, w, False, np.empty(3), np.empty((3, 3)))
+
+    def f(a):
+        return np.hypot(r * omega, l * (1 - kr * np.cos(phi + omega * a - psi)))
+
+    ref = quad(f, 0.0, 1.0, epsabs=0.0, epsrel=1e-13, limit=500)[0]
+    assert abs(L - ref) <= 1e-12 * ref
+
+
+def test_straight_tip_tendon_equals_its_equivalent_chamber_pressures():
+    """A straight tendon at the chambers' radius ending at the tip does the virtual work of the
+    pressures ``p`` with ``A_ch (sum p_i, sum p_i cos phi_i, sum p_i sin phi_i) = -T (1, cos phi,
+    sin phi)`` (the volume model; docs/tendons.md): the same generalised force, to round-off."""
+    segs = [_segment(), _segment(length=0.15)]
+    rng = np.random.default_rng(11)
+    A = np.vstack([np.ones(3), np.cos(CHAMBER_ANGLES), np.sin(CHAMBER_ANGLES)])
+    for phi in (0.0, 0.4, np.pi, -2.2):
+        chain = qc.Chain(segs, tendons=[qc.Tendon(radius=segs[0].chamber_radius, angle=phi)])
+        q = _config(chain, rng)
+        T = 7.5
+        p_seg = np.linalg.solve(segs[0].chamber_area * A, -T * np.array([1.0, np.cos(phi), np.sin(phi)]))
+        p = np.tile(p_seg, 2)
+        tau_p = chain.input_matrix(q) @ p
+        tau_t = chain.tendon_force(q, [T])
+        assert np.abs(tau_t - tau_p).max() <= 1e-13 * np.abs(tau_p).max()
+    # the equivalent pressures of a tendon on chamber 1 are -T/A_ch there: below vacuum for
+    # T > 101325 Pa * A_ch = 10.1 N, where the equivalence cannot be run with pressures
+    assert np.allclose(np.linalg.solve(segs[0].chamber_area * A, -T * np.array([1.0, 1.0, 0.0])),
+                       [-T / segs[0].chamber_area, 0.0, 0.0], atol=1e-9)
+
+
+def test_tendon_matrix_rank():
+    """Three straight tendons at distinct angles ending at the tip of one segment: ``B_T`` is
+    invertible at every configuration, the straight pose included (``det = -l^2 r^2 D``, ``D``
+    twice the area of the triangle of the angles on the unit circle), as the chambers' ``B``;
+    helical ones likewise here. A tendon that ends at segment 0 spans nothing past it."""
+    angles = CHAMBER_ANGLES + 0.2
+    for pitch in (None, 0.3):
+        tendons = [qc.Tendon(radius=0.01, angle=a, pitch=pitch) for a in angles]
+        chain = qc.Chain([_segment()], tendons=tendons)
+        rng = np.random.default_rng(2)
+        for q in (chain.neutral(), _config(chain, rng), _config(chain, rng, bend=40.0)):
+            Bt = chain.tendon_matrix(q)
+            assert np.linalg.matrix_rank(Bt) == 3
+            if pitch is None:
+                D = np.linalg.det(np.vstack([np.ones(3), np.cos(angles), np.sin(angles)]))
+                assert np.linalg.det(Bt) == pytest.approx(-(q[0] * 0.01) ** 2 * D, rel=1e-12)
+    chain = _chain()
+    q = _config(chain, np.random.default_rng(4))
+    assert np.linalg.matrix_rank(chain.tendon_matrix(q)[3:, [0, 2]]) == 1  # only tendon 0 reaches segment 1
+
+
+def test_tendon_bent_segment_statics_closed_form():
+    """One segment, no gravity, a straight tendon at angle phi ending at the tip, tension T:
+    the balance ``dU_el/dq = B_T T`` of the material law has the closed form
+    ``l = l0 (1 - T/EA)`` and ``EI kappa l / l0 = T r`` (the moment ``T r`` balanced by the
+    bending moment), curvature towards the tendon."""
+    s = _segment()
+    r, phi, T = 0.015, 0.8, 4.0
+    chain = qc.Chain([s], gravity=(0.0, 0.0, 0.0), tendons=[qc.Tendon(radius=r, angle=phi)])
+    res = qc.equilibrium(chain, tension=[T], tol=1e-13)
+    assert res.success
+    l = s.length * (1 - T / s.axial_stiffness)
+    kappa = T * r * s.length / (s.bending_stiffness * l)
+    assert res.q == pytest.approx([l, kappa * np.cos(phi), kappa * np.sin(phi)], rel=1e-10, abs=1e-12)
+    assert kappa * l > 0.5  # a real bend, not a linearisation
+
+
+def test_forward_dynamics_takes_tensions_beside_pressures():
+    chain = _chain()
+    q = _config(chain, np.random.default_rng(8))
+    v = np.zeros(chain.nv)
+    p = np.full(chain.nu, 1e3)
+    T = np.array([1.0, 0.5, 2.0])
+    a = chain.forward_dynamics(q, v, p, tension=T)
+    assert np.allclose(a, chain.forward_dynamics(q, v, p, tau=chain.tendon_matrix(q) @ T), rtol=1e-12, atol=0.0)
+    assert not np.allclose(a, chain.forward_dynamics(q, v, p))
+
+
+def test_negative_tension_is_refused_by_name():
+    chain = _chain()
+    q = chain.neutral()
+    with pytest.raises(ValueError, match=r"tension\[1\] must be >= 0 .* got -0.5 N"):
+        chain.tendon_force(q, [1.0, -0.5, 0.0])
+    with pytest.raises(ValueError, match=r"tension\[1\] must be >= 0"):
+        chain.forward_dynamics(q, np.zeros(chain.nv), tension=[1.0, -0.5, 0.0])
+    with pytest.raises(ValueError, match=r"tension\[0\] must be >= 0"):
+        qc.equilibrium(chain, tension=[-1.0, 0.0, 0.0])
+    with pytest.raises(ValueError, match=r"tension must have shape \(3,\)"):
+        check_tension([1.0], 3)
+
+
+@pytest.mark.parametrize("kw, match", [
+    (dict(radius=0.0), r"radius must be > 0"),
+    (dict(radius=-1e-3), r"radius must be > 0"),
+    (dict(radius=0.01, pitch=0.0), r"pitch must be None .* got 0.0"),
+    (dict(radius=0.01, pitch=float("nan")), r"pitch must be finite, got nan"),
+    (dict(radius=0.01, pitch=-2e6), r"pitch must be None .* \|pitch\| >= 0.0001 and <= 1e\+06 .* got -2000000.0 m"),
+    (dict(radius=0.01, end=-1), r"end must be None .* segment index >= 0"),
+    (dict(radius=0.01, end=1.5), r"end must be None"),
+    (dict(radius=0.01, angle=1e4), r"angle must be"),
+])
+def test_tendon_bad_input(kw, match):
+    with pytest.raises((ValueError, TypeError), match=match):
+        qc.Tendon(**kw)
+
+
+def test_chain_refuses_a_tendon_past_its_segments_and_a_fibre_without_length():
+    with pytest.raises(ValueError, match=r"tendons\[0\]\.end must be a segment index < 3"):
+        _chain(tendons=[qc.Tendon(radius=0.01, end=3)])
+    with pytest.raises(TypeError, match=r"tendons\[1\] must be a qchain.Tendon"):
+        _chain(tendons=[qc.Tendon(radius=0.01), "x"])
+    chain = qc.Chain([_segment()], tendons=[qc.Tendon(radius=0.04)])  # on spacer disks, outside the 20 mm body
+    q = np.array([0.2, 26.0, 0.0])  # kappa r = 1.04 for the tendon, inside the segment's own domain (0.52)
+    with pytest.raises(DomainError, match=r"kappa r = 1.04 for tendons\[0\]"):
+        chain.tendon_matrix(q)
+
+
+def _tendon_arm(damping=0.02, **kw):
+    segs = [_segment(damping=damping), _segment(length=0.18, damping=damping)]
+    return qc.Chain(segs, tendons=[qc.Tendon(radius=0.015, angle=0.0, end=0),
+                                   qc.Tendon(radius=0.012, angle=1.0, pitch=0.3)], **kw)
+
+
+def test_simulate_tensions_on_the_compiled_engine_match_the_python_steppers():
+    """Constant tensions run on the compiled engine; the same tensions from a controller run
+    on the Python steppers (the same rk4 steps): the two agree to round-off, beside
+    pressures."""
+    chain = _tendon_arm()
+    T = np.array([1.5, 0.8])
+    p = np.array([2e3, 0.0, 0.0, 0.0, 1e3, 0.0])
+    kw = dict(pressure=p, method="rk4", dt=2e-4, t_eval=np.linspace(0.0, 0.05, 6))
+    c = qc.simulate(chain, chain.neutral(), np.zeros(chain.nv), (0.0, 0.05), tension=T, **kw)
+    py = qc.simulate(chain, chain.neutral(), np.zeros(chain.nv), (0.0, 0.05), tension=lambda t, q, v: T, **kw)
+    assert c.meta["engine"] == "compiled" and py.meta["engine"] != "compiled"
+    assert np.abs(c.q - py.q).max() < 1e-10
+    assert c.tension.shape == (6, 2) and np.all(c.tension == T) and np.all(py.tension == T)
+    free = qc.simulate(chain, chain.neutral(), np.zeros(chain.nv), (0.0, 0.05), **kw)
+    assert np.abs(c.q[-1] - free.q[-1]).max() > 1e-3  # the tendons did something
+
+
+def test_simulate_settles_on_the_tendon_equilibrium():
+    """radau5 (the compiled engine with the tendons' exact stiffness in its Jacobian) on a
+    damped arm under constant tensions and pressures settles on :func:`qchain.equilibrium`'s shape."""
+    chain = _tendon_arm(damping=0.3, gravity=(0.0, 0.0, 0.0))
+    T = np.array([1.0, 0.6])
+    p = np.array([1e3, 0.0, 0.0, 0.0, 0.0, 5e2])
+    eq = qc.equilibrium(chain, p, tension=T, tol=1e-12)
+    assert eq.success
+    tr = qc.simulate(chain, chain.neutral(), np.zeros(chain.nv), (0.0, 8.0), pressure=p, tension=T, method="radau5",
+                     rtol=1e-8, atol=1e-10, t_eval=[8.0])
+    assert tr.success and tr.meta["engine"] == "compiled"
+    assert np.abs(tr.v[-1]).max() < 1e-5  # at rest
+    assert np.abs(tr.q[-1] - eq.q).max() < 1e-6
+    assert np.abs(eq.q - chain.neutral()).max() > 0.5  # bent: curvatures of order 1/m
+
+
+def test_simulate_refuses_negative_tensions_where_they_enter():
+    chain = _tendon_arm()
+    q0, v0 = chain.neutral(), np.zeros(chain.nv)
+    with pytest.raises(ValueError, match=r"tension\[1\] must be >= 0 .* got -2 N"):
+        qc.simulate(chain, q0, v0, (0.0, 0.01), tension=[1.0, -2.0], method="rk4", dt=1e-3)
+    from qchain.sim.inputs import Step
+    with pytest.raises(ValueError, match=r"tension\[0\] must stay >= 0"):
+        qc.simulate(chain, q0, v0, (0.0, 0.01), tension=Step(0.005, [0.0, 1.0], [-1.0, 1.0]), method="rk4", dt=1e-3)
+    with pytest.raises(ValueError, match=r"tension\(t, q, v\)\[0\] must be >= 0 .* got -0.25 N"):
+        qc.simulate(chain, q0, v0, (0.0, 0.01), tension=lambda t, q, v: np.array([-0.25, 0.0]), method="rk4",
+                    dt=1e-3)
+    with pytest.raises(ValueError, match=r"tension is given but the chain has no tendons"):
+        ch = qc.Chain([_segment()])
+        qc.simulate(ch, ch.neutral(), np.zeros(3), (0.0, 0.01), tension=[1.0], method="rk4", dt=1e-3)
+
+
+@numba.njit(cache=True)
+def _call_rhs(f, m, wk, t, y, out):
+    return f(m, wk, t, y, out)
+
+
+@numba.njit(cache=True)
+def _call_jacobian(f, m, wk, t, y, Jq, Jv):
+    return f(m, wk, t, y, Jq, Jv)
+
+
+def test_engine_rhs_and_jacobian_carry_the_tendons():
+    """The compiled engine's right-hand side equals ``forward_dynamics(..., tension=T)``, and
+    its exact Jacobian ``da/dq`` (the tendons' stiffness included) equals central finite
+    differences of that right-hand side; the tendons' part of it is far above the error."""
+    from qchain.sim.engine import steppers, system, warmup
+
+    chain = _tendon_arm()
+    q = _config(chain, np.random.default_rng(1))
+    v = 0.1 * np.random.default_rng(2).normal(size=chain.nv)
+    p = np.full(chain.nu, 1e3)
+
+    def engine(T):
+        m = system.pack(chain, p, None, None, T)
+        wk = system.workspace(chain, m)
+        rhs, jac = warmup.callbacks("radau5", m, wk, steppers.integrator(m.idx.size, chain.nq))
+        nA = m.idx.size
+        wk.q_chart[:] = q
+        y = np.concatenate([np.zeros(nA), v[m.idx]])
+        out, Jq, Jv = np.zeros(2 * nA), np.zeros((nA, nA)), np.zeros((nA, nA))
+        assert _call_rhs(rhs, m, wk, 0.0, y, out) == system.OK
+        a = out[nA:].copy()
+        assert _call_jacobian(jac, m, wk, 0.0, y, Jq, Jv) == system.OK
+
+        def acc(x):
+            yy = y.copy()
+            yy[:nA] = x
+            _call_rhs(rhs, m, wk, 0.0, yy, out)
+            return out[nA:].copy()
+
+        return a, Jq, _fd(acc, y[:nA]).T
+
+    T = np.array([1.5, 2.0])
+    a, Jq, fd = engine(T)
+    assert np.abs(a - chain.forward_dynamics(q, v, p, tension=T)).max() <= 1e-12 * np.abs(a).max()
+    err = np.abs(Jq - fd).max()
+    assert err <= 1e-8 * np.abs(Jq).max()
+    _, Jq0, _ = engine(np.zeros(2))
+    assert np.abs(Jq - Jq0).max() > 1e4 * err
+
+
+def _kirchhoff_tendon_arm(tendons, T, EI, s_stops):
+    """An independent reference: the inextensible, torsion-rigid Kirchhoff rod (no gravity)
+    clamped along +z with frictionless tendons ``(r, phi0, pitch or None, s_end)``. Cut at
+    arclength ``s``, the part beyond it holds the tendons that pass ``s`` and nothing else, so
+    the rod's bending moment balances theirs there: with the tendon's tangent
+    ``(a (-sin phi, cos phi), z) / f`` in the section frame, ``a = 2 pi r / pitch``,
+    ``z = 1 - r (u . e)``, ``f = sqrt(a^2 + z^2)``, ``e = (cos phi, sin phi)``,
+
+        EI u(s) = sum_k T_k r_k z_k / f_k e_k      (the tendons passing s),
+
+    solved pointwise by fixed-point iteration (``r |u| << 1``), then ``p' = R e_z``,
+    ``R' = R [(-u_y, u_x, 0)]x`` (the strain twist's axes, docs/model.md section 2) integrated
+    by scipy's DOP853 at ``rtol = 1e-12``. Returns the backbone points at ``s_stops`` (m)."""
+    from scipy.integrate import solve_ivp
+
+    def u_at(s):
+        act = [(r, phi0 + (0.0 if p is None else 2 * np.pi * s / p), 0.0 if p is None else 2 * np.pi * r / p, Tk)
+               for (r, phi0, p, s_end), Tk in zip(tendons, T) if s <= s_end]
+        u = np.zeros(2)
+        for _ in range(100):
+            un = np.zeros(2)
+            for r, ph, a, Tk in act:
+                e = np.array([np.cos(ph), np.sin(ph)])
+                z = 1.0 - r * (u @ e)
+                un += Tk * r * z / (EI * np.hypot(a, z)) * e
+            if np.abs(un - u).max() <= 1e-15 * max(1.0, np.abs(un).max()):
+                break
+            u = un
+        return un
+
+    def rhs(s, y):
+        ux, uy = u_at(s)
+        W = np.array([[0.0, 0.0, ux], [0.0, 0.0, uy], [-ux, -uy, 0.0]])  # [(-uy, ux, 0)]x
+        Rm = y[3:].reshape(3, 3)
+        return np.concatenate([Rm[:, 2], (Rm @ W).ravel()])
+
+    y, s0, out = np.concatenate([np.zeros(3), np.eye(3).ravel()]), 0.0, []
+    for s1 in s_stops:  # stops at the tendons' ends, where u jumps
+        y = solve_ivp(rhs, (s0, s1), y, method="DOP853", rtol=1e-12, atol=1e-14).y[:, -1]
+        out.append(y[:3].copy())
+        s0 = s1
+    return np.array(out)
+
+
+def test_tendon_arm_converges_to_the_kirchhoff_rod():
+    """A straight tendon ending mid-arm and a helical one to the tip on an inextensible arm of
+    3 x 0.1 m, no gravity: the helix's moment turns along the arm, so the exact rod's
+    curvature varies within each segment and qchain's constant-curvature segments converge to
+    it at second order as they are split (``k`` sub-segments a segment): the mid-arm point and
+    the tip each move ~4 times closer to the rod at each halving."""
+    L0, R, E = 0.1, 0.01, 1e6
+    EI = E * np.pi * R ** 4 / 4
+    tendons = [(0.008, 0.0, None, 2 * L0), (0.006, np.pi / 2, 0.25, 3 * L0)]
+    T = np.array([1.2, 1.0])
+    ref = _kirchhoff_tendon_arm(tendons, T, EI, [2 * L0, 3 * L0])
+    errors = []
+    for k in (2, 4, 8):
+        segs = [qc.Segment(length=L0 / k, radius=R, mass=0.01 / k, chamber_area=1e-6, chamber_radius=0.005,
+                           youngs_modulus=E, extensible=False) for _ in range(3 * k)]
+        chain = qc.Chain(segs, gravity=(0.0, 0.0, 0.0),
+                         tendons=[qc.Tendon(radius=0.008, angle=0.0, end=2 * k - 1),
+                                  qc.Tendon(radius=0.006, angle=np.pi / 2, pitch=0.25)])
+        eq = qc.equilibrium(chain, tension=T, tol=1e-13)
+        assert eq.success
+        got = np.array([chain.points(eq.q, [(2 * k - 1, 1.0)])[0], chain.tip_placement(eq.q).translation])
+        errors.append(np.linalg.norm(got - ref, axis=1))
+    errors = np.array(errors)  # (3 refinements, 2 points)
+    deflection = np.linalg.norm(ref[1] - [0.0, 0.0, 3 * L0])
+    assert deflection > 0.03  # a real bend: 40 mm at the tip of a 0.3 m arm
+    assert np.all((errors[:-1] / errors[1:] > 3.5) & (errors[:-1] / errors[1:] < 4.5))
+    assert errors[-1].max() < 1e-3 * deflection  # k = 8 (24 segments): within 0.1 % of the deflection
