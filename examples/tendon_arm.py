@@ -1,7 +1,8 @@
 """A three-segment arm hanging from its base, driven by two tendons: a straight one ending
 mid-arm and a helical one running to the tip.
 
-The arm (built here in Python: scenes do not declare tendons yet): three 0.2 m segments of
+The arm (built here in Python; `examples/scenes/hanging_tendons.toml` is the same arm as a scene,
+``qchain run examples/scenes/hanging_tendons.toml``): three 0.2 m segments of
 radius 20 mm, E = 0.2 MPa, damped, hanging along world -z from a base 0.5 m up. Tendon 0 runs
 straight at 15 mm from the backbone on the base's +x side and ends at the tip of segment 1
 (mid-arm); tendon 1 winds round the arm at 12 mm, from

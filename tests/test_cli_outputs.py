@@ -352,3 +352,27 @@ def test_output_folders_that_cannot_be_written_are_refused_before_the_run(tmp_pa
     with pytest.raises(SceneError, match=r"output.folder: expected room for the outputs, about .* MiB, found "
                                          r"0.000954 MiB free"):
         scene.check_output(tmp_path / "out")
+
+
+def test_a_tendon_scene_runs_records_and_plots_its_tensions(tmp_path, capsys):
+    """`qchain run` of examples/scenes/hanging_tendons.toml: the tensions of the ramp in
+    trajectory.npz and in the MCAP (read back), tension.png beside pressure.png, and the
+    tendons said by the run's description."""
+    from pathlib import Path
+
+    from qchain.sim.inputs import Ramp
+
+    scene = Path(__file__).parent.parent / "examples" / "scenes" / "hanging_tendons.toml"
+    mcap, out = tmp_path / "run.mcap", tmp_path / "out"
+    assert main(["run", str(scene), "--duration", "0.2", "--mcap", str(mcap), "--out", str(out),
+                 "--no-progress"]) == 0, capsys.readouterr().err
+    said = capsys.readouterr().out
+    assert "tendon 1: radius 0.012 m, angle 1.5708 rad, helical, pitch 1.2 m, to the tip" in said
+    assert (out / "tension.png").is_file() and (out / "pressure.png").is_file()
+    data = np.load(out / "trajectory.npz")
+    ramp = Ramp(0.0, 0.5, np.array([5.0, 4.0]), np.zeros(2))
+    np.testing.assert_array_equal(data["tension"], np.array([ramp(t) for t in data["t"]]))
+    rec = read_recording(mcap)
+    assert rec.damage == [] and rec.info.params["tendons"][0]["end"] == 1
+    np.testing.assert_array_equal(rec.tension, data["tension"])
+    np.testing.assert_array_equal(rec.q, data["q"])

@@ -61,3 +61,14 @@ def test_leaving_the_domain_terminates_instead_of_raising():
 def test_bad_settings_name_parameter_value_and_bound(kw, words):
     with pytest.raises(ValueError, match=words.replace("|", r"\|")):
         gym.make(ID, **kw)
+
+
+def test_a_scene_with_tendons_is_refused():
+    """The actions are chamber pressures and simulate_batch has no tensions: the scene's
+    tendons would be slack, so the environment says so instead."""
+    from pathlib import Path
+
+    from qchain.envs.task import ReachTask
+
+    with pytest.raises(ValueError, match=r"takes no tendons \(\[\[tendons\]\]\)"):
+        ReachTask(Path(__file__).parent.parent / "examples" / "scenes" / "hanging_tendons.toml")

@@ -113,3 +113,12 @@ def test_gravity_is_named_one_way_by_the_parameters_the_sensitivities_and_the_fi
                       initial=False, method="rk4", dt=0.01)
     assert a.columns == b.columns == ["gravity[0]", "gravity[1]", "gravity[2]"]
     np.testing.assert_array_equal(a.S, b.S)
+
+
+def test_a_scene_with_tendons_is_refused():
+    """The measured inputs are chamber pressures: a fit of a scene with tendons is refused,
+    not run with the tendons slack."""
+    raw = _raw()
+    raw["tendons"] = [{"radius": 0.01}]
+    with pytest.raises(ValueError, match=r"a fit takes no tendons \(\[\[tendons\]\]\)"):
+        fit_parameters(raw, ["segments[0].youngs_modulus"])

@@ -244,3 +244,71 @@ def test_a_recorder_used_for_two_runs_refuses_the_second_instead_of_splicing(tmp
         with pytest.raises(ValueError, match=r"t must not go back: a batch from t = 0.0 s .* \(one recorder a run\)"):
             simulate(ch, q0, v0, (0, 0.2), on_sample=rec, t_eval=np.linspace(0, 0.2, 21))
     np.testing.assert_allclose(read_recording(tmp_path / "r.mcap").t, np.linspace(0, 0.1, 11))
+
+
+def _tendon_chain():
+    from qchain import Chain, Segment, Tendon
+
+    seg = Segment(length=0.2, radius=0.02, mass=0.08, chamber_area=1e-4, chamber_radius=0.01, youngs_modulus=2e5,
+                  damping=0.15)
+    return Chain([seg, seg], tendons=[Tendon(radius=0.015, angle=0.3, end=0), Tendon(radius=0.01, pitch=0.5)])
+
+
+def test_tensions_and_tendon_paths_are_recorded_and_read_back(tmp_path):
+    """A run with tendons through the recorder: each row holds the sample's tensions (the
+    schedule's) and each tendon's path (Chain.tendon_paths, NaN past a tendon's end); the MCAP
+    reads the tensions back bit for bit (its state messages hold them, not the paths), the
+    journal's rows both; a run without tendons writes the layout of before."""
+    from qchain.sim.inputs import Ramp
+
+    ch = _tendon_chain()
+    ramp = Ramp(0.0, 0.05, np.array([3.0, 2.0]), np.zeros(2))
+    keep = _Rows()
+    path = tmp_path / "run.mcap"
+    with RunLogger(_info(ch), path, quiet=True) as log, ChainRecorder(log, ch, tension=lambda t, q, v: ramp(t)) as rec:
+        real_log_rows = log.log_rows
+
+        def both(rows, layout):
+            keep.log_rows(rows, layout)
+            real_log_rows(rows, layout)
+
+        log.log_rows = both
+        traj = simulate(ch, ch.neutral(), np.zeros(ch.nv), (0.0, 0.1), tension=ramp, method="radau5",
+                        t_eval=np.linspace(0.0, 0.1, 11), on_sample=rec)
+    assert traj.success
+    lay = keep.calls[0][1]
+    assert (lay.nt, lay.M) == (2, 2 * rec.points_per_segment)
+    assert RecordLayout.from_json(lay.to_json()) == lay
+    from qchain.recording.records import Batch
+
+    b = Batch.concatenate([Batch.from_rows(r, lay) for r, lay in keep.calls])
+    np.testing.assert_array_equal(b.tension, traj.tension)
+    P = rec.points_per_segment
+    for k in (0, 5, 10):
+        short, full = ch.tendon_paths(traj.q[k], P, t=traj.t[k])
+        np.testing.assert_array_equal(b.tendons[k, 0, :P], short)  # tendon 0 ends at segment 0's tip
+        assert np.isnan(b.tendons[k, 0, P:]).all()
+        np.testing.assert_array_equal(b.tendons[k, 1], full)
+    back = read_recording(path)
+    assert back.damage == [] and back.nonfinite == []
+    np.testing.assert_array_equal(back.tension, traj.tension)
+    np.testing.assert_array_equal(back.q, traj.q)
+    assert back.tendons is None
+    np.testing.assert_array_equal(Batch.from_rows(back.batch().rows(), back.batch().layout).tension, traj.tension)
+    # without the tension callable (or tendons) the layout is the one of before: no tendon columns
+    plain = ChainRecorder(_Rows(), ch)
+    assert (plain.layout.nt, plain.layout.M) == (0, 0) and "nt" not in plain.layout.to_json()
+
+
+def test_tension_recording_arguments_are_checked(tmp_path):
+    ch = _tendon_chain()
+    with pytest.raises(TypeError, match="tension must be None or a callable"):
+        ChainRecorder(_Rows(), ch, tension=[1.0, 2.0])
+    with pytest.raises(ValueError, match="the chain has no tendons"):
+        ChainRecorder(_Rows(), soft_arm(2), tension=lambda t, q, v: np.zeros(0))
+    rec = ChainRecorder(_Rows(), ch, tension=lambda t, q, v: np.array([1.0, -1.0]))
+    with pytest.raises(ValueError, match=r"must return 2 finite tensions >= 0 N"):
+        rec(0.0, ch.neutral(), np.zeros(ch.nv), np.zeros(ch.nu))
+        rec.flush()
+    with pytest.raises(ValueError, match="nt and M|tendon points without tendons"):
+        RecordLayout.from_json({"nq": 6, "nv": 6, "np": 6, "n": 2, "P": 3, "M": 4})

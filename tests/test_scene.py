@@ -199,7 +199,8 @@ DELETE = object()
 ERRORS = [
     # (mutations, expected message fragment)
     ([_set("segmnts", 1)], "segmnts: expected one of the keys name, description, gravity, model, segments, base, "
-                           "pressure, initial, simulation, output, budget, contact, obstacles, loads, payload (did you mean "
+                           "pressure, initial, simulation, output, budget, contact, obstacles, loads, payload, tendons, tension "
+                           "(did you mean "
                            "'segments'?), found the unknown key 'segmnts'"),
     ([_set("segments[0].raduis", 0.01)], "segments[0].raduis: expected one of the keys count, length, radius,"),
     ([_set("segments[0].raduis", 0.01)], "(did you mean 'radius'?), found the unknown key 'raduis'"),
@@ -520,3 +521,41 @@ def test_parse_scene_from_text():
     assert scene.path is None and scene.output_folder == Path("out/scene") and scene.text == text
     with pytest.raises(SceneError, match=r"^<scene>: simulation.duration"):
         parse_scene(text.replace("duration = 0.1", "duration = 0"))
+
+
+def test_a_tendon_scene_runs_as_simulate_on_the_same_chain_and_tensions():
+    """examples/scenes/hanging_tendons.toml against the same arm built in Python
+    (examples/tendon_arm.py's): the scene's run is simulate's with Chain(tendons=...) and
+    tension=Ramp, sample for sample, and records the ramp's tensions; the full model is
+    kept (planar and inextensible reductions are not tried with tendons)."""
+    from qchain import Segment, Tendon, simulate
+    from qchain.sim.inputs import Ramp
+
+    scene = load_scene(Path(__file__).parent.parent / "examples" / "scenes" / "hanging_tendons.toml")
+    model = scene.build()
+    ch = model.chain
+    assert not ch.planar and all(s.extensible for s in ch.segments) and ch.nt == 2
+    traj = scene.simulate(duration=0.3)
+    seg = Segment(length=0.2, radius=0.02, mass=0.08, chamber_area=1e-4, chamber_radius=0.01, youngs_modulus=2e5,
+                  damping=0.15)
+    down = pin.SE3(pin.rpy.rpyToMatrix(np.pi, 0.0, 0.0), np.array([0.0, 0.0, 0.5]))
+    ref_chain = Chain([seg] * 3, base_placement=down, tendons=[Tendon(radius=0.015, angle=0.0, end=1),
+                                                               Tendon(radius=0.012, angle=np.pi / 2, pitch=1.2)])
+    ramp = Ramp(0.0, 0.5, np.array([5.0, 4.0]), np.zeros(2))
+    ref = simulate(ref_chain, ref_chain.neutral(), np.zeros(ref_chain.nv), (0.0, 0.3), tension=ramp, method="radau5",
+                   rtol=1e-7, atol=1e-9, t_eval=traj.t)
+    np.testing.assert_allclose(traj.q, ref.q, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(traj.tension, np.array([ramp(t) for t in traj.t]), rtol=0, atol=1e-15)
+    assert np.abs(traj.q[-1] - traj.q[0]).max() > 1e-3  # the tensions moved the arm
+
+
+def test_tendons_without_tension_leave_the_run_as_without_tendons(tmp_path):
+    """A scene's tendons at 0 N (no [tension]) do no work: the run is the tendonless scene's
+    (both unreduced: tendons keep the full model and size the node count for the largest bend)."""
+    text = (Path(__file__).parent.parent / "examples" / "scenes" / "step_response.toml").read_text()
+    plain = parse_scene(text, tmp_path / "a.toml").simulate(duration=0.1, reduce=False)
+    slack = parse_scene(text + "\n[[tendons]]\nradius = 0.01\npitch = 0.3\n", tmp_path / "b.toml")
+    assert slack.build().chain.nt == 1 and slack.tension is None
+    traj = slack.simulate(duration=0.1, reduce=False)
+    np.testing.assert_allclose(traj.q, plain.q, rtol=0, atol=1e-12)
+    np.testing.assert_array_equal(traj.tension, np.zeros((len(traj.t), 1)))

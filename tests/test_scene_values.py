@@ -123,6 +123,10 @@ FAR_OBSTACLES = {
     "box": {"type": "box", "center": [1.0, 0.0, 0.0], "half_extents": [0.1, 0.2, 0.3]},
 }
 LOAD = {"segment": 1, "alpha": 1.0, "force": [0.0, 0.0, -0.5]}
+#: a valid tension schedule of each kind for one tendon
+TENSIONS = {"constant": {"type": "constant", "value": [1.0]}, "step": {"type": "step", "time": 0.05, "after": [1.0]},
+            "ramp": {"type": "ramp", "t0": 0.0, "t1": 0.05, "end": [1.0]},
+            "table": {"type": "table", "times": [0.0, 0.05], "values": [[0.0], [1.0]]}}
 
 
 def context_for(table: F.KeyTable, f: F.Field) -> dict:
@@ -144,6 +148,15 @@ def context_for(table: F.KeyTable, f: F.Field) -> dict:
     if table is F.PAYLOAD:
         d = base_scene()
         d["payload"] = {"mass": 0.05}
+        return d
+    if table is F.TENDONS:
+        d = base_scene()
+        d["tendons"] = [{"radius": 0.005}]
+        return d
+    if table is F.TENSION:
+        d = base_scene()
+        d["tendons"] = [{"radius": 0.005}]
+        d["tension"] = dict(TENSIONS[f.when[0] if f.when else "constant"])
         return d
     if table is F.SIMULATION and f.key == "dt":
         d = base_scene()
@@ -451,3 +464,87 @@ def test_parse_scene_refuses_text_that_is_not_text():
     assert parse_scene(to_toml(base_scene()).encode(), "b.toml").n == 2
     with pytest.raises(SceneError, match=r"expected UTF-8 text"):
         parse_scene(b"name = '\xff'")
+
+
+# ----------------------------------------------------------------------------------------
+# [[tendons]] and [tension] (qchain/scene/tendons.py): bad values named by key, value, bound
+
+
+def _tendon_scene(mutate) -> str:
+    """base_scene with one tendon and a constant tension of 1 N, then ``mutate``d."""
+    d = base_scene()
+    d["tendons"] = [{"radius": 0.005}]
+    d["tension"] = {"type": "constant", "value": [1.0]}
+    mutate(d)
+    return to_toml(d)
+
+
+TENDON_ERRORS = {
+    "radius 0": (lambda d: d["tendons"][0].update(radius=0),
+                 "tendons[0].radius: expected a number > 0 and <= 10 (m), found 0"),
+    "radius 20 m": (lambda d: d["tendons"][0].update(radius=20.0),
+                    "tendons[0].radius: expected a number > 0 and <= 10 (m), found 20.0"),
+    "pitch too short": (lambda d: d["tendons"][0].update(pitch=1e-5),
+                        "tendons[0].pitch: expected a number (m) with |pitch| >= 0.0001 and <= 1e+06 m, found 1e-05"),
+    "pitch too long, left-handed": (lambda d: d["tendons"][0].update(pitch=-2e6),
+                                    "tendons[0].pitch: expected a number (m) with |pitch| >= 0.0001 and <= 1e+06 m, "
+                                    "found -2000000.0"),
+    "pitch nan": (lambda d: d["tendons"][0].update(pitch=math.nan), "tendons[0].pitch: expected a number (m) with "
+                  "|pitch| >= 0.0001 and <= 1e+06 m, found nan"),
+    "pitch boolean": (lambda d: d["tendons"][0].update(pitch=True), "tendons[0].pitch: expected a number (m) with "
+                      "|pitch| >= 0.0001 and <= 1e+06 m, found a boolean true"),
+    "angle nan": (lambda d: d["tendons"][0].update(angle=math.nan),
+                  "tendons[0].angle: expected a finite number >= -1000 and <= 1000 (rad), found nan"),
+    "end past the tip": (lambda d: d["tendons"][0].update(end=2),
+                         "tendons[0].end: expected a segment index < 2 (the arm's segments, count expanded), found 2"),
+    "end negative": (lambda d: d["tendons"][0].update(end=-1), "tendons[0].end: expected an integer >= 0, found -1"),
+    "unknown key": (lambda d: d["tendons"][0].update(rdius=0.01),
+                    "tendons[0].rdius: expected one of the keys radius, angle, pitch, end (did you mean 'radius'?)"),
+    "not an array of tables": (lambda d: d.update(tendons={"radius": 0.01}),
+                               "tendons: expected an array of tables [[tendons]], found a table {radius = 0.01}"),
+    "negative tension": (lambda d: d["tension"].update(value=[-1.0]),
+                         "tension.value[0]: expected a number >= 0 and <= 1e+09 (N), found -1.0"),
+    "tension over the bound": (lambda d: d["tension"].update(value=[2e9]),
+                               "tension.value[0]: expected a number >= 0 and <= 1e+09 (N), found 2000000000.0"),
+    "two tensions for one tendon": (lambda d: d["tension"].update(value=[1.0, 2.0]),
+                                    "tension.value: expected an array of 1 tension (N), one a tendon, found 2 numbers "
+                                    "[1.0, 2.0]"),
+    "tension without tendons": (lambda d: d.pop("tendons"), "tension: expected no [tension] without [[tendons]]"),
+    "ramp backwards": (lambda d: d.update(tension={"type": "ramp", "t0": 0.1, "t1": 0.05, "end": [1.0]}),
+                       "tension.t1: expected a time > t0 = 0.1 s, found 0.05"),
+    "table times not increasing": (lambda d: d.update(tension={"type": "table", "times": [0.0, 0.0],
+                                                               "values": [[0.0], [1.0]]}),
+                                   "tension.times[1]: expected a time > times[0] = 0 s (strictly increasing), found 0.0"),
+    "table rows missing": (lambda d: d.update(tension={"type": "table", "times": [0.0, 0.1], "values": [[0.0]]}),
+                           "tension.values: expected 2 tension arrays, one for each of the 2 times, found 1 arrays"),
+    "table negative": (lambda d: d.update(tension={"type": "table", "times": [0.0, 0.1], "values": [[0.0], [-3.0]]}),
+                       "tension.values[1][0]: expected a number >= 0 and <= 1e+09 (N), found -3.0"),
+    "kind": (lambda d: d.update(tension={"type": "sine"}),
+             'tension.type: expected one of "constant", "step", "ramp", "table", found a string "sine"'),
+    "step without after": (lambda d: d.update(tension={"type": "step", "time": 0.1}),
+                           "tension.after: expected an array of 1 tension (N), one a tendon, found nothing (the key is "
+                           "required)"),
+}
+
+
+@pytest.mark.parametrize("case", list(TENDON_ERRORS), ids=list(TENDON_ERRORS))
+def test_tendon_and_tension_values_are_refused_naming_key_value_and_bound(case):
+    mutate, message = TENDON_ERRORS[case]
+    err = problems(_tendon_scene(mutate))
+    assert len(err.problems) == 1, str(err)  # one problem, not a cascade
+    assert message in str(err.problems[0]), str(err)
+
+
+def test_a_valid_tendon_scene_reads_into_tendons_and_a_schedule():
+    from qchain import Tendon
+
+    text = _tendon_scene(lambda d: (d["tendons"].append({"radius": 0.004, "angle": 1.0, "pitch": -0.5, "end": 0}),
+                                    d.update(tension={"type": "step", "time": 0.05, "after": [2.0, 3.0]})))
+    scene = parse_scene(text, "tendons.toml")
+    a, b = scene.tendons
+    assert (a.radius, a.angle, a.pitch, a.end) == (0.005, 0.0, None, None)
+    assert (b.radius, b.angle, b.pitch, b.end) == (0.004, 1.0, -0.5, 0)
+    assert all(isinstance(td, Tendon) for td in scene.tendons)
+    np.testing.assert_array_equal(scene.tension(0.0), [0.0, 0.0])
+    np.testing.assert_array_equal(scene.tension(0.06), [2.0, 3.0])
+    assert scene.build().chain.nt == 2

@@ -128,3 +128,41 @@ def test_the_foxglove_layout_names_every_series():
     assert '"label":"segment 2 ux [1/m]"'.replace(":", ": ") in text or '"label": "segment 2 ux [1/m]"' in text
     assert "/qchain/state.q[4]" in text and '"followTf": "base"' in text
     assert '"legendDisplay": "top"' in text  # above the plot, not over the data
+
+
+def test_rerun_draws_the_tendon_paths_and_plots_the_tensions(tmp_path):
+    """A run with tendons in the .rrd: ``/arm/tendons`` holds, at each record, one line strip
+    a tendon, its finite points only (a tendon ending mid-arm is shorter), equal to the
+    recorded paths; ``/plots/tension`` the tensions, named by tendon."""
+    import dataclasses
+
+    import rerun as rr
+
+    records = arm_records(8)
+    P = records[0].backbone.shape[1]
+    rng = np.random.default_rng(3)
+    paths = rng.normal(size=(8, 2, 3 * P, 3))
+    paths[:, 0, P:] = np.nan  # tendon 0 ends at the first segment's tip
+    tension = rng.uniform(0.0, 5.0, size=(8, 2))
+    rrd = tmp_path / "run.rrd"
+    with RunLogger(arm_info(), io.BytesIO(), rrd=rrd, quiet=True) as log:
+        for k, r in enumerate(records):
+            log.log(dataclasses.replace(r, tension=tension[k], tendons=paths[k]))
+    strips, scalars, names = [], [], None
+    for chunk in rr.chunk.RrdReader(rrd).stream():
+        rb = chunk.to_record_batch()
+        cols = rb.schema.names
+        if chunk.entity_path == "/arm/tendons" and "LineStrips3D:strips" in cols:
+            strips += rb.column(cols.index("LineStrips3D:strips")).to_pylist()
+        if chunk.entity_path == "/plots/tension":
+            if "Scalars:scalars" in cols:
+                scalars += rb.column(cols.index("Scalars:scalars")).to_pylist()
+            if "SeriesLines:names" in cols:
+                names = rb.column(cols.index("SeriesLines:names")).to_pylist()[0]
+    assert len(strips) == 8 and all(len(s) == 2 for s in strips)
+    for k, (short, full) in enumerate(strips):
+        assert np.array(short).shape == (P, 3) and np.array(full).shape == (3 * P, 3)
+        np.testing.assert_allclose(np.array(short), paths[k, 0, :P], rtol=1e-6)
+        np.testing.assert_allclose(np.array(full), paths[k, 1], rtol=1e-6)
+    np.testing.assert_allclose(np.array(scalars), tension)
+    assert names == ["tendon 0 [N]", "tendon 1 [N]"]

@@ -408,6 +408,8 @@ def _make_logger(args, scene: Scene, model: SceneModel, duration: float | None =
             "segments": [{k: getattr(s, k) for k in ("length", "radius", "mass", "chamber_area", "chamber_radius",
                                                        "youngs_modulus", "damping", "coords", "actuation")}
                          for s in ch.segments],
+            **({"tendons": [{"radius": td.radius, "angle": td.angle, "pitch": td.pitch, "end": td.end}
+                            for td in ch.tendons]} if ch.nt else {}),
         },
         name=scene.name or stem or "qchain run",
         q_names=q_names,
@@ -420,7 +422,14 @@ def _make_logger(args, scene: Scene, model: SceneModel, duration: float | None =
                                 linger=args.serve, **{"rerun_rate": args.rerun_rate, **logger_kwargs})
     else:
         logger = qlog.logger_from_args(args, info, **logger_kwargs)
-    return logger, ChainRecorder(logger, ch, realtime=bool(getattr(args, "realtime", False)), contacts=contacts)
+    import numpy as np
+
+    tension = None
+    if ch.nt:  # the scene's tension schedule (0 N without [tension]): what simulate applies at each sample
+        zeros = np.zeros(ch.nt)
+        tension = (lambda t, q, v: zeros) if scene.tension is None else (lambda t, q, v: scene.tension(t))
+    return logger, ChainRecorder(logger, ch, realtime=bool(getattr(args, "realtime", False)), contacts=contacts,
+                                 tension=tension)
 
 
 #: Contacts a sample of ``qchain run`` records at most (``RunInfo.max_contacts``): 11 numbers

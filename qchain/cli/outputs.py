@@ -31,19 +31,23 @@ def tip_positions(model: SceneModel, traj) -> np.ndarray:
 def planned_outputs(scene: Scene, folder: Path | None = None) -> list[Path]:
     """The files :func:`write_outputs` will write for ``scene`` into ``folder`` (default the
     scene's ``output.folder``): its plots (``NAME.png``; ``momentum.png`` for a floating base
-    only) and ``trajectory.npz`` if ``output.save``. Checked before the run."""
+    only; ``tension.png`` beside ``pressure.png`` for a scene with tendons) and
+    ``trajectory.npz`` if ``output.save``. Checked before the run."""
     folder = Path(scene.output_folder if folder is None else folder)
     floating = getattr(getattr(scene, "base", None), "type", None) == "floating"
     names = [f"{name}.png" for name in scene.plots if name != "momentum" or floating]
+    if "pressure" in scene.plots and getattr(scene, "tendons", ()):
+        names.append("tension.png")
     if scene.save:
         names.append("trajectory.npz")
     return [folder / name for name in names]
 
 
 def write_outputs(scene: Scene, model: SceneModel, traj, folder: Path, plots=None, save: bool | None = None) -> list[Path]:
-    """Write the plots (PNG, ``plots`` default the scene's) and ``trajectory.npz`` (``save``
-    default the scene's: t, q, v, p, energies, tip, success, message) into ``folder``; return the
-    paths."""
+    """Write the plots (PNG, ``plots`` default the scene's; the ``pressure`` plot adds
+    ``tension.png`` when the trajectory has tensions) and ``trajectory.npz`` (``save`` default
+    the scene's: t, q, v, p, energies, tip, success, message, and ``tension`` (N, nt) N with
+    tendons) into ``folder``; return the paths."""
     import os
     import secrets
 
@@ -62,10 +66,11 @@ def write_outputs(scene: Scene, model: SceneModel, traj, folder: Path, plots=Non
         tmp = folder / f".trajectory-{os.getpid()}-{secrets.token_hex(4)}.npz"
         try:
             fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)  # the umask's mode, as a plain open
+            extra = {} if getattr(traj, "tension", None) is None else {"tension": traj.tension}
             with os.fdopen(fd, "wb") as fh:
                 np.savez_compressed(fh, t=t, q=traj.q, v=traj.v, p=traj.p, kinetic_energy=traj.kinetic_energy,
                                     potential_energy=traj.potential_energy, tip=tip, success=traj.success,
-                                    message=traj.message)
+                                    message=traj.message, **extra)
             os.replace(tmp, path)
             written.append(path)
         except OSError as exc:
@@ -124,6 +129,11 @@ def write_outputs(scene: Scene, model: SceneModel, traj, folder: Path, plots=Non
         for k in range(traj.p.shape[1]):
             ax.plot(t, traj.p[:, k] / 1e3, label=f"segment {k // 3}, chamber {k % 3 + 1}")
         finish(fig, "pressure.png", ax, "pressure (kPa)", "chamber pressures", fontsize=7, ncol=3)
+        if getattr(traj, "tension", None) is not None:  # the tendons' inputs, beside the chambers'
+            fig, ax = plt.subplots(figsize=(8, 4))
+            for k in range(traj.tension.shape[1]):
+                ax.plot(t, traj.tension[:, k], label=f"tendon {k}")
+            finish(fig, "tension.png", ax, "tension (N)", "tendon tensions")
     if "momentum" in plots and model.chain.floating and len(t):
         h = momenta(model, traj)
         fig, ax = plt.subplots(figsize=(8, 4))

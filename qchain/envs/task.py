@@ -113,6 +113,9 @@ class ReachTask:
         if sc.environment is not None:
             raise ValueError("scene: the reach environment takes no obstacles or point loads "
                              "([[obstacles]], [[loads]]): its batch engine (qchain.simulate_batch) has no contact")
+        if sc.tendons:
+            raise ValueError("scene: the reach environment takes no tendons ([[tendons]]): its actions are chamber "
+                             "pressures and its batch engine (qchain.simulate_batch) has no tensions")
         if sc.method in FIXED_STEP and self.dt_control < sc.dt:
             raise ValueError(f"dt_control must be >= the scene's step dt = {sc.dt:g} s, got {self.dt_control:g} s")
         self.scene = sc

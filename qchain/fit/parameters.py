@@ -94,8 +94,11 @@ def fit_parameters(raw: dict, keys, bounds: dict | None = None) -> list[FitParam
     ValueError
         A key that is not a fit parameter (the message lists those there are), a table index
         past the scene's tables, a key given twice, a bound outside the format's range or a
-        start value outside its bounds.
+        start value outside its bounds, or a scene with tendons (the measured inputs are
+        chamber pressures: its tendons would be slack).
     """
+    if raw.get("tendons"):
+        raise ValueError("scene: a fit takes no tendons ([[tendons]]): the measured inputs are chamber pressures")
     bounds = dict(bounds or {})
     unknown = set(bounds) - set(keys)
     if unknown:

@@ -48,6 +48,33 @@ DEFAULT_MAX_QUEUE = 4096
 #: s without a word from the writer process (it says it is alive every second while it
 #: finishes) after which the recording is finished here from the journal instead.
 WRITER_SILENCE = 30.0
+def _tendon_shape(tension, tendons) -> tuple[int, int]:
+    """``(nt, M)`` of a record's tensions (nt,) and tendon paths (nt, M, 3) (None: none)."""
+    if tension is None:
+        if tendons is not None:
+            raise ValueError("record.tendons without record.tension: the tensions come with the paths")
+        return 0, 0
+    if np.ndim(tension) != 1 or np.shape(tension)[0] < 1:
+        raise ValueError(f"record.tension must be a vector of nt >= 1 tensions (N), got shape {np.shape(tension)}")
+    nt = np.shape(tension)[0]
+    if tendons is None:
+        return nt, 0
+    sh = np.shape(tendons)
+    if len(sh) != 3 or sh[0] != nt or sh[2] != 3 or sh[1] < 1:
+        raise ValueError(f"record.tendons must have shape ({nt}, M, 3) with M >= 1, got {sh}")
+    return nt, sh[1]
+
+
+def _tendon_block(tension, tendons, lay: RecordLayout, step) -> tuple[np.ndarray, np.ndarray]:
+    """A record's tensions and tendon paths as the row's two blocks, checked against ``lay``."""
+    if (np.shape(tension) != (lay.nt,) or (lay.M and np.shape(tendons) != (lay.nt, lay.M, 3))
+            or (not lay.M and tendons is not None)):
+        raise ValueError(f"record.tension and record.tendons have shapes {np.shape(tension)}, "
+                         f"{np.shape(tendons) if tendons is not None else None} at step {step}; the first record had "
+                         f"({lay.nt},), {(lay.nt, lay.M, 3) if lay.M else None}")
+    return np.asarray(tension, dtype=np.float64), np.ravel(np.asarray(tendons if lay.M else (), dtype=np.float64))
+
+
 _COLUMNS = ("step", "q", "v", "p", "kinetic", "potential", "total", "backbone", "tip_frames")
 _OPEN: weakref.WeakSet = weakref.WeakSet()
 
@@ -323,8 +350,9 @@ class RunLogger:
             raise ValueError(f"record.backbone must have shape ({n}, P, 3) with P >= 1, got {bb}")
         if shapes["tip_frames"] != (n, 7):
             raise ValueError(f"record.tip_frames must have shape ({n}, 7), got {shapes['tip_frames']}")
+        nt, M = _tendon_shape(r.tension, r.tendons)
         return self._set_layout(RecordLayout(shapes["q"][0], shapes["v"][0], shapes["p"][0], n, bb[1],
-                                             self.info.max_contacts))
+                                             self.info.max_contacts, nt, M))
 
     def _set_layout(self, lay: RecordLayout) -> RecordLayout:
         self._shapes = {"q": (lay.nq,), "v": (lay.nv,), "p": (lay.n_p,), "backbone": (lay.n, lay.P, 3),
@@ -378,6 +406,8 @@ class RunLogger:
             block, dropped = pack_contacts(record.contacts, self._layout.C, self.info)
             self._said_dropped(dropped, t)
             extra = (block.ravel(),)
+        if self._layout.nt:
+            extra += _tendon_block(record.tension, record.tendons, self._layout, record.step)
         try:
             row = np.concatenate(((t, record.step), q, v, p, (record.kinetic, record.potential, record.total), base,
                                   np.ravel(bb), np.ravel(tf)) + extra, dtype=np.float64)
@@ -478,7 +508,7 @@ class RunLogger:
         self.n_logged += K
 
     def log_columns(self, t, step, q, v, p, kinetic, potential, total, backbone, tip_frames, base=None,
-                    contacts=None) -> None:
+                    contacts=None, tension=None, tendons=None) -> None:
         """Take ``K`` records given as columns: the batch form of :meth:`log`.
 
         Parameters
@@ -495,6 +525,10 @@ class RunLogger:
             As the fields of :class:`StepRecord`, one row a record.
         contacts : sequence of K Contacts-like (or None) or None
             Each record's active contacts, as :attr:`StepRecord.contacts`.
+        tension : (K, nt) N or None
+        tendons : (K, nt, M, 3) m or None
+            Each record's tensions and tendon paths, as :attr:`StepRecord.tension` and
+            :attr:`StepRecord.tendons`.
         """
         if self._closed:
             raise LoggingError("log_columns() on a closed RunLogger")
@@ -510,7 +544,9 @@ class RunLogger:
         if K == 0:
             return
         if self._layout is None:
-            self._init_layout(StepRecord(float(t[0]), int(cols[0][0]), *(x[0] for x in cols[1:])))
+            self._init_layout(StepRecord(float(t[0]), int(cols[0][0]), *(x[0] for x in cols[1:]),
+                                         tension=None if tension is None else np.asarray(tension)[0],
+                                         tendons=None if tendons is None else np.asarray(tendons)[0]))
         step, q, v, p, kinetic, potential, total, backbone, tip_frames = cols
         for f, x in (("q", q), ("v", v), ("p", p), ("backbone", backbone), ("tip_frames", tip_frames)):
             if x.shape[1:] != self._shapes[f]:
@@ -532,6 +568,12 @@ class RunLogger:
                 self._said_dropped(dropped, float(t[k]))
                 blocks[k] = block.ravel()
             extra = (blocks,)
+        if self._layout.nt:
+            if tension is None or np.shape(tension)[0] != K or (tendons is not None and np.shape(tendons)[0] != K):
+                raise ValueError(f"tension (and tendons) must hold K = {K} rows (the run has tendons)")
+            extra += (np.concatenate([np.concatenate(_tendon_block(tension[k], None if tendons is None else tendons[k],
+                                                                   self._layout, int(step[k])))[None]
+                                      for k in range(K)]),)
         rows = np.concatenate((t[:, None], step[:, None], q, v, p, kinetic[:, None], potential[:, None],
                                total[:, None], base, backbone.reshape(K, -1), tip_frames.reshape(K, -1)) + extra,
                               axis=1)

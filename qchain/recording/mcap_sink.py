@@ -29,6 +29,7 @@ from .records import (
 from .scenery import (
     CONTACT_COLOR,
     OBSTACLE_COLOR,
+    TENDON_COLOR,
     force_scale,
     motion_offset,
     obstacle_shapes,
@@ -61,6 +62,8 @@ STATE_SCHEMA = {
         "backbone": {"type": "array",
                      "items": {"type": "array", "items": {"type": "array", "items": {"type": "number"}}},
                      "description": "world backbone points of each segment, root to tip, m"},
+        "tension": {"type": "array", "items": {"type": "number"},
+                    "description": "the tendons' tensions, N (a run with tendons only)"},
     },
     "required": ["t", "step", "q", "v", "p", "kinetic", "potential", "total", "base", "tips", "backbone"],
 }
@@ -225,9 +228,12 @@ class McapSink:
         for k in range(K):
             t, step, lt = ts[k], steps[k], lts[k]
             seq = step & 0xFFFFFFFF
-            state = dumps({"t": b.t[k], "step": step, "q": b.q[k], "v": b.v[k], "p": b.p[k],
-                           "kinetic": b.energy[k, 0], "potential": b.energy[k, 1], "total": b.energy[k, 2],
-                           "base": b.base[k], "tips": b.tip_frames[k], "backbone": b.backbone[k]}, option=opt)
+            fields_k = {"t": b.t[k], "step": step, "q": b.q[k], "v": b.v[k], "p": b.p[k],
+                        "kinetic": b.energy[k, 0], "potential": b.energy[k, 1], "total": b.energy[k, 2],
+                        "base": b.base[k], "tips": b.tip_frames[k], "backbone": b.backbone[k]}
+            if b.tension is not None:  # (a run without tendons writes the state as before)
+                fields_k["tension"] = b.tension[k]
+            state = dumps(fields_k, option=opt)
             stamp = fm.Timestamp(lt // 1_000_000_000, lt % 1_000_000_000)
             tf = fm.FrameTransforms(transforms=[
                 fm.FrameTransform(timestamp=stamp, parent_frame_id=names[j], child_frame_id=names[j + 1],
@@ -240,7 +246,7 @@ class McapSink:
                     type=fm.LinePrimitiveLineType.LineStrip, thickness=2.0 * radii[i], scale_invariant=False,
                     points=[fm.Point3(x=x, y=y, z=z) for x, y, z in bb[i].tolist()], color=colors[i],
                     pose=identity)])
-                for i in range(n)])
+                for i in range(n)] + self._tendon_entities(b, k, stamp, identity))
             pts = fm.PointCloud(timestamp=stamp, frame_id="world", pose=identity, point_stride=24, fields=fields,
                                 data=np.ascontiguousarray(bb).tobytes())
             w.add_message(ch["state"], lt, state, lt, seq)
@@ -261,6 +267,21 @@ class McapSink:
         self.n_records += K
         self.last_t = ts[-1]
         self.tick()
+
+    def _tendon_entities(self, b: Batch, k: int, stamp, identity) -> list:
+        """Record ``k``'s tendon paths as thin line strips (none without them)."""
+        if b.tendons is None:
+            return []
+        fm = self._fm
+        thin = 0.2 * min(self.info.radii)
+        color = fm.Color(r=TENDON_COLOR[0] / 255.0, g=TENDON_COLOR[1] / 255.0, b=TENDON_COLOR[2] / 255.0, a=1.0)
+        out = []
+        for i, path in enumerate(b.tendons[k]):
+            path = path[np.isfinite(path).all(axis=1)]
+            out.append(fm.SceneEntity(timestamp=stamp, frame_id="world", id=f"tendon_{i}", lines=[fm.LinePrimitive(
+                type=fm.LinePrimitiveLineType.LineStrip, thickness=thin, scale_invariant=False,
+                points=[fm.Point3(x=x, y=y, z=z) for x, y, z in path.tolist()], color=color, pose=identity)]))
+        return out
 
     def _obstacle_parts(self, b: Batch):
         """The obstacles' shapes at ``t = 0`` (:func:`obstacle_shapes`, sized by the first

@@ -75,7 +75,9 @@ class Recording(Batch):
     """Everything a qchain MCAP holds (the reading side of :class:`RunLogger`): its records, a
     :class:`Batch` (with ``contacts`` (K, max_contacts, 11) when the run recorded contacts,
     NaN-padded; :meth:`~Batch.contact_set` gives record ``k``'s; a record whose contact
-    message was lost reads as having none), and
+    message was lost reads as having none; with ``tension`` (K, nt) N when the run had
+    tendons; ``tendons``, their paths, only from records recovered from a journal: the file's
+    state messages hold the tensions, not the paths), and
 
     Attributes
     ----------
@@ -121,8 +123,9 @@ class Recording(Batch):
     disorder: str = ""
 
     def batch(self) -> Batch:
-        return Batch(*(getattr(self, f) for f in Batch.__dataclass_fields__ if f != "contacts"),
-                     contacts=self.contacts)
+        return Batch(*(getattr(self, f) for f in Batch.__dataclass_fields__
+                       if f not in ("contacts", "tension", "tendons")),
+                     contacts=self.contacts, tension=self.tension, tendons=self.tendons)
 
     @property
     def complete(self) -> bool:
@@ -210,9 +213,9 @@ def _nonfinite(b: Batch) -> list[str]:
     out = []
     K = len(b)
     for key, label in (("q", "q"), ("v", "v"), ("p", "p"), ("energy", "energies"), ("base", "base"),
-                       ("backbone", "backbone"), ("tip_frames", "tip frames")):
+                       ("backbone", "backbone"), ("tip_frames", "tip frames"), ("tension", "tensions")):
         arr = getattr(b, key)
-        if K == 0 or arr.size == 0:
+        if arr is None or K == 0 or arr.size == 0:
             continue
         bad = ~np.isfinite(arr.reshape(K, -1))
         if bad.any():
@@ -379,7 +382,8 @@ def _read(name: str, buf: bytearray, jpath, limits: ReadLimits) -> Recording:
             found.damage.append(gap.reason)
     return Recording(
         path=name, info=info, t=b.t, step=b.step, q=b.q, v=b.v, p=b.p, energy=b.energy, base=b.base,
-        backbone=b.backbone, tip_frames=b.tip_frames, contacts=b.contacts, outcome=found.outcome, truncated=not found.complete,
+        backbone=b.backbone, tip_frames=b.tip_frames, contacts=b.contacts, tension=b.tension, tendons=b.tendons,
+        outcome=found.outcome, truncated=not found.complete,
         stop_reason="" if found.complete else found.stop_reason, metadata=found.meta, gaps=gaps,
         damage=found.damage, recovered=recovered, nonfinite=_nonfinite(b), journal_unread=found.journal_unread,
         disorder=_disorder(b),

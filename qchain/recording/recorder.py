@@ -61,6 +61,12 @@ class ChainRecorder:
         (c,)), e.g. ``lambda t, q, v: chain.contacts(q, v, env, t)``; called once a sample
         when the logger's ``RunInfo.max_contacts`` > 0, with the sample's ``q`` (nq,) and
         ``v`` (nv,). None: no contacts recorded.
+    tension : callable or None
+        ``tension(t, q, v)`` -> the tendons' tensions (nt,) N of a sample, e.g. the run's
+        tension schedule ``lambda t, q, v: schedule(t)``, for a chain with tendons: each
+        sample then records them and each tendon's world path
+        (:meth:`qchain.Chain.tendon_paths`, ``points_per_segment`` points a segment it passes,
+        NaN-padded to ``n points_per_segment``). None: no tendon records.
 
     Notes
     -----
@@ -74,7 +80,7 @@ class ChainRecorder:
     """
 
     def __init__(self, logger, chain, points_per_segment: int = BACKBONE_POINTS, max_batch: int = 64,
-                 max_wall: float = 0.05, realtime: bool = False, contacts=None):
+                 max_wall: float = 0.05, realtime: bool = False, contacts=None, tension=None):
         if not (isinstance(points_per_segment, (int, np.integer)) and points_per_segment >= 2):
             raise ValueError(f"points_per_segment must be an int >= 2, got {points_per_segment!r}")
         if not (isinstance(max_batch, (int, np.integer)) and max_batch >= 1):
@@ -91,11 +97,17 @@ class ChainRecorder:
         if contacts is not None and not callable(contacts):
             raise TypeError(f"contacts must be None or a callable (t, q, v) -> contacts, got {type(contacts).__name__}")
         self.contacts = contacts
+        if tension is not None and not callable(tension):
+            raise TypeError(f"tension must be None or a callable (t, q, v) -> (nt,) N, got {type(tension).__name__}")
+        if tension is not None and not getattr(chain, "nt", 0):
+            raise ValueError("tension is given but the chain has no tendons")
+        self.tension = tension
+        nt = getattr(chain, "nt", 0) if tension is not None else 0
         info = getattr(logger, "info", None)
         self._clock0: tuple[float, float] | None = None
         self.n_samples = 0
         self.layout = RecordLayout(chain.nq, chain.nv, chain.nu, chain.n, self.points_per_segment,
-                                   int(getattr(info, "max_contacts", 0) or 0))
+                                   int(getattr(info, "max_contacts", 0) or 0), nt, chain.n * self.points_per_segment if nt else 0)
         sl = self.layout.slices
         # q, v, p, kinetic, potential side by side: one copy a sample, one assignment a batch
         assert sl["q"].stop == sl["v"].start and sl["v"].stop == sl["p"].start and sl["p"].stop == sl["energy"].start
@@ -257,9 +269,27 @@ class ChainRecorder:
                 blocks[k], dropped = pack_contacts(found, C, getattr(self.logger, "info", None))
                 if dropped and hasattr(self.logger, "_said_dropped"):  # (said once, by the logger)
                     self.logger._said_dropped(dropped, float(rows[k, 0]))
+        if self.layout.nt:
+            self._write_tendons(rows, K)
         self.logger.log_rows(rows, self.layout)
         self.n_samples += K
         self._t_taken = float(rows[K - 1, 0])
+
+    def _write_tendons(self, rows: np.ndarray, K: int) -> None:
+        """Each sample's tensions (checked: ``nt`` finite numbers >= 0) and tendon paths into ``rows``."""
+        lay = self.layout
+        sl = lay.slices
+        paths = rows[:, sl["tendons"]].reshape(K, lay.nt, lay.M, 3)
+        paths[:] = np.nan
+        for k in range(K):
+            t, q, v = float(rows[k, 0]), rows[k, self._sq].copy(), rows[k, sl["v"]].copy()
+            T = np.asarray(self.tension(t, q, v), dtype=np.float64)
+            if T.shape != (lay.nt,) or not (np.isfinite(T).all() and (T >= 0.0).all()):
+                raise ValueError(f"tension(t, q, v) must return {lay.nt} finite tensions >= 0 N, got {T!r} at "
+                                 f"t = {t!r} s")
+            rows[k, sl["tension"]] = T
+            for i, path in enumerate(self.chain.tendon_paths(q, self.points_per_segment, t=t)):
+                paths[k, i, : len(path)] = path
 
     def __enter__(self) -> ChainRecorder:
         return self

@@ -225,6 +225,12 @@ class StepRecord:
         frame, m and N; ``.segment``, ``.obstacle`` (c,)), e.g. ``chain.contacts(q, v, env,
         t)``; recorded when the run's ``RunInfo.max_contacts`` > 0 (at most that many a
         sample, the largest forces), None: none.
+    tension : (nt,) array or None, N
+        The tendons' tensions (a chain with tendons, docs/tendons.md), None: no tendons.
+    tendons : (nt, M, 3) array or None, m
+        World points along each tendon from the base to its end (``Chain.tendon_paths``), a
+        path of fewer than ``M`` points padded with NaN rows; None: no tendons. Recorded when
+        ``tension`` is.
 
     Arrays may be reused by the caller after ``log()`` returns: the logger copies them.
     Every record of a run must have the shapes of the first one.
@@ -242,6 +248,8 @@ class StepRecord:
     tip_frames: np.ndarray
     base_frame: np.ndarray | None = None
     contacts: Any = None
+    tension: np.ndarray | None = None
+    tendons: np.ndarray | None = None
 
 
 def _jsonable(value: Any, where: str) -> Any:
@@ -489,8 +497,9 @@ class RecordLayout:
     The row holds, in this order, ``t`` (s), ``step`` (an integer value), ``q`` (nq),
     ``v`` (nv), ``p`` (n_p, Pa), ``kinetic``, ``potential``, ``total`` (J), the base frame
     (7: x, y, z, qx, qy, qz, qw), the backbone (n x P x 3, m, row-major), the tip frames
-    (n x 7) and, when ``C`` > 0, the contacts (C x CONTACT_WIDTH: point, normal, force,
-    segment, obstacle; unused rows NaN): the fields of :class:`StepRecord` flattened.
+    (n x 7), when ``C`` > 0 the contacts (C x CONTACT_WIDTH: point, normal, force,
+    segment, obstacle; unused rows NaN) and, when ``nt`` > 0, the tensions (nt, N) and the
+    tendons' paths (nt x M x 3, m, NaN-padded): the fields of :class:`StepRecord` flattened.
     :attr:`slices` says where each field is.
 
     Attributes
@@ -504,6 +513,9 @@ class RecordLayout:
     C : int
         Contacts a row holds (``RunInfo.max_contacts``); 0: none (the layout of a run
         without contact, as before).
+    nt, M : int
+        Tendons, and points of each tendon's path (0 with tendons: tensions without paths);
+        ``nt = 0``: no tendons (the layout of a run without tendons, as before).
     """
 
     nq: int
@@ -512,20 +524,23 @@ class RecordLayout:
     n: int
     P: int
     C: int = 0
+    nt: int = 0
+    M: int = 0
 
     @property
     def row_width(self) -> int:
         """Numbers in a row."""
-        return 2 + self.nq + self.nv + self.n_p + 3 + 7 + self.n * self.P * 3 + self.n * 7 + self.C * CONTACT_WIDTH
+        return (2 + self.nq + self.nv + self.n_p + 3 + 7 + self.n * self.P * 3 + self.n * 7 + self.C * CONTACT_WIDTH
+                + self.nt + self.nt * self.M * 3)
 
     @property
     def slices(self) -> dict[str, slice]:
         """Field name -> its columns in a row (``t``, ``step``, ``q``, ``v``, ``p``,
         ``energy`` (kinetic, potential, total), ``base``, ``backbone``, ``tip_frames``,
-        ``contacts``)."""
+        ``contacts``, ``tension``, ``tendons``)."""
         sizes = (("t", 1), ("step", 1), ("q", self.nq), ("v", self.nv), ("p", self.n_p), ("energy", 3),
                  ("base", 7), ("backbone", self.n * self.P * 3), ("tip_frames", self.n * 7),
-                 ("contacts", self.C * CONTACT_WIDTH))
+                 ("contacts", self.C * CONTACT_WIDTH), ("tension", self.nt), ("tendons", self.nt * self.M * 3))
         out, a = {}, 0
         for name, size in sizes:
             out[name] = slice(a, a + size)
@@ -536,24 +551,29 @@ class RecordLayout:
         out = {"nq": self.nq, "nv": self.nv, "np": self.n_p, "n": self.n, "P": self.P}
         if self.C:  # (a layout without contacts is written as before)
             out["C"] = self.C
+        if self.nt:  # (and one without tendons)
+            out["nt"], out["M"] = self.nt, self.M
         return out
 
     @classmethod
     def from_json(cls, d: dict) -> RecordLayout:
         """From :meth:`to_json` output; ``ValueError`` for anything but whole numbers
         (``n`` and ``P`` >= 1, the others >= 0, a row of at most 2**24 numbers); ``C``
-        may be missing (0: a layout from before contact)."""
+        may be missing (0: a layout from before contact), and so may ``nt`` and ``M`` (0: no
+        tendons)."""
         if not isinstance(d, dict):
             raise ValueError(f"a record layout must be a JSON object, got {type(d).__name__}")
         vals = {}
-        for key in ("nq", "nv", "np", "n", "P", "C"):
-            v = d.get(key, 0 if key == "C" else None)
+        for key in ("nq", "nv", "np", "n", "P", "C", "nt", "M"):
+            v = d.get(key, 0 if key in ("C", "nt", "M") else None)
             if isinstance(v, bool) or not isinstance(v, int) or not (0 <= v <= 1 << 24):
                 raise ValueError(f"record layout: {key} must be a whole number >= 0, got {v!r}")
             vals[key] = v
         if vals["n"] < 1 or vals["P"] < 1:
             raise ValueError(f"record layout: n and P must be >= 1, got n = {vals['n']}, P = {vals['P']}")
-        lay = cls(vals["nq"], vals["nv"], vals["np"], vals["n"], vals["P"], vals["C"])
+        if vals["M"] and not vals["nt"]:
+            raise ValueError(f"record layout: M = {vals['M']} tendon points without tendons (nt = 0)")
+        lay = cls(vals["nq"], vals["nv"], vals["np"], vals["n"], vals["P"], vals["C"], vals["nt"], vals["M"])
         if lay.row_width > 1 << 24:
             raise ValueError(f"record layout: a row of {lay.row_width} numbers (more than 2**24)")
         return lay
@@ -565,7 +585,9 @@ class Batch:
     energy (K, 3) = (kinetic, potential, total), base (K, 7), backbone (K, n, P, 3),
     tip_frames (K, n, 7), contacts (K, C, CONTACT_WIDTH) or None (a run without contact
     records): each row a contact (point, normal, force, segment, obstacle), NaN rows unused
-    (:meth:`contact_set` gives one record's as a :class:`ContactSet`)."""
+    (:meth:`contact_set` gives one record's as a :class:`ContactSet`); tension (K, nt) N and
+    tendons (K, nt, M, 3) m (each tendon's world path, NaN-padded) or None (a run without
+    tendons; a recording read from its MCAP file has ``tension`` but not the paths)."""
 
     t: np.ndarray
     step: np.ndarray
@@ -577,6 +599,8 @@ class Batch:
     backbone: np.ndarray
     tip_frames: np.ndarray
     contacts: np.ndarray | None = field(default=None, kw_only=True)
+    tension: np.ndarray | None = field(default=None, kw_only=True)
+    tendons: np.ndarray | None = field(default=None, kw_only=True)
 
     def __len__(self) -> int:
         return int(self.t.shape[0])
@@ -604,20 +628,27 @@ class Batch:
             backbone=col("backbone").reshape(K, lay.n, lay.P, 3),
             tip_frames=col("tip_frames").reshape(K, lay.n, 7),
             contacts=col("contacts").reshape(K, lay.C, CONTACT_WIDTH) if lay.C else None,
+            tension=col("tension") if lay.nt else None,
+            tendons=col("tendons").reshape(K, lay.nt, lay.M, 3) if lay.nt else None,
         )
 
     def rows(self) -> np.ndarray:
         """The batch as rows of its layout (the inverse of :meth:`from_rows`)."""
         K = len(self)
         extra = () if self.contacts is None else (self.contacts.reshape(K, -1),)
+        if self.tension is not None:
+            paths = self.tendons if self.tendons is not None else np.zeros((K, self.tension.shape[1], 0, 3))
+            extra += (self.tension, paths.reshape(K, -1))
         return np.concatenate(
             (self.t[:, None], self.step[:, None].astype(np.float64), self.q, self.v, self.p, self.energy,
              self.base, self.backbone.reshape(K, -1), self.tip_frames.reshape(K, -1)) + extra, axis=1)
 
     @property
     def layout(self) -> RecordLayout:
+        nt = 0 if self.tension is None else self.tension.shape[1]
+        M = 0 if not nt or self.tendons is None else self.tendons.shape[2]
         return RecordLayout(self.q.shape[1], self.v.shape[1], self.p.shape[1], self.backbone.shape[1],
-                            self.backbone.shape[2], 0 if self.contacts is None else self.contacts.shape[1])
+                            self.backbone.shape[2], 0 if self.contacts is None else self.contacts.shape[1], nt, M)
 
     @classmethod
     def concatenate(cls, batches: Sequence[Batch]) -> Batch:
@@ -626,6 +657,10 @@ class Batch:
         out = Batch(*(np.concatenate([getattr(x, f) for x in batches]) for f in _BATCH_COLUMNS))
         if all(x.contacts is not None for x in batches):
             out.contacts = np.concatenate([x.contacts for x in batches])
+        if all(x.tension is not None for x in batches):  # (and the paths, when every batch has them)
+            out.tension = np.concatenate([x.tension for x in batches])
+            if all(x.tendons is not None for x in batches):
+                out.tendons = np.concatenate([x.tendons for x in batches])
         return out
 
     def take(self, index) -> Batch:
@@ -633,6 +668,10 @@ class Batch:
         out = Batch(*(getattr(self, f)[index] for f in _BATCH_COLUMNS))
         if self.contacts is not None:
             out.contacts = self.contacts[index]
+        if self.tension is not None:
+            out.tension = self.tension[index]
+        if self.tendons is not None:
+            out.tendons = self.tendons[index]
         return out
 
 

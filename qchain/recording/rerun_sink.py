@@ -21,7 +21,7 @@ from urllib.parse import quote, urlsplit
 import numpy as np
 
 from .records import SEGMENT_COLORS, Batch, LoggingError, RunInfo
-from .scenery import CONTACT_COLOR, OBSTACLE_COLOR, force_scale, motion_offset, obstacle_shapes
+from .scenery import CONTACT_COLOR, OBSTACLE_COLOR, TENDON_COLOR, force_scale, motion_offset, obstacle_shapes, tendon_strips
 from .scenery import reach as arm_reach
 
 __all__ = ["RerunSink", "camera", "probe_viewer", "bound_rerun_exit", "CONNECT_TIMEOUT", "DEFAULT_BIND",
@@ -415,6 +415,7 @@ class RerunSink:
                                   eye_controls=rrb.EyeControls3D(position=eye, look_target=target, eye_up=up)),
                 rrb.Vertical(
                     plot("chamber pressures [Pa]", "/plots/pressure"),
+                    *([plot("tendon tensions [N]", "/plots/tension")] if b.tension is not None else []),
                     rrb.Tabs(*q_views, plot("velocities", "/plots/v"), rrb.TextDocumentView(name="scene",
                                                                                             origin="/scene")),
                     plot("energy [J]", "/plots/energy"),
@@ -463,6 +464,12 @@ class RerunSink:
             radii=np.repeat(0.12 * radii, 3)), static=True)
         rec.log("arm/pressure", rr.Arrows3D.from_fields(radii=np.repeat(0.08 * radii, 3)), static=True)
         rec.log("plots/pressure", rr.SeriesLines(names=info.names("p", b.p.shape[1])), static=True)
+        if b.tension is not None:
+            rec.log("plots/tension", rr.SeriesLines(names=[f"tendon {i} [N]" for i in range(b.tension.shape[1])]),
+                    static=True)
+        if b.tendons is not None:
+            rec.log("arm/tendons", rr.LineStrips3D.from_fields(radii=0.15 * float(radii.min()), colors=[TENDON_COLOR]),
+                    static=True)
         qn = info.names("q", b.q.shape[1])
         s0 = self._seg_q0(b)
         self._q_groups = [("base", slice(0, s0))] if s0 else []
@@ -568,6 +575,13 @@ class RerunSink:
             origins=origins.reshape(-1, 3), vectors=vec.reshape(-1, 3),
             colors=_pressure_colors(press / self.info.pressure_ref).reshape(-1, 3)).partition(np.full(K, 3 * n)))
         rec.send_columns("plots/pressure", indexes=idx, columns=rr.Scalars.columns(scalars=b.p))
+        if b.tension is not None:
+            rec.send_columns("plots/tension", indexes=idx, columns=rr.Scalars.columns(scalars=b.tension))
+        if b.tendons is not None:  # each tendon a strip of its finite points (a path to mid-arm is shorter)
+            points, lengths = tendon_strips(b.tendons)
+            strips = np.split(points, np.cumsum(lengths)[:-1])
+            rec.send_columns("arm/tendons", indexes=idx, columns=rr.LineStrips3D.columns(strips=strips).partition(
+                np.full(K, b.tendons.shape[1])))
         for key, sl in self._q_groups:
             rec.send_columns(f"plots/q/{key}", indexes=idx, columns=rr.Scalars.columns(scalars=b.q[:, sl]))
         rec.send_columns("plots/v", indexes=idx, columns=rr.Scalars.columns(scalars=b.v))

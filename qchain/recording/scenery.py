@@ -22,13 +22,25 @@ __all__ = [
     "quat_from_matrix",
     "quat_mul",
     "quat_rotate",
+    "TENDON_COLOR",
+    "tendon_strips",
 ]
 
 #: RGB of the obstacles (grey, drawn half transparent in Foxglove) and of the contact forces
 OBSTACLE_COLOR = (150, 150, 160)
 CONTACT_COLOR = (220, 30, 160)
+#: RGB of the tendons (dark amber)
+TENDON_COLOR = (200, 130, 20)
 #: Thickness of the slab that draws a half-space, as a fraction of its width
 HALFSPACE_THICKNESS = 1e-3
+
+
+def tendon_strips(tendons: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The tendons' paths of a batch (K, nt, M, 3), NaN-padded, as the strips a viewer draws:
+    ``(points (sum of lengths, 3), lengths (K nt,))``, each path's finite points only."""
+    K, nt, M, _ = tendons.shape
+    ok = np.isfinite(tendons).all(axis=3)  # (K, nt, M)
+    return tendons[ok], ok.sum(axis=2).reshape(K * nt)
 
 
 class Shape(NamedTuple):

@@ -17,11 +17,12 @@ STEP_MAX = 1 << 53
 
 _STATE_KEYS = ("t", "step", "q", "v", "p", "kinetic", "potential", "total", "base", "tips", "backbone")
 _STATE_KEYSET = frozenset(_STATE_KEYS)
-#: A state message holds no string but its keys: this many '"' bytes.
-_STATE_QUOTES = 2 * len(_STATE_KEYS)
+#: The keys of a state of a run with tendons: ``tension`` too.
+_TENDON_KEYSET = _STATE_KEYSET | {"tension"}
 _BLOCK = 4096  # state messages decoded at once (the dicts of a block only are held)
 #: Levels of list nesting of each field of a state (0: a number).
-_NDIM = {"q": 1, "v": 1, "p": 1, "kinetic": 0, "potential": 0, "total": 0, "base": 1, "tips": 2, "backbone": 3}
+_NDIM = {"q": 1, "v": 1, "p": 1, "kinetic": 0, "potential": 0, "total": 0, "base": 1, "tips": 2, "backbone": 3,
+         "tension": 1}
 
 
 def _series_max(n: int) -> int:
@@ -40,10 +41,11 @@ def _parse_state(data: bytes, offset: int, name: str) -> dict:
         s = orjson.loads(data)
     except orjson.JSONDecodeError as exc:
         raise _state_error(name, offset, f"not valid JSON ({exc})") from None
-    if type(s) is not dict or s.keys() != _STATE_KEYSET:
+    if type(s) is not dict or (s.keys() != _STATE_KEYSET and s.keys() != _TENDON_KEYSET):
         found = ", ".join(sorted(s)) if isinstance(s, dict) else f"a JSON {type(s).__name__}"
-        raise _state_error(name, offset, f"expected the fields {', '.join(_STATE_KEYS)}; found {found}")
-    if data.count(b'"') != _STATE_QUOTES or b"true" in data or b"false" in data:
+        raise _state_error(name, offset, f"expected the fields {', '.join(_STATE_KEYS)} (and tension, with tendons); "
+                                         f"found {found}")
+    if data.count(b'"') != 2 * len(s) or b"true" in data or b"false" in data:  # no string but its keys
         raise _state_error(name, offset, "a value that is not a number, a list of numbers or null")
     step = s["step"]
     if type(step) is not int or not 0 <= step <= STEP_MAX:
@@ -89,6 +91,8 @@ def _dims_error(name: str, offset: int, dims: dict, n: int) -> str | None:
         return f"base has the shape {dims['base']}, expected (7,)"
     if dims["tips"] != (n, 7):
         return f"tips has the shape {dims['tips']}, expected ({n}, 7) for {n} segment(s)"
+    if "tension" in dims and (len(dims["tension"]) != 1 or dims["tension"][0] < 1):
+        return f"tension has the shape {dims['tension']}, expected (nt,) with nt >= 1"
     bb = dims["backbone"]
     if bb[0] != n or bb[2] != 3 or bb[1] < 1:
         return f"backbone has the shape {bb}, expected ({n}, P, 3) with P >= 1 for {n} segment(s)"
@@ -118,7 +122,15 @@ def _decode_states(msgs: list[tuple[int, bytes]], info: RunInfo, name: str, budg
                 budget.spend(PARSED_NUMBER_BYTES * data.count(b","), off, "the numbers of its state messages")
         states = [_parse_state(data, off, name) for off, data in block]
         cols = {}
+        tendons = "tension" in states[0]
+        if any(("tension" in s) != tendons for s in states):
+            k = next(i for i, s in enumerate(states) if ("tension" in s) != tendons)
+            raise _state_error(name, offsets[k], "tension in some states and not in others (one run, one layout)")
+        if dims is not None and tendons != ("tension" in dims):
+            raise _state_error(name, offsets[0], "tension in some states and not in others (one run, one layout)")
         for key in _NDIM:
+            if key == "tension" and not tendons:
+                continue
             cols[key] = _column(states, offsets, key, None if dims is None else dims[key], name)
         if dims is None:
             dims = {key: col.shape[1:] for key, col in cols.items()}
@@ -131,7 +143,7 @@ def _decode_states(msgs: list[tuple[int, bytes]], info: RunInfo, name: str, budg
             step=np.array([s["step"] for s in states], dtype=np.int64),
             q=cols["q"], v=cols["v"], p=cols["p"],
             energy=np.stack([cols["kinetic"], cols["potential"], cols["total"]], axis=1).reshape(N, 3),
-            base=cols["base"], backbone=cols["backbone"], tip_frames=cols["tips"]))
+            base=cols["base"], backbone=cols["backbone"], tip_frames=cols["tips"], tension=cols.get("tension")))
         del states, cols
     return parts[0] if len(parts) == 1 else Batch.concatenate(parts)
 

@@ -29,6 +29,7 @@ from ..model.segment import DEFAULT_NODES
 from ..sim.simulation import DEFAULT_METHOD, FIXED_STEP, METHODS
 from .keys import Field, KeyTable
 from .payload import PAYLOAD, PAYLOAD_EXAMPLE
+from .tendons import TENDON_EXAMPLE, TENDONS, TENSION
 
 __all__ = ["Field", "KeyTable", "TABLES", "OBSTACLE_TYPES", "OBSTACLE_MOTION_KEYS", "MAX_START_PENETRATION", "Problem",
            "SceneError", "PLOTS", "PRESSURE_KINDS", "MAX_DEPTH", "MAX_SCENE_BYTES", "MAX_STRETCH", "EXAMPLE",
@@ -71,6 +72,8 @@ TOP = KeyTable("", "The top level of the file.", (
     Field("obstacles", "tables", "Obstacles the arm can touch (below).", default="none"),
     Field("loads", "tables", "Point loads on the arm (below).", default="none"),
     Field("payload", "table", "A rigid body at the arm's tip (below).", default="none"),
+    Field("tendons", "tables", "Tendons beside the chambers (below).", default="none"),
+    Field("tension", "table", "The tendons' tensions (below).", default="none: every tendon at 0 N"),
 ))
 
 MODEL = KeyTable("model", "How the model is built (\"Model reduction\" in `qchain/scene/scene.py`).", (
@@ -276,7 +279,7 @@ LOAD = KeyTable("loads[]", "One table a point load (`qchain.contact.PointLoad`):
 
 #: Every table of the format, in the order of the documentation.
 TABLES = (TOP, MODEL, SEGMENT, BASE, MOTION, PRESSURE, INITIAL, SIMULATION, OUTPUT, BUDGET, CONTACT, OBSTACLE, LOAD,
-          PAYLOAD)
+          PAYLOAD, TENDONS, TENSION)
 
 
 # --------------------------------------------------------------------------------------
@@ -741,6 +744,15 @@ def markdown() -> str:
         PAYLOAD_EXAMPLE.rstrip("\n"),
         "```",
         "",
+        "Tendons (`qchain.Tendon`, docs/tendons.md) are an array of tables and their tensions one",
+        "schedule; these run two straight tendons on opposite sides of the example's arm, one to",
+        "the tip and one to the middle segment's tip, and ramp their tensions up over a second",
+        "(`examples/scenes/hanging_tendons.toml` runs a tendon-driven arm):",
+        "",
+        "```toml",
+        TENDON_EXAMPLE.rstrip("\n"),
+        "```",
+        "",
     ]
     for t in TABLES:
         out += t.markdown()
@@ -773,6 +785,9 @@ def markdown() -> str:
         "  and a payload symmetric about the tip frame's x-z plane (`lever[1] = 0`, `inertia[0][1] =",
         "  inertia[1][2] = 0`); otherwise `qchain info` says which one keeps the full model;",
         "* `[payload]`: `inertia` symmetric and positive semi-definite (a rigid body's), zeros when `mass = 0`;",
+        "* `[tension]` only with `[[tendons]]`, one tension a tendon, each `>= 0` (a tendon pulls); a",
+        "  tendon's `end` a segment the arm has (`count` expanded); a scene with tendons keeps the full",
+        "  (not planar) model and every segment's `l` free (the tensions shorten the arm);",
         "* the run within its budget: `[budget]` above, whose message names the key that makes the",
         "  cost (`simulation.dt`, `simulation.max_step`, `pressure.frequency`, `base.motion.frequency`,",
         "  `output.sample_rate`, `segments[i].count`) and the bound to raise.",

@@ -15,7 +15,8 @@ __all__ = ["Field", "KeyTable"]
 _TYPE_TEXTS = {"per_segment": "3 numbers a segment", "number_or_per_segment": "number, or 3 a segment",
                "times": "array of numbers, increasing", "rows": "array of pressure vectors",
                "names": "array of strings", "tables": "array of tables", "choice": "string",
-               "path": "string (a folder path)"}
+               "path": "string (a folder path)",
+               "tensions": "array of numbers, one a tendon", "tension_rows": "array of tension arrays"}
 
 
 @dataclass(frozen=True)

@@ -202,7 +202,8 @@ class ModelBuilder(StretchEstimate):
         kind = self.base.type
         kw = ({"base_placement": self.base.placement} if kind == "fixed" else
               {"base_motion": self.base.motion} if kind == "prescribed" else {})
-        return Chain(segs, base=kind, gravity=self.gravity, planar=planar, payload=self.payload, **kw)
+        return Chain(segs, base=kind, gravity=self.gravity, planar=planar, payload=self.payload, tendons=self.tendons,
+                     **kw)
 
     def _initial_state(self, chain: Chain) -> tuple[np.ndarray, np.ndarray]:
         q_B, v_B = ((pin.SE3ToXYZQUAT(self.base.placement), [*self.base.velocity, *self.base.angular_velocity])
@@ -214,6 +215,8 @@ class ModelBuilder(StretchEstimate):
         paper = [j for j, s in enumerate(self.segments) if s.coords != "curvature"]
         if paper:
             return f"{_ranges(paper)} in paper coordinates (uy is not one of their coordinates)"
+        if self.tendons:
+            return "tendons: the planar model is not tried with tendons"
         R0 = self.base.placement.rotation
         g_B = R0.T @ self.gravity
         if abs(g_B[1]) > 1e-12 * max(1.0, float(np.linalg.norm(self.gravity))):
@@ -256,6 +259,9 @@ class ModelBuilder(StretchEstimate):
         if self.max_bend is not None:
             theta = np.full(self.n, self.max_bend)
             how = f"max_bend = {_fmt(self.max_bend)} rad"
+        elif self.tendons:  # the static estimate knows pressures, not tensions: the model's whole range
+            theta = np.array([s.length / s.radius for s in self.segments])
+            how = "tendons: sized for the largest bend the model allows, l0/r_s (give max_bend to size for less)"
         else:
             theta, how = self.estimate_bend(planar)
         nodes = [s.nodes if s.nodes is not None else

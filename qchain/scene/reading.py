@@ -22,11 +22,13 @@ from ..sim.budget import DEFAULT, Budget
 from ..checks.convert import describe_value
 from ..checks.paths import file_kind
 from ..sim.inputs import Constant, Ramp, Schedule, Sine, Step, Table
-from .format import _MISSING, PLOTS, Problem, SceneError, _Checker, _is_number, _show, _type_name
+from .format import _MISSING, PLOTS, Problem, SceneError, _as_float, _Checker, _is_number, _show, _type_name
 from .cost import _cost, _frequency
 from ..checks.text import show_vector
 from .parts import BaseSpec, SegmentSpec, SineMotion
 from .payload import read_payload
+from ..model.tendon import Tendon
+from .tendons import TENDONS, TENSION
 from .stretch import DEFAULT_LENGTH_TOLERANCE
 from .surroundings import read_surroundings
 from ..model.segment import Segment
@@ -171,6 +173,7 @@ def parse_scene(text: str, path: str | os.PathLike | None = None) -> Scene:
     q_e0, v_e0 = _initial(ck, raw, segments)
     surroundings = read_surroundings(ck, raw, segments, gravity)
     payload = read_payload(ck, raw)
+    tendons, tension, tspec = read_tendons(ck, raw, n)
 
     # output
     O = F.OUTPUT
@@ -208,7 +211,7 @@ def parse_scene(text: str, path: str | os.PathLike | None = None) -> Scene:
         v_e0=v_e0, duration=duration, method=method, rtol=rtol, atol=atol, dt=dt, max_step=max_step,
         reduce=reduce, node_tolerance=node_tol, max_bend=max_bend, sample_rate=rate, output_folder=Path(folder),
         plots=tuple(dict.fromkeys(plots)), save=save, budget=budget, surroundings=surroundings, payload=payload,
-        length_tolerance=length_tol,
+        length_tolerance=length_tol, tendons=tendons, tension=tension, tension_spec=tspec,
     )
     bad = scene.start_problems()  # the arm at its start, inside an obstacle: needs the whole scene
     if bad:
@@ -550,3 +553,135 @@ def _nonfinite_state(seg: Segment, q: np.ndarray, v: np.ndarray) -> str | None:
     if not (math.isfinite(T) and math.isfinite(U)):
         return f"kinetic energy {T:g} J, elastic energy {U:g} J at q_e = {show_vector(q)}, v = {show_vector(v)}"
     return None
+
+
+# --------------------------------------------------------------------------------------
+# [[tendons]] and [tension] (declared in qchain/scene/tendons.py)
+
+
+def read_tendons(ck: _Checker, raw: dict, n: int | None) -> tuple[tuple[Tendon, ...], Schedule | None, dict]:
+    """The ``[[tendons]]`` and ``[tension]`` tables of the parsed scene ``raw`` on ``n``
+    segments (None: unknown, the segments were refused): ``(tendons, tension schedule or None,
+    the tension table as parsed)``; problems are added to ``ck``."""
+    tendons: list[Tendon] = []
+    ok = True
+    tt = raw.get("tendons")
+    if tt is not None:
+        if not isinstance(tt, list) or not all(isinstance(x, dict) for x in tt):
+            ck.add("tendons", "an array of tables [[tendons]]", f"{_type_name(tt)} {_show(tt)}")
+            tt, ok = [], False
+        for i, t in enumerate(tt):
+            path = f"tendons[{i}]"
+            start = len(ck.problems)
+            ck.keys(t, path, TENDONS.keys())
+            radius = ck.field(t, TENDONS["radius"], f"{path}.radius")
+            angle = ck.field(t, TENDONS["angle"], f"{path}.angle", 0.0)
+            pitch = None
+            if "pitch" in t:  # the bound is on |pitch|: its sign picks the hand
+                f, v = TENDONS["pitch"], t["pitch"]
+                what = f"a number (m) with |pitch| {f.range.text()}"
+                x = _as_float(v) if type(v) in (int, float) else None
+                if type(v) not in (int, float):
+                    ck.add(f"{path}.pitch", what, f"{_type_name(v)} {_show(v)}")
+                elif x is None or not math.isfinite(x) or not f.range.contains(abs(x)):
+                    ck.add(f"{path}.pitch", what, _show(v))
+                else:
+                    pitch = x
+            end = ck.field(t, TENDONS["end"], f"{path}.end")
+            if end is not None and n is not None and end >= n:
+                ck.add(f"{path}.end", f"a segment index < {n} (the arm's segments, count expanded)", _show(t["end"]))
+            if len(ck.problems) > start or radius is None:
+                ok = False
+                continue
+            tendons.append(Tendon(radius=radius, angle=angle, pitch=pitch, end=end))
+    m = len(tendons) if ok else None
+    sched, spec = _tension(ck, raw, m, has_tendons=bool(raw.get("tendons")))
+    return tuple(tendons) if ok else (), sched, spec
+
+
+def _tension(ck: _Checker, raw: dict, m: int | None, has_tendons: bool) -> tuple[Schedule | None, dict]:
+    T = TENSION
+    if "tension" not in raw:
+        return None, {}
+    pt = ck.table(raw, "tension", "tension")
+    if pt is None:
+        return None, {}
+    if not has_tendons:
+        ck.add("tension", "no [tension] without [[tendons]] (tensions pull tendons)", "a [tension] table")
+        return None, {}
+    kind = ck.field(pt, T["type"], "tension.type")
+    if kind is None:
+        return None, {}
+    ck.keys(pt, "tension", T.keys(kind))
+    start = len(ck.problems)
+    what = (f"an array of {m} tension{'s' if m != 1 else ''} (N), one a tendon" if m is not None
+            else "an array of tensions (N), one a tendon")
+
+    def tensions(key, v, path):
+        arr = ck._numbers(v, path, what, T[key].range if key != "times" else None)
+        if arr is not None and m is not None and arr.size != m:
+            ck.add(path, what, f"{arr.size} numbers {_show(v)}")
+            return None
+        return arr
+
+    def vec(key, required=False):
+        if key not in pt:
+            if required:
+                ck.add(f"tension.{key}", what, "nothing (the key is required)")
+            return None if required or m is None else np.zeros(m)
+        return tensions(key, pt[key], f"tension.{key}")
+
+    spec: dict = {"type": kind}
+    if kind == "constant":
+        spec["value"] = vec("value", required=True)
+    elif kind == "step":
+        spec["time"] = ck.field(pt, T["time"], "tension.time")
+        spec["after"] = vec("after", required=True)
+        spec["before"] = vec("before")
+    elif kind == "ramp":
+        spec["t0"] = ck.field(pt, T["t0"], "tension.t0")
+        spec["t1"] = ck.field(pt, T["t1"], "tension.t1")
+        if spec["t0"] is not None and spec["t1"] is not None and spec["t1"] <= spec["t0"]:
+            ck.add("tension.t1", f"a time > t0 = {spec['t0']:g} s", _show(pt["t1"]))
+        spec["end"] = vec("end", required=True)
+        spec["start"] = vec("start")
+    else:  # table
+        times, values = pt.get("times"), pt.get("values")
+        t_arr = None
+        if times is None:
+            ck.add("tension.times", "an array of times (s), strictly increasing", "nothing (the key is required)")
+        else:
+            t_arr = ck._numbers(times, "tension.times", "an array of times (s), strictly increasing", T["times"].range)
+            if t_arr is not None and t_arr.size == 0:
+                ck.add("tension.times", "at least one time (s)", "an empty array")
+                t_arr = None
+            elif t_arr is not None:
+                bad = np.flatnonzero(np.diff(t_arr) <= 0)
+                if bad.size:
+                    k = int(bad[0])
+                    ck.add(f"tension.times[{k + 1}]", f"a time > times[{k}] = {t_arr[k]:g} s (strictly increasing)",
+                           _show(times[k + 1]))
+                    t_arr = None
+        rows = None
+        if values is None:
+            ck.add("tension.values", "an array of tension arrays (N), one a time", "nothing (the key is required)")
+        elif not isinstance(values, list):
+            ck.add("tension.values", "an array of tension arrays (N), one a time", f"{_type_name(values)} {_show(values)}")
+        elif t_arr is not None and len(values) != t_arr.size:
+            ck.add("tension.values", f"{t_arr.size} tension arrays, one for each of the {t_arr.size} times",
+                   f"{len(values)} arrays")
+        else:
+            rows = []
+            for k, row in enumerate(values):
+                arr = tensions("values", row, f"tension.values[{k}]")
+                if arr is None:
+                    rows = None
+                    break
+                rows.append(arr)
+        spec["times"] = t_arr
+        spec["values"] = None if not rows else np.array(rows)
+    if len(ck.problems) > start or m is None:
+        return None, {}
+    cls, keys = {"constant": (Constant, ("value",)), "step": (Step, ("time", "after", "before")),
+                 "ramp": (Ramp, ("t0", "t1", "end", "start")), "table": (Table, ("times", "values"))}[kind]
+    return cls(*(spec[k] for k in keys)), spec

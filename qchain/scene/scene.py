@@ -94,6 +94,7 @@ from .model import BEND_MARGIN, BEND_SAMPLES, ModelBuilder, SceneModel, _list_or
 from ..checks.text import show_vector
 from .parts import BaseSpec, SegmentSpec, SineMotion
 from .payload import describe_payload
+from .tendons import describe_tendons
 from .stretch import DEFAULT_LENGTH_TOLERANCE
 from .surroundings import Surroundings
 from .cost import _cost, _frequency
@@ -151,6 +152,12 @@ class Scene(ModelBuilder):
     payload : pinocchio.Inertia or None
         The rigid body at the tip (``[payload]``, :mod:`qchain.scene.payload`): the model's
         ``Chain(payload=)``.
+    tendons : tuple of Tendon
+        The ``[[tendons]]`` (:mod:`qchain.scene.tendons`): the model's ``Chain(tendons=)``.
+    tension : Schedule or None
+        The ``[tension]`` schedule, (nt,) N: :func:`qchain.simulate`'s ``tension`` (None: 0 N).
+    tension_spec : dict
+        The tension table as parsed (``type`` and its arrays).
     """
 
     path: Path | None
@@ -181,6 +188,9 @@ class Scene(ModelBuilder):
     surroundings: Surroundings = field(default_factory=Surroundings)
     payload: pin.Inertia | None = None
     length_tolerance: float = DEFAULT_LENGTH_TOLERANCE
+    tendons: tuple = ()
+    tension: Schedule | None = None
+    tension_spec: dict = field(default_factory=dict)
 
     @property
     def environment(self):
@@ -243,6 +253,7 @@ class Scene(ModelBuilder):
                 method=self.method, dt=self.dt,
                 rtol=self.rtol, atol=self.atol, t_eval=self.sample_times(T), on_sample=on_sample, progress=progress,
                 max_step=self.max_step, controller_rate=controller_rate, budget=self.budget, env=self.environment,
+                tension=self.tension if model.chain.nt else None,
             )
         except BudgetError as err:  # said as a scene's budget: raised in its [budget] table
             if err.cost is None:
@@ -335,6 +346,7 @@ class Scene(ModelBuilder):
         lines.append(f"pressure: {_pressure_summary(self.pressure_spec)}")
         lines += self.surroundings.describe(ch)
         lines += describe_payload(self.payload, ch)
+        lines += describe_tendons(self.tendons, self.tension_spec)
         meth = f"{self.method}, dt = {self.dt:g} s" if self.method in FIXED_STEP else \
             f"{self.method}, rtol = {self.rtol:g}, atol = {self.atol:g}" + \
             (f", max_step = {self.max_step:g} s" if math.isfinite(self.max_step) else "")

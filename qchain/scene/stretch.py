@@ -97,6 +97,8 @@ class StretchEstimate:
         bad = [j for j in free if self.q_e0[j, 0] != self.segments[j].length or self.v_e0[j, 0] != 0.0]
         if bad:
             return f"{_ranges(bad)}: initial l differs from l0 or its rate is not 0"
+        if self.tendons:
+            return "tendons: their tensions shorten the arm (not estimated)"
         env = self.surroundings.environment
         if env is not None and env.obstacles:
             return "obstacles: contact impacts load the axial mode (not estimated)"
