@@ -200,6 +200,20 @@ def test_mpc_compiled_horizon_passes_equal_the_python_chain_rule():
     assert np.abs(fast.plan - slow.plan).max() <= 1e-6 * fast.p_max, np.abs(fast.plan - slow.plan).max()
 
 
+def test_mpc_a_plan_that_leaves_the_models_domain_is_refused_naming_the_interval():
+    """3 MPa held in one chamber bends the first segment past |kappa| r = 1 within the horizon:
+    the compiled rollout stops there with the segment and the interval, never a NaN cost."""
+    from qchain.errors import DomainError
+
+    ch = _chain()
+    _, q0 = _targets(ch)
+    P = np.zeros((5, 6))
+    P[:, 0] = 3e6
+    for compiled in (True, False):
+        with pytest.raises(DomainError, match="segment 0" + (".* in interval [0-4] of the planned" if compiled else "")):
+            _mpc(ch, np.zeros(3), compiled=compiled).horizon_cost(0.0, q0, np.zeros(ch.nv), P)
+
+
 def test_mpc_keeps_its_pressures_within_bounds_in_closed_loop():
     """A target that needs p = 1e4 Pa with p_max = 1e4 Pa: the box binds in the plan."""
     ch = _chain()
