@@ -28,7 +28,7 @@ from numba.core.caching import FunctionCache
 from numba.core.ccallback import CFunc
 from numba.core.errors import NumbaExperimentalFeatureWarning
 
-__all__ = ["ejit", "ejit_inner", "inline", "kernel", "Kernel", "OPTIONS", "ENTRY_OPTIONS", "cached_here",
+__all__ = ["Address", "ejit", "ejit_inner", "inline", "kernel", "Kernel", "OPTIONS", "ENTRY_OPTIONS", "cached_here",
            "first_class_functions"]
 
 #: the compiler options of every engine function
@@ -145,6 +145,18 @@ class Kernel:
             cf.compile()
             self._compiled[sig] = cf
         return cf
+
+
+class Address:
+    """A compiled function as numba's first-class function arguments take it: its address
+    (numba's wrapper address protocol). Passed to a compiled entry point in place of the
+    callback itself, it is unboxed without typing the callback again at each call."""
+
+    def __init__(self, address: int):
+        self.address = address
+
+    def __wrapper_address__(self) -> int:
+        return self.address
 
 
 def kernel(py_func) -> Kernel:

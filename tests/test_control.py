@@ -235,6 +235,46 @@ def test_mpc_step_linearisation_matches_finite_differences():
     assert np.abs(B - B_fd).max() < 1e-7 * np.abs(B).max()
 
 
+def test_mpc_compiled_horizon_passes_equal_the_python_chain_rule():
+    """The compiled rollout and linearisation (qchain.sim.engine.horizon: the engine's
+    right-hand side and Jacobian, the RK4 map differentiated stage by stage) against the
+    Python path (per-stage forward_dynamics / forward_dynamics_derivatives calls, the chain
+    rule through the stages in numpy): equal to rounding, interval by interval and over the
+    horizon, and the plans of one box-DDP solve agree."""
+    ch = _chain()
+    q_d, q0 = _targets(ch)
+    path = lambda t: ch.tip_placement(q_d).translation + [0.01 * t, 0.0, 0.0]  # noqa: E731
+    fast, slow = _mpc(ch, path), _mpc(ch, path, compiled=False)
+    assert fast._engine is not None and slow._engine is None
+    rng = np.random.default_rng(3)
+    v0 = rng.normal(0.0, 1.0, ch.nv) * ch.active
+    p = rng.uniform(0.0, 5e4, 6)
+    out, ref = fast.step(q0, v0, p, derivatives=True), slow.step(q0, v0, p, derivatives=True)
+    for x, r in zip(out, ref):
+        assert np.abs(x - r).max() <= 1e-12 * np.abs(r).max(), np.abs(x - r).max() / np.abs(r).max()
+    P = rng.uniform(0.0, 5e4, (5, 6))
+    (c, G), (c_ref, G_ref) = fast.horizon_gradient(0.1, q0, v0, P), slow.horizon_gradient(0.1, q0, v0, P)
+    assert abs(c - c_ref) <= 1e-12 * c_ref
+    assert np.abs(G - G_ref).max() <= 1e-12 * np.abs(G_ref).max(), np.abs(G - G_ref).max() / np.abs(G_ref).max()
+    fast.torque(0.0, q0, v0)
+    slow.torque(0.0, q0, v0)
+    assert np.abs(fast.plan - slow.plan).max() <= 1e-6 * fast.p_max, np.abs(fast.plan - slow.plan).max()
+
+
+def test_mpc_a_plan_that_leaves_the_models_domain_is_refused_naming_the_interval():
+    """3 MPa held in one chamber bends the first segment past |kappa| r = 1 within the horizon:
+    the compiled rollout stops there with the segment and the interval, never a NaN cost."""
+    from qchain.errors import DomainError
+
+    ch = _chain()
+    _, q0 = _targets(ch)
+    P = np.zeros((5, 6))
+    P[:, 0] = 3e6
+    for compiled in (True, False):
+        with pytest.raises(DomainError, match="segment 0" + (".* in interval [0-4] of the planned" if compiled else "")):
+            _mpc(ch, np.zeros(3), compiled=compiled).horizon_cost(0.0, q0, np.zeros(ch.nv), P)
+
+
 def test_mpc_keeps_its_pressures_within_bounds_in_closed_loop():
     """A target that needs p = 1e4 Pa with p_max = 1e4 Pa: the box binds in the plan."""
     ch = _chain()

@@ -32,6 +32,15 @@ by it (the clamped rows of ``K`` are zero). The forward pass
 ``alpha`` keeps every iterate within the bounds. Between samples the plan is shifted by one
 interval (warm start), its last pressures repeated.
 
+Where the compiled engine serves the chain (:meth:`Chain.kernel_arrays`), a rollout of the
+horizon (a forward pass with its feedback law included) is one compiled call and so is the
+linearisation of the whole horizon (:mod:`qchain.sim.engine.horizon`: the engine's own
+right-hand side and exact Jacobian ``f_y``, the RK4 map differentiated stage by stage); the
+tip positions of the accepted rollout are reused by the linearisation. ``compiled=False``
+keeps the Python path (per-stage :meth:`Chain.forward_dynamics` /
+:meth:`Chain.forward_dynamics_derivatives` calls, the chain rule in numpy): equal to
+rounding.
+
 docs/control.md ("Model-predictive control") gives the equations, the accuracy of the
 discrete dynamics and the measured solve times.
 """
@@ -46,7 +55,10 @@ from scipy.optimize import lsq_linear
 from ..arm.chain import Chain
 from ..checks.bounds import HORIZON, ITERATIONS, PRESSURE_WEIGHT, RTOL, STEP, TIP_WEIGHT
 from ..checks.convert import as_vector
-from ..errors import NonFiniteError
+from .._jit import Address, first_class_functions
+from ..errors import DomainError, NonFiniteError
+from ..sim.engine import horizon as compiled_horizon
+from ..sim.engine import system
 from .base import Controller
 from .references import path_point
 
@@ -90,6 +102,9 @@ class MPC(Controller):
     max_step : float, s
         Largest RK4 step of the discrete dynamics (default 0.01 s): ``steps =
         ceil(h / max_step)`` steps an interval.
+    compiled : bool
+        Roll out and linearise the horizon in compiled code where the engine serves the chain
+        (default True); False: the Python path (same results to rounding, slower).
 
     Attributes
     ----------
@@ -107,7 +122,7 @@ class MPC(Controller):
 
     def __init__(self, chain: Chain, path, *, horizon: int = 20, Q: float = 1e6, R: float = 1e-12,
                  Q_terminal: float | None = None, rate: float, p_max: float, p_min: float = 0.0, max_iter: int = 5,
-                 tol: float = 1e-4, max_step: float = 0.01):
+                 tol: float = 1e-4, max_step: float = 0.01, compiled: bool = True):
         super().__init__(chain, rate=rate, p_max=p_max, p_min=p_min)
         if callable(path):
             self.path = path
@@ -139,6 +154,7 @@ class MPC(Controller):
         self._q = chain.neutral()  # the locked coordinates' values, taken from each sample's q
         self._fs0 = np.zeros((2 * k, 2 * k))
         self._fs0[:k, k:] = np.eye(k)
+        self._engine = self._pack_engine() if compiled else None
 
     # -- the discrete dynamics
     def _full(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -204,13 +220,84 @@ class MPC(Controller):
             A, B = Phi_s @ A, Phi_s @ B + Phi_u
         return s, A, B
 
+    # -- the compiled passes (qchain.sim.engine.horizon)
+    def _pack_engine(self) -> dict | None:
+        """The engine's packed model, workspace and scratch for the compiled passes, or None
+        where compiled code cannot serve the chain (then the Python path runs)."""
+        m = system.pack(self.chain, np.zeros(self.chain.nu), None)
+        if m is None or m.base != system.FIXED:
+            return None
+        nx, nu, k = self._nx, self.chain.nu, self._k
+        return dict(m=m, wk=system.workspace(self.chain, m), fs=None, K=np.zeros((4, nx)), yt=np.zeros(nx),
+                    y=np.zeros(nx), dK=np.zeros((4, nx, nx + nu)), D=np.zeros((nx, nx + nu)),
+                    dY=np.zeros((nx, nx + nu)), Jq=np.zeros((k, k)), Jv=np.zeros((k, k)), kff=np.zeros((1, 1)),
+                    Kfb=np.zeros((1, 1, 1)), entries={})
+
+    def _call(self, fn, *args) -> None:
+        """``fn(fs, m, wk, h, steps, scale, *args)`` with the locked coordinates' values as the
+        chart (the free ones zero: the engine's ``y`` is ``s``); raises on a failed status."""
+        e = self._engine
+        m, wk = e["m"], e["wk"]
+        if e["fs"] is None:  # the engine's callbacks, loaded from numba's cache or compiled, once
+            e["fs"] = (system.rhs(m).compile(m, wk, 0.0, e["y"], e["yt"]),
+                       system.jacobian.compile(m, wk, 0.0, e["y"], e["Jq"], e["Jv"]))
+        wk.q_chart[:] = self._q
+        wk.q_chart[self.active] = 0.0
+        args = (m, wk, self.h, self.steps, self._scale, *args)
+        entry = e["entries"].get(fn)
+        if entry is None:
+            with first_class_functions():
+                status = fn(e["fs"], *args)  # loaded from numba's cache or compiled, once
+                sig = tuple(fn.typeof_pyval(a) for a in (e["fs"], *args))
+            # later calls go to the compiled entry point with the callbacks as addresses:
+            # the dispatcher would type the model, workspace and callbacks again at each call
+            e["entries"][fn] = (fn.overloads[sig].entry_point, tuple(Address(cf.address) for cf in e["fs"]))
+        else:
+            status = entry[0](entry[1], *args)
+        if status != system.OK:
+            j = int(wk.info[3])
+            if status == system.DOMAIN:
+                raise DomainError(f"MPC: segment {int(wk.info[1])} left the model's domain (|kappa| r >= 1 or "
+                                  f"l <= 0) in interval {j} of the planned motion")
+            why = "an articulated inertia not positive definite" if status == system.SINGULAR else "non-finite values"
+            raise NonFiniteError(f"MPC: the planned motion has {why} in interval {j}")
+
+    def _engine_rollout(self, S, U, kff=None, Kfb=None, alpha=0.0, S_ref=None, U_ref=None) -> None:
+        """``S[1:]`` from ``S[0]`` under ``U`` (scaled), in one compiled call; with ``kff``,
+        ``Kfb`` the forward pass's ``U = clip(U_ref + alpha kff + Kfb (S - S_ref))`` is formed
+        on the way."""
+        e = self._engine
+        feedback = kff is not None
+        if not feedback:
+            kff, Kfb, S_ref, U_ref = e["kff"], e["Kfb"], S, U
+        self._call(compiled_horizon.rollout, float(self._lo), float(self._hi), S_ref, U_ref, kff, Kfb, float(alpha),
+                   feedback, S, U, e["K"], e["yt"])
+
+    def _dynamics_jacobians(self, S, U):
+        """Every interval's ``A_k`` (H, 2k, 2k) and ``B_k`` (H, 2k, nu) (``u`` scaled) at the
+        rollout's states ``S`` and inputs ``U``: one compiled call, or the Python chain rule."""
+        if self._engine is None:
+            return self._dynamics_jacobians_python(S, U)
+        H, nx = U.shape[0], self._nx
+        A = np.empty((H, nx, nx))
+        B = np.empty((H, nx, self.chain.nu))
+        e = self._engine
+        self._call(compiled_horizon.linearise, S, U, A, B, e["K"], e["dK"], e["y"], e["yt"], e["D"], e["dY"],
+                   e["Jq"], e["Jv"])
+        return A, B
+
+    def _dynamics_jacobians_python(self, S, U):
+        """:meth:`_dynamics_jacobians` by the Python path (per-stage calls, the chain rule in numpy)."""
+        H, nx = U.shape[0], self._nx
+        A = np.empty((H, nx, nx))
+        B = np.empty((H, nx, self.chain.nu))
+        for j in range(H):
+            _, A[j], B[j] = self._step_derivatives(S[j], U[j])
+        return A, B
+
     # -- the cost
-    def _tip(self, s: np.ndarray, jacobian: bool = False):
-        q, _ = self._full(s)
-        x = self.chain.tip_placement(q).translation
-        if not jacobian:
-            return x
-        return x, self.chain.tip_jacobian(q, "local_world_aligned")[:3, self.active]
+    def _tip_jacobian(self, s: np.ndarray) -> np.ndarray:
+        return self.chain.tip_jacobian(self._full(s)[0], "local_world_aligned")[:3, self.active]
 
     def _weights(self) -> np.ndarray:
         w = np.full(self.horizon + 1, self.Q)
@@ -223,37 +310,47 @@ class MPC(Controller):
 
     def _rollout(self, s0, U, Xd):
         """States (H + 1, 2k) and cost of the plan ``U`` (H, nu) (scaled) from ``s0``."""
-        S = np.empty((self.horizon + 1, self._nx))
+        S = np.empty((U.shape[0] + 1, self._nx))
         S[0] = s0
-        for j in range(self.horizon):
-            S[j + 1] = self._step(S[j], U[j])
-        return S, self._cost(S, U, Xd)
+        if self._engine is not None:
+            self._engine_rollout(S, U)
+        else:
+            for j in range(U.shape[0]):
+                S[j + 1] = self._step(S[j], U[j])
+        return (S, *self._cost(S, U, Xd))
 
-    def _cost(self, S, U, Xd) -> float:
+    def _cost(self, S, U, Xd) -> tuple[float, np.ndarray]:
+        """``(J, X)``: the cost and the tip positions ``X`` (H + 1, 3) m at the knots (``X[0]``
+        not formed: NaN), which the linearisation reuses."""
+        if not np.all(np.isfinite(S)):
+            raise NonFiniteError(f"MPC: the planned motion has non-finite entries; the plan's pressures "
+                                 f"range {U.min() * self._scale:g} to {U.max() * self._scale:g} Pa")
         w = self._weights()
-        track = sum(0.5 * w[j] * np.sum((self._tip(S[j]) - Xd[j]) ** 2) for j in range(1, self.horizon + 1))
+        X = np.full((self.horizon + 1, 3), np.nan)
+        Q = np.tile(self._q, (self.horizon, 1))
+        Q[:, self.active] = S[1:, : self._k]
+        # every knot's tip in one compiled (checked) call: equal to tip_placement's, bit for bit
+        X[1:] = self.chain.frames_batch(Q, 2).translation[:, -1]
+        track = sum(0.5 * w[j] * np.sum((X[j] - Xd[j]) ** 2) for j in range(1, self.horizon + 1))
         cost = track + 0.5 * self.R * self._scale**2 * float(np.sum(U * U))
         if not np.isfinite(cost) or not np.all(np.isfinite(S)):
             raise NonFiniteError(f"MPC: the planned motion has non-finite entries (cost {cost:g}); the plan's pressures "
                                  f"range {U.min() * self._scale:g} to {U.max() * self._scale:g} Pa")
-        return float(cost)
+        return float(cost), X
 
-    def _linearise(self, S, U, Xd):
+    def _linearise(self, S, U, Xd, X):
         """Per stage ``A_k``, ``B_k`` and the tip cost's gradient and Gauss-Newton Hessian in
-        ``s`` at the knots."""
+        ``s`` at the knots (``X`` (H + 1, 3) the knots' tip positions, from :meth:`_cost`)."""
         H, nx, k = self.horizon, self._nx, self._k
-        A = np.empty((H, nx, nx))
-        B = np.empty((H, nx, self.chain.nu))
         lx = np.zeros((H + 1, nx))
         lxx = np.zeros((H + 1, nx, nx))
-        for j in range(H):
-            _, A[j], B[j] = self._step_derivatives(S[j], U[j])
+        A, B = self._dynamics_jacobians(S, U)
         w = self._weights()
         for j in range(1, H + 1):
             if w[j] == 0.0:
                 continue
-            x, J = self._tip(S[j], jacobian=True)
-            lx[j, :k] = w[j] * J.T @ (x - Xd[j])
+            J = self._tip_jacobian(S[j])
+            lx[j, :k] = w[j] * J.T @ (X[j] - Xd[j])
             lxx[j, :k, :k] = w[j] * J.T @ J
         return A, B, lx, lxx
 
@@ -279,10 +376,21 @@ class MPC(Controller):
         coordinates' state ``s = (q[active], v[active])``."""
         s = self._state(q, v)
         p = as_vector("p", p, self.chain.nu)
+        u = (p / self._scale)[None]
+        if self._engine is None:
+            if derivatives:
+                s1, A, B = self._step_derivatives(s, u[0])
+                return (*self._full(s1), A, B / self._scale)
+            return self._full(self._step(s, u[0]))
+        S = np.empty((2, self._nx))
+        S[0] = s
+        self._engine_rollout(S, u)
+        if not np.all(np.isfinite(S[1])):
+            raise NonFiniteError("MPC: the interval's end state has non-finite entries")
         if derivatives:
-            s1, A, B = self._step_derivatives(s, p / self._scale)
-            return (*self._full(s1), A, B / self._scale)
-        return self._full(self._step(s, p / self._scale))
+            A, B = self._dynamics_jacobians(S, u)
+            return (*self._full(S[1]), A[0], B[0] / self._scale)
+        return self._full(S[1])
 
     def horizon_cost(self, t: float, q, v, P) -> float:
         """``J(P)`` of the module docstring for the pressures ``P`` (H, 3 n) Pa from ``(q, v)``
@@ -298,8 +406,8 @@ class MPC(Controller):
         s0 = self._state(q, v)
         U = self._sequence(P)
         Xd = self._targets(t)
-        S, cost = self._rollout(s0, U, Xd)
-        A, B, lx, _ = self._linearise(S, U, Xd)
+        S, cost, X = self._rollout(s0, U, Xd)
+        A, B, lx, _ = self._linearise(S, U, Xd, X)
         G = np.empty_like(U)
         lam = lx[-1]
         for j in range(self.horizon - 1, -1, -1):
@@ -353,24 +461,27 @@ class MPC(Controller):
         Sn = np.empty_like(S)
         Un = np.empty_like(U)
         Sn[0] = s0
-        for j in range(self.horizon):
-            Un[j] = np.clip(U[j] + alpha * kff[j] + Kfb[j] @ (Sn[j] - S[j]), self._lo, self._hi)
-            Sn[j + 1] = self._step(Sn[j], Un[j])
-        return Sn, Un, self._cost(Sn, Un, Xd)
+        if self._engine is not None:
+            self._engine_rollout(Sn, Un, kff, Kfb, alpha, S, U)
+        else:
+            for j in range(self.horizon):
+                Un[j] = np.clip(U[j] + alpha * kff[j] + Kfb[j] @ (Sn[j] - S[j]), self._lo, self._hi)
+                Sn[j + 1] = self._step(Sn[j], Un[j])
+        return (Sn, Un, *self._cost(Sn, Un, Xd))
 
     def _solve(self, t: float, s0: np.ndarray, U: np.ndarray, max_iter: int):
         """Box-DDP from the plan ``U`` (scaled): ``(U, cost, iterations)``."""
         Xd = self._targets(t)
-        S, cost = self._rollout(s0, U, Xd)
+        S, cost, X = self._rollout(s0, U, Xd)
         mu, it = 0.0, 0
         while it < max_iter:
             it += 1
-            A, B, lx, lxx = self._linearise(S, U, Xd)
+            A, B, lx, lxx = self._linearise(S, U, Xd, X)
             kff, Kfb, d1, d2 = self._backward(U, A, B, lx, lxx, mu)
             if -d1 <= self.tol * 1e-3 * cost:  # no descent left within the bounds: converged
                 break
             for alpha in _ALPHAS:
-                Sn, Un, cn = self._forward(s0, S, U, kff, Kfb, alpha, Xd)
+                Sn, Un, cn, Xn = self._forward(s0, S, U, kff, Kfb, alpha, Xd)
                 expected = -(alpha * d1 + alpha**2 * d2)
                 if cn < cost and (cost - cn) >= 1e-4 * expected:
                     break
@@ -380,7 +491,7 @@ class MPC(Controller):
                     break
                 continue
             drop = cost - cn
-            S, U, cost = Sn, Un, cn
+            S, U, cost, X = Sn, Un, cn, Xn  # the accepted rollout's states and tips: not formed again
             mu = 0.0 if mu < 1e-5 * self.R * self._scale**2 else mu / 10.0
             if drop < self.tol * cost:
                 break

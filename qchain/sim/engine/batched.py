@@ -30,7 +30,7 @@ from numba.core import cgutils, types
 from numba.experimental.function_type import _get_wrapper_address
 from numba.extending import intrinsic
 
-from ..._jit import cached_here, ejit, first_class_functions, inline
+from ..._jit import Address, cached_here, ejit, first_class_functions, inline
 from . import driver, steppers, system, warmup
 from .steppers import AT_STOP, FAILED, K_OUT, NFEV, NJEV, NLU, NREJECT, NSTEPS
 
@@ -304,9 +304,9 @@ class Rollouts:
                                                                       np.zeros(2, dtype=np.int64)))
         # the compiled functions as their addresses: unboxed at each call without typing them
         # again (a dispatcher is looked up by its signature, milliseconds for the engine's)
-        self._functions = (_Address(_get_wrapper_address(self.adv, adv_sig)),
-                           _Address(_get_wrapper_address(system.energies_batch, en_sig)),
-                           tuple(_Address(cf.address) for cf in self.fs))
+        self._functions = (Address(_get_wrapper_address(self.adv, adv_sig)),
+                           Address(_get_wrapper_address(system.energies_batch, en_sig)),
+                           tuple(Address(cf.address) for cf in self.fs))
         self._names: list[str] = []
         self._lock = threading.Lock()
         self._clock = [0.0, 0]  # wall seconds and ticks of every thread's work: a tick's length
@@ -447,14 +447,3 @@ def _cold(sig: tuple) -> bool:
         return not cached_here(run_rollouts, lambda key: key[0] == sig)
     except Exception:  # numba's cache layout is not public API: no answer, no notice
         return False
-
-
-class _Address:
-    """A compiled function as numba's first-class function arguments take it: its address
-    (numba's wrapper address protocol)."""
-
-    def __init__(self, address: int):
-        self.address = address
-
-    def __wrapper_address__(self) -> int:
-        return self.address

@@ -1,0 +1,155 @@
+"""Compiled passes over a horizon of held-input intervals (:class:`qchain.control.MPC`'s
+discrete dynamics): the rollout and its exact linearisation, one compiled call each.
+
+An interval ``F(s, u)`` is ``steps`` classical Runge-Kutta (RK4) steps of ``h / steps`` of
+the engine's first-order system ``y = (delta, v_A)`` (:mod:`qchain.sim.engine.system`,
+chart ``wk.q_chart`` with zeros at the free coordinates, so ``y`` is the free coordinates'
+state ``s = (q_A, v_A)``) with the pressures ``p = scale u`` held: written into the packed
+constant input ``m.p_params`` (:func:`qchain.sim.engine.schedules.pack_input`, CONSTANT) at
+the interval's start. The right-hand side and its Jacobian are the engine's callbacks
+``fs = (rhs, jacobian)`` (:func:`qchain.sim.engine.warmup.callbacks` of an implicit method).
+
+:func:`rollout` steps the horizon (optionally applying the feedback law of a DDP forward
+pass); :func:`linearise` gives every interval's ``A_k = dF/ds`` and ``B_k = dF/du`` by
+differentiating the RK4 map itself (internal differentiation, as
+:mod:`qchain.sim.engine.sensitivity`): for a stage ``Y_i = y + c_i dt k_{i-1}``,
+``dY_i = D + c_i dt dk_{i-1}``, ``dk_i = f_y(Y_i) dY_i + [0; scale da_A/dp]`` with
+``f_y = [[0, I], [Jq, Jv]]`` (exact, :func:`system.jacobian`) and ``D_new = D + dt/6 (dk_1 +
+2 dk_2 + 2 dk_3 + dk_4)`` from ``D = [I | 0]``: exact derivatives of the numbers the rollout
+computes, to rounding.
+
+Unchecked by design (``docs/engine.md``, "Unchecked kernels"): called by
+:class:`qchain.control.MPC`, which validates the arguments.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from . import system
+from ..._jit import ejit, inline
+
+__all__ = ["rollout", "linearise"]
+
+
+@inline
+def _hold(m, U, j, scale):
+    """The pressures of interval ``j``, ``scale U[j]`` (Pa), into the packed constant input."""
+    for i in range(U.shape[1]):
+        m.p_params[i] = U[j, i] * scale
+
+
+@ejit
+def rollout(fs, m, wk, h, steps, scale, lo, hi, S_ref, U_ref, kff, Kfb, alpha, feedback, S, U, K, yt):
+    """The states ``S`` (H + 1, N) from ``S[0]`` under the inputs ``U`` (H, nu) (scaled:
+    ``p = scale U``). With ``feedback``, ``U[j] = clip(U_ref[j] + alpha kff[j] + Kfb[j] (S[j] -
+    S_ref[j]), lo, hi)`` is formed on the way (a DDP forward pass; ``kff`` (H, nu), ``Kfb``
+    (H, nu, N)); otherwise ``U`` is read as given. ``h`` (s) an interval, ``steps`` RK4 steps
+    in it; scratch ``K`` (4, N), ``yt`` (N,). Returns the status (0, or the failing
+    right-hand side's, :mod:`system`); ``wk.info[3]`` the interval it failed in."""
+    H = U.shape[0]
+    nu = U.shape[1]
+    N = S.shape[1]
+    dt = h / steps
+    for j in range(H):
+        wk.info[3] = j
+        if feedback:
+            for i in range(nu):
+                acc = 0.0
+                for c in range(N):
+                    acc += Kfb[j, i, c] * (S[j, c] - S_ref[j, c])
+                x = U_ref[j, i] + alpha * kff[j, i] + acc
+                U[j, i] = min(max(x, lo), hi)
+        _hold(m, U, j, scale)
+        y = S[j + 1]
+        for i in range(N):
+            y[i] = S[j, i]
+        for _ in range(steps):
+            for s in range(4):
+                if s == 0:
+                    st = fs[0](m, wk, 0.0, y, K[0])
+                else:
+                    w = dt if s == 3 else 0.5 * dt
+                    for i in range(N):
+                        yt[i] = y[i] + w * K[s - 1, i]
+                    st = fs[0](m, wk, 0.0, yt, K[s])
+                if st != 0:
+                    return st
+            for i in range(N):
+                y[i] = y[i] + dt / 6.0 * (K[0, i] + 2.0 * K[1, i] + 2.0 * K[2, i] + K[3, i])
+        for i in range(N):
+            if not np.isfinite(y[i]):
+                wk.info[0] = system.NONFINITE
+                return system.NONFINITE
+    return system.OK
+
+
+@ejit
+def linearise(fs, m, wk, h, steps, scale, S, U, A, B, K, dK, y, yt, D, dY, Jq, Jv):
+    """Every interval's ``A[j] = dF/ds`` (H, N, N) and ``B[j] = dF/du`` (H, N, nu) at the
+    states ``S`` (H + 1, N) (``S[j]`` read) and inputs ``U`` (H, nu) of a rollout (module
+    docstring). Scratch: ``K`` (4, N), ``dK`` (4, N, N + nu), ``y``, ``yt`` (N,), ``D``, ``dY``
+    (N, N + nu), ``Jq``, ``Jv`` (nA, nA). Returns the status; ``wk.info[3]`` the interval."""
+    H = U.shape[0]
+    nu = U.shape[1]
+    N = S.shape[1]
+    nA = N // 2
+    ncol = N + nu
+    idx = m.idx
+    dt = h / steps
+    wa = system.aba_derivatives_ws(m, wk)
+    for j in range(H):
+        wk.info[3] = j
+        _hold(m, U, j, scale)
+        for i in range(N):
+            y[i] = S[j, i]
+            for c in range(ncol):
+                D[i, c] = 1.0 if c == i else 0.0
+        for _ in range(steps):
+            for s in range(4):
+                if s == 0:
+                    for i in range(N):
+                        yt[i] = y[i]
+                        for c in range(ncol):
+                            dY[i, c] = D[i, c]
+                else:
+                    w = dt if s == 3 else 0.5 * dt
+                    for i in range(N):
+                        yt[i] = y[i] + w * K[s - 1, i]
+                        for c in range(ncol):
+                            dY[i, c] = D[i, c] + w * dK[s - 1, i, c]
+                st = fs[0](m, wk, 0.0, yt, K[s])
+                if st != 0:
+                    return st
+                st = fs[1](m, wk, 0.0, yt, Jq, Jv)
+                if st != 0:
+                    return st
+                da_dp = wa.da_dp
+                dk = dK[s]
+                for i in range(nA):
+                    for c in range(ncol):
+                        dk[i, c] = dY[nA + i, c]
+                for r in range(nA):
+                    for c in range(ncol):
+                        acc = 0.0
+                        for k in range(nA):
+                            acc += Jq[r, k] * dY[k, c] + Jv[r, k] * dY[nA + k, c]
+                        if c >= N:
+                            acc += da_dp[idx[r], c - N] * scale
+                        dk[nA + r, c] = acc
+            for i in range(N):
+                y[i] = y[i] + dt / 6.0 * (K[0, i] + 2.0 * K[1, i] + 2.0 * K[2, i] + K[3, i])
+                for c in range(ncol):
+                    D[i, c] = D[i, c] + dt / 6.0 * (dK[0, i, c] + 2.0 * dK[1, i, c] + 2.0 * dK[2, i, c] + dK[3, i, c])
+        for i in range(N):
+            for c in range(N):
+                A[j, i, c] = D[i, c]
+                if not np.isfinite(D[i, c]):
+                    wk.info[0] = system.NONFINITE
+                    return system.NONFINITE
+            for c in range(nu):
+                B[j, i, c] = D[i, N + c]
+                if not np.isfinite(D[i, N + c]):
+                    wk.info[0] = system.NONFINITE
+                    return system.NONFINITE
+    return system.OK
