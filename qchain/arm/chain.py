@@ -210,10 +210,30 @@ class Chain(KeepsReadOnly, ChainKinematics, ChainContact, ChainParameters, Chain
         self._paper_act = np.array([s.actuation == "paper" for s in segs])
         self._paper = np.array([s.coords == "paper" for s in segs])
         self._any_paper = bool(self._paper.any())
-        # segments with the paper's literal linear law: their elastic/damping terms are
-        # evaluated by the Segment (in its own coordinates), the rest by the compiled kernel
-        self._linear = np.array([s.stiffness_matrix is not None or s.damping_matrix is not None for s in segs])
+        # the paper's literal linear law (stiffness_matrix, damping_matrix): constant matrices in
+        # the segment's coordinates. In curvature coordinates the compiled passes carry them
+        # (ChainArrays.K, .D); a paper-coordinate segment's are evaluated by the Segment
+        self._literal = np.array([s.stiffness_matrix is not None or s.damping_matrix is not None for s in segs])
+        self._linear = self._literal & self._paper
         self._has_linear = bool(self._linear.any())
+        self._D = np.zeros((n, 3, 3))  # each segment's dissipation matrix, curvature coordinates
+        self._K = np.zeros((n, 3, 3))  # the linear law's K_e where _linear_law
+        self._q_rest = np.zeros((n, 3))
+        self._drag = np.array([[s.drag_linear, s.drag_quadratic] for s in segs], dtype=float)  # (n, 2)
+        self._has_drag = bool(self._drag.any())
+        if self._has_drag and self._any_paper:
+            j = int(np.flatnonzero(self._paper)[0])
+            raise ValueError(f"segments[{j}] has coords='paper': a chain with drag (drag_linear, drag_quadratic) "
+                             "needs every segment in curvature coordinates")
+        self._linear_law = np.array([s.stiffness_matrix is not None and not p for s, p in zip(segs, self._paper)])
+        for j, s in enumerate(segs):
+            if self._linear[j] or s.coords == "paper":  # the material law's beta K(q0), curvature coordinates
+                self._D[j] = s._rest_damping_c()
+                continue
+            self._D[j] = s.dissipation_matrix(s.neutral())  # constant: damping_matrix, beta K_e or beta K(q0)
+            if self._linear_law[j]:
+                self._K[j] = s.stiffness_matrix
+                self._q_rest[j] = s._rest()
         if not isinstance(planar, (bool, np.bool_)):
             raise TypeError(f"planar must be True or False, got {describe_value(planar)}")
         if planar and self._any_paper:
@@ -225,7 +245,7 @@ class Chain(KeepsReadOnly, ChainKinematics, ChainContact, ChainParameters, Chain
         self._payload.flags.writeable = False
         self._has_payload = self._payload_inertia is not None
         self._planar_kernel = self.planar and base == "fixed"  # forward dynamics on qchain.algorithms.planar
-        # forward dynamics in one compiled call (recursive.forward_dynamics): curvature coordinates, the material law
+        # forward dynamics in one compiled call (recursive.forward_dynamics): curvature coordinates (either elastic law)
         self._fused = not (self._planar_kernel or self._any_paper or self._has_linear)
         self._p_zero = np.zeros((n, 3))  # p = None on the unchecked path (writable: one array type for the kernels)
         self._p_flat = self._p_zero.reshape(-1)
@@ -242,7 +262,8 @@ class Chain(KeepsReadOnly, ChainKinematics, ChainContact, ChainParameters, Chain
         self._named_arrays = ChainArrays(alpha=self._alpha, w=self._w, offs=self._offs, mass=self._mass,
                                    radius=self._radius, l0=self._l0, EI=self._EI, EA=self._EA, beta=self._beta,
                                    A_ch=self._A_ch, r_ch=self._r_ch, paper_act=self._paper_act, locked=self._locked,
-                                   payload=self._payload)
+                                   payload=self._payload, D=self._D, K=self._K, q_rest=self._q_rest,
+                                   linear_law=self._linear_law, drag=self._drag)
         self._arrays = tuple(self._named_arrays)
         self.active = np.ones(self.nv, dtype=bool)
         self.active[self._voff :] = ~self._locked.ravel()
@@ -273,8 +294,9 @@ class Chain(KeepsReadOnly, ChainKinematics, ChainContact, ChainParameters, Chain
         """The flat per-node and per-segment arrays the compiled passes take, as one named
         structure (:class:`qchain.algorithms.arrays.ChainArrays`; the chain's own arrays, not
         copies: never write them), or None where compiled code
-        cannot evaluate the chain's segment forces (paper coordinates or the paper's literal
-        linear law in some segment, evaluated in Python by the :class:`Segment`).
+        cannot evaluate the chain's segment forces (paper coordinates in some segment, evaluated
+        in Python through the coordinate map; the linear law in curvature coordinates is
+        compiled).
 
         ``N`` nodes over all segments, ``n`` segments: ``alpha (N,)`` the nodes' arc
         parameters in [0, 1], ``w (N,)`` their quadrature weights, ``offs (n + 1,) int64``
@@ -282,8 +304,10 @@ class Chain(KeepsReadOnly, ChainKinematics, ChainContact, ChainParameters, Chain
         rest length (m), ``EI`` (N m^2), ``EA`` (N), ``beta`` damping (s), ``A_ch`` chamber
         area (m^2), ``r_ch`` chamber radius (m), all ``(n,)``; ``paper_act (n,) bool`` the
         paper's actuation law; ``locked (n, 3) bool`` coordinates held still; ``payload
-        (6, 6)`` the tip payload's spatial inertia (zeros: none)."""
-        if self._any_paper or self._has_linear:
+        (6, 6)`` the tip payload's spatial inertia (zeros: none); ``D (n, 3, 3)`` each
+        segment's constant dissipation matrix, ``K (n, 3, 3)``, ``q_rest (n, 3)`` and
+        ``linear_law (n,) bool`` the linear elastic law (``stiffness_matrix``) where it is given."""
+        if self._any_paper:
             return None
         return self._named_arrays
 
@@ -708,7 +732,16 @@ class Chain(KeepsReadOnly, ChainKinematics, ChainContact, ChainParameters, Chain
         if as_bool("skip_checks", skip_checks):
             return self._forward_dynamics_unchecked(q, v, p, tau, t, data)
         st, p3, tau = self._dynamics_inputs(q, v, p, tau, t)
+        if self._has_drag:
+            tau = self._with_drag(st, tau)
         return self._forward_dynamics(st, p3, tau, t, data)
+
+    def _with_drag(self, st: _State, tau, derivatives: bool = False):
+        """``tau + tau_drag`` at the validated state ``st`` (``tau`` None: zero), and with
+        ``derivatives`` the drag's ``(d/dq, d/dv)`` too."""
+        td, dq, dv = self._drag_terms(st, derivatives)
+        tau = td if tau is None else tau + td
+        return (tau, dq, dv) if derivatives else tau
 
     def _dynamics_inputs(self, q, v, p, tau, t):
         """Validated ``(state, p (n, 3), tau)`` of a forward-dynamics call, locks checked."""
@@ -719,6 +752,8 @@ class Chain(KeepsReadOnly, ChainKinematics, ChainContact, ChainParameters, Chain
         return st, p3, tau
 
     def _forward_dynamics_unchecked(self, q, v, p, tau, t, data):
+        if self._has_drag:
+            tau = self._with_drag(self._unchecked_state(q, v, t), tau)
         if self._fused and data is not None:  # a singular articulated block is not reported here
             V0, A_B, g_B = ((_ZERO6, None, self._g_B) if self.base == "fixed" else
                             self._unchecked_inputs(q, v, p, t, data)[3:])
@@ -822,12 +857,12 @@ class Chain(KeepsReadOnly, ChainKinematics, ChainContact, ChainParameters, Chain
         rows and columns (:mod:`qchain.arm.dynamics_derivatives`).
 
         ``data`` (:meth:`create_data`): the workspace the passes write in; where the chain is
-        in curvature coordinates with the material law the result's arrays are its arrays
+        in curvature coordinates the result's arrays are its arrays
         (overwritten by the next call with it). ``skip_checks=True`` is the unchecked fast path
         of integrators and batches (MuJoCo's ``skip_checks``): the inputs are taken as valid
         -- shapes, finiteness, the model's domain, a unit quaternion, locked values are not
         checked -- and the result is not checked for non-finite entries. It needs ``data``
-        and a chain in curvature coordinates with the material law. ``env`` (a
+        and a chain in curvature coordinates. ``env`` (a
         :class:`qchain.contact.Environment`) adds its forces and their exact derivatives
         (:meth:`environment_force_derivatives`): ``da/dq += M^-1 d tau_env/dq``, likewise ``v``.
         """
@@ -840,12 +875,34 @@ class Chain(KeepsReadOnly, ChainKinematics, ChainContact, ChainParameters, Chain
         if as_bool("skip_checks", skip_checks):
             return self._forward_dynamics_derivatives_unchecked(q, v, p, tau, t, data)
         st, p3, tau = self._dynamics_inputs(q, v, p, tau, t)
-        return _derivs.forward_dynamics_derivatives(self, st, p3, tau, t, data)
+        if not self._has_drag:
+            return _derivs.forward_dynamics_derivatives(self, st, p3, tau, t, data)
+        tau, dq, dv = self._with_drag(st, tau, True)  # da/dx += M^-1 d tau_drag/dx
+        out = _derivs.forward_dynamics_derivatives(self, st, p3, tau, t, data)
+        return out._replace(da_dq=out.da_dq + out.da_dtau @ dq, da_dv=out.da_dv + out.da_dtau @ dv)
 
     def _forward_dynamics_derivatives_unchecked(self, q, v, p, tau, t, data):
         q_c, v_c, p3, V0, A_B, g_B = self._unchecked_inputs(q, v, p, t, data)
-        return _derivs.compiled_forward_dynamics_derivatives(self, q_c, v_c, p3, tau, V0, A_B, g_B, t, data,
-                                                             check=False)
+        if not self._has_drag:
+            return _derivs.compiled_forward_dynamics_derivatives(self, q_c, v_c, p3, tau, V0, A_B, g_B, t, data,
+                                                                 check=False)
+        tau, dq, dv = self._with_drag(self._unchecked_state(q, v, t), tau, True)
+        out = _derivs.compiled_forward_dynamics_derivatives(self, q_c, v_c, p3, tau, V0, A_B, g_B, t, data,
+                                                            check=False)
+        return out._replace(da_dq=out.da_dq + out.da_dtau @ dq, da_dv=out.da_dv + out.da_dtau @ dv)
+
+    def _unchecked_state(self, q, v, t) -> _State:
+        """The state the drag pass reads on the ``skip_checks`` paths: curvature coordinates
+        (a chain with drag has no other), the base's twist."""
+        q_c = q[self._qoff :].reshape(self.n, 3)
+        v_c = v[self._voff :].reshape(self.n, 3)
+        if self.base == "floating":
+            V0 = v[:6]
+        elif self.base == "prescribed":
+            V0 = self.base_state(t)[1]
+        else:
+            V0 = _ZERO6
+        return _State(X_WB=None, q_e=q_c, q_c=q_c, J=None, v_e=v_c, v_c=v_c, V0=V0)
 
     @_finite("mass matrix derivative")
     def mass_matrix_derivative(self, q, data: Data | None = None) -> np.ndarray:

@@ -1,12 +1,15 @@
 """Contact and point loads on a :class:`qchain.arm.chain.Chain` (:class:`ChainContact`, a base
 class of ``Chain``): the generalised force an :class:`qchain.contact.Environment` exerts at a
-state, and which contacts are active (:mod:`qchain.contact.forces` computes both)."""
+state, and which contacts are active (:mod:`qchain.contact.forces` computes both); the drag of
+the still medium the arm moves in (the segments' ``drag_linear``, ``drag_quadratic``;
+:mod:`qchain.contact.drag`)."""
 
 from __future__ import annotations
 
 import numpy as np
 
 from ..contact.derivatives import NODE_T, environment_derivatives
+from ..contact.drag import DRAG_FRAME, drag_derivatives, drag_forces
 from ..contact.environment import Contacts, Environment
 from ..contact.distance import move
 from ..contact.forces import RECORD, ROOT, contact_forces, load_forces
@@ -37,7 +40,39 @@ def _check_env(env) -> Environment:
 
 
 class ChainContact:
-    """The :class:`~qchain.contact.Environment` methods of :class:`~qchain.arm.chain.Chain`."""
+    """The :class:`~qchain.contact.Environment` and drag methods of :class:`~qchain.arm.chain.Chain`."""
+
+    def drag_force(self, q, v, t: float = 0.0) -> np.ndarray:
+        """The generalised force (nv,) of the medium's drag on the backbone at ``(q, v)``
+        (the segments' ``drag_linear``, ``drag_quadratic``; zero without them):
+        ``-sum_j int_0^l_j J(s)^T (c_1 + c_2 |v(s)|) v(s) ds``, ``v(s)`` each backbone point's
+        velocity (a moving base's included); a floating base's part is the wrench on the base
+        (base frame). It enters :meth:`forward_dynamics` and the engine beside ``tau``
+        (docs/model.md section 9)."""
+        return self._drag_terms(self._state(q, v, t=t), False)[0]
+
+    def drag_force_derivatives(self, q, v, t: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+        """Exact ``(d tau_drag/dq, d tau_drag/dv)`` (nv, nv) of :meth:`drag_force` (q along
+        :meth:`integrate`), by tangent passes (:mod:`qchain.contact.drag`)."""
+        return self._drag_terms(self._state(q, v, t=t), True)[1:]
+
+    def _drag_terms(self, st, derivatives: bool):
+        """``(tau (nv,), d tau/dq, d tau/dv)`` of the drag at the validated state ``st`` (the
+        derivatives None unless asked for)."""
+        n, nv = self.n, self.nv
+        q_c, v_c, V0 = st.q_c, np.ascontiguousarray(st.v_c), np.ascontiguousarray(st.V0)
+        tau_c, F0 = np.zeros((n, 3)), np.zeros(6)
+        dq = dv = None
+        if self._has_drag:
+            drag_forces(self._arrays, q_c, v_c, V0, tau_c, F0, np.zeros((n + 1, 6)), np.empty(SCRATCH))
+        tau = np.concatenate([F0, tau_c.ravel()]) if self.floating else tau_c.ravel()
+        if derivatives:
+            dq, dv = np.zeros((nv, nv)), np.zeros((nv, nv))
+            if self._has_drag:
+                drag_derivatives(self._arrays, self.floating, q_c, v_c, V0, dq, dv, np.zeros((n + 1, 6)),
+                                 np.zeros((n + 1, 6)), np.zeros((3, n, 3)), np.zeros((3, 6)),
+                                 np.zeros((self._alpha.size + n, DRAG_FRAME)), np.empty(SCRATCH))
+        return tau, dq, dv
 
     def _environment_force(self, st, env: Environment, cap: int = 0, t: float = 0.0):
         """``(tau (nv,), records (c, RECORD))``: the environment's generalised force at the
