@@ -44,9 +44,10 @@ from ..algorithms import recursive
 from ..algorithms.arrays import ChainArrays
 from ..model.arc import SCRATCH, arc_nodes
 from .checks import QUATERNION_TOLERANCE, ChainChecks, _finite  # noqa: F401 (QUATERNION_TOLERANCE re-exported)
-from .contact import ChainContact
+from .contact import ChainContact, _plus_drag
+from .energies import ChainEnergies
 from .parameter_derivatives import ChainParameters
-from .kinematics import _NO_POINTS, ChainKinematics, Frames
+from .kinematics import ChainKinematics, Frames
 from .dynamics_derivatives import _EMPTY, _ZERO6, ForwardDynamicsDerivatives, InverseDynamicsDerivatives
 from .data import Data
 from .payload import payload_matrix
@@ -97,7 +98,7 @@ def _check_placement(name: str, X) -> None:
     POSITION.check_array(f"{name}.translation", H[:3, 3])
 
 
-class Chain(KeepsReadOnly, ChainKinematics, ChainContact, ChainParameters, ChainChecks):
+class Chain(KeepsReadOnly, ChainKinematics, ChainEnergies, ChainContact, ChainParameters, ChainChecks):
     """A soft arm of ``n`` segments.
 
     Parameters
@@ -216,24 +217,15 @@ class Chain(KeepsReadOnly, ChainKinematics, ChainContact, ChainParameters, Chain
         self._literal = np.array([s.stiffness_matrix is not None or s.damping_matrix is not None for s in segs])
         self._linear = self._literal & self._paper
         self._has_linear = bool(self._linear.any())
-        self._D = np.zeros((n, 3, 3))  # each segment's dissipation matrix, curvature coordinates
-        self._K = np.zeros((n, 3, 3))  # the linear law's K_e where _linear_law
-        self._q_rest = np.zeros((n, 3))
+        laws = [s._law_c() for s in segs]  # (D, K_e, q_e0, linear) in curvature coordinates
+        self._D, self._K, self._q_rest = (np.array([law[i] for law in laws]) for i in range(3))
+        self._linear_law = np.array([law[3] for law in laws])
         self._drag = np.array([[s.drag_linear, s.drag_quadratic] for s in segs], dtype=float)  # (n, 2)
         self._has_drag = bool(self._drag.any())
         if self._has_drag and self._any_paper:
             j = int(np.flatnonzero(self._paper)[0])
             raise ValueError(f"segments[{j}] has coords='paper': a chain with drag (drag_linear, drag_quadratic) "
                              "needs every segment in curvature coordinates")
-        self._linear_law = np.array([s.stiffness_matrix is not None and not p for s, p in zip(segs, self._paper)])
-        for j, s in enumerate(segs):
-            if self._linear[j] or s.coords == "paper":  # the material law's beta K(q0), curvature coordinates
-                self._D[j] = s._rest_damping_c()
-                continue
-            self._D[j] = s.dissipation_matrix(s.neutral())  # constant: damping_matrix, beta K_e or beta K(q0)
-            if self._linear_law[j]:
-                self._K[j] = s.stiffness_matrix
-                self._q_rest[j] = s._rest()
         if not isinstance(planar, (bool, np.bool_)):
             raise TypeError(f"planar must be True or False, got {describe_value(planar)}")
         if planar and self._any_paper:
@@ -474,68 +466,6 @@ class Chain(KeepsReadOnly, ChainKinematics, ChainContact, ChainParameters, Chain
                                  f"{self.coordinate_name(k)}): the difference overflows")
         return out
 
-    # ------------------------------------------------------------------ energies
-
-    def _segment_masses_c(self, st: _State) -> np.ndarray:
-        from ..model.slices import segment_mass
-
-        M = np.empty((self.n, 9, 9))
-        for j in range(self.n):
-            o = slice(self._offs[j], self._offs[j + 1])
-            segment_mass(self._alpha[o], self._w[o], self._mass[j], self._radius[j], st.q_c[j], M[j])
-        return M
-
-    @_finite("kinetic energy", has_v=True)
-    def kinetic_energy(self, q, v, t: float = 0.0) -> float:
-        """``T = sum_j 1/2 xi_j^T M_xi_j xi_j + 1/2 V_n^T I_p V_n`` (J), the base's own motion
-        included (the paper's eq. (4) summed over the segments; docs/model.md section 8), and
-        the tip payload's (spatial inertia ``I_p``, tip twist ``V_n``)."""
-        st = self._state(q, v, t=t)
-        V = self._root_twists(st)
-        M = self._segment_masses_c(st)
-        xi = np.concatenate([V[:-1], st.v_c], axis=1)
-        return 0.5 * float(np.einsum("ni,nij,nj->", xi, M, xi)) + 0.5 * float(V[-1] @ self._payload @ V[-1])
-
-    @_finite("centres of mass")
-    def centers_of_mass(self, q, t: float = 0.0) -> np.ndarray:
-        """World centre of mass of each segment (n, 3), m (the tip payload's is not among
-        them: it is ``tip_placement(q).act(payload.lever)``)."""
-        return self._centers_of_mass(self._state(q, t=t))
-
-    def _centers_of_mass(self, st: _State) -> np.ndarray:
-        f = self._state_frames(st, _NO_POINTS)
-        R, o = f.rotation[0], f.translation[0]
-        p = arc_nodes(self._alpha, np.repeat(st.q_c, np.diff(self._offs), axis=0)).p
-        c = np.add.reduceat(self._w[:, None] * p, self._offs[:-1], axis=0)  # root frames
-        return np.einsum("nij,nj->ni", R[:-1], c) + o[:-1]
-
-    @_finite("potential energy")
-    def potential_energy(self, q, t: float = 0.0) -> float:
-        """Gravity (about the world origin; the tip payload's included) plus elastic energy (J)
-        (docs/model.md section 9)."""
-        st = self._state(q, t=t)
-        Ug = -float(self._mass @ (self._centers_of_mass(st) @ self.gravity))
-        if self._has_payload:
-            P = self._payload_inertia
-            f = self._state_frames(st, _NO_POINTS)
-            Ug -= P.mass * float((f.rotation[0, -1] @ P.lever + f.translation[0, -1]) @ self.gravity)
-        Ue = sum(s.elastic_energy(st.q_e[j]) for j, s in enumerate(self.segments))
-        return Ug + Ue
-
-    @_finite("momentum", has_v=True)
-    def momentum(self, q, v, t: float = 0.0) -> np.ndarray:
-        """World momentum (6,): linear (kg m/s) and angular about the world origin (kg m^2/s),
-        the tip payload's included."""
-        st = self._state(q, v, t=t)
-        V = self._root_twists(st)
-        M = self._segment_masses_c(st)
-        X = self.placements(q, t)
-        h = np.zeros(6)
-        for j in range(self.n):
-            xi = np.concatenate([V[j], st.v_c[j]])
-            h += X[j].act(pin.Force(M[j, :6] @ xi)).vector
-        return h + X[self.n].act(pin.Force(self._payload @ V[self.n])).vector
-
     # ------------------------------------------------------------------ dynamics
 
     def _A0(self, st: _State, a_base=None) -> np.ndarray:
@@ -733,15 +663,8 @@ class Chain(KeepsReadOnly, ChainKinematics, ChainContact, ChainParameters, Chain
             return self._forward_dynamics_unchecked(q, v, p, tau, t, data)
         st, p3, tau = self._dynamics_inputs(q, v, p, tau, t)
         if self._has_drag:
-            tau = self._with_drag(st, tau)
+            tau = self._with_drag(tau, st.q_c, st.v_c, st.V0)
         return self._forward_dynamics(st, p3, tau, t, data)
-
-    def _with_drag(self, st: _State, tau, derivatives: bool = False):
-        """``tau + tau_drag`` at the validated state ``st`` (``tau`` None: zero), and with
-        ``derivatives`` the drag's ``(d/dq, d/dv)`` too."""
-        td, dq, dv = self._drag_terms(st, derivatives)
-        tau = td if tau is None else tau + td
-        return (tau, dq, dv) if derivatives else tau
 
     def _dynamics_inputs(self, q, v, p, tau, t):
         """Validated ``(state, p (n, 3), tau)`` of a forward-dynamics call, locks checked."""
@@ -753,7 +676,7 @@ class Chain(KeepsReadOnly, ChainKinematics, ChainContact, ChainParameters, Chain
 
     def _forward_dynamics_unchecked(self, q, v, p, tau, t, data):
         if self._has_drag:
-            tau = self._with_drag(self._unchecked_state(q, v, t), tau)
+            tau = self._drag_unchecked(q, v, t, tau)
         if self._fused and data is not None:  # a singular articulated block is not reported here
             V0, A_B, g_B = ((_ZERO6, None, self._g_B) if self.base == "fixed" else
                             self._unchecked_inputs(q, v, p, t, data)[3:])
@@ -877,32 +800,16 @@ class Chain(KeepsReadOnly, ChainKinematics, ChainContact, ChainParameters, Chain
         st, p3, tau = self._dynamics_inputs(q, v, p, tau, t)
         if not self._has_drag:
             return _derivs.forward_dynamics_derivatives(self, st, p3, tau, t, data)
-        tau, dq, dv = self._with_drag(st, tau, True)  # da/dx += M^-1 d tau_drag/dx
-        out = _derivs.forward_dynamics_derivatives(self, st, p3, tau, t, data)
-        return out._replace(da_dq=out.da_dq + out.da_dtau @ dq, da_dv=out.da_dv + out.da_dtau @ dv)
+        tau, dq, dv = self._with_drag(tau, st.q_c, st.v_c, st.V0, True)
+        return _plus_drag(_derivs.forward_dynamics_derivatives(self, st, p3, tau, t, data), dq, dv)
 
     def _forward_dynamics_derivatives_unchecked(self, q, v, p, tau, t, data):
         q_c, v_c, p3, V0, A_B, g_B = self._unchecked_inputs(q, v, p, t, data)
-        if not self._has_drag:
-            return _derivs.compiled_forward_dynamics_derivatives(self, q_c, v_c, p3, tau, V0, A_B, g_B, t, data,
-                                                                 check=False)
-        tau, dq, dv = self._with_drag(self._unchecked_state(q, v, t), tau, True)
-        out = _derivs.compiled_forward_dynamics_derivatives(self, q_c, v_c, p3, tau, V0, A_B, g_B, t, data,
-                                                            check=False)
-        return out._replace(da_dq=out.da_dq + out.da_dtau @ dq, da_dv=out.da_dv + out.da_dtau @ dv)
-
-    def _unchecked_state(self, q, v, t) -> _State:
-        """The state the drag pass reads on the ``skip_checks`` paths: curvature coordinates
-        (a chain with drag has no other), the base's twist."""
-        q_c = q[self._qoff :].reshape(self.n, 3)
-        v_c = v[self._voff :].reshape(self.n, 3)
-        if self.base == "floating":
-            V0 = v[:6]
-        elif self.base == "prescribed":
-            V0 = self.base_state(t)[1]
-        else:
-            V0 = _ZERO6
-        return _State(X_WB=None, q_e=q_c, q_c=q_c, J=None, v_e=v_c, v_c=v_c, V0=V0)
+        dq = dv = None
+        if self._has_drag:
+            tau, dq, dv = self._drag_unchecked(q, v, t, tau, True)
+        out = _derivs.compiled_forward_dynamics_derivatives(self, q_c, v_c, p3, tau, V0, A_B, g_B, t, data, check=False)
+        return out if dq is None else _plus_drag(out, dq, dv)
 
     @_finite("mass matrix derivative")
     def mass_matrix_derivative(self, q, data: Data | None = None) -> np.ndarray:

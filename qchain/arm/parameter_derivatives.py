@@ -281,7 +281,7 @@ def forward_dynamics_parameter_derivatives(chain: Chain, q, v, p=None, params=()
     st, p3, tau = chain._dynamics_inputs(q, v, p, tau, t)
     dq_drag = None
     if chain._has_drag:  # the medium's drag depends on no parameter, but on an inextensible segment's held length
-        tau, dq_drag, _ = chain._with_drag(st, tau, True)
+        tau, dq_drag, _ = chain._with_drag(tau, st.q_c, st.v_c, st.V0, True)
     n, nv = chain.n, chain.nv
     tau_c = np.zeros(nv) if tau is None else np.array(tau, dtype=float)
     if st.J is not None:

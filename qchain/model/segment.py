@@ -584,6 +584,17 @@ class Segment(KeepsReadOnly):
         rest_damping_c(self.length, self.bending_stiffness, self.axial_stiffness, self.damping, D)
         return D
 
+    def _law_c(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool]:
+        """``(D, K_e, q_e0, linear)``: the constant dissipation matrix (3, 3), the linear law's
+        stiffness (3, 3) and rest configuration (3,) (zeros without it) and whether it is given,
+        in curvature coordinates, as the compiled passes take them (``ChainArrays.D``, ``K``,
+        ``q_rest``, ``linear_law``). In paper coordinates: the material law's ``beta K(q0)``
+        (the literal matrices, in paper coordinates, stay with the Segment)."""
+        if self.coords == "paper" or self.stiffness_matrix is None:
+            D = self._rest_damping_c() if self.coords == "paper" else self.dissipation_matrix(self.neutral())
+            return D, np.zeros((3, 3)), np.zeros(3), False
+        return self.dissipation_matrix(self.neutral()), self.stiffness_matrix.copy(), self._rest().copy(), True
+
     def _rest(self) -> np.ndarray:
         return self.neutral() if self.rest_q_e is None else self.rest_q_e
 
