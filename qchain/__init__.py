@@ -59,7 +59,7 @@ _EXPORTS = {
     "RunLogger": "recording.logger", "read_recording": "recording.reader", "replay": "recording.replay",
     "recover": "recording.replay", "export_ros2": "recording.ros2",
     "QchainError": "errors", "DomainError": "errors", "SingularConfigurationError": "errors",
-    "NonFiniteError": "errors",
+    "NonFiniteError": "errors", "PythonBackendWarning": "errors",
 }
 
 __all__ = [*_EXPORTS, "__version__"]

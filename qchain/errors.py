@@ -29,6 +29,7 @@ __all__ = [
     "RecordingFormatError",
     "LimitExceeded",
     "LoggingWarning",
+    "PythonBackendWarning",
     # batches and sweeps (batch)
     "RolloutError",
     "SweepError",
@@ -138,6 +139,12 @@ class LimitExceeded(RecordingFormatError):
 
 class LoggingWarning(UserWarning):
     """Something of the logging did not work out (a viewer out of reach); the run goes on."""
+
+
+class PythonBackendWarning(UserWarning):
+    """A run asked for a compiled method (``radau5``, ``dopri5``, ``rk4``, ``midpoint``) that
+    the compiled engine cannot serve: it runs on the Python steppers (``Trajectory.meta["engine"]
+    == "python"``, one to two orders of magnitude slower); the message names the reason."""
 
 
 # --------------------------------------------------------------------------------------

@@ -734,3 +734,85 @@ def test_complex_boolean_and_string_states_are_refused_by_name():
         Chain([seg], gravity=[0, 0, 1e300])
     with pytest.raises(TypeError, match=r"gravity must be an array of real numbers \(booleans"):
         Chain([seg], gravity=[0, 0, True])
+
+
+# ---------------------------------------------------------------- damping laws
+
+K_LAW = np.array([[80.0, 1.0, 0.5], [1.0, 0.03, 0.001], [0.5, 0.001, 0.02]])  # N/m, N, N m: SPD, coupled
+D_LAW = np.array([[2.0, 0.05, 0.0], [0.05, 0.004, 0.0005], [0.0, 0.0005, 0.003]])  # axial, bending: SPD, coupled
+
+#: the damping laws on one segment in curvature coordinates (the stiffness-proportional one the default's)
+DAMPING_LAWS = {
+    "stiffness": dict(damping=0.02),
+    "matrix": dict(damping_matrix=D_LAW),
+    "linear_law": dict(stiffness_matrix=K_LAW, damping=0.01, rest_q_e=[0.2, 1.0, 0.0]),
+    "drag_linear": dict(drag_linear=0.5),
+    "drag_quadratic": dict(drag_quadratic=5.0),
+}
+
+
+def law_chain(law, base="fixed", n=2, **kw):
+    """``n`` segments of ``DAMPING_LAWS[law]`` (the second a little shorter and lighter)."""
+    segs = [Segment(**{**SEGMENT_KW, "length": 0.2 - 0.02 * j, "mass": 0.3 - 0.05 * j}, **DAMPING_LAWS[law])
+            for j in range(n)]
+    return Chain(segs, base=base, **kw)
+
+
+def drag_reference(ch, q, v):
+    """``(tau_drag, power)``: the drag's generalised force ``-sum_k w_k l J_k^T (c_1 + c_2 |v_k|) v_k``
+    from the world point Jacobians of :meth:`Chain.point_jacobian` at the segments' nodes
+    (independent of the compiled pass), and its power ``-sum_k w_k l (c_1 + c_2 |v_k|) |v_k|^2``."""
+    tau, power = np.zeros(ch.nv), 0.0
+    for j, s in enumerate(ch.segments):
+        l = q[ch.q_slice(j)][0]
+        for a, w in zip(s.alpha_nodes, s.alpha_weights):
+            J = ch.point_jacobian(q, j, a)
+            vp = J @ v
+            c = w * l * (s.drag_linear + s.drag_quadratic * np.linalg.norm(vp))
+            tau -= c * J.T @ vp
+            power -= c * vp @ vp
+    return tau, power
+
+
+def segment_forces(ch, q, v, p):
+    """``B p - D v - dU_el/dq`` of each :class:`Segment`'s own Python methods, zero on the base."""
+    f = np.zeros(ch.nv)
+    for j, s in enumerate(ch.segments):
+        qe, ve = q[ch.q_slice(j)], v[ch.v_slice(j)]
+        f[ch.v_slice(j)] = s.input_matrix(qe) @ p[3 * j : 3 * j + 3] - s.damping_force(qe, ve) - s.elastic_force(qe)
+    return f
+
+
+@pytest.mark.parametrize("base", ["fixed", "floating"])
+@pytest.mark.parametrize("law", list(DAMPING_LAWS))
+def test_every_damping_law_stays_compiled_and_matches_the_segments(law, base, rng):
+    """A curvature-coordinate chain with any damping law keeps the one-call compiled forward
+    dynamics and gives ``M^-1 (B p - D v - dU_el/dq + tau_drag - C v - g)`` of the segments'
+    own Python methods and the point Jacobians, to rounding."""
+    ch = law_chain(law, base)
+    assert ch._fused and ch.kernel_arrays() is not None
+    q, v = random_state(ch, rng)
+    p = rng.uniform(0, 3e4, ch.nu)
+    f = segment_forces(ch, q, v, p)
+    tau_drag = drag_reference(ch, q, v)[0]
+    assert rel(ch.internal_forces(q, v, p), f) < 1e-13
+    assert rel(ch.drag_force(q, v), tau_drag) < 1e-13 if "drag" in law else not ch.drag_force(q, v).any()
+    a_ref = np.linalg.solve(ch.mass_matrix(q), f + tau_drag - ch.nonlinear_effects(q, v))
+    assert rel(ch.forward_dynamics(q, v, p), a_ref) < 1e-11
+    data = ch.create_data()  # the unchecked fast path too
+    assert rel(ch.forward_dynamics(q, v, p, data=data, skip_checks=True), a_ref) < 1e-11
+
+
+@pytest.mark.parametrize("law", list(DAMPING_LAWS))
+def test_every_damping_law_dissipates(law, rng):
+    """The damping force's power ``-v^T D v`` and the drag's ``v^T tau_drag`` are never positive;
+    the drag's equals ``-int (c_1 + c_2 |v|) |v|^2 ds`` of the point velocities."""
+    ch = law_chain(law, "floating")
+    for _ in range(5):
+        q, v = random_state(ch, rng)
+        damping_power = v @ (ch.internal_forces(q, v) - ch.internal_forces(q, np.zeros(ch.nv)))
+        assert damping_power <= 0.0 and abs(damping_power + v @ ch.dissipation_matrix(q) @ v) < 1e-12
+        power = v @ ch.drag_force(q, v)
+        assert power <= 0.0 and abs(power - drag_reference(ch, q, v)[1]) <= 1e-13 * max(1.0, abs(power))
+        if "drag" in law:
+            assert power < 0.0

@@ -9,7 +9,7 @@ import pytest
 from helpers import SEGMENT_KW, rel
 from qchain import Chain, Segment
 from qchain.model.arc import arc_node, arc_node_derivatives, bend_functions, bend_h
-from test_chain import make_chain, random_state
+from test_chain import DAMPING_LAWS, law_chain, make_chain, random_state
 
 TOL = 1e-7  # relative (Frobenius); the issue's bound is 1e-6, differences reach ~1e-9
 
@@ -212,6 +212,39 @@ def test_linear_law_segments(rng):
     d = ch.forward_dynamics_derivatives(q, v, p)
     assert rel(d.da_dq, central(lambda x: ch.forward_dynamics(x, v, p), q, 1e-6)) < TOL
     assert rel(d.da_dv, central(lambda x: ch.forward_dynamics(q, x, p), v, 1e-2)) < 1e-9
+
+
+@pytest.mark.parametrize("base", ["fixed", "floating"])
+@pytest.mark.parametrize("law", list(DAMPING_LAWS))
+def test_every_damping_law_s_derivatives_are_exact(law, base, rng):
+    """The compiled derivatives of a chain with each damping law (its matrices in the compiled
+    arrays, the drag's tangent passes) against central differences of the forward dynamics,
+    and the drag's own derivatives against differences of ``drag_force``."""
+    ch = law_chain(law, base)
+    q, v = random_state(ch, rng)
+    p = rng.uniform(0, 4e4, ch.nu)
+    d = ch.forward_dynamics_derivatives(q, v, p)
+    assert rel(d.da_dq, central(lambda x: ch.forward_dynamics(x, v, p), q, 1e-6, ch.integrate, ch.nv)) < TOL
+    assert rel(d.da_dv, central(lambda x: ch.forward_dynamics(q, x, p), v, 1e-4)) < TOL
+    data = ch.create_data()  # the unchecked fast path adds the drag's too
+    du = ch.forward_dynamics_derivatives(q, v, p, data=data, skip_checks=True)
+    assert rel(du.da_dq, d.da_dq) < 1e-12 and rel(du.da_dv, d.da_dv) < 1e-12
+    if "drag" in law:
+        dq, dv = ch.drag_force_derivatives(q, v)
+        assert rel(dq, central(lambda x: ch.drag_force(x, v), q, 1e-6, ch.integrate, ch.nv)) < TOL
+        assert rel(dv, central(lambda x: ch.drag_force(q, x), v, 1e-4)) < TOL
+        assert np.linalg.eigvalsh(dv + dv.T).max() < 1e-12 * np.abs(dv).max()  # -d tau/dv is positive semi-definite
+
+
+def test_quadratic_drag_derivative_at_rest_is_zero_and_continuous(rng):
+    """``d(|v| v)/dv`` vanishes at ``v = 0`` and tends to zero there: the exact derivative at rest
+    is the limit of the derivatives at vanishing speeds."""
+    ch = law_chain("drag_quadratic")
+    q = random_state(ch, rng)[0]
+    v = rng.normal(size=ch.nv)
+    assert not ch.drag_force_derivatives(q, np.zeros(ch.nv))[1].any()
+    small = [np.abs(ch.drag_force_derivatives(q, e * v)[1]).max() for e in (1e-2, 1e-4)]
+    assert small[1] < 1.1e-2 * small[0]  # linear in the speed
 
 
 # ---------------------------------------------------------------- mass matrix and pressure

@@ -331,6 +331,11 @@ def test_paper_linear_law():
         (dict(actuation="tendon"), r"actuation must be one of .* got 'tendon'"),
         (dict(nodes=0), r"nodes must be an integer >= 1 and <= 100, got 0"),
         (dict(stiffness_matrix=np.ones((2, 2))), r"stiffness_matrix must have shape \(3, 3\)"),
+        (dict(drag_linear=-1.0), r"drag_linear must be >= 0 and <= 10000 N s/m\^2, got -1 N s/m\^2"),
+        (dict(drag_quadratic=2e5), r"drag_quadratic must be >= 0 and <= 100000 kg/m\^2, got 200000 kg/m\^2"),
+        (dict(drag_quadratic=float("nan")), r"drag_quadratic must be finite"),
+        (dict(coords="paper", drag_linear=0.1), r"drag_linear = 0.1, drag_quadratic = 0 need coords='curvature'"),
+        (dict(damping_matrix=np.diag([1.0, -0.1, 0.1])), r"damping_matrix must be positive semi-definite"),
     ],
 )
 def test_constructor_errors_name_parameter_value_and_bound(kw, match):

@@ -202,8 +202,7 @@ def _derivatives_after(arr, floating, q, qd, p, qdd, A0, a, V0, g_B, ws, wd, wa,
     """:func:`_aba_derivatives_at`; ``blocks_known``: ``ws.M_xi`` and ``ws.Q`` hold the segment
     blocks and bias forces at this state (:func:`aba_derivatives`' own forward pass wrote them),
     which the slice pass then does not integrate again."""
-    l0, EI, EA, beta, A_ch, r_ch, paper_act, locked = (arr.l0, arr.EI, arr.EA, arr.beta, arr.A_ch, arr.r_ch,
-                                                         arr.paper_act, arr.locked)
+    A_ch, r_ch, paper_act, locked = arr.A_ch, arr.r_ch, arr.paper_act, arr.locked
     n = q.shape[0]
     off = 6 if floating else 0
     nv = off + 3 * n
@@ -211,7 +210,7 @@ def _derivatives_after(arr, floating, q, qd, p, qdd, A0, a, V0, g_B, ws, wd, wa,
     dfq, dfv, B = wa.dfq, wa.dfv, wa.B
     M, dq, dv = wd.M, wd.dtau_dq, wd.dtau_dv
     _rnea_derivatives(arr, q, qd, qdd, V0, A0, floating, g_B, ws, wd, sc, blocks_known)
-    _internal_forces_derivatives(q, p, l0, EI, EA, beta, A_ch, r_ch, paper_act, dfq, dfv, sc)
+    _internal_forces_derivatives(arr, q, p, dfq, dfv, sc)
     _input_matrices(q, A_ch, r_ch, paper_act, B, sc)
     # right-hand sides df - dID, the free block of M with locked coordinates decoupled
     for r in range(nv):

@@ -55,6 +55,21 @@ class ChainArrays(NamedTuple):
         Spatial inertia of a rigid payload fixed at the tip (root ``n``), in the tip frame,
         Pinocchio's ``[linear; angular]`` convention (``pinocchio.Inertia.matrix()``):
         ``[[m 1, -m [c]], [m [c], I_c - m [c][c]]]`` (kg, kg m, kg m^2). All zeros: no payload.
+    D : (n, 3, 3) float
+        Each segment's dissipation matrix in its curvature coordinates, constant (N s/m, N s,
+        N s m: ``D qdot`` is a generalised force): the stiffness-proportional ``beta K(q0)``
+        (:func:`qchain.model.slices.rest_damping_c`), ``beta K_e`` of the linear law, or the
+        segment's ``damping_matrix`` (docs/model.md section 9).
+    K : (n, 3, 3) float
+        The linear law's stiffness ``K_e`` where ``linear_law``, zeros elsewhere.
+    q_rest : (n, 3) float
+        The linear law's rest configuration ``q_e0`` where ``linear_law`` (m, 1/m, 1/m).
+    linear_law : (n,) bool
+        The segment's elasticity is the linear law ``U_el = 1/2 (q - q_e0)^T K_e (q - q_e0)``
+        (its ``stiffness_matrix``), not the material law of ``EI``, ``EA``.
+    drag : (n, 2) float
+        The drag of a still medium on the backbone, ``c_1`` (N s/m^2) and ``c_2`` (kg/m^2) of
+        the force per unit length ``-(c_1 + c_2 |v|) v`` (:mod:`qchain.contact.drag`).
     """
 
     alpha: np.ndarray
@@ -71,6 +86,11 @@ class ChainArrays(NamedTuple):
     paper_act: np.ndarray
     locked: np.ndarray
     payload: np.ndarray
+    D: np.ndarray
+    K: np.ndarray
+    q_rest: np.ndarray
+    linear_law: np.ndarray
+    drag: np.ndarray
 
 
 class AbaWorkspace(NamedTuple):

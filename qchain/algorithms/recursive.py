@@ -46,7 +46,7 @@ import numpy as np
 from .arrays import AbaWorkspace, ChainArrays
 from ..model.arc import SCRATCH, arc_node_bias, arc_pose, jit, jit_helper, jit_pass, take1, take2
 from ..model.slices import (
-    _segment_slices, domain_violation, elastic_gradient_c, input_matrix_c, rest_damping_c, phi_matrix, slice_twist,
+    _segment_slices, domain_violation, input_matrix_c, law_gradient_c, phi_matrix, slice_twist,
     sub_motion_cross)
 
 __all__ = ["rnea", "crba", "aba", "forward_dynamics", "tip_maps", "frames", "internal_forces", "first_invalid", "first_invalid_of",
@@ -618,21 +618,22 @@ def frames(q, paper, R0, o0, alpha, R, o, quat, points):
 
 @jit_pass
 def internal_forces(arr, q, qd, p, out, sc):
-    """``out = B p - D qd - dU_el/dq`` (n, 3), material law, curvature coordinates, with
-    ``D`` of :func:`qchain.model.slices.rest_damping_c` (:func:`qchain.model.slices.input_matrix_c`,
-    :func:`qchain.model.slices.elastic_gradient_c`). These terms are coordinate-free: paper
-    coordinates get ``J^T`` of them. ``arr``: the model's :class:`~qchain.algorithms.arrays.ChainArrays`.
+    """``out = B p - D qd - dU_el/dq`` (n, 3), curvature coordinates: ``B`` of
+    :func:`qchain.model.slices.input_matrix_c`, each segment's constant dissipation matrix
+    ``arr.D`` and its elastic law (:func:`qchain.model.slices.law_gradient_c`: the material law
+    or the linear ``K_e (q - q_e0)``). These terms are coordinate-free: paper coordinates get
+    ``J^T`` of them. ``arr``: the model's :class:`~qchain.algorithms.arrays.ChainArrays`.
     """
     arr = ChainArrays(*arr)  # a plain tuple from Python (arrays.py), named here
-    l0, EI, EA, beta, A_ch, r_ch, paper_act = arr.l0, arr.EI, arr.EA, arr.beta, arr.A_ch, arr.r_ch, arr.paper_act
+    l0, EI, EA, A_ch, r_ch, paper_act = arr.l0, arr.EI, arr.EA, arr.A_ch, arr.r_ch, arr.paper_act
+    Dall = arr.D
     o = 0
     B, o = take2(sc, o, 3, 3)
     g, o = take1(sc, o, 3)
-    D, o = take2(sc, o, 3, 3)
     for j in range(q.shape[0]):
         input_matrix_c(q[j], A_ch[j], r_ch[j], paper_act[j], B, sc[o:])
-        elastic_gradient_c(q[j], l0[j], EI[j], EA[j], g)
-        rest_damping_c(l0[j], EI[j], EA[j], beta[j], D)
+        law_gradient_c(q[j], l0[j], EI[j], EA[j], arr.linear_law[j], arr.K[j], arr.q_rest[j], g)
+        D = Dall[j]
         for a in range(3):
             out[j, a] = -g[a] - D[a, 0] * qd[j, 0] - D[a, 1] * qd[j, 1] - D[a, 2] * qd[j, 2]
             out[j, a] += B[a, 0] * p[j, 0] + B[a, 1] * p[j, 1] + B[a, 2] * p[j, 2]

@@ -41,7 +41,7 @@ import numpy as np
 
 from ..model.arc import arc_node, arc_node_derivatives, jit, jit_helper, jit_inline, jit_pass, take1, take2, take3
 from ..model.slices import (
-    elastic_hessian_c, mass_finish, mass_node, phi_matrix, phi_transpose_force, pressure_jacobian_c, rest_damping_c,
+    law_hessian_c, mass_finish, mass_node, phi_matrix, phi_transpose_force, pressure_jacobian_c,
     slice_twist)
 from .arrays import AbaWorkspace, ChainArrays, RneaWorkspace
 from .recursive import _load_xi, payload_wrench
@@ -737,26 +737,23 @@ def _floating_base(n, off, V0, g_B, G, Ya, Yv, Ms, M, dq, dv, Ic, WF, sc):
 @jit_pass
 def internal_forces_derivatives(arr, q, p, dfq, dfv, sc):
     """Derivatives of the internal forces ``f = B p - D qd - dU_el/dq`` of
-    :func:`qchain.algorithms.recursive.internal_forces` (material law, curvature coordinates):
+    :func:`qchain.algorithms.recursive.internal_forces` (curvature coordinates):
     ``dfq[j] = d(B p)/dq - d^2 U_el/dq^2`` and ``dfv[j] = -D`` (n, 3, 3); ``arr`` the model's
     :class:`~qchain.algorithms.arrays.ChainArrays`."""
-    arr = ChainArrays(*arr)  # a plain tuple from Python (arrays.py), named here
-    _internal_forces_derivatives(q, p, arr.l0, arr.EI, arr.EA, arr.beta, arr.A_ch, arr.r_ch, arr.paper_act, dfq, dfv,
-                                 sc)
+    _internal_forces_derivatives(ChainArrays(*arr), q, p, dfq, dfv, sc)  # a plain tuple from Python, named here
 
 
 @jit_helper
-def _internal_forces_derivatives(q, p, l0, EI, EA, beta, A_ch, r_ch, paper_act, dfq, dfv, sc):
+def _internal_forces_derivatives(arr, q, p, dfq, dfv, sc):
     """:func:`internal_forces_derivatives`, the body the kernels call: compiled into them, without a
     Python entry point (:data:`qchain.model.arc.jit_helper`)."""
     o = 0
     Kp, o = take2(sc, o, 3, 3)
     H, o = take2(sc, o, 3, 3)
-    D, o = take2(sc, o, 3, 3)
     for j in range(q.shape[0]):
-        pressure_jacobian_c(q[j], p[j], A_ch[j], r_ch[j], paper_act[j], Kp, sc[o:])
-        elastic_hessian_c(q[j], l0[j], EI[j], EA[j], H)
-        rest_damping_c(l0[j], EI[j], EA[j], beta[j], D)
+        pressure_jacobian_c(q[j], p[j], arr.A_ch[j], arr.r_ch[j], arr.paper_act[j], Kp, sc[o:])
+        law_hessian_c(q[j], arr.l0[j], arr.EI[j], arr.EA[j], arr.linear_law[j], arr.K[j], H)
+        D = arr.D[j]
         for a in range(3):
             for b in range(3):
                 dfq[j, a, b] = Kp[a, b] - H[a, b]

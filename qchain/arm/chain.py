@@ -44,9 +44,10 @@ from ..algorithms import recursive
 from ..algorithms.arrays import ChainArrays
 from ..model.arc import SCRATCH, arc_nodes
 from .checks import QUATERNION_TOLERANCE, ChainChecks, _finite  # noqa: F401 (QUATERNION_TOLERANCE re-exported)
-from .contact import ChainContact
+from .contact import ChainContact, _plus_drag
+from .energies import ChainEnergies
 from .parameter_derivatives import ChainParameters
-from .kinematics import _NO_POINTS, ChainKinematics, Frames
+from .kinematics import ChainKinematics, Frames
 from .dynamics_derivatives import _EMPTY, _ZERO6, ForwardDynamicsDerivatives, InverseDynamicsDerivatives
 from .data import Data
 from .payload import payload_matrix
@@ -98,7 +99,7 @@ def _check_placement(name: str, X) -> None:
     POSITION.check_array(f"{name}.translation", H[:3, 3])
 
 
-class Chain(KeepsReadOnly, ChainKinematics, ChainContact, ChainParameters, ChainTendons, ChainChecks):
+class Chain(KeepsReadOnly, ChainKinematics, ChainEnergies, ChainContact, ChainParameters, ChainTendons, ChainChecks):
     """A soft arm of ``n`` segments.
 
     Parameters
@@ -216,10 +217,21 @@ class Chain(KeepsReadOnly, ChainKinematics, ChainContact, ChainParameters, Chain
         self._paper_act = np.array([s.actuation == "paper" for s in segs])
         self._paper = np.array([s.coords == "paper" for s in segs])
         self._any_paper = bool(self._paper.any())
-        # segments with the paper's literal linear law: their elastic/damping terms are
-        # evaluated by the Segment (in its own coordinates), the rest by the compiled kernel
-        self._linear = np.array([s.stiffness_matrix is not None or s.damping_matrix is not None for s in segs])
+        # the paper's literal linear law (stiffness_matrix, damping_matrix): constant matrices in
+        # the segment's coordinates. In curvature coordinates the compiled passes carry them
+        # (ChainArrays.K, .D); a paper-coordinate segment's are evaluated by the Segment
+        self._literal = np.array([s.stiffness_matrix is not None or s.damping_matrix is not None for s in segs])
+        self._linear = self._literal & self._paper
         self._has_linear = bool(self._linear.any())
+        laws = [s._law_c() for s in segs]  # (D, K_e, q_e0, linear) in curvature coordinates
+        self._D, self._K, self._q_rest = (np.array([law[i] for law in laws]) for i in range(3))
+        self._linear_law = np.array([law[3] for law in laws])
+        self._drag = np.array([[s.drag_linear, s.drag_quadratic] for s in segs], dtype=float)  # (n, 2)
+        self._has_drag = bool(self._drag.any())
+        if self._has_drag and self._any_paper:
+            j = int(np.flatnonzero(self._paper)[0])
+            raise ValueError(f"segments[{j}] has coords='paper': a chain with drag (drag_linear, drag_quadratic) "
+                             "needs every segment in curvature coordinates")
         if not isinstance(planar, (bool, np.bool_)):
             raise TypeError(f"planar must be True or False, got {describe_value(planar)}")
         if planar and self._any_paper:
@@ -231,7 +243,7 @@ class Chain(KeepsReadOnly, ChainKinematics, ChainContact, ChainParameters, Chain
         self._payload.flags.writeable = False
         self._has_payload = self._payload_inertia is not None
         self._planar_kernel = self.planar and base == "fixed"  # forward dynamics on qchain.algorithms.planar
-        # forward dynamics in one compiled call (recursive.forward_dynamics): curvature coordinates, the material law
+        # forward dynamics in one compiled call (recursive.forward_dynamics): curvature coordinates (either elastic law)
         self._fused = not (self._planar_kernel or self._any_paper or self._has_linear)
         self._p_zero = np.zeros((n, 3))  # p = None on the unchecked path (writable: one array type for the kernels)
         self._p_flat = self._p_zero.reshape(-1)
@@ -248,7 +260,8 @@ class Chain(KeepsReadOnly, ChainKinematics, ChainContact, ChainParameters, Chain
         self._named_arrays = ChainArrays(alpha=self._alpha, w=self._w, offs=self._offs, mass=self._mass,
                                    radius=self._radius, l0=self._l0, EI=self._EI, EA=self._EA, beta=self._beta,
                                    A_ch=self._A_ch, r_ch=self._r_ch, paper_act=self._paper_act, locked=self._locked,
-                                   payload=self._payload)
+                                   payload=self._payload, D=self._D, K=self._K, q_rest=self._q_rest,
+                                   linear_law=self._linear_law, drag=self._drag)
         self._arrays = tuple(self._named_arrays)
         self.active = np.ones(self.nv, dtype=bool)
         self.active[self._voff :] = ~self._locked.ravel()
@@ -279,8 +292,9 @@ class Chain(KeepsReadOnly, ChainKinematics, ChainContact, ChainParameters, Chain
         """The flat per-node and per-segment arrays the compiled passes take, as one named
         structure (:class:`qchain.algorithms.arrays.ChainArrays`; the chain's own arrays, not
         copies: never write them), or None where compiled code
-        cannot evaluate the chain's segment forces (paper coordinates or the paper's literal
-        linear law in some segment, evaluated in Python by the :class:`Segment`).
+        cannot evaluate the chain's segment forces (paper coordinates in some segment, evaluated
+        in Python through the coordinate map; the linear law in curvature coordinates is
+        compiled).
 
         ``N`` nodes over all segments, ``n`` segments: ``alpha (N,)`` the nodes' arc
         parameters in [0, 1], ``w (N,)`` their quadrature weights, ``offs (n + 1,) int64``
@@ -288,8 +302,10 @@ class Chain(KeepsReadOnly, ChainKinematics, ChainContact, ChainParameters, Chain
         rest length (m), ``EI`` (N m^2), ``EA`` (N), ``beta`` damping (s), ``A_ch`` chamber
         area (m^2), ``r_ch`` chamber radius (m), all ``(n,)``; ``paper_act (n,) bool`` the
         paper's actuation law; ``locked (n, 3) bool`` coordinates held still; ``payload
-        (6, 6)`` the tip payload's spatial inertia (zeros: none)."""
-        if self._any_paper or self._has_linear:
+        (6, 6)`` the tip payload's spatial inertia (zeros: none); ``D (n, 3, 3)`` each
+        segment's constant dissipation matrix, ``K (n, 3, 3)``, ``q_rest (n, 3)`` and
+        ``linear_law (n,) bool`` the linear elastic law (``stiffness_matrix``) where it is given."""
+        if self._any_paper:
             return None
         return self._named_arrays
 
@@ -441,68 +457,6 @@ class Chain(KeepsReadOnly, ChainKinematics, ChainContact, ChainParameters, Chain
             raise NonFiniteError(f"Chain.difference: q1 - q0 is not finite (first at v[{k}], "
                                  f"{self.coordinate_name(k)}): the difference overflows")
         return out
-
-    # ------------------------------------------------------------------ energies
-
-    def _segment_masses_c(self, st: _State) -> np.ndarray:
-        from ..model.slices import segment_mass
-
-        M = np.empty((self.n, 9, 9))
-        for j in range(self.n):
-            o = slice(self._offs[j], self._offs[j + 1])
-            segment_mass(self._alpha[o], self._w[o], self._mass[j], self._radius[j], st.q_c[j], M[j])
-        return M
-
-    @_finite("kinetic energy", has_v=True)
-    def kinetic_energy(self, q, v, t: float = 0.0) -> float:
-        """``T = sum_j 1/2 xi_j^T M_xi_j xi_j + 1/2 V_n^T I_p V_n`` (J), the base's own motion
-        included (the paper's eq. (4) summed over the segments; docs/model.md section 8), and
-        the tip payload's (spatial inertia ``I_p``, tip twist ``V_n``)."""
-        st = self._state(q, v, t=t)
-        V = self._root_twists(st)
-        M = self._segment_masses_c(st)
-        xi = np.concatenate([V[:-1], st.v_c], axis=1)
-        return 0.5 * float(np.einsum("ni,nij,nj->", xi, M, xi)) + 0.5 * float(V[-1] @ self._payload @ V[-1])
-
-    @_finite("centres of mass")
-    def centers_of_mass(self, q, t: float = 0.0) -> np.ndarray:
-        """World centre of mass of each segment (n, 3), m (the tip payload's is not among
-        them: it is ``tip_placement(q).act(payload.lever)``)."""
-        return self._centers_of_mass(self._state(q, t=t))
-
-    def _centers_of_mass(self, st: _State) -> np.ndarray:
-        f = self._state_frames(st, _NO_POINTS)
-        R, o = f.rotation[0], f.translation[0]
-        p = arc_nodes(self._alpha, np.repeat(st.q_c, np.diff(self._offs), axis=0)).p
-        c = np.add.reduceat(self._w[:, None] * p, self._offs[:-1], axis=0)  # root frames
-        return np.einsum("nij,nj->ni", R[:-1], c) + o[:-1]
-
-    @_finite("potential energy")
-    def potential_energy(self, q, t: float = 0.0) -> float:
-        """Gravity (about the world origin; the tip payload's included) plus elastic energy (J)
-        (docs/model.md section 9)."""
-        st = self._state(q, t=t)
-        Ug = -float(self._mass @ (self._centers_of_mass(st) @ self.gravity))
-        if self._has_payload:
-            P = self._payload_inertia
-            f = self._state_frames(st, _NO_POINTS)
-            Ug -= P.mass * float((f.rotation[0, -1] @ P.lever + f.translation[0, -1]) @ self.gravity)
-        Ue = sum(s.elastic_energy(st.q_e[j]) for j, s in enumerate(self.segments))
-        return Ug + Ue
-
-    @_finite("momentum", has_v=True)
-    def momentum(self, q, v, t: float = 0.0) -> np.ndarray:
-        """World momentum (6,): linear (kg m/s) and angular about the world origin (kg m^2/s),
-        the tip payload's included."""
-        st = self._state(q, v, t=t)
-        V = self._root_twists(st)
-        M = self._segment_masses_c(st)
-        X = self.placements(q, t)
-        h = np.zeros(6)
-        for j in range(self.n):
-            xi = np.concatenate([V[j], st.v_c[j]])
-            h += X[j].act(pin.Force(M[j, :6] @ xi)).vector
-        return h + X[self.n].act(pin.Force(self._payload @ V[self.n])).vector
 
     # ------------------------------------------------------------------ dynamics
 
@@ -701,6 +655,8 @@ class Chain(KeepsReadOnly, ChainKinematics, ChainContact, ChainParameters, Chain
         if as_bool("skip_checks", skip_checks):
             return self._forward_dynamics_unchecked(q, v, p, tau, t, data)
         st, p3, tau = self._dynamics_inputs(q, v, p, tau, t)
+        if self._has_drag:
+            tau = self._with_drag(tau, st.q_c, st.v_c, st.V0)
         return self._forward_dynamics(st, p3, tau, t, data)
 
     def _dynamics_inputs(self, q, v, p, tau, t):
@@ -712,6 +668,8 @@ class Chain(KeepsReadOnly, ChainKinematics, ChainContact, ChainParameters, Chain
         return st, p3, tau
 
     def _forward_dynamics_unchecked(self, q, v, p, tau, t, data):
+        if self._has_drag:
+            tau = self._drag_unchecked(q, v, t, tau)
         if self._fused and data is not None:  # a singular articulated block is not reported here
             V0, A_B, g_B = ((_ZERO6, None, self._g_B) if self.base == "fixed" else
                             self._unchecked_inputs(q, v, p, t, data)[3:])
@@ -815,12 +773,12 @@ class Chain(KeepsReadOnly, ChainKinematics, ChainContact, ChainParameters, Chain
         rows and columns (:mod:`qchain.arm.dynamics_derivatives`).
 
         ``data`` (:meth:`create_data`): the workspace the passes write in; where the chain is
-        in curvature coordinates with the material law the result's arrays are its arrays
+        in curvature coordinates the result's arrays are its arrays
         (overwritten by the next call with it). ``skip_checks=True`` is the unchecked fast path
         of integrators and batches (MuJoCo's ``skip_checks``): the inputs are taken as valid
         -- shapes, finiteness, the model's domain, a unit quaternion, locked values are not
         checked -- and the result is not checked for non-finite entries. It needs ``data``
-        and a chain in curvature coordinates with the material law. ``env`` (a
+        and a chain in curvature coordinates. ``env`` (a
         :class:`qchain.contact.Environment`) adds its forces and their exact derivatives
         (:meth:`environment_force_derivatives`): ``da/dq += M^-1 d tau_env/dq``, likewise ``v``.
         """
@@ -833,12 +791,18 @@ class Chain(KeepsReadOnly, ChainKinematics, ChainContact, ChainParameters, Chain
         if as_bool("skip_checks", skip_checks):
             return self._forward_dynamics_derivatives_unchecked(q, v, p, tau, t, data)
         st, p3, tau = self._dynamics_inputs(q, v, p, tau, t)
-        return _derivs.forward_dynamics_derivatives(self, st, p3, tau, t, data)
+        if not self._has_drag:
+            return _derivs.forward_dynamics_derivatives(self, st, p3, tau, t, data)
+        tau, dq, dv = self._with_drag(tau, st.q_c, st.v_c, st.V0, True)
+        return _plus_drag(_derivs.forward_dynamics_derivatives(self, st, p3, tau, t, data), dq, dv)
 
     def _forward_dynamics_derivatives_unchecked(self, q, v, p, tau, t, data):
         q_c, v_c, p3, V0, A_B, g_B = self._unchecked_inputs(q, v, p, t, data)
-        return _derivs.compiled_forward_dynamics_derivatives(self, q_c, v_c, p3, tau, V0, A_B, g_B, t, data,
-                                                             check=False)
+        dq = dv = None
+        if self._has_drag:
+            tau, dq, dv = self._drag_unchecked(q, v, t, tau, True)
+        out = _derivs.compiled_forward_dynamics_derivatives(self, q_c, v_c, p3, tau, V0, A_B, g_B, t, data, check=False)
+        return out if dq is None else _plus_drag(out, dq, dv)
 
     @_finite("mass matrix derivative")
     def mass_matrix_derivative(self, q, data: Data | None = None) -> np.ndarray:

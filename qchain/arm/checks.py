@@ -203,10 +203,10 @@ class ChainChecks:
 
     def _unchecked_inputs(self, q, v, p, t, data):
         """``(q_c, v_c, p (n, 3), V0, A_B, g_B)`` of the ``skip_checks`` fast path, which serves
-        chains in curvature coordinates with the material law and needs a ``data``."""
+        chains in curvature coordinates and needs a ``data``."""
         if data is None or self._any_paper or self._has_linear:
             raise ValueError("skip_checks=True needs data=chain.create_data() and a chain in curvature coordinates "
-                             "with the material law (no stiffness_matrix/damping_matrix)")
+                             "(no segment with coords='paper')")
         n = self.n
         q_c = q[self._qoff :].reshape(n, 3)
         v_c = v[self._voff :].reshape(n, 3)

@@ -1,12 +1,15 @@
 """Contact and point loads on a :class:`qchain.arm.chain.Chain` (:class:`ChainContact`, a base
 class of ``Chain``): the generalised force an :class:`qchain.contact.Environment` exerts at a
-state, and which contacts are active (:mod:`qchain.contact.forces` computes both)."""
+state, and which contacts are active (:mod:`qchain.contact.forces` computes both); the drag of
+the still medium the arm moves in (the segments' ``drag_linear``, ``drag_quadratic``;
+:mod:`qchain.contact.drag`)."""
 
 from __future__ import annotations
 
 import numpy as np
 
 from ..contact.derivatives import NODE_T, environment_derivatives
+from ..contact.drag import DRAG_FRAME, drag_derivatives, drag_forces
 from ..contact.environment import Contacts, Environment
 from ..contact.distance import move
 from ..contact.forces import RECORD, ROOT, contact_forces, load_forces
@@ -30,6 +33,11 @@ def _self_contact_work(n: int, pk):
     return np.zeros((0, ROOT + 12)), np.zeros((2, 0, NODE_T))
 
 
+def _plus_drag(out, dq, dv):
+    """Forward-dynamics derivatives ``out`` plus the drag's: ``da/dx += M^-1 d tau_drag/dx``."""
+    return out._replace(da_dq=out.da_dq + out.da_dtau @ dq, da_dv=out.da_dv + out.da_dtau @ dv)
+
+
 def _check_env(env) -> Environment:
     if not isinstance(env, Environment):
         raise TypeError(f"env must be a qchain.contact.Environment, got {type(env).__name__}")
@@ -37,7 +45,54 @@ def _check_env(env) -> Environment:
 
 
 class ChainContact:
-    """The :class:`~qchain.contact.Environment` methods of :class:`~qchain.arm.chain.Chain`."""
+    """The :class:`~qchain.contact.Environment` and drag methods of :class:`~qchain.arm.chain.Chain`."""
+
+    def drag_force(self, q, v, t: float = 0.0) -> np.ndarray:
+        """The generalised force (nv,) of the medium's drag on the backbone at ``(q, v)``
+        (the segments' ``drag_linear``, ``drag_quadratic``; zero without them):
+        ``-sum_j int_0^l_j J(s)^T (c_1 + c_2 |v(s)|) v(s) ds``, ``v(s)`` each backbone point's
+        velocity (a moving base's included); a floating base's part is the wrench on the base
+        (base frame). It enters :meth:`forward_dynamics` and the engine beside ``tau``
+        (docs/model.md section 9)."""
+        st = self._state(q, v, t=t)
+        return self._drag_terms(st.q_c, st.v_c, st.V0, False)[0]
+
+    def drag_force_derivatives(self, q, v, t: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+        """Exact ``(d tau_drag/dq, d tau_drag/dv)`` (nv, nv) of :meth:`drag_force` (q along
+        :meth:`integrate`), by tangent passes (:mod:`qchain.contact.drag`)."""
+        st = self._state(q, v, t=t)
+        return self._drag_terms(st.q_c, st.v_c, st.V0, True)[1:]
+
+    def _with_drag(self, tau, q_c, v_c, V0, derivatives: bool = False):
+        """``tau + tau_drag`` (``tau`` None: zero) at ``(q_c, v_c)`` (n, 3) curvature coordinates
+        and the base twist ``V0``, and with ``derivatives`` the drag's ``(d/dq, d/dv)`` too."""
+        td, dq, dv = self._drag_terms(q_c, v_c, V0, derivatives)
+        tau = td if tau is None else tau + td
+        return (tau, dq, dv) if derivatives else tau
+
+    def _drag_unchecked(self, q, v, t, tau, derivatives: bool = False):
+        """:meth:`_with_drag` on the ``skip_checks`` paths (a chain with drag is in curvature
+        coordinates)."""
+        V0 = v[:6] if self.floating else self.base_state(t)[1] if self.base == "prescribed" else np.zeros(6)
+        return self._with_drag(tau, q[self._qoff :].reshape(self.n, 3), v[self._voff :].reshape(self.n, 3), V0,
+                               derivatives)
+
+    def _drag_terms(self, q_c, v_c, V0, derivatives: bool):
+        """``(tau (nv,), d tau/dq, d tau/dv)`` of the drag (the derivatives None unless asked for)."""
+        n, nv = self.n, self.nv
+        q_c, v_c, V0 = np.ascontiguousarray(q_c), np.ascontiguousarray(v_c), np.ascontiguousarray(V0)
+        tau_c, F0 = np.zeros((n, 3)), np.zeros(6)
+        dq = dv = None
+        if self._has_drag:
+            drag_forces(self._arrays, q_c, v_c, V0, tau_c, F0, np.zeros((n + 1, 6)), np.empty(SCRATCH))
+        tau = np.concatenate([F0, tau_c.ravel()]) if self.floating else tau_c.ravel()
+        if derivatives:
+            dq, dv = np.zeros((nv, nv)), np.zeros((nv, nv))
+            if self._has_drag:
+                drag_derivatives(self._arrays, self.floating, q_c, v_c, V0, dq, dv, np.zeros((n + 1, 6)),
+                                 np.zeros((n + 1, 6)), np.zeros((3, n, 3)), np.zeros((3, 6)),
+                                 np.zeros((self._alpha.size + n, DRAG_FRAME)), np.empty(SCRATCH))
+        return tau, dq, dv
 
     def _environment_force(self, st, env: Environment, cap: int = 0, t: float = 0.0):
         """``(tau (nv,), records (c, RECORD))``: the environment's generalised force at the

@@ -219,7 +219,7 @@ def _checked(out: ForwardDynamicsDerivatives, t: float) -> ForwardDynamicsDeriva
 def compiled_forward_dynamics_derivatives(ch: Chain, q_c, v_c, p3, tau, V0, A_B, g_B, t, data: Data | None,
                                           check: bool = True) -> ForwardDynamicsDerivatives:
     """The one compiled call (:func:`qchain.algorithms.aba_derivatives.aba_derivatives`) for chains in
-    curvature coordinates with the material law; the result's arrays are ``data``'s where it
+    curvature coordinates; the result's arrays are ``data``'s where it
     is given."""
     tau_ext = np.zeros(ch.nv) if tau is None else tau
     A_B = _ZERO6 if A_B is None else A_B

@@ -97,8 +97,8 @@ class Parameters:
                             f"got {describe_value(params)}")
         if len(params) == 0:
             raise ValueError("params must name at least one parameter, got an empty list")
-        if chain._has_linear:
-            j = int(np.flatnonzero(chain._linear)[0])
+        if chain._literal.any():
+            j = int(np.flatnonzero(chain._literal)[0])
             raise ValueError(f"parameter derivatives need the material law in every segment; segments[{j}] has the "
                              "paper's literal linear law (stiffness_matrix or damping_matrix)")
         names, units, kinds, index, values, seen = [], [], [], [], [], set()
@@ -279,6 +279,9 @@ def forward_dynamics_parameter_derivatives(chain: Chain, q, v, p=None, params=()
         te, dq_env, _ = chain.environment_terms(q, v, env, t)
         tau = te if tau is None else chain._vec("tau", tau, chain.nv) + te
     st, p3, tau = chain._dynamics_inputs(q, v, p, tau, t)
+    dq_drag = None
+    if chain._has_drag:  # the medium's drag depends on no parameter, but on an inextensible segment's held length
+        tau, dq_drag, _ = chain._with_drag(tau, st.q_c, st.v_c, st.V0, True)
     n, nv = chain.n, chain.nv
     tau_c = np.zeros(nv) if tau is None else np.array(tau, dtype=float)
     if st.J is not None:
@@ -315,6 +318,11 @@ def forward_dynamics_parameter_derivatives(chain: Chain, q, v, p=None, params=()
             if chain._locked[j, 0]:  # an inextensible segment's held length moves the arm against the obstacles
                 extra += dq_env[:, chain._voff + 3 * j]
             da[:, k] += data.da_dtau @ extra
+    if dq_drag is not None:
+        for k in np.flatnonzero(P.kinds == _pd.KIND_LENGTH):
+            j = int(P.index[k])
+            if chain._locked[j, 0]:
+                da[:, k] += data.da_dtau @ dq_drag[:, chain._voff + 3 * j]
     a = data.a.copy()
     if st.J is not None:
         for j in np.flatnonzero(chain._paper):

@@ -14,8 +14,8 @@ import numpy as np
 
 from .convert import as_real, describe_value
 
-__all__ = ["Range", "LENGTH", "RADIUS", "MASS", "CHAMBER_AREA", "CHAMBER_RADIUS", "YOUNGS_MODULUS", "DAMPING", "NODES",
-           "TENDON_RADIUS", "TENDON_PITCH", "TENSION",
+__all__ = ["Range", "LENGTH", "RADIUS", "MASS", "CHAMBER_AREA", "CHAMBER_RADIUS", "YOUNGS_MODULUS", "DAMPING", "DRAG_LINEAR",
+           "DRAG_QUADRATIC", "NODES", "TENDON_RADIUS", "TENDON_PITCH", "TENSION",
            "GRAVITY", "POSITION", "ANGLE", "PSI", "VELOCITY", "ANGULAR_VELOCITY", "RATE", "DIRECTION", "AMPLITUDE",
            "FREQUENCY", "PRESSURE", "PRESSURE_AMPLITUDE", "TIME", "DURATION", "STEP", "RTOL", "ATOL", "SAMPLE_RATE",
            "NODE_TOLERANCE", "MAX_BEND", "LENGTH_TOLERANCE", "WALL_LIMIT", "VACUUM_GAUGE", "SEGMENT_COUNT", "WORKERS", "RETRIES",
@@ -143,6 +143,10 @@ CHAMBER_AREA = Range(0.0, 1e3, "m^2", low_open=True)  #: each chamber's cross-se
 CHAMBER_RADIUS = Range(0.0, 10.0, "m", low_open=True)  #: distance of the chamber centres from the axis
 YOUNGS_MODULUS = Range(1.0, 1e12, "Pa")  #: from a gel to steel and beyond
 DAMPING = Range(0.0, 1e2, "s")  #: beta of D = beta K(q0)
+#: c_1 of the drag force per unit length ``-(c_1 + c_2 |v|) v`` (a viscous medium: Stokes-like)
+DRAG_LINEAR = Range(0.0, 1e4, "N s/m^2")
+#: c_2 of the same (``1/2 rho C_d 2 r_s`` in a fluid of density rho: water on a 4 cm arm about 24)
+DRAG_QUADRATIC = Range(0.0, 1e5, "kg/m^2")
 NODES = Range(1, 100, integer=True)  #: Gauss-Legendre nodes along a segment (the node count converges by ~24)
 
 # -- a tendon (qchain.model.tendon; docs/tendons.md)

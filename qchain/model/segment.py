@@ -236,7 +236,18 @@ class Segment(KeepsReadOnly):
         (``-K_e (q - q_0) - D qdot``, the text before eq. (4); docs/model.md section 9):
         ``U_el = 1/2 (q_e - rest_q_e)^T K_e (q_e - rest_q_e)`` replaces the material law.
     damping_matrix : (3, 3) array, optional
-        The paper's literal ``D`` in the segment's coordinates, replacing ``beta K(q0)``.
+        The paper's literal ``D`` in the segment's coordinates, replacing ``beta K(q0)``:
+        constant, symmetric, positive semi-definite (N s/m on ``l``, N s m on the curvatures
+        ``ux``, ``uy``): e.g. a strain-rate law with its own axial and bending coefficients.
+    drag_linear : float, optional
+        ``c_1`` (N s/m^2), ``0 <= c_1 <= 1e4`` (:data:`qchain.checks.bounds.DRAG_LINEAR`), and
+    drag_quadratic : float, optional
+        ``c_2`` (kg/m^2), ``0 <= c_2 <= 1e5`` (:data:`qchain.checks.bounds.DRAG_QUADRATIC`), of
+        the drag of a still medium on the backbone: a force per unit length
+        ``f(s) = -(c_1 + c_2 |v(s)|) v(s)`` against each backbone point's velocity ``v(s)``
+        (world frame, the base's motion included), isotropic; its generalised force
+        ``-int_0^l J(s)^T (c_1 + c_2 |v|) v ds`` acts on this segment's and every parent's
+        coordinates (docs/model.md section 9). Curvature coordinates only.
     rest_q_e : (3,) array, optional
         ``q_e0`` of the linear law; default the straight rest pose ``(l0, 0, 0)``.
     extensible : bool
@@ -263,6 +274,8 @@ class Segment(KeepsReadOnly):
     nodes: int | None = None
     stiffness_matrix: np.ndarray | None = None
     damping_matrix: np.ndarray | None = None
+    drag_linear: float = 0.0
+    drag_quadratic: float = 0.0
     rest_q_e: np.ndarray | None = None
     extensible: bool = True
     # derived (set in __post_init__)
@@ -277,7 +290,8 @@ class Segment(KeepsReadOnly):
         s = object.__setattr__
         for name, rng in (("length", B.LENGTH), ("radius", B.RADIUS), ("mass", B.MASS),
                           ("chamber_area", B.CHAMBER_AREA), ("chamber_radius", B.CHAMBER_RADIUS),
-                          ("youngs_modulus", B.YOUNGS_MODULUS), ("damping", B.DAMPING)):
+                          ("youngs_modulus", B.YOUNGS_MODULUS), ("damping", B.DAMPING),
+                          ("drag_linear", B.DRAG_LINEAR), ("drag_quadratic", B.DRAG_QUADRATIC)):
             s(self, name, rng.check(name, getattr(self, name)))
         outer = self.chamber_radius + np.sqrt(self.chamber_area / np.pi)
         if outer > self.radius:
@@ -289,6 +303,9 @@ class Segment(KeepsReadOnly):
             raise TypeError(f"extensible must be True or False, got {self.extensible!r}")
         if not isinstance(self.coords, str) or self.coords not in COORDS:
             raise ValueError(f"coords must be one of {COORDS}, got {self.coords!r}")
+        if self.coords != "curvature" and (self.drag_linear or self.drag_quadratic):
+            raise ValueError(f"drag_linear = {self.drag_linear:g}, drag_quadratic = {self.drag_quadratic:g} need "
+                             f"coords='curvature' (the drag pass works in curvature coordinates), got {self.coords!r}")
         if not isinstance(self.actuation, str) or self.actuation not in ACTUATIONS:
             raise ValueError(f"actuation must be one of {ACTUATIONS}, got {self.actuation!r}")
         n = DEFAULT_NODES if self.nodes is None else B.NODES.check("nodes", self.nodes)
@@ -566,6 +583,17 @@ class Segment(KeepsReadOnly):
         D = np.empty((3, 3))
         rest_damping_c(self.length, self.bending_stiffness, self.axial_stiffness, self.damping, D)
         return D
+
+    def _law_c(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool]:
+        """``(D, K_e, q_e0, linear)``: the constant dissipation matrix (3, 3), the linear law's
+        stiffness (3, 3) and rest configuration (3,) (zeros without it) and whether it is given,
+        in curvature coordinates, as the compiled passes take them (``ChainArrays.D``, ``K``,
+        ``q_rest``, ``linear_law``). In paper coordinates: the material law's ``beta K(q0)``
+        (the literal matrices, in paper coordinates, stay with the Segment)."""
+        if self.coords == "paper" or self.stiffness_matrix is None:
+            D = self._rest_damping_c() if self.coords == "paper" else self.dissipation_matrix(self.neutral())
+            return D, np.zeros((3, 3)), np.zeros(3), False
+        return self.dissipation_matrix(self.neutral()), self.stiffness_matrix.copy(), self._rest().copy(), True
 
     def _rest(self) -> np.ndarray:
         return self.neutral() if self.rest_q_e is None else self.rest_q_e

@@ -17,7 +17,7 @@ import numpy as np
 from .arc import SCRATCH, arc_node, arc_node_bias, arc_node_derivatives, jit, jit_helper, take1, take2, take3
 
 __all__ = ["CHAMBER_ANGLES", "input_matrix_c", "pressure_jacobian_c", "elastic_gradient_c", "elastic_hessian_c",
-           "rest_damping_c", "domain_violation", "segment_slices", "segment_mass", "segment_newton_euler", "phi_transpose_force", "phi_matrix", "slice_twist"]
+           "law_gradient_c", "law_hessian_c", "law_energy_c", "rest_damping_c", "domain_violation", "segment_slices", "segment_mass", "segment_newton_euler", "phi_transpose_force", "phi_matrix", "slice_twist"]
 
 
 @jit_helper
@@ -298,6 +298,42 @@ def elastic_hessian_c(q, l0, EI, EA, H):
     H[0, 2] = H[2, 0] = 2.0 * EI * l * uy / l0
     H[1, 1] = H[2, 2] = EI * l * l / l0
     H[1, 2] = H[2, 1] = 0.0
+
+
+@jit
+def law_gradient_c(q, l0, EI, EA, linear, K, q_rest, g):
+    """``g[:] = dU_el/dq`` (3,) of a segment's elastic law: the linear law ``K (q - q_rest)``
+    where ``linear``, else the material law (:func:`elastic_gradient_c`)."""
+    if linear:
+        for a in range(3):
+            g[a] = K[a, 0] * (q[0] - q_rest[0]) + K[a, 1] * (q[1] - q_rest[1]) + K[a, 2] * (q[2] - q_rest[2])
+    else:
+        elastic_gradient_c(q, l0, EI, EA, g)
+
+
+@jit
+def law_hessian_c(q, l0, EI, EA, linear, K, H):
+    """``H[:] = d^2 U_el/dq^2`` (3, 3) of a segment's elastic law: ``K`` where ``linear``, else
+    :func:`elastic_hessian_c`."""
+    if linear:
+        for a in range(3):
+            for b in range(3):
+                H[a, b] = K[a, b]
+    else:
+        elastic_hessian_c(q, l0, EI, EA, H)
+
+
+@jit
+def law_energy_c(q, l0, EI, EA, linear, K, q_rest):
+    """``U_el`` (J) of a segment's elastic law (:func:`law_gradient_c`)."""
+    if linear:
+        acc = 0.0
+        for a in range(3):
+            for b in range(3):
+                acc += (q[a] - q_rest[a]) * K[a, b] * (q[b] - q_rest[b])
+        return 0.5 * acc
+    l, ux, uy = q[0], q[1], q[2]
+    return 0.5 * EI * (ux * ux + uy * uy) * l * l / l0 + 0.5 * EA * (l - l0) ** 2 / l0
 
 
 @jit

@@ -235,6 +235,13 @@ def sensitivities(chain: Chain, q0, v0, t_span, *, params=(), initial: bool = Tr
                          progress=False, on_sample=None, events=None, controller_rate=None)
     env = _check_env(chain, env)
     columns, kinds, index = _columns(chain, initial, params)
+    if len(kinds) and chain._literal.any():
+        j = int(np.flatnonzero(chain._literal)[0])
+        raise ValueError(f"params: parameter derivatives need the material law in every segment; segments[{j}] has "
+                         "the paper's literal linear law (stiffness_matrix or damping_matrix)")
+    if len(kinds) and chain._has_drag and np.any(kinds == pd.KIND_LENGTH) and chain._any_locked:
+        raise ValueError("params: a rest length's derivative with drag on an inextensible segment is not supported "
+                         "(the held length moves the drag)")
     if env is not None and np.any(kinds == pd.KIND_LENGTH):
         raise ValueError("params: a rest length's derivative with env is not supported (the contact nodes move along "
                          "the segment with it)")
@@ -245,8 +252,8 @@ def sensitivities(chain: Chain, q0, v0, t_span, *, params=(), initial: bool = Tr
                              f"constant or a schedule of qchain.sim.inputs")
     m = system.pack(chain, pressure, tau, env)
     if m is None:
-        raise ValueError("sensitivities need the compiled engine: a chain in curvature coordinates with the material "
-                         "law, constant or scheduled inputs, no Python base_motion")
+        raise ValueError(f"sensitivities need the compiled engine, which cannot serve this run: "
+                         f"{system.python_reason(chain, pressure, tau)}")
     meta = {}
     budget = as_budget(budget)
     if steps is not None:

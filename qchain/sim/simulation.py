@@ -11,6 +11,7 @@ import dataclasses
 import difflib
 import sys
 import time as _time
+import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
@@ -24,6 +25,7 @@ from .engine import driver, system
 from ..checks.convert import as_bool, as_real, as_real_array, as_vector, check_callable, describe_value
 from .inputs import BUILT_IN, Schedule, _copy, as_input
 from .trajectory import Trajectory
+from ..errors import PythonBackendWarning
 
 __all__ = ["simulate", "Runs", "METHODS", "FIXED_STEP", "COMPILED", "DEFAULT_METHOD", "Event"]
 
@@ -606,17 +608,23 @@ def _choose_backend(run: _Run, base=None):
     None for :mod:`qchain.sim.python_backend` (``ValueError`` then if ``controller_rate`` is
     given). A held controller is packed as zeros (its output is written into the packed model
     at its instants)."""
-    tension_compiled = not callable(run.tension) or type(run.tension) in BUILT_IN
-    if run.method in COMPILED and tension_compiled:
-        zeros = {name: np.zeros(size) for name, _, size in run.held}
-        p, tau = zeros.get("pressure", run.pressure), zeros.get("tau", run.tau)
-        m = (system.pack(run.chain, p, tau, run.env, run.tension) if base is None else
-             system.with_inputs(base, run.chain, p, tau, run.tension))
-        if m is not None:
-            return m
+    if run.method not in COMPILED:
+        if run.controller_rate is not None:
+            raise ValueError(f"controller_rate needs the compiled engine; method {run.method!r} is scipy's, on the "
+                             f"Python backend (use one of {COMPILED})")
+        return None
+    zeros = {name: np.zeros(size) for name, _, size in run.held}
+    p, tau = zeros.get("pressure", run.pressure), zeros.get("tau", run.tau)
+    m = (system.pack(run.chain, p, tau, run.env, run.tension) if base is None else
+         system.with_inputs(base, run.chain, p, tau, run.tension))
+    if m is not None:
+        return m
+    reason = system.python_reason(run.chain, p, tau, run.tension)
     if run.controller_rate is not None:
-        raise ValueError("controller_rate needs the compiled engine: a chain in curvature coordinates with the "
-                         "material law, schedules or constants for the other input, no Python base_motion")
+        raise ValueError(f"controller_rate needs the compiled engine, which cannot serve this run: {reason}")
+    # never silently: the Python steppers are one to two orders of magnitude slower
+    warnings.warn(PythonBackendWarning(f"simulate: method {run.method!r} runs on the Python backend, not the "
+                                       f"compiled engine: {reason}"), stacklevel=4)
     return None
 
 

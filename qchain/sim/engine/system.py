@@ -33,13 +33,14 @@ import numpy as np
 from ...algorithms import aba_derivatives, planar, recursive, rnea_derivatives
 from ...contact.environment import Environment, PackedEnvironment
 from ...contact.derivatives import NODE_T, environment_derivatives
+from ...contact.drag import DRAG_FRAME, drag_derivatives, drag_forces
 from ...contact.forces import ROOT
 from ...contact.distance import PARAMS, move
 from ...contact.forces import beyond_reach, contact_forces, load_forces
 from ...contact.planar import planar_contact_forces
 from ...algorithms.arrays import AbaDerivativesWorkspace, AbaWorkspace, ChainArrays, PlanarWorkspace, RneaWorkspace
 from ...model.arc import SCRATCH, arc_node, take1, take2
-from ...model.slices import slice_twist
+from ...model.slices import law_energy_c, slice_twist
 from ...model.tendon import tendon_length_c
 from . import lie, schedules
 from ..._jit import ejit, ejit_inner, inline, kernel
@@ -62,7 +63,7 @@ class EngineModel(NamedTuple):
     arrays : ChainArrays
         The chain's per-node and per-segment arrays (:meth:`qchain.Chain.kernel_arrays`, a
         :class:`qchain.algorithms.arrays.ChainArrays`: ``alpha, w, offs, mass, radius, l0, EI, EA,
-        beta, A_ch, r_ch, paper_act, locked``), the first argument of every pass.
+        beta, A_ch, r_ch, paper_act, locked, payload, D, K, q_rest, linear_law, drag``), the first argument of every pass.
     idx : (nA,) int64
         The free velocity coordinates, ``flatnonzero(chain.active)``.
     base : int
@@ -165,6 +166,9 @@ class Workspace(NamedTuple):
         (:func:`qchain.contact.distance.move`).
     roots, nodes : (n, ROOT + 12), (2, K, NODE_T) float
         The self-contact passes' roots and contact nodes (empty without self-contact).
+    drag_frames : (N + n, DRAG_FRAME) float
+        The nodes' frames the drag's tangent passes read (:func:`qchain.contact.drag.drag_frames`;
+        empty without drag).
     """
 
     q: np.ndarray
@@ -190,12 +194,12 @@ class Workspace(NamedTuple):
     vel: np.ndarray
     roots: np.ndarray
     nodes: np.ndarray
+    drag_frames: np.ndarray
 
 
 def pack(chain, pressure, tau, env=None, tension=None) -> EngineModel | None:
     """The :class:`EngineModel` of ``chain`` with compiled ``pressure`` and ``tau`` inputs, or
-    None where the compiled engine cannot serve it (paper coordinates, the linear law, a Python
-    controller or a Python ``base_motion``). A ``planar`` chain whose base stays in its x-z
+    None where the compiled engine cannot serve it (:func:`python_reason` says why). A ``planar`` chain whose base stays in its x-z
     plane runs on :func:`qchain.algorithms.planar.planar_aba_moving` (2-D cost, the same accelerations)."""
     from ...arm.chain import Chain
 
@@ -210,6 +214,25 @@ def pack(chain, pressure, tau, env=None, tension=None) -> EngineModel | None:
     if p is None or f is None or tn is None:
         return None
     return _packed_model(chain, arrays, p, f, env, tn)
+
+
+def python_reason(chain, pressure, tau, tension=None) -> str | None:
+    """Why :func:`pack` returns None for ``chain`` with these inputs (the run then goes to the
+    Python backend), in words naming the segment or the input; None where it does not."""
+    if chain.kernel_arrays() is None:
+        j = int(np.flatnonzero(chain._paper)[0])
+        return (f"segments[{j}] has coords='paper' (the compiled passes work in curvature coordinates; use "
+                "coords='curvature')")
+    for name, u, size in (("pressure", pressure, chain.nu), ("tau", tau, chain.nv), ("tension", tension, chain.nt)):
+        if schedules.pack_input(u, size, name) is None and name == "tension":
+            return ("tension is a Python callable (a tension controller, evaluated at every stage; a schedule of "
+                    "qchain.sim.inputs runs on the compiled engine)")
+        if schedules.pack_input(u, size, name) is None:
+            return (f"{name} is a Python callable (a controller evaluated at every stage; give controller_rate= "
+                    "to hold it between instants on the compiled engine, or a schedule of qchain.sim.inputs)")
+    if chain.base == "prescribed" and schedules.pack_base_motion(chain.base_motion) is None:
+        return "base_motion is a Python callable (the compiled engine takes a qchain.sim.inputs.SineMotion)"
+    return None
 
 
 def with_inputs(m: EngineModel, chain, pressure, tau, tension=None) -> EngineModel | None:
@@ -294,7 +317,8 @@ def workspace(chain, m: EngineModel | None = None) -> Workspace:
                      R_WB=np.zeros((3, 3)), W=np.zeros((2, n + 2, 6)),
                      Jenv=np.zeros((2, nv, nv)), Denv=np.zeros((3, n, 3)), Eenv=np.zeros((3, 6)),
                      prm_t=np.zeros((k, PARAMS)), vel=np.zeros((k, 3)), roots=np.zeros((n if selfc else 0, ROOT + 12)),
-                     nodes=np.zeros((2, K, NODE_T)))
+                     nodes=np.zeros((2, K, NODE_T)),
+                     drag_frames=np.zeros((chain._alpha.size + n if chain._has_drag else 0, DRAG_FRAME)))
 
 
 @inline
@@ -547,6 +571,9 @@ def _forces(m, wk, t):
         if status != OK:
             return status
     _environment(m, wk, t, q[qoff:].reshape(n, 3), v[voff:].reshape(n, 3), f)
+    if _any_drag(m.arrays):  # the medium's drag: beside the environment's forces, its base wrench with theirs
+        drag_forces(m.arrays, q[qoff:].reshape(n, 3), v[voff:].reshape(n, 3), B[0], f, wk.W[0, n + 1],
+                    wk.W[0, : n + 1], wk.scratch)
     F0 = B[3]  # reused: the base wrench (floating); the origin row is not needed past here
     F_env = wk.W[0, n + 1]
     for r in range(6):
@@ -584,6 +611,36 @@ def _environment(m, wk, t, q_c, v_c, f):
     if env.seg.shape[0] > 0:
         load_forces(env.seg, env.alpha, env.wrench, env.local, q_c, wk.R_WB, wk.B[3, :3], f, F_env, W[: n + 1],
                     wk.scratch)
+
+
+@inline
+def _any_drag(arr):
+    """Whether some segment has drag (``ChainArrays.drag``)."""
+    for j in range(arr.drag.shape[0]):
+        if arr.drag[j, 0] != 0.0 or arr.drag[j, 1] != 0.0:
+            return True
+    return False
+
+
+@inline
+def _drag_jacobian(m, wk, q_c, v_c, Minv, da_dq, da_dv):
+    """``da_dq += M^-1 d tau_drag/dq`` and ``da_dv += M^-1 d tau_drag/dv`` (nv, nv), the drag's
+    exact derivatives (:func:`qchain.contact.drag.drag_derivatives`; the environment's work
+    arrays, free by now) at the state of the last right-hand side (``wk.B[0]``: its base twist)."""
+    n = q_c.shape[0]
+    nv = m.nv
+    Jq, Jv = wk.Jenv[0], wk.Jenv[1]
+    drag_derivatives(m.arrays, m.base == FLOATING, q_c, v_c, wk.B[0], Jq, Jv, wk.W[0, : n + 1], wk.W[1, : n + 1],
+                     wk.Denv, wk.Eenv, wk.drag_frames, wk.scratch)
+    for r in range(nv):
+        for c in range(nv):
+            aq = 0.0
+            av = 0.0
+            for k in range(nv):
+                aq += Minv[r, k] * Jq[k, c]
+                av += Minv[r, k] * Jv[k, c]
+            da_dq[r, c] += aq
+            da_dv[r, c] += av
 
 
 @inline
@@ -723,6 +780,8 @@ def jacobian(m, wk, t, y, Jq, Jv):
         _environment_jacobian(m, wk, t, q_c, v_c, wa.da_dtau, da_dq, da_dv)
     if m.tendon_rows.shape[0] > 0:
         _tendon_jacobian(m, wk, q_c, wa.da_dtau, da_dq)
+    if _any_drag(m.arrays):
+        _drag_jacobian(m, wk, q_c, v_c, wa.da_dtau, da_dq, da_dv)
     for r in range(nA):
         for c in range(nA):
             Jq[r, c] = da_dq[idx[r], idx[c]]
@@ -785,7 +844,8 @@ def energies(m, wk, t, q, v):
             kin += 0.5 * w[k] * (mj * (Vn[0] * Vn[0] + Vn[1] * Vn[1] + Vn[2] * Vn[2])
                                  + ixx * (Vn[3] * Vn[3] + Vn[4] * Vn[4]) + izz * Vn[5] * Vn[5])
             pot -= mj * w[k] * (go + gx * p[0] + gy * p[1] + gz * p[2])
-        pot += 0.5 * EI[j] * (ux * ux + uy * uy) * l * l / l0[j] + 0.5 * EA[j] * (l - l0[j]) ** 2 / l0[j]
+        pot += law_energy_c(q[qoff + 3 * j : qoff + 3 * j + 3], l0[j], EI[j], EA[j], ar.linear_law[j], ar.K[j],
+                            ar.q_rest[j])
         # the tip: the next segment's root twist (its body frame) and frame
         arc_node(1.0, l, ux, uy, 0.0, 0.0, 0.0, R, p, S, Sd)
         slice_twist(R, p, S, V, qd, Vn)
