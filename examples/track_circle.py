@@ -17,7 +17,10 @@ duration, q_home) -> Controller``, so another controller is one more line):
 - ``Slotine-Li``: :class:`qchain.control.TipTracking` (the same reference, followed by
   :class:`qchain.control.SlotineLi`, with the reference's accelerations fed forward);
 - ``tip PD``: :class:`qchain.control.TipPD` on the moving tip target (no feed-forward), with
-  ``examples/tip_control.py``'s gains.
+  ``examples/tip_control.py``'s gains;
+- ``MPC``: :class:`qchain.control.MPC`, box-constrained iLQR on the model's exact derivatives
+  over ``MPC_HORIZON`` (10) intervals of 20 ms (0.2 s ahead), one warm-started iteration a
+  sample at ``MPC_RATE`` (50 Hz), the circle itself as its target path.
 
 The configuration controllers get the same bandwidth ``BANDWIDTH`` (5 Hz, ten times the
 circle's) on every free coordinate ``i``: ``Kp_i = m_i w^2``, ``Kd_i = 2 m_i w`` (PD) and
@@ -28,7 +31,7 @@ overstate the distal coordinates' inertia (the segments are strongly coupled: ne
 ``M``'s eigenvalues span 3.9e-8 to 3.1e-5 against diagonal entries of 2.6e-7 to 2.6e-5), and
 ``M^-1 Kd`` would reach 2400 1/s, beyond the 2 / (2 ms) = 1000 1/s up to which a damper
 sampled and held at 500 Hz stays stable (the pressures chattered between the bounds in 99 %
-of the calls); with ``m_i`` the closed loop's rates span 5-50 rad/s. All run at 500 Hz with the pressures held
+of the calls); with ``m_i`` the closed loop's rates span 5-50 rad/s. All but MPC run at 500 Hz with the pressures held
 between samples, within ``0 <= p <= 100 kPa``.
 
 Each runs on the controller's own model ("matched") and on a mismatched arm: every segment's
@@ -60,12 +63,14 @@ from scipy.optimize import brentq
 
 import _common
 from qchain import Chain, equilibrium
-from qchain.control import PDCompensation, TipPD, TipPathReference, TipTracking, tip_inverse_kinematics
+from qchain.control import MPC, PDCompensation, TipPD, TipPathReference, TipTracking, tip_inverse_kinematics
 
 RADIUS = 0.025  # m: a circle 50 mm across
 FREQUENCY = 0.5  # Hz, once round in 2 s
 DURATION = 4.0  # s: two turns
-RATE = 500.0  # Hz, every controller
+RATE = 500.0  # Hz, every controller but MPC
+MPC_RATE = 50.0  # Hz: a plan every 20 ms (docs/control.md: the solve times against the horizon)
+MPC_HORIZON = 10  # control intervals: 0.2 s ahead
 P_MAX = 1.0e5  # Pa
 BANDWIDTH = 5.0  # Hz, the configuration controllers' (ten times the circle's frequency)
 OUTPUT_RATE = 200.0  # Hz, the samples the tip error is measured at
@@ -100,12 +105,18 @@ def tip_pd(chain, path, duration, q_home):
     return TipPD(chain, path, Kp=20.0, Kd=2.0, c=2e-5, rate=RATE, p_max=P_MAX)  # examples/tip_control.py's gains
 
 
+def mpc(chain, path, duration, q_home):
+    # one iteration a sample, warm-started: the real-time setting of docs/control.md's table
+    return MPC(chain, path, horizon=MPC_HORIZON, max_iter=1, rate=MPC_RATE, p_max=P_MAX)
+
+
 #: ``(name, factory)``; ``factory(chain, path, duration, q_home) -> qchain.control.Controller``,
 #: ``path(t) -> (x_d (3,) m, xd_dot (3,) m/s)`` (world), ``q_home`` the start (nq,)
 CONTROLLERS = [
     ("PD + compensation", pd_compensation),
     ("Slotine-Li", slotine_li),
     ("tip PD", tip_pd),
+    ("MPC", mpc),
 ]
 
 
@@ -199,7 +210,7 @@ def main(argv=None) -> dict:
             results.append({"name": name, "case": case, "key": k, "rms_mm": rms * 1e3,
                             "p_rms_kpa": float(np.sqrt(np.mean(traj.p ** 2))) / 1e3,
                             "p_max_kpa": float(traj.p.max()) / 1e3, "p_min_kpa": float(traj.p.min()) / 1e3,
-                            "compute_us": float(np.median(sig["compute_s"])) * 1e6,
+                            "compute_us": float(np.median(sig["compute_s"])) * 1e6, "rate": ctl.rate,
                             "saturated": float(np.mean(sig["saturated"])), "t": traj.t, "tip": tip, "x_d": x_d,
                             "p": traj.p})
 

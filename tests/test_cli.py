@@ -50,7 +50,7 @@ def test_run_prints_the_summary_and_writes_the_outputs(short_scene, tmp_path, ca
     assert "run: success: The end of the time span was reached." in out
     m = re.search(r"simulated 0\.1 s in ([0-9.e+-]+) s wall time: ([0-9.e+-]+) x real time; nfev = (\d+), 11 samples, "
                   r"method rk4", out)
-    assert m, out
+    assert m, (out, err)
     wall, rtf, nfev = float(m[1]), float(m[2]), int(m[3])
     assert rtf == pytest.approx(0.1 / wall, rel=0.01) and nfev == 4 * 100
     for name in ("tip.png", "arm.png", "energy.png", "pressure.png", "trajectory.npz"):
@@ -666,7 +666,7 @@ def test_ctrl_c_in_a_run_reports_the_time_its_samples_reach(method, tmp_path):
     out, err = _interrupt_when(proc, _journal_grows(Path(str(mcap) + ".journal"), 1.0), 240, "samples recorded")
     assert proc.returncode == 1, (out, err)
     m = re.search(r"run: FAILED: interrupted by the user \(Ctrl-C\) at t = ([0-9.e+-]+) s\n", out)
-    assert m, out
+    assert m, (out, err)
     reached = m[1]
     assert float(reached) > 0.0
     assert _said(err) == f"run: interrupted at t = {reached} s\n"
