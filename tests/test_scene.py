@@ -559,3 +559,90 @@ def test_tendons_without_tension_leave_the_run_as_without_tendons(tmp_path):
     traj = slack.simulate(duration=0.1, reduce=False)
     np.testing.assert_allclose(traj.q, plain.q, rtol=0, atol=1e-12)
     np.testing.assert_array_equal(traj.tension, np.zeros((len(traj.t), 1)))
+
+
+#: a damping matrix in curvature coordinates (l, ux, uy) coupling l and ux, not uy
+D_LUX = [[5.0, 0.02, 0.0], [0.02, 1e-3, 0.0], [0.0, 0.0, 1e-3]]
+
+
+def _drag_scene(**seg):
+    """base_scene with a hanging-free arm in a medium: drag and ``seg`` on both segments,
+    pressures equal in chambers 2 and 3 (planar applies), damping 0."""
+    d = base_scene()
+    d["segments"] = [dict(SEGMENT, damping=0.0, **seg), dict(SEGMENT, length=0.08, damping=0.0, **seg)]
+    d["pressure"] = {"type": "constant", "value": [2e4, 0, 0, 0, 1e4, 1e4]}
+    d["simulation"] = {"duration": 0.2, "method": "radau5", "rtol": 1e-8, "atol": 1e-10}
+    return d
+
+
+def test_a_scene_with_drag_and_a_damping_matrix_runs_as_simulate_on_the_same_chain(tmp_path):
+    """Issue 32: drag_linear, drag_quadratic and damping_matrix from a scene file give the
+    run of simulate on the same chain built in Python (the planar one the scene builds,
+    sample for sample); the drag takes energy the undragged scene keeps; the axial coupling
+    of the matrix keeps the automatic inextensible reduction off."""
+    from qchain import Segment, simulate
+    from qchain.sim.inputs import Constant
+
+    d = _drag_scene(drag_linear=0.5, drag_quadratic=20.0, damping_matrix=D_LUX)
+    scene = load_scene(write(tmp_path, d))
+    model = scene.build()
+    assert model.chain.planar and all(s.extensible for s in model.chain.segments)
+    assert any("damping_matrix couples l to ux or uy" in k for k in model.kept), model.kept
+    traj = scene.simulate()
+    segs = [Segment(**dict(SEGMENT, length=L, damping=0.0), drag_linear=0.5, drag_quadratic=20.0,
+                    damping_matrix=np.array(D_LUX)) for L in (0.1, 0.08)]
+    ch = Chain(segs, planar=True)
+    p = Constant(np.array([2e4, 0, 0, 0, 1e4, 1e4]))
+    ref = simulate(ch, ch.neutral(), np.zeros(ch.nv), (0.0, 0.2), pressure=p, method="radau5",
+                   rtol=1e-8, atol=1e-10, t_eval=traj.t)
+    np.testing.assert_allclose(traj.q, ref.q, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(traj.v, ref.v, rtol=0, atol=1e-10)
+    # the same scene without its damping law moves differently: the keys were not dropped
+    plain = load_scene(write(tmp_path, _drag_scene(), "plain.toml")).simulate()
+    assert np.abs(plain.v[-1] - traj.v[-1]).max() > 1e-3
+
+
+def test_the_planar_reduction_of_a_dragged_arm_is_the_full_models_run(tmp_path):
+    """The isotropic drag and a damping matrix that leaves uy alone keep the scene symmetric:
+    the planar run equals the full one to the integrator's tolerance, uy stays 0."""
+    d = _drag_scene(drag_linear=0.5, drag_quadratic=20.0, damping_matrix=D_LUX)
+    scene = load_scene(write(tmp_path, d))
+    planar, full = scene.simulate(), scene.simulate(reduce=False)
+    assert scene.build().chain.planar and not scene.build(reduce=False).chain.planar
+    np.testing.assert_allclose(planar.q, full.q, rtol=0, atol=1e-7)
+    assert np.abs(full.q[:, 2::3]).max() < 1e-9
+
+
+@pytest.mark.parametrize("seg, kept, reduction", [
+    (dict(damping_matrix=[[2.0, 0.0, 0.0], [0.0, 1e-3, 1e-4], [0.0, 1e-4, 1e-3]]),
+     "planar: not applicable: segments 0-1: damping_matrix couples uy to l or ux", None),
+    (dict(drag_quadratic=20.0),
+     "inextensible: not applicable: segments 0-1: the medium's drag loads the axial mode (not estimated)", None),
+    (dict(damping_matrix=D_LUX),
+     "inextensible: not applicable: segments 0-1: damping_matrix couples l to ux or uy (not estimated)", None),
+    (dict(damping_matrix=D_LUX, extensible=False), None,
+     "segments 0-1: damping_matrix's entries coupling l to ux, uy dropped with the axial mode (extensible = false)"),
+])
+def test_a_damping_law_the_reductions_cannot_keep_refuses_them_or_is_said(tmp_path, seg, kept, reduction):
+    """A damping matrix coupling uy refuses the planar reduction; drag, or a matrix coupling l
+    to the bends, refuses the automatic inextensible one (neither is in its static
+    estimate); the file's own extensible = false says what of the matrix it drops."""
+    model = load_scene(write(tmp_path, _drag_scene(**seg))).build()
+    if kept is not None:
+        assert kept in model.kept, model.kept
+    if reduction is not None:
+        assert reduction in model.reductions, model.reductions
+    if "couples uy" in (kept or ""):
+        assert not model.chain.planar
+
+
+def test_the_node_count_of_a_dragged_segment_is_not_cut_below_the_default(tmp_path):
+    """node_tolerance sizes M_xi alone; the drag is integrated on the same nodes, so a
+    segment with drag keeps DEFAULT_NODES where the sizing would give fewer."""
+    d = _drag_scene()
+    d["model"] = {"node_tolerance": 1e-2}
+    assert min(load_scene(write(tmp_path, d)).build().nodes) < DEFAULT_NODES  # the sizing alone cuts
+    d["segments"][1]["drag_linear"] = 0.5
+    model = load_scene(write(tmp_path, d, "drag.toml")).build()
+    assert model.nodes[1] == DEFAULT_NODES and model.nodes[0] < DEFAULT_NODES
+    assert any(f"segment 1 keep {DEFAULT_NODES} (the default)" in r for r in model.reductions), model.reductions

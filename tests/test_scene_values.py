@@ -548,3 +548,74 @@ def test_a_valid_tendon_scene_reads_into_tendons_and_a_schedule():
     np.testing.assert_array_equal(scene.tension(0.0), [0.0, 0.0])
     np.testing.assert_array_equal(scene.tension(0.06), [2.0, 3.0])
     assert scene.build().chain.nt == 2
+
+
+def _damping_scene(mutate) -> str:
+    """base_scene with no stiffness-proportional damping, then ``mutate``d."""
+    d = base_scene()
+    for s in d["segments"]:
+        s["damping"] = 0.0
+    mutate(d)
+    return to_toml(d)
+
+
+EYE = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]
+DAMPING_ERRORS = {
+    "drag_linear negative": (lambda d: d["segments"][0].update(drag_linear=-1.0),
+                             "segments[0].drag_linear: expected a number >= 0 and <= 10000 (N s/m^2), found -1.0"),
+    "drag_quadratic over the bound": (lambda d: d["segments"][1].update(drag_quadratic=1e6),
+                                      "segments[1].drag_quadratic: expected a number >= 0 and <= 100000 (kg/m^2), "
+                                      "found 1000000.0"),
+    "drag_linear nan": (lambda d: d["segments"][0].update(drag_linear=math.nan),
+                        "segments[0].drag_linear: expected a finite number >= 0 and <= 10000 (N s/m^2), found nan"),
+    "drag in paper coordinates": (lambda d: d["segments"][0].update(coords="paper", drag_quadratic=2.0),
+                                  'segments[0].drag_quadratic: expected drag_quadratic only with coords = "curvature" '
+                                  "(it is given and applied in curvature coordinates), found drag_quadratic = 2.0 "
+                                  "with coords = 'paper'"),
+    "matrix not symmetric": (lambda d: d["segments"][0].update(damping_matrix=[[1.0, 0.1, 0.0], [0.0, 1.0, 0.0],
+                                                                               [0.0, 0.0, 1.0]]),
+                             "segments[0].damping_matrix: expected a symmetric matrix (entry [0][1] equal to [1][0] "
+                             "within 1e-12 of its largest entry), found [0][1] = 0.1, [1][0] = 0.0"),
+    "matrix not positive semi-definite": (
+        lambda d: d["segments"][0].update(damping_matrix=[[1.0, 2.0, 0.0], [2.0, 1.0, 0.0], [0.0, 0.0, 1.0]]),
+        "segments[0].damping_matrix: expected a positive semi-definite matrix (it dissipates: every eigenvalue >= 0 "
+        "within 1e-12 of its largest entry), found ((1, 2, 0), (2, 1, 0), (0, 0, 1)), with an eigenvalue -1"),
+    "matrix entry nan": (lambda d: d["segments"][1].update(damping_matrix=[[1.0, 0.0, 0.0], [0.0, math.nan, 0.0],
+                                                                           [0.0, 0.0, 1.0]]),
+                         "segments[1].damping_matrix[1][1]: expected a finite number, found a float nan"),
+    "matrix entry over the bound": (lambda d: d["segments"][0].update(damping_matrix=[[1e16, 0.0, 0.0],
+                                                                                      [0.0, 1.0, 0.0],
+                                                                                      [0.0, 0.0, 1.0]]),
+                                    "segments[0].damping_matrix[0][0]: expected a number >= -1e+15 and <= 1e+15 "
+                                    "(N s/m, N s, N s m), found 1e+16"),
+    "matrix of two rows": (lambda d: d["segments"][0].update(damping_matrix=EYE[:2]),
+                           "segments[0].damping_matrix: expected 3 arrays of 3 numbers, one a row (N s/m, N s, N s m), "
+                           "found an array [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]"),
+    "matrix and damping": (lambda d: d["segments"][0].update(damping=0.01, damping_matrix=EYE),
+                           "segments[0].damping: expected 0 with damping_matrix (the matrix replaces beta K(q0)), "
+                           "found 0.01"),
+    "matrix in paper coordinates": (lambda d: d["segments"][0].update(coords="paper", damping_matrix=EYE),
+                                    'segments[0].damping_matrix: expected damping_matrix only with coords = '
+                                    '"curvature" (it is given and applied in curvature coordinates), found '
+                                    "damping_matrix = ((1, 0, 0), (0, 1, 0), (0, 0, 1)) with coords = 'paper'"),
+}
+
+
+@pytest.mark.parametrize("case", list(DAMPING_ERRORS), ids=list(DAMPING_ERRORS))
+def test_drag_and_damping_matrix_values_are_refused_naming_key_value_and_bound(case):
+    mutate, message = DAMPING_ERRORS[case]
+    err = problems(_damping_scene(mutate))
+    assert len(err.problems) == 1, str(err)  # one problem, not a cascade
+    assert message in str(err.problems[0]), str(err)
+
+
+def test_valid_drag_and_damping_matrix_reach_the_segments():
+    """The keys reach qchain.Segment: the matrix (read as rows) is the segment's D, the drag
+    coefficients its c_1, c_2; a segment without them keeps beta K(q0) and no drag."""
+    D = [[5.0, 0.02, 0.0], [0.02, 1e-3, 0.0], [0.0, 0.0, 2e-3]]
+    scene = parse_scene(_damping_scene(lambda d: d["segments"][0].update(damping_matrix=D, drag_linear=0.5,
+                                                                          drag_quadratic=24.0)))
+    seg0, seg1 = (s.segment() for s in scene.segments)
+    np.testing.assert_array_equal(seg0.dissipation_matrix(seg0.neutral()), D)
+    assert (seg0.drag_linear, seg0.drag_quadratic) == (0.5, 24.0)
+    assert seg1.damping_matrix is None and (seg1.drag_linear, seg1.drag_quadratic) == (0.0, 0.0)

@@ -15,7 +15,7 @@ import numpy as np
 from .convert import as_real, describe_value
 
 __all__ = ["Range", "LENGTH", "RADIUS", "MASS", "CHAMBER_AREA", "CHAMBER_RADIUS", "YOUNGS_MODULUS", "DAMPING", "DRAG_LINEAR",
-           "DRAG_QUADRATIC", "NODES", "TENDON_RADIUS", "TENDON_PITCH", "TENSION",
+           "DRAG_QUADRATIC", "DAMPING_MATRIX", "NODES", "TENDON_RADIUS", "TENDON_PITCH", "TENSION",
            "GRAVITY", "POSITION", "ANGLE", "PSI", "VELOCITY", "ANGULAR_VELOCITY", "RATE", "DIRECTION", "AMPLITUDE",
            "FREQUENCY", "PRESSURE", "PRESSURE_AMPLITUDE", "TIME", "DURATION", "STEP", "RTOL", "ATOL", "SAMPLE_RATE",
            "NODE_TOLERANCE", "MAX_BEND", "LENGTH_TOLERANCE", "WALL_LIMIT", "VACUUM_GAUGE", "SEGMENT_COUNT", "WORKERS", "RETRIES",
@@ -147,6 +147,10 @@ DAMPING = Range(0.0, 1e2, "s")  #: beta of D = beta K(q0)
 DRAG_LINEAR = Range(0.0, 1e4, "N s/m^2")
 #: c_2 of the same (``1/2 rho C_d 2 r_s`` in a fluid of density rho: water on a 4 cm arm about 24)
 DRAG_QUADRATIC = Range(0.0, 1e5, "kg/m^2")
+#: An entry of a segment's damping matrix ``D`` (curvature coordinates ``(l, ux, uy)``: N s/m on
+#: ``l``, N s m on ``ux``, ``uy``, N s between): a guard against absurd magnitudes whose
+#: products overflow, not a physical limit.
+DAMPING_MATRIX = Range(-1e15, 1e15, "N s/m, N s, N s m")
 NODES = Range(1, 100, integer=True)  #: Gauss-Legendre nodes along a segment (the node count converges by ~24)
 
 # -- a tendon (qchain.model.tendon; docs/tendons.md)

@@ -99,6 +99,18 @@ SEGMENT = KeyTable("segments[]", "One table a segment, base to tip: `[[segments]
           required=True),
     Field("youngs_modulus", "number", "Young's modulus `E`.", B.YOUNGS_MODULUS, required=True),
     Field("damping", "number", "Stiffness-proportional damping `beta` of `D = beta K(q0)`.", B.DAMPING, default="0"),
+    Field("damping_matrix", "matrix", "The damping matrix `D` itself, replacing `beta K(q0)` (`damping` must then be "
+          "0): constant, symmetric, positive semi-definite, one array a row, in the segment's curvature coordinates "
+          "`(l, ux, uy)` (N s/m on `l`, N s m on `ux`, `uy`, N s between; `qchain.Segment(damping_matrix=...)`, "
+          "docs/model.md section 9). Needs `coords = \"curvature\"`. Entries coupling `uy` to `l` or `ux` rule out "
+          "the planar reduction; entries coupling `l` to `ux`, `uy` rule out the automatic inextensible one.",
+          B.DAMPING_MATRIX, default="none: `beta K(q0)`", size=3),
+    Field("drag_linear", "number", "`c_1` of the drag of a still medium on the backbone, a force per unit length "
+          "`f(s) = -(c_1 + c_2 |v(s)|) v(s)` against each backbone point's world velocity (`qchain.Segment`, "
+          "docs/model.md section 9). Needs `coords = \"curvature\"`; rules out the automatic inextensible "
+          "reduction (the drag loads the axial mode, which the estimate does not cover).", B.DRAG_LINEAR, default="0"),
+    Field("drag_quadratic", "number", "`c_2` of the same drag (`1/2 rho C_d 2 r_s` in a fluid of density `rho`).",
+          B.DRAG_QUADRATIC, default="0"),
     Field("coords", "choice", "Deformation coordinates: `(l, ux, uy)` or the paper's `(l, psi, kappa)`.",
           choices=("curvature", "paper"), default='"curvature"'),
     Field("actuation", "choice", "Input matrix: chamber-volume work or the paper's tip-plate forces.",

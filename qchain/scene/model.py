@@ -118,6 +118,10 @@ class ModelBuilder(StretchEstimate):
         locked = [j for j, s in enumerate(self.segments) if not s.extensible]
         if locked:
             reductions.append(f"{_ranges(locked)}: l locked at l0 (extensible = false): axial mode dropped")
+            coupled = [j for j in locked if self.segments[j].axial_damping_coupling]
+            if coupled:  # the file's choice, said: with l' = 0 the coupling entries act on nothing
+                reductions.append(f"{_ranges(coupled)}: damping_matrix's entries coupling l to ux, uy dropped with "
+                                  "the axial mode (extensible = false)")
         if self.base.type == "fixed":
             reductions.append("fixed base: no base coordinates")
         planar = False
@@ -217,6 +221,9 @@ class ModelBuilder(StretchEstimate):
             return f"{_ranges(paper)} in paper coordinates (uy is not one of their coordinates)"
         if self.tendons:
             return "tendons: the planar model is not tried with tendons"
+        coupled = [j for j, s in enumerate(self.segments) if s.uy_damping_coupling]
+        if coupled:  # uy's damping force would follow l' or ux': uy = 0 is then not a solution
+            return f"{_ranges(coupled)}: damping_matrix couples uy to l or ux"
         R0 = self.base.placement.rotation
         g_B = R0.T @ self.gravity
         if abs(g_B[1]) > 1e-12 * max(1.0, float(np.linalg.norm(self.gravity))):
@@ -267,8 +274,17 @@ class ModelBuilder(StretchEstimate):
         nodes = [s.nodes if s.nodes is not None else
                  nodes_for_tolerance(s.segment(nodes=DEFAULT_NODES), float(theta[j]), self.node_tolerance)
                  for j, s in enumerate(self.segments)]
+        # the sizing measures M_xi alone; the drag is integrated on the same nodes (|v| has a kink
+        # where v vanishes inside a segment): a segment with drag is not cut below the default
+        drag = [j for j, s in enumerate(self.segments) if s.nodes is None and (s.drag_linear or s.drag_quadratic)]
+        raised = [j for j in drag if nodes[j] < DEFAULT_NODES]
+        for j in raised:
+            nodes[j] = DEFAULT_NODES
         fixed = [j for j, s in enumerate(self.segments) if s.nodes is not None]
         extra = f"; {_ranges(fixed)} keep their own nodes" if fixed else ""
+        if raised:
+            extra += (f"; {_ranges(raised)} keep {DEFAULT_NODES} (the default): their drag is integrated on the nodes "
+                      "and not part of the sizing")
         bend = _fmt(theta[0]) if np.all(theta == theta[0]) else ", ".join(_fmt(x) for x in theta)
         note = (f"nodes: {_list_or_one(nodes)} from node_tolerance = {self.node_tolerance:g} at max bend {bend} rad "
                 f"({how}){extra}")

@@ -27,15 +27,32 @@ class SegmentSpec:
     chamber_radius: float
     youngs_modulus: float
     damping: float = 0.0
+    damping_matrix: tuple | None = None  # (3, 3) as rows, hashable; None: beta K(q0)
+    drag_linear: float = 0.0
+    drag_quadratic: float = 0.0
     coords: str = "curvature"
     actuation: str = "volume"
     extensible: bool = True
     nodes: int | None = None
     source: str = ""
 
+    @property
+    def axial_damping_coupling(self) -> bool:
+        """Whether ``damping_matrix`` couples ``l`` to ``ux`` or ``uy`` (its entries (0, 1), (0, 2))."""
+        D = self.damping_matrix
+        return D is not None and (D[0][1] != 0.0 or D[0][2] != 0.0)
+
+    @property
+    def uy_damping_coupling(self) -> bool:
+        """Whether ``damping_matrix`` couples ``uy`` to ``l`` or ``ux`` (its entries (2, 0), (2, 1))."""
+        D = self.damping_matrix
+        return D is not None and (D[2][0] != 0.0 or D[2][1] != 0.0)
+
     def segment(self, nodes: int | None = None) -> Segment:
         """The :class:`qchain.Segment` with ``nodes`` Gauss nodes (default: the spec's own)."""
         kw = {f.name: getattr(self, f.name) for f in fields(self) if f.name != "source"}  # Segment's own names
+        if self.damping_matrix is not None:
+            kw["damping_matrix"] = np.array(self.damping_matrix, dtype=float)
         return Segment(**{**kw, "nodes": self.nodes if nodes is None else nodes})
 
 

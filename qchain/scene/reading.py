@@ -24,7 +24,7 @@ from ..checks.paths import file_kind
 from ..sim.inputs import Constant, Ramp, Schedule, Sine, Step, Table
 from .format import _MISSING, PLOTS, Problem, SceneError, _as_float, _Checker, _is_number, _show, _type_name
 from .cost import _cost, _frequency
-from ..checks.text import show_vector
+from ..checks.text import show_matrix, show_vector
 from .parts import BaseSpec, SegmentSpec, SineMotion
 from .payload import read_payload
 from ..model.tendon import Tendon
@@ -271,8 +271,11 @@ def _segments(ck: _Checker, raw: dict, budget: Budget) -> list[SegmentSpec] | No
             return None
         vals = {k: ck.field(s, T[k], f"{path}.{k}", default) for k, default in (
             ("length", None), ("radius", None), ("mass", None), ("chamber_area", None), ("chamber_radius", None),
-            ("youngs_modulus", None), ("damping", 0.0), ("coords", "curvature"), ("actuation", "volume"),
-            ("extensible", True), ("nodes", None))}
+            ("youngs_modulus", None), ("damping", 0.0), ("damping_matrix", None), ("drag_linear", 0.0),
+            ("drag_quadratic", 0.0), ("coords", "curvature"), ("actuation", "volume"), ("extensible", True),
+            ("nodes", None))}
+        if len(ck.problems) == start:
+            _damping_law(ck, vals, path)
         if len(ck.problems) == start:  # the values are good one by one: now together
             r, rc, A = vals["radius"], vals["chamber_radius"], vals["chamber_area"]
             outer = rc + math.sqrt(A / math.pi)
@@ -292,6 +295,36 @@ def _segments(ck: _Checker, raw: dict, budget: Budget) -> list[SegmentSpec] | No
         out += [replace(spec, source=path if count == 1 else f"{path} (copy {c + 1} of {count})")
                 for c in range(count or 1)]
     return out if ok else None
+
+
+def _damping_law(ck: _Checker, vals: dict, path: str) -> None:
+    """Check a segment's ``damping_matrix`` (symmetric, positive semi-definite, alone, in
+    curvature coordinates) and drag (curvature coordinates), each by key, value and bound;
+    ``vals["damping_matrix"]`` becomes its rows as a tuple of tuples (hashable)."""
+    D = vals["damping_matrix"]
+    if D is not None:
+        key = f"{path}.damping_matrix"
+        scale = max(1.0, float(np.abs(D).max()))
+        asym = np.argwhere(np.abs(D - D.T) > 1e-12 * scale)
+        if asym.size:
+            i, j = (int(x) for x in asym[0])
+            ck.add(key, f"a symmetric matrix (entry [{i}][{j}] equal to [{j}][{i}] within 1e-12 of its largest "
+                   f"entry)", f"[{i}][{j}] = {float(D[i, j])!r}, [{j}][{i}] = {float(D[j, i])!r}")
+        else:
+            low = float(np.linalg.eigvalsh(0.5 * (D + D.T)).min())
+            if low < -1e-12 * scale:
+                ck.add(key, "a positive semi-definite matrix (it dissipates: every eigenvalue >= 0 within 1e-12 "
+                       "of its largest entry)", f"{show_matrix(D)}, with an eigenvalue {low:.6g}")
+        if vals["damping"] != 0.0:
+            ck.add(f"{path}.damping", "0 with damping_matrix (the matrix replaces beta K(q0))",
+                   f"{vals['damping']!r}")
+        vals["damping_matrix"] = tuple(tuple(float(x) for x in row) for row in D)
+    if vals["coords"] != "curvature":
+        for name in ("damping_matrix", "drag_linear", "drag_quadratic"):
+            if vals[name] not in (None, 0.0):
+                shown = show_matrix(np.array(vals[name])) if name == "damping_matrix" else f"{vals[name]!r}"
+                ck.add(f"{path}.{name}", f'{name} only with coords = "curvature" (it is given and applied in '
+                       f'curvature coordinates)', f"{name} = {shown} with coords = {vals['coords']!r}")
 
 
 def _base(ck: _Checker, raw: dict) -> BaseSpec | None:

@@ -18,13 +18,17 @@ Model reduction
 own setting); ``SceneModel.kept`` says which reductions did not apply and why not.
 
 * ``extensible = false`` (the file's choice, applied with or without ``reduce``): ``l`` is
-  held at ``l0`` and the axial mode, the stiffest, is dropped.
+  held at ``l0`` and the axial mode, the stiffest, is dropped (with it the entries of a
+  ``damping_matrix`` coupling ``l`` to the bends, which ``SceneModel.reductions`` then says).
 * inextensible (automatic, :mod:`qchain.scene.stretch`): ``l`` is held at ``l0`` in every
   segment when the estimated tip change of doing so is within ``model.length_tolerance``
   (m, default 1e-4). Not tried when the pressures actuate elongation (the mean chamber
   pressure of a segment changes during the run: the axial mode is then the motion), when
-  they come from a controller, with obstacles (impacts load the axial mode), when a
-  segment starts with ``l != l0`` or a length rate, or when the slowest axial mode lies
+  they come from a controller, with obstacles (impacts load the axial mode), with the
+  drag of a medium (``drag_linear``, ``drag_quadratic``: it loads the axial mode of a moving
+  arm) or a ``damping_matrix`` coupling ``l`` to ``ux``, ``uy`` (a bending rate then loads
+  ``l``; neither is in the static estimate), when a segment starts with ``l != l0`` or a
+  length rate, or when the slowest axial mode lies
   within ``AXIAL_SEPARATION`` (3) times the fastest sine input. The estimate is
   ``shape + drift``: ``shape`` is ``STRETCH_MARGIN`` (2, a suddenly applied load's
   overshoot) times the largest tip distance between the extensible and the locked static
@@ -41,7 +45,8 @@ own setting); ``SceneModel.kept`` says which reductions did not apply and why no
   runs of the cantilever.
 * planar (automatic): ``uy`` is held at 0 in every segment when the scene is symmetric
   about the base's x-z plane, where the reduction is exact: every segment in curvature
-  coordinates; gravity in that plane (expressed in the base frame at the start); chambers
+  coordinates, its ``damping_matrix`` (if any) not coupling ``uy`` to ``l`` or ``ux`` (the
+  isotropic drag is symmetric); gravity in that plane (expressed in the base frame at the start); chambers
   2 and 3 of every segment given the same pressure at all times (equal schedule
   parameters); ``uy = 0`` and ``uy' = 0`` at the start; a base motion in that plane (a
   translation along an axis with no y component, a rotation about the y axis; a floating
@@ -66,7 +71,9 @@ own setting); ``SceneModel.kept`` says which reductions did not apply and why no
   motion) can bend more: give ``max_bend`` there. ``qchain run`` prints the bends a run
   reached beside the one the nodes were sized for, and warns when a run went further.
   Without ``node_tolerance`` the segments keep ``nodes`` or
-  :data:`qchain.model.segment.DEFAULT_NODES`.
+  :data:`qchain.model.segment.DEFAULT_NODES`. A segment with drag is not sized below
+  ``DEFAULT_NODES``: the drag is integrated on the same nodes, and the sizing measures
+  ``M_xi`` alone.
 
 ``model.reduce = false`` (or ``Scene.build(reduce=False)``) turns the automatic reductions
 off: same layout, all coordinates free (but those of ``extensible = false`` segments), the

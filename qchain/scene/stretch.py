@@ -99,6 +99,12 @@ class StretchEstimate:
             return f"{_ranges(bad)}: initial l differs from l0 or its rate is not 0"
         if self.tendons:
             return "tendons: their tensions shorten the arm (not estimated)"
+        coupled = [j for j in free if self.segments[j].axial_damping_coupling]
+        if coupled:  # a bending rate would load l: a dynamic stretch the static estimate cannot see
+            return f"{_ranges(coupled)}: damping_matrix couples l to ux or uy (not estimated)"
+        drag = [j for j, s in enumerate(self.segments) if s.drag_linear or s.drag_quadratic]  # loads every parent
+        if drag:
+            return f"{_ranges(drag)}: the medium's drag loads the axial mode (not estimated)"
         env = self.surroundings.environment
         if env is not None and env.obstacles:
             return "obstacles: contact impacts load the axial mode (not estimated)"
