@@ -575,7 +575,7 @@ DAMPING_ERRORS = {
     "matrix not symmetric": (lambda d: d["segments"][0].update(damping_matrix=[[1.0, 0.1, 0.0], [0.0, 1.0, 0.0],
                                                                                [0.0, 0.0, 1.0]]),
                              "segments[0].damping_matrix: expected a symmetric matrix (entry [0][1] equal to [1][0] "
-                             "within 1e-12 of its largest entry), found [0][1] = 0.1, [1][0] = 0.0"),
+                             "within 1e-12 relative), found [0][1] = 0.1, [1][0] = 0.0"),
     "matrix not positive semi-definite": (
         lambda d: d["segments"][0].update(damping_matrix=[[1.0, 2.0, 0.0], [2.0, 1.0, 0.0], [0.0, 0.0, 1.0]]),
         "segments[0].damping_matrix: expected a positive semi-definite matrix (it dissipates: every eigenvalue >= 0 "

@@ -305,11 +305,10 @@ def _damping_law(ck: _Checker, vals: dict, path: str) -> None:
     if D is not None:
         key = f"{path}.damping_matrix"
         scale = max(1.0, float(np.abs(D).max()))
-        asym = np.argwhere(np.abs(D - D.T) > 1e-12 * scale)
+        asym = np.argwhere(~np.isclose(D, D.T, rtol=1e-12, atol=0.0))  # qchain.Segment's test
         if asym.size:
             i, j = (int(x) for x in asym[0])
-            ck.add(key, f"a symmetric matrix (entry [{i}][{j}] equal to [{j}][{i}] within 1e-12 of its largest "
-                   f"entry)", f"[{i}][{j}] = {float(D[i, j])!r}, [{j}][{i}] = {float(D[j, i])!r}")
+            ck.add(key, f"a symmetric matrix (entry [{i}][{j}] equal to [{j}][{i}] within 1e-12 relative)", f"[{i}][{j}] = {float(D[i, j])!r}, [{j}][{i}] = {float(D[j, i])!r}")
         else:
             low = float(np.linalg.eigvalsh(0.5 * (D + D.T)).min())
             if low < -1e-12 * scale:
