@@ -20,7 +20,8 @@ duration, q_home) -> Controller``, so another controller is one more line):
   ``examples/tip_control.py``'s gains;
 - ``MPC``: :class:`qchain.control.MPC`, box-constrained iLQR on the model's exact derivatives
   over ``MPC_HORIZON`` (10) intervals of 20 ms (0.2 s ahead), one warm-started iteration a
-  sample at ``MPC_RATE`` (50 Hz), the circle itself as its target path.
+  sample at ``MPC_RATE`` (50 Hz), pressure weight ``MPC_R`` (1e-10 1/Pa^2), the circle itself
+  as its target path.
 
 The configuration controllers get the same bandwidth ``BANDWIDTH`` (5 Hz, ten times the
 circle's) on every free coordinate ``i``: ``Kp_i = m_i w^2``, ``Kd_i = 2 m_i w`` (PD) and
@@ -71,6 +72,10 @@ DURATION = 4.0  # s: two turns
 RATE = 500.0  # Hz, every controller but MPC
 MPC_RATE = 50.0  # Hz: a plan every 20 ms (docs/control.md: the solve times against the horizon)
 MPC_HORIZON = 10  # control intervals: 0.2 s ahead
+#: 1/Pa^2, MPC's pressure weight: MPC's default (1e-12) lets the one-iteration plans jump between
+#: 0 and p_max from one sample to the next on this circle (1.70 mm RMS); 1e-11 still chatters
+#: (0.71 mm), 1e-10 plans smooth pressures (docs/control.md)
+MPC_R = 1e-10
 P_MAX = 1.0e5  # Pa
 BANDWIDTH = 5.0  # Hz, the configuration controllers' (ten times the circle's frequency)
 OUTPUT_RATE = 200.0  # Hz, the samples the tip error is measured at
@@ -107,7 +112,7 @@ def tip_pd(chain, path, duration, q_home):
 
 def mpc(chain, path, duration, q_home):
     # one iteration a sample, warm-started: the real-time setting of docs/control.md's table
-    return MPC(chain, path, horizon=MPC_HORIZON, max_iter=1, rate=MPC_RATE, p_max=P_MAX)
+    return MPC(chain, path, horizon=MPC_HORIZON, max_iter=1, R=MPC_R, rate=MPC_RATE, p_max=P_MAX)
 
 
 #: ``(name, factory)``; ``factory(chain, path, duration, q_home) -> qchain.control.Controller``,
