@@ -376,3 +376,23 @@ def test_a_tendon_scene_runs_records_and_plots_its_tensions(tmp_path, capsys):
     assert rec.damage == [] and rec.info.params["tendons"][0]["end"] == 1
     np.testing.assert_array_equal(rec.tension, data["tension"])
     np.testing.assert_array_equal(rec.q, data["q"])
+
+
+def test_a_recording_keeps_each_segments_damping_law(tmp_path, capsys):
+    """`qchain run` of a scene with the medium's drag and a damping matrix: the recording's
+    parameters give each segment's law as the scene set it (read back from the MCAP)."""
+    from pathlib import Path
+
+    text = (Path(__file__).parent.parent / "examples" / "scenes" / "tip_control.toml").read_text()
+    text = text.replace("damping = 0.02\n", "damping_matrix = [[1e-4, 0.0, 0.0], [0.0, 2e-5, 0.0], [0.0, 0.0, 2e-5]]\n"
+                        "drag_linear = 0.5\ndrag_quadratic = 2.0\n")
+    scene = tmp_path / "dragged.toml"
+    scene.write_text(text)
+    mcap = tmp_path / "run.mcap"
+    assert main(["run", str(scene), "--duration", "0.02", "--mcap", str(mcap), "--no-plots", "--no-progress"]) == 0, \
+        capsys.readouterr().err
+    segs = read_recording(mcap).info.params["segments"]
+    assert len(segs) == 3
+    for s in segs:
+        assert s["drag_linear"] == 0.5 and s["drag_quadratic"] == 2.0 and s["damping"] == 0.0
+        assert s["damping_matrix"] == [[1e-4, 0.0, 0.0], [0.0, 2e-5, 0.0], [0.0, 0.0, 2e-5]]

@@ -406,7 +406,8 @@ def _make_logger(args, scene: Scene, model: SceneModel, duration: float | None =
             "reductions": model.reductions,
             "method": scene.method,
             "segments": [{k: getattr(s, k) for k in ("length", "radius", "mass", "chamber_area", "chamber_radius",
-                                                       "youngs_modulus", "damping", "coords", "actuation")}
+                                                       "youngs_modulus", "damping", "damping_matrix", "drag_linear",
+                                                       "drag_quadratic", "coords", "actuation")}
                          for s in ch.segments],
             **({"tendons": [{"radius": td.radius, "angle": td.angle, "pitch": td.pitch, "end": td.end}
                             for td in ch.tendons]} if ch.nt else {}),
