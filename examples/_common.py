@@ -22,13 +22,15 @@ from qchain import Scene, load_scene  # noqa: E402
 SCENES = Path(__file__).resolve().parent / "scenes"
 
 
-def parser(doc: str, name: str, scene_flag: bool = True) -> argparse.ArgumentParser:
+def parser(doc: str, name: str, scene_flag: bool = True, scene: str | None = None) -> argparse.ArgumentParser:
     """The shared flags; ``doc`` is the example's module docstring; ``scene_flag``: whether
-    the example runs a scene file (``--scene``, default ``scenes/<name>.toml``)."""
+    the example runs a scene file (``--scene``, default ``scenes/<scene>.toml``, ``scene``
+    defaulting to ``name``: examples that drive the same arm share its file)."""
     p = argparse.ArgumentParser(description=doc.strip().splitlines()[0], prog=f"{name}.py")
     if scene_flag:
-        p.add_argument("--scene", type=Path, default=SCENES / f"{name}.toml", metavar="FILE",
-                       help=f"scene file (default: examples/scenes/{name}.toml)")
+        scene = scene or name
+        p.add_argument("--scene", type=Path, default=SCENES / f"{scene}.toml", metavar="FILE",
+                       help=f"scene file (default: examples/scenes/{scene}.toml)")
     p.add_argument("--duration", type=float, default=None, metavar="S",
                    help="simulated time (s); default the scene's")
     p.add_argument("--out", type=Path, default=Path("out") / name, metavar="DIR", help="output folder")

@@ -57,10 +57,7 @@ def contact_force(chain, traj, env) -> np.ndarray:
 
 
 def main(argv=None) -> dict:
-    par = _common.parser(__doc__, "reach_obstacle", scene_flag=False)
-    par.add_argument("--scene", type=_common.Path, default=_common.SCENES / "tip_control.toml", metavar="FILE",
-                     help="scene file of the arm (default: examples/scenes/tip_control.toml)")
-    args = par.parse_args(argv)
+    args = _common.parser(__doc__, "reach_obstacle", scene="tip_control").parse_args(argv)
     sc = _common.scene("tip_control", args)
     model = sc.build(controlled=True)
     ch = model.chain

@@ -163,16 +163,13 @@ def key(name: str, case: str) -> str:
 def rms_tip_error(chain, traj, circle) -> tuple[float, np.ndarray, np.ndarray]:
     """``(rms, tip, x_d)``: the RMS over the samples of ``|tip - x_d|`` (m), the tip (K, 3) by
     forward kinematics of ``chain`` and the circle's point (K, 3) at the samples' times."""
-    tip = np.array([chain.tip_placement(q).translation for q in traj.q])
+    tip = _common.tips(chain, traj)
     x_d = circle.point(traj.t)
     return float(np.sqrt(np.mean(np.sum((tip - x_d) ** 2, axis=1)))), tip, x_d
 
 
 def main(argv=None) -> dict:
-    par = _common.parser(__doc__, "track_circle", scene_flag=False)
-    par.add_argument("--scene", type=_common.Path, default=_common.SCENES / "tip_control.toml", metavar="FILE",
-                     help="scene file of the arm (default: examples/scenes/tip_control.toml)")
-    args = par.parse_args(argv)
+    args = _common.parser(__doc__, "track_circle", scene="tip_control").parse_args(argv)
     sc = _common.scene("tip_control", args)
     model = sc.build(controlled=True)
     ch = model.chain
