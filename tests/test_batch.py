@@ -130,6 +130,8 @@ def test_bad_arguments_are_named_where_they_enter(arm):
     bad[1, 1] = 1.0 / 0.015  # |kappa| r_s = 1
     with pytest.raises(ValueError, match=r"rollout 1: q0\[1\], v0\[1\]:.*segment 0"):
         simulate_batch(arm, bad, v0, T, **kw)
+    with pytest.raises(ValueError, match=r"every rollout: q0, v0:.*segment 0"):  # one start for all, checked once
+        simulate_batch(arm, bad[1], v0[0], T, pressure=P, **kw)
     with pytest.raises(ValueError, match=r"pressure\[1\] schedule gives 3 values, the model needs 6"):
         simulate_batch(arm, q0, v0, T, pressure=[P[0], Sine(np.ones(3), 1.0), P[2]], **kw)
     with pytest.raises(ValueError, match=r"pressure as an array of constants must have shape \(B, 6\)"):

@@ -202,3 +202,28 @@ def test_integers_too_large_for_a_float_are_a_value_error_naming_the_argument(va
 
     with pytest.raises(ValueError, match=r"^q_e must hold real numbers representable as floats \(\|x\| <= 1.8e308\), got "):
         as_real_array("q_e", value)
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.lists(st.tuples(st.floats(-3e5, 3e5), st.sampled_from([0.0, 0.5, 2.0]), st.floats(-7.0, 7.0),
+                          st.floats(-2e5, 2e5)), min_size=1, max_size=6))
+def test_a_sines_extent_bounds_its_values_and_is_reached(entries):
+    """Sine.extent (used to check a schedule's range once, before a run): every value lies
+    inside it, on the fast path (every entry swinging) and the general one (some frequency 0),
+    and each bound is reached to round-off; the range check agrees with the values."""
+    a, f, ph, off = (np.array(x) for x in zip(*entries))
+    s = Sine(amplitude=a, frequency=f, phase=ph, offset=off)
+    lo, hi = s.extent()
+    t, dt = np.linspace(0.0, 2.0, 4001, retstep=True)  # a period of the slowest live entry (0.5 Hz)
+    vals = np.array([s(x) for x in t])
+    scale = 1.0 + np.abs(a) + np.abs(off)
+    assert np.all(vals >= lo - 1e-9 * scale) and np.all(vals <= hi + 1e-9 * scale)
+    # the grid passes each extreme within half a step: |a| (1 - cos(pi f dt)) <= |a| (pi f dt)^2 / 2 below it
+    miss = np.abs(a) * (np.pi * f * dt) ** 2 / 2 + 1e-9 * scale
+    assert np.all(vals.min(axis=0) <= lo + miss) and np.all(vals.max(axis=0) >= hi - miss)
+    inside = bool(np.all(lo >= B.PRESSURE.low) and np.all(hi <= B.PRESSURE.high))
+    if inside:
+        as_input("pressure", s, a.size)
+    else:
+        with pytest.raises(ValueError, match=r"pressure\[\d+\] must stay"):
+            as_input("pressure", s, a.size)

@@ -415,6 +415,12 @@ def _check_starts(chain: Chain, Q0: np.ndarray, V0: np.ndarray, B: int, t0: floa
     checked starts ``(B, nq)``, ``(B, nv)`` (their energies are checked by the rollouts:
     :meth:`qchain.sim.simulation.Runs.starts_finite`)."""
     Q, V = np.empty((B, chain.nq)), np.empty((B, chain.nv))
+    if Q0.ndim == 1 and V0.ndim == 1:  # one start for all: checked once
+        try:
+            Q[:], V[:] = _check_start(chain, Q0, V0, t0, ("q0", "v0"), energies=False)
+        except (QchainError, ValueError) as err:
+            raise ValueError(f"every rollout: q0, v0: {err}") from err
+        return Q, V
     for i in range(B):
         try:
             Q[i], V[i] = _check_start(chain, _row(Q0, i), _row(V0, i), t0, (f"q0[{i}]", f"v0[{i}]"), energies=False)

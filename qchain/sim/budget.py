@@ -14,6 +14,7 @@ import numpy as np
 
 from ..checks.bounds import Range
 from ..errors import BudgetError
+from .inputs import Sine
 
 __all__ = ["Budget", "BudgetError", "Cost", "DEFAULT", "RANGES", "run_cost", "input_frequency"]
 
@@ -155,6 +156,9 @@ def input_frequency(*inputs) -> float:
     for u in inputs:
         freq = getattr(u, "frequency", None)
         if freq is None:
+            continue
+        if type(u) is Sine:  # frozen, its arrays checked finite and of one size: plain floats (a batch has one a rollout)
+            f = max(f, max((x for x, a in zip(freq.tolist(), u.amplitude.tolist()) if a != 0.0), default=0.0))
             continue
         try:
             a = np.asarray(freq, dtype=float)
