@@ -614,3 +614,38 @@ def test_a_batch_that_needs_python_between_steps_runs_in_the_python_loop(arm):
     assert b.meta["loop"] == "python" and b.success.all()
     b = simulate_batch(arm, q0, v0, (0.0, 0.02), pressure=np.full(arm.nu, 1e4), wall_limit=60.0, workers=1, **kw)
     assert b.meta["loop"] == "python" and b.success.all()
+
+
+def test_a_batch_of_tendon_tensions_equals_simulate_and_records_them():
+    """simulate_batch(tension=): each rollout's tensions (a constant, a sine, a table, or one
+    input for all) give what simulate gives bit for bit, serial and on threads, with the
+    samples' tensions in ``batch.tension``; a negative tension or a chain without tendons is
+    refused where it enters, naming the rollout."""
+    from qchain import Tendon
+    from qchain.sim.inputs import Table
+
+    ch = Chain([Segment(**SEG) for _ in range(2)], gravity=(0, 0, -9.81),
+               tendons=[Tendon(radius=0.012, angle=0.0, end=0), Tendon(radius=0.012, angle=2.0, pitch=0.5)])
+    B = 3
+    q0, v0, P = inputs(ch, B)
+    Tn = [np.array([2.0, 0.5]), Sine(amplitude=[1.0, 0.5], frequency=2.0, offset=[1.5, 1.0]),
+          Table([0.0, 0.1, 0.3], [[0.0, 0.0], [3.0, 1.0], [1.0, 2.0]])]
+    kw = dict(method="radau5", rtol=1e-5, atol=1e-7, t_eval=T_EVAL)
+    refs = [simulate(ch, q0[i], v0[i], T, pressure=P[i], tension=Tn[i], **kw) for i in range(B)]
+    for workers in (1, 2):
+        b = simulate_batch(ch, q0, v0, T, pressure=P, tension=Tn, workers=workers, **kw)
+        assert b.tension.shape == (B, T_EVAL.size, 2)
+        for i in range(B):
+            assert same(b[i], refs[i]) and np.array_equal(b[i].tension, refs[i].tension)
+            assert np.array_equal(b.tension[i], refs[i].tension)
+    assert np.allclose(b.tension[2, 2], [0.0 + 3.0 * T_EVAL[2] / 0.1, T_EVAL[2] / 0.1])  # the table at t = 0.04 s
+    shared = simulate_batch(ch, q0, v0, T, pressure=P, tension=Tn[1], workers=1, **kw)
+    assert same(shared[0], simulate(ch, q0[0], v0[0], T, pressure=P[0], tension=Tn[1], **kw))
+    slack = simulate_batch(ch, q0, v0, T, pressure=P, workers=1, **kw)  # no tension: compiled loops, tendons slack
+    assert slack.meta["loop"] == "compiled" and np.array_equal(slack.tension, np.zeros((B, T_EVAL.size, 2)))
+    with pytest.raises(ValueError, match=r"tension\[1\]\[0\] must be >= 0 and <= 1e\+09 N, got -0.5 N"):
+        simulate_batch(ch, q0, v0, T, pressure=P, tension=[Tn[0], np.array([-0.5, 1.0]), Tn[2]], workers=1, **kw)
+    with pytest.raises(ValueError, match="q0 has 3, v0 has 3, tension has 2 rollouts"):
+        simulate_batch(ch, q0, v0, T, tension=Tn[:2], workers=1, **kw)
+    with pytest.raises(ValueError, match="tension is given but the chain has no tendons"):
+        simulate_batch(two_segment_arm(), q0, v0, T, tension=Tn, workers=1, **kw)

@@ -44,6 +44,9 @@ class BatchTrajectory:
     q : (B, N, nq), v : (B, N, nv), p : (B, N, 3 n) Pa
         States and chamber pressures; after a rollout stopped early its entries are NaN
         (``nsamples`` says how many it has).
+    tension : (B, N, nt) N or None
+        The tendons' tensions at the samples (a chain with tendons, docs/tendons.md), NaN
+        likewise; None for a chain without tendons.
     kinetic_energy, potential_energy : (B, N) J
     success : (B,) bool
     status : (B,) int
@@ -80,6 +83,7 @@ class BatchTrajectory:
     nsamples: np.ndarray
     wall: np.ndarray
     meta: dict = field(default_factory=dict)
+    tension: np.ndarray | None = None
 
     def __len__(self) -> int:
         return int(self.q.shape[0])
@@ -94,7 +98,8 @@ class BatchTrajectory:
         tr = Trajectory(t=self.t[:K].copy(), q=self.q[i, :K].copy(), v=self.v[i, :K].copy(), p=self.p[i, :K].copy(),
                         kinetic_energy=self.kinetic_energy[i, :K].copy(),
                         potential_energy=self.potential_energy[i, :K].copy(), success=bool(self.success[i]),
-                        message=str(self.message[i]), nfev=int(self.nfev[i]), status=int(self.status[i]))
+                        message=str(self.message[i]), nfev=int(self.nfev[i]), status=int(self.status[i]),
+                        tension=None if self.tension is None else self.tension[i, :K].copy())
         tr.meta.update(self.meta["rollouts"][i])
         return tr
 
@@ -193,7 +198,7 @@ class _Shared:
     chain: Chain
     t_span: tuple[float, float]
     kw: dict  # simulate's keyword arguments shared by every rollout (inputs and events pickled)
-    each: dict  # "pressure", "tau": whether the items carry their own
+    each: dict  # "pressure", "tau", "tension": whether the items carry their own
     #: (B,) bool: the starts whose energies are finite (one compiled pass), or None (each checked by its rollout)
     starts_finite: np.ndarray | None = None
     #: the runs' shared part, made once (:func:`_runs_of`); never pickled: a worker process makes its own
@@ -203,7 +208,7 @@ class _Shared:
         return {**self.__dict__, "runs": None}
 
 
-_SETTINGS = ("pressure", "tau", "events", "method", "budget")  # kw's entries that are not check_settings'
+_SETTINGS = ("pressure", "tau", "tension", "events", "method", "budget")  # kw's entries that are not check_settings'
 
 
 def _runs_of(shared: _Shared) -> Runs:
@@ -217,16 +222,17 @@ def _runs_of(shared: _Shared) -> Runs:
 
 def _inputs(shared: _Shared, item) -> dict:
     """simulate's keyword arguments for one rollout, with fresh copies of its inputs."""
-    _, _, _, p, tau = item
+    _, _, _, p, tau, tension = item
     kw = dict(shared.kw)
     kw["pressure"] = _from_item(p if shared.each["pressure"] else kw["pressure"])
     kw["tau"] = _from_item(tau if shared.each["tau"] else kw["tau"])
+    kw["tension"] = _from_item(tension if shared.each["tension"] else kw["tension"])
     kw["events"] = _from_item(kw["events"])
     return kw
 
 
 def _rollouts(shared: _Shared, items: list) -> list:
-    """In a worker (or this process): run each ``(index, q0, v0, pressure, tau)``; returns
+    """In a worker (or this process): run each ``(index, q0, v0, pressure, tau, tension)``; returns
     ``(Trajectory, wall seconds)`` each."""
     runs = _runs_of(shared)  # simulate's checks of the shared settings were made by simulate_batch, once
     out = []
@@ -235,7 +241,7 @@ def _rollouts(shared: _Shared, items: list) -> list:
         kw = _inputs(shared, item)
         w0 = time.perf_counter()
         try:
-            tr = runs.run(q0, v0, pressure=kw["pressure"], tau=kw["tau"], events=kw["events"],
+            tr = runs.run(q0, v0, pressure=kw["pressure"], tau=kw["tau"], tension=kw["tension"], events=kw["events"],
                           start_finite=shared.starts_finite is not None and bool(shared.starts_finite[i]),
                           inputs_checked=True)  # by simulate_batch (_batched_input), every rollout's
         except Exception as err:
@@ -283,6 +289,7 @@ def simulate_batch(
     *,
     pressure=None,
     tau=None,
+    tension=None,
     method: str = DEFAULT_METHOD,
     dt: float | None = None,
     rtol: float = 1e-6,
@@ -314,6 +321,10 @@ def simulate_batch(
         constants, or a sequence of B inputs.
     tau : input or per-rollout inputs
         External generalised forces, in the same forms with size nv.
+    tension : input or per-rollout inputs
+        The tendons' tensions (N, each >= 0: docs/tendons.md), in the same forms with size
+        nt, for a chain with tendons (a batch with tensions runs each rollout as a run of
+        the compiled driver, on threads: :func:`qchain.simulate` with ``tension=``).
     method, dt, rtol, atol, events, max_step, first_step, energies, wall_limit, controller_rate, budget
         As :func:`qchain.simulate`, shared (a rollout's cost is checked here, before any runs).
     t_eval : (N,) s
@@ -347,14 +358,17 @@ def simulate_batch(
     V0 = _states("v0", v0, chain.nv)
     p_in = _batched_input("pressure", pressure, chain.nu)  # (shared, per_rollout)
     tau_in = _batched_input("tau", tau, chain.nv)
-    budget, B = _check_budget(chain, t0, t1, method, cfg, budget, Q0, V0, p_in, tau_in)
+    if tension is not None and not chain.nt:
+        raise ValueError("tension is given but the chain has no tendons (Chain(..., tendons=[...]))")
+    tn_in = _batched_input("tension", tension, chain.nt)
+    budget, B = _check_budget(chain, t0, t1, method, cfg, budget, Q0, V0, p_in, tau_in, tn_in)
     Q0, V0 = _check_starts(chain, Q0, V0, B, t0)
-    shared, items = _share(chain, (t0, t1), method, cfg, budget, Q0, V0, p_in, tau_in, B)
+    shared, items = _share(chain, (t0, t1), method, cfg, budget, Q0, V0, p_in, tau_in, tn_in, B)
     shared.starts_finite = _runs_of(shared).starts_finite(Q0, V0)
     w_start = time.perf_counter()
     sink = _Sink(chain, B, cfg["t_eval"], (t0, t1), cfg["dt"])
     name, n_workers, compile_s, loop = _run_all(shared, items, sink, workers=workers, client=client, retries=retries,
-                                          progress=progress, python_inputs=_calls_python(cfg, p_in, tau_in))
+                                          progress=progress, python_inputs=_calls_python(cfg, p_in, tau_in, tn_in))
     wall_s = time.perf_counter() - w_start
     return sink.result(dict(method=method, engine=name, workers=n_workers, wall_s=wall_s, compile_s=compile_s,
                             t_span=(t0, t1), loop=loop))
@@ -388,18 +402,19 @@ def _row(X: np.ndarray, i: int) -> np.ndarray:
 
 
 def _check_budget(chain: Chain, t0: float, t1: float, method: str, cfg: dict, budget, Q0: np.ndarray,
-                  V0: np.ndarray, p: tuple, tau: tuple) -> tuple[Budget, int]:
+                  V0: np.ndarray, p: tuple, tau: tuple, tension: tuple) -> tuple[Budget, int]:
     """Step 2 of :func:`simulate_batch`: a rollout's cost and the B rollouts' samples, held
     together, against the budget, and the batch size B the batched arguments agree on; returns
     ``(budget, B)``."""
     budget = as_budget(budget)
-    (p_shared, p_each), (tau_shared, tau_each) = p, tau
+    (p_shared, p_each), (tau_shared, tau_each), (tn_shared, tn_each) = p, tau, tension
     cost = run_cost_of(chain, t0, t1, method=method, dt=cfg["dt"], max_step=cfg["max_step"], t_eval=cfg["t_eval"],
-                       inputs=(p_shared, tau_shared, *(p_each or ()), *(tau_each or ())),
+                       inputs=(p_shared, tau_shared, tn_shared, *(p_each or ()), *(tau_each or ()), *(tn_each or ())),
                        controller_rate=cfg["controller_rate"])
     budget.check(cost)
     sizes = {name: len(x) for name, x in (("q0", Q0 if Q0.ndim == 2 else None), ("v0", V0 if V0.ndim == 2 else None),
-                                          ("pressure", p_each), ("tau", tau_each)) if x is not None}
+                                          ("pressure", p_each), ("tau", tau_each), ("tension", tn_each))
+             if x is not None}
     B = _batch_size(sizes)
     # the batch's results are held together: B rollouts' samples against the memory budget
     held = B * (cost.memory - cost.matrix_memory) + cost.matrix_memory
@@ -430,28 +445,33 @@ def _check_starts(chain: Chain, Q0: np.ndarray, V0: np.ndarray, B: int, t0: floa
 
 
 def _share(chain: Chain, t_span: tuple[float, float], method: str, cfg: dict, budget: Budget, Q0: np.ndarray,
-           V0: np.ndarray, p: tuple, tau: tuple, B: int) -> tuple[_Shared, list]:
+           V0: np.ndarray, p: tuple, tau: tuple, tension: tuple, B: int) -> tuple[_Shared, list]:
     """Step 3 of :func:`simulate_batch`: what every rollout shares (the chain, the span,
     simulate's keyword arguments, the shared inputs and the events pickled) and the B items
-    ``(index, q0 (nq,), v0 (nv,), pressure, tau)``, a rollout's own inputs pickled in it."""
-    (p_shared, p_each), (tau_shared, tau_each) = p, tau
+    ``(index, q0 (nq,), v0 (nv,), pressure, tau, tension)``, a rollout's own inputs pickled in it."""
+    (p_shared, p_each), (tau_shared, tau_each), (tn_shared, tn_each) = p, tau, tension
     kw = {k: x for k, x in cfg.items() if k not in ("progress", "events")}  # (a rollout shows no progress)
     kw.update(method=method, budget=budget, pressure=_as_item(p_shared, "pressure"), tau=_as_item(tau_shared, "tau"),
-              events=_as_item(cfg["events"], "events"))
+              tension=_as_item(tn_shared, "tension"), events=_as_item(cfg["events"], "events"))
     items = [(i, _row(Q0, i), _row(V0, i),
               None if p_each is None else _as_item(p_each[i], f"pressure[{i}]"),
-              None if tau_each is None else _as_item(tau_each[i], f"tau[{i}]")) for i in range(B)]
-    shared = _Shared(chain=chain, t_span=t_span, kw=kw, each={"pressure": p_each is not None, "tau": tau_each is not None})
+              None if tau_each is None else _as_item(tau_each[i], f"tau[{i}]"),
+              None if tn_each is None else _as_item(tn_each[i], f"tension[{i}]")) for i in range(B)]
+    shared = _Shared(chain=chain, t_span=t_span, kw=kw, each={"pressure": p_each is not None, "tau": tau_each is not None,
+                                                             "tension": tn_each is not None})
     return shared, items
 
 
-def _calls_python(cfg: dict, p: tuple, tau: tuple) -> bool:
-    """Whether a rollout calls Python at every step: events, or a controller not held at a
-    ``controller_rate`` (which runs on the Python steppers)."""
+def _calls_python(cfg: dict, p: tuple, tau: tuple, tension: tuple) -> bool:
+    """Whether a rollout calls Python at every step: events, a controller not held at a
+    ``controller_rate`` (which runs on the Python steppers), or a tension controller."""
     if cfg["events"]:
         return True
+    controller = lambda x: callable(x) and not isinstance(x, Schedule)  # noqa: E731
+    if any(controller(x) for x in (tension[0], *(tension[1] or ()))):
+        return True  # (never held: called at every stage)
     inputs = [x for shared, each in (p, tau) for x in (shared, *(each or ()))]
-    return cfg["controller_rate"] is None and any(callable(x) and not isinstance(x, Schedule) for x in inputs)
+    return cfg["controller_rate"] is None and any(controller(x) for x in inputs)
 
 
 def _run_all(shared: _Shared, items: list, sink: _Sink, *, workers, client, retries: int, progress: bool,
@@ -511,7 +531,7 @@ def _run_all(shared: _Shared, items: list, sink: _Sink, *, workers, client, retr
 def _together(shared: _Shared, items: list, sink: _Sink):
     """The batch as :class:`qchain.sim.engine.batched.Rollouts` (every rollout in compiled
     loops, writing into ``sink``'s arrays), or None where a rollout needs Python between its
-    steps or at its start: events, a controller, a wall-clock limit, a method that checks its
+    steps or at its start: events, a controller, tensions (each rollout then a run of the driver), a wall-clock limit, a method that checks its
     stability limit at each start (``dopri5``), an every-step grid (no ``t_eval``), a chain the
     compiled engine does not serve, a start whose energies must be checked in Python, or an
     input that is not a constant or a schedule of :data:`qchain.sim.inputs.BUILT_IN`."""
@@ -522,6 +542,7 @@ def _together(shared: _Shared, items: list, sink: _Sink):
     kw, chain = shared.kw, shared.chain
     runs = _runs_of(shared)
     if (kw["method"] not in ("rk4", "midpoint", "radau5") or runs.base is None or kw["events"]
+            or kw["tension"] is not None or shared.each["tension"]
             or kw["controller_rate"] is not None or kw["wall_limit"] is not None or kw["t_eval"] is None
             or shared.starts_finite is None or not shared.starts_finite.all()):
         return None
@@ -571,6 +592,7 @@ class _Sink:
             N = self.t.size
         self.n_t = 0  # samples of the longest rollout so far (the grid known up to there)
         self.q, self.v, self.p = (np.full((B, N, size), np.nan) for size in (chain.nq, chain.nv, chain.nu))
+        self.tension = np.full((B, N, chain.nt), np.nan) if chain.nt else None
         self.ke, self.pe, self.wall = np.full((B, N), np.nan), np.full((B, N), np.nan), np.full(B, np.nan)
         self.success, self.status, self.message = np.zeros(B, bool), np.full(B, -1, int), np.empty(B, object)
         self.nfev, self.nsteps, self.nsamples = np.zeros(B, int), np.zeros(B, int), np.zeros(B, int)
@@ -589,6 +611,8 @@ class _Sink:
                     self.t[self.n_t : K] = tr.t[self.n_t :]
                 self.n_t = K
         self.q[i, :K], self.v[i, :K], self.p[i, :K] = tr.q, tr.v, tr.p
+        if self.tension is not None:
+            self.tension[i, :K] = tr.tension
         self.ke[i, :K], self.pe[i, :K] = tr.kinetic_energy, tr.potential_energy
         self.success[i], self.status[i], self.message[i] = tr.success, tr.status, tr.message
         self.nfev[i], self.nsteps[i], self.nsamples[i], self.wall[i] = tr.nfev, tr.meta.get("nsteps", 0), K, wall
@@ -602,6 +626,8 @@ class _Sink:
             self.success[i], self.status[i], self.message[i] = e["status"] >= 0, e["status"], e["message"]
             self.nfev[i], self.nsteps[i], self.nsamples[i], self.wall[i] = e["nfev"], e["nsteps"], e["nsamples"], e["wall"]
             self.rollouts[i] = dict(e["meta"], worker=worker, thread=e["thread"])
+            if self.tension is not None:  # (compiled loops run no tensions: a chain's tendons slack, as simulate's)
+                self.tension[i, : e["nsamples"]] = 0.0
 
     def lost(self, i: int, r: Lost) -> None:
         """Rollout ``i`` not run: its workers died (``r``)."""
@@ -616,4 +642,5 @@ class _Sink:
         return BatchTrajectory(t=self.t[:N].copy(), q=cut(self.q), v=cut(self.v), p=cut(self.p),
                                kinetic_energy=cut(self.ke), potential_energy=cut(self.pe), success=self.success,
                                status=self.status, message=self.message, nfev=self.nfev, nsteps=self.nsteps,
-                               nsamples=self.nsamples, wall=self.wall, meta=meta)
+                               nsamples=self.nsamples, wall=self.wall, meta=meta,
+                               tension=None if self.tension is None else cut(self.tension))

@@ -400,8 +400,8 @@ class Runs:
                               np.ascontiguousarray(V, dtype=float), ke, pe)
         return np.isfinite(ke) & np.isfinite(pe)
 
-    def run(self, q0: np.ndarray, v0: np.ndarray, *, pressure=None, tau=None, events=(), start_finite: bool = False,
-            inputs_checked: bool = False) -> Trajectory:
+    def run(self, q0: np.ndarray, v0: np.ndarray, *, pressure=None, tau=None, tension=None, events=(),
+            start_finite: bool = False, inputs_checked: bool = False) -> Trajectory:
         """:func:`simulate` from ``(q0 (nq,), v0 (nv,))``, a start checked without its energies
         (:func:`_check_start` with ``energies=False``: float arrays), with these inputs and
         ``events`` (fresh: a run's inputs and events are its own). ``start_finite``: its
@@ -412,7 +412,8 @@ class Runs:
         tpl = self.template
         if not start_finite:
             _check_start(tpl.chain, q0, v0, tpl.t0)
-        run = dataclasses.replace(tpl, q0=q0, v0=v0, pressure=pressure, tau=tau, events=list(events), held=[])
+        run = dataclasses.replace(tpl, q0=q0, v0=v0, pressure=pressure, tau=tau, tension=tension, events=list(events),
+                                  held=[])
         return _execute(_with_inputs(run, inputs_checked), self.base)
 
 
