@@ -126,6 +126,7 @@ LOAD = {"segment": 1, "alpha": 1.0, "force": [0.0, 0.0, -0.5]}
 #: a valid tension schedule of each kind for one tendon
 TENSIONS = {"constant": {"type": "constant", "value": [1.0]}, "step": {"type": "step", "time": 0.05, "after": [1.0]},
             "ramp": {"type": "ramp", "t0": 0.0, "t1": 0.05, "end": [1.0]},
+            "sine": {"type": "sine", "amplitude": [0.5], "offset": [1.0], "frequency": 2.0},
             "table": {"type": "table", "times": [0.0, 0.05], "values": [[0.0], [1.0]]}}
 
 
@@ -514,13 +515,26 @@ TENDON_ERRORS = {
                        "tension.t1: expected a time > t0 = 0.1 s, found 0.05"),
     "table times not increasing": (lambda d: d.update(tension={"type": "table", "times": [0.0, 0.0],
                                                                "values": [[0.0], [1.0]]}),
-                                   "tension.times[1]: expected a time > times[0] = 0 s (strictly increasing), found 0.0"),
+                                   "tension.times[1]: expected a time > times[0] = 0 s (strictly increasing), found 0"),
     "table rows missing": (lambda d: d.update(tension={"type": "table", "times": [0.0, 0.1], "values": [[0.0]]}),
                            "tension.values: expected 2 tension arrays, one for each of the 2 times, found 1 arrays"),
     "table negative": (lambda d: d.update(tension={"type": "table", "times": [0.0, 0.1], "values": [[0.0], [-3.0]]}),
                        "tension.values[1][0]: expected a number >= 0 and <= 1e+09 (N), found -3.0"),
-    "kind": (lambda d: d.update(tension={"type": "sine"}),
-             'tension.type: expected one of "constant", "step", "ramp", "table", found a string "sine"'),
+    "kind": (lambda d: d.update(tension={"type": "triangle"}),
+             'tension.type: expected one of "constant", "step", "ramp", "sine", "table", found a string "triangle"'),
+    "sine pushes": (lambda d: d.update(tension={"type": "sine", "amplitude": [2.0], "offset": [1.5], "frequency": 1.0}),
+                    "tension.offset: expected offset - |amplitude| >= 0 N (a tendon cannot push) for every tendon, "
+                    "found -0.5 N for tendon 0"),
+    "sine over the bound": (lambda d: d.update(tension={"type": "sine", "amplitude": [5e8], "offset": [6e8],
+                                                        "frequency": 1.0}),
+                            "tension.offset: expected offset + |amplitude| <= 1e+09 N for every tendon, found "
+                            "1.1e+09 N for tendon 0"),
+    "sine without frequency": (lambda d: d.update(tension={"type": "sine", "amplitude": [1.0], "offset": [1.0]}),
+                               "tension.frequency: expected a frequency (Hz), a number or one a tendon, found nothing"),
+    "sine phases for two tendons": (lambda d: d.update(tension={"type": "sine", "amplitude": [1.0], "offset": [1.0],
+                                                                "frequency": 1.0, "phase": [0.0, 1.0]}),
+                                    "tension.phase: expected a number (rad) or an array of 1 numbers (rad), one a tendon, found 2 "
+                                    "numbers [0.0, 1.0]"),
     "step without after": (lambda d: d.update(tension={"type": "step", "time": 0.1}),
                            "tension.after: expected an array of 1 tension (N), one a tendon, found nothing (the key is "
                            "required)"),
@@ -548,6 +562,21 @@ def test_a_valid_tendon_scene_reads_into_tendons_and_a_schedule():
     np.testing.assert_array_equal(scene.tension(0.0), [0.0, 0.0])
     np.testing.assert_array_equal(scene.tension(0.06), [2.0, 3.0])
     assert scene.build().chain.nt == 2
+
+
+def test_a_sine_of_tensions_reads_into_the_sine_schedule():
+    """``[tension]`` of type ``sine``: one frequency for all or one a tendon, the phase, the
+    offset; the schedule equals :class:`qchain.sim.inputs.Sine` with the same numbers."""
+    from qchain.sim.inputs import Sine
+
+    text = _tendon_scene(lambda d: (d["tendons"].append({"radius": 0.004, "angle": 1.0}),
+                                    d.update(tension={"type": "sine", "amplitude": [1.0, -0.5], "offset": [2.0, 0.5],
+                                                      "frequency": [2.0, 0.0], "phase": 0.3})))
+    scene = parse_scene(text, "tendons.toml")
+    ref = Sine(amplitude=[1.0, -0.5], frequency=[2.0, 0.0], phase=[0.3, 0.3], offset=[2.0, 0.5])
+    for t in (0.0, 0.07, 0.31):
+        np.testing.assert_array_equal(scene.tension(t), ref(t))
+    assert scene.tension(0.125)[0] == pytest.approx(2.0 + np.sin(0.5 * np.pi + 0.3))
 
 
 def _damping_scene(mutate) -> str:

@@ -17,7 +17,7 @@ from .convert import as_real, describe_value
 __all__ = ["Range", "LENGTH", "RADIUS", "MASS", "CHAMBER_AREA", "CHAMBER_RADIUS", "YOUNGS_MODULUS", "DAMPING", "DRAG_LINEAR",
            "DRAG_QUADRATIC", "DAMPING_MATRIX", "NODES", "TENDON_RADIUS", "TENDON_PITCH", "TENSION",
            "GRAVITY", "POSITION", "ANGLE", "PSI", "VELOCITY", "ANGULAR_VELOCITY", "RATE", "DIRECTION", "AMPLITUDE",
-           "FREQUENCY", "PRESSURE", "PRESSURE_AMPLITUDE", "TIME", "DURATION", "STEP", "RTOL", "ATOL", "SAMPLE_RATE",
+           "FREQUENCY", "PRESSURE", "PRESSURE_AMPLITUDE", "TENSION_AMPLITUDE", "TIME", "DURATION", "STEP", "RTOL", "ATOL", "SAMPLE_RATE",
            "NODE_TOLERANCE", "MAX_BEND", "LENGTH_TOLERANCE", "WALL_LIMIT", "VACUUM_GAUGE", "SEGMENT_COUNT", "WORKERS", "RETRIES",
            "EXTENT", "CONTACT_STIFFNESS", "CONTACT_EXPONENT", "CONTACT_DAMPING", "FRICTION", "SLIP_VELOCITY",
            "RESTITUTION", "IMPACT_SPEED", "CONTACT_NODES", "HORIZON", "TIP_WEIGHT", "PRESSURE_WEIGHT", "ITERATIONS"]
@@ -157,6 +157,7 @@ NODES = Range(1, 100, integer=True)  #: Gauss-Legendre nodes along a segment (th
 TENDON_RADIUS = Range(0.0, 10.0, "m", low_open=True)  #: offset of a tendon from the backbone
 TENDON_PITCH = Range(1e-4, 1e6, "m")  #: |pitch| of a helical tendon: rest length per turn
 TENSION = Range(0.0, 1e9, "N")  #: a tendon's tension: a tendon pulls, it cannot push
+TENSION_AMPLITUDE = Range(-1e9, 1e9, "N")  #: a sine's amplitude of tension (its sign is a phase of pi)
 
 # -- the world, the base and the initial state
 GRAVITY = Range(-1e4, 1e4, "m/s^2")  #: each component

@@ -16,7 +16,8 @@ _TYPE_TEXTS = {"per_segment": "3 numbers a segment", "number_or_per_segment": "n
                "times": "array of numbers, increasing", "rows": "array of pressure vectors",
                "names": "array of strings", "tables": "array of tables", "choice": "string",
                "path": "string (a folder path)",
-               "tensions": "array of numbers, one a tendon", "tension_rows": "array of tension arrays"}
+               "tensions": "array of numbers, one a tendon",
+               "number_or_tensions": "number, or one a tendon", "tension_rows": "array of tension arrays"}
 
 
 @dataclass(frozen=True)

@@ -17,7 +17,7 @@ import numpy as np
 import pinocchio as pin
 
 from . import format as F
-from ..checks.bounds import VACUUM_GAUGE
+from ..checks.bounds import VACUUM_GAUGE, Range
 from ..sim.budget import DEFAULT, Budget
 from ..checks.convert import describe_value
 from ..checks.paths import file_kind
@@ -441,38 +441,12 @@ def _pressure(ck: _Checker, raw: dict, n: int | None) -> tuple[Schedule | None, 
         if phase is not None and spec["segment_phase"] is not None and n is not None:
             phase = phase + np.repeat(np.arange(n), 3) * spec["segment_phase"]
         spec["phase"] = phase
-        if spec["amplitude"] is not None and spec["offset"] is not None and spec["frequency"] is not None \
-                and phase is not None:
-            A, off, f = spec["amplitude"], spec["offset"], spec["frequency"]
-            low = np.where(f > 0, off - np.abs(A), off + A * np.sin(phase))
-            high = np.where(f > 0, off + np.abs(A), off + A * np.sin(phase))
-            if np.any(low < VACUUM_GAUGE):
-                k = int(np.flatnonzero(low < VACUUM_GAUGE)[0])
-                ck.add("pressure.offset", f"offset - |amplitude| >= {VACUUM_GAUGE:g} Pa (a vacuum) in every chamber",
-                       f"{P.shown(low[k])} Pa at {_where(k)}")
-            elif np.any(high > P.high):
-                k = int(np.flatnonzero(high > P.high)[0])
-                ck.add("pressure.offset", f"offset + |amplitude| <= {P.high:g} Pa in every chamber",
-                       f"{P.shown(high[k])} Pa at {_where(k)}")
+        _sine_within(ck, "pressure", spec, Range(VACUUM_GAUGE, P.high, "Pa"), "in every chamber",
+                     lambda k: f"at {_where(k)}", " (a vacuum)")
     else:  # table
         times = pt.get("times", _MISSING)
         values = pt.get("values", _MISSING)
-        t_arr = None
-        if times is _MISSING:
-            ck.add("pressure.times", "an array of times (s), strictly increasing", "nothing (the key is required)")
-        else:
-            t_arr = ck._numbers(times, "pressure.times", "an array of times (s), strictly increasing", T["times"].range)
-            if t_arr is not None:
-                if t_arr.size < 1:
-                    ck.add("pressure.times", "at least one time (s)", "an empty array")
-                    t_arr = None
-                else:
-                    d = np.diff(t_arr)
-                    if np.any(d <= 0):
-                        k = int(np.flatnonzero(d <= 0)[0])
-                        ck.add(f"pressure.times[{k + 1}]", f"a time > times[{k}] = {t_arr[k]:g} s (strictly increasing)",
-                               f"{t_arr[k + 1]:g}")
-                        t_arr = None
+        t_arr = _table_times(ck, pt, "pressure", T["times"].range)
         rows = None
         if values is _MISSING:
             ck.add("pressure.values", "an array of pressure vectors (Pa), one a time", "nothing (the key is required)")
@@ -505,6 +479,45 @@ def _pressure(ck: _Checker, raw: dict, n: int | None) -> tuple[Schedule | None, 
         ck.add("pressure", "a valid schedule", str(err))
         return None, {}
     return sched, spec
+
+
+def _sine_within(ck: _Checker, table: str, spec: dict, rng: Range, every: str, where, why_low: str) -> None:
+    """Add a problem to ``table.offset`` if a ``sine`` schedule's ``spec`` (``amplitude``,
+    ``offset``, ``frequency``, ``phase``: arrays, or None where already refused) leaves
+    ``rng`` at any time: ``offset -+ |amplitude|``, or the constant ``offset + amplitude
+    sin(phase)`` where the frequency is 0; ``where(k)`` names entry ``k``."""
+    A, off, f, ph = (spec[k] for k in ("amplitude", "offset", "frequency", "phase"))
+    if any(x is None for x in (A, off, f, ph)):
+        return
+    low = np.where(f > 0, off - np.abs(A), off + A * np.sin(ph))
+    high = np.where(f > 0, off + np.abs(A), off + A * np.sin(ph))
+    u = rng.unit
+    if np.any(low < rng.low):
+        k = int(np.flatnonzero(low < rng.low)[0])
+        ck.add(f"{table}.offset", f"offset - |amplitude| >= {rng.low:g} {u}{why_low} {every}",
+               f"{rng.shown(low[k])} {u} {where(k)}")
+    elif np.any(high > rng.high):
+        k = int(np.flatnonzero(high > rng.high)[0])
+        ck.add(f"{table}.offset", f"offset + |amplitude| <= {rng.high:g} {u} {every}", f"{rng.shown(high[k])} {u} {where(k)}")
+
+
+def _table_times(ck: _Checker, pt: dict, table: str, rng) -> np.ndarray | None:
+    """A ``table`` schedule's ``times`` (``[pressure]``, ``[tension]``): at least one time in
+    ``rng``, strictly increasing; None (a problem added, naming the entry) otherwise."""
+    if "times" not in pt:
+        ck.add(f"{table}.times", "an array of times (s), strictly increasing", "nothing (the key is required)")
+        return None
+    t_arr = ck._numbers(pt["times"], f"{table}.times", "an array of times (s), strictly increasing", rng)
+    if t_arr is not None and t_arr.size == 0:
+        ck.add(f"{table}.times", "at least one time (s)", "an empty array")
+        return None
+    bad = np.flatnonzero(np.diff(t_arr) <= 0) if t_arr is not None else ()
+    if len(bad):
+        k = int(bad[0])
+        ck.add(f"{table}.times[{k + 1}]", f"a time > times[{k}] = {t_arr[k]:g} s (strictly increasing)",
+               f"{t_arr[k + 1]:g}")
+        return None
+    return t_arr
 
 
 def _valid_rows(values: list, n: int | None, rng) -> list | None:
@@ -649,7 +662,7 @@ def _tension(ck: _Checker, raw: dict, m: int | None, has_tendons: bool) -> tuple
     what = (f"an array of {m} tension{'s' if m != 1 else ''} (N), one a tendon" if m is not None
             else "an array of tensions (N), one a tendon")
 
-    def tensions(key, v, path):
+    def tensions(key, v, path, what=what):
         arr = ck._numbers(v, path, what, T[key].range if key != "times" else None)
         if arr is not None and m is not None and arr.size != m:
             ck.add(path, what, f"{arr.size} numbers {_show(v)}")
@@ -662,6 +675,16 @@ def _tension(ck: _Checker, raw: dict, m: int | None, has_tendons: bool) -> tuple
                 ck.add(f"tension.{key}", what, "nothing (the key is required)")
             return None if required or m is None else np.zeros(m)
         return tensions(key, pt[key], f"tension.{key}")
+
+    def scalar_or_vec(key, default):
+        if key not in pt:
+            return None if m is None else np.full(m, default)
+        if _is_number(pt[key]):
+            x = ck.number(pt, key, f"tension.{key}", T[key].range.unit, bounds=T[key].range)
+            return None if x is None or m is None else np.full(m, x)
+        unit = T[key].range.unit
+        return tensions(key, pt[key], f"tension.{key}", f"a number ({unit}) or an array of "
+                        f"{'' if m is None else f'{m} '}numbers ({unit}), one a tendon")
 
     spec: dict = {"type": kind}
     if kind == "constant":
@@ -677,23 +700,18 @@ def _tension(ck: _Checker, raw: dict, m: int | None, has_tendons: bool) -> tuple
             ck.add("tension.t1", f"a time > t0 = {spec['t0']:g} s", _show(pt["t1"]))
         spec["end"] = vec("end", required=True)
         spec["start"] = vec("start")
+    elif kind == "sine":
+        spec["amplitude"] = vec("amplitude", required=True)
+        spec["offset"] = vec("offset")
+        if "frequency" not in pt:
+            ck.add("tension.frequency", "a frequency (Hz), a number or one a tendon", "nothing (the key is required)")
+        spec["frequency"] = scalar_or_vec("frequency", 0.0)
+        spec["phase"] = scalar_or_vec("phase", 0.0)
+        _sine_within(ck, "tension", spec, T["offset"].range, "for every tendon", lambda k: f"for tendon {k}",
+                     " (a tendon cannot push)")
     else:  # table
-        times, values = pt.get("times"), pt.get("values")
-        t_arr = None
-        if times is None:
-            ck.add("tension.times", "an array of times (s), strictly increasing", "nothing (the key is required)")
-        else:
-            t_arr = ck._numbers(times, "tension.times", "an array of times (s), strictly increasing", T["times"].range)
-            if t_arr is not None and t_arr.size == 0:
-                ck.add("tension.times", "at least one time (s)", "an empty array")
-                t_arr = None
-            elif t_arr is not None:
-                bad = np.flatnonzero(np.diff(t_arr) <= 0)
-                if bad.size:
-                    k = int(bad[0])
-                    ck.add(f"tension.times[{k + 1}]", f"a time > times[{k}] = {t_arr[k]:g} s (strictly increasing)",
-                           _show(times[k + 1]))
-                    t_arr = None
+        values = pt.get("values")
+        t_arr = _table_times(ck, pt, "tension", T["times"].range)
         rows = None
         if values is None:
             ck.add("tension.values", "an array of tension arrays (N), one a time", "nothing (the key is required)")
@@ -715,5 +733,7 @@ def _tension(ck: _Checker, raw: dict, m: int | None, has_tendons: bool) -> tuple
     if len(ck.problems) > start or m is None:
         return None, {}
     cls, keys = {"constant": (Constant, ("value",)), "step": (Step, ("time", "after", "before")),
-                 "ramp": (Ramp, ("t0", "t1", "end", "start")), "table": (Table, ("times", "values"))}[kind]
+                 "ramp": (Ramp, ("t0", "t1", "end", "start")),
+                 "sine": (Sine, ("amplitude", "frequency", "phase", "offset")),
+                 "table": (Table, ("times", "values"))}[kind]
     return cls(*(spec[k] for k in keys)), spec

@@ -19,7 +19,7 @@ __all__ = ["TENDONS", "TENSION", "TENSION_KINDS", "TENDON_EXAMPLE", "describe_te
 
 
 #: The kinds of tension schedule a scene may give.
-TENSION_KINDS = ("constant", "step", "ramp", "table")
+TENSION_KINDS = ("constant", "step", "ramp", "sine", "table")
 
 TENDONS = KeyTable("tendons[]", "One table a tendon (`qchain.Tendon`, docs/tendons.md): `[[tendons]]`, in the order "
                    "of the tensions. A tendon runs at `radius` from the backbone, fixed to the cross-sections it "
@@ -35,7 +35,7 @@ TENDONS = KeyTable("tendons[]", "One table a tendon (`qchain.Tendon`, docs/tendo
           Range(0, None, integer=True), default="the last segment (the tip)"),
 ))
 
-TENSION = KeyTable("tension", "The tendons' tensions, one of four kinds (`type`), one number a tendon in the order of "
+TENSION = KeyTable("tension", "The tendons' tensions, one of five kinds (`type`), one number a tendon in the order of "
                    "`[[tendons]]`; a tendon pulls, so every tension is `>= 0`. Only with `[[tendons]]`.", (
     Field("type", "choice", "The kind of schedule.", choices=TENSION_KINDS, required=True),
     Field("value", "tensions", "`constant`: the tensions.", B.TENSION, required=True, when=("constant",)),
@@ -46,6 +46,14 @@ TENSION = KeyTable("tension", "The tendons' tensions, one of four kinds (`type`)
     Field("t1", "number", "`ramp`: its end, `> t0`.", B.TIME, required=True, when=("ramp",)),
     Field("end", "tensions", "`ramp`: tensions from `t1` on.", B.TENSION, required=True, when=("ramp",)),
     Field("start", "tensions", "`ramp`: tensions until `t0`.", B.TENSION, default="zeros", when=("ramp",)),
+    Field("amplitude", "tensions", "`sine`: `offset + amplitude sin(2 pi frequency t + phase)` for each tendon; "
+          "`offset - abs(amplitude)` must stay `>= 0` (a tendon cannot push).", B.TENSION_AMPLITUDE, required=True,
+          when=("sine",)),
+    Field("offset", "tensions", "`sine`: the mean tensions.", B.TENSION, default="zeros", when=("sine",)),
+    Field("frequency", "number_or_tensions", "`sine`: Hz, one for all tendons or one a tendon.", B.FREQUENCY,
+          required=True, when=("sine",)),
+    Field("phase", "number_or_tensions", "`sine`: rad, one for all tendons or one a tendon.", B.ANGLE, default="0",
+          when=("sine",)),
     Field("times", "times", "`table`: strictly increasing times.", B.TIME, required=True, when=("table",)),
     Field("values", "tension_rows", "`table`: one array of tensions a time; piecewise linear between them, held "
           "outside.", B.TENSION, required=True, when=("table",)),
