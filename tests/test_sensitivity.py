@@ -261,3 +261,56 @@ def test_a_run_leaving_the_domain_fails_with_its_samples_and_the_step():
     r = sensitivities(chain, q0, v0, (0.0, 0.05), method="rk4", dt=1e-4)
     assert not r.success and r.status == -1 and "segment 0" in r.message and "step from" in r.message
     assert np.all(np.isfinite(r.S)) and r.t.size == r.S.shape[0] >= 1
+
+
+def _tendon_arm(helical: bool, change=None):
+    from qchain import Tendon
+
+    tendons = [Tendon(radius=0.012, angle=0.0, end=1), Tendon(radius=0.01, angle=2.0, pitch=0.4 if helical else None)]
+    return arm(change=change, tendons=tendons)
+
+
+T_SINE = Sine(amplitude=[1.0, 0.5], frequency=4.0, phase=[0.0, 1.0], offset=[1.5, 1.0])  # N
+
+
+@pytest.mark.parametrize("helical, params", [(True, [("youngs_modulus", 0), ("mass", 1), ("gravity", 2)]),
+                                             (False, [("length", 1), ("damping", 2)])])
+def test_tendon_tensions_sensitivities_against_differences_of_whole_runs(helical, params):
+    """sensitivities(tension=): the run is simulate's with the same tensions, bit for bit, and
+    the derivative of its samples (initial state and parameters) matches central differences
+    of whole runs with the tensions on (the tendons' exact stiffness in the Jacobian)."""
+    chain = _tendon_arm(helical)
+    q0, v0 = start(chain)
+    kw = dict(method="rk4", dt=1e-3, t_eval=T_EVAL, pressure=P_SINE, tension=T_SINE)
+    r = sensitivities(chain, q0, v0, (0.0, 0.05), params=params, initial=["q0[1]", "q0[3]", "v0[7]"], **kw)
+    tr = simulate(chain, q0, v0, (0.0, 0.05), **kw)
+    assert r.success and np.array_equal(r.q, tr.q) and np.array_equal(r.v, tr.v)
+
+    def samples(ch, q, v):
+        s = simulate(ch, q, v, (0.0, 0.05), **kw)
+        return np.concatenate([s.q, s.v], axis=1)
+
+    def diff(run, h):  # fourth-order central difference: steps large enough that round-off stays below 1e-10
+        return (8 * (run(h) - run(-h)) - (run(2 * h) - run(-2 * h))) / (12 * h)
+
+    errs = {}
+    for c, name in enumerate(r.columns):
+        if name.startswith(("q0", "v0")):
+            d = np.zeros(chain.nv)
+            d[int(name[3:-1])] = 1.0
+            fd = diff(lambda h: samples(chain, q0 + h * d, v0) if name[0] == "q" else samples(chain, q0, v0 + h * d), 1e-4)
+        else:
+            pname, j = name[:-1].split("[")
+            j = int(j)
+            value = -9.81 if pname == "gravity" else SEG[pname]
+            fd = diff(lambda h: samples(_tendon_arm(helical, (pname, j, value + h)), q0, v0), 1e-4 * abs(value))
+        an = r.S[:, :, c]
+        errs[name] = np.abs(fd - an).max() / np.abs(an).max()
+    assert max(errs.values()) < 1e-7, errs
+    with pytest.raises(ValueError, match=r"tension\[1\] must be >= 0"):
+        sensitivities(chain, q0, v0, (0.0, 0.05), **{**kw, "tension": np.array([1.0, -2.0])})
+    if helical:
+        with pytest.raises(ValueError, match="rest length's derivative with a helical tendon"):
+            sensitivities(chain, q0, v0, (0.0, 0.05), params=[("length", 0)], **kw)
+    with pytest.raises(ValueError, match="the chain has no tendons"):
+        sensitivities(arm(), q0, v0, (0.0, 0.05), **kw)

@@ -184,7 +184,7 @@ def _check_steps(steps, t0: float, t1: float) -> np.ndarray:
 def sensitivities(chain: Chain, q0, v0, t_span, *, params=(), initial: bool = True, method: str = "dopri5",
                   dt: float | None = None, rtol: float = 1e-6, atol: float = 1e-8, steps=None, t_eval=None,
                   pressure=None, tau=None, env=None, max_step: float = np.inf,
-                  first_step: float | None = None, budget: Budget | None = None) -> SensitivityResult:
+                  first_step: float | None = None, budget: Budget | None = None, tension=None) -> SensitivityResult:
     """A run of ``chain`` from ``(q0, v0)`` over ``t_span`` and the exact derivative of its
     samples with respect to the initial state and ``params``.
 
@@ -210,8 +210,9 @@ def sensitivities(chain: Chain, q0, v0, t_span, *, params=(), initial: bool = Tr
         The step ends to take, from ``t0`` to ``t1`` (for either method; then no adaptive run).
     t_eval : (K,) s, optional
         Sample times (the method's dense output, and its derivative); default every step end.
-    pressure, tau, env
-        As :func:`qchain.simulate`'s (compiled inputs: constants or schedules).
+    pressure, tau, env, tension
+        As :func:`qchain.simulate`'s (compiled inputs: constants or schedules; ``tension`` for
+        a chain with tendons, docs/tendons.md).
     budget : qchain.sim.budget.Budget, optional
         What the run may cost: its steps, samples and the memory of the samples'
         sensitivities (K x 2 nA x ncol floats) are checked before it starts.
@@ -245,15 +246,20 @@ def sensitivities(chain: Chain, q0, v0, t_span, *, params=(), initial: bool = Tr
     if env is not None and np.any(kinds == pd.KIND_LENGTH):
         raise ValueError("params: a rest length's derivative with env is not supported (the contact nodes move along "
                          "the segment with it)")
-    for name, u, size in (("pressure", pressure, chain.nu), ("tau", tau, chain.nv)):
+    if tension is not None and not chain.nt:
+        raise ValueError("tension is given but the chain has no tendons (Chain(..., tendons=[...]))")
+    if tension is not None and np.any(kinds == pd.KIND_LENGTH) and any(td.pitch is not None for td in chain.tendons):
+        raise ValueError("params: a rest length's derivative with a helical tendon's tension is not supported (the "
+                         "helix turns with the rest length)")
+    for name, u, size in (("pressure", pressure, chain.nu), ("tau", tau, chain.nv), ("tension", tension, chain.nt)):
         as_input(name, u, size)  # checked where it enters
         if callable(u) and not isinstance(u, Schedule):
             raise ValueError(f"{name}: a controller (t, q, v) -> array has no compiled sensitivities; pass a "
                              f"constant or a schedule of qchain.sim.inputs")
-    m = system.pack(chain, pressure, tau, env)
+    m = system.pack(chain, pressure, tau, env, tension)
     if m is None:
         raise ValueError(f"sensitivities need the compiled engine, which cannot serve this run: "
-                         f"{system.python_reason(chain, pressure, tau)}")
+                         f"{system.python_reason(chain, pressure, tau, tension)}")
     meta = {}
     budget = as_budget(budget)
     if steps is not None:
@@ -266,7 +272,7 @@ def sensitivities(chain: Chain, q0, v0, t_span, *, params=(), initial: bool = Tr
     else:
         plain = simulate(chain, q0, v0, (t0, t1), method="dopri5", rtol=cfg["rtol"], atol=cfg["atol"],
                          max_step=cfg["max_step"], first_step=cfg["first_step"], pressure=pressure, tau=tau, env=env,
-                         energies=False)
+                         energies=False, tension=tension)
         if not plain.success:
             raise ValueError(f"the dopri5 run that chooses the steps failed: {plain.message}")
         grid = np.array(plain.t, dtype=float)
