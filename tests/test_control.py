@@ -332,3 +332,30 @@ def test_mpc_tracks_a_reachable_tip_path_far_better_than_zero_pressure():
 def test_mpc_bad_settings_are_refused_naming_the_parameter(kw, error, words):
     with pytest.raises(error, match=words):
         _mpc(_chain(), np.zeros(3), **kw)
+
+
+def test_tip_inverse_kinematics_reaches_a_far_target_inside_the_model_and_names_an_unreachable_one():
+    """From the straight arm to the tip of a strongly bent one (bent 3 and 2 rad): full Newton
+    steps leave the model's domain (|kappa| r_s >= 1); halved steps stay inside and reach it
+    to 1e-12 m. A target out of reach is a ValueError naming x."""
+    from qchain.control.references import tip_inverse_kinematics
+    from qchain.errors import DomainError
+
+    ch = _chain()
+    q_far = ch.neutral()
+    q_far[1::3] = [30.0, -20.0]  # ux (1/m)
+    q_far[2::3] = [-8.0, 15.0]
+    x = ch.tip_placement(q_far).translation
+    idx = np.flatnonzero(ch.active)
+    q = ch.neutral()
+    with pytest.raises(DomainError):  # what the undamped iteration meets
+        for _ in range(50):
+            J = ch.tip_jacobian(q, "local_world_aligned")[:3, idx]
+            q = q.copy()
+            q[idx] += np.linalg.lstsq(J, x - ch.tip_placement(q).translation, rcond=None)[0]
+    q = tip_inverse_kinematics(ch, x, ch.neutral())
+    assert np.linalg.norm(ch.tip_placement(q).translation - x) < 1e-12
+    with pytest.raises(ValueError, match=r"x = \[1\. 0\. 0\.\] m: no configuration reaches it"):
+        tip_inverse_kinematics(ch, np.array([1.0, 0.0, 0.0]), ch.neutral())
+    with pytest.raises(ValueError, match="x must have shape"):
+        tip_inverse_kinematics(ch, np.zeros(2), ch.neutral())

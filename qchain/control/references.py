@@ -16,6 +16,7 @@ from scipy.interpolate import CubicSpline
 from ..arm.chain import Chain
 from ..checks.bounds import DURATION, SAMPLE_RATE
 from ..checks.convert import as_real, as_vector, describe_value
+from ..errors import DomainError
 
 __all__ = ["ConfigurationReference", "TipReference", "TipPathReference", "tip_inverse_kinematics", "path_point"]
 
@@ -81,20 +82,46 @@ def tip_inverse_kinematics(chain: Chain, x: np.ndarray, q_start: np.ndarray, tol
     Newton steps of least norm from ``q_start``: ``dq = J^+ (x - tip(q))`` (``J`` the tip
     position's Jacobian on the free coordinates, world axes; ``J^+`` its pseudo-inverse), so
     the configuration changes as little as it must (resolved-rate inverse kinematics: for
-    a nearby ``x`` the step is ``J^+ dx``). Converged when the tip is within ``tol`` (m) of
-    ``x``; raises ``ValueError`` naming ``x`` otherwise (out of reach, or ``J`` loses rank).
+    a nearby ``x`` the step is ``J^+ dx``). A step that would leave the model's domain
+    (``|kappa| r_s >= 1``, ``l <= 0``) or move the tip away from ``x`` is halved until it
+    does neither (at most :data:`_HALVINGS` times), so a far target is approached without
+    jumping out of the model. Converged when the tip is within ``tol`` (m) of ``x``; raises
+    ``ValueError`` naming ``x`` otherwise (out of reach, ``J`` loses rank, or the iteration
+    stops at a configuration nearest ``x`` locally: the problem is not convex, and a far
+    target may need another ``q_start``).
     """
+    x = as_vector("x", x, 3)
     idx = np.flatnonzero(chain.active)
-    q = q_start.copy()
+    q = as_vector("q_start", q_start, chain.nq).copy()
+    err = np.linalg.norm(x - chain.tip_placement(q).translation)
     for _ in range(max_iter):
-        e = x - chain.tip_placement(q).translation
-        if np.linalg.norm(e) < tol:
+        if err < tol:
             return q
         J = chain.tip_jacobian(q, "local_world_aligned")[:3, idx]
-        q = q.copy()
-        q[idx] += np.linalg.lstsq(J, e, rcond=None)[0]
+        dq = np.linalg.lstsq(J, x - chain.tip_placement(q).translation, rcond=None)[0]
+        for k in range(_HALVINGS + 1):
+            trial = q.copy()
+            trial[idx] += dq / 2.0**k
+            try:
+                e_trial = np.linalg.norm(x - chain.tip_placement(trial).translation)
+            except DomainError:  # (the step leaves the model: a shorter one)
+                continue
+            if e_trial < err:
+                q, err = trial, e_trial
+                break
+        else:
+            raise ValueError(f"x = {np.array2string(x, precision=4)} m: no configuration reaches it from q_start "
+                             f"(no step of inverse kinematics brings the tip nearer than {err:.3g} m: out of reach, or "
+                             f"the tip Jacobian loses rank, or a nearest configuration from this q_start that is not the target: "
+                             f"start from another)")
+    if err < tol:
+        return q
     raise ValueError(f"x = {np.array2string(x, precision=4)} m: no configuration reaches it from q_start "
-                     f"(inverse kinematics did not converge in {max_iter} steps: tip {np.linalg.norm(e):.3g} m away)")
+                     f"(inverse kinematics did not converge in {max_iter} steps: tip {err:.3g} m away)")
+
+
+#: How many times :func:`tip_inverse_kinematics` halves a step before it gives up.
+_HALVINGS = 30
 
 
 class TipPathReference:
