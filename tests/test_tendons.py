@@ -470,3 +470,33 @@ def test_published_tendon_robot_converges_to_the_cosserat_rod():
     ratios = errors[:-1] / errors[1:]
     assert np.all((ratios > 3.5) & (ratios < 4.5)), ratios
     assert errors[-1] < 1e-4 * travel  # 16 segments: within 0.01 % of the tip travel (observed 15 um, 0.008 %)
+
+
+def test_a_tension_controller_held_at_controller_rate_equals_its_equivalent_pressure_controller():
+    """``tension=`` a controller with ``controller_rate``: sampled at the rate and held (the
+    compiled engine between holds), as a held pressure controller. A straight tip tendon on
+    chamber 1 is the pressure ``-T / A_ch`` there (test above), so the held tension controller
+    and the held controller of its equivalent pressures give the same run (to round-off), and
+    the samples' tensions are the holds'. A negative output is refused at the hold naming it."""
+    segs = [_segment(damping=0.02), _segment(length=0.15, damping=0.02)]
+    chain = qc.Chain(segs, tendons=[qc.Tendon(radius=segs[0].chamber_radius, angle=0.0)], gravity=(0, 0, -9.81))
+    A_ch = segs[0].chamber_area
+
+    def T_of(t, q, v):  # a feedback law in [0.5, 3.5] N
+        return np.array([2.0 + 1.5 * np.tanh(20.0 * q[1] + 0.5 * v[1] + np.sin(9.0 * t))])
+
+    def p_of(t, q, v):
+        return np.tile([-T_of(t, q, v)[0] / A_ch, 0.0, 0.0], 2)
+
+    kw = dict(method="radau5", rtol=1e-9, atol=1e-11, t_eval=np.linspace(0.0, 0.4, 41), controller_rate=50.0)
+    q0, v0 = chain.neutral(), np.zeros(chain.nv)
+    tr_t = qc.simulate(chain, q0, v0, (0.0, 0.4), tension=T_of, **kw)
+    tr_p = qc.simulate(qc.Chain(segs, gravity=(0, 0, -9.81)), q0, v0, (0.0, 0.4), pressure=p_of, **kw)
+    assert tr_t.success and tr_t.meta["engine"] == "compiled"
+    assert np.abs(tr_t.q - tr_p.q).max() <= 1e-9 * np.abs(tr_p.q).max()
+    held = -A_ch * tr_p.p[:, 0]  # the pressure run's held (sampled) pressures, as tensions
+    assert np.abs(tr_t.tension[:, 0] - held).max() <= 1e-9 * held.max()
+    Tn = tr_t.tension[:, 0]  # held: the samples at 0, 10 ms of each 20 ms hold see one value
+    assert np.array_equal(Tn[0:40:2], Tn[1:40:2]) and not np.array_equal(Tn[1:39:2], Tn[2:40:2])
+    with pytest.raises(ValueError, match=r"tension\(t, q, v\)\[0\] must be >= 0"):
+        qc.simulate(chain, q0, v0, (0.0, 0.4), tension=lambda t, q, v: np.array([-1.0 if t > 0.05 else 1.0]), **kw)

@@ -463,15 +463,12 @@ def _share(chain: Chain, t_span: tuple[float, float], method: str, cfg: dict, bu
 
 
 def _calls_python(cfg: dict, p: tuple, tau: tuple, tension: tuple) -> bool:
-    """Whether a rollout calls Python at every step: events, a controller not held at a
-    ``controller_rate`` (which runs on the Python steppers), or a tension controller."""
+    """Whether a rollout calls Python at every step: events, or a controller not held at a
+    ``controller_rate`` (which runs on the Python steppers)."""
     if cfg["events"]:
         return True
-    controller = lambda x: callable(x) and not isinstance(x, Schedule)  # noqa: E731
-    if any(controller(x) for x in (tension[0], *(tension[1] or ()))):
-        return True  # (never held: called at every stage)
-    inputs = [x for shared, each in (p, tau) for x in (shared, *(each or ()))]
-    return cfg["controller_rate"] is None and any(controller(x) for x in inputs)
+    inputs = [x for shared, each in (p, tau, tension) for x in (shared, *(each or ()))]
+    return cfg["controller_rate"] is None and any(callable(x) and not isinstance(x, Schedule) for x in inputs)
 
 
 def _run_all(shared: _Shared, items: list, sink: _Sink, *, workers, client, retries: int, progress: bool,

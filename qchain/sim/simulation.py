@@ -299,7 +299,7 @@ def simulate(
     wall_limit : float, s, optional
         Stop (``success = False``) when the run has taken this much wall-clock time.
     controller_rate : float, Hz, optional
-        Sample a controller ``pressure`` (or ``tau``) at this rate and hold its output
+        Sample a controller ``pressure`` (or ``tau``, or ``tension``) at this rate and hold its output
         between samples (zero-order hold), as a real controller runs: the run leaves
         compiled code only at those instants. Without it a controller is called at every
         stage of every step (the Python steppers).
@@ -415,6 +415,29 @@ class Runs:
         run = dataclasses.replace(tpl, q0=q0, v0=v0, pressure=pressure, tau=tau, tension=tension, events=list(events),
                                   held=[])
         return _execute(_with_inputs(run, inputs_checked), self.base)
+
+
+def _logged_tension(controllers: list, slot: np.ndarray) -> tuple[list, Callable]:
+    """``controllers`` with the tension controller's holds logged, and ``(t, q, v) -> (nt,)``
+    the tension held at ``t`` (the last hold at or before ``t``, a sample at a hold's
+    instant showing the new one, as the driver's pressures do): the tensions of the run's
+    samples, which the compiled steppers do not record."""
+    times: list[float] = []
+    values: list[np.ndarray] = []
+
+    def logged(fn):
+        def hold(t, q, v):
+            out = fn(t, q, v)
+            times.append(t)
+            values.append(np.array(out, dtype=float))
+            return out
+        return hold
+
+    def held_at(t, q, v):
+        k = int(np.searchsorted(times, t + 1e-12 * max(1.0, abs(t)), side="right")) - 1
+        return values[max(k, 0)].copy()
+
+    return [(logged(fn), s) if s is slot else (fn, s) for fn, s in controllers], held_at
 
 
 def _note_contact_steps(run: _Run, traj: Trajectory) -> None:
@@ -536,17 +559,15 @@ def _with_inputs(run: _Run, checked: bool = False) -> _Run:
     if run.tension is not None and not chain.nt:
         raise ValueError("tension is given but the chain has no tendons (Chain(..., tendons=[...]))")
     run.Tn_in = _input_function("tension", run.tension, chain.nt, False)  # checked: >= 0 (TENSION)
-    if run.controller_rate is not None and callable(run.tension) and not isinstance(run.tension, Schedule):
-        raise ValueError("controller_rate holds pressure and tau controllers; a tension controller is called at "
-                         "every stage (without controller_rate)")
     if method in driver.EXPLICIT_STABILITY_EXTENT:  # a stiff model: refused before hours of tiny steps
         run.budget.check(run.cost(explicit_stability_limit(chain, method, q0, v0, t0, pressure, tau)))
     if run.controller_rate is not None:
-        for name, u, size in (("pressure", pressure, chain.nu), ("tau", tau, chain.nv)):
+        for name, u, size in (("pressure", pressure, chain.nu), ("tau", tau, chain.nv), ("tension", run.tension, chain.nt)):
             if callable(u) and not isinstance(u, Schedule):
-                run.held.append((name, as_input(name, u, size), size))
+                run.held.append((name, run.Tn_in if name == "tension" else as_input(name, u, size), size))
         if not run.held:
-            raise ValueError("controller_rate is given but neither pressure nor tau is a controller (t, q, v) -> array")
+            raise ValueError("controller_rate is given but none of pressure, tau and tension is a controller "
+                             "(t, q, v) -> array")
     return run
 
 
@@ -615,12 +636,12 @@ def _choose_backend(run: _Run, base=None):
                              f"Python backend (use one of {COMPILED})")
         return None
     zeros = {name: np.zeros(size) for name, _, size in run.held}
-    p, tau = zeros.get("pressure", run.pressure), zeros.get("tau", run.tau)
-    m = (system.pack(run.chain, p, tau, run.env, run.tension) if base is None else
-         system.with_inputs(base, run.chain, p, tau, run.tension))
+    p, tau, tn = zeros.get("pressure", run.pressure), zeros.get("tau", run.tau), zeros.get("tension", run.tension)
+    m = (system.pack(run.chain, p, tau, run.env, tn) if base is None else
+         system.with_inputs(base, run.chain, p, tau, tn))
     if m is not None:
         return m
-    reason = system.python_reason(run.chain, p, tau, run.tension)
+    reason = system.python_reason(run.chain, p, tau, tn)
     if run.controller_rate is not None:
         raise ValueError(f"controller_rate needs the compiled engine, which cannot serve this run: {reason}")
     # never silently: the Python steppers are one to two orders of magnitude slower
@@ -637,8 +658,10 @@ def _run_compiled(run: _Run, m, bar: _Progress, deadline: float | None) -> Traje
     p_of, tau_of = run.P_in, run.T_in
     controllers = []
     if run.controller_rate is not None:
-        slots = {"pressure": m.p_params, "tau": m.tau_params}
+        slots = {"pressure": m.p_params, "tau": m.tau_params, "tension": m.tn_params}
         controllers = [(fn, slots[name]) for name, fn, _ in run.held]
+        if any(name == "tension" for name, _, _ in run.held):  # the samples' tensions: the hold at their time
+            controllers, run.Tn_in = _logged_tension(controllers, slots["tension"])
         # a sample's input is the held output, not another call of the controller
         held = {name: (lambda t, q, v, slot=slots[name]: slot.copy()) for name, _, _ in run.held}
         p_of, tau_of = held.get("pressure", p_of), held.get("tau", tau_of)
