@@ -359,3 +359,49 @@ def test_tip_inverse_kinematics_reaches_a_far_target_inside_the_model_and_names_
         tip_inverse_kinematics(ch, np.array([1.0, 0.0, 0.0]), ch.neutral())
     with pytest.raises(ValueError, match="x must have shape"):
         tip_inverse_kinematics(ch, np.zeros(2), ch.neutral())
+
+
+def _tendon_chain():
+    """_chain's arm driven by tendons: three at 120 degrees to the first segment's tip and
+    three to the arm's tip (a positive span of both segments' bending)."""
+    from qchain import Tendon
+
+    seg = Segment(length=0.1, radius=0.015, mass=0.05, chamber_area=4.5e-5, chamber_radius=0.0085,
+                  youngs_modulus=1e5, damping=0.02, extensible=False)
+    tendons = [Tendon(radius=0.012, angle=a + d, end=end) for end, d in ((0, 0.0), (1, 0.5))
+               for a in (0.0, 2 * np.pi / 3, 4 * np.pi / 3)]
+    return Chain([seg, seg], gravity=(0.0, 0.0, -9.81), tendons=tendons)
+
+
+def test_pd_compensation_on_tendons_brings_the_arm_to_a_reachable_target_with_tensions_in_bounds():
+    """tension_max: the wanted force realised by tensions in [0, tension_max] through B_T;
+    the target is the arm's equilibrium under admissible tensions, reached with no
+    steady-state error as with the chambers; the tensions are the controller's output at
+    its rate (held), recorded as its "tension" signal and in the run's Trajectory.tension."""
+    from qchain.arm.statics import equilibrium
+
+    ch = _tendon_chain()
+    T_eq = np.array([1.5, 0.0, 0.0, 0.0, 0.8, 0.0])
+    q_d = equilibrium(ch, tension=T_eq).q
+    q0 = equilibrium(ch, tension=0.3 * T_eq[::-1]).q
+    ctl = PDCompensation(ch, q_d, Kp=1e-3, Kd=_critical_damping(ch, q_d, 1e-3), rate=500.0, tension_max=5.0)
+    assert ctl.input == "tension"
+    tr = ctl.run(q0, np.zeros(ch.nv), 1.0, t_eval=np.linspace(0.0, 1.0, 11))
+    s = ctl.signals()
+    assert "p" not in s and s["tension"].shape == (len(s["t"]), 6)
+    assert s["tension"].min() >= 0.0 and s["tension"].max() <= 5.0
+    assert s["at_upper"][0] > 0 and not s["saturated"][250:].any()  # the bound binds at first, not in the last 0.5 s
+    free = ~s["saturated"]
+    assert np.abs(s["tau_realised"][free] - s["tau"][free]).max() <= 1e-3 * np.abs(s["tau"][free]).max()
+    e0 = np.abs(s["error"][0]).max()
+    a = np.flatnonzero(ch.active)
+    assert e0 > 0.3 and np.abs(tr.q[-1, a] - q_d[a]).max() < 1e-3 * e0
+    assert np.array_equal(tr.tension[-1], s["tension"][-1]) and tr.meta["engine"] == "compiled"
+    with pytest.raises(ValueError, match="chain has no tendons"):
+        PDCompensation(_chain(), q_d, Kp=1e-3, Kd=1e-3, rate=500.0, tension_max=5.0)
+    with pytest.raises(ValueError, match="either p_max .* or tension_max"):
+        PDCompensation(ch, q_d, Kp=1e-3, Kd=1e-3, rate=500.0, p_max=5e4, tension_max=5.0)
+    with pytest.raises(TypeError, match="p_max is required"):
+        PDCompensation(ch, q_d, Kp=1e-3, Kd=1e-3, rate=500.0)
+    with pytest.raises(ValueError, match="tension_max must be >= 0"):
+        PDCompensation(ch, q_d, Kp=1e-3, Kd=1e-3, rate=500.0, tension_max=-1.0)

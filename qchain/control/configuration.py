@@ -44,16 +44,16 @@ class PDCompensation(Controller):
     Kp, Kd : float or (k,) > 0
         Stiffness and damping gains on the ``k`` free coordinates (generalised force per unit
         of the coordinate, and per unit rate).
-    rate, p_max, p_min, penalty
+    rate, p_max, p_min, penalty, tension_max
         :class:`~qchain.control.base.Controller`.
 
     Signals (besides the base's): ``q_d`` (K, nq), ``error`` (K, k) ``q - q_d`` on the free
     coordinates, ``storage`` (K,) J, the ``V`` above.
     """
 
-    def __init__(self, chain: Chain, q_d, *, Kp, Kd, rate: float, p_max: float, p_min: float = 0.0,
-                 penalty: float | None = None):
-        super().__init__(chain, rate=rate, p_max=p_max, p_min=p_min, penalty=penalty)
+    def __init__(self, chain: Chain, q_d, *, Kp, Kd, rate: float, p_max: float | None = None, p_min: float = 0.0,
+                 penalty: float | None = None, tension_max: float | None = None):
+        super().__init__(chain, rate=rate, p_max=p_max, p_min=p_min, penalty=penalty, tension_max=tension_max)
         self.reference = ConfigurationReference(chain, q_d)
         k = self.active.size
         self.Kp, self.Kd = gain("Kp", Kp, k), gain("Kd", Kd, k)
@@ -97,16 +97,16 @@ class SlotineLi(Controller):
         Damping gain on ``s`` (generalised force per unit rate).
     Lambda : float or (k,) > 0, 1/s
         Bandwidth of the error filter ``de/dt = -Lambda e``.
-    rate, p_max, p_min, penalty
+    rate, p_max, p_min, penalty, tension_max
         :class:`~qchain.control.base.Controller`.
 
     Signals (besides the base's): ``q_d`` (K, nq), ``error`` (K, k) ``q - q_d`` on the free
     coordinates, ``s`` (K, k), ``storage`` (K,) J, ``V = 1/2 s^T M s``.
     """
 
-    def __init__(self, chain: Chain, q_d, *, K, Lambda, rate: float, p_max: float, p_min: float = 0.0,
-                 penalty: float | None = None):
-        super().__init__(chain, rate=rate, p_max=p_max, p_min=p_min, penalty=penalty)
+    def __init__(self, chain: Chain, q_d, *, K, Lambda, rate: float, p_max: float | None = None, p_min: float = 0.0,
+                 penalty: float | None = None, tension_max: float | None = None):
+        super().__init__(chain, rate=rate, p_max=p_max, p_min=p_min, penalty=penalty, tension_max=tension_max)
         self.reference = ConfigurationReference(chain, q_d) if not isinstance(q_d, ConfigurationReference) else q_d
         k = self.active.size
         self.K, self.Lambda = gain("K", K, k), gain("Lambda", Lambda, k)

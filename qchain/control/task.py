@@ -40,16 +40,16 @@ class TipPD(Controller):
     Kp : float > 0, N/m;  Kd : float > 0, N s/m
     c : float >= 0
         Damping of the free coordinates (generalised force per unit rate), default 0.
-    rate, p_max, p_min, penalty
+    rate, p_max, p_min, penalty, tension_max
         :class:`~qchain.control.base.Controller`.
 
     Signals (besides the base's): ``x_d``, ``x`` (K, 3) m, ``error`` (K, 3) m ``x - x_d``,
     ``storage`` (K,) J, the ``V`` above.
     """
 
-    def __init__(self, chain: Chain, x_d, *, Kp: float, Kd: float, c: float = 0.0, rate: float, p_max: float,
-                 p_min: float = 0.0, penalty: float | None = None):
-        super().__init__(chain, rate=rate, p_max=p_max, p_min=p_min, penalty=penalty)
+    def __init__(self, chain: Chain, x_d, *, Kp: float, Kd: float, c: float = 0.0, rate: float, p_max: float | None = None,
+                 p_min: float = 0.0, penalty: float | None = None, tension_max: float | None = None):
+        super().__init__(chain, rate=rate, p_max=p_max, p_min=p_min, penalty=penalty, tension_max=tension_max)
         self.reference = TipReference(x_d)
         self.Kp, self.Kd, self.c = (as_real(n, x) for n, x in (("Kp", Kp), ("Kd", Kd), ("c", c)))
         for name, x in (("Kp", self.Kp), ("Kd", self.Kd)):
@@ -101,10 +101,11 @@ class TipTracking(SlotineLi):
     """
 
     def __init__(self, chain: Chain, path: Callable, duration: float, q_home, *, K, Lambda, rate: float,
-                 p_max: float, p_min: float = 0.0, penalty: float | None = None, t0: float = 0.0,
-                 samples_per_second: float = 100.0):
+                 p_max: float | None = None, p_min: float = 0.0, penalty: float | None = None, t0: float = 0.0,
+                 samples_per_second: float = 100.0, tension_max: float | None = None):
         ref = TipPathReference(chain, path, duration, q_home, t0=t0, samples_per_second=samples_per_second)
-        super().__init__(chain, ref, K=K, Lambda=Lambda, rate=rate, p_max=p_max, p_min=p_min, penalty=penalty)
+        super().__init__(chain, ref, K=K, Lambda=Lambda, rate=rate, p_max=p_max, p_min=p_min, penalty=penalty,
+                         tension_max=tension_max)
         self.path = path
 
     def torque(self, t, q, v):
