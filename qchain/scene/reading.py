@@ -416,21 +416,8 @@ def _pressure(ck: _Checker, raw: dict, n: int | None) -> tuple[Schedule | None, 
             return None
         return arr.ravel()
 
-    spec: dict = {"type": kind}
-    if kind == "constant":
-        spec["value"] = vec("value", required=True)
-    elif kind == "step":
-        spec["time"] = ck.field(pt, T["time"], "pressure.time")
-        spec["after"] = vec("after", required=True)
-        spec["before"] = vec("before")
-    elif kind == "ramp":
-        spec["t0"] = ck.field(pt, T["t0"], "pressure.t0")
-        spec["t1"] = ck.field(pt, T["t1"], "pressure.t1")
-        if spec["t0"] is not None and spec["t1"] is not None and not spec["t1"] > spec["t0"]:
-            ck.add("pressure.t1", f"a time > t0 = {spec['t0']:g} s", _show(pt["t1"]))
-        spec["end"] = vec("end", required=True)
-        spec["start"] = vec("start")
-    elif kind == "sine":
+    spec = _schedule_spec(ck, pt, T, "pressure", kind, vec)  # a constant, step or ramp read there
+    if kind == "sine":
         spec["amplitude"] = vec("amplitude", required=True)
         spec["offset"] = vec("offset")
         spec["frequency"] = scalar_or_vec("frequency", 0.0)
@@ -443,7 +430,7 @@ def _pressure(ck: _Checker, raw: dict, n: int | None) -> tuple[Schedule | None, 
         spec["phase"] = phase
         _sine_within(ck, "pressure", spec, Range(VACUUM_GAUGE, P.high, "Pa"), "in every chamber",
                      lambda k: f"at {_where(k)}", " (a vacuum)")
-    else:  # table
+    elif kind == "table":
         times = pt.get("times", _MISSING)
         values = pt.get("values", _MISSING)
         t_arr = _table_times(ck, pt, "pressure", T["times"].range)
@@ -479,6 +466,27 @@ def _pressure(ck: _Checker, raw: dict, n: int | None) -> tuple[Schedule | None, 
         ck.add("pressure", "a valid schedule", str(err))
         return None, {}
     return sched, spec
+
+
+def _schedule_spec(ck: _Checker, pt: dict, T, table: str, kind: str, vec) -> dict:
+    """A schedule table's ``spec`` (``type`` and, for a ``constant``, ``step`` or ``ramp``,
+    their keys; the caller reads the others): times by ``T``'s fields, vectors by ``vec(key,
+    required)`` (``[pressure]``, ``[tension]``), problems added naming ``table.key``."""
+    spec: dict = {"type": kind}
+    if kind == "constant":
+        spec["value"] = vec("value", required=True)
+    elif kind == "step":
+        spec["time"] = ck.field(pt, T["time"], f"{table}.time")
+        spec["after"] = vec("after", required=True)
+        spec["before"] = vec("before")
+    elif kind == "ramp":
+        spec["t0"] = ck.field(pt, T["t0"], f"{table}.t0")
+        spec["t1"] = ck.field(pt, T["t1"], f"{table}.t1")
+        if spec["t0"] is not None and spec["t1"] is not None and not spec["t1"] > spec["t0"]:
+            ck.add(f"{table}.t1", f"a time > t0 = {spec['t0']:g} s", _show(pt["t1"]))
+        spec["end"] = vec("end", required=True)
+        spec["start"] = vec("start")
+    return spec
 
 
 def _sine_within(ck: _Checker, table: str, spec: dict, rng: Range, every: str, where, why_low: str) -> None:
@@ -686,21 +694,8 @@ def _tension(ck: _Checker, raw: dict, m: int | None, has_tendons: bool) -> tuple
         return tensions(key, pt[key], f"tension.{key}", f"a number ({unit}) or an array of "
                         f"{'' if m is None else f'{m} '}numbers ({unit}), one a tendon")
 
-    spec: dict = {"type": kind}
-    if kind == "constant":
-        spec["value"] = vec("value", required=True)
-    elif kind == "step":
-        spec["time"] = ck.field(pt, T["time"], "tension.time")
-        spec["after"] = vec("after", required=True)
-        spec["before"] = vec("before")
-    elif kind == "ramp":
-        spec["t0"] = ck.field(pt, T["t0"], "tension.t0")
-        spec["t1"] = ck.field(pt, T["t1"], "tension.t1")
-        if spec["t0"] is not None and spec["t1"] is not None and spec["t1"] <= spec["t0"]:
-            ck.add("tension.t1", f"a time > t0 = {spec['t0']:g} s", _show(pt["t1"]))
-        spec["end"] = vec("end", required=True)
-        spec["start"] = vec("start")
-    elif kind == "sine":
+    spec = _schedule_spec(ck, pt, T, "tension", kind, vec)  # a constant, step or ramp read there
+    if kind == "sine":
         spec["amplitude"] = vec("amplitude", required=True)
         spec["offset"] = vec("offset")
         if "frequency" not in pt:
@@ -709,7 +704,7 @@ def _tension(ck: _Checker, raw: dict, m: int | None, has_tendons: bool) -> tuple
         spec["phase"] = scalar_or_vec("phase", 0.0)
         _sine_within(ck, "tension", spec, T["offset"].range, "for every tendon", lambda k: f"for tendon {k}",
                      " (a tendon cannot push)")
-    else:  # table
+    elif kind == "table":
         values = pt.get("values")
         t_arr = _table_times(ck, pt, "tension", T["times"].range)
         rows = None

@@ -632,6 +632,13 @@ def _drag_jacobian(m, wk, q_c, v_c, Minv, da_dq, da_dv):
     Jq, Jv = wk.Jenv[0], wk.Jenv[1]
     drag_derivatives(m.arrays, m.base == FLOATING, q_c, v_c, wk.B[0], Jq, Jv, wk.W[0, : n + 1], wk.W[1, : n + 1],
                      wk.Denv, wk.Eenv, wk.drag_frames, wk.scratch)
+    _add_Minv_times(Minv, Jq, Jv, nv, da_dq, da_dv)
+
+
+@inline
+def _add_Minv_times(Minv, Jq, Jv, nv, da_dq, da_dv):
+    """``da_dq += M^-1 Jq`` and ``da_dv += M^-1 Jv`` over the leading ``nv`` rows and columns:
+    an external force's derivatives ``Jq``, ``Jv`` (nv, nv) turned into the accelerations'."""
     for r in range(nv):
         for c in range(nv):
             aq = 0.0
@@ -658,15 +665,7 @@ def _environment_jacobian(m, wk, t, q_c, v_c, Minv, da_dq, da_dv):
     environment_derivatives(m.arrays, env.kind, wk.prm_t, wk.vel, env.law, env.calpha, env.seg, env.alpha, env.wrench,
                             env.local, m.base == FLOATING, q_c, v_c, wk.R_WB, wk.B[3, :3], wk.B[0], Jq, Jv,
                             wk.W[0, : n + 1], wk.W[1, : n + 1], wk.Denv, wk.Eenv, wk.roots, wk.nodes, wk.scratch)
-    for r in range(nv):
-        for c in range(nv):
-            aq = 0.0
-            av = 0.0
-            for k in range(nv):
-                aq += Minv[r, k] * Jq[k, c]
-                av += Minv[r, k] * Jv[k, c]
-            da_dq[r, c] += aq
-            da_dv[r, c] += av
+    _add_Minv_times(Minv, Jq, Jv, nv, da_dq, da_dv)
 
 
 @inline
