@@ -333,7 +333,7 @@ class Rollouts:
         B = self.Q0.shape[0]
         w_start, k_start = time.perf_counter(), _read_ticks()
         try:
-            with first_class_functions():
+            with first_class_functions(), driver.sigint_between_calls() as sigint:
                 while True:
                     k0 = min(int(self.counter[0]), B)
                     w0 = time.perf_counter()
@@ -349,7 +349,7 @@ class Rollouts:
                         done(min(int(self.counter[0]), B) - k0)
                     if code == DONE:
                         break
-                    if stop is not None and stop.is_set():
+                    if stop is not None and stop.is_set() or sigint is not None and sigint.is_set():
                         raise KeyboardInterrupt
         finally:
             w, k = time.perf_counter() - w_start, _read_ticks() - k_start

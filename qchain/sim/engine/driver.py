@@ -12,6 +12,7 @@ from __future__ import annotations
 import contextlib
 import functools
 import inspect
+import signal
 import sys
 import threading
 import time as _time
@@ -53,6 +54,39 @@ def stop_on(event: threading.Event):
         yield
     finally:
         _thread.stop = before
+
+
+@contextlib.contextmanager
+def sigint_between_calls():
+    """A context in which Ctrl-C is taken between compiled calls, not inside one: yields an
+    event set at SIGINT (``None`` off the main thread, or where SIGINT has no Python
+    handler), for the caller to raise ``KeyboardInterrupt`` at its next look from Python.
+
+    Python's SIGINT handler raises at the next bytecode, and numba runs Python while it
+    unboxes a compiled call's arguments (a signature unpickled, a wrapper's address asked
+    for): an interrupt there ends the call with an unrelated ``TypeError`` instead of
+    ``KeyboardInterrupt``. Here the handler that was in place still runs (a command's
+    count of Ctrl-C), its ``KeyboardInterrupt`` held back until the caller's look."""
+    if threading.current_thread() is not threading.main_thread():
+        yield None
+        return
+    previous = signal.getsignal(signal.SIGINT)
+    if not callable(previous):  # SIG_IGN, SIG_DFL, or a handler not installed from Python
+        yield None
+        return
+    event = threading.Event()
+
+    def held(signum, frame):
+        try:
+            previous(signum, frame)
+        except KeyboardInterrupt:
+            event.set()
+
+    signal.signal(signal.SIGINT, held)
+    try:
+        yield event
+    finally:
+        signal.signal(signal.SIGINT, previous)
 
 
 class _Outputs:
@@ -175,60 +209,63 @@ def _run(chain, m, method, q0, v0, t0, t1, *, dt, rtol, atol, t_eval, on_sample,
         pass_energies = True
         compile_s += warmup.prepare_energies(m, wk)
     try:
-        emitted = _hand_over(out, emitted, cnt, on_sample, pass_energies, m, wk)
-        while True:
-            t_stop = hold_times[n_hold] if n_hold < hold_times.size else t1
-            max_out = _max_out(out, cnt, t, on_sample)
-            steps = 1 if events else max_steps
-            if max_total_steps is not None and not fixed:
-                taken = int(cnt[steppers.NSTEPS]) + int(cnt[steppers.NREJECT])
-                if taken >= max_total_steps:
-                    status = -1
-                    message = step_budget_message(max_total_steps, f"{taken} steps taken ({int(cnt[steppers.NSTEPS])} "
-                                                  f"accepted, {int(cnt[steppers.NREJECT])} rejected)", t, t1, method)
-                    break
-                steps = min(steps, max_total_steps - taken)
-            w0 = _time.perf_counter()
-            code = advance(fs, m, wk, it, out.arrays, c, t_stop, max_out, steps)
-            wall = _time.perf_counter() - w0
-            if code == STEPS and not events:  # size the next stretch to about STRETCH s
-                max_steps = int(min(max(max_steps * min(4.0, STRETCH / max(wall, 1e-6)), 1), 1 << 20))
-            t = tf[steppers.T]
-            if code == FAILED:
-                w0 = _time.perf_counter()  # (rk4's stability limit: the exact derivatives, compiled at their first use)
-                status, message = -1, _failure(chain, wk, it, method, q0, v0, t0, inputs)
-                compile_s += _time.perf_counter() - w0
-                emitted = _hand_over(out, emitted, cnt, on_sample, pass_energies, m, wk)
-                break
-            if events and cnt[steppers.DENSE_OK]:
-                hit = _events(events, g_prev, ev_log, method, chain, m, wk, it, c)
-                if hit is not None:
-                    _cut(out, cnt, hit, method, chain, m, wk, it, c, inputs)
-                    emitted = _hand_over(out, emitted, cnt, on_sample, pass_energies, m, wk)
-                    status, message = 1, f"A termination event occurred at t = {hit:.6g} s."
-                    t = hit
-                    break
+        with sigint_between_calls() as sigint:
             emitted = _hand_over(out, emitted, cnt, on_sample, pass_energies, m, wk)
-            if out.every and cnt[steppers.K_OUT] == out.t.size:
-                out.grow()
-            if bar is not None:
-                bar.update(t)
-            if deadline is not None and _time.perf_counter() > deadline:
-                status, message = -1, f"wall-clock limit reached at t = {t:.6g} s"
-                break
-            if stop is not None and stop.is_set():
-                raise KeyboardInterrupt
-            if code == AT_STOP:
-                if t >= t1:
-                    break
-                q, v = state(chain, m.idx, wk.q_chart, y)
-                hold(t, q, v)
-                n_hold += 1
-                for r in range(cnt[steppers.K_OUT] - 1, -1, -1):  # a sample at the instant shows the new hold
-                    if abs(out.t[r] - t) > 1e-12 * max(1.0, abs(t)):
+            while True:
+                t_stop = hold_times[n_hold] if n_hold < hold_times.size else t1
+                max_out = _max_out(out, cnt, t, on_sample)
+                steps = 1 if events else max_steps
+                if max_total_steps is not None and not fixed:
+                    taken = int(cnt[steppers.NSTEPS]) + int(cnt[steppers.NREJECT])
+                    if taken >= max_total_steps:
+                        status = -1
+                        message = step_budget_message(max_total_steps, f"{taken} steps taken ({int(cnt[steppers.NSTEPS])} "
+                                                      f"accepted, {int(cnt[steppers.NREJECT])} rejected)", t, t1, method)
                         break
-                    out.p[r] = inputs(t, q, v)[0]
-            del code
+                    steps = min(steps, max_total_steps - taken)
+                w0 = _time.perf_counter()
+                code = advance(fs, m, wk, it, out.arrays, c, t_stop, max_out, steps)
+                wall = _time.perf_counter() - w0
+                if code == STEPS and not events:  # size the next stretch to about STRETCH s
+                    max_steps = int(min(max(max_steps * min(4.0, STRETCH / max(wall, 1e-6)), 1), 1 << 20))
+                t = tf[steppers.T]
+                if code == FAILED:
+                    w0 = _time.perf_counter()  # (rk4's stability limit: the exact derivatives, compiled at their first use)
+                    status, message = -1, _failure(chain, wk, it, method, q0, v0, t0, inputs)
+                    compile_s += _time.perf_counter() - w0
+                    emitted = _hand_over(out, emitted, cnt, on_sample, pass_energies, m, wk)
+                    break
+                if events and cnt[steppers.DENSE_OK]:
+                    hit = _events(events, g_prev, ev_log, method, chain, m, wk, it, c)
+                    if hit is not None:
+                        _cut(out, cnt, hit, method, chain, m, wk, it, c, inputs)
+                        emitted = _hand_over(out, emitted, cnt, on_sample, pass_energies, m, wk)
+                        status, message = 1, f"A termination event occurred at t = {hit:.6g} s."
+                        t = hit
+                        break
+                emitted = _hand_over(out, emitted, cnt, on_sample, pass_energies, m, wk)
+                if out.every and cnt[steppers.K_OUT] == out.t.size:
+                    out.grow()
+                if bar is not None:
+                    bar.update(t)
+                if deadline is not None and _time.perf_counter() > deadline:
+                    status, message = -1, f"wall-clock limit reached at t = {t:.6g} s"
+                    break
+                if stop is not None and stop.is_set() or sigint is not None and sigint.is_set():
+                    raise KeyboardInterrupt
+                if code == AT_STOP:
+                    if t >= t1:
+                        break
+                    q, v = state(chain, m.idx, wk.q_chart, y)
+                    hold(t, q, v)
+                    n_hold += 1
+                    for r in range(cnt[steppers.K_OUT] - 1, -1, -1):  # a sample at the instant shows the new hold
+                        if abs(out.t[r] - t) > 1e-12 * max(1.0, abs(t)):
+                            break
+                        out.p[r] = inputs(t, q, v)[0]
+                del code
+            if sigint is not None and sigint.is_set():  # Ctrl-C in the last stretch
+                raise KeyboardInterrupt
     except KeyboardInterrupt:
         if getattr(on_sample, "record_batch", None) is not None:  # the samples it had not taken yet
             _hand_over(out, emitted, cnt, on_sample, pass_energies, m, wk)
