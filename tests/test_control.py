@@ -405,3 +405,49 @@ def test_pd_compensation_on_tendons_brings_the_arm_to_a_reachable_target_with_te
         PDCompensation(ch, q_d, Kp=1e-3, Kd=1e-3, rate=500.0)
     with pytest.raises(ValueError, match="tension_max must be >= 0"):
         PDCompensation(ch, q_d, Kp=1e-3, Kd=1e-3, rate=500.0, tension_max=-1.0)
+
+
+def test_mpc_on_tendons_derivatives_paths_and_tracking():
+    """MPC planning tensions (tension_max): the horizon gradient against central differences
+    of the rolled-out cost, the compiled passes (tensions written into the engine's tendon
+    input, da/dT = M^-1 B_T in the linearisation) equal to the Python chain rule, and the
+    closed loop bringing the tip to the tip of an equilibrium under admissible tensions with
+    every tension in [0, tension_max]."""
+    from qchain.arm.statics import equilibrium
+    from qchain.control import MPC
+
+    ch = _tendon_chain()
+    T_eq = np.array([1.5, 0.0, 0.0, 0.0, 0.8, 0.0])
+    q_d = equilibrium(ch, tension=T_eq).q
+    x_d = ch.tip_placement(q_d).translation
+    q0 = equilibrium(ch, tension=0.3 * T_eq[::-1]).q
+    kw = dict(horizon=5, rate=50.0, tension_max=5.0)
+    fast, slow = MPC(ch, x_d, **kw), MPC(ch, x_d, compiled=False, **kw)
+    assert fast._engine is not None and slow._engine is None and fast.input == "tension"
+    rng = np.random.default_rng(4)
+    v0 = rng.normal(0.0, 0.5, ch.nv) * ch.active
+    P = rng.uniform(0.0, 3.0, (5, 6))
+    (c, G), (c_ref, G_ref) = fast.horizon_gradient(0.0, q0, v0, P), slow.horizon_gradient(0.0, q0, v0, P)
+    assert abs(c - c_ref) <= 1e-12 * c_ref
+    assert np.abs(G - G_ref).max() <= 1e-11 * np.abs(G_ref).max(), np.abs(G - G_ref).max() / np.abs(G_ref).max()
+    G_fd = np.empty_like(P)
+    for i, j in np.ndindex(P.shape):
+        dP = np.zeros_like(P)
+        dP[i, j] = 1e-4  # N
+        G_fd[i, j] = (fast.horizon_cost(0.0, q0, v0, P + dP) - fast.horizon_cost(0.0, q0, v0, P - dP)) / 2e-4
+    assert np.abs(G - G_fd).max() < 1e-6 * np.abs(G_fd).max(), np.abs(G - G_fd).max() / np.abs(G_fd).max()
+    out, ref = fast.step(q0, v0, P[0], derivatives=True), slow.step(q0, v0, P[0], derivatives=True)
+    for x, r in zip(out, ref):
+        assert np.abs(x - r).max() <= 1e-12 * np.abs(r).max(), np.abs(x - r).max() / np.abs(r).max()
+    with pytest.raises(ValueError, match=r"R must be >= 0 and <= 1e\+09 1/N\^2, got -1"):
+        MPC(ch, x_d, R=-1.0, **kw)
+    with pytest.raises(ValueError, match=r"P must have shape \(5, 6\) \(horizon, nt\)"):
+        fast.horizon_cost(0.0, q0, v0, np.zeros((5, 12)))
+
+    tr = fast.run(q0, np.zeros(ch.nv), 1.0, t_eval=np.linspace(0.0, 1.0, 11))
+    s = fast.signals()
+    assert "p" not in s and s["tension"].shape == (len(s["t"]), 6) and tr.meta["engine"] == "compiled"
+    assert s["tension"].min() >= 0.0 and s["tension"].max() <= 5.0 and fast.plan.min() >= 0.0
+    err = np.linalg.norm(s["error"], axis=1)
+    assert err[0] > 0.02 and err[-10:].max() < 1e-3 * err[0], (err[0], err[-10:].max())
+    np.testing.assert_array_equal(tr.tension[-1], s["tension"][-1])

@@ -20,7 +20,8 @@ __all__ = ["Range", "LENGTH", "RADIUS", "MASS", "CHAMBER_AREA", "CHAMBER_RADIUS"
            "FREQUENCY", "PRESSURE", "PRESSURE_AMPLITUDE", "TENSION_AMPLITUDE", "TIME", "DURATION", "STEP", "RTOL", "ATOL", "SAMPLE_RATE",
            "NODE_TOLERANCE", "MAX_BEND", "LENGTH_TOLERANCE", "WALL_LIMIT", "VACUUM_GAUGE", "SEGMENT_COUNT", "WORKERS", "RETRIES",
            "EXTENT", "CONTACT_STIFFNESS", "CONTACT_EXPONENT", "CONTACT_DAMPING", "FRICTION", "SLIP_VELOCITY",
-           "RESTITUTION", "IMPACT_SPEED", "CONTACT_NODES", "HORIZON", "TIP_WEIGHT", "PRESSURE_WEIGHT", "ITERATIONS"]
+           "RESTITUTION", "IMPACT_SPEED", "CONTACT_NODES", "HORIZON", "TIP_WEIGHT", "PRESSURE_WEIGHT", "TENSION_WEIGHT",
+           "ITERATIONS"]
 
 
 def _num(x: float) -> str:
@@ -210,6 +211,7 @@ ENV_COUNT = Range(1, 4096, integer=True)  #: sub-environments of a vectorised en
 HORIZON = Range(1, 10_000, integer=True)  #: control intervals an MPC plans over
 TIP_WEIGHT = Range(0.0, 1e15, "1/m^2")  #: weight of the squared tip error in an MPC cost
 PRESSURE_WEIGHT = Range(0.0, 1e3, "1/Pa^2")  #: weight of the squared pressures in an MPC cost
+TENSION_WEIGHT = Range(0.0, 1e9, "1/N^2")  #: weight of the squared tendon tensions in an MPC cost
 ITERATIONS = Range(1, 10_000, integer=True)  #: iterations of an optimiser
 
 # -- contact (qchain.contact): obstacles and the contact law

@@ -41,6 +41,11 @@ keeps the Python path (per-stage :meth:`Chain.forward_dynamics` /
 :meth:`Chain.forward_dynamics_derivatives` calls, the chain rule in numpy): equal to
 rounding.
 
+Given ``tension_max`` instead of ``p_max``, the inputs ``p_k`` are the tensions ``T_k`` (nt,) N
+of the chain's tendons, ``0 <= T_k <= tension_max`` (a tendon pulls), the chambers held at zero:
+the same cost and solver, with ``da/dT = M^-1 B_T(q)`` and the tendons' exact stiffness
+``M^-1 d(B_T T)/dq`` in ``da/dq`` (docs/tendons.md).
+
 docs/control.md ("Model-predictive control") gives the equations, the accuracy of the
 discrete dynamics and the measured solve times.
 """
@@ -53,7 +58,7 @@ from scipy.linalg import cho_factor, cho_solve, solve_triangular
 from scipy.optimize import lsq_linear
 
 from ..arm.chain import Chain
-from ..checks.bounds import HORIZON, ITERATIONS, PRESSURE_WEIGHT, RTOL, STEP, TIP_WEIGHT
+from ..checks.bounds import HORIZON, ITERATIONS, PRESSURE_WEIGHT, RTOL, STEP, TENSION_WEIGHT, TIP_WEIGHT
 from ..checks.convert import as_vector
 from .._jit import Address, first_class_functions
 from ..errors import DomainError, NonFiniteError
@@ -85,15 +90,19 @@ class MPC(Controller):
     Q : float, 1/m^2
         Weight of the squared tip error at the intermediate knots (default ``1e6``: a 1 mm
         error costs 0.5).
-    R : float, 1/Pa^2
+    R : float, 1/Pa^2 (1/N^2 with tendons)
         Weight of the squared pressures, > 0 (default ``1e-12``: 100 kPa in one chamber over
-        one interval costs 0.005).
+        one interval costs 0.005); of the squared tensions with ``tension_max`` (default
+        ``1e-3``: 2 N in one tendon over one interval costs 0.002).
     Q_terminal : float, 1/m^2, optional
         ``Q_f``, weight of the squared tip error at the horizon's end (default ``Q``).
     rate : float, Hz
         The control rate; ``h = 1 / rate`` is an interval of the plan.
     p_max, p_min : float, Pa
         The pressure bounds (:class:`~qchain.control.base.Controller`).
+    tension_max : float, N, optional
+        Plan the tensions of the chain's tendons in ``[0, tension_max]`` instead of pressures
+        (then ``p_max``, ``p_min`` are not given; :class:`~qchain.control.base.Controller`).
     max_iter : int
         Box-DDP iterations a sample (default 5); the first sample, cold, up to 10 times more.
     tol : float
@@ -109,7 +118,7 @@ class MPC(Controller):
     Attributes
     ----------
     horizon, Q, R, Q_terminal, max_iter, tol, steps
-    plan : (H, 3 n) Pa or None
+    plan : (H, 3 n) Pa, (H, nt) N with tendons, or None
         The last solution, ``plan[0]`` applied at the last sample.
 
     Signals (besides ``t``, ``p``, ``compute_s``): ``solve_s`` (K,) the CPU time (s) of the
@@ -117,13 +126,18 @@ class MPC(Controller):
     ``cost`` (K,) the plan's ``J``, ``x``, ``x_d``, ``error`` (K, 3) m the tip, its target
     and ``x - x_d``; ``tau`` = ``tau_realised`` (K, k) ``B(q) p`` on the free coordinates,
     ``residual`` (K,) zero (nothing is allocated), ``saturated`` (K,) whether a chamber is at a
-    bound, ``at_upper`` (K,) the chambers at ``p_max``.
+    bound, ``at_upper`` (K,) the chambers at ``p_max``. With tendons ``tension`` (K, nt) N
+    takes the place of ``p``, ``tau`` is ``B_T(q) T`` and the bounds are ``[0, tension_max]``.
     """
 
-    def __init__(self, chain: Chain, path, *, horizon: int = 20, Q: float = 1e6, R: float = 1e-12,
-                 Q_terminal: float | None = None, rate: float, p_max: float, p_min: float = 0.0, max_iter: int = 5,
-                 tol: float = 1e-4, max_step: float = 0.01, compiled: bool = True):
-        super().__init__(chain, rate=rate, p_max=p_max, p_min=p_min)
+    def __init__(self, chain: Chain, path, *, horizon: int = 20, Q: float = 1e6, R: float | None = None,
+                 Q_terminal: float | None = None, rate: float, p_max: float | None = None, p_min: float = 0.0,
+                 tension_max: float | None = None, max_iter: int = 5, tol: float = 1e-4, max_step: float = 0.01,
+                 compiled: bool = True):
+        super().__init__(chain, rate=rate, p_max=p_max, p_min=p_min, tension_max=tension_max)
+        self._tendons = self.input == "tension"
+        self._nu = chain.nt if self._tendons else chain.nu  # the inputs planned: tensions or pressures
+        self._unit = "N" if self._tendons else "Pa"
         if callable(path):
             self.path = path
         else:
@@ -131,10 +145,13 @@ class MPC(Controller):
             self.path = lambda t: target
         self.horizon = HORIZON.check("horizon", horizon)
         self.Q = TIP_WEIGHT.check("Q", Q)
-        self.R = PRESSURE_WEIGHT.check("R", R)
+        if self._tendons:
+            self.R = TENSION_WEIGHT.check("R", 1e-3 if R is None else R)
+        else:
+            self.R = PRESSURE_WEIGHT.check("R", 1e-12 if R is None else R)
         if not self.R > 0:
-            raise ValueError(f"R must be > 0 (it makes each stage's Hessian in the pressures positive definite), "
-                             f"got {self.R:g} 1/Pa^2")
+            raise ValueError(f"R must be > 0 (it makes each stage's Hessian in the inputs positive definite), "
+                             f"got {self.R:g} 1/{self._unit}^2")
         self.Q_terminal = self.Q if Q_terminal is None else TIP_WEIGHT.check("Q_terminal", Q_terminal)
         if self.Q == 0 and self.Q_terminal == 0:
             raise ValueError("Q and Q_terminal must not both be 0 1/m^2 (nothing would be tracked)")
@@ -147,8 +164,10 @@ class MPC(Controller):
         self._t_plan: float | None = None
         k = self.active.size
         self._k, self._nx = k, 2 * k
-        self._scale = max(abs(self.p_min), abs(self.p_max))  # the solver's pressures are p / scale
-        self._lo, self._hi = self.p_min / self._scale, self.p_max / self._scale
+        lo, hi = self._bounds
+        self._scale = max(abs(lo), abs(hi))  # the solver's inputs are p / scale
+        self._lo, self._hi = lo / self._scale, hi / self._scale
+        self._zero_p = np.zeros(chain.nu)  # the chambers' pressures while the tendons act
         self._data = chain.create_data()
         self._fast = chain.kernel_arrays() is not None  # compiled unchecked passes (results checked below)
         self._q = chain.neutral()  # the locked coordinates' values, taken from each sample's q
@@ -165,20 +184,35 @@ class MPC(Controller):
         return q, v
 
     def _f(self, s: np.ndarray, p: np.ndarray) -> np.ndarray:
+        """``ds/dt`` with the inputs ``p`` (pressures, or tensions with tendons) held."""
         q, v = self._full(s)
-        a = self.chain.forward_dynamics(q, v, p, data=self._data, skip_checks=self._fast)
+        if self._tendons:
+            tau = self.chain.tendon_matrix(q) @ p
+            a = self.chain.forward_dynamics(q, v, self._zero_p, tau, data=self._data, skip_checks=self._fast)
+        else:
+            a = self.chain.forward_dynamics(q, v, p, data=self._data, skip_checks=self._fast)
         return np.concatenate([s[self._k :], a[self.active]])
 
     def _f_derivatives(self, s: np.ndarray, p: np.ndarray):
-        """``(f, df/ds (2k, 2k), df/du (2k, nu))`` with ``u = p / scale``."""
+        """``(f, df/ds (2k, 2k), df/du (2k, nu))`` with ``u = p / scale``. With tendons the
+        tensions' force ``B_T(q) T`` enters as ``tau``: ``da/dT = M^-1 B_T`` and ``da/dq``
+        gains ``M^-1 d(B_T T)/dq`` (the tendons' exact stiffness)."""
         q, v = self._full(s)
-        r = self.chain.forward_dynamics_derivatives(q, v, p, data=self._data, skip_checks=self._fast)
         k, a = self._k, self.active
+        if self._tendons:
+            Bt = self.chain.tendon_matrix(q)
+            r = self.chain.forward_dynamics_derivatives(q, v, self._zero_p, Bt @ p, data=self._data,
+                                                        skip_checks=self._fast)
+            da_dq = r.da_dq + r.da_dtau @ self.chain.tendon_stiffness(q, p)
+            da_du = r.da_dtau @ Bt
+        else:
+            r = self.chain.forward_dynamics_derivatives(q, v, p, data=self._data, skip_checks=self._fast)
+            da_dq, da_du = r.da_dq, r.da_dp
         fs = self._fs0.copy()  # [[0, I], [da/dq, da/dv]]
-        fs[k:, :k] = r.da_dq[self._ix]
+        fs[k:, :k] = da_dq[self._ix]
         fs[k:, k:] = r.da_dv[self._ix]
-        fu = np.zeros((self._nx, self.chain.nu))
-        fu[k:] = r.da_dp[a] * self._scale
+        fu = np.zeros((self._nx, self._nu))
+        fu[k:] = da_du[a] * self._scale
         return np.concatenate([s[k:], r.a[a]]), fs, fu
 
     def _step(self, s: np.ndarray, u: np.ndarray) -> np.ndarray:
@@ -198,7 +232,7 @@ class MPC(Controller):
         through the stages, ``dy_i = I + c h dk_{i-1}`` for the stage states)."""
         p = u * self._scale
         dt = self.h / self.steps
-        nx, nu = self._nx, self.chain.nu
+        nx, nu = self._nx, self._nu
         eye = np.eye(nx)
         A, B = eye.copy(), np.zeros((nx, nu))  # d(s)/d(s_0), d(s)/d(u) so far
         for _ in range(self.steps):
@@ -224,14 +258,16 @@ class MPC(Controller):
     def _pack_engine(self) -> dict | None:
         """The engine's packed model, workspace and scratch for the compiled passes, or None
         where compiled code cannot serve the chain (then the Python path runs)."""
-        m = system.pack(self.chain, np.zeros(self.chain.nu), None)
+        ch = self.chain
+        m = system.pack(ch, np.zeros(ch.nu), None, tension=np.zeros(ch.nt) if ch.nt else None)
         if m is None or m.base != system.FIXED:
             return None
-        nx, nu, k = self._nx, self.chain.nu, self._k
-        return dict(m=m, wk=system.workspace(self.chain, m), fs=None, K=np.zeros((4, nx)), yt=np.zeros(nx),
+        nx, nu, k = self._nx, self._nu, self._k
+        return dict(m=m, wk=system.workspace(ch, m), fs=None, K=np.zeros((4, nx)), yt=np.zeros(nx),
                     y=np.zeros(nx), dK=np.zeros((4, nx, nx + nu)), D=np.zeros((nx, nx + nu)),
                     dY=np.zeros((nx, nx + nu)), Jq=np.zeros((k, k)), Jv=np.zeros((k, k)), kff=np.zeros((1, 1)),
-                    Kfb=np.zeros((1, 1, 1)), entries={})
+                    Kfb=np.zeros((1, 1, 1)), Bt=np.zeros((ch.nv, nu)), da_du=np.zeros((ch.nv, nu)), g=np.zeros(3),
+                    Hs=np.zeros((3, 3)), entries={})
 
     def _call(self, fn, *args) -> None:
         """``fn(fs, m, wk, h, steps, scale, *args)`` with the locked coordinates' values as the
@@ -270,8 +306,8 @@ class MPC(Controller):
         feedback = kff is not None
         if not feedback:
             kff, Kfb, S_ref, U_ref = e["kff"], e["Kfb"], S, U
-        self._call(compiled_horizon.rollout, float(self._lo), float(self._hi), S_ref, U_ref, kff, Kfb, float(alpha),
-                   feedback, S, U, e["K"], e["yt"])
+        self._call(compiled_horizon.rollout, self._tendons, float(self._lo), float(self._hi), S_ref, U_ref, kff, Kfb,
+                   float(alpha), feedback, S, U, e["K"], e["yt"])
 
     def _dynamics_jacobians(self, S, U):
         """Every interval's ``A_k`` (H, 2k, 2k) and ``B_k`` (H, 2k, nu) (``u`` scaled) at the
@@ -280,17 +316,17 @@ class MPC(Controller):
             return self._dynamics_jacobians_python(S, U)
         H, nx = U.shape[0], self._nx
         A = np.empty((H, nx, nx))
-        B = np.empty((H, nx, self.chain.nu))
+        B = np.empty((H, nx, self._nu))
         e = self._engine
-        self._call(compiled_horizon.linearise, S, U, A, B, e["K"], e["dK"], e["y"], e["yt"], e["D"], e["dY"],
-                   e["Jq"], e["Jv"])
+        self._call(compiled_horizon.linearise, self._tendons, S, U, A, B, e["K"], e["dK"], e["y"], e["yt"], e["D"],
+                   e["dY"], e["Jq"], e["Jv"], e["Bt"], e["da_du"], e["g"], e["Hs"])
         return A, B
 
     def _dynamics_jacobians_python(self, S, U):
         """:meth:`_dynamics_jacobians` by the Python path (per-stage calls, the chain rule in numpy)."""
         H, nx = U.shape[0], self._nx
         A = np.empty((H, nx, nx))
-        B = np.empty((H, nx, self.chain.nu))
+        B = np.empty((H, nx, self._nu))
         for j in range(H):
             _, A[j], B[j] = self._step_derivatives(S[j], U[j])
         return A, B
@@ -323,8 +359,8 @@ class MPC(Controller):
         """``(J, X)``: the cost and the tip positions ``X`` (H + 1, 3) m at the knots (``X[0]``
         not formed: NaN), which the linearisation reuses."""
         if not np.all(np.isfinite(S)):
-            raise NonFiniteError(f"MPC: the planned motion has non-finite entries; the plan's pressures "
-                                 f"range {U.min() * self._scale:g} to {U.max() * self._scale:g} Pa")
+            raise NonFiniteError(f"MPC: the planned motion has non-finite entries; the plan's {self.input}s "
+                                 f"range {U.min() * self._scale:g} to {U.max() * self._scale:g} {self._unit}")
         w = self._weights()
         X = np.full((self.horizon + 1, 3), np.nan)
         Q = np.tile(self._q, (self.horizon, 1))
@@ -334,8 +370,9 @@ class MPC(Controller):
         track = sum(0.5 * w[j] * np.sum((X[j] - Xd[j]) ** 2) for j in range(1, self.horizon + 1))
         cost = track + 0.5 * self.R * self._scale**2 * float(np.sum(U * U))
         if not np.isfinite(cost) or not np.all(np.isfinite(S)):
-            raise NonFiniteError(f"MPC: the planned motion has non-finite entries (cost {cost:g}); the plan's pressures "
-                                 f"range {U.min() * self._scale:g} to {U.max() * self._scale:g} Pa")
+            raise NonFiniteError(f"MPC: the planned motion has non-finite entries (cost {cost:g}); the plan's "
+                                 f"{self.input}s range {U.min() * self._scale:g} to {U.max() * self._scale:g} "
+                                 f"{self._unit}")
         return float(cost), X
 
     def _linearise(self, S, U, Xd, X):
@@ -363,19 +400,21 @@ class MPC(Controller):
 
     def _sequence(self, P) -> np.ndarray:
         P = np.asarray(P, dtype=float)
-        if P.shape != (self.horizon, self.chain.nu):
-            raise ValueError(f"P must have shape ({self.horizon}, {self.chain.nu}) (horizon, 3 n), got {P.shape}")
+        if P.shape != (self.horizon, self._nu):
+            raise ValueError(f"P must have shape ({self.horizon}, {self._nu}) (horizon, "
+                             f"{'nt' if self._tendons else '3 n'}), got {P.shape}")
         if not np.all(np.isfinite(P)):
             raise ValueError("P has non-finite entries")
         return P / self._scale
 
     def step(self, q, v, p, derivatives: bool = False):
         """The discrete dynamics over one control interval: ``(q', v')`` (nq,), (nv,) after
-        ``1 / rate`` s from ``(q, v)`` with ``p`` (3 n,) Pa held; with ``derivatives=True``
-        also ``A = ds'/ds`` (2k, 2k) and ``B = ds'/dp`` (2k, 3 n) (1/Pa), exact, on the free
-        coordinates' state ``s = (q[active], v[active])``."""
+        ``1 / rate`` s from ``(q, v)`` with ``p`` (3 n,) Pa held (the tensions (nt,) N with
+        tendons); with ``derivatives=True`` also ``A = ds'/ds`` (2k, 2k) and ``B = ds'/dp``
+        (2k, 3 n) (1/Pa; (2k, nt), 1/N, with tendons), exact, on the free coordinates' state
+        ``s = (q[active], v[active])``."""
         s = self._state(q, v)
-        p = as_vector("p", p, self.chain.nu)
+        p = as_vector("p", p, self._nu)
         u = (p / self._scale)[None]
         if self._engine is None:
             if derivatives:
@@ -393,13 +432,13 @@ class MPC(Controller):
         return self._full(S[1])
 
     def horizon_cost(self, t: float, q, v, P) -> float:
-        """``J(P)`` of the module docstring for the pressures ``P`` (H, 3 n) Pa from ``(q, v)``
-        at ``t``: a rollout of the discrete dynamics."""
+        """``J(P)`` of the module docstring for the pressures ``P`` (H, 3 n) Pa (the tensions
+        (H, nt) N with tendons) from ``(q, v)`` at ``t``: a rollout of the discrete dynamics."""
         s0 = self._state(q, v)
         return self._rollout(s0, self._sequence(P), self._targets(t))[1]
 
     def horizon_gradient(self, t: float, q, v, P) -> tuple[float, np.ndarray]:
-        """``(J(P), dJ/dP (H, 3 n) 1/Pa)``: the gradient by the adjoint recursion on the
+        """``(J(P), dJ/dP (H, 3 n) 1/Pa (H, nt) 1/N with tendons)``: the gradient by the adjoint recursion on the
         linearisation, ``lam_H = l_s(H)``, ``dJ/dp_k = R p_k + B_k^T lam_{k+1}``,
         ``lam_k = l_s(k) + A_k^T lam_{k+1}`` (exact: the Gauss-Newton step enters only
         the Hessian)."""
@@ -430,7 +469,7 @@ class MPC(Controller):
         return du, r.active_mask == 0
 
     def _backward(self, U, A, B, lx, lxx, mu):
-        H, nu = self.horizon, self.chain.nu
+        H, nu = self.horizon, self._nu
         r = self.R * self._scale**2
         kff = np.zeros((H, nu))
         Kfb = np.zeros((H, nu, self._nx))
@@ -508,13 +547,13 @@ class MPC(Controller):
 
     def torque(self, t, q, v):
         """``(B(q) p_0 on the free coordinates, signals)``: the generalised force of the
-        pressures the plan applies now (it solves the plan)."""
+        pressures (``B_T(q) T_0``: the tensions) the plan applies now (it solves the plan)."""
         c0, w0 = time.process_time(), time.perf_counter()
         s0 = self._state(q, v)
         U = self._warm_start(t)
         max_iter = self.max_iter
         if U is None:
-            U = np.full((self.horizon, self.chain.nu), np.clip(0.0, self._lo, self._hi))
+            U = np.full((self.horizon, self._nu), np.clip(0.0, self._lo, self._hi))
             max_iter = _COLD_FACTOR * self.max_iter
         U, cost, it = self._solve(t, s0, U, max_iter)
         solve_s, solve_wall = time.process_time() - c0, time.perf_counter() - w0
@@ -522,16 +561,16 @@ class MPC(Controller):
         p = self.plan[0].copy()
         x = self.chain.tip_placement(q).translation
         x_d = path_point(self.path, t)
-        tau = (self.chain.input_matrix(q) @ p)[self.active]
-        return tau, {"p": p, "solve_s": solve_s, "solve_wall_s": solve_wall, "iterations": it, "cost": cost,
+        tau = self._input_matrix(q) @ p
+        return tau, {self._signal: p, "solve_s": solve_s, "solve_wall_s": solve_wall, "iterations": it, "cost": cost,
                      "x": x, "x_d": x_d, "error": x - x_d}
 
     def _command(self, t, q, v) -> dict:
         tau, own = self.torque(t, q, v)
-        p = own["p"]
-        rec = {"p": p, "tau": tau, "tau_realised": tau, "residual": 0.0,
-               "saturated": bool(np.any(p <= self.p_min) or np.any(p >= self.p_max)),
-               "at_upper": int(np.sum(p >= self.p_max))}
+        p = own[self._signal]
+        lo, hi = self._bounds
+        rec = {self._signal: p, "tau": tau, "tau_realised": tau, "residual": 0.0,
+               "saturated": bool(np.any(p <= lo) or np.any(p >= hi)), "at_upper": int(np.sum(p >= hi))}
         rec.update(own)
         return rec
 
@@ -549,4 +588,5 @@ class MPC(Controller):
 
     def __repr__(self) -> str:
         return (f"MPC(horizon={self.horizon}, rate={self.rate:g} Hz, Q={self.Q:g}, R={self.R:g}, "
-                f"Q_terminal={self.Q_terminal:g}, p in [{self.p_min:g}, {self.p_max:g}] Pa)")
+                f"Q_terminal={self.Q_terminal:g}, {self._signal} in [{self._bounds[0]:g}, {self._bounds[1]:g}] "
+                f"{self._unit})")
