@@ -616,9 +616,9 @@ DAMPING_ERRORS = {
                                                                                       [0.0, 1.0, 0.0],
                                                                                       [0.0, 0.0, 1.0]]),
                                     "segments[0].damping_matrix[0][0]: expected a number >= -1e+15 and <= 1e+15 "
-                                    "(N s/m, N s, N s m), found 1e+16"),
+                                    "(N s/m, N m s, N m^3 s), found 1e+16"),
     "matrix of two rows": (lambda d: d["segments"][0].update(damping_matrix=EYE[:2]),
-                           "segments[0].damping_matrix: expected 3 arrays of 3 numbers, one a row (N s/m, N s, N s m), "
+                           "segments[0].damping_matrix: expected 3 arrays of 3 numbers, one a row (N s/m, N m s, N m^3 s), "
                            "found an array [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]"),
     "matrix and damping": (lambda d: d["segments"][0].update(damping=0.01, damping_matrix=EYE),
                            "segments[0].damping: expected 0 with damping_matrix (the matrix replaces beta K(q0)), "

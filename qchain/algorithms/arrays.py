@@ -56,8 +56,8 @@ class ChainArrays(NamedTuple):
         Pinocchio's ``[linear; angular]`` convention (``pinocchio.Inertia.matrix()``):
         ``[[m 1, -m [c]], [m [c], I_c - m [c][c]]]`` (kg, kg m, kg m^2). All zeros: no payload.
     D : (n, 3, 3) float
-        Each segment's dissipation matrix in its curvature coordinates, constant (N s/m, N s,
-        N s m: ``D qdot`` is a generalised force): the stiffness-proportional ``beta K(q0)``
+        Each segment's dissipation matrix in its curvature coordinates, constant (N s/m, N m s,
+        N m^3 s: ``D qdot`` is a generalised force): the stiffness-proportional ``beta K(q0)``
         (:func:`qchain.model.slices.rest_damping_c`), ``beta K_e`` of the linear law, or the
         segment's ``damping_matrix`` (docs/model.md section 9).
     K : (n, 3, 3) float

@@ -149,9 +149,9 @@ DRAG_LINEAR = Range(0.0, 1e4, "N s/m^2")
 #: c_2 of the same (``1/2 rho C_d 2 r_s`` in a fluid of density rho: water on a 4 cm arm about 24)
 DRAG_QUADRATIC = Range(0.0, 1e5, "kg/m^2")
 #: An entry of a segment's damping matrix ``D`` (curvature coordinates ``(l, ux, uy)``: N s/m on
-#: ``l``, N s m on ``ux``, ``uy``, N s between): a guard against absurd magnitudes whose
+#: ``l``, N m^3 s on ``ux``, ``uy``, N m s between): a guard against absurd magnitudes whose
 #: products overflow, not a physical limit.
-DAMPING_MATRIX = Range(-1e15, 1e15, "N s/m, N s, N s m")
+DAMPING_MATRIX = Range(-1e15, 1e15, "N s/m, N m s, N m^3 s")
 NODES = Range(1, 100, integer=True)  #: Gauss-Legendre nodes along a segment (the node count converges by ~24)
 
 # -- a tendon (qchain.model.tendon; docs/tendons.md)

@@ -237,8 +237,9 @@ class Segment(KeepsReadOnly):
         ``U_el = 1/2 (q_e - rest_q_e)^T K_e (q_e - rest_q_e)`` replaces the material law.
     damping_matrix : (3, 3) array, optional
         The paper's literal ``D`` in the segment's coordinates, replacing ``beta K(q0)``:
-        constant, symmetric, positive semi-definite (N s/m on ``l``, N s m on the curvatures
-        ``ux``, ``uy``): e.g. a strain-rate law with its own axial and bending coefficients.
+        constant, symmetric, positive semi-definite (N s/m on ``l``, N m^3 s on the curvatures
+        ``ux``, ``uy``, N m s between: ``D qdot`` is a generalised force, N on ``l`` and N m^2 on a
+        curvature): e.g. a strain-rate law with its own axial and bending coefficients.
     drag_linear : float, optional
         ``c_1`` (N s/m^2), ``0 <= c_1 <= 1e4`` (:data:`qchain.checks.bounds.DRAG_LINEAR`), and
     drag_quadratic : float, optional

@@ -101,7 +101,7 @@ SEGMENT = KeyTable("segments[]", "One table a segment, base to tip: `[[segments]
     Field("damping", "number", "Stiffness-proportional damping `beta` of `D = beta K(q0)`.", B.DAMPING, default="0"),
     Field("damping_matrix", "matrix", "The damping matrix `D` itself, replacing `beta K(q0)` (`damping` must then be "
           "0): constant, symmetric, positive semi-definite, one array a row, in the segment's curvature coordinates "
-          "`(l, ux, uy)` (N s/m on `l`, N s m on `ux`, `uy`, N s between; `qchain.Segment(damping_matrix=...)`, "
+          "`(l, ux, uy)` (N s/m on `l`, N m^3 s on `ux`, `uy`, N m s between; `qchain.Segment(damping_matrix=...)`, "
           "docs/model.md section 9). Needs `coords = \"curvature\"`. Entries coupling `uy` to `l` or `ux` rule out "
           "the planar reduction; entries coupling `l` to `ux`, `uy` rule out the automatic inextensible one.",
           B.DAMPING_MATRIX, default="none: `beta K(q0)`", size=3),
