@@ -29,6 +29,7 @@ from __future__ import annotations
 import numpy as np
 
 from . import system
+from .sensitivity import stage_tangent
 from ..._jit import ejit, inline
 from ...model.tendon import tendon_length_c
 
@@ -165,18 +166,7 @@ def linearise(fs, m, wk, h, steps, scale, tendons, S, U, A, B, K, dK, y, yt, D, 
                     da_dp = da_du
                 else:
                     da_dp = wa.da_dp
-                dk = dK[s]
-                for i in range(nA):
-                    for c in range(ncol):
-                        dk[i, c] = dY[nA + i, c]
-                for r in range(nA):
-                    for c in range(ncol):
-                        acc = 0.0
-                        for k in range(nA):
-                            acc += Jq[r, k] * dY[k, c] + Jv[r, k] * dY[nA + k, c]
-                        if c >= N:
-                            acc += da_dp[idx[r], c - N] * scale
-                        dk[nA + r, c] = acc
+                stage_tangent(Jq, Jv, dY, da_dp, idx, N, scale, dK[s])
             for i in range(N):
                 y[i] = y[i] + dt / 6.0 * (K[0, i] + 2.0 * K[1, i] + 2.0 * K[2, i] + K[3, i])
                 for c in range(ncol):

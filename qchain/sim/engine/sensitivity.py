@@ -25,7 +25,7 @@ from __future__ import annotations
 import numpy as np
 
 from . import system
-from ..._jit import ejit, ejit_inner, kernel
+from ..._jit import ejit, ejit_inner, inline, kernel
 from ...algorithms import parameter_derivatives as pd
 from ...algorithms.parameter_derivatives import ParameterWorkspace
 
@@ -121,6 +121,29 @@ def model_parameter_derivatives(m, wk, t, y, kinds, index, pbuf, da):
     return system.OK if st == 0 else (system.SINGULAR if st < 3 else system.NONFINITE)
 
 
+@inline
+def stage_tangent(Jq, Jv, dY, da, idx, first, scale, dk):
+    """``dk = f_y dY + [0; scale da_A]`` (N, ncol) of one Runge-Kutta stage, ``f_y = [[0, I],
+    [Jq, Jv]]`` the exact Jacobian at the stage (``Jq``, ``Jv`` (nA, nA)), ``dY`` (N, ncol) the
+    stage state's derivative; the columns from ``first`` on add ``scale da[idx[r], c - first]``
+    (the inputs' or the parameters' own ``da/dtheta`` (nv, ncol - first), rows ``idx`` the free
+    coordinates). The one tangent of the compiled sensitivities and of
+    :mod:`qchain.sim.engine.horizon`'s linearisation."""
+    nA = Jq.shape[0]
+    ncol = dY.shape[1]
+    for i in range(nA):
+        for c in range(ncol):
+            dk[i, c] = dY[nA + i, c]
+    for r in range(nA):
+        for c in range(ncol):
+            acc = 0.0
+            for j in range(nA):
+                acc += Jq[r, j] * dY[j, c] + Jv[r, j] * dY[nA + j, c]
+            if c >= first:
+                acc += da[idx[r], c - first] * scale
+            dk[nA + r, c] = acc
+
+
 @ejit_inner
 def _stage(fs, m, wk, t, Y, dY, k, dk, Jq, Jv, da, kinds, index, pbuf, cnt):
     """``k = f(t, Y)`` (N,) and ``dk = f_y dY + f_theta`` (N, ncol), the parameter columns last;
@@ -139,21 +162,7 @@ def _stage(fs, m, wk, t, Y, dY, k, dk, Jq, Jv, da, kinds, index, pbuf, cnt):
         st = fs[2](m, wk, t, Y, kinds, index, pbuf, da)
         if st != 0:
             return st
-    idx = m.idx
-    nA = Jq.shape[0]
-    ncol = dY.shape[1]
-    first = ncol - P
-    for i in range(nA):
-        for c in range(ncol):
-            dk[i, c] = dY[nA + i, c]
-    for r in range(nA):
-        for c in range(ncol):
-            acc = 0.0
-            for j in range(nA):
-                acc += Jq[r, j] * dY[j, c] + Jv[r, j] * dY[nA + j, c]
-            if c >= first:
-                acc += da[idx[r], c - first]
-            dk[nA + r, c] = acc
+    stage_tangent(Jq, Jv, dY, da, m.idx, dY.shape[1] - P, 1.0, dk)
     return system.OK
 
 
