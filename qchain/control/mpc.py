@@ -167,7 +167,6 @@ class MPC(Controller):
         lo, hi = self._bounds
         self._scale = max(abs(lo), abs(hi))  # the solver's inputs are p / scale
         self._lo, self._hi = lo / self._scale, hi / self._scale
-        self._zero_p = np.zeros(chain.nu)  # the chambers' pressures while the tendons act
         self._data = chain.create_data()
         self._fast = chain.kernel_arrays() is not None  # compiled unchecked passes (results checked below)
         self._q = chain.neutral()  # the locked coordinates' values, taken from each sample's q
@@ -186,9 +185,8 @@ class MPC(Controller):
     def _f(self, s: np.ndarray, p: np.ndarray) -> np.ndarray:
         """``ds/dt`` with the inputs ``p`` (pressures, or tensions with tendons) held."""
         q, v = self._full(s)
-        if self._tendons:
-            tau = self.chain.tendon_matrix(q) @ p
-            a = self.chain.forward_dynamics(q, v, self._zero_p, tau, data=self._data, skip_checks=self._fast)
+        if self._tendons:  # the chambers at zero pressure
+            a = self.chain.forward_dynamics(q, v, tension=p, data=self._data, skip_checks=self._fast)
         else:
             a = self.chain.forward_dynamics(q, v, p, data=self._data, skip_checks=self._fast)
         return np.concatenate([s[self._k :], a[self.active]])
@@ -201,8 +199,7 @@ class MPC(Controller):
         k, a = self._k, self.active
         if self._tendons:
             Bt = self.chain.tendon_matrix(q)
-            r = self.chain.forward_dynamics_derivatives(q, v, self._zero_p, Bt @ p, data=self._data,
-                                                        skip_checks=self._fast)
+            r = self.chain.forward_dynamics_derivatives(q, v, None, Bt @ p, data=self._data, skip_checks=self._fast)
             da_dq = r.da_dq + r.da_dtau @ self.chain.tendon_stiffness(q, p)
             da_du = r.da_dtau @ Bt
         else:

@@ -347,10 +347,10 @@ class Rollouts:
                                                            self.t0, self.inputs(i))
                     if done is not None:
                         done(min(int(self.counter[0]), B) - k0)
+                    if stop is not None and stop.is_set() or sigint is not None and sigint.is_set():
+                        raise KeyboardInterrupt  # (also after the last call, as the driver's loop)
                     if code == DONE:
                         break
-                    if stop is not None and stop.is_set() or sigint is not None and sigint.is_set():
-                        raise KeyboardInterrupt
         finally:
             w, k = time.perf_counter() - w_start, _read_ticks() - k_start
             with self._lock:
