@@ -131,6 +131,32 @@ def test_reference_cache_is_keyed_by_its_parameters(tmp_path):
     assert not hit4 and calls[-1] == 4.0
 
 
+def test_sweep_measures_time_convergence_against_its_finest_run():
+    """A sweep's ``time_conv_m`` is each run's RMS distance to the finest successful run (not
+    to its neighbour, which can share its error); it stops after neighbours within ``STOP``
+    and after a run over the budget."""
+    offsets = {1e-1: 1e-3, 3e-2: 0.9e-3, 1e-2: 2e-4, 1e-3: 1e-6, 1e-4: 0.0, 1e-5: 0.0}  # m, along the track
+    base = np.zeros((4, 3))
+
+    def runner(v, fail=()):
+        return dict(tips=base + offsets[v], cost=1e-3, repeats=1, ok=v not in fail, status="ok")
+
+    rows = br.sweep(runner, list(offsets), "rtol", budget=10.0, T=1.0)
+    # 1e-3 and 1e-4 are neighbours within STOP (1e-6 m * sqrt(3) apart < 5e-6): 1e-5 never runs
+    assert [r["value"] for r in rows] == [1e-1, 3e-2, 1e-2, 1e-3, 1e-4]
+    conv = [r["time_conv_m"] for r in rows]
+    # 1e-1 is 0.17 mm from its neighbour (within 0.2 mm), yet 1.7 mm from the finest
+    np.testing.assert_allclose(conv[:4], np.sqrt(3) * np.array([1e-3, 0.9e-3, 2e-4, 1e-6]), rtol=1e-12)
+    assert br.tip_rms(rows[0]["tips"], rows[1]["tips"]) < br.CONVERGED < conv[0]
+    assert np.isnan(conv[4])  # the finest has no finer run
+    failed = br.sweep(lambda v: runner(v, fail=(1e-4,)), list(offsets), "rtol", budget=10.0, T=1.0)
+    # a failed run is neither measured nor the finest: the last successful run is
+    assert np.isnan(failed[4]["time_conv_m"]) and failed[-1]["value"] == 1e-5
+    assert failed[3]["time_conv_m"] == pytest.approx(np.sqrt(3) * 1e-6)
+    costly = br.sweep(lambda v: dict(runner(v), cost=20.0), list(offsets), "rtol", budget=10.0, T=1.0)
+    assert len(costly) == 1 and np.isnan(costly[0]["time_conv_m"])
+
+
 def test_extensible_rod_is_the_rod_with_slides():
     """Reference C's chain: a slide (EA/h, 2 EA/h at the clamp) before every hinge."""
     model, data = br.mujoco_model(N, DT, "RK4", STIFF, extensible=True)
