@@ -157,6 +157,29 @@ def test_sweep_measures_time_convergence_against_its_finest_run():
     assert len(costly) == 1 and np.isnan(costly[0]["time_conv_m"])
 
 
+def test_headline_ratio_is_judged_on_runs_timed_side_by_side(monkeypatch):
+    """``side_by_side`` times each headline run in turn with MuJoCo's and takes the median of
+    the rounds' ratios, which cancels a drift of the machine's speed that the sweep costs,
+    taken minutes apart, carry; the headline's verdict reads that ratio."""
+    drift = iter(np.repeat([1.0, 2.0, 1.5, 1.2, 1.8], 2))  # the machine's speed, round by round
+
+    def rerun(r, T, fixed):
+        return lambda: r["cost"] * next(drift)
+
+    monkeypatch.setattr(br, "_rerun", rerun)
+    best = {"reduced": dict(cost=0.4), "mujoco": dict(cost=1.0)}
+    side = br.side_by_side(best, 1.0, (), rounds=5)
+    assert side["reduced"]["ratio"] == pytest.approx(0.4) and side["reduced"]["q3"] == pytest.approx(0.4)
+    assert side["reduced"]["mujoco"] == pytest.approx(1.5)  # the median cost, drift and all
+    assert br.side_by_side({"reduced": dict(cost=0.4), "mujoco": None}, 1.0, ()) == {}
+    row = dict(code="qchain", model="n=10", method="radau5", setting="rtol=0.1", rms_error_m=9e-4, max_error_m=2e-3,
+               time_conv_m=1e-4, cpu_per_sim_s=0.6, role="sweep", ok=True)
+    mj = dict(row, code="mujoco", cpu_per_sim_s=1.0)
+    lines = br.headline([row, mj], {"reduced": row, "mujoco": mj}, ratios={"qchain reduced": 0.5}, side=side)
+    verdict = next(line for line in lines if "ratio qchain reduced" in line)
+    assert "0.4 side by side" in verdict and "sweeps' costs give 0.6" in verdict and "target <= 0.5: met" in verdict
+
+
 def test_extensible_rod_is_the_rod_with_slides():
     """Reference C's chain: a slide (EA/h, 2 EA/h at the clamp) before every hinge."""
     model, data = br.mujoco_model(N, DT, "RK4", STIFF, extensible=True)

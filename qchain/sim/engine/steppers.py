@@ -39,7 +39,7 @@ __all__ = ["Integrator", "integrator", "constants", "dense", "CODES", "advance_r
 AT_STOP, OUTPUT, STEPS, FAILED = 0, 1, 2, 3
 TOO_SMALL, NEWTON = 10, 11  # failure reasons beside the system's statuses
 
-# tf: the integrator's floats
+# tf: the integrator's floats (RATE: radau5's last Newton contraction as theta / (1 - theta))
 T, H, T_OLD, H_LAST, RTOL, ATOL, MAX_STEP, DT, T0, H_ABS_OLD, ERR_OLD, NEWTON_TOL, RATE, JAC_T, H_LU, T_FAIL = range(16)
 # cnt: its counters and flags
 NSTEPS, NFEV, NJEV, NLU, NREJECT, JAC_CURRENT, LU_OK, F_OK, K_OUT, DENSE_OK, PRED_OK, STATUS, NNEWTON, LAST_ST, EVERY, \
@@ -58,6 +58,7 @@ RD_NEWTON, RD_NEW, RD_ERR, RD_SOLVE, RD_ZE = 2, 3, 4, 5, 7
 RK4, MIDPOINT, DOPRI5, RADAU5 = range(4)
 CODES = {"rk4": RK4, "midpoint": MIDPOINT, "dopri5": DOPRI5, "radau5": RADAU5}
 NEWTON_MAXITER = 6  # RADAU5's
+EPS = float(np.finfo(float).eps)
 MIDPOINT_MAXITER = 12
 SAFETY, MIN_FACTOR, MAX_FACTOR = 0.9, 0.2, 10.0
 #: radau5 keeps its step, and its Newton matrices, where the controller's next step after an
@@ -634,6 +635,10 @@ def _radau_newton(fs, m, wk, it, c, t, h, scale):
     cr = mu[0] / h
     cc = complex(mu[1], mu[2]) / h
     tol = tf[NEWTON_TOL]
+    # RADAU5's FACCON: the last converged Newton's theta / (1 - theta), relaxed at each
+    # attempt, judges a first iteration from the predictor; without a predictor (the first
+    # step, a moved chart) a first iteration is never judged converged
+    faccon = max(tf[RATE], EPS) ** 0.8 if it.cnt[PRED_OK] == 1 else 1e300
     for i in range(N):  # W = TI Z
         for a in range(3):
             W[a, i] = TI[a, 0] * Z[0, i] + TI[a, 1] * Z[1, i] + TI[a, 2] * Z[2, i]
@@ -669,6 +674,7 @@ def _radau_newton(fs, m, wk, it, c, t, h, scale):
             rate = dw / dw_old
             if rate >= 1.0 or rate ** (NEWTON_MAXITER - k) / (1.0 - rate) * dw > tol:
                 return False, k + 1, rate
+            faccon = rate / (1.0 - rate)
         for i in range(N):
             part = i // nA
             cz = ct[part, i - part * nA]
@@ -678,7 +684,8 @@ def _radau_newton(fs, m, wk, it, c, t, h, scale):
         for i in range(N):
             for a in range(3):
                 Z[a, i] = Tm[a, 0] * W[0, i] + Tm[a, 1] * W[1, i] + Tm[a, 2] * W[2, i]
-        if dw == 0.0 or (rate > 0.0 and rate / (1.0 - rate) * dw < tol):
+        if dw == 0.0 or faccon * dw < tol:
+            tf[RATE] = faccon
             return True, k + 1, rate
         dw_old = dw
     return False, NEWTON_MAXITER, rate
