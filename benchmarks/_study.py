@@ -17,6 +17,13 @@ def main(doc: str, run, argv=None):
     return run(args.quick, args.out)
 
 
+def spread(x) -> tuple[float, float, float]:
+    """``(median, first quartile, third quartile)`` of the samples ``x`` (a set of rounds)."""
+    import numpy as np
+
+    return float(np.median(x)), float(np.percentile(x, 25)), float(np.percentile(x, 75))
+
+
 def write_csv(rows: list[dict], path: Path) -> None:
     """Rows of equal keys as a CSV file (the folder is made)."""
     path.parent.mkdir(parents=True, exist_ok=True)

@@ -666,9 +666,9 @@ def side_by_side(best: dict, T: float, fixed: tuple, rounds: int = SIDE_ROUNDS) 
     out = {}
     for g in runs:
         if g != "mujoco":
-            x = np.array(costs[g]) / m
-            out[g] = dict(ratio=float(np.median(x)), q1=float(np.percentile(x, 25)), q3=float(np.percentile(x, 75)),
-                          cost=float(np.median(costs[g])), mujoco=float(np.median(m)), rounds=rounds)
+            ratio, q1, q3 = _study.spread(np.array(costs[g]) / m)
+            out[g] = dict(ratio=ratio, q1=q1, q3=q3, cost=float(np.median(costs[g])), mujoco=float(np.median(m)),
+                          rounds=rounds)
     return out
 
 

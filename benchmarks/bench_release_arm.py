@@ -86,9 +86,6 @@ def run(quick: bool = False, out_dir: Path = Path("out/bench"), cache: Path | No
     quadrature = float(np.max(np.linalg.norm(reference(*REF, model=model) - x_ref, axis=1)))
     print(f"the scene's quadrature alone (its model at {REF[0]} rtol {REF[1]:g}): {quadrature:.1e} m from the reference",
           flush=True)
-    aba = bp.aba_call_s(ch.n, clock=clock)
-    print(f"pinocchio.aba on the rigid chain of nv = {3 * ch.n}: {aba * 1e6:.2f} us CPU a call (before the sweep; "
-          "each row's ratio uses its own rounds)", flush=True)
     rows = []
     for method in METHODS:
         for kw in bp.settings(method, quick):
@@ -104,20 +101,17 @@ def run(quick: bool = False, out_dir: Path = Path("out/bench"), cache: Path | No
             ok = bool(tr.success) and len(tr.t) == len(t_eval)
             err = float(np.max(np.linalg.norm(tips(tr) - x_ref, axis=1))) if ok else float("nan")
             cost = float(np.median(cpus)) / T
-            ratios = np.array(cpus) / T / np.array(abas)
-            calls = float(np.median(ratios))
+            calls, q1, q3 = _study.spread(np.array(cpus) / T / np.array(abas))
             rows.append(dict(scene="spatial_arm", method=method, setting=bp.label(kw), T_s=T, tip_error_m=err,
-                             cpu_per_sim_s=cost, aba_calls_per_sim_s=calls,
-                             aba_calls_q1=float(np.percentile(ratios, 25)), aba_calls_q3=float(np.percentile(ratios, 75)),
+                             cpu_per_sim_s=cost, aba_calls_per_sim_s=calls, aba_calls_q1=q1, aba_calls_q3=q3,
                              aba_call_s=float(np.median(abas)), nfev=tr.nfev,
                              repeats=len(cpus), success=ok, message="" if ok else tr.message))
             print(f"  {method:>9} {bp.label(kw):>12}  err {err:9.2e} m  {cost * 1e3:9.3f} ms/s CPU  "
-                  f"{calls:9.0f} aba/s ({rows[-1]['aba_calls_q1']:.0f}-{rows[-1]['aba_calls_q3']:.0f})  "
+                  f"{calls:9.0f} aba/s ({q1:.0f}-{q3:.0f})  "
                   f"nfev {tr.nfev:6d}{'' if ok else '  FAILED: ' + tr.message[:70]}", flush=True)
     lines = [f"arm reference: {REF[0]} rtol {REF[1]:g} at {fine.chain.segments[0].nodes} nodes a segment; {CHECK[0]} "
              f"rtol {CHECK[1]:g} within {check:.1e} m of it; the scene's {ch.segments[0].nodes} nodes {quadrature:.1e} m "
-             "from it; "
-             f"pinocchio.aba {aba * 1e6:.2f} us CPU a call (rigid chain, nv = {3 * ch.n})"]
+             f"from it; pinocchio.aba on the rigid chain of nv = {3 * ch.n}, timed before each run"]
     for bound in (br.ARM_ACCURACY, br.ARM_ACCURACY / 10):
         best = cheapest_within(rows, bound)
         if best is None:

@@ -28,7 +28,6 @@ from .steppers import AT_STOP, FAILED, STEPS
 __all__ = ["run", "Interrupted", "STRETCH", "stop_on", "start_integrator"]
 
 STRETCH = 0.05  #: s of wall time a compiled stretch aims at between looks from Python
-EPS = np.finfo(float).eps
 
 
 class Interrupted(KeyboardInterrupt):
@@ -296,7 +295,7 @@ def start_integrator(it, method: str, t0: float, t1: float, *, dt, rtol: float, 
     # 1e12 s), where a first step's rejections would take it under the floor
     tf[steppers.H] = h0 if first_step is not None else \
         max(h0, min(1000.0 * float(np.spacing(max(abs(t0), abs(t1)))), (t1 - t0) / 4))
-    tf[steppers.NEWTON_TOL] = max(10 * EPS / rtol, min(0.03, rtol**0.5))
+    tf[steppers.NEWTON_TOL] = max(10 * steppers.EPS / rtol, min(0.03, rtol**0.5))
 
 
 def step_budget_message(max_steps: int, taken: str, t: float, t1: float, method: str) -> str:

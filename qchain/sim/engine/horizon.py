@@ -31,7 +31,6 @@ import numpy as np
 from . import system
 from .sensitivity import stage_tangent
 from ..._jit import ejit, inline
-from ...model.tendon import tendon_length_c
 
 __all__ = ["rollout", "linearise"]
 
@@ -48,21 +47,16 @@ def _hold(m, U, j, scale, tendons):
 @inline
 def _tendon_matrix(m, wk, Bt, g, Hs):
     """``Bt = B_T(q)`` (nv, nt) at the configuration ``wk.q`` of the last right-hand side:
-    column ``k`` is ``-dL_k/dq`` (:func:`qchain.model.tendon.tendon_length_c`; the domain was
-    checked by that right-hand side)."""
-    rows = m.tendon_rows
+    column ``k`` is ``-dL_k/dq`` (:func:`qchain.sim.engine.system.tendon_row_gradient`; the
+    domain was checked by that right-hand side)."""
     n = m.arrays.mass.shape[0]
     q_c = wk.q[m.nq - 3 * n:].reshape(n, 3)
     voff = m.nv - 3 * n
     for r in range(Bt.shape[0]):  # (loops: the engine's code allocates nothing, assigns no slices)
         for c in range(Bt.shape[1]):
             Bt[r, c] = 0.0
-    for i in range(rows.shape[0]):
-        k = int(rows[i, 0])
-        j = int(rows[i, 1])
-        a, b = int(rows[i, 5]), int(rows[i, 6])
-        tendon_length_c(q_c[j], rows[i, 2], rows[i, 3], rows[i, 4], m.tendon_nodes[a:b], m.tendon_weights[a:b],
-                        False, g, Hs)
+    for i in range(m.tendon_rows.shape[0]):
+        k, j = system.tendon_row_gradient(m, i, q_c, False, g, Hs)
         for c in range(3):
             Bt[voff + 3 * j + c, k] -= g[c]
 

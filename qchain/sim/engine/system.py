@@ -479,6 +479,22 @@ def inputs(m, wk, t):
 
 
 @inline
+def tendon_row_gradient(m, i, q_c, hessian, g, H):
+    """``g = dL/dq_j`` (3,) of row ``i`` of ``m.tendon_rows`` (a tendon's pass through segment
+    ``j``; :func:`qchain.model.tendon.tendon_length_c`) at the segment coordinates ``q_c``
+    (n, 3), and with ``hessian`` ``H = d2L/dq_j^2`` (3, 3; else scratch); returns ``(k, j)``,
+    the tendon and the segment. The domain is the caller's to check. ``-g`` is segment ``j``'s
+    block of ``B_T(q)``'s column ``k``."""
+    rows = m.tendon_rows
+    k = int(rows[i, 0])
+    j = int(rows[i, 1])
+    a, b = int(rows[i, 5]), int(rows[i, 6])
+    tendon_length_c(q_c[j], rows[i, 2], rows[i, 3], rows[i, 4], m.tendon_nodes[a:b], m.tendon_weights[a:b], hessian,
+                    g, H)
+    return k, j
+
+
+@inline
 def _tendon_forces(m, wk, q_c, f):
     """``f += B_T(q) T`` (n, 3): each tendon's ``-T dL/dq`` on the segments it passes
     (:func:`qchain.model.tendon.tendon_length_c`); returns the status (DOMAIN where a fibre
@@ -495,9 +511,7 @@ def _tendon_forces(m, wk, q_c, f):
             wk.info[0] = DOMAIN
             wk.info[1] = j
             return DOMAIN
-        a, b = int(rows[i, 5]), int(rows[i, 6])
-        tendon_length_c(q_c[j], r, rows[i, 3], rows[i, 4], m.tendon_nodes[a:b], m.tendon_weights[a:b], False, g,
-                        H)
+        tendon_row_gradient(m, i, q_c, False, g, H)
         T = wk.tension[k]
         for c in range(3):
             f[j, c] -= T * g[c]
@@ -526,10 +540,7 @@ def _tendon_jacobian(m, wk, q_c, Minv, da_dq):
             if int(rows[i, 1]) != j:
                 continue
             touched = True
-            k = int(rows[i, 0])
-            s0, s1 = int(rows[i, 5]), int(rows[i, 6])
-            tendon_length_c(q_c[j], rows[i, 2], rows[i, 3], rows[i, 4], m.tendon_nodes[s0:s1],
-                            m.tendon_weights[s0:s1], True, g, H)
+            k, _ = tendon_row_gradient(m, i, q_c, True, g, H)
             T = wk.tension[k]
             for a in range(3):
                 for c in range(3):
