@@ -510,6 +510,26 @@ def test_a_model_packed_once_takes_each_runs_inputs_as_pack_does():
     assert system.pack(ch, lambda t, q, v: np.zeros(ch.nu), None) is None
 
 
+def test_a_chain_is_packed_once_and_no_run_s_inputs_reach_the_next():
+    """system.pack keeps each chain's model from its first run (a chain never changes): later
+    packs share its arrays and take only their own inputs, so a run with other pressures in
+    between, or a zero-order-hold controller writing its slots, leaves a repeated run bit for bit
+    what it was."""
+    ch = arm(2)
+    q0, v0 = ch.neutral(), np.zeros(ch.nv)
+    P = waving(ch)
+    m1, m2 = system.pack(ch, P, None), system.pack(ch, np.full(ch.nu, 3e4), None)
+    assert m1.arrays is m2.arrays and m1.layout is m2.layout and m1.idx is m2.idx
+    assert m1.p_params is not m2.p_params and not np.array_equal(m1.p_ints, m2.p_ints)
+    run = dict(method="radau5", rtol=1e-6, t_eval=np.linspace(0.0, 0.2, 11))
+    first = simulate(ch, q0, v0, (0.0, 0.2), pressure=P, **run)
+    simulate(ch, q0, v0, (0.0, 0.2), pressure=np.full(ch.nu, 3e4), **run)
+    simulate(ch, q0, v0, (0.0, 0.2), pressure=lambda t, q, v: np.full(ch.nu, 5e4), controller_rate=50.0, **run)
+    again = simulate(ch, q0, v0, (0.0, 0.2), pressure=P, **run)
+    assert np.array_equal(first.q, again.q) and np.array_equal(first.p, again.p)
+    assert system.pack(Chain(ch.segments, gravity=(0, 0, 9.81)), P, None).arrays is not m1.arrays
+
+
 # ---------------------------------------------------------------- damping laws
 
 

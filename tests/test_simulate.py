@@ -585,6 +585,40 @@ def test_simulate_refuses_a_start_that_overflows_naming_the_segment():
         simulate(ch, ch.neutral(), np.full(6, 1e200), (0.0, 1.0))
 
 
+@pytest.mark.parametrize("base", ["fixed", "floating"])
+@pytest.mark.parametrize("radius", [B.RADIUS.high, B.RADIUS.low])
+def test_energies_are_finite_inside_the_box_where_simulate_does_not_compute_them(base, radius):
+    """simulate computes a start's energies (to name the segment that overflows) only outside
+    ENERGY_BOX: inside it they are finite for every parameter at its bound. Here the heaviest,
+    stiffest, longest segments, the strongest gravity and payload, at starts on the box's faces
+    (every |v| and every length up to the box, curvatures up to the domain's 1 / radius, the
+    base at its farthest) stay below 1e100 J; starts just outside it are still checked."""
+    from qchain.sim.simulation import ENERGY_BOX
+
+    rng = np.random.default_rng(5)
+    seg = Segment(length=B.LENGTH.high, radius=radius, mass=B.MASS.high, youngs_modulus=B.YOUNGS_MODULUS.high,
+                  chamber_area=1e-2 * radius**2, chamber_radius=radius / 2)
+    g = B.GRAVITY.high
+    ch = Chain([seg] * 4, base=base, gravity=(g, -g, g),
+               payload=pin.Inertia(1e6, np.full(3, 100.0), np.eye(3) * 1e8))
+    worst = 0.0
+    for _ in range(40):
+        q = ch.neutral()
+        v = rng.choice([-ENERGY_BOX, ENERGY_BOX], ch.nv) * rng.uniform(0.5, 1.0, ch.nv)
+        for j in range(ch.n):
+            d = rng.normal(size=2)
+            q[ch.q_slice(j)] = [ENERGY_BOX * rng.uniform(1e-6, 1.0), *(d / np.linalg.norm(d) * 0.999 / radius)]
+        if ch.floating:
+            q[:3] = rng.choice([B.POSITION.low, B.POSITION.high], 3)
+            quat = rng.normal(size=4)
+            q[3:7] = quat / np.linalg.norm(quat)
+        worst = max(worst, abs(ch.kinetic_energy(q, v)), abs(ch.potential_energy(q)))
+    assert np.isfinite(worst) and worst < 1e100, worst
+    # beyond the box, the start is checked (its energy computed) and refused where it overflows
+    with pytest.raises(NonFiniteError, match=r"kinetic energy inf J"):
+        simulate(ch, ch.neutral(), np.full(ch.nv, 1e160), (0.0, 1.0))
+
+
 @settings(max_examples=200, deadline=None, derandomize=True, database=None)
 @given(data=st.data())
 def test_fuzzed_simulate_arguments_give_a_clean_error_naming_the_argument(data):

@@ -592,11 +592,28 @@ def _check_start(chain: Chain, q0, v0, t0: float, names=("q0", "v0"), energies: 
         chain._check_locks(st.q_e, st.v_e)
     if not energies:
         return q0, v0
-    chain.kinetic_energy(q0, v0, t=t0)  # NonFiniteError naming the segment if the start overflows
-    chain.potential_energy(q0, t=t0)
+    if not _energies_bounded(chain, q0, v0):
+        chain.kinetic_energy(q0, v0, t=t0)  # NonFiniteError naming the segment if the start overflows
+        chain.potential_energy(q0, t=t0)
     if any(s.coords == "paper" for s in chain.segments):  # a singular start (kappa = 0) is said here, by name
         chain.forward_dynamics(q0, v0, np.zeros(chain.nu), t=t0)
     return q0, v0
+
+
+#: |q| and |v| entries (SI units) within which a start's energies are finite for every chain
+#: whose parameters are within their bounds (:mod:`qchain.checks.bounds`; a segment's
+#: ``stiffness_matrix``, which has none, excepted) and every configuration in the model's domain:
+#: at the box's corners, with every parameter at its bound, they stay below 1e72 J
+#: (``tests/test_simulate.py``). :func:`_check_start` computes them, to name the segment whose
+#: energy overflows, only for a start outside it (a tenth of a short run's cost).
+ENERGY_BOX = 1e15
+
+
+def _energies_bounded(chain: Chain, q0: np.ndarray, v0: np.ndarray) -> bool:
+    """Whether the start ``(q0 (nq,), v0 (nv,))``, inside the model's domain, lies within
+    :data:`ENERGY_BOX` on a chain whose energies it bounds."""
+    return (max(float(np.max(np.abs(q0), initial=0.0)), float(np.max(np.abs(v0), initial=0.0))) <= ENERGY_BOX
+            and all(s.stiffness_matrix is None for s in chain.segments))
 
 
 def _announce_dense_jacobians(run: _Run) -> None:

@@ -26,6 +26,7 @@ Unchecked by design: compiled kernels whose arguments the checked API has valida
 from __future__ import annotations
 
 import functools
+import weakref
 from typing import NamedTuple
 
 import numpy as np
@@ -200,7 +201,9 @@ class Workspace(NamedTuple):
 def pack(chain, pressure, tau, env=None, tension=None) -> EngineModel | None:
     """The :class:`EngineModel` of ``chain`` with compiled ``pressure`` and ``tau`` inputs, or
     None where the compiled engine cannot serve it (:func:`python_reason` says why). A ``planar`` chain whose base stays in its x-z
-    plane runs on :func:`qchain.algorithms.planar.planar_aba_moving` (2-D cost, the same accelerations)."""
+    plane runs on :func:`qchain.algorithms.planar.planar_aba_moving` (2-D cost, the same accelerations).
+    Without ``env`` the chain's model is packed at its first call and kept (:data:`_CHAIN_MODELS`):
+    later calls make only their inputs' arrays."""
     from ...arm.chain import Chain
 
     if not isinstance(chain, Chain):
@@ -213,7 +216,19 @@ def pack(chain, pressure, tau, env=None, tension=None) -> EngineModel | None:
     tn = schedules.pack_input(tension, chain.nt, "tension")
     if p is None or f is None or tn is None:
         return None
-    return _packed_model(chain, arrays, p, f, env, tn)
+    if env is not None:
+        return _packed_model(chain, arrays, p, f, env, tn)
+    m = _CHAIN_MODELS.get(chain, _UNPACKED)
+    if m is _UNPACKED:  # (two threads may both pack it: the same model)
+        m = _CHAIN_MODELS[chain] = _packed_model(chain, arrays, p, f, None, tn)
+    return None if m is None else _with_packed(m, p, f, tn)
+
+
+#: each chain's model without an environment, packed at its first run (a chain never changes
+#: after it is made, and the passes never write a model's arrays); a run's own inputs replace
+#: its input arrays. None: the compiled engine cannot serve the chain's base motion.
+_CHAIN_MODELS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+_UNPACKED = object()
 
 
 def python_reason(chain, pressure, tau, tension=None) -> str | None:
@@ -245,6 +260,11 @@ def with_inputs(m: EngineModel, chain, pressure, tau, tension=None) -> EngineMod
     tn = schedules.pack_input(tension, chain.nt, "tension")
     if p is None or f is None or tn is None:
         return None
+    return _with_packed(m, p, f, tn)
+
+
+def _with_packed(m: EngineModel, p: tuple, f: tuple, tn: tuple) -> EngineModel:
+    """``m`` with the packed inputs ``p`` (pressure), ``f`` (tau), ``tn`` (tension) instead of its own."""
     return m._replace(p_ints=p[0], p_params=p[1], tau_ints=f[0], tau_params=f[1], tn_ints=tn[0], tn_params=tn[1])
 
 
