@@ -84,12 +84,20 @@ def describe(scene=SCENE, T: float = 1.0) -> str:
 # ---------------------------------------------------------------------------------- qchain
 
 
-def qchain_arm(n: int, scene=SCENE, extensible: bool = True, planar: bool = True) -> Chain:
+def qchain_arm(n: int, scene=SCENE, extensible: bool = True, planar: bool = True,
+               node_tolerance: float | None = None) -> Chain:
     """The cantilever as n equal segments, backbone along world +x, undamped; ``planar=False``
-    is the full spatial model (3 coordinates a segment)."""
+    is the full spatial model (3 coordinates a segment). ``node_tolerance``: each segment's
+    Gauss nodes sized for this relative ``M_xi`` accuracy at the largest bend the model allows,
+    ``l0 / r_s`` (:func:`qchain.model.segment.nodes_for_tolerance`, as a scene with tendons
+    sizes them); None: the segment's default (:data:`qchain.model.segment.DEFAULT_NODES`)."""
+    from qchain.model.segment import nodes_for_tolerance
+
     L, r, rho, E = scene["L"], scene["r"], scene["rho"], scene["E"]
     seg = dict(length=L / n, radius=r, mass=rho * np.pi * r * r * L / n, youngs_modulus=E, damping=0.0,
                extensible=extensible, **CHAMBER)
+    if node_tolerance is not None:
+        seg["nodes"] = nodes_for_tolerance(Segment(**seg), (L / n) / r, node_tolerance)
     X = pin.SE3(pin.utils.rotate("y", np.pi / 2), np.zeros(3))
     return Chain([Segment(**seg) for _ in range(n)], base_placement=X, gravity=(0.0, 0.0, -scene["g"]),
                  planar=planar)
@@ -100,16 +108,17 @@ def sample_times(T: float) -> np.ndarray:
 
 
 def qchain_run(n: int, T: float, method: str = "DOP853", repeat_below: float = 0.0, scene=SCENE,
-               extensible: bool = True, planar: bool = True, clock=time.perf_counter, **kw) -> dict:
+               extensible: bool = True, planar: bool = True, clock=time.perf_counter,
+               node_tolerance: float | None = None, **kw) -> dict:
     """Release the n-segment arm; returns tips (K, 3) at ``sample_times(T)``, cost (s/s), etc.
 
     The run is repeated 3 times (cost: the median) if the first takes under ``repeat_below`` s
     (as measured by ``clock``: wall time by default, ``time.process_time`` for CPU time).
     ``extensible=False`` is the reduced model without the axial mode (the rod's stretch under
     its own weight is W / EA ~ 7e-4 here), so explicit steps are no longer bounded by it.
-    ``planar=False`` is the full spatial model.
+    ``planar=False`` is the full spatial model; ``node_tolerance`` as :func:`qchain_arm`'s.
     """
-    ch = qchain_arm(n, scene, extensible=extensible, planar=planar)
+    ch = qchain_arm(n, scene, extensible=extensible, planar=planar, node_tolerance=node_tolerance)
     t_eval = sample_times(T)
     q0, v0 = ch.neutral(), np.zeros(ch.nv)
     walls = []

@@ -45,7 +45,9 @@ depends on (scene, span, sampling, resolution, step, shear factor, filter, code 
 empties the cache first.
 
 qchain: n equal segments (bench_cosserat's ``qchain_arm``, damping 0, tiny unpressurised
-chambers), every method of ``qchain.sim.simulation.METHODS`` (read at run time): the fixed-step
+chambers; each segment's Gauss nodes sized for ``M_xi`` to :data:`NODE_TOLERANCE` at the largest bend
+the model allows, l0 / r_s, as a scene sizes them: 4 a segment at n = 5 and 10, 3 from n = 14; the
+default is 6), every method of ``qchain.sim.simulation.METHODS`` (read at run time): the fixed-step
 ones (``FIXED_STEP``) over steps dt = 5 ms / 2^j, the others over rtol = 1e-1, 3e-2, 1e-2,
 3e-3, 1e-3, 1e-4, ... (quick: decades; atol = rtol / 100; scipy's, which run Python at every stage, down to 1e-3; quick: 1e-2).
 Two groups: **reduced**, the model this planar scene needs (``Chain(..., planar=True)``,
@@ -114,6 +116,8 @@ TARGETS = {"qchain reduced": 0.5, "qchain full spatial": 1.0}  # cost / MuJoCo's
 ARM_TARGET = 500.0  # pinocchio.aba calls per simulated second, at most
 ARM_ACCURACY = 1e-3  # m, largest tip distance
 CLOCK = time.process_time  # CPU time of this process
+#: relative M_xi accuracy the sweeps' node counts are sized for (the arm scene's node_tolerance)
+NODE_TOLERANCE = 1e-6
 CACHE_FORMAT = 1  # bump when a cached track's meaning changes
 GROUPS = {"reduced": "qchain reduced", "full": "qchain full spatial", "mujoco": "mujoco"}
 TITLES = {"reduced": "qchain, reduced (planar): n segments", "full": "qchain, full spatial model: n segments",
@@ -582,7 +586,7 @@ def run(quick: bool = False, out_dir: Path = Path("out/bench"), ns=None, Ns=None
 
         def runner(v, n=n, ext=ext, planar=planar, method=method):
             return bc.qchain_run(n, T, method, rb, scene=SCENE, extensible=ext, planar=planar, clock=CLOCK,
-                                 **qchain_setting(method, v, fixed))
+                                 node_tolerance=NODE_TOLERANCE, **qchain_setting(method, v, fixed))
 
         model = f"n={n}" + ("" if planar else " 3D") + (" ext" if ext and planar else "")
         for res in sweep(runner, values, kind, budget, T):
@@ -678,7 +682,7 @@ def _rerun(r: dict, T: float, fixed: tuple):
         return lambda: mujoco_run(r["n"], r["method"], r["value"], T)["cost"]
     kw = qchain_setting(r["method"], r["value"], fixed)
     return lambda: bc.qchain_run(r["n"], T, r["method"], scene=SCENE, extensible=r["extensible"], planar=r["planar"],
-                                 clock=CLOCK, **kw)["cost"]
+                                 clock=CLOCK, node_tolerance=NODE_TOLERANCE, **kw)["cost"]
 
 
 def eligible(r: dict, accuracy: float = ACCURACY) -> bool:

@@ -138,6 +138,38 @@ def test_domain_exit_stops_cleanly_with_the_trajectory_kept(method, kw):
     assert 0.5 < kappa_rs < 1.0  # stopped on the way to the boundary, last sample valid
 
 
+def _released_rod(n=3):
+    """A soft clamped rod (0.2 m, r 0.02 m, 0.5 MPa) released under gravity: its root segment swings
+    toward |kappa| r_s = 1, the domain's boundary, within 0.1 s."""
+    L, r = 0.2, 0.02
+    seg = Segment(length=L / n, radius=r, mass=1000.0 * np.pi * r * r * L / n, youngs_modulus=5e5, damping=0.0,
+                  extensible=False, chamber_area=1e-6, chamber_radius=0.005, nodes=5)
+    return Chain([seg] * n, base_placement=pin.SE3(pin.utils.rotate("y", np.pi / 2), np.zeros(3)),
+                 gravity=(0.0, 0.0, -9.81), planar=True)
+
+
+@pytest.mark.parametrize("method, n", [("dopri5", 3), ("RK45", 5)])
+def test_samples_interpolated_outside_the_domain_end_the_run_before_them(method, n):
+    """A loose step ends inside the domain while its interpolant, between the samples' times,
+    overshoots |kappa| r_s = 1 (on the compiled engine, up to 1.34: those samples were kept,
+    states no call of the model accepts, and the run failed only later). Now the run
+    fails at the first such sample, naming the segment, the bound and the step, and every
+    sample it kept is a state of the model."""
+    ch = _released_rod(n)
+    t_eval = np.linspace(0.0, 1.0, 2001)
+    tr = simulate(ch, ch.neutral(), np.zeros(ch.nv), (0.0, 1.0), method=method, rtol=1.0, atol=1e-2,
+                  t_eval=t_eval, energies=False)
+    assert not tr.success and tr.status == -1
+    assert re.search(r"segment \d .*kappa.* r_s = 1\.\d+ must be < 1 .*an output sample interpolated inside",
+                     tr.message), tr.message
+    assert 10 < len(tr.t) < t_eval.size
+    t_fail = float(re.search(r"at t = ([0-9.e+-]+) s, an output sample", tr.message).group(1))
+    assert np.isclose(t_fail, t_eval[len(tr.t)], rtol=1e-5)  # the first sample it did not keep
+    assert np.max(np.abs(tr.q[:, 1::3])) * 0.02 < 1.0
+    for q in tr.q:
+        ch.tip_placement(q)  # every sample is a state of the model
+
+
 def test_non_finite_state_stops_cleanly():
     ch = Chain([Segment(**SEG)], gravity=np.zeros(3))
     tau = Step(0.05, after=[0.0, 1e15, 0.0])  # within the force range; the state blows up

@@ -427,6 +427,11 @@ class _Recorder:
         self.T, self.Q, self.V, self.Pp, self.KE, self.PE = [], [], [], [], [], []
 
     def _add(self, t, q, v):
+        try:  # an interpolant can leave the domain the step's ends are in: the run ends before that sample
+            self.ch._state(q, v, t=t)
+        except QchainError as err:
+            raise _Stop(f"{err} (at t = {t:.6g} s, an output sample interpolated inside a step whose ends are inside "
+                        "the domain: a smaller rtol or dt keeps the samples inside)") from None
         p = self.sysm.P(t, q, v)
         if self.energies:
             try:

@@ -451,12 +451,7 @@ def _failure(chain, wk, it, method, q0, v0, t0, inputs) -> str:
     at = f"(at t = {t_fail:.6g} s, in the step from t = {t:.6g} s)"
     q_bad = wk.q.copy()
     if code == system.DOMAIN:
-        try:
-            chain._state(q_bad)
-            what = f"segment {int(wk.info[1])} left the model's domain"
-        except QchainError as err:
-            what = str(err)
-        msg = f"{what} {at}"
+        msg = f"{_outside(chain, wk, q_bad)} {at}"
     elif code == system.SINGULAR:
         n = chain.n
         culprit = chain._overflowing_segment(wk.q[chain.nq - 3 * n :].reshape(n, 3),
@@ -464,6 +459,10 @@ def _failure(chain, wk, it, method, q0, v0, t0, inputs) -> str:
         msg = f"an articulated inertia is not positive definite{f' ({culprit})' if culprit else ''} {at}"
     elif code == system.NONFINITE:
         msg = f"{_nonfinite_what(chain, wk)} {at}"
+    elif code == steppers.SAMPLE:
+        msg = (f"{_outside(chain, wk, q_bad)} (at t = {tf[steppers.T_FAIL]:.6g} s, an output sample interpolated inside the step from "
+               f"t = {tf[steppers.T_OLD]:.6g} s to {t:.6g} s, whose ends are inside the domain: a smaller rtol or dt "
+               "keeps the samples inside)")
     elif code == steppers.NEWTON:
         msg = f"{method}: Newton did not converge in the step from t = {t:.6g} s (reduce dt)"
     else:
@@ -475,6 +474,18 @@ def _failure(chain, wk, it, method, q0, v0, t0, inputs) -> str:
     if method == "rk4":
         msg = unstable_message(msg, tf[steppers.DT], stability_limit(chain, q0, v0, *inputs(t0, q0, v0), t0))
     return msg
+
+
+def _outside(chain, wk, q: np.ndarray) -> str:
+    """What of the configuration ``q`` (nq,) is outside the model's domain: the chain's own
+    error, naming the segment and the bound, or the non-finite entry."""
+    if not np.all(np.isfinite(q)):
+        return _nonfinite_what(chain, wk)
+    try:
+        chain._state(q)
+    except QchainError as err:
+        return str(err)
+    return f"segment {int(wk.info[1])} left the model's domain"
 
 
 def _nonfinite_what(chain, wk) -> str:

@@ -37,7 +37,8 @@ __all__ = ["Integrator", "integrator", "constants", "dense", "CODES", "advance_r
            "ADVANCE", "AT_STOP", "OUTPUT", "STEPS", "FAILED", "TOO_SMALL", "NEWTON"]
 
 AT_STOP, OUTPUT, STEPS, FAILED = 0, 1, 2, 3
-TOO_SMALL, NEWTON = 10, 11  # failure reasons beside the system's statuses
+TOO_SMALL, NEWTON, SAMPLE = 10, 11, 12  # failure reasons beside the system's statuses (SAMPLE: an output
+# sample interpolated inside an accepted step failed the domain check; wk.q holds it, tf[T_FAIL] its time)
 
 # tf: the integrator's floats (RATE: radau5's last Newton contraction as theta / (1 - theta))
 T, H, T_OLD, H_LAST, RTOL, ATOL, MAX_STEP, DT, T0, H_ABS_OLD, ERR_OLD, NEWTON_TOL, RATE, JAC_T, H_LU, T_FAIL = range(16)
@@ -205,7 +206,9 @@ def dense(method, it, c, s, yout):
 @ejit_inner
 def _emit(method, m, wk, it, out, c, budget):
     """Write the outputs that fall in the last accepted step (up to ``budget``); returns how
-    many were written."""
+    many were written. A sample outside the model's domain (an interpolant can overshoot where a
+    step ends near the domain's boundary) is not written: ``cnt[STATUS]`` becomes
+    :data:`SAMPLE` and the run fails there."""
     t_out, Qo, Vo, Po = out
     cnt, tf = it.cnt, it.tf
     if cnt[DENSE_OK] == 0:
@@ -233,6 +236,10 @@ def _emit(method, m, wk, it, out, c, budget):
         else:
             dense(method, it, c, s, ys)
         system.configuration(m, wk, it.qc, ys)
+        if system.check(m, wk, wk.q) != 0:  # the interpolant left the domain the step's ends are in
+            tf[T_FAIL] = s
+            cnt[STATUS] = SAMPLE  # (the next _before_step fails the run: the samples before this one kept)
+            break
         system.copy(Qo[k], wk.q)
         system.copy(Vo[k], wk.v)
         system.inputs(m, wk, s)
@@ -325,6 +332,8 @@ def _before_step(fs, m, wk, it, t_stop, steps, max_steps, need_f):
     ``max_steps``, :data:`FAILED` if ``f`` at the step's start (``need_f``) cannot be had,
     else -1 (take the step)."""
     tf, cnt = it.tf, it.cnt
+    if cnt[STATUS] != 0:  # a sample failed its domain check (_emit)
+        return FAILED
     if tf[T] >= t_stop:
         return AT_STOP
     if steps >= max_steps:
