@@ -13,7 +13,7 @@ import pytest
 
 from qchain import Chain, Segment
 from qchain.algorithms.arrays import ChainArrays
-from qchain.sim.engine import system
+from qchain.sim.engine import packing, system
 from qchain.sim.inputs import Sine
 from qchain.scene.scene import SineMotion
 from qchain.sim.simulation import COMPILED, FIXED_STEP, METHODS, Event, simulate
@@ -214,7 +214,7 @@ def test_planar_chain_runs_on_the_planar_kernel_and_equals_the_full_chain():
     planar = Chain(segs, gravity=(0, 0, 9.81), planar=True)
     full = Chain(segs, gravity=(0, 0, 9.81))
     P = Sine(amplitude=np.tile([2e4, -1e4, -1e4], 3), frequency=2.0, offset=np.full(9, 2e4))
-    assert system.pack(planar, P, None).planar_kernel == 1 and system.pack(full, P, None).planar_kernel == 0
+    assert packing.pack(planar, P, None).planar_kernel == 1 and packing.pack(full, P, None).planar_kernel == 0
     q0 = planar.neutral()
     kw = dict(pressure=P, method="radau5", rtol=1e-9, atol=1e-11, t_eval=np.linspace(0, 0.4, 9))
     a, b = simulate(planar, q0, np.zeros(9), (0, 0.4), **kw), simulate(full, q0, np.zeros(9), (0, 0.4), **kw)
@@ -334,7 +334,7 @@ def test_unchecked_forward_dynamics_without_pressure():
 def _engine_args(ch, pressure=None, tau=None):
     from qchain.sim.engine import steppers
 
-    m = system.pack(ch, np.zeros(ch.nu) if pressure is None else pressure, tau)
+    m = packing.pack(ch, np.zeros(ch.nu) if pressure is None else pressure, tau)
     wk = system.workspace(ch)
     it = steppers.integrator(m.idx.size, ch.nq)
     return m, wk, it
@@ -477,48 +477,48 @@ def test_a_run_and_its_preparation_pass_under_an_error_filter_and_leave_the_filt
 
 
 def test_the_engine_model_holds_the_chain_s_kernel_arrays_by_name():
-    """:func:`system.pack` names each of :meth:`Chain.kernel_arrays` as the chain does and holds
+    """:func:`packing.pack` names each of :meth:`Chain.kernel_arrays` as the chain does and holds
     the chain's own arrays; a chain the compiled passes cannot evaluate has none."""
     ch = hanging_arm(2, planar=True)
-    m = system.pack(ch, None, None)
+    m = packing.pack(ch, None, None)
     arrays = ch.kernel_arrays()
     assert isinstance(m, system.EngineModel) and isinstance(arrays, ChainArrays) and m.arrays is arrays
     assert all(getattr(arrays, k) is getattr(ch, "_" + k) for k in arrays._fields)
     assert (m.base, m.planar_kernel, m.nq, m.nv) == (system.FIXED, 1, ch.nq, ch.nv)
     assert np.array_equal(m.idx, np.flatnonzero(ch.active))
     paper = Chain([Segment(**SEG, coords="paper")])
-    assert paper.kernel_arrays() is None and system.pack(paper, None, None) is None
+    assert paper.kernel_arrays() is None and packing.pack(paper, None, None) is None
 
 
 def test_a_model_packed_once_takes_each_runs_inputs_as_pack_does():
-    """:func:`system.with_inputs` on the chain's model packed once gives, field by field,
-    :func:`system.pack` with those inputs (new input arrays: a held controller's output is
+    """:func:`packing.with_inputs` on the chain's model packed once gives, field by field,
+    :func:`packing.pack` with those inputs (new input arrays: a held controller's output is
     written into them), and None where pack gives None (a Python controller)."""
     from qchain.sim.inputs import Sine
 
     ch = hanging_arm(2, planar=False)
-    base = system.pack(ch, None, None)
+    base = packing.pack(ch, None, None)
     P = Sine(amplitude=np.full(ch.nu, 2e4), frequency=1.5, phase=np.arange(ch.nu) * 0.1, offset=np.full(ch.nu, 1e4))
     for p, tau in ((P, None), (np.full(ch.nu, 3e3), np.linspace(-1, 1, ch.nv)), (None, None)):
-        m, ref = system.with_inputs(base, ch, p, tau), system.pack(ch, p, tau)
+        m, ref = packing.with_inputs(base, ch, p, tau), packing.pack(ch, p, tau)
         for name in system.EngineModel._fields:
             a, b = getattr(m, name), getattr(ref, name)
             assert (np.array_equal(a, b) if isinstance(a, np.ndarray) else
                     all(np.array_equal(x, y) for x, y in zip(a, b)) if isinstance(a, tuple) else a == b), name
         assert not np.shares_memory(m.p_params, base.p_params) and not np.shares_memory(m.tau_params, base.tau_params)
-    assert system.with_inputs(base, ch, lambda t, q, v: np.zeros(ch.nu), None) is None
-    assert system.pack(ch, lambda t, q, v: np.zeros(ch.nu), None) is None
+    assert packing.with_inputs(base, ch, lambda t, q, v: np.zeros(ch.nu), None) is None
+    assert packing.pack(ch, lambda t, q, v: np.zeros(ch.nu), None) is None
 
 
 def test_a_chain_is_packed_once_and_no_run_s_inputs_reach_the_next():
-    """system.pack keeps each chain's model from its first run (a chain never changes): later
+    """packing.pack keeps each chain's model from its first run (a chain never changes): later
     packs share its arrays and take only their own inputs, so a run with other pressures in
     between, or a zero-order-hold controller writing its slots, leaves a repeated run bit for bit
     what it was."""
     ch = arm(2)
     q0, v0 = ch.neutral(), np.zeros(ch.nv)
     P = waving(ch)
-    m1, m2 = system.pack(ch, P, None), system.pack(ch, np.full(ch.nu, 3e4), None)
+    m1, m2 = packing.pack(ch, P, None), packing.pack(ch, np.full(ch.nu, 3e4), None)
     assert m1.arrays is m2.arrays and m1.layout is m2.layout and m1.idx is m2.idx
     assert m1.p_params is not m2.p_params and not np.array_equal(m1.p_ints, m2.p_ints)
     run = dict(method="radau5", rtol=1e-6, t_eval=np.linspace(0.0, 0.2, 11))
@@ -527,7 +527,7 @@ def test_a_chain_is_packed_once_and_no_run_s_inputs_reach_the_next():
     simulate(ch, q0, v0, (0.0, 0.2), pressure=lambda t, q, v: np.full(ch.nu, 5e4), controller_rate=50.0, **run)
     again = simulate(ch, q0, v0, (0.0, 0.2), pressure=P, **run)
     assert np.array_equal(first.q, again.q) and np.array_equal(first.p, again.p)
-    assert system.pack(Chain(ch.segments, gravity=(0, 0, 9.81)), P, None).arrays is not m1.arrays
+    assert packing.pack(Chain(ch.segments, gravity=(0, 0, 9.81)), P, None).arrays is not m1.arrays
 
 
 # ---------------------------------------------------------------- damping laws

@@ -305,10 +305,10 @@ def test_inputs_are_checked_where_they_enter():
 
 def test_the_lagrangian_form_and_engine_entry_points_name_bad_arguments():
     from qchain import compile_all
-    from qchain.sim.engine import system
+    from qchain.sim.engine import packing
 
     L = LagrangianChain(CHF)
     refused(lambda: L.forward_dynamics(np.r_[0.1, 0.2, 0.3, 0.1, 0.2, 0.3, QB], [True] * 9), "qd_L")
     refused(lambda: compile_all(["bogus"]), "methods")
     refused(lambda: compile_all("rk4"), "methods")
-    refused(lambda: system.pack("chain", None, None), "chain")
+    refused(lambda: packing.pack("chain", None, None), "chain")

@@ -311,7 +311,7 @@ def test_engine_rhs_and_jacobian_carry_the_tendons():
     """The compiled engine's right-hand side equals ``forward_dynamics(..., tension=T)``, and
     its exact Jacobian ``da/dq`` (the tendons' stiffness included) equals central finite
     differences of that right-hand side; the tendons' part of it is far above the error."""
-    from qchain.sim.engine import steppers, system, warmup
+    from qchain.sim.engine import packing, steppers, system, warmup
 
     chain = _tendon_arm()
     q = _config(chain, np.random.default_rng(1))
@@ -319,7 +319,7 @@ def test_engine_rhs_and_jacobian_carry_the_tendons():
     p = np.full(chain.nu, 1e3)
 
     def engine(T):
-        m = system.pack(chain, p, None, None, T)
+        m = packing.pack(chain, p, None, None, T)
         wk = system.workspace(chain, m)
         rhs, jac = warmup.callbacks("radau5", m, wk, steppers.integrator(m.idx.size, chain.nq))
         nA = m.idx.size

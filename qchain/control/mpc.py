@@ -63,7 +63,7 @@ from ..checks.convert import as_vector
 from .._jit import Address, first_class_functions
 from ..errors import DomainError, NonFiniteError
 from ..sim.engine import horizon as compiled_horizon
-from ..sim.engine import system
+from ..sim.engine import packing, system
 from .base import Controller
 from .references import path_point
 
@@ -256,7 +256,7 @@ class MPC(Controller):
         """The engine's packed model, workspace and scratch for the compiled passes, or None
         where compiled code cannot serve the chain (then the Python path runs)."""
         ch = self.chain
-        m = system.pack(ch, np.zeros(ch.nu), None, tension=np.zeros(ch.nt) if ch.nt else None)
+        m = packing.pack(ch, np.zeros(ch.nu), None, tension=np.zeros(ch.nt) if ch.nt else None)
         if m is None or m.base != system.FIXED:
             return None
         nx, nu, k = self._nx, self._nu, self._k

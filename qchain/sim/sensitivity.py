@@ -32,7 +32,7 @@ from ..checks.convert import as_real_array, describe_value
 from .._jit import first_class_functions
 from ..algorithms import parameter_derivatives as pd
 from .engine import sensitivity as es
-from .engine import system, tableaus, warmup
+from .engine import packing, system, tableaus, warmup
 from .budget import Budget, Cost, as_budget
 from .inputs import Schedule, as_input
 from .simulation import _check_env, _check_start, _check_t_eval, check_run, check_settings, simulate
@@ -256,10 +256,10 @@ def sensitivities(chain: Chain, q0, v0, t_span, *, params=(), initial: bool = Tr
         if callable(u) and not isinstance(u, Schedule):
             raise ValueError(f"{name}: a controller (t, q, v) -> array has no compiled sensitivities; pass a "
                              f"constant or a schedule of qchain.sim.inputs")
-    m = system.pack(chain, pressure, tau, env, tension)
+    m = packing.pack(chain, pressure, tau, env, tension)
     if m is None:
         raise ValueError(f"sensitivities need the compiled engine, which cannot serve this run: "
-                         f"{system.python_reason(chain, pressure, tau, tension)}")
+                         f"{packing.python_reason(chain, pressure, tau, tension)}")
     meta = {}
     budget = as_budget(budget)
     if steps is not None:

@@ -21,7 +21,7 @@ from ..checks import bounds as B
 from .budget import Budget, as_budget, input_frequency, run_cost
 from ..arm.chain import Chain
 from . import python_backend
-from .engine import driver, system
+from .engine import driver, packing, system
 from ..checks.convert import as_bool, as_real, as_real_array, as_vector, check_callable, describe_value
 from .inputs import BUILT_IN, Schedule, _copy, as_input
 from .trajectory import Trajectory
@@ -380,7 +380,7 @@ class Runs:
                              on_sample=None, budget=budget, progress=False, events=[], batch=driver.Batch(),
                              **settings)
         # the inputs are packed at each run, into this model of the chain (None: the Python backend serves it)
-        self.base = system.pack(chain, None, None) if method in COMPILED else None
+        self.base = packing.pack(chain, None, None) if method in COMPILED else None
 
     def starts_finite(self, Q: np.ndarray, V: np.ndarray) -> np.ndarray | None:
         """``(B,) bool``: whether each start ``(Q[i] (nq,), V[i] (nv,))``, checked without its
@@ -642,8 +642,8 @@ def _check_env(chain: Chain, env):
 
 def _choose_backend(run: _Run, base=None):
     """Step 2 of :func:`simulate`: the compiled engine's packed model
-    (:func:`qchain.sim.engine.system.pack`, or ``base``, the chain's packed once, with the
-    run's inputs: :func:`qchain.sim.engine.system.with_inputs`) where it serves the run, else
+    (:func:`qchain.sim.engine.packing.pack`, or ``base``, the chain's packed once, with the
+    run's inputs: :func:`qchain.sim.engine.packing.with_inputs`) where it serves the run, else
     None for :mod:`qchain.sim.python_backend` (``ValueError`` then if ``controller_rate`` is
     given). A held controller is packed as zeros (its output is written into the packed model
     at its instants)."""
@@ -654,11 +654,11 @@ def _choose_backend(run: _Run, base=None):
         return None
     zeros = {name: np.zeros(size) for name, _, size in run.held}
     p, tau, tn = zeros.get("pressure", run.pressure), zeros.get("tau", run.tau), zeros.get("tension", run.tension)
-    m = (system.pack(run.chain, p, tau, run.env, tn) if base is None else
-         system.with_inputs(base, run.chain, p, tau, tn))
+    m = (packing.pack(run.chain, p, tau, run.env, tn) if base is None else
+         packing.with_inputs(base, run.chain, p, tau, tn))
     if m is not None:
         return m
-    reason = system.python_reason(run.chain, p, tau, tn)
+    reason = packing.python_reason(run.chain, p, tau, tn)
     if run.controller_rate is not None:
         raise ValueError(f"controller_rate needs the compiled engine, which cannot serve this run: {reason}")
     # never silently: the Python steppers are one to two orders of magnitude slower

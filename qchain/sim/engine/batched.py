@@ -249,7 +249,7 @@ class Rollouts:
     ----------
     chain : Chain
     base : EngineModel
-        The chain's packed model (:func:`qchain.sim.engine.system.pack`).
+        The chain's packed model (:func:`qchain.sim.engine.packing.pack`).
     method : str
         ``rk4``, ``midpoint`` or ``radau5`` (an explicit adaptive method checks its stability
         limit at each run's start, in Python: not here).

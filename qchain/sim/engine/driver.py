@@ -129,7 +129,7 @@ class Batch:
 
 
 def _inputs_fingerprint(m) -> tuple:
-    """The types of the packed model's input arrays, the fields :func:`system.with_inputs`
+    """The types of the packed model's input arrays, the fields :func:`qchain.sim.engine.packing.with_inputs`
     replaces run by run."""
     return tuple((a.dtype.num, a.ndim, a.flags.num) for a in (m.p_ints, m.p_params, m.tau_ints, m.tau_params))
 
@@ -146,7 +146,7 @@ def _run(chain, m, method, q0, v0, t0, t1, *, dt, rtol, atol, t_eval, on_sample,
          max_step, first_step, energies, deadline, controllers, controller_rate, inputs,
          max_total_steps: int | None = None, batch: Batch | None = None) -> Trajectory:
     """Integrate from ``(q0, v0)`` at ``t0`` to ``t1`` on the compiled engine (arguments as
-    :func:`qchain.simulate`'s, validated there; ``m`` from :func:`system.pack`;
+    :func:`qchain.simulate`'s, validated there; ``m`` from :func:`qchain.sim.engine.packing.pack`;
     ``controllers``: ``[(callable (t, q, v) -> (size,), params array to hold it in)]``;
     ``inputs``: ``(t, q, v) -> (p, tau)`` in Python, for the samples Python writes (the first,
     one at a controller instant or a terminal event) and the stability limit);

@@ -19,7 +19,7 @@ import time
 
 import numpy as np
 
-from . import steppers, system
+from . import packing, steppers, system
 from ..._jit import Kernel, cached_here, first_class_functions
 
 __all__ = ["prepare", "prepare_energies", "start", "parts", "is_cached", "announce", "loaded", "callbacks",
@@ -55,7 +55,7 @@ def standin(method: str, planar_kernel: bool) -> tuple:
     engine (the types do not depend on the chain's size, base or inputs), for compiling
     without the run's own chain."""
     chain = _standin_chain(planar_kernel)
-    m = system.pack(chain, np.zeros(chain.nu), np.zeros(chain.nv))
+    m = packing.pack(chain, np.zeros(chain.nu), np.zeros(chain.nv))
     wk = system.workspace(chain, m)
     it = steppers.integrator(m.idx.size, chain.nq)
     out = (np.zeros(1), np.zeros((1, chain.nq)), np.zeros((1, chain.nv)), np.zeros((1, chain.nu)))
