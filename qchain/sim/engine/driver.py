@@ -129,8 +129,8 @@ class Batch:
 
 
 def _inputs_fingerprint(m) -> tuple:
-    """The types of the packed model's input arrays, the fields :func:`qchain.sim.engine.packing.with_inputs`
-    replaces run by run."""
+    """The types of the packed model's input arrays, the fields
+    :func:`qchain.sim.engine.packing.with_inputs` replaces run by run."""
     return tuple((a.dtype.num, a.ndim, a.flags.num) for a in (m.p_ints, m.p_params, m.tau_ints, m.tau_params))
 
 
@@ -460,9 +460,9 @@ def _failure(chain, wk, it, method, q0, v0, t0, inputs) -> str:
     elif code == system.NONFINITE:
         msg = f"{_nonfinite_what(chain, wk)} {at}"
     elif code == steppers.SAMPLE:
-        msg = (f"{_outside(chain, wk, q_bad)} (at t = {tf[steppers.T_FAIL]:.6g} s, an output sample interpolated inside the step from "
-               f"t = {tf[steppers.T_OLD]:.6g} s to {t:.6g} s, whose ends are inside the domain: a smaller rtol or dt "
-               "keeps the samples inside)")
+        msg = (f"{_outside(chain, wk, q_bad)} (at t = {tf[steppers.T_FAIL]:.6g} s, an output sample interpolated "
+               f"inside the step from t = {tf[steppers.T_OLD]:.6g} s to {t:.6g} s, whose ends are inside the domain: a "
+               "smaller rtol or dt keeps the samples inside)")
     elif code == steppers.NEWTON:
         msg = f"{method}: Newton did not converge in the step from t = {t:.6g} s (reduce dt)"
     else:

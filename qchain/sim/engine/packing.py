@@ -7,6 +7,7 @@ cannot be (:func:`python_reason`). Python, apart from the passes of
 from __future__ import annotations
 
 import weakref
+
 import numpy as np
 
 from ...contact.environment import Environment
@@ -17,9 +18,10 @@ __all__ = ["pack", "with_inputs", "python_reason"]
 
 
 def pack(chain, pressure, tau, env=None, tension=None) -> EngineModel | None:
-    """The :class:`EngineModel` of ``chain`` with compiled ``pressure`` and ``tau`` inputs, or
-    None where the compiled engine cannot serve it (:func:`python_reason` says why). A ``planar`` chain whose base stays in its x-z
-    plane runs on :func:`qchain.algorithms.planar.planar_aba_moving` (2-D cost, the same accelerations).
+    """The :class:`~qchain.sim.engine.system.EngineModel` of ``chain`` with compiled ``pressure``
+    and ``tau`` inputs, or None where the compiled engine cannot serve it (:func:`python_reason`
+    says why). A ``planar`` chain whose base stays in its x-z plane runs on
+    :func:`qchain.algorithms.planar.planar_aba_moving` (2-D cost, the same accelerations).
     Without ``env`` the chain's model is packed at its first call and kept (:data:`_CHAIN_MODELS`):
     later calls make only their inputs' arrays."""
     from ...arm.chain import Chain

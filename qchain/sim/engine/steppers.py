@@ -34,7 +34,7 @@ from ..._jit import ejit, ejit_inner  # helpers compiled once, not inlined: each
 from .linalg import lu_factor, lu_solve
 
 __all__ = ["Integrator", "integrator", "constants", "dense", "CODES", "advance_rk4", "advance_midpoint", "advance_dopri5", "advance_radau5",
-           "ADVANCE", "AT_STOP", "OUTPUT", "STEPS", "FAILED", "TOO_SMALL", "NEWTON"]
+           "ADVANCE", "AT_STOP", "OUTPUT", "STEPS", "FAILED", "TOO_SMALL", "NEWTON", "SAMPLE"]
 
 AT_STOP, OUTPUT, STEPS, FAILED = 0, 1, 2, 3
 TOO_SMALL, NEWTON, SAMPLE = 10, 11, 12  # failure reasons beside the system's statuses (SAMPLE: an output

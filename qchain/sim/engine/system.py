@@ -11,8 +11,7 @@ base, whose chart is moved to the current placement when it has turned far
     d(delta)/dt = dexp^-1(delta_B) v_B (base),  v_A (segments),   dv_A/dt = a_A(t, q, v).
 
 :func:`qchain.sim.engine.packing.pack` turns a :class:`qchain.Chain` and its inputs into an
-:class:`EngineModel` ``m``
-(never written by a pass) and :func:`workspace` a :class:`Workspace` ``wk`` (everything a
+:class:`EngineModel` ``m`` (never written by a pass) and :func:`workspace` a :class:`Workspace` ``wk`` (everything a
 pass writes): named tuples of arrays, which numba compiles with attribute access, so that
 one compiled specialisation serves every chain.
 
@@ -32,6 +31,7 @@ from typing import NamedTuple
 import numpy as np
 
 from ...algorithms import aba_derivatives, planar, recursive, rnea_derivatives
+from ...contact.environment import PackedEnvironment
 from ...contact.derivatives import NODE_T, environment_derivatives
 from ...contact.drag import DRAG_FRAME, drag_derivatives, drag_forces
 from ...contact.forces import ROOT
@@ -41,11 +41,9 @@ from ...contact.planar import planar_contact_forces
 from ...algorithms.arrays import AbaDerivativesWorkspace, AbaWorkspace, ChainArrays, PlanarWorkspace, RneaWorkspace
 from ...model.arc import SCRATCH, arc_node, take1, take2
 from ...model.slices import law_energy_c, slice_twist
-from ...contact.environment import PackedEnvironment
 from ...model.tendon import tendon_length_c
 from . import lie, schedules
 from ..._jit import ejit, ejit_inner, inline, kernel
-
 
 __all__ = ["EngineModel", "Workspace", "workspace", "rhs", "rhs_planar", "rhs_spatial", "jacobian",
            "configuration", "energies", "energies_batch", "inputs", "RECENTER", "OK", "DOMAIN", "SINGULAR", "NONFINITE",
