@@ -31,22 +31,19 @@ def pack(chain, pressure, tau, env=None, tension=None) -> EngineModel | None:
     arrays = chain.kernel_arrays()
     if arrays is None:
         return None
-    p = schedules.pack_input(pressure, chain.nu, "pressure")
-    f = schedules.pack_input(tau, chain.nv, "tau")
-    tn = schedules.pack_input(tension, chain.nt, "tension")
-    if p is None or f is None or tn is None:
-        return None
     if env is not None:
-        return _packed_model(chain, arrays, p, f, env, tn)
-    m = _CHAIN_MODELS.get(chain, _UNPACKED)
-    if m is _UNPACKED:  # (two threads may both pack it: the same model)
-        m = _CHAIN_MODELS[chain] = _packed_model(chain, arrays, p, f, None, tn)
-    return None if m is None else _with_packed(m, p, f, tn)
+        m = _packed_model(chain, arrays, env)
+    else:
+        m = _CHAIN_MODELS.get(chain, _UNPACKED)
+        if m is _UNPACKED:  # (two threads may both pack it: the same model)
+            m = _CHAIN_MODELS[chain] = _packed_model(chain, arrays, None)
+    return None if m is None else with_inputs(m, chain, pressure, tau, tension)
 
 
-#: each chain's model without an environment, packed at its first run (a chain never changes
-#: after it is made, and the passes never write a model's arrays); a run's own inputs replace
-#: its input arrays. None: the compiled engine cannot serve the chain's base motion.
+#: each chain's model without an environment and with zero inputs, packed at its first run (a
+#: chain never changes after it is made, and the passes never write a model's arrays); a run's
+#: own inputs replace its input arrays. None: the compiled engine cannot serve the chain's base
+#: motion.
 _CHAIN_MODELS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 _UNPACKED = object()
 
@@ -80,15 +77,12 @@ def with_inputs(m: EngineModel, chain, pressure, tau, tension=None) -> EngineMod
     tn = schedules.pack_input(tension, chain.nt, "tension")
     if p is None or f is None or tn is None:
         return None
-    return _with_packed(m, p, f, tn)
-
-
-def _with_packed(m: EngineModel, p: tuple, f: tuple, tn: tuple) -> EngineModel:
-    """``m`` with the packed inputs ``p`` (pressure), ``f`` (tau), ``tn`` (tension) instead of its own."""
     return m._replace(p_ints=p[0], p_params=p[1], tau_ints=f[0], tau_params=f[1], tn_ints=tn[0], tn_params=tn[1])
 
 
-def _packed_model(chain, arrays, p: tuple, f: tuple, env, tn: tuple) -> EngineModel | None:
+def _packed_model(chain, arrays, env) -> EngineModel | None:
+    """The model of ``chain`` (its kernel ``arrays``, the environment ``env`` or none) with zero
+    inputs, or None where its base motion is a Python callable."""
     base = {"fixed": FIXED, "floating": FLOATING, "prescribed": PRESCRIBED}[chain.base]
     planar_kernel = chain.planar and base != FLOATING
     if base == PRESCRIBED:
@@ -102,6 +96,8 @@ def _packed_model(chain, arrays, p: tuple, f: tuple, env, tn: tuple) -> EngineMo
         bm = (np.zeros(1, dtype=np.int64), np.zeros(1))
     X = chain.base_placement
     env = (env or Environment()).packed()
+    p, f, tn = (schedules.pack_input(None, size, name) for name, size in
+                (("pressure", chain.nu), ("tau", chain.nv), ("tension", chain.nt)))
     return EngineModel(arrays=arrays, idx=np.flatnonzero(chain.active).astype(np.int64), base=base,
                        planar_kernel=int(planar_kernel), nq=chain.nq, nv=chain.nv,
                        g_W=np.array(chain.gravity, dtype=float), R_WB0=np.array(X.rotation),
