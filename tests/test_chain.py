@@ -547,6 +547,25 @@ def test_a_singular_inertia_names_the_segment_and_its_coordinates():
             assert "not positive definite" in msg and "q[0:3]" in msg, msg
 
 
+def test_the_articulated_block_inverse_matches_numpy_and_refuses_an_indefinite_block(rng):
+    """``aba`` inverts each segment's 3 x 3 articulated block through its Cholesky factor, written
+    out; a pivot that is not positive leaves the block as it was (the pass then reports it)."""
+    from qchain.algorithms.recursive import _spd3_inverse
+
+    for cond in (1.0, 1e4, 1e8):  # a segment's stretch and bending inertias differ by orders
+        Q, _ = np.linalg.qr(rng.normal(size=(3, 3)))
+        A = Q @ np.diag([1.0, cond ** 0.5, cond]) @ Q.T
+        A = 0.5 * (A + A.T)
+        got = A.copy()
+        assert _spd3_inverse(got)
+        assert np.array_equal(got, got.T)
+        assert rel(got, np.linalg.inv(A)) < 1e-15 * cond * 10
+    for bad in (np.diag([1.0, -1.0, 1.0]), np.diag([1.0, 1.0, 0.0]), np.full((3, 3), np.nan)):
+        got = bad.copy()
+        assert not _spd3_inverse(got)
+        assert np.array_equal(got, bad, equal_nan=True)
+
+
 def test_placements_must_be_rotations_within_the_declared_positions():
     refused(lambda: Chain([S], base_placement=pin.SE3(2 * np.eye(3), np.zeros(3))), "base_placement.rotation")
     refused(lambda: Chain([S], base_placement=pin.SE3(np.eye(3), np.array([1e300, 0, 0]))), "base_placement")

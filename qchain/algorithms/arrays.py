@@ -96,7 +96,8 @@ class ChainArrays(NamedTuple):
 class AbaWorkspace(NamedTuple):
     """What :func:`~qchain.algorithms.recursive.aba`, ``rnea`` and ``crba`` write: root twists
     ``V``, tip maps ``T``, tip biases ``c``, segment forces ``Q``, segment blocks ``M_xi``, the
-    articulated factors ``Lq, U, u`` and the ``scratch`` the passes carve small temporaries from."""
+    articulated factors ``Lq`` (after ``aba``: the inverse of each segment's 3 x 3 articulated
+    block), ``U, u`` and the ``scratch`` the passes carve small temporaries from."""
 
     V: np.ndarray
     T: np.ndarray

@@ -315,6 +315,44 @@ def _chol_solve(L, k, b):
         b[i] = acc / L[i, i]
 
 
+@jit_helper
+def _spd3_inverse(A):
+    """``A`` (3, 3) symmetric positive definite (its lower triangle read) replaced by its inverse
+    through its Cholesky factor ``L`` (``A^-1 = L^-T L^-1``), written out: a segment's
+    articulated block is inverted once and then multiplies seven vectors, where a general
+    :func:`_chol_solve` a vector cost as much as the whole inverse. False, ``A`` unchanged, if
+    a pivot is not positive (not positive definite)."""
+    l00 = A[0, 0]
+    if not l00 > 0.0:
+        return False
+    l00 = np.sqrt(l00)
+    l10 = A[1, 0] / l00
+    l20 = A[2, 0] / l00
+    l11 = A[1, 1] - l10 * l10
+    if not l11 > 0.0:
+        return False
+    l11 = np.sqrt(l11)
+    l21 = (A[2, 1] - l20 * l10) / l11
+    l22 = A[2, 2] - l20 * l20 - l21 * l21
+    if not l22 > 0.0:
+        return False
+    l22 = np.sqrt(l22)
+    # M = L^-1 (lower triangular), then A^-1 = M^T M
+    m00 = 1.0 / l00
+    m11 = 1.0 / l11
+    m22 = 1.0 / l22
+    m10 = -l10 * m00 * m11
+    m21 = -l21 * m11 * m22
+    m20 = -(l20 * m00 + l21 * m10) * m22
+    A[0, 0] = m00 * m00 + m10 * m10 + m20 * m20
+    A[1, 1] = m11 * m11 + m21 * m21
+    A[2, 2] = m22 * m22
+    A[0, 1] = A[1, 0] = m10 * m11 + m20 * m21
+    A[0, 2] = A[2, 0] = m20 * m22
+    A[1, 2] = A[2, 1] = m21 * m22
+    return True
+
+
 @jit_pass
 def aba(arr, q, qd, tau, V0, A0, floating, F0, qdd, A0_out, ws, sc):
     """Articulated-body forward dynamics: ``qdd`` (n, 3) from ``M qdd + C qd + g = tau`` (the
@@ -394,28 +432,21 @@ def aba(arr, q, qd, tau, V0, A0, floating, F0, qdd, A0_out, ws, sc):
                 u[j, a] = 0.0
                 for r in range(6):
                     U[j, r, a] = 0.0
-        if not _chol(Lq[j], 3):
+        if not _spd3_inverse(Lq[j]):  # Lq[j] holds D^-1 from here on
             return False
-        # IA = Mh_VV - U D^-1 U^T ; pA = bh_V + U D^-1 u
+        Di = Lq[j]
+        # IA = Mh_VV - U D^-1 U^T (symmetric: the upper triangle, mirrored); pA = bh_V + U D^-1 u
         for r in range(6):
             for a in range(3):
-                col[a] = U[j, r, a]
-            _chol_solve(Lq[j], 3, col)
-            for a in range(3):
-                DiUt[a, r] = col[a]
+                DiUt[a, r] = Di[a, 0] * U[j, r, 0] + Di[a, 1] * U[j, r, 1] + Di[a, 2] * U[j, r, 2]
         for a in range(3):
-            col[a] = u[j, a]
-        _chol_solve(Lq[j], 3, col)
+            col[a] = Di[a, 0] * u[j, 0] + Di[a, 1] * u[j, 1] + Di[a, 2] * u[j, 2]
         for r in range(6):
-            acc = bh[r]
-            for a in range(3):
-                acc += U[j, r, a] * col[a]
-            pA[r] = acc
-            for s in range(6):
-                acc = Mh[r, s]
-                for a in range(3):
-                    acc -= U[j, r, a] * DiUt[a, s]
+            pA[r] = bh[r] + U[j, r, 0] * col[0] + U[j, r, 1] * col[1] + U[j, r, 2] * col[2]
+            for s in range(r, 6):
+                acc = Mh[r, s] - U[j, r, 0] * DiUt[0, s] - U[j, r, 1] * DiUt[1, s] - U[j, r, 2] * DiUt[2, s]
                 IA[r, s] = acc
+                IA[s, r] = acc
     # pass 3: accelerations, forwards
     if floating:
         for r in range(6):
@@ -437,9 +468,11 @@ def aba(arr, q, qd, tau, V0, A0, floating, F0, qdd, A0_out, ws, sc):
             for r in range(6):
                 acc -= U[j, r, a] * A[r]
             col[a] = acc
-        _chol_solve(Lq[j], 3, col)
+        Di = Lq[j]
         for a in range(3):
-            qdd[j, a] = col[a]
+            qdd[j, a] = Di[a, 0] * col[0] + Di[a, 1] * col[1] + Di[a, 2] * col[2]
+        for a in range(3):
+            col[a] = qdd[j, a]
         _load_xi(xid, A, col)
         _matvec(T[j], xid, A)
         for r in range(6):

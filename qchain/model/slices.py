@@ -14,13 +14,16 @@ from __future__ import annotations
 
 import numpy as np
 
-from .arc import SCRATCH, arc_node, arc_node_bias, arc_node_derivatives, jit, jit_helper, take1, take2, take3
+from .arc import SCRATCH, arc_node, arc_node_bias, arc_node_derivatives, jit, jit_helper, jit_inline, take1, take2, take3
 
 __all__ = ["CHAMBER_ANGLES", "input_matrix_c", "pressure_jacobian_c", "elastic_gradient_c", "elastic_hessian_c",
            "law_gradient_c", "law_hessian_c", "law_energy_c", "rest_damping_c", "domain_violation", "segment_slices", "segment_mass", "segment_newton_euler", "phi_transpose_force", "phi_matrix", "slice_twist"]
 
 
-@jit_helper
+# The node loops' small helpers (sub_motion_cross, slice_twist, phi_transpose_force, mass_node,
+# mass_finish) are inlined into their callers (``jit_inline``): as calls, passing their array
+# arguments cost about a fifth of a forward-dynamics call (benchmarks/bench_derivatives.py).
+@jit_inline
 def sub_motion_cross(a, b, out):
     """``out -= a x b`` (motion cross product, 6-vectors): the velocity-product part
     ``-(S qdot) x (Ad^-1 V)`` of a slice's bias acceleration."""
@@ -32,7 +35,7 @@ def sub_motion_cross(a, b, out):
     out[5] -= a[3] * b[4] - a[4] * b[3]
 
 
-@jit
+@jit_inline
 def slice_twist(R, p, S, V0, qd, out):
     """``out = Ad(g)^-1 V0 + S qd``: the slice body twist (6,) (docs/model.md section 2)."""
     v0 = V0[0] - (p[1] * V0[5] - p[2] * V0[4])
@@ -45,7 +48,7 @@ def slice_twist(R, p, S, V0, qd, out):
         out[r] += S[r, 0] * qd[0] + S[r, 1] * qd[1] + S[r, 2] * qd[2]
 
 
-@jit
+@jit_inline
 def phi_transpose_force(R, p, S, f, wgt, out):
     """``out += wgt * Phi^T f``: ``(Ad(g)^-T f, S^T f)`` with ``Ad^-T (fl, fa) = (R fl, p x R fl + R fa)``."""
     l0 = R[0, 0] * f[0] + R[0, 1] * f[1] + R[0, 2] * f[2]
@@ -165,7 +168,7 @@ def _segment_slices(alpha, w, mass, radius, q, xi, xid, want_mass, M, Q, sc):
         mass_finish(M, mp, Irot, m * wsum)
 
 
-@jit_helper
+@jit_inline
 def mass_node(R, p, S, Id, wk, M, mp, Irot, fc):
     """One node's share of ``M_xi = int Phi^T I Phi`` (weight ``wk``): the root block is the
     disk's spatial inertia moved to the root (``[[m, -m[p]], [m[p], R I_d R^T - m[p]^2]]``),
@@ -202,7 +205,7 @@ def mass_node(R, p, S, Id, wk, M, mp, Irot, fc):
             M[6 + c, k] += wk * acc
 
 
-@jit_helper
+@jit_inline
 def mass_finish(M, mp, Irot, mtot):
     """Complete ``M_xi`` from the sums of :func:`mass_node` (``mtot`` the weighted mass)."""
     for ia in range(3):
