@@ -22,7 +22,7 @@ __all__ = ["CHAMBER_ANGLES", "input_matrix_c", "pressure_jacobian_c", "elastic_g
 
 # The node loops' small helpers (sub_motion_cross, slice_twist, phi_transpose_force, mass_node,
 # mass_finish) are inlined into their callers (``jit_inline``): as calls, passing their array
-# arguments cost about a fifth of a forward-dynamics call (benchmarks/bench_derivatives.py).
+# arguments cost about a fifth of a forward-dynamics call (docs/benchmarks/README.md, "Speed of a chain").
 @jit_inline
 def sub_motion_cross(a, b, out):
     """``out -= a x b`` (motion cross product, 6-vectors): the velocity-product part
