@@ -471,9 +471,7 @@ def aba(arr, q, qd, tau, V0, A0, floating, F0, qdd, A0_out, ws, sc):
         Di = Lq[j]
         for a in range(3):
             qdd[j, a] = Di[a, 0] * col[0] + Di[a, 1] * col[1] + Di[a, 2] * col[2]
-        for a in range(3):
-            col[a] = qdd[j, a]
-        _load_xi(xid, A, col)
+        _load_xi(xid, A, qdd[j])
         _matvec(T[j], xid, A)
         for r in range(6):
             A[r] += c[j, r]
