@@ -188,7 +188,8 @@ def _project(M, T, I, IT, out):
     """``out = M + T^T I T`` (9, 9): a segment's 9x9 block with the inertia ``I`` (6, 6) of what
     hangs beyond its tip carried to its root through the tip map ``T`` (6, 9); ``IT`` (6, 9)
     receives ``I T``. ``T``'s lower left 3 x 3 block is zero (the linear velocity's share of
-    the angular one, ``Ad^-1``'s) and ``out`` symmetric: its upper triangle is formed, then mirrored."""
+    the angular one, ``Ad^-1``'s): both products skip it (the sums they leave out are exact
+    zeros). ``out`` is symmetric: its upper triangle is formed, then mirrored."""
     for r in range(6):
         for k in range(9):
             acc = 0.0
@@ -198,7 +199,7 @@ def _project(M, T, I, IT, out):
     for a in range(9):
         for b in range(a, 9):
             acc = M[a, b]
-            for r in range(6):
+            for r in range(3 if a < 3 else 6):
                 acc += T[r, a] * IT[r, b]
             out[a, b] = acc
             out[b, a] = acc
