@@ -14,7 +14,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .arc import SCRATCH, arc_node, arc_node_bias, arc_node_derivatives, jit, jit_helper, jit_inline, take1, take2, take3
+from .arc import (SCRATCH, arc_node, arc_node_bias, arc_node_derivatives, jit, jit_helper, jit_inline, take1, take2,
+                  take3)
 
 __all__ = ["CHAMBER_ANGLES", "input_matrix_c", "pressure_jacobian_c", "elastic_gradient_c", "elastic_hessian_c",
            "law_gradient_c", "law_hessian_c", "law_energy_c", "rest_damping_c", "domain_violation", "segment_slices", "segment_mass", "segment_newton_euler", "phi_transpose_force", "phi_matrix", "slice_twist"]

@@ -56,12 +56,13 @@ def python_reason(chain, pressure, tau, tension=None) -> str | None:
         return (f"segments[{j}] has coords='paper' (the compiled passes work in curvature coordinates; use "
                 "coords='curvature')")
     for name, u, size in (("pressure", pressure, chain.nu), ("tau", tau, chain.nv), ("tension", tension, chain.nt)):
-        if schedules.pack_input(u, size, name) is None and name == "tension":
+        if schedules.pack_input(u, size, name) is not None:
+            continue
+        if name == "tension":
             return ("tension is a Python callable (a tension controller, evaluated at every stage; a schedule of "
                     "qchain.sim.inputs runs on the compiled engine)")
-        if schedules.pack_input(u, size, name) is None:
-            return (f"{name} is a Python callable (a controller evaluated at every stage; give controller_rate= "
-                    "to hold it between instants on the compiled engine, or a schedule of qchain.sim.inputs)")
+        return (f"{name} is a Python callable (a controller evaluated at every stage; give controller_rate= "
+                "to hold it between instants on the compiled engine, or a schedule of qchain.sim.inputs)")
     if chain.base == "prescribed" and schedules.pack_base_motion(chain.base_motion) is None:
         return "base_motion is a Python callable (the compiled engine takes a qchain.sim.inputs.SineMotion)"
     return None
