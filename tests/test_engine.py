@@ -7,11 +7,13 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numba
 import numpy as np
 import pinocchio as pin
 import pytest
 
 from qchain import Chain, Segment
+from qchain._jit import view2, view3, view4
 from qchain.algorithms.arrays import ChainArrays
 from qchain.sim.engine import packing, system
 from qchain.sim.inputs import Sine
@@ -374,6 +376,59 @@ def test_kernel_workspaces_carved_from_one_buffer_have_the_allocators_shapes():
         assert list(np.diff(table[:, 0])) == sizes
         for row, a in zip(table, arrays):
             assert tuple(row[1 : 1 + a.ndim]) == a.shape and np.all(row[1 + a.ndim :] == 1)
+
+
+@numba.njit(_nrt=False, error_model="numpy")
+def _carve(buf, o, dims, out):
+    """Write ``view2/3/4(buf[o:o + prod(dims)], *dims)`` into ``out`` (the same shape) and set
+    entry (0, ..., 0) of the view to -1, through the view (it must alias ``buf``)."""
+    if dims.shape[0] == 2:
+        v = view2(buf[o : o + dims[0] * dims[1]], dims[0], dims[1])
+        for i in range(dims[0]):
+            for j in range(dims[1]):
+                out[i * dims[1] + j] = v[i, j]
+        v[0, 0] = -1.0
+    elif dims.shape[0] == 3:
+        w = view3(buf[o : o + dims[0] * dims[1] * dims[2]], dims[0], dims[1], dims[2])
+        for i in range(dims[0]):
+            for j in range(dims[1]):
+                for k in range(dims[2]):
+                    out[(i * dims[1] + j) * dims[2] + k] = w[i, j, k]
+        w[0, 0, 0] = -1.0
+    else:
+        x = view4(buf[o : o + dims[0] * dims[1] * dims[2] * dims[3]], dims[0], dims[1], dims[2], dims[3])
+        for i in range(dims[0]):
+            for j in range(dims[1]):
+                for k in range(dims[2]):
+                    for m in range(dims[3]):
+                        out[((i * dims[1] + j) * dims[2] + k) * dims[3] + m] = x[i, j, k, m]
+        x[0, 0, 0, 0] = -1.0
+
+
+@numba.njit(_nrt=False, error_model="numpy")
+def _carve_short(buf, r, c):
+    v = view2(buf, r, c)  # buf holds fewer (or more) than r * c entries
+    return v[0, 0]
+
+
+def test_compiled_views_equal_numpy_s_reshape_alias_the_buffer_and_refuse_another_size():
+    """``qchain._jit.view2/3/4`` (the carvings of every compiled pass, built without numba's
+    reshape helper): the entries of ``buf[o:o + size].reshape(dims)`` in C order, a view that
+    writes through to the buffer, and ``ValueError`` for a buffer of another size (never a
+    read past its end)."""
+    rng = np.random.default_rng(3)
+    for dims in ((3, 3), (6, 3), (1, 7), (3, 6, 3), (2, 1, 5), (2, 3, 4, 2)):
+        size = int(np.prod(dims))
+        buf = rng.standard_normal(size + 9)
+        o = 4
+        want = buf[o : o + size].reshape(dims).copy()
+        out = np.zeros(size)
+        _carve(buf, o, np.array(dims, dtype=np.int64), out)
+        np.testing.assert_array_equal(out, want.ravel())
+        assert buf[o] == -1.0 and buf[o - 1] != -1.0
+    for r, c in ((3, 4), (2, 2)):
+        with pytest.raises(ValueError, match="does not hold"):
+            _carve_short(np.zeros(9), r, c)
 
 
 def test_a_batch_taker_gets_every_sample_in_batches_within_its_max_sim():

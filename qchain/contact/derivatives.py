@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._jit import view2, view3
 from ..algorithms.arrays import ChainArrays
 from ..model.arc import arc_node, arc_node_derivatives, arc_pose, jit, take1, take2, take3
 from ..model.slices import phi_transpose_force, slice_twist, sub_motion_cross
@@ -133,7 +134,7 @@ def _normal_tangent(kind, prm, x, n, dx, dn, tmp):
             out2 += q * q
     if out2 == 0.0:
         return
-    _rx(prm[6:15].reshape((3, 3)), tmp[0:3], tmp[3:6])
+    _rx(view2(prm[6:15], 3, 3), tmp[0:3], tmp[3:6])
     _project_out(n, tmp[3:6], np.sqrt(out2), dn)
 
 
@@ -488,17 +489,17 @@ def environment_derivatives(arr, kind, prm, vel, law, calpha, seg, lalpha, wrenc
 def _keep_node_tangents(root, q, qd, dq, dqd, calpha, out, t):
     """Every contact node of a segment with its tangent, into ``out`` (K, NODE_T) (layout:
     :data:`NODE_T`); ``root`` (ROOT + 12,) the kept root and its ``eta``, ``dV``; ``t`` scratch."""
-    Rj = root[0:9].reshape((3, 3))
+    Rj = view2(root[0:9], 3, 3)
     for i in range(calpha.shape[0]):
         row = out[i]
-        Rs = row[0:9].reshape((3, 3))
-        Rn = row[18:27].reshape((3, 3))
+        Rs = view2(row[0:9], 3, 3)
+        Rn = view2(row[18:27], 3, 3)
         pn = row[27:30]
-        Sn = row[30:48].reshape((6, 3))
-        dS = row[69:123].reshape((3, 6, 3))
+        Sn = view2(row[30:48], 6, 3)
+        dS = view3(row[69:123], 3, 6, 3)
         a = calpha[i]
-        arc_node(a, q[0], q[1], q[2], qd[0], qd[1], qd[2], Rn, pn, Sn, t[0:18].reshape((6, 3)))
-        arc_node_derivatives(a, q[0], q[1], q[2], qd[0], qd[1], qd[2], dS, t[18:36].reshape((3, 6)))
+        arc_node(a, q[0], q[1], q[2], qd[0], qd[1], qd[2], Rn, pn, Sn, view2(t[0:18], 6, 3))
+        arc_node_derivatives(a, q[0], q[1], q[2], qd[0], qd[1], qd[2], dS, view2(t[18:36], 3, 6))
         Vs, dVs = t[36:42], t[42:48]
         _frame_step(Rn, pn, Sn, dS, t[48:51], qd, dq, dqd, root[12:18], root[ROOT:ROOT + 6], root[ROOT + 6:ROOT + 12],
                     t[51:57], Vs, row[57:63], dVs, row[63:69])
@@ -521,8 +522,8 @@ def _keep_node_tangents(root, q, qd, dq, dqd, calpha, out, t):
 def _pair_side(row, F, dF, arm, darm, dq_j, W_j, dW_j, dtau_j, t):
     """One side of a self-contact pair: its slice wrench and change, accumulated."""
     w, dw = t[0:6], t[6:12]
-    _wrench_tangent(row[0:9].reshape((3, 3)), F, dF, arm, darm, row[57:63], w, dw, t[12:15], t[15:18])
-    _accumulate(row[18:27].reshape((3, 3)), row[27:30], row[30:48].reshape((6, 3)), row[69:123].reshape((3, 6, 3)),
+    _wrench_tangent(view2(row[0:9], 3, 3), F, dF, arm, darm, row[57:63], w, dw, t[12:15], t[15:18])
+    _accumulate(view2(row[18:27], 3, 3), row[27:30], view2(row[30:48], 6, 3), view3(row[69:123], 3, 6, 3),
                 dq_j, w, dw, row[63:69], W_j, dW_j, dtau_j, t[18:27], t[27:33], t[33:36])
 
 

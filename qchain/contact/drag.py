@@ -35,6 +35,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._jit import view2, view3
 from ..algorithms.arrays import ChainArrays
 from ..model.arc import arc_node, arc_node_derivatives, jit, take1, take2, take3
 from ..model.slices import slice_twist
@@ -114,8 +115,8 @@ def drag_frames(arr, q, frames, sc):
                 continue
             a = 1.0 if row >= N else arr.alpha[k]
             f = frames[row]
-            arc_node(a, l, ux, uy, 0.0, 0.0, 0.0, f[0:9].reshape((3, 3)), f[9:12], f[12:30].reshape((6, 3)), Sd)
-            arc_node_derivatives(a, l, ux, uy, 0.0, 0.0, 0.0, f[30:84].reshape((3, 6, 3)), Kn)
+            arc_node(a, l, ux, uy, 0.0, 0.0, 0.0, view2(f[0:9], 3, 3), f[9:12], view2(f[12:30], 6, 3), Sd)
+            arc_node_derivatives(a, l, ux, uy, 0.0, 0.0, 0.0, view3(f[30:84], 3, 6, 3), Kn)
 
 
 @jit
@@ -162,7 +163,7 @@ def drag_tangent(arr, q, qd, dq, dqd, V0, eta0, dV0, dtau, dF0, W, dW, frames, s
         if c1 != 0.0 or c2 != 0.0:
             for k in range(arr.offs[j], arr.offs[j + 1]):
                 f = frames[k]
-                Rn, pn, Sn, dS = f[0:9].reshape((3, 3)), f[9:12], f[12:30].reshape((6, 3)), f[30:84].reshape((3, 6, 3))
+                Rn, pn, Sn, dS = view2(f[0:9], 3, 3), f[9:12], view2(f[12:30], 6, 3), view3(f[30:84], 3, 6, 3)
                 _frame_step(Rn, pn, Sn, dS, z3, qd[j], dq[j], dqd[j], Vj, eta, dV, AV, Vs, eta_s, dVs, zeta)
                 # f = -w_k l (c1 + c2 |v|) v and its change: d|v| = v . dv / |v| (0 at v = 0)
                 s = np.sqrt(Vs[0] * Vs[0] + Vs[1] * Vs[1] + Vs[2] * Vs[2])
@@ -175,7 +176,7 @@ def drag_tangent(arr, q, qd, dq, dqd, V0, eta0, dV0, dtau, dF0, W, dW, frames, s
                 _accumulate(Rn, pn, Sn, dS, dq[j], w, dw, zeta, W[j], dW[j], dtau[j], g9, t6, t3)
         # to the next root
         f = frames[N + j]
-        Rn, pn, Sn, dS = f[0:9].reshape((3, 3)), f[9:12], f[12:30].reshape((6, 3)), f[30:84].reshape((3, 6, 3))
+        Rn, pn, Sn, dS = view2(f[0:9], 3, 3), f[9:12], view2(f[12:30], 6, 3), view3(f[30:84], 3, 6, 3)
         _frame_step(Rn, pn, Sn, dS, z3, qd[j], dq[j], dqd[j], Vj, eta, dV, AV, Vs, eta_s, dVs, zeta)
         for r in range(6):
             Vj[r] = Vs[r]
@@ -183,7 +184,7 @@ def drag_tangent(arr, q, qd, dq, dqd, V0, eta0, dV0, dtau, dF0, W, dW, frames, s
             dV[r] = dVs[r]
     for j in range(n - 1, -1, -1):
         f = frames[N + j]
-        Rn, pn, Sn, dS = f[0:9].reshape((3, 3)), f[9:12], f[12:30].reshape((6, 3)), f[30:84].reshape((3, 6, 3))
+        Rn, pn, Sn, dS = view2(f[0:9], 3, 3), f[9:12], view2(f[12:30], 6, 3), view3(f[30:84], 3, 6, 3)
         for r in range(6):
             zeta[r] = Sn[r, 0] * dq[j, 0] + Sn[r, 1] * dq[j, 1] + Sn[r, 2] * dq[j, 2]
         _accumulate(Rn, pn, Sn, dS, dq[j], W[j + 1], dW[j + 1], zeta, W[j], dW[j], dtau[j], g9, t6, t3)
@@ -227,7 +228,7 @@ def _velocity_jacobian(arr, floating, q, qd, V0, frames, out, sc):
             if not tip and c1 == 0.0 and c2 == 0.0:
                 continue
             f = frames[N + j] if tip else frames[k]
-            R, p, S = f[0:9].reshape((3, 3)), f[9:12], f[12:30].reshape((6, 3))
+            R, p, S = view2(f[0:9], 3, 3), f[9:12], view2(f[12:30], 6, 3)
             # Jn = Ad(g)^-1 Jr + S on segment j's columns: (R^T (jv - p x jw), R^T jw)
             for c in range(cols):
                 a0 = Jr[0, c] - (p[1] * Jr[5, c] - p[2] * Jr[4, c])

@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._jit import view2
 from ..algorithms.arrays import ChainArrays
 from ..model.arc import arc_node, arc_pose, jit, take1, take2
 from ..model.slices import phi_transpose_force, slice_twist
@@ -369,14 +370,14 @@ def _keep_nodes(root, q, qd, calpha, out, tmp):
     into ``out`` (K, NODE): ``[0:9]`` world rotation, ``[9:12]`` point, ``[12:15]`` velocity,
     ``[15:18]`` angular velocity (world), ``[18:27]``, ``[27:30]``, ``[30:48]`` the slice's
     ``R``, ``p``, ``S`` in its root (for ``Phi^T``). ``tmp`` (24,) scratch."""
-    Rj = root[0:9].reshape((3, 3))
+    Rj = view2(root[0:9], 3, 3)
     for i in range(calpha.shape[0]):
         row = out[i]
-        Rs = row[0:9].reshape((3, 3))
-        Rn = row[18:27].reshape((3, 3))
+        Rs = view2(row[0:9], 3, 3)
+        Rn = view2(row[18:27], 3, 3)
         pn = row[27:30]
-        Sn = row[30:48].reshape((6, 3))
-        arc_node(calpha[i], q[0], q[1], q[2], qd[0], qd[1], qd[2], Rn, pn, Sn, tmp[0:18].reshape((6, 3)))
+        Sn = view2(row[30:48], 6, 3)
+        arc_node(calpha[i], q[0], q[1], q[2], qd[0], qd[1], qd[2], Rn, pn, Sn, view2(tmp[0:18], 6, 3))
         slice_twist(Rn, pn, Sn, root[12:18], qd, tmp[18:24])
         _mat3(Rj, Rn, Rs)
         _point(Rj, root[9:12], pn, row[9:12])
@@ -437,12 +438,12 @@ def _self_contact(arr, law, calpha, q, qd, roots, P, W, tau, rec, count, sc):
                     vc[1] = (A[13] + A[17] * arm_a[0] - A[15] * arm_a[2]) - (B[13] + B[17] * arm_b[0] - B[15] * arm_b[2])
                     vc[2] = (A[14] + A[15] * arm_a[1] - A[16] * arm_a[0]) - (B[14] + B[15] * arm_b[1] - B[16] * arm_b[0])
                     slide = law_force(law, ell, d, nrm, vc, F)
-                    _world_wrench_to_slice(A[0:9].reshape((3, 3)), F, arm_a, f6)
-                    _add_phi_t(A[18:27].reshape((3, 3)), A[27:30], A[30:48].reshape((6, 3)), f6, 1.0, W[i], tau[i], g9)
+                    _world_wrench_to_slice(view2(A[0:9], 3, 3), F, arm_a, f6)
+                    _add_phi_t(view2(A[18:27], 3, 3), A[27:30], view2(A[30:48], 6, 3), f6, 1.0, W[i], tau[i], g9)
                     for r in range(3):
                         F[r] = -F[r]
-                    _world_wrench_to_slice(B[0:9].reshape((3, 3)), F, arm_b, f6)
-                    _add_phi_t(B[18:27].reshape((3, 3)), B[27:30], B[30:48].reshape((6, 3)), f6, 1.0, W[j], tau[j], g9)
+                    _world_wrench_to_slice(view2(B[0:9], 3, 3), F, arm_b, f6)
+                    _add_phi_t(view2(B[18:27], 3, 3), B[27:30], view2(B[30:48], 6, 3), f6, 1.0, W[j], tau[j], g9)
                     if count < rec.shape[0]:
                         row = rec[count]
                         row[0], row[1], row[2], row[3] = i, calpha[a], -1 - j, d

@@ -47,6 +47,7 @@ import numba
 import numpy as np
 from numba.extending import register_jitable
 
+from .._jit import view2, view3
 from ..checks.convert import as_batch, as_real_array
 from .spatial import _inv_adjoint as inv_adjoint
 
@@ -479,10 +480,10 @@ def take1(sc, o, k):
 @jit_helper
 def take2(sc, o, r, c):
     """A (r, c) matrix of scratch from offset ``o`` and the next offset."""
-    return sc[o : o + r * c].reshape((r, c)), o + r * c
+    return view2(sc[o : o + r * c], r, c), o + r * c
 
 
 @jit_helper
 def take3(sc, o, a, b, c):
     """An (a, b, c) array of scratch from offset ``o`` and the next offset."""
-    return sc[o : o + a * b * c].reshape((a, b, c)), o + a * b * c
+    return view3(sc[o : o + a * b * c], a, b, c), o + a * b * c

@@ -30,7 +30,7 @@ import numpy as np
 
 from . import system
 from .sensitivity import stage_tangent
-from ..._jit import ejit, inline
+from ..._jit import ejit, inline, view2
 
 __all__ = ["rollout", "linearise"]
 
@@ -50,7 +50,7 @@ def _tendon_matrix(m, wk, Bt, g, Hs):
     column ``k`` is ``-dL_k/dq`` (:func:`qchain.sim.engine.system.tendon_row_gradient`; the
     domain was checked by that right-hand side)."""
     n = m.arrays.mass.shape[0]
-    q_c = wk.q[m.nq - 3 * n:].reshape(n, 3)
+    q_c = view2(wk.q[m.nq - 3 * n:], n, 3)
     voff = m.nv - 3 * n
     for r in range(Bt.shape[0]):  # (loops: the engine's code allocates nothing, assigns no slices)
         for c in range(Bt.shape[1]):

@@ -25,7 +25,7 @@ from __future__ import annotations
 import numpy as np
 
 from . import system
-from ..._jit import ejit, ejit_inner, inline, kernel
+from ..._jit import ejit, ejit_inner, inline, kernel, view2, view3
 from ...algorithms import parameter_derivatives as pd
 from ...algorithms.parameter_derivatives import ParameterWorkspace
 
@@ -99,22 +99,22 @@ def model_parameter_derivatives(m, wk, t, y, kinds, index, pbuf, da):
     P = kinds.shape[0]
     o = n
     E = pbuf[:n]
-    Qu = pbuf[o : o + 9 * n].reshape((n, 9))
+    Qu = view2(pbuf[o : o + 9 * n], n, 9)
     o += 9 * n
-    T = pbuf[o : o + 54 * n].reshape((n, 6, 9))
+    T = view3(pbuf[o : o + 54 * n], n, 6, 9)
     o += 54 * n
-    c = pbuf[o : o + 6 * n].reshape((n, 6))
+    c = view2(pbuf[o : o + 6 * n], n, 6)
     o += 6 * n
     nf = 6 + 3 * n
-    Hf = pbuf[o : o + nf * nf].reshape((nf, nf))
+    Hf = view2(pbuf[o : o + nf * nf], nf, nf)
     o += nf * nf
-    Mb = pbuf[o : o + 3 * nv].reshape((nv, 3))
+    Mb = view2(pbuf[o : o + 3 * nv], nv, 3)
     o += 3 * nv
-    rhs = pbuf[o : o + nv * P].reshape((nv, P))
+    rhs = view2(pbuf[o : o + nv * P], nv, P)
     o += nv * P
-    dID = pbuf[o : o + nv * P].reshape((nv, P))
+    dID = view2(pbuf[o : o + nv * P], nv, P)
     q_c, v_c = system._segment_states(m, wk)
-    st = pd._parameter_derivatives_at(m.arrays, m.base == system.FLOATING, q_c, v_c, wk.p.reshape((n, 3)), wk.qdd,
+    st = pd._parameter_derivatives_at(m.arrays, m.base == system.FLOATING, q_c, v_c, view2(wk.p, n, 3), wk.qdd,
                                       wk.A0, wk.B[0], wk.B[2, :3], wk.R_WB, E, kinds, index, system.aba_ws(m, wk),
                                       system.rnea_ws(m, wk), system.aba_derivatives_ws(m, wk),
                                       ParameterWorkspace(Qu, T, c, Hf, Mb, rhs), wk.scratch, da, dID)

@@ -43,7 +43,7 @@ from ...model.arc import SCRATCH, arc_node, take1, take2
 from ...model.slices import law_energy_c, slice_twist
 from ...model.tendon import tendon_length_c
 from . import lie, schedules
-from ..._jit import ejit, ejit_inner, inline, kernel
+from ..._jit import ejit, ejit_inner, inline, kernel, view2, view3, view4
 
 __all__ = ["EngineModel", "Workspace", "workspace", "rhs", "rhs_planar", "rhs_spatial", "jacobian",
            "configuration", "energies", "energies_batch", "inputs", "RECENTER", "OK", "DOMAIN", "SINGULAR", "NONFINITE",
@@ -256,19 +256,19 @@ def _v1(buf, tb, i):
 @inline
 def _v2(buf, tb, i):
     o = tb[i, 0]
-    return buf[o : o + tb[i, 1] * tb[i, 2]].reshape((tb[i, 1], tb[i, 2]))
+    return view2(buf[o : o + tb[i, 1] * tb[i, 2]], tb[i, 1], tb[i, 2])
 
 
 @inline
 def _v3(buf, tb, i):
     o = tb[i, 0]
-    return buf[o : o + tb[i, 1] * tb[i, 2] * tb[i, 3]].reshape((tb[i, 1], tb[i, 2], tb[i, 3]))
+    return view3(buf[o : o + tb[i, 1] * tb[i, 2] * tb[i, 3]], tb[i, 1], tb[i, 2], tb[i, 3])
 
 
 @inline
 def _v4(buf, tb, i):
     o = tb[i, 0]
-    return buf[o : o + tb[i, 1] * tb[i, 2] * tb[i, 3] * tb[i, 4]].reshape((tb[i, 1], tb[i, 2], tb[i, 3], tb[i, 4]))
+    return view4(buf[o : o + tb[i, 1] * tb[i, 2] * tb[i, 3] * tb[i, 4]], tb[i, 1], tb[i, 2], tb[i, 3], tb[i, 4])
 
 
 @inline
@@ -386,7 +386,7 @@ def check(m, wk, q):
         if not np.isfinite(q[i]):
             info[0] = NONFINITE
             return NONFINITE
-    qe = q[off:].reshape(n, 3)
+    qe = view2(q[off:], n, 3)
     j = recursive.first_invalid(m.arrays.radius[:0], qe, m.arrays.radius, m.arrays.paper_act)  # a contiguous empty first argument: one type
     if j >= 0:
         info[0] = DOMAIN
@@ -498,18 +498,18 @@ def _forces(m, wk, t):
         return status
     inputs(m, wk, t)
     _base_state(m, wk, t, q, v)
-    recursive.internal_forces(m.arrays, q[qoff:].reshape(n, 3), v[voff:].reshape(n, 3), p.reshape(n, 3), f,
+    recursive.internal_forces(m.arrays, view2(q[qoff:], n, 3), view2(v[voff:], n, 3), view2(p, n, 3), f,
                               wk.scratch)
     for j in range(n):
         for b in range(3):
             f[j, b] += tau[voff + 3 * j + b]
     if m.tendon_rows.shape[0] > 0:
-        status = _tendon_forces(m, wk, q[qoff:].reshape(n, 3), f)
+        status = _tendon_forces(m, wk, view2(q[qoff:], n, 3), f)
         if status != OK:
             return status
-    _environment(m, wk, t, q[qoff:].reshape(n, 3), v[voff:].reshape(n, 3), f)
+    _environment(m, wk, t, view2(q[qoff:], n, 3), view2(v[voff:], n, 3), f)
     if _any_drag(m.arrays):  # the medium's drag: beside the environment's forces, its base wrench with theirs
-        drag_forces(m.arrays, q[qoff:].reshape(n, 3), v[voff:].reshape(n, 3), B[0], f, wk.W[0, n + 1],
+        drag_forces(m.arrays, view2(q[qoff:], n, 3), view2(v[voff:], n, 3), B[0], f, wk.W[0, n + 1],
                     wk.W[0, : n + 1], wk.scratch)
     F0 = B[3]  # reused: the base wrench (floating); the origin row is not needed past here
     F_env = wk.W[0, n + 1]
@@ -640,7 +640,7 @@ def _rates(m, wk, y, out, ok):
 def _segment_states(m, wk):
     """The segment coordinates and velocities of ``wk.q``, ``wk.v`` as ``(n, 3)`` views."""
     n = m.arrays.mass.shape[0]
-    return wk.q[m.nq - 3 * n:].reshape(n, 3), wk.v[m.nv - 3 * n:].reshape(n, 3)
+    return view2(wk.q[m.nq - 3 * n:], n, 3), view2(wk.v[m.nv - 3 * n:], n, 3)
 
 
 @kernel
@@ -706,7 +706,7 @@ def jacobian(m, wk, t, y, Jq, Jv):
     q_c, v_c = _segment_states(m, wk)
     a = wa.a
     copy(a, wk.a)
-    status = aba_derivatives._aba_derivatives_at(m.arrays, m.base == FLOATING, q_c, v_c, wk.p.reshape(n, 3), wk.qdd,
+    status = aba_derivatives._aba_derivatives_at(m.arrays, m.base == FLOATING, q_c, v_c, view2(wk.p, n, 3), wk.qdd,
                                                  wk.A0, a, B[0], B[2, :3], aba_ws(m, wk), rnea_ws(m, wk), wa,
                                                  wk.scratch)
     if status != 0:
