@@ -85,19 +85,21 @@ def describe(scene=SCENE, T: float = 1.0) -> str:
 
 
 def qchain_arm(n: int, scene=SCENE, extensible: bool = True, planar: bool = True,
-               node_tolerance: float | None = None) -> Chain:
+               node_tolerance: float | None = None, max_bend: float | None = None) -> Chain:
     """The cantilever as n equal segments, backbone along world +x, undamped; ``planar=False``
     is the full spatial model (3 coordinates a segment). ``node_tolerance``: each segment's
-    Gauss nodes sized for this relative ``M_xi`` accuracy at the largest bend the model allows,
-    ``l0 / r_s`` (:func:`qchain.model.segment.nodes_for_tolerance`, as a scene with tendons
-    sizes them); None: the segment's default (:data:`qchain.model.segment.DEFAULT_NODES`)."""
+    Gauss nodes sized for this relative ``M_xi`` accuracy at the bend ``max_bend`` (rad, a
+    segment's ``l |u|``; None: the largest the model allows, ``l0 / r_s``), as a scene sizes them
+    (:func:`qchain.model.segment.nodes_for_tolerance`, ``model.max_bend``); None: the segment's
+    default (:data:`qchain.model.segment.DEFAULT_NODES`)."""
     from qchain.model.segment import nodes_for_tolerance
 
     L, r, rho, E = scene["L"], scene["r"], scene["rho"], scene["E"]
     seg = dict(length=L / n, radius=r, mass=rho * np.pi * r * r * L / n, youngs_modulus=E, damping=0.0,
                extensible=extensible, **CHAMBER)
     if node_tolerance is not None:
-        seg["nodes"] = nodes_for_tolerance(Segment(**seg), (L / n) / r, node_tolerance)
+        seg["nodes"] = nodes_for_tolerance(Segment(**seg), (L / n) / r if max_bend is None else max_bend,
+                                           node_tolerance)
     X = pin.SE3(pin.utils.rotate("y", np.pi / 2), np.zeros(3))
     return Chain([Segment(**seg) for _ in range(n)], base_placement=X, gravity=(0.0, 0.0, -scene["g"]),
                  planar=planar)
@@ -109,16 +111,19 @@ def sample_times(T: float) -> np.ndarray:
 
 def qchain_run(n: int, T: float, method: str = "DOP853", repeat_below: float = 0.0, scene=SCENE,
                extensible: bool = True, planar: bool = True, clock=time.perf_counter,
-               node_tolerance: float | None = None, **kw) -> dict:
+               node_tolerance: float | None = None, max_bend: float | None = None, **kw) -> dict:
     """Release the n-segment arm; returns tips (K, 3) at ``sample_times(T)``, cost (s/s), etc.
 
     The run is repeated 3 times (cost: the median) if the first takes under ``repeat_below`` s
     (as measured by ``clock``: wall time by default, ``time.process_time`` for CPU time).
     ``extensible=False`` is the reduced model without the axial mode (the rod's stretch under
     its own weight is W / EA ~ 7e-4 here), so explicit steps are no longer bounded by it.
-    ``planar=False`` is the full spatial model; ``node_tolerance`` as :func:`qchain_arm`'s.
+    ``planar=False`` is the full spatial model; ``node_tolerance`` and ``max_bend`` as
+    :func:`qchain_arm`'s. The result's ``max_bend`` is the largest bend of a segment over the run
+    (rad, ``l |u|``) and ``nodes`` the segments' node count.
     """
-    ch = qchain_arm(n, scene, extensible=extensible, planar=planar, node_tolerance=node_tolerance)
+    ch = qchain_arm(n, scene, extensible=extensible, planar=planar, node_tolerance=node_tolerance,
+                    max_bend=max_bend)
     t_eval = sample_times(T)
     q0, v0 = ch.neutral(), np.zeros(ch.nv)
     walls = []
@@ -133,9 +138,11 @@ def qchain_run(n: int, T: float, method: str = "DOP853", repeat_below: float = 0
     for k, q in enumerate(tr.q):
         tips[k] = ch.tip_placement(q).translation
     kappa = np.hypot(tr.q[:, 1::3], tr.q[:, 2::3]) if len(tr.q) else np.zeros((1, 1))
+    bend = tr.q[:, 0::3] * kappa if len(tr.q) else np.zeros((1, 1))
     return dict(tips=tips, cost=float(np.median(walls)) / T, repeats=len(walls), ok=ok,
                 status="ok" if ok else f"failed: {tr.message}", work=int(tr.nfev),
-                max_kappa_r=float(kappa.max() * scene["r"]))
+                max_kappa_r=float(kappa.max() * scene["r"]), max_bend=float(bend.max()),
+                nodes=int(ch.segments[0].nodes))
 
 
 def qchain_warmup() -> None:
@@ -338,7 +345,7 @@ def run(quick: bool = False, out_dir: Path = Path("out/bench"), use_elastica: bo
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     fields = ["code", "series", "role", "n", "method", "setting", "T_s", "wall_per_sim_s", "tip_error_m",
-              "tip_error_vs_qchain_m", "max_kappa_r", "work", "repeats", "status", "reference"]
+              "tip_error_vs_qchain_m", "max_kappa_r", "max_bend", "nodes", "work", "repeats", "status", "reference"]
     for r in rows:
         r["wall_per_sim_s"] = r.pop("cost")
         r.pop("ok")

@@ -45,9 +45,10 @@ depends on (scene, span, sampling, resolution, step, shear factor, filter, code 
 empties the cache first.
 
 qchain: n equal segments (bench_cosserat's ``qchain_arm``, damping 0, tiny unpressurised
-chambers; each segment's Gauss nodes sized for ``M_xi`` to :data:`NODE_TOLERANCE` at the largest bend
-the model allows, l0 / r_s, as a scene sizes them: 4 a segment at n = 5 and 10, 3 from n = 14; the
-default is 6), every method of ``qchain.sim.simulation.METHODS`` (read at run time): the fixed-step
+chambers; each segment's Gauss nodes sized for ``M_xi`` to :data:`NODE_TOLERANCE` at the bend this
+scene can reach, :func:`release_bend` (twice the root segment's static bend), as a scene with
+``model.max_bend`` sizes them: 3 a segment at n = 5 and 10, 2 from n = 14; the default is 6; the
+output gives the largest bend any run reached against it), every method of ``qchain.sim.simulation.METHODS`` (read at run time): the fixed-step
 ones (``FIXED_STEP``) over steps dt = 5 ms / 2^j, the others over rtol = 1e-1, 3e-2, 1e-2,
 3e-3, 1e-3, 1e-4, ... (quick: decades; atol = rtol / 100; scipy's, which run Python at every stage, down to 1e-3; quick: 1e-2).
 Two groups: **reduced**, the model this planar scene needs (``Chain(..., planar=True)``,
@@ -122,6 +123,16 @@ CACHE_FORMAT = 1  # bump when a cached track's meaning changes
 GROUPS = {"reduced": "qchain reduced", "full": "qchain full spatial", "mujoco": "mujoco"}
 TITLES = {"reduced": "qchain, reduced (planar): n segments", "full": "qchain, full spatial model: n segments",
           "mujoco": "MuJoCo: N links", "qchain": "qchain: n segments"}
+
+
+def release_bend(n: int, scene=SCENE) -> float:
+    """The bend (rad, a segment's ``l |u|``) the n-segment cantilever's nodes are sized for:
+    twice the static bend of the root segment under the rod's own weight, ``2 (w L^2 / 2 EI) L / n``
+    with ``w = rho A g`` (a step load released from rest on an undamped linear structure peaks
+    at twice its static deflection; the root carries the largest moment). The sweeps report the
+    largest bend any run reached against it (:func:`run`)."""
+    c = constants(scene)
+    return 2.0 * (c["q"] * scene["L"] ** 2 / (2.0 * c["EI"])) * scene["L"] / n
 
 
 def constants(scene=SCENE) -> dict:
@@ -586,11 +597,18 @@ def run(quick: bool = False, out_dir: Path = Path("out/bench"), ns=None, Ns=None
 
         def runner(v, n=n, ext=ext, planar=planar, method=method):
             return bc.qchain_run(n, T, method, rb, scene=SCENE, extensible=ext, planar=planar, clock=CLOCK,
-                                 node_tolerance=NODE_TOLERANCE, **qchain_setting(method, v, fixed))
+                                 node_tolerance=NODE_TOLERANCE, max_bend=release_bend(n),
+                                 **qchain_setting(method, v, fixed))
 
         model = f"n={n}" + ("" if planar else " 3D") + (" ext" if ext and planar else "")
         for res in sweep(runner, values, kind, budget, T):
             add("qchain", group, model, n, variant, method, dict(res, planar=planar, extensible=ext))
+
+    bends = [(r["max_bend"] / release_bend(r["n"]), r["n"], r["max_bend"]) for r in rows if r["ok"]]
+    worst = max(bends)
+    print(f"node sizing: the largest segment bend of any qchain run is {worst[2]:.3f} rad (n = {worst[1]}), "
+          f"{worst[0]:.2f} of the {release_bend(worst[1]):.3f} rad its nodes were sized for"
+          + ("" if worst[0] <= 1.0 else ": EXCEEDED, the quadrature is not what the nodes were sized for"), flush=True)
 
     # ---- MuJoCo sweeps
     mujoco_run(4, "Euler", 1e-3, bc.SAMPLE)  # warm-up
@@ -641,7 +659,7 @@ def run(quick: bool = False, out_dir: Path = Path("out/bench"), ns=None, Ns=None
     fields = ["code", "group", "model", "n", "variant", "method", "role", "setting", "value", "kind", "T_s",
               "rms_error_m", "max_error_m", "rms_vs_shearable_m", "max_vs_shearable_m", "rms_vs_qchain_ref_m",
               "max_vs_qchain_ref_m", "time_conv_m", "cpu_per_sim_s",
-              "cost_ratio", "work", "repeats", "status", "reference"]
+              "cost_ratio", "work", "nodes", "max_bend", "repeats", "status", "reference"]
     _study.write_csv([{k: r.get(k, "") for k in fields} for r in rows], out_dir / "release.csv")
     plot(rows, out_dir / "release.png", T, ref["note"], best)
     print(f"wrote {out_dir / 'release.csv'} and {out_dir / 'release.png'} ({release_s:.1f} s of wall time)")
@@ -682,7 +700,8 @@ def _rerun(r: dict, T: float, fixed: tuple):
         return lambda: mujoco_run(r["n"], r["method"], r["value"], T)["cost"]
     kw = qchain_setting(r["method"], r["value"], fixed)
     return lambda: bc.qchain_run(r["n"], T, r["method"], scene=SCENE, extensible=r["extensible"], planar=r["planar"],
-                                 clock=CLOCK, node_tolerance=NODE_TOLERANCE, **kw)["cost"]
+                                 clock=CLOCK, node_tolerance=NODE_TOLERANCE, max_bend=release_bend(r["n"]),
+                                 **kw)["cost"]
 
 
 def eligible(r: dict, accuracy: float = ACCURACY) -> bool:
