@@ -142,7 +142,7 @@ def qchain_run(n: int, T: float, method: str = "DOP853", repeat_below: float = 0
     return dict(tips=tips, cost=float(np.median(walls)) / T, repeats=len(walls), ok=ok,
                 status="ok" if ok else f"failed: {tr.message}", work=int(tr.nfev),
                 max_kappa_r=float(kappa.max() * scene["r"]), max_bend=float(bend.max()),
-                nodes=int(ch.segments[0].nodes))
+                nodes=int(ch.segments[0].node_count))
 
 
 def qchain_warmup() -> None:

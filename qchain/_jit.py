@@ -1,4 +1,4 @@
-"""The engine's numba decorators, in one place.
+"""The engine's numba decorators and array views, in one place.
 
 The engine runs without numba's reference counting (``_nrt=False``): with it every array
 view (a row of a workspace, a slice of the state) costs an atomic count and its release,
@@ -18,8 +18,9 @@ threads (:mod:`qchain.batch.threads`). Callbacks and inner functions never take 
 
 :func:`view2`, :func:`view3` and :func:`view4` give a 1-D buffer's entries as a C-ordered
 matrix or array in compiled code (the scratch and workspace carvings of every pass), without
-numba's ``reshape``: that calls a C helper of the runtime, which with the carvings of one
-right-hand side came to about a tenth of an implicit step's time.
+numba's ``reshape``, which calls a C helper of the runtime at every carving: dozens a
+right-hand side, each costlier than the carving's own work (docs/benchmarks/README.md,
+"Speed of a chain").
 """
 
 from __future__ import annotations
