@@ -215,3 +215,19 @@ def test_extensible_rod_hanging_stretches_as_the_continuum():
     mujoco.mj_forward(model, data)  # changes (-1 % of the weight), pulling the whole chain back at g / 100
     np.testing.assert_allclose(data.qacc[model.jnt_dofadr[slides]], [-0.01 * br.SCENE["g"]] + [0.0] * (N - 1),
                                atol=1e-9)
+
+
+@pytest.mark.parametrize("n", [5, 10])
+def test_release_bend_bounds_the_segments_bend_of_a_converged_release(n):
+    """``release_bend(n)``, the bend the benchmark's nodes are sized for (twice the root
+    segment's static bend), against the largest segment bend of a converged release (qchain's
+    planar extensible rod, radau5 at rtol 1e-8): the release stays within it, and the bound is
+    not vacuous (the release reaches more than half of it)."""
+    import bench_cosserat as bc
+
+    bound = br.release_bend(n)
+    res = bc.qchain_run(n, 1.0, "radau5", scene=br.SCENE, extensible=True, planar=True,
+                        node_tolerance=br.NODE_TOLERANCE, max_bend=bound, rtol=1e-8, atol=1e-10)
+    assert res["ok"], res["status"]
+    assert 0.5 * bound < res["max_bend"] <= bound
+    assert res["nodes"] == 3  # 1e-6 at 0.157 rad (n = 10) and 0.314 rad (n = 5); 4 at l0 / r_s
