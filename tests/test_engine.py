@@ -3,6 +3,7 @@ solver on the Python path, the Python path with the same method, exact zero-orde
 semantics, conservation, the planar reduction and the one-call-per-sample contract."""
 
 import ast
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -13,6 +14,7 @@ import pinocchio as pin
 import pytest
 
 from qchain import Chain, Segment
+from qchain._blas import gemm
 from qchain._jit import view2, view3, view4
 from qchain.algorithms.arrays import ChainArrays
 from qchain.sim.engine import packing, system
@@ -429,6 +431,54 @@ def test_compiled_views_equal_numpy_s_reshape_alias_the_buffer_and_refuse_anothe
     for r, c in ((3, 4), (2, 2)):
         with pytest.raises(ValueError, match="does not hold"):
             _carve_short(np.zeros(9), r, c)
+
+
+@numba.njit(error_model="numpy", _nrt=False)
+def _gemm(A, B, C):
+    gemm(A, B, C)
+
+
+#: a fresh process compiles (or loads from NUMBA_CACHE_DIR) a cached function that calls gemm
+_GEMM_CACHED = """
+import sys, numba, numpy as np
+from qchain._blas import gemm
+@numba.njit(cache=True, error_model="numpy", _nrt=False)
+def product(A, B, C):
+    gemm(A, B, C)
+rng = np.random.default_rng(int(sys.argv[1]))
+A, B = rng.standard_normal((7, 4)), rng.standard_normal((4, 5))
+C = np.zeros((7, 5))
+product(A, B, C)
+print(float(np.abs(C - A @ B).max()), sum(product.stats.cache_hits.values()))
+"""
+
+
+def test_blas_product_equals_numpy_s_refuses_other_arrays_and_its_cached_code_links_in_a_new_process(tmp_path):
+    """``qchain._blas.gemm`` (the derivatives' ``M^-1`` products): ``A @ B`` for every shape,
+    square or not, a row or a column, written into ``C`` alone; an array that is not C-ordered
+    float64 does not compile; and code that calls it, cached on disk by one process, runs
+    correctly when another process loads it (the library is linked by name, not by an address
+    written into the cache)."""
+    rng = np.random.default_rng(4)
+    for m, k, n in ((30, 30, 30), (30, 30, 60), (3, 5, 7), (1, 6, 1), (6, 1, 4), (1, 1, 1)):
+        A, B = rng.standard_normal((m, k)), rng.standard_normal((k, n))
+        big = np.full((m + 2, n), 7.0)
+        C = big[1 : m + 1]  # C-ordered rows of a larger array: the rows around stay untouched
+        _gemm(A, B, C)
+        np.testing.assert_allclose(C, A @ B, rtol=1e-13, atol=1e-13)
+        assert (big[0] == 7.0).all() and (big[-1] == 7.0).all()
+    with pytest.raises(numba.core.errors.TypingError, match="C-ordered float64"):
+        _gemm(np.ones((3, 3)).T[:, ::2], np.ones((2, 3)), np.zeros((3, 3)))
+    with pytest.raises(numba.core.errors.TypingError, match="C-ordered float64"):
+        _gemm(np.ones((3, 3), dtype=np.float32), np.ones((3, 3)), np.zeros((3, 3)))
+    script = tmp_path / "gemm_cached.py"
+    script.write_text(_GEMM_CACHED)
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "cache")}
+    runs = [subprocess.run([sys.executable, str(script), str(seed)], capture_output=True, text=True, env=env,
+                           timeout=600, check=True).stdout.split() for seed in (1, 2)]
+    (err1, hits1), (err2, hits2) = runs
+    assert int(hits1) == 0 and int(hits2) == 1  # compiled by the first process, loaded by the second
+    assert float(err1) < 1e-13 and float(err2) < 1e-13
 
 
 def test_a_batch_taker_gets_every_sample_in_batches_within_its_max_sim():

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._blas import gemm
 from ..model.arc import jit, jit_helper, jit_pass, take1
 from .arrays import AbaDerivativesWorkspace, AbaWorkspace, ChainArrays, RneaWorkspace
 from ..model.slices import input_matrix_c
@@ -78,25 +79,6 @@ def _copy2(src, dst):
     for r in range(src.shape[0]):
         for c in range(src.shape[1]):
             dst[r, c] = src[r, c]
-
-
-@jit_helper
-def _matmul2(A, B1, B2, out1, out2):
-    """``out1 = A B1``, ``out2 = A B2`` (``B1``, ``B2`` of one shape) by loops, in one sweep over
-    ``A`` (each ``A[r, k]`` loaded once for both products; row by row, so the inner loop runs
-    along rows of ``B`` and ``out``): ``np.dot`` with ``out`` needs numba's reference counting,
-    which the compiled engine's callers run without."""
-    m = B1.shape[1]
-    for r in range(A.shape[0]):
-        for c in range(m):
-            out1[r, c] = 0.0
-            out2[r, c] = 0.0
-        for k in range(A.shape[1]):
-            a = A[r, k]
-            if a != 0.0:
-                for c in range(m):
-                    out1[r, c] += a * B1[k, c]
-                    out2[r, c] += a * B2[k, c]
 
 
 @jit_helper
@@ -233,11 +215,12 @@ def _derivatives_after(arr, floating, q, qd, p, qdd, A0, a, V0, g_B, ws, wd, wa,
         return 2
     _chol_inverse(L, nv, da_dtau)
     _zero_locked(locked, off, da_dtau, True, True)
-    # L (its inverse now, not needed further) holds the second right-hand side: both products
-    # in one sweep over M^-1
+    # L (its inverse now, not needed further) holds the second right-hand side; the products
+    # by BLAS (qchain._blas)
     _copy2(da_dq, rhs)
     _copy2(da_dv, L)
-    _matmul2(da_dtau, rhs, L, da_dq, da_dv)
+    gemm(da_dtau, rhs, da_dq)
+    gemm(da_dtau, L, da_dv)
     _zero_locked(locked, off, da_dq, False, True)
     _zero_locked(locked, off, da_dv, False, True)
     for r in range(nv):
