@@ -49,16 +49,23 @@ def _on_stack(typingctx, x):
 
 
 @intrinsic
-def _data(typingctx, a):
-    """The address of a C-ordered float64 array's first entry (any other array does not compile)."""
+def _at(typingctx, a, i):
+    """The address of entry ``i`` (a flat index) of a C-ordered float64 array."""
     if not (isinstance(a, types.Array) and a.dtype == types.float64 and a.layout == "C"):
         raise TypingError(f"qchain._blas needs C-ordered float64 arrays, got {a}")
 
     def codegen(context, builder, signature, args):
         ary = cgutils.create_struct_proxy(signature.args[0])(context, builder, value=args[0])
-        return builder.bitcast(ary.data, cgutils.voidptr_t)
+        return builder.bitcast(builder.gep(ary.data, [args[1]]), cgutils.voidptr_t)
 
-    return types.voidptr(a), codegen
+    return types.voidptr(a, types.intp), codegen
+
+
+#: OpenBLAS runs one product on threads of its own where ``m n k`` exceeds this
+#: (``SMP_THRESHOLD_MIN * GEMM_MULTITHREAD_THRESHOLD``): :func:`gemm` calls it on blocks below
+#: it, so the library never starts its threads from qchain's (a product on two busy cores was
+#: several times slower than on one, and a batch already runs a thread a core)
+SINGLE_THREAD_MNK = 65536 * 4
 
 
 @register_jitable
@@ -68,12 +75,16 @@ def gemm(A, B, C):
     pass workspace arrays of matching shapes.
 
     BLAS stores matrices by columns, where a C-ordered ``X`` reads as ``X^T``: it is asked for
-    ``C^T = B^T A^T``.
+    ``C^T = B^T A^T``, on square blocks of ``C`` each within :data:`SINGLE_THREAD_MNK`.
     """
     m, k = A.shape
     n = B.shape[1]
-    mi, ni, ki = np.int32(m), np.int32(n), np.int32(k)
-    ldn, ldk = np.int32(max(n, 1)), np.int32(max(k, 1))
-    _dgemm(_on_stack(_NO_TRANSPOSE), _on_stack(_NO_TRANSPOSE), _on_stack(ni), _on_stack(mi), _on_stack(ki),
-           _on_stack(1.0), _data(B), _on_stack(ldn), _data(A), _on_stack(ldk), _on_stack(0.0), _data(C),
-           _on_stack(ldn))
+    side = max(1, int(np.sqrt(SINGLE_THREAD_MNK / max(k, 1))))
+    ki, ldk, ldn = np.int32(k), np.int32(max(k, 1)), np.int32(max(n, 1))
+    for r0 in range(0, m, side):
+        mb = np.int32(min(side, m - r0))
+        for c0 in range(0, n, side):
+            nb = np.int32(min(side, n - c0))
+            _dgemm(_on_stack(_NO_TRANSPOSE), _on_stack(_NO_TRANSPOSE), _on_stack(nb), _on_stack(mb), _on_stack(ki),
+                   _on_stack(1.0), _at(B, c0), _on_stack(ldn), _at(A, r0 * k), _on_stack(ldk), _on_stack(0.0),
+                   _at(C, r0 * n + c0), _on_stack(ldn))
