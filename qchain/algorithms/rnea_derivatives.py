@@ -656,31 +656,35 @@ def _assemble(n, off, G, Ya, Yv, Ms, Jw, sig1, sig2, M, dq, dv):
     ``J_i^T Ms_m``."""
     for i in range(n):
         ri = off + 3 * i
-        for m in range(n):
+        for m in range(i):  # m < i: segment i moves rigidly
             cm = off + 3 * m
-            if m == i:
-                continue
             for b in range(3):
-                for col in range(6):
+                for col in range(3):
+                    accq = 0.0
+                    accv = 0.0
+                    for r in range(6):
+                        accq += Ya[i, b, r] * sig2[m, col, r] + Yv[i, b, r] * sig1[m, col, r]
+                        accv += Ya[i, b, r] * sig2[m, 3 + col, r] + Yv[i, b, r] * sig1[m, 3 + col, r]
+                    dq[ri + b, cm + col] = accq
+                    dv[ri + b, cm + col] = accv
+        for m in range(i + 1, n):  # m > i: the wrench at root m changes
+            cm = off + 3 * m
+            for b in range(3):
+                for col in range(3):
+                    accq = 0.0
+                    accv = 0.0
+                    for r in range(6):
+                        accq += Jw[i, b, r] * G[m, col, r]
+                        accv += Jw[i, b, r] * G[m, 3 + col, r]
+                    dq[ri + b, cm + col] = accq
+                    dv[ri + b, cm + col] = accv
+            for a in range(3):
+                for b in range(3):
                     acc = 0.0
-                    if m < i:
-                        for r in range(6):
-                            acc += Ya[i, b, r] * sig2[m, col, r] + Yv[i, b, r] * sig1[m, col, r]
-                    else:
-                        for r in range(6):
-                            acc += Jw[i, b, r] * G[m, col, r]
-                    if col < 3:
-                        dq[ri + b, cm + col] = acc
-                    else:
-                        dv[ri + b, cm + col - 3] = acc
-            if m > i:
-                for a in range(3):
-                    for b in range(3):
-                        acc = 0.0
-                        for r in range(6):
-                            acc += Jw[i, a, r] * Ms[m, b, r]
-                        M[ri + a, cm + b] = acc
-                        M[cm + b, ri + a] = acc
+                    for r in range(6):
+                        acc += Jw[i, a, r] * Ms[m, b, r]
+                    M[ri + a, cm + b] = acc
+                    M[cm + b, ri + a] = acc
 
 
 @jit_inline
