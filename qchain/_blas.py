@@ -3,8 +3,8 @@
 The exact derivatives multiply ``M^-1`` (nv, nv) into two (nv, nv) right-hand sides
 (:mod:`qchain.algorithms.aba_derivatives`). scipy's OpenBLAS does that several times faster
 than the loops numba compiles (figures in docs/benchmarks/README.md, "Cost of the
-derivatives"), so it is called here, through scipy's public ``scipy.linalg.cython_blas`` table, without numba's
-reference counting and without Python's lock.
+derivatives"), so it is called here, through scipy's public ``scipy.linalg.cython_blas``
+table, without numba's reference counting and without Python's lock.
 
 The library's function is registered with LLVM by name when this module is imported
 (``llvmlite.binding.add_symbol``) and compiled code calls it by that name: numba's on-disk
@@ -27,7 +27,7 @@ from numba.core import cgutils
 from numba.core.errors import TypingError
 from numba.extending import get_cython_function_address, intrinsic, register_jitable
 
-__all__ = ["gemm"]
+__all__ = ["gemm", "SINGLE_THREAD_MNK"]
 
 _SYMBOL = "qchain_cython_blas_dgemm"
 llvm.add_symbol(_SYMBOL, get_cython_function_address("scipy.linalg.cython_blas", "dgemm"))

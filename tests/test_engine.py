@@ -441,7 +441,7 @@ def _gemm(A, B, C):
 #: a fresh process compiles (or loads from NUMBA_CACHE_DIR) a cached function that calls gemm
 _GEMM_CACHED = """
 import sys, numba, numpy as np
-from qchain._blas import SINGLE_THREAD_MNK, gemm
+from qchain._blas import gemm
 @numba.njit(cache=True, error_model="numpy", _nrt=False)
 def product(A, B, C):
     gemm(A, B, C)
@@ -456,8 +456,8 @@ print(float(np.abs(C - A @ B).max()), sum(product.stats.cache_hits.values()))
 def test_blas_product_equals_numpy_s_refuses_other_arrays_and_its_cached_code_links_in_a_new_process(tmp_path):
     """``qchain._blas.gemm`` (the derivatives' ``M^-1`` products): ``A @ B`` for every shape,
     square or not, a row or a column, one call or blocks (``m n k`` above
-    ``SINGLE_THREAD_MNK``, ragged at the edges), written into ``C`` alone; an array that is not C-ordered
-    float64 does not compile; and code that calls it, cached on disk by one process, runs
+    ``SINGLE_THREAD_MNK``, ragged at the edges), written into ``C`` alone; an array that is
+    not C-ordered float64 does not compile; and code that calls it, cached on disk by one process, runs
     correctly when another process loads it (the library is linked by name, not by an address
     written into the cache)."""
     rng = np.random.default_rng(4)

@@ -194,17 +194,18 @@ def _derivatives_after(arr, floating, q, qd, p, qdd, A0, a, V0, g_B, ws, wd, wa,
     _rnea_derivatives(arr, q, qd, qdd, V0, A0, floating, g_B, ws, wd, sc, blocks_known)
     _internal_forces_derivatives(arr, q, p, dfq, dfv, sc)
     _input_matrices(q, A_ch, r_ch, paper_act, B, sc)
-    # right-hand sides df - dID, the free block of M with locked coordinates decoupled
+    # right-hand sides df - dID (the first in rhs, the second in da_dv until L is free), the
+    # free block of M with locked coordinates decoupled
     for r in range(nv):
         for c in range(nv):
-            da_dq[r, c] = -dq[r, c]
+            rhs[r, c] = -dq[r, c]
             da_dv[r, c] = -dv[r, c]
             L[r, c] = M[r, c]
     for j in range(n):
         i0 = off + 3 * j
         for a_ in range(3):
             for b in range(3):
-                da_dq[i0 + a_, i0 + b] += dfq[j, a_, b]
+                rhs[i0 + a_, i0 + b] += dfq[j, a_, b]
                 da_dv[i0 + a_, i0 + b] += dfv[j, a_, b]
     # locked coordinates: decoupled in M (unit diagonal), zero rows and columns in the results
     _zero_locked(locked, off, L, True, True)
@@ -217,7 +218,6 @@ def _derivatives_after(arr, floating, q, qd, p, qdd, A0, a, V0, g_B, ws, wd, wa,
     _zero_locked(locked, off, da_dtau, True, True)
     # L (its inverse now, not needed further) holds the second right-hand side; the products
     # by BLAS (qchain._blas)
-    _copy2(da_dq, rhs)
     _copy2(da_dv, L)
     gemm(da_dtau, rhs, da_dq)
     gemm(da_dtau, L, da_dv)
