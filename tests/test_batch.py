@@ -576,6 +576,17 @@ def test_a_batch_of_schedules_runs_in_one_compiled_loop_bit_identical_to_simulat
             assert b.success.all() and np.all(b.wall > 0) and np.all(b.wall < b.meta["wall_s"] + 1e-3)
             names = {r["thread"] for r in b.meta["rollouts"]}
             assert names == {"MainThread"} if workers == 1 else all(n.startswith("qchain-rollout") for n in names)
+    # a batch of one kind of input (packed and valued at t0 at once: qchain.sim.engine.schedules.pack_inputs)
+    kw = dict(method="radau5", rtol=1e-4, atol=1e-6, t_eval=T_EVAL)
+    sines = [Sine(amplitude=np.full(nu, 1e4 * (1 + i)), frequency=2.0 + i, phase=np.linspace(0, i, nu),
+                  offset=np.full(nu, 2e4)) for i in range(B)]
+    held = np.linspace(1e4, 4e4, B)[:, None] * np.ones(nu)
+    for P, each in ((sines, sines), (held, list(held)), (sines[1], [sines[1]] * B)):
+        refs = [simulate(arm, q0[i], v0[i], T, pressure=each[i], **kw) for i in range(B)]
+        for workers in (1, 2):
+            b = simulate_batch(arm, q0, v0, T, pressure=P, workers=workers, **kw)
+            assert b.meta["loop"] == "compiled"
+            assert all(same(b[i], refs[i]) for i in range(B)), (type(P).__name__, workers)
 
 
 def test_a_compiled_loop_stops_a_rollout_at_the_step_budget_as_simulate_does(arm):

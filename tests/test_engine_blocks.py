@@ -9,7 +9,8 @@ import pytest
 
 from qchain.sim.engine.lie import dexp_inv, dexp_inv_apply, ff_difference, ff_integrate
 from qchain.sim.engine.schedules import (
-    CONSTANT, ROTATION, SINE, TABLE, TRANSLATION, base_motion_eval, input_eval, pack_base_motion, pack_input)
+    CONSTANT, ROTATION, SINE, TABLE, TRANSLATION, base_motion_eval, input_eval, pack_base_motion, pack_input,
+    pack_inputs, values_at)
 from qchain.sim.inputs import Constant, Ramp, Schedule, Sine, Step, Table, as_input
 from qchain.scene.scene import SineMotion
 
@@ -121,6 +122,42 @@ def test_what_compiled_code_cannot_evaluate():
     assert pack_input(_Doubled(), 3) is None  # a user's schedule is evaluated in Python, where it is checked:
     with pytest.raises(ValueError, match="pressure schedule gives 2 values, the model needs 3"):
         as_input("pressure", _Doubled(), 3)
+
+
+def test_a_batch_of_inputs_packs_to_each_ones_rows_and_is_valued_as_each(rng):
+    """pack_inputs gives the rows pack_input gives each entry (zero-padded), bit for bit, for a
+    batch of one fixed-layout kind (packed at once), of constant arrays and of mixed kinds, and
+    values_at each entry's value; what cannot be packed is None, and errors name the entry."""
+    m, B = 3, 4
+
+    def sine():
+        return Sine(rng.normal(size=m), rng.uniform(0.0, 5.0, size=m), rng.normal(size=m), rng.normal(size=m))
+
+    batches = [[Constant(rng.normal(size=m)) for _ in range(B)],
+               [Step(rng.uniform(), rng.normal(size=m), rng.normal(size=m)) for _ in range(B)],
+               [Ramp(0.1, 0.2 + rng.uniform(), rng.normal(size=m), rng.normal(size=m)) for _ in range(B)],
+               [sine() for _ in range(B)],
+               [rng.normal(size=m) for _ in range(B)],
+               [sine(), None, rng.normal(size=m), Table(np.array([0.0, 0.5, 1.0]), rng.normal(size=(3, m))),
+                Step(0.3, rng.normal(size=m))]]
+    for us in batches:
+        ints, params = pack_inputs(us, m, "pressure")
+        assert ints.dtype == np.int64 and params.dtype == np.float64 and ints.shape[0] == params.shape[0] == len(us)
+        for i, u in enumerate(us):
+            ri, rp = pack_input(u, m)
+            assert np.array_equal(ints[i, :ri.size], ri) and not ints[i, ri.size:].any()
+            assert np.array_equal(params[i, :rp.size], rp) and not params[i, rp.size:].any()
+        for t in (0.0, 0.37, 2.5):
+            ref = np.array([np.zeros(m) if u is None else u if isinstance(u, np.ndarray) else u(t) for u in us])
+            assert np.array_equal(values_at(us, t, m), ref)
+            for i, u in enumerate(us):  # (a sine: libm's sin against numpy's, the last bit)
+                tol = 1e-15 * (np.abs(u.offset) + np.abs(u.amplitude)) if type(u) is Sine else 0.0
+                assert np.all(np.abs(_eval((ints[i], params[i]), t) - ref[i]) <= tol)
+    assert pack_inputs([Sine(np.ones(2), 1.0), _Doubled()], 2) is None
+    with pytest.raises(ValueError, match=r"pressure\[1\] schedule gives 2 values, the model needs 3"):
+        pack_inputs([Sine(np.ones(3), 1.0), Sine(np.ones(2), 1.0)], 3, "pressure")
+    with pytest.raises(ValueError, match=r"pressure\[1\].*non-finite"):
+        pack_inputs([np.ones(3), np.array([1.0, np.nan, 2.0])], 3, "pressure")
 
 
 # ------------------------------------------------------------------ base motion

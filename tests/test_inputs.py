@@ -9,7 +9,7 @@ from hypothesis import strategies as st
 
 from helpers import deadline
 from qchain.checks import bounds as B
-from qchain.sim.inputs import Constant, Ramp, Sine, Step, Table, as_input
+from qchain.sim.inputs import Constant, Ramp, Schedule, Sine, Step, Table, as_input, schedules_inside
 from qchain.sim.simulation import simulate
 from support import CH1, NOT_NUMBERS, QB, outside, pressure_arm, refused, soft_arm
 
@@ -227,3 +227,46 @@ def test_a_sines_extent_bounds_its_values_and_is_reached(entries):
     else:
         with pytest.raises(ValueError, match=r"pressure\[\d+\] must stay"):
             as_input("pressure", s, a.size)
+
+
+class _Held(Schedule):
+    """A schedule of the user's (its values are checked as they come, not ahead)."""
+    size = 3
+
+    def __call__(self, t):
+        return np.full(3, 1e4)
+
+
+def _each_accepted(name, us, size) -> bool:
+    try:
+        for i, u in enumerate(us):
+            as_input(f"{name}[{i}]", u, size)
+    except ValueError:
+        return False
+    return True
+
+
+def test_a_batch_of_schedules_is_checked_at_once_as_each_would_be():
+    """schedules_inside (a batch's B schedules at once) says True only where as_input accepts
+    every entry, and False for what it cannot tell at once (the batch then checks each, whose
+    error names the entry)."""
+    low, high = B.VACUUM_GAUGE, 1e9
+    sines = [Sine(np.full(3, 1e4 * (k + 1)), 1.0 + k, offset=np.full(3, 5e4)) for k in range(6)]
+    mixed = [Constant(np.full(3, high)), Step(0.1, np.full(3, low)), Ramp(0.0, 1.0, np.full(3, 2e5)),
+             Table(np.array([0.0, 1.0]), np.full((2, 3), 3e4)), Sine(np.full(3, 1e5), 2.0, offset=np.full(3, low + 1e5))]
+    over = sines[:3] + [Sine(np.full(3, 1e4), 1.0, offset=[0.0, high, 0.0])] + sines[3:]
+    under = mixed + [Step(0.1, np.full(3, 1e4), before=[0.0, 0.0, np.nextafter(low, -np.inf)])]
+    for name, us, size, expected in (
+            ("pressure", sines, 3, True), ("pressure", mixed, 3, True),  # the edges of the range are inside
+            ("pressure", over, 3, False), ("pressure", under, 3, False),
+            ("pressure", sines, 4, False),  # a wrong size: as_input names it
+            ("tau", over, 3, True), ("gain", over, 3, True),  # another range, or none
+            ("pressure", sines + [_Held()], 3, False), ("pressure", sines + [np.zeros(3)], 3, False),
+            ("pressure", sines + [None], 3, False), ("pressure", [], 3, False)):
+        assert schedules_inside(name, us, size) is expected, (name, len(us), size)
+        if expected:
+            assert _each_accepted(name, us, size)
+    assert not _each_accepted("pressure", over, 3) and not _each_accepted("pressure", under, 3)
+    with pytest.raises(ValueError, match=r"pressure\[3\]\[1\] must stay"):
+        for i, u in enumerate(over):
+            as_input(f"pressure[{i}]", u, 3)

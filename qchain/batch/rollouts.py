@@ -23,7 +23,7 @@ from ..arm.chain import Chain
 from ..checks import bounds as _bounds
 from ..checks.convert import as_bool, as_real_array
 from ..errors import QchainError, RolloutError
-from ..sim.inputs import BUILT_IN, Schedule, as_input
+from ..sim.inputs import BUILT_IN, Schedule, as_input, schedules_inside
 from ..sim.budget import Budget, as_budget
 from ..sim.simulation import (
     COMPILED, DEFAULT_METHOD, FIXED_STEP, Event, Runs, _check_start, check_run, check_settings, run_cost_of, simulate)
@@ -148,8 +148,9 @@ def _batched_input(name: str, u, size: int) -> tuple[object, list | None]:
             raise ValueError(f"{name} must be one input, an array (B, {size}) of constants or a sequence of B inputs; "
                              f"got an array of shape {arr.shape}")
     if isinstance(u, (list, tuple)):
-        for i, x in enumerate(u):
-            as_input(f"{name}[{i}]", x, size)
+        if not schedules_inside(name, u, size):  # (the common batch, checked at once)
+            for i, x in enumerate(u):
+                as_input(f"{name}[{i}]", x, size)
         return None, list(u)
     raise TypeError(f"{name} must be None, a constant (3 n,), a schedule, a controller, an array (B, {size}) or a "
                     f"sequence of B inputs; got {type(u).__name__}")
@@ -533,7 +534,7 @@ def _together(shared: _Shared, items: list, sink: _Sink):
     compiled engine does not serve, a start whose energies must be checked in Python, or an
     input that is not a constant or a schedule of :data:`qchain.sim.inputs.BUILT_IN`."""
     from ..sim.engine.batched import Rollouts
-    from ..sim.engine.schedules import pack_input
+    from ..sim.engine.schedules import pack_inputs, values_at
     from ..sim.simulation import _input_function
 
     kw, chain = shared.kw, shared.chain
@@ -544,31 +545,29 @@ def _together(shared: _Shared, items: list, sink: _Sink):
             or shared.starts_finite is None or not shared.starts_finite.all()):
         return None
     t0 = shared.t_span[0]
+    B = len(items)
     Q0, V0 = np.array([it[1] for it in items]), np.array([it[2] for it in items])
-    packs, P0, fns = [], np.empty((len(items), chain.nu)), []
-    memo: dict = {}  # a shared input's pack and functions, made once
-    for j, item in enumerate(items):
-        both = []
-        for name, size, own, x in (("pressure", chain.nu, shared.each["pressure"], item[3]),
-                                   ("tau", chain.nv, shared.each["tau"], item[4])):
-            u = x if own else kw[name]
-            if not (u is None or isinstance(u, np.ndarray) or type(u) in BUILT_IN):
-                return None  # (pickled: a schedule of the user's or a controller)
-            key = (name, id(u))
-            if key not in memo:
-                memo[key] = (pack_input(u, size, name), _input_function(name, u, size, True), u)
-            both.append(memo[key])
-        packs.append((both[0][0], both[1][0]))
-        fns.append((both[0][1], both[1][1]))
-        P0[j] = fns[-1][0](t0, Q0[j], V0[j])
+    given, packed = {}, []
+    for k, (name, size) in enumerate((("pressure", chain.nu), ("tau", chain.nv))):
+        # the rollouts' own inputs, or the one they share (packed once, a row each)
+        us = [it[3 + k] for it in items] if shared.each[name] else [kw[name]]
+        if not all(u is None or isinstance(u, np.ndarray) or type(u) in BUILT_IN for u in us):
+            return None  # (pickled: a schedule of the user's or a controller)
+        ints, params = pack_inputs(us, size, name)
+        packed += [ints, params] if len(us) == B else [np.repeat(ints, B, axis=0), np.repeat(params, B, axis=0)]
+        given[name] = us
+    P0 = values_at(given["pressure"], t0, chain.nu)
+    if P0.shape[0] != B:
+        P0 = np.repeat(P0, B, axis=0)
 
-    def inputs(i):
-        p_of, tau_of = fns[i]
+    def inputs(i):  # a rollout's inputs, for the message of one that failed
+        p_of, tau_of = (_input_function(name, us[i if len(us) == B else 0], size, True)
+                        for name, size, us in (("pressure", chain.nu, given["pressure"]), ("tau", chain.nv, given["tau"])))
         return lambda t, q, v: (p_of(t, q, v), tau_of(t, q, v))
 
     settings = dict(dt=kw["dt"], rtol=kw["rtol"], atol=kw["atol"], max_step=kw["max_step"],
                     first_step=kw["first_step"], max_total_steps=kw["budget"].max_steps, energies=kw["energies"])
-    return Rollouts(chain, runs.base, kw["method"], shared.t_span, settings, Q0, V0, packs, P0, inputs, sink.t,
+    return Rollouts(chain, runs.base, kw["method"], shared.t_span, settings, Q0, V0, tuple(packed), P0, inputs, sink.t,
                     sink.q, sink.v, sink.p, sink.ke, sink.pe)
 
 

@@ -11,7 +11,7 @@ import inspect
 import math
 import re
 from abc import ABC, abstractmethod
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -21,7 +21,8 @@ from ..checks.bounds import ANGLE, FORCE, FREQUENCY, PRESSURE, TENSION, TIME, Ra
 from ..checks.convert import as_real_array, as_vector
 from ..checks.frozen import KeepsReadOnly
 
-__all__ = ["Schedule", "Constant", "Step", "Ramp", "Sine", "Table", "BUILT_IN", "as_input", "input_range", "FORCE", "SineMotion"]
+__all__ = ["Schedule", "Constant", "Step", "Ramp", "Sine", "Table", "BUILT_IN", "as_input", "input_range", "FORCE", "SineMotion",
+           "schedules_inside", "sine_value"]
 
 _RANGES = {"pressure": PRESSURE, "tau": FORCE, "tension": TENSION}
 
@@ -147,6 +148,13 @@ class Ramp(Schedule):
         return np.minimum(self.start, self.end), np.maximum(self.start, self.end)
 
 
+def sine_value(offset, amplitude, frequency, phase, t: float) -> np.ndarray:
+    """``offset + amplitude sin(2 pi frequency t + phase)``, element-wise (arrays of one shape,
+    Hz, rad, ``t`` in s): :class:`Sine`'s value, and a batch's at once
+    (:func:`qchain.sim.engine.schedules.values_at`), by the same operations in the same order."""
+    return offset + amplitude * np.sin(2.0 * np.pi * frequency * t + phase)
+
+
 @dataclass(frozen=True)
 class Sine(Schedule):
     """``offset + amplitude * sin(2 pi frequency t + phase)``, element-wise (Hz, rad);
@@ -173,7 +181,7 @@ class Sine(Schedule):
         return self.amplitude.size
 
     def __call__(self, t):
-        return self.offset + self.amplitude * np.sin(2.0 * np.pi * self.frequency * check_time(t) + self.phase)
+        return sine_value(self.offset, self.amplitude, self.frequency, self.phase, check_time(t))
 
     def extent(self):
         """``offset -+ |amplitude|`` (a sine of frequency 0 is the constant
@@ -270,6 +278,18 @@ def _inside(rng: Range, arr: np.ndarray) -> bool:
     lo = -math.inf if rng.low is None else rng.low
     hi = math.inf if rng.high is None else rng.high
     return all(lo <= x <= hi for x in arr.tolist())
+
+
+def schedules_inside(name: str, us: Sequence, size: int) -> bool:
+    """Whether every entry of ``us`` is one of qchain's own schedules (:data:`BUILT_IN`, exact
+    types) of ``size`` values whose extent lies inside :func:`input_range` of ``name``: what
+    :func:`as_input` checks of each, for a batch's B schedules at once. False otherwise,
+    without saying why: the caller then checks each with :func:`as_input`, whose error names
+    the entry, the value and the bound."""
+    if not us or not all(type(u) in BUILT_IN and u.size == size for u in us):
+        return False
+    rng = input_range(name)
+    return rng is None or _inside(rng, np.concatenate([x for u in us for x in u.extent()]))
 
 
 def _range_check(rng: Range, label: str) -> Callable[[np.ndarray], np.ndarray]:

@@ -232,15 +232,6 @@ def run_rollouts(adv, energies, fs, m, wk, it, c, tf0, t1, max_total, fixed, wit
             return FAILED_ONE
 
 
-def _padded(packs: list, col: int, dtype) -> np.ndarray:
-    """The packs' ``col`` arrays (ints or params) as rows of one array, zero-padded."""
-    width = max(p[col].size for p in packs)
-    out = np.zeros((len(packs), width), dtype=dtype)
-    for i, p in enumerate(packs):
-        out[i, : p[col].size] = p[col]
-    return out
-
-
 class Rollouts:
     """B rollouts of one chain on the compiled engine, run by :meth:`work` on any number of
     threads at once (each claims rollouts until none is left), written into the batch's arrays.
@@ -260,8 +251,8 @@ class Rollouts:
         ``max_steps`` (None: none); ``energies``: compute each rollout's energies.
     Q0 : (B, nq), V0 : (B, nv)
         The checked starts.
-    packs : list of B ((p_ints, p_params), (tau_ints, tau_params))
-        Each rollout's compiled inputs (:func:`qchain.sim.engine.schedules.pack_input`).
+    packed : (p_ints, p_params, tau_ints, tau_params), (B, k) arrays each
+        Each rollout's compiled inputs, a row each (:func:`qchain.sim.engine.schedules.pack_inputs`).
     P0 : (B, nu) Pa
         Each rollout's pressure at ``t0`` as Python evaluates it (the first samples').
     inputs : callable
@@ -273,7 +264,7 @@ class Rollouts:
     """
 
     def __init__(self, chain, base, method: str, t_span: tuple[float, float], settings: dict, Q0: np.ndarray,
-                 V0: np.ndarray, packs: list, P0: np.ndarray, inputs, t, q, v, p, ke, pe):
+                 V0: np.ndarray, packed: tuple, P0: np.ndarray, inputs, t, q, v, p, ke, pe):
         self.chain, self.method, self.inputs = chain, method, inputs
         self.t0, self.t1 = t_span
         self.fixed = method in ("rk4", "midpoint")
@@ -281,9 +272,7 @@ class Rollouts:
         self.energies = bool(settings["energies"])
         B = Q0.shape[0]
         self.Q0, self.V0, self.P0 = (np.ascontiguousarray(a, dtype=float) for a in (Q0, V0, P0))
-        p_packs, tau_packs = [pk[0] for pk in packs], [pk[1] for pk in packs]
-        self.inputs_packed = (_padded(p_packs, 0, np.int64), _padded(p_packs, 1, float),
-                              _padded(tau_packs, 0, np.int64), _padded(tau_packs, 1, float))
+        self.inputs_packed = tuple(np.ascontiguousarray(a, dtype=d) for a, d in zip(packed, (np.int64, float) * 2))
         self.m = _own_inputs(base, self.inputs_packed)
         self.out = (t, q, v, p, ke, pe)
         it = steppers.integrator(self.m.idx.size, chain.nq)

@@ -33,15 +33,16 @@ formula here (~1e-16).
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import numpy as np
 
 from ...model.arc import jit
 from ...checks.convert import as_vector
-from ..inputs import Constant, Ramp, Schedule, Sine, SineMotion, Step, Table
+from ..inputs import Constant, Ramp, Schedule, Sine, SineMotion, Step, Table, sine_value
 
 __all__ = [
-    "pack_input", "input_eval", "pack_base_motion", "base_motion_eval",
+    "pack_input", "pack_inputs", "values_at", "input_eval", "pack_base_motion", "base_motion_eval",
     "CONSTANT", "STEP", "RAMP", "SINE", "TABLE", "TRANSLATION", "ROTATION",
 ]
 
@@ -101,6 +102,62 @@ def pack_input(u, size: int, name: str = "input") -> tuple[np.ndarray, np.ndarra
     if callable(u):
         return None
     return _packed(CONSTANT, size, as_vector(name, u, size))
+
+
+#: the kinds whose params have one length for a given size: their batches are stacked
+#: attribute by attribute (the order of :func:`pack_input`'s parts)
+_FIXED = {Constant: (CONSTANT, ("value",)), Step: (STEP, ("time", "after", "before")),
+          Ramp: (RAMP, ("t0", "t1", "start", "end")), Sine: (SINE, ("amplitude", "frequency", "phase", "offset"))}
+
+
+def pack_inputs(us: Sequence, size: int, name: str = "input") -> tuple[np.ndarray, np.ndarray] | None:
+    """:func:`pack_input` of each of the B inputs ``us``, as the rows of ``ints`` (B, k) int64
+    and ``params`` (B, w) float64, zero-padded to the longest; None if one cannot be packed.
+
+    A batch of one of qchain's fixed-layout schedules (Constant, Step, Ramp, Sine), all of
+    ``size`` values, or of finite constant arrays (size,), is packed at once, without a pack an
+    entry; the rows are the same numbers. Otherwise (mixed kinds, tables, None) each is packed
+    and checked by :func:`pack_input`, whose errors name ``name[i]``.
+    """
+    B = len(us)
+    kind = type(us[0]) if B else None
+    if kind in _FIXED and all(type(u) is kind and u.size == size for u in us):
+        code, parts = _FIXED[kind]
+        params = np.concatenate([np.array([getattr(u, a) for u in us], dtype=np.float64).reshape(B, -1)
+                                 for a in parts], axis=1)
+        ints = np.empty((B, 2), dtype=np.int64)
+        ints[:, 0], ints[:, 1] = code, size
+        return ints, params
+    if B and all(type(u) is np.ndarray and u.shape == (size,) and u.dtype.kind in "fiu" for u in us):
+        params = np.array(us, dtype=np.float64)
+        if np.isfinite(params).all():  # (else pack_input's message, naming the entry)
+            ints = np.empty((B, 2), dtype=np.int64)
+            ints[:, 0], ints[:, 1] = CONSTANT, size
+            return ints, params
+    packs = [pack_input(u, size, f"{name}[{i}]") for i, u in enumerate(us)]
+    if any(p is None for p in packs):
+        return None
+    out = []
+    for col, dtype in ((0, np.int64), (1, np.float64)):
+        rows = np.zeros((B, max(p[col].size for p in packs)), dtype=dtype)
+        for i, p in enumerate(packs):
+            rows[i, : p[col].size] = p[col]
+        out.append(rows)
+    return out[0], out[1]
+
+
+def values_at(us: Sequence, t: float, size: int) -> np.ndarray:
+    """The B inputs ``us`` (None: zeros, a checked constant array, or one of qchain's
+    schedules) at time ``t`` (s), as the rows of a (B, size) array: what each gives there, bit
+    for bit. A batch of sines is evaluated at once (:func:`qchain.sim.inputs.sine_value`)."""
+    if us and all(type(u) is Sine for u in us):
+        return sine_value(*(np.array([getattr(u, a) for u in us]) for a in ("offset", "amplitude", "frequency", "phase")),
+                          t)
+    out = np.zeros((len(us), size))
+    for i, u in enumerate(us):
+        if u is not None:
+            out[i] = u if isinstance(u, np.ndarray) else u(t)
+    return out
 
 
 @jit
