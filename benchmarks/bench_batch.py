@@ -25,7 +25,9 @@ then the median), the speed-ups ``wall(serial) / wall(threads-2)`` and ``wall(se
 wall(pool-2)`` (per round, then the median), and the Dask overhead ``wall(dask-2) / wall(pool-2)
 - 1`` (per round). Then serial and threads rounds from a script without
 ``if __name__ == "__main__":``, run as a command of its own (threads need no guard): the
-batch above, and a quarter of it at rtol = 1e-6 (``HEAVY``, longer rollouts). The
+batch above, and a quarter of it at rtol = 1e-6 (``HEAVY``, longer rollouts), each round
+followed by the same arithmetic (:func:`spin`, no memory, no Python) on one thread and halved
+on two: its speed-up is what the machine gives two busy threads in those minutes. The
 machine's load average and CPU steal time are printed beside them. Start-up costs (pool and
 cluster start, first batch with the engine loaded in the workers) are measured once.
 
@@ -49,6 +51,7 @@ import tempfile
 import time
 from pathlib import Path
 
+import numba
 import numpy as np
 
 import _study
@@ -126,15 +129,19 @@ def result_encoding(sc, model, P, t_eval, n: int = 64, reps: int = 20) -> tuple[
 
 #: the serial and threads rounds as a script without a main guard (run by :func:`unguarded`)
 UNGUARDED = """
-import json, sys, time
+import json, sys, threading, time
 sys.path.insert(0, {here!r})
-from bench_batch import workload
+from bench_batch import spin, workload
 from qchain import simulate_batch
 sc, model, P, t_eval = workload({B})
 args = (model.chain, model.q0, model.v0, (0.0, 1.0))
 kw = dict(pressure=P, t_eval=t_eval, **{setting!r})
 simulate_batch(*args, **{{**kw, "pressure": P[:2]}}, workers=2)
-walls = {{"serial": [], "threads-2": []}}
+walls = {{"serial": [], "threads-2": [], "spin-1": [], "spin-2": []}}
+spin(10)
+t0 = time.perf_counter()
+spin(10 ** 7)
+n = int(10 ** 7 * 0.1 / (time.perf_counter() - t0))  # about 0.1 s of arithmetic on one thread
 for r in range({rounds} + 1):
     for name, w in (("serial", 1), ("threads-2", 2))[:: 1 if r % 2 else -1]:
         t0 = time.perf_counter()
@@ -142,8 +149,31 @@ for r in range({rounds} + 1):
         if r > 0:
             walls[name].append(time.perf_counter() - t0)
         assert b.meta["engine"] == ("threads" if w == 2 else "serial")
+    for name, w in (("spin-1", 1), ("spin-2", 2)):  # the same work, on one thread or halved on two
+        ts = [threading.Thread(target=spin, args=(n // w,)) for _ in range(w)]
+        t0 = time.perf_counter()
+        for t in ts:
+            t.start()
+        for t in ts:
+            t.join()
+        if r > 0:
+            walls[name].append(time.perf_counter() - t0)
 print(json.dumps(walls))
 """
+
+
+@numba.njit(nogil=True, cache=False)
+def spin(n: int) -> float:
+    """``n`` rounds of four independent multiply-adds, without Python's lock and without memory
+    traffic: two threads of it show what the machine gives two busy threads at that minute
+    (the ceiling of a 2-thread batch's speed-up)."""
+    x, y, z, w = 1.0, 0.5, 0.25, 0.125
+    for _ in range(n):
+        x = x * 0.9999999 + 1e-9
+        y = y * 1.0000001 - 1e-9
+        z = z * 0.9999998 + 2e-9
+        w = w * 1.0000002 - 2e-9
+    return x + y + z + w
 
 
 def unguarded(B: int, rounds: int, setting: dict) -> dict[str, list[float]]:
@@ -279,17 +309,19 @@ def run(quick: bool = False, out_dir: Path = Path("out/bench"), rounds: int | No
     scripts = {}
     for label, b, setting in (("rtol 3e-2", B, SETTING), ("rtol 1e-6", B // 4, HEAVY)):
         w = {k: np.array(v) for k, v in unguarded(b, rounds, setting).items()}
-        scripts[label] = (b, w, w["serial"] / w["threads-2"])
+        scripts[label] = (b, w, w["serial"] / w["threads-2"], w["spin-1"] / w["spin-2"])
     print(f"\nparallel efficiency 1 -> 2 cores (per round): against serial {np.median(eff_serial) * 100:.1f} % "
           f"({eff_serial.min() * 100:.1f}-{eff_serial.max() * 100:.1f}), against pool-1 {np.median(eff_pool) * 100:.1f} % "
           f"({eff_pool.min() * 100:.1f}-{eff_pool.max() * 100:.1f})")
     print(f"speed-up on 2 cores against serial (per round): threads-2 {np.median(up_threads):.2f}x "
           f"({up_threads.min():.2f}-{up_threads.max():.2f}), pool-2 {np.median(up_pool):.2f}x "
           f"({up_pool.min():.2f}-{up_pool.max():.2f})")
-    for label, (b, w, up) in scripts.items():
+    for label, (b, w, up, ceiling) in scripts.items():
         print(f"from a script without a main guard, {b} rollouts at {label} ({len(up)} rounds): serial "
               f"{np.median(w['serial']):.3f} s ({np.median(w['serial']) / b * 1e3:.1f} ms a rollout), threads-2 "
-              f"{np.median(w['threads-2']):.3f} s, speed-up {np.median(up):.2f}x ({up.min():.2f}-{up.max():.2f})")
+              f"{np.median(w['threads-2']):.3f} s, speed-up {np.median(up):.2f}x ({up.min():.2f}-{up.max():.2f}); "
+              f"pure arithmetic on 2 threads in the same rounds {np.median(ceiling):.2f}x "
+              f"({ceiling.min():.2f}-{ceiling.max():.2f})")
     print(f"Dask LocalCluster overhead against pool-2 (per round): {np.median(over) * 100:+.1f} % "
           f"({over.min() * 100:+.1f}..{over.max() * 100:+.1f})")
     print(f"a Dask worker encoding one chunk of 64 rollouts' results: {enc_dask:.2f} ms with Dask's protocol, "
@@ -301,6 +333,7 @@ def run(quick: bool = False, out_dir: Path = Path("out/bench"), rounds: int | No
                    speedup_threads2=float(np.median(up_threads)), speedup_pool2=float(np.median(up_pool)),
                    speedup_threads2_unguarded=float(np.median(scripts["rtol 3e-2"][2])),
                    speedup_threads2_unguarded_heavy=float(np.median(scripts["rtol 1e-6"][2])),
+                   speedup_spin2_unguarded=float(np.median(scripts["rtol 3e-2"][3])),
                    dask_overhead=float(np.median(over)), tip_error_max_m=float(err.max()),
                    tip_error_median_m=float(np.median(err)), load_before=load0[0], load_after=load1[0],
                    steal_s=steal1 - steal0, bit_identical=same, loop=loop, encode_dask_ms=enc_dask, encode_pickle_ms=enc_pickle)

@@ -574,6 +574,7 @@ def test_a_batch_of_schedules_runs_in_one_compiled_loop_bit_identical_to_simulat
                 assert same(b[i], refs[i]), (kw["method"], workers, i)
                 assert b.nsteps[i] == refs[i].meta["nsteps"] and b.meta["rollouts"][i]["njev"] == refs[i].meta["njev"]
             assert b.success.all() and np.all(b.wall > 0) and np.all(b.wall < b.meta["wall_s"] + 1e-3)
+            assert 0.0 < b.meta["compile_s"] < b.meta["wall_s"]  # the loops' preparation, before they run
             names = {r["thread"] for r in b.meta["rollouts"]}
             assert names == {"MainThread"} if workers == 1 else all(n.startswith("qchain-rollout") for n in names)
     # a batch of one kind of input (packed and valued at t0 at once: qchain.sim.engine.schedules.pack_inputs)

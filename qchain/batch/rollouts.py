@@ -28,7 +28,7 @@ from ..sim.budget import Budget, as_budget
 from ..sim.simulation import (
     COMPILED, DEFAULT_METHOD, FIXED_STEP, Event, Runs, _check_start, check_run, check_settings, run_cost_of, simulate)
 from ..sim.trajectory import Trajectory
-from .workers import DEFAULT_RETRIES, Lost, Payload, check_engine, dumps, engine_for
+from .workers import DEFAULT_RETRIES, DaskEngine, LocalPool, Lost, Payload, check_engine, dumps, engine_for
 
 __all__ = ["simulate_batch", "BatchTrajectory", "RolloutError"]
 
@@ -62,10 +62,10 @@ class BatchTrajectory:
         the rate the loops' calls measured.
     meta : dict
         ``method``, ``engine`` ("serial", "threads", "local" or "dask"), ``workers``,
-        ``wall_s`` (the whole call), ``compile_s`` (this process's compile or load before
-        fanning out), ``t_span``, ``loop`` ("compiled": every rollout in compiled loops,
-        :mod:`qchain.sim.engine.batched`; "python": a Python loop, each rollout a run of the
-        driver), ``rollouts`` (each rollout's ``Trajectory.meta``, with
+        ``wall_s`` (the whole call), ``compile_s`` (this process's compile or load of the engine
+        before fanning out, with the compiled loops' preparation where they run), ``t_span``,
+        ``loop`` ("compiled": every rollout in compiled loops, :mod:`qchain.sim.engine.batched`;
+        "python": a Python loop, each rollout a run of the driver), ``rollouts`` (each rollout's ``Trajectory.meta``, with
         ``worker``: the ``host:pid`` that ran it, and ``thread``: the name of its thread).
     """
 
@@ -484,14 +484,21 @@ def _run_all(shared: _Shared, items: list, sink: _Sink, *, workers, client, retr
     chain, method = shared.chain, shared.kw["method"]
     B = len(items)
     compile_s, runs_on = 0.0, "python"
-    if method in COMPILED and (workers != 1 or client is not None):
+    together = None
+    if client is None and not isinstance(workers, (LocalPool, DaskEngine)):
+        # every rollout in compiled loops, here or on threads of this process: their preparation
+        # compiles or loads the engine, once, so no one-step run comes first
+        w0 = time.perf_counter()
+        together = _together(shared, items, sink)
+        compile_s = time.perf_counter() - w0 if together is not None else 0.0
+    if together is None and method in COMPILED and (workers != 1 or client is not None):
         # compile or load the engine here once: threads share it, worker processes load it from the cache
         compile_s, runs_on = _warm((shared, items[0]))
-    engine = engine_for(workers, client, tasks=B, threads=runs_on == "compiled" and not python_inputs)
+    engine = engine_for(workers, client, tasks=B,
+                        threads=together is not None or runs_on == "compiled" and not python_inputs)
     from tqdm import tqdm
 
     bar = tqdm(total=B, unit="rollout", file=sys.stderr, smoothing=0.1, disable=not progress)
-    together = None if engine is not None and engine.kind != "threads" else _together(shared, items, sink)
     try:
         if together is not None:  # every rollout in compiled loops, none in Python
             name, n_workers = ("serial", 1) if engine is None else (engine.kind, min(engine.workers, B))

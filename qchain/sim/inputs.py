@@ -270,13 +270,15 @@ def _check_extent(name: str, rng: Range, u: Schedule, ext: tuple[np.ndarray, np.
 
 
 def _inside(rng: Range, arr: np.ndarray) -> bool:
-    """Whether every entry of the ``(m,)`` array ``arr`` is a number inside the closed range
-    ``rng`` (NaN is not), in plain floats: cheap for the few entries of an input. False for
-    an open range (the caller then checks with numpy)."""
+    """Whether every entry of the 1-D array ``arr`` is a number inside the closed range ``rng``
+    (NaN is not): in plain floats for the few entries of an input, by numpy for a batch's. False
+    for an open range (the caller then checks with numpy)."""
     if rng.low_open or rng.high_open:
         return False
     lo = -math.inf if rng.low is None else rng.low
     hi = math.inf if rng.high is None else rng.high
+    if arr.size > 32:
+        return bool(np.all((lo <= arr) & (arr <= hi)))
     return all(lo <= x <= hi for x in arr.tolist())
 
 

@@ -289,13 +289,8 @@ class Rollouts:
         self.fl = np.zeros((B, 2))
         self.counter = np.zeros(1, dtype=np.int64)
         self.messages: list[str | None] = [None] * B
-        self._entry, adv_sig, en_sig = _entry(method, self._arguments(self.m, wk, it, 1, 0,
-                                                                      np.zeros(2, dtype=np.int64)))
-        # the compiled functions as their addresses: unboxed at each call without typing them
-        # again (a dispatcher is looked up by its signature, milliseconds for the engine's)
-        self._functions = (Address(_get_wrapper_address(self.adv, adv_sig)),
-                           Address(_get_wrapper_address(system.energies_batch, en_sig)),
-                           tuple(Address(cf.address) for cf in self.fs))
+        self._entry, adv_at, en_at = _entry(method, self._arguments(self.m, wk, it, 1, 0, np.zeros(2, dtype=np.int64)))
+        self._functions = (adv_at, en_at, tuple(Address(cf.address) for cf in self.fs))
         self._names: list[str] = []
         self._lock = threading.Lock()
         self._clock = [0.0, 0]  # wall seconds and ticks of every thread's work: a tick's length
@@ -357,18 +352,18 @@ class Rollouts:
         env = bool(self.m.env.kind.shape[0] or self.m.env.law[7])
         out = []
         wk = None
-        for i in range(self.Q0.shape[0]):
-            s = self.stat[i]
-            end, K = int(s[S_END]), int(s[S_K])
+        # the counters as Python numbers in one conversion (not one a field: B x 10 numpy scalars)
+        for i, (s, f) in enumerate(zip(self.stat.tolist(), self.fl.tolist())):
+            end, K = s[S_END], s[S_K]
             if end == FINISHED:
                 status, message = 0, "The end of the time span was reached."
             elif end == FAILED_RUN:
                 status, message = -1, self.messages[i]
             elif end == OVER_BUDGET:
-                taken = int(s[S_NSTEPS]) + int(s[S_NREJECT])
+                taken = s[S_NSTEPS] + s[S_NREJECT]
                 status, message = -1, driver.step_budget_message(
-                    self.max_total, f"{taken} steps taken ({int(s[S_NSTEPS])} accepted, {int(s[S_NREJECT])} rejected)",
-                    float(self.fl[i, F_T]), self.t1, self.method)
+                    self.max_total, f"{taken} steps taken ({s[S_NSTEPS]} accepted, {s[S_NREJECT]} rejected)",
+                    f[F_T], self.t1, self.method)
             else:
                 raise AssertionError(f"rollout {i} was not run")
             if self.energies and K < t.size:
@@ -376,13 +371,13 @@ class Rollouts:
                 KE, PE = np.empty(K), np.empty(K)
                 system.energies_batch(self.m, wk, t[:K].copy(), q[i, :K].copy(), v[i, :K].copy(), KE, PE)
                 ke[i, :K], pe[i, :K] = KE, PE
-            meta = dict(method=self.method, engine="compiled", nsteps=int(s[S_NSTEPS]), njev=int(s[S_NJEV]),
-                        nlu=int(s[S_NLU]), nreject=int(s[S_NREJECT]), events=[])
+            meta = dict(method=self.method, engine="compiled", nsteps=s[S_NSTEPS], njev=s[S_NJEV], nlu=s[S_NLU],
+                        nreject=s[S_NREJECT], events=[])
             if env:
-                meta["max_active_contacts"] = int(s[S_CONTACTS])
+                meta["max_active_contacts"] = s[S_CONTACTS]
             meta["compile_s"] = 0.0
-            out.append(dict(status=status, message=message, nfev=int(s[S_NFEV]), nsteps=int(s[S_NSTEPS]), nsamples=K,
-                            wall=float(self.fl[i, F_CYCLES]) * per_tick, thread=self._names[int(s[S_WHO])], meta=meta))
+            out.append(dict(status=status, message=message, nfev=s[S_NFEV], nsteps=s[S_NSTEPS], nsamples=K,
+                            wall=f[F_CYCLES] * per_tick, thread=self._names[s[S_WHO]], meta=meta))
         return out
 
 
@@ -398,7 +393,7 @@ def _read_ticks():
     return _ticks()
 
 
-_entries: dict = {}  # (method, the arguments' fingerprint) -> (entry point, stepper's and energies' signatures)
+_entries: dict = {}  # (method, the arguments' fingerprint) -> (entry point, the stepper's and energies' addresses)
 _entries_lock = threading.Lock()
 
 
@@ -406,7 +401,7 @@ def _entry(method: str, args: tuple):
     """:func:`run_rollouts`' compiled entry point for the argument types of ``args``
     (:meth:`Rollouts._arguments`), with the stepper and the energies pass as function types
     (called through their addresses, not compiled again into it); returns it and those two
-    functions' signatures."""
+    functions' :class:`qchain._jit.Address`."""
     key = (method, warmup._fingerprint(args))
     known = _entries.get(key)
     if known is not None:
@@ -425,7 +420,12 @@ def _entry(method: str, args: tuple):
                     print(f"qchain: compiling the {method} batch loop for this machine: about {EXPECTED_COMPILE_S} s, "
                           "once after install or an update (cached for later runs)", file=sys.stderr, flush=True)
                 run_rollouts.compile(sig)
-            _entries[key] = run_rollouts.overloads[sig].entry_point, adv_sig, en_sig
+            # the stepper and the energies pass as their addresses: unboxed at each call
+            # without typing them again (a dispatcher looked up by its signature costs
+            # milliseconds for the engine's), and looked up once a process
+            _entries[key] = (run_rollouts.overloads[sig].entry_point,
+                             Address(_get_wrapper_address(steppers.ADVANCE[method], adv_sig)),
+                             Address(_get_wrapper_address(system.energies_batch, en_sig)))
     return _entries[key]
 
 
