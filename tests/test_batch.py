@@ -590,6 +590,42 @@ def test_a_batch_of_schedules_runs_in_one_compiled_loop_bit_identical_to_simulat
             assert all(same(b[i], refs[i]) for i in range(B)), (type(P).__name__, workers)
 
 
+def test_each_threads_arrays_are_copied_onto_cache_lines_of_their_own():
+    """A compiled loop's thread places its model, workspace and integrator in one buffer of its
+    own (qchain.sim.engine.batched._private): every writable C-ordered array copied, on lines no
+    other array touches; read-only or strided ones, and any tree whose arrays overlap, left as
+    they are (their numba types and their aliasing unchanged)."""
+    from collections import namedtuple
+
+    from qchain.sim.engine.batched import _APART, _private
+
+    Pair = namedtuple("Pair", "a b")
+    frozen = np.arange(4.0)
+    frozen.flags.writeable = False
+    strided = np.zeros((3, 4)).T
+    tree = (Pair(np.arange(3.0), np.ones((2, 5), dtype=np.int64)), np.zeros(1, dtype=np.complex128), frozen, strided,
+            np.zeros(0), Pair(np.array([-1, 0]), np.full(7, 2.0)))
+    out = _private(tree)
+    assert type(out[0]) is Pair and type(out[5]) is Pair
+    pairs = [(tree[0].a, out[0].a), (tree[0].b, out[0].b), (tree[1], out[1]), (tree[4], out[4]), (tree[5].a, out[5].a),
+             (tree[5].b, out[5].b)]
+    spans = []
+    for old, new in pairs:
+        assert new is not old and not np.shares_memory(new, old) and np.array_equal(new, old)
+        assert new.dtype == old.dtype and new.shape == old.shape and new.flags.c_contiguous and new.flags.writeable
+        if new.size:
+            assert new.ctypes.data % _APART == 0
+            spans.append((new.ctypes.data, new.ctypes.data + new.nbytes))
+    spans.sort()
+    assert all(b0 - e >= _APART for (_, e), (b0, _) in zip(spans, spans[1:]))  # a line apart, at least
+    assert out[2] is frozen and out[3] is strided
+    again = _private(tree)
+    assert not np.shares_memory(again[0].a, out[0].a)  # a buffer a call
+    base = np.zeros(8)
+    overlapping = (base, base[2:5])
+    assert _private(overlapping) is overlapping
+
+
 def test_a_compiled_loop_stops_a_rollout_at_the_step_budget_as_simulate_does(arm):
     """Where a run stops on ``budget.max_steps`` depends on its stretches (a stepper call
     counts accepted steps; the rejected ones of its last call go beyond the budget), in
