@@ -65,8 +65,9 @@ class BatchTrajectory:
         ``wall_s`` (the whole call), ``compile_s`` (this process's compile or load of the engine
         before fanning out, with the compiled loops' preparation where they run), ``t_span``,
         ``loop`` ("compiled": every rollout in compiled loops, :mod:`qchain.sim.engine.batched`;
-        "python": a Python loop, each rollout a run of the driver), ``rollouts`` (each rollout's ``Trajectory.meta``, with
-        ``worker``: the ``host:pid`` that ran it, and ``thread``: the name of its thread).
+        "python": a Python loop, each rollout a run of the driver), ``rollouts`` (each rollout's
+        ``Trajectory.meta``, with ``worker``: the ``host:pid`` that ran it, and ``thread``: the
+        name of its thread).
     """
 
     t: np.ndarray

@@ -420,7 +420,8 @@ def _private(tree):
     arrays = [a for a in every.values() if a.flags.writeable and a.flags.c_contiguous]
     placed = {}
     sizes = [-(-a.nbytes // _APART) * _APART + _APART for a in arrays]
-    buf = np.empty(max(sum(sizes) + 4096, 1 << 18), dtype=np.uint8)  # (from 128 KiB, a mapping of its own)
+    # at least 256 KiB: above the allocator's 128 KiB threshold, so a mapping of its own
+    buf = np.empty(max(sum(sizes) + 4096, 1 << 18), dtype=np.uint8)
     at = [(-buf.ctypes.data) % 4096]  # from a page boundary
     for size in sizes[:-1]:
         at.append(at[-1] + size)
