@@ -9,8 +9,9 @@ therefore runs :func:`warm_up` after setuptools has built the editable wheel: th
 method's engine for both right-hand sides and the energies' pass (in numba's worker processes,
 :func:`qchain.compile_all`), and meanwhile, in the warm-up's own process, what the README's
 example compiles there (its scene's model, a short run of it reduced and in full, the tips and
-the backbone of its figure). A source file changed later is compiled again at its first use,
-as without the warm-up (numba's stamp check), and the run says so on stderr.
+the backbone of its figure). A compiled source changed later (any file of
+``qchain._jit.COMPILED_SOURCES``: qchain stamps its caches with all of them) compiles again
+what is used at its first use, as without the warm-up, and the run says so on stderr.
 
 Best effort: an install never fails because of the warm-up. A warm-up that fails, or takes
 longer than :data:`TIMEOUT_S`, says so on stderr (pip shows a build's output with ``-v``) and

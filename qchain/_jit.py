@@ -26,11 +26,14 @@ right-hand side, each costlier than the carving's own work (docs/benchmarks/READ
 from __future__ import annotations
 
 import contextlib
+import functools
+import hashlib
 import warnings
+from pathlib import Path
 
 import numba
 from numba.core import cgutils, sigutils, types
-from numba.core.caching import FunctionCache
+from numba.core.caching import FunctionCache, IndexDataCacheFile
 from numba.core.ccallback import CFunc
 from numba.core.errors import NumbaExperimentalFeatureWarning
 from numba.core.imputils import impl_ret_borrowed
@@ -39,7 +42,7 @@ from numba.np.arrayobj import make_array, populate_array
 
 __all__ = ["Address", "ejit", "ejit_inner", "inline", "kernel", "Kernel", "OPTIONS", "ENTRY_OPTIONS", "cached_here",
            "view2", "view3", "view4",
-           "first_class_functions"]
+           "first_class_functions", "cached_njit", "COMPILED_SOURCES", "tree_stamp"]
 
 #: the compiler options of every engine function
 OPTIONS = dict(error_model="numpy", _nrt=False)
@@ -47,7 +50,56 @@ OPTIONS = dict(error_model="numpy", _nrt=False)
 ENTRY_OPTIONS = dict(nogil=True)
 
 
-class _MarkedCache(FunctionCache):
+#: The parts of qchain (relative to the package) whose source its compiled code is made of or
+#: reads when it is compiled: every module with compiled functions and every qchain module
+#: those import (constants, tuple types); ``tests/test_install_compile.py`` holds it to that closure.
+COMPILED_SOURCES = ("_jit.py", "_blas.py", "errors.py", "algorithms", "arm", "checks", "contact", "model", "sim")
+
+
+@functools.cache
+def tree_stamp() -> str:
+    """A digest of the modification times and sizes of every ``.py`` file of
+    :data:`COMPILED_SOURCES`, once a process.
+
+    numba keeps a cache entry while the source file of its function keeps its stamp, but a
+    compiled function holds the code of every compiled function it calls, from other files
+    too: a helper changed in ``model/arc.py`` would leave the cached passes of
+    ``algorithms/recursive.py`` running the old helper, without a word. qchain's caches
+    (:class:`_TreeCache`) are therefore stamped with the whole compiled tree as well: a change
+    anywhere in it (an edit, a ``git pull`` on an editable install) compiles again what is used.
+    """
+    root = Path(__file__).resolve().parent
+    h = hashlib.sha1()
+    for part in COMPILED_SOURCES:
+        path = root / part
+        for f in sorted(path.rglob("*.py")) if path.is_dir() else [path]:
+            st = f.stat()
+            h.update(f"{f.relative_to(root).as_posix()}:{st.st_mtime_ns}:{st.st_size}\n".encode())
+    return h.hexdigest()
+
+
+class _TreeCache(FunctionCache):
+    """numba's on-disk cache of a function, its index stamped with its source file (numba's
+    stamp) and with :func:`tree_stamp`: an entry is taken only while no compiled source of
+    qchain has changed since it was written."""
+
+    def __init__(self, py_func):
+        super().__init__(py_func)
+        self._cache_file = IndexDataCacheFile(cache_path=self._cache_path, filename_base=self._impl.filename_base,
+                                              source_stamp=(self._impl.locator.get_source_stamp(), tree_stamp()))
+
+
+def cached_njit(**options):
+    """``numba.njit(cache=True, **options)`` with qchain's cache (:class:`_TreeCache`): the
+    decorator of every cached compiled function of qchain."""
+    def decorate(fn):
+        disp = numba.njit(cache=True, **options)(fn)
+        disp._cache = _TreeCache(disp.py_func)
+        return disp
+    return decorate
+
+
+class _MarkedCache(_TreeCache):
     """numba's on-disk cache with :data:`ENTRY_OPTIONS` in each entry's key.
 
     numba's key is the signature, the CPU and the bytecode, not the compiler options; an
@@ -78,10 +130,10 @@ def ejit(fn):
 
 #: called only from compiled code: the model and workspace tuples (dozens of arrays) get no
 #: CPython wrapper to unbox them (calling one from Python crashes the process)
-ejit_inner = numba.njit(cache=True, no_cpython_wrapper=True, **OPTIONS)
+ejit_inner = cached_njit(no_cpython_wrapper=True, **OPTIONS)
 #: inlined into the caller: a separately compiled function is linked into and optimised
 #: again with every caller, and a call passing the tuples copies them
-inline = numba.njit(cache=True, inline="always", **OPTIONS)
+inline = cached_njit(inline="always", **OPTIONS)
 
 
 @contextlib.contextmanager
@@ -128,7 +180,7 @@ class Kernel:
 
     def _cfunc(self, sig) -> CFunc:
         cf = CFunc(self.py_func, sigutils.normalize_signature(sig), locals={}, options=dict(OPTIONS))
-        cf.enable_caching()
+        cf._cache = _TreeCache(cf._pyfunc)  # what enable_caching() sets, with qchain's stamp
         return cf
 
     def loaded(self, *args) -> bool:

@@ -1,10 +1,14 @@
 """The build backend (``buildhooks/qchain_build.py``): an editable install compiles the engine
-into numba's cache for the first run, best effort, and never fails the install."""
+into numba's cache for the first run, best effort, and never fails the install; and the cache
+(``qchain._jit``) is taken only while no compiled source of qchain has changed."""
 
 from __future__ import annotations
 
+import ast
 import importlib.util
 import os
+import re
+import shutil
 import subprocess
 import sys
 import tomllib
@@ -13,6 +17,8 @@ from pathlib import Path
 import numba
 import numpy as np
 import pytest
+
+from qchain._jit import COMPILED_SOURCES
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -110,3 +116,95 @@ def test_after_the_install_s_warm_up_the_readme_example_compiles_nothing(tmp_pat
     assert p.returncode == 0, p.stderr
     assert "qchain: compiling" not in p.stderr, p.stderr
     assert "compiled: []" in p.stdout, p.stdout
+
+
+#: a line that defines compiled code: a numba decorator of qchain's or numba's own
+_COMPILED = re.compile(r"^@(jit|jit_helper|jit_inline|jit_pass|ejit|ejit_inner|inline|kernel|intrinsic|overload|"
+                       r"register_jitable|numba\.\w+)\b|cached_njit\(|numba\.njit\(", re.MULTILINE)
+
+
+def _qchain_imports(path: Path) -> set[Path]:
+    """The qchain modules ``path`` imports (absolute or relative; a package's ``__init__``
+    and, for ``from pkg import name``, the module ``pkg.name`` where it is one)."""
+    package = ROOT / "qchain"
+
+    def module(dotted: str) -> list[Path]:
+        base = ROOT.joinpath(*dotted.split("."))
+        return [f for f in (base.with_suffix(".py"), base / "__init__.py") if f.exists()]
+
+    package_parts = path.relative_to(ROOT).with_suffix("").parts[:-1]  # the package the file is in
+    found: set[Path] = set()
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.ImportFrom):
+            if node.level:  # from . import x: this package; from .. import x: its parent
+                parts = list(package_parts[: len(package_parts) - node.level + 1])
+                dotted = ".".join(parts + ([node.module] if node.module else []))
+            else:
+                dotted = node.module or ""
+            if dotted.split(".")[0] != "qchain":
+                continue
+            found.update(module(dotted))
+            for alias in node.names:
+                found.update(module(f"{dotted}.{alias.name}"))
+        elif isinstance(node, ast.Import):
+            for alias in node.names:
+                if alias.name.split(".")[0] == "qchain":
+                    found.update(module(alias.name))
+    return {f for f in found if package in f.parents}
+
+
+def test_the_cache_stamp_covers_every_module_compiled_code_is_made_of():
+    """Every module with compiled functions, and every qchain module those import (their
+    constants and tuple types are read when they compile), lies in ``COMPILED_SOURCES``, whose
+    files stamp every cache entry of qchain (``qchain._jit.tree_stamp``)."""
+    package = ROOT / "qchain"
+    compiled = {f for f in package.rglob("*.py") if _COMPILED.search(f.read_text())}
+    assert package / "model" / "arc.py" in compiled and package / "sim" / "engine" / "steppers.py" in compiled
+    closure, todo = set(), list(compiled)
+    while todo:
+        f = todo.pop()
+        if f not in closure:
+            closure.add(f)
+            todo.extend(_qchain_imports(f) - closure)
+    stamped = {f for part in COMPILED_SOURCES for f in ((package / part).rglob("*.py")
+                                                        if (package / part).is_dir() else [package / part])}
+    missing = sorted(str(f.relative_to(package)) for f in closure - stamped)
+    assert not missing, f"compiled code depends on modules outside qchain._jit.COMPILED_SOURCES: {missing}"
+
+
+_MASS_COLUMN = """
+import numpy as np
+from qchain import Segment
+seg = Segment(length=0.1, radius=0.015, mass=0.05, chamber_area=4.5e-5, chamber_radius=0.0085, youngs_modulus=1e5)
+print(repr(seg.mass_matrix(np.array([0.105, 8.0, -2.0]))[2, 6:].tolist()))
+"""
+
+
+@pytest.mark.slow
+def test_a_helper_changed_in_another_file_is_compiled_again_into_its_callers(tmp_path):
+    """numba keeps a cached function while its own source file is unchanged, yet the function
+    holds the code of the compiled functions it calls: the slice Jacobian changed in
+    ``model/arc.py`` left the cached mass matrix of ``model/slices.py`` computing with the old
+    one. With qchain's stamp, the next process compiles it again: the same numbers as a
+    process with an empty cache, and not the old ones."""
+    tree = tmp_path / "tree"
+    shutil.copytree(ROOT / "qchain", tree / "qchain", ignore=shutil.ignore_patterns("__pycache__"))
+    script = tmp_path / "mass_column.py"
+    script.write_text(_MASS_COLUMN)
+
+    def column(cache: str) -> list[float]:
+        env = dict(os.environ, PYTHONPATH=str(tree), NUMBA_CACHE_DIR=str(tmp_path / cache))
+        p = subprocess.run([sys.executable, str(script)], env=env, capture_output=True, text=True, timeout=600,
+                           cwd=str(tmp_path))
+        assert p.returncode == 0, p.stderr
+        return ast.literal_eval(p.stdout.strip().splitlines()[-1])
+
+    before = column("cache")
+    arc = tree / "qchain" / "model" / "arc.py"
+    text = arc.read_text()
+    assert text.count("    S[2, 0] = alpha\n") == 1  # the slice Jacobian's axial column, d p / d l
+    arc.write_text(text.replace("    S[2, 0] = alpha\n", "    S[2, 0] = 2.0 * alpha\n"))
+    after = column("cache")
+    fresh = column("empty-cache")
+    assert after == fresh
+    assert after[0] == pytest.approx(2.0 * before[0], rel=1e-12) and after[1:] == before[1:]

@@ -43,11 +43,10 @@ from dataclasses import dataclass
 from functools import cached_property
 from math import factorial
 
-import numba
 import numpy as np
 from numba.extending import register_jitable
 
-from .._jit import view2, view3
+from .._jit import cached_njit, view2, view3
 from ..checks.convert import as_batch, as_real_array
 from .spatial import _inv_adjoint as inv_adjoint
 
@@ -70,7 +69,7 @@ _H_COEF = np.array(
     [[(-1) ** k * 2 * k * (2 * k - 2) / factorial(2 * k + n + 1) for k in range(2, _NTERMS_H + 2)] for n in (1, 2)]
 )
 
-jit = numba.njit(cache=True, fastmath=False, error_model="numpy")
+jit = cached_njit(fastmath=False, error_model="numpy")
 
 #: The kernels' private helpers (what only compiled code calls). numba types a constant argument
 #: (a size, an offset, a flag) as a literal and compiles a ``jit`` function once more for every
@@ -84,14 +83,14 @@ jit_helper = register_jitable(fastmath=False, error_model="numpy", no_cfunc_wrap
 #: A helper numba inlines into its caller's code before typing (:data:`jit`'s options): the
 #: helpers take arrays, and a compiled call with array arguments costs atomic reference counts,
 #: which numba prunes only within one function (the planar passes, ``_rnea_derivatives``' pieces).
-jit_inline = numba.njit(cache=True, fastmath=False, error_model="numpy", inline="always")
+jit_inline = cached_njit(fastmath=False, error_model="numpy", inline="always")
 #: A pass called from Python that allocates nothing (it writes only into the arrays it is
 #: given): compiled without numba's reference count, as the engine's code is (``qchain._jit``).
 #: With it every array view a pass makes (a segment's nodes, a workspace row, a scratch carving)
 #: and every array handed to a compiled callee costs an atomic count and its release: a quarter
 #: of a forward-dynamics call from Python at ten segments. Such a pass cannot allocate arrays
 #: nor assign an array to a slice (loops do); the explicit flag holds for every caller.
-jit_pass = numba.njit(cache=True, fastmath=False, error_model="numpy", _nrt=False)
+jit_pass = cached_njit(fastmath=False, error_model="numpy", _nrt=False)
 
 
 @jit
