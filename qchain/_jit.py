@@ -89,12 +89,12 @@ class _TreeCache(FunctionCache):
                                               source_stamp=(self._impl.locator.get_source_stamp(), tree_stamp()))
 
 
-def cached_njit(**options):
-    """``numba.njit(cache=True, **options)`` with qchain's cache (:class:`_TreeCache`): the
-    decorator of every cached compiled function of qchain."""
+def cached_njit(cache_class=None, **options):
+    """``numba.njit(cache=True, **options)`` with qchain's cache (``cache_class``, default
+    :class:`_TreeCache`): the decorator of every cached compiled function of qchain."""
     def decorate(fn):
         disp = numba.njit(cache=True, **options)(fn)
-        disp._cache = _TreeCache(disp.py_func)
+        disp._cache = (cache_class or _TreeCache)(disp.py_func)
         return disp
     return decorate
 
@@ -123,9 +123,7 @@ def cached_here(dispatcher, key_matches) -> bool:
 def ejit(fn):
     """An entry point, called from Python: compiled without a reference count, cached, and
     releasing Python's lock for the call (``nogil``)."""
-    disp = numba.njit(cache=True, **ENTRY_OPTIONS, **OPTIONS)(fn)
-    disp._cache = _MarkedCache(disp.py_func)
-    return disp
+    return cached_njit(_MarkedCache, **ENTRY_OPTIONS, **OPTIONS)(fn)
 
 
 #: called only from compiled code: the model and workspace tuples (dozens of arrays) get no
