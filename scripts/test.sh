@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# The whole test suite on a fresh machine: a venv with qchain and its test extra, and
+# The whole test suite on a fresh machine, on every core: a venv with qchain and its test extra, and
 # Debian's Chromium for the real-browser test of the live viewer (tests/test_browser.py).
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -12,4 +12,6 @@ if ! command -v chromium >/dev/null 2>&1; then
 fi
 python3 -m venv .venv
 .venv/bin/pip install -q -e ".[test]"
-exec .venv/bin/python -m pytest -q "$@"
+# one pytest-xdist worker a core; worksteal: the long tests (the install warm-up, the
+# process-killing and convergence studies) do not queue behind each other on one worker
+exec .venv/bin/python -m pytest -q -n auto --dist worksteal "$@"

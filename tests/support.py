@@ -5,6 +5,7 @@ recordings. Fixtures shared by several modules are in conftest.py."""
 import io
 import json
 import math
+import re
 import struct
 import zlib
 from pathlib import Path
@@ -70,6 +71,12 @@ FEW = settings(max_examples=60, deadline=None, derandomize=True, database=None,
 class RaisingFloat:
     def __float__(self):
         raise RuntimeError("boom from __float__")
+
+
+def value_id(value) -> str:
+    """A parametrized value's test id: its ``repr`` without memory addresses, so that every
+    collection (each pytest-xdist worker's) names the same tests."""
+    return re.sub(r" at 0x[0-9a-fA-F]+", "", repr(value))
 
 
 def refused(call, name, exc=(TypeError, ValueError)):

@@ -21,7 +21,7 @@ from qchain.arm.chain import Frames
 from qchain.arm.data import Data
 from qchain.errors import NonFiniteError
 from qchain.sim.simulation import Event, simulate
-from support import CH1, CH2, CHF, FEW, QB, S, SEGMENT, RaisingFloat, refused, soft_arm, soft_segment
+from support import CH1, CH2, CHF, FEW, QB, S, SEGMENT, RaisingFloat, refused, soft_arm, soft_segment, value_id
 
 G_W = np.array([0.0, 0.0, -9.81])
 
@@ -441,7 +441,7 @@ NOT_REAL = [True, np.True_, "0.1", None, 0.1 + 0j, {"a": 1}, object(), RaisingFl
 NOT_FINITE_OR_HUGE = [math.nan, math.inf, -math.inf, 2**70, 10**400, 1e300]
 
 
-@pytest.mark.parametrize("value", NOT_REAL + NOT_FINITE_OR_HUGE, ids=repr)
+@pytest.mark.parametrize("value", NOT_REAL + NOT_FINITE_OR_HUGE, ids=value_id)
 def test_times_are_checked_where_they_enter_even_where_they_do_not_matter(value):
     """A fixed base ignores ``t``, a prescribed one calls ``base_motion(t)``: either way a
     time that is not a real number within +-1e12 s is refused by name (it was ignored, or

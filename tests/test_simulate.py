@@ -21,7 +21,7 @@ from qchain.errors import NonFiniteError
 from qchain.sim.budget import Budget, BudgetError
 from qchain.sim.inputs import Ramp, Sine, Step, Table
 from qchain.sim.simulation import METHODS, Event, simulate
-from support import CH1, CH2, NOT_NUMBERS, ROOT, S, SEGMENT, outside, refused, soft_arm, soft_segment
+from support import CH1, CH2, NOT_NUMBERS, ROOT, S, SEGMENT, outside, refused, soft_arm, soft_segment, value_id
 
 SEG = dict(length=0.1, radius=0.015, mass=0.05, chamber_area=4.5e-5, chamber_radius=0.0085, youngs_modulus=1e5)
 
@@ -362,7 +362,7 @@ def test_a_controller_of_the_wrong_arity_is_named_where_it_enters(ctl):
         assert "(t, q, v)" in msg
 
 
-@pytest.mark.parametrize("ret", [math.nan, "1", np.ones(2), None, 1j], ids=repr)
+@pytest.mark.parametrize("ret", [math.nan, "1", np.ones(2), None, 1j], ids=value_id)
 @pytest.mark.parametrize("method", ["radau5", "RK45"])
 def test_an_event_function_must_return_a_finite_real(ret, method):
     """NaN never crosses zero (the event was silently never seen); the others failed in a
