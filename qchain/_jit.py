@@ -1,4 +1,6 @@
-"""The engine's numba decorators and array views, in one place.
+"""qchain's numba decorators and array views, in one place: the engine's (:data:`ejit`,
+:data:`ejit_inner`, :data:`inline`, :func:`kernel`) and the model's kernels' and passes'
+(:data:`jit`, :data:`jit_helper`, :data:`jit_inline`, :data:`jit_pass`).
 
 The engine runs without numba's reference counting (``_nrt=False``): with it every array
 view (a row of a workspace, a slice of the state) costs an atomic count and its release,
@@ -37,12 +39,13 @@ from numba.core.caching import FunctionCache, IndexDataCacheFile
 from numba.core.ccallback import CFunc
 from numba.core.errors import NumbaExperimentalFeatureWarning
 from numba.core.imputils import impl_ret_borrowed
-from numba.extending import intrinsic
+from numba.extending import intrinsic, register_jitable
 from numba.np.arrayobj import make_array, populate_array
 
 __all__ = ["Address", "ejit", "ejit_inner", "inline", "kernel", "Kernel", "OPTIONS", "ENTRY_OPTIONS", "cached_here",
            "view2", "view3", "view4",
-           "first_class_functions", "cached_njit", "COMPILED_SOURCES", "tree_stamp"]
+           "first_class_functions", "cached_njit", "COMPILED_SOURCES", "tree_stamp", "jit", "jit_helper",
+           "jit_inline", "jit_pass"]
 
 #: the compiler options of every engine function
 OPTIONS = dict(error_model="numpy", _nrt=False)
@@ -132,6 +135,32 @@ ejit_inner = cached_njit(no_cpython_wrapper=True, **OPTIONS)
 #: inlined into the caller: a separately compiled function is linked into and optimised
 #: again with every caller, and a call passing the tuples copies them
 inline = cached_njit(inline="always", **OPTIONS)
+
+
+#: The model's compiled kernels and passes (``qchain.model``, ``qchain.algorithms``,
+#: ``qchain.contact``): numba's options for them, one place.
+jit = cached_njit(fastmath=False, error_model="numpy")
+
+#: The kernels' private helpers (what only compiled code calls). numba types a constant argument
+#: (a size, an offset, a flag) as a literal and compiles a ``jit`` function once more for every
+#: distinct one (``take2`` had ten specialisations, each a full compile); a ``register_jitable``
+#: function is typed with the non-literal types first, so it is compiled once per argument types
+#: (and per set of its callers' compiler flags: ``jit`` callers, helper callers, callers without
+#: reference counting). It gets no CPython or C wrapper and no cache files of its own (it is
+#: compiled into its callers, which are cached), which makes it cheaper to compile than a ``jit``
+#: function. Called from Python it runs as plain Python.
+jit_helper = register_jitable(fastmath=False, error_model="numpy", no_cfunc_wrapper=True)
+#: A helper numba inlines into its caller's code before typing (:data:`jit`'s options): the
+#: helpers take arrays, and a compiled call with array arguments costs atomic reference counts,
+#: which numba prunes only within one function (the planar passes, ``_rnea_derivatives``' pieces).
+jit_inline = cached_njit(fastmath=False, error_model="numpy", inline="always")
+#: A pass called from Python that allocates nothing (it writes only into the arrays it is
+#: given): compiled without numba's reference count, as the engine's code is (:data:`OPTIONS`).
+#: With it every array view a pass makes (a segment's nodes, a workspace row, a scratch carving)
+#: and every array handed to a compiled callee costs an atomic count and its release: a quarter
+#: of a forward-dynamics call from Python at ten segments. Such a pass cannot allocate arrays
+#: nor assign an array to a slice (loops do); the explicit flag holds for every caller.
+jit_pass = cached_njit(fastmath=False, error_model="numpy", _nrt=False)
 
 
 @contextlib.contextmanager

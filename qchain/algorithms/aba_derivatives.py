@@ -41,7 +41,7 @@ def input_matrices(arr, q, B, sc):
 @jit_helper
 def _input_matrices(q, A_ch, r_ch, paper_act, B, sc):
     """:func:`input_matrices`, the body the kernels call: compiled into them, without a
-    Python entry point (:data:`qchain.model.arc.jit_helper`)."""
+    Python entry point (:data:`qchain._jit.jit_helper`)."""
     for j in range(q.shape[0]):
         input_matrix_c(q[j], A_ch[j], r_ch[j], paper_act[j], B[j], sc)
 

@@ -46,8 +46,8 @@ import numpy as np
 from .arrays import AbaWorkspace, ChainArrays
 from ..model.arc import SCRATCH, arc_node_bias, arc_pose, jit, jit_helper, jit_pass, take1, take2
 from ..model.slices import (
-    _segment_slices, domain_violation, input_matrix_c, law_gradient_c, phi_matrix, slice_twist,
-    sub_motion_cross)
+    _segment_slices, domain_violation, input_matrix_c, law_gradient_c, phi_matrix, slice_twist)
+from ..model.spatial_kernels import add6, force_cross, motion_cross, sub6
 
 __all__ = ["rnea", "crba", "aba", "forward_dynamics", "tip_maps", "frames", "internal_forces", "first_invalid", "first_invalid_of",
            "payload_wrench"]
@@ -71,7 +71,7 @@ def _tip(q, qd, xi, T, c, sc):
     for r in range(6):
         rel[r] = S[r, 0] * qd[0] + S[r, 1] * qd[1] + S[r, 2] * qd[2]
         c[r] = sd[r]
-    sub_motion_cross(rel, Vr, c)
+    sub6(c, motion_cross(rel, Vr))
 
 
 @jit_helper
@@ -87,13 +87,7 @@ def payload_wrench(P, V, A, h, F):
             acc2 += P[r, s] * A[s]
         h[r] = acc
         F[r] = acc2
-    # V x* h = (w x h_l, v x h_l + w x h_a)
-    F[0] += V[4] * h[2] - V[5] * h[1]
-    F[1] += V[5] * h[0] - V[3] * h[2]
-    F[2] += V[3] * h[1] - V[4] * h[0]
-    F[3] += V[1] * h[2] - V[2] * h[1] + V[4] * h[5] - V[5] * h[4]
-    F[4] += V[2] * h[0] - V[0] * h[2] + V[5] * h[3] - V[3] * h[5]
-    F[5] += V[0] * h[1] - V[1] * h[0] + V[3] * h[4] - V[4] * h[3]
+    add6(F, force_cross(V, h))
 
 
 @jit_helper

@@ -43,6 +43,7 @@ from ..model.arc import arc_node, arc_node_derivatives, jit, jit_helper, jit_inl
 from ..model.slices import (
     law_hessian_c, mass_finish, mass_node, phi_matrix, phi_transpose_force, pressure_jacobian_c,
     slice_twist)
+from ..model.spatial_kernels import ad_force, ad_twist, force_cross, motion_cross, put6
 from .arrays import AbaWorkspace, ChainArrays, RneaWorkspace
 from .recursive import _load_xi, payload_wrench
 from .recursive import _project as recursive_project
@@ -52,60 +53,14 @@ __all__ = ["segment_derivatives", "tip_derivatives", "rnea_derivatives", "rnea_w
 
 
 @jit_helper
-def _cross(a, b, out):
-    """``out = a x b`` (motion cross product, 6-vectors ``[linear; angular]``)."""
-    out[0] = a[4] * b[2] - a[5] * b[1] + a[1] * b[5] - a[2] * b[4]
-    out[1] = a[5] * b[0] - a[3] * b[2] + a[2] * b[3] - a[0] * b[5]
-    out[2] = a[3] * b[1] - a[4] * b[0] + a[0] * b[4] - a[1] * b[3]
-    out[3] = a[4] * b[5] - a[5] * b[4]
-    out[4] = a[5] * b[3] - a[3] * b[5]
-    out[5] = a[3] * b[4] - a[4] * b[3]
-
-
-@jit_helper
-def _fcross(a, h, out):
-    """``out = a x* h`` (force cross product: ``(w x f, v x f + w x n)``)."""
-    out[0] = a[4] * h[2] - a[5] * h[1]
-    out[1] = a[5] * h[0] - a[3] * h[2]
-    out[2] = a[3] * h[1] - a[4] * h[0]
-    out[3] = a[1] * h[2] - a[2] * h[1] + a[4] * h[5] - a[5] * h[4]
-    out[4] = a[2] * h[0] - a[0] * h[2] + a[5] * h[3] - a[3] * h[5]
-    out[5] = a[0] * h[1] - a[1] * h[0] + a[3] * h[4] - a[4] * h[3]
-
-
-@jit_helper
-def _ad_twist(R, p, v, out):
-    """``out = Ad(X) v`` for ``X = (R, p)``: ``(R v_l + p x R v_a, R v_a)``."""
-    for r in range(3):
-        out[3 + r] = R[r, 0] * v[3] + R[r, 1] * v[4] + R[r, 2] * v[5]
-        out[r] = R[r, 0] * v[0] + R[r, 1] * v[1] + R[r, 2] * v[2]
-    w0, w1, w2 = out[3], out[4], out[5]
-    out[0] += p[1] * w2 - p[2] * w1
-    out[1] += p[2] * w0 - p[0] * w2
-    out[2] += p[0] * w1 - p[1] * w0
-
-
-@jit_helper
-def _ad_force(R, p, f, out):
-    """``out = Ad(X)^-T f``: a wrench in X's frame expressed in its parent, ``(R f_l, p x R f_l + R f_a)``."""
-    for r in range(3):
-        out[r] = R[r, 0] * f[0] + R[r, 1] * f[1] + R[r, 2] * f[2]
-        out[3 + r] = R[r, 0] * f[3] + R[r, 1] * f[4] + R[r, 2] * f[5]
-    l0, l1, l2 = out[0], out[1], out[2]
-    out[3] += p[1] * l2 - p[2] * l1
-    out[4] += p[2] * l0 - p[0] * l2
-    out[5] += p[0] * l1 - p[1] * l0
-
-
-@jit_helper
 def _force_variation(Id, V, hV, dV, da, t, h, df):
     """``df = I da + dV x* (I V) + V x* (I dV)``: the slice force's variation (``I = diag(Id)``,
     ``hV = I V``); ``t``, ``h`` (6,) are scratch."""
-    _fcross(dV, hV, df)
+    put6(df, force_cross(dV, hV))
     for r in range(6):
         t[r] = Id[r] * dV[r]
         df[r] += Id[r] * da[r]
-    _fcross(V, t, h)
+    put6(h, force_cross(V, t))
     for r in range(6):
         df[r] += h[r]
 
@@ -120,7 +75,7 @@ def _node_state(R, p, S, Sd, V0, A0, qd, qdd, Vr, Ar, rel, V, a, z3, t):
     for r in range(6):
         rel[r] = S[r, 0] * qd[0] + S[r, 1] * qd[1] + S[r, 2] * qd[2]
         V[r] = Vr[r] + rel[r]
-    _cross(rel, Vr, t)
+    put6(t, motion_cross(rel, Vr))
     for r in range(6):
         a[r] = Ar[r] + Sd[r, 0] * qd[0] + Sd[r, 1] * qd[1] + Sd[r, 2] * qd[2] - t[r]
     # Ar without the S qdd part, for the variations
@@ -134,15 +89,15 @@ def _q_variation(c, S, dS, K, qd, qdd, Vr, Ar, rel, dV, da, t1, t2, h):
     ``t1, t2, h`` (6,) scratch."""
     for r in range(6):
         t2[r] = dS[c, r, 0] * qd[0] + dS[c, r, 1] * qd[1] + dS[c, r, 2] * qd[2]  # dS_c qd
-        da[r] = S[r, c]  # S_c, contiguous (a column view would compile _cross once more)
-    _cross(da, Vr, t1)  # S_c x Vr
+        da[r] = S[r, c]  # S_c, contiguous (a column view would compile motion_cross once more)
+    put6(t1, motion_cross(da, Vr))  # S_c x Vr
     for r in range(6):
         dV[r] = -t1[r] + t2[r]
-    _cross(rel, t1, h)  # rel x (S_c x Vr)
-    _cross(da, Ar, t1)  # S_c x Ar
+    put6(h, motion_cross(rel, t1))  # rel x (S_c x Vr)
+    put6(t1, motion_cross(da, Ar))  # S_c x Ar
     for r in range(6):
         da[r] = h[r] + K[c, r] + dS[c, r, 0] * qdd[0] + dS[c, r, 1] * qdd[1] + dS[c, r, 2] * qdd[2]
-    _cross(t2, Vr, h)
+    put6(h, motion_cross(t2, Vr))
     for r in range(6):
         da[r] -= h[r]
     for r in range(6):
@@ -154,7 +109,7 @@ def _qd_variation(c, S, Sd, V, dV, da, h):
     """``dV, da`` of a slice for a unit change of ``qdot_c``: ``S_c`` and ``2 Sd_c - S_c x V``."""
     for r in range(6):
         dV[r] = S[r, c]
-    _cross(dV, V, h)
+    put6(h, motion_cross(dV, V))
     for r in range(6):
         da[r] = 2.0 * Sd[r, c] - h[r]
 
@@ -173,7 +128,7 @@ def segment_derivatives(alpha, w, mass, radius, q, xi, xid, M, Q, QqT, QxT, sc):
 @jit_helper
 def _segment_derivatives(alpha, w, mass, radius, q, xi, xid, M, Q, QqT, QxT, sc, blocks_known=False):
     """:func:`segment_derivatives`, the body the kernels call: compiled into them, without a
-    Python entry point (:data:`qchain.model.arc.jit_helper`). With ``blocks_known``, ``M`` already
+    Python entry point (:data:`qchain._jit.jit_helper`). With ``blocks_known``, ``M`` already
     holds ``M_xi`` at this ``q`` and ``Q`` the bias force ``Q(xid = 0)`` at this ``xi`` (the
     articulated-body pass just wrote them): ``M`` is left as it is and ``Q += M xid`` (``Q`` is
     linear in ``xid``), so the nodes' inertia and force sums are not done twice."""
@@ -235,7 +190,7 @@ def _segment_derivatives(alpha, w, mass, radius, q, xi, xid, M, Q, QqT, QxT, sc,
         _node_state(R, p, S, Sd, V0, A0, qd, qdd, Vr, Ar, rel, V, a, z3, t1)
         for r in range(6):
             hV[r] = Id[r] * V[r]
-        _fcross(V, hV, f)
+        put6(f, force_cross(V, hV))
         for r in range(6):
             f[r] += Id[r] * a[r]
         if not blocks_known:
@@ -247,7 +202,7 @@ def _segment_derivatives(alpha, w, mass, radius, q, xi, xid, M, Q, QqT, QxT, sc,
             # d(Phi^T f) = Phi^T df + [Ad^-T (S_c x* f); dS_c^T f]
             for r in range(6):
                 Sc[r] = S[r, c]
-            _fcross(Sc, f, t2)
+            put6(t2, force_cross(Sc, f))
             for r in range(6):
                 df[r] += t2[r]
             phi_transpose_force(R, p, S, df, wk, QqT[c])
@@ -264,7 +219,7 @@ def _segment_derivatives(alpha, w, mass, radius, q, xi, xid, M, Q, QqT, QxT, sc,
             for r in range(6):
                 Sc[r] = S[r, c]
                 t2[r] = V[r] + rel[r]
-            _cross(Sc, t2, t1)
+            put6(t1, motion_cross(Sc, t2))
             for r in range(6):
                 acc = Id[r] * (2.0 * Sd[r, c] - t1[r])
                 for s_ in range(6):
@@ -358,7 +313,7 @@ def tip_derivatives(q, qd, qdd, V0, A0, T, R1, p1, V1, A1, rel1, tipV, tipA, dS1
 @jit_helper
 def _tip_derivatives(q, qd, qdd, V0, A0, T, R1, p1, V1, A1, rel1, tipV, tipA, dS1, sc):
     """:func:`tip_derivatives`, the body the kernels call: compiled into them, without a
-    Python entry point (:data:`qchain.model.arc.jit_helper`)."""
+    Python entry point (:data:`qchain._jit.jit_helper`)."""
     o = 0
     S, o = take2(sc, o, 6, 3)
     Sd, o = take2(sc, o, 6, 3)
@@ -416,11 +371,11 @@ def rnea_derivatives(arr, q, qd, qdd, V0, A0, floating, g_B, ws, wd, sc):
 @jit_helper
 def _rnea_derivatives(arr, q, qd, qdd, V0, A0, floating, g_B, ws, wd, sc, blocks_known=False):
     """:func:`rnea_derivatives`, the body the kernels call: compiled into them, without a
-    Python entry point (:data:`qchain.model.arc.jit_helper`). ``blocks_known``: ``ws.M_xi`` and
+    Python entry point (:data:`qchain._jit.jit_helper`). ``blocks_known``: ``ws.M_xi`` and
     ``ws.Q`` already hold every segment's ``M_xi`` and bias force ``Q(xid = 0)`` at ``(q, qd, V0)``
     (:func:`qchain.algorithms.recursive.aba` at this state wrote them). Its passes, :func:`_forward_pass`,
     :func:`_backward_pass`, :func:`_assemble` and, for a floating base, :func:`_floating_base`,
-    are inlined into it (:data:`qchain.model.arc.jit_inline`): the same code as one function."""
+    are inlined into it (:data:`qchain._jit.jit_inline`): the same code as one function."""
     alpha, w, offs, mass, radius = arr.alpha, arr.w, arr.offs, arr.mass, arr.radius
     n = q.shape[0]
     off = 6 if floating else 0
@@ -468,10 +423,10 @@ def _payload_blocks(P, V, A, F, Ic, WF, sc):
         for r in range(6):
             Ic[r, s] = P[r, s]
             e[r] = P[r, s]
-        _fcross(V, e, t1)  # V x* (P e_s)
+        put6(t1, force_cross(V, e))  # V x* (P e_s)
         e[:] = 0.0
         e[s] = 1.0
-        _fcross(e, h, t2)  # e_s x* (P V)
+        put6(t2, force_cross(e, h))  # e_s x* (P V)
         for r in range(6):
             WF[r, s] = t1[r] + t2[r]
 
@@ -545,29 +500,29 @@ def _backward_pass(n, off, V, T, Q, Mxi, Rw, pw, QqT, QxT, rel1, tipV, tipA, dS1
                     dq[i0 + b, i0 + col] = D[col, 6 + b]
                 else:
                     dv[i0 + b, i0 + col - 3] = D[col, 6 + b]
-            _ad_force(Rw[j], pw[j], D[col, :6], G[j, col])
+            put6(G[j, col], ad_force(Rw[j], pw[j], D[col, :6]))
         # world-frame rows of the subtree sensitivities and the composite columns of M
         for b in range(3):
             for r in range(6):
                 t1[r] = Mh[6 + b, r]
-            _ad_force(Rw[j], pw[j], t1, Ya[j, b])
-            _fcross(V[j], t1, t2)
+            put6(Ya[j, b], ad_force(Rw[j], pw[j], t1))
+            put6(t2, force_cross(V[j], t1))
             for r in range(6):
                 t2[r] += Wj[6 + b, r]
-            _ad_force(Rw[j], pw[j], t2, Yv[j, b])
+            put6(Yv[j, b], ad_force(Rw[j], pw[j], t2))
             for r in range(6):
                 t1[r] = Mh[r, 6 + b]
-            _ad_force(Rw[j], pw[j], t1, Ms[j, b])
+            put6(Ms[j, b], ad_force(Rw[j], pw[j], t1))
             for a in range(3):
                 M[i0 + a, i0 + b] = Mh[6 + a, 6 + b]
             for r in range(6):
                 t2[r] = Tj[r, 6 + b]
-            _ad_twist(Rw[j + 1], pw[j + 1], t2, Jw[j, b])
-        _ad_twist(Rw[j + 1], pw[j + 1], V[j + 1], vW)
+            put6(Jw[j, b], ad_twist(Rw[j + 1], pw[j + 1], t2))
+        put6(vW, ad_twist(Rw[j + 1], pw[j + 1], V[j + 1]))
         for col in range(6):
-            _ad_twist(Rw[j + 1], pw[j + 1], tipV[j, col], sig1[j, col])
-            _ad_twist(Rw[j + 1], pw[j + 1], tipA[j, col], sig2[j, col])
-            _cross(sig1[j, col], vW, t1)
+            put6(sig1[j, col], ad_twist(Rw[j + 1], pw[j + 1], tipV[j, col]))
+            put6(sig2[j, col], ad_twist(Rw[j + 1], pw[j + 1], tipA[j, col]))
+            put6(t1, motion_cross(sig1[j, col], vW))
             for r in range(6):
                 sig2[j, col, r] -= t1[r]
         # move one root inwards
@@ -590,7 +545,7 @@ def _subtree_blocks(Tj, Mxi, QxT, rel1, Ic, WF, E, ET, IcT, Mh, Wj, t1, t2):
     for s in range(6):
         t1[:] = 0.0
         t1[s] = 1.0
-        _cross(rel1, t1, t2)
+        put6(t2, motion_cross(rel1, t1))
         for r in range(6):
             acc = WF[r, s]
             for k in range(6):
@@ -622,7 +577,7 @@ def _segment_columns(Tj, QqT, QxT, dS1, tipV, tipA, F, Ic, WF, D, dF, t1, t2):
                 D[col, k] = QqT[col, k]
             for r in range(6):
                 t2[r] = Tj[r, 6 + col]
-            _fcross(t2, F, t1)  # S1_c x* F
+            put6(t1, force_cross(t2, F))  # S1_c x* F
             for r in range(6):
                 acc = 0.0
                 for k in range(6):
@@ -728,7 +683,7 @@ def _floating_base(n, off, V0, g_B, G, Ya, Yv, Ms, M, dq, dv, Ic, WF, sc):
     for i in range(n):
         ri = off + 3 * i
         for b in range(3):
-            _fcross(V0, Ya[i, b], t2)  # twist columns: Ya ad(V0) + Yv
+            put6(t2, force_cross(V0, Ya[i, b]))  # twist columns: Ya ad(V0) + Yv
             for k in range(6):
                 dv[ri + b, k] = Yv[i, b, k] - t2[k]
             for k in range(3):
@@ -750,7 +705,7 @@ def internal_forces_derivatives(arr, q, p, dfq, dfv, sc):
 @jit_helper
 def _internal_forces_derivatives(arr, q, p, dfq, dfv, sc):
     """:func:`internal_forces_derivatives`, the body the kernels call: compiled into them, without a
-    Python entry point (:data:`qchain.model.arc.jit_helper`)."""
+    Python entry point (:data:`qchain._jit.jit_helper`)."""
     o = 0
     Kp, o = take2(sc, o, 3, 3)
     H, o = take2(sc, o, 3, 3)

@@ -29,7 +29,8 @@ import numpy as np
 from .._jit import view2, view3
 from ..algorithms.arrays import ChainArrays
 from ..model.arc import arc_node, arc_node_derivatives, arc_pose, jit, take1, take2, take3
-from ..model.slices import phi_transpose_force, slice_twist, sub_motion_cross
+from ..model.slices import phi_transpose_force, slice_twist
+from ..model.spatial_kernels import ad_force, add6, force_cross, motion_cross, put6, sub6
 from .distance import BOX, CAPSULE, CYLINDER, HALFSPACE, SPHERE, signed_distance
 from .forces import ROOT, _keep_root, _mat3, _near_segments, _point, _world_wrench_to_slice, power, start
 
@@ -175,31 +176,6 @@ def _law_tangent(law, ell, d, dd, n, dn, vc, dvc, F, dF):
 
 
 @jit
-def _force_cross(z, w, out):
-    """``out = z x* w`` (force cross product): ``(z_w x w_f, z_v x w_f + z_w x w_m)``."""
-    out[0] = z[4] * w[2] - z[5] * w[1]
-    out[1] = z[5] * w[0] - z[3] * w[2]
-    out[2] = z[3] * w[1] - z[4] * w[0]
-    out[3] = z[1] * w[2] - z[2] * w[1] + z[4] * w[5] - z[5] * w[4]
-    out[4] = z[2] * w[0] - z[0] * w[2] + z[5] * w[3] - z[3] * w[5]
-    out[5] = z[0] * w[1] - z[1] * w[0] + z[3] * w[4] - z[4] * w[3]
-
-
-@jit
-def _ad_inv_t_add(R, p, f, W):
-    """``W += Ad(g)^-T f`` (6,): a slice wrench carried to the root, ``g = (R, p)``."""
-    l0 = R[0, 0] * f[0] + R[0, 1] * f[1] + R[0, 2] * f[2]
-    l1 = R[1, 0] * f[0] + R[1, 1] * f[1] + R[1, 2] * f[2]
-    l2 = R[2, 0] * f[0] + R[2, 1] * f[1] + R[2, 2] * f[2]
-    W[0] += l0
-    W[1] += l1
-    W[2] += l2
-    W[3] += p[1] * l2 - p[2] * l1 + R[0, 0] * f[3] + R[0, 1] * f[4] + R[0, 2] * f[5]
-    W[4] += p[2] * l0 - p[0] * l2 + R[1, 0] * f[3] + R[1, 1] * f[4] + R[1, 2] * f[5]
-    W[5] += p[0] * l1 - p[1] * l0 + R[2, 0] * f[3] + R[2, 1] * f[4] + R[2, 2] * f[5]
-
-
-@jit
 def _frame_step(R, p, S, dS, q_d, qd, dq, dqd, V, eta, dV, AV, Vn, eta_n, dV_n, zeta):
     """A frame ``g = (R, p)`` (a node's or the tip's, relative to its root) with Jacobian ``S``
     (6, 3) and ``dS`` (3, 6, 3) ``= dS/dq``: its body twist ``Vn``, pose variation ``eta_n``
@@ -217,13 +193,13 @@ def _frame_step(R, p, S, dS, q_d, qd, dq, dqd, V, eta, dV, AV, Vn, eta_n, dV_n, 
         for c in range(3):
             acc += dq[c] * (dS[c, r, 0] * qd[0] + dS[c, r, 1] * qd[1] + dS[c, r, 2] * qd[2])
         dV_n[r] += acc
-    sub_motion_cross(zeta, AV, dV_n)
+    sub6(dV_n, motion_cross(zeta, AV))
 
 
 @jit
 def _accumulate(R, p, S, dS, dq, w, dw, zeta, W, dW, dtau, g9, t6, t3):
     """``W += Ad^-T w``; ``dW += Ad^-T (dw + zeta x* w)``; ``dtau += S^T dw + dS[dq]^T w``."""
-    _ad_inv_t_add(R, p, w, W)
+    add6(W, ad_force(R, p, w))
     for r in range(9):
         g9[r] = 0.0
     phi_transpose_force(R, p, S, dw, 1.0, g9)
@@ -231,8 +207,8 @@ def _accumulate(R, p, S, dS, dq, w, dw, zeta, W, dW, dtau, g9, t6, t3):
         dW[r] += g9[r]
     for c in range(3):
         dtau[c] += g9[6 + c]
-    _force_cross(zeta, w, t6)
-    _ad_inv_t_add(R, p, t6, dW)
+    put6(t6, force_cross(zeta, w))
+    add6(dW, ad_force(R, p, t6))
     for i in range(3):
         acc = 0.0
         for c in range(3):

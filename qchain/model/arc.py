@@ -44,11 +44,11 @@ from functools import cached_property
 from math import factorial
 
 import numpy as np
-from numba.extending import register_jitable
 
-from .._jit import cached_njit, view2, view3
+from .._jit import jit, jit_helper, jit_inline, jit_pass, view2, view3
 from ..checks.convert import as_batch, as_real_array
 from .spatial import _inv_adjoint as inv_adjoint
+from .spatial_kernels import motion_cross
 
 __all__ = ["ArcNodes", "arc_nodes", "bend_functions", "strain_twist", "arc_node", "arc_node_bias", "arc_pose", "bend_h",
            "arc_node_derivatives"]
@@ -69,28 +69,6 @@ _H_COEF = np.array(
     [[(-1) ** k * 2 * k * (2 * k - 2) / factorial(2 * k + n + 1) for k in range(2, _NTERMS_H + 2)] for n in (1, 2)]
 )
 
-jit = cached_njit(fastmath=False, error_model="numpy")
-
-#: The kernels' private helpers (what only compiled code calls). numba types a constant argument
-#: (a size, an offset, a flag) as a literal and compiles a ``jit`` function once more for every
-#: distinct one (``take2`` had ten specialisations, each a full compile); a ``register_jitable``
-#: function is typed with the non-literal types first, so it is compiled once per argument types
-#: (and per set of its callers' compiler flags: ``jit`` callers, helper callers, callers without
-#: reference counting). It gets no CPython or C wrapper and no cache files of its own (it is
-#: compiled into its callers, which are cached), which makes it cheaper to compile than a ``jit``
-#: function. Called from Python it runs as plain Python.
-jit_helper = register_jitable(fastmath=False, error_model="numpy", no_cfunc_wrapper=True)
-#: A helper numba inlines into its caller's code before typing (:data:`jit`'s options): the
-#: helpers take arrays, and a compiled call with array arguments costs atomic reference counts,
-#: which numba prunes only within one function (the planar passes, ``_rnea_derivatives``' pieces).
-jit_inline = cached_njit(fastmath=False, error_model="numpy", inline="always")
-#: A pass called from Python that allocates nothing (it writes only into the arrays it is
-#: given): compiled without numba's reference count, as the engine's code is (``qchain._jit``).
-#: With it every array view a pass makes (a segment's nodes, a workspace row, a scratch carving)
-#: and every array handed to a compiled callee costs an atomic count and its release: a quarter
-#: of a forward-dynamics call from Python at ten segments. Such a pass cannot allocate arrays
-#: nor assign an array to a slice (loops do); the explicit flag holds for every caller.
-jit_pass = cached_njit(fastmath=False, error_model="numpy", _nrt=False)
 
 
 @jit
@@ -124,19 +102,6 @@ def _bend(x):
         (x * c - s) / (x2 * x),
         (x * s - 2.0 * (1.0 - c)) / (x2 * x2),
         (x * (1.0 - c) - 3.0 * (x - s)) / (x2 * x2 * x),
-    )
-
-
-@jit_helper
-def _mcross(a, b):
-    """Motion cross product ``a x b`` of 6-tuples ``[linear; angular]``."""
-    return (
-        a[4] * b[2] - a[5] * b[1] + a[1] * b[5] - a[2] * b[4],
-        a[5] * b[0] - a[3] * b[2] + a[2] * b[3] - a[0] * b[5],
-        a[3] * b[1] - a[4] * b[0] + a[0] * b[4] - a[1] * b[3],
-        a[4] * b[5] - a[5] * b[4],
-        a[5] * b[3] - a[3] * b[5],
-        a[3] * b[4] - a[4] * b[3],
     )
 
 
@@ -212,9 +177,9 @@ def arc_node_bias(alpha, l, ux, uy, ld, uxd, uyd, R, p, S, sd):
     da3 = s4 * s * g2 * ud
     xi = (0.0, 0.0, 1.0, -uy, ux, 0.0)
     xd = (0.0, 0.0, 0.0, -uyd, uxd, 0.0)
-    Ax = _mcross(xi, xd)
-    AAx = _mcross(xi, Ax)
-    XAx = _mcross(xd, Ax)
+    Ax = motion_cross(xi, xd)
+    AAx = motion_cross(xi, Ax)
+    XAx = motion_cross(xd, Ax)
     al = alpha * ld
     for r in range(6):
         sd[r] = al * (2.0 * xd[r] - a1 * Ax[r] + a2 * AAx[r]) - da2 * Ax[r] + da3 * AAx[r] + a3 * XAx[r]
@@ -254,11 +219,11 @@ def arc_node(alpha, l, ux, uy, ld, uxd, uyd, R, p, S, Sd):
             eta = (0.0, 0.0, 0.0, 0.0, 1.0, 0.0)
         else:
             eta = (0.0, 0.0, 0.0, -1.0, 0.0, 0.0)
-        Ae = _mcross(xi, eta)
-        AAe = _mcross(xi, Ae)
-        t1 = _mcross(xid, eta)  # xid x eta
-        t2 = _mcross(xid, Ae)  # xid x (A eta)
-        t3 = _mcross(xi, t1)  # xi x (xid x eta)
+        Ae = motion_cross(xi, eta)
+        AAe = motion_cross(xi, Ae)
+        t1 = motion_cross(xid, eta)  # xid x eta
+        t2 = motion_cross(xid, Ae)  # xid x (A eta)
+        t3 = motion_cross(xi, t1)  # xi x (xid x eta)
         # Ad(g)^-1 eta = (-R^T (p x e), R^T e), e = eta[3:]
         e0, e1, e2 = eta[3], eta[4], eta[5]
         c0 = p[1] * e2 - p[2] * e1
@@ -326,15 +291,15 @@ def arc_node_derivatives(alpha, l, ux, uy, ld, uxd, uyd, dS, K):
         dS[0, r, 0] = 0.0
     for j in range(2):
         ej = eta[j]
-        Ae = _mcross(xi, ej)
-        AAe = _mcross(xi, Ae)
+        Ae = motion_cross(xi, ej)
+        AAe = motion_cross(xi, Ae)
         for r in range(6):
             dS[0, r, 1 + j] = alpha * (ej[r] - a1 * Ae[r] + a2 * AAe[r])
         for i in range(2):
             ei = eta[i]
-            EiEj = _mcross(ei, ej)
-            EiAe = _mcross(ei, Ae)
-            AEiEj = _mcross(xi, EiEj)
+            EiEj = motion_cross(ei, ej)
+            EiAe = motion_cross(ei, Ae)
+            AEiEj = motion_cross(xi, EiEj)
             ci2 = s4 * g1 * u[i]
             ci3 = s5 * g2 * u[i]
             for r in range(6):
@@ -343,19 +308,19 @@ def arc_node_derivatives(alpha, l, ux, uy, ld, uxd, uyd, dS, K):
         for r in range(6):
             dS[1 + i, r, 0] = alpha * eta[i][r]
     # derivatives of Sd(qdot) qdot
-    Ax = _mcross(xi, xd)
-    AAx = _mcross(xi, Ax)
-    XAx = _mcross(xd, Ax)
+    Ax = motion_cross(xi, xd)
+    AAx = motion_cross(xi, Ax)
+    XAx = motion_cross(xd, Ax)
     cl_A = -(4.0 * s3 * g1 + s5 * k2 * h1)
     cl_AA = 5.0 * s4 * g2 + s4 * s2 * k2 * h2
     for r in range(6):
         K[0, r] = alpha * (alpha * ld * (-cx * Ax[r] + a1 * AAx[r]) + ud * (cl_A * Ax[r] + cl_AA * AAx[r]) + a2 * XAx[r])
     for i in range(2):
         ei = eta[i]
-        Ex = _mcross(ei, xd)
-        EAx = _mcross(ei, Ax)
-        AEx = _mcross(xi, Ex)
-        XEx = _mcross(xd, Ex)
+        Ex = motion_cross(ei, xd)
+        EAx = motion_cross(ei, Ax)
+        AEx = motion_cross(xi, Ex)
+        XEx = motion_cross(xd, Ex)
         ui = u[i]
         for r in range(6):
             K[1 + i, r] = (

@@ -16,26 +16,14 @@ import numpy as np
 
 from .arc import (SCRATCH, arc_node, arc_node_bias, arc_node_derivatives, jit, jit_helper, jit_inline, take1, take2,
                   take3)
+from .spatial_kernels import ad_force, motion_cross, sub6
 
 __all__ = ["CHAMBER_ANGLES", "input_matrix_c", "pressure_jacobian_c", "elastic_gradient_c", "elastic_hessian_c",
            "law_gradient_c", "law_hessian_c", "law_energy_c", "rest_damping_c", "domain_violation", "segment_slices", "segment_mass", "segment_newton_euler", "phi_transpose_force", "phi_matrix", "slice_twist"]
 
 
-# The node loops' small helpers (sub_motion_cross, slice_twist, phi_transpose_force, mass_node,
-# mass_finish) are inlined into their callers (``jit_inline``): as calls, passing their array
+# The node loops' small helpers (slice_twist, phi_transpose_force, mass_node, mass_finish) are inlined into their callers (``jit_inline``): as calls, passing their array
 # arguments cost about a fifth of a forward-dynamics call (docs/benchmarks/README.md, "Speed of a chain").
-@jit_inline
-def sub_motion_cross(a, b, out):
-    """``out -= a x b`` (motion cross product, 6-vectors): the velocity-product part
-    ``-(S qdot) x (Ad^-1 V)`` of a slice's bias acceleration."""
-    out[0] -= a[4] * b[2] - a[5] * b[1] + a[1] * b[5] - a[2] * b[4]
-    out[1] -= a[5] * b[0] - a[3] * b[2] + a[2] * b[3] - a[0] * b[5]
-    out[2] -= a[3] * b[1] - a[4] * b[0] + a[0] * b[4] - a[1] * b[3]
-    out[3] -= a[4] * b[5] - a[5] * b[4]
-    out[4] -= a[5] * b[3] - a[3] * b[5]
-    out[5] -= a[3] * b[4] - a[4] * b[3]
-
-
 @jit_inline
 def slice_twist(R, p, S, V0, qd, out):
     """``out = Ad(g)^-1 V0 + S qd``: the slice body twist (6,) (docs/model.md section 2)."""
@@ -52,15 +40,13 @@ def slice_twist(R, p, S, V0, qd, out):
 @jit_inline
 def phi_transpose_force(R, p, S, f, wgt, out):
     """``out += wgt * Phi^T f``: ``(Ad(g)^-T f, S^T f)`` with ``Ad^-T (fl, fa) = (R fl, p x R fl + R fa)``."""
-    l0 = R[0, 0] * f[0] + R[0, 1] * f[1] + R[0, 2] * f[2]
-    l1 = R[1, 0] * f[0] + R[1, 1] * f[1] + R[1, 2] * f[2]
-    l2 = R[2, 0] * f[0] + R[2, 1] * f[1] + R[2, 2] * f[2]
-    out[0] += wgt * l0
-    out[1] += wgt * l1
-    out[2] += wgt * l2
-    out[3] += wgt * (p[1] * l2 - p[2] * l1 + R[0, 0] * f[3] + R[0, 1] * f[4] + R[0, 2] * f[5])
-    out[4] += wgt * (p[2] * l0 - p[0] * l2 + R[1, 0] * f[3] + R[1, 1] * f[4] + R[1, 2] * f[5])
-    out[5] += wgt * (p[0] * l1 - p[1] * l0 + R[2, 0] * f[3] + R[2, 1] * f[4] + R[2, 2] * f[5])
+    h = ad_force(R, p, f)
+    out[0] += wgt * h[0]
+    out[1] += wgt * h[1]
+    out[2] += wgt * h[2]
+    out[3] += wgt * h[3]
+    out[4] += wgt * h[4]
+    out[5] += wgt * h[5]
     for c in range(3):
         acc = 0.0
         for r in range(6):
@@ -154,7 +140,7 @@ def _segment_slices(alpha, w, mass, radius, q, xi, xid, want_mass, M, Q, sc):
         else:
             for r in range(6):
                 a[r] = sd[r]
-        sub_motion_cross(rel, Vr, a)
+        sub6(a, motion_cross(rel, Vr))
         # h = I V; f = I a + V x* h, V x* h = (w x hl, v x hl + w x ha)
         hl0, hl1, hl2 = m * V[0], m * V[1], m * V[2]
         ha0, ha1, ha2 = ixx * V[3], ixx * V[4], izz * V[5]
