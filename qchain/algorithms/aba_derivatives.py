@@ -18,7 +18,8 @@ from __future__ import annotations
 import numpy as np
 
 from .._blas import gemm
-from ..model.arc import jit, jit_helper, jit_pass, take1
+from .._jit import jit, jit_helper, jit_pass
+from ..model.arc import take1
 from .arrays import AbaDerivativesWorkspace, AbaWorkspace, ChainArrays, RneaWorkspace
 from ..model.slices import input_matrix_c
 from .recursive import _chol as recursive_chol

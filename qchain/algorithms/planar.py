@@ -86,7 +86,8 @@ from __future__ import annotations
 import numpy as np
 
 from .arrays import ChainArrays, PlanarWorkspace
-from ..model.arc import SCRATCH, _bend, jit, jit_inline as _inline, jit_pass
+from .._jit import jit, jit_inline as _inline, jit_pass
+from ..model.arc import SCRATCH, _bend
 
 __all__ = ["planar_aba", "planar_aba_moving", "planar_rnea", "planar_workspace"]
 

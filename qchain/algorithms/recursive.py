@@ -44,7 +44,8 @@ from __future__ import annotations
 import numpy as np
 
 from .arrays import AbaWorkspace, ChainArrays
-from ..model.arc import SCRATCH, arc_node_bias, arc_pose, jit, jit_helper, jit_pass, take1, take2
+from .._jit import jit, jit_helper, jit_pass
+from ..model.arc import SCRATCH, arc_node_bias, arc_pose, take1, take2
 from ..model.slices import (
     _segment_slices, domain_violation, input_matrix_c, law_gradient_c, phi_matrix, slice_twist)
 from ..model.spatial_kernels import add6, force_cross, motion_cross, sub6

@@ -39,11 +39,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..model.arc import arc_node, arc_node_derivatives, jit, jit_helper, jit_inline, jit_pass, take1, take2, take3
+from .._jit import jit, jit_helper, jit_inline, jit_pass
+from ..model.arc import arc_node, arc_node_derivatives, take1, take2, take3
 from ..model.slices import (
-    law_hessian_c, mass_finish, mass_node, phi_matrix, phi_transpose_force, pressure_jacobian_c,
-    slice_twist)
-from ..model.spatial_kernels import ad_force, ad_twist, force_cross, motion_cross, put6
+    law_hessian_c, mass_finish, mass_node, phi_matrix, phi_transpose_force, pressure_jacobian_c)
+from ..model.spatial_kernels import (ad_force, ad_inv_twist, ad_twist, column6, force_cross, matvec63, matvec66,
+                                     motion_cross, put6, vadd, vmul, vsub)
 from .arrays import AbaWorkspace, ChainArrays, RneaWorkspace
 from .recursive import _load_xi, payload_wrench
 from .recursive import _project as recursive_project
@@ -53,65 +54,52 @@ __all__ = ["segment_derivatives", "tip_derivatives", "rnea_derivatives", "rnea_w
 
 
 @jit_helper
-def _force_variation(Id, V, hV, dV, da, t, h, df):
-    """``df = I da + dV x* (I V) + V x* (I dV)``: the slice force's variation (``I = diag(Id)``,
-    ``hV = I V``); ``t``, ``h`` (6,) are scratch."""
-    put6(df, force_cross(dV, hV))
-    for r in range(6):
-        t[r] = Id[r] * dV[r]
-        df[r] += Id[r] * da[r]
-    put6(h, force_cross(V, t))
-    for r in range(6):
-        df[r] += h[r]
+def _force_variation(Id, V, hV, dV, da):
+    """``I da + dV x* (I V) + V x* (I dV)`` (6-tuple): the slice force's variation
+    (``I = diag(Id)``, ``hV = I V``)."""
+    return vadd(vadd(force_cross(dV, hV), vmul(Id, da)), force_cross(V, vmul(Id, dV)))
 
 
 @jit_helper
-def _node_state(R, p, S, Sd, V0, A0, qd, qdd, Vr, Ar, rel, V, a, z3, t):
-    """Slice twist ``V`` and acceleration ``a`` (and ``Vr = Ad^-1 V0``, ``Ar = Ad^-1 A0``,
-    ``rel = S qdot``) at a node whose kinematics ``R, p, S, Sd`` are known; ``z3`` (3,) zeros,
-    ``t`` (6,) scratch."""
-    slice_twist(R, p, S, V0, z3, Vr)
-    slice_twist(R, p, S, A0, qdd, Ar)  # Ad^-1 A0 + S qdd
-    for r in range(6):
-        rel[r] = S[r, 0] * qd[0] + S[r, 1] * qd[1] + S[r, 2] * qd[2]
-        V[r] = Vr[r] + rel[r]
-    put6(t, motion_cross(rel, Vr))
-    for r in range(6):
-        a[r] = Ar[r] + Sd[r, 0] * qd[0] + Sd[r, 1] * qd[1] + Sd[r, 2] * qd[2] - t[r]
-    # Ar without the S qdd part, for the variations
-    for r in range(6):
-        Ar[r] -= S[r, 0] * qdd[0] + S[r, 1] * qdd[1] + S[r, 2] * qdd[2]
+def _node_state(R, p, S, Sd, V0, A0, qd, qdd):
+    """``(Vr, Ar, rel, V, a)`` (6-tuples) at a node whose kinematics ``R, p, S, Sd`` are known:
+    ``Vr = Ad^-1 V0``, ``Ar = Ad^-1 A0``, ``rel = S qdot``, the slice twist ``V = Vr + rel`` and
+    acceleration ``a = Ar + S qddot + Sd qdot - rel x Vr``."""
+    Vr = ad_inv_twist(R, p, V0)
+    Ar = ad_inv_twist(R, p, A0)
+    rel = matvec63(S, qd)
+    a = vsub(vadd(vadd(Ar, matvec63(S, qdd)), matvec63(Sd, qd)), motion_cross(rel, Vr))
+    return Vr, Ar, rel, vadd(Vr, rel), a
 
 
 @jit_helper
-def _q_variation(c, S, dS, K, qd, qdd, Vr, Ar, rel, dV, da, t1, t2, h):
-    """``dV, da`` of a slice for a unit change of ``q_c`` (fixed root twist and acceleration);
-    ``t1, t2, h`` (6,) scratch."""
-    for r in range(6):
-        t2[r] = dS[c, r, 0] * qd[0] + dS[c, r, 1] * qd[1] + dS[c, r, 2] * qd[2]  # dS_c qd
-        da[r] = S[r, c]  # S_c, contiguous (a column view would compile motion_cross once more)
-    put6(t1, motion_cross(da, Vr))  # S_c x Vr
-    for r in range(6):
-        dV[r] = -t1[r] + t2[r]
-    put6(h, motion_cross(rel, t1))  # rel x (S_c x Vr)
-    put6(t1, motion_cross(da, Ar))  # S_c x Ar
-    for r in range(6):
-        da[r] = h[r] + K[c, r] + dS[c, r, 0] * qdd[0] + dS[c, r, 1] * qdd[1] + dS[c, r, 2] * qdd[2]
-    put6(h, motion_cross(t2, Vr))
-    for r in range(6):
-        da[r] -= h[r]
-    for r in range(6):
-        da[r] -= t1[r]
+def _q_variation(c, S, dS, K, qd, qdd, Vr, Ar, rel):
+    """``(dV, da)`` (6-tuples) of a slice for a unit change of ``q_c`` (fixed root twist and
+    acceleration): ``dV = dS_c qdot - S_c x Vr``, ``da = rel x (S_c x Vr) + K_c + dS_c qddot -
+    (dS_c qdot) x Vr - S_c x Ar``."""
+    Sc = column6(S, c)
+    dSq = matvec63(dS[c], qd)
+    t1 = motion_cross(Sc, Vr)
+    da = vadd(vadd(motion_cross(rel, t1), K[c]), matvec63(dS[c], qdd))
+    da = vsub(vsub(da, motion_cross(dSq, Vr)), motion_cross(Sc, Ar))
+    return vsub(dSq, t1), da
 
 
 @jit_helper
-def _qd_variation(c, S, Sd, V, dV, da, h):
-    """``dV, da`` of a slice for a unit change of ``qdot_c``: ``S_c`` and ``2 Sd_c - S_c x V``."""
-    for r in range(6):
-        dV[r] = S[r, c]
-    put6(h, motion_cross(dV, V))
-    for r in range(6):
-        da[r] = 2.0 * Sd[r, c] - h[r]
+def _qd_variation(c, S, Sd, V):
+    """``(dV, da)`` (6-tuples) of a slice for a unit change of ``qdot_c``: ``S_c`` and
+    ``2 Sd_c - S_c x V``."""
+    Sc = column6(S, c)
+    h = motion_cross(Sc, V)
+    Sdc = column6(Sd, c)
+    return Sc, (2.0 * Sdc[0] - h[0], 2.0 * Sdc[1] - h[1], 2.0 * Sdc[2] - h[2], 2.0 * Sdc[3] - h[3],
+                2.0 * Sdc[4] - h[4], 2.0 * Sdc[5] - h[5])
+
+
+@jit_helper
+def _column_dot(M, c, t):
+    """``M[:, c] . t`` of a (6, k) array and a 6-vector."""
+    return M[0, c] * t[0] + M[1, c] * t[1] + M[2, c] * t[2] + M[3, c] * t[3] + M[4, c] * t[4] + M[5, c] * t[5]
 
 
 @jit
@@ -139,24 +127,9 @@ def _segment_derivatives(alpha, w, mass, radius, q, xi, xid, M, Q, QqT, QxT, sc,
     Sd, o = take2(sc, o, 6, 3)
     dS, o = take3(sc, o, 3, 6, 3)
     K, o = take2(sc, o, 3, 6)
-    Vr, o = take1(sc, o, 6)
-    Ar, o = take1(sc, o, 6)
-    rel, o = take1(sc, o, 6)
-    V, o = take1(sc, o, 6)
-    a, o = take1(sc, o, 6)
-    hV, o = take1(sc, o, 6)
-    f, o = take1(sc, o, 6)
-    dV, o = take1(sc, o, 6)
-    da, o = take1(sc, o, 6)
-    df, o = take1(sc, o, 6)
     t1, o = take1(sc, o, 6)
-    t2, o = take1(sc, o, 6)
-    t3, o = take1(sc, o, 6)
-    Sc, o = take1(sc, o, 6)
     E, o = take2(sc, o, 6, 6)
     EA, o = take2(sc, o, 6, 6)
-    z3, o = take1(sc, o, 3)
-    z3[:] = 0.0
     ixx = 0.25 * mass * radius * radius
     Id, o = take1(sc, o, 6)
     Id[:3] = mass
@@ -187,45 +160,30 @@ def _segment_derivatives(alpha, w, mass, radius, q, xi, xid, M, Q, QqT, QxT, sc,
         wsum += wk
         arc_node(alpha[k], q[0], q[1], q[2], qd[0], qd[1], qd[2], R, p, S, Sd)
         arc_node_derivatives(alpha[k], q[0], q[1], q[2], qd[0], qd[1], qd[2], dS, K)
-        _node_state(R, p, S, Sd, V0, A0, qd, qdd, Vr, Ar, rel, V, a, z3, t1)
-        for r in range(6):
-            hV[r] = Id[r] * V[r]
-        put6(f, force_cross(V, hV))
-        for r in range(6):
-            f[r] += Id[r] * a[r]
+        Vr, Ar, rel, V, a = _node_state(R, p, S, Sd, V0, A0, qd, qdd)
+        hV = vmul(Id, V)
+        f = vadd(force_cross(V, hV), vmul(Id, a))
         if not blocks_known:
             phi_transpose_force(R, p, S, f, wk, Q)
             mass_node(R, p, S, Id, wk, M, mp, Irot, t1)
         for c in range(3):
-            _q_variation(c, S, dS, K, qd, qdd, Vr, Ar, rel, dV, da, t1, t2, t3)
-            _force_variation(Id, V, hV, dV, da, t1, t3, df)
+            dV, da = _q_variation(c, S, dS, K, qd, qdd, Vr, Ar, rel)
             # d(Phi^T f) = Phi^T df + [Ad^-T (S_c x* f); dS_c^T f]
-            for r in range(6):
-                Sc[r] = S[r, c]
-            put6(t2, force_cross(Sc, f))
-            for r in range(6):
-                df[r] += t2[r]
-            phi_transpose_force(R, p, S, df, wk, QqT[c])
+            Sf = force_cross(column6(S, c), f)
+            phi_transpose_force(R, p, S, vadd(_force_variation(Id, V, hV, dV, da), Sf), wk, QqT[c])
+            dSc = dS[c]
             for cc in range(3):
-                acc = 0.0
-                for r in range(6):
-                    acc += dS[c, r, cc] * f[r] - S[r, cc] * t2[r]
-                QqT[c, 6 + cc] += wk * acc
+                QqT[c, 6 + cc] += wk * (_column_dot(dSc, cc, f) - _column_dot(S, cc, Sf))
         # velocity columns through E = d f / d V_slice at fixed root acceleration:
         # E = (I V) x*bar + (V x*) I - I ad(rel); root twist: df = E Ad^-1; qdot_c: df = E S_c +
         # I (2 Sd_c - S_c x (V + rel))
         _velocity_force_matrix(Id, V, hV, rel, E)
+        Vp = vadd(V, rel)
         for c in range(3):
-            for r in range(6):
-                Sc[r] = S[r, c]
-                t2[r] = V[r] + rel[r]
-            put6(t1, motion_cross(Sc, t2))
-            for r in range(6):
-                acc = Id[r] * (2.0 * Sd[r, c] - t1[r])
-                for s_ in range(6):
-                    acc += E[r, s_] * Sc[s_]
-                df[r] = acc
-            phi_transpose_force(R, p, S, df, wk, QxT[6 + c])
+            Sc = column6(S, c)
+            # 2 Sd_c - S_c x (V + rel): the acceleration's change, as _qd_variation's with V + rel
+            _, da = _qd_variation(c, S, Sd, Vp)
+            phi_transpose_force(R, p, S, vadd(vmul(Id, da), matvec66(E, Sc)), wk, QxT[6 + c])
         for r in range(6):  # E Ad^-1, Ad^-1 = [[R^T, -R^T [p]], [0, R^T]]
             for c in range(3):
                 EA[r, c] = E[r, 0] * R[c, 0] + E[r, 1] * R[c, 1] + E[r, 2] * R[c, 2]
@@ -236,9 +194,7 @@ def _segment_derivatives(alpha, w, mass, radius, q, xi, xid, M, Q, QqT, QxT, sc,
             EA[r, 4] += p[2] * x0 - p[0] * x2
             EA[r, 5] += p[0] * x1 - p[1] * x0
         for kk in range(6):
-            for r in range(6):
-                df[r] = EA[r, kk]
-            phi_transpose_force(R, p, S, df, wk, QxT[kk])
+            phi_transpose_force(R, p, S, column6(EA, kk), wk, QxT[kk])
     if not blocks_known:
         mass_finish(M, mp, Irot, mass * wsum)
 
@@ -318,20 +274,20 @@ def _tip_derivatives(q, qd, qdd, V0, A0, T, R1, p1, V1, A1, rel1, tipV, tipA, dS
     S, o = take2(sc, o, 6, 3)
     Sd, o = take2(sc, o, 6, 3)
     K, o = take2(sc, o, 3, 6)
-    Vr, o = take1(sc, o, 6)
-    Ar, o = take1(sc, o, 6)
-    t1, o = take1(sc, o, 6)
-    t2, o = take1(sc, o, 6)
-    t3, o = take1(sc, o, 6)
-    z3, o = take1(sc, o, 3)
-    z3[:] = 0.0
     arc_node(1.0, q[0], q[1], q[2], qd[0], qd[1], qd[2], R1, p1, S, Sd)
     arc_node_derivatives(1.0, q[0], q[1], q[2], qd[0], qd[1], qd[2], dS1, K)
     phi_matrix(R1, p1, S, T)
-    _node_state(R1, p1, S, Sd, V0, A0, qd, qdd, Vr, Ar, rel1, V1, A1, z3, t1)
+    Vr, Ar, rel, V, a = _node_state(R1, p1, S, Sd, V0, A0, qd, qdd)
+    put6(rel1, rel)
+    put6(V1, V)
+    put6(A1, a)
     for c in range(3):
-        _q_variation(c, S, dS1, K, qd, qdd, Vr, Ar, rel1, tipV[c], tipA[c], t1, t2, t3)
-        _qd_variation(c, S, Sd, V1, tipV[3 + c], tipA[3 + c], t3)
+        dV, da = _q_variation(c, S, dS1, K, qd, qdd, Vr, Ar, rel)
+        put6(tipV[c], dV)
+        put6(tipA[c], da)
+        dV, da = _qd_variation(c, S, Sd, V)
+        put6(tipV[3 + c], dV)
+        put6(tipA[3 + c], da)
 
 
 #: Names of :func:`rnea_workspace`'s arrays (``Data`` attributes), in order.
@@ -474,7 +430,6 @@ def _backward_pass(n, off, V, T, Q, Mxi, Rw, pw, QqT, QxT, rel1, tipV, tipA, dS1
     o = 0
     Mh, o = take2(sc, o, 9, 9)
     Wj, o = take2(sc, o, 9, 6)
-    E, o = take2(sc, o, 6, 6)
     ET, o = take2(sc, o, 6, 6)
     IcT, o = take2(sc, o, 6, 9)
     D, o = take2(sc, o, 6, 9)  # D[col] = d(F_j, tau_j)/d col, cols q_j then qd_j
@@ -492,7 +447,7 @@ def _backward_pass(n, off, V, T, Q, Mxi, Rw, pw, QqT, QxT, rel1, tipV, tipA, dS1
             for r in range(6):
                 acc += Tj[r, k] * F[r]
             TF[k] = acc
-        _subtree_blocks(Tj, Mxi[j], QxT[j], rel1[j], Ic, WF, E, ET, IcT, Mh, Wj, t1, t2)
+        _subtree_blocks(Tj, Mxi[j], QxT[j], rel1[j], Ic, WF, ET, IcT, Mh, Wj)
         _segment_columns(Tj, QqT[j], QxT[j], dS1[j], tipV[j], tipA[j], F, Ic, WF, D, dF, t1, t2)
         for col in range(6):
             for b in range(3):
@@ -536,32 +491,25 @@ def _backward_pass(n, off, V, T, Q, Mxi, Rw, pw, QqT, QxT, rel1, tipV, tipA, dS1
 
 
 @jit_inline
-def _subtree_blocks(Tj, Mxi, QxT, rel1, Ic, WF, E, ET, IcT, Mh, Wj, t1, t2):
+def _subtree_blocks(Tj, Mxi, QxT, rel1, Ic, WF, ET, IcT, Mh, Wj):
     """Composite inertia ``Mh = M_xi + T^T Ic T`` (9, 9) and ``Wj = dQ/dV + T^T (WF - Ic
     ad(rel1)) T_V`` (9, 6) of the subtree from root ``j`` on, from its segment's ``T``, ``M_xi``,
-    ``QxT`` and tip ``rel1`` and the subtree beyond's ``Ic``, ``WF``; ``E``, ``ET``, ``IcT``,
-    ``t1``, ``t2`` scratch."""
-    # Ic ad(rel1): column s of ad(rel1) is rel1 x e_s
-    for s in range(6):
-        t1[:] = 0.0
-        t1[s] = 1.0
-        put6(t2, motion_cross(rel1, t1))
-        for r in range(6):
-            acc = WF[r, s]
-            for k in range(6):
-                acc -= Ic[r, k] * t2[k]
-            E[r, s] = acc
+    ``QxT`` and tip ``rel1`` and the subtree beyond's ``Ic``, ``WF``; ``ET`` (6, 6) and ``IcT``
+    (6, 9) scratch."""
+    # row r of E = WF - Ic ad(rel1) is WF[r] + rel1 x* Ic[r] (x* = -ad^T); then E T_V, whose
+    # factor T_V = Ad^-1 has a zero lower left block (the sums leave out exact zeros)
     for r in range(6):
-        for s in range(6):
-            acc = 0.0
-            for k in range(6):
-                acc += E[r, k] * Tj[k, s]
-            ET[r, s] = acc
+        e = vadd(WF[r], force_cross(rel1, Ic[r]))
+        for s in range(3):
+            ET[r, s] = e[0] * Tj[0, s] + e[1] * Tj[1, s] + e[2] * Tj[2, s]
+        for s in range(3, 6):
+            ET[r, s] = (e[0] * Tj[0, s] + e[1] * Tj[1, s] + e[2] * Tj[2, s] + e[3] * Tj[3, s] + e[4] * Tj[4, s]
+                        + e[5] * Tj[5, s])
     recursive_project(Mxi, Tj, Ic, IcT, Mh)
     for a in range(9):
         for b in range(6):
             acc = QxT[b, a]
-            for r in range(6):
+            for r in range(3 if a < 3 else 6):
                 acc += Tj[r, a] * ET[r, b]
             Wj[a, b] = acc
 

@@ -28,7 +28,8 @@ import numpy as np
 
 from .._jit import view2, view3
 from ..algorithms.arrays import ChainArrays
-from ..model.arc import arc_node, arc_node_derivatives, arc_pose, jit, take1, take2, take3
+from .._jit import jit
+from ..model.arc import arc_node, arc_node_derivatives, arc_pose, take1, take2, take3
 from ..model.slices import phi_transpose_force, slice_twist
 from ..model.spatial_kernels import ad_force, add6, force_cross, motion_cross, put6, sub6
 from .distance import BOX, CAPSULE, CYLINDER, HALFSPACE, SPHERE, signed_distance

@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..model.arc import jit
+from .._jit import jit
 
 __all__ = ["HALFSPACE", "SPHERE", "CAPSULE", "CYLINDER", "BOX", "PARAMS", "signed_distance"]
 

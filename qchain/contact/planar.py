@@ -20,7 +20,8 @@ from __future__ import annotations
 
 from ..algorithms.arrays import ChainArrays
 from ..algorithms.planar import _node
-from ..model.arc import jit, take1
+from .._jit import jit
+from ..model.arc import take1
 from .distance import signed_distance
 from .forces import beyond_reach, law_force
 

@@ -45,7 +45,7 @@ from math import factorial
 
 import numpy as np
 
-from .._jit import jit, jit_helper, jit_inline, jit_pass, view2, view3
+from .._jit import jit, jit_helper, view2, view3
 from ..checks.convert import as_batch, as_real_array
 from .spatial import _inv_adjoint as inv_adjoint
 from .spatial_kernels import motion_cross

@@ -14,9 +14,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from .arc import (SCRATCH, arc_node, arc_node_bias, arc_node_derivatives, jit, jit_helper, jit_inline, take1, take2,
-                  take3)
-from .spatial_kernels import ad_force, motion_cross, sub6
+from .._jit import jit, jit_helper, jit_inline
+from .arc import SCRATCH, arc_node, arc_node_bias, arc_node_derivatives, take1, take2, take3
+from .spatial_kernels import ad_force, ad_inv_twist, matvec63, motion_cross, put6, sub6, vadd
 
 __all__ = ["CHAMBER_ANGLES", "input_matrix_c", "pressure_jacobian_c", "elastic_gradient_c", "elastic_hessian_c",
            "law_gradient_c", "law_hessian_c", "law_energy_c", "rest_damping_c", "domain_violation", "segment_slices", "segment_mass", "segment_newton_euler", "phi_transpose_force", "phi_matrix", "slice_twist"]
@@ -27,31 +27,27 @@ __all__ = ["CHAMBER_ANGLES", "input_matrix_c", "pressure_jacobian_c", "elastic_g
 @jit_inline
 def slice_twist(R, p, S, V0, qd, out):
     """``out = Ad(g)^-1 V0 + S qd``: the slice body twist (6,) (docs/model.md section 2)."""
-    v0 = V0[0] - (p[1] * V0[5] - p[2] * V0[4])
-    v1 = V0[1] - (p[2] * V0[3] - p[0] * V0[5])
-    v2 = V0[2] - (p[0] * V0[4] - p[1] * V0[3])
-    for r in range(3):
-        out[r] = R[0, r] * v0 + R[1, r] * v1 + R[2, r] * v2
-        out[3 + r] = R[0, r] * V0[3] + R[1, r] * V0[4] + R[2, r] * V0[5]
-    for r in range(6):
-        out[r] += S[r, 0] * qd[0] + S[r, 1] * qd[1] + S[r, 2] * qd[2]
+    put6(out, vadd(ad_inv_twist(R, p, V0), matvec63(S, qd)))
 
 
 @jit_inline
 def phi_transpose_force(R, p, S, f, wgt, out):
     """``out += wgt * Phi^T f``: ``(Ad(g)^-T f, S^T f)`` with ``Ad^-T (fl, fa) = (R fl, p x R fl + R fa)``."""
+    # every entry read before any is written: ``out`` may share memory with the arguments as
+    # far as the compiler knows, and a store between the reads would make it load them again
     h = ad_force(R, p, f)
+    s0 = S[0, 0] * f[0] + S[1, 0] * f[1] + S[2, 0] * f[2] + S[3, 0] * f[3] + S[4, 0] * f[4] + S[5, 0] * f[5]
+    s1 = S[0, 1] * f[0] + S[1, 1] * f[1] + S[2, 1] * f[2] + S[3, 1] * f[3] + S[4, 1] * f[4] + S[5, 1] * f[5]
+    s2 = S[0, 2] * f[0] + S[1, 2] * f[1] + S[2, 2] * f[2] + S[3, 2] * f[3] + S[4, 2] * f[4] + S[5, 2] * f[5]
     out[0] += wgt * h[0]
     out[1] += wgt * h[1]
     out[2] += wgt * h[2]
     out[3] += wgt * h[3]
     out[4] += wgt * h[4]
     out[5] += wgt * h[5]
-    for c in range(3):
-        acc = 0.0
-        for r in range(6):
-            acc += S[r, c] * f[r]
-        out[6 + c] += wgt * acc
+    out[6] += wgt * s0
+    out[7] += wgt * s1
+    out[8] += wgt * s2
 
 
 @jit

@@ -5,10 +5,13 @@ parent's). :mod:`qchain.model.spatial` holds the same algebra for numpy arrays (
 batched); ``tests/test_spatial.py`` holds these equal to it and to Pinocchio.
 
 Each function takes anything indexable (arrays, rows of arrays, tuples) and returns a 6-tuple,
-which the caller stores with :func:`put6`, :func:`add6` or :func:`sub6`: the tuple lives in
-registers once numba has compiled the helpers into their callers (:data:`qchain._jit.jit_helper`),
-and a result never overwrites an argument while it is read (``put6(a, motion_cross(a, b))`` is
-safe).
+which the caller combines (:func:`vadd`, :func:`vsub`, :func:`vmul`) and stores with
+:func:`put6`, :func:`add6` or :func:`sub6`. The tuples live in registers once numba has compiled
+the helpers into their callers (:data:`qchain._jit.jit_helper`); small arrays carved from one
+scratch buffer do not: the compiler cannot tell that they do not overlap, so it stores and loads
+them again around every write. The derivative pass written with tuples costs about a sixth less
+(docs/benchmarks/README.md, "Cost of the derivatives"). A result never overwrites an argument
+while it is read (``put6(a, motion_cross(a, b))`` is safe).
 
 Unchecked by design (``docs/engine.md``, "Unchecked kernels"): compiled code calls them on
 values it has validated.
@@ -18,7 +21,8 @@ from __future__ import annotations
 
 from .._jit import jit_helper
 
-__all__ = ["motion_cross", "force_cross", "ad_twist", "ad_force", "put6", "add6", "sub6"]
+__all__ = ["motion_cross", "force_cross", "ad_twist", "ad_inv_twist", "ad_force", "put6", "add6", "sub6", "vadd",
+           "vsub", "vmul", "column6", "matvec63", "matvec66"]
 
 
 @jit_helper
@@ -63,6 +67,23 @@ def ad_twist(R, p, v):
         w0,
         w1,
         w2,
+    )
+
+
+@jit_helper
+def ad_inv_twist(R, p, v):
+    """``Ad(X)^-1 v``: a twist (6,) of ``X``'s parent frame expressed in ``X = (R, p)``'s own,
+    ``(R^T (v_l - p x v_a), R^T v_a)`` (Pinocchio's ``SE3.actInv(Motion)``)."""
+    v0 = v[0] - (p[1] * v[5] - p[2] * v[4])
+    v1 = v[1] - (p[2] * v[3] - p[0] * v[5])
+    v2 = v[2] - (p[0] * v[4] - p[1] * v[3])
+    return (
+        R[0, 0] * v0 + R[1, 0] * v1 + R[2, 0] * v2,
+        R[0, 1] * v0 + R[1, 1] * v1 + R[2, 1] * v2,
+        R[0, 2] * v0 + R[1, 2] * v1 + R[2, 2] * v2,
+        R[0, 0] * v[3] + R[1, 0] * v[4] + R[2, 0] * v[5],
+        R[0, 1] * v[3] + R[1, 1] * v[4] + R[2, 1] * v[5],
+        R[0, 2] * v[3] + R[1, 2] * v[4] + R[2, 2] * v[5],
     )
 
 
@@ -114,3 +135,53 @@ def sub6(out, t):
     out[3] -= t[3]
     out[4] -= t[4]
     out[5] -= t[5]
+
+
+# -- 6-tuples from arrays, and their arithmetic (element by element)
+
+@jit_helper
+def vadd(a, b):
+    """``a + b``."""
+    return (a[0] + b[0], a[1] + b[1], a[2] + b[2], a[3] + b[3], a[4] + b[4], a[5] + b[5])
+
+
+@jit_helper
+def vsub(a, b):
+    """``a - b``."""
+    return (a[0] - b[0], a[1] - b[1], a[2] - b[2], a[3] - b[3], a[4] - b[4], a[5] - b[5])
+
+
+@jit_helper
+def vmul(d, a):
+    """``diag(d) a``: element by element (a diagonal inertia times a twist)."""
+    return (d[0] * a[0], d[1] * a[1], d[2] * a[2], d[3] * a[3], d[4] * a[4], d[5] * a[5])
+
+
+@jit_helper
+def column6(M, c):
+    """Column ``c`` of a (6, k) array."""
+    return (M[0, c], M[1, c], M[2, c], M[3, c], M[4, c], M[5, c])
+
+
+@jit_helper
+def matvec63(M, x):
+    """``M x`` of a (6, 3) array and a 3-vector (a slice Jacobian times coordinate rates)."""
+    return (
+        M[0, 0] * x[0] + M[0, 1] * x[1] + M[0, 2] * x[2],
+        M[1, 0] * x[0] + M[1, 1] * x[1] + M[1, 2] * x[2],
+        M[2, 0] * x[0] + M[2, 1] * x[1] + M[2, 2] * x[2],
+        M[3, 0] * x[0] + M[3, 1] * x[1] + M[3, 2] * x[2],
+        M[4, 0] * x[0] + M[4, 1] * x[1] + M[4, 2] * x[2],
+        M[5, 0] * x[0] + M[5, 1] * x[1] + M[5, 2] * x[2],
+    )
+
+
+@jit_helper
+def _row66(M, r, x):
+    return M[r, 0] * x[0] + M[r, 1] * x[1] + M[r, 2] * x[2] + M[r, 3] * x[3] + M[r, 4] * x[4] + M[r, 5] * x[5]
+
+
+@jit_helper
+def matvec66(M, x):
+    """``M x`` of a (6, 6) array and a 6-vector."""
+    return (_row66(M, 0, x), _row66(M, 1, x), _row66(M, 2, x), _row66(M, 3, x), _row66(M, 4, x), _row66(M, 5, x))

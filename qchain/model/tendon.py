@@ -29,7 +29,7 @@ import numpy as np
 
 from ..checks import bounds as B
 from ..checks.convert import as_real, describe_value
-from .arc import jit
+from .._jit import jit
 
 __all__ = ["Tendon", "tendon_length_c", "helix_nodes", "HELIX_PANEL", "HELIX_PANEL_NODES"]
 

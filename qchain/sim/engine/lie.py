@@ -38,7 +38,7 @@ from math import comb, factorial
 
 import numpy as np
 
-from ...model.arc import jit
+from ..._jit import jit
 
 __all__ = ["ff_integrate", "ff_difference", "dexp_inv", "dexp_inv_apply"]
 

@@ -37,7 +37,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from ...model.arc import jit
+from ..._jit import jit
 from ...checks.convert import as_vector
 from ..inputs import Constant, Ramp, Schedule, Sine, SineMotion, Step, Table, sine_value
 
