@@ -43,8 +43,8 @@ from .._jit import jit, jit_helper, jit_inline, jit_pass
 from ..model.arc import arc_node, arc_node_derivatives, take1, take2, take3
 from ..model.slices import (
     law_hessian_c, mass_finish, mass_node, phi_matrix, phi_transpose_force, pressure_jacobian_c)
-from ..model.spatial_kernels import (ad_force, ad_inv_twist, ad_twist, column6, force_cross, matvec63, matvec66,
-                                     motion_cross, put6, vadd, vmul, vsub)
+from ..model.spatial_kernels import (ad_force, ad_inv_twist, ad_twist, column6, column_dot6, force_cross, matvec63,
+                                     matvec66, motion_cross, put6, vadd, vmul, vsub)
 from .arrays import AbaWorkspace, ChainArrays, RneaWorkspace
 from .recursive import _load_xi, payload_wrench
 from .recursive import _project as recursive_project
@@ -90,16 +90,8 @@ def _qd_variation(c, S, Sd, V):
     """``(dV, da)`` (6-tuples) of a slice for a unit change of ``qdot_c``: ``S_c`` and
     ``2 Sd_c - S_c x V``."""
     Sc = column6(S, c)
-    h = motion_cross(Sc, V)
     Sdc = column6(Sd, c)
-    return Sc, (2.0 * Sdc[0] - h[0], 2.0 * Sdc[1] - h[1], 2.0 * Sdc[2] - h[2], 2.0 * Sdc[3] - h[3],
-                2.0 * Sdc[4] - h[4], 2.0 * Sdc[5] - h[5])
-
-
-@jit_helper
-def _column_dot(M, c, t):
-    """``M[:, c] . t`` of a (6, k) array and a 6-vector."""
-    return M[0, c] * t[0] + M[1, c] * t[1] + M[2, c] * t[2] + M[3, c] * t[3] + M[4, c] * t[4] + M[5, c] * t[5]
+    return Sc, vsub(vadd(Sdc, Sdc), motion_cross(Sc, V))
 
 
 @jit
@@ -173,26 +165,18 @@ def _segment_derivatives(alpha, w, mass, radius, q, xi, xid, M, Q, QqT, QxT, sc,
             phi_transpose_force(R, p, S, vadd(_force_variation(Id, V, hV, dV, da), Sf), wk, QqT[c])
             dSc = dS[c]
             for cc in range(3):
-                QqT[c, 6 + cc] += wk * (_column_dot(dSc, cc, f) - _column_dot(S, cc, Sf))
+                QqT[c, 6 + cc] += wk * (column_dot6(dSc, cc, f) - column_dot6(S, cc, Sf))
         # velocity columns through E = d f / d V_slice at fixed root acceleration:
         # E = (I V) x*bar + (V x*) I - I ad(rel); root twist: df = E Ad^-1; qdot_c: df = E S_c +
         # I (2 Sd_c - S_c x (V + rel))
         _velocity_force_matrix(Id, V, hV, rel, E)
         Vp = vadd(V, rel)
         for c in range(3):
-            Sc = column6(S, c)
-            # 2 Sd_c - S_c x (V + rel): the acceleration's change, as _qd_variation's with V + rel
-            _, da = _qd_variation(c, S, Sd, Vp)
+            # S_c, and 2 Sd_c - S_c x (V + rel): the acceleration's change, as _qd_variation's with V + rel
+            Sc, da = _qd_variation(c, S, Sd, Vp)
             phi_transpose_force(R, p, S, vadd(vmul(Id, da), matvec66(E, Sc)), wk, QxT[6 + c])
-        for r in range(6):  # E Ad^-1, Ad^-1 = [[R^T, -R^T [p]], [0, R^T]]
-            for c in range(3):
-                EA[r, c] = E[r, 0] * R[c, 0] + E[r, 1] * R[c, 1] + E[r, 2] * R[c, 2]
-                EA[r, 3 + c] = E[r, 3] * R[c, 0] + E[r, 4] * R[c, 1] + E[r, 5] * R[c, 2]
-            x0, x1, x2 = EA[r, 0], EA[r, 1], EA[r, 2]
-            # - (E R^T [p])[r, :] = - x [p] = p x x, x = (E R^T)[r, :3]
-            EA[r, 3] += p[1] * x2 - p[2] * x1
-            EA[r, 4] += p[2] * x0 - p[0] * x2
-            EA[r, 5] += p[0] * x1 - p[1] * x0
+        for r in range(6):  # E Ad^-1, row by row: x^T Ad^-1 = (Ad^-T x)^T
+            put6(EA[r], ad_force(R, p, E[r]))
         for kk in range(6):
             phi_transpose_force(R, p, S, column6(EA, kk), wk, QxT[kk])
     if not blocks_known:

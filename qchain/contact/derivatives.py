@@ -26,9 +26,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._jit import view2, view3
+from .._jit import jit, view2, view3
 from ..algorithms.arrays import ChainArrays
-from .._jit import jit
 from ..model.arc import arc_node, arc_node_derivatives, arc_pose, take1, take2, take3
 from ..model.slices import phi_transpose_force, slice_twist
 from ..model.spatial_kernels import ad_force, add6, force_cross, motion_cross, put6, sub6

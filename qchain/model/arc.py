@@ -48,7 +48,7 @@ import numpy as np
 from .._jit import jit, jit_helper, view2, view3
 from ..checks.convert import as_batch, as_real_array
 from .spatial import _inv_adjoint as inv_adjoint
-from .spatial_kernels import motion_cross
+from .spatial_kernels import ad_inv_twist, motion_cross
 
 __all__ = ["ArcNodes", "arc_nodes", "bend_functions", "strain_twist", "arc_node", "arc_node_bias", "arc_pose", "bend_h",
            "arc_node_derivatives"]
@@ -68,7 +68,6 @@ _NTERMS_H = 16
 _H_COEF = np.array(
     [[(-1) ** k * 2 * k * (2 * k - 2) / factorial(2 * k + n + 1) for k in range(2, _NTERMS_H + 2)] for n in (1, 2)]
 )
-
 
 
 @jit
@@ -224,18 +223,9 @@ def arc_node(alpha, l, ux, uy, ld, uxd, uyd, R, p, S, Sd):
         t1 = motion_cross(xid, eta)  # xid x eta
         t2 = motion_cross(xid, Ae)  # xid x (A eta)
         t3 = motion_cross(xi, t1)  # xi x (xid x eta)
-        # Ad(g)^-1 eta = (-R^T (p x e), R^T e), e = eta[3:]
-        e0, e1, e2 = eta[3], eta[4], eta[5]
-        c0 = p[1] * e2 - p[2] * e1
-        c1 = p[2] * e0 - p[0] * e2
-        c2 = p[0] * e1 - p[1] * e0
-        for r in range(3):
-            lin = -(R[0, r] * c0 + R[1, r] * c1 + R[2, r] * c2)
-            ang = R[0, r] * e0 + R[1, r] * e1 + R[2, r] * e2
-            Sd[r, 1 + i] = alpha * ld * lin - da2 * Ae[r] - a2 * t1[r] + da3 * AAe[r] + a3 * (t2[r] + t3[r])
-            Sd[3 + r, 1 + i] = (
-                alpha * ld * ang - da2 * Ae[3 + r] - a2 * t1[3 + r] + da3 * AAe[3 + r] + a3 * (t2[3 + r] + t3[3 + r])
-            )
+        e = ad_inv_twist(R, p, eta)  # Ad(g)^-1 eta
+        for r in range(6):
+            Sd[r, 1 + i] = alpha * ld * e[r] - da2 * Ae[r] - a2 * t1[r] + da3 * AAe[r] + a3 * (t2[r] + t3[r])
 
 
 @jit

@@ -16,14 +16,15 @@ import numpy as np
 
 from .._jit import jit, jit_helper, jit_inline
 from .arc import SCRATCH, arc_node, arc_node_bias, arc_node_derivatives, take1, take2, take3
-from .spatial_kernels import ad_force, ad_inv_twist, matvec63, motion_cross, put6, sub6, vadd
+from .spatial_kernels import ad_force, ad_inv_twist, column_dot6, matvec63, motion_cross, put6, sub6, vadd
 
 __all__ = ["CHAMBER_ANGLES", "input_matrix_c", "pressure_jacobian_c", "elastic_gradient_c", "elastic_hessian_c",
            "law_gradient_c", "law_hessian_c", "law_energy_c", "rest_damping_c", "domain_violation", "segment_slices", "segment_mass", "segment_newton_euler", "phi_transpose_force", "phi_matrix", "slice_twist"]
 
 
-# The node loops' small helpers (slice_twist, phi_transpose_force, mass_node, mass_finish) are inlined into their callers (``jit_inline``): as calls, passing their array
-# arguments cost about a fifth of a forward-dynamics call (docs/benchmarks/README.md, "Speed of a chain").
+# The node loops' small helpers (slice_twist, phi_transpose_force, mass_node, mass_finish) are
+# inlined into their callers (``jit_inline``): as calls, passing their array arguments cost about
+# a fifth of a forward-dynamics call (docs/benchmarks/README.md, "Speed of a chain").
 @jit_inline
 def slice_twist(R, p, S, V0, qd, out):
     """``out = Ad(g)^-1 V0 + S qd``: the slice body twist (6,) (docs/model.md section 2)."""
@@ -36,9 +37,9 @@ def phi_transpose_force(R, p, S, f, wgt, out):
     # every entry read before any is written: ``out`` may share memory with the arguments as
     # far as the compiler knows, and a store between the reads would make it load them again
     h = ad_force(R, p, f)
-    s0 = S[0, 0] * f[0] + S[1, 0] * f[1] + S[2, 0] * f[2] + S[3, 0] * f[3] + S[4, 0] * f[4] + S[5, 0] * f[5]
-    s1 = S[0, 1] * f[0] + S[1, 1] * f[1] + S[2, 1] * f[2] + S[3, 1] * f[3] + S[4, 1] * f[4] + S[5, 1] * f[5]
-    s2 = S[0, 2] * f[0] + S[1, 2] * f[1] + S[2, 2] * f[2] + S[3, 2] * f[3] + S[4, 2] * f[4] + S[5, 2] * f[5]
+    s0 = column_dot6(S, 0, f)
+    s1 = column_dot6(S, 1, f)
+    s2 = column_dot6(S, 2, f)
     out[0] += wgt * h[0]
     out[1] += wgt * h[1]
     out[2] += wgt * h[2]

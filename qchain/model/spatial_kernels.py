@@ -22,7 +22,7 @@ from __future__ import annotations
 from .._jit import jit_helper
 
 __all__ = ["motion_cross", "force_cross", "ad_twist", "ad_inv_twist", "ad_force", "put6", "add6", "sub6", "vadd",
-           "vsub", "vmul", "column6", "matvec63", "matvec66"]
+           "vsub", "vmul", "column6", "column_dot6", "matvec63", "matvec66"]
 
 
 @jit_helper
@@ -161,6 +161,13 @@ def vmul(d, a):
 def column6(M, c):
     """Column ``c`` of a (6, k) array."""
     return (M[0, c], M[1, c], M[2, c], M[3, c], M[4, c], M[5, c])
+
+
+@jit_helper
+def column_dot6(M, c, t):
+    """``M[:, c] . t`` of a (6, k) array and a 6-vector (a column of ``S`` or ``E`` against a
+    wrench)."""
+    return M[0, c] * t[0] + M[1, c] * t[1] + M[2, c] * t[2] + M[3, c] * t[3] + M[4, c] * t[4] + M[5, c] * t[5]
 
 
 @jit_helper
