@@ -27,6 +27,13 @@ with ``xid = sum_i udot_i eta_i``. Their derivatives use ``d a1/ds = cos x``, ``
 ``h_n(x) = g_n'(x) / x`` (:func:`bend_h`; Taylor series below ``x = 2``, closed form above), so
 nothing divides by the curvature: the straight pose is a regular point here too.
 
+The kernels write these forms out entry by entry: ``xi_u``, ``eta_i`` and ``xid`` have two or
+three nonzero entries, so each product by ``A`` is a few entries (``A xid = (-udot, 0, 0, c)``
+with ``c = ux uyd - uy uxd``, ``A^2 xid = (0, 0, u . udot, c u, 0)``) and ``S``, ``Sd``, ``dS``
+and ``K`` are short polynomials in ``u``, its rates and ``a1, a2, a3``. Six-vector cross
+products would compute every zero (the compiler may not drop ``0 * x``: ``x`` could be
+infinite), several times the arithmetic of a node.
+
 ``tests/test_arc.py`` holds ``g``, ``Ad(g)^-1`` and ``S`` equal to Pinocchio's ``exp6``,
 ``SE3.action`` and ``Jexp6`` to 1e-14, and ``Sdot`` to finite differences;
 ``tests/test_derivatives.py`` holds ``dS`` and ``K`` to central differences of :func:`arc_node`.
@@ -48,7 +55,6 @@ import numpy as np
 from .._jit import jit, jit_helper, view2, view3
 from ..checks.convert import as_batch, as_real_array
 from .spatial import _inv_adjoint as inv_adjoint
-from .spatial_kernels import ad_inv_twist, motion_cross
 
 __all__ = ["ArcNodes", "arc_nodes", "bend_functions", "strain_twist", "arc_node", "arc_node_bias", "arc_pose", "bend_h",
            "arc_node_derivatives"]
@@ -160,34 +166,41 @@ def _node_jacobian(alpha, l, ux, uy, R, p, S):
     return s, a1, a2, a3, g1, g2
 
 
+@jit_helper
+def _rates(alpha, ld, ux, uy, uxd, uyd, s, a1, a2, g1, g2):
+    """The rates the slice's velocity terms are made of: ``(sdot, a2dot, a3dot, ud, c)`` with
+    ``sdot = alpha ldot``, ``a2dot = sdot a1 + s^4 g1 ud`` and ``a3dot = sdot a2 + s^5 g2 ud``
+    (the time derivatives of ``a2``, ``a3``), ``ud = u . udot`` and ``c = ux uyd - uy uxd``
+    (the bend's turning rate times ``kappa^2``)."""
+    sdot = alpha * ld
+    ud = ux * uxd + uy * uyd
+    s4 = s * s * s * s
+    return sdot, sdot * a1 + s4 * g1 * ud, sdot * a2 + s4 * s * g2 * ud, ud, ux * uyd - uy * uxd
+
+
 @jit
 def arc_node_bias(alpha, l, ux, uy, ld, uxd, uyd, R, p, S, sd):
     """:func:`arc_node` with ``sd = Sd qdot`` (6,) in place of ``Sd``: the slice's bias
     acceleration from its own rates, all the passes use of ``Sd``, in closed form (the
-    module docstring's ``Sd(qdot) qdot``: three cross products instead of the 6 x 3 ``Sd``)."""
+    module docstring's ``Sd(qdot) qdot``, written out: with ``A xid = (-udot, 0, 0, c)``,
+    ``A^2 xid = (0, 0, ud, c u, 0)`` and ``xid x (A xid) = (0, 0, |udot|^2, c udot, 0)``)."""
     s, a1, a2, a3, g1, g2 = _node_jacobian(alpha, l, ux, uy, R, p, S)
-    if ld == 0.0 and uxd == 0.0 and uyd == 0.0:
-        for r in range(6):
-            sd[r] = 0.0
-        return
-    s4 = s * s * s * s
-    ud = ux * uxd + uy * uyd
-    da2 = s4 * g1 * ud
-    da3 = s4 * s * g2 * ud
-    xi = (0.0, 0.0, 1.0, -uy, ux, 0.0)
-    xd = (0.0, 0.0, 0.0, -uyd, uxd, 0.0)
-    Ax = motion_cross(xi, xd)
-    AAx = motion_cross(xi, Ax)
-    XAx = motion_cross(xd, Ax)
-    al = alpha * ld
-    for r in range(6):
-        sd[r] = al * (2.0 * xd[r] - a1 * Ax[r] + a2 * AAx[r]) - da2 * Ax[r] + da3 * AAx[r] + a3 * XAx[r]
+    sdot, a2d, a3d, ud, c = _rates(alpha, ld, ux, uy, uxd, uyd, s, a1, a2, g1, g2)
+    sd[0] = a2d * uxd
+    sd[1] = a2d * uyd
+    sd[2] = a3d * ud + a3 * (uxd * uxd + uyd * uyd)
+    sd[3] = c * (a3d * ux + a3 * uxd) - 2.0 * sdot * uyd
+    sd[4] = c * (a3d * uy + a3 * uyd) + 2.0 * sdot * uxd
+    sd[5] = -a2d * c
 
 
 @jit
 def arc_node(alpha, l, ux, uy, ld, uxd, uyd, R, p, S, Sd):
     """Slice kinematics at one node (numba; also callable from Python): ``g(alpha)``, ``S(alpha)``
     and ``dS/dt`` of docs/model.md section 2 (the paper's eq. (1) at ``s = alpha l``).
+
+    ``Sd`` is the time derivative of :func:`_node_jacobian`'s closed form of ``S``, entry by
+    entry (``d a2/dt``, ``d a3/dt`` from :func:`_rates`).
 
     Parameters
     ----------
@@ -200,32 +213,23 @@ def arc_node(alpha, l, ux, uy, ld, uxd, uyd, R, p, S, Sd):
     Sd : (6, 3) out          ``dS/dt`` along ``(ld, uxd, uyd)``.
     """
     s, a1, a2, a3, g1, g2 = _node_jacobian(alpha, l, ux, uy, R, p, S)
-    s2 = s * s
-    ud = ux * uxd + uy * uyd
-    da2 = s2 * s2 * g1 * ud
-    da3 = s2 * s2 * s * g2 * ud
-    xi = (0.0, 0.0, 1.0, -uy, ux, 0.0)
-    xid = (0.0, 0.0, 0.0, -uyd, uxd, 0.0)
-    for r in range(6):
-        Sd[r, 0] = alpha * xid[r]
-    if ld == 0.0 and uxd == 0.0 and uyd == 0.0:  # Sd is linear in the rates: zero, and half the work saved
-        for r in range(6):
-            Sd[r, 1] = 0.0
-            Sd[r, 2] = 0.0
-        return
-    for i in range(2):
-        if i == 0:
-            eta = (0.0, 0.0, 0.0, 0.0, 1.0, 0.0)
-        else:
-            eta = (0.0, 0.0, 0.0, -1.0, 0.0, 0.0)
-        Ae = motion_cross(xi, eta)
-        AAe = motion_cross(xi, Ae)
-        t1 = motion_cross(xid, eta)  # xid x eta
-        t2 = motion_cross(xid, Ae)  # xid x (A eta)
-        t3 = motion_cross(xi, t1)  # xi x (xid x eta)
-        e = ad_inv_twist(R, p, eta)  # Ad(g)^-1 eta
-        for r in range(6):
-            Sd[r, 1 + i] = alpha * ld * e[r] - da2 * Ae[r] - a2 * t1[r] + da3 * AAe[r] + a3 * (t2[r] + t3[r])
+    sdot, a2d, a3d, _, _ = _rates(alpha, ld, ux, uy, uxd, uyd, s, a1, a2, g1, g2)
+    Sd[0, 0], Sd[1, 0], Sd[2, 0] = 0.0, 0.0, 0.0
+    Sd[3, 0], Sd[4, 0], Sd[5, 0] = -alpha * uyd, alpha * uxd, 0.0
+    # S[:, 1] = (a2, 0, a3 ux, -a3 ux uy, s - a3 uy^2, a2 uy)
+    Sd[0, 1] = a2d
+    Sd[1, 1] = 0.0
+    Sd[2, 1] = a3d * ux + a3 * uxd
+    Sd[3, 1] = -(a3d * ux * uy + a3 * (uxd * uy + ux * uyd))
+    Sd[4, 1] = sdot - a3d * uy * uy - 2.0 * a3 * uy * uyd
+    Sd[5, 1] = a2d * uy + a2 * uyd
+    # S[:, 2] = (0, a2, a3 uy, a3 ux^2 - s, a3 ux uy, -a2 ux)
+    Sd[0, 2] = 0.0
+    Sd[1, 2] = a2d
+    Sd[2, 2] = a3d * uy + a3 * uyd
+    Sd[3, 2] = a3d * ux * ux + 2.0 * a3 * ux * uxd - sdot
+    Sd[4, 2] = a3d * ux * uy + a3 * (uxd * uy + ux * uyd)
+    Sd[5, 2] = -(a2d * ux + a2 * uxd)
 
 
 @jit
@@ -255,7 +259,11 @@ def arc_node_derivatives(alpha, l, ux, uy, ld, uxd, uyd, dS, K):
 
     Same arguments as :func:`arc_node` (``alpha``; ``q = (l, ux, uy)`` in m, 1/m;
     ``qdot = (ld, uxd, uyd)``); ``c`` runs over ``l, ux, uy``. Slice body frame,
-    ``[linear; angular]``.
+    ``[linear; angular]``. Both are the derivatives of closed forms, entry by entry:
+    ``dS`` of :func:`_node_jacobian`'s ``S``, ``K`` of :func:`arc_node_bias`'s ``sd``, with the
+    module docstring's derivatives of ``a1, a2, a3`` and of ``s^4 g1``, ``s^5 g2``
+    (``d/ds: 4 s^3 g1 + s^5 kappa^2 h1``, ``5 s^4 g2 + s^6 kappa^2 h2``;
+    ``d/du_i: s^6 h1 u_i``, ``s^7 h2 u_i``).
     """
     s = alpha * l
     k2 = ux * ux + uy * uy
@@ -265,62 +273,62 @@ def arc_node_derivatives(alpha, l, ux, uy, ld, uxd, uyd, dS, K):
     s2 = s * s
     s3 = s2 * s
     s4 = s2 * s2
-    s5 = s4 * s
     a1 = s * f0
     a2 = s2 * f1
     a3 = s3 * f2
     cx = 1.0 - x * x * f1  # cos x from f1 = (1 - cos x) / x^2: no transcendental call per node
-    ud = ux * uxd + uy * uyd
-    u = (ux, uy)
-    udot = (uxd, uyd)
-    xi = (0.0, 0.0, 1.0, -uy, ux, 0.0)
-    xd = (0.0, 0.0, 0.0, -uyd, uxd, 0.0)
-    eta = ((0.0, 0.0, 0.0, 0.0, 1.0, 0.0), (0.0, 0.0, 0.0, -1.0, 0.0, 0.0))
-    # first derivatives of S
+    G1 = s4 * g1  # d a2 / du_i = G1 u_i
+    G2 = s4 * s * g2  # d a3 / du_i = G2 u_i
+    b1 = s3 * g0  # d a1 / du_i = b1 u_i
+    sdot, a2d, a3d, ud, c = _rates(alpha, ld, ux, uy, uxd, uyd, s, a1, a2, g1, g2)
+    qd2 = uxd * uxd + uyd * uyd
+    # dS/dl = alpha dS/ds (d a1/ds = cos x, d a2/ds = a1, d a3/ds = a2); S[:, 0] does not move
     for r in range(6):
         dS[0, r, 0] = 0.0
-    for j in range(2):
-        ej = eta[j]
-        Ae = motion_cross(xi, ej)
-        AAe = motion_cross(xi, Ae)
-        for r in range(6):
-            dS[0, r, 1 + j] = alpha * (ej[r] - a1 * Ae[r] + a2 * AAe[r])
-        for i in range(2):
-            ei = eta[i]
-            EiEj = motion_cross(ei, ej)
-            EiAe = motion_cross(ei, Ae)
-            AEiEj = motion_cross(xi, EiEj)
-            ci2 = s4 * g1 * u[i]
-            ci3 = s5 * g2 * u[i]
-            for r in range(6):
-                dS[1 + i, r, 1 + j] = -ci2 * Ae[r] - a2 * EiEj[r] + ci3 * AAe[r] + a3 * (EiAe[r] + AEiEj[r])
-    for i in range(2):
-        for r in range(6):
-            dS[1 + i, r, 0] = alpha * eta[i][r]
-    # derivatives of Sd(qdot) qdot
-    Ax = motion_cross(xi, xd)
-    AAx = motion_cross(xi, Ax)
-    XAx = motion_cross(xd, Ax)
-    cl_A = -(4.0 * s3 * g1 + s5 * k2 * h1)
-    cl_AA = 5.0 * s4 * g2 + s4 * s2 * k2 * h2
+    dS[0, 0, 1], dS[0, 1, 1], dS[0, 2, 1] = alpha * a1, 0.0, alpha * a2 * ux
+    dS[0, 3, 1], dS[0, 4, 1], dS[0, 5, 1] = -alpha * a2 * ux * uy, alpha * (1.0 - a2 * uy * uy), alpha * a1 * uy
+    dS[0, 0, 2], dS[0, 1, 2], dS[0, 2, 2] = 0.0, alpha * a1, alpha * a2 * uy
+    dS[0, 3, 2], dS[0, 4, 2], dS[0, 5, 2] = alpha * (a2 * ux * ux - 1.0), alpha * a2 * ux * uy, -alpha * a1 * ux
+    # dS/dux, dS/duy: S[:, 0] = alpha (0, 0, 1, -uy, ux, 0)
     for r in range(6):
-        K[0, r] = alpha * (alpha * ld * (-cx * Ax[r] + a1 * AAx[r]) + ud * (cl_A * Ax[r] + cl_AA * AAx[r]) + a2 * XAx[r])
-    for i in range(2):
-        ei = eta[i]
-        Ex = motion_cross(ei, xd)
-        EAx = motion_cross(ei, Ax)
-        AEx = motion_cross(xi, Ex)
-        XEx = motion_cross(xd, Ex)
-        ui = u[i]
-        for r in range(6):
-            K[1 + i, r] = (
-                alpha * ld * (-s3 * g0 * ui * Ax[r] - a1 * Ex[r] + s4 * g1 * ui * AAx[r] + a2 * (EAx[r] + AEx[r]))
-                + udot[i] * (-s4 * g1 * Ax[r] + s5 * g2 * AAx[r])
-                + ud * (-s4 * s2 * h1 * ui * Ax[r] - s4 * g1 * Ex[r] + s5 * s2 * h2 * ui * AAx[r]
-                        + s5 * g2 * (EAx[r] + AEx[r]))
-                + s5 * g2 * ui * XAx[r]
-                + a3 * XEx[r]
-            )
+        dS[1, r, 0] = 0.0
+        dS[2, r, 0] = 0.0
+    dS[1, 4, 0] = alpha
+    dS[2, 3, 0] = -alpha
+    tx = a3 + G2 * ux * ux
+    ty = a3 + G2 * uy * uy
+    gxy = G2 * ux * uy
+    dS[1, 0, 1], dS[1, 1, 1], dS[1, 2, 1] = G1 * ux, 0.0, tx
+    dS[1, 3, 1], dS[1, 4, 1], dS[1, 5, 1] = -uy * tx, -gxy * uy, G1 * ux * uy
+    dS[2, 0, 1], dS[2, 1, 1], dS[2, 2, 1] = G1 * uy, 0.0, gxy
+    dS[2, 3, 1], dS[2, 4, 1], dS[2, 5, 1] = -ux * ty, -uy * (a3 + ty), a2 + G1 * uy * uy
+    dS[1, 0, 2], dS[1, 1, 2], dS[1, 2, 2] = 0.0, G1 * ux, gxy
+    dS[1, 3, 2], dS[1, 4, 2], dS[1, 5, 2] = ux * (a3 + tx), uy * tx, -(a2 + G1 * ux * ux)
+    dS[2, 0, 2], dS[2, 1, 2], dS[2, 2, 2] = 0.0, G1 * uy, ty
+    dS[2, 3, 2], dS[2, 4, 2], dS[2, 5, 2] = gxy * ux, ux * ty, -G1 * ux * uy
+    # K[c] = d sd / dq_c of sd = (a2d udot, a3d ud + a3 |udot|^2, c (a3d u + a3 udot) +
+    # 2 sdot (-uyd, uxd), -a2d c), at fixed rates: dud/du_i = udot_i, dc/du = (uyd, -uxd)
+    for k in range(3):
+        if k == 0:
+            da2d = alpha * (sdot * cx + (4.0 * s3 * g1 + s4 * s * k2 * h1) * ud)
+            da3d = alpha * (sdot * a1 + (5.0 * s4 * g2 + s4 * s2 * k2 * h2) * ud)
+            da3 = alpha * a2
+            dud, dc, dux, duy = 0.0, 0.0, 0.0, 0.0
+        else:
+            ui = ux if k == 1 else uy
+            udi = uxd if k == 1 else uyd
+            da2d = (sdot * b1 + s4 * s2 * h1 * ud) * ui + G1 * udi
+            da3d = (sdot * G1 + s4 * s3 * h2 * ud) * ui + G2 * udi
+            da3 = G2 * ui
+            dud = udi
+            dc = uyd if k == 1 else -uxd
+            dux, duy = (1.0, 0.0) if k == 1 else (0.0, 1.0)
+        K[k, 0] = da2d * uxd
+        K[k, 1] = da2d * uyd
+        K[k, 2] = da3d * ud + a3d * dud + da3 * qd2
+        K[k, 3] = dc * (a3d * ux + a3 * uxd) + c * (da3d * ux + a3d * dux + da3 * uxd)
+        K[k, 4] = dc * (a3d * uy + a3 * uyd) + c * (da3d * uy + a3d * duy + da3 * uyd)
+        K[k, 5] = -(da2d * c + a2d * dc)
 
 
 @jit
