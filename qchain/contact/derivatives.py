@@ -31,7 +31,7 @@ from ..algorithms.arrays import ChainArrays
 from ..model.arc import arc_node, arc_node_derivatives, arc_pose, take1, take2, take3
 from ..model.slices import phi_transpose_force, slice_twist
 from ..model.spatial_kernels import ad_force, add6, force_cross, motion_cross, put6, sub6
-from .distance import BOX, CAPSULE, CYLINDER, HALFSPACE, SPHERE, signed_distance
+from .distance import CAPSULE, CYLINDER, HALFSPACE, SPHERE, signed_distance
 from .forces import ROOT, _keep_root, _mat3, _near_segments, _point, _world_wrench_to_slice, power, start
 
 #: a contact node kept for the self-contact tangent: world rotation (9), point (3), velocity

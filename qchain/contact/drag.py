@@ -38,7 +38,7 @@ import numpy as np
 from .._jit import view2, view3
 from ..algorithms.arrays import ChainArrays
 from .._jit import jit
-from ..model.arc import arc_node, arc_node_derivatives, take1, take2, take3
+from ..model.arc import arc_node, arc_node_derivatives, take1, take2
 from ..model.slices import slice_twist
 from .derivatives import _accumulate, _frame_step
 from .forces import _add_phi_t, _backward, _root_step
