@@ -56,7 +56,7 @@ def test_jacobian_time_derivative_matches_finite_differences(q):
 
 @pytest.mark.parametrize("q", CASES, ids=lambda q: f"q={q.tolist()}")
 def test_bias_kernel_equals_the_jacobian_rate_times_the_rates(q):
-    """``arc_node_bias``'s closed form of ``Sd qdot`` (three cross products) equals the
+    """``arc_node_bias``'s closed form of ``Sd qdot`` (written out entry by entry) equals the
     ``Sdot @ qdot`` of ``arc_nodes`` to 1e-14 of its size, with the same ``R``, ``p``, ``S``
     bit for bit, and is zero at zero rates."""
     rng = np.random.default_rng(5)
