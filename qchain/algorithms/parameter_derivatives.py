@@ -46,8 +46,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .._jit import ejit
-from .._jit import jit, jit_helper
+from .._jit import ejit, jit, jit_helper
 from ..model.arc import take1, take2
 from ..model.slices import _segment_slices, elastic_gradient_c, input_matrix_c, rest_damping_c
 from .aba_derivatives import _aba_derivatives_at, aba_derivatives, aba_derivatives_workspace

@@ -35,9 +35,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._jit import view2, view3
+from .._jit import jit, view2, view3
 from ..algorithms.arrays import ChainArrays
-from .._jit import jit
 from ..model.arc import arc_node, arc_node_derivatives, take1, take2
 from ..model.slices import slice_twist
 from .derivatives import _accumulate, _frame_step

@@ -33,9 +33,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._jit import view2
+from .._jit import jit, view2
 from ..algorithms.arrays import ChainArrays
-from .._jit import jit
 from ..model.arc import arc_node, arc_pose, take1, take2
 from ..model.slices import phi_transpose_force, slice_twist
 from .distance import PARAMS, signed_distance
