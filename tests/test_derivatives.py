@@ -8,7 +8,10 @@ import pytest
 
 from helpers import SEGMENT_KW, rel
 from qchain import Chain, Segment
-from qchain.model.arc import arc_node, arc_node_derivatives, bend_functions, bend_h
+from qchain.algorithms.rnea_derivatives import segment_derivatives
+from qchain.algorithms.slice_derivatives import LANE_SCRATCH, LANES
+from qchain.model.arc import SCRATCH, arc_node, arc_node_derivatives, bend_functions, bend_h
+from qchain.model.slices import segment_slices
 from test_chain import DAMPING_LAWS, law_chain, make_chain, random_state
 
 TOL = 1e-7  # relative (Frobenius); the issue's bound is 1e-6, differences reach ~1e-9
@@ -81,6 +84,37 @@ def test_bend_h_is_the_derivative_of_g_over_x(x):
     assert np.allclose(bend_h(x), ref, rtol=1e-8, atol=0)
 
 
+# ---------------------------------------------------------------- a segment's force, node by node in lanes
+
+
+@pytest.mark.parametrize("nodes", [1, 6, LANES + 9])
+@pytest.mark.parametrize("q", [[0.15, 20.0, -12.0], [0.2, 3.0, 1.0], [0.2, 0.0, 0.0]])
+def test_segment_force_derivatives_match_central_differences(nodes, q, rng):
+    """``dQ/dq`` and ``dQ/dxi`` of one segment (:mod:`qchain.algorithms.slice_derivatives`)
+    against central differences of its slice pass: bends past the series' range (x up to 3.5
+    rad at the tip), the straight pose, and more nodes than a block of lanes holds. The root
+    twist's columns come from ``M_xi`` and node sums (the Euler-Poincare identity), not from
+    the slices' forces: differences of ``Q`` check that identity."""
+    x, wts = np.polynomial.legendre.leggauss(nodes)
+    alpha, w = 0.5 * (x + 1), 0.5 * wts
+    q = np.array(q)
+    xi, xid = rng.normal(size=9), rng.normal(size=9)
+    M, Q, QqT, QxT = np.zeros((9, 9)), np.zeros(9), np.zeros((3, 9)), np.zeros((9, 9))
+    segment_derivatives(alpha, w, 0.3, 0.02, q, xi, xid, M, Q, QqT, QxT, np.zeros(SCRATCH))
+
+    def force(qq, xx, xxd):
+        Mo, Qo = np.zeros((9, 9)), np.zeros(9)
+        segment_slices(alpha, w, 0.3, 0.02, qq, xx, xxd, True, Mo, Qo, np.zeros(SCRATCH))
+        return Qo, Mo
+
+    assert LANE_SCRATCH + 24 <= SCRATCH  # the chain's pass carves 24 floats before the lanes' blocks
+    Q0, M0 = force(q, xi, xid)
+    assert rel(Q, Q0) < 1e-14 and rel(M, M0) < 1e-14
+    assert rel(QqT.T, central(lambda y: force(y, xi, xid)[0], q, 1e-6)) < TOL
+    # quadratic in xi: exact up to rounding at any step
+    assert rel(QxT.T, central(lambda y: force(q, y, xid)[0], xi, 1e-2)) < 1e-10
+
+
 # ---------------------------------------------------------------- inverse dynamics
 
 
@@ -144,6 +178,21 @@ def test_forward_dynamics_derivatives_match_central_differences(coords, base, rn
     assert rel(d.da_dv, central(lambda x: ch.forward_dynamics(q, x, p, tau, t=t), v, 1e-2)) < 1e-9
     assert rel(d.da_dp, central(lambda x: ch.forward_dynamics(q, v, x, tau, t=t), p, 1e3)) < 1e-9
     assert rel(d.da_dtau, central(lambda x: ch.forward_dynamics(q, v, p, x, t=t), tau, 1.0)) < 1e-9
+
+
+@pytest.mark.parametrize("base", ["fixed", "floating"])
+def test_forward_dynamics_derivatives_over_blocks_of_lanes(base, rng):
+    """Seven segments of six nodes: 42 nodes, two blocks of lanes, a segment split between
+    them; two segments bent past the series' range. Against central differences."""
+    ch = Chain([Segment(**{**SEGMENT_KW, "length": 0.2 - 0.01 * j}, damping=0.01) for j in range(7)], base=base)
+    assert sum(s.node_count for s in ch.segments) == 42 > LANES
+    q, v = random_state(ch, rng)
+    for j in (2, 5):
+        q[ch.q_slice(j)][1:] = [14.0, -10.0]  # x = 17.2 l > 2 rad near the tip
+    p = rng.uniform(0, 4e4, ch.nu)
+    d = ch.forward_dynamics_derivatives(q, v, p)
+    assert rel(d.da_dq, central(lambda x: ch.forward_dynamics(x, v, p), q, 1e-6, ch.integrate, ch.nv)) < TOL
+    assert rel(d.da_dv, central(lambda x: ch.forward_dynamics(q, x, p), v, 1e-2)) < 1e-9
 
 
 @pytest.mark.parametrize("base", ["fixed", "floating"])

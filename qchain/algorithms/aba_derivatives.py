@@ -232,14 +232,19 @@ def _derivatives_after(arr, floating, q, qd, p, qdd, A0, a, V0, g_B, ws, wd, wa,
                 for b in range(3):
                     acc += da_dtau[r, i0 + b] * B[j, b, i]
                 da_dp[r, 3 * j + i] = acc
-    # a non-finite entry anywhere (a blow-up) is reported, never returned silently
+    # a non-finite entry anywhere (a blow-up) is reported, never returned silently: x * 0 is
+    # 0 for a finite x and NaN otherwise, summed column by column into a row of rhs (free now;
+    # a loop along rows with no exit and no scalar sum, which the compiler vectorises)
+    z = rhs[0]
+    for c in range(nv):
+        z[c] = a[c] * 0.0
     for r in range(nv):
-        if not np.isfinite(a[r]):
-            return 3
         for c in range(nv):
-            if not (np.isfinite(da_dq[r, c]) and np.isfinite(da_dv[r, c]) and np.isfinite(da_dtau[r, c])):
-                return 3
-        for c in range(da_dp.shape[1]):
-            if not np.isfinite(da_dp[r, c]):
-                return 3
+            z[c] += da_dq[r, c] * 0.0 + da_dv[r, c] * 0.0 + da_dtau[r, c] * 0.0
+    for r in range(nv):
+        for c in range(da_dp.shape[1]):  # 3n <= nv columns
+            z[c] += da_dp[r, c] * 0.0
+    for c in range(nv):
+        if not np.isfinite(z[c]):
+            return 3
     return 0

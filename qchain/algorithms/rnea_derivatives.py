@@ -5,13 +5,13 @@ Everything is in curvature coordinates ``(l, ux, uy)`` and uses the layout of
 :mod:`qchain.algorithms.recursive` (the model's :class:`~qchain.algorithms.arrays.ChainArrays` ``arr``; ``q, qd, qdd`` (n, 3); the first root's
 twist ``V0`` and apparent acceleration ``A0 = a_root - (g_root, 0)``).
 
-Per segment (root frame ``j``), one pass over the slices gives the generalised force
-``Q_j = int Phi^T (I a + V x* I V)`` of :mod:`qchain.model.slices` and its derivatives at fixed root
-twist ``V_j`` and acceleration ``A_j``: ``dQ/dq_j`` (the slices move: ``dV = -S_c x V_r + dS_c
-qdot``, ``da = -S_c x A_r + dS_c qddot + K_c - (dS_c qdot) x V_r + (S qdot) x (S_c x V_r)``,
-with ``dS`` and ``K`` from :func:`qchain.model.arc.arc_node_derivatives`) and ``dQ/dxi_j`` (``dV = Phi``,
-``da = [-(S qdot) x Ad^-1, 2 Sd - S_c x V]``); the tip (slice ``alpha = 1``) gives the same
-variations of the next root's twist and acceleration.
+Per segment (root frame ``j``): the generalised force ``Q_j = int Phi^T (I a + V x* I V)`` of
+:mod:`qchain.model.slices` and ``M_xi`` (from the articulated-body pass when it has just
+computed them), then the derivatives of every ``Q_j`` at fixed root twist ``V_j`` and
+acceleration ``A_j``, ``dQ/dq_j`` and ``dQ/dxi_j``, all nodes of the chain at once
+(:mod:`qchain.algorithms.slice_derivatives`, once the roots' twists and accelerations are
+known); the tip (slice ``alpha = 1``) gives the variations of the next root's twist and
+acceleration with the same slice variations.
 
 The chain then needs no per-column sweep. Backwards from the tip, the subtree beyond root
 ``j`` has wrench/force sensitivities ``d(F_j, tau_j)/dA_j = Mh_j[:, :6]`` (the composite
@@ -40,11 +40,10 @@ from __future__ import annotations
 import numpy as np
 
 from .._jit import jit, jit_helper, jit_inline, jit_pass
-from ..model.arc import arc_node, arc_node_derivatives, take1, take2, take3
-from ..model.slices import (
-    law_hessian_c, mass_finish, mass_node, phi_matrix, phi_transpose_force, pressure_jacobian_c)
-from ..model.spatial_kernels import (ad_force, ad_inv_twist, ad_twist, column6, column_dot6, force_cross, matvec63,
-                                     matvec66, motion_cross, put6, vadd, vmul, vsub)
+from ..model.arc import take1, take2
+from ..model.slices import _segment_slices, law_hessian_c, phi_matrix, pressure_jacobian_c
+from ..model.spatial_kernels import ad_force, ad_twist, force_cross, motion_cross, put6, vadd, vsub
+from .slice_derivatives import bend_values, node_state, q_variation, qd_variation, segment_columns, slice_kinematics
 from .arrays import AbaWorkspace, ChainArrays, RneaWorkspace
 from .recursive import _load_xi, payload_wrench
 from .recursive import _project as recursive_project
@@ -53,189 +52,18 @@ __all__ = ["segment_derivatives", "tip_derivatives", "rnea_derivatives", "rnea_w
            "internal_forces_derivatives"]
 
 
-@jit_helper
-def _force_variation(Id, V, hV, dV, da):
-    """``I da + dV x* (I V) + V x* (I dV)`` (6-tuple): the slice force's variation
-    (``I = diag(Id)``, ``hV = I V``)."""
-    return vadd(vadd(force_cross(dV, hV), vmul(Id, da)), force_cross(V, vmul(Id, dV)))
-
-
-@jit_helper
-def _node_state(R, p, S, Sd, V0, A0, qd, qdd):
-    """``(Vr, Ar, rel, V, a)`` (6-tuples) at a node whose kinematics ``R, p, S, Sd`` are known:
-    ``Vr = Ad^-1 V0``, ``Ar = Ad^-1 A0``, ``rel = S qdot``, the slice twist ``V = Vr + rel`` and
-    acceleration ``a = Ar + S qddot + Sd qdot - rel x Vr``."""
-    Vr = ad_inv_twist(R, p, V0)
-    Ar = ad_inv_twist(R, p, A0)
-    rel = matvec63(S, qd)
-    a = vsub(vadd(vadd(Ar, matvec63(S, qdd)), matvec63(Sd, qd)), motion_cross(rel, Vr))
-    return Vr, Ar, rel, vadd(Vr, rel), a
-
-
-@jit_helper
-def _q_variation(c, S, dS, K, qd, qdd, Vr, Ar, rel):
-    """``(dV, da)`` (6-tuples) of a slice for a unit change of ``q_c`` (fixed root twist and
-    acceleration): ``dV = dS_c qdot - S_c x Vr``, ``da = rel x (S_c x Vr) + K_c + dS_c qddot -
-    (dS_c qdot) x Vr - S_c x Ar``."""
-    Sc = column6(S, c)
-    dSq = matvec63(dS[c], qd)
-    t1 = motion_cross(Sc, Vr)
-    da = vadd(vadd(motion_cross(rel, t1), K[c]), matvec63(dS[c], qdd))
-    da = vsub(vsub(da, motion_cross(dSq, Vr)), motion_cross(Sc, Ar))
-    return vsub(dSq, t1), da
-
-
-@jit_helper
-def _qd_variation(c, S, Sd, V):
-    """``(dV, da)`` (6-tuples) of a slice for a unit change of ``qdot_c``: ``S_c`` and
-    ``2 Sd_c - S_c x V``."""
-    Sc = column6(S, c)
-    Sdc = column6(Sd, c)
-    return Sc, vsub(vadd(Sdc, Sdc), motion_cross(Sc, V))
-
-
 @jit
 def segment_derivatives(alpha, w, mass, radius, q, xi, xid, M, Q, QqT, QxT, sc):
     """``Q = int Phi^T (I a + V x* I V) dalpha`` (9,) of one segment, ``M = M_xi`` (9, 9) and
-    the derivatives of ``Q``, in one pass over the nodes (as :func:`qchain.model.slices.segment_slices`).
-
-    ``QqT[c]`` (3, 9) ``= dQ/dq_c`` at fixed ``xi = (V_root, qdot)`` and ``xid = (A_root,
-    qddot)``; ``QxT[k]`` (9, 9) ``= dQ/dxi_k`` at fixed ``xid`` (``dQ/dxid = M_xi``).
+    the derivatives of ``Q`` (:mod:`qchain.algorithms.slice_derivatives`): ``QqT[c]`` (3, 9)
+    ``= dQ/dq_c`` at fixed ``xi = (V_root, qdot)`` and ``xid = (A_root, qddot)``; ``QxT[k]``
+    (9, 9) ``= dQ/dxi_k`` at fixed ``xid`` (``dQ/dxid = M_xi``). ``sc``: scratch of
+    :data:`qchain.model.arc.SCRATCH` floats.
     """
-    _segment_derivatives(alpha, w, mass, radius, q, xi, xid, M, Q, QqT, QxT, sc)
-
-
-@jit_helper
-def _segment_derivatives(alpha, w, mass, radius, q, xi, xid, M, Q, QqT, QxT, sc, blocks_known=False):
-    """:func:`segment_derivatives`, the body the kernels call: compiled into them, without a
-    Python entry point (:data:`qchain._jit.jit_helper`). With ``blocks_known``, ``M`` already
-    holds ``M_xi`` at this ``q`` and ``Q`` the bias force ``Q(xid = 0)`` at this ``xi`` (the
-    articulated-body pass just wrote them): ``M`` is left as it is and ``Q += M xid`` (``Q`` is
-    linear in ``xid``), so the nodes' inertia and force sums are not done twice."""
-    o = 0
-    R, o = take2(sc, o, 3, 3)
-    p, o = take1(sc, o, 3)
-    S, o = take2(sc, o, 6, 3)
-    Sd, o = take2(sc, o, 6, 3)
-    dS, o = take3(sc, o, 3, 6, 3)
-    K, o = take2(sc, o, 3, 6)
-    t1, o = take1(sc, o, 6)
-    E, o = take2(sc, o, 6, 6)
-    EA, o = take2(sc, o, 6, 6)
-    ixx = 0.25 * mass * radius * radius
-    Id, o = take1(sc, o, 6)
-    Id[:3] = mass
-    Id[3] = Id[4] = ixx
-    Id[5] = 2.0 * ixx
-    V0 = xi[:6]
-    qd = xi[6:]
-    A0 = xid[:6]
-    qdd = xid[6:]
-    QqT[:, :] = 0.0
-    QxT[:, :] = 0.0
-    if blocks_known:
-        for r in range(9):
-            acc = 0.0
-            for k in range(9):
-                acc += M[r, k] * xid[k]
-            Q[r] += acc
-    else:
-        M[:, :] = 0.0
-        Q[:] = 0.0
-    mp, o = take1(sc, o, 3)
-    mp[:] = 0.0
-    Irot, o = take2(sc, o, 3, 3)
-    Irot[:, :] = 0.0
-    wsum = 0.0
-    for k in range(alpha.shape[0]):
-        wk = w[k]
-        wsum += wk
-        arc_node(alpha[k], q[0], q[1], q[2], qd[0], qd[1], qd[2], R, p, S, Sd)
-        arc_node_derivatives(alpha[k], q[0], q[1], q[2], qd[0], qd[1], qd[2], dS, K)
-        Vr, Ar, rel, V, a = _node_state(R, p, S, Sd, V0, A0, qd, qdd)
-        hV = vmul(Id, V)
-        f = vadd(force_cross(V, hV), vmul(Id, a))
-        if not blocks_known:
-            phi_transpose_force(R, p, S, f, wk, Q)
-            mass_node(R, p, S, Id, wk, M, mp, Irot, t1)
-        for c in range(3):
-            dV, da = _q_variation(c, S, dS, K, qd, qdd, Vr, Ar, rel)
-            # d(Phi^T f) = Phi^T df + [Ad^-T (S_c x* f); dS_c^T f]
-            Sf = force_cross(column6(S, c), f)
-            phi_transpose_force(R, p, S, vadd(_force_variation(Id, V, hV, dV, da), Sf), wk, QqT[c])
-            dSc = dS[c]
-            for cc in range(3):
-                QqT[c, 6 + cc] += wk * (column_dot6(dSc, cc, f) - column_dot6(S, cc, Sf))
-        # velocity columns through E = d f / d V_slice at fixed root acceleration:
-        # E = (I V) x*bar + (V x*) I - I ad(rel); root twist: df = E Ad^-1; qdot_c: df = E S_c +
-        # I (2 Sd_c - S_c x (V + rel))
-        _velocity_force_matrix(Id, V, hV, rel, E)
-        Vp = vadd(V, rel)
-        for c in range(3):
-            # S_c, and 2 Sd_c - S_c x (V + rel): the acceleration's change, as _qd_variation's with V + rel
-            Sc, da = _qd_variation(c, S, Sd, Vp)
-            phi_transpose_force(R, p, S, vadd(vmul(Id, da), matvec66(E, Sc)), wk, QxT[6 + c])
-        for r in range(6):  # E Ad^-1, row by row: x^T Ad^-1 = (Ad^-T x)^T
-            put6(EA[r], ad_force(R, p, E[r]))
-        for kk in range(6):
-            phi_transpose_force(R, p, S, column6(EA, kk), wk, QxT[kk])
-    if not blocks_known:
-        mass_finish(M, mp, Irot, mass * wsum)
-
-
-@jit_helper
-def _velocity_force_matrix(Id, V, hV, rel, E):
-    """``E = d f / d V`` (6, 6) of a slice force ``f = I a + V x* I V`` whose acceleration moves
-    with its twist as ``da = -rel x dV``: ``[I V] x*bar + [V x*] I - I ad(rel)``."""
-    for r in range(6):
-        for c in range(6):
-            E[r, c] = 0.0
-    # [h] x*bar: a -> a x* h = [[0, -[f]], [-[f], -[n]]] a
-    f0, f1, f2, n0, n1, n2 = hV[0], hV[1], hV[2], hV[3], hV[4], hV[5]
-    _add_skew(E, 0, 3, f0, f1, f2, -1.0)
-    _add_skew(E, 3, 0, f0, f1, f2, -1.0)
-    _add_skew(E, 3, 3, n0, n1, n2, -1.0)
-    # [V x*] I = [[w^, 0], [v^, w^]] diag(Id)
-    _add_skew_cols(E, 0, 0, V[3], V[4], V[5], Id, 0)
-    _add_skew_cols(E, 3, 3, V[3], V[4], V[5], Id, 3)
-    _add_skew_cols(E, 3, 0, V[0], V[1], V[2], Id, 0)
-    # - I ad(rel) = - diag(Id) [[wr^, vr^], [0, wr^]]
-    _add_skew_rows(E, 0, 0, rel[3], rel[4], rel[5], Id, 0)
-    _add_skew_rows(E, 0, 3, rel[0], rel[1], rel[2], Id, 0)
-    _add_skew_rows(E, 3, 3, rel[3], rel[4], rel[5], Id, 3)
-
-
-@jit_helper
-def _add_skew(E, r0, c0, x, y, z, scale):
-    """``E[r0:r0+3, c0:c0+3] += scale [(x, y, z)]x``."""
-    E[r0, c0 + 1] -= scale * z
-    E[r0, c0 + 2] += scale * y
-    E[r0 + 1, c0] += scale * z
-    E[r0 + 1, c0 + 2] -= scale * x
-    E[r0 + 2, c0] -= scale * y
-    E[r0 + 2, c0 + 1] += scale * x
-
-
-@jit_helper
-def _add_skew_cols(E, r0, c0, x, y, z, Id, i0):
-    """``E[r0:r0+3, c0:c0+3] += [(x, y, z)]x diag(Id[i0:i0+3])``."""
-    E[r0, c0 + 1] -= z * Id[i0 + 1]
-    E[r0, c0 + 2] += y * Id[i0 + 2]
-    E[r0 + 1, c0] += z * Id[i0]
-    E[r0 + 1, c0 + 2] -= x * Id[i0 + 2]
-    E[r0 + 2, c0] -= y * Id[i0]
-    E[r0 + 2, c0 + 1] += x * Id[i0 + 1]
-
-
-@jit_helper
-def _add_skew_rows(E, r0, c0, x, y, z, Id, i0):
-    """``E[r0:r0+3, c0:c0+3] -= diag(Id[i0:i0+3]) [(x, y, z)]x``."""
-    E[r0, c0 + 1] += z * Id[i0]
-    E[r0, c0 + 2] -= y * Id[i0]
-    E[r0 + 1, c0] -= z * Id[i0 + 1]
-    E[r0 + 1, c0 + 2] += x * Id[i0 + 1]
-    E[r0 + 2, c0] += y * Id[i0 + 2]
-    E[r0 + 2, c0 + 1] -= x * Id[i0 + 2]
+    _segment_slices(alpha, w, mass, radius, q, xi, xid, True, M, Q, sc)
+    segment_columns(alpha, w, np.array([0, alpha.shape[0]]), np.array([mass]), np.array([radius]), q.reshape((1, 3)),
+                    xi[6:].reshape((1, 3)), xid[6:].reshape((1, 3)), xi[:6].reshape((1, 6)), xid[:6].reshape((1, 6)),
+                    M.reshape((1, 9, 9)), QqT.reshape((1, 3, 9)), QxT.reshape((1, 9, 9)), sc)
 
 
 @jit
@@ -254,24 +82,42 @@ def tip_derivatives(q, qd, qdd, V0, A0, T, R1, p1, V1, A1, rel1, tipV, tipA, dS1
 def _tip_derivatives(q, qd, qdd, V0, A0, T, R1, p1, V1, A1, rel1, tipV, tipA, dS1, sc):
     """:func:`tip_derivatives`, the body the kernels call: compiled into them, without a
     Python entry point (:data:`qchain._jit.jit_helper`)."""
-    o = 0
-    S, o = take2(sc, o, 6, 3)
-    Sd, o = take2(sc, o, 6, 3)
-    K, o = take2(sc, o, 3, 6)
-    arc_node(1.0, q[0], q[1], q[2], qd[0], qd[1], qd[2], R1, p1, S, Sd)
-    arc_node_derivatives(1.0, q[0], q[1], q[2], qd[0], qd[1], qd[2], dS1, K)
-    phi_matrix(R1, p1, S, T)
-    Vr, Ar, rel, V, a = _node_state(R1, p1, S, Sd, V0, A0, qd, qdd)
+    S_, o = take2(sc, 0, 6, 3)
+    R, p, S, Sd, dS, K = slice_kinematics(1.0, q[0], q[1], q[2], qd[0], qd[1], qd[2], bend_values(1.0, q[0], q[1], q[2]))
+    for r in range(3):
+        p1[r] = p[r]
+        for c in range(3):
+            R1[r, c] = R[r][c]
+    for c in range(3):
+        for r in range(6):
+            S_[r, c] = S[c][r]
+            dS1[0, r, c] = dS[0][c][r]
+            dS1[1, r, c] = dS[1][c][r]
+            dS1[2, r, c] = dS[2][c][r]
+    phi_matrix(R1, p1, S_, T)
+    Vr, Ar, rel, V, a = node_state(R, p, S, Sd, V0, A0, qd, qdd)
     put6(rel1, rel)
     put6(V1, V)
     put6(A1, a)
-    for c in range(3):
-        dV, da = _q_variation(c, S, dS1, K, qd, qdd, Vr, Ar, rel)
-        put6(tipV[c], dV)
-        put6(tipA[c], da)
-        dV, da = _qd_variation(c, S, Sd, V)
-        put6(tipV[3 + c], dV)
-        put6(tipA[3 + c], da)
+    # literal indices: a tuple indexed by a loop variable is copied to memory first
+    dV, da = q_variation(S[0], dS[0], K[0], qd, qdd, Vr, Ar, rel)
+    put6(tipV[0], dV)
+    put6(tipA[0], da)
+    dV, da = q_variation(S[1], dS[1], K[1], qd, qdd, Vr, Ar, rel)
+    put6(tipV[1], dV)
+    put6(tipA[1], da)
+    dV, da = q_variation(S[2], dS[2], K[2], qd, qdd, Vr, Ar, rel)
+    put6(tipV[2], dV)
+    put6(tipA[2], da)
+    dV, da = qd_variation(S[0], Sd[0], V)
+    put6(tipV[3], dV)
+    put6(tipA[3], da)
+    dV, da = qd_variation(S[1], Sd[1], V)
+    put6(tipV[4], dV)
+    put6(tipA[4], da)
+    dV, da = qd_variation(S[2], Sd[2], V)
+    put6(tipV[5], dV)
+    put6(tipA[5], da)
 
 
 #: Names of :func:`rnea_workspace`'s arrays (``Data`` attributes), in order.
@@ -284,8 +130,8 @@ def rnea_workspace(n, nv):
     outputs ``tau_c`` (n, 3), ``F0`` (6,), ``M``, ``dtau_dq``, ``dtau_dv`` (nv, nv)."""
     return RneaWorkspace(np.zeros((n + 1, 6)), np.zeros((n + 1, 3, 3)), np.zeros((n + 1, 3)), np.zeros((n, 3, 9)),
                          np.zeros((n, 9, 9)), np.zeros((n, 6)), np.zeros((n, 6, 6)), np.zeros((n, 6, 6)),
-                         np.zeros((n, 3, 6, 3)), np.zeros((n, 6, 6)), np.zeros((n, 3, 6)), np.zeros((n, 3, 6)),
-                         np.zeros((n, 3, 6)), np.zeros((n, 3, 6)), np.zeros((n, 6, 6)), np.zeros((n, 6, 6)),
+                         np.zeros((n, 3, 6, 3)), np.zeros((6, 2, 3 * n)), np.zeros((n, 3, 6)), np.zeros((n, 3, 6)),
+                         np.zeros((6, 1, 3 * n)), np.zeros((n, 3, 6)), np.zeros((6, 2, 3 * n)), np.zeros((6, 2, 3 * n)),
                          np.zeros((n, 3)), np.zeros(6), np.zeros((nv, nv)), np.zeros((nv, nv)), np.zeros((nv, nv)))
 
 
@@ -374,10 +220,12 @@ def _payload_blocks(P, V, A, F, Ic, WF, sc):
 @jit_inline
 def _forward_pass(alpha, w, offs, mass, radius, q, qd, qdd, V0, A0, V, T, Q, Mxi, A, Rw, pw, QqT, QxT, rel1, tipV,
                   tipA, dS1, R1, p1, xi, xid, sc, blocks_known):
-    """Root to tip: every segment's ``Q``, ``M_xi`` and their derivatives
-    (:func:`segment_derivatives`), its tip and the tip's variations (:func:`tip_derivatives`),
-    the roots' twists ``V``, accelerations ``A`` and placements ``Rw, pw`` in the first root's
-    frame. ``R1`` (3, 3), ``p1`` (3,), ``xi``, ``xid`` (9,) and ``sc`` are scratch."""
+    """Root to tip: every segment's ``Q`` and ``M_xi`` (with ``blocks_known`` only ``Q +=
+    M_xi xid``), its tip and the tip's variations (:func:`tip_derivatives`), the roots' twists
+    ``V``, accelerations ``A`` and placements ``Rw, pw`` in the first root's frame; then every
+    node at once, the derivatives of every ``Q``
+    (:func:`qchain.algorithms.slice_derivatives.segment_columns`). ``R1`` (3, 3), ``p1`` (3,),
+    ``xi``, ``xid`` (9,) and ``sc`` are scratch."""
     for r in range(6):
         V[0, r] = V0[r]
         A[0, r] = A0[r]
@@ -388,9 +236,15 @@ def _forward_pass(alpha, w, offs, mass, radius, q, qd, qdd, V0, A0, V, T, Q, Mxi
     for j in range(q.shape[0]):
         _load_xi(xi, V[j], qd[j])
         _load_xi(xid, A[j], qdd[j])
-        a0, a1 = offs[j], offs[j + 1]
-        _segment_derivatives(alpha[a0:a1], w[a0:a1], mass[j], radius[j], q[j], xi, xid, Mxi[j], Q[j], QqT[j], QxT[j],
-                             sc, blocks_known)
+        if blocks_known:  # Q is linear in xid
+            for r in range(9):
+                acc = 0.0
+                for k in range(9):
+                    acc += Mxi[j, r, k] * xid[k]
+                Q[j, r] += acc
+        else:
+            a0, a1 = offs[j], offs[j + 1]
+            _segment_slices(alpha[a0:a1], w[a0:a1], mass[j], radius[j], q[j], xi, xid, True, Mxi[j], Q[j], sc)
         _tip_derivatives(q[j], qd[j], qdd[j], V[j], A[j], T[j], R1, p1, V[j + 1], A[j + 1], rel1[j], tipV[j],
                          tipA[j], dS1[j], sc)
         for r in range(3):
@@ -399,6 +253,7 @@ def _forward_pass(alpha, w, offs, mass, radius, q, qd, qdd, V0, A0, V, T, Q, Mxi
                 acc += Rw[j, r, s] * p1[s]
                 Rw[j + 1, r, s] = Rw[j, r, 0] * R1[0, s] + Rw[j, r, 1] * R1[1, s] + Rw[j, r, 2] * R1[2, s]
             pw[j + 1, r] = acc
+    segment_columns(alpha, w, offs, mass, radius, q, qd, qdd, V, A, Mxi, QqT, QxT, sc)
 
 
 @jit_inline
@@ -439,7 +294,7 @@ def _backward_pass(n, off, V, T, Q, Mxi, Rw, pw, QqT, QxT, rel1, tipV, tipA, dS1
                     dq[i0 + b, i0 + col] = D[col, 6 + b]
                 else:
                     dv[i0 + b, i0 + col - 3] = D[col, 6 + b]
-            put6(G[j, col], ad_force(Rw[j], pw[j], D[col, :6]))
+            _put_column6(G, col // 3, 3 * j + col % 3, ad_force(Rw[j], pw[j], D[col, :6]))
         # world-frame rows of the subtree sensitivities and the composite columns of M
         for b in range(3):
             for r in range(6):
@@ -451,7 +306,7 @@ def _backward_pass(n, off, V, T, Q, Mxi, Rw, pw, QqT, QxT, rel1, tipV, tipA, dS1
             put6(Yv[j, b], ad_force(Rw[j], pw[j], t2))
             for r in range(6):
                 t1[r] = Mh[r, 6 + b]
-            put6(Ms[j, b], ad_force(Rw[j], pw[j], t1))
+            _put_column6(Ms, 0, 3 * j + b, ad_force(Rw[j], pw[j], t1))
             for a in range(3):
                 M[i0 + a, i0 + b] = Mh[6 + a, 6 + b]
             for r in range(6):
@@ -459,11 +314,10 @@ def _backward_pass(n, off, V, T, Q, Mxi, Rw, pw, QqT, QxT, rel1, tipV, tipA, dS1
             put6(Jw[j, b], ad_twist(Rw[j + 1], pw[j + 1], t2))
         put6(vW, ad_twist(Rw[j + 1], pw[j + 1], V[j + 1]))
         for col in range(6):
-            put6(sig1[j, col], ad_twist(Rw[j + 1], pw[j + 1], tipV[j, col]))
-            put6(sig2[j, col], ad_twist(Rw[j + 1], pw[j + 1], tipA[j, col]))
-            put6(t1, motion_cross(sig1[j, col], vW))
-            for r in range(6):
-                sig2[j, col, r] -= t1[r]
+            s1 = ad_twist(Rw[j + 1], pw[j + 1], tipV[j, col])
+            _put_column6(sig1, col // 3, 3 * j + col % 3, s1)
+            _put_column6(sig2, col // 3, 3 * j + col % 3,
+                         vsub(ad_twist(Rw[j + 1], pw[j + 1], tipA[j, col]), motion_cross(s1, vW)))
         # move one root inwards
         for r in range(6):
             F[r] = Q[j, r] + TF[r]
@@ -535,43 +389,50 @@ def _segment_columns(Tj, QqT, QxT, dS1, tipV, tipA, F, Ic, WF, D, dF, t1, t2):
             D[col, k] += acc
 
 
+@jit_helper
+def _put_column6(X, h, c, t):
+    """``X[:, h, c] = t`` of a (6, 2, k) or (6, 1, k) array and a 6-tuple: a column of the
+    tables :func:`_assemble` reads along their last index."""
+    X[0, h, c] = t[0]
+    X[1, h, c] = t[1]
+    X[2, h, c] = t[2]
+    X[3, h, c] = t[3]
+    X[4, h, c] = t[4]
+    X[5, h, c] = t[5]
+
+
 @jit_inline
 def _assemble(n, off, G, Ya, Yv, Ms, Jw, sig1, sig2, M, dq, dv):
-    """The blocks between segments, O(n^2) small products: for ``i > m`` a variation of segment
-    ``m`` moves segment ``i`` rigidly (``dtau_i = Ya_i sig2_m + Yv_i sig1_m``), for ``i < m`` it
-    changes the wrench at root ``m`` (``dtau_i = J_i^T G_m``); ``M``'s off-diagonal blocks
-    ``J_i^T Ms_m``."""
+    """The blocks between segments, O(n^2) 6-long dot products: for ``i > m`` a variation of
+    segment ``m`` moves segment ``i`` rigidly (``dtau_i = Ya_i sig2_m + Yv_i sig1_m``), for
+    ``i < m`` it changes the wrench at root ``m`` (``dtau_i = J_i^T G_m``); ``M``'s
+    off-diagonal blocks ``J_i^T Ms_m``. ``G``, ``sig1``, ``sig2`` (6, 2, 3n) and ``Ms`` (6, 1,
+    3n) hold their columns along the last index (``[:, 0]`` the configuration's, ``[:, 1]`` the
+    rates'), so that each row of a result is a few scaled rows of them, which the compiler
+    vectorises; one loop an output (a loop writing several arrays is left scalar)."""
     for i in range(n):
-        ri = off + 3 * i
-        for m in range(i):  # m < i: segment i moves rigidly
-            cm = off + 3 * m
-            for b in range(3):
-                for col in range(3):
-                    accq = 0.0
-                    accv = 0.0
-                    for r in range(6):
-                        accq += Ya[i, b, r] * sig2[m, col, r] + Yv[i, b, r] * sig1[m, col, r]
-                        accv += Ya[i, b, r] * sig2[m, 3 + col, r] + Yv[i, b, r] * sig1[m, 3 + col, r]
-                    dq[ri + b, cm + col] = accq
-                    dv[ri + b, cm + col] = accv
-        for m in range(i + 1, n):  # m > i: the wrench at root m changes
-            cm = off + 3 * m
-            for b in range(3):
-                for col in range(3):
-                    accq = 0.0
-                    accv = 0.0
-                    for r in range(6):
-                        accq += Jw[i, b, r] * G[m, col, r]
-                        accv += Jw[i, b, r] * G[m, 3 + col, r]
-                    dq[ri + b, cm + col] = accq
-                    dv[ri + b, cm + col] = accv
-            for a in range(3):
-                for b in range(3):
-                    acc = 0.0
-                    for r in range(6):
-                        acc += Jw[i, a, r] * Ms[m, b, r]
-                    M[ri + a, cm + b] = acc
-                    M[cm + b, ri + a] = acc
+        for b in range(3):
+            ri = off + 3 * i + b
+            a0, a1, a2, a3, a4, a5 = Ya[i, b, 0], Ya[i, b, 1], Ya[i, b, 2], Ya[i, b, 3], Ya[i, b, 4], Ya[i, b, 5]
+            v0, v1, v2, v3, v4, v5 = Yv[i, b, 0], Yv[i, b, 1], Yv[i, b, 2], Yv[i, b, 3], Yv[i, b, 4], Yv[i, b, 5]
+            for h in range(2):
+                out = dq[ri] if h == 0 else dv[ri]
+                for c in range(3 * i):  # m < i: segment i moves rigidly
+                    out[off + c] = (a0 * sig2[0, h, c] + a1 * sig2[1, h, c] + a2 * sig2[2, h, c] + a3 * sig2[3, h, c]
+                                    + a4 * sig2[4, h, c] + a5 * sig2[5, h, c] + v0 * sig1[0, h, c]
+                                    + v1 * sig1[1, h, c] + v2 * sig1[2, h, c] + v3 * sig1[3, h, c]
+                                    + v4 * sig1[4, h, c] + v5 * sig1[5, h, c])
+            j0, j1, j2, j3, j4, j5 = Jw[i, b, 0], Jw[i, b, 1], Jw[i, b, 2], Jw[i, b, 3], Jw[i, b, 4], Jw[i, b, 5]
+            for h in range(3):
+                out = dq[ri] if h == 0 else (dv[ri] if h == 1 else M[ri])
+                X = Ms if h == 2 else G
+                hh = 0 if h == 2 else h
+                for c in range(3 * i + 3, 3 * n):  # m > i: the wrench at root m changes
+                    out[off + c] = (j0 * X[0, hh, c] + j1 * X[1, hh, c] + j2 * X[2, hh, c] + j3 * X[3, hh, c]
+                                    + j4 * X[4, hh, c] + j5 * X[5, hh, c])
+    for r in range(off, off + 3 * n):  # M is symmetric
+        for c in range(r - (r - off) % 3 + 3, off + 3 * n):
+            M[c, r] = M[r, c]
 
 
 @jit_inline
@@ -588,13 +449,13 @@ def _floating_base(n, off, V0, g_B, G, Ya, Yv, Ms, M, dq, dv, Ic, WF, sc):
         for col in range(6):
             for r in range(6):
                 if col < 3:
-                    dq[r, cm + col] = G[m, col, r]
+                    dq[r, cm + col] = G[r, 0, 3 * m + col]
                 else:
-                    dv[r, cm + col - 3] = G[m, col, r]
+                    dv[r, cm + col - 3] = G[r, 1, 3 * m + col - 3]
         for b in range(3):
             for r in range(6):
-                M[r, cm + b] = Ms[m, b, r]
-                M[cm + b, r] = Ms[m, b, r]
+                M[r, cm + b] = Ms[r, 0, 3 * m + b]
+                M[cm + b, r] = Ms[r, 0, 3 * m + b]
     for r in range(6):
         for s in range(6):
             M[r, s] = Ic[r, s]

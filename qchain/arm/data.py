@@ -21,9 +21,10 @@ root frame of segment ``j``, ``root 0`` the base; ``[linear; angular]``; SI unit
 ``QqT, QxT``         (n, 3, 9), (n, 9, 9)  their derivatives by ``q_j`` and ``xi_j`` (first index)
 ``tipV, tipA``       (n, 6, 6)          variations of the next root's twist, acceleration
 ``dS1``              (n, 3, 6, 3)       ``dS_j(1)/dq``
-``G, sig1, sig2``    (n, 6, 6)          per-column wrench and twist variations (root 0)
-``Ya, Yv, Ms, Jw``   (n, 3, 6)          subtree sensitivities, composite columns, tip
-                                        Jacobians (root 0)
+``G, sig1, sig2``    (6, 2, 3n)         per-column wrench and twist variations (root 0;
+                                        ``[:, 0]`` configuration, ``[:, 1]`` rate columns)
+``Ms``               (6, 1, 3n)         composite columns of ``M`` (root 0)
+``Ya, Yv, Jw``       (n, 3, 6)          subtree sensitivities, tip Jacobians (root 0)
 ``Lq, U, u``         (n, 3, 3), (n, 6, 3), (n, 3)  articulated-body factors
 ``scratch``          (SCRATCH,)         small temporaries of the passes (``qchain.model.arc.SCRATCH``)
 ``pT, pc, pb, pM``   (n, 3, 5), (n, 3), the planar kernel's tip maps, biases, segment forces

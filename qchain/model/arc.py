@@ -32,7 +32,9 @@ three nonzero entries, so each product by ``A`` is a few entries (``A xid = (-ud
 with ``c = ux uyd - uy uxd``, ``A^2 xid = (0, 0, u . udot, c u, 0)``) and ``S``, ``Sd``, ``dS``
 and ``K`` are short polynomials in ``u``, its rates and ``a1, a2, a3``. Six-vector cross
 products would compute every zero (the compiler may not drop ``0 * x``: ``x`` could be
-infinite), several times the arithmetic of a node.
+infinite), several times the arithmetic of a node. Each form is written once, as a function of
+tuples (:func:`node_jacobian`, :func:`jacobian_rate`, :func:`node_derivatives`), which the array
+kernels store and :mod:`qchain.algorithms.slice_derivatives` evaluates for many nodes at once.
 
 ``tests/test_arc.py`` holds ``g``, ``Ad(g)^-1`` and ``S`` equal to Pinocchio's ``exp6``,
 ``SE3.action`` and ``Jexp6`` to 1e-14, and ``Sdot`` to finite differences;
@@ -52,9 +54,10 @@ from math import factorial
 
 import numpy as np
 
-from .._jit import jit, jit_helper, view2, view3
+from .._jit import jit, jit_helper, jit_inline, view2, view3
 from ..checks.convert import as_batch, as_real_array
 from .spatial import _inv_adjoint as inv_adjoint
+from .spatial_kernels import put6
 
 __all__ = ["ArcNodes", "arc_nodes", "bend_functions", "strain_twist", "arc_node", "arc_node_bias", "arc_pose", "bend_h",
            "arc_node_derivatives"]
@@ -110,24 +113,32 @@ def _bend(x):
     )
 
 
-@jit_helper
-def _write_pose(a1, a2, ux, uy, R, p):
-    """``R = I + a1 [w] + a2 [w]^2`` with ``w = (-uy, ux, 0)`` (``[w]^2 = w w^T - |w|^2 I``)
-    and ``p = (a2 ux, a2 uy, a1)``, into ``R`` (3, 3) and ``p`` (3,)."""
+@jit_inline
+def _pose(a1, a2, ux, uy):
+    """``(R, p)``: ``R = I + a1 [w] + a2 [w]^2`` (three row 3-tuples) with ``w = (-uy, ux, 0)``
+    (``[w]^2 = w w^T - |w|^2 I``) and ``p = (a2 ux, a2 uy, a1)``."""
     k2 = ux * ux + uy * uy
     wx, wy = -uy, ux
-    R[0, 0] = 1.0 + a2 * (wx * wx - k2)
-    R[0, 1] = a2 * wx * wy
-    R[0, 2] = a1 * wy
-    R[1, 0] = a2 * wx * wy
-    R[1, 1] = 1.0 + a2 * (wy * wy - k2)
-    R[1, 2] = -a1 * wx
-    R[2, 0] = -a1 * wy
-    R[2, 1] = a1 * wx
-    R[2, 2] = 1.0 - a2 * k2
-    p[0] = a2 * ux
-    p[1] = a2 * uy
-    p[2] = a1
+    R = ((1.0 + a2 * (wx * wx - k2), a2 * wx * wy, a1 * wy),
+         (a2 * wx * wy, 1.0 + a2 * (wy * wy - k2), -a1 * wx),
+         (-a1 * wy, a1 * wx, 1.0 - a2 * k2))
+    return R, (a2 * ux, a2 * uy, a1)
+
+
+@jit_helper
+def _write_pose(a1, a2, ux, uy, R, p):
+    """:func:`_pose` into ``R`` (3, 3) and ``p`` (3,)."""
+    Rt, pt = _pose(a1, a2, ux, uy)
+    _put_rows(R, p, Rt, pt)
+
+
+@jit_helper
+def _put_rows(R, p, Rt, pt):
+    """``R`` (3, 3) and ``p`` (3,) from three row 3-tuples ``Rt`` and a 3-tuple ``pt``."""
+    for r in range(3):
+        p[r] = pt[r]
+        for c in range(3):
+            R[r, c] = Rt[r][c]
 
 
 @jit
@@ -139,30 +150,44 @@ def arc_pose(alpha, l, ux, uy, R, p):
     _write_pose(s * f0, s * s * f1, ux, uy, R, p)
 
 
-@jit_helper
-def _node_jacobian(alpha, l, ux, uy, R, p, S):
-    """``R``, ``p`` and ``S`` of :func:`arc_node`, and ``(s, a1, a2, a3, g1, g2)`` for the rates."""
+@jit_inline
+def node_jacobian(alpha, l, ux, uy, f0, f1, f2):
+    """``(s, a1, a2, a3, R, p, S)`` of slice ``alpha`` from the bend functions ``f0, f1, f2``
+    at its bending angle (:func:`_bend`): ``R`` three row 3-tuples, ``p`` a 3-tuple and ``S``
+    its three columns (6-tuples): ``S_l = alpha xi_u`` and ``S_ui = s eta_i - a2 (xi_u x eta_i)
+    + a3 xi_u x (xi_u x eta_i)`` with ``eta_1 = e_5``, ``eta_2 = -e_4``, written out (the
+    products of ``xi_u = (0, 0, 1, -uy, ux, 0)`` with them are a few of its entries)."""
     s = alpha * l
-    k2 = ux * ux + uy * uy
-    f0, f1, f2, g0, g1, g2 = _bend(s * np.sqrt(k2))
     s2 = s * s
     a1 = s * f0
     a2 = s2 * f1
     a3 = s2 * s * f2
-    _write_pose(a1, a2, ux, uy, R, p)
-    for r in range(3):
-        S[r, 0] = 0.0
-    S[2, 0] = alpha
-    S[3, 0] = -alpha * uy
-    S[4, 0] = alpha * ux
-    S[5, 0] = 0.0
-    # S[:, 1 + i] = s eta_i - a2 (xi x eta_i) + a3 xi x (xi x eta_i), eta_1 = e_5, eta_2 = -e_4,
-    # written out (the products of xi = (0, 0, 1, -uy, ux, 0) with them are a few of its entries)
+    R, p = _pose(a1, a2, ux, uy)
     a3x, a3y = a3 * ux, a3 * uy
-    S[0, 1], S[1, 1], S[2, 1] = a2, 0.0, a3x
-    S[3, 1], S[4, 1], S[5, 1] = -a3x * uy, s - a3y * uy, a2 * uy
-    S[0, 2], S[1, 2], S[2, 2] = 0.0, a2, a3y
-    S[3, 2], S[4, 2], S[5, 2] = a3x * ux - s, a3y * ux, -a2 * ux
+    S = ((0.0, 0.0, alpha, -alpha * uy, alpha * ux, 0.0),
+         (a2, 0.0, a3x, -a3x * uy, s - a3y * uy, a2 * uy),
+         (0.0, a2, a3y, a3x * ux - s, a3y * ux, -a2 * ux))
+    return s, a1, a2, a3, R, p, S
+
+
+@jit_helper
+def _put_columns(S, cols):
+    """``S[:, c] = cols[c]`` of a (6, 3) array and three 6-tuples."""
+    for c in range(3):
+        for r in range(6):
+            S[r, c] = cols[c][r]
+
+
+@jit_helper
+def _node_jacobian(alpha, l, ux, uy, R, p, S):
+    """``R``, ``p`` and ``S`` of :func:`arc_node`, and ``(s, a1, a2, a3, g1, g2)`` for the rates."""
+    f0, f1, f2, g0, g1, g2 = _bend(alpha * l * np.sqrt(ux * ux + uy * uy))
+    s, a1, a2, a3, Rt, pt, St = node_jacobian(alpha, l, ux, uy, f0, f1, f2)
+    for r in range(3):
+        p[r] = pt[r]
+        for c in range(3):
+            R[r, c] = Rt[r][c]
+    _put_columns(S, St)
     return s, a1, a2, a3, g1, g2
 
 
@@ -214,22 +239,19 @@ def arc_node(alpha, l, ux, uy, ld, uxd, uyd, R, p, S, Sd):
     """
     s, a1, a2, a3, g1, g2 = _node_jacobian(alpha, l, ux, uy, R, p, S)
     sdot, a2d, a3d, _, _ = _rates(alpha, ld, ux, uy, uxd, uyd, s, a1, a2, g1, g2)
-    Sd[0, 0], Sd[1, 0], Sd[2, 0] = 0.0, 0.0, 0.0
-    Sd[3, 0], Sd[4, 0], Sd[5, 0] = -alpha * uyd, alpha * uxd, 0.0
+    _put_columns(Sd, jacobian_rate(alpha, ux, uy, uxd, uyd, a2, a3, sdot, a2d, a3d))
+
+
+@jit_inline
+def jacobian_rate(alpha, ux, uy, uxd, uyd, a2, a3, sdot, a2d, a3d):
+    """``Sd = dS/dt`` (three column 6-tuples): the time derivative of :func:`node_jacobian`'s
+    ``S`` entry by entry, with the rates ``sdot, a2d, a3d`` of :func:`_rates`."""
     # S[:, 1] = (a2, 0, a3 ux, -a3 ux uy, s - a3 uy^2, a2 uy)
-    Sd[0, 1] = a2d
-    Sd[1, 1] = 0.0
-    Sd[2, 1] = a3d * ux + a3 * uxd
-    Sd[3, 1] = -(a3d * ux * uy + a3 * (uxd * uy + ux * uyd))
-    Sd[4, 1] = sdot - a3d * uy * uy - 2.0 * a3 * uy * uyd
-    Sd[5, 1] = a2d * uy + a2 * uyd
     # S[:, 2] = (0, a2, a3 uy, a3 ux^2 - s, a3 ux uy, -a2 ux)
-    Sd[0, 2] = 0.0
-    Sd[1, 2] = a2d
-    Sd[2, 2] = a3d * uy + a3 * uyd
-    Sd[3, 2] = a3d * ux * ux + 2.0 * a3 * ux * uxd - sdot
-    Sd[4, 2] = a3d * ux * uy + a3 * (uxd * uy + ux * uyd)
-    Sd[5, 2] = -(a2d * ux + a2 * uxd)
+    cross = a3d * ux * uy + a3 * (uxd * uy + ux * uyd)
+    return ((0.0, 0.0, 0.0, -alpha * uyd, alpha * uxd, 0.0),
+            (a2d, 0.0, a3d * ux + a3 * uxd, -cross, sdot - a3d * uy * uy - 2.0 * a3 * uy * uyd, a2d * uy + a2 * uyd),
+            (0.0, a2d, a3d * uy + a3 * uyd, a3d * ux * ux + 2.0 * a3 * ux * uxd - sdot, cross, -(a2d * ux + a2 * uxd)))
 
 
 @jit
@@ -266,69 +288,72 @@ def arc_node_derivatives(alpha, l, ux, uy, ld, uxd, uyd, dS, K):
     ``d/du_i: s^6 h1 u_i``, ``s^7 h2 u_i``).
     """
     s = alpha * l
-    k2 = ux * ux + uy * uy
-    x = s * np.sqrt(k2)
+    x = s * np.sqrt(ux * ux + uy * uy)
     f0, f1, f2, g0, g1, g2 = _bend(x)
     h1, h2 = bend_h(x)
     s2 = s * s
-    s3 = s2 * s
-    s4 = s2 * s2
     a1 = s * f0
     a2 = s2 * f1
-    a3 = s3 * f2
-    cx = 1.0 - x * x * f1  # cos x from f1 = (1 - cos x) / x^2: no transcendental call per node
+    a3 = s2 * s * f2
+    sdot, a2d, a3d, ud, c = _rates(alpha, ld, ux, uy, uxd, uyd, s, a1, a2, g1, g2)
+    dSt, Kt = node_derivatives(alpha, ux, uy, uxd, uyd, s, a1, a2, a3, f1, g0, g1, g2, h1, h2, sdot, a2d, a3d, ud, c)
+    # literal indices: a tuple indexed by a loop variable is copied to memory first
+    _put_columns(dS[0], dSt[0])
+    _put_columns(dS[1], dSt[1])
+    _put_columns(dS[2], dSt[2])
+    put6(K[0], Kt[0])
+    put6(K[1], Kt[1])
+    put6(K[2], Kt[2])
+
+
+@jit_inline
+def node_derivatives(alpha, ux, uy, uxd, uyd, s, a1, a2, a3, f1, g0, g1, g2, h1, h2, sdot, a2d, a3d, ud, c):
+    """``(dS, K)`` of :func:`arc_node_derivatives` as tuples: ``dS[k]`` the three columns
+    (6-tuples) of ``dS/dq_k``, ``K[k]`` (6-tuple) ``= d(Sd qdot)/dq_k``, from the slice's ``s,
+    a1, a2, a3``, the bend functions ``f1, g0, g1, g2, h1, h2`` and the rates of :func:`_rates`."""
+    k2 = ux * ux + uy * uy
+    s2 = s * s
+    s3 = s2 * s
+    s4 = s2 * s2
+    cx = 1.0 - s2 * k2 * f1  # cos x from f1 = (1 - cos x) / x^2: no transcendental call per node
     G1 = s4 * g1  # d a2 / du_i = G1 u_i
     G2 = s4 * s * g2  # d a3 / du_i = G2 u_i
     b1 = s3 * g0  # d a1 / du_i = b1 u_i
-    sdot, a2d, a3d, ud, c = _rates(alpha, ld, ux, uy, uxd, uyd, s, a1, a2, g1, g2)
     qd2 = uxd * uxd + uyd * uyd
+    z6 = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
     # dS/dl = alpha dS/ds (d a1/ds = cos x, d a2/ds = a1, d a3/ds = a2); S[:, 0] does not move
-    for r in range(6):
-        dS[0, r, 0] = 0.0
-    dS[0, 0, 1], dS[0, 1, 1], dS[0, 2, 1] = alpha * a1, 0.0, alpha * a2 * ux
-    dS[0, 3, 1], dS[0, 4, 1], dS[0, 5, 1] = -alpha * a2 * ux * uy, alpha * (1.0 - a2 * uy * uy), alpha * a1 * uy
-    dS[0, 0, 2], dS[0, 1, 2], dS[0, 2, 2] = 0.0, alpha * a1, alpha * a2 * uy
-    dS[0, 3, 2], dS[0, 4, 2], dS[0, 5, 2] = alpha * (a2 * ux * ux - 1.0), alpha * a2 * ux * uy, -alpha * a1 * ux
+    dl = (z6,
+          (alpha * a1, 0.0, alpha * a2 * ux, -alpha * a2 * ux * uy, alpha * (1.0 - a2 * uy * uy), alpha * a1 * uy),
+          (0.0, alpha * a1, alpha * a2 * uy, alpha * (a2 * ux * ux - 1.0), alpha * a2 * ux * uy, -alpha * a1 * ux))
     # dS/dux, dS/duy: S[:, 0] = alpha (0, 0, 1, -uy, ux, 0)
-    for r in range(6):
-        dS[1, r, 0] = 0.0
-        dS[2, r, 0] = 0.0
-    dS[1, 4, 0] = alpha
-    dS[2, 3, 0] = -alpha
     tx = a3 + G2 * ux * ux
     ty = a3 + G2 * uy * uy
     gxy = G2 * ux * uy
-    dS[1, 0, 1], dS[1, 1, 1], dS[1, 2, 1] = G1 * ux, 0.0, tx
-    dS[1, 3, 1], dS[1, 4, 1], dS[1, 5, 1] = -uy * tx, -gxy * uy, G1 * ux * uy
-    dS[2, 0, 1], dS[2, 1, 1], dS[2, 2, 1] = G1 * uy, 0.0, gxy
-    dS[2, 3, 1], dS[2, 4, 1], dS[2, 5, 1] = -ux * ty, -uy * (a3 + ty), a2 + G1 * uy * uy
-    dS[1, 0, 2], dS[1, 1, 2], dS[1, 2, 2] = 0.0, G1 * ux, gxy
-    dS[1, 3, 2], dS[1, 4, 2], dS[1, 5, 2] = ux * (a3 + tx), uy * tx, -(a2 + G1 * ux * ux)
-    dS[2, 0, 2], dS[2, 1, 2], dS[2, 2, 2] = 0.0, G1 * uy, ty
-    dS[2, 3, 2], dS[2, 4, 2], dS[2, 5, 2] = gxy * ux, ux * ty, -G1 * ux * uy
-    # K[c] = d sd / dq_c of sd = (a2d udot, a3d ud + a3 |udot|^2, c (a3d u + a3 udot) +
+    dx = ((0.0, 0.0, 0.0, 0.0, alpha, 0.0),
+          (G1 * ux, 0.0, tx, -uy * tx, -gxy * uy, G1 * ux * uy),
+          (0.0, G1 * ux, gxy, ux * (a3 + tx), uy * tx, -(a2 + G1 * ux * ux)))
+    dy = ((0.0, 0.0, 0.0, -alpha, 0.0, 0.0),
+          (G1 * uy, 0.0, gxy, -ux * ty, -uy * (a3 + ty), a2 + G1 * uy * uy),
+          (0.0, G1 * uy, ty, gxy * ux, ux * ty, -G1 * ux * uy))
+    # K[k] = d sd / dq_k of sd = (a2d udot, a3d ud + a3 |udot|^2, c (a3d u + a3 udot) +
     # 2 sdot (-uyd, uxd), -a2d c), at fixed rates: dud/du_i = udot_i, dc/du = (uyd, -uxd)
-    for k in range(3):
-        if k == 0:
-            da2d = alpha * (sdot * cx + (4.0 * s3 * g1 + s4 * s * k2 * h1) * ud)
-            da3d = alpha * (sdot * a1 + (5.0 * s4 * g2 + s4 * s2 * k2 * h2) * ud)
-            da3 = alpha * a2
-            dud, dc, dux, duy = 0.0, 0.0, 0.0, 0.0
-        else:
-            ui = ux if k == 1 else uy
-            udi = uxd if k == 1 else uyd
-            da2d = (sdot * b1 + s4 * s2 * h1 * ud) * ui + G1 * udi
-            da3d = (sdot * G1 + s4 * s3 * h2 * ud) * ui + G2 * udi
-            da3 = G2 * ui
-            dud = udi
-            dc = uyd if k == 1 else -uxd
-            dux, duy = (1.0, 0.0) if k == 1 else (0.0, 1.0)
-        K[k, 0] = da2d * uxd
-        K[k, 1] = da2d * uyd
-        K[k, 2] = da3d * ud + a3d * dud + da3 * qd2
-        K[k, 3] = dc * (a3d * ux + a3 * uxd) + c * (da3d * ux + a3d * dux + da3 * uxd)
-        K[k, 4] = dc * (a3d * uy + a3 * uyd) + c * (da3d * uy + a3d * duy + da3 * uyd)
-        K[k, 5] = -(da2d * c + a2d * dc)
+    Kl = _k_row(alpha * (sdot * cx + (4.0 * s3 * g1 + s4 * s * k2 * h1) * ud),
+                alpha * (sdot * a1 + (5.0 * s4 * g2 + s4 * s2 * k2 * h2) * ud), alpha * a2,
+                0.0, 0.0, 0.0, 0.0, ux, uy, uxd, uyd, a2d, a3d, a3, ud, c, qd2)
+    Kx = _k_row((sdot * b1 + s4 * s2 * h1 * ud) * ux + G1 * uxd, (sdot * G1 + s4 * s3 * h2 * ud) * ux + G2 * uxd,
+                G2 * ux, uxd, uyd, 1.0, 0.0, ux, uy, uxd, uyd, a2d, a3d, a3, ud, c, qd2)
+    Ky = _k_row((sdot * b1 + s4 * s2 * h1 * ud) * uy + G1 * uyd, (sdot * G1 + s4 * s3 * h2 * ud) * uy + G2 * uyd,
+                G2 * uy, uyd, -uxd, 0.0, 1.0, ux, uy, uxd, uyd, a2d, a3d, a3, ud, c, qd2)
+    return (dl, dx, dy), (Kl, Kx, Ky)
+
+
+@jit_helper
+def _k_row(da2d, da3d, da3, dud, dc, dux, duy, ux, uy, uxd, uyd, a2d, a3d, a3, ud, c, qd2):
+    """One ``K[k]`` (6-tuple) from the derivatives of ``a2d, a3d, a3, ud, c, ux, uy`` by ``q_k``."""
+    return (da2d * uxd, da2d * uyd, da3d * ud + a3d * dud + da3 * qd2,
+            dc * (a3d * ux + a3 * uxd) + c * (da3d * ux + a3d * dux + da3 * uxd),
+            dc * (a3d * uy + a3 * uyd) + c * (da3d * uy + a3d * duy + da3 * uyd),
+            -(da2d * c + a2d * dc))
 
 
 @jit
@@ -429,8 +454,10 @@ def _per_node(name: str, x, N: int) -> np.ndarray:
 
 
 #: Floats of per-call scratch a compiled pass carves its small temporaries from
-#: (:func:`take1`): the deepest nest of passes uses under a thousand.
-SCRATCH = 2048
+#: (:func:`take1`): the derivative pass's blocks of lanes take about 4200
+#: (:data:`qchain.algorithms.slice_derivatives.LANE_SCRATCH`), every other nest of passes under
+#: a thousand.
+SCRATCH = 8192
 
 
 @jit_helper

@@ -4,7 +4,8 @@ twists and wrenches and the adjoint actions of a placement, in Pinocchio's conve
 parent's). :mod:`qchain.model.spatial` holds the same algebra for numpy arrays (checked,
 batched); ``tests/test_spatial.py`` holds these equal to it and to Pinocchio.
 
-Each function takes anything indexable (arrays, rows of arrays, tuples) and returns a 6-tuple,
+Each function takes anything indexable (arrays, rows of arrays, tuples; a rotation ``R`` as a
+(3, 3) array or three row 3-tuples, read as ``R[r][c]``) and returns a 6-tuple,
 which the caller combines (:func:`vadd`, :func:`vsub`, :func:`vmul`) and stores with
 :func:`put6`, :func:`add6` or :func:`sub6`. The tuples live in registers once numba has compiled
 the helpers into their callers (:data:`qchain._jit.jit_helper`); small arrays carved from one
@@ -22,7 +23,7 @@ from __future__ import annotations
 from .._jit import jit_helper
 
 __all__ = ["motion_cross", "force_cross", "ad_twist", "ad_inv_twist", "ad_force", "put6", "add6", "sub6", "vadd",
-           "vsub", "vmul", "column6", "column_dot6", "matvec63", "matvec66"]
+           "vsub", "vmul", "vscale", "columns_times", "column6", "column_dot6", "matvec63", "matvec66"]
 
 
 @jit_helper
@@ -57,13 +58,13 @@ def force_cross(a, h):
 def ad_twist(R, p, v):
     """``Ad(X) v``: a twist (6,) in the frame of ``X = (R, p)`` (``R`` (3, 3), ``p`` (3,) m)
     expressed in its parent, ``(R v_l + p x R v_a, R v_a)`` (Pinocchio's ``SE3.act(Motion)``)."""
-    w0 = R[0, 0] * v[3] + R[0, 1] * v[4] + R[0, 2] * v[5]
-    w1 = R[1, 0] * v[3] + R[1, 1] * v[4] + R[1, 2] * v[5]
-    w2 = R[2, 0] * v[3] + R[2, 1] * v[4] + R[2, 2] * v[5]
+    w0 = R[0][0] * v[3] + R[0][1] * v[4] + R[0][2] * v[5]
+    w1 = R[1][0] * v[3] + R[1][1] * v[4] + R[1][2] * v[5]
+    w2 = R[2][0] * v[3] + R[2][1] * v[4] + R[2][2] * v[5]
     return (
-        R[0, 0] * v[0] + R[0, 1] * v[1] + R[0, 2] * v[2] + (p[1] * w2 - p[2] * w1),
-        R[1, 0] * v[0] + R[1, 1] * v[1] + R[1, 2] * v[2] + (p[2] * w0 - p[0] * w2),
-        R[2, 0] * v[0] + R[2, 1] * v[1] + R[2, 2] * v[2] + (p[0] * w1 - p[1] * w0),
+        R[0][0] * v[0] + R[0][1] * v[1] + R[0][2] * v[2] + (p[1] * w2 - p[2] * w1),
+        R[1][0] * v[0] + R[1][1] * v[1] + R[1][2] * v[2] + (p[2] * w0 - p[0] * w2),
+        R[2][0] * v[0] + R[2][1] * v[1] + R[2][2] * v[2] + (p[0] * w1 - p[1] * w0),
         w0,
         w1,
         w2,
@@ -78,12 +79,12 @@ def ad_inv_twist(R, p, v):
     v1 = v[1] - (p[2] * v[3] - p[0] * v[5])
     v2 = v[2] - (p[0] * v[4] - p[1] * v[3])
     return (
-        R[0, 0] * v0 + R[1, 0] * v1 + R[2, 0] * v2,
-        R[0, 1] * v0 + R[1, 1] * v1 + R[2, 1] * v2,
-        R[0, 2] * v0 + R[1, 2] * v1 + R[2, 2] * v2,
-        R[0, 0] * v[3] + R[1, 0] * v[4] + R[2, 0] * v[5],
-        R[0, 1] * v[3] + R[1, 1] * v[4] + R[2, 1] * v[5],
-        R[0, 2] * v[3] + R[1, 2] * v[4] + R[2, 2] * v[5],
+        R[0][0] * v0 + R[1][0] * v1 + R[2][0] * v2,
+        R[0][1] * v0 + R[1][1] * v1 + R[2][1] * v2,
+        R[0][2] * v0 + R[1][2] * v1 + R[2][2] * v2,
+        R[0][0] * v[3] + R[1][0] * v[4] + R[2][0] * v[5],
+        R[0][1] * v[3] + R[1][1] * v[4] + R[2][1] * v[5],
+        R[0][2] * v[3] + R[1][2] * v[4] + R[2][2] * v[5],
     )
 
 
@@ -91,16 +92,16 @@ def ad_inv_twist(R, p, v):
 def ad_force(R, p, f):
     """``Ad(X)^-T f``: a wrench (6,) in the frame of ``X = (R, p)`` expressed in its parent,
     ``(R f_l, p x R f_l + R f_a)`` (Pinocchio's ``SE3.act(Force)``)."""
-    l0 = R[0, 0] * f[0] + R[0, 1] * f[1] + R[0, 2] * f[2]
-    l1 = R[1, 0] * f[0] + R[1, 1] * f[1] + R[1, 2] * f[2]
-    l2 = R[2, 0] * f[0] + R[2, 1] * f[1] + R[2, 2] * f[2]
+    l0 = R[0][0] * f[0] + R[0][1] * f[1] + R[0][2] * f[2]
+    l1 = R[1][0] * f[0] + R[1][1] * f[1] + R[1][2] * f[2]
+    l2 = R[2][0] * f[0] + R[2][1] * f[1] + R[2][2] * f[2]
     return (
         l0,
         l1,
         l2,
-        p[1] * l2 - p[2] * l1 + R[0, 0] * f[3] + R[0, 1] * f[4] + R[0, 2] * f[5],
-        p[2] * l0 - p[0] * l2 + R[1, 0] * f[3] + R[1, 1] * f[4] + R[1, 2] * f[5],
-        p[0] * l1 - p[1] * l0 + R[2, 0] * f[3] + R[2, 1] * f[4] + R[2, 2] * f[5],
+        p[1] * l2 - p[2] * l1 + R[0][0] * f[3] + R[0][1] * f[4] + R[0][2] * f[5],
+        p[2] * l0 - p[0] * l2 + R[1][0] * f[3] + R[1][1] * f[4] + R[1][2] * f[5],
+        p[0] * l1 - p[1] * l0 + R[2][0] * f[3] + R[2][1] * f[4] + R[2][2] * f[5],
     )
 
 
@@ -155,6 +156,23 @@ def vsub(a, b):
 def vmul(d, a):
     """``diag(d) a``: element by element (a diagonal inertia times a twist)."""
     return (d[0] * a[0], d[1] * a[1], d[2] * a[2], d[3] * a[3], d[4] * a[4], d[5] * a[5])
+
+
+@jit_helper
+def vscale(a, s):
+    """``s a`` of a 6-tuple and a number."""
+    return (a[0] * s, a[1] * s, a[2] * s, a[3] * s, a[4] * s, a[5] * s)
+
+
+@jit_helper
+def columns_times(cols, x):
+    """``cols[0] x[0] + cols[1] x[1] + cols[2] x[2]``: a (6, 3) matrix given as its three
+    columns (6-tuples) times a 3-vector (a slice Jacobian times coordinate rates)."""
+    c0, c1, c2 = cols[0], cols[1], cols[2]
+    x0, x1, x2 = x[0], x[1], x[2]
+    return (c0[0] * x0 + c1[0] * x1 + c2[0] * x2, c0[1] * x0 + c1[1] * x1 + c2[1] * x2,
+            c0[2] * x0 + c1[2] * x1 + c2[2] * x2, c0[3] * x0 + c1[3] * x1 + c2[3] * x2,
+            c0[4] * x0 + c1[4] * x1 + c2[4] * x2, c0[5] * x0 + c1[5] * x1 + c2[5] * x2)
 
 
 @jit_helper
