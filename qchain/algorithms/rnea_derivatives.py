@@ -40,10 +40,10 @@ from __future__ import annotations
 import numpy as np
 
 from .._jit import jit, jit_helper, jit_inline, jit_pass
-from ..model.arc import take1, take2
+from ..model.arc import _put_columns, _put_rows, bend_values, slice_kinematics, take1, take2
 from ..model.slices import _segment_slices, law_hessian_c, phi_matrix, pressure_jacobian_c
 from ..model.spatial_kernels import ad_force, ad_twist, force_cross, motion_cross, put6, vadd, vsub
-from .slice_derivatives import bend_values, node_state, q_variation, qd_variation, segment_columns, slice_kinematics
+from .slice_derivatives import node_state, q_variation, qd_variation, segment_columns
 from .arrays import AbaWorkspace, ChainArrays, RneaWorkspace
 from .recursive import _load_xi, payload_wrench
 from .recursive import _project as recursive_project
@@ -84,16 +84,11 @@ def _tip_derivatives(q, qd, qdd, V0, A0, T, R1, p1, V1, A1, rel1, tipV, tipA, dS
     Python entry point (:data:`qchain._jit.jit_helper`)."""
     S_, o = take2(sc, 0, 6, 3)
     R, p, S, Sd, dS, K = slice_kinematics(1.0, q[0], q[1], q[2], qd[0], qd[1], qd[2], bend_values(1.0, q[0], q[1], q[2]))
-    for r in range(3):
-        p1[r] = p[r]
-        for c in range(3):
-            R1[r, c] = R[r][c]
-    for c in range(3):
-        for r in range(6):
-            S_[r, c] = S[c][r]
-            dS1[0, r, c] = dS[0][c][r]
-            dS1[1, r, c] = dS[1][c][r]
-            dS1[2, r, c] = dS[2][c][r]
+    _put_rows(R1, p1, R, p)
+    _put_columns(S_, S)
+    _put_columns(dS1[0], dS[0])
+    _put_columns(dS1[1], dS[1])
+    _put_columns(dS1[2], dS[2])
     phi_matrix(R1, p1, S_, T)
     Vr, Ar, rel, V, a = node_state(R, p, S, Sd, V0, A0, qd, qdd)
     put6(rel1, rel)

@@ -34,15 +34,14 @@ Unchecked by design: compiled kernels whose arguments the checked API has valida
 
 from __future__ import annotations
 
-import numpy as np
-
 from .._jit import jit_helper, jit_inline
-from ..model.arc import _bend, _rates, bend_h, jacobian_rate, node_derivatives, node_jacobian
+from ..model.arc import bend_values, slice_kinematics
+from ..model.slices import disk_diagonal
 from ..model.spatial_kernels import (ad_force, ad_inv_twist, columns_times, force_cross, motion_cross, vadd, vmul,
                                      vscale, vsub)
 
 __all__ = ["LANES", "LANE_SCRATCH", "force_variation", "node_state", "q_variation", "qd_variation",
-           "slice_kinematics", "segment_columns", "root_twist_columns"]
+           "segment_columns", "root_twist_columns"]
 
 #: Lanes a block of nodes holds: the stride of the lane arrays (a constant, so that the
 #: compiler sees the rows of a block at fixed distances and checks their overlap once), and
@@ -92,29 +91,6 @@ def qd_variation(Sc, Sdc, V):
     """``(dV, da)`` (6-tuples) of a slice for a unit change of ``qdot_c``: ``S_c`` and
     ``2 Sd_c - S_c x V``."""
     return Sc, vsub(vadd(Sdc, Sdc), motion_cross(Sc, V))
-
-
-@jit_inline
-def slice_kinematics(alpha, l, ux, uy, ld, uxd, uyd, bend):
-    """``(R, p, S, Sd, dS, K)`` of slice ``alpha`` (:mod:`qchain.model.arc`, as tuples: ``R``
-    three rows, ``S``, ``Sd`` three columns, ``dS[c]`` the three columns of ``dS/dq_c``, ``K[c]
-    = d(Sd qdot)/dq_c``) from the bend functions ``bend = (f0, f1, f2, g0, g1, g2, h1, h2)`` at
-    its bending angle."""
-    f0, f1, f2, g0, g1, g2, h1, h2 = bend
-    s, a1, a2, a3, R, p, S = node_jacobian(alpha, l, ux, uy, f0, f1, f2)
-    sdot, a2d, a3d, ud, c = _rates(alpha, ld, ux, uy, uxd, uyd, s, a1, a2, g1, g2)
-    Sd = jacobian_rate(alpha, ux, uy, uxd, uyd, a2, a3, sdot, a2d, a3d)
-    dS, K = node_derivatives(alpha, ux, uy, uxd, uyd, s, a1, a2, a3, f1, g0, g1, g2, h1, h2, sdot, a2d, a3d, ud, c)
-    return R, p, S, Sd, dS, K
-
-
-@jit_helper
-def bend_values(alpha, l, ux, uy):
-    """``(f0, f1, f2, g0, g1, g2, h1, h2)`` at the bending angle of slice ``alpha``."""
-    x = alpha * l * np.sqrt(ux * ux + uy * uy)
-    f0, f1, f2, g0, g1, g2 = _bend(x)
-    h1, h2 = bend_h(x)
-    return f0, f1, f2, g0, g1, g2, h1, h2
 
 
 @jit_helper
@@ -236,10 +212,10 @@ def _load_lanes(alpha, w, offs, mass, radius, q, qd, qdd, V, A, k0, nl, j, X):
         for r in range(6):
             X[(11 + r) * LANES + i] = V[j, r]
             X[(17 + r) * LANES + i] = A[j, r]
-        ixx = 0.25 * mass[j] * radius[j] * radius[j]
-        X[23 * LANES + i] = mass[j]
-        X[24 * LANES + i] = ixx
-        X[25 * LANES + i] = 2.0 * ixx
+        Id = disk_diagonal(mass[j], radius[j])
+        X[23 * LANES + i] = Id[0]
+        X[24 * LANES + i] = Id[3]
+        X[25 * LANES + i] = Id[5]
         bend = bend_values(alpha[k], q[j, 0], q[j, 1], q[j, 2])
         for r in range(8):
             X[(26 + r) * LANES + i] = bend[r]
@@ -291,8 +267,7 @@ def _add_lanes(offs, mass, radius, qd, V, Mxi, QqT, QxT, k0, nl, j, Y, acc):
         for r in range(39):
             acc[r] += Y[(54 + r) * LANES + i]
         if k == offs[j + 1] - 1:
-            ixx = 0.25 * mass[j] * radius[j] * radius[j]
-            root_twist_columns(Mxi[j], QxT[j], V[j], qd[j], (mass[j], mass[j], mass[j], ixx, ixx, 2.0 * ixx), acc)
+            root_twist_columns(Mxi[j], QxT[j], V[j], qd[j], disk_diagonal(mass[j], radius[j]), acc)
     return j
 
 

@@ -33,8 +33,9 @@ with ``c = ux uyd - uy uxd``, ``A^2 xid = (0, 0, u . udot, c u, 0)``) and ``S``,
 and ``K`` are short polynomials in ``u``, its rates and ``a1, a2, a3``. Six-vector cross
 products would compute every zero (the compiler may not drop ``0 * x``: ``x`` could be
 infinite), several times the arithmetic of a node. Each form is written once, as a function of
-tuples (:func:`node_jacobian`, :func:`jacobian_rate`, :func:`node_derivatives`), which the array
-kernels store and :mod:`qchain.algorithms.slice_derivatives` evaluates for many nodes at once.
+tuples (:func:`node_jacobian`, :func:`jacobian_rate`, :func:`node_derivatives`; together
+:func:`slice_kinematics`), which the array kernels store and
+:mod:`qchain.algorithms.slice_derivatives` evaluates for many nodes at once.
 
 ``tests/test_arc.py`` holds ``g``, ``Ad(g)^-1`` and ``S`` equal to Pinocchio's ``exp6``,
 ``SE3.action`` and ``Jexp6`` to 1e-14, and ``Sdot`` to finite differences;
@@ -183,10 +184,7 @@ def _node_jacobian(alpha, l, ux, uy, R, p, S):
     """``R``, ``p`` and ``S`` of :func:`arc_node`, and ``(s, a1, a2, a3, g1, g2)`` for the rates."""
     f0, f1, f2, g0, g1, g2 = _bend(alpha * l * np.sqrt(ux * ux + uy * uy))
     s, a1, a2, a3, Rt, pt, St = node_jacobian(alpha, l, ux, uy, f0, f1, f2)
-    for r in range(3):
-        p[r] = pt[r]
-        for c in range(3):
-            R[r, c] = Rt[r][c]
+    _put_rows(R, p, Rt, pt)
     _put_columns(S, St)
     return s, a1, a2, a3, g1, g2
 
@@ -287,10 +285,8 @@ def arc_node_derivatives(alpha, l, ux, uy, ld, uxd, uyd, dS, K):
     (``d/ds: 4 s^3 g1 + s^5 kappa^2 h1``, ``5 s^4 g2 + s^6 kappa^2 h2``;
     ``d/du_i: s^6 h1 u_i``, ``s^7 h2 u_i``).
     """
+    f0, f1, f2, g0, g1, g2, h1, h2 = bend_values(alpha, l, ux, uy)
     s = alpha * l
-    x = s * np.sqrt(ux * ux + uy * uy)
-    f0, f1, f2, g0, g1, g2 = _bend(x)
-    h1, h2 = bend_h(x)
     s2 = s * s
     a1 = s * f0
     a2 = s2 * f1
@@ -354,6 +350,29 @@ def _k_row(da2d, da3d, da3, dud, dc, dux, duy, ux, uy, uxd, uyd, a2d, a3d, a3, u
             dc * (a3d * ux + a3 * uxd) + c * (da3d * ux + a3d * dux + da3 * uxd),
             dc * (a3d * uy + a3 * uyd) + c * (da3d * uy + a3d * duy + da3 * uyd),
             -(da2d * c + a2d * dc))
+
+
+@jit_inline
+def slice_kinematics(alpha, l, ux, uy, ld, uxd, uyd, bend):
+    """``(R, p, S, Sd, dS, K)`` of slice ``alpha`` (as tuples: ``R``
+    three rows, ``S``, ``Sd`` three columns, ``dS[c]`` the three columns of ``dS/dq_c``, ``K[c]
+    = d(Sd qdot)/dq_c``) from the bend functions ``bend = (f0, f1, f2, g0, g1, g2, h1, h2)`` at
+    its bending angle."""
+    f0, f1, f2, g0, g1, g2, h1, h2 = bend
+    s, a1, a2, a3, R, p, S = node_jacobian(alpha, l, ux, uy, f0, f1, f2)
+    sdot, a2d, a3d, ud, c = _rates(alpha, ld, ux, uy, uxd, uyd, s, a1, a2, g1, g2)
+    Sd = jacobian_rate(alpha, ux, uy, uxd, uyd, a2, a3, sdot, a2d, a3d)
+    dS, K = node_derivatives(alpha, ux, uy, uxd, uyd, s, a1, a2, a3, f1, g0, g1, g2, h1, h2, sdot, a2d, a3d, ud, c)
+    return R, p, S, Sd, dS, K
+
+
+@jit_helper
+def bend_values(alpha, l, ux, uy):
+    """``(f0, f1, f2, g0, g1, g2, h1, h2)`` at the bending angle of slice ``alpha``."""
+    x = alpha * l * np.sqrt(ux * ux + uy * uy)
+    f0, f1, f2, g0, g1, g2 = _bend(x)
+    h1, h2 = bend_h(x)
+    return f0, f1, f2, g0, g1, g2, h1, h2
 
 
 @jit

@@ -31,6 +31,14 @@ def slice_twist(R, p, S, V0, qd, out):
     put6(out, vadd(ad_inv_twist(R, p, V0), matvec63(S, qd)))
 
 
+@jit_helper
+def disk_diagonal(mass, radius):
+    """``(m, m, m, ixx, ixx, izz)``: the diagonal of a uniform disk's spatial inertia in its own
+    frame, ``ixx = m r^2 / 4``, ``izz = m r^2 / 2`` (docs/model.md section 3; compiled code)."""
+    ixx = 0.25 * mass * radius * radius
+    return (mass, mass, mass, ixx, ixx, 2.0 * ixx)
+
+
 @jit_inline
 def phi_transpose_force(R, p, S, f, wgt, out):
     """``out += wgt * Phi^T f``: ``(Ad(g)^-T f, S^T f)`` with ``Ad^-T (fl, fa) = (R fl, p x R fl + R fa)``."""
@@ -100,9 +108,7 @@ def _segment_slices(alpha, w, mass, radius, q, xi, xid, want_mass, M, Q, sc):
     f, o = take1(sc, o, 6)
     zero3, o = take1(sc, o, 3)
     zero3[:] = 0.0
-    m = mass
-    ixx = 0.25 * mass * radius * radius
-    izz = 0.5 * mass * radius * radius
+    m, _, _, ixx, _, izz = disk_diagonal(mass, radius)
     Id, o = take1(sc, o, 6)
     Id[0] = Id[1] = Id[2] = m
     Id[3] = Id[4] = ixx
