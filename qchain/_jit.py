@@ -45,7 +45,7 @@ from numba.np.arrayobj import make_array, populate_array
 __all__ = ["Address", "ejit", "ejit_inner", "inline", "kernel", "Kernel", "OPTIONS", "ENTRY_OPTIONS", "cached_here",
            "view2", "view3", "view4",
            "first_class_functions", "cached_njit", "COMPILED_SOURCES", "tree_stamp", "jit", "jit_helper",
-           "jit_inline", "jit_pass"]
+           "jit_inline", "jit_pass", "jit_sums"]
 
 #: the compiler options of every engine function
 OPTIONS = dict(error_model="numpy", _nrt=False)
@@ -161,6 +161,13 @@ jit_inline = cached_njit(fastmath=False, error_model="numpy", inline="always")
 #: of a forward-dynamics call from Python at ten segments. Such a pass cannot allocate arrays
 #: nor assign an array to a slice (loops do); the explicit flag holds for every caller.
 jit_pass = cached_njit(fastmath=False, error_model="numpy", _nrt=False)
+#: Dense loops whose sums may be reordered (the derivatives' Cholesky factor, inverse and
+#: checks): LLVM vectorises a sum only where it may reassociate it (``reassoc``) and fuses a
+#: product into its sum (``contract``, one rounding less). No other fast-math flag: NaN and
+#: infinity keep their IEEE meaning (``x * 0`` is not folded to 0; the finiteness checks
+#: rely on it). Rounding differs from the loops' order by a few units in the last place.
+#: Called (not inlined) from the passes, as :data:`jit_pass` functions are compiled.
+jit_sums = cached_njit(fastmath={"reassoc", "contract"}, error_model="numpy", _nrt=False)
 
 
 @contextlib.contextmanager

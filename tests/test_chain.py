@@ -711,6 +711,26 @@ def test_a_workspace_cannot_be_relabelled_and_gravity_cannot_be_reassigned():
         Chain(itertools.repeat(Segment(**SEGMENT)))
 
 
+def test_a_workspace_s_arrays_are_views_of_its_one_buffer_at_the_layout_s_places():
+    """Every array of a Data lies in ``kernel_buffer`` where ``kernel_layout`` says, with the
+    allocators' shapes (what compiled code carves from the buffer and the table), made at the
+    first use of any of them; the buffer is zeros until a pass writes."""
+    from qchain.algorithms.layout import kernel_arrays
+
+    ch = soft_arm(3, base="floating")
+    d = ch.create_data()
+    buf, table = d.kernel_buffer, d.kernel_layout
+    assert buf.shape == (table[-1, 0],) and not buf.any()
+    fields = [*d.aba_workspace()._fields, *d.rnea_workspace()._fields, *d.aba_derivatives_workspace()._fields,
+              *d.planar_workspace()._fields]
+    for name, ref, row in zip(fields, kernel_arrays(ch.n, ch.nv), table[:-1], strict=True):
+        x = getattr(d, name)
+        assert x.shape == ref.shape and x.dtype == np.float64 and x.flags.c_contiguous
+        assert x.ctypes.data == buf.ctypes.data + 8 * int(row[0]) and np.shares_memory(x, buf)
+    out = ch.forward_dynamics_derivatives(ch.neutral(), np.zeros(ch.nv), data=d)
+    assert out.da_dtau is d.da_dtau and np.shares_memory(d.da_dtau, buf) and buf.any()
+
+
 def test_configurations_that_overflow_raise_instead_of_returning_nan():
     seg = soft_segment()
     with pytest.raises(NonFiniteError, match=r"Segment.mass_matrix: the mass matrix M_xi is not finite at q_e = "

@@ -360,6 +360,9 @@ def test_data_workspace_and_unchecked_fast_path(base, rng):
         fast = ch.forward_dynamics_derivatives(q, v, p, tau, t=t, data=d, skip_checks=True)
         for x, y in zip(fast, ref):
             assert np.array_equal(x, y)
+        assert ch.forward_dynamics_derivatives(q, v, p.reshape(ch.n, 3), tau, t=t, data=d, skip_checks=True) is fast
+        for x, y in zip(fast, ref):  # p by segment rows: the same call
+            assert np.array_equal(x, y)
         a_ref = ch.forward_dynamics(q, v, p, tau, t=t)
         assert np.array_equal(ch.forward_dynamics(q, v, p, tau, t=t, data=d), a_ref)
         assert np.array_equal(ch.forward_dynamics(q, v, p, tau, t=t, data=d, skip_checks=True), a_ref)
@@ -380,3 +383,5 @@ def test_fast_path_refuses_what_it_does_not_serve():
     ch = Chain([Segment(**SEGMENT_KW)])
     with pytest.raises(ValueError, match="skip_checks=True needs data"):
         ch.forward_dynamics(ch.neutral(), np.zeros(ch.nv), skip_checks=True)
+    with pytest.raises(ValueError, match="skip_checks=True needs data"):
+        ch.forward_dynamics_derivatives(ch.neutral(), np.zeros(ch.nv), skip_checks=True)

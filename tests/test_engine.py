@@ -16,7 +16,8 @@ import pytest
 from qchain import Chain, Segment
 from qchain._blas import SINGLE_THREAD_MNK, gemm
 from qchain._jit import view2, view3, view4
-from qchain.algorithms.arrays import ChainArrays
+from qchain.algorithms.arrays import KERNEL_NDIM, ChainArrays
+from qchain.algorithms.layout import kernel_arrays, kernel_layout
 from qchain.sim.engine import packing, system
 from qchain.sim.inputs import Sine
 from qchain.scene.scene import SineMotion
@@ -368,12 +369,12 @@ def test_every_model_has_the_stand_in_s_types(base):
 
 
 def test_kernel_workspaces_carved_from_one_buffer_have_the_allocators_shapes():
-    """:data:`qchain.sim.engine.system.KERNEL_NDIM` (the carving code's types) against the
+    """:data:`qchain.algorithms.arrays.KERNEL_NDIM` (the carving code's types) against the
     allocators' arrays, and the carved views tile the buffer without overlap."""
     for n, nv in ((1, 3), (3, 9), (4, 18)):
-        arrays = system._kernel_arrays(n, nv)
-        assert [a.ndim for a in arrays] == [d for group in system.KERNEL_NDIM for d in group]
-        table = system._layout(n, nv)
+        arrays = kernel_arrays(n, nv)
+        assert [a.ndim for a in arrays] == [d for group in KERNEL_NDIM for d in group]
+        table = kernel_layout(n, nv)
         sizes = [a.size for a in arrays]
         assert list(np.diff(table[:, 0])) == sizes
         for row, a in zip(table, arrays):

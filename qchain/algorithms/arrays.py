@@ -16,7 +16,14 @@ A pass takes each structure either named or as the plain tuple of its fields, an
 entry (``arr = ChainArrays(*arr)``, free in compiled code). Python callers pass the plain
 tuple: numba's dispatcher types a tuple of arrays in C but a NamedTuple field by field in
 Python, about a microsecond a call for ``ChainArrays`` (``benchmarks/bench_chain.py`` is the
-figure that would show it). Compiled callers (the engine) pass the named structures."""
+figure that would show it). Compiled callers (the engine) pass the named structures.
+
+The four workspaces can also lie in one flat buffer, the arrays one after another in the
+order of their fields (:data:`KERNEL_NDIM`; offsets and shapes in a layout table,
+:func:`qchain.algorithms.layout.kernel_layout`). :func:`carve_aba` and its siblings give them
+back as views in compiled code: one buffer and one table cross from Python instead of dozens
+of arrays (each array a call unboxes costs about 70 ns). The engine's workspace and
+:class:`qchain.arm.data.Data` hold them so."""
 
 from __future__ import annotations
 
@@ -24,7 +31,10 @@ from typing import NamedTuple
 
 import numpy as np
 
-__all__ = ["ChainArrays", "AbaWorkspace", "RneaWorkspace", "AbaDerivativesWorkspace", "PlanarWorkspace"]
+from .._jit import jit_inline, view2, view3, view4
+
+__all__ = ["ChainArrays", "AbaWorkspace", "RneaWorkspace", "AbaDerivativesWorkspace", "PlanarWorkspace",
+           "KERNEL_NDIM", "carve_aba", "carve_rnea", "carve_aba_derivatives", "carve_planar"]
 
 
 class ChainArrays(NamedTuple):
@@ -125,12 +135,11 @@ class RneaWorkspace(NamedTuple):
     tipA: np.ndarray
     dS1: np.ndarray
     G: np.ndarray
-    Ya: np.ndarray
-    Yv: np.ndarray
-    Ms: np.ndarray
+    Y: np.ndarray
     Jw: np.ndarray
-    sig1: np.ndarray
-    sig2: np.ndarray
+    S: np.ndarray
+    P1: np.ndarray
+    P2: np.ndarray
     tau_c: np.ndarray
     F0: np.ndarray
     M: np.ndarray
@@ -141,15 +150,13 @@ class RneaWorkspace(NamedTuple):
 class AbaDerivativesWorkspace(NamedTuple):
     """What :func:`~qchain.algorithms.aba_derivatives.aba_derivatives` writes: the forces
     ``f``, the accelerations ``a_c`` (n, 3), ``A0`` (6,), ``a`` (nv,), the factor ``L``, the
-    right-hand sides ``rhs``, the derivatives ``da_dq, da_dv, da_dtau, da_dp`` and the
-    per-segment ``dfq, dfv, B``."""
+    derivatives ``da_dq, da_dv, da_dtau, da_dp`` and the per-segment ``dfq, dfv, B``."""
 
     f: np.ndarray
     a_c: np.ndarray
     A0: np.ndarray
     a: np.ndarray
     L: np.ndarray
-    rhs: np.ndarray
     da_dq: np.ndarray
     da_dv: np.ndarray
     da_dtau: np.ndarray
@@ -172,3 +179,77 @@ class PlanarWorkspace(NamedTuple):
     pU: np.ndarray
     pu: np.ndarray
     pscratch: np.ndarray
+
+
+#: The number of dimensions of each workspace array, in the order of the buffer: the aba,
+#: rnea-derivative, aba-derivative and planar workspaces' fields (the carving code's types;
+#: their shapes come from the allocators, ``tests/test_engine.py`` checks the two agree).
+KERNEL_NDIM = ((2, 3, 2, 2, 3, 3, 3, 2, 1),
+               (2, 3, 2, 3, 3, 2, 3, 3, 4, 2, 2, 2, 2, 2, 2, 2, 1, 2, 2, 2),
+               (2, 2, 1, 1, 2, 2, 2, 2, 2, 3, 3, 3),
+               (3, 2, 2, 3, 3, 3, 2, 1))
+
+
+# where each workspace's first array is in the layout table (compile-time constants)
+_RNEA = len(AbaWorkspace._fields)
+_ABA_DERIVATIVES = _RNEA + len(RneaWorkspace._fields)
+_PLANAR = _ABA_DERIVATIVES + len(AbaDerivativesWorkspace._fields)
+
+
+@jit_inline
+def _v1(buf, tb, i):
+    """Array ``i`` of the layout table ``tb`` (``(K + 1, 5)``: offset, shape) as a view of ``buf``."""
+    o = tb[i, 0]
+    return buf[o : o + tb[i, 1]]
+
+
+@jit_inline
+def _v2(buf, tb, i):
+    o = tb[i, 0]
+    return view2(buf[o : o + tb[i, 1] * tb[i, 2]], tb[i, 1], tb[i, 2])
+
+
+@jit_inline
+def _v3(buf, tb, i):
+    o = tb[i, 0]
+    return view3(buf[o : o + tb[i, 1] * tb[i, 2] * tb[i, 3]], tb[i, 1], tb[i, 2], tb[i, 3])
+
+
+@jit_inline
+def _v4(buf, tb, i):
+    o = tb[i, 0]
+    return view4(buf[o : o + tb[i, 1] * tb[i, 2] * tb[i, 3] * tb[i, 4]], tb[i, 1], tb[i, 2], tb[i, 3], tb[i, 4])
+
+
+@jit_inline
+def carve_aba(buf, tb):
+    """The :class:`AbaWorkspace` in the flat buffer ``buf`` by its layout table ``tb``."""
+    return AbaWorkspace(_v2(buf, tb, 0), _v3(buf, tb, 1), _v2(buf, tb, 2), _v2(buf, tb, 3), _v3(buf, tb, 4),
+                        _v3(buf, tb, 5), _v3(buf, tb, 6), _v2(buf, tb, 7), _v1(buf, tb, 8))
+
+
+@jit_inline
+def carve_rnea(buf, tb):
+    """The :class:`RneaWorkspace` in ``buf``, as :func:`carve_aba`."""
+    b, t, i = buf, tb, _RNEA
+    return RneaWorkspace(_v2(b, t, i), _v3(b, t, i + 1), _v2(b, t, i + 2), _v3(b, t, i + 3), _v3(b, t, i + 4),
+                         _v2(b, t, i + 5), _v3(b, t, i + 6), _v3(b, t, i + 7), _v4(b, t, i + 8), _v2(b, t, i + 9),
+                         _v2(b, t, i + 10), _v2(b, t, i + 11), _v2(b, t, i + 12), _v2(b, t, i + 13), _v2(b, t, i + 14),
+                         _v2(b, t, i + 15), _v1(b, t, i + 16), _v2(b, t, i + 17), _v2(b, t, i + 18), _v2(b, t, i + 19))
+
+
+@jit_inline
+def carve_aba_derivatives(buf, tb):
+    """The :class:`AbaDerivativesWorkspace` in ``buf``, as :func:`carve_aba`."""
+    b, t, i = buf, tb, _ABA_DERIVATIVES
+    return AbaDerivativesWorkspace(_v2(b, t, i), _v2(b, t, i + 1), _v1(b, t, i + 2), _v1(b, t, i + 3), _v2(b, t, i + 4),
+                                   _v2(b, t, i + 5), _v2(b, t, i + 6), _v2(b, t, i + 7), _v2(b, t, i + 8),
+                                   _v3(b, t, i + 9), _v3(b, t, i + 10), _v3(b, t, i + 11))
+
+
+@jit_inline
+def carve_planar(buf, tb):
+    """The :class:`PlanarWorkspace` in ``buf``, as :func:`carve_aba`."""
+    b, t, i = buf, tb, _PLANAR
+    return PlanarWorkspace(_v3(b, t, i), _v2(b, t, i + 1), _v2(b, t, i + 2), _v3(b, t, i + 3), _v3(b, t, i + 4),
+                           _v3(b, t, i + 5), _v2(b, t, i + 6), _v1(b, t, i + 7))

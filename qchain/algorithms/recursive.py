@@ -44,7 +44,7 @@ from __future__ import annotations
 import numpy as np
 
 from .arrays import AbaWorkspace, ChainArrays
-from .._jit import jit, jit_helper, jit_pass
+from .._jit import jit, jit_helper, jit_inline, jit_pass
 from ..model.arc import SCRATCH, arc_node_bias, arc_pose, take1, take2
 from ..model.slices import (
     _segment_slices, domain_violation, input_matrix_c, law_gradient_c, phi_matrix, slice_twist)
@@ -277,7 +277,7 @@ def crba(arr, q, floating, H, ws, sc):
                 H[r, s] = Ic[r, s]
 
 
-@jit_helper
+@jit_inline
 def _chol(A, k):
     """In-place Cholesky ``A = L L^T`` of the leading ``k x k`` block (lower triangle). False if not SPD."""
     for j in range(k):

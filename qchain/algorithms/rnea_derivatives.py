@@ -39,6 +39,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._blas import gemm
 from .._jit import jit, jit_helper, jit_inline, jit_pass
 from ..model.arc import _put_columns, _put_rows, bend_values, slice_kinematics, take1, take2
 from ..model.slices import _segment_slices, law_hessian_c, phi_matrix, pressure_jacobian_c
@@ -125,8 +126,8 @@ def rnea_workspace(n, nv):
     outputs ``tau_c`` (n, 3), ``F0`` (6,), ``M``, ``dtau_dq``, ``dtau_dv`` (nv, nv)."""
     return RneaWorkspace(np.zeros((n + 1, 6)), np.zeros((n + 1, 3, 3)), np.zeros((n + 1, 3)), np.zeros((n, 3, 9)),
                          np.zeros((n, 9, 9)), np.zeros((n, 6)), np.zeros((n, 6, 6)), np.zeros((n, 6, 6)),
-                         np.zeros((n, 3, 6, 3)), np.zeros((6, 2, 3 * n)), np.zeros((n, 3, 6)), np.zeros((n, 3, 6)),
-                         np.zeros((6, 1, 3 * n)), np.zeros((n, 3, 6)), np.zeros((6, 2, 3 * n)), np.zeros((6, 2, 3 * n)),
+                         np.zeros((n, 3, 6, 3)), np.zeros((6, 9 * n)), np.zeros((3 * n, 12)), np.zeros((3 * n, 6)),
+                         np.zeros((12, 6 * n)), np.zeros((3 * n, 6 * n)), np.zeros((3 * n, 9 * n)),
                          np.zeros((n, 3)), np.zeros(6), np.zeros((nv, nv)), np.zeros((nv, nv)), np.zeros((nv, nv)))
 
 
@@ -162,7 +163,7 @@ def _rnea_derivatives(arr, q, qd, qdd, V0, A0, floating, g_B, ws, wd, sc, blocks
     off = 6 if floating else 0
     V, T, Q, Mxi = ws.V, ws.T, ws.Q, ws.M_xi
     A, Rw, pw, QqT, QxT, rel1, tipV, tipA = wd.A, wd.R_0j, wd.p_0j, wd.QqT, wd.QxT, wd.rel1, wd.tipV, wd.tipA
-    dS1, G, Ya, Yv, Ms, Jw, sig1, sig2 = wd.dS1, wd.G, wd.Ya, wd.Yv, wd.Ms, wd.Jw, wd.sig1, wd.sig2
+    dS1, G, Y, Jw, S, P1, P2 = wd.dS1, wd.G, wd.Y, wd.Jw, wd.S, wd.P1, wd.P2
     tau, F0, M, dq, dv = wd.tau_c, wd.F0, wd.M, wd.dtau_dq, wd.dtau_dv
     o = 0
     R1, o = take2(sc, o, 3, 3)
@@ -180,13 +181,13 @@ def _rnea_derivatives(arr, q, qd, qdd, V0, A0, floating, g_B, ws, wd, sc, blocks
     dq[:, :] = 0.0
     dv[:, :] = 0.0
     M[:, :] = 0.0
-    _backward_pass(n, off, V, T, Q, Mxi, Rw, pw, QqT, QxT, rel1, tipV, tipA, dS1, G, Ya, Yv, Ms, Jw, sig1, sig2, tau,
-                   M, dq, dv, F, Ic, WF, sc[o:])
+    _backward_pass(n, off, V, T, Q, Mxi, Rw, pw, QqT, QxT, rel1, tipV, tipA, dS1, G, Y, Jw, S, tau, M, dq, dv, F, Ic,
+                   WF, sc[o:])
     for r in range(6):
         F0[r] = F[r]
-    _assemble(n, off, G, Ya, Yv, Ms, Jw, sig1, sig2, M, dq, dv)
+    _assemble(n, off, G, Y, Jw, S, P1, P2, M, dq, dv)
     if floating:
-        _floating_base(n, off, V0, g_B, G, Ya, Yv, Ms, M, dq, dv, Ic, WF, sc[o:])
+        _floating_base(n, off, V0, g_B, G, Y, M, dq, dv, Ic, WF, sc[o:])
 
 
 @jit_helper
@@ -252,13 +253,16 @@ def _forward_pass(alpha, w, offs, mass, radius, q, qd, qdd, V0, A0, V, T, Q, Mxi
 
 
 @jit_inline
-def _backward_pass(n, off, V, T, Q, Mxi, Rw, pw, QqT, QxT, rel1, tipV, tipA, dS1, G, Ya, Yv, Ms, Jw, sig1, sig2, tau,
-                   M, dq, dv, F, Ic, WF, sc):
+def _backward_pass(n, off, V, T, Q, Mxi, Rw, pw, QqT, QxT, rel1, tipV, tipA, dS1, G, Y, Jw, S, tau, M, dq, dv, F, Ic,
+                   WF, sc):
     """Tip to root: the inverse dynamics ``tau`` and, per segment ``j``, its own blocks of
-    ``dq``, ``dv``, ``M`` and what the assembly needs, in the first root's frame: ``G[m, col]``
-    the wrench variation at root ``m``; ``Ya``, ``Yv`` the subtree sensitivities; ``Ms[j, b]``
-    the wrench at root ``j`` per unit ``qdd_j,b``; ``Jw[i, b]`` the twist of tip ``i`` per unit
-    ``qd_i,b``; ``sig1``, ``sig2`` the twists a variation of segment ``j`` moves its subtree by.
+    ``dq``, ``dv``, ``M`` and what the assembly needs, in the first root's frame (the tables
+    :func:`_assemble` multiplies): ``G`` (6, 9n), column ``3j + b`` of block ``h`` (``3n h + 3j
+    + b``) the wrench variation at root ``j`` per unit ``q_j,b`` (``h = 0``), ``qd_j,b`` (1),
+    ``qdd_j,b`` (2, the composite columns of ``M``); ``Y`` (3n, 12), row ``3j + b`` the
+    subtree sensitivities ``(Ya, Yv)``; ``Jw`` (3n, 6) the twist of tip ``j`` per unit
+    ``qd_j,b``; ``S`` (12, 6n), column ``3n h + 3j + b`` the twists ``(sigma2, sigma1)`` a
+    variation of segment ``j`` moves its subtree by.
     ``F``, ``Ic``, ``WF`` come in zero and leave as the whole chain's (the base's) wrench,
     composite inertia and ``dF/dV``; ``sc`` is scratch."""
     o = 0
@@ -289,30 +293,30 @@ def _backward_pass(n, off, V, T, Q, Mxi, Rw, pw, QqT, QxT, rel1, tipV, tipA, dS1
                     dq[i0 + b, i0 + col] = D[col, 6 + b]
                 else:
                     dv[i0 + b, i0 + col - 3] = D[col, 6 + b]
-            _put_column6(G, col // 3, 3 * j + col % 3, ad_force(Rw[j], pw[j], D[col, :6]))
+            _put_column6(G, 0, 3 * n * (col // 3) + 3 * j + col % 3, ad_force(Rw[j], pw[j], D[col, :6]))
         # world-frame rows of the subtree sensitivities and the composite columns of M
         for b in range(3):
             for r in range(6):
                 t1[r] = Mh[6 + b, r]
-            put6(Ya[j, b], ad_force(Rw[j], pw[j], t1))
+            put6(Y[3 * j + b], ad_force(Rw[j], pw[j], t1))
             put6(t2, force_cross(V[j], t1))
             for r in range(6):
                 t2[r] += Wj[6 + b, r]
-            put6(Yv[j, b], ad_force(Rw[j], pw[j], t2))
+            put6(Y[3 * j + b, 6:], ad_force(Rw[j], pw[j], t2))
             for r in range(6):
                 t1[r] = Mh[r, 6 + b]
-            _put_column6(Ms, 0, 3 * j + b, ad_force(Rw[j], pw[j], t1))
+            _put_column6(G, 0, 6 * n + 3 * j + b, ad_force(Rw[j], pw[j], t1))
             for a in range(3):
                 M[i0 + a, i0 + b] = Mh[6 + a, 6 + b]
             for r in range(6):
                 t2[r] = Tj[r, 6 + b]
-            put6(Jw[j, b], ad_twist(Rw[j + 1], pw[j + 1], t2))
+            put6(Jw[3 * j + b], ad_twist(Rw[j + 1], pw[j + 1], t2))
         put6(vW, ad_twist(Rw[j + 1], pw[j + 1], V[j + 1]))
         for col in range(6):
+            c = 3 * n * (col // 3) + 3 * j + col % 3
             s1 = ad_twist(Rw[j + 1], pw[j + 1], tipV[j, col])
-            _put_column6(sig1, col // 3, 3 * j + col % 3, s1)
-            _put_column6(sig2, col // 3, 3 * j + col % 3,
-                         vsub(ad_twist(Rw[j + 1], pw[j + 1], tipA[j, col]), motion_cross(s1, vW)))
+            _put_column6(S, 6, c, s1)
+            _put_column6(S, 0, c, vsub(ad_twist(Rw[j + 1], pw[j + 1], tipA[j, col]), motion_cross(s1, vW)))
         # move one root inwards
         for r in range(6):
             F[r] = Q[j, r] + TF[r]
@@ -385,53 +389,51 @@ def _segment_columns(Tj, QqT, QxT, dS1, tipV, tipA, F, Ic, WF, D, dF, t1, t2):
 
 
 @jit_helper
-def _put_column6(X, h, c, t):
-    """``X[:, h, c] = t`` of a (6, 2, k) or (6, 1, k) array and a 6-tuple: a column of the
-    tables :func:`_assemble` reads along their last index."""
-    X[0, h, c] = t[0]
-    X[1, h, c] = t[1]
-    X[2, h, c] = t[2]
-    X[3, h, c] = t[3]
-    X[4, h, c] = t[4]
-    X[5, h, c] = t[5]
+def _put_column6(X, r0, c, t):
+    """``X[r0:r0 + 6, c] = t`` of a matrix and a 6-tuple: a column of the tables
+    :func:`_assemble` multiplies."""
+    X[r0, c] = t[0]
+    X[r0 + 1, c] = t[1]
+    X[r0 + 2, c] = t[2]
+    X[r0 + 3, c] = t[3]
+    X[r0 + 4, c] = t[4]
+    X[r0 + 5, c] = t[5]
 
 
 @jit_inline
-def _assemble(n, off, G, Ya, Yv, Ms, Jw, sig1, sig2, M, dq, dv):
-    """The blocks between segments, O(n^2) 6-long dot products: for ``i > m`` a variation of
-    segment ``m`` moves segment ``i`` rigidly (``dtau_i = Ya_i sig2_m + Yv_i sig1_m``), for
-    ``i < m`` it changes the wrench at root ``m`` (``dtau_i = J_i^T G_m``); ``M``'s
-    off-diagonal blocks ``J_i^T Ms_m``. ``G``, ``sig1``, ``sig2`` (6, 2, 3n) and ``Ms`` (6, 1,
-    3n) hold their columns along the last index (``[:, 0]`` the configuration's, ``[:, 1]`` the
-    rates'), so that each row of a result is a few scaled rows of them, which the compiler
-    vectorises; one loop an output (a loop writing several arrays is left scalar)."""
+def _assemble(n, off, G, Y, Jw, S, P1, P2, M, dq, dv):
+    """The blocks between segments: for ``i > m`` a variation of segment ``m`` moves segment
+    ``i`` rigidly (``dtau_i = Ya_i sig2_m + Yv_i sig1_m``), for ``i < m`` it changes the wrench
+    at root ``m`` (``dtau_i = J_i^T G_m``); ``M``'s off-diagonal blocks ``J_i^T Ms_m``. Two
+    matrix products by BLAS (:func:`qchain._blas.gemm`) give every pair ``(i, m)``:
+    ``P1 = Y S`` (3n, 6n) and ``P2 = Jw G`` (3n, 9n), of which each output takes its blocks
+    below (``P1``) or above (``P2``) the diagonal. The products do twice the work the blocks
+    need and still cost less than the 6- and 12-long sums written out, which the compiler
+    vectorised poorly over rows of 3 i columns."""
+    gemm(Y, S, P1)
+    gemm(Jw, G, P2)
+    k = 3 * n
     for i in range(n):
         for b in range(3):
-            ri = off + 3 * i + b
-            a0, a1, a2, a3, a4, a5 = Ya[i, b, 0], Ya[i, b, 1], Ya[i, b, 2], Ya[i, b, 3], Ya[i, b, 4], Ya[i, b, 5]
-            v0, v1, v2, v3, v4, v5 = Yv[i, b, 0], Yv[i, b, 1], Yv[i, b, 2], Yv[i, b, 3], Yv[i, b, 4], Yv[i, b, 5]
-            for h in range(2):
-                out = dq[ri] if h == 0 else dv[ri]
-                for c in range(3 * i):  # m < i: segment i moves rigidly
-                    out[off + c] = (a0 * sig2[0, h, c] + a1 * sig2[1, h, c] + a2 * sig2[2, h, c] + a3 * sig2[3, h, c]
-                                    + a4 * sig2[4, h, c] + a5 * sig2[5, h, c] + v0 * sig1[0, h, c]
-                                    + v1 * sig1[1, h, c] + v2 * sig1[2, h, c] + v3 * sig1[3, h, c]
-                                    + v4 * sig1[4, h, c] + v5 * sig1[5, h, c])
-            j0, j1, j2, j3, j4, j5 = Jw[i, b, 0], Jw[i, b, 1], Jw[i, b, 2], Jw[i, b, 3], Jw[i, b, 4], Jw[i, b, 5]
-            for h in range(3):
-                out = dq[ri] if h == 0 else (dv[ri] if h == 1 else M[ri])
-                X = Ms if h == 2 else G
-                hh = 0 if h == 2 else h
-                for c in range(3 * i + 3, 3 * n):  # m > i: the wrench at root m changes
-                    out[off + c] = (j0 * X[0, hh, c] + j1 * X[1, hh, c] + j2 * X[2, hh, c] + j3 * X[3, hh, c]
-                                    + j4 * X[4, hh, c] + j5 * X[5, hh, c])
-    for r in range(off, off + 3 * n):  # M is symmetric
-        for c in range(r - (r - off) % 3 + 3, off + 3 * n):
+            row = 3 * i + b
+            ri = off + row
+            for c in range(3 * i):  # m < i: segment i moves rigidly
+                dq[ri, off + c] = P1[row, c]
+            for c in range(3 * i):
+                dv[ri, off + c] = P1[row, k + c]
+            for c in range(3 * i + 3, k):  # m > i: the wrench at root m changes
+                dq[ri, off + c] = P2[row, c]
+            for c in range(3 * i + 3, k):
+                dv[ri, off + c] = P2[row, k + c]
+            for c in range(3 * i + 3, k):
+                M[ri, off + c] = P2[row, 2 * k + c]
+    for r in range(off, off + k):  # M is symmetric
+        for c in range(r - (r - off) % 3 + 3, off + k):
             M[c, r] = M[r, c]
 
 
 @jit_inline
-def _floating_base(n, off, V0, g_B, G, Ya, Yv, Ms, M, dq, dv, Ic, WF, sc):
+def _floating_base(n, off, V0, g_B, G, Y, M, dq, dv, Ic, WF, sc):
     """A floating base's rows (its wrench ``F0``) and columns (twist ``sigma1 = I``,
     ``sigma2 = ad(V0)``; attitude: gravity in the base frame turns, ``sigma2 = (e_k x g_B, 0)``),
     with ``Ic``, ``WF`` the whole chain's composite inertia and ``dF/dV``; ``sc`` scratch."""
@@ -444,13 +446,13 @@ def _floating_base(n, off, V0, g_B, G, Ya, Yv, Ms, M, dq, dv, Ic, WF, sc):
         for col in range(6):
             for r in range(6):
                 if col < 3:
-                    dq[r, cm + col] = G[r, 0, 3 * m + col]
+                    dq[r, cm + col] = G[r, 3 * m + col]
                 else:
-                    dv[r, cm + col - 3] = G[r, 1, 3 * m + col - 3]
+                    dv[r, cm + col - 3] = G[r, 3 * n + 3 * m + col - 3]
         for b in range(3):
             for r in range(6):
-                M[r, cm + b] = Ms[r, 0, 3 * m + b]
-                M[cm + b, r] = Ms[r, 0, 3 * m + b]
+                M[r, cm + b] = G[r, 6 * n + 3 * m + b]
+                M[cm + b, r] = G[r, 6 * n + 3 * m + b]
     for r in range(6):
         for s in range(6):
             M[r, s] = Ic[r, s]
@@ -471,13 +473,13 @@ def _floating_base(n, off, V0, g_B, G, Ya, Yv, Ms, M, dq, dv, Ic, WF, sc):
     for i in range(n):
         ri = off + 3 * i
         for b in range(3):
-            put6(t2, force_cross(V0, Ya[i, b]))  # twist columns: Ya ad(V0) + Yv
+            put6(t2, force_cross(V0, Y[3 * i + b, :6]))  # twist columns: Ya ad(V0) + Yv
             for k in range(6):
-                dv[ri + b, k] = Yv[i, b, k] - t2[k]
+                dv[ri + b, k] = Y[3 * i + b, 6 + k] - t2[k]
             for k in range(3):
                 acc = 0.0
                 for s in range(3):
-                    acc += Ya[i, b, s] * sg[k, s]
+                    acc += Y[3 * i + b, s] * sg[k, s]
                 dq[ri + b, 3 + k] = acc
 
 

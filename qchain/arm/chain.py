@@ -243,8 +243,10 @@ class Chain(KeepsReadOnly, ChainKinematics, ChainEnergies, ChainContact, ChainPa
         self._payload.flags.writeable = False
         self._has_payload = self._payload_inertia is not None
         self._planar_kernel = self.planar and base == "fixed"  # forward dynamics on qchain.algorithms.planar
-        # forward dynamics in one compiled call (recursive.forward_dynamics): curvature coordinates (either elastic law)
-        self._fused = not (self._planar_kernel or self._any_paper or self._has_linear)
+        # curvature coordinates and the material law: what the one-call compiled paths serve
+        # (recursive.forward_dynamics, aba_derivatives.forward_dynamics_derivatives)
+        self._curvature = not (self._any_paper or self._has_linear)
+        self._fused = self._curvature and not self._planar_kernel
         self._p_zero = np.zeros((n, 3))  # p = None on the unchecked path (writable: one array type for the kernels)
         self._p_flat = self._p_zero.reshape(-1)
         self._own_data: dict[int, Data] = {}  # the workspaces of calls without data= (_workspace)
@@ -797,11 +799,13 @@ class Chain(KeepsReadOnly, ChainKinematics, ChainEnergies, ChainContact, ChainPa
         return _plus_drag(_derivs.forward_dynamics_derivatives(self, st, p3, tau, t, data), dq, dv)
 
     def _forward_dynamics_derivatives_unchecked(self, q, v, p, tau, t, data):
-        q_c, v_c, p3, V0, A_B, g_B = self._unchecked_inputs(q, v, p, t, data)
+        V0, A_B, g_B = ((_ZERO6, None, self._g_B) if self.base == "fixed" and data is not None and self._curvature
+                        else self._unchecked_inputs(q, v, p, t, data)[3:])  # which raises where the path is not
         dq = dv = None
         if self._has_drag:
             tau, dq, dv = self._drag_unchecked(q, v, t, tau, True)
-        out = _derivs.compiled_forward_dynamics_derivatives(self, q_c, v_c, p3, tau, V0, A_B, g_B, t, data, check=False)
+        p = self._p_flat if p is None else (p if p.ndim == 1 else p.reshape(-1))
+        out = _derivs.compiled_forward_dynamics_derivatives(self, q, v, p, tau, V0, A_B, g_B, t, data, check=False)
         return out if dq is None else _plus_drag(out, dq, dv)
 
     @_finite("mass matrix derivative")

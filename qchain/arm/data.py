@@ -9,8 +9,7 @@ Arrays (``n`` segments, ``nv`` velocities, ``nu = 3 n`` pressures; frames: ``roo
 root frame of segment ``j``, ``root 0`` the base; ``[linear; angular]``; SI units):
 
 ===================  =================  =================================================
-``q_c, v_c, a_c``    (n, 3)             segment state in curvature coordinates ``(l, ux, uy)``
-``p``                (n, 3)             chamber pressures (Pa)
+``a_c``              (n, 3)             segment accelerations in curvature coordinates ``(l, ux, uy)``
 ``f``                (n, 3)             internal plus external generalised force on ``q_c``
 ``V, A``             (n + 1, 6)         root twists (m/s, rad/s) and apparent accelerations
                                         (gravity included) in their own frames
@@ -21,25 +20,34 @@ root frame of segment ``j``, ``root 0`` the base; ``[linear; angular]``; SI unit
 ``QqT, QxT``         (n, 3, 9), (n, 9, 9)  their derivatives by ``q_j`` and ``xi_j`` (first index)
 ``tipV, tipA``       (n, 6, 6)          variations of the next root's twist, acceleration
 ``dS1``              (n, 3, 6, 3)       ``dS_j(1)/dq``
-``G, sig1, sig2``    (6, 2, 3n)         per-column wrench and twist variations (root 0;
-                                        ``[:, 0]`` configuration, ``[:, 1]`` rate columns)
-``Ms``               (6, 1, 3n)         composite columns of ``M`` (root 0)
-``Ya, Yv, Jw``       (n, 3, 6)          subtree sensitivities, tip Jacobians (root 0)
+``G``                (6, 9n)            per-column wrench variations (root 0): blocks of 3n
+                                        columns for ``q``, ``qd`` and ``qdd`` (the composite
+                                        columns of ``M``)
+``S``                (12, 6n)           per-column twist variations ``(sigma2, sigma1)`` (root
+                                        0), blocks for ``q`` and ``qd``
+``Y, Jw``            (3n, 12), (3n, 6)  subtree sensitivities ``(Ya, Yv)``, tip Jacobians (root 0)
+``P1, P2``           (3n, 6n), (3n, 9n) the products ``Y S`` and ``Jw G`` the blocks between
+                                        segments are taken from
 ``Lq, U, u``         (n, 3, 3), (n, 6, 3), (n, 3)  articulated-body factors
 ``scratch``          (SCRATCH,)         small temporaries of the passes (``qchain.model.arc.SCRATCH``)
 ``pT, pc, pb, pM``   (n, 3, 5), (n, 3), the planar kernel's tip maps, biases, segment forces
                      (n, 5), (n, 5, 5)  and blocks (:mod:`qchain.algorithms.planar`, planar chains)
 ``pDinv, pU, pu``    (n, 2, 2), (n, 3, 2), (n, 2)  its articulated factors; ``pscratch``
-``tau``              (nv,)              inverse dynamics (N, N m)
+``tau_c, F0``        (n, 3), (6,)       inverse dynamics: segment forces and the base wrench
+                                        (N, N m)
+``A0``               (6,)               the base's apparent acceleration
 ``a``                (nv,)              forward dynamics (m/s^2, rad/s^2, ...)
 ``M, L``             (nv, nv)           mass matrix; the inverse of its Cholesky factor (free
-                                        block), then the right-hand sides of ``da_dv``
-``rhs``              (nv, nv)           right-hand sides of ``da_dq``
-``dtau_dq, dtau_dv`` (nv, nv)           inverse-dynamics derivatives
+                                        block), then ``da_dp`` transposed
+``dtau_dq, dtau_dv`` (nv, nv)           inverse-dynamics derivatives (after the forward
+                                        dynamics' derivatives ``dtau_dv`` holds the right-hand
+                                        side ``df/dv - dID/dv``)
 ``da_dq, da_dv``     (nv, nv)           forward-dynamics derivatives
 ``da_dtau``          (nv, nv)           ``M^-1``
 ``da_dp``            (nv, nu)           per pascal
 ``dfq, dfv, B``      (n, 3, 3)          internal-force derivatives and input matrices
+``kernel_buffer``    (size,)            the arrays of the compiled passes, one after another
+``kernel_layout``    (K + 1, 5) int64   where each lies in it (:mod:`qchain.algorithms.layout`)
 ===================  =================  =================================================
 """
 
@@ -47,27 +55,24 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..algorithms import aba_derivatives, planar, recursive, rnea_derivatives
 from ..algorithms.arrays import AbaDerivativesWorkspace, AbaWorkspace, PlanarWorkspace, RneaWorkspace
+from ..algorithms.layout import kernel_layout, kernel_views
 
 __all__ = ["Data"]
 
 
-# (allocator, names): a group's arrays are made by one compiled allocator, which the
-# compiled passes also call when no Data is given, so shapes are defined once; the names are
-# the fields of the group's workspace (qchain.algorithms.arrays)
-_GROUPS = {
-    "aba": (recursive.aba_workspace, AbaWorkspace._fields),
-    "rnea_derivatives": (rnea_derivatives.rnea_workspace, RneaWorkspace._fields),
-    "aba_derivatives": (aba_derivatives.aba_derivatives_workspace, AbaDerivativesWorkspace._fields),
-    "planar": (lambda n, nv: planar.planar_workspace(n), PlanarWorkspace._fields),
-}
+# the compiled passes' workspace arrays, in the order they lie in one buffer
+# (qchain.algorithms.layout): one name each
+_KERNEL_FIELDS = AbaWorkspace._fields + RneaWorkspace._fields + AbaDerivativesWorkspace._fields + PlanarWorkspace._fields
+_KERNEL_NAMES = frozenset(_KERNEL_FIELDS) | {"kernel_buffer", "kernel_layout"}
 
 
 class Data:
     """Workspace of one chain of ``n`` segments and ``nv`` velocities (``chain.create_data()``);
-    see the module docstring for every array. Arrays are allocated group by group on first
-    use, so a workspace made for one call costs only what that call writes."""
+    see the module docstring for every array. The arrays are views of one zeroed buffer
+    (``kernel_buffer`` (size,), laid out by ``kernel_layout`` (K + 1, 5) int64,
+    :func:`qchain.algorithms.layout.kernel_layout`), allocated on the first use of any of
+    them; memory pages that no call writes are never touched."""
 
     def __init__(self, n: int, nv: int):
         from ..checks.bounds import SEGMENT_COUNT
@@ -88,11 +93,17 @@ class Data:
     def __getattr__(self, name: str):
         if name.startswith("_"):
             raise AttributeError(name)
-        for make, names in _GROUPS.values():
-            if name in names:
-                for k, x in zip(names, make(self.n, self.nv)):
-                    self.__dict__[k] = x
-                return self.__dict__[name]
+        if name in _KERNEL_NAMES:
+            # every workspace array at once, in one zeroed buffer (calloc'd: pages no pass
+            # writes are never touched), so that a compiled call can take the buffer and its
+            # table and carve them (qchain.algorithms.arrays) instead of unboxing each array
+            table = kernel_layout(self.n, self.nv)
+            buf = np.zeros(table[-1, 0])
+            d = self.__dict__
+            d["kernel_buffer"], d["kernel_layout"] = buf, table
+            for k, x in zip(_KERNEL_FIELDS, kernel_views(buf, table)):
+                d[k] = x
+            return d[name]
         raise AttributeError(f"Data has no array {name!r}")
 
     def aba_workspace(self) -> AbaWorkspace:

@@ -187,8 +187,8 @@ def forward_dynamics_derivatives(ch: Chain, st: _State, p3: np.ndarray, tau, t: 
                                  data: Data | None) -> ForwardDynamicsDerivatives:
     """On a validated state (locks checked)."""
     if not (ch._any_paper or ch._has_linear):
-        return compiled_forward_dynamics_derivatives(ch, st.q_c, np.ascontiguousarray(st.v_c), p3, tau, st.V0,
-                                                     st.A_B, st.g_B, t, data)
+        return compiled_forward_dynamics_derivatives(ch, st.q, st.v, p3.reshape(-1), tau, st.V0, st.A_B, st.g_B, t,
+                                                     data)
     a = ch._forward_dynamics(st, p3, tau, t, data)
     idd = inverse_dynamics_derivatives(ch, st, a, data)
     dfq, dfv, B = _internal_derivatives(ch, st, p3)
@@ -216,27 +216,25 @@ def _checked(out: ForwardDynamicsDerivatives, t: float) -> ForwardDynamicsDeriva
     return out
 
 
-def compiled_forward_dynamics_derivatives(ch: Chain, q_c, v_c, p3, tau, V0, A_B, g_B, t, data: Data | None,
+def compiled_forward_dynamics_derivatives(ch: Chain, q, v, p, tau, V0, A_B, g_B, t, data: Data | None,
                                           check: bool = True) -> ForwardDynamicsDerivatives:
-    """The one compiled call (:func:`qchain.algorithms.aba_derivatives.aba_derivatives`) for chains in
-    curvature coordinates; the result's arrays are ``data``'s where it
-    is given."""
-    tau_ext = np.zeros(ch.nv) if tau is None else tau
-    A_B = _ZERO6 if A_B is None else A_B
-    args = (ch._arrays, ch.floating, q_c, v_c, p3, tau_ext, V0, A_B, g_B)
+    """The one compiled call (:func:`qchain.algorithms.aba_derivatives.forward_dynamics_derivatives`)
+    for chains in curvature coordinates: ``q`` (nq,), ``v`` (nv,), ``p`` (3 n,), ``tau`` (nv,)
+    or None. The result's arrays are ``data``'s where it is given (the same tuple each call)."""
     d = ch._workspace(data)  # without data: the thread's own, whose results are copied out
-    status = aba_derivatives.aba_derivatives(*args, tuple(d.aba_workspace()), tuple(d.rnea_workspace()),
-                                             tuple(d.aba_derivatives_workspace()), d.scratch)
-    out = (d.a, d.da_dq, d.da_dv, d.da_dp, d.da_dtau)
+    status = aba_derivatives.forward_dynamics_derivatives(ch._arrays, ch.floating, q, v, p, _EMPTY if tau is None else tau,
+                                                          V0, _ZERO6 if A_B is None else A_B, g_B, d.kernel_buffer,
+                                                          d.kernel_layout)
+    out = d._tuple("_fdd", ForwardDynamicsDerivatives)
     if data is None:
-        out = tuple(x.copy() for x in out)
+        out = ForwardDynamicsDerivatives(*(x.copy() for x in out))
     if status and check:
         if status in (1, 2):  # name the segment whose inertia is singular, and its coordinates
-            raise ch.indefinite_error("forward_dynamics_derivatives", q_c, t)
+            raise ch.indefinite_error("forward_dynamics_derivatives", q[ch._qoff :].reshape(ch.n, 3), t)
         raise ch.nonfinite_error("forward_dynamics_derivatives", "accelerations or their derivatives",
-                                 np.concatenate([np.zeros(ch._qoff), np.ravel(q_c)]),
-                                 np.concatenate([np.zeros(ch._voff), np.ravel(v_c)]), t)
-    return ForwardDynamicsDerivatives(*out)
+                                 np.concatenate([np.zeros(ch._qoff), q[ch._qoff :]]),
+                                 np.concatenate([np.zeros(ch._voff), v[ch._voff :]]), t)
+    return out
 
 
 # ---------------------------------------------------------------------------- mass matrix

@@ -10,9 +10,10 @@ import weakref
 
 import numpy as np
 
+from ...algorithms.layout import kernel_layout
 from ...contact.environment import Environment
 from . import schedules
-from .system import FIXED, FLOATING, PRESCRIBED, EngineModel, _layout
+from .system import FIXED, FLOATING, PRESCRIBED, EngineModel
 
 __all__ = ["pack", "with_inputs", "python_reason"]
 
@@ -103,6 +104,6 @@ def _packed_model(chain, arrays, env) -> EngineModel | None:
                        planar_kernel=int(planar_kernel), nq=chain.nq, nv=chain.nv,
                        g_W=np.array(chain.gravity, dtype=float), R_WB0=np.array(X.rotation),
                        p_WB0=np.array(X.translation), bm_ints=bm[0], bm_params=bm[1], p_ints=p[0], p_params=p[1],
-                       tau_ints=f[0], tau_params=f[1], layout=_layout(chain.n, chain.nv), env=env,
+                       tau_ints=f[0], tau_params=f[1], layout=kernel_layout(chain.n, chain.nv), env=env,
                        tendon_rows=np.array(chain._tendon_rows), tendon_nodes=np.array(chain._tendon_nodes),
                        tendon_weights=np.array(chain._tendon_weights), tn_ints=tn[0], tn_params=tn[1])

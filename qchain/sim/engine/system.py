@@ -25,12 +25,11 @@ Unchecked by design: compiled kernels whose arguments the checked API has valida
 
 from __future__ import annotations
 
-import functools
 from typing import NamedTuple
 
 import numpy as np
 
-from ...algorithms import aba_derivatives, planar, recursive, rnea_derivatives
+from ...algorithms import aba_derivatives, planar, recursive
 from ...contact.environment import PackedEnvironment
 from ...contact.derivatives import NODE_T, environment_derivatives
 from ...contact.drag import DRAG_FRAME, drag_derivatives, drag_forces
@@ -38,7 +37,8 @@ from ...contact.forces import ROOT
 from ...contact.distance import PARAMS, move
 from ...contact.forces import beyond_reach, contact_forces, load_forces
 from ...contact.planar import planar_contact_forces
-from ...algorithms.arrays import AbaDerivativesWorkspace, AbaWorkspace, ChainArrays, PlanarWorkspace, RneaWorkspace
+from ...algorithms.arrays import ChainArrays, carve_aba, carve_aba_derivatives, carve_planar, carve_rnea
+from ...algorithms.layout import kernel_layout
 from ...model.arc import SCRATCH, arc_node, take1, take2
 from ...model.slices import law_energy_c, slice_twist
 from ...model.tendon import tendon_length_c
@@ -84,7 +84,7 @@ class EngineModel(NamedTuple):
     tau_ints, tau_params : (k,) int64, (k',) float
         The generalised-force input, likewise.
     layout : (K + 1, 5) int64
-        Where the kernel workspaces lie in :attr:`Workspace.buf` (:func:`_layout`).
+        Where the kernel workspaces lie in :attr:`Workspace.buf` (:func:`qchain.algorithms.layout.kernel_layout`).
     env : PackedEnvironment
         Obstacles, contact law and point loads (:meth:`qchain.contact.Environment.packed`);
         none of either costs nothing.
@@ -148,7 +148,7 @@ class Workspace(NamedTuple):
         Status and the segment it concerns; ``info[2]``: the most contacts any right-hand side
         of the run found active (a run's ``meta["max_active_contacts"]``).
     buf : (size,) float
-        The kernels' workspaces in one buffer (:data:`KERNEL_NDIM`, carved by
+        The kernels' workspaces in one buffer (:data:`qchain.algorithms.arrays.KERNEL_NDIM`, carved by
         :func:`aba_ws` and its siblings).
     scratch : (SCRATCH,) float
         The model passes' scratch.
@@ -197,39 +197,6 @@ class Workspace(NamedTuple):
     drag_frames: np.ndarray
 
 
-#: the kernel workspaces carved from one buffer (:func:`_layout`), in order: the aba,
-#: rnea-derivative and aba-derivative workspaces of :class:`qchain.arm.data.Data` and the planar
-#: kernel's; each array's number of dimensions (the carving code's types; their shapes come
-#: from the allocators, and ``tests/test_engine.py`` checks the two agree)
-KERNEL_NDIM = ((2, 3, 2, 2, 3, 3, 3, 2, 1),
-               (2, 3, 2, 3, 3, 2, 3, 3, 4, 3, 3, 3, 3, 3, 3, 3, 2, 1, 2, 2, 2),
-               (2, 2, 1, 1, 2, 2, 2, 2, 2, 2, 3, 3, 3),
-               (3, 2, 2, 3, 3, 3, 2, 1))
-
-
-def _kernel_arrays(n: int, nv: int) -> list[np.ndarray]:
-    # the compiled allocators' own code, run by numpy: the arrays (and so the shapes) the
-    # kernels are written for, without loading four cached functions before the first step
-    return [*recursive.aba_workspace.py_func(n, nv), *rnea_derivatives.rnea_workspace.py_func(n, nv),
-            *aba_derivatives.aba_derivatives_workspace.py_func(n, nv), *planar.planar_workspace.py_func(n)]
-
-
-@functools.lru_cache(maxsize=64)
-def _layout(n: int, nv: int) -> np.ndarray:
-    """``(K, 5) int64``: each kernel workspace array's offset in the buffer and its shape
-    (trailing dimensions 1); the last row's offset is the buffer's size. Shared by every
-    model of that size: never written."""
-    arrays = _kernel_arrays(n, nv)
-    table = np.ones((len(arrays) + 1, 5), dtype=np.int64)
-    o = 0
-    for i, a in enumerate(arrays):
-        table[i, 0] = o
-        table[i, 1 : 1 + a.ndim] = a.shape
-        o += a.size
-    table[-1, 0] = o
-    return table
-
-
 def workspace(chain, m: EngineModel | None = None) -> Workspace:
     """A fresh :class:`Workspace` for ``chain`` (and the obstacles of its packed model ``m``), zeros."""
     n, nv, nq = chain.n, chain.nv, chain.nq
@@ -239,7 +206,7 @@ def workspace(chain, m: EngineModel | None = None) -> Workspace:
     return Workspace(q=np.zeros(nq), v=np.zeros(nv), q_chart=np.zeros(nq), p=np.zeros(3 * n), tau=np.zeros(nv),
                      tension=np.zeros(chain.nt),
                      f=np.zeros((n, 3)), A0=np.zeros(6), a=np.zeros(nv), qdd=np.zeros((n, 3)), B=np.zeros((4, 6)),
-                     info=np.zeros(4, dtype=np.int64), buf=np.zeros(_layout(n, nv)[-1, 0]), scratch=np.zeros(SCRATCH),
+                     info=np.zeros(4, dtype=np.int64), buf=np.zeros(kernel_layout(n, nv)[-1, 0]), scratch=np.zeros(SCRATCH),
                      R_WB=np.zeros((3, 3)), W=np.zeros((2, n + 2, 6)),
                      Jenv=np.zeros((2, nv, nv)), Denv=np.zeros((3, n, 3)), Eenv=np.zeros((3, 6)),
                      prm_t=np.zeros((k, PARAMS)), vel=np.zeros((k, 3)), roots=np.zeros((n if selfc else 0, ROOT + 12)),
@@ -248,62 +215,27 @@ def workspace(chain, m: EngineModel | None = None) -> Workspace:
 
 
 @inline
-def _v1(buf, tb, i):
-    o = tb[i, 0]
-    return buf[o : o + tb[i, 1]]
-
-
-@inline
-def _v2(buf, tb, i):
-    o = tb[i, 0]
-    return view2(buf[o : o + tb[i, 1] * tb[i, 2]], tb[i, 1], tb[i, 2])
-
-
-@inline
-def _v3(buf, tb, i):
-    o = tb[i, 0]
-    return view3(buf[o : o + tb[i, 1] * tb[i, 2] * tb[i, 3]], tb[i, 1], tb[i, 2], tb[i, 3])
-
-
-@inline
-def _v4(buf, tb, i):
-    o = tb[i, 0]
-    return view4(buf[o : o + tb[i, 1] * tb[i, 2] * tb[i, 3] * tb[i, 4]], tb[i, 1], tb[i, 2], tb[i, 3], tb[i, 4])
-
-
-@inline
 def aba_ws(m, wk):
     """The aba workspace (:func:`qchain.algorithms.recursive.aba_workspace`) carved from ``wk``'s buffer."""
-    b, t = wk.buf, m.layout
-    return AbaWorkspace(_v2(b, t, 0), _v3(b, t, 1), _v2(b, t, 2), _v2(b, t, 3), _v3(b, t, 4), _v3(b, t, 5),
-                        _v3(b, t, 6), _v2(b, t, 7), _v1(b, t, 8))
+    return carve_aba(wk.buf, m.layout)
 
 
 @inline
 def rnea_ws(m, wk):
     """The rnea-derivative workspace (:func:`qchain.algorithms.rnea_derivatives.rnea_workspace`), carved."""
-    b, t = wk.buf, m.layout
-    return RneaWorkspace(_v2(b, t, 9), _v3(b, t, 10), _v2(b, t, 11), _v3(b, t, 12), _v3(b, t, 13), _v2(b, t, 14),
-                         _v3(b, t, 15), _v3(b, t, 16), _v4(b, t, 17), _v3(b, t, 18), _v3(b, t, 19), _v3(b, t, 20),
-                         _v3(b, t, 21), _v3(b, t, 22), _v3(b, t, 23), _v3(b, t, 24), _v2(b, t, 25), _v1(b, t, 26),
-                         _v2(b, t, 27), _v2(b, t, 28), _v2(b, t, 29))
+    return carve_rnea(wk.buf, m.layout)
 
 
 @inline
 def aba_derivatives_ws(m, wk):
     """The aba-derivative workspace (:func:`qchain.algorithms.aba_derivatives.aba_derivatives_workspace`), carved."""
-    b, t = wk.buf, m.layout
-    return AbaDerivativesWorkspace(_v2(b, t, 30), _v2(b, t, 31), _v1(b, t, 32), _v1(b, t, 33), _v2(b, t, 34),
-                                   _v2(b, t, 35), _v2(b, t, 36), _v2(b, t, 37), _v2(b, t, 38), _v2(b, t, 39),
-                                   _v3(b, t, 40), _v3(b, t, 41), _v3(b, t, 42))
+    return carve_aba_derivatives(wk.buf, m.layout)
 
 
 @inline
 def planar_ws(m, wk):
     """The planar kernel's workspace (:func:`qchain.algorithms.planar.planar_workspace`), carved."""
-    b, t = wk.buf, m.layout
-    return PlanarWorkspace(_v3(b, t, 43), _v2(b, t, 44), _v2(b, t, 45), _v3(b, t, 46), _v3(b, t, 47), _v3(b, t, 48),
-                           _v2(b, t, 49), _v1(b, t, 50))
+    return carve_planar(wk.buf, m.layout)
 
 
 @inline
