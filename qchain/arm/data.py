@@ -63,7 +63,8 @@ __all__ = ["Data"]
 
 # the compiled passes' workspace arrays, in the order they lie in one buffer
 # (qchain.algorithms.layout): one name each
-_KERNEL_FIELDS = AbaWorkspace._fields + RneaWorkspace._fields + AbaDerivativesWorkspace._fields + PlanarWorkspace._fields
+_KERNEL_FIELDS = (AbaWorkspace._fields + RneaWorkspace._fields + AbaDerivativesWorkspace._fields
+                  + PlanarWorkspace._fields)
 _KERNEL_NAMES = frozenset(_KERNEL_FIELDS) | {"kernel_buffer", "kernel_layout"}
 
 
@@ -72,7 +73,7 @@ class Data:
     see the module docstring for every array. The arrays are views of one zeroed buffer
     (``kernel_buffer`` (size,), laid out by ``kernel_layout`` (K + 1, 5) int64,
     :func:`qchain.algorithms.layout.kernel_layout`), allocated on the first use of any of
-    them; memory pages that no call writes are never touched."""
+    them (``np.zeros``: a large buffer's pages that no call writes are not touched)."""
 
     def __init__(self, n: int, nv: int):
         from ..checks.bounds import SEGMENT_COUNT
@@ -94,9 +95,10 @@ class Data:
         if name.startswith("_"):
             raise AttributeError(name)
         if name in _KERNEL_NAMES:
-            # every workspace array at once, in one zeroed buffer (calloc'd: pages no pass
-            # writes are never touched), so that a compiled call can take the buffer and its
-            # table and carve them (qchain.algorithms.arrays) instead of unboxing each array
+            # every workspace array at once, in one zeroed buffer (np.zeros: a large buffer's
+            # pages no pass writes are not touched), so that a compiled call can take the
+            # buffer and its table and carve them (qchain.algorithms.arrays) instead of
+            # unboxing each array
             table = kernel_layout(self.n, self.nv)
             buf = np.zeros(table[-1, 0])
             d = self.__dict__

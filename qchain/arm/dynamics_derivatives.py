@@ -222,8 +222,9 @@ def compiled_forward_dynamics_derivatives(ch: Chain, q, v, p, tau, V0, A_B, g_B,
     for chains in curvature coordinates: ``q`` (nq,), ``v`` (nv,), ``p`` (3 n,), ``tau`` (nv,)
     or None. The result's arrays are ``data``'s where it is given (the same tuple each call)."""
     d = ch._workspace(data)  # without data: the thread's own, whose results are copied out
-    status = aba_derivatives.forward_dynamics_derivatives(ch._arrays, ch.floating, q, v, p, _EMPTY if tau is None else tau,
-                                                          V0, _ZERO6 if A_B is None else A_B, g_B, d.kernel_buffer,
+    status = aba_derivatives.forward_dynamics_derivatives(ch._arrays, ch.floating, q, v, p,
+                                                          _EMPTY if tau is None else tau, V0,
+                                                          _ZERO6 if A_B is None else A_B, g_B, d.kernel_buffer,
                                                           d.kernel_layout)
     out = d._tuple("_fdd", ForwardDynamicsDerivatives)
     if data is None:
