@@ -731,6 +731,25 @@ def test_a_workspace_s_arrays_are_views_of_its_one_buffer_at_the_layout_s_places
     assert out.da_dtau is d.da_dtau and np.shares_memory(d.da_dtau, buf) and buf.any()
 
 
+def test_the_data_module_s_table_names_every_array_of_a_workspace_and_no_other():
+    """``qchain.arm.data``'s table of arrays (the first column of each row) against a fresh
+    Data: each name it lists is an array of it, and each array of it is listed."""
+    import re
+
+    from qchain.arm import data as data_module
+    from qchain.arm.data import _KERNEL_NAMES
+
+    listed = set()
+    for line in data_module.__doc__.splitlines():
+        m = re.match(r"^``([^`]+)``", line)
+        if m:
+            listed.update(name.strip() for name in m.group(1).split(","))
+    d = Data(2, 12)
+    for name in listed:
+        assert isinstance(getattr(d, name), np.ndarray), name
+    assert set(_KERNEL_NAMES) == listed
+
+
 def test_configurations_that_overflow_raise_instead_of_returning_nan():
     seg = soft_segment()
     with pytest.raises(NonFiniteError, match=r"Segment.mass_matrix: the mass matrix M_xi is not finite at q_e = "

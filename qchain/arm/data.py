@@ -18,6 +18,7 @@ root frame of segment ``j``, ``root 0`` the base; ``[linear; angular]``; SI unit
 ``c``                (n, 6)             tip bias accelerations
 ``M_xi, Q``          (n, 9, 9), (n, 9)  segment blocks and slice Newton-Euler forces
 ``QqT, QxT``         (n, 3, 9), (n, 9, 9)  their derivatives by ``q_j`` and ``xi_j`` (first index)
+``rel1``             (n, 6)             each tip's twist relative to its root, ``S_j(1) qdot_j``
 ``tipV, tipA``       (n, 6, 6)          variations of the next root's twist, acceleration
 ``dS1``              (n, 3, 6, 3)       ``dS_j(1)/dq``
 ``G``                (6, 9n)            per-column wrench variations (root 0): blocks of 3n
@@ -32,7 +33,8 @@ root frame of segment ``j``, ``root 0`` the base; ``[linear; angular]``; SI unit
 ``scratch``          (SCRATCH,)         small temporaries of the passes (``qchain.model.arc.SCRATCH``)
 ``pT, pc, pb, pM``   (n, 3, 5), (n, 3), the planar kernel's tip maps, biases, segment forces
                      (n, 5), (n, 5, 5)  and blocks (:mod:`qchain.algorithms.planar`, planar chains)
-``pDinv, pU, pu``    (n, 2, 2), (n, 3, 2), (n, 2)  its articulated factors; ``pscratch``
+``pDinv, pU, pu``    (n, 2, 2), (n, 3, 2), (n, 2)  its articulated factors
+``pscratch``         (SCRATCH,)         its scratch
 ``tau_c, F0``        (n, 3), (6,)       inverse dynamics: segment forces and the base wrench
                                         (N, N m)
 ``A0``               (6,)               the base's apparent acceleration
