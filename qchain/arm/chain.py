@@ -673,8 +673,7 @@ class Chain(KeepsReadOnly, ChainKinematics, ChainEnergies, ChainContact, ChainPa
         if self._has_drag:
             tau = self._drag_unchecked(q, v, t, tau)
         if self._fused and data is not None:  # a singular articulated block is not reported here
-            V0, A_B, g_B = ((_ZERO6, None, self._g_B) if self.base == "fixed" else
-                            self._unchecked_inputs(q, v, p, t, data)[3:])
+            V0, A_B, g_B = self._unchecked_base(q, v, p, t, data)
             recursive.forward_dynamics(self._arrays, self.floating, q, v, self._p_flat if p is None else p,
                                        _EMPTY if tau is None else tau, V0, _ZERO6 if A_B is None else A_B, g_B,
                                        data.f, data.a, tuple(data.aba_workspace()), data.scratch)
@@ -799,8 +798,7 @@ class Chain(KeepsReadOnly, ChainKinematics, ChainEnergies, ChainContact, ChainPa
         return _plus_drag(_derivs.forward_dynamics_derivatives(self, st, p3, tau, t, data), dq, dv)
 
     def _forward_dynamics_derivatives_unchecked(self, q, v, p, tau, t, data):
-        V0, A_B, g_B = ((_ZERO6, None, self._g_B) if self.base == "fixed" and data is not None and self._curvature
-                        else self._unchecked_inputs(q, v, p, t, data)[3:])  # which raises where the path is not
+        V0, A_B, g_B = self._unchecked_base(q, v, p, t, data)
         dq = dv = None
         if self._has_drag:
             tau, dq, dv = self._drag_unchecked(q, v, t, tau, True)

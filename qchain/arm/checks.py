@@ -222,6 +222,13 @@ class ChainChecks:
             g_B = X.rotation.T @ self.gravity
         return q_c, v_c, p3, V0, A_B, g_B
 
+    def _unchecked_base(self, q, v, p, t, data):
+        """``(V0, A_B, g_B)`` of the ``skip_checks`` path's one compiled call: a fixed base's
+        without work, else :meth:`_unchecked_inputs`' (which refuses what the path does not serve)."""
+        if self.base == "fixed" and data is not None and self._curvature:
+            return _ZERO6, None, self._g_B
+        return self._unchecked_inputs(q, v, p, t, data)[3:]
+
     def _vec(self, name: str, x, size: int) -> np.ndarray:
         """Fast shape check; finiteness is checked with the domain
         (:meth:`~qchain.arm.chain.Chain._state`). A float array passes straight; anything else is
